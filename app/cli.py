@@ -1,0 +1,131 @@
+"""The ``sensnake`` command line (SPEC §1).
+
+The parser is the contract; each command's work lives in ``app/commands/<name>.py`` as ``run(args) -> int`` and is
+imported only when that command runs, so ``sensnake fit`` never loads Qt and ``sensnake gui`` never loads casadi.
+Expected failures (bad file, no reply from a servo, CRC storm, …) end with one line on stderr and a non-zero exit;
+set ``SENSNAKE_DEBUG=1`` to see the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+
+# Errors a user can cause and fix. Every project error subclasses one of these builtins
+# (ConfigError(ValueError), NoReplyError(TimeoutError), CsvFormatError(ValueError), …).
+EXPECTED_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, LookupError, RuntimeError)
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sensnake",
+        description="SenSnake Studio: run the snake robot, its force sensors and the calibration rig. "
+        "With no command, opens the desktop app.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    gui = sub.add_parser("gui", help="open the desktop app (default)")
+    _add_gui_options(gui)
+
+    fit = sub.add_parser("fit", help="fit the sensor models to calibration trials")
+    fit.add_argument("trials", nargs="+", metavar="TRIAL.csv", help="calibration trial CSVs (time_s,force_N,conductance_S)")
+    fit.add_argument("--sensor", required=True, metavar="NAME", help="sensor name, e.g. S06B")
+    fit.add_argument("--area", required=True, type=float, metavar="M2", help="sensor active area in m²")
+    fit.add_argument("--physics", metavar="FILE.json", help="resistance–strain constants (a calibration file works)")
+    fit.add_argument("--window", nargs=2, type=float, default=(225.0, 300.0), metavar=("START", "END"),
+                     help="time window in s for the linear model's mean conductance (default 225 300)")
+    fit.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
+
+    estimate = sub.add_parser("estimate", help="conductance → force for every sensor column")
+    estimate.add_argument("input", metavar="IN.csv")
+    estimate.add_argument("--cal", required=True, metavar="CAL.json")
+    estimate.add_argument("--model", choices=("linear", "sls"), default="sls")
+    estimate.add_argument("--out", required=True, metavar="OUT.csv")
+
+    forward = sub.add_parser("forward", help="force → conductance (the model run forwards)")
+    forward.add_argument("input", metavar="IN.csv")
+    forward.add_argument("--cal", required=True, metavar="CAL.json")
+    forward.add_argument("--out", required=True, metavar="OUT.csv")
+
+    scan = sub.add_parser("scan", help="list the servos on a bus")
+    scan.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
+    bauds = scan.add_mutually_exclusive_group()
+    bauds.add_argument("--baud", type=int, default=None, metavar="B")
+    bauds.add_argument("--all-bauds", action="store_true", help="try every Dynamixel baud rate")
+
+    teach = sub.add_parser("teach", help="pose the robot by hand and capture the shape")
+    teach.add_argument("--robot", required=True, metavar="PORT")
+    teach.add_argument("--baud", type=int, default=None, metavar="B")
+    teach.add_argument("--after", type=float, default=None, metavar="SECONDS",
+                       help="capture after this many seconds instead of waiting for Enter")
+    teach.add_argument("--out", required=True, metavar="SHAPE.json")
+    teach.add_argument("--config", metavar="FILE", help="lab config (joint IDs, signs, offsets)")
+
+    play = sub.add_parser("play", help="play a taught shape on the robot")
+    play.add_argument("shape", metavar="SHAPE.json")
+    play.add_argument("--robot", required=True, metavar="PORT")
+    play.add_argument("--baud", type=int, default=None, metavar="B")
+    play.add_argument("--mode", choices=("follow", "keyframes"), default="follow")
+    play.add_argument("--speed", type=float, default=0.034, metavar="RAD_S")
+    play.add_argument("--time-scale", type=float, default=1.0, metavar="X")
+    play.add_argument("--rate", type=float, default=50.0, metavar="HZ")
+    play.add_argument("--shifts", type=int, default=None, metavar="K")
+    play.add_argument("--log", metavar="LOG.csv")
+    play.add_argument("--config", metavar="FILE", help="lab config (joint IDs, signs, offsets, limits)")
+
+    record = sub.add_parser("record", help="record the force-sensor board to HDF5")
+    record.add_argument("--daq", required=True, metavar="PORT")
+    record.add_argument("--baud", type=int, default=None, metavar="B")
+    record.add_argument("--seconds", required=True, type=float, metavar="S")
+    record.add_argument("--out", required=True, metavar="REC.h5")
+    record.add_argument("--config", metavar="FILE", help="lab config (channel map, readout circuit)")
+
+    export = sub.add_parser("export", help="recording → CSV")
+    export.add_argument("recording", metavar="REC.h5")
+    export.add_argument("--csv", required=True, metavar="OUT.csv")
+
+    bench = sub.add_parser("bench", help="print the benchmark tables")
+    bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")
+    return parser
+
+
+def _add_gui_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="lab config TOML (default: the built-in simulated lab)")
+    parser.add_argument("--sim", action="store_true", help="use the simulated lab for every device")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if not argv or (argv[0].startswith("--") and argv[0] not in ("-h", "--help")):
+        argv = ["gui", *argv]
+    args = parser.parse_args(argv)
+    command = args.command or "gui"
+    module = importlib.import_module(f"app.commands.{command}")
+    try:
+        return int(module.run(args) or EXIT_OK)
+    except KeyboardInterrupt:
+        print(f"sensnake {command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except EXPECTED_ERRORS as exc:
+        if os.environ.get("SENSNAKE_DEBUG"):
+            raise
+        print(f"sensnake {command}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return " ".join(text.split())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

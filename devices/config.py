@@ -1,0 +1,222 @@
+"""Lab configuration: frozen dataclasses loaded from TOML and validated at load.
+
+Every quantity carries its unit in its name. An invalid file raises :class:`ConfigError` naming the key
+(``robot.joint_ids[3]``) and the problem, so a lab user can fix the TOML without reading code.
+Any thread may call these functions; the objects are immutable.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+N_JOINTS = 12
+SENSOR_SIDES = ("L", "R", "B")
+SIM_PORT = "sim"
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, of the wrong type or out of range; the message names the key."""
+
+
+def default_sensor_names(n_segments: int = N_JOINTS) -> tuple[str, ...]:
+    """``S01L S01R S01B S02L … S12B`` (SPEC §2)."""
+    return tuple(f"S{seg:02d}{side}" for seg in range(1, n_segments + 1) for side in SENSOR_SIDES)
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """The servo chain on one Dynamixel Protocol 2.0 bus."""
+
+    port: str = SIM_PORT
+    baud: int = 1_000_000
+    joint_ids: tuple[int, ...] = tuple(range(1, N_JOINTS + 1))
+    axes: tuple[str, ...] = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, N_JOINTS + 1))
+    signs: tuple[int, ...] = (1,) * N_JOINTS
+    zero_offsets_rad: tuple[float, ...] = (0.0,) * N_JOINTS
+    joint_min_rad: tuple[float, ...] = (-1.57,) * N_JOINTS
+    joint_max_rad: tuple[float, ...] = (1.57,) * N_JOINTS
+    max_joint_speed_rad_s: float = 1.0
+    control_rate_hz: float = 50.0
+    status_rate_hz: float = 5.0
+    segment_length_m: float = 0.08
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_ids)
+
+
+@dataclass(frozen=True)
+class BoardConfig:
+    """The multiplexing force-sensor board (SPEC §4) and its readout circuit."""
+
+    port: str = SIM_PORT
+    baud: int = 2_000_000
+    rate_hz: float = 30.0
+    channel_names: tuple[str, ...] = field(default_factory=default_sensor_names)
+    v_ref_v: float = 2.5
+    v_supply_v: float = 3.3
+    r_c_ohm: float = 900.0
+    adc_max_counts: int = 4095
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channel_names)
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The calibration rig: a servo winding a cable through a spring onto a probe."""
+
+    port: str = SIM_PORT
+    baud: int = 1_000_000
+    servo_id: int = 1
+    wheel_radius_m: float = 0.02
+    spring_k_n_per_m: float = 246.0
+    sensor: str = "S06B"
+
+
+@dataclass(frozen=True)
+class LabConfig:
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    board: BoardConfig = field(default_factory=BoardConfig)
+    rig: RigConfig = field(default_factory=RigConfig)
+    source_text: str = ""  # the TOML text this was loaded from, stored in recordings
+
+    def with_ports(self, robot: str | None = None, board: str | None = None, rig: str | None = None) -> LabConfig:
+        """A copy with the given ports replaced (``None`` keeps the configured one)."""
+        return replace(
+            self,
+            robot=replace(self.robot, port=robot) if robot else self.robot,
+            board=replace(self.board, port=board) if board else self.board,
+            rig=replace(self.rig, port=rig) if rig else self.rig,
+        )
+
+
+def default_config_path() -> Path:
+    """The packaged default config (simulated lab)."""
+    return Path(str(resources.files("resources").joinpath("default_lab.toml")))
+
+
+def load_config(path: str | Path | None = None) -> LabConfig:
+    """Load and validate a lab config; ``None`` loads the packaged default (simulated lab)."""
+    path = Path(path) if path is not None else default_config_path()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from exc
+    return parse_config(text, source=str(path))
+
+
+def parse_config(text: str, source: str = "<config>") -> LabConfig:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    unknown = set(data) - {"robot", "board", "rig"}
+    if unknown:
+        raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig)")
+    robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
+    board = _build(BoardConfig, data.get("board", {}), "board", source)
+    rig = _build(RigConfig, data.get("rig", {}), "rig", source)
+    _validate_robot(robot, source)
+    _validate_board(board, source)
+    _validate_rig(rig, source)
+    return LabConfig(robot=robot, board=board, rig=rig, source_text=text)
+
+
+def _build(cls: type, table: Any, section: str, source: str) -> Any:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{section}] must be a table")
+    defaults = cls()
+    known = {f.name: f for f in fields(cls)}
+    kwargs: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in known:
+            raise ConfigError(f"{source}: unknown key {section}.{key} (known: {', '.join(sorted(known))})")
+        kwargs[key] = _coerce(value, getattr(defaults, key), f"{section}.{key}", source)
+    return cls(**kwargs)
+
+
+def _coerce(value: Any, default: Any, key: str, source: str) -> Any:
+    """Coerce a TOML value to the type of the default, or name the key and the problem."""
+    if isinstance(default, tuple):
+        if not isinstance(value, list):
+            raise ConfigError(f"{source}: {key} must be a list, got {type(value).__name__}")
+        element = default[0] if default else value[0] if value else 0
+        return tuple(_coerce(v, element, f"{key}[{i}]", source) for i, v in enumerate(value))
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: {key} must be true or false")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{source}: {key} must be an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{source}: {key} must be finite, got {value!r}")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{source}: {key} must be a string, got {value!r}")
+        return value
+    return value
+
+
+def _require(ok: bool, source: str, key: str, problem: str) -> None:
+    if not ok:
+        raise ConfigError(f"{source}: {key} {problem}")
+
+
+def _validate_robot(robot: RobotConfig, source: str) -> None:
+    n = robot.n_joints
+    _require(n >= 1, source, "robot.joint_ids", "must list at least one servo ID")
+    _require(len(set(robot.joint_ids)) == n, source, "robot.joint_ids", "has duplicate IDs")
+    for i, sid in enumerate(robot.joint_ids):
+        _require(0 <= sid <= 252, source, f"robot.joint_ids[{i}]", f"= {sid} is not a Dynamixel ID (0…252)")
+    for name in ("axes", "signs", "zero_offsets_rad", "joint_min_rad", "joint_max_rad"):
+        _require(len(getattr(robot, name)) == n, source, f"robot.{name}",
+                 f"has {len(getattr(robot, name))} entries but robot.joint_ids has {n}")
+    for i, axis in enumerate(robot.axes):
+        _require(axis in ("pitch", "yaw"), source, f"robot.axes[{i}]", f"= {axis!r} must be 'pitch' or 'yaw'")
+    for i, sign in enumerate(robot.signs):
+        _require(sign in (1, -1), source, f"robot.signs[{i}]", f"= {sign} must be 1 or -1")
+    for i, (lo, hi) in enumerate(zip(robot.joint_min_rad, robot.joint_max_rad)):
+        _require(lo < hi, source, f"robot.joint_min_rad[{i}]", f"= {lo} must be below robot.joint_max_rad[{i}] = {hi}")
+        _require(-math.pi <= lo and hi <= math.pi, source, f"robot.joint_max_rad[{i}]", "limits must lie within ±π")
+    _require(robot.baud > 0, source, "robot.baud", "must be positive")
+    _require(robot.max_joint_speed_rad_s > 0, source, "robot.max_joint_speed_rad_s", "must be positive")
+    _require(0 < robot.control_rate_hz <= 1000, source, "robot.control_rate_hz", "must be in (0, 1000]")
+    _require(0 < robot.status_rate_hz <= 100, source, "robot.status_rate_hz", "must be in (0, 100]")
+    _require(robot.segment_length_m > 0, source, "robot.segment_length_m", "must be positive")
+
+
+def _validate_board(board: BoardConfig, source: str) -> None:
+    n = board.n_channels
+    _require(1 <= n <= 1024, source, "board.channel_names", f"has {n} channels; the board carries 1…1024")
+    _require(len(set(board.channel_names)) == n, source, "board.channel_names", "has duplicate names")
+    _require(board.baud > 0, source, "board.baud", "must be positive")
+    _require(0 < board.rate_hz <= 10_000, source, "board.rate_hz", "must be in (0, 10000]")
+    _require(board.r_c_ohm > 0, source, "board.r_c_ohm", "must be positive")
+    _require(board.v_ref_v > 0, source, "board.v_ref_v", "must be positive")
+    _require(board.v_supply_v > 0, source, "board.v_supply_v", "must be positive")
+    _require(board.adc_max_counts > 0, source, "board.adc_max_counts", "must be positive")
+
+
+def _validate_rig(rig: RigConfig, source: str) -> None:
+    _require(0 <= rig.servo_id <= 252, source, "rig.servo_id", f"= {rig.servo_id} is not a Dynamixel ID (0…252)")
+    _require(rig.wheel_radius_m > 0, source, "rig.wheel_radius_m", "must be positive")
+    _require(rig.spring_k_n_per_m > 0, source, "rig.spring_k_n_per_m", "must be positive")
+    _require(rig.baud > 0, source, "rig.baud", "must be positive")

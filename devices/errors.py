@@ -1,0 +1,62 @@
+"""Device errors: a small hierarchy whose members also inherit the builtin a caller would expect.
+
+Messages are written for the lab user: they say what happened, to which servo or port, and what to do.
+"""
+
+from __future__ import annotations
+
+
+class DeviceError(RuntimeError):
+    """Base of every hardware error raised by ``devices``."""
+
+
+class PortOpenError(DeviceError, OSError):
+    """A serial port could not be opened (missing device, permissions, in use)."""
+
+
+class LinkLostError(DeviceError, ConnectionError):
+    """The cable was pulled or the adapter vanished while the port was open."""
+
+
+class NoReplyError(DeviceError, TimeoutError):
+    """A servo did not answer within the packet timeout."""
+
+    def __init__(self, servo_id: int, detail: str = "") -> None:
+        self.servo_id = servo_id
+        extra = f" ({detail})" if detail else ""
+        super().__init__(f"no reply from servo {servo_id}{extra}: check its cable, power, ID and baud rate")
+
+
+class CorruptPacketError(DeviceError):
+    """A status packet failed its CRC or was malformed."""
+
+    def __init__(self, servo_id: int | None, detail: str = "") -> None:
+        self.servo_id = servo_id
+        who = f"servo {servo_id}" if servo_id is not None else "the bus"
+        extra = f" ({detail})" if detail else ""
+        super().__init__(f"corrupt packet from {who}{extra}: check the bus wiring and termination")
+
+
+class ServoHardwareError(DeviceError):
+    """A servo reported a hardware error (overload, overheating, voltage, encoder, shock)."""
+
+    def __init__(self, servo_id: int, error_names: tuple[str, ...]) -> None:
+        self.servo_id = servo_id
+        self.error_names = error_names
+        what = ", ".join(error_names) or "hardware error"
+        super().__init__(
+            f"servo {servo_id} {what}: motion stopped; remove the load, then reboot servo {servo_id} "
+            "(Hardware tab → Reboot) to clear it"
+        )
+
+
+class ModelMismatchError(DeviceError, ValueError):
+    """A servo answered with a model number other than the one the driver is written for."""
+
+
+class JointLimitError(DeviceError, ValueError):
+    """A requested motion cannot be made within the configured joint limits or speed."""
+
+
+class BoardProtocolError(DeviceError, ValueError):
+    """The force-sensor board's stream does not match the configuration (e.g. channel count)."""

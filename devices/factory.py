@@ -1,0 +1,64 @@
+"""The one place that decides between real and simulated hardware.
+
+A port named ``sim`` (SPEC §1) connects to the process-wide simulated lab; anything else is an OS serial device.
+Drivers never import ``devices.sim``; they ask this module for a port. Tests install their own seeded, faster-than-
+real-time lab with :func:`install_sim_lab`.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import serial
+
+from devices.config import SIM_PORT, LabConfig
+from devices.errors import PortOpenError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from devices.sim.lab import SimLab
+
+DEVICE_KINDS = ("robot", "board", "rig")
+
+_lab_lock = threading.Lock()
+_lab: SimLab | None = None
+
+
+def is_sim(port: str) -> bool:
+    return port.strip().lower() == SIM_PORT
+
+
+def sim_lab(config: LabConfig | None = None) -> SimLab:
+    """The process-wide simulated lab, created on first use (from ``config`` or the defaults)."""
+    global _lab
+    with _lab_lock:
+        if _lab is None:
+            from devices.sim.lab import SimLab
+
+            _lab = SimLab(config)
+        return _lab
+
+
+def install_sim_lab(lab: SimLab | None) -> SimLab | None:
+    """Replace the process-wide simulated lab (``None`` drops it); returns the previous one."""
+    global _lab
+    with _lab_lock:
+        previous, _lab = _lab, lab
+        return previous
+
+
+def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0) -> serial.SerialBase:
+    """Open ``port`` for ``device`` (one of :data:`DEVICE_KINDS`); ``sim`` gives the simulated device's port."""
+    if device not in DEVICE_KINDS:
+        raise ValueError(f"unknown device kind {device!r}; expected one of {DEVICE_KINDS}")
+    if is_sim(port):
+        from devices.sim.transport import SimSerial
+
+        return SimSerial(sim_lab().endpoint(device), port=SIM_PORT, baudrate=baud, timeout=timeout_s)
+    try:
+        return serial.Serial(port=port, baudrate=baud, timeout=timeout_s)
+    except (serial.SerialException, OSError) as exc:
+        raise PortOpenError(
+            f"cannot open {device} port {port}: {exc}. Check the cable and the port name "
+            "(Linux: /dev/ttyUSB0, Windows: COM3), or use 'sim' for the simulated lab"
+        ) from exc

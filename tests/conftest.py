@@ -1,0 +1,49 @@
+"""Shared test fixtures.
+
+Qt runs offscreen. Every test must leave no thread running: a test that starts a reader, worker or timer thread
+stops it, or this fixture fails it (napari's rule). Hardware tests are skipped unless SENSNAKE_HARDWARE=1.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import pytest
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+THREAD_JOIN_GRACE_S = 3.0
+
+
+@pytest.fixture(autouse=True)
+def no_thread_left_running():
+    before = set(threading.enumerate())
+    yield
+    leftover = [t for t in threading.enumerate() if t not in before and t.is_alive()]
+    for thread in leftover:
+        thread.join(timeout=THREAD_JOIN_GRACE_S)
+    still = [t.name for t in leftover if t.is_alive()]
+    assert not still, f"test left threads running: {still}"
+
+
+@pytest.fixture
+def sim_lab_fast():
+    """A seeded simulated lab running 20× faster than real time, installed for the test and removed after."""
+    from devices import factory
+    from devices.sim.lab import SimLab
+
+    lab = SimLab(seed=1234, speed=20.0)
+    previous = factory.install_sim_lab(lab)
+    yield lab
+    factory.install_sim_lab(previous)
+
+
+def pytest_collection_modifyitems(config, items):
+    if os.environ.get("SENSNAKE_HARDWARE") == "1":
+        return
+    skip = pytest.mark.skip(reason="needs real hardware (set SENSNAKE_HARDWARE=1)")
+    for item in items:
+        if "hardware" in item.keywords:
+            item.add_marker(skip)
