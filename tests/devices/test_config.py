@@ -1,0 +1,70 @@
+"""Lab configuration: the packaged default loads, and every kind of mistake names its key."""
+
+from __future__ import annotations
+
+import pytest
+
+from devices.config import ConfigError, LabConfig, default_sensor_names, load_config, parse_config
+
+
+def test_default_config_is_the_simulated_lab():
+    config = load_config()
+    assert config.robot.port == "sim" and config.board.port == "sim" and config.rig.port == "sim"
+    assert config.robot.joint_ids == tuple(range(1, 13))
+    assert config.robot.axes[:2] == ("pitch", "yaw")
+    assert config.board.channel_names[:4] == ("S01L", "S01R", "S01B", "S02L")
+    assert config.board.n_channels == 36
+    assert config.rig.spring_k_n_per_m == 246.0
+    assert "[robot]" in config.source_text
+
+
+def test_sensor_names_follow_the_channel_rule():
+    names = default_sensor_names()
+    # channel k = 3·(segment−1) + {L:0, R:1, B:2}
+    assert names[3 * (6 - 1) + 2] == "S06B"
+    assert names[3 * (12 - 1) + 0] == "S12L"
+
+
+def test_partial_file_keeps_defaults():
+    config = parse_config('[robot]\nport = "/dev/ttyUSB0"\n')
+    assert config.robot.port == "/dev/ttyUSB0"
+    assert config.robot.baud == LabConfig().robot.baud
+    assert config.board == LabConfig().board
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ("[robot]\nbaud = 'fast'\n", "robot.baud"),
+        ("[robot]\njoint_ids = [1, 2, 2]\n", "robot.joint_ids"),
+        ("[robot]\njoint_ids = [1, 2, 300]\nsigns=[1,1,1]\naxes=['pitch','yaw','pitch']\n"
+         "zero_offsets_rad=[0.0,0.0,0.0]\njoint_min_rad=[-1.0,-1.0,-1.0]\njoint_max_rad=[1.0,1.0,1.0]\n",
+         "robot.joint_ids[2]"),
+        ("[robot]\naxes = ['pitch']\n", "robot.axes"),
+        ("[robot]\nsigns = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 2]\n", "robot.signs[11]"),
+        ("[robot]\njoint_min_rad = [2.0, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1]\n", "robot.joint_min_rad[0]"),
+        ("[robot]\nspeed = 3\n", "robot.speed"),
+        ("[board]\nr_c_ohm = -900.0\n", "board.r_c_ohm"),
+        ("[board]\nchannel_names = ['A', 'A']\n", "board.channel_names"),
+        ("[rig]\nspring_k_n_per_m = 0\n", "rig.spring_k_n_per_m"),
+        ("[rig]\nwheel_radius_m = nan\n", "rig.wheel_radius_m"),
+        ("[robots]\n", "robots"),
+    ],
+)
+def test_invalid_config_names_the_key(text, key):
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, source="lab.toml")
+    message = str(info.value)
+    assert key in message
+    assert message.startswith("lab.toml")
+
+
+def test_broken_toml_and_missing_file_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        parse_config("[robot\n")
+    with pytest.raises(ConfigError, match="cannot read config file"):
+        load_config(tmp_path / "missing.toml")
+
+
+def test_config_error_is_a_value_error():
+    assert issubclass(ConfigError, ValueError)
