@@ -1,0 +1,205 @@
+"""Streaming per-sensor health for the force-sensor board: pure numpy, no Qt, no I/O.
+
+A :class:`HealthMonitor` keeps the last ``window_s`` seconds of every sensor's conductance in a preallocated ring and,
+at most every ``eval_interval_s``, classifies each sensor:
+
+- ``DISCONNECTED``: every sample in the window reads open (conductance ≤ ``open_s``): a cable is off.
+- ``DROPOUT``: some samples read open and some do not: a loose connection dropping in and out.
+- ``NOISY``: the sample-to-sample noise is far above the other sensors' (the paper's loose sensor 10, 3R, 4B, 11L).
+- ``FLAT``: the reading has not changed by more than ``flat_tol_s`` in the whole window while most sensors have:
+  a stuck channel or a frozen multiplexer line.
+- ``SATURATED``: the board flagged saturation (ADC counts = 0) at least once in the window.
+- ``BELOW_BASELINE``: the window's median sits clearly below the sensor's resting baseline (measured over the first
+  ``baseline_s`` seconds, or set with :meth:`HealthMonitor.set_baseline`): the paper's "negative pressure" drift.
+
+Noise and flatness are judged against the population of sensors because the absolute noise of a sensor depends on
+its load and the readout; a lone sensor (``n_sensors < 4``) is judged on the absolute thresholds only.
+
+Thread use: a monitor is not thread-safe; call it from one thread (the GUI thread in the Forces tab).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class SensorHealth(enum.IntFlag):
+    OK = 0
+    FLAT = 1
+    NOISY = 2
+    DROPOUT = 4
+    DISCONNECTED = 8
+    SATURATED = 16
+    BELOW_BASELINE = 32
+
+
+_FLAG_WORDS = {
+    SensorHealth.DISCONNECTED: "disconnected",
+    SensorHealth.DROPOUT: "dropping out",
+    SensorHealth.NOISY: "noisy (loose?)",
+    SensorHealth.FLAT: "flat-lined",
+    SensorHealth.SATURATED: "saturated",
+    SensorHealth.BELOW_BASELINE: "below baseline",
+}
+
+# Flags that mean the reading cannot be trusted at all (shown in red); the others are warnings.
+BAD_FLAGS = SensorHealth.DISCONNECTED | SensorHealth.DROPOUT | SensorHealth.NOISY | SensorHealth.FLAT
+
+
+def describe(flags: int) -> str:
+    """Human words for a flag value, e.g. ``"noisy (loose?), saturated"``; ``"ok"`` for none."""
+    words = [word for flag, word in _FLAG_WORDS.items() if flags & flag]
+    return ", ".join(words) if words else "ok"
+
+
+@dataclass(frozen=True)
+class HealthThresholds:
+    """Detection thresholds; conductances in siemens, times in seconds."""
+
+    window_s: float = 2.0
+    eval_interval_s: float = 0.25
+    open_s: float = 1e-6              # at or below this a channel reads open circuit
+    flat_tol_s: float = 0.0           # range within which a window counts as "did not move"
+    noisy_factor: float = 6.0         # × the population's median noise
+    noisy_min_s: float = 2e-6         # absolute floor for "noisy" (≈ 5 ADC steps of the default readout)
+    baseline_s: float = 3.0
+    below_baseline_frac: float = 0.15  # median this fraction below the baseline
+
+
+@dataclass(frozen=True)
+class HealthReport:
+    """One evaluation: ``flags`` (C,) uint8 of :class:`SensorHealth`; ``noise_s`` and ``level_s`` per sensor (S);
+    ``changed`` the sensor indices whose flags differ from the previous evaluation."""
+
+    t_s: float
+    flags: np.ndarray
+    noise_s: np.ndarray
+    level_s: np.ndarray
+    changed: np.ndarray
+
+
+class HealthMonitor:
+    """Streaming health classifier over ``n_sensors`` channels sampled at about ``rate_hz``."""
+
+    def __init__(self, n_sensors: int, rate_hz: float, thresholds: HealthThresholds | None = None) -> None:
+        if n_sensors < 1:
+            raise ValueError(f"n_sensors must be ≥ 1, got {n_sensors}")
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.thresholds = thresholds or HealthThresholds()
+        self.n_sensors = n_sensors
+        self._capacity = max(8, int(round(self.thresholds.window_s * rate_hz)))
+        self._values = np.zeros((self._capacity, n_sensors))
+        self._saturated = np.zeros((self._capacity, n_sensors), dtype=bool)
+        self._times = np.zeros(self._capacity)
+        self._baseline_need = max(4, int(round(self.thresholds.baseline_s * rate_hz)))
+        self._baseline_sum = np.zeros(n_sensors)
+        self._baseline_samples: list[np.ndarray] = []
+        self._baseline_count = 0
+        self.baseline_s: np.ndarray | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the window (e.g. after a reconnect); the baseline is kept."""
+        self._write = 0
+        self._filled = 0
+        self._last_eval_t = -np.inf
+        self.flags = np.zeros(self.n_sensors, dtype=np.uint8)
+        self.report: HealthReport | None = None
+
+    def set_baseline(self, baseline_s: np.ndarray) -> None:
+        """Set the resting conductance (S) of every sensor instead of measuring it."""
+        baseline_s = np.asarray(baseline_s, dtype=float)
+        if baseline_s.shape != (self.n_sensors,):
+            raise ValueError(f"baseline must have shape ({self.n_sensors},), got {baseline_s.shape}")
+        self.baseline_s = baseline_s.copy()
+
+    def update(self, t_s: np.ndarray, conductance_s: np.ndarray,
+               saturated: np.ndarray | None = None) -> HealthReport | None:
+        """Add samples: ``t_s`` (N,) seconds, ``conductance_s`` (N×C) siemens, ``saturated`` (N×C) bool.
+
+        Returns a new :class:`HealthReport` when an evaluation was due (at most every ``eval_interval_s``), else
+        ``None``; the latest flags are always in :attr:`flags`.
+        """
+        t_s = np.asarray(t_s, dtype=float)
+        values = np.asarray(conductance_s, dtype=float)
+        if values.ndim != 2 or values.shape[1] != self.n_sensors or values.shape[0] != t_s.shape[0]:
+            raise ValueError(f"expected t (N,) and conductance (N×{self.n_sensors}), got {t_s.shape}, {values.shape}")
+        n = values.shape[0]
+        if n == 0:
+            return None
+        if saturated is None:
+            saturated = np.zeros(values.shape, dtype=bool)
+        self._collect_baseline(values)
+        if n > self._capacity:
+            t_s, values, saturated = t_s[-self._capacity:], values[-self._capacity:], saturated[-self._capacity:]
+            n = self._capacity
+        first = min(n, self._capacity - self._write)
+        for src, dst in ((slice(0, first), slice(self._write, self._write + first)),
+                         (slice(first, n), slice(0, n - first))):
+            self._values[dst] = values[src]
+            self._saturated[dst] = saturated[src]
+            self._times[dst] = t_s[src]
+        self._write = (self._write + n) % self._capacity
+        self._filled = min(self._capacity, self._filled + n)
+        now = float(t_s[-1])
+        if now - self._last_eval_t < self.thresholds.eval_interval_s:
+            return None
+        self._last_eval_t = now
+        return self._evaluate(now)
+
+    # -- internals -------------------------------------------------------------------------------------------------
+    def _collect_baseline(self, values: np.ndarray) -> None:
+        if self.baseline_s is not None:
+            return
+        take = values[: self._baseline_need - self._baseline_count]
+        self._baseline_samples.append(take.copy())
+        self._baseline_count += take.shape[0]
+        if self._baseline_count >= self._baseline_need:
+            # Median, not mean: the baseline must not be dragged by a touch during start-up.
+            self.baseline_s = np.median(np.concatenate(self._baseline_samples), axis=0)
+            self._baseline_samples = []
+
+    def _ordered(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._filled < self._capacity:
+            return self._values[: self._filled], self._saturated[: self._filled]
+        order = np.r_[self._write:self._capacity, 0:self._write]
+        return self._values[order], self._saturated[order]
+
+    def _evaluate(self, now_s: float) -> HealthReport:
+        th = self.thresholds
+        values, saturated = self._ordered()
+        flags = np.zeros(self.n_sensors, dtype=np.uint8)
+        is_open = values <= th.open_s
+        open_count = is_open.sum(axis=0)
+        level = np.median(values, axis=0)
+        noise = np.zeros(self.n_sensors)
+        if values.shape[0] >= 3:
+            # Median |second difference| ignores ramps and isolated steps (real contacts) but not chatter.
+            noise = np.median(np.abs(np.diff(values, n=2, axis=0)), axis=0) / 1.95
+        full = self._filled >= self._capacity
+        if full:
+            disconnected = open_count == values.shape[0]
+            flags[disconnected] |= np.uint8(SensorHealth.DISCONNECTED)
+            flags[(open_count > 0) & ~disconnected] |= np.uint8(SensorHealth.DROPOUT)
+            connected = ~disconnected
+            value_range = np.ptp(values, axis=0)
+            moving = value_range[connected] > th.flat_tol_s
+            population_moves = self.n_sensors < 4 or (moving.size > 0 and np.mean(moving) > 0.5)
+            if population_moves:
+                flags[connected & (value_range <= th.flat_tol_s)] |= np.uint8(SensorHealth.FLAT)
+            noisy = noise > th.noisy_min_s
+            if self.n_sensors >= 4 and connected.any():
+                noisy &= noise > th.noisy_factor * np.median(noise[connected])
+            flags[noisy & connected & (open_count == 0)] |= np.uint8(SensorHealth.NOISY)
+            if self.baseline_s is not None:
+                below = level < self.baseline_s * (1.0 - th.below_baseline_frac)
+                flags[below & (open_count == 0) & (self.baseline_s > th.open_s)] |= np.uint8(SensorHealth.BELOW_BASELINE)
+        flags[saturated.any(axis=0)] |= np.uint8(SensorHealth.SATURATED)
+        changed = np.flatnonzero(flags != self.flags)
+        self.flags = flags
+        self.report = HealthReport(t_s=now_s, flags=flags, noise_s=noise, level_s=level, changed=changed)
+        return self.report
