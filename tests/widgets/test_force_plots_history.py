@@ -1,0 +1,71 @@
+"""widgets/ring_plot.py TraceHistory: bounded memory, exact recent data, peaks kept when decimated."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from widgets.ring_plot import TraceHistory
+
+
+def feed(history: TraceHistory, n_samples: int, rate_hz: float, block: int = 7, spike_at: int | None = None):
+    rng = np.random.default_rng(0)
+    t_all = np.arange(n_samples) / rate_hz
+    y_all = np.sin(t_all)[:, None] + 0.01 * rng.standard_normal((n_samples, history.n_channels))
+    if spike_at is not None:
+        y_all[spike_at, 1] = 50.0
+    for start in range(0, n_samples, block):
+        history.append(t_all[start:start + block], y_all[start:start + block])
+    return t_all, y_all.astype(np.float32)
+
+
+def test_recent_window_is_exact():
+    history = TraceHistory(3, capacity=1000)
+    t, y = feed(history, 600, 30.0)
+    window = history.window(t[500], t[-1], max_points=1000)
+    assert window.level == 0
+    np.testing.assert_array_equal(window.t_s, t[499:])
+    np.testing.assert_array_equal(window.low, y[499:])
+    assert history.latest()[0] == pytest.approx(t[-1])
+
+
+def test_memory_is_fixed_and_old_data_stays_browsable_coarsely():
+    history = TraceHistory(2, capacity=256, levels=3, factor=8)
+    nbytes = history.nbytes
+    t, y = feed(history, 20_000, 100.0, block=33, spike_at=1000)
+    assert history.nbytes == nbytes
+    assert len(history) == 256
+    oldest, newest = history.span()
+    assert newest == pytest.approx(t[-1])
+    assert oldest < t[-256] - 100  # much older than level 0 alone could hold
+    window = history.window(oldest, newest, max_points=200)
+    assert window.t_s.size <= 2 * 200
+    assert window.level >= 1
+    assert window.high[:, 1].max() == pytest.approx(50.0)  # the single-sample spike survives decimation
+    assert np.all(np.diff(window.t_s) > 0)
+
+
+def test_dense_window_is_peak_decimated_to_the_budget():
+    history = TraceHistory(2, capacity=50_000)
+    t, _ = feed(history, 30_000, 100.0, block=100, spike_at=12_345)
+    window = history.window(t[0], t[-1], max_points=500)
+    assert window.t_s.size <= 600
+    x, y = window.peak_interleaved(1)
+    assert x.size == 2 * window.t_s.size
+    assert y.max() == pytest.approx(50.0)
+    assert window.t_s[-1] == pytest.approx(t[-1], abs=0.02)
+
+
+def test_value_at_finds_nearest_sample():
+    history = TraceHistory(2, capacity=100)
+    t, y = feed(history, 90, 10.0)
+    found_t, values = history.value_at(t[40] + 0.01)
+    assert found_t == pytest.approx(t[40])
+    np.testing.assert_allclose(values, y[40])
+
+
+def test_shape_mismatch_raises_and_budget_is_respected():
+    history = TraceHistory.for_budget(36, 4_000_000)
+    assert 3_000_000 < history.nbytes <= 4_200_000
+    with pytest.raises(ValueError, match="N×36"):
+        history.append(np.zeros(2), np.zeros((2, 35)))
