@@ -1,0 +1,101 @@
+"""The lab as the GUI sees it: the configuration, the robot bridge, the force-sensor board bridge, the recording.
+
+One :class:`LabContext` is created by ``sensnake gui`` and handed to every tab (``create_tab(lab)``). Ports named
+``sim`` reach the simulated lab; :mod:`devices.factory` makes that decision, not this module.
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from PySide6.QtCore import QObject, Signal
+
+from app.robot_bridge import RobotBridge
+from devices.config import LabConfig
+from devices.factory import is_sim
+
+BOARD_BRIDGE_MODULE = "app.board_bridge"
+
+
+class LabContext(QObject):
+    """Holds the lab's devices for the GUI.
+
+    ``robot`` is a :class:`RobotBridge`; ``board`` is the BoardBridge from ``app/board_bridge.py`` created on first
+    use (``None`` while that module is not part of the build: ``board_unavailable_reason`` says so); ``recording``
+    is the active recording session (set by the Forces tab; ``recording_changed`` is emitted when it changes).
+    """
+
+    recording_changed = Signal(object)
+    board_created = Signal(object)
+
+    def __init__(self, config: LabConfig, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.config = config
+        self.robot = RobotBridge(config.robot, self)
+        self._board: Any = None
+        self._board_loaded = False
+        self.board_unavailable_reason = ""
+        self._recording: Any = None
+        self._closed = False
+
+    # -- board (created lazily so the app starts even before the board bridge exists) ------------------------------
+    @property
+    def board(self) -> Any:
+        """The BoardBridge (``BoardBridge(config.board, parent)``), or None if ``app/board_bridge.py`` is missing."""
+        if not self._board_loaded and not self._closed:
+            self._board_loaded = True
+            try:
+                module = importlib.import_module(BOARD_BRIDGE_MODULE)
+            except ModuleNotFoundError as exc:
+                if exc.name != BOARD_BRIDGE_MODULE:
+                    raise
+                self.board_unavailable_reason = "board support is not built yet (app/board_bridge.py missing)"
+                return None
+            self._board = module.BoardBridge(self.config.board, self)
+            self.board_created.emit(self._board)
+        return self._board
+
+    @property
+    def board_if_created(self) -> Any:
+        """The board bridge if something already asked for it, without creating it."""
+        return self._board
+
+    # -- recording -------------------------------------------------------------------------------------------------
+    @property
+    def recording(self) -> Any:
+        """The active recording session or None."""
+        return self._recording
+
+    @recording.setter
+    def recording(self, session: Any) -> None:
+        self._recording = session
+        self.recording_changed.emit(session)
+
+    # -- life cycle ------------------------------------------------------------------------------------------------
+    @property
+    def is_all_sim(self) -> bool:
+        return all(is_sim(port) for port in (self.config.robot.port, self.config.board.port, self.config.rig.port))
+
+    def connect_all(self) -> None:
+        """Connect the robot and start the board (each on its own worker; returns at once)."""
+        self.robot.connect_robot()
+        board = self.board
+        if board is not None:
+            board.start()
+
+    def close(self) -> None:
+        """Stop recording, stop every device and join their threads. Blocks briefly; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        recording = self._recording
+        if recording is not None and hasattr(recording, "stop"):
+            recording.stop()
+        self.robot.close()
+        if self._board is not None:
+            self._board.stop()
+            close = getattr(self._board, "close", None)
+            if close is not None:
+                close()

@@ -1,0 +1,330 @@
+"""The main window: five tabs, the menu, and the status bar with STOP.
+
+Tabs are built from ``app/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
+only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
+do. STOP (the red button, or Esc anywhere in the app) calls ``lab.robot.emergency_stop()``.
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from PySide6.QtCore import QByteArray, QSettings, Qt
+from PySide6.QtGui import QAction, QCloseEvent, QKeySequence, QShortcut
+from PySide6.QtWidgets import (
+    QFileDialog,
+    QMainWindow,
+    QMessageBox,
+    QTabWidget,
+    QVBoxLayout,
+    QWidget,
+)
+
+from app.lab import LabContext
+from devices.config import ConfigError, load_config
+from widgets import theme
+from widgets.placeholder import PlaceholderPage
+from widgets.status_bar import LabStatusBar
+
+APP_NAME = "SenSnake Studio"
+ORGANIZATION = "SenSnake"
+DEFAULT_SIZE = (1280, 820)
+MINIMUM_SIZE = (960, 600)
+EVENT_KEEPS_ERROR_S = 8.0  # an informational message does not hide an error younger than this
+
+
+@dataclass(frozen=True)
+class TabSpec:
+    name: str  # module app/tabs/<name>.py
+    title: str
+    description: str
+
+
+TABS: tuple[TabSpec, ...] = (
+    TabSpec("teach", "Teach", "Pose the robot by hand with torque off and capture shapes: live joint angles while "
+            "you pose, a keyframe list, torque back on holding the captured pose, and a shape library."),
+    TabSpec("gait", "Gait", "Replay a shape follow-the-leader, play keyframes, or run parametric gaits "
+            "(serpenoid, sidewinding) with speed, rate and progress shown on the drawn body."),
+    TabSpec("calibration", "Calibration", "Drive the calibration rig through the 4-force × 3-trial protocol and "
+            "fit the sensor models (linear and creep-aware SLS) to the recorded trials."),
+    TabSpec("forces", "Forces", "Live per-segment force plots, the body force map, sensor health, and recording "
+            "to HDF5 with replay and trial overlay."),
+    TabSpec("hardware", "Hardware", "Connect to the servo bus, scan for servos, watch each servo's position, "
+            "current, temperature, voltage and errors, toggle torque and LEDs, reboot, and check the link."),
+)
+
+SHORTCUTS_TEXT = (
+    "<table cellspacing=6>"
+    "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on)</td></tr>"
+    "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
+    "<tr><td><b>Ctrl+1 … Ctrl+5</b></td><td>Teach, Gait, Calibration, Forces, Hardware</td></tr>"
+    "<tr><td><b>Ctrl+Q</b></td><td>Quit (devices are shut down cleanly)</td></tr>"
+    "</table>"
+)
+
+
+def tab_index(name: str) -> int:
+    """Position of tab ``name`` (``teach`` … ``hardware``)."""
+    for index, spec in enumerate(TABS):
+        if spec.name == name:
+            return index
+    raise LookupError(f"no tab named {name!r}; tabs are {', '.join(s.name for s in TABS)}")
+
+
+class MainWindow(QMainWindow):
+    """SenSnake Studio's window around one :class:`LabContext` (which it closes when it closes)."""
+
+    def __init__(self, lab: LabContext, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        self.settings = settings if settings is not None else QSettings(ORGANIZATION, APP_NAME)
+        self.config_path: Path | None = None
+        self._last_error_s = -1e9
+        self._built: dict[str, QWidget] = {}
+
+        self.setWindowTitle(APP_NAME)
+        self.setMinimumSize(*MINIMUM_SIZE)
+        self.resize(*DEFAULT_SIZE)
+
+        self.tabs = QTabWidget()
+        self.tabs.setDocumentMode(True)
+        self._containers: list[QWidget] = []
+        for spec in TABS:
+            container = QWidget()
+            container.setObjectName(f"tab_{spec.name}")
+            layout = QVBoxLayout(container)
+            layout.setContentsMargins(0, 0, 0, 0)
+            self._containers.append(container)
+            self.tabs.addTab(container, spec.title)
+            self.tabs.setTabToolTip(len(self._containers) - 1, spec.description)
+        self.setCentralWidget(self.tabs)
+
+        self.status = LabStatusBar()
+        self.setStatusBar(self.status)
+        self.status.stop_requested.connect(self.emergency_stop)
+        # Esc must reach STOP whatever has focus (a table, a dialog-less tab, a plot), hence application-wide.
+        self.stop_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
+        self.stop_shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self.stop_shortcut.activated.connect(self.emergency_stop)
+
+        self._build_menus()
+        self._attach_lab()
+        self._restore_settings()
+        self.tabs.currentChanged.connect(self._ensure_tab)
+        self._ensure_tab(self.tabs.currentIndex())
+
+    # -- tabs ------------------------------------------------------------------------------------------------------
+    def tab_widget(self, name: str) -> QWidget | None:
+        """The built page of tab ``name`` (None until it has been shown or :meth:`show_tab` was called)."""
+        return self._built.get(name)
+
+    def show_tab(self, name: str) -> QWidget:
+        """Switch to tab ``name``, building it if needed; returns its page."""
+        index = tab_index(name)
+        self.tabs.setCurrentIndex(index)
+        self._ensure_tab(index)
+        return self._built[name]
+
+    def _ensure_tab(self, index: int) -> None:
+        if index < 0:
+            return
+        spec = TABS[index]
+        if spec.name in self._built:
+            return
+        page = self._create_page(spec)
+        self._built[spec.name] = page
+        self._containers[index].layout().addWidget(page)
+
+    def _create_page(self, spec: TabSpec) -> QWidget:
+        module_name = f"app.tabs.{spec.name}"
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                return PlaceholderPage(spec.title, spec.description,
+                                       f"This tab could not be loaded: {exc}. Install the missing package.")
+            return PlaceholderPage(spec.title, spec.description, "This tab is not part of this build yet.")
+        except ImportError as exc:
+            return PlaceholderPage(spec.title, spec.description, f"This tab could not be loaded: {exc}")
+        try:
+            return module.create_tab(self.lab)
+        except (ValueError, OSError, LookupError, RuntimeError) as exc:
+            # A tab failing to build (bad shape library file, missing resource) must not take the window down.
+            self.status.show_message(f"{spec.title} tab: {exc}", theme.ERROR)
+            return PlaceholderPage(spec.title, spec.description, f"This tab failed to start: {exc}")
+
+    def _drop_tabs(self) -> None:
+        for name, page in list(self._built.items()):
+            page.setParent(None)
+            page.deleteLater()
+            del self._built[name]
+
+    # -- menus -----------------------------------------------------------------------------------------------------
+    def _build_menus(self) -> None:
+        file_menu = self.menuBar().addMenu("&File")
+        self.open_config_action = QAction("&Open config…", self)
+        self.open_config_action.setShortcut(QKeySequence.StandardKey.Open)
+        self.open_config_action.triggered.connect(self._choose_config)
+        file_menu.addAction(self.open_config_action)
+        file_menu.addSeparator()
+        self.quit_action = QAction("&Quit", self)
+        self.quit_action.setShortcut(QKeySequence("Ctrl+Q"))
+        self.quit_action.triggered.connect(self.close)
+        file_menu.addAction(self.quit_action)
+
+        help_menu = self.menuBar().addMenu("&Help")
+        self.shortcuts_action = QAction("&Keyboard shortcuts", self)
+        self.shortcuts_action.triggered.connect(self._show_shortcuts)
+        help_menu.addAction(self.shortcuts_action)
+        self.about_action = QAction(f"&About {APP_NAME}", self)
+        self.about_action.triggered.connect(self._show_about)
+        help_menu.addAction(self.about_action)
+
+        for index in range(len(TABS)):
+            shortcut = QShortcut(QKeySequence(f"Ctrl+{index + 1}"), self)
+            shortcut.activated.connect(lambda i=index: self.tabs.setCurrentIndex(i))
+
+    def _show_shortcuts(self) -> None:
+        QMessageBox.information(self, "Keyboard shortcuts", SHORTCUTS_TEXT)
+
+    def _show_about(self) -> None:
+        QMessageBox.about(
+            self, f"About {APP_NAME}",
+            f"<b>{APP_NAME}</b><p>Teach the SenSnake robot shapes by hand, replay them as gaits, calibrate its "
+            "piezo-resistive contact-force sensors and watch the forces live.</p>"
+            "<p>12 Dynamixel XM430-W350 servos on one Protocol 2.0 bus, 36 force sensors on a multiplexing board. "
+            "Every device can run on the built-in simulated lab (port <tt>sim</tt>).</p>")
+
+    def _choose_config(self) -> None:
+        path, _filter = QFileDialog.getOpenFileName(self, "Open lab configuration", str(Path.cwd()),
+                                                    "Lab configuration (*.toml);;All files (*)")
+        if path:
+            self.open_config(path)
+
+    def open_config(self, path: str | Path) -> bool:
+        """Load a lab config and restart the devices on it; a bad file is reported and the lab kept."""
+        try:
+            config = load_config(path)
+        except ConfigError as exc:
+            self.status.show_message(str(exc), theme.ERROR)
+            QMessageBox.warning(self, "Configuration not loaded", str(exc))
+            return False
+        self.config_path = Path(path)
+        self.replace_lab(LabContext(config))
+        self.lab.connect_all()
+        return True
+
+    def replace_lab(self, lab: LabContext) -> None:
+        """Close the current lab's devices and rebuild every tab on ``lab``."""
+        index = self.tabs.currentIndex()
+        self._drop_tabs()
+        old = self.lab
+        old.close()
+        old.deleteLater()
+        self.lab = lab
+        self._attach_lab()
+        self._ensure_tab(index)
+
+    # -- status ----------------------------------------------------------------------------------------------------
+    def _attach_lab(self) -> None:
+        lab = self.lab
+        robot = lab.robot
+        robot.connection_changed.connect(self._update_robot_status)
+        robot.motion_changed.connect(self._update_robot_status)
+        robot.error.connect(self.show_error)
+        robot.event.connect(self.show_event)
+        lab.recording_changed.connect(self._update_recording_status)
+        self._update_robot_status()
+        self._update_recording_status(lab.recording)
+        board = lab.board
+        if board is None:
+            self.status.set_board_state("Board: not available", theme.IDLE, lab.board_unavailable_reason)
+        else:
+            self.status.set_board_state(f"Board: {lab.config.board.port}", theme.IDLE)
+            board.connected.connect(self._board_connected)
+            board.status.connect(self._board_status)
+        source = f" — {self.config_path.name}" if self.config_path else (" — simulated lab" if lab.is_all_sim
+                                                                       else "")
+        self.setWindowTitle(f"{APP_NAME}{source}")
+
+    def _update_robot_status(self, *_args: object) -> None:
+        robot = self.lab.robot
+        text = f"Robot: {robot.connection_text}"
+        if robot.is_connected:
+            level = theme.OK
+            if robot.motion_state in ("running", "paused"):
+                text += f" · {robot.motion_state} {robot.motion_name}".rstrip()
+            elif robot.motion_state == "fault":
+                level = theme.ERROR
+                text += " · motion stopped by a fault"
+            if "lost" in robot.connection_text:
+                level = theme.ERROR
+        elif robot.is_connecting:
+            level = theme.WARN
+        else:
+            level = theme.IDLE
+        self.status.set_robot_state(text, level, f"port {robot.port}, {robot.baud} baud")
+
+    def _board_connected(self, ok: bool) -> None:
+        port = self.lab.config.board.port
+        kind = "simulated" if port.strip().lower() == "sim" else "real"
+        if ok:
+            self.status.set_board_state(f"Board: {self.lab.config.board.n_channels} ch on {port} ({kind})",
+                                        theme.OK)
+        else:
+            self.status.set_board_state(f"Board: not connected ({port})", theme.WARN)
+
+    def _board_status(self, text: str) -> None:
+        self.status.board_label.setToolTip(text)
+
+    def _update_recording_status(self, session: object) -> None:
+        if session is None:
+            self.status.set_recording_state("Not recording", False)
+            return
+        path = getattr(session, "path", None)
+        name = Path(str(path)).name if path is not None else "recording"
+        self.status.set_recording_state(f"● REC {name}", True)
+
+    def show_error(self, text: str) -> None:
+        """Show a device error in the message area (stays until replaced)."""
+        self._last_error_s = time.monotonic()
+        self.status.show_message(text, theme.ERROR)
+
+    def show_event(self, text: str) -> None:
+        """Show an informational message, unless it would hide a fresh error."""
+        if (self.status.message_level == theme.ERROR
+                and time.monotonic() - self._last_error_s < EVENT_KEEPS_ERROR_S):
+            return
+        self.status.show_message(text, theme.IDLE)
+
+    # -- STOP ------------------------------------------------------------------------------------------------------
+    def emergency_stop(self) -> None:
+        """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present."""
+        self.lab.robot.emergency_stop()
+
+    # -- settings and shutdown -------------------------------------------------------------------------------------
+    def _restore_settings(self) -> None:
+        geometry = self.settings.value("main_window/geometry")
+        if isinstance(geometry, QByteArray) and not geometry.isEmpty():
+            self.restoreGeometry(geometry)
+        index = self.settings.value("main_window/tab", 0)
+        try:
+            index = int(index)
+        except (TypeError, ValueError):
+            index = 0
+        if 0 <= index < len(TABS):
+            self.tabs.setCurrentIndex(index)
+
+    def save_settings(self) -> None:
+        self.settings.setValue("main_window/geometry", self.saveGeometry())
+        self.settings.setValue("main_window/tab", self.tabs.currentIndex())
+        self.settings.sync()
+
+    def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
+        self.save_settings()
+        self.lab.close()
+        event.accept()

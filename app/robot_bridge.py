@@ -1,0 +1,489 @@
+"""Qt bridge around the robot's control loop (:class:`devices.controller.RobotController`).
+
+The controller owns the servo bus on its own thread and calls plain Python callbacks from there. This bridge turns
+them into Qt signals delivered on the GUI thread, so views never touch the port and never freeze:
+
+- ``connected(bool)``, ``connection_changed(str)`` (human text: "connecting to sim…", "12 servos on sim", …)
+- ``state(object)``: the latest :class:`ChainState`, delivered at ≤ 60 Hz (``latest_state`` may be read at any time);
+  ``state_block(object)``: every ``ChainState`` since the previous delivery, in order (for recording)
+- ``health(object)``: ``list[ServoHealth]`` as polled by the controller
+- ``error(str)``: a readable message (what happened, which servo or port, what to do) — never a traceback
+- ``event(str)``: informational messages; ``motion_changed(str)``: one of the ``MOTION_*`` states below
+
+Opening and closing the port happen on a worker thread. Bus operations return ``concurrent.futures.Future`` objects;
+:meth:`RobotBridge.when_done` delivers their results on the GUI thread, and a failed future is reported through
+``error`` unless the caller handles it. All public methods are for the GUI thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
+from typing import Any, TypeVar
+
+import numpy as np
+from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
+
+from devices.config import RobotConfig
+from devices.errors import DeviceError, LinkLostError, ServoHardwareError
+from devices.factory import is_sim
+
+T = TypeVar("T")
+log = logging.getLogger(__name__)
+
+STATE_DELIVERY_INTERVAL_MS = 16  # ≤ 60 Hz to the GUI, whatever the control rate
+STATE_BACKLOG_MAX = 4096  # states kept for ``state_block`` if the GUI stalls (≈ 20 s at 200 Hz)
+
+MOTION_IDLE = "idle"
+MOTION_RUNNING = "running"
+MOTION_PAUSED = "paused"
+MOTION_FINISHED = "finished"
+MOTION_STOPPED = "stopped"  # stopped by the user (Stop or STOP/Esc)
+MOTION_FAULT = "fault"  # stopped by the controller: hardware error, watchdog, lost link
+
+# Errors a user can cause and fix; anything else reaching a thread boundary is a bug, reported and logged.
+EXPECTED_DEVICE_ERRORS: tuple[type[BaseException], ...] = (DeviceError, OSError, ValueError, LookupError,
+                                                             RuntimeError)
+
+NOT_CONNECTED_MESSAGE = "the robot is not connected: connect it first (Hardware tab → Connect)"
+
+
+def describe_error(exc: BaseException) -> str:
+    """One readable line for ``exc``; unexpected exception types are logged with their traceback."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, EXPECTED_DEVICE_ERRORS):
+        return text
+    log.error("unexpected error from the robot", exc_info=exc)
+    return f"unexpected {type(exc).__name__}: {text} (details in the log; please report it)"
+
+
+class _TrackedSource:
+    """Wraps a MotionSource so the bridge learns when it is done; ``goal_at`` runs on the controller thread."""
+
+    def __init__(self, source: Any, on_done: Callable[[], None]) -> None:
+        self.source = source
+        self._on_done = on_done
+        self._done = False
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        goal = self.source.goal_at(t_s, present_rad)
+        if goal is None and not self._done:
+            self._done = True
+            self._on_done()
+        return goal
+
+    def __getattr__(self, name: str) -> Any:
+        # Progress attributes of the wrapped source (shift index, fraction done, …) stay reachable.
+        return getattr(self.source, name)
+
+
+class RobotBridge(QObject):
+    """Qt signals and futures around one :class:`RobotController`; lives on the GUI thread."""
+
+    connected = Signal(bool)
+    connection_changed = Signal(str)
+    state = Signal(object)
+    state_block = Signal(object)
+    health = Signal(object)
+    error = Signal(str)
+    event = Signal(str)
+    motion_changed = Signal(str)
+
+    # Carries a callable from any thread to the GUI thread (queued).
+    _post = Signal(object)
+
+    def __init__(self, config: RobotConfig, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self._config = config
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="robot-connect")
+        self._controller: Any = None
+        self._pending_connect: Future | None = None
+        self._closed = False
+        self._lock = threading.Lock()
+        self._latest_state: Any = None
+        self._state_backlog: deque = deque(maxlen=STATE_BACKLOG_MAX)
+        self._health_by_id: dict[int, Any] = {}
+        self._motion_state = MOTION_IDLE
+        self._motion_name = ""
+        self._motion_token = 0
+        self.timing_warnings: list[str] = []
+        self.connection_text = "not connected"
+        self.connected_at_s: float | None = None
+
+        self._post.connect(self._run_posted, Qt.ConnectionType.QueuedConnection)
+        self._state_timer = QTimer(self)
+        self._state_timer.setInterval(STATE_DELIVERY_INTERVAL_MS)
+        self._state_timer.timeout.connect(self._deliver_states)
+
+    # -- properties (GUI thread; latest_state from any thread) ------------------------------------------------------
+    @property
+    def config(self) -> RobotConfig:
+        """The robot configuration in use (port and baud as last connected or requested)."""
+        return self._config
+
+    @property
+    def port(self) -> str:
+        return self._config.port
+
+    @property
+    def baud(self) -> int:
+        return self._config.baud
+
+    @property
+    def is_sim(self) -> bool:
+        return is_sim(self._config.port)
+
+    @property
+    def is_connected(self) -> bool:
+        return self._controller is not None
+
+    @property
+    def is_connecting(self) -> bool:
+        return self._pending_connect is not None and not self._pending_connect.done()
+
+    @property
+    def n_servos(self) -> int:
+        return self._config.n_joints
+
+    @property
+    def controller(self) -> Any:
+        """The running RobotController, or None; for app code that needs its own ``submit`` calls."""
+        return self._controller
+
+    @property
+    def latest_state(self) -> Any:
+        """The newest ChainState from the controller thread (None before the first); any thread may read it."""
+        with self._lock:
+            return self._latest_state
+
+    @property
+    def latest_health(self) -> list:
+        """The newest ServoHealth of every servo polled so far, in ID order."""
+        return [self._health_by_id[i] for i in sorted(self._health_by_id)]
+
+    @property
+    def motion_state(self) -> str:
+        return self._motion_state
+
+    @property
+    def motion_name(self) -> str:
+        return self._motion_name
+
+    # -- connection ------------------------------------------------------------------------------------------------
+    def connect_robot(self, port: str | None = None, baud: int | None = None) -> Future:
+        """Open the port on a worker thread, check the servo models, start the control loop.
+
+        ``port``/``baud`` override the configured ones. Returns the connect future; the outcome also arrives as
+        ``connected(bool)`` and, on failure, ``error(str)`` saying why and what to do.
+        """
+        if self._closed:
+            raise RuntimeError("the robot bridge is closed")
+        if self._controller is not None or self.is_connecting:
+            return self._pending_connect if self.is_connecting else _done_future(self._controller)
+        self._config = replace(self._config, port=(port or self._config.port).strip(),
+                               baud=int(baud or self._config.baud))
+        config = self._config
+        self._set_connection(f"connecting to {config.port} at {config.baud} baud…")
+        future = self._executor.submit(self._open_controller, config)
+        self._pending_connect = future
+        self.when_done(future, self._adopt_controller, self._connect_failed)
+        return future
+
+    # ``connect`` is the name in the contract; QObject.connect is static in PySide6, so the instance method is a
+    # thin alias that keeps ``bridge.connect()`` working for app code.
+    def connect(self, port: str | None = None, baud: int | None = None) -> Future:  # type: ignore[override]
+        return self.connect_robot(port, baud)
+
+    def disconnect_robot(self) -> Future:
+        """Stop the control loop and close the port on the worker thread; ``connected(False)`` follows."""
+        controller, self._controller = self._controller, None
+        self._state_timer.stop()
+        if controller is None:
+            return _done_future(None)
+        self._motion_token += 1
+        self._set_motion(MOTION_IDLE, "")
+        self._set_connection("disconnecting…")
+        future = self._executor.submit(controller.close)
+        self.when_done(future, lambda _result: self._after_disconnect(), self._disconnect_failed)
+        return future
+
+    def disconnect(self, *args: Any) -> Any:  # type: ignore[override]
+        """``bridge.disconnect()`` closes the robot; with arguments it is QObject.disconnect (signal plumbing)."""
+        if args:
+            return super().disconnect(*args)
+        return self.disconnect_robot()
+
+    def close(self) -> None:
+        """Stop the control loop, close the port and join every thread this bridge started. GUI thread; blocks."""
+        if self._closed:
+            return
+        self._closed = True
+        self._state_timer.stop()
+        controller, self._controller = self._controller, None
+        if controller is not None:
+            controller.close()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+        # A connect that finished while we were shutting down delivered its controller to a queued slot that will
+        # never run now: close it here so its thread does not outlive the bridge.
+        pending = self._pending_connect
+        if pending is not None and pending.done() and not pending.cancelled() and pending.exception() is None:
+            orphan = pending.result()
+            if orphan is not controller:
+                orphan.close()
+        self._set_connection("not connected")
+
+    # -- bus operations (each returns a Future; errors are reported via ``error``) ----------------------------------
+    def run_on_bus(self, fn: Callable[[Any], T], report_errors: bool = True) -> Future:
+        """Run ``fn(chain)`` on the thread owning the bus: the controller thread when connected, else the worker
+        thread on a temporary connection (opened and closed around the call)."""
+        if self._closed:
+            return _failed_future(RuntimeError("the robot bridge is closed"))
+        if self._controller is not None:
+            future = self._controller.submit(fn)
+        else:
+            future = self._executor.submit(_with_temporary_chain, replace(self._config), fn)
+        if report_errors:
+            self.when_done(future, None)
+        return future
+
+    def scan(self, bauds: Sequence[int] | None = None, ids: Sequence[int] = range(0, 253),
+             port: str | None = None, report_errors: bool = True) -> Future:
+        """Find servos (IDs × baud rates); the future's result is ``list[ServoInfo]``.
+
+        ``port`` overrides the configured port when disconnected (scan a bus before connecting to it).
+        """
+        if port and self._controller is None:
+            self._config = replace(self._config, port=port.strip())
+        bauds = list(bauds) if bauds is not None else None
+        ids = list(ids)
+        return self.run_on_bus(lambda chain: chain.scan(ids, bauds), report_errors)
+
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> Future:
+        """Torque on/off for ``ids`` (default all joints)."""
+        controller = self._controller
+        if controller is None:
+            return self._not_connected()
+        future = controller.set_torque(enabled, None if ids is None else list(ids))
+        self.when_done(future, None)
+        return future
+
+    def set_led(self, servo_id: int, on: bool) -> Future:
+        controller = self._controller
+        if controller is None:
+            return self._not_connected()
+        future = controller.set_led(servo_id, on)
+        self.when_done(future, None)
+        return future
+
+    def reboot(self, servo_id: int) -> Future:
+        """Reboot one servo (clears a latched hardware error; the servo comes back with torque off)."""
+        controller = self._controller
+        if controller is None:
+            return self._not_connected()
+        future = controller.reboot(servo_id)
+        self.when_done(future, lambda _r: self.event.emit(f"servo {servo_id} rebooted (torque is off)"))
+        return future
+
+    # -- motion ----------------------------------------------------------------------------------------------------
+    def run_motion(self, source: Any, name: str) -> None:
+        """Start a MotionSource on the controller (replaces any running motion); ``motion_changed`` follows."""
+        controller = self._controller
+        if controller is None:
+            self.error.emit(f"cannot start {name}: {NOT_CONNECTED_MESSAGE}")
+            return
+        self._motion_token += 1
+        token = self._motion_token
+        tracked = _TrackedSource(source, lambda: self._post.emit(lambda: self._motion_done(token)))
+        controller.run_motion(tracked, name)
+        self._set_motion(MOTION_RUNNING, name)
+
+    def pause_motion(self) -> None:
+        if self._controller is not None and self._motion_state == MOTION_RUNNING:
+            self._controller.pause()
+            self._set_motion(MOTION_PAUSED, self._motion_name)
+
+    def resume_motion(self) -> None:
+        if self._controller is not None and self._motion_state == MOTION_PAUSED:
+            self._controller.resume()
+            self._set_motion(MOTION_RUNNING, self._motion_name)
+
+    def stop_motion(self) -> None:
+        if self._controller is not None:
+            self._controller.stop_motion()
+        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED):
+            self._motion_token += 1
+            self._set_motion(MOTION_STOPPED, self._motion_name)
+
+    # Short names used by the tabs (contract: pause/resume/stop_motion).
+    pause = pause_motion
+    resume = resume_motion
+
+    def emergency_stop(self) -> None:
+        """STOP: within one control tick the goals freeze at the present position; torque stays on."""
+        controller = self._controller
+        if controller is None:
+            self.event.emit("STOP: the robot is not connected, nothing is moving")
+            return
+        controller.emergency_stop()
+        self._motion_token += 1
+        self._set_motion(MOTION_STOPPED, self._motion_name)
+        self.event.emit("STOP: motion halted; torque stays on, every joint holds its present position")
+
+    # -- delivering results on the GUI thread -----------------------------------------------------------------------
+    def when_done(self, future: Future, on_result: Callable[[Any], None] | None,
+                  on_error: Callable[[BaseException], None] | None = None) -> None:
+        """Call ``on_result(result)`` or ``on_error(exc)`` on the GUI thread when ``future`` completes.
+
+        Without ``on_error`` a failure is reported through ``error``. Cancelled futures are ignored.
+        """
+        future.add_done_callback(lambda f: self._post.emit(lambda: self._finish(f, on_result, on_error)))
+
+    def _finish(self, future: Future, on_result: Callable[[Any], None] | None,
+                on_error: Callable[[BaseException], None] | None) -> None:
+        if future.cancelled():
+            return
+        exc = future.exception()
+        if exc is not None:
+            if on_error is not None:
+                on_error(exc)
+            else:
+                self.error.emit(describe_error(exc))
+        elif on_result is not None:
+            on_result(future.result())
+
+    @Slot(object)
+    def _run_posted(self, fn: Callable[[], None]) -> None:
+        fn()
+
+    # -- controller callbacks (controller thread) -------------------------------------------------------------------
+    def _on_state(self, chain_state: Any) -> None:
+        with self._lock:
+            self._latest_state = chain_state
+            self._state_backlog.append(chain_state)
+
+    def _on_health(self, health: list) -> None:
+        self._post.emit(lambda: self._deliver_health(list(health)))
+
+    def _on_event(self, text: str) -> None:
+        self._post.emit(lambda: self.event.emit(str(text)))
+
+    def _on_error(self, exc: BaseException) -> None:
+        self._post.emit(lambda: self._device_error(exc))
+
+    # -- GUI-thread handlers ----------------------------------------------------------------------------------------
+    def _open_controller(self, config: RobotConfig) -> Any:
+        """Worker thread: open the chain, check it, start the controller. Returns the running controller."""
+        from devices.controller import RobotController
+        from devices.servo_chain import ServoChain
+
+        chain = ServoChain(config, device="robot")
+        chain.open()
+        try:
+            chain.check_models()
+            self.timing_warnings = list(chain.timing_warnings())
+            controller = RobotController(chain, config, on_state=self._on_state, on_health=self._on_health,
+                                         on_event=self._on_event, on_error=self._on_error)
+        except BaseException:
+            chain.close()
+            raise
+        controller.start()
+        return controller
+
+    def _adopt_controller(self, controller: Any) -> None:
+        if self._closed:
+            controller.close()
+            return
+        self._controller = controller
+        self.connected_at_s = time.monotonic()
+        kind = "simulated" if self.is_sim else "real"
+        self._set_connection(f"{self.n_servos} servos on {self.port} ({kind})")
+        self._state_timer.start()
+        self.connected.emit(True)
+        self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind})")
+        for warning in self.timing_warnings:
+            self.event.emit(f"timing: {warning}")
+
+    def _connect_failed(self, exc: BaseException) -> None:
+        self._set_connection("not connected")
+        reason = describe_error(exc)
+        hint = "" if isinstance(exc, DeviceError) else (
+            " Check the port name and that the servos are powered, or use port 'sim' for the simulated lab.")
+        self.error.emit(f"robot: could not connect on {self.port} at {self.baud} baud: {reason}{hint}")
+        self.connected.emit(False)
+
+    def _after_disconnect(self) -> None:
+        self._set_connection("not connected")
+        self.connected.emit(False)
+        self.event.emit("robot disconnected")
+
+    def _disconnect_failed(self, exc: BaseException) -> None:
+        self.error.emit(f"robot: closing {self.port} failed: {describe_error(exc)}")
+        self._after_disconnect()
+
+    def _deliver_states(self) -> None:
+        with self._lock:
+            if not self._state_backlog:
+                return
+            block = list(self._state_backlog)
+            self._state_backlog.clear()
+        self.state_block.emit(block)
+        self.state.emit(block[-1])
+
+    def _deliver_health(self, health: list) -> None:
+        for item in health:
+            self._health_by_id[item.servo_id] = item
+        self.health.emit(health)
+
+    def _device_error(self, exc: BaseException) -> None:
+        if isinstance(exc, LinkLostError):
+            self._set_connection(f"link lost on {self.port}: reconnecting…")
+        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED) and isinstance(
+                exc, (ServoHardwareError, LinkLostError, TimeoutError)):
+            self._motion_token += 1
+            self._set_motion(MOTION_FAULT, self._motion_name)
+        self.error.emit(describe_error(exc))
+
+    def _motion_done(self, token: int) -> None:
+        if token == self._motion_token and self._motion_state == MOTION_RUNNING:
+            self._set_motion(MOTION_FINISHED, self._motion_name)
+
+    def _set_motion(self, state: str, name: str) -> None:
+        self._motion_state, self._motion_name = state, name
+        self.motion_changed.emit(state)
+
+    def _set_connection(self, text: str) -> None:
+        self.connection_text = text
+        self.connection_changed.emit(text)
+
+    def _not_connected(self) -> Future:
+        self.error.emit(NOT_CONNECTED_MESSAGE)
+        return _failed_future(ConnectionError(NOT_CONNECTED_MESSAGE))
+
+
+def _with_temporary_chain(config: RobotConfig, fn: Callable[[Any], T]) -> T:
+    """Worker thread: open a chain just for ``fn`` (e.g. a scan before connecting), then close it."""
+    from devices.servo_chain import ServoChain
+
+    chain = ServoChain(config, device="robot")
+    chain.open()
+    try:
+        return fn(chain)
+    finally:
+        chain.close()
+
+
+def _done_future(result: Any) -> Future:
+    future: Future = Future()
+    future.set_result(result)
+    return future
+
+
+def _failed_future(exc: BaseException) -> Future:
+    future: Future = Future()
+    future.set_exception(exc)
+    return future

@@ -1,0 +1,104 @@
+"""The main window's status bar: robot, board and recording state, a message area and the STOP button.
+
+Passive view: the app sets texts and levels and listens to :attr:`LabStatusBar.stop_requested`. The STOP button is
+always visible (a permanent widget, never hidden behind a message). GUI thread only.
+"""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtWidgets import QLabel, QPushButton, QSizePolicy, QStatusBar, QWidget
+
+from widgets import theme
+
+MESSAGE_KEEP_MS = {theme.OK: 6000, theme.IDLE: 6000, theme.WARN: 15000, theme.ERROR: 0}  # 0: until replaced
+
+
+class StateLabel(QLabel):
+    """A small rounded label coloured by status level."""
+
+    def __init__(self, text: str, parent: QWidget | None = None) -> None:
+        super().__init__(text, parent)
+        self.level = theme.IDLE
+        self.set_state(text, theme.IDLE)
+
+    def set_state(self, text: str, level: str, tooltip: str = "") -> None:
+        self.level = level
+        self.setText(text)
+        self.setStyleSheet(theme.status_style(level))
+        self.setToolTip(tooltip or text)
+
+
+class LabStatusBar(QStatusBar):
+    """Status of the lab's devices, the latest message and STOP."""
+
+    stop_requested = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setSizeGripEnabled(True)
+
+        self.message_label = QLabel("")
+        self.message_label.setObjectName("status_message")
+        self.message_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.message_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+        self.message_level = theme.IDLE
+        self._message_timer = QTimer(self)
+        self._message_timer.setSingleShot(True)
+        self._message_timer.timeout.connect(self.clear_message)
+        self.addWidget(self.message_label, 1)
+
+        self.robot_label = StateLabel("Robot: not connected")
+        self.robot_label.setObjectName("status_robot")
+        self.board_label = StateLabel("Board: not connected")
+        self.board_label.setObjectName("status_board")
+        self.recording_label = StateLabel("Not recording")
+        self.recording_label.setObjectName("status_recording")
+        for label in (self.robot_label, self.board_label, self.recording_label):
+            self.addPermanentWidget(label)
+
+        self.stop_button = QPushButton("STOP  (Esc)")
+        self.stop_button.setObjectName("stop_button")
+        self.stop_button.setToolTip("Emergency stop: halts motion within one control tick; torque stays on and "
+                                    "every joint holds where it is. Esc does the same from anywhere in the app.")
+        self.stop_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)  # never steals keyboard focus from the tab
+        self.stop_button.setMinimumHeight(30)
+        self.stop_button.setMinimumWidth(120)
+        self.stop_button.setStyleSheet(
+            f"QPushButton {{ background: {theme.STOP_RED}; color: white; font-weight: bold;"
+            " border: 1px solid #7F0000; border-radius: 4px; padding: 3px 14px; }"
+            f" QPushButton:pressed {{ background: {theme.STOP_RED_PRESSED}; }}"
+        )
+        self.stop_button.clicked.connect(self.stop_requested)
+        self.addPermanentWidget(self.stop_button)
+
+    def set_robot_state(self, text: str, level: str, tooltip: str = "") -> None:
+        self.robot_label.set_state(text, level, tooltip)
+
+    def set_board_state(self, text: str, level: str, tooltip: str = "") -> None:
+        self.board_label.set_state(text, level, tooltip)
+
+    def set_recording_state(self, text: str, active: bool) -> None:
+        self.recording_label.set_state(text, theme.ERROR if active else theme.IDLE)
+
+    def show_message(self, text: str, level: str = theme.IDLE) -> None:
+        """Show ``text`` in the message area; errors stay until replaced, others fade after a few seconds."""
+        self.message_level = level
+        self.message_label.setText(text)
+        self.message_label.setToolTip(text)
+        self.message_label.setStyleSheet(f"color: {theme.STATUS_COLORS[level]};")
+        keep_ms = MESSAGE_KEEP_MS[level]
+        if keep_ms:
+            self._message_timer.start(keep_ms)
+        else:
+            self._message_timer.stop()
+
+    def clear_message(self) -> None:
+        self._message_timer.stop()
+        self.message_level = theme.IDLE
+        self.message_label.clear()
+        self.message_label.setToolTip("")
+
+    @property
+    def message(self) -> str:
+        return self.message_label.text()
