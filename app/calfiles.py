@@ -1,0 +1,355 @@
+"""Calibration file formats (SPEC §3.1–3.3): trial CSV, estimate/forward CSV and the calibration JSON.
+
+Every reader turns a malformed file into one :class:`CalFileError` (a ``ValueError``) whose message names the file,
+the line where that makes sense, what is wrong and what to do, so the CLI can print it as its one line.
+Readers and writers here run on whichever thread calls them (the CLI's main thread, or a GUI worker); they keep no
+state between calls.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.physics import PhysicsConstants
+
+CAL_FORMAT = "sensnake-calibration"
+CAL_VERSION = 1
+
+TIME_COLUMN = "time_s"
+FORCE_COLUMN = "force_N"
+CONDUCTANCE_COLUMN = "conductance_S"
+
+# The unit a column stem must carry; a header with the right stem and another unit (force_kN, time_ms) is refused
+# rather than silently misread by a factor of 1000.
+_EXPECTED_UNITS = {"time": "s", "force": "N", "conductance": "S"}
+
+
+class CalFileError(ValueError):
+    """A calibration, trial or series file is malformed. The message names the file (and line) and the fix."""
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One calibration trial (SPEC §3.1): samples of time (s), applied force (N) and conductance (S)."""
+
+    file: str
+    time_s: np.ndarray
+    force_n: np.ndarray
+    conductance_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class SeriesTable:
+    """An estimate/forward CSV (SPEC §3.2): ``time_s`` (N,) and one column per sensor, ``values`` (N, S)."""
+
+    file: str
+    time_s: np.ndarray
+    columns: tuple[str, ...]
+    values: np.ndarray
+
+
+# ---------------------------------------------------------------------------------------------------------- CSV
+
+
+def _read_header(path: Path) -> list[str]:
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
+            for row in csv.reader(handle):
+                if row and any(cell.strip() for cell in row):
+                    return [cell.strip() for cell in row]
+    except UnicodeDecodeError as exc:
+        raise CalFileError(f"{path}: not a text CSV file ({exc.reason})") from exc
+    raise CalFileError(f"{path}: empty file: expected a header row such as 'time_s,force_N,conductance_S'")
+
+
+def _check_units(path: Path, header: list[str]) -> None:
+    for name in header:
+        stem, sep, unit = name.rpartition("_")
+        if sep and stem in _EXPECTED_UNITS and unit != _EXPECTED_UNITS[stem]:
+            raise CalFileError(
+                f"{path}:1: column '{name}' is in {unit}, expected '{stem}_{_EXPECTED_UNITS[stem]}': "
+                f"convert the column to {_EXPECTED_UNITS[stem]} and rename it"
+            )
+
+
+def _column_index(path: Path, header: list[str], name: str) -> int:
+    if name not in header:
+        raise CalFileError(f"{path}:1: missing column '{name}' (header is {','.join(header)})")
+    if header.count(name) > 1:
+        raise CalFileError(f"{path}:1: column '{name}' appears twice")
+    return header.index(name)
+
+
+def _locate_bad_cell(path: Path, header: list[str], indices: list[int]) -> CalFileError:
+    """Walk the file row by row to report the first unparsable or non-finite cell with its line number."""
+    with path.open(newline="", encoding="utf-8-sig") as handle:
+        reader = csv.reader(handle)
+        seen_header = False
+        for row in reader:
+            line = reader.line_num
+            if not row or not any(cell.strip() for cell in row):
+                continue
+            if not seen_header:
+                seen_header = True
+                continue
+            for index in indices:
+                if index >= len(row):
+                    return CalFileError(f"{path}:{line}: row has {len(row)} cells, expected {len(header)}")
+                cell = row[index].strip()
+                try:
+                    value = float(cell)
+                except ValueError:
+                    return CalFileError(f"{path}:{line}: column '{header[index]}' holds '{cell}', not a number")
+                if not math.isfinite(value):
+                    return CalFileError(
+                        f"{path}:{line}: column '{header[index]}' is {cell}: every sample must be a finite number "
+                        "(remove or repair the row)"
+                    )
+    return CalFileError(f"{path}: could not parse the numeric columns")
+
+
+def _read_columns(path: Path, header: list[str], indices: list[int]) -> np.ndarray:
+    """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite."""
+    try:
+        with path.open(encoding="utf-8-sig") as handle:
+            lines = [line for line in handle if line.strip()]
+        if len(lines) < 2:
+            raise CalFileError(f"{path}: no data rows after the header")
+        data = np.loadtxt(lines[1:], delimiter=",", usecols=indices, ndmin=2, dtype=np.float64, comments=None)
+    except ValueError:
+        raise _locate_bad_cell(path, header, indices) from None
+    if data.shape[0] == 0:
+        raise CalFileError(f"{path}: no data rows after the header")
+    if not np.all(np.isfinite(data)):
+        raise _locate_bad_cell(path, header, indices)
+    return data
+
+
+def _check_time(path: Path, time_s: np.ndarray, header_line_offset: int = 2) -> None:
+    steps = np.diff(time_s)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        row = int(bad[0]) + 1
+        what = "repeats" if steps[bad[0]] == 0 else "goes backwards"
+        raise CalFileError(
+            f"{path}:{row + header_line_offset}: time_s {what} ({time_s[row - 1]:g} s then {time_s[row]:g} s): "
+            "samples must be sorted by strictly increasing time"
+        )
+
+
+def _open_path(path: str | os.PathLike) -> Path:
+    resolved = Path(path)
+    if not resolved.is_file():
+        raise CalFileError(f"{resolved}: no such file")
+    return resolved
+
+
+def read_trial_csv(path: str | os.PathLike) -> Trial:
+    """Read a calibration trial CSV (SPEC §3.1): ``time_s,force_N,conductance_S``, extra columns ignored.
+
+    Raises :class:`CalFileError` for a missing column, a column in other units (``force_kN``), a non-numeric or
+    non-finite cell, or unsorted time, naming the file and line.
+    """
+    file = _open_path(path)
+    header = _read_header(file)
+    _check_units(file, header)
+    indices = [_column_index(file, header, name) for name in (TIME_COLUMN, FORCE_COLUMN, CONDUCTANCE_COLUMN)]
+    data = _read_columns(file, header, indices)
+    _check_time(file, data[:, 0])
+    if np.any(data[:, 2] < 0):
+        row = int(np.flatnonzero(data[:, 2] < 0)[0])
+        raise CalFileError(f"{file}:{row + 2}: conductance_S is negative ({data[row, 2]:g} S): conductance is ≥ 0")
+    return Trial(file=str(file), time_s=data[:, 0].copy(), force_n=data[:, 1].copy(),
+                 conductance_s=data[:, 2].copy())
+
+
+def read_series_csv(path: str | os.PathLike, single_column: str) -> SeriesTable:
+    """Read an estimate/forward input CSV (SPEC §3.2): ``time_s`` then one column per sensor.
+
+    ``single_column`` is the generic name (``conductance_S`` for estimate, ``force_N`` for forward) that a file with
+    exactly one data column may use instead of a sensor name; the caller maps it to the calibration's only sensor.
+    """
+    file = _open_path(path)
+    header = _read_header(file)
+    _check_units(file, header)
+    time_index = _column_index(file, header, TIME_COLUMN)
+    names = [name for i, name in enumerate(header) if i != time_index]
+    if not names:
+        raise CalFileError(f"{file}:1: no data column after time_s: expected sensor columns or '{single_column}'")
+    if any(not name for name in names):
+        raise CalFileError(f"{file}:1: a column has an empty name")
+    if len(set(names)) != len(names):
+        duplicate = next(name for name in names if names.count(name) > 1)
+        raise CalFileError(f"{file}:1: column '{duplicate}' appears twice")
+    data = _read_columns(file, header, [time_index] + [header.index(name) for name in names])
+    _check_time(file, data[:, 0])
+    return SeriesTable(file=str(file), time_s=data[:, 0].copy(), columns=tuple(names),
+                       values=np.ascontiguousarray(data[:, 1:]))
+
+
+def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],
+                     values: np.ndarray) -> None:
+    """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64).reshape(time_s.shape[0], -1)
+    if values.shape[1] != len(columns):
+        raise ValueError(f"{len(columns)} column names for {values.shape[1]} columns")
+    table = np.column_stack([time_s, values])
+    header = ",".join([TIME_COLUMN, *columns])
+    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
+                                                        header=header, comments=""))
+
+
+def write_trial_csv(path: str | os.PathLike, time_s: np.ndarray, force_n: np.ndarray,
+                    conductance_s: np.ndarray) -> None:
+    """Write a calibration trial CSV (SPEC §3.1), e.g. from the rig or the synthetic generator."""
+    table = np.column_stack([time_s, force_n, conductance_s]).astype(np.float64)
+    header = ",".join([TIME_COLUMN, FORCE_COLUMN, CONDUCTANCE_COLUMN])
+    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
+                                                        header=header, comments=""))
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write through a temporary file in the same folder so a crash never leaves a half-written file."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise CalFileError(f"{path}: folder {folder} does not exist")
+    handle = tempfile.NamedTemporaryFile("w", dir=folder, prefix=f".{path.name}.", suffix=".tmp", delete=False,
+                                         encoding="utf-8", newline="")
+    try:
+        with handle:
+            write(handle)
+        os.replace(handle.name, path)
+    except BaseException:
+        Path(handle.name).unlink(missing_ok=True)
+        raise
+
+
+# --------------------------------------------------------------------------------------------------------- JSON
+
+
+def _load_json(path: str | os.PathLike) -> tuple[Path, Any]:
+    file = _open_path(path)
+    try:
+        with file.open(encoding="utf-8") as handle:
+            return file, json.load(handle)
+    except json.JSONDecodeError as exc:
+        raise CalFileError(f"{file}:{exc.lineno}: not valid JSON ({exc.msg})") from exc
+    except UnicodeDecodeError as exc:
+        raise CalFileError(f"{file}: not a UTF-8 JSON file ({exc.reason})") from exc
+
+
+def _check_format(file: Path, document: Any) -> None:
+    if not isinstance(document, dict):
+        raise CalFileError(f"{file}: expected a JSON object with format '{CAL_FORMAT}'")
+    if document.get("format") != CAL_FORMAT:
+        raise CalFileError(
+            f"{file}: unknown format {document.get('format')!r}: expected '{CAL_FORMAT}' (is this a calibration file?)"
+        )
+    if document.get("version") != CAL_VERSION:
+        raise CalFileError(
+            f"{file}: unsupported calibration version {document.get('version')!r}: this sensnake reads version "
+            f"{CAL_VERSION}; upgrade sensnake or re-run 'sensnake fit'"
+        )
+    if not isinstance(document.get("sensors", {}), dict):
+        raise CalFileError(f"{file}: 'sensors' must be an object keyed by sensor name")
+
+
+def read_calibration(path: str | os.PathLike) -> dict[str, Any]:
+    """Read and check a calibration JSON (SPEC §3.3); unknown ``format``/``version`` is refused."""
+    file, document = _load_json(path)
+    _check_format(file, document)
+    document.setdefault("sensors", {})
+    return document
+
+
+def physics_from_calibration(document: dict[str, Any], source: str) -> PhysicsConstants:
+    """The calibration's resistance–strain constants; a file without them is refused (no hidden default)."""
+    if "physics" not in document:
+        raise CalFileError(f"{source}: no 'physics' section: re-run 'sensnake fit' with --physics FILE.json")
+    try:
+        return PhysicsConstants.from_dict(document["physics"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalFileError(f"{source}: bad 'physics' section: {exc}") from exc
+
+
+def read_physics(path: str | os.PathLike) -> PhysicsConstants:
+    """Read ``--physics FILE.json``: the SPEC §3.3 physics keys at the top level or under ``physics``."""
+    file, document = _load_json(path)
+    if not isinstance(document, dict):
+        raise CalFileError(f"{file}: expected a JSON object with the physics keys")
+    try:
+        return PhysicsConstants.from_dict(document)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalFileError(f"{file}: {exc}") from exc
+
+
+def sensor_entry(document: dict[str, Any], name: str, model: str, source: str) -> dict[str, Any]:
+    """The sensor ``name``'s entry, checked to hold ``area_m2`` and the ``model`` section with finite numbers."""
+    sensors = document.get("sensors", {})
+    if name not in sensors:
+        known = ", ".join(sorted(sensors)) or "none"
+        raise CalFileError(f"{source}: no calibration for sensor '{name}' (calibrated sensors: {known})")
+    entry = sensors[name]
+    keys = {"linear": ("m_S_per_N", "d_S"), "sls": ("E0_Pa", "E1_Pa", "mu1_Pa_s")}[model]
+    section = entry.get(model) if isinstance(entry, dict) else None
+    if not isinstance(section, dict):
+        raise CalFileError(f"{source}: sensor '{name}' has no '{model}' model: re-run 'sensnake fit'")
+    for key in keys:
+        value = section.get(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise CalFileError(f"{source}: sensor '{name}' {model}.{key} is {value!r}, expected a finite number")
+    if model == "sls":
+        area = entry.get("area_m2")
+        if isinstance(area, bool) or not isinstance(area, (int, float)) or not (area > 0 and math.isfinite(area)):
+            raise CalFileError(f"{source}: sensor '{name}' area_m2 is {area!r}, expected a positive number")
+    return entry
+
+
+def update_calibration(path: str | os.PathLike, sensor_name: str, entry: dict[str, Any],
+                       physics: PhysicsConstants) -> dict[str, Any]:
+    """Create ``path`` or update it in place: set ``sensors[sensor_name] = entry`` and ``physics``; other sensors
+    and unknown keys are kept. An existing file of another format/version is refused, never overwritten."""
+    file = Path(path)
+    if file.exists():
+        document = read_calibration(file)
+        old_physics = document.get("physics")
+        if old_physics is not None and document["sensors"] and old_physics != physics.to_dict():
+            others = sorted(set(document["sensors"]) - {sensor_name})
+            if others:
+                raise CalFileError(
+                    f"{file}: its physics constants differ from the ones used for this fit, and sensors "
+                    f"{', '.join(others)} were fitted with them: use --physics {file} or write to a new file"
+                )
+    else:
+        document = {"format": CAL_FORMAT, "version": CAL_VERSION}
+    document["physics"] = physics.to_dict()
+    document.setdefault("sensors", {})[sensor_name] = entry
+    _atomic_write(file, lambda handle: (json.dump(_jsonable(document), handle, indent=2, allow_nan=False),
+                                        handle.write("\n")))
+    return document
+
+
+def _jsonable(value: Any) -> Any:
+    """numpy scalars → Python floats; NaN/inf → None (JSON has neither)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        number = float(value)
+        return number if math.isfinite(number) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
