@@ -119,11 +119,11 @@ def _locate_bad_cell(path: Path, header: list[str], indices: list[int]) -> CalFi
 
 def _read_columns(path: Path, header: list[str], indices: list[int]) -> np.ndarray:
     """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite."""
+    with path.open(encoding="utf-8-sig") as handle:
+        lines = [line for line in handle if line.strip()]
+    if len(lines) < 2:
+        raise CalFileError(f"{path}: no data rows after the header")
     try:
-        with path.open(encoding="utf-8-sig") as handle:
-            lines = [line for line in handle if line.strip()]
-        if len(lines) < 2:
-            raise CalFileError(f"{path}: no data rows after the header")
         data = np.loadtxt(lines[1:], delimiter=",", usecols=indices, ndmin=2, dtype=np.float64, comments=None)
     except ValueError:
         raise _locate_bad_cell(path, header, indices) from None
@@ -223,14 +223,13 @@ def _atomic_write(path: Path, write) -> None:
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise CalFileError(f"{path}: folder {folder} does not exist")
-    handle = tempfile.NamedTemporaryFile("w", dir=folder, prefix=f".{path.name}.", suffix=".tmp", delete=False,
-                                         encoding="utf-8", newline="")
+    fd, temp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with handle:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
             write(handle)
-        os.replace(handle.name, path)
+        os.replace(temp_name, path)
     except BaseException:
-        Path(handle.name).unlink(missing_ok=True)
+        Path(temp_name).unlink(missing_ok=True)
         raise
 
 
