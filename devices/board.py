@@ -1,0 +1,493 @@
+"""The multiplexing force-sensor board: wire protocol (SPEC §4), readout circuit, and a threaded reader.
+
+:class:`FrameParser` turns a byte stream into verified frames: it resynchronises on the sync bytes after garbage,
+checks version, channel count and CRC-16/CCITT-FALSE, and never hands out a frame whose CRC is wrong. It counts
+every CRC error, resync, ``seq`` gap and discarded byte.
+
+:class:`BoardReader` owns one reader thread per board: it opens the port through :func:`devices.factory.open_serial`
+(so ``sim`` and real ports share this code), parses frames into a preallocated ring, and survives a pulled cable by
+reopening the port every :data:`RECONNECT_INTERVAL_S` and marking the gap. Consumers drain the ring with
+:meth:`BoardReader.read_block`, which returns a :class:`SampleBlock` with counts, conductance and time stamps.
+"""
+
+from __future__ import annotations
+
+import binascii
+import contextlib
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import serial
+
+from devices import factory
+from devices.config import BoardConfig
+from devices.errors import BoardProtocolError, PortOpenError
+
+SYNC = b"\xa5\x5a"
+PROTOCOL_VERSION = 1
+HEADER_SIZE = 14  # sync(2) version(1) flags(1) seq(4) t_us(4) n(2)
+CRC_SIZE = 2
+MAX_CHANNELS = 1024
+FLAG_SATURATED = 0x01
+SEQ_MODULUS = 1 << 32
+T_US_MODULUS = 1 << 32
+_HEADER = struct.Struct("<BBIIH")  # version, flags, seq, t_us, n — starts after the sync bytes
+_CRC = struct.Struct("<H")
+
+RECONNECT_INTERVAL_S = 0.5
+READ_TIMEOUT_S = 0.02
+MAX_READ_BYTES = 1 << 16
+DEFAULT_RING_SECONDS = 20.0
+MIN_RING_FRAMES = 256
+
+
+# -- CRC ---------------------------------------------------------------------------------------------------------
+def crc16_ccitt_false(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor). Any thread.
+
+    ``binascii.crc_hqx`` is exactly this CRC with a caller-chosen init (CPython's table-driven C loop), so the hot
+    path costs about a nanosecond per byte; :func:`crc16_ccitt_false_table` is the pure-Python reference it is tested
+    against.
+    """
+    return binascii.crc_hqx(data, crc)
+
+
+def _make_crc_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_CRC_TABLE = _make_crc_table()
+
+
+def crc16_ccitt_false_table(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
+    """The same CRC, table-driven in pure Python: the readable reference (≈100× slower). Any thread."""
+    table = _CRC_TABLE
+    for byte in bytes(data):
+        crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ byte]
+    return crc
+
+
+def encode_frame(seq: int, t_us: int, counts: np.ndarray, flags: int | None = None,
+                 version: int = PROTOCOL_VERSION) -> bytes:
+    """One SPEC §4 frame. ``flags=None`` sets the saturated bit when any count is 0. Any thread.
+
+    Used by the simulated board and by tests; a host never sends frames.
+    """
+    counts16 = np.asarray(counts, dtype="<u2")
+    if flags is None:
+        flags = FLAG_SATURATED if bool((counts16 == 0).any()) else 0
+    body = _HEADER.pack(version, flags, seq % SEQ_MODULUS, t_us % T_US_MODULUS, counts16.size) + counts16.tobytes()
+    return SYNC + body + _CRC.pack(crc16_ccitt_false(body))
+
+
+# -- parser ------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Frame:
+    """One verified board frame. ``counts`` are 12-bit ADC readings, uint16, shape (n,)."""
+
+    seq: int
+    t_us: int
+    flags: int
+    counts: np.ndarray
+
+
+class FrameParser:
+    """Incremental SPEC §4 frame parser. Not thread-safe: feed it from one thread.
+
+    Counters (all cumulative): ``frames`` delivered, ``crc_errors`` (a header that looked valid but whose CRC did not
+    match), ``bad_headers`` (sync found but version or ``n`` impossible), ``resyncs`` (times the parser had to search
+    for the next sync instead of finding it where the previous frame ended), ``seq_gaps`` (a delivered frame whose
+    ``seq`` is not the previous + 1, modulo 2³²), ``dropped_frames`` (frames missing inside those gaps),
+    ``bytes_discarded`` (bytes skipped while searching). Invariant:
+    ``bytes_received == bytes_in_frames + bytes_discarded + bytes_pending``.
+    """
+
+    def __init__(self, max_channels: int = MAX_CHANNELS) -> None:
+        self.max_channels = max_channels
+        self._buf = bytearray()
+        self._last_seq: int | None = None
+        self._in_sync = True  # a fresh stream is expected to start on a frame
+        self.frames = 0
+        self.crc_errors = 0
+        self.bad_headers = 0
+        self.resyncs = 0
+        self.seq_gaps = 0
+        self.dropped_frames = 0
+        self.bytes_discarded = 0
+        self.bytes_received = 0
+        self.bytes_in_frames = 0
+
+    @property
+    def bytes_pending(self) -> int:
+        """Bytes held back waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def reset_stream(self) -> None:
+        """Forget buffered bytes and the last ``seq`` (after a reconnect); counters are kept."""
+        self.bytes_discarded += len(self._buf)
+        self._buf.clear()
+        self._last_seq = None
+        self._in_sync = True
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        """Append ``data`` and return every complete, verified frame it completes, in stream order."""
+        self.bytes_received += len(data)
+        buf = self._buf
+        buf += data
+        frames: list[Frame] = []
+        pos = 0
+        end = len(buf)
+        while True:
+            start = buf.find(SYNC, pos)
+            if start < 0:
+                # Keep a trailing 0xA5: it may be the first half of the next sync.
+                keep_from = end - 1 if end > pos and buf[end - 1] == SYNC[0] else end
+                self._discard(keep_from - pos)
+                pos = keep_from
+                break
+            if start > pos:
+                self._discard(start - pos)
+            pos = start
+            if end - pos < HEADER_SIZE:
+                break
+            version, flags, seq, t_us, n = _HEADER.unpack_from(buf, pos + 2)
+            if version != PROTOCOL_VERSION or not 1 <= n <= self.max_channels:
+                self.bad_headers += 1
+                self._discard(1)
+                pos += 1
+                continue
+            frame_end = pos + HEADER_SIZE + 2 * n + CRC_SIZE
+            if frame_end > end:
+                break
+            (crc_wire,) = _CRC.unpack_from(buf, frame_end - CRC_SIZE)
+            if crc16_ccitt_false(memoryview(buf)[pos + 2:frame_end - CRC_SIZE]) != crc_wire:
+                self.crc_errors += 1
+                self._discard(1)
+                pos += 1
+                continue
+            counts = np.frombuffer(buf, dtype="<u2", count=n, offset=pos + HEADER_SIZE).astype(np.uint16)
+            frames.append(Frame(seq=seq, t_us=t_us, flags=flags, counts=counts))
+            self._count_seq(seq)
+            self.frames += 1
+            self.bytes_in_frames += frame_end - pos
+            self._in_sync = True
+            pos = frame_end
+        del buf[:pos]
+        return frames
+
+    def _discard(self, n_bytes: int) -> None:
+        if n_bytes <= 0:
+            return
+        if self._in_sync:
+            self.resyncs += 1
+            self._in_sync = False
+        self.bytes_discarded += n_bytes
+
+    def _count_seq(self, seq: int) -> None:
+        last = self._last_seq
+        self._last_seq = seq
+        if last is None:
+            return
+        step = (seq - last) % SEQ_MODULUS
+        if step == 1:
+            return
+        self.seq_gaps += 1
+        # A huge or zero step is a board restart (or a repeat), not millions of lost frames.
+        if 1 < step < SEQ_MODULUS // 2:
+            self.dropped_frames += step - 1
+
+
+# -- readout circuit ---------------------------------------------------------------------------------------------
+def conductance_from_counts(counts: np.ndarray, board: BoardConfig) -> np.ndarray:
+    """Sensor conductance in siemens from ADC counts (SPEC §4). Any thread; any array shape.
+
+    ``V = counts/adc_max · V_supply``, ``C = (V_ref − V)/(V_ref · R_C)``; a negative ``C`` (open sensor) reads 0.
+    ``counts == 0`` is saturated: the value is the circuit's ceiling ``1/R_C`` and callers flag it (see
+    :func:`saturated_from_counts`).
+    """
+    volts = np.asarray(counts, dtype=np.float64) * (board.v_supply_v / board.adc_max_counts)
+    conductance = (board.v_ref_v - volts) * (1.0 / (board.v_ref_v * board.r_c_ohm))
+    np.maximum(conductance, 0.0, out=conductance)
+    return conductance
+
+
+def counts_from_conductance(conductance_s: np.ndarray, board: BoardConfig) -> np.ndarray:
+    """The readout circuit run forwards, unquantised (float counts, not clipped). Any thread."""
+    volts = board.v_ref_v * (1.0 - np.asarray(conductance_s, dtype=np.float64) * board.r_c_ohm)
+    return volts * (board.adc_max_counts / board.v_supply_v)
+
+
+def saturated_from_counts(counts: np.ndarray) -> np.ndarray:
+    """True where the ADC reads 0 (the sensor's conductance is beyond the circuit's range)."""
+    return np.asarray(counts) == 0
+
+
+# -- reader ------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SampleBlock:
+    """Samples drained from a :class:`BoardReader`; N frames × C channels.
+
+    ``board_time_s`` is the board clock (``t_us`` unwrapped across its 2³² µs wrap), ``host_time_s`` the host's
+    ``time.monotonic()`` when the frame's bytes were read. ``gap_before[i]`` is True when frames are missing just
+    before sample ``i`` (dropped frames, or a reconnect after a pulled cable).
+    """
+
+    counts: np.ndarray  # (N, C) uint16
+    conductance_s: np.ndarray  # (N, C) float64
+    board_time_s: np.ndarray  # (N,) float64
+    host_time_s: np.ndarray  # (N,) float64
+    seq: np.ndarray  # (N,) uint32
+    saturated: np.ndarray  # (N, C) bool
+    gap_before: np.ndarray | None = None  # (N,) bool; None means no gap anywhere
+
+    def __len__(self) -> int:
+        return int(self.seq.shape[0])
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.counts.shape[1])
+
+
+@dataclass(frozen=True)
+class BoardStatus:
+    """A change in the reader's state. ``state`` is one of ``connected``, ``disconnected``, ``reconnected``,
+    ``mismatch`` (channel count differs from the config), ``error`` (unexpected failure; the reader stopped),
+    ``closed``. ``message`` is a sentence for the user."""
+
+    state: str
+    message: str
+    connected: bool
+    host_time_s: float = field(default_factory=time.monotonic)
+
+
+@dataclass(frozen=True)
+class BoardStats:
+    """Cumulative counters since :meth:`BoardReader.start`."""
+
+    frames: int = 0
+    crc_errors: int = 0
+    resyncs: int = 0
+    seq_gaps: int = 0
+    dropped_frames: int = 0
+    bytes_discarded: int = 0
+    bad_headers: int = 0
+    reconnects: int = 0
+    channel_mismatches: int = 0
+    overflow_frames: int = 0  # frames lost because nobody drained the ring in time
+    connected: bool = False
+
+
+class BoardReader:
+    """Reads one force-sensor board on its own thread; see the module docstring.
+
+    ``on_status`` is called from the reader thread (keep it short; Qt users re-emit it as a queued signal).
+    :meth:`start`, :meth:`close`, :meth:`read_block`, :attr:`status` and :attr:`stats` may be called from any thread.
+    """
+
+    def __init__(self, board: BoardConfig, on_status: Callable[[BoardStatus], None] | None = None,
+                 ring_seconds: float = DEFAULT_RING_SECONDS) -> None:
+        self.board = board
+        self._on_status = on_status
+        n = board.n_channels
+        self._capacity = max(MIN_RING_FRAMES, int(np.ceil(board.rate_hz * ring_seconds)))
+        self._counts = np.zeros((self._capacity, n), dtype=np.uint16)
+        self._board_time = np.zeros(self._capacity)
+        self._host_time = np.zeros(self._capacity)
+        self._seq = np.zeros(self._capacity, dtype=np.uint32)
+        self._gap = np.zeros(self._capacity, dtype=bool)
+        self._write_total = 0  # frames ever written
+        self._read_total = 0  # frames ever handed out
+        self._lock = threading.Lock()
+        self._data_ready = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._port: serial.SerialBase | None = None
+        self._parser = FrameParser()
+        self._status = BoardStatus("closed", f"board on {board.port} not started", False)
+        self._reconnects = 0
+        self._channel_mismatches = 0
+        self._overflow = 0
+        self._gap_pending = False
+        self._last_t_us: int | None = None
+        self._last_seq_stored: int | None = None
+        self._board_time_base_s = 0.0
+
+    # -- public API -------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the port and start the reader thread. Raises :class:`PortOpenError` if the port cannot be opened."""
+        if self._thread is not None:
+            raise RuntimeError("BoardReader already started")
+        self._port = self._open()
+        self._set_status("connected", f"board connected on {self.board.port}", True)
+        self._thread = threading.Thread(target=self._run, name=f"board-reader:{self.board.port}", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop the thread (joins it) and close the port. Idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        self._close_port()
+        if self._status.state != "closed":
+            self._set_status("closed", f"board on {self.board.port} closed", False)
+
+    def __enter__(self) -> BoardReader:
+        self.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    @property
+    def status(self) -> BoardStatus:
+        return self._status
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def stats(self) -> BoardStats:
+        p = self._parser
+        return BoardStats(frames=p.frames, crc_errors=p.crc_errors, resyncs=p.resyncs, seq_gaps=p.seq_gaps,
+                          dropped_frames=p.dropped_frames, bytes_discarded=p.bytes_discarded,
+                          bad_headers=p.bad_headers, reconnects=self._reconnects,
+                          channel_mismatches=self._channel_mismatches, overflow_frames=self._overflow,
+                          connected=self._status.connected)
+
+    @property
+    def frames_available(self) -> int:
+        with self._lock:
+            return self._write_total - self._read_total
+
+    def wait_for_frames(self, n_frames: int = 1, timeout_s: float | None = None) -> bool:
+        """Block until at least ``n_frames`` frames wait in the ring (True) or ``timeout_s`` passes (False).
+
+        For consumers without an event loop (the CLI, tests). Any thread but the reader's.
+        """
+        with self._data_ready:
+            return self._data_ready.wait_for(lambda: self._write_total - self._read_total >= n_frames, timeout_s)
+
+    def read_block(self) -> SampleBlock | None:
+        """Everything received since the previous call (oldest first), or ``None`` if nothing arrived."""
+        with self._lock:
+            count = self._write_total - self._read_total
+            if count <= 0:
+                return None
+            idx = (self._read_total + np.arange(count)) % self._capacity
+            counts = self._counts[idx]
+            board_time = self._board_time[idx]
+            host_time = self._host_time[idx]
+            seq = self._seq[idx]
+            gap = self._gap[idx]
+            self._read_total = self._write_total
+        return SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, self.board),
+                           board_time_s=board_time, host_time_s=host_time, seq=seq,
+                           saturated=saturated_from_counts(counts), gap_before=gap if gap.any() else None)
+
+    # -- reader thread ----------------------------------------------------------------------------------------
+    def _open(self) -> serial.SerialBase:
+        try:
+            return factory.open_serial(self.board.port, self.board.baud, "board", timeout_s=READ_TIMEOUT_S)
+        except serial.SerialException as exc:
+            raise PortOpenError(f"cannot open board port {self.board.port}: {exc}") from exc
+
+    def _close_port(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            # The adapter may be gone already; then there is nothing left to release.
+            with contextlib.suppress(serial.SerialException, OSError):
+                port.close()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                if self._port is None:
+                    self._try_reconnect()
+                    continue
+                try:
+                    data = self._port.read(min(max(self._port.in_waiting, 1), MAX_READ_BYTES))
+                except (serial.SerialException, OSError) as exc:
+                    self._on_link_lost(exc)
+                    continue
+                if data:
+                    self._ingest(data, time.monotonic())
+        except BaseException as exc:
+            # Thread boundary: tell the user the board stopped, then let threading.excepthook print the traceback.
+            self._set_status("error", f"board reader on {self.board.port} stopped: {type(exc).__name__}: {exc}",
+                             False)
+            raise
+        finally:
+            self._close_port()
+
+    def _on_link_lost(self, exc: BaseException) -> None:
+        self._close_port()
+        self._set_status("disconnected", f"board on {self.board.port} disconnected ({exc}); retrying every "
+                         f"{RECONNECT_INTERVAL_S:g} s — check the cable", False)
+
+    def _try_reconnect(self) -> None:
+        if self._stop.wait(RECONNECT_INTERVAL_S):
+            return
+        try:
+            self._port = self._open()
+        except PortOpenError:
+            return
+        self._parser.reset_stream()
+        self._reconnects += 1
+        self._gap_pending = True
+        self._set_status("reconnected", f"board reconnected on {self.board.port}; the gap is marked", True)
+
+    def _ingest(self, data: bytes, host_time_s: float) -> None:
+        expected = self.board.n_channels
+        for frame in self._parser.feed(data):
+            if frame.counts.size != expected:
+                self._channel_mismatches += 1
+                if self._status.state != "mismatch":
+                    error = BoardProtocolError(
+                        f"board on {self.board.port} sends {frame.counts.size} channels but the config lists "
+                        f"{expected} (board.channel_names): fix the config's channel list or the board firmware")
+                    self._set_status("mismatch", str(error), True)
+                continue
+            if self._status.state == "mismatch":
+                self._set_status("connected", f"board on {self.board.port} sends {expected} channels again", True)
+            self._store(frame, host_time_s)
+
+    def _store(self, frame: Frame, host_time_s: float) -> None:
+        if self._last_t_us is not None:
+            self._board_time_base_s += ((frame.t_us - self._last_t_us) % T_US_MODULUS) * 1e-6
+        else:
+            self._board_time_base_s = frame.t_us * 1e-6
+        self._last_t_us = frame.t_us
+        gap = self._gap_pending or (self._last_seq_stored is not None
+                                    and (frame.seq - self._last_seq_stored) % SEQ_MODULUS != 1)
+        self._gap_pending = False
+        self._last_seq_stored = frame.seq
+        with self._lock:
+            slot = self._write_total % self._capacity
+            self._counts[slot] = frame.counts
+            self._board_time[slot] = self._board_time_base_s
+            self._host_time[slot] = host_time_s
+            self._seq[slot] = frame.seq
+            self._gap[slot] = gap
+            self._write_total += 1
+            if self._write_total - self._read_total > self._capacity:
+                self._overflow += self._write_total - self._read_total - self._capacity
+                self._read_total = self._write_total - self._capacity
+            self._data_ready.notify_all()
+
+    def _set_status(self, state: str, message: str, connected: bool) -> None:
+        status = BoardStatus(state, message, connected)
+        self._status = status
+        if self._on_status is not None:
+            self._on_status(status)
