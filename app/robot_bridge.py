@@ -184,7 +184,8 @@ class RobotBridge(QObject):
         if self._closed:
             raise RuntimeError("the robot bridge is closed")
         if self._controller is not None or self.is_connecting:
-            return self._pending_connect if self.is_connecting else _done_future(self._controller)
+            return self._pending_connect if self.is_connecting else _done_future((self._controller,
+                                                                                   self.timing_warnings))
         self._config = replace(self._config, port=(port or self._config.port).strip(),
                                baud=int(baud or self._config.baud))
         config = self._config
@@ -232,7 +233,7 @@ class RobotBridge(QObject):
         # never run now: close it here so its thread does not outlive the bridge.
         pending = self._pending_connect
         if pending is not None and pending.done() and not pending.cancelled() and pending.exception() is None:
-            orphan = pending.result()
+            orphan, _warnings = pending.result()
             if orphan is not controller:
                 orphan.close()
         self._set_connection("not connected")
@@ -376,8 +377,8 @@ class RobotBridge(QObject):
         self._post.emit(lambda: self._device_error(exc))
 
     # -- GUI-thread handlers ----------------------------------------------------------------------------------------
-    def _open_controller(self, config: RobotConfig) -> Any:
-        """Worker thread: open the chain, check it, start the controller. Returns the running controller."""
+    def _open_controller(self, config: RobotConfig) -> tuple[Any, list[str]]:
+        """Worker thread: open the chain, check it, start the controller; returns it and the timing warnings."""
         from devices.controller import RobotController
         from devices.servo_chain import ServoChain
 
@@ -385,20 +386,22 @@ class RobotBridge(QObject):
         chain.open()
         try:
             chain.check_models()
-            self.timing_warnings = list(chain.timing_warnings())
+            warnings = list(chain.timing_warnings())
             controller = RobotController(chain, config, on_state=self._on_state, on_health=self._on_health,
                                          on_event=self._on_event, on_error=self._on_error)
         except BaseException:
             chain.close()
             raise
         controller.start()
-        return controller
+        return controller, warnings
 
-    def _adopt_controller(self, controller: Any) -> None:
+    def _adopt_controller(self, opened: tuple[Any, list[str]]) -> None:
+        controller, warnings = opened
         if self._closed:
             controller.close()
             return
         self._controller = controller
+        self.timing_warnings = warnings
         self.connected_at_s = time.monotonic()
         kind = "simulated" if self.is_sim else "real"
         self._set_connection(f"{self.n_servos} servos on {self.port} ({kind})")

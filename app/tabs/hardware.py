@@ -1,0 +1,194 @@
+"""The Hardware tab: wires :class:`widgets.hardware_panel.HardwarePanel` to ``lab.robot``.
+
+Live values come from a ≤ 10 Hz timer reading the bridge's latest state and health (never per sample), and the timer
+runs only while the tab is on screen. Scans run one baud rate per bus call so progress can be shown; the link check
+pings every servo a few times on the bus thread and times each round trip there. GUI thread only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from PySide6.QtCore import QTimer
+from PySide6.QtGui import QHideEvent, QShowEvent
+from PySide6.QtWidgets import QVBoxLayout, QWidget
+
+from app.lab import LabContext
+from app.robot_bridge import describe_error
+from devices.errors import CorruptPacketError, DeviceError, NoReplyError
+from widgets.hardware_panel import HardwarePanel, LinkCheckRow
+
+REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
+LINK_CHECK_ROUNDS = 5
+
+
+def link_check(chain: Any, servo_ids: Sequence[int], rounds: int = LINK_CHECK_ROUNDS) -> list[LinkCheckRow]:
+    """Ping each servo ``rounds`` times; round-trip times in ms. Runs on the bus thread (``run_on_bus``)."""
+    rows = []
+    for servo_id in servo_ids:
+        rtts_ms: list[float] = []
+        no_reply = crc = 0
+        others: list[str] = []
+        for _ in range(rounds):
+            start = time.perf_counter()
+            try:
+                chain.ping(servo_id)
+            except NoReplyError:
+                no_reply += 1
+                continue
+            except CorruptPacketError:
+                crc += 1
+                continue
+            except DeviceError as exc:
+                others.append(str(exc))
+                continue
+            rtts_ms.append((time.perf_counter() - start) * 1000.0)
+        rows.append(LinkCheckRow(
+            servo_id=int(servo_id),
+            rtt_mean_ms=sum(rtts_ms) / len(rtts_ms) if rtts_ms else None,
+            rtt_max_ms=max(rtts_ms) if rtts_ms else None,
+            no_reply=no_reply, crc_errors=crc, other_errors=tuple(dict.fromkeys(others)),
+        ))
+    return rows
+
+
+class HardwareTab(QWidget):
+    """Connect, scan, watch and command the servos of ``lab.robot``."""
+
+    def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        self.robot = lab.robot
+        self.panel = HardwarePanel()
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.panel)
+
+        config = self.robot.config
+        self.panel.set_servos(config.joint_ids, config.axes)
+        self.panel.set_port_baud(self.robot.port, self.robot.baud)
+        self.refresh_count = 0
+        self._shown_state: Any = None
+        self._scan_queue: list[int] = []
+        self._scan_found = 0
+        self._scan_steps = 0
+
+        self.refresh_timer = QTimer(self)
+        self.refresh_timer.setInterval(REFRESH_INTERVAL_MS)
+        self.refresh_timer.timeout.connect(self.refresh)
+
+        panel = self.panel
+        panel.connect_requested.connect(self._connect)
+        panel.disconnect_requested.connect(self.robot.disconnect_robot)
+        panel.scan_requested.connect(self.start_scan)
+        panel.torque_requested.connect(lambda sid, on: self.robot.set_torque(on, [sid]))
+        panel.all_torque_requested.connect(lambda on: self.robot.set_torque(on))
+        panel.led_requested.connect(self.robot.set_led)
+        panel.reboot_requested.connect(self.robot.reboot)
+        panel.link_check_requested.connect(self.start_link_check)
+        panel.timing_check_requested.connect(self.start_timing_check)
+
+        self.robot.connection_changed.connect(self._connection_changed)
+        self.robot.connected.connect(self._connected_changed)
+        self._connection_changed(self.robot.connection_text)
+        if self.robot.is_connected:
+            self.panel.set_timing_warnings(self.robot.timing_warnings)
+
+    # -- live view -------------------------------------------------------------------------------------------------
+    def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt override
+        super().showEvent(event)
+        self.refresh_timer.start()
+        self.refresh()
+
+    def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt override
+        self.refresh_timer.stop()
+        super().hideEvent(event)
+
+    def refresh(self) -> None:
+        """Show the latest state and health (GUI thread; skipped while the tab is hidden)."""
+        if not self.isVisible() or not self.robot.is_connected:
+            return
+        self.refresh_count += 1
+        state = self.robot.latest_state
+        if state is not None and state is not self._shown_state:
+            self._shown_state = state
+            self.panel.set_state(state.position_rad, state.velocity_rad_s, state.current_ma)
+        health = self.robot.latest_health
+        if health:
+            self.panel.set_health(health)
+
+    # -- connection ------------------------------------------------------------------------------------------------
+    def _connect(self, port: str, baud: int) -> None:
+        self.robot.connect_robot(port, baud)
+
+    def _connection_changed(self, text: str) -> None:
+        robot = self.robot
+        self.panel.set_connection(robot.is_connected, text, busy=robot.is_connecting or text.endswith("…"))
+
+    def _connected_changed(self, connected: bool) -> None:
+        self._connection_changed(self.robot.connection_text)
+        self._shown_state = None
+        if connected:
+            self.panel.set_timing_warnings(self.robot.timing_warnings)
+            self.refresh()
+        else:
+            self.panel.set_timing_warnings([], checked=False)
+
+    # -- scan ------------------------------------------------------------------------------------------------------
+    def start_scan(self, ids: Sequence[int], bauds: Sequence[int]) -> None:
+        """Scan ``ids`` at each baud rate in turn (one bus call per baud rate, so progress can be shown)."""
+        self._scan_ids = list(ids)
+        self._scan_queue = list(bauds)
+        self._scan_steps = len(self._scan_queue)
+        self._scan_found = 0
+        self._scan_started_s = time.monotonic()
+        self.panel.set_scan_running(self._scan_steps, f"scanning IDs {ids[0]}–{ids[-1]}…")
+        self._scan_next()
+
+    def _scan_next(self) -> None:
+        if not self._scan_queue:
+            elapsed_s = time.monotonic() - self._scan_started_s
+            found = self._scan_found
+            self.panel.set_scan_finished(
+                f"{found} servo(s) found in {elapsed_s:.1f} s" if found else
+                "no servo answered: check power, cable, port and baud rate (try 'all baud rates')", ok=found > 0)
+            return
+        baud = self._scan_queue.pop(0)
+        done = self._scan_steps - len(self._scan_queue) - 1
+        self.panel.set_scan_progress(done, f"{baud} baud ({done + 1}/{self._scan_steps})")
+        port = self.panel.port or None
+        future = self.robot.scan(bauds=[baud], ids=self._scan_ids, port=port, report_errors=False)
+        self.robot.when_done(future, self._scan_step_done, self._scan_failed)
+
+    def _scan_step_done(self, infos: list) -> None:
+        self._scan_found += len(infos)
+        self.panel.add_scan_results(infos)
+        self._scan_next()
+
+    def _scan_failed(self, exc: BaseException) -> None:
+        self._scan_queue = []
+        self.panel.set_scan_finished(f"scan stopped: {describe_error(exc)}", ok=False)
+
+    # -- link check and timing -------------------------------------------------------------------------------------
+    def start_link_check(self) -> None:
+        ids = list(self.robot.config.joint_ids)
+        self.panel.set_link_check_running()
+        future = self.robot.run_on_bus(lambda chain: link_check(chain, ids), report_errors=False)
+        self.robot.when_done(future, lambda rows: self.panel.set_link_report(rows, LINK_CHECK_ROUNDS),
+                             lambda exc: self.panel.set_link_check_failed(f"link check failed: {describe_error(exc)}"))
+
+    def start_timing_check(self) -> None:
+        future = self.robot.run_on_bus(lambda chain: list(chain.timing_warnings()), report_errors=False)
+
+        def done(warnings: list[str]) -> None:
+            self.robot.timing_warnings = warnings
+            self.panel.set_timing_warnings(warnings)
+
+        self.robot.when_done(future, done, lambda exc: self.panel.set_timing_warnings(
+            [f"timing check failed: {describe_error(exc)}"]))
+
+
+def create_tab(lab: LabContext) -> QWidget:
+    return HardwareTab(lab)

@@ -1,0 +1,74 @@
+"""Open the app offscreen on the simulated lab, visit every tab and save docs/screenshots/<tab>.png.
+
+    QT_QPA_PLATFORM=offscreen python tools/screenshot.py [--out docs/screenshots] [--size 1280x820] [--settle-ms 1500]
+
+Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab.
+The user's saved window geometry is not touched (settings go to a temporary file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/screenshots", help="folder for the PNGs")
+    parser.add_argument("--size", default="1280x820", help="window size WxH in pixels")
+    parser.add_argument("--settle-ms", type=int, default=1500, help="time each tab gets to fill in live data")
+    parser.add_argument("--tabs", nargs="*", default=None, help="only these tabs (default: all)")
+    args = parser.parse_args(argv)
+    width, height = (int(v) for v in args.size.lower().split("x"))
+
+    from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
+    from PySide6.QtWidgets import QApplication
+
+    from app.lab import LabContext
+    from app.main_window import TABS, MainWindow
+    from devices.config import SIM_PORT, load_config
+
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
+        config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+        lab = LabContext(config)
+        window = MainWindow(lab, settings=settings)
+        window.resize(width, height)
+        window.show()
+        lab.connect_all()
+
+        def pump(ms: int, until=None) -> None:
+            deadline = time.monotonic() + ms / 1000.0
+            while time.monotonic() < deadline:
+                QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 50)
+                if until is not None and until():
+                    return
+                time.sleep(0.01)  # a script, not a test: idle between event batches
+
+        pump(10_000, until=lambda: lab.robot.is_connected or "could not" in window.status.message)
+        names = args.tabs or [spec.name for spec in TABS]
+        for name in names:
+            page = window.show_tab(name)
+            if name == "hardware":
+                page.panel.link_check_button.click()
+            pump(args.settle_ms)
+            path = out / f"{name}.png"
+            window.grab().save(str(path))
+            print(f"saved {path}")  # noqa: T201 - a command-line script reports what it wrote
+        window.close()
+        app.processEvents()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,542 @@
+"""The Hardware tab's view: connection, scan, per-servo live status and controls, link check, timing warnings.
+
+Passive: it shows what it is given (numpy arrays in joint order, ServoHealth/ServoInfo-like dataclasses read by
+attribute) and emits signals for what the user asks; it never talks to a device. GUI thread only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QBrush, QFont
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QCheckBox,
+    QComboBox,
+    QGroupBox,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QLineEdit,
+    QPlainTextEdit,
+    QProgressBar,
+    QPushButton,
+    QSizePolicy,
+    QSpinBox,
+    QSplitter,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from widgets import theme
+
+# Dynamixel X-series baud rates (control table item 8), most common first.
+DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_000, 4_000_000, 4_500_000, 9_600)
+TEMPERATURE_WARN_C = 70.0  # XM430 shuts down at 80 °C by default
+VOLTAGE_RANGE_V = (10.0, 14.8)  # XM430-W350 recommended supply range
+ROW_HEIGHT_PX = 26  # twelve servos fit without scrolling at the default window size
+
+SERVO_COLUMNS: tuple[str, ...] = ("ID", "Axis", "Position (rad)", "Position (°)", "Velocity (rad/s)",
+                                  "Current (mA)", "Temp (°C)", "Voltage (V)", "Hardware errors",
+                                  "Torque", "LED", "")
+COL_ID, COL_AXIS, COL_RAD, COL_DEG, COL_VEL, COL_CUR, COL_TEMP, COL_VOLT, COL_ERR, COL_TORQUE, COL_LED, COL_REBOOT = (
+    range(len(SERVO_COLUMNS)))
+SCAN_COLUMNS: tuple[str, ...] = ("ID", "Model", "Firmware", "Baud")
+LINK_COLUMNS: tuple[str, ...] = ("ID", "RTT mean (ms)", "RTT max (ms)", "No reply", "CRC", "Result")
+
+
+@dataclass(frozen=True)
+class LinkCheckRow:
+    """One servo's link-check result: round-trip times of the pings that answered, and the failures."""
+
+    servo_id: int
+    rtt_mean_ms: float | None
+    rtt_max_ms: float | None
+    no_reply: int
+    crc_errors: int
+    other_errors: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.no_reply == 0 and self.crc_errors == 0 and not self.other_errors
+
+
+def _item(text: str, align_right: bool = True) -> QTableWidgetItem:
+    item = QTableWidgetItem(text)
+    item.setFlags(Qt.ItemFlag.ItemIsEnabled | Qt.ItemFlag.ItemIsSelectable)
+    if align_right:
+        item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+    return item
+
+
+def _toggle_button(text_on: str, text_off: str) -> QPushButton:
+    button = QPushButton(text_off)
+    button.setCheckable(True)
+    button.setProperty("text_on", text_on)
+    button.setProperty("text_off", text_off)
+    button.toggled.connect(lambda on, b=button: b.setText(b.property("text_on" if on else "text_off")))
+    button.setFocusPolicy(Qt.FocusPolicy.TabFocus)
+    return button
+
+
+class HardwarePanel(QWidget):
+    """Dynamixel Wizard's essentials for the robot's bus."""
+
+    connect_requested = Signal(str, int)  # port, baud
+    disconnect_requested = Signal()
+    scan_requested = Signal(object, object)  # ids: list[int], bauds: list[int]
+    torque_requested = Signal(int, bool)  # servo ID, on
+    all_torque_requested = Signal(bool)
+    led_requested = Signal(int, bool)
+    reboot_requested = Signal(int)
+    link_check_requested = Signal()
+    timing_check_requested = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.servo_ids: tuple[int, ...] = ()
+        self._row_of_id: dict[int, int] = {}
+        self._connected = False
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(8, 8, 8, 8)
+        layout.addWidget(self._build_connection())
+
+        splitter = QSplitter(Qt.Orientation.Vertical)
+        splitter.setChildrenCollapsible(False)
+        splitter.addWidget(self._build_servos())
+        tools = QWidget()
+        tools_layout = QHBoxLayout(tools)
+        tools_layout.setContentsMargins(0, 0, 0, 0)
+        tools_layout.addWidget(self._build_scan(), 5)
+        tools_layout.addWidget(self._build_link_check(), 5)
+        tools_layout.addWidget(self._build_timing(), 4)
+        splitter.addWidget(tools)
+        splitter.setStretchFactor(0, 3)
+        splitter.setStretchFactor(1, 2)
+        layout.addWidget(splitter, 1)
+        self.set_connection(False, "not connected")
+
+    # -- construction ----------------------------------------------------------------------------------------------
+    def _build_connection(self) -> QGroupBox:
+        box = QGroupBox("Servo bus")
+        row = QHBoxLayout(box)
+        row.addWidget(QLabel("Port"))
+        self.port_edit = QLineEdit()
+        self.port_edit.setPlaceholderText("/dev/ttyUSB0, COM3 or sim")
+        self.port_edit.setMinimumWidth(180)
+        self.port_edit.setToolTip("Serial device of the U2D2 adapter, or 'sim' for the simulated robot")
+        row.addWidget(self.port_edit)
+        row.addWidget(QLabel("Baud"))
+        self.baud_combo = QComboBox()
+        self.baud_combo.setEditable(True)
+        for baud in DXL_BAUDS_BPS:
+            self.baud_combo.addItem(str(baud), baud)
+        self.baud_combo.setMinimumWidth(110)
+        row.addWidget(self.baud_combo)
+        self.connect_button = QPushButton("Connect")
+        self.connect_button.setObjectName("connect_button")
+        self.connect_button.clicked.connect(self._emit_connect)
+        row.addWidget(self.connect_button)
+        self.disconnect_button = QPushButton("Disconnect")
+        self.disconnect_button.setObjectName("disconnect_button")
+        self.disconnect_button.clicked.connect(self.disconnect_requested)
+        row.addWidget(self.disconnect_button)
+        self.connection_label = QLabel()
+        self.connection_label.setObjectName("connection_label")
+        row.addWidget(self.connection_label)
+        row.addStretch(1)
+        return box
+
+    def _build_servos(self) -> QGroupBox:
+        box = QGroupBox("Servos")
+        column = QVBoxLayout(box)
+        bar = QHBoxLayout()
+        self.all_torque_on_button = QPushButton("All torque on")
+        self.all_torque_on_button.clicked.connect(lambda: self.all_torque_requested.emit(True))
+        self.all_torque_off_button = QPushButton("All torque off")
+        self.all_torque_off_button.setToolTip("The robot goes limp: support it before switching torque off")
+        self.all_torque_off_button.clicked.connect(lambda: self.all_torque_requested.emit(False))
+        bar.addWidget(self.all_torque_on_button)
+        bar.addWidget(self.all_torque_off_button)
+        bar.addStretch(1)
+        self.servo_summary_label = QLabel("")
+        bar.addWidget(self.servo_summary_label)
+        column.addLayout(bar)
+
+        self.servo_table = QTableWidget(0, len(SERVO_COLUMNS))
+        self.servo_table.setObjectName("servo_table")
+        self.servo_table.setHorizontalHeaderLabels(list(SERVO_COLUMNS))
+        self.servo_table.verticalHeader().setVisible(False)
+        self.servo_table.verticalHeader().setDefaultSectionSize(ROW_HEIGHT_PX)
+        self.servo_table.setStyleSheet("QTableWidget QPushButton { padding: 0px 8px; margin: 1px 3px; }")
+        self.servo_table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.servo_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.servo_table.setAlternatingRowColors(True)
+        header = self.servo_table.horizontalHeader()
+        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(COL_ERR, QHeaderView.ResizeMode.Stretch)
+        header.setMinimumSectionSize(48)
+        column.addWidget(self.servo_table)
+        return box
+
+    def _build_scan(self) -> QGroupBox:
+        box = QGroupBox("Scan")
+        column = QVBoxLayout(box)
+        row = QHBoxLayout()
+        row.addWidget(QLabel("IDs"))
+        self.scan_id_from = QSpinBox()
+        self.scan_id_from.setRange(0, 252)
+        self.scan_id_to = QSpinBox()
+        self.scan_id_to.setRange(0, 252)
+        self.scan_id_to.setValue(252)
+        row.addWidget(self.scan_id_from)
+        row.addWidget(QLabel("to"))
+        row.addWidget(self.scan_id_to)
+        self.scan_all_bauds = QCheckBox("all baud rates")
+        self.scan_all_bauds.setToolTip("Try every Dynamixel baud rate, not only the one selected above")
+        row.addWidget(self.scan_all_bauds)
+        row.addStretch(1)
+        self.scan_button = QPushButton("Scan")
+        self.scan_button.setObjectName("scan_button")
+        self.scan_button.clicked.connect(self._emit_scan)
+        row.addWidget(self.scan_button)
+        column.addLayout(row)
+        self.scan_progress = QProgressBar()
+        self.scan_progress.setTextVisible(True)
+        self.scan_progress.setRange(0, 1)
+        self.scan_progress.setValue(0)
+        self.scan_progress.setFormat("idle")
+        column.addWidget(self.scan_progress)
+        self.scan_table = QTableWidget(0, len(SCAN_COLUMNS))
+        self.scan_table.setObjectName("scan_table")
+        self.scan_table.setHorizontalHeaderLabels(list(SCAN_COLUMNS))
+        self.scan_table.verticalHeader().setVisible(False)
+        self.scan_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.scan_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        column.addWidget(self.scan_table, 1)
+        self.scan_status_label = QLabel("")
+        self.scan_status_label.setWordWrap(True)
+        column.addWidget(self.scan_status_label)
+        return box
+
+    def _build_link_check(self) -> QGroupBox:
+        box = QGroupBox("Link check")
+        column = QVBoxLayout(box)
+        row = QHBoxLayout()
+        self.link_summary_label = QLabel("Ping every servo and time the round trip.")
+        self.link_summary_label.setWordWrap(True)
+        row.addWidget(self.link_summary_label, 1)
+        self.link_check_button = QPushButton("Check link")
+        self.link_check_button.setObjectName("link_check_button")
+        self.link_check_button.clicked.connect(self.link_check_requested)
+        row.addWidget(self.link_check_button)
+        column.addLayout(row)
+        self.link_table = QTableWidget(0, len(LINK_COLUMNS))
+        self.link_table.setObjectName("link_table")
+        self.link_table.setHorizontalHeaderLabels(list(LINK_COLUMNS))
+        self.link_table.verticalHeader().setVisible(False)
+        self.link_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.link_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.link_table.horizontalHeader().setStretchLastSection(True)
+        column.addWidget(self.link_table, 1)
+        return box
+
+    def _build_timing(self) -> QGroupBox:
+        box = QGroupBox("Timing")
+        column = QVBoxLayout(box)
+        row = QHBoxLayout()
+        self.timing_summary_label = QLabel("Latency timer and return delay checks run on connect.")
+        self.timing_summary_label.setWordWrap(True)
+        row.addWidget(self.timing_summary_label, 1)
+        self.timing_check_button = QPushButton("Re-check")
+        self.timing_check_button.clicked.connect(self.timing_check_requested)
+        row.addWidget(self.timing_check_button)
+        column.addLayout(row)
+        self.timing_text = QPlainTextEdit()
+        self.timing_text.setObjectName("timing_text")
+        self.timing_text.setReadOnly(True)
+        self.timing_text.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        column.addWidget(self.timing_text, 1)
+        return box
+
+    # -- inputs ----------------------------------------------------------------------------------------------------
+    @property
+    def port(self) -> str:
+        return self.port_edit.text().strip()
+
+    @property
+    def baud(self) -> int:
+        """The baud rate typed or chosen; raises ValueError naming the field if it is not a positive integer."""
+        text = self.baud_combo.currentText().strip()
+        try:
+            baud = int(text)
+        except ValueError:
+            raise ValueError(f"baud rate {text!r} is not a whole number") from None
+        if baud <= 0:
+            raise ValueError(f"baud rate {baud} must be positive")
+        return baud
+
+    def _emit_connect(self) -> None:
+        if not self.port:
+            self.connection_label.setText("enter a port first")
+            self.connection_label.setStyleSheet(theme.status_style(theme.WARN))
+            return
+        try:
+            baud = self.baud
+        except ValueError as exc:
+            self.connection_label.setText(str(exc))
+            self.connection_label.setStyleSheet(theme.status_style(theme.WARN))
+            return
+        self.connect_requested.emit(self.port, baud)
+
+    def _emit_scan(self) -> None:
+        lo, hi = self.scan_id_from.value(), self.scan_id_to.value()
+        if lo > hi:
+            lo, hi = hi, lo
+        if self.scan_all_bauds.isChecked():
+            bauds = list(DXL_BAUDS_BPS)
+        else:
+            try:
+                bauds = [self.baud]
+            except ValueError as exc:
+                self.scan_status_label.setText(str(exc))
+                return
+        self.scan_requested.emit(list(range(lo, hi + 1)), bauds)
+
+    # -- outputs ---------------------------------------------------------------------------------------------------
+    def set_port_baud(self, port: str, baud: int) -> None:
+        self.port_edit.setText(port)
+        index = self.baud_combo.findData(baud)
+        if index >= 0:
+            self.baud_combo.setCurrentIndex(index)
+        else:
+            self.baud_combo.setEditText(str(baud))
+
+    def set_connection(self, connected: bool, text: str, busy: bool = False) -> None:
+        """Connection state: enables what makes sense (port/baud fixed while connected)."""
+        self._connected = connected
+        self.connection_label.setText(text)
+        level = theme.OK if connected else (theme.WARN if busy else theme.IDLE)
+        self.connection_label.setStyleSheet(theme.status_style(level))
+        self.connect_button.setEnabled(not connected and not busy)
+        self.disconnect_button.setEnabled(connected and not busy)
+        self.port_edit.setEnabled(not connected and not busy)
+        self.baud_combo.setEnabled(not connected and not busy)
+        for widget in (self.all_torque_on_button, self.all_torque_off_button):
+            widget.setEnabled(connected)
+        for row in range(self.servo_table.rowCount()):
+            for col in (COL_TORQUE, COL_LED, COL_REBOOT):
+                cell = self.servo_table.cellWidget(row, col)
+                if cell is not None:
+                    cell.setEnabled(connected)
+        if not connected:
+            self.clear_live_values()
+
+    def set_servos(self, servo_ids: Sequence[int], axes: Sequence[str]) -> None:
+        """One row per joint, head first."""
+        self.servo_ids = tuple(int(i) for i in servo_ids)
+        self._row_of_id = {sid: row for row, sid in enumerate(self.servo_ids)}
+        table = self.servo_table
+        table.setRowCount(len(self.servo_ids))
+        for row, (sid, axis) in enumerate(zip(self.servo_ids, axes)):
+            table.setItem(row, COL_ID, _item(str(sid)))
+            axis_item = _item(axis, align_right=False)
+            axis_item.setForeground(QBrush(theme.qcolor(theme.AXIS_COLORS.get(axis, theme.PRESENT_COLOR))))
+            table.setItem(row, COL_AXIS, axis_item)
+            for col in (COL_RAD, COL_DEG, COL_VEL, COL_CUR, COL_TEMP, COL_VOLT):
+                table.setItem(row, col, _item("—"))
+            table.setItem(row, COL_ERR, _item("", align_right=False))
+            torque = _toggle_button("On", "Off")
+            torque.setObjectName(f"torque_{sid}")
+            torque.clicked.connect(lambda on, s=sid: self.torque_requested.emit(s, on))
+            table.setCellWidget(row, COL_TORQUE, torque)
+            led = _toggle_button("On", "Off")
+            led.setObjectName(f"led_{sid}")
+            led.clicked.connect(lambda on, s=sid: self.led_requested.emit(s, on))
+            table.setCellWidget(row, COL_LED, led)
+            reboot = QPushButton("Reboot")
+            reboot.setObjectName(f"reboot_{sid}")
+            reboot.setToolTip(f"Reboot servo {sid}: clears a latched hardware error; it comes back with torque off")
+            reboot.clicked.connect(lambda _checked=False, s=sid: self.reboot_requested.emit(s))
+            table.setCellWidget(row, COL_REBOOT, reboot)
+        self.set_connection(self._connected, self.connection_label.text())
+
+    def clear_live_values(self) -> None:
+        for row in range(self.servo_table.rowCount()):
+            for col in (COL_RAD, COL_DEG, COL_VEL, COL_CUR, COL_TEMP, COL_VOLT):
+                item = self.servo_table.item(row, col)
+                if item is not None:
+                    item.setText("—")
+                    item.setForeground(QBrush())
+
+    def set_state(self, position_rad: np.ndarray, velocity_rad_s: np.ndarray, current_ma: np.ndarray) -> None:
+        """Live joint values in joint order (rad, rad/s, mA)."""
+        table = self.servo_table
+        n = min(table.rowCount(), len(position_rad))
+        for row in range(n):
+            angle = float(position_rad[row])
+            table.item(row, COL_RAD).setText(f"{angle:+.3f}")
+            table.item(row, COL_DEG).setText(f"{math.degrees(angle):+.1f}")
+            table.item(row, COL_VEL).setText(f"{float(velocity_rad_s[row]):+.3f}")
+            table.item(row, COL_CUR).setText(f"{float(current_ma[row]):+.0f}")
+
+    def set_health(self, health: Iterable[Any]) -> None:
+        """ServoHealth-like items (servo_id, error_names, temperature_c, voltage_v, torque_on, led_on)."""
+        table = self.servo_table
+        n_errors = 0
+        for item in health:
+            row = self._row_of_id.get(int(item.servo_id))
+            if row is None:
+                continue
+            temp_item = table.item(row, COL_TEMP)
+            temp_item.setText(f"{float(item.temperature_c):.0f}")
+            hot = float(item.temperature_c) >= TEMPERATURE_WARN_C
+            temp_item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.WARN])) if hot else QBrush())
+            volt_item = table.item(row, COL_VOLT)
+            volt_item.setText(f"{float(item.voltage_v):.1f}")
+            low, high = VOLTAGE_RANGE_V
+            off_range = not low <= float(item.voltage_v) <= high
+            volt_item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.WARN])) if off_range else QBrush())
+            self._set_errors(row, tuple(item.error_names))
+            n_errors += bool(item.error_names)
+            self._set_toggle(row, COL_TORQUE, bool(item.torque_on))
+            self._set_toggle(row, COL_LED, bool(item.led_on))
+        if n_errors:
+            self.servo_summary_label.setText(f"{n_errors} servo(s) report a hardware error: remove the load, "
+                                             "then Reboot the servo")
+            self.servo_summary_label.setStyleSheet(theme.status_style(theme.ERROR))
+        else:
+            self.servo_summary_label.setText("")
+            self.servo_summary_label.setStyleSheet("")
+
+    def _set_errors(self, row: int, names: tuple[str, ...]) -> None:
+        item = self.servo_table.item(row, COL_ERR)
+        item.setText(", ".join(names) if names else "none")
+        if names:
+            item.setForeground(QBrush(theme.qcolor("#FFFFFF")))
+            item.setBackground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.ERROR])))
+            font = QFont(item.font())
+            font.setBold(True)
+            item.setFont(font)
+        else:
+            item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.IDLE])))
+            item.setBackground(QBrush())
+            item.setFont(QFont())
+
+    def _set_toggle(self, row: int, col: int, on: bool) -> None:
+        button = self.servo_table.cellWidget(row, col)
+        if button is not None and button.isChecked() != on:
+            # Reflect the servo's real state without echoing a request back to it.
+            button.blockSignals(True)
+            button.setChecked(on)
+            button.setText(button.property("text_on" if on else "text_off"))
+            button.blockSignals(False)
+
+    def errors_text(self, servo_id: int) -> str:
+        """The hardware-error cell of ``servo_id`` as shown."""
+        return self.servo_table.item(self._row_of_id[servo_id], COL_ERR).text()
+
+    def cell_text(self, servo_id: int, column: int) -> str:
+        return self.servo_table.item(self._row_of_id[servo_id], column).text()
+
+    def toggle(self, servo_id: int, column: int) -> QPushButton:
+        """The torque (COL_TORQUE) or LED (COL_LED) button, or the Reboot button (COL_REBOOT), of a servo."""
+        return self.servo_table.cellWidget(self._row_of_id[servo_id], column)
+
+    # scan
+    def set_scan_running(self, n_steps: int, text: str) -> None:
+        self.scan_table.setRowCount(0)
+        self.scan_button.setEnabled(False)
+        self.scan_progress.setRange(0, max(n_steps, 1))
+        self.scan_progress.setValue(0)
+        self.scan_progress.setFormat(text)
+        self.scan_status_label.setText("")
+        self.scan_status_label.setStyleSheet("")
+
+    def set_scan_progress(self, done_steps: int, text: str) -> None:
+        self.scan_progress.setValue(done_steps)
+        self.scan_progress.setFormat(text)
+
+    def add_scan_results(self, infos: Iterable[Any]) -> None:
+        """ServoInfo-like items (servo_id, model_name, model_number, firmware, baud)."""
+        table = self.scan_table
+        for info in infos:
+            row = table.rowCount()
+            table.insertRow(row)
+            table.setItem(row, 0, _item(str(info.servo_id)))
+            table.setItem(row, 1, _item(f"{info.model_name} ({info.model_number})", align_right=False))
+            table.setItem(row, 2, _item(f"v{info.firmware}"))
+            table.setItem(row, 3, _item(str(info.baud)))
+
+    def set_scan_finished(self, text: str, ok: bool = True) -> None:
+        self.scan_button.setEnabled(True)
+        self.scan_progress.setValue(self.scan_progress.maximum())
+        self.scan_progress.setFormat("done" if ok else "stopped")
+        self.scan_status_label.setText(text)
+        self.scan_status_label.setStyleSheet(theme.status_style(theme.OK if ok else theme.ERROR))
+
+    @property
+    def scan_result_ids(self) -> list[int]:
+        return [int(self.scan_table.item(row, 0).text()) for row in range(self.scan_table.rowCount())]
+
+    # link check
+    def set_link_check_running(self) -> None:
+        self.link_check_button.setEnabled(False)
+        self.link_summary_label.setText("pinging…")
+        self.link_summary_label.setStyleSheet("")
+
+    def set_link_report(self, rows: Sequence[LinkCheckRow], rounds: int) -> None:
+        table = self.link_table
+        table.setRowCount(len(rows))
+        for r, result in enumerate(rows):
+            table.setItem(r, 0, _item(str(result.servo_id)))
+            table.setItem(r, 1, _item("—" if result.rtt_mean_ms is None else f"{result.rtt_mean_ms:.2f}"))
+            table.setItem(r, 2, _item("—" if result.rtt_max_ms is None else f"{result.rtt_max_ms:.2f}"))
+            table.setItem(r, 3, _item(str(result.no_reply)))
+            table.setItem(r, 4, _item(str(result.crc_errors)))
+            verdict = "ok" if result.ok else "; ".join(
+                [*(["no reply"] if result.no_reply else []), *(["CRC errors"] if result.crc_errors else []),
+                 *result.other_errors])
+            verdict_item = _item(verdict, align_right=False)
+            if not result.ok:
+                verdict_item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.ERROR])))
+            table.setItem(r, 5, verdict_item)
+        answered = sum(1 for row in rows if row.rtt_mean_ms is not None)
+        rtts = [row.rtt_mean_ms for row in rows if row.rtt_mean_ms is not None]
+        no_reply = sum(row.no_reply for row in rows)
+        crc = sum(row.crc_errors for row in rows)
+        rtt_text = f", RTT mean {sum(rtts) / len(rtts):.2f} ms" if rtts else ""
+        self.link_summary_label.setText(f"{answered}/{len(rows)} servos answered ({rounds} pings each)"
+                                        f"{rtt_text}; {no_reply} no reply, {crc} CRC errors")
+        ok = all(row.ok for row in rows) and bool(rows)
+        self.link_summary_label.setStyleSheet(theme.status_style(theme.OK if ok else theme.ERROR))
+        self.link_check_button.setEnabled(True)
+
+    def set_link_check_failed(self, text: str) -> None:
+        self.link_summary_label.setText(text)
+        self.link_summary_label.setStyleSheet(theme.status_style(theme.ERROR))
+        self.link_check_button.setEnabled(True)
+
+    # timing
+    def set_timing_warnings(self, warnings: Sequence[str], checked: bool = True) -> None:
+        if not checked:
+            self.timing_summary_label.setText("Latency timer and return delay checks run on connect.")
+            self.timing_summary_label.setStyleSheet("")
+            self.timing_text.setPlainText("")
+            return
+        if warnings:
+            self.timing_summary_label.setText(f"{len(warnings)} timing warning(s), each with its fix:")
+            self.timing_summary_label.setStyleSheet(theme.status_style(theme.WARN))
+            self.timing_text.setPlainText("\n\n".join(f"• {w}" for w in warnings))
+        else:
+            self.timing_summary_label.setText("No timing problems found.")
+            self.timing_summary_label.setStyleSheet(theme.status_style(theme.OK))
+            self.timing_text.setPlainText("Latency timer and return delay time are fine for the control rate.")
