@@ -83,8 +83,10 @@ class _Ring:
         return sum(int(np.searchsorted(self.t[s], t1, "right") - np.searchsorted(self.t[s], t0, "left"))
                    for s in self._segments())
 
-    def between(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rows with t0 ≤ t ≤ t1 (plus one either side so a line reaches the edges), oldest first."""
+    def between(self, t0: float, t1: float, channels: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows with t0 ≤ t ≤ t1 (plus one either side so a line reaches the edges), oldest first; only
+        ``channels`` (column indices) when given, so a plot showing 3 of 1024 channels copies only those."""
         parts_t, parts_lo, parts_hi = [], [], []
         for seg in self._segments():
             ts = self.t[seg]
@@ -93,10 +95,14 @@ class _Ring:
             if i1 > i0:
                 sub = slice(seg.start + i0, seg.start + i1)
                 parts_t.append(self.t[sub])
-                parts_lo.append(self.low[sub])
-                parts_hi.append(self.high[sub])
+                if channels is None:
+                    parts_lo.append(self.low[sub])
+                    parts_hi.append(self.high[sub])
+                else:
+                    parts_lo.append(self.low[sub][:, channels])
+                    parts_hi.append(parts_lo[-1] if self.high is self.low else self.high[sub][:, channels])
         if not parts_t:
-            empty = self.low[:0]
+            empty = self.low[:0] if channels is None else self.low[:0][:, channels]
             return self.t[:0], empty, empty
         if len(parts_t) == 1:
             return parts_t[0], parts_lo[0], parts_hi[0]
@@ -234,24 +240,27 @@ class TraceHistory:
                 return float(t[i]), value
         return None
 
-    def _with_unfinished_buckets(self, level: int, t, lo, hi):
+    def _with_unfinished_buckets(self, level: int, t, lo, hi, channels=None):
         """Append what finer levels hold but level ``level`` has not bucketed yet, so a live edge never lags."""
         pending = [lv for lv in self._levels[:level] if lv.pending_n]
         newest = self.latest()
         if newest is None:
             return t, lo, hi
+        cols = slice(None) if channels is None else channels
         rows_t, rows_lo, rows_hi = [t], [lo], [hi]
         if pending:
             rows_t.append(np.array([min(lv.pending_t for lv in pending)]))
-            rows_lo.append(np.min([lv.pending_lo for lv in pending], axis=0)[None])
-            rows_hi.append(np.max([lv.pending_hi for lv in pending], axis=0)[None])
+            rows_lo.append(np.min([lv.pending_lo[cols] for lv in pending], axis=0)[None])
+            rows_hi.append(np.max([lv.pending_hi[cols] for lv in pending], axis=0)[None])
         rows_t.append(np.array([newest[0]]))
-        rows_lo.append(newest[1][None])
-        rows_hi.append(newest[1][None])
+        rows_lo.append(newest[1][cols][None])
+        rows_hi.append(newest[1][cols][None])
         return np.concatenate(rows_t), np.concatenate(rows_lo), np.concatenate(rows_hi)
 
-    def window(self, t0_s: float, t1_s: float, max_points: int) -> TraceWindow:
-        """Samples in [t0, t1] for a plot ``max_points`` buckets wide (peak-decimated when denser)."""
+    def window(self, t0_s: float, t1_s: float, max_points: int,
+               channels: np.ndarray | None = None) -> TraceWindow:
+        """Samples in [t0, t1] for a plot ``max_points`` buckets wide (peak-decimated when denser); columns are
+        ``channels`` (indices into the history's channels) when given, else all."""
         max_points = max(2, int(max_points))
         candidates = [(0, self._level0)] + [(k + 1, lv.ring) for k, lv in enumerate(self._levels)]
         chosen = candidates[-1]
@@ -264,9 +273,9 @@ class TraceHistory:
                 chosen = (k, ring)
                 break
         level, ring = chosen
-        t, lo, hi = ring.between(t0_s, t1_s)
+        t, lo, hi = ring.between(t0_s, t1_s, channels)
         if level > 0 and t1_s >= ring.newest_t():
-            t, lo, hi = self._with_unfinished_buckets(level, t, lo, hi)
+            t, lo, hi = self._with_unfinished_buckets(level, t, lo, hi, channels)
         if level == 0 and t.size <= 2 * max_points:
             return TraceWindow(t, lo, lo, 0)
         if t.size > max_points:

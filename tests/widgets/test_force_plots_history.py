@@ -69,3 +69,14 @@ def test_shape_mismatch_raises_and_budget_is_respected():
     assert 3_000_000 < history.nbytes <= 4_200_000
     with pytest.raises(ValueError, match="N×36"):
         history.append(np.zeros(2), np.zeros((2, 35)))
+
+
+def test_channel_subset_matches_full_query():
+    history = TraceHistory(5, capacity=200, levels=2, factor=4)
+    t, _ = feed(history, 3000, 100.0, block=13)
+    for t0, t1, points in ((t[-100], t[-1], 500), (t[0], t[-1], 50)):
+        full = history.window(t0, t1, points)
+        part = history.window(t0, t1, points, channels=np.array([3, 1]))
+        np.testing.assert_array_equal(part.t_s, full.t_s)
+        np.testing.assert_array_equal(part.low, full.low[:, [3, 1]])
+        np.testing.assert_array_equal(part.high, full.high[:, [3, 1]])

@@ -1,0 +1,489 @@
+"""Per-segment force plots: a scrollable grid of collapsible pyqtgraph plots, one per segment (L/R/B traces).
+
+Passive view: it draws a :class:`widgets.ring_plot.TraceHistory` it is given and emits signals; it knows nothing of
+boards or recordings. Drawing follows pyqtgraph's rules for dense live data: one QTimer (≤ 60 Hz) redraws with
+``setData``; clip-to-view and peak downsampling on, antialiasing off; each redraw asks the history for at most about
+one point per pixel column, so its cost does not grow with the session length; collapsed plots, hidden traces and
+plots scrolled out of view are not redrawn at all.
+
+Interaction: the plots follow the newest data (live) until the user pauses, drags, zooms or scrolls back with the
+scroll bar; the readout under the mouse shows every trace's value at the cursor and keeps updating while streaming.
+
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QPointF, Qt, QTimer, Signal
+from PySide6.QtWidgets import (
+    QGridLayout,
+    QHBoxLayout,
+    QLabel,
+    QScrollArea,
+    QScrollBar,
+    QSizePolicy,
+    QToolButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from widgets.ring_plot import TraceHistory
+
+try:  # the shell engineer's shared palette; the fallback keeps this view usable on its own
+    from widgets.theme import SIDE_COLORS, STATUS_COLORS
+except ImportError:  # pragma: no cover - only while widgets/theme.py is absent
+    SIDE_COLORS = {"L": "#0072B2", "R": "#D55E00", "B": "#009E73"}
+    STATUS_COLORS = {"ok": "#1B7F3B", "warn": "#B36B00", "error": "#C62828", "idle": "#6B6B6B"}
+
+MAX_REDRAW_HZ = 60.0
+DEFAULT_REDRAW_HZ = 30.0
+PLOT_HEIGHT_PX = 170
+SCROLL_STEPS = 10_000
+AXIS_COLOR = "#444444"
+OTHER_COLORS = ("#444444", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
+
+_SEGMENT_NAME = re.compile(r"^S(\d+)([A-Za-z])$")
+
+
+@dataclass(frozen=True)
+class PlotGroup:
+    """One plot: a title and the channel indices (into the history) it draws, with their names."""
+
+    title: str
+    channels: tuple[int, ...]
+    names: tuple[str, ...]
+
+
+def groups_from_names(names: Sequence[str], per_plot: int = 3) -> list[PlotGroup]:
+    """Group channels by segment (``S06L S06R S06B`` → "Segment 6"); other names go ``per_plot`` to a plot."""
+    by_segment: dict[int, list[int]] = {}
+    others: list[int] = []
+    for i, name in enumerate(names):
+        match = _SEGMENT_NAME.match(name)
+        if match:
+            by_segment.setdefault(int(match.group(1)), []).append(i)
+        else:
+            others.append(i)
+    groups = [PlotGroup(f"Segment {seg}", tuple(idx), tuple(names[i] for i in idx))
+              for seg, idx in sorted(by_segment.items())]
+    for start in range(0, len(others), per_plot):
+        idx = others[start:start + per_plot]
+        groups.append(PlotGroup(f"Channels {idx[0]}–{idx[-1]}", tuple(idx), tuple(names[i] for i in idx)))
+    return groups
+
+
+def trace_color(name: str, position: int) -> str:
+    """Colour of a trace: by sensor side (L/R/B) when the name ends in one, else by position in its plot."""
+    side = name[-1:].upper()
+    return SIDE_COLORS.get(side, OTHER_COLORS[position % len(OTHER_COLORS)])
+
+
+def side_of(name: str) -> str:
+    side = name[-1:].upper()
+    return side if side in SIDE_COLORS else ""
+
+
+class _SegmentPlot(QWidget):
+    """A collapsible box holding one PlotWidget and its curves."""
+
+    collapsed_changed = Signal(bool)
+
+    def __init__(self, group: PlotGroup, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.group = group
+        self.channels = np.asarray(group.channels, dtype=np.intp)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.setSpacing(0)
+        header = QHBoxLayout()
+        self.toggle = QToolButton(self)
+        self.toggle.setText(group.title)
+        self.toggle.setCheckable(True)
+        self.toggle.setChecked(True)
+        self.toggle.setArrowType(Qt.DownArrow)
+        self.toggle.setToolButtonStyle(Qt.ToolButtonTextBesideIcon)
+        self.toggle.setAutoRaise(True)
+        self.toggle.toggled.connect(self._on_toggled)
+        self.warning = QLabel(self)
+        self.warning.setStyleSheet(f"color: {STATUS_COLORS['error']};")
+        header.addWidget(self.toggle)
+        header.addWidget(self.warning, 1)
+        layout.addLayout(header)
+        self.plot_widget = pg.PlotWidget(self, background="w")
+        self.plot_widget.setMinimumHeight(PLOT_HEIGHT_PX)
+        self.plot_widget.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Fixed)
+        self.plot_widget.setFixedHeight(PLOT_HEIGHT_PX)
+        layout.addWidget(self.plot_widget)
+        item = self.plot_widget.getPlotItem()
+        item.setClipToView(True)
+        item.setDownsampling(auto=True, mode="peak")
+        item.showGrid(x=True, y=True, alpha=0.2)
+        item.setMenuEnabled(False)
+        item.hideButtons()
+        for axis_name in ("left", "bottom"):
+            axis = item.getAxis(axis_name)
+            axis.setPen(pg.mkPen(AXIS_COLOR))
+            axis.setTextPen(pg.mkPen(AXIS_COLOR))
+        item.getAxis("left").setWidth(48)
+        self.legend = item.addLegend(offset=(-4, 4), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 200),
+                                     labelTextColor=AXIS_COLOR, verSpacing=-6)
+        self.curves: list[pg.PlotDataItem] = []
+        for position, name in enumerate(group.names):
+            pen = pg.mkPen(trace_color(name, position), width=1)
+            curve = item.plot([], [], pen=pen, name=name, antialias=False, skipFiniteCheck=True)
+            self.curves.append(curve)
+        self.cursor_line = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888888", style=Qt.DashLine))
+        self.cursor_line.setZValue(10)
+        self.cursor_line.hide()
+        item.addItem(self.cursor_line, ignoreBounds=True)
+        # A plain label over the plot, not a scene item: it must stay readable whatever the zoom.
+        self.readout = QLabel(self.plot_widget)
+        self.readout.setStyleSheet("background: rgba(255,255,255,220); color: #222; border: 1px solid #bbb;"
+                                   "font-size: 8pt; padding: 1px 3px;")
+        self.readout.move(54, 4)
+        self.readout.hide()
+        self._labels = list(group.names)
+
+    @property
+    def viewbox(self) -> pg.ViewBox:
+        return self.plot_widget.getPlotItem().getViewBox()
+
+    @property
+    def collapsed(self) -> bool:
+        return not self.toggle.isChecked()
+
+    def _on_toggled(self, expanded: bool) -> None:
+        self.toggle.setArrowType(Qt.DownArrow if expanded else Qt.RightArrow)
+        self.plot_widget.setVisible(expanded)
+        self.collapsed_changed.emit(not expanded)
+
+    def set_labels(self, labels: Sequence[str]) -> None:
+        if list(labels) == self._labels:
+            return
+        self._labels = list(labels)
+        for curve, label in zip(self.curves, labels):
+            sample_label = self.legend.getLabel(curve)
+            if sample_label is not None:
+                sample_label.setText(label)
+
+    def on_screen(self) -> bool:
+        """True when the plot is expanded and at least partly visible in its scroll area."""
+        return (not self.collapsed and self.plot_widget.isVisible()
+                and not self.plot_widget.visibleRegion().isEmpty())
+
+
+class ForcePlotGrid(QWidget):
+    """The grid of segment plots over one :class:`TraceHistory`.
+
+    Signals: ``paused_changed(bool)`` when following the newest data stops or resumes (also when the user drags or
+    zooms a plot), ``cursor_moved(float)`` with the time (s) under the mouse, ``redrawn()`` after every redraw that
+    drew something (tests and benchmarks count these).
+    """
+
+    paused_changed = Signal(bool)
+    cursor_moved = Signal(float)
+    redrawn = Signal()
+
+    def __init__(self, channel_names: Sequence[str], columns: int = 3, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.channel_names = tuple(channel_names)
+        self.groups = groups_from_names(self.channel_names)
+        self._history: TraceHistory | None = None
+        self._units = "N"
+        self._window_s = 30.0
+        self._paused = False
+        self._hidden_sides: set[str] = set()
+        self._hover: tuple[_SegmentPlot, QPointF] | None = None
+        self._setting_range = False
+        self.redraw_count = 0
+        self.last_redraw_s = 0.0
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self.scroll = QScrollArea(self)
+        self.scroll.setWidgetResizable(True)
+        self.scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
+        inner = QWidget(self.scroll)
+        grid = QGridLayout(inner)
+        grid.setContentsMargins(4, 4, 4, 4)
+        grid.setHorizontalSpacing(6)
+        grid.setVerticalSpacing(2)
+        self.plots: list[_SegmentPlot] = []
+        for i, group in enumerate(self.groups):
+            plot = _SegmentPlot(group, inner)
+            grid.addWidget(plot, i // columns, i % columns, Qt.AlignTop)
+            self.plots.append(plot)
+            plot.collapsed_changed.connect(lambda _c: self.refresh())
+            plot.viewbox.sigRangeChangedManually.connect(self._on_user_range)
+            plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
+            if i:
+                plot.plot_widget.setXLink(self.plots[0].plot_widget)
+        grid.setRowStretch(len(self.groups) // columns + 1, 1)
+        self.scroll.setWidget(inner)
+        layout.addWidget(self.scroll, 1)
+        self.time_bar = QScrollBar(Qt.Horizontal, self)
+        self.time_bar.setRange(0, SCROLL_STEPS)
+        self.time_bar.setValue(SCROLL_STEPS)
+        self.time_bar.setToolTip("Scroll back through the whole session (moving it pauses the live view)")
+        self.time_bar.sliderMoved.connect(self._on_time_bar)
+        layout.addWidget(self.time_bar)
+        for plot in self.plots:
+            plot.plot_widget.setLabel("bottom", "time", units="s")
+        self.set_units("N")
+
+        self._timer = QTimer(self)
+        self._timer.setInterval(int(1000 / DEFAULT_REDRAW_HZ))
+        self._timer.timeout.connect(self.refresh)
+
+    # -- configuration ---------------------------------------------------------------------------------------------
+    def set_history(self, history: TraceHistory | None, units: str | None = None) -> None:
+        """Draw ``history`` (channels in the order of ``channel_names``); ``units`` labels the y axes."""
+        if history is not None and history.n_channels != len(self.channel_names):
+            raise ValueError(f"history has {history.n_channels} channels, the plots {len(self.channel_names)}")
+        self._history = history
+        if units is not None:
+            self.set_units(units)
+        self.refresh(force=True)
+
+    @property
+    def history(self) -> TraceHistory | None:
+        return self._history
+
+    def set_units(self, units: str) -> None:
+        """Y-axis units, e.g. ``"N"`` or ``"µS"``."""
+        self._units = units
+        for plot in self.plots:
+            plot.plot_widget.setLabel("left", units)
+
+    def set_window_s(self, window_s: float) -> None:
+        """Width of the live window in seconds (5 s … 10 min in the Forces tab)."""
+        if not window_s > 0:
+            raise ValueError(f"window must be positive, got {window_s}")
+        self._window_s = float(window_s)
+        self.refresh(force=True)
+
+    @property
+    def window_s(self) -> float:
+        return self._window_s
+
+    def set_paused(self, paused: bool) -> None:
+        """Stop (True) or resume (False) following the newest data; the data keeps arriving either way."""
+        if paused == self._paused:
+            return
+        self._paused = paused
+        if not paused:
+            self.time_bar.setValue(SCROLL_STEPS)
+        self.paused_changed.emit(paused)
+        self.refresh(force=True)
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    def set_side_visible(self, side: str, visible: bool) -> None:
+        """Show or hide every trace of one side (``L``, ``R``, ``B``) — the legend toggles."""
+        if visible:
+            self._hidden_sides.discard(side)
+        else:
+            self._hidden_sides.add(side)
+        for plot in self.plots:
+            for curve, name in zip(plot.curves, plot.group.names):
+                curve.setVisible(side_of(name) not in self._hidden_sides)
+        self.refresh(force=True)
+
+    def set_channel_labels(self, labels: Sequence[str]) -> None:
+        """Legend text per channel (e.g. ``"S06B · calibrated"``), in ``channel_names`` order."""
+        for plot in self.plots:
+            plot.set_labels([labels[i] for i in plot.group.channels])
+
+    def set_channel_warnings(self, warnings: Sequence[str]) -> None:
+        """A warning per channel (empty = fine) shown in red on the plot's header and as the trace style."""
+        for plot in self.plots:
+            parts = [f"{plot.group.names[k]}: {warnings[i]}" for k, i in enumerate(plot.group.channels)
+                     if warnings[i]]
+            text = "; ".join(parts)
+            if plot.warning.text() != text:
+                plot.warning.setText(text)
+                plot.warning.setToolTip(text)
+                for k, i in enumerate(plot.group.channels):
+                    style = Qt.DotLine if warnings[i] else Qt.SolidLine
+                    color = trace_color(plot.group.names[k], k)
+                    plot.curves[k].setPen(pg.mkPen(color, width=1, style=style))
+
+    def set_collapsed(self, index: int, collapsed: bool) -> None:
+        self.plots[index].toggle.setChecked(not collapsed)
+
+    # -- live redraw -----------------------------------------------------------------------------------------------
+    def start(self, rate_hz: float = DEFAULT_REDRAW_HZ) -> None:
+        """Start the one redraw timer at ``rate_hz`` (capped at 60 Hz)."""
+        rate_hz = min(max(rate_hz, 1.0), MAX_REDRAW_HZ)
+        self._timer.setInterval(int(round(1000 / rate_hz)))
+        self._timer.start()
+
+    def stop(self) -> None:
+        self._timer.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._timer.isActive()
+
+    def visible_range(self) -> tuple[float, float]:
+        """The time range (s) the plots show."""
+        if not self.plots:
+            return (0.0, 0.0)
+        (x0, x1), _ = self.plots[0].viewbox.viewRange()
+        return (float(x0), float(x1))
+
+    def refresh(self, force: bool = False) -> None:
+        """Redraw the visible plots from the history (the timer calls this; ``force`` redraws even if hidden)."""
+        history = self._history
+        if history is None or len(history) == 0 or not self.plots:
+            return
+        if not force and not self.isVisible():
+            return
+        oldest, newest = history.span()
+        if self._paused:
+            t0, t1 = self.visible_range()
+        else:
+            t1 = newest
+            t0 = t1 - self._window_s
+            self._setting_range = True
+            try:
+                self.plots[0].viewbox.setXRange(t0, t1, padding=0)
+            finally:
+                self._setting_range = False
+        drawn = False
+        for plot in self.plots:
+            if not force and not plot.on_screen():
+                continue
+            if plot.collapsed:
+                continue
+            visible = [k for k, curve in enumerate(plot.curves) if curve.isVisible()]
+            if not visible:
+                continue
+            width_px = max(100, int(plot.viewbox.width()))
+            window = history.window(t0, t1, width_px, channels=plot.channels[visible])
+            for column, k in enumerate(visible):
+                x, y = window.peak_interleaved(column)
+                plot.curves[k].setData(x, y)
+            drawn = True
+        self._update_time_bar(oldest, newest, t1)
+        self._update_readout()
+        if drawn:
+            self.redraw_count += 1
+            self.last_redraw_s = float(newest)
+            self.redrawn.emit()
+
+    # -- interaction -----------------------------------------------------------------------------------------------
+    def _on_user_range(self, *_args) -> None:
+        if not self._setting_range:
+            self.set_paused(True)
+
+    def _update_time_bar(self, oldest: float, newest: float, t1: float) -> None:
+        if self.time_bar.isSliderDown():
+            return
+        span = newest - oldest
+        value = SCROLL_STEPS if span <= 0 else int(round((t1 - oldest) / span * SCROLL_STEPS))
+        self.time_bar.blockSignals(True)
+        self.time_bar.setValue(min(SCROLL_STEPS, max(0, value)))
+        self.time_bar.blockSignals(False)
+
+    def _on_time_bar(self, value: int) -> None:
+        if self._history is None or len(self._history) == 0:
+            return
+        oldest, newest = self._history.span()
+        t1 = oldest + (newest - oldest) * value / SCROLL_STEPS
+        self.show_range(t1 - self._window_s, t1)
+
+    def show_range(self, t0_s: float, t1_s: float) -> None:
+        """Pause and show [t0, t1] (seconds)."""
+        self.set_paused(True)
+        self._setting_range = True
+        try:
+            self.plots[0].viewbox.setXRange(t0_s, t1_s, padding=0)
+        finally:
+            self._setting_range = False
+        self.refresh(force=True)
+
+    def _on_mouse(self, plot: _SegmentPlot, scene_pos: QPointF) -> None:
+        if plot.plot_widget.getPlotItem().sceneBoundingRect().contains(scene_pos):
+            self._hover = (plot, QPointF(scene_pos))
+        else:
+            self._hover = None
+            plot.readout.hide()
+            for other in self.plots:
+                other.cursor_line.hide()
+        self._update_readout()
+
+    def cursor_readout(self) -> tuple[float, dict[str, float]] | None:
+        """(time s, {channel name: value}) under the mouse, or None when the mouse is not over a plot."""
+        if self._hover is None or self._history is None:
+            return None
+        plot, scene_pos = self._hover
+        t_s = float(plot.viewbox.mapSceneToView(scene_pos).x())
+        found = self._history.value_at(t_s)
+        if found is None:
+            return None
+        t_found, values = found
+        return t_found, {name: float(values[i]) for name, i in zip(plot.group.names, plot.group.channels)}
+
+    def _update_readout(self) -> None:
+        readout = self.cursor_readout()
+        if readout is None:
+            return
+        plot, _ = self._hover
+        t_s, values = readout
+        lines = [f"t = {t_s:.2f} s"] + [f"{name}: {value:.4g} {self._units}" for name, value in values.items()]
+        plot.readout.setText("\n".join(lines))
+        plot.readout.adjustSize()
+        plot.readout.show()
+        plot.readout.raise_()
+        for other in self.plots:
+            other.cursor_line.setPos(t_s)
+            other.cursor_line.setVisible(not other.collapsed)
+        self.cursor_moved.emit(t_s)
+
+    def hover_at(self, plot_index: int, t_s: float) -> None:
+        """Put the readout cursor at time ``t_s`` on plot ``plot_index`` as if the mouse were there."""
+        plot = self.plots[plot_index]
+        (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
+        scene_pos = plot.viewbox.mapViewToScene(QPointF(t_s, (y0 + y1) / 2))
+        self._hover = (plot, QPointF(scene_pos))
+        self._update_readout()
+
+
+class TrialOverlayPlot(QWidget):
+    """Several trials of one sensor drawn on a common time zero (the paper's repeatability figure). GUI thread."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self.plot_widget = pg.PlotWidget(self, background="w")
+        item = self.plot_widget.getPlotItem()
+        item.setClipToView(True)
+        item.setDownsampling(auto=True, mode="peak")
+        item.showGrid(x=True, y=True, alpha=0.2)
+        item.setLabel("bottom", "time from zero", units="s")
+        self.legend = item.addLegend(offset=(-4, 4), labelTextSize="8pt")
+        layout.addWidget(self.plot_widget)
+        self.curves: list[pg.PlotDataItem] = []
+
+    def set_trials(self, trials: Sequence[tuple[str, np.ndarray, np.ndarray]], units: str) -> None:
+        """Draw ``(label, t_s (N,) already shifted to the common zero, values (N,))`` per trial."""
+        item = self.plot_widget.getPlotItem()
+        for curve in self.curves:
+            item.removeItem(curve)
+        self.legend.clear()
+        self.curves = []
+        colors = pg.colormap.get("viridis").getLookupTable(0.0, 0.85, max(2, len(trials)))
+        for k, (label, t_s, values) in enumerate(trials):
+            pen = pg.mkPen(colors[k], width=1)
+            self.curves.append(item.plot(t_s, values, pen=pen, name=label, antialias=False))
+        item.setLabel("left", units)

@@ -1,0 +1,224 @@
+"""The Forces tab's controls: view options, recording, past recordings, and the board's status line.
+
+Passive view: it emits what the user asked for and shows what it is told; the tab (``app/tabs/forces.py``) decides.
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QToolButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+try:
+    from widgets.theme import SIDE_COLORS, SIDE_LABELS, status_style
+except ImportError:  # pragma: no cover - only while widgets/theme.py is absent
+    SIDE_COLORS = {"L": "#0072B2", "R": "#D55E00", "B": "#009E73"}
+    SIDE_LABELS = {"L": "left", "R": "right", "B": "bottom"}
+
+    def status_style(level: str) -> str:
+        return {"ok": "color: #1B7F3B;", "warn": "color: #B36B00;", "error": "color: #C62828;",
+                "idle": "color: #6B6B6B;"}.get(level, "")
+
+WINDOW_CHOICES_S: tuple[tuple[str, float], ...] = (
+    ("5 s", 5.0), ("10 s", 10.0), ("30 s", 30.0), ("1 min", 60.0), ("2 min", 120.0), ("5 min", 300.0),
+    ("10 min", 600.0),
+)
+DEFAULT_WINDOW_S = 30.0
+QUANTITIES = (("force", "Force (N)"), ("conductance", "Raw conductance (µS)"))
+ESTIMATORS = (("sls", "Creep-aware (SLS)"), ("linear", "Linear"))
+
+
+def format_bytes(n_bytes: int) -> str:
+    value = float(n_bytes)
+    for unit in ("B", "kB", "MB", "GB"):
+        if value < 1000 or unit == "GB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.1f} {unit}"
+        value /= 1000
+    return f"{value:.1f} GB"  # pragma: no cover
+
+
+def format_elapsed(seconds: float) -> str:
+    seconds = max(0, int(seconds))
+    return f"{seconds // 3600:d}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}"
+
+
+class ForcesControls(QWidget):
+    """Two rows of controls above the plots and a status line.
+
+    Signals: ``window_changed(float)`` seconds, ``pause_toggled(bool)``, ``side_toggled(str, bool)``,
+    ``quantity_changed(str)`` (``force``/``conductance``), ``estimator_changed(str)`` (``sls``/``linear``),
+    ``record_toggled(bool)`` (True = start), ``browse_requested()``, ``load_calibration_requested()``,
+    ``open_requested()``, ``overlay_requested()``, ``export_requested()``, ``live_requested()`` (back to the board).
+    """
+
+    window_changed = Signal(float)
+    pause_toggled = Signal(bool)
+    side_toggled = Signal(str, bool)
+    quantity_changed = Signal(str)
+    estimator_changed = Signal(str)
+    record_toggled = Signal(bool)
+    browse_requested = Signal()
+    load_calibration_requested = Signal()
+    open_requested = Signal()
+    overlay_requested = Signal()
+    export_requested = Signal()
+    live_requested = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        outer = QVBoxLayout(self)
+        outer.setContentsMargins(4, 4, 4, 0)
+        outer.setSpacing(3)
+
+        view_row = QHBoxLayout()
+        view_row.addWidget(QLabel("Show"))
+        self.quantity = QComboBox(self)
+        for key, text in QUANTITIES:
+            self.quantity.addItem(text, key)
+        self.quantity.currentIndexChanged.connect(lambda _i: self.quantity_changed.emit(self.quantity.currentData()))
+        view_row.addWidget(self.quantity)
+        view_row.addWidget(QLabel("Estimator"))
+        self.estimator = QComboBox(self)
+        for key, text in ESTIMATORS:
+            self.estimator.addItem(text, key)
+        self.estimator.setToolTip("How conductance becomes force, applied live to new samples")
+        self.estimator.currentIndexChanged.connect(
+            lambda _i: self.estimator_changed.emit(self.estimator.currentData()))
+        view_row.addWidget(self.estimator)
+        self.load_calibration = QPushButton("Calibration…", self)
+        self.load_calibration.setToolTip("Load a calibration JSON (sensnake fit output)")
+        self.load_calibration.clicked.connect(self.load_calibration_requested)
+        view_row.addWidget(self.load_calibration)
+        self.calibration_label = QLabel("no calibration", self)
+        self.calibration_label.setStyleSheet(status_style("idle"))
+        view_row.addWidget(self.calibration_label)
+        view_row.addSpacing(12)
+        view_row.addWidget(QLabel("Window"))
+        self.window = QComboBox(self)
+        for text, seconds in WINDOW_CHOICES_S:
+            self.window.addItem(text, seconds)
+        self.window.setCurrentIndex([s for _t, s in WINDOW_CHOICES_S].index(DEFAULT_WINDOW_S))
+        self.window.currentIndexChanged.connect(lambda _i: self.window_changed.emit(float(self.window.currentData())))
+        view_row.addWidget(self.window)
+        self.pause = QToolButton(self)
+        self.pause.setText("Pause")
+        self.pause.setCheckable(True)
+        self.pause.setToolTip("Stop following the newest data (acquisition and recording continue)")
+        self.pause.toggled.connect(self._on_pause)
+        view_row.addWidget(self.pause)
+        self.side_boxes: dict[str, QCheckBox] = {}
+        for side, color in SIDE_COLORS.items():
+            box = QCheckBox(SIDE_LABELS.get(side, side), self)
+            box.setChecked(True)
+            box.setStyleSheet(f"QCheckBox {{ color: {color}; font-weight: bold; }}")
+            box.toggled.connect(lambda on, s=side: self.side_toggled.emit(s, on))
+            self.side_boxes[side] = box
+            view_row.addWidget(box)
+        view_row.addStretch(1)
+        outer.addLayout(view_row)
+
+        record_row = QHBoxLayout()
+        self.record = QPushButton("● Record", self)
+        self.record.setCheckable(True)
+        self.record.setToolTip("Record the board (and the robot when connected) to an HDF5 file")
+        self.record.toggled.connect(self._on_record)
+        record_row.addWidget(self.record)
+        self.path = QLineEdit(self)
+        self.path.setPlaceholderText("recording file (.h5)")
+        self.path.setMinimumWidth(260)
+        record_row.addWidget(self.path, 1)
+        self.browse = QToolButton(self)
+        self.browse.setText("…")
+        self.browse.setToolTip("Choose where to save the recording")
+        self.browse.clicked.connect(self.browse_requested)
+        record_row.addWidget(self.browse)
+        self.record_info = QLabel("not recording", self)
+        self.record_info.setMinimumWidth(170)
+        record_row.addWidget(self.record_info)
+        record_row.addSpacing(12)
+        self.open = QPushButton("Open recording…", self)
+        self.open.clicked.connect(self.open_requested)
+        record_row.addWidget(self.open)
+        self.overlay = QPushButton("Overlay trials…", self)
+        self.overlay.setToolTip("Several recordings of one sensor on a common time zero")
+        self.overlay.clicked.connect(self.overlay_requested)
+        record_row.addWidget(self.overlay)
+        self.export = QPushButton("Export CSV…", self)
+        self.export.clicked.connect(self.export_requested)
+        self.export.setEnabled(False)
+        record_row.addWidget(self.export)
+        self.live = QPushButton("Back to live", self)
+        self.live.clicked.connect(self.live_requested)
+        self.live.setVisible(False)
+        record_row.addWidget(self.live)
+        outer.addLayout(record_row)
+
+        status_row = QHBoxLayout()
+        self.board_status = QLabel("board: not started", self)
+        self.counters = QLabel("", self)
+        self.message = QLabel("", self)
+        self.message.setWordWrap(True)
+        self.message.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        status_row.addWidget(self.board_status)
+        status_row.addWidget(self.counters)
+        status_row.addWidget(self.message, 1)
+        outer.addLayout(status_row)
+
+    # -- user actions ----------------------------------------------------------------------------------------------
+    def _on_pause(self, paused: bool) -> None:
+        self.pause.setText("Resume" if paused else "Pause")
+        self.pause_toggled.emit(paused)
+
+    def _on_record(self, start: bool) -> None:
+        self.record.setText("■ Stop" if start else "● Record")
+        self.record_toggled.emit(start)
+
+    # -- state shown ----------------------------------------------------------------------------------------------
+    def set_paused(self, paused: bool) -> None:
+        """Reflect a pause that came from the plots (drag, zoom, scroll-back) without re-emitting."""
+        self.pause.blockSignals(True)
+        self.pause.setChecked(paused)
+        self.pause.setText("Resume" if paused else "Pause")
+        self.pause.blockSignals(False)
+
+    def set_recording(self, recording: bool, text: str) -> None:
+        self.record.blockSignals(True)
+        self.record.setChecked(recording)
+        self.record.setText("■ Stop" if recording else "● Record")
+        self.record.blockSignals(False)
+        self.record_info.setText(text)
+        self.path.setEnabled(not recording)
+        self.browse.setEnabled(not recording)
+
+    def set_board_status(self, text: str, level: str) -> None:
+        self.board_status.setText(text)
+        self.board_status.setStyleSheet(status_style(level))
+
+    def set_counters(self, text: str, level: str) -> None:
+        self.counters.setText(text)
+        self.counters.setStyleSheet(status_style(level) if text else "")
+
+    def set_message(self, text: str, level: str = "warn") -> None:
+        self.message.setText(text)
+        self.message.setStyleSheet(status_style(level) if text else "")
+
+    def set_calibration(self, text: str, level: str) -> None:
+        self.calibration_label.setText(text)
+        self.calibration_label.setStyleSheet(status_style(level))
+
+    def set_viewing_file(self, name: str | None) -> None:
+        """Showing a past recording (``name``) instead of the live board, or live (None)."""
+        self.live.setVisible(name is not None)
+        self.export.setEnabled(name is not None)
+        if name is not None:
+            self.set_message(f"showing recording {name}", "ok")
