@@ -88,13 +88,17 @@ def joint_points(pose: BodyPose) -> np.ndarray:
 
 
 def bend_for_point(angles_rad: np.ndarray, axes: Sequence[str], joint_index: int, target_xy: Sequence[float],
-                   view: str, segment_length_m: float = SEGMENT_LENGTH_M) -> float:
-    """The angle of ``joint_index`` (0-based) that points its segment toward ``target_xy`` in a view.
+                   view: str, segment_length_m: float = SEGMENT_LENGTH_M, point_index: int | None = None) -> float:
+    """The angle of ``joint_index`` (0-based) that turns body point ``point_index`` toward ``target_xy`` in a view.
 
-    ``view`` is "side" (x–z) or "top" (x–y). Used to pose the drawn body by dragging. The segment's direction in the
-    projection turns by the joint's rotation; a short Newton search on the projected angle handles the 3-D case
-    where the joint axis is not perpendicular to the view. Returns radians.
+    ``point_index`` (into ``BodyPose.points_m``, behind the joint) defaults to the end of the joint's own segment.
+    ``view`` is "side" (x–z) or "top" (x–y). Used to pose the drawn body by dragging. The direction joint → point in
+    the projection turns with the joint; a short Newton search on the projected angle handles the 3-D case where the
+    joint axis is not perpendicular to the view. Returns radians.
     """
+    point = joint_index + 1 if point_index is None else int(point_index)
+    if point <= joint_index:
+        raise ValueError(f"point {point} is not behind joint index {joint_index}")
     cols = [0, 2] if view == "side" else [0, 1]
     target = np.asarray(target_xy, dtype=float)
 
@@ -102,7 +106,7 @@ def bend_for_point(angles_rad: np.ndarray, axes: Sequence[str], joint_index: int
         trial = np.array(angles_rad, dtype=float)
         trial[joint_index] = theta
         pose = forward_kinematics(trial, axes, segment_length_m)
-        a, b = pose.points_m[joint_index, cols], pose.points_m[joint_index + 1, cols]
+        a, b = pose.points_m[joint_index, cols], pose.points_m[point, cols]
         seg, want = b - a, target - a
         return float(np.arctan2(seg[0] * want[1] - seg[1] * want[0], seg @ want))
 

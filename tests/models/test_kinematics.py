@@ -65,3 +65,12 @@ def test_drag_inverse_recovers_the_angle(joint, view, want):
 def test_wrong_angle_count_is_refused():
     with pytest.raises(ValueError, match="11 joint angles for 12"):
         forward_kinematics(np.zeros(11), AXES)
+
+
+def test_drag_a_point_further_down_the_body():
+    angles = np.zeros(12)
+    target = angles.copy()
+    target[4] = 0.3
+    pose = forward_kinematics(target, AXES)
+    got = bend_for_point(angles, AXES, 4, pose.points_m[9, [0, 2]], "side", point_index=9)
+    assert got == pytest.approx(0.3, abs=1e-4)

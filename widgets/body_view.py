@@ -1,0 +1,296 @@
+"""BodyView: the robot drawn from its joint angles, side (x–z) and top (x–y), sensors coloured by force.
+
+Shared by the Teach, Gait and Forces tabs. A passive view: it takes numpy arrays and emits signals.
+
+* :meth:`BodyView.set_angles` draws the present pose, and optionally a goal pose overlaid (dashed grey);
+* :meth:`BodyView.set_sensor_forces` colours the 36 sensors (``forces_n`` (36,) in SPEC §2 channel order S01L, S01R,
+  S01B, …) on a grey → red ramp; sensors with a non-zero health flag are drawn hollow in the error colour.
+  The side view shows the bottom sensors, the top view the left and right ones (each where it can be seen);
+* with :meth:`BodyView.set_drag_enabled`, dragging a point of the body turns the nearest joint in front of it that
+  bends in that view (pitch in the side view, yaw in the top view) and emits ``joint_dragged(index, angle_rad)``:
+  the view does not change its own angles, the owner decides (e.g. set a limp servo in sim, then the new state comes
+  back through :meth:`set_angles`).
+
+Geometry is :mod:`models.kinematics` (head at the origin facing +x, the body trailing toward −x).
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QPointF, Qt, Signal
+from PySide6.QtWidgets import QVBoxLayout, QWidget
+
+from models.kinematics import SEGMENT_LENGTH_M, bend_for_point, forward_kinematics, sensor_points
+from widgets import theme
+
+DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
+DEFAULT_FULL_SCALE_N = 10.0
+GRAB_RADIUS_PX = 14.0
+VIEWS = ("side", "top")
+
+
+class _BodyViewBox(pg.ViewBox):
+    """A ViewBox that turns left-button drags into joint drags when its owner allows it."""
+
+    def __init__(self, owner: BodyView, view: str) -> None:
+        super().__init__(lockAspect=True, enableMenu=False)
+        self._owner = owner
+        self._view = view
+        self.setMouseEnabled(x=False, y=False)
+
+    def mouseDragEvent(self, ev, axis=None) -> None:  # noqa: N802 - pyqtgraph's override name
+        if not self._owner.drag_enabled or ev.button() != Qt.MouseButton.LeftButton:
+            ev.ignore()
+            return
+        ev.accept()
+        position = self.mapSceneToView(ev.scenePos())
+        if ev.isStart():
+            self._owner._begin_drag(self._view, self.mapSceneToView(ev.buttonDownScenePos()), self)
+        self._owner._drag_to(self._view, position)
+        if ev.isFinish():
+            self._owner._end_drag()
+
+
+class BodyView(QWidget):
+    """Side and top views of the snake. See the module docstring for the API."""
+
+    joint_dragged = Signal(int, float)  # joint index (0-based, joint order of the config), angle in rad
+    drag_finished = Signal()
+
+    def __init__(self, axes: Sequence[str] = DEFAULT_AXES, segment_length_m: float = SEGMENT_LENGTH_M,
+                 parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._axes = tuple(axes)
+        self._length_m = float(segment_length_m)
+        self._present = np.zeros(len(self._axes))
+        self._goal: np.ndarray | None = None
+        self._forces_n: np.ndarray | None = None
+        self._health: np.ndarray | None = None
+        self._full_scale_n = DEFAULT_FULL_SCALE_N
+        self._highlight: set[int] = set()
+        self.drag_enabled = False
+        self._drag: tuple[int, int] | None = None  # (joint index, point index) while dragging
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self._canvas = pg.GraphicsLayoutWidget()
+        self._canvas.setBackground("w")
+        self._canvas.ci.setSpacing(2)
+        layout.addWidget(self._canvas)
+        self._plots: dict[str, pg.PlotItem] = {}
+        self._goal_items: dict[str, pg.PlotDataItem] = {}
+        self._body_items: dict[str, pg.PlotDataItem] = {}
+        self._joint_items: dict[str, pg.ScatterPlotItem] = {}
+        self._sensor_items: dict[str, pg.ScatterPlotItem] = {}
+        self._head_items: dict[str, pg.ScatterPlotItem] = {}
+        titles = {"side": "Side view (x–z): pitch joints, bottom sensors",
+                  "top": "Top view (x–y): yaw joints, left/right sensors"}
+        for row, view in enumerate(VIEWS):
+            box = _BodyViewBox(self, view)
+            plot = self._canvas.addPlot(row=row, col=0, viewBox=box)
+            plot.setTitle(titles[view], size="9pt", color="#444")
+            plot.showGrid(x=True, y=True, alpha=0.15)
+            plot.setLabel("bottom", "x", units="m")
+            plot.setLabel("left", "z" if view == "side" else "y", units="m")
+            plot.hideButtons()
+            plot.setMenuEnabled(False)
+            self._plots[view] = plot
+            goal = pg.PlotDataItem(pen=pg.mkPen(theme.GOAL_COLOR, width=2, style=Qt.PenStyle.DashLine))
+            body = pg.PlotDataItem(pen=pg.mkPen(theme.PRESENT_COLOR, width=3))
+            joints = pg.ScatterPlotItem(size=9, pxMode=True)
+            sensors = pg.ScatterPlotItem(size=11, pxMode=True, symbol="s")
+            head = pg.ScatterPlotItem(size=13, pxMode=True, symbol="t2",
+                                      brush=pg.mkBrush(theme.PRESENT_COLOR), pen=None)
+            for item in (goal, body, sensors, joints, head):
+                plot.addItem(item)
+            self._goal_items[view], self._body_items[view] = goal, body
+            self._joint_items[view], self._sensor_items[view] = joints, sensors
+            self._head_items[view] = head
+        self._set_ranges()
+        self._redraw()
+
+    # -- public API ------------------------------------------------------------------------------------------------
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return self._axes
+
+    @property
+    def present_rad(self) -> np.ndarray:
+        return self._present.copy()
+
+    @property
+    def goal_rad(self) -> np.ndarray | None:
+        return None if self._goal is None else self._goal.copy()
+
+    def set_axes(self, axes: Sequence[str], segment_length_m: float | None = None) -> None:
+        self._axes = tuple(axes)
+        if segment_length_m is not None:
+            self._length_m = float(segment_length_m)
+        self._present = np.zeros(len(self._axes))
+        self._goal = None
+        self._set_ranges()
+        self._redraw()
+
+    def set_angles(self, present_rad: Sequence[float] | np.ndarray | None,
+                   goal_rad: Sequence[float] | np.ndarray | None = None) -> None:
+        """Draw the present pose (``None`` = straight) and the goal overlay (``None`` hides it). Radians."""
+        n = len(self._axes)
+        present = np.zeros(n) if present_rad is None else np.asarray(present_rad, dtype=float)
+        if present.shape != (n,):
+            raise ValueError(f"{present.size} joint angles for a body of {n} joints")
+        goal = None if goal_rad is None else np.asarray(goal_rad, dtype=float)
+        if goal is not None and goal.shape != (n,):
+            raise ValueError(f"{goal.size} goal angles for a body of {n} joints")
+        unchanged = np.array_equal(present, self._present) and (
+            (goal is None and self._goal is None) or (goal is not None and self._goal is not None
+                                                      and np.array_equal(goal, self._goal)))
+        if unchanged:
+            return  # nothing moved: skip the redraw
+        self._present, self._goal = present.copy(), None if goal is None else goal.copy()
+        self._redraw()
+
+    def set_goal(self, goal_rad: Sequence[float] | np.ndarray | None) -> None:
+        self.set_angles(self._present, goal_rad)
+
+    def set_sensor_forces(self, forces_n: Sequence[float] | np.ndarray | None,
+                          health_flags: Sequence[int] | np.ndarray | None = None,
+                          full_scale_n: float | None = None) -> None:
+        """Colour the sensors by force (N, (3·n_joints,) channel order); ``None`` clears them.
+
+        ``health_flags`` (same length): 0/False = healthy, anything else = a problem (drawn hollow, error colour).
+        ``full_scale_n`` sets the force drawn darkest red (default 10 N).
+        """
+        if full_scale_n is not None:
+            if not full_scale_n > 0:
+                raise ValueError(f"full_scale_n must be positive, got {full_scale_n}")
+            self._full_scale_n = float(full_scale_n)
+        if forces_n is None:
+            self._forces_n, self._health = None, None
+        else:
+            forces = np.asarray(forces_n, dtype=float)
+            n_sensors = 3 * len(self._axes)
+            if forces.shape != (n_sensors,):
+                raise ValueError(f"{forces.size} forces for {n_sensors} sensors")
+            flags = None if health_flags is None else np.asarray(health_flags).astype(bool)
+            if flags is not None and flags.shape != (n_sensors,):
+                raise ValueError(f"{flags.size} health flags for {n_sensors} sensors")
+            self._forces_n, self._health = forces.copy(), flags
+        self._draw_sensors()
+
+    def set_highlighted_joints(self, indices: Sequence[int]) -> None:
+        """Mark joints (0-based), e.g. the ones whose torque is off while posing."""
+        self._highlight = {int(i) for i in indices}
+        self._redraw()
+
+    def set_drag_enabled(self, enabled: bool) -> None:
+        self.drag_enabled = bool(enabled)
+        self._drag = None
+
+    def sensor_brushes(self, view: str) -> list:
+        """The brushes the sensors of ``view`` are drawn with (for tests and screenshots)."""
+        return list(self._sensor_items[view].data["brush"])
+
+    def view_point_to_scene(self, view: str, x_m: float, y_m: float) -> QPointF:
+        """Scene coordinates of a point of a view (metres): lets tests and tools aim at the drawing."""
+        return self._plots[view].vb.mapViewToScene(QPointF(x_m, y_m))
+
+    def body_points(self, view: str) -> np.ndarray:
+        """(n+1, 2) present body points drawn in ``view`` (m)."""
+        pose = forward_kinematics(self._present, self._axes, self._length_m)
+        return pose.side_view() if view == "side" else pose.top_view()
+
+    @property
+    def canvas(self) -> pg.GraphicsLayoutWidget:
+        return self._canvas
+
+    # -- drawing ---------------------------------------------------------------------------------------------------
+    def _set_ranges(self) -> None:
+        length = self._length_m * len(self._axes)
+        for view, plot in self._plots.items():
+            # fixed ranges: the drawing must not rescale while the robot moves
+            plot.setXRange(-length - 0.05, 0.08, padding=0)
+            plot.setYRange(-0.45 * length, 0.45 * length, padding=0)
+            plot.vb.disableAutoRange()
+            del view
+
+    def _redraw(self) -> None:
+        present = forward_kinematics(self._present, self._axes, self._length_m)
+        goal = None if self._goal is None else forward_kinematics(self._goal, self._axes, self._length_m)
+        for view in VIEWS:
+            pts = present.side_view() if view == "side" else present.top_view()
+            self._body_items[view].setData(pts[:, 0], pts[:, 1])
+            if goal is None:
+                self._goal_items[view].setData([], [])
+            else:
+                g = goal.side_view() if view == "side" else goal.top_view()
+                self._goal_items[view].setData(g[:, 0], g[:, 1])
+            bending = "pitch" if view == "side" else "yaw"
+            brushes, pens, sizes = [], [], []
+            for i, axis in enumerate(self._axes):
+                color = theme.AXIS_COLORS[axis]
+                alpha = 255 if axis == bending else 90
+                brushes.append(pg.mkBrush(theme.qcolor(color, alpha)))
+                highlighted = i in self._highlight
+                pens.append(pg.mkPen(theme.STATUS_COLORS[theme.WARN] if highlighted else "#333", width=2.5
+                                     if highlighted else 1))
+                sizes.append(12 if highlighted else 9)
+            self._joint_items[view].setData(pos=pts[:-1], brush=brushes, pen=pens, size=sizes)
+            self._head_items[view].setData(pos=pts[:1])
+        self._present_pose = present
+        self._draw_sensors()
+
+    def _draw_sensors(self) -> None:
+        pose = self._present_pose
+        sensors = sensor_points(pose, radius_m=0.02)
+        n = len(self._axes)
+        for view in VIEWS:
+            sides = (2,) if view == "side" else (0, 1)
+            index = np.array([3 * seg + s for seg in range(n) for s in sides])
+            cols = [0, 2] if view == "side" else [0, 1]
+            brushes, pens = [], []
+            for k in index:
+                side = "LRB"[k % 3]
+                if self._forces_n is None:
+                    brushes.append(pg.mkBrush(theme.qcolor(theme.FORCE_ZERO_COLOR)))
+                    pens.append(pg.mkPen(theme.SIDE_COLORS[side], width=1.5))
+                elif self._health is not None and self._health[k]:
+                    brushes.append(pg.mkBrush(255, 255, 255, 0))
+                    pens.append(pg.mkPen(theme.STATUS_COLORS[theme.ERROR], width=2))
+                else:
+                    color = theme.force_color(float(self._forces_n[k]), self._full_scale_n)
+                    brushes.append(pg.mkBrush(color))
+                    pens.append(pg.mkPen(theme.SIDE_COLORS[side], width=1.5))
+            self._sensor_items[view].setData(pos=sensors[index][:, cols], brush=brushes, pen=pens)
+
+    # -- dragging --------------------------------------------------------------------------------------------------
+    def _begin_drag(self, view: str, press: QPointF, box: pg.ViewBox) -> None:
+        pts = self.body_points(view)
+        press_scene = box.mapViewToScene(press)
+        distances = [
+            (box.mapViewToScene(QPointF(float(x), float(y))) - press_scene).manhattanLength() for x, y in pts[1:]
+        ]
+        nearest = int(np.argmin(distances))
+        if distances[nearest] > GRAB_RADIUS_PX * 2:
+            self._drag = None
+            return
+        point = nearest + 1
+        bending = "pitch" if view == "side" else "yaw"
+        candidates = [j for j in range(point) if self._axes[j] == bending]
+        self._drag = (candidates[-1], point) if candidates else None
+
+    def _drag_to(self, view: str, position: QPointF) -> None:
+        if self._drag is None:
+            return
+        joint, point = self._drag
+        angle = bend_for_point(self._present, self._axes, joint, (position.x(), position.y()), view,
+                               self._length_m, point_index=point)
+        self.joint_dragged.emit(joint, angle)
+
+    def _end_drag(self) -> None:
+        if self._drag is not None:
+            self._drag = None
+            self.drag_finished.emit()
