@@ -1,0 +1,164 @@
+"""The main window without a robot attached: tabs, placeholders, status bar, STOP/Esc, settings, menus."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtCore import QSettings, Qt
+
+from app.lab import LabContext
+from app.main_window import DEFAULT_SIZE, TABS, MainWindow, TabSpec, tab_index
+from devices.config import LabConfig, RobotConfig
+from widgets import theme
+from widgets.placeholder import PlaceholderPage
+
+# A port that does not exist: nothing in these tests may reach a device.
+NO_PORT_CONFIG = LabConfig(robot=RobotConfig(port="/dev/sensnake-test-no-such-port"))
+
+
+@pytest.fixture
+def settings(tmp_path):
+    return QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+
+
+@pytest.fixture
+def window(qtbot, settings):
+    lab = LabContext(NO_PORT_CONFIG)
+    win = MainWindow(lab, settings=settings)
+    qtbot.addWidget(win)
+    yield win
+    win.close()
+
+
+def test_tabs_in_contract_order(window):
+    titles = [window.tabs.tabText(i) for i in range(window.tabs.count())]
+    assert titles == ["Teach", "Gait", "Calibration", "Forces", "Hardware"]
+    assert [spec.name for spec in TABS] == ["teach", "gait", "calibration", "forces", "hardware"]
+
+
+def test_tabs_are_built_only_when_shown(window):
+    current = TABS[window.tabs.currentIndex()].name
+    assert window.tab_widget(current) is not None
+    others = [spec.name for spec in TABS if spec.name != current]
+    assert all(window.tab_widget(name) is None for name in others)
+    page = window.show_tab("calibration")
+    assert window.tab_widget("calibration") is page
+    assert window.tabs.currentIndex() == tab_index("calibration")
+
+
+def test_missing_tab_module_shows_what_it_will_do(window):
+    spec = TabSpec("does_not_exist_yet", "Future", "Will do something useful with the robot.")
+    page = window._create_page(spec)
+    assert isinstance(page, PlaceholderPage)
+    assert page.description == spec.description
+    assert "not part of this build" in page.note_label.text()
+
+
+def test_every_tab_builds_or_says_what_it_will_do(window):
+    for spec in TABS:
+        page = window.show_tab(spec.name)
+        assert page is not None
+        if isinstance(page, PlaceholderPage):
+            assert page.description  # a placeholder always says what the tab will do
+    assert "4-force × 3-trial" in TABS[tab_index("calibration")].description
+
+
+def test_unknown_tab_name_is_a_lookup_error():
+    with pytest.raises(LookupError, match="no tab named"):
+        tab_index("nonsense")
+
+
+def test_status_bar_shows_states_and_an_always_visible_stop(window, qtbot):
+    window.show()
+    qtbot.waitExposed(window)
+    status = window.status
+    assert status.stop_button.isVisible()
+    assert "STOP" in status.stop_button.text()
+    assert status.robot_label.text().startswith("Robot: not connected")
+    assert status.recording_label.text() == "Not recording"
+    board = window.lab.board_if_created
+    if board is None:
+        assert status.board_label.text() == "Board: not available"
+    # A long message must not push STOP out of view.
+    status.show_message("x" * 2000, theme.ERROR)
+    assert status.stop_button.isVisible()
+    assert status.stop_button.geometry().right() <= status.width()
+
+
+def test_stop_button_and_escape_reach_emergency_stop(window, qtbot):
+    window.show()
+    window.activateWindow()
+    qtbot.waitUntil(window.isActiveWindow)  # shortcuts fire only in the active window
+    events: list[str] = []
+    window.lab.robot.event.connect(events.append)
+    qtbot.mouseClick(window.status.stop_button, Qt.MouseButton.LeftButton)
+    assert events and events[-1].startswith("STOP")
+    events.clear()
+    # Esc is an application-wide shortcut: it works whatever widget has focus.
+    focus = window.tabs.currentWidget()
+    focus.setFocus()
+    qtbot.keyClick(focus, Qt.Key.Key_Escape)
+    assert events and events[-1].startswith("STOP")
+    assert window.stop_shortcut.context() == Qt.ShortcutContext.ApplicationShortcut
+    assert window.stop_shortcut.key().toString() == "Esc"
+    assert "not connected" in window.status.message
+
+
+def test_errors_are_shown_and_not_hidden_by_events(window):
+    window.show_error("servo 7 overload: motion stopped")
+    window.show_event("something routine")
+    assert window.status.message == "servo 7 overload: motion stopped"
+    assert window.status.message_level == theme.ERROR
+
+
+def test_recording_state_follows_the_lab(window, tmp_path):
+    class Session:
+        path = tmp_path / "trial-03.h5"
+
+        def stop(self):
+            pass
+
+    window.lab.recording = Session()
+    assert "trial-03.h5" in window.status.recording_label.text()
+    window.lab.recording = None
+    assert window.status.recording_label.text() == "Not recording"
+
+
+def test_geometry_and_tab_are_restored(qtbot, settings):
+    first = MainWindow(LabContext(NO_PORT_CONFIG), settings=settings)
+    qtbot.addWidget(first)
+    first.show()
+    first.resize(1003, 677)
+    first.show_tab("calibration")
+    first.close()
+    second = MainWindow(LabContext(NO_PORT_CONFIG), settings=settings)
+    qtbot.addWidget(second)
+    second.show()
+    assert second.tabs.currentIndex() == tab_index("calibration")
+    # The offscreen screen is 800 px wide, so the width is clamped to the minimum; the height shows the restore.
+    assert second.height() == 677 != DEFAULT_SIZE[1]
+    second.close()
+
+
+def test_bad_config_file_is_reported_and_the_lab_kept(window, tmp_path, monkeypatch):
+    from PySide6.QtWidgets import QMessageBox
+
+    shown: list[str] = []
+    monkeypatch.setattr(QMessageBox, "warning", lambda _parent, _title, text: shown.append(text))
+    bad = tmp_path / "lab.toml"
+    bad.write_text("[robot]\nbaud = 'fast'\n", encoding="utf-8")
+    lab_before = window.lab
+    assert window.open_config(bad) is False
+    assert window.lab is lab_before
+    assert shown and "robot.baud" in shown[0]
+    assert "robot.baud" in window.status.message
+
+
+def test_failed_connect_says_why_and_what_to_do(window, qtbot):
+    robot = window.lab.robot
+    with qtbot.waitSignal(robot.connected, timeout=10_000) as blocker:
+        robot.connect_robot()
+    assert blocker.args == [False]
+    message = window.status.message
+    assert "could not connect" in message and "/dev/sensnake-test-no-such-port" in message
+    assert "Traceback" not in message
+    assert window.status.robot_label.text() == "Robot: not connected"
