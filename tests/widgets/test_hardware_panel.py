@@ -1,0 +1,135 @@
+"""HardwarePanel as a passive view: what it shows for given data, what it emits for user actions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+
+from devices.servo_chain import ServoHealth, ServoInfo
+from widgets import theme
+from widgets.hardware_panel import (
+    COL_DEG,
+    COL_LED,
+    COL_RAD,
+    COL_TEMP,
+    COL_TORQUE,
+    COL_VOLT,
+    DXL_BAUDS_BPS,
+    HardwarePanel,
+    LinkCheckRow,
+)
+
+IDS = tuple(range(1, 13))
+AXES = tuple("pitch" if i % 2 else "yaw" for i in IDS)
+
+
+def health(servo_id: int, errors: tuple[str, ...] = (), torque: bool = True, led: bool = False,
+           temperature_c: float = 31.0, voltage_v: float = 12.1) -> ServoHealth:
+    return ServoHealth(servo_id=servo_id, hardware_error=32 if errors else 0, error_names=errors,
+                       temperature_c=temperature_c, voltage_v=voltage_v, torque_on=torque, led_on=led)
+
+
+@pytest.fixture
+def panel(qtbot):
+    view = HardwarePanel()
+    qtbot.addWidget(view)
+    view.set_servos(IDS, AXES)
+    view.set_port_baud("sim", 1_000_000)
+    return view
+
+
+def test_one_row_per_servo_with_live_values(panel):
+    assert panel.servo_table.rowCount() == 12
+    angles = np.linspace(-0.5, 0.6, 12)
+    panel.set_state(angles, np.full(12, 0.25), np.arange(12) * 10.0)
+    assert panel.cell_text(4, COL_RAD) == f"{angles[3]:+.3f}"
+    assert panel.cell_text(4, COL_DEG) == f"{math.degrees(angles[3]):+.1f}"
+    panel.set_health([health(i, temperature_c=30 + i, voltage_v=12.0) for i in IDS])
+    assert panel.cell_text(12, COL_TEMP) == "42"
+    assert panel.cell_text(12, COL_VOLT) == "12.0"
+
+
+def test_hardware_errors_are_red_with_names(panel):
+    panel.set_health([health(i) for i in IDS if i != 7] + [health(7, errors=("overload",), torque=False)])
+    assert panel.errors_text(7) == "overload"
+    assert panel.errors_text(6) == "none"
+    row7 = panel.servo_table.item(6, 8)
+    assert row7.background().color().name().upper() == theme.STATUS_COLORS[theme.ERROR].upper()
+    assert "hardware error" in panel.servo_summary_label.text()
+    assert not panel.toggle(7, COL_TORQUE).isChecked()
+
+
+def test_health_updates_toggles_without_sending_commands(panel, qtbot):
+    panel.set_connection(True, "12 servos on sim")
+    sent: list[tuple[int, bool]] = []
+    panel.torque_requested.connect(lambda sid, on: sent.append((sid, on)))
+    panel.led_requested.connect(lambda sid, on: sent.append((sid, on)))
+    panel.set_health([health(i, torque=True, led=(i == 3)) for i in IDS])
+    assert panel.toggle(3, COL_LED).isChecked() and panel.toggle(3, COL_LED).text() == "On"
+    assert sent == []
+    qtbot.mouseClick(panel.toggle(5, COL_TORQUE), Qt.MouseButton.LeftButton)
+    assert sent == [(5, False)]
+
+
+def test_controls_follow_the_connection(panel):
+    panel.set_connection(False, "not connected")
+    assert not panel.toggle(1, COL_TORQUE).isEnabled()
+    assert not panel.all_torque_off_button.isEnabled()
+    assert panel.port_edit.isEnabled()
+    panel.set_connection(True, "12 servos on sim")
+    assert panel.toggle(1, COL_TORQUE).isEnabled()
+    assert not panel.port_edit.isEnabled() and not panel.connect_button.isEnabled()
+
+
+def test_connect_asks_with_port_and_baud_and_rejects_a_bad_baud(panel, qtbot):
+    panel.set_connection(False, "not connected")
+    with qtbot.waitSignal(panel.connect_requested) as blocker:
+        qtbot.mouseClick(panel.connect_button, Qt.MouseButton.LeftButton)
+    assert blocker.args == ["sim", 1_000_000]
+    asked: list = []
+    panel.connect_requested.connect(lambda *a: asked.append(a))
+    panel.baud_combo.setEditText("fast")
+    qtbot.mouseClick(panel.connect_button, Qt.MouseButton.LeftButton)
+    assert asked == []
+    assert "not a whole number" in panel.connection_label.text()
+
+
+def test_scan_request_and_results(panel, qtbot):
+    panel.scan_id_from.setValue(1)
+    panel.scan_id_to.setValue(20)
+    with qtbot.waitSignal(panel.scan_requested) as blocker:
+        qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
+    ids, bauds = blocker.args
+    assert ids == list(range(1, 21)) and bauds == [1_000_000]
+    panel.scan_all_bauds.setChecked(True)
+    with qtbot.waitSignal(panel.scan_requested) as blocker:
+        qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
+    assert blocker.args[1] == list(DXL_BAUDS_BPS)
+    panel.set_scan_running(2, "scanning")
+    assert not panel.scan_button.isEnabled()
+    panel.add_scan_results([ServoInfo(3, 1020, "XM430-W350", 52, 1_000_000)])
+    panel.set_scan_finished("1 servo(s) found")
+    assert panel.scan_result_ids == [3]
+    assert panel.scan_table.item(0, 1).text() == "XM430-W350 (1020)"
+    assert panel.scan_button.isEnabled()
+
+
+def test_link_report_counts_failures(panel):
+    rows = [LinkCheckRow(1, 0.61, 0.70, 0, 0), LinkCheckRow(2, None, None, 5, 0), LinkCheckRow(3, 0.8, 1.2, 0, 2)]
+    panel.set_link_report(rows, rounds=5)
+    summary = panel.link_summary_label.text()
+    assert "2/3 servos answered" in summary and "5 no reply" in summary and "2 CRC errors" in summary
+    assert panel.link_table.item(1, 5).text() == "no reply"
+    assert panel.link_table.item(2, 5).text() == "CRC errors"
+    assert panel.link_table.item(0, 5).text() == "ok"
+
+
+def test_timing_warnings_shown_with_their_fix(panel):
+    panel.set_timing_warnings(["USB latency timer is 16 ms: fix with `echo 1 | sudo tee /sys/...`"])
+    assert "echo 1 | sudo tee" in panel.timing_text.toPlainText()
+    assert "1 timing warning" in panel.timing_summary_label.text()
+    panel.set_timing_warnings([])
+    assert "No timing problems" in panel.timing_summary_label.text()
