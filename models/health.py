@@ -3,17 +3,23 @@
 A :class:`HealthMonitor` keeps the last ``window_s`` seconds of every sensor's conductance in a preallocated ring and,
 at most every ``eval_interval_s``, classifies each sensor:
 
-- ``DISCONNECTED``: every sample in the window reads open (conductance ≤ ``open_s``): a cable is off.
-- ``DROPOUT``: some samples read open and some do not: a loose connection dropping in and out.
-- ``NOISY``: the sample-to-sample noise is far above the other sensors' (the paper's loose sensor 10, 3R, 4B, 11L).
-- ``FLAT``: the reading has not changed by more than ``flat_tol_s`` in the whole window while most sensors have:
-  a stuck channel or a frozen multiplexer line.
+- ``DISCONNECTED``: every sample in the window reads open (conductance ≤ ``open_s``) although the sensor's resting
+  baseline is clearly above open: a cable is off. Needs a baseline (see below): an unloaded piezo-resistive sensor
+  reads open too, so without one an open channel is not flagged.
+- ``DROPOUT``: isolated samples read open between samples that read a clear load (``> loaded_s``): a loose contact
+  dropping in and out. A released contact decays over several samples and is not counted.
+- ``NOISY``: the sample-to-sample noise is far above the other loaded sensors' (the paper's loose sensor 10, 3R, 4B,
+  11L).
+- ``FLAT``: a loaded sensor whose reading has not changed by more than ``flat_tol_s`` in the whole window while most
+  loaded sensors have: a stuck channel or a frozen multiplexer line.
 - ``SATURATED``: the board flagged saturation (ADC counts = 0) at least once in the window.
-- ``BELOW_BASELINE``: the window's median sits clearly below the sensor's resting baseline (measured over the first
-  ``baseline_s`` seconds, or set with :meth:`HealthMonitor.set_baseline`): the paper's "negative pressure" drift.
+- ``BELOW_BASELINE``: the window's median sits clearly below the sensor's resting baseline: the paper's "negative
+  pressure" drift. The baseline is the resting conductance, set with :meth:`HealthMonitor.set_baseline` (the Forces
+  tab's "rest baseline" button) or measured over the first ``baseline_s`` seconds when that is > 0; a baseline taken
+  while the robot carries a load would flag every segment that later lifts, hence off by default.
 
-Noise and flatness are judged against the population of sensors because the absolute noise of a sensor depends on
-its load and the readout; a lone sensor (``n_sensors < 4``) is judged on the absolute thresholds only.
+Noise and flatness are judged against the population of loaded sensors because the absolute noise of a sensor depends
+on its load and the readout; with fewer than four loaded sensors only the absolute thresholds apply.
 
 Thread use: a monitor is not thread-safe; call it from one thread (the GUI thread in the Forces tab).
 """
@@ -62,10 +68,11 @@ class HealthThresholds:
     window_s: float = 2.0
     eval_interval_s: float = 0.25
     open_s: float = 1e-6              # at or below this a channel reads open circuit
+    loaded_s: float = 5e-6            # above this a sensor clearly carries load
     flat_tol_s: float = 0.0           # range within which a window counts as "did not move"
-    noisy_factor: float = 6.0         # × the population's median noise
+    noisy_factor: float = 6.0         # × the loaded population's median noise
     noisy_min_s: float = 2e-6         # absolute floor for "noisy" (≈ 5 ADC steps of the default readout)
-    baseline_s: float = 3.0
+    baseline_s: float = 0.0           # > 0: measure the baseline over the first baseline_s seconds
     below_baseline_frac: float = 0.15  # median this fraction below the baseline
 
 
@@ -95,7 +102,7 @@ class HealthMonitor:
         self._values = np.zeros((self._capacity, n_sensors))
         self._saturated = np.zeros((self._capacity, n_sensors), dtype=bool)
         self._times = np.zeros(self._capacity)
-        self._baseline_need = max(4, int(round(self.thresholds.baseline_s * rate_hz)))
+        self._baseline_need = int(round(self.thresholds.baseline_s * rate_hz))
         self._baseline_sum = np.zeros(n_sensors)
         self._baseline_samples: list[np.ndarray] = []
         self._baseline_count = 0
@@ -153,7 +160,7 @@ class HealthMonitor:
 
     # -- internals -------------------------------------------------------------------------------------------------
     def _collect_baseline(self, values: np.ndarray) -> None:
-        if self.baseline_s is not None:
+        if self.baseline_s is not None or self._baseline_need <= 0:
             return
         take = values[: self._baseline_need - self._baseline_count]
         self._baseline_samples.append(take.copy())
@@ -182,22 +189,27 @@ class HealthMonitor:
             noise = np.median(np.abs(np.diff(values, n=2, axis=0)), axis=0) / 1.95
         full = self._filled >= self._capacity
         if full:
-            disconnected = open_count == values.shape[0]
-            flags[disconnected] |= np.uint8(SensorHealth.DISCONNECTED)
-            flags[(open_count > 0) & ~disconnected] |= np.uint8(SensorHealth.DROPOUT)
-            connected = ~disconnected
+            all_open = open_count == values.shape[0]
+            has_rest_level = (self.baseline_s > th.loaded_s) if self.baseline_s is not None else np.zeros_like(all_open)
+            flags[all_open & has_rest_level] |= np.uint8(SensorHealth.DISCONNECTED)
+            if values.shape[0] >= 3:
+                loaded = values > th.loaded_s
+                isolated_drop = is_open[1:-1] & loaded[:-2] & loaded[2:]
+                flags[isolated_drop.any(axis=0)] |= np.uint8(SensorHealth.DROPOUT)
+            reading = level > th.open_s
             value_range = np.ptp(values, axis=0)
-            moving = value_range[connected] > th.flat_tol_s
-            population_moves = self.n_sensors < 4 or (moving.size > 0 and np.mean(moving) > 0.5)
+            moving = value_range > th.flat_tol_s
+            population_moves = reading.sum() < 4 or np.mean(moving[reading]) > 0.5
             if population_moves:
-                flags[connected & (value_range <= th.flat_tol_s)] |= np.uint8(SensorHealth.FLAT)
+                flags[reading & ~moving] |= np.uint8(SensorHealth.FLAT)
             noisy = noise > th.noisy_min_s
-            if self.n_sensors >= 4 and connected.any():
-                noisy &= noise > th.noisy_factor * np.median(noise[connected])
-            flags[noisy & connected & (open_count == 0)] |= np.uint8(SensorHealth.NOISY)
+            if reading.sum() >= 4:
+                noisy &= noise > th.noisy_factor * np.median(noise[reading])
+            flags[noisy & (open_count == 0)] |= np.uint8(SensorHealth.NOISY)
             if self.baseline_s is not None:
                 below = level < self.baseline_s * (1.0 - th.below_baseline_frac)
-                flags[below & (open_count == 0) & (self.baseline_s > th.open_s)] |= np.uint8(SensorHealth.BELOW_BASELINE)
+                flags[below & (open_count == 0) & (self.baseline_s > th.loaded_s)] |= np.uint8(
+                    SensorHealth.BELOW_BASELINE)
         flags[saturated.any(axis=0)] |= np.uint8(SensorHealth.SATURATED)
         changed = np.flatnonzero(flags != self.flags)
         self.flags = flags

@@ -55,7 +55,7 @@ def test_each_fault_flags_only_its_sensor(fault, expected):
         values[late, bad] = 0.0
     elif fault == "below":
         values[late, bad] *= 0.6
-    monitor = HealthMonitor(N_SENSORS, RATE_HZ)
+    monitor = HealthMonitor(N_SENSORS, RATE_HZ, HealthThresholds(baseline_s=3.0))
     flags = run(monitor, t, values)
     assert flags[bad] & expected, describe(flags[bad])
     others = np.delete(flags, bad)
@@ -77,14 +77,14 @@ def test_saturation_flag_follows_the_board_flag_and_clears():
 def test_report_lists_changed_sensors_once():
     t, values = healthy_signals(10.0)
     values[t >= 5.0, 2] = 0.0
-    monitor = HealthMonitor(N_SENSORS, RATE_HZ)
+    monitor = HealthMonitor(N_SENSORS, RATE_HZ, HealthThresholds(baseline_s=3.0))
     changes = []
     for start in range(0, t.size, 4):
         report = monitor.update(t[start:start + 4], values[start:start + 4])
         if report is not None:
             changes.extend(int(i) for i in report.changed)
-    assert 2 in changes
-    assert changes.count(2) <= 2  # dropout on the way to disconnected at most, no flapping
+    assert changes == [2]  # flagged once (disconnected), no flapping, nobody else
+    assert monitor.flags[2] == SensorHealth.DISCONNECTED
 
 
 def test_baseline_can_be_set_and_shape_is_checked():
@@ -111,3 +111,21 @@ def test_bad_input_shapes_raise():
 def test_describe_words():
     assert describe(0) == "ok"
     assert describe(SensorHealth.NOISY | SensorHealth.SATURATED) == "noisy (loose?), saturated"
+
+
+def test_unloaded_sensors_reading_open_are_not_flagged_without_a_baseline():
+    """An unloaded sensor reads open (≈ 0 S); so does a contact that lifts off. Neither is a fault."""
+    t, values = healthy_signals(8.0)
+    values[:, :12] = np.round(np.random.default_rng(1).uniform(0, 4e-7, (t.size, 12)) / LSB_S) * LSB_S
+    values[t >= 4.0, 20] = 0.0  # a segment lifts off the ground and stays up
+    flags = run(HealthMonitor(N_SENSORS, RATE_HZ), t, values)
+    assert not flags.any(), [describe(f) for f in flags]
+
+
+def test_a_released_contact_is_not_a_dropout():
+    t, values = healthy_signals(8.0)
+    release = t >= 5.0
+    values[release, 7] *= np.exp(-(t[release] - 5.0) / 0.1)  # decays over a few samples
+    values[values[:, 7] < 1e-6, 7] = 0.0
+    flags = run(HealthMonitor(N_SENSORS, RATE_HZ), t, values)
+    assert not flags[7] & SensorHealth.DROPOUT

@@ -1,0 +1,74 @@
+"""app/board_bridge.py against the simulated board at the wire (real BoardReader, fast SimClock)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.board_bridge import BoardBridge
+from devices.config import LabConfig
+
+pytestmark = pytest.mark.usefixtures("sim_lab_fast")
+
+
+@pytest.fixture
+def bridge(qtbot):
+    bridge = BoardBridge(LabConfig().board)
+    yield bridge
+    bridge.stop()
+
+
+def test_blocks_reach_the_history_and_signal(qtbot, bridge):
+    blocks = []
+    bridge.block.connect(blocks.append)
+    with qtbot.waitSignal(bridge.connected, timeout=5000) as connected:
+        bridge.start()
+    assert connected.args == [True]
+    qtbot.waitUntil(lambda: len(bridge.history) >= 60, timeout=10_000)
+    assert blocks and blocks[0].conductance_s.shape[1] == 36
+    t_last, values_us = bridge.history.latest()
+    assert values_us.shape == (36,)
+    assert np.all(values_us >= 0) and values_us.max() > 50  # µS: loaded bottom sensors read hundreds
+    assert t_last == pytest.approx(float(bridge.to_session_time(blocks[-1].host_time_s[-1:])[0]), abs=1e-3)
+    assert bridge.bridge_stats.samples == sum(len(b) for b in blocks)
+    assert bridge.bridge_stats.max_delivery_lag_s < 5.0
+
+
+def test_cable_pull_is_reported_and_reconnects(qtbot, bridge, sim_lab_fast):
+    states = []
+    bridge.board_status.connect(lambda status: states.append(status.state))
+    with qtbot.waitSignal(bridge.connected, timeout=5000):
+        bridge.start()
+    qtbot.waitUntil(lambda: len(bridge.history) > 10, timeout=10_000)
+    with qtbot.waitSignal(bridge.connected, timeout=5000) as lost:
+        sim_lab_fast.board.unplug()
+    assert lost.args == [False]
+    assert "disconnected" in states
+    with qtbot.waitSignal(bridge.connected, timeout=5000) as back:
+        sim_lab_fast.board.replug()
+    assert back.args == [True]
+    assert "reconnected" in states
+    before = bridge.bridge_stats.samples
+    qtbot.waitUntil(lambda: bridge.bridge_stats.samples > before + 5, timeout=10_000)
+    assert bridge.stats.reconnects == 1
+
+
+def test_channel_count_mismatch_names_both_counts(qtbot, bridge, sim_lab_fast):
+    sim_lab_fast.board.set_channel_count(30)
+    messages = []
+    bridge.status.connect(messages.append)
+    bridge.start()
+    qtbot.waitUntil(lambda: any("30" in m and "36" in m for m in messages), timeout=10_000)
+    assert not bridge.is_connected
+    assert len(bridge.history) == 0
+
+
+def test_stop_joins_and_restart_works(qtbot, bridge):
+    bridge.start()
+    qtbot.waitUntil(lambda: len(bridge.history) > 5, timeout=10_000)
+    bridge.stop()
+    assert not bridge.is_running and not bridge.is_connected
+    count = bridge.bridge_stats.samples
+    with qtbot.waitSignal(bridge.connected, timeout=5000):
+        bridge.start()
+    qtbot.waitUntil(lambda: bridge.bridge_stats.samples > count, timeout=10_000)
