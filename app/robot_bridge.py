@@ -26,11 +26,10 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any, TypeVar
 
-import numpy as np
 from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
 
 from devices.config import RobotConfig
-from devices.errors import DeviceError, LinkLostError, ServoHardwareError
+from devices.errors import DeviceError, LinkLostError
 from devices.factory import is_sim
 
 T = TypeVar("T")
@@ -60,26 +59,6 @@ def describe_error(exc: BaseException) -> str:
         return text
     log.error("unexpected error from the robot", exc_info=exc)
     return f"unexpected {type(exc).__name__}: {text} (details in the log; please report it)"
-
-
-class _TrackedSource:
-    """Wraps a MotionSource so the bridge learns when it is done; ``goal_at`` runs on the controller thread."""
-
-    def __init__(self, source: Any, on_done: Callable[[], None]) -> None:
-        self.source = source
-        self._on_done = on_done
-        self._done = False
-
-    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
-        goal = self.source.goal_at(t_s, present_rad)
-        if goal is None and not self._done:
-            self._done = True
-            self._on_done()
-        return goal
-
-    def __getattr__(self, name: str) -> Any:
-        # Progress attributes of the wrapped source (shift index, fraction done, …) stay reachable.
-        return getattr(self.source, name)
 
 
 class RobotBridge(QObject):
@@ -291,17 +270,23 @@ class RobotBridge(QObject):
         return future
 
     # -- motion ----------------------------------------------------------------------------------------------------
-    def run_motion(self, source: Any, name: str) -> None:
-        """Start a MotionSource on the controller (replaces any running motion); ``motion_changed`` follows."""
+    def run_motion(self, source: Any, name: str) -> Future:
+        """Start a MotionSource on the controller (replacing any running motion); ``motion_changed`` follows.
+
+        Returns the controller's Future: ``"finished"`` or ``"stopped"``, or the error that stopped the motion
+        (already reported through ``error``).
+        """
         controller = self._controller
         if controller is None:
             self.error.emit(f"cannot start {name}: {NOT_CONNECTED_MESSAGE}")
-            return
+            return _failed_future(ConnectionError(NOT_CONNECTED_MESSAGE))
         self._motion_token += 1
         token = self._motion_token
-        tracked = _TrackedSource(source, lambda: self._post.emit(lambda: self._motion_done(token)))
-        controller.run_motion(tracked, name)
+        future = controller.run_motion(source, name)
         self._set_motion(MOTION_RUNNING, name)
+        self.when_done(future, lambda outcome: self._motion_ended(token, outcome),
+                       lambda _exc: self._motion_ended(token, MOTION_FAULT))
+        return future
 
     def pause_motion(self) -> None:
         if self._controller is not None and self._motion_state == MOTION_RUNNING:
@@ -445,15 +430,15 @@ class RobotBridge(QObject):
     def _device_error(self, exc: BaseException) -> None:
         if isinstance(exc, LinkLostError):
             self._set_connection(f"link lost on {self.port}: reconnecting…")
-        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED) and isinstance(
-                exc, (ServoHardwareError, LinkLostError, TimeoutError)):
-            self._motion_token += 1
-            self._set_motion(MOTION_FAULT, self._motion_name)
         self.error.emit(describe_error(exc))
 
-    def _motion_done(self, token: int) -> None:
-        if token == self._motion_token and self._motion_state == MOTION_RUNNING:
-            self._set_motion(MOTION_FINISHED, self._motion_name)
+    def _motion_ended(self, token: int, outcome: str) -> None:
+        # A later run_motion / stop / STOP already moved the state on; an old motion's ending is not news.
+        if token != self._motion_token:
+            return
+        self._motion_token += 1
+        state = outcome if outcome in (MOTION_FINISHED, MOTION_STOPPED, MOTION_FAULT) else MOTION_STOPPED
+        self._set_motion(state, self._motion_name)
 
     def _set_motion(self, state: str, name: str) -> None:
         self._motion_state, self._motion_name = state, name

@@ -1,0 +1,157 @@
+"""RobotBridge against the real ServoChain + RobotController on the simulated chain (emulated at the wire)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.robot_bridge import MOTION_FINISHED, MOTION_RUNNING, MOTION_STOPPED, RobotBridge
+from devices.config import LabConfig
+
+CONNECT_TIMEOUT_MS = 10_000
+
+
+class Ramp:
+    """Moves joint ``index`` away from where it started at ``speed_rad_s`` for ``duration_s``."""
+
+    def __init__(self, index: int = 0, speed_rad_s: float = 0.5, duration_s: float = 30.0) -> None:
+        self.index, self.speed_rad_s, self.duration_s = index, speed_rad_s, duration_s
+        self.start: np.ndarray | None = None
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        if t_s > self.duration_s:
+            return None
+        if self.start is None:
+            self.start = present_rad.copy()
+        goal = self.start.copy()
+        goal[self.index] += self.speed_rad_s * t_s
+        return goal
+
+
+@pytest.fixture
+def bridge(qtbot, sim_lab_fast):
+    robot = RobotBridge(LabConfig().robot)
+    yield robot
+    robot.close()
+
+
+@pytest.fixture
+def connected(bridge, qtbot):
+    with qtbot.waitSignal(bridge.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        bridge.connect()
+    assert blocker.args == [True]
+    return bridge
+
+
+def wait_states(qtbot, bridge: RobotBridge, n: int) -> None:
+    """Wait until ``n`` more states (control ticks) have been delivered."""
+    seen: list = []
+    bridge.state_block.connect(seen.extend)
+    try:
+        qtbot.waitUntil(lambda: len(seen) >= n, timeout=5000)
+    finally:
+        bridge.state_block.disconnect(seen.extend)
+
+
+def test_connect_delivers_state_and_health(connected, qtbot, sim_lab_fast):
+    bridge = connected
+    assert bridge.is_connected and bridge.is_sim
+    assert "12 servos on sim" in bridge.connection_text
+    with qtbot.waitSignal(bridge.state, timeout=3000) as blocker:
+        pass
+    state = blocker.args[0]
+    assert state.position_rad.shape == (12,)
+    np.testing.assert_allclose(state.position_rad, sim_lab_fast.chain.present_positions_rad(), atol=0.05)
+    assert bridge.latest_state is not None
+    qtbot.waitUntil(lambda: len(bridge.latest_health) == 12, timeout=3000)
+    assert all(not h.error_names for h in bridge.latest_health)
+
+
+def test_state_blocks_hold_every_sample_in_order(connected, qtbot):
+    blocks: list[list] = []
+    connected.state_block.connect(blocks.append)
+    qtbot.waitUntil(lambda: sum(len(b) for b in blocks) >= 10, timeout=3000)
+    times = [s.host_time_s for block in blocks for s in block]
+    assert all(b > a for a, b in zip(times, times[1:]))
+
+
+def test_scan_connected_and_disconnected_finds_twelve(connected, qtbot):
+    bridge = connected
+    future = bridge.scan(bauds=[1_000_000], ids=range(0, 20))
+    infos = future.result(timeout=10)
+    assert [i.servo_id for i in infos] == list(range(1, 13))
+    assert {i.model_number for i in infos} == {1020}
+    with qtbot.waitSignal(bridge.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        bridge.disconnect()
+    assert blocker.args == [False]
+    infos = bridge.scan(bauds=[1_000_000], ids=range(0, 20)).result(timeout=10)
+    assert len(infos) == 12
+
+
+def test_torque_and_led_reach_the_virtual_servo(connected, qtbot, sim_lab_fast):
+    chain = sim_lab_fast.chain
+    connected.set_torque(True).result(timeout=5)
+    assert chain.register(4, "Torque Enable") == 1
+    connected.set_torque(False, [4]).result(timeout=5)
+    assert chain.register(4, "Torque Enable") == 0
+    assert chain.register(5, "Torque Enable") == 1
+    connected.set_led(9, True).result(timeout=5)
+    assert chain.register(9, "LED") == 1
+
+
+def test_overload_is_reported_naming_the_servo(connected, qtbot, sim_lab_fast):
+    connected.set_torque(True).result(timeout=5)
+    with qtbot.waitSignal(connected.error, timeout=5000) as blocker:
+        sim_lab_fast.chain.inject_overload(7)
+    message = blocker.args[0]
+    assert "servo 7" in message and "overload" in message.lower()
+    assert "Traceback" not in message
+    qtbot.waitUntil(lambda: any(h.servo_id == 7 and h.error_names for h in connected.latest_health), timeout=5000)
+
+
+def test_emergency_stop_freezes_goals_and_keeps_torque(connected, qtbot, sim_lab_fast):
+    chain = sim_lab_fast.chain
+    connected.set_torque(True).result(timeout=5)
+    motions: list[str] = []
+    connected.motion_changed.connect(motions.append)
+    connected.run_motion(Ramp(index=0), "ramp")
+    assert motions == [MOTION_RUNNING]
+    start_goal = chain.goal_positions_ticks()[0]
+    qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[0] - start_goal) > 20, timeout=5000)
+    connected.emergency_stop()
+    assert motions[-1] == MOTION_STOPPED
+    wait_states(qtbot, connected, 2)
+    frozen = chain.goal_positions_ticks().copy()
+    wait_states(qtbot, connected, 5)
+    np.testing.assert_array_equal(chain.goal_positions_ticks(), frozen)
+    assert all(chain.register(sid, "Torque Enable") == 1 for sid in range(1, 13))
+
+
+def test_finished_motion_is_announced(connected, qtbot):
+    connected.set_torque(True).result(timeout=5)
+    with qtbot.waitSignal(connected.motion_changed, timeout=5000,
+                          check_params_cb=lambda state: state == MOTION_FINISHED):
+        connected.run_motion(Ramp(index=2, speed_rad_s=0.2, duration_s=0.2), "short ramp")
+    assert connected.motion_state == MOTION_FINISHED
+
+
+def test_commands_without_connection_say_so(bridge, qtbot):
+    with qtbot.waitSignal(bridge.error, timeout=1000) as blocker:
+        future = bridge.set_torque(True)
+    assert "not connected" in blocker.args[0]
+    assert isinstance(future.exception(timeout=1), ConnectionError)
+
+
+def test_connect_to_a_silent_bus_says_which_servo(bridge, qtbot, sim_lab_fast):
+    sim_lab_fast.chain.set_no_reply(5)
+    with qtbot.waitSignal(bridge.error, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        bridge.connect()
+    message = blocker.args[0]
+    assert "could not connect" in message and "servo 5" in message
+    assert not bridge.is_connected
+
+
+def test_close_while_connecting_leaves_no_thread(bridge):
+    bridge.connect()
+    bridge.close()  # the autouse fixture fails the test if the controller or worker thread survives
+    assert not bridge.is_connected
