@@ -1,0 +1,211 @@
+"""The Dynamixel XM430-W350 control table (Protocol 2.0) and its unit conversions.
+
+One description shared by the driver (:mod:`devices.servo_chain`, which needs addresses and units) and the
+simulated servo (:mod:`devices.sim.dxl_chain`, which needs sizes, access rights, defaults and ranges), so the two
+cannot disagree about where Goal Position lives. Values follow the ROBOTIS e-manual for the XM430-W350.
+Pure data: any thread may read it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+MODEL_NUMBER_XM430_W350 = 1020
+MODEL_NAMES: dict[int, str] = {
+    1020: "XM430-W350",
+    1030: "XM430-W210",
+    1060: "XL430-W250",
+    1120: "XM540-W270",
+    1200: "XW540-T260",
+    1080: "XC430-W150",
+}
+
+BROADCAST_ID = 254
+MAX_ID = 252
+
+# Baud Rate (address 8) register value -> bits per second.
+BAUD_RATES_BPS: dict[int, int] = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+BAUD_INDEX_FROM_BPS: dict[int, int] = {bps: index for index, bps in BAUD_RATES_BPS.items()}
+
+TICKS_PER_REV = 4096
+CENTER_TICKS = 2048
+RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
+VELOCITY_RPM_PER_LSB = 0.229
+RAD_S_PER_VELOCITY_LSB = VELOCITY_RPM_PER_LSB * 2.0 * math.pi / 60.0
+ACCELERATION_RPM2_PER_LSB = 214.577
+RAD_S2_PER_ACCELERATION_LSB = ACCELERATION_RPM2_PER_LSB * 2.0 * math.pi / 3600.0
+CURRENT_MA_PER_LSB = 2.69
+VOLTAGE_V_PER_LSB = 0.1
+RETURN_DELAY_S_PER_LSB = 2e-6
+
+EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
+
+# Hardware Error Status (address 70) bits.
+HARDWARE_ERROR_BITS: dict[int, str] = {
+    0: "input voltage error",
+    2: "overheating",
+    3: "motor encoder error",
+    4: "electrical shock",
+    5: "overload",
+}
+OVERLOAD_BIT = 5
+
+
+def hardware_error_names(status: int) -> tuple[str, ...]:
+    """Names of the bits set in a Hardware Error Status byte, lowest bit first."""
+    names = [name for bit, name in HARDWARE_ERROR_BITS.items() if status & (1 << bit)]
+    unknown = status & ~sum(1 << bit for bit in HARDWARE_ERROR_BITS) & 0xFF
+    if unknown:
+        names.append(f"unknown hardware error 0x{unknown:02X}")
+    return tuple(names)
+
+
+# Protocol 2.0 status packet error byte.
+ERROR_ALERT_BIT = 0x80
+ERRNUM_RESULT_FAIL = 1
+ERRNUM_INSTRUCTION = 2
+ERRNUM_CRC = 3
+ERRNUM_DATA_RANGE = 4
+ERRNUM_DATA_LENGTH = 5
+ERRNUM_DATA_LIMIT = 6
+ERRNUM_ACCESS = 7
+ERRNUM_NAMES: dict[int, str] = {
+    ERRNUM_RESULT_FAIL: "result fail",
+    ERRNUM_INSTRUCTION: "instruction error",
+    ERRNUM_CRC: "CRC error",
+    ERRNUM_DATA_RANGE: "data range error",
+    ERRNUM_DATA_LENGTH: "data length error",
+    ERRNUM_DATA_LIMIT: "data limit error",
+    ERRNUM_ACCESS: "access error",
+}
+
+
+@dataclass(frozen=True)
+class Item:
+    """One control-table entry: ``size`` bytes at ``address``, little-endian."""
+
+    name: str
+    address: int
+    size: int
+    writable: bool
+    default: int = 0
+    minimum: int = 0
+    maximum: int = 0
+    signed: bool = False
+
+    @property
+    def eeprom(self) -> bool:
+        return self.address < EEPROM_END
+
+
+XM430_W350_ITEMS: tuple[Item, ...] = (
+    Item("Model Number", 0, 2, False, MODEL_NUMBER_XM430_W350),
+    Item("Model Information", 2, 4, False, 0),
+    Item("Firmware Version", 6, 1, False, 46),
+    Item("ID", 7, 1, True, 1, 0, MAX_ID),
+    Item("Baud Rate", 8, 1, True, 1, 0, 7),
+    Item("Return Delay Time", 9, 1, True, 250, 0, 254),
+    Item("Drive Mode", 10, 1, True, 0, 0, 13),
+    Item("Operating Mode", 11, 1, True, 3, 0, 16),
+    Item("Secondary ID", 12, 1, True, 255, 0, 255),
+    Item("Protocol Type", 13, 1, True, 2, 1, 2),
+    Item("Homing Offset", 20, 4, True, 0, -1_044_479, 1_044_479, signed=True),
+    Item("Moving Threshold", 24, 4, True, 10, 0, 1023),
+    Item("Temperature Limit", 31, 1, True, 80, 0, 100),
+    Item("Max Voltage Limit", 32, 2, True, 160, 95, 160),
+    Item("Min Voltage Limit", 34, 2, True, 95, 95, 160),
+    Item("PWM Limit", 36, 2, True, 885, 0, 885),
+    Item("Current Limit", 38, 2, True, 1193, 0, 1193),
+    Item("Velocity Limit", 44, 4, True, 200, 0, 1023),
+    Item("Max Position Limit", 48, 4, True, 4095, 0, 4095),
+    Item("Min Position Limit", 52, 4, True, 0, 0, 4095),
+    Item("Startup Configuration", 60, 1, True, 0, 0, 3),
+    Item("Shutdown", 63, 1, True, 52, 0, 255),
+    Item("Torque Enable", 64, 1, True, 0, 0, 1),
+    Item("LED", 65, 1, True, 0, 0, 1),
+    Item("Status Return Level", 68, 1, True, 2, 0, 2),
+    Item("Registered Instruction", 69, 1, False, 0),
+    Item("Hardware Error Status", 70, 1, False, 0),
+    Item("Velocity I Gain", 76, 2, True, 1920, 0, 16383),
+    Item("Velocity P Gain", 78, 2, True, 100, 0, 16383),
+    Item("Position D Gain", 80, 2, True, 0, 0, 16383),
+    Item("Position I Gain", 82, 2, True, 0, 0, 16383),
+    Item("Position P Gain", 84, 2, True, 800, 0, 16383),
+    Item("Feedforward 2nd Gain", 88, 2, True, 0, 0, 16383),
+    Item("Feedforward 1st Gain", 90, 2, True, 0, 0, 16383),
+    Item("Bus Watchdog", 98, 1, True, 0, 0, 127),
+    Item("Goal PWM", 100, 2, True, 0, -885, 885, signed=True),
+    Item("Goal Current", 102, 2, True, 0, -1193, 1193, signed=True),
+    Item("Goal Velocity", 104, 4, True, 0, -1023, 1023, signed=True),
+    Item("Profile Acceleration", 108, 4, True, 0, 0, 32767),
+    Item("Profile Velocity", 112, 4, True, 0, 0, 32767),
+    Item("Goal Position", 116, 4, True, 2048, 0, 4095, signed=True),
+    Item("Realtime Tick", 120, 2, False, 0),
+    Item("Moving", 122, 1, False, 0),
+    Item("Moving Status", 123, 1, False, 0),
+    Item("Present PWM", 124, 2, False, 0, signed=True),
+    Item("Present Current", 126, 2, False, 0, signed=True),
+    Item("Present Velocity", 128, 4, False, 0, signed=True),
+    Item("Present Position", 132, 4, False, 2048, signed=True),
+    Item("Velocity Trajectory", 136, 4, False, 0, signed=True),
+    Item("Position Trajectory", 140, 4, False, 0, signed=True),
+    Item("Present Input Voltage", 144, 2, False, 120),
+    Item("Present Temperature", 146, 1, False, 32),
+    Item("Backup Ready", 147, 1, False, 0),
+)
+CONTROL_TABLE_SIZE = 148  # reads must end at or before this address
+ITEMS_BY_NAME: dict[str, Item] = {item.name: item for item in XM430_W350_ITEMS}
+ITEMS_BY_ADDRESS: dict[int, Item] = {item.address: item for item in XM430_W350_ITEMS}
+
+ADDR_MODEL_NUMBER = 0
+ADDR_FIRMWARE_VERSION = 6
+ADDR_ID = 7
+ADDR_BAUD_RATE = 8
+ADDR_RETURN_DELAY_TIME = 9
+ADDR_OPERATING_MODE = 11
+ADDR_VELOCITY_LIMIT = 44
+ADDR_MAX_POSITION_LIMIT = 48
+ADDR_MIN_POSITION_LIMIT = 52
+ADDR_TORQUE_ENABLE = 64
+ADDR_LED = 65
+ADDR_STATUS_RETURN_LEVEL = 68
+ADDR_HARDWARE_ERROR_STATUS = 70
+ADDR_PROFILE_ACCELERATION = 108
+ADDR_PROFILE_VELOCITY = 112
+ADDR_GOAL_POSITION = 116
+ADDR_MOVING = 122
+ADDR_PRESENT_CURRENT = 126
+ADDR_PRESENT_VELOCITY = 128
+ADDR_PRESENT_POSITION = 132
+ADDR_PRESENT_INPUT_VOLTAGE = 144
+ADDR_PRESENT_TEMPERATURE = 146
+
+# The feedback block read every control tick: current (2), velocity (4), position (4) in ONE sync read.
+STATE_BLOCK_ADDRESS = ADDR_PRESENT_CURRENT
+STATE_BLOCK_SIZE = ADDR_PRESENT_POSITION + 4 - ADDR_PRESENT_CURRENT  # 10 bytes
+
+# Health blocks: torque/LED/…/hardware error (64..70) and voltage/temperature (144..146).
+HEALTH_BLOCK_ADDRESS = ADDR_TORQUE_ENABLE
+HEALTH_BLOCK_SIZE = ADDR_HARDWARE_ERROR_STATUS + 1 - ADDR_TORQUE_ENABLE  # 7 bytes
+SUPPLY_BLOCK_ADDRESS = ADDR_PRESENT_INPUT_VOLTAGE
+SUPPLY_BLOCK_SIZE = ADDR_PRESENT_TEMPERATURE + 1 - ADDR_PRESENT_INPUT_VOLTAGE  # 3 bytes
+
+
+def model_name(model_number: int) -> str:
+    return MODEL_NAMES.get(model_number, f"unknown model {model_number}")
+
+
+def to_signed(value: int, size: int) -> int:
+    """Interpret ``size`` little-endian bytes read as unsigned as a two's-complement integer."""
+    bits = 8 * size
+    return value - (1 << bits) if value & (1 << (bits - 1)) else value

@@ -1,0 +1,518 @@
+"""The robot's control loop: one thread owns the servo bus and ticks at ``robot.control_rate_hz``.
+
+Every tick, on a deadline schedule (sleep until the next deadline; overruns are counted as missed ticks)::
+
+    motion goal → joint-limit clamp → max-speed limit (max_joint_speed_rad_s × period) → ONE GroupSyncWrite
+    ONE GroupSyncRead → on_state(ChainState)
+
+Health (hardware error, temperature, voltage, torque, LED) is polled at ``robot.status_rate_hz`` and at once when a
+status packet carries the alert bit. A hardware error stops the motion before anything else is sent and reports
+:class:`ServoHardwareError` naming the servo. If feedback goes stale (consecutive failed reads for
+``WATCHDOG_S``), the motion stops and ``on_error`` names the servo that stopped answering. A pulled cable reports
+:class:`LinkLostError` and the loop tries to reopen the port every ``RECONNECT_INTERVAL_S``.
+
+With no motion running the loop still reads the state every tick and sends nothing. ``emergency_stop`` freezes the
+goals at the present position on the next tick (torque stays on). Anything else that needs the bus (scan, torque,
+LED, reboot, a teach capture) goes through :meth:`RobotController.submit`, which runs it on the bus thread between
+ticks and returns a :class:`concurrent.futures.Future`.
+
+Threads: the public methods may be called from any thread. The callbacks ``on_state``, ``on_health``, ``on_event``
+(a human-readable ``str``) and ``on_error`` (an exception whose message names the servo and the recovery) are
+called from the controller thread; keep them short (queue to Qt, etc.).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol, TypeVar
+
+import numpy as np
+
+from devices.config import RobotConfig
+from devices.errors import (
+    CorruptPacketError,
+    DeviceError,
+    LinkLostError,
+    NoReplyError,
+    PortOpenError,
+    ServoHardwareError,
+)
+from devices.servo_chain import ChainState, ServoChain, ServoHealth, ServoInfo
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+WATCHDOG_S = 0.2
+WATCHDOG_MIN_FAILED_READS = 2
+RECONNECT_INTERVAL_S = 0.5
+PERIOD_HISTORY = 4096
+
+MOTION_FINISHED = "finished"
+MOTION_STOPPED = "stopped"
+
+
+class MotionSource(Protocol):
+    """Where the robot should be: called once per tick on the controller thread."""
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        """Goal angles (rad, joint order) at ``t_s`` seconds since the motion started; ``None`` when done."""
+
+
+class HoldPose:
+    """Hold the given joint angles (rad), forever or for ``duration_s``."""
+
+    def __init__(self, angles_rad: Sequence[float] | np.ndarray, duration_s: float | None = None) -> None:
+        self.angles_rad = np.array(angles_rad, dtype=float)
+        self.duration_s = duration_s
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        if self.duration_s is not None and t_s > self.duration_s:
+            return None
+        return self.angles_rad.copy()
+
+
+@dataclass(frozen=True)
+class ControllerStats:
+    """Loop timing and bus counters since start (periods in seconds, between consecutive tick starts)."""
+
+    ticks: int
+    missed_ticks: int
+    period_p50_s: float
+    period_p99_s: float
+    period_max_s: float
+    sync_writes: int
+    failed_reads: int
+
+
+@dataclass
+class _Motion:
+    source: MotionSource
+    name: str
+    future: concurrent.futures.Future
+    started_s: float
+    paused_at_s: float | None = None
+    paused_total_s: float = 0.0
+
+    def t_s(self, now_s: float) -> float:
+        end = self.paused_at_s if self.paused_at_s is not None else now_s
+        return end - self.started_s - self.paused_total_s
+
+
+class RobotController:
+    """The control loop around a :class:`ServoChain`; see the module docstring."""
+
+    def __init__(self, chain: ServoChain, robot: RobotConfig, on_state: Callable[[ChainState], None] | None = None,
+                 on_health: Callable[[list[ServoHealth]], None] | None = None,
+                 on_event: Callable[[str], None] | None = None,
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
+        self.chain = chain
+        self.robot = robot
+        self.period_s = 1.0 / robot.control_rate_hz
+        self.health_period_s = 1.0 / robot.status_rate_hz
+        self._on_state = on_state
+        self._on_health = on_health
+        self._on_event = on_event
+        self._on_error = on_error
+        # (command, its Future or None): run on the bus thread between ticks; cancelled on close.
+        self._commands: queue.SimpleQueue[tuple[Callable[[], None], concurrent.futures.Future | None]] = \
+            queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._estop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        # Bus-thread state.
+        self._motion: _Motion | None = None
+        self._last_goal: np.ndarray | None = None
+        self._last_state: ChainState | None = None
+        self._connected = False
+        self._last_good_read_s = 0.0
+        self._consecutive_failed_reads = 0
+        self._stale_reported = False
+        self._servos_in_error: dict[int, tuple[str, ...]] = {}
+        self._next_health_s = 0.0
+        self._next_reconnect_s = 0.0
+        # Statistics (read from any thread under _lock).
+        self._periods = np.zeros(PERIOD_HISTORY)
+        self._n_periods = 0
+        self._ticks = 0
+        self._missed = 0
+        self._writes = 0
+        self._failed_reads = 0
+        self._latest_state: ChainState | None = None
+
+    # -- lifecycle (any thread) ------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the port (raises :class:`PortOpenError` now if it cannot) and start the bus thread."""
+        if self._thread is not None:
+            raise RuntimeError("the robot controller is already running")
+        if not self.chain.is_open:
+            self.chain.open()
+        self._connected = True
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"RobotController[{self.chain.port_name}]",
+                                        daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop the thread (ending any motion as "stopped") and close the port. Idempotent."""
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join()
+        self._drain_commands(cancel=True)
+        if self._motion is not None:
+            self._end_motion(MOTION_STOPPED)
+        self.chain.close()
+        self._connected = False
+
+    def __enter__(self) -> RobotController:
+        self.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- properties (any thread) -----------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @property
+    def motion_name(self) -> str | None:
+        motion = self._motion
+        return motion.name if motion is not None else None
+
+    @property
+    def paused(self) -> bool:
+        motion = self._motion
+        return motion is not None and motion.paused_at_s is not None
+
+    @property
+    def latest_state(self) -> ChainState | None:
+        with self._lock:
+            return self._latest_state
+
+    def stats(self) -> ControllerStats:
+        with self._lock:
+            n = min(self._n_periods, PERIOD_HISTORY)
+            periods = self._periods[:n]
+            p50, p99, pmax = (np.percentile(periods, [50, 99]).tolist() + [float(periods.max())]) if n else (
+                math.nan, math.nan, math.nan)
+            return ControllerStats(self._ticks, self._missed, p50, p99, pmax, self._writes, self._failed_reads)
+
+    # -- commands (any thread) -------------------------------------------------------------------------------------
+    def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
+        """Start ``source`` on the next tick (replacing any running motion, which ends "stopped").
+
+        Returns a Future resolved with ``"finished"`` or ``"stopped"``, or failed with the error that stopped it.
+        """
+        future: concurrent.futures.Future[str] = concurrent.futures.Future()
+        self._commands.put((lambda: self._begin_motion(source, name, future), future))
+        return future
+
+    def pause(self) -> None:
+        self._commands.put((self._pause, None))
+
+    def resume(self) -> None:
+        self._commands.put((self._resume, None))
+
+    def stop_motion(self) -> None:
+        """End the motion; the servos keep the last goal sent."""
+        self._commands.put((lambda: self._end_motion(MOTION_STOPPED), None))
+
+    def emergency_stop(self) -> None:
+        """Within one tick: motion ended and goals frozen at the present positions; torque stays on."""
+        self._estop.set()
+
+    def submit(self, fn: Callable[[ServoChain], T]) -> concurrent.futures.Future[T]:
+        """Run ``fn(chain)`` on the bus thread between ticks; the Future carries its result or exception."""
+        future: concurrent.futures.Future[T] = concurrent.futures.Future()
+
+        def call() -> None:
+            if not future.set_running_or_notify_cancel():
+                return
+            try:
+                future.set_result(fn(self.chain))
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller through the Future
+                future.set_exception(exc)
+
+        self._commands.put((call, future))
+        return future
+
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> concurrent.futures.Future[None]:
+        def torque(chain: ServoChain) -> None:
+            chain.set_torque(enabled, ids)
+            # The next motion's speed limit starts from where the joints are, not from an old goal.
+            self._last_goal = None
+        return self.submit(torque)
+
+    def set_led(self, servo_id: int, on: bool) -> concurrent.futures.Future[None]:
+        return self.submit(lambda chain: chain.set_led(servo_id, on))
+
+    def reboot(self, servo_id: int) -> concurrent.futures.Future[None]:
+        def reboot(chain: ServoChain) -> None:
+            chain.reboot(servo_id)
+            self._last_goal = None
+            self._next_health_s = 0.0  # re-read health now so the cleared error shows at once
+        return self.submit(reboot)
+
+    def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future[list[ServoInfo]]:
+        return self.submit(lambda chain: chain.scan(ids, bauds))
+
+    # -- the bus thread ----------------------------------------------------------------------------------------------
+    def _run(self) -> None:
+        deadline = time.monotonic()
+        last_start: float | None = None
+        while not self._stop.is_set():
+            start = time.monotonic()
+            self._record_period(start, last_start)
+            last_start = start
+            try:
+                self._tick(start)
+            except Exception as exc:  # noqa: BLE001 - thread boundary: a bug must not kill the bus thread silently
+                log.exception("robot controller tick failed")
+                self._stop_motion_with(exc)
+                self._emit(self._on_error, exc)
+            deadline += self.period_s
+            now = time.monotonic()
+            if now > deadline:
+                missed = int((now - deadline) / self.period_s) + 1
+                deadline += missed * self.period_s
+                with self._lock:
+                    self._missed += missed
+            self._stop.wait(max(0.0, deadline - time.monotonic()))
+
+    def _record_period(self, start: float, last_start: float | None) -> None:
+        with self._lock:
+            self._ticks += 1
+            if last_start is not None:
+                self._periods[self._n_periods % PERIOD_HISTORY] = start - last_start
+                self._n_periods += 1
+
+    def _tick(self, now: float) -> None:
+        if not self._connected:
+            self._try_reconnect(now)
+            if not self._connected:
+                self._drain_commands(cancel=False)
+                return
+        self._drain_commands(cancel=False)
+        if not self._connected:
+            return
+        try:
+            # Read first: a hardware error seen in this read stops the motion before anything is written.
+            self._read_feedback(now)
+            if self._estop.is_set():
+                self._estop.clear()
+                self._freeze_at_present()
+            elif self._motion is not None and self._motion.paused_at_s is None:
+                self._send_motion_goal(now)
+            if now >= self._next_health_s:
+                self._poll_health(now)
+        except LinkLostError as exc:
+            self._link_lost(exc)
+
+    def _send_motion_goal(self, now: float) -> None:
+        motion = self._motion
+        state = self._last_state
+        if motion is None or state is None:
+            return
+        try:
+            goal = motion.source.goal_at(motion.t_s(now), state.position_rad.copy())
+        except Exception as exc:  # noqa: BLE001 - a faulty motion source ends its motion, reported to the caller
+            log.exception("motion source %r failed", motion.name)
+            self._end_motion(MOTION_STOPPED, exc)
+            self._emit(self._on_error, exc)
+            return
+        if goal is None:
+            self._end_motion(MOTION_FINISHED)
+            return
+        goal = self.chain.clamp_to_limits(goal)
+        previous = self._last_goal if self._last_goal is not None else state.position_rad
+        step = self.robot.max_joint_speed_rad_s * self.period_s
+        goal = previous + np.clip(goal - previous, -step, step)
+        self._write(goal)
+
+    def _freeze_at_present(self) -> None:
+        name = self.motion_name
+        if self._motion is not None:
+            self._end_motion(MOTION_STOPPED)
+        state = self._last_state
+        if state is not None:
+            self._write(self.chain.clamp_to_limits(state.position_rad))
+        what = f" (motion {name!r} stopped)" if name else ""
+        self._emit(self._on_event, f"emergency stop: goals frozen at the present pose, torque stays on{what}")
+
+    def _write(self, goal: np.ndarray) -> None:
+        if self._servos_in_error:
+            return  # nothing is sent while a servo reports a hardware error
+        self._last_goal = self.chain.write_goals(goal)
+        with self._lock:
+            self._writes += 1
+
+    def _read_feedback(self, now: float) -> None:
+        try:
+            state = self.chain.read_state(raise_on_alert=False)
+        except (NoReplyError, CorruptPacketError) as exc:
+            self._consecutive_failed_reads += 1
+            with self._lock:
+                self._failed_reads += 1
+            stale_s = time.monotonic() - self._last_good_read_s
+            if (self._consecutive_failed_reads >= WATCHDOG_MIN_FAILED_READS and stale_s >= WATCHDOG_S
+                    and not self._stale_reported):
+                self._stale_reported = True
+                sid = exc.servo_id if exc.servo_id is not None else self.chain.ids[0]
+                error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s; motion stopped")
+                self._stop_motion_with(error)
+                self._emit(self._on_error, error)
+            return
+        self._last_good_read_s = time.monotonic()
+        self._consecutive_failed_reads = 0
+        self._stale_reported = False
+        if self._last_goal is not None:
+            state = dataclasses.replace(state, goal_rad=self._last_goal.copy())
+        self._last_state = state
+        with self._lock:
+            self._latest_state = state
+        if state.alert_ids:
+            new = [sid for sid in state.alert_ids if sid not in self._servos_in_error]
+            if new:
+                # Marking the servos blocks every write at once; the health read (reads only) names the error.
+                for sid in new:
+                    self._servos_in_error[sid] = ("hardware error",)
+                self._poll_health(now, newly_alerted=new)
+        self._emit(self._on_state, state)
+
+    def _poll_health(self, now: float, newly_alerted: Sequence[int] = ()) -> None:
+        self._next_health_s = now + self.health_period_s
+        try:
+            health = self.chain.read_health()
+        except (NoReplyError, CorruptPacketError) as exc:
+            log.debug("health poll failed: %s", exc)
+            for sid in newly_alerted:
+                error = ServoHardwareError(sid, ("hardware error",))
+                self._stop_motion_with(error)
+                self._emit(self._on_error, error)
+            return
+        reported = set()
+        for h in health:
+            if h.hardware_error:
+                names = h.error_names or ("hardware error",)
+                first_time = h.servo_id in newly_alerted or h.servo_id not in self._servos_in_error
+                self._servos_in_error[h.servo_id] = names
+                if first_time:
+                    error = ServoHardwareError(h.servo_id, names)
+                    self._stop_motion_with(error)
+                    self._emit(self._on_error, error)
+                    reported.add(h.servo_id)
+            elif h.servo_id in self._servos_in_error:
+                del self._servos_in_error[h.servo_id]
+                self._emit(self._on_event, f"servo {h.servo_id} hardware error cleared")
+        for sid in newly_alerted:
+            if sid not in reported and sid in self._servos_in_error:
+                error = ServoHardwareError(sid, self._servos_in_error[sid])
+                self._stop_motion_with(error)
+                self._emit(self._on_error, error)
+        self._emit(self._on_health, health)
+
+    def _link_lost(self, exc: LinkLostError) -> None:
+        self._connected = False
+        self._stop_motion_with(exc)
+        self.chain.close()
+        self._last_state = None
+        self._last_goal = None
+        self._next_reconnect_s = time.monotonic() + RECONNECT_INTERVAL_S
+        self._emit(self._on_error, exc)
+        self._emit(self._on_event, f"link lost on {self.chain.port_name}; reconnecting")
+
+    def _try_reconnect(self, now: float) -> None:
+        if now < self._next_reconnect_s:
+            return
+        self._next_reconnect_s = now + RECONNECT_INTERVAL_S
+        try:
+            self.chain.open()
+            self.chain.read_state(raise_on_alert=False)
+        except (PortOpenError, LinkLostError, NoReplyError, CorruptPacketError, DeviceError) as exc:
+            log.debug("reconnect to %s failed: %s", self.chain.port_name, exc)
+            self.chain.close()
+            return
+        self._connected = True
+        self._consecutive_failed_reads = 0
+        self._last_good_read_s = time.monotonic()
+        self._emit(self._on_event, f"reconnected to {self.chain.port_name}")
+
+    # -- motion bookkeeping (bus thread) -----------------------------------------------------------------------------
+    def _begin_motion(self, source: MotionSource, name: str, future: concurrent.futures.Future) -> None:
+        if not future.set_running_or_notify_cancel():
+            return
+        if self._motion is not None:
+            self._end_motion(MOTION_STOPPED)
+        if self._servos_in_error:
+            sid, names = next(iter(self._servos_in_error.items()))
+            error = ServoHardwareError(sid, names)
+            future.set_exception(error)
+            self._emit(self._on_error, error)
+            return
+        if not self._connected:
+            future.set_exception(LinkLostError(f"the servo bus on {self.chain.port_name} is not connected"))
+            return
+        self._motion = _Motion(source, name, future, time.monotonic())
+        self._emit(self._on_event, f"motion {name!r} started")
+
+    def _pause(self) -> None:
+        motion = self._motion
+        if motion is not None and motion.paused_at_s is None:
+            motion.paused_at_s = time.monotonic()
+            self._emit(self._on_event, f"motion {motion.name!r} paused")
+
+    def _resume(self) -> None:
+        motion = self._motion
+        if motion is not None and motion.paused_at_s is not None:
+            motion.paused_total_s += time.monotonic() - motion.paused_at_s
+            motion.paused_at_s = None
+            self._emit(self._on_event, f"motion {motion.name!r} resumed")
+
+    def _end_motion(self, outcome: str, error: BaseException | None = None) -> None:
+        motion, self._motion = self._motion, None
+        if motion is None:
+            return
+        if error is not None:
+            motion.future.set_exception(error)
+        else:
+            motion.future.set_result(outcome)
+        self._emit(self._on_event, f"motion {motion.name!r} {outcome if error is None else 'stopped by an error'}")
+
+    def _stop_motion_with(self, error: BaseException) -> None:
+        if self._motion is not None:
+            self._end_motion(MOTION_STOPPED, error)
+
+    def _drain_commands(self, cancel: bool) -> None:
+        while True:
+            try:
+                command, future = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            if not cancel:
+                command()
+            elif future is not None:
+                future.cancel()
+
+    def _emit(self, callback: Callable | None, value) -> None:
+        if callback is None:
+            return
+        try:
+            callback(value)
+        except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the robot loop
+            log.exception("robot controller callback %r failed", callback)

@@ -1,0 +1,572 @@
+"""The robot's servo chain: XM430-W350 servos on one Dynamixel Protocol 2.0 bus, driven through dynamixel-sdk.
+
+Every control tick costs one ``GroupSyncWrite`` of the goal positions and one ``GroupSyncRead`` of the block
+126…135 (present current, velocity, position). The port is opened through :func:`devices.factory.open_serial`, so
+``sim`` (the simulated chain, emulated at the wire), a pseudo-terminal and a U2D2 adapter all run this same code.
+
+Angles follow SPEC §2: ``angle_rad = (ticks − 2048)·2π/4096 · sign + zero_offset``, per joint, in the joint order of
+``RobotConfig.joint_ids``. Goals are clamped to the configured joint limits before anything is sent.
+
+Errors (``devices.errors``): a timeout is :class:`NoReplyError` naming the servo; a bad CRC is
+:class:`CorruptPacketError`; a status packet with the alert bit leads to reading Hardware Error Status and raising
+:class:`ServoHardwareError` naming the servo and the error; a pulled cable is :class:`LinkLostError`; a command the
+servo refused (EEPROM write with torque on, value out of range, …) is :class:`ServoCommandError`.
+
+Threads: a :class:`ServoChain` is NOT thread-safe. Only the thread that owns the port may call it (in the app that is
+the :class:`devices.controller.RobotController` thread; use its ``submit``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import serial
+from dynamixel_sdk import (
+    COMM_RX_CORRUPT,
+    COMM_RX_FAIL,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    GroupSyncRead,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
+
+from devices import control_table as ct
+from devices.config import RobotConfig
+from devices.errors import (
+    CorruptPacketError,
+    DeviceError,
+    LinkLostError,
+    ModelMismatchError,
+    NoReplyError,
+    PortOpenError,
+    ServoHardwareError,
+)
+from devices.factory import is_sim, open_serial
+
+log = logging.getLogger(__name__)
+
+PROTOCOL_VERSION = 2.0
+# dynamixel-sdk waits (bytes·10/baud + 2·16 ms + 2 ms) for a status packet: ~35 ms per silent servo.
+PER_ID_PING_COST_S = 0.035
+BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
+REBOOT_TIMEOUT_S = 2.0
+LATENCY_TIMER_DIR = Path("/sys/bus/usb-serial/devices")
+
+
+class ServoCommandError(DeviceError, ValueError):
+    """A servo answered but refused the instruction (error number in its status packet)."""
+
+    def __init__(self, servo_id: int, errnum: int, what: str) -> None:
+        self.servo_id = servo_id
+        self.errnum = errnum
+        name = ct.ERRNUM_NAMES.get(errnum, f"error {errnum}")
+        hint = {
+            ct.ERRNUM_ACCESS: "EEPROM items (address < 64) can only be written with torque off; "
+                              "read-only items cannot be written",
+            ct.ERRNUM_DATA_LIMIT: "the value lies outside the servo's configured limits",
+            ct.ERRNUM_DATA_RANGE: "the value or address is out of range",
+            ct.ERRNUM_CRC: "the servo received a corrupted packet; check the bus wiring",
+        }.get(errnum, "see the Dynamixel e-manual")
+        super().__init__(f"servo {servo_id} refused {what}: {name} ({hint})")
+
+
+@dataclass(frozen=True)
+class ServoInfo:
+    servo_id: int
+    model_number: int
+    model_name: str
+    firmware: int
+    baud: int
+
+
+@dataclass(frozen=True)
+class ChainState:
+    """One feedback sample of the whole chain, in joint order (SPEC §2 signs and offsets applied)."""
+
+    host_time_s: float  # time.monotonic() when the sync read was sent
+    position_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+    current_ma: np.ndarray
+    alert_ids: tuple[int, ...] = ()  # servos whose status packet carried the alert bit (hardware error)
+    goal_rad: np.ndarray | None = None  # the last goals sent (filled in by RobotController), joint order
+
+
+@dataclass(frozen=True)
+class ServoHealth:
+    servo_id: int
+    hardware_error: int
+    error_names: tuple[str, ...]
+    temperature_c: float
+    voltage_v: float
+    torque_on: bool
+    led_on: bool
+
+
+class _FactoryPortHandler(PortHandler):
+    """dynamixel-sdk's PortHandler, opening its port through ``devices.factory`` (``sim``, pty or serial device)."""
+
+    def __init__(self, port_name: str, device: str) -> None:
+        super().__init__(port_name)
+        self._device = device
+
+    def setupPort(self, cflag_baud):  # noqa: N802 - dynamixel-sdk's name
+        if self.is_open and self.ser is not None:
+            # Change the rate in place: reopening a USB adapter can take tens of milliseconds.
+            self.ser.baudrate = self.baudrate
+        else:
+            self.ser = open_serial(self.port_name, self.baudrate, self._device, timeout_s=0.0)
+            self.is_open = True
+        self.ser.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+    def getCFlagBaud(self, baudrate):  # noqa: N802 - dynamixel-sdk's name
+        # The SDK's list lacks 4.5 Mbps; pyserial (and the simulator) accept any positive rate.
+        return baudrate if baudrate > 0 else -1
+
+    def closePort(self):  # noqa: N802 - dynamixel-sdk's name
+        if self.ser is not None:
+            try:
+                self.ser.close()
+            except (serial.SerialException, OSError) as exc:
+                log.debug("closing %s: %s", self.port_name, exc)
+        self.is_open = False
+        self.is_using = False
+
+
+class _TrackingSyncRead(GroupSyncRead):
+    """GroupSyncRead that keeps each servo's status error byte and names the servo that failed.
+
+    The SDK's ``rxPacket`` drops the error byte (so the alert bit would be lost) and does not say which ID timed out.
+    """
+
+    def __init__(self, port, ph, start_address, data_length) -> None:
+        super().__init__(port, ph, start_address, data_length)
+        self.errors: dict[int, int] = {}
+        self.failed_id: int | None = None
+
+    def rxPacket(self):  # noqa: N802 - dynamixel-sdk's name
+        self.last_result = False
+        self.errors = {}
+        self.failed_id = None
+        result = COMM_RX_FAIL
+        for dxl_id in self.data_dict:
+            data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
+            if result != COMM_SUCCESS:
+                self.failed_id = dxl_id
+                return result
+            self.data_dict[dxl_id] = data
+            self.errors[dxl_id] = error
+        self.last_result = True
+        return result
+
+
+class ServoChain:
+    """The servos of ``robot`` on its port. See the module docstring; one thread only."""
+
+    def __init__(self, robot: RobotConfig, device: str = "robot") -> None:
+        self.robot = robot
+        self.device = device
+        self.ids = tuple(robot.joint_ids)
+        self._signs = np.asarray(robot.signs, dtype=float)
+        self._offsets = np.asarray(robot.zero_offsets_rad, dtype=float)
+        self._min_rad = np.asarray(robot.joint_min_rad, dtype=float)
+        self._max_rad = np.asarray(robot.joint_max_rad, dtype=float)
+        t_lo = self._ticks_float(self._min_rad)
+        t_hi = self._ticks_float(self._max_rad)
+        # Tick limits inside the angle limits, so a clamped goal never exceeds a limit after rounding.
+        self._min_ticks = np.clip(np.ceil(np.minimum(t_lo, t_hi) - 1e-9), 0, 4095).astype(np.int64)
+        self._max_ticks = np.clip(np.floor(np.maximum(t_lo, t_hi) + 1e-9), 0, 4095).astype(np.int64)
+        self._baud = robot.baud
+        self._port: _FactoryPortHandler | None = None
+        self._ph = PacketHandler(PROTOCOL_VERSION)
+        self._goal_writer: GroupSyncWrite | None = None
+        self._state_reader: _TrackingSyncRead | None = None
+
+    # -- lifecycle -----------------------------------------------------------------------------------------------
+    @property
+    def port_name(self) -> str:
+        return self.robot.port
+
+    @property
+    def baud(self) -> int:
+        return self._baud
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None and self._port.is_open
+
+    @property
+    def is_simulated(self) -> bool:
+        return is_sim(self.robot.port)
+
+    def open(self) -> None:
+        """Open the port at the configured baud rate (raises :class:`PortOpenError`)."""
+        if self.is_open:
+            return
+        port = _FactoryPortHandler(self.robot.port, self.device)
+        port.baudrate = self._baud
+        try:
+            ok = port.openPort()
+        except (serial.SerialException, OSError) as exc:
+            if isinstance(exc, PortOpenError):
+                raise
+            raise PortOpenError(f"cannot open {self.device} port {self.robot.port}: {exc}") from exc
+        if not ok:
+            raise PortOpenError(f"cannot open {self.device} port {self.robot.port} at {self._baud} bps")
+        self._port = port
+        self._goal_writer = GroupSyncWrite(port, self._ph, ct.ADDR_GOAL_POSITION, 4)
+        for sid in self.ids:
+            self._goal_writer.addParam(sid, [0, 8, 0, 0])
+        self._state_reader = _TrackingSyncRead(port, self._ph, ct.STATE_BLOCK_ADDRESS, ct.STATE_BLOCK_SIZE)
+        for sid in self.ids:
+            self._state_reader.addParam(sid)
+
+    def close(self) -> None:
+        if self._port is not None:
+            self._port.closePort()
+        self._port = None
+        self._goal_writer = None
+        self._state_reader = None
+
+    def __enter__(self) -> ServoChain:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- discovery -----------------------------------------------------------------------------------------------
+    def scan(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None) -> list[ServoInfo]:
+        """Servos answering on any of ``bauds`` (default: the configured one), sorted by baud then ID.
+
+        For a short ID list each ID is pinged; otherwise one broadcast ping per baud rate (≈ 0.8 s), followed by
+        per-ID pings only if the broadcast replies collided (a corrupt packet means someone is there).
+        The port is left at the configured baud rate.
+        """
+        wanted = [i for i in ids if 0 <= i <= ct.MAX_ID]
+        found: list[ServoInfo] = []
+        try:
+            for baud in (list(bauds) if bauds else [self._baud]):
+                self._set_port_baud(baud)
+                found.extend(self._scan_at(wanted, baud))
+        finally:
+            self._set_port_baud(self._baud)
+        return sorted(found, key=lambda info: (info.baud, info.servo_id))
+
+    def _scan_at(self, wanted: list[int], baud: int) -> list[ServoInfo]:
+        if len(wanted) * PER_ID_PING_COST_S < BROADCAST_PING_COST_S:
+            return self._ping_each(wanted, baud)
+        port = self._require_port()
+        data, result = self._io(self._ph.broadcastPing, port)
+        infos = [
+            ServoInfo(sid, model, ct.model_name(model), firmware, baud)
+            for sid, (model, firmware) in sorted(data.items()) if sid in wanted
+        ]
+        if result == COMM_RX_CORRUPT:
+            seen = {info.servo_id for info in infos}
+            infos += self._ping_each([i for i in wanted if i not in seen], baud)
+        return infos
+
+    def _ping_each(self, ids: Iterable[int], baud: int) -> list[ServoInfo]:
+        infos = []
+        for sid in ids:
+            try:
+                infos.append(self._ping_at(sid, baud))
+            except (NoReplyError, CorruptPacketError):
+                continue
+        return infos
+
+    def ping(self, servo_id: int) -> ServoInfo:
+        """Model and firmware of one servo (raises :class:`NoReplyError` naming it)."""
+        return self._ping_at(servo_id, self._baud)
+
+    def _ping_at(self, servo_id: int, baud: int) -> ServoInfo:
+        port = self._require_port()
+        model, result, error = self._io(self._ph.ping, port, servo_id)
+        self._check_comm(result, servo_id, "ping")
+        firmware, result, error = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_FIRMWARE_VERSION)
+        self._check_comm(result, servo_id, "reading the firmware version")
+        return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud)
+
+    def check_models(self) -> None:
+        """Every configured joint answers and is an XM430-W350 (raises ModelMismatchError / NoReplyError)."""
+        for sid in self.ids:
+            info = self.ping(sid)
+            if info.model_number != ct.MODEL_NUMBER_XM430_W350:
+                raise ModelMismatchError(
+                    f"servo {sid} is a {info.model_name} (model {info.model_number}), but this driver is written "
+                    f"for the XM430-W350 (model {ct.MODEL_NUMBER_XM430_W350}): check robot.joint_ids in the config"
+                )
+
+    # -- commands --------------------------------------------------------------------------------------------------
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
+        """Torque on or off, servo by servo (each write acknowledged). Torque-on fails on a servo in error."""
+        for sid in self._ids_or_all(ids):
+            self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
+
+    def set_led(self, servo_id: int, on: bool) -> None:
+        self.write_item(servo_id, "LED", int(bool(on)))
+
+    def reboot(self, servo_id: int) -> None:
+        """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""
+        port = self._require_port()
+        result, error = self._io(self._ph.reboot, port, servo_id)
+        self._check_comm(result, servo_id, "reboot")
+        deadline = time.monotonic() + REBOOT_TIMEOUT_S
+        while True:
+            model, result, error = self._io(self._ph.ping, port, servo_id)
+            if result == COMM_SUCCESS:
+                return
+            if time.monotonic() > deadline:
+                raise NoReplyError(servo_id, f"did not come back within {REBOOT_TIMEOUT_S:.0f} s of a reboot")
+
+    def set_return_delay(self, delay_us: int = 0, ids: Sequence[int] | None = None) -> None:
+        """Set Return Delay Time (µs, even, 0…508) with torque off; 0 makes every sync read faster."""
+        value = int(delay_us) // 2
+        for sid in self._ids_or_all(ids):
+            self.write_item(sid, "Return Delay Time", value)
+
+    def read_item(self, servo_id: int, name: str) -> int:
+        """One control-table item by its e-manual name, e.g. ``"Present Temperature"`` (signed where it is)."""
+        item = ct.ITEMS_BY_NAME[name]
+        port = self._require_port()
+        data, result, error = self._io(self._ph.readTxRx, port, servo_id, item.address, item.size)
+        self._check_comm(result, servo_id, f"reading {name}")
+        self._check_error(error, servo_id, f"reading {name}")
+        raw = int.from_bytes(bytes(data), "little")
+        return ct.to_signed(raw, item.size) if item.signed else raw
+
+    def write_item(self, servo_id: int, name: str, value: int, *, hardware_error_fails: bool = False) -> None:
+        """Write one control-table item (acknowledged); raises :class:`ServoCommandError` if the servo refuses."""
+        item = ct.ITEMS_BY_NAME[name]
+        port = self._require_port()
+        data = list(int(value).to_bytes(item.size, "little", signed=value < 0))
+        result, error = self._io(self._ph.writeTxRx, port, servo_id, item.address, item.size, data)
+        self._check_comm(result, servo_id, f"writing {name}")
+        if error & ct.ERROR_ALERT_BIT and (error & 0x7F or hardware_error_fails):
+            raise self._hardware_error(servo_id)
+        self._check_error(error, servo_id, f"writing {name} = {value}")
+
+    # -- the control tick ------------------------------------------------------------------------------------------
+    def clamp_to_limits(self, angles_rad: np.ndarray) -> np.ndarray:
+        angles = np.asarray(angles_rad, dtype=float)
+        if angles.shape != (len(self.ids),):
+            raise ValueError(f"expected {len(self.ids)} joint angles, got shape {angles.shape}")
+        bad = np.flatnonzero(~np.isfinite(angles))
+        if bad.size:
+            raise ValueError(f"goal for joint {self.ids[bad[0]]} is {angles[bad[0]]}: not a finite angle")
+        return np.clip(angles, self._min_rad, self._max_rad)
+
+    def write_goals(self, angles_rad: np.ndarray) -> np.ndarray:
+        """Clamp to the joint limits and send all goals in ONE GroupSyncWrite; returns the angles sent (rad)."""
+        angles = self.clamp_to_limits(angles_rad)
+        ticks = np.clip(self.ticks_from_angles(angles), self._min_ticks, self._max_ticks)
+        writer = self._require(self._goal_writer)
+        for sid, tick in zip(self.ids, ticks):
+            writer.changeParam(sid, list(int(tick).to_bytes(4, "little", signed=True)))
+        result = self._io(writer.txPacket)
+        if result != COMM_SUCCESS:
+            raise DeviceError(f"sync write of goal positions failed on {self.robot.port}: "
+                              f"{self._ph.getTxRxResult(result)}")
+        return self.angles_from_ticks(ticks)
+
+    def read_state(self, *, raise_on_alert: bool = True) -> ChainState:
+        """ONE GroupSyncRead of present current, velocity and position of every joint.
+
+        A status packet with the alert bit raises :class:`ServoHardwareError` naming the servo and its error; with
+        ``raise_on_alert=False`` the state is returned with ``alert_ids`` set instead (the controller's way).
+        """
+        reader = self._require(self._state_reader)
+        t0 = time.monotonic()
+        result = self._io(reader.txRxPacket)
+        if result != COMM_SUCCESS:
+            sid = reader.failed_id if reader.failed_id is not None else self.ids[0]
+            self._check_comm(result, sid, "sync read of present position/velocity/current")
+        n = len(self.ids)
+        current = np.empty(n)
+        velocity = np.empty(n)
+        position = np.empty(n)
+        for k, sid in enumerate(self.ids):
+            block = bytes(reader.data_dict[sid])
+            current[k] = int.from_bytes(block[0:2], "little", signed=True)
+            velocity[k] = int.from_bytes(block[2:6], "little", signed=True)
+            position[k] = int.from_bytes(block[6:10], "little", signed=True)
+        alerts = tuple(sid for sid in self.ids if reader.errors.get(sid, 0) & ct.ERROR_ALERT_BIT)
+        if alerts and raise_on_alert:
+            raise self._hardware_error(alerts[0])
+        return ChainState(
+            host_time_s=t0,
+            position_rad=self.angles_from_ticks(position),
+            velocity_rad_s=velocity * ct.RAD_S_PER_VELOCITY_LSB * self._signs,
+            current_ma=current * ct.CURRENT_MA_PER_LSB * self._signs,
+            alert_ids=alerts,
+        )
+
+    def read_health(self, ids: Sequence[int] | None = None) -> list[ServoHealth]:
+        """Hardware error, temperature, voltage, torque and LED of each servo (two sync reads)."""
+        ids = self._ids_or_all(ids)
+        port = self._require_port()
+        blocks = []
+        for address, size in ((ct.HEALTH_BLOCK_ADDRESS, ct.HEALTH_BLOCK_SIZE),
+                              (ct.SUPPLY_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_SIZE)):
+            reader = _TrackingSyncRead(port, self._ph, address, size)
+            for sid in ids:
+                reader.addParam(sid)
+            result = self._io(reader.txRxPacket)
+            if result != COMM_SUCCESS:
+                sid = reader.failed_id if reader.failed_id is not None else ids[0]
+                self._check_comm(result, sid, "sync read of hardware status")
+            blocks.append({sid: bytes(reader.data_dict[sid]) for sid in ids})
+        health = []
+        for sid in ids:
+            status, supply = blocks[0][sid], blocks[1][sid]
+            error = status[ct.ADDR_HARDWARE_ERROR_STATUS - ct.HEALTH_BLOCK_ADDRESS]
+            health.append(ServoHealth(
+                servo_id=sid,
+                hardware_error=error,
+                error_names=ct.hardware_error_names(error),
+                temperature_c=float(supply[2]),
+                voltage_v=int.from_bytes(supply[0:2], "little") * ct.VOLTAGE_V_PER_LSB,
+                torque_on=bool(status[0]),
+                led_on=bool(status[1]),
+            ))
+        return health
+
+    # -- timing checks ---------------------------------------------------------------------------------------------
+    def timing_warnings(self, control_rate_hz: float | None = None, n_cycles: int = 5) -> list[str]:
+        """Latency-timer, Return Delay Time and cycle-time checks; each warning says how to fix it.
+
+        The latency timer only exists for USB serial adapters on Linux (not for ``sim`` or a pty). The cycle check
+        times ``n_cycles`` sync reads (nothing is written) and adds the sync write's wire time.
+        """
+        warnings: list[str] = []
+        latency_ms = self.latency_timer_ms()
+        if latency_ms is not None and latency_ms > 1:
+            path = self._latency_timer_path()
+            warnings.append(
+                f"USB latency timer of {self.robot.port} is {latency_ms} ms (each reply waits up to that long): "
+                f"fix with `echo 1 | sudo tee {path}`"
+            )
+        delays = {sid: self.read_item(sid, "Return Delay Time") * 2 for sid in self.ids}
+        slow = [sid for sid, us in delays.items() if us > 0]
+        if slow:
+            worst = max(delays[sid] for sid in slow)
+            warnings.append(
+                f"Return Delay Time is up to {worst} µs on servo(s) {_id_list(slow)}: every sync read waits that "
+                "long per servo. Fix: with torque off set it to 0 (Hardware tab, or ServoChain.set_return_delay(0))"
+            )
+        rate_hz = control_rate_hz or self.robot.control_rate_hz
+        cycle_s = self.measure_cycle_s(n_cycles)
+        period_s = 1.0 / rate_hz
+        if cycle_s > 0.8 * period_s:
+            warnings.append(
+                f"a sync write + sync read cycle takes {cycle_s * 1e3:.1f} ms but {rate_hz:g} Hz leaves "
+                f"{period_s * 1e3:.1f} ms per tick: lower robot.control_rate_hz, set Return Delay Time to 0, "
+                "set the latency timer to 1 ms or raise the baud rate"
+            )
+        return warnings
+
+    def measure_cycle_s(self, n_cycles: int = 5) -> float:
+        """Median time of a sync read plus the wire time of a goal sync write (s); sends no goals."""
+        times = []
+        for _ in range(max(1, n_cycles)):
+            t0 = time.perf_counter()
+            self.read_state(raise_on_alert=False)
+            times.append(time.perf_counter() - t0)
+        write_bytes = 14 + 5 * len(self.ids)
+        return float(np.median(times)) + write_bytes * 10.0 / self._baud
+
+    def latency_timer_ms(self) -> int | None:
+        """The USB adapter's latency timer (Linux), or None where there is none (sim, pty, other OS)."""
+        path = self._latency_timer_path()
+        if path is None:
+            return None
+        try:
+            return int(path.read_text().strip())
+        except (OSError, ValueError):
+            return None
+
+    def _latency_timer_path(self) -> Path | None:
+        if self.is_simulated or not sys.platform.startswith("linux"):
+            return None
+        tty = os.path.basename(os.path.realpath(self.robot.port))
+        path = LATENCY_TIMER_DIR / tty / "latency_timer"
+        return path if path.exists() else None
+
+    # -- units -----------------------------------------------------------------------------------------------------
+    def angles_from_ticks(self, ticks: np.ndarray) -> np.ndarray:
+        """Joint angles (rad) from position ticks, SPEC §2: (ticks − 2048)·2π/4096 · sign + zero offset."""
+        return (np.asarray(ticks, dtype=float) - ct.CENTER_TICKS) * ct.RAD_PER_TICK * self._signs + self._offsets
+
+    def ticks_from_angles(self, angles_rad: np.ndarray) -> np.ndarray:
+        """Position ticks (int64, rounded) for joint angles in rad; the inverse of :meth:`angles_from_ticks`."""
+        return np.rint(self._ticks_float(np.asarray(angles_rad, dtype=float))).astype(np.int64)
+
+    def _ticks_float(self, angles_rad: np.ndarray) -> np.ndarray:
+        return (angles_rad - self._offsets) * self._signs / ct.RAD_PER_TICK + ct.CENTER_TICKS
+
+    # -- internals -------------------------------------------------------------------------------------------------
+    def _ids_or_all(self, ids: Sequence[int] | None) -> list[int]:
+        return list(self.ids if ids is None else ids)
+
+    def _require_port(self) -> _FactoryPortHandler:
+        if self._port is None or not self._port.is_open:
+            raise DeviceError(f"the {self.device} port {self.robot.port} is not open")
+        return self._port
+
+    def _require(self, obj):
+        self._require_port()
+        return obj
+
+    def _set_port_baud(self, baud: int) -> None:
+        port = self._require_port()
+        if port.getBaudRate() != baud:
+            ok = self._io(port.setBaudRate, baud)
+            if not ok:
+                raise PortOpenError(f"{self.robot.port} cannot run at {baud} bps")
+
+    def _io(self, fn, *args):
+        """Run one SDK call; a vanished port becomes LinkLostError (and the SDK's busy flag is released)."""
+        try:
+            return fn(*args)
+        except (serial.SerialException, OSError) as exc:
+            if self._port is not None:
+                self._port.is_using = False
+            raise LinkLostError(
+                f"lost the link to the servo bus on {self.robot.port}: {exc}. Check the USB cable and the servo "
+                "power; the controller reconnects when the port is back"
+            ) from exc
+
+    def _check_comm(self, result: int, servo_id: int, what: str) -> None:
+        if result == COMM_SUCCESS:
+            return
+        if result == COMM_RX_TIMEOUT:
+            raise NoReplyError(servo_id, what)
+        if result == COMM_RX_CORRUPT:
+            raise CorruptPacketError(servo_id, what)
+        raise DeviceError(f"{what} on servo {servo_id} failed: {self._ph.getTxRxResult(result)}")
+
+    def _check_error(self, error: int, servo_id: int, what: str) -> None:
+        errnum = error & 0x7F
+        if errnum:
+            raise ServoCommandError(servo_id, errnum, what)
+
+    def _hardware_error(self, servo_id: int) -> ServoHardwareError:
+        port = self._require_port()
+        status, result, _ = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_HARDWARE_ERROR_STATUS)
+        self._check_comm(result, servo_id, "reading Hardware Error Status")
+        return ServoHardwareError(servo_id, ct.hardware_error_names(status) or ("hardware error",))
+
+
+def _id_list(ids: Sequence[int]) -> str:
+    return ", ".join(str(i) for i in ids)
