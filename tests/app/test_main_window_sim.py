@@ -1,0 +1,183 @@
+"""The whole window on the simulated lab: Hardware tab, STOP (button and Esc), errors, clean shutdown, `sensnake gui`."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QSettings, Qt
+
+from app.lab import LabContext
+from app.main_window import MainWindow
+from app.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
+from devices.config import SIM_PORT, load_config
+from widgets.hardware_panel import COL_DEG, COL_RAD, COL_TORQUE
+
+CONNECT_TIMEOUT_MS = 10_000
+REPO = Path(__file__).resolve().parents[2]
+
+
+class Ramp:
+    """Moves joint ``index`` at ``speed_rad_s`` from where it started, for ``duration_s``."""
+
+    def __init__(self, index: int = 0, speed_rad_s: float = 0.5, duration_s: float = 30.0) -> None:
+        self.index, self.speed_rad_s, self.duration_s = index, speed_rad_s, duration_s
+        self.start: np.ndarray | None = None
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        if t_s > self.duration_s:
+            return None
+        if self.start is None:
+            self.start = present_rad.copy()
+        goal = self.start.copy()
+        goal[self.index] += self.speed_rad_s * t_s
+        return goal
+
+
+@pytest.fixture
+def window(qtbot, sim_lab_fast, tmp_path):
+    config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    lab = LabContext(config)
+    win = MainWindow(lab, settings=QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(win)
+    win.show()
+    with qtbot.waitSignal(lab.robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        lab.robot.connect_robot()
+    assert blocker.args == [True]
+    yield win
+    win.close()  # closes the lab: the autouse fixture then fails the test if any device thread survived
+
+
+def moving_then_stop(qtbot, window, sim_lab_fast, press_stop) -> None:
+    robot = window.lab.robot
+    chain = sim_lab_fast.chain
+    robot.set_torque(True).result(timeout=5)
+    robot.run_motion(Ramp(index=2), "ramp")
+    assert robot.motion_state == MOTION_RUNNING
+    before = chain.goal_positions_ticks()[2]
+    qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[2] - before) > 20, timeout=5000)
+    press_stop()
+    assert robot.motion_state == MOTION_STOPPED
+    ticks: list = []
+    robot.state_block.connect(ticks.extend)
+    qtbot.waitUntil(lambda: len(ticks) >= 2, timeout=3000)  # the freeze happens on the next tick
+    frozen = chain.goal_positions_ticks().copy()
+    qtbot.waitUntil(lambda: len(ticks) >= 8, timeout=3000)
+    np.testing.assert_array_equal(chain.goal_positions_ticks(), frozen)
+    present_ticks = chain.present_positions_rad()[2] * 4096 / (2 * np.pi) + 2048
+    assert abs(frozen[2] - present_ticks) < 40  # frozen near where the joint was, not at the ramp's end
+    assert all(chain.register(sid, "Torque Enable") == 1 for sid in range(1, 13))
+    assert "stop" in window.status.message.lower()
+
+
+def test_stop_button_freezes_motion(window, qtbot, sim_lab_fast):
+    moving_then_stop(qtbot, window, sim_lab_fast,
+                     lambda: qtbot.mouseClick(window.status.stop_button, Qt.MouseButton.LeftButton))
+
+
+def test_escape_freezes_motion_from_any_tab(window, qtbot, sim_lab_fast):
+    window.show_tab("calibration")
+    window.activateWindow()
+    qtbot.waitUntil(window.isActiveWindow)
+
+    def press_escape() -> None:
+        target = window.focusWidget() or window
+        qtbot.keyClick(target, Qt.Key.Key_Escape)
+
+    moving_then_stop(qtbot, window, sim_lab_fast, press_escape)
+
+
+def test_hardware_tab_scans_twelve_servos_and_shows_live_state(window, qtbot, sim_lab_fast):
+    tab = window.show_tab("hardware")
+    panel = tab.panel
+    assert panel.port == "sim" and panel.baud == 1_000_000
+    assert panel.disconnect_button.isEnabled() and not panel.connect_button.isEnabled()
+    panel.scan_id_from.setValue(0)
+    panel.scan_id_to.setValue(30)
+    qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: panel.scan_button.isEnabled(), timeout=10_000)
+    assert panel.scan_result_ids == list(range(1, 13))
+    assert "12 servo(s) found" in panel.scan_status_label.text()
+
+    sim_lab_fast.chain.set_limp_position(5, 2048 + 512)  # torque is off at start: pose joint 5 by hand, +45°
+    qtbot.waitUntil(lambda: panel.cell_text(5, COL_DEG) == "+45.0", timeout=5000)
+    assert panel.cell_text(5, COL_RAD) == f"{np.pi / 4:+.3f}"
+    qtbot.waitUntil(lambda: panel.cell_text(5, 6) not in ("—", ""), timeout=5000)  # temperature from health
+
+
+def test_hardware_tab_torque_toggle_reaches_the_servo(window, qtbot, sim_lab_fast):
+    panel = window.show_tab("hardware").panel
+    chain = sim_lab_fast.chain
+    assert chain.register(3, "Torque Enable") == 0
+    button = panel.toggle(3, COL_TORQUE)
+    qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: chain.register(3, "Torque Enable") == 1, timeout=5000)
+    assert chain.register(4, "Torque Enable") == 0
+    qtbot.mouseClick(panel.all_torque_on_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: all(chain.register(i, "Torque Enable") == 1 for i in range(1, 13)), timeout=5000)
+    qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: chain.register(3, "Torque Enable") == 0, timeout=5000)
+    qtbot.waitUntil(lambda: not panel.toggle(3, COL_TORQUE).isChecked() and panel.toggle(4, COL_TORQUE).isChecked(),
+                    timeout=5000)
+
+
+def test_overload_names_the_servo_in_status_and_table_and_reboot_clears_it(window, qtbot, sim_lab_fast):
+    panel = window.show_tab("hardware").panel
+    window.lab.robot.set_torque(True).result(timeout=5)
+    sim_lab_fast.chain.inject_overload(7)
+    qtbot.waitUntil(lambda: "servo 7" in window.status.message, timeout=5000)
+    assert "overload" in window.status.message.lower()
+    qtbot.waitUntil(lambda: "overload" in panel.errors_text(7).lower(), timeout=5000)
+    assert panel.errors_text(6) == "none"
+    qtbot.mouseClick(panel.toggle(7, 11), Qt.MouseButton.LeftButton)  # Reboot
+    qtbot.waitUntil(lambda: panel.errors_text(7) == "none", timeout=5000)
+
+
+def test_link_check_pings_every_servo(window, qtbot, sim_lab_fast):
+    panel = window.show_tab("hardware").panel
+    sim_lab_fast.chain.set_no_reply(11)
+    qtbot.mouseClick(panel.link_check_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(panel.link_check_button.isEnabled, timeout=10_000)
+    summary = panel.link_summary_label.text()
+    assert "11/12 servos answered" in summary
+    row_11 = [panel.link_table.item(r, 5).text() for r in range(12) if panel.link_table.item(r, 0).text() == "11"]
+    assert row_11 == ["no reply"]
+
+
+def test_hardware_tab_refresh_skips_when_hidden(window, qtbot):
+    tab = window.show_tab("hardware")
+    qtbot.waitUntil(lambda: tab.refresh_count >= 2, timeout=3000)
+    window.show_tab("calibration")
+    assert not tab.refresh_timer.isActive()
+    count = tab.refresh_count
+    tab.refresh()
+    assert tab.refresh_count == count
+
+
+def test_disconnect_and_reconnect_from_the_tab(window, qtbot):
+    panel = window.show_tab("hardware").panel
+    robot = window.lab.robot
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        qtbot.mouseClick(panel.disconnect_button, Qt.MouseButton.LeftButton)
+    assert blocker.args == [False]
+    assert panel.connect_button.isEnabled() and panel.cell_text(1, COL_RAD) == "—"
+    assert window.status.robot_label.text() == "Robot: not connected"
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        qtbot.mouseClick(panel.connect_button, Qt.MouseButton.LeftButton)
+    assert blocker.args == [True]
+    assert "12 servos on sim" in window.status.robot_label.text()
+
+
+@pytest.mark.slow
+def test_sensnake_gui_sim_starts_and_quits(tmp_path):
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", SENSNAKE_QUIT_AFTER_MS="2500",
+               XDG_CONFIG_HOME=str(tmp_path))  # keep the user's window settings out of it
+    result = subprocess.run([sys.executable, "-m", "app", "gui", "--sim"], cwd=REPO, env=env,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "Robot: 12 servos on sim (simulated)" in result.stdout
+    assert "Traceback" not in result.stderr
