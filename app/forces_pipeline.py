@@ -1,0 +1,199 @@
+"""Conductance → force for the live Forces tab, with each sensor's calibration status.
+
+Per sensor the status is one of:
+
+- ``calibrated``: the loaded calibration JSON (SPEC §3.3, read by :mod:`app.calfiles`) has this sensor's model;
+- ``default``: no calibration file is loaded, so the models' typical sensor (``models.sls.TYPICAL_SLS``,
+  ``TYPICAL_AREA_M2`` and ``models.physics.DEFAULT_PHYSICS``) stands in. Its forces are indicative only and are
+  labelled so: the physics constants are placeholders until the lab measures them (SPEC §5);
+- ``uncalibrated``: a calibration file is loaded but does not hold this sensor (or its model): the sensor shows
+  conductance in µS, labelled, never a made-up force.
+
+The estimator (``sls`` creep-aware, or ``linear``) is applied live to new blocks; switching it restarts the estimator
+state (the creep history starts afresh). Time stamps fed to the estimators are the board clock (seconds).
+
+Not thread-safe: the Forces tab calls it from the GUI thread as blocks arrive.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from app import calfiles
+from models.estimators import LinearEstimator, SLSEstimator
+from models.linear import LinearModel
+from models.physics import DEFAULT_PHYSICS, PhysicsConstants
+from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, SLSParams, conductance_from_force
+
+CALIBRATED = "calibrated"
+DEFAULT = "default"
+UNCALIBRATED = "uncalibrated"
+ESTIMATORS = ("sls", "linear")
+US_PER_S = 1e6
+
+
+@dataclass(frozen=True)
+class ForcesBlock:
+    """One processed block: ``display`` (N×C) what the force view plots (N for estimated sensors, µS for the
+    others), ``force_n`` (N×C) forces in N with NaN for sensors without an estimate."""
+
+    display: np.ndarray
+    force_n: np.ndarray
+
+
+def _typical_linear_model() -> LinearModel:
+    """A straight line through the typical sensor's settled conductance at two forces (for the default status)."""
+    t_s = np.linspace(0.0, 300.0, 301)
+    settled = []
+    forces_n = (1.75, 5.25)
+    for force_n in forces_n:
+        conductance = conductance_from_force(t_s, np.full(t_s.size, force_n), TYPICAL_SLS, TYPICAL_AREA_M2,
+                                             DEFAULT_PHYSICS)
+        settled.append(float(np.asarray(conductance).ravel()[-1]))
+    slope = (settled[1] - settled[0]) / (forces_n[1] - forces_n[0])
+    return LinearModel(m_S_per_N=slope, d_S=settled[0] - slope * forces_n[0])
+
+
+class ForcesPipeline:
+    """Live force estimation for ``channel_names``; see the module docstring."""
+
+    def __init__(self, channel_names: tuple[str, ...] | list[str], estimator: str = "sls") -> None:
+        self.channel_names = tuple(channel_names)
+        self._estimator_kind = "sls"
+        self.calibration: dict | None = None
+        self.calibration_source = ""
+        self.physics: PhysicsConstants = DEFAULT_PHYSICS
+        self._estimator: LinearEstimator | SLSEstimator | None = None
+        self._columns = np.zeros(0, dtype=np.intp)
+        self.status: tuple[str, ...] = ()
+        self.problems: list[str] = []
+        self._default_linear: LinearModel | None = None
+        self._t_last_s: float | None = None
+        self.set_estimator(estimator)
+
+    # -- configuration ---------------------------------------------------------------------------------------------
+    @property
+    def estimator_kind(self) -> str:
+        return self._estimator_kind
+
+    @property
+    def estimated(self) -> np.ndarray:
+        """Boolean mask (C,) of the sensors that get a force."""
+        mask = np.zeros(len(self.channel_names), dtype=bool)
+        mask[self._columns] = True
+        return mask
+
+    @property
+    def calibration_json(self) -> str | None:
+        """The loaded calibration document as JSON text (stored in recordings), or None."""
+        return None if self.calibration is None else json.dumps(self.calibration)
+
+    def set_estimator(self, kind: str) -> None:
+        """``sls`` (creep-aware) or ``linear``; the state restarts."""
+        if kind not in ESTIMATORS:
+            raise ValueError(f"unknown estimator {kind!r}; expected one of {', '.join(ESTIMATORS)}")
+        self._estimator_kind = kind
+        self._build()
+
+    def load_calibration(self, path: str | os.PathLike) -> None:
+        """Read a calibration JSON via :mod:`app.calfiles`; raises CalFileError (a ValueError) with the reason."""
+        document = calfiles.read_calibration(path)
+        physics = calfiles.physics_from_calibration(document, str(path))
+        self.calibration, self.calibration_source, self.physics = document, str(path), physics
+        self._build()
+
+    def clear_calibration(self) -> None:
+        self.calibration, self.calibration_source, self.physics = None, "", DEFAULT_PHYSICS
+        self._build()
+
+    def reset(self) -> None:
+        """Restart the estimator's state (after a gap in the data, or a new session)."""
+        self._build()
+
+    def label(self, index: int) -> str:
+        """Legend text for channel ``index``, e.g. ``S06B`` or ``S06B · µS, uncalibrated``."""
+        name = self.channel_names[index]
+        status = self.status[index]
+        if status == CALIBRATED:
+            return name
+        if status == DEFAULT:
+            return f"{name} · default cal."
+        return f"{name} · µS, uncal."
+
+    def summary(self) -> tuple[str, str]:
+        """(text, level) for the calibration label: how many sensors are calibrated / default / conductance."""
+        counts = {key: self.status.count(key) for key in (CALIBRATED, DEFAULT, UNCALIBRATED)}
+        if self.calibration is None:
+            return (f"no calibration file: typical-sensor defaults ({self._estimator_kind})", "warn")
+        name = os.path.basename(self.calibration_source)
+        if counts[UNCALIBRATED]:
+            return (f"{name}: {counts[CALIBRATED]} calibrated, {counts[UNCALIBRATED]} shown as conductance", "warn")
+        return (f"{name}: all {counts[CALIBRATED]} sensors calibrated", "ok")
+
+    # -- processing ------------------------------------------------------------------------------------------------
+    def process(self, t_s: np.ndarray, conductance_s: np.ndarray) -> ForcesBlock:
+        """Estimate forces for a block: ``t_s`` (N,) board seconds, ``conductance_s`` (N×C) siemens."""
+        conductance_s = np.asarray(conductance_s, dtype=float)
+        t_s = np.asarray(t_s, dtype=float)
+        force_n = np.full(conductance_s.shape, np.nan)
+        display = conductance_s * US_PER_S
+        if self._estimator is not None and self._columns.size and t_s.size:
+            if self._t_last_s is not None and t_s[0] < self._t_last_s:
+                self._build()  # the board clock restarted (new board or power cycle): the creep state is stale
+            estimated = self._estimator.update(t_s, conductance_s[:, self._columns])
+            force_n[:, self._columns] = estimated
+            display[:, self._columns] = estimated
+            self._t_last_s = float(t_s[-1])
+        return ForcesBlock(display=display, force_n=force_n)
+
+    # -- internals -------------------------------------------------------------------------------------------------
+    def _build(self) -> None:
+        kind = self._estimator_kind
+        status: list[str] = []
+        self.problems = []
+        e0, e1, mu1, area, linear_models = [], [], [], [], []
+        for name in self.channel_names:
+            if self.calibration is None:
+                status.append(DEFAULT)
+                e0.append(TYPICAL_SLS.E0_Pa)
+                e1.append(TYPICAL_SLS.E1_Pa)
+                mu1.append(TYPICAL_SLS.mu1_Pa_s)
+                area.append(TYPICAL_AREA_M2)
+                if kind == "linear":
+                    if self._default_linear is None:
+                        self._default_linear = _typical_linear_model()
+                    linear_models.append(self._default_linear)
+                continue
+            try:
+                entry = calfiles.sensor_entry(self.calibration, name, kind, self.calibration_source)
+            except calfiles.CalFileError as exc:
+                status.append(UNCALIBRATED)
+                if name in self.calibration.get("sensors", {}):
+                    self.problems.append(str(exc))  # present but unusable: worth telling the user why
+                continue
+            status.append(CALIBRATED)
+            if kind == "sls":
+                sls = entry["sls"]
+                e0.append(sls["E0_Pa"])
+                e1.append(sls["E1_Pa"])
+                mu1.append(sls["mu1_Pa_s"])
+                area.append(entry["area_m2"])
+            else:
+                linear = entry["linear"]
+                linear_models.append(LinearModel(m_S_per_N=linear["m_S_per_N"], d_S=linear["d_S"]))
+        self.status = tuple(status)
+        self._columns = np.array([i for i, s in enumerate(status) if s != UNCALIBRATED], dtype=np.intp)
+        self._t_last_s = None
+        if not self._columns.size:
+            self._estimator = None
+        elif kind == "sls":
+            params = SLSParams(E0_Pa=np.array(e0, dtype=float), E1_Pa=np.array(e1, dtype=float),
+                               mu1_Pa_s=np.array(mu1, dtype=float))
+            self._estimator = SLSEstimator(params, np.array(area, dtype=float), self.physics,
+                                           n_sensors=int(self._columns.size))
+        else:
+            self._estimator = LinearEstimator(linear_models)
