@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import constants as _const
 
-# CODATA 2018 exact/recommended values, via scipy.constants.
+# CODATA values as shipped by scipy.constants (h and e are exact; m_e is the release scipy carries).
 PLANCK_J_S = _const.h
 ELECTRON_MASS_KG = _const.m_e
 ELECTRON_VOLT_J = _const.e
@@ -139,6 +139,7 @@ class StrainStatus(enum.IntEnum):
     NAN_INPUT = 6  # resistance or force is NaN; strain NaN
     NOT_CONVERGED = 7  # Newton did not converge (should not happen); last iterate returned
     NEGATIVE_RESISTANCE = 8  # R < 0: not a reading; strain NaN
+    SHORT_CIRCUIT = 9  # R = 0 (C = ∞): beyond the ε → 1 limit; strain NaN
 
 
 STRAIN_STATUS_TEXT = {
@@ -152,6 +153,7 @@ STRAIN_STATUS_TEXT = {
     StrainStatus.NAN_INPUT: "resistance or force is NaN",
     StrainStatus.NOT_CONVERGED: "Newton iteration did not converge",
     StrainStatus.NEGATIVE_RESISTANCE: "negative resistance is not a reading",
+    StrainStatus.SHORT_CIRCUIT: "zero resistance (short circuit): beyond the model's ε → 1 limit",
 }
 
 
@@ -230,6 +232,52 @@ def strain_from_conductance(
     return strain_from_resistance(r, force_n, phys)
 
 
+_CHUNK = 8192  # elements per Newton chunk: keeps the temporaries in cache
+
+
+def _newton_strain_low(log_ratio: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The ε-form Newton of :func:`_newton_strain` for L > −(1+k), chunked and in place (it is the hot loop of the
+    no-contact inverse). Start: for L ≤ 0 the root of the second-order model ``−(1+k)ε − ε²/2 = L`` (right of the
+    root, since ln(1−ε) ≤ −ε − ε²/2), capped by ``−expm1(L)``; for L > 0 the tangent ``−L/(1+k)``."""
+    flat = log_ratio.reshape(-1)
+    out = np.empty_like(flat)
+    converged = np.ones(flat.shape, dtype=bool)
+    kp1 = 1.0 + k
+    tol = 16.0 * np.finfo(float).eps
+    max_iter_used = 0
+    for lo in range(0, flat.size, _CHUNK):
+        big_l = flat[lo : lo + _CHUNK]
+        nonpos = np.minimum(big_l, 0.0)
+        e = -2.0 * nonpos / (kp1 + np.sqrt(kp1 * kp1 - 2.0 * nonpos))
+        np.minimum(e, -np.expm1(nonpos), out=e)
+        positive = big_l > 0.0
+        if positive.any():
+            e[positive] = -big_l[positive] / kp1
+        om = np.empty_like(e)
+        g = np.empty_like(e)
+        for iteration in range(1, _NEWTON_MAX_ITER + 1):
+            np.subtract(1.0, e, out=om)
+            np.log1p(-e, out=g)
+            g -= k * e
+            g -= big_l
+            # Newton step e ← e + g·(1−ε)/(1 + k·(1−ε)); g < 0 right of the root, so the step is ≤ 0.
+            g *= om
+            om *= k
+            om += 1.0
+            g /= om
+            small = np.abs(g) <= tol * np.abs(e)
+            # Monotone from the right: a positive step is rounding noise, never taken.
+            np.minimum(g, 0.0, out=g)
+            e += g
+            max_iter_used = max(max_iter_used, iteration)
+            if small.all():
+                break
+        else:
+            converged[lo : lo + _CHUNK] = small
+        out[lo : lo + _CHUNK] = e
+    return out.reshape(log_ratio.shape), converged.reshape(log_ratio.shape), max_iter_used
+
+
 def _newton_strain(log_ratio: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray, int]:
     """Root ε of ``g(ε) = ln(1−ε) − k·ε − L = 0`` for each L = ln(R_t/R0) (finite). Returns (ε, converged, iters).
 
@@ -246,24 +294,12 @@ def _newton_strain(log_ratio: np.ndarray, k: float) -> tuple[np.ndarray, np.ndar
 
     low = log_r > -(1.0 + k)
     if np.any(low):
-        l_low = log_r[low]
-        # −expm1(L) is right of the root only for L ≤ 0 (ε ≥ 0); for L > 0 the tangent start alone is.
-        e = np.where(
-            l_low > 0.0, -l_low / (1.0 + k), np.minimum(-l_low / (1.0 + k), -np.expm1(np.minimum(l_low, 0.0)))
-        )
-        done = np.zeros(l_low.shape, dtype=bool)
-        for iteration in range(1, _NEWTON_MAX_ITER + 1):
-            one_minus = 1.0 - e
-            g = np.log1p(-e) - k * e - l_low
-            step = g / (-1.0 / one_minus - k)
-            e_new = e - step
-            # Monotone from the right: a non-decreasing step means the iteration has reached rounding level.
-            newly = (np.abs(step) <= 4.0 * np.finfo(float).eps * np.maximum(np.abs(e), 1e-300)) | (e_new >= e)
-            e = np.where(done | (e_new >= e), e, e_new)
-            done |= newly
-            max_iter_used = max(max_iter_used, iteration)
-            if done.all():
-                break
+        all_low = low.all()
+        l_low = log_r if all_low else log_r[low]
+        e, done, iters = _newton_strain_low(l_low, k)
+        max_iter_used = iters
+        if all_low:
+            return e, done, max_iter_used
         eps[low] = e
         converged[low] = done
 
@@ -297,7 +333,21 @@ def strain_from_resistance(r_ohm: np.ndarray, force_n: np.ndarray, phys: Physics
     ε ∈ [1e-4, 0.5]. Guards (see :class:`StrainStatus`): R_t ≤ 0, R_t > R0 (negative strain, returned and flagged),
     F ≤ 0 with a contact term, ε → 1 (flagged), NaN, R < 0, R = ∞. A NaN in the result always has a non-OK status.
     """
-    r, force = np.broadcast_arrays(np.asarray(r_ohm, dtype=np.float64), np.asarray(force_n, dtype=np.float64))
+    r = np.asarray(r_ohm, dtype=np.float64)
+    if not phys.has_contact and r.size:
+        # Hot path of the no-contact inverse: one min/max pass proves every reading usable (NaN fails both).
+        r_min, r_max = float(r.min()), float(r.max())
+        if r_min > 0.0 and r_max < np.inf:
+            eps, converged, iterations = _newton_strain(np.log(r / phys.R0_ohm), phys.tunnelling_k)
+            status = np.zeros(r.shape, dtype=np.int8)
+            if float(eps.min()) < 0.0:
+                status[eps < 0.0] = StrainStatus.NEGATIVE_STRAIN
+            if float(eps.max()) >= STRAIN_NEAR_ONE:
+                status[eps >= STRAIN_NEAR_ONE] = StrainStatus.STRAIN_NEAR_ONE
+            if not converged.all():
+                status[~converged] = StrainStatus.NOT_CONVERGED
+            return StrainResult(strain=eps, status=status, iterations=iterations)
+    r, force = np.broadcast_arrays(r, np.asarray(force_n, dtype=np.float64))
     status = np.full(r.shape, StrainStatus.OK, dtype=np.int8)
     strain = np.full(r.shape, np.nan)
 
@@ -307,7 +357,9 @@ def strain_from_resistance(r_ohm: np.ndarray, force_n: np.ndarray, phys: Physics
     status[negative_r] = StrainStatus.NEGATIVE_RESISTANCE
     open_circuit = ~nan_in & np.isposinf(r)
     status[open_circuit] = StrainStatus.OPEN_CIRCUIT
-    usable = ~(nan_in | negative_r | open_circuit)
+    short = ~nan_in & (r == 0.0)
+    status[short] = StrainStatus.SHORT_CIRCUIT
+    usable = ~(nan_in | negative_r | open_circuit | short)
     if phys.has_contact:
         no_force = usable & (force <= 0.0)
         status[no_force] = StrainStatus.NO_FORCE

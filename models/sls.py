@@ -43,7 +43,7 @@ from models.physics import (
     StrainStatus,
     conductance_from_strain,
     explain_status,
-    strain_from_conductance,
+    strain_from_resistance,
 )
 
 INTERPOLATIONS = ("hold", "linear")
@@ -612,57 +612,95 @@ class SLSInverse:
         co = self._co
         x = steps[:, None] / co.tau[None, :]
         oma = -np.expm1(-x)
-        ramp = one_minus_phi1(x) if self.interp == "linear" else None
+        if self.interp == "linear":
+            ramp = one_minus_phi1(x)
+        else:
+            ramp = None
+            # The hold inverse propagates an error in q by 1 − (1−α)(1 + E0/E1) per step: when E0 > E1 and a step
+            # is much longer than τ this exceeds 1 in magnitude and noise would grow without bound. Such steps
+            # (only possible after a long gap or with τ → 0) are inverted under the linear assumption instead,
+            # which is always stable; every other step stays exactly "hold".
+            if np.any(co.e0 > co.e1):
+                unstable = oma * (1.0 + co.e0 / co.e1) > 1.999
+                if unstable.any():
+                    ramp = np.where(unstable, one_minus_phi1(x), 0.0)
 
-        nan_in = np.isnan(cond)
-        status[nan_in] = ForceStatus.NAN_INPUT
-        status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
-        status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
+        # One min/max pass decides whether the block needs per-sample masks at all (NaN propagates into both).
+        c_min, c_max = float(cond.min()), float(cond.max())
+        clean = c_min > 0.0 and c_max < np.inf
+        if not clean:
+            status[np.isnan(cond)] = ForceStatus.NAN_INPUT
+            status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
+            status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
         if self.phys.has_contact:
             self._run_contact(cond, oma, ramp, force, status)
         else:
-            self._run_no_contact(cond, oma, ramp, force, status)
+            self._run_no_contact(cond, oma, ramp, force, status, clean)
         self._state.t_prev_s = float(t[-1])
         return ForceResult(force, status)
 
     # -- the no-contact path: strain is a function of the reading alone, so Eq. 3 is inverted for the whole block
     # at once and only the linear recursion runs per step.
-    def _run_no_contact(self, cond, oma, ramp, force, status) -> None:
+    def _run_no_contact(self, cond, oma, ramp, force, status, clean: bool) -> None:
         co, st = self._co, self._state
-        valid = (cond > 0.0) & np.isfinite(cond)
-        strain_res = strain_from_conductance(np.where(valid, cond, 1.0), 1.0, self.phys)
-        strain = strain_res.strain
-        # C = +∞ or ε ≥ 0.9: the ε → 1 limit.
-        saturated = np.isposinf(cond) | (valid & (strain_res.status == StrainStatus.STRAIN_NEAR_ONE))
-        strain = np.where(np.isposinf(cond), 1.0, strain)
-        status[saturated] = ForceStatus.SATURATED
-        status[valid & (strain_res.status == StrainStatus.NOT_CONVERGED)] = ForceStatus.NOT_CONVERGED
-        use = valid | saturated  # samples whose force is computed from the model
-        zero = (cond <= 0.0) & ~np.isnan(cond)
+        n, s = cond.shape
+        if clean:
+            strain_res = strain_from_resistance(1.0 / cond, 1.0, self.phys)
+            strain = strain_res.strain
+            use = None
+            zero = None
+            plain_rows = np.ones(n, dtype=bool)
+            # ε ≥ 0.9: the ε → 1 limit (flagged, force kept).
+            if strain_res.status.any():
+                status[strain_res.status == StrainStatus.STRAIN_NEAR_ONE] = ForceStatus.SATURATED
+                status[strain_res.status == StrainStatus.NOT_CONVERGED] = ForceStatus.NOT_CONVERGED
+        else:
+            valid = (cond > 0.0) & np.isfinite(cond)
+            strain_res = strain_from_resistance(1.0 / np.where(valid, cond, 1.0), 1.0, self.phys)
+            infinite = np.isposinf(cond)
+            saturated = infinite | (valid & (strain_res.status == StrainStatus.STRAIN_NEAR_ONE))
+            strain = np.where(infinite, 1.0, strain_res.strain)
+            status[saturated] = ForceStatus.SATURATED
+            status[valid & (strain_res.status == StrainStatus.NOT_CONVERGED)] = ForceStatus.NOT_CONVERGED
+            use = valid | saturated  # samples whose force comes from the model
+            zero = (cond <= 0.0) & ~np.isnan(cond)
+            plain_rows = use.all(axis=1)
         inv_e0 = 1.0 / co.e0
         inv_e1 = 1.0 / co.e1
-        q = st.q
-        sig_prev = st.sigma_prev
-        plain_rows = use.all(axis=1)
-        for i in range(cond.shape[0]):
-            # p: the strain the past alone explains at sample i (the new stress adds σ/E_eff on top).
-            p = q + oma[i] * (sig_prev * inv_e1 - q)
+        q = st.q.copy()
+        sig_prev = st.sigma_prev.copy()
+        p = np.empty(s)
+        sig = np.empty(s)
+        for i in range(n):
+            # p: the strain the past alone explains at sample i; the new stress adds σ/E_eff on top of it.
+            np.multiply(sig_prev, inv_e1, out=p)
+            p -= q
+            p *= oma[i]
+            p += q
             if ramp is None:
-                sig = (strain[i] - p) * co.e0
+                np.subtract(strain[i], p, out=sig)
+                sig *= co.e0
             else:
                 p -= ramp[i] * sig_prev * inv_e1
-                sig = (strain[i] - p) / (inv_e0 + ramp[i] * inv_e1)
+                np.subtract(strain[i], p, out=sig)
+                sig /= inv_e0 + ramp[i] * inv_e1
             if not plain_rows[i]:
+                # NaN: hold the last stress over the gap; C ≤ 0: no contact, zero stress.
                 sig = np.where(use[i], sig, np.where(zero[i], 0.0, sig_prev))
             force[i] = sig
-            np.maximum(sig, 0.0, out=sig)
-            q = p if ramp is None else p + ramp[i] * sig * inv_e1
-            sig_prev = sig
-        below = use & (force < 0.0)
-        status[below & (status == ForceStatus.OK)] = ForceStatus.BELOW_BASELINE
+            np.maximum(sig, 0.0, out=sig_prev)
+            if ramp is None:
+                q, p = p, q
+            else:
+                np.multiply(sig_prev, ramp[i] * inv_e1, out=q)
+                q += p
         force *= co.area[None, :]
-        np.maximum(force, 0.0, out=force, where=use)
-        force[np.isnan(cond)] = np.nan
+        negative = force < 0.0
+        if negative.any():
+            status[negative & (status == ForceStatus.OK)] = ForceStatus.BELOW_BASELINE
+            force[negative] = 0.0
+        if not clean:
+            force[np.isnan(cond)] = np.nan
         st.q = q
         st.sigma_prev = sig_prev
         last_valid = ~np.isnan(force[-1])
