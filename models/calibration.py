@@ -1,0 +1,334 @@
+"""Calibrate one sensor from its trials: the linear model, the SLS model (joint and force-trend) and a per-trial
+table, with uncertainties and warnings a user can act on.
+
+Pipeline (NUMERICS pitfall 4's cure, with the paper's procedure kept alongside as a reference):
+
+1. per trial: find the hold (its force is the mean applied force over it), refuse a flat or disconnected sensor,
+   count saturated samples, fit Eq. 9 to the hold and run the paper's Eqs. 7–8 on it (reported, refused when
+   rank-deficient or non-physical);
+2. derivative-free estimate (integrated Eq. 5) per trial and for all trials → starting values;
+3. output-error fit per trial (the table's E0/E1/mu1) and jointly for all trials (``sls``) and with parameters
+   linear in force (``sls_trend``), in the conductance domain with Eq. 3 inside the residual;
+4. the paper's linear model (Eq. 1) from the mean conductance over the window;
+5. warnings: saturated samples, no loading ramp (E0 poorly identified), poor fit (rmse against the noise),
+   non-physical paper results, single force level (no trend).
+
+Pure numerics: any thread may call :func:`calibrate_sensor`; it takes arrays and returns a dataclass.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
+from models.fit_output import (
+    PARAM_NAMES,
+    FitTrial,
+    OutputFit,
+    fit_output_casadi,
+    fit_output_scipy,
+)
+from models.fit_paper import ExponentialFit, PaperLSResult, abc_from_sls, fit_exponential, fit_paper_ls
+from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
+from models.physics import PhysicsConstants, strain_from_conductance
+from models.sls import SLSParams
+
+# The hold starts where the applied force first reaches this fraction of the trial's top force.
+HOLD_FRACTION = 0.95
+# Samples below this fraction of the hold force are left out of the SLS fits (see models.fit_output).
+MIN_FORCE_FRACTION = 0.05
+# Strain for the derivative-free estimate is taken where the force is at least this fraction of the hold force:
+# below it the contact term dominates the reading and the inverted strain is mostly noise.
+DFREE_FORCE_FRACTION = 0.2
+# A trial whose smoothed conductance varies by less than this fraction of its level is flat (sensor not responding).
+FLAT_RELATIVE_SPAN = 5e-3
+# A poor fit: rmse above this multiple of the estimated noise (and above 1e-4 relative, so noise-free fits pass).
+POOR_FIT_NOISE_RATIO = 2.0
+# E0's 95 % interval wider than this fraction of E0 is reported as poorly identified.
+WIDE_INTERVAL = 0.5
+
+
+class FlatSensorError(ValueError):
+    """A trial shows no usable response (flat-lined or disconnected sensor): the fit is refused."""
+
+
+@dataclass(frozen=True)
+class TrialInput:
+    """One calibration trial: its name (file), time (s), applied force (N), measured conductance (S)."""
+
+    name: str
+    time_s: np.ndarray
+    force_n: np.ndarray
+    conductance_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrialReport:
+    """One row of the per-trial table. ``params`` from this trial's own output-error fit; ``exp_fit`` is Eq. 9 on
+    the hold; ``paper`` the Eqs. 7–8 regression (refused with a reason when ill-posed); ``noise_s`` the estimated
+    conductance noise (S); ``rmse_s`` of the per-trial fit (S)."""
+
+    name: str
+    force_n: float
+    hold_start_s: float
+    exp_fit: ExponentialFit
+    paper: PaperLSResult
+    dfree: DerivativeFreeEstimate | None
+    params: SLSParams
+    ci95: dict[str, tuple[float, float]]
+    rmse_s: float
+    noise_s: float
+    n_saturated: int
+    has_ramp: bool
+    warnings: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        """The SPEC §3.3 ``trials`` entry (plus extra keys that ``estimate`` ignores)."""
+        a, b, c = abc_from_sls(float(self.params.E0_Pa), float(self.params.E1_Pa), float(self.params.mu1_Pa_s))
+        return {
+            "file": self.name, "force_N": self.force_n,
+            "c1": self.exp_fit.c1, "c2": self.exp_fit.c2, "c3": self.exp_fit.c3,
+            "E0_Pa": float(self.params.E0_Pa), "E1_Pa": float(self.params.E1_Pa),
+            "mu1_Pa_s": float(self.params.mu1_Pa_s), "a_s": a, "b_Pa": b, "c_Pa_s": c,
+            "rmse_S": self.rmse_s, "warnings": list(self.warnings),
+            "ci95": {k: list(v) for k, v in self.ci95.items()},
+            "hold_start_s": self.hold_start_s, "noise_S": self.noise_s, "saturated_samples": self.n_saturated,
+            "exp_fit_t0_s": self.exp_fit.t0_s,
+            "paper_ls": {"ok": self.paper.ok, "E0_Pa": _or_none(self.paper.E0_Pa),
+                         "E1_Pa": _or_none(self.paper.E1_Pa), "mu1_Pa_s": _or_none(self.paper.mu1_Pa_s),
+                         "condition_number": _or_none(self.paper.condition_number),
+                         "warnings": list(self.paper.warnings)},
+        }
+
+
+@dataclass(frozen=True)
+class SensorCalibration:
+    """Everything ``sensnake fit`` writes for one sensor (SPEC §3.3) and what the GUI shows."""
+
+    area_m2: float
+    linear: LinearFit
+    sls: SLSParams
+    sls_ci95: dict[str, tuple[float, float]]
+    sls_trend: dict[str, tuple[float, float]] | None
+    trend_ci95: dict[str, tuple[float, float]]
+    trials: tuple[TrialReport, ...]
+    force_range_n: tuple[float, float]
+    rmse_s: float
+    solver: str
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_dict(self) -> dict:
+        """The sensor's SPEC §3.3 entry (``area_m2``, ``linear``, ``sls``, ``sls_trend``, ``trials``) plus extras."""
+        entry = {
+            "area_m2": self.area_m2,
+            "linear": self.linear.model.to_dict(),
+            "sls": self.sls.to_dict(),
+        }
+        if self.sls_trend is not None:
+            entry["sls_trend"] = {k: list(v) for k, v in self.sls_trend.items()}
+        entry["trials"] = [t.to_dict() for t in self.trials]
+        entry["linear_r2"] = _or_none(self.linear.r_squared)
+        entry["sls_ci95"] = {k: list(v) for k, v in self.sls_ci95.items()}
+        if self.trend_ci95:
+            entry["sls_trend_ci95"] = {k: list(v) for k, v in self.trend_ci95.items()}
+        entry["force_range_N"] = list(self.force_range_n)
+        entry["rmse_S"] = self.rmse_s
+        entry["solver"] = self.solver
+        entry["warnings"] = list(self.warnings)
+        return entry
+
+
+def _or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def hold_segment(force_n: np.ndarray) -> tuple[int, float]:
+    """Index where the hold starts and the hold force (N): the mean applied force from the first sample at
+    :data:`HOLD_FRACTION` of the top force (its 99th percentile, robust to spikes) to the end."""
+    finite = force_n[np.isfinite(force_n)]
+    if finite.size == 0:
+        raise ValueError("the force column has no finite sample")
+    top = float(np.percentile(finite, 99))
+    if not top > 0:
+        raise ValueError(f"the applied force never rises above zero (top {top:g} N): was the rig loading?")
+    reached = np.flatnonzero(np.nan_to_num(force_n, nan=-np.inf) >= HOLD_FRACTION * top)
+    start = int(reached[0])
+    hold = force_n[start:]
+    return start, float(np.nanmean(hold[hold >= 0.5 * top]))
+
+
+def estimate_noise(conductance_s: np.ndarray) -> float:
+    """Conductance noise std (S) from second differences (robust MAD), insensitive to the slow creep."""
+    c = conductance_s[np.isfinite(conductance_s)]
+    if c.size < 5:
+        return math.nan
+    d2 = np.diff(c, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _check_not_flat(trial: TrialInput, start: int) -> None:
+    c = trial.conductance_s[np.isfinite(trial.conductance_s)]
+    level = float(np.max(np.abs(c))) if c.size else 0.0
+    if not level > 1e-12:
+        raise FlatSensorError(f"{trial.name}: conductance is zero throughout: the sensor is disconnected (check its "
+                              "wiring and board channel); fit refused")
+    window = max(3, c.size // 50)
+    kernel = np.ones(window) / window
+    smooth = np.convolve(c, kernel, mode="valid")
+    if np.ptp(smooth) < FLAT_RELATIVE_SPAN * level:
+        raise FlatSensorError(
+            f"{trial.name}: conductance is flat ({np.ptp(smooth):.3g} S span at {level:.3g} S) while the force goes "
+            f"to {np.nanmax(trial.force_n):.3g} N: the sensor is not responding (flat-lined, loose or not under "
+            "the probe); fit refused")
+
+
+def _strain(trial: TrialInput, phys: PhysicsConstants, rows: np.ndarray) -> np.ndarray:
+    result = strain_from_conductance(trial.conductance_s[rows], trial.force_n[rows], phys)
+    strain = np.where(result.ok, result.strain, np.nan)
+    return strain
+
+
+def _paper_procedure(trial: TrialInput, start: int, force_n: float, area_m2: float,
+                     phys: PhysicsConstants) -> tuple[ExponentialFit, PaperLSResult]:
+    """The paper's Sec. IV-B on the hold: Eq. 9, strain from Eq. 3 at the constant force using the fitted C, then
+    Eqs. 7–8 with ε̇ from the fit and σ̇ from the measured force."""
+    t = trial.time_s[start:]
+    exp_fit = fit_exponential(t, trial.conductance_s[start:])
+    fitted = exp_fit(t)
+    result = strain_from_conductance(fitted, np.full(t.shape, force_n), phys)
+    strain = np.where(result.ok, result.strain, np.nan)
+    # dε/dt = dε/dC · dC/dt along the fitted curve; dε/dC by central differences of the smooth inversion.
+    dc = 1e-7 * np.maximum(np.abs(fitted), 1e-12)
+    up = strain_from_conductance(fitted + dc, np.full(t.shape, force_n), phys).strain
+    down = strain_from_conductance(fitted - dc, np.full(t.shape, force_n), phys).strain
+    strain_rate = (up - down) / (2 * dc) * exp_fit.derivative(t)
+    stress = trial.force_n[start:] / area_m2
+    stress_rate = np.gradient(stress, t) if t.size > 1 else np.zeros_like(t)
+    return exp_fit, fit_paper_ls(stress, strain, strain_rate, stress_rate)
+
+
+def _fit(trials: list[FitTrial], area_m2: float, phys: PhysicsConstants, start, mode: str,
+         saturation_s: float | None, solver: str) -> OutputFit:
+    if solver == "scipy" or mode == "per_trial":
+        return fit_output_scipy(trials, area_m2, phys, start, mode, saturation_s=saturation_s,
+                                min_force_fraction=MIN_FORCE_FRACTION)
+    return fit_output_casadi(trials, area_m2, phys, start, mode, saturation_s=saturation_s,
+                             min_force_fraction=MIN_FORCE_FRACTION, solver=solver)
+
+
+def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
+                     window_s: tuple[float, float] = DEFAULT_WINDOW_S, saturation_s: float | None = None,
+                     solver: str = "gauss-newton", fit_trend: bool = True) -> SensorCalibration:
+    """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
+    largest conductance (S) — samples at it are censored; ``solver``: ``"scipy"`` or a CasADi solver of
+    :func:`models.fit_output.fit_output_casadi` for the joint fits (production default: CasADi Gauss–Newton).
+
+    Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
+    trials (no force, too few samples), each naming the trial.
+    """
+    if not trials:
+        raise ValueError("no trials given")
+    if not (area_m2 > 0 and math.isfinite(area_m2)):
+        raise ValueError(f"sensor area must be a positive number of m², got {area_m2!r}")
+    fit_trials: list[FitTrial] = []
+    prelim: list[dict] = []
+    for trial in trials:
+        try:
+            start, hold_n = hold_segment(trial.force_n)
+        except ValueError as exc:
+            raise ValueError(f"{trial.name}: {exc}") from exc
+        _check_not_flat(trial, start)
+        try:
+            trial_mean(trial.time_s, trial.conductance_s, window_s)
+        except ValueError as exc:
+            raise ValueError(f"{trial.name}: {exc}; choose another --window") from exc
+        if trial.time_s.size - start < 10:
+            raise ValueError(f"{trial.name}: the hold has only {trial.time_s.size - start} samples; need ≥ 10")
+        exp_fit, paper = _paper_procedure(trial, start, hold_n, area_m2, phys)
+        loaded = trial.force_n >= DFREE_FORCE_FRACTION * hold_n
+        rows = np.flatnonzero(loaded)
+        strain = _strain(trial, phys, rows)
+        if not np.any(np.isfinite(strain)):
+            raise ValueError(f"{trial.name}: no sample gives a strain from Eq. 3 (the contact term K/√F exceeds "
+                             "every reading): check the physics constants (--physics) and the force column")
+        try:
+            dfree = estimate_sls([(trial.time_s[rows], trial.force_n[rows] / area_m2, strain)])
+        except ValueError:
+            dfree = None
+        first_loaded = int(np.argmax(trial.force_n >= MIN_FORCE_FRACTION * hold_n))
+        has_ramp = bool(trial.force_n[first_loaded] < 0.9 * hold_n)
+        n_sat = int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12))) if saturation_s else 0
+        fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, trial.conductance_s, hold_n))
+        prelim.append({"start": start, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
+                       "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
+                       "sat": n_sat, "noise": estimate_noise(trial.conductance_s[start:])})
+
+    joint_start = estimate_sls([p["strain"] for p in prelim])
+    start_params = SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)
+    per_trial_start = [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) if p["dfree"]
+                       else start_params for p in prelim]
+    per_trial = fit_output_scipy(fit_trials, area_m2, phys, per_trial_start, "per_trial",
+                                 saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
+    # The joint fit starts from the per-trial fits' median: closer than the derivative-free estimate.
+    median_start = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params]))
+                               for n in PARAM_NAMES))
+    joint = _fit(fit_trials, area_m2, phys, median_start, "joint", saturation_s, solver)
+    forces = np.array([p["hold_n"] for p in prelim])
+    distinct = np.ptp(forces) > 0.05 * float(np.mean(forces))
+    trend = None
+    if fit_trend and distinct:
+        trend = _fit(fit_trials, area_m2, phys, joint.ref, "trend", saturation_s, solver)
+
+    sensor_warnings: list[str] = list(joint.warnings)
+    reports = []
+    for i, (trial, p) in enumerate(zip(trials, prelim)):
+        warnings: list[str] = []
+        if p["sat"]:
+            warnings.append(f"{p['sat']} saturated sample(s) (readout at its limit): censored in the fit; lower "
+                            "the force or the readout gain")
+        if not p["ramp"]:
+            warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
+                            "start recording before loading")
+        rmse = per_trial.rmse_s[i]
+        typical = float(np.nanmedian(trial.conductance_s[p["start"]:]))
+        if (math.isfinite(p["noise"]) and rmse > POOR_FIT_NOISE_RATIO * p["noise"]
+                and rmse > 1e-4 * typical):
+            warnings.append(f"poor fit: rmse {rmse:.3g} S is {rmse / max(p['noise'], 1e-300):.1f}× the noise "
+                            f"({p['noise']:.3g} S): the SLS model does not describe this trial (creased sensor, "
+                            "slipping probe, drift?)")
+        if not p["paper"].ok:
+            warnings.extend(p["paper"].warnings)
+        reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["start"]]), p["exp"], p["paper"],
+                                   p["dfree"], per_trial.params[i], per_trial.ci95_per_trial[i], rmse, p["noise"],
+                                   p["sat"], p["ramp"], tuple(warnings)))
+
+    if not distinct:
+        sensor_warnings.append("all trials are at one force: no force trend fitted, and forces far from "
+                               f"{float(np.mean(forces)):.3g} N will be extrapolated")
+    e0_lo, e0_hi = joint.ci95["E0_Pa"]
+    if not (e0_hi - e0_lo) / 2 < WIDE_INTERVAL * float(joint.ref.E0_Pa):
+        sensor_warnings.append(f"E0 poorly identified (95 % interval {e0_lo:.3g} … {e0_hi:.3g} Pa): record the "
+                               "loading ramp")
+    if not any(p["ramp"] for p in prelim):
+        sensor_warnings.append("no trial contains its loading ramp: E0 is poorly identified")
+    n_sat = sum(p["sat"] for p in prelim)
+    if n_sat:
+        sensor_warnings.append(f"{n_sat} saturated sample(s) across the trials were censored")
+    poor = [r.name for r in reports if any(w.startswith("poor fit") for w in r.warnings)]
+    if poor:
+        sensor_warnings.append(f"poor fit in {', '.join(poor)}")
+    if trend is not None:
+        sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
+
+    linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s)
+    sensor_warnings.extend(linear.warnings)
+    joint_rmse = float(np.sqrt(np.sum(np.square(joint.rmse_s) * np.array(joint.n_used)) / sum(joint.n_used)))
+    return SensorCalibration(
+        area_m2=float(area_m2), linear=linear, sls=joint.ref, sls_ci95=joint.ci95,
+        sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
+        trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
+        solver=joint.solver, warnings=tuple(sensor_warnings))
