@@ -595,12 +595,13 @@ class VirtualChain:
                 continue
             error = goal - pos
             # Time-optimal approach: the fastest speed from which the joint can still stop at the goal.
-            v_target = math.copysign(min(vmax, math.sqrt(2.0 * amax * abs(error))), error)
+            # The |error|/dt term lands the last step exactly on the goal instead of dithering around it.
+            v_target = math.copysign(min(vmax, math.sqrt(2.0 * amax * abs(error)), abs(error) / dt), error)
             dv = max(-amax * dt, min(amax * dt, v_target - vel))
             vel += dv
             servo.last_accel_ticks_s2 = dv / dt
             pos += vel * dt
-            if (goal - pos) * error <= 0 and abs(vel) <= amax * dt * 2:
+            if abs(goal - pos) < 0.05 and abs(vel) <= amax * dt:
                 pos, vel = goal, 0.0
         if not stalled:
             servo.overload_time_s = 0.0

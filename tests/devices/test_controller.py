@@ -1,0 +1,222 @@
+"""RobotController on the simulated chain: tick pipeline, STOP, hardware errors, watchdog, lost link, submit."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+
+import numpy as np
+import pytest
+
+from devices import dxl_wire as wire
+from devices import factory
+from devices.config import RobotConfig
+from devices.controller import MOTION_FINISHED, HoldPose, RobotController
+from devices.errors import LinkLostError, NoReplyError, ServoHardwareError
+from devices.servo_chain import ServoChain
+from devices.sim.clock import SimClock
+from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+WAIT_S = 10.0
+ROBOT = dataclasses.replace(RobotConfig(), control_rate_hz=100.0, max_joint_speed_rad_s=5.0, status_rate_hz=20.0)
+
+
+class Recorder:
+    """Collects the controller's callbacks and lets a test wait for a condition on them."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.states, self.errors, self.events, self.health = [], [], [], []
+
+    def _add(self, store, value) -> None:
+        with self.cond:
+            store.append(value)
+            self.cond.notify_all()
+
+    def on_state(self, state):
+        self._add(self.states, state)
+
+    def on_error(self, error):
+        self._add(self.errors, error)
+
+    def on_event(self, text):
+        self._add(self.events, text)
+
+    def on_health(self, health):
+        self._add(self.health, health)
+
+    def wait(self, predicate, what: str) -> None:
+        with self.cond:
+            assert self.cond.wait_for(predicate, WAIT_S), f"timed out waiting for {what}"
+
+    def wait_more_states(self, n: int) -> None:
+        target = len(self.states) + n
+        self.wait(lambda: len(self.states) >= target, f"{n} more states")
+
+
+class Ramp:
+    """All joints move from 0 toward ``end_rad`` at ``speed`` rad/s (a motion that keeps writing new goals)."""
+
+    def __init__(self, end_rad=1.2, speed=0.5):
+        self.end_rad, self.speed = end_rad, speed
+
+    def goal_at(self, t_s, present_rad):
+        return np.full(present_rad.shape, min(self.end_rad, self.speed * t_s))
+
+
+@pytest.fixture
+def sim_chain():
+    chain = VirtualChain(ids=ROBOT.joint_ids, baud=ROBOT.baud, clock=SimClock(20.0), seed=5, return_delay_time=0)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    yield chain
+    factory.install_sim_lab(previous)
+
+
+@pytest.fixture
+def controller(sim_chain):
+    rec = Recorder()
+    servos = ServoChain(ROBOT)
+    ctl = RobotController(servos, ROBOT, on_state=rec.on_state, on_health=rec.on_health, on_event=rec.on_event,
+                          on_error=rec.on_error)
+    ctl.start()
+    try:
+        ctl.set_torque(True).result(WAIT_S)
+        yield ctl, rec
+    finally:
+        ctl.close()
+
+
+def test_idle_loop_reads_state_and_sends_nothing(controller, sim_chain):
+    ctl, rec = controller
+    rec.wait_more_states(10)
+    assert sim_chain.count(wire.SYNC_WRITE) == 0
+    assert rec.health and len(rec.health[-1]) == 12
+    stats = ctl.stats()
+    assert stats.ticks >= 10 and stats.sync_writes == 0
+    assert stats.period_p50_s > 0  # timing figures are measured in benchmarks/bench_servo_bus.py
+
+
+def test_motion_goals_are_clamped_and_speed_limited(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(HoldPose(np.full(12, 3.0), duration_s=1.0), "beyond the limits")
+    assert future.result(WAIT_S) == MOTION_FINISHED
+    goals = np.array([s.goal_rad for s in rec.states if s.goal_rad is not None])
+    assert len(goals) >= 20
+    assert goals.max() <= 1.57 + 1e-9
+    assert goals[-1] == pytest.approx(np.full(12, 1.57), abs=0.002)
+    step_rad = ROBOT.max_joint_speed_rad_s / ROBOT.control_rate_hz
+    assert np.abs(np.diff(goals, axis=0)).max() <= step_rad + 0.002  # + one tick of rounding
+    assert np.abs(np.diff(goals, axis=0)).max() >= step_rad - 0.002  # and it did move at the limit
+    assert "motion 'beyond the limits' finished" in rec.events
+
+
+def test_emergency_stop_freezes_goals_within_one_tick(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(), "ramp")
+    rec.wait(lambda: len(rec.states) > 5 and rec.states[-1].position_rad[0] > 0.1, "the ramp to move")
+    n_states = len(rec.states)
+    ctl.emergency_stop()
+    rec.wait(lambda: any("emergency stop" in e for e in rec.events), "the stop event")
+    assert len(rec.states) - n_states <= 2  # the tick in progress, then the stop
+    assert future.result(WAIT_S) == "stopped"
+    writes = sim_chain.count(wire.SYNC_WRITE)
+    frozen = sim_chain.goal_positions_ticks().copy()
+    rec.wait_more_states(10)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes
+    assert np.array_equal(sim_chain.goal_positions_ticks(), frozen)
+    assert all(sim_chain.register(sid, "Torque Enable") == 1 for sid in ROBOT.joint_ids)
+    assert np.allclose(rec.states[-1].position_rad, ctl.chain.angles_from_ticks(frozen), atol=0.02)
+
+
+def test_overload_mid_motion_stops_everything(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(), "ramp")
+    rec.wait(lambda: len(rec.states) > 5 and rec.states[-1].position_rad[0] > 0.05, "the ramp to move")
+    writes_at_fault = sim_chain.count(wire.SYNC_WRITE)
+    sim_chain.inject_overload(5)
+    rec.wait(lambda: rec.errors, "the error")
+    assert sim_chain.count(wire.SYNC_WRITE) - writes_at_fault <= 1  # at most the tick already past its read
+    writes = sim_chain.count(wire.SYNC_WRITE)
+    error = rec.errors[0]
+    assert isinstance(error, ServoHardwareError) and error.servo_id == 5 and "overload" in str(error)
+    with pytest.raises(ServoHardwareError, match="servo 5 overload"):
+        future.result(WAIT_S)
+    rec.wait_more_states(10)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes
+    # A new motion is refused until the servo is rebooted.
+    with pytest.raises(ServoHardwareError, match="servo 5"):
+        ctl.run_motion(HoldPose(np.zeros(12)), "again").result(WAIT_S)
+    ctl.reboot(5).result(WAIT_S)
+    rec.wait(lambda: any("servo 5 hardware error cleared" in e for e in rec.events), "the error to clear")
+    ctl.set_torque(True).result(WAIT_S)
+    assert ctl.run_motion(HoldPose(np.zeros(12), duration_s=0.05), "after reboot").result(WAIT_S) == MOTION_FINISHED
+    assert len(rec.errors) == 2  # the overload, and the refused motion
+
+
+def test_watchdog_names_the_servo_that_stopped_answering(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(), "ramp")
+    rec.wait_more_states(3)
+    sim_chain.set_no_reply(3)
+    rec.wait(lambda: rec.errors, "the watchdog")
+    error = rec.errors[0]
+    assert isinstance(error, NoReplyError) and error.servo_id == 3 and "motion stopped" in str(error)
+    with pytest.raises(NoReplyError):
+        future.result(WAIT_S)
+    writes = sim_chain.count(wire.SYNC_WRITE)
+    sim_chain.set_no_reply(3, False)
+    rec.wait_more_states(5)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes
+    assert len(rec.errors) == 1  # reported once, not every tick
+
+
+def test_lost_link_reports_and_reconnects(controller, sim_chain):
+    ctl, rec = controller
+    rec.wait_more_states(2)
+    sim_chain.disconnect()
+    rec.wait(lambda: rec.errors, "the link-lost error")
+    assert isinstance(rec.errors[0], LinkLostError)
+    assert not ctl.connected
+    sim_chain.reconnect()
+    rec.wait(lambda: any(e.startswith("reconnected") for e in rec.events), "the reconnect")
+    rec.wait_more_states(3)
+    assert ctl.connected
+
+
+def test_submit_runs_on_the_bus_thread(controller):
+    ctl, _ = controller
+    name = ctl.submit(lambda chain: threading.current_thread().name).result(WAIT_S)
+    assert name.startswith("RobotController")
+    info = ctl.scan(ids=range(1, 4)).result(WAIT_S)
+    assert [i.servo_id for i in info] == [1, 2, 3]
+    with pytest.raises(KeyError):
+        ctl.submit(lambda chain: {}["missing"]).result(WAIT_S)
+
+
+def test_pause_holds_and_resume_continues(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(end_rad=1.0, speed=2.0), "ramp")
+    rec.wait_more_states(5)
+    ctl.pause()
+    rec.wait(lambda: any("paused" in e for e in rec.events), "pause")
+    writes = sim_chain.count(wire.SYNC_WRITE)
+    rec.wait_more_states(5)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes
+    ctl.resume()
+    rec.wait_more_states(5)
+    assert sim_chain.count(wire.SYNC_WRITE) > writes
+    ctl.stop_motion()
+    assert future.result(WAIT_S) == "stopped"
+
+
+def test_a_failing_motion_source_is_reported_and_the_loop_goes_on(controller):
+    ctl, rec = controller
+
+    class Broken:
+        def goal_at(self, t_s, present_rad):
+            raise ArithmeticError("bad gait")
+
+    with pytest.raises(ArithmeticError):
+        ctl.run_motion(Broken(), "broken").result(WAIT_S)
+    rec.wait_more_states(3)
+    assert isinstance(rec.errors[0], ArithmeticError)

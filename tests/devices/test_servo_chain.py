@@ -1,0 +1,189 @@
+"""ServoChain (dynamixel-sdk driver) against the simulated chain, through devices.factory's ``sim`` port."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from devices import control_table as ct
+from devices import dxl_wire as wire
+from devices import factory
+from devices.config import RobotConfig
+from devices.errors import (
+    CorruptPacketError,
+    LinkLostError,
+    ModelMismatchError,
+    NoReplyError,
+    PortOpenError,
+    ServoHardwareError,
+)
+from devices.servo_chain import ServoChain, ServoCommandError
+from devices.sim.clock import SimClock
+from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+ROBOT = RobotConfig()
+
+
+@pytest.fixture
+def sim_chain():
+    chain = VirtualChain(ids=ROBOT.joint_ids, baud=ROBOT.baud, clock=SimClock(20.0), seed=3)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    yield chain
+    factory.install_sim_lab(previous)
+
+
+@pytest.fixture
+def servos(sim_chain):
+    with ServoChain(ROBOT) as chain:
+        yield chain
+
+
+def test_scan_short_id_list_pings_each(servos, sim_chain):
+    found = servos.scan(ids=range(0, 15))
+    assert [info.servo_id for info in found] == list(ROBOT.joint_ids)
+    assert {(i.model_number, i.model_name, i.firmware, i.baud) for i in found} == {(1020, "XM430-W350", 46, 1_000_000)}
+    assert sim_chain.count(wire.PING) >= 15
+
+
+def test_scan_all_ids_uses_one_broadcast_ping_per_baud(servos, sim_chain):
+    servos.write_item(12, "Baud Rate", 1)  # servo 12 now listens at 57600 bps
+    found = servos.scan(bauds=[1_000_000, 57_600])
+    assert [(i.servo_id, i.baud) for i in found] == [(12, 57_600)] + [(i, 1_000_000) for i in range(1, 12)]
+    # One broadcast per baud, then one firmware-free ID check: no per-ID pings were needed.
+    assert sim_chain.count(wire.PING) == 2
+    assert servos.baud == 1_000_000  # the port is back at the configured rate
+    assert servos.ping(1).servo_id == 1
+
+
+def test_check_models_names_the_odd_servo(sim_chain):
+    odd = VirtualChain(ids=(1, 2), baud=1_000_000, clock=SimClock(20.0), seed=1, model_number=1060)
+    factory.install_sim_lab(ChainLab(odd))
+    robot = dataclasses.replace(ROBOT, joint_ids=(1, 2), axes=("pitch", "yaw"), signs=(1, 1),
+                                zero_offsets_rad=(0.0, 0.0), joint_min_rad=(-1.0, -1.0), joint_max_rad=(1.0, 1.0))
+    with ServoChain(robot) as chain, pytest.raises(ModelMismatchError, match=r"servo 1 is a XL430-W250 \(model 1060\)"):
+        chain.check_models()
+
+
+def test_ticks_and_angles_follow_spec_section_2():
+    robot = dataclasses.replace(ROBOT, signs=(-1,) + (1,) * 11, zero_offsets_rad=(0.1,) + (0.0,) * 11)
+    chain = ServoChain(robot)
+    ticks = np.array([2048 + 1024] + [2048] * 11)
+    angles = chain.angles_from_ticks(ticks)
+    assert angles[0] == pytest.approx(-math.pi / 2 + 0.1)
+    assert angles[1] == 0.0
+    assert np.array_equal(chain.ticks_from_angles(angles), ticks)
+
+
+def test_write_goals_clamps_before_sending(servos, sim_chain):
+    servos.set_torque(True)
+    goal = np.linspace(-3.0, 3.0, 12)
+    sent = servos.write_goals(goal)
+    assert np.all(sent >= np.array(ROBOT.joint_min_rad)) and np.all(sent <= np.array(ROBOT.joint_max_rad))
+    assert sent[0] == pytest.approx(-1.57, abs=ct.RAD_PER_TICK)
+    assert sent[-1] == pytest.approx(1.57, abs=ct.RAD_PER_TICK)
+    assert np.array_equal(sim_chain.goal_positions_ticks(), servos.ticks_from_angles(sent))
+    assert sim_chain.count(wire.SYNC_WRITE) == 1
+    with pytest.raises(ValueError, match="joint 3"):
+        servos.write_goals(np.where(np.arange(12) == 2, np.nan, 0.0))
+    assert sim_chain.count(wire.SYNC_WRITE) == 1
+
+
+def test_read_state_is_one_sync_read_and_tracks_the_servos(servos, sim_chain):
+    servos.set_torque(True)
+    goal = np.full(12, 0.4)
+    servos.write_goals(goal)
+    reads_before = sim_chain.count(wire.SYNC_READ)
+    state = servos.read_state()
+    assert sim_chain.count(wire.SYNC_READ) == reads_before + 1
+    assert state.position_rad.shape == state.velocity_rad_s.shape == state.current_ma.shape == (12,)
+    for _ in range(200):  # the servos move at most 4.8 rad/s on a 20× clock
+        state = servos.read_state()
+        if np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK) and not state.velocity_rad_s.any():
+            break
+    assert np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK)
+    assert np.allclose(state.position_rad, sim_chain.present_positions_rad(), atol=2 * ct.RAD_PER_TICK)
+
+
+def test_limp_joint_posed_by_hand_reads_back_to_the_tick(servos, sim_chain):
+    sim_chain.set_limp_position(5, 2048 + 300)
+    state = servos.read_state()
+    assert state.position_rad[4] == pytest.approx(300 * ct.RAD_PER_TICK)
+    servos.set_torque(True, ids=[5])
+    with pytest.raises(ValueError, match="torque on"):
+        sim_chain.set_limp_position(5, 2048)
+
+
+def test_overload_raises_hardware_error_naming_servo(servos, sim_chain):
+    servos.set_torque(True)
+    sim_chain.inject_overload(7)
+    with pytest.raises(ServoHardwareError, match="servo 7 overload") as info:
+        servos.read_state()
+    assert info.value.servo_id == 7 and info.value.error_names == ("overload",)
+    state = servos.read_state(raise_on_alert=False)
+    assert state.alert_ids == (7,)
+    health = {h.servo_id: h for h in servos.read_health()}
+    assert health[7].error_names == ("overload",) and not health[7].torque_on
+    assert health[6].hardware_error == 0 and health[6].torque_on and health[6].voltage_v == pytest.approx(12.0)
+    with pytest.raises(ServoHardwareError, match="servo 7"):
+        servos.set_torque(True, ids=[7])
+    servos.reboot(7)
+    assert servos.read_state().alert_ids == ()
+
+
+def test_silent_servo_raises_no_reply_naming_it(servos, sim_chain):
+    sim_chain.set_no_reply(9)
+    with pytest.raises(NoReplyError, match="no reply from servo 9") as info:
+        servos.read_state()
+    assert info.value.servo_id == 9
+    with pytest.raises(NoReplyError, match="servo 9"):
+        servos.ping(9)
+
+
+def test_corrupt_reply_raises_corrupt_packet_error(servos, sim_chain):
+    sim_chain.corrupt_next_replies(1, servo_id=4)
+    with pytest.raises(CorruptPacketError, match="servo 4"):
+        servos.read_state()
+    servos.read_state()  # the next cycle is clean
+
+
+def test_eeprom_write_with_torque_on_is_refused(servos):
+    servos.set_torque(True, ids=[2])
+    with pytest.raises(ServoCommandError, match="servo 2 refused .*access error.*torque off"):
+        servos.set_return_delay(0, ids=[2])
+    servos.set_torque(False, ids=[2])
+    servos.set_return_delay(0, ids=[2])
+    assert servos.read_item(2, "Return Delay Time") == 0
+
+
+def test_timing_warnings_name_the_fix(servos):
+    warnings = servos.timing_warnings()
+    assert len(warnings) == 1 and "Return Delay Time is up to 500 µs" in warnings[0]
+    assert "set it to 0" in warnings[0]
+    servos.set_return_delay(0)
+    assert servos.timing_warnings() == []  # sim: no USB latency timer to check
+    assert servos.latency_timer_ms() is None
+
+
+def test_slow_cycle_is_flagged_against_the_control_rate(sim_chain):
+    slow = dataclasses.replace(ROBOT, baud=57_600, control_rate_hz=200.0)
+    with ServoChain(ROBOT) as chain:
+        for sid in ROBOT.joint_ids:
+            chain.write_item(sid, "Baud Rate", 1)
+    with ServoChain(slow) as chain:
+        warnings = chain.timing_warnings()
+    assert any("leaves 5.0 ms per tick" in w for w in warnings)
+
+
+def test_pulled_cable_is_link_lost_then_reopens(servos, sim_chain):
+    sim_chain.disconnect()
+    with pytest.raises(LinkLostError, match="lost the link"):
+        servos.read_state()
+    servos.close()
+    with pytest.raises(PortOpenError):
+        servos.open()
+    sim_chain.reconnect()
+    servos.open()
+    assert servos.read_state().position_rad.shape == (12,)
