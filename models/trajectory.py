@@ -63,6 +63,11 @@ class Plan:
     ``start_rad`` (n,) is where the robot is; ``targets_rad`` (M, n) the poses reached one after the other;
     ``durations_s`` (M,) how long the move *into* each target takes (0 = skipped, SPEC §5); ``labels`` (M,) the
     progress index of each target (shift k or keyframe j); ``kind`` names what the index counts.
+
+    Sampling at ``rate_hz`` (one synchronised write per tick): move m takes ``ceil(T_m · rate)`` ticks; on each
+    full tick the goal advances by ``Δ/(T_m · rate)`` (the fastest joint at exactly its speed) and the move's last
+    tick lands exactly on its target (a partial step, never faster). So every target is sent as such, no joint
+    ever moves faster than planned, and a move is at most one tick longer than T. Moves with T = 0 take no tick.
     """
 
     start_rad: np.ndarray
@@ -75,27 +80,93 @@ class Plan:
         starts = np.concatenate([[0.0], np.cumsum(self.durations_s)])
         object.__setattr__(self, "_ends_s", starts[1:])
         object.__setattr__(self, "_starts_s", starts[:-1])
+        object.__setattr__(self, "_tick_cache", {})
 
     @property
     def total_s(self) -> float:
+        """Sum of the move durations T (s), before rounding to ticks."""
         return float(self._ends_s[-1]) if len(self._ends_s) else 0.0
 
     @property
     def move_end_times_s(self) -> np.ndarray:
-        """When each target is reached (s since start)."""
+        """When each target is reached in continuous time (s since start)."""
         return self._ends_s.copy()
 
     @property
     def count(self) -> int:
         return int(self.labels.max()) + 1 if len(self.labels) else 0
 
+    # -- sampled at a control rate ------------------------------------------------------------------------------
+    def tick_counts(self, rate_hz: float) -> np.ndarray:
+        """Ticks each move takes at ``rate_hz``: ceil(T · rate), at least 1 for T > 0 (0 for T = 0)."""
+        if not rate_hz > 0:
+            raise TrajectoryError(f"rate must be positive, got {rate_hz} Hz")
+        # the small tolerance keeps T·rate = 10.000000000002 (float noise) at 10 ticks
+        ticks = np.ceil(self.durations_s * rate_hz - 1e-9).astype(np.int64).clip(min=0)
+        ticks[(self.durations_s > 0) & (ticks == 0)] = 1  # a tiny move still gets its one tick
+        return ticks
+
+    def _tick_ends(self, rate_hz: float) -> np.ndarray:
+        cache = self._tick_cache
+        if rate_hz not in cache:
+            cache[rate_hz] = np.cumsum(self.tick_counts(rate_hz))
+        return cache[rate_hz]
+
+    def total_ticks(self, rate_hz: float) -> int:
+        ends = self._tick_ends(rate_hz)
+        return int(ends[-1]) if len(ends) else 0
+
+    def _tick_move(self, tick: int, rate_hz: float) -> tuple[int, float]:
+        """(move index, fraction of that move done) at ``tick`` (≥ 1, ≤ total)."""
+        ends = self._tick_ends(rate_hz)
+        m = int(np.searchsorted(ends, tick, side="left"))  # first move whose end tick ≥ tick
+        before = int(ends[m - 1]) if m > 0 else 0
+        fraction = min((tick - before) / (self.durations_s[m] * rate_hz), 1.0)
+        return m, fraction
+
+    def goal_at_tick(self, tick: int, rate_hz: float) -> np.ndarray:
+        """The goal sent on tick ``tick`` (0 = the start pose) at ``rate_hz``; the last target after the end."""
+        total = self.total_ticks(rate_hz)
+        if len(self.targets_rad) == 0:
+            return self.start_rad.copy()
+        if tick <= 0:
+            return self.start_rad.copy()
+        if tick >= total:
+            return self.targets_rad[-1].copy()
+        m, fraction = self._tick_move(tick, rate_hz)
+        a = self.start_rad if m == 0 else self.targets_rad[m - 1]
+        b = self.targets_rad[m]
+        return b.copy() if fraction >= 1.0 else a + (b - a) * fraction
+
+    def progress_at_tick(self, tick: int, rate_hz: float) -> Progress:
+        total = self.total_ticks(rate_hz)
+        elapsed = max(tick, 0) / rate_hz
+        if len(self.targets_rad) == 0 or tick >= total:
+            last = int(self.labels[-1]) if len(self.labels) else 0
+            return Progress(self.kind, last, max(self.count, 1), 1.0, 1.0, total / rate_hz, total / rate_hz,
+                            done=True)
+        m, fraction = self._tick_move(max(tick, 1), rate_hz) if tick > 0 else (self._first_move(rate_hz), 0.0)
+        return Progress(self.kind, int(self.labels[m]), self.count, fraction if tick > 0 else 0.0,
+                        max(tick, 0) / total, elapsed, total / rate_hz)
+
+    def _first_move(self, rate_hz: float) -> int:
+        counts = self.tick_counts(rate_hz)
+        nonzero = np.flatnonzero(counts)
+        return int(nonzero[0]) if nonzero.size else len(counts) - 1
+
+    def sample(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every goal one sync write per tick would send: ``(t_s (N,), goals_rad (N, n))``, tick 0 … end."""
+        ticks = np.arange(self.total_ticks(rate_hz) + 1)
+        return ticks / rate_hz, np.array([self.goal_at_tick(int(j), rate_hz) for j in ticks])
+
+    # -- continuous time ------------------------------------------------------------------------------------------
     def _segment(self, t_s: float) -> int:
         """Index of the move in progress at ``t_s`` (moves of zero duration are never in progress)."""
         i = int(np.searchsorted(self._ends_s, t_s, side="right"))
         return min(i, len(self._ends_s) - 1)
 
     def goal_at(self, t_s: float) -> np.ndarray:
-        """Goal pose (rad) at ``t_s``: linear within each move; the last target after the end."""
+        """Goal pose (rad) at ``t_s`` in continuous time: linear within each move; the last target after the end."""
         if len(self.targets_rad) == 0:
             return self.start_rad.copy()
         if t_s >= self.total_s:
@@ -106,32 +177,6 @@ class Plan:
         d = self.durations_s[i]
         s = 1.0 if d <= 0 else min(max((t_s - self._starts_s[i]) / d, 0.0), 1.0)
         return a + (b - a) * s
-
-    def progress_at(self, t_s: float) -> Progress:
-        total = self.total_s
-        if len(self.targets_rad) == 0 or t_s >= total:
-            last = int(self.labels[-1]) if len(self.labels) else 0
-            return Progress(self.kind, last, max(self.count, 1), 1.0, 1.0, total, total, done=t_s >= total)
-        i = self._segment(max(t_s, 0.0))
-        d = self.durations_s[i]
-        move_fraction = 1.0 if d <= 0 else min(max((t_s - self._starts_s[i]) / d, 0.0), 1.0)
-        return Progress(self.kind, int(self.labels[i]), self.count, move_fraction,
-                        min(max(t_s / total, 0.0), 1.0) if total > 0 else 1.0, max(t_s, 0.0), total)
-
-    def sample(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-        """The goals one sync write per tick would send: times ``k / rate_hz`` up to and including the end.
-
-        Returns ``(t_s (N,), goals_rad (N, n))``; the last row is the final target exactly.
-        """
-        if not rate_hz > 0:
-            raise TrajectoryError(f"rate must be positive, got {rate_hz} Hz")
-        n_ticks = int(math.ceil(self.total_s * rate_hz - 1e-9)) + 1
-        t = np.arange(n_ticks) / rate_hz
-        t[-1] = min(t[-1], self.total_s) if n_ticks > 1 else 0.0
-        goals = np.array([self.goal_at(float(x)) for x in t])
-        if n_ticks >= 1 and len(self.targets_rad):
-            goals[-1] = self.targets_rad[-1]
-        return t, goals
 
 
 def _move_durations(start: np.ndarray, targets: np.ndarray, speed_rad_s: float) -> np.ndarray:
@@ -287,12 +332,18 @@ def plan_keyframes(present_rad: Sequence[float] | np.ndarray, times_s: Sequence[
 class PlannedMotion:
     """A MotionSource that plans from the present pose on its first call and then follows the plan.
 
-    ``planner(present_rad) -> Plan``. ``goal_at`` returns the final target once at the end (so the last sync write is
-    the target exactly), then ``None`` (done). Call from the controller thread only; read :attr:`progress` anywhere.
+    ``planner(present_rad) -> Plan``. The plan is sampled at ``rate_hz`` (see :class:`Plan`): the controller's
+    time ``t_s`` is turned into the tick number ``round(t_s · rate_hz)``, so timing jitter never changes a step,
+    and a tick that lands on a move's end sends that target exactly. ``goal_at`` returns the final target once
+    the last tick is due, then ``None`` (done). Call from the controller thread only; read :attr:`progress`
+    from anywhere.
     """
 
-    def __init__(self, planner: Callable[[np.ndarray], Plan], kind: str) -> None:
+    def __init__(self, planner: Callable[[np.ndarray], Plan], kind: str, rate_hz: float) -> None:
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise TrajectoryError(f"rate must be a positive number of Hz, got {rate_hz!r}")
         self._planner = planner
+        self.rate_hz = float(rate_hz)
         self._plan: Plan | None = None
         self._finished = False
         self.progress = Progress(kind, 0, 1, 0.0, 0.0, 0.0, 0.0)
@@ -308,24 +359,26 @@ class PlannedMotion:
         if self._finished:
             return None
         plan = self._plan
-        if t_s >= plan.total_s:
+        tick = int(round(t_s * self.rate_hz))
+        if tick >= plan.total_ticks(self.rate_hz):
             self._finished = True
-        self.progress = plan.progress_at(t_s)
-        return plan.goal_at(t_s)
+        self.progress = plan.progress_at_tick(tick, self.rate_hz)
+        return plan.goal_at_tick(tick, self.rate_hz)
 
 
 class FollowTheLeader(PlannedMotion):
     """SPEC §5 follow-the-leader as a MotionSource; see :func:`plan_follow_the_leader`."""
 
     def __init__(self, shape_rad: Sequence[float] | np.ndarray, axes: Sequence[str],
-                 speed_rad_s: float = DEFAULT_SPEED_RAD_S, shifts: int | None = None, repeat: int = 1) -> None:
+                 speed_rad_s: float = DEFAULT_SPEED_RAD_S, shifts: int | None = None, repeat: int = 1,
+                 rate_hz: float = 50.0) -> None:
         # Validate now, in the caller's thread, so a bad request fails before the robot moves.
         follow_the_leader_targets(shape_rad, axes, shifts)
         _check_speed(speed_rad_s)
         shape = np.array(shape_rad, dtype=float)
         axes = tuple(axes)
         super().__init__(lambda present: plan_follow_the_leader(present, shape, axes, speed_rad_s, shifts, repeat),
-                         "shift")
+                         "shift", rate_hz)
 
 
 class Keyframes(PlannedMotion):
@@ -334,7 +387,7 @@ class Keyframes(PlannedMotion):
     def __init__(self, times_s: Sequence[float], poses_rad: Sequence[Sequence[float]] | np.ndarray, *,
                  time_scale: float = 1.0, approach_speed_rad_s: float = DEFAULT_SPEED_RAD_S,
                  velocity_limit_rad_s: float = math.inf, joint_ids: Sequence[int] | None = None,
-                 names: Sequence[str] | None = None, repeat: int = 1) -> None:
+                 names: Sequence[str] | None = None, repeat: int = 1, rate_hz: float = 50.0) -> None:
         poses = np.array(poses_rad, dtype=float)
         times = np.array(times_s, dtype=float)
         kwargs = dict(time_scale=time_scale, approach_speed_rad_s=approach_speed_rad_s,
@@ -343,7 +396,7 @@ class Keyframes(PlannedMotion):
             plan_keyframes(poses[0], times, poses, **kwargs)  # validation only: refuse before anything moves
         else:
             raise TrajectoryError("keyframe mode needs at least one keyframe")
-        super().__init__(lambda present: plan_keyframes(present, times, poses, **kwargs), "keyframe")
+        super().__init__(lambda present: plan_keyframes(present, times, poses, **kwargs), "keyframe", rate_hz)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -480,7 +533,7 @@ def sidewinding(axes: Sequence[str], params: SidewindingParams = SidewindingPara
 class BlendTo(PlannedMotion):
     """Move from the present pose to ``target_rad`` in a straight line at ``speed_rad_s`` (e.g. 'go straight')."""
 
-    def __init__(self, target_rad: Sequence[float] | np.ndarray, speed_rad_s: float) -> None:
+    def __init__(self, target_rad: Sequence[float] | np.ndarray, speed_rad_s: float, rate_hz: float = 50.0) -> None:
         _check_speed(speed_rad_s)
         target = np.array(target_rad, dtype=float)
 
@@ -489,4 +542,4 @@ class BlendTo(PlannedMotion):
             targets = target[None, :]
             return Plan(start, targets, _move_durations(start, targets, speed_rad_s), np.zeros(1, int), "shift")
 
-        super().__init__(planner, "shift")
+        super().__init__(planner, "shift", rate_hz)

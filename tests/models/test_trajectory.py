@@ -72,49 +72,69 @@ def test_move_durations_fastest_joint_at_speed_and_zero_moves_skipped():
     previous = np.vstack([present, plan.targets_rad[:-1]])
     for k, (a, b, d) in enumerate(zip(previous, plan.targets_rad, plan.durations_s)):
         assert d == pytest.approx(np.max(np.abs(b - a)) / speed, rel=1e-12), f"shift {k}"
-    # sampled at 50 Hz: per-tick speed never exceeds the limit, and the fastest joint reaches it in every move
     rate = 50.0
     t, goals = plan.sample(rate)
-    joint_speed = np.abs(np.diff(goals, axis=0)) / np.diff(t)[:, None]
-    assert joint_speed.max() <= speed * (1 + 1e-9)
-    assert joint_speed.max() == pytest.approx(speed, rel=1e-9)
-    # every shift target is passed through exactly at its move end time
-    for end, target in zip(plan.move_end_times_s, plan.targets_rad):
-        np.testing.assert_allclose(plan.goal_at(float(end)), target, atol=1e-12)
-    np.testing.assert_array_equal(goals[-1], plan.targets_rad[-1])
+    np.testing.assert_allclose(np.diff(t), 1 / rate)
+    per_tick = np.abs(np.diff(goals, axis=0))  # rad per tick
+    assert per_tick.max() <= speed / rate * (1 + 1e-9)  # no joint faster than speed, ever
+    # within each move, every full tick moves the fastest joint by exactly speed / rate
+    ends = np.cumsum(plan.tick_counts(rate))
+    starts = ends - plan.tick_counts(rate)
+    for m, (s0, e0) in enumerate(zip(starts, ends)):
+        if e0 - s0 >= 2:
+            fastest = per_tick[s0:e0 - 1].max(axis=1)
+            np.testing.assert_allclose(fastest, speed / rate, rtol=1e-9, err_msg=f"move {m}")
+        # the move's last tick sends its target exactly
+        np.testing.assert_array_equal(goals[e0], plan.targets_rad[m])
+    assert len(goals) == plan.total_ticks(rate) + 1
+    np.testing.assert_array_equal(goals[0], present)
+
+
+def test_each_move_takes_ceil_of_T_times_rate_ticks():
+    plan = plan_follow_the_leader(np.zeros(12), SHAPE, AXES, speed_rad_s=0.07)
+    for rate in (50.0, 100.0, 200.0):
+        np.testing.assert_array_equal(plan.tick_counts(rate), np.ceil(plan.durations_s * rate - 1e-9))  # all T > 0
+        assert plan.total_ticks(rate) / rate - plan.total_s < len(plan.durations_s) / rate
 
 
 def test_zero_duration_moves_take_no_time():
     # present pose already at shift 0 → the first move has T = 0 and is skipped
     plan = plan_follow_the_leader(SHAPE, SHAPE, AXES, speed_rad_s=1.0)
-    assert plan.durations_s[0] == 0.0
-    assert plan.progress_at(0.0).index == 1  # immediately working on shift 1
+    assert plan.durations_s[0] == 0.0 and plan.tick_counts(50)[0] == 0
+    assert plan.progress_at_tick(1, 50).index == 1  # the first tick already works on shift 1
+    t, goals = plan.sample(50)
+    assert not np.array_equal(goals[1], SHAPE)  # no tick is spent sitting on shift 0
     # a shape that is straight everywhere: every move is T = 0, the plan takes no time at all
     flat = plan_follow_the_leader(np.zeros(12), np.zeros(12), AXES, speed_rad_s=1.0)
-    assert flat.total_s == 0.0
+    assert flat.total_s == 0.0 and flat.total_ticks(50) == 0
     t, goals = flat.sample(50.0)
     assert len(t) == 1
 
 
 def test_progress_reports_shift_index_and_fraction():
     plan = plan_follow_the_leader(np.zeros(12), SHAPE, AXES, speed_rad_s=0.5)
-    ends = plan.move_end_times_s
-    mid = 0.5 * (ends[2] + ends[3])
-    p = plan.progress_at(mid)
+    rate = 50.0
+    counts = plan.tick_counts(rate)
+    ends = np.cumsum(counts)
+    mid = int(ends[2] + counts[3] // 2)
+    p = plan.progress_at_tick(mid, rate)
     assert (p.kind, p.index, p.count) == ("shift", 3, 7)
-    assert p.move_fraction == pytest.approx(0.5)
-    assert p.fraction == pytest.approx(mid / plan.total_s)
-    assert plan.progress_at(plan.total_s + 1).done
+    assert p.move_fraction == pytest.approx((mid - ends[2]) / (plan.durations_s[3] * rate))
+    assert p.fraction == pytest.approx(mid / plan.total_ticks(rate))
+    assert plan.progress_at_tick(plan.total_ticks(rate), rate).done
 
 
 def test_motion_source_plans_from_present_and_ends_on_target_then_none():
-    source = FollowTheLeader(SHAPE, AXES, speed_rad_s=0.5, shifts=1)
+    source = FollowTheLeader(SHAPE, AXES, speed_rad_s=0.5, shifts=1, rate_hz=50.0)
     present = np.full(12, 0.05)
     np.testing.assert_allclose(source.goal_at(0.0, present), present)
-    total = source.plan.total_s
-    np.testing.assert_array_equal(source.goal_at(total + 0.01, present), source.plan.targets_rad[-1])
+    plan = source.plan
+    # timing jitter does not change the step: t is rounded to the tick
+    np.testing.assert_array_equal(source.goal_at(0.1 + 0.004, present), plan.goal_at_tick(5, 50.0))
+    total = plan.total_ticks(50.0) / 50.0
+    np.testing.assert_array_equal(source.goal_at(total + 0.003, present), plan.targets_rad[-1])
     assert source.progress.done
-    assert source.goal_at(total + 0.03, present) is None
+    assert source.goal_at(total + 0.02, present) is None
 
 
 def test_bad_requests_are_refused_with_clear_errors():
@@ -134,7 +154,9 @@ def test_keyframes_interpolate_in_time_after_approach():
     np.testing.assert_allclose(plan.durations_s, [0.1 / 0.05, 4.0, 6.0])
     t_first = plan.move_end_times_s[0]
     np.testing.assert_allclose(plan.goal_at(t_first + 2.0), np.full(12, 0.1))  # halfway to keyframe 2
-    assert plan.progress_at(t_first + 5.0).index == 2
+    first_ticks = plan.tick_counts(50.0)[0]
+    np.testing.assert_allclose(plan.goal_at_tick(first_ticks + 100, 50.0), np.full(12, 0.1))
+    assert plan.progress_at_tick(first_ticks + 250, 50.0).index == 2
 
 
 def test_keyframe_too_fast_is_refused_naming_keyframe_and_joint():
@@ -158,6 +180,8 @@ def test_follow_the_leader_never_exceeds_speed(shape, present, speed, shifts):
     if len(t) > 1:
         per_tick = np.abs(np.diff(goals, axis=0)) / np.diff(t)[:, None]
         assert per_tick.max() <= speed * (1 + 1e-9)
+    for end, target in zip(np.cumsum(plan.tick_counts(50.0)), plan.targets_rad):
+        np.testing.assert_array_equal(goals[end], target)
     np.testing.assert_array_equal(plan.targets_rad, follow_the_leader_targets(shape, AXES, shifts))
 
 
