@@ -1,0 +1,71 @@
+"""``sensnake teach --robot PORT [--baud B] [--after SECONDS] --out SHAPE.json`` (SPEC §1).
+
+Torque off, a person poses the robot by hand, the pose is captured after Enter (or after ``--after`` seconds), then
+torque comes back on holding the captured pose (goals = present first, so nothing jumps) and the shape is written.
+The robot is driven through :class:`devices.controller.RobotController` and :class:`app.teach.TeachSession`, the
+same code as the Teach tab. Runs on the main thread; bus work happens on the controller thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+from app.shapes import Shape, write_shape
+from app.teach import TeachSession
+from devices.config import LabConfig, RobotConfig, load_config
+
+BUS_TIMEOUT_S = 5.0
+
+
+def robot_config(args: argparse.Namespace) -> RobotConfig:
+    """The robot config from ``--config`` (or the defaults) with ``--robot``/``--baud`` applied."""
+    config = load_config(args.config) if getattr(args, "config", None) else LabConfig()
+    robot = replace(config.robot, port=args.robot.strip())
+    if args.baud is not None:
+        robot = replace(robot, baud=int(args.baud))
+    return robot
+
+
+def run(args: argparse.Namespace) -> int:
+    from devices.controller import RobotController
+    from devices.servo_chain import ServoChain
+
+    if args.after is not None and not (math.isfinite(args.after) and args.after >= 0):
+        raise ValueError(f"--after must be 0 s or more, got {args.after}")
+    out = Path(args.out)
+    robot = robot_config(args)
+    chain = ServoChain(robot, device="robot")
+    chain.open()
+    try:
+        chain.check_models()
+    except BaseException:
+        chain.close()
+        raise
+    controller = RobotController(chain, robot)
+    controller.start()
+    try:
+        session = TeachSession(controller.submit, robot, controller.set_torque)
+        session.torque_off().result(timeout=BUS_TIMEOUT_S)
+        if args.after is not None:
+            print(f"torque off on {robot.n_joints} joints: pose the robot by hand; capturing in {args.after:g} s")
+            # Waiting on an Event (not sleep) keeps Ctrl+C responsive on every platform.
+            threading.Event().wait(args.after)
+        else:
+            print(f"torque off on {robot.n_joints} joints: pose the robot by hand, then press Enter to capture")
+            if sys.stdin.readline() == "":
+                raise EOFError("standard input closed before Enter: nothing captured (use --after SECONDS)")
+        pose = session.capture().result(timeout=BUS_TIMEOUT_S)
+        session.hold().result(timeout=BUS_TIMEOUT_S)
+    finally:
+        controller.close()
+    shape = Shape(out.stem, tuple(robot.axes), tuple(float(a) for a in pose.angles_rad))
+    write_shape(shape, out)
+    angles = " ".join(f"{a:+.3f}" for a in pose.angles_rad)
+    print(f"captured and holding (torque on): {angles} rad")
+    print(f"wrote {out}")
+    return 0
