@@ -53,6 +53,7 @@ SLS_KEYS = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
 _SERIES_X = 0.1
 _NEWTON_MAX_ITER = 100  # per-step force solve: warm-started Newton needs ~3, the bisection fallback ≤ 60
 _LOG_F_TOL = 1e-13
+_BELOW_BASELINE_FLAG_N = 1e-9  # negative forces are always clipped to 0 N; flagged only beyond this
 
 
 def _as_param_array(value: object, name: str) -> float | np.ndarray:
@@ -697,7 +698,9 @@ class SLSInverse:
         force *= co.area[None, :]
         negative = force < 0.0
         if negative.any():
-            status[negative & (status == ForceStatus.OK)] = ForceStatus.BELOW_BASELINE
+            # Rounding leaves ~1e-17 N either side of an exact zero: only a real deficit is worth a flag.
+            flagged = negative & (force < -_BELOW_BASELINE_FLAG_N) & (status == ForceStatus.OK)
+            status[flagged] = ForceStatus.BELOW_BASELINE
             force[negative] = 0.0
         if not clean:
             force[np.isnan(cond)] = np.nan
