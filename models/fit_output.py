@@ -348,43 +348,8 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     if mode not in ("joint", "trend"):
         raise ValueError(f"the CasADi fit is for joint fits ('joint' or 'trend'), got {mode!r}")
     problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, "hold")
+    theta, conductance, n_max = _casadi_graph(ca, problem)
     n_trials = len(problem.trials)
-    n_max = max(t.time_s.size for t in problem.trials)
-
-    steps = np.zeros((n_trials, n_max))
-    stress = np.zeros((n_trials, n_max))
-    force_c = np.ones((n_trials, n_max))
-    for i, trial in enumerate(problem.trials):
-        n = trial.time_s.size
-        steps[i, : n - 1] = np.diff(trial.time_s)
-        stress[i, :n] = problem.forces[i] / problem.area_m2
-        stress[i, n:] = stress[i, n - 1]
-        force_c[i, :n] = np.maximum(problem.forces[i], 1e-12)
-
-    # One step advances all trials at once (state vector of T creep strains): N calls of a T-wide step evaluate
-    # ~4× faster in CasADi's VM than T·N calls of a scalar step.
-    q = ca.SX.sym("q", n_trials)
-    u = ca.SX.sym("u", 2 * n_trials)  # [h_s per trial; σ_Pa per trial]
-    p = ca.SX.sym("p", 2 * n_trials)  # [E1_Pa per trial; mu1_Pa_s per trial]
-    alpha = ca.exp(-u[:n_trials] * p[:n_trials] / p[n_trials:])
-    step = ca.Function("sls_hold_step", [q, u, p], [alpha * q + (1 - alpha) * u[n_trials:] / p[:n_trials]])
-    roll = step.mapaccum("sls_roll", n_max)  # (q0, U 2T×N, P 2T×N) → [q_1 … q_N] (T×N)
-
-    theta = ca.MX.sym("theta", problem.n_params)
-    scale = problem.scale
-    ref = [scale[k] * ca.exp(theta[k]) for k in range(3)]
-    if mode == "trend":
-        rel_force = ca.DM((problem.hold_n - problem.ref_force_n) / problem.ref_force_n)
-        per_trial = [ref[k] * (1 + theta[3 + k] * rel_force) for k in range(3)]  # each T×1
-    else:
-        per_trial = [ca.repmat(ref[k], n_trials, 1) for k in range(3)]
-    p_cols = ca.repmat(ca.vertcat(per_trial[1], per_trial[2]), 1, n_max)
-    q_next = roll(ca.DM.zeros(n_trials), ca.DM(np.vstack([steps, stress])), p_cols)
-    q_now = ca.horzcat(ca.DM.zeros(n_trials), q_next[:, : n_max - 1])  # q_k, k = 0 … N−1
-    strain = ca.DM(stress) / ca.repmat(per_trial[0], 1, n_max) + q_now  # T×N
-    k = phys.tunnelling_k
-    contact = phys.K_contact_ohm_sqrtN / np.sqrt(force_c)
-    conductance = 1 / (ca.DM(contact) + phys.R0_ohm * (1 - strain) * ca.exp(-k * strain))
 
     rows, weights, targets, censored = [], [], [], []
     for i, trial in enumerate(problem.trials):
@@ -441,6 +406,62 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
         raise ValueError(f"solver must be 'gauss-newton', 'ipopt' or 'sqpmethod', got {solver!r}")
     r_opt, j_opt = (np.asarray(x) for x in res_jac(theta_opt))
     return problem.summarise(theta_opt, r_opt.ravel(), j_opt, iterations, success, message, f"casadi {solver}")
+
+
+def _casadi_graph(ca, problem: _Problem):
+    """Symbolic θ (MX) and the model conductance of every trial (T×N MX, trials padded to the longest, force held
+    between samples). Returns (θ, conductance, N)."""
+    n_trials = len(problem.trials)
+    n_max = max(t.time_s.size for t in problem.trials)
+
+    steps = np.zeros((n_trials, n_max))
+    stress = np.zeros((n_trials, n_max))
+    force_c = np.ones((n_trials, n_max))
+    for i, trial in enumerate(problem.trials):
+        n = trial.time_s.size
+        steps[i, : n - 1] = np.diff(trial.time_s)
+        stress[i, :n] = problem.forces[i] / problem.area_m2
+        stress[i, n:] = stress[i, n - 1]
+        force_c[i, :n] = np.maximum(problem.forces[i], 1e-12)
+
+    # One step advances all trials at once (state vector of T creep strains): N calls of a T-wide step evaluate
+    # ~4× faster in CasADi's VM than T·N calls of a scalar step.
+    q = ca.SX.sym("q", n_trials)
+    u = ca.SX.sym("u", 2 * n_trials)  # [h_s per trial; σ_Pa per trial]
+    p = ca.SX.sym("p", 2 * n_trials)  # [E1_Pa per trial; mu1_Pa_s per trial]
+    alpha = ca.exp(-u[:n_trials] * p[:n_trials] / p[n_trials:])
+    step = ca.Function("sls_hold_step", [q, u, p], [alpha * q + (1 - alpha) * u[n_trials:] / p[:n_trials]])
+    roll = step.mapaccum("sls_roll", n_max)  # (q0, U 2T×N, P 2T×N) → [q_1 … q_N] (T×N)
+
+    theta = ca.MX.sym("theta", problem.n_params)
+    scale = problem.scale
+    ref = [scale[k] * ca.exp(theta[k]) for k in range(3)]
+    if problem.mode == "trend":
+        rel_force = ca.DM((problem.hold_n - problem.ref_force_n) / problem.ref_force_n)
+        per_trial = [ref[k] * (1 + theta[3 + k] * rel_force) for k in range(3)]  # each T×1
+    else:
+        per_trial = [ca.repmat(ref[k], n_trials, 1) for k in range(3)]
+    p_cols = ca.repmat(ca.vertcat(per_trial[1], per_trial[2]), 1, n_max)
+    q_next = roll(ca.DM.zeros(n_trials), ca.DM(np.vstack([steps, stress])), p_cols)
+    q_now = ca.horzcat(ca.DM.zeros(n_trials), q_next[:, : n_max - 1])  # q_k, k = 0 … N−1
+    strain = ca.DM(stress) / ca.repmat(per_trial[0], 1, n_max) + q_now  # T×N
+    k = problem.phys.tunnelling_k
+    contact = problem.phys.K_contact_ohm_sqrtN / np.sqrt(force_c)
+    conductance = 1 / (ca.DM(contact) + problem.phys.R0_ohm * (1 - strain) * ca.exp(-k * strain))
+
+    return theta, conductance, n_max
+
+
+def casadi_conductance(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,
+                       params: SLSParams) -> list[np.ndarray]:
+    """The CasADi graph's model conductance (S) per trial at ``params``: lets tests hold the symbolic recursion to
+    :func:`models.sls.conductance_from_force`. Samples at F ≤ 0 are not comparable (the graph clips F at 1e-12 N)."""
+    import casadi as ca
+
+    problem = _Problem(trials, area_m2, phys, params, "joint", None, 0.0, "hold")
+    theta, conductance, _ = _casadi_graph(ca, problem)
+    values = np.asarray(ca.Function("conductance", [theta], [conductance])(np.zeros(3)))
+    return [values[i, : t.time_s.size] for i, t in enumerate(problem.trials)]
 
 
 def _levenberg_marquardt(residual_fn, res_jac, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,

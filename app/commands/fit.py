@@ -1,0 +1,104 @@
+"""``sensnake fit TRIAL.csv... --sensor NAME --area M2 [--physics FILE.json] [--window 225 300] --out CAL.json``.
+
+Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
+calibration file (created, or updated with other sensors kept) and prints a per-trial table. Runs on the CLI's main
+thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from app import calfiles
+from devices.config import BoardConfig
+from models.calibration import SensorCalibration, TrialInput, calibrate_sensor
+from models.physics import PhysicsConstants
+
+
+def _physics(args: argparse.Namespace) -> PhysicsConstants:
+    """--physics, else the constants already in --out, else the paper's defaults (announced: they end up in the
+    file, so every later command reads them from there, never from a hidden constant)."""
+    if args.physics:
+        return calfiles.read_physics(args.physics)
+    out = Path(args.out)
+    if out.exists():
+        document = calfiles.read_calibration(out)
+        if "physics" in document:
+            return calfiles.physics_from_calibration(document, str(out))
+    print("sensnake fit: note: no --physics given; using the paper's constants (K_contact_ohm_sqrtN = 1772.45 is a "
+          "placeholder until the lab measures it); they are written to the calibration file", file=sys.stderr)
+    return PhysicsConstants()
+
+
+def _short_tags(warnings: tuple[str, ...]) -> str:
+    tags = []
+    for text in warnings:
+        if "saturated" in text:
+            tags.append("saturated")
+        elif text.startswith("no loading ramp"):
+            tags.append("no-ramp")
+        elif text.startswith("poor fit"):
+            tags.append("poor-fit")
+        elif text.startswith("paper LS"):
+            tags.append("paper-LS-refused")
+        else:
+            tags.append("see-below")
+    return ",".join(dict.fromkeys(tags)) or "-"
+
+
+def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
+    """The per-trial table and the sensor summary, on stdout."""
+    header = (f"{'file':<24} {'force_N':>8} {'c1_S':>11} {'c2_S':>11} {'c3_1/s':>10} {'E0_Pa':>11} {'E1_Pa':>11} "
+              f"{'mu1_Pa_s':>11} {'rmse_S':>10}  warnings")
+    print(header)
+    print("-" * len(header))
+    for t in cal.trials:
+        name = t.name if len(t.name) <= 24 else "…" + t.name[-23:]
+        print(f"{name:<24} {t.force_n:8.3f} {t.exp_fit.c1:11.4e} {t.exp_fit.c2:11.4e} {t.exp_fit.c3:10.4e} "
+              f"{float(t.params.E0_Pa):11.4e} {float(t.params.E1_Pa):11.4e} {float(t.params.mu1_Pa_s):11.4e} "
+              f"{t.rmse_s:10.3e}  {_short_tags(t.warnings)}")
+    print()
+    s = cal.sls
+    print(f"sensor {sensor}: area {cal.area_m2:g} m², forces {cal.force_range_n[0]:g}–{cal.force_range_n[1]:g} N, "
+          f"solver {cal.solver}")
+    for key, value in (("E0_Pa", s.E0_Pa), ("E1_Pa", s.E1_Pa), ("mu1_Pa_s", s.mu1_Pa_s)):
+        lo, hi = cal.sls_ci95[key]
+        print(f"  sls {key:<9} {float(value):12.5e}   95% [{lo:.5e}, {hi:.5e}]")
+    print(f"  sls tau_s     {float(s.tau_s):12.5g}   joint rmse {cal.rmse_s:.3e} S")
+    if cal.sls_trend is not None:
+        for key, (intercept, slope) in cal.sls_trend.items():
+            print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")
+    r2 = cal.linear.r_squared
+    print(f"  linear m {cal.linear.model.m_S_per_N:.5e} S/N, d {cal.linear.model.d_S:.5e} S, "
+          f"R² {r2:.5f}" if math.isfinite(r2) else "  linear R² undefined")
+    details = [(t.name, w) for t in cal.trials for w in t.warnings] + [("sensor", w) for w in cal.warnings]
+    if details:
+        print("warnings:")
+        for where, text in details:
+            print(f"  {where}: {text}")
+    print(f"wrote {sensor} to {out}")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.sensor.strip():
+        raise ValueError("--sensor must name the sensor, e.g. S06B")
+    if not (args.area > 0 and math.isfinite(args.area)):
+        raise ValueError(f"--area must be a positive area in m², got {args.area!r}")
+    window = (float(args.window[0]), float(args.window[1]))
+    if not window[0] < window[1]:
+        raise ValueError(f"--window start must be before its end, got {window[0]:g} {window[1]:g}")
+    if Path(args.out).exists():
+        calfiles.read_calibration(args.out)  # refuse an unknown format/version before spending time fitting
+    physics = _physics(args)
+    trials = []
+    for path in args.trials:
+        trial = calfiles.read_trial_csv(path)
+        trials.append(TrialInput(Path(path).name, trial.time_s, trial.force_n, trial.conductance_s))
+    saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4: counts = 0)
+    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s)
+    calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
+    print_report(args.sensor, cal, args.out)
+    return 0
