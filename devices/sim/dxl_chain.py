@@ -194,6 +194,20 @@ class VirtualChain:
             self._outgoing = keep
             return bytes(out)
 
+    @property
+    def host_baud(self) -> int:
+        """The baud rate the host's port runs at (bps); servos at another rate hear only noise."""
+        return self._host_baud
+
+    def next_delivery_wall_s(self) -> float | None:
+        """Wall time at which the next queued status packet will have fully arrived, or None if none is queued.
+
+        Lets a server that forwards the replies onto a real port (the pty server) sleep until then.
+        """
+        with self._lock:
+            pending = [c.end_wall_s for c in self._outgoing if c.delivered < len(c.data)]
+            return min(pending) if pending else None
+
     # -- Python-side hand and fault injection (any thread) ---------------------------------------------------------
     @property
     def servo_ids(self) -> tuple[int, ...]:

@@ -1,0 +1,45 @@
+"""``sensnake scan --robot PORT [--baud B | --all-bauds]`` (SPEC §1): list the servos answering on a bus.
+
+One line per servo on stdout: ID, model name and number, firmware, baud rate. Exits 1 with one line on stderr when
+nothing answers. ``--all-bauds`` tries every Dynamixel baud rate (about 12 s in all: a broadcast ping waits its full
+window at each rate) and reports progress on stderr. Runs on the main thread, which owns the port here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+
+from devices.config import LabConfig
+
+EXIT_NOTHING_FOUND = 1
+
+
+def run(args: argparse.Namespace) -> int:
+    from devices.control_table import BAUD_RATES_BPS
+    from devices.servo_chain import ServoChain
+
+    robot = replace(LabConfig().robot, port=args.robot.strip())
+    if args.baud is not None:
+        if args.baud <= 0:
+            raise ValueError(f"--baud must be a positive rate in bps, got {args.baud}")
+        robot = replace(robot, baud=int(args.baud))
+    # Fastest rates first: they are the likely ones and their broadcast window is the shortest.
+    bauds = sorted(BAUD_RATES_BPS.values(), reverse=True) if args.all_bauds else [robot.baud]
+    found = []
+    with ServoChain(robot, device="robot") as chain:
+        for baud in bauds:
+            if args.all_bauds:
+                print(f"scanning {robot.port} at {baud} bps …", file=sys.stderr, flush=True)
+            found += chain.scan(bauds=[baud])
+    if not found:
+        where = "any Dynamixel baud rate" if args.all_bauds else f"{robot.baud} bps"
+        hint = "" if args.all_bauds else " or try --all-bauds"
+        print(f"sensnake scan: error: no servo answered on {robot.port} at {where}: check the servo power and "
+              f"cable{hint}", file=sys.stderr)
+        return EXIT_NOTHING_FOUND
+    for info in found:
+        print(f"ID {info.servo_id:3d}  {info.model_name} (model {info.model_number})  firmware {info.firmware}  "
+              f"{info.baud} bps")
+    return 0

@@ -1,0 +1,102 @@
+"""The driver (ServoChain on dynamixel-sdk, pyserial) against the simulated chain served on a real pseudo-terminal
+by a second process (``python -m devices.sim.pty_server``): real OS serial I/O and real pty timing."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from devices import control_table as ct
+from devices.config import RobotConfig
+from devices.controller import HoldPose, RobotController
+from devices.errors import NoReplyError, ServoHardwareError
+from devices.servo_chain import ServoChain
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith(("linux", "darwin")),
+                                reason="the pty server needs os.openpty (Linux or macOS)")
+
+
+class PtyServer:
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "devices.sim.pty_server", *args],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self.path = self.proc.stdout.readline().strip()
+        assert self.path.startswith("/dev/"), f"pty server did not start: {self.path!r}"
+
+    def command(self, line: str) -> str:
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        return self.proc.stdout.readline().strip()
+
+    def close(self) -> int:
+        self.proc.stdin.close()  # the server ends when its stdin closes
+        return self.proc.wait(timeout=10)
+
+
+@pytest.fixture
+def pty_server():
+    server = PtyServer("--device", "robot", "--seed", "4", "--speed", "5")
+    try:
+        yield server
+    finally:
+        assert server.close() == 0
+
+
+def robot_on(path: str) -> RobotConfig:
+    return dataclasses.replace(RobotConfig(), port=path)
+
+
+def test_scan_sync_write_read_and_overload_over_a_pty(pty_server):
+    with ServoChain(robot_on(pty_server.path)) as chain:
+        found = chain.scan(ids=range(1, 15))
+        assert [i.servo_id for i in found] == list(range(1, 13))
+        assert {i.model_name for i in found} == {"XM430-W350"}
+        chain.check_models()
+        assert chain.latency_timer_ms() is None  # a pty has no USB latency timer
+        chain.set_torque(True)
+        goal = np.linspace(-0.5, 0.5, 12)
+        chain.write_goals(goal)
+        for _ in range(300):
+            state = chain.read_state()
+            if np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK):
+                break
+        assert np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK)
+        assert pty_server.command("overload 7") == "ok"
+        with pytest.raises(ServoHardwareError, match="servo 7 overload"):
+            chain.read_state()
+        assert pty_server.command("no_reply 3") == "ok"
+        with pytest.raises(NoReplyError, match="servo 3"):
+            chain.ping(3)
+
+
+def test_controller_runs_a_motion_over_a_pty(pty_server):
+    robot = dataclasses.replace(robot_on(pty_server.path), control_rate_hz=30.0, max_joint_speed_rad_s=3.0)
+    controller = RobotController(ServoChain(robot), robot)
+    controller.start()
+    try:
+        controller.set_torque(True).result(10)
+        assert controller.run_motion(HoldPose(np.full(12, 0.2), duration_s=0.3), "hold").result(10) == "finished"
+        state = controller.latest_state
+        assert state is not None and state.goal_rad is not None
+        assert np.allclose(state.goal_rad, 0.2, atol=ct.RAD_PER_TICK)
+    finally:
+        controller.close()
+
+
+def test_scan_command_over_a_pty(pty_server, capsys):
+    assert main(["scan", "--robot", pty_server.path]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 12
+    assert lines[0].split() == ["ID", "1", "XM430-W350", "(model", "1020)", "firmware", "46", "1000000", "bps"]
+
+
+def test_scan_command_fails_with_one_line_when_nothing_answers(pty_server, capsys):
+    assert main(["scan", "--robot", pty_server.path, "--baud", "57600"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"sensnake scan: error: no servo answered on {pty_server.path} at 57600 bps: check the servo "
+                   "power and cable or try --all-bauds"]
