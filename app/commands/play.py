@@ -22,8 +22,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from app.commands.teach import robot_config
+from app.commands.teach import BUS_TIMEOUT_S, robot_config
 from app.shapes import Shape, read_shape
+from app.teach import TeachSession
 from devices.config import RobotConfig
 from models.trajectory import FollowTheLeader, Keyframes, PlannedMotion
 
@@ -139,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
 def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: argparse.Namespace,
           shape: Shape) -> str:
     name = f"{args.mode} {shape.name or Path(args.shape).stem}"
+    # Servos power up limp: torque on where they are (goals = present first, so nothing jumps) before moving.
+    TeachSession(controller.submit, controller.robot, controller.set_torque).hold().result(timeout=BUS_TIMEOUT_S)
     state_log.t0_s = time.monotonic()
     future = controller.run_motion(source, name)
     print(f"playing {name} at {args.speed:g} rad/s, {args.rate:g} Hz")

@@ -1,0 +1,134 @@
+"""`sensnake play` and the follow-the-leader source on the simulated chain: rate, targets, speed, overload."""
+
+from __future__ import annotations
+
+import csv
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from devices.config import RobotConfig
+from devices.controller import RobotController
+from devices.dxl_wire import SYNC_WRITE
+from devices.errors import ServoHardwareError
+from devices.servo_chain import ServoChain
+from models.trajectory import FollowTheLeader, follow_the_leader_targets
+
+AXES = RobotConfig().axes
+SHAPE = np.array([0.12, -0.06, 0.10, 0.04, -0.08, 0.02, 0.05, 0.0, 0.0, 0.03, 0.0, 0.0])
+RAD_PER_TICK = 2 * np.pi / 4096
+SPEED = 0.6
+RATE = 50.0
+
+
+def write_shape_file(path, keyframes=None):
+    data = {"format": "sensnake-shape", "version": 1, "name": "bump", "created": "2026-11-21T10:00:00Z",
+            "axes": list(AXES), "angles_rad": SHAPE.tolist()}
+    if keyframes is not None:
+        data["keyframes"] = keyframes
+    path.write_text(json.dumps(data))
+    return path
+
+
+def read_log(path):
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    header, data = rows[0], np.array(rows[1:], dtype=float)
+    data = data[~np.isnan(data[:, 1])]  # states read before the first goal was sent have no goal yet
+    assert header[0] == "time_s" and header[1] == "goal_rad_1" and header[13] == "present_rad_1"
+    assert header[25] == "current_mA_1" and len(header) == 37
+    return data[:, 0], data[:, 1:13], data[:, 13:25], data[:, 25:37]
+
+
+def test_play_follow_on_sim_hits_every_shift_at_speed(sim_lab_fast, tmp_path, capsys):
+    shape = write_shape_file(tmp_path / "bump.json")
+    log = tmp_path / "log.csv"
+    code = main(["play", str(shape), "--robot", "sim", "--speed", str(SPEED), "--rate", str(RATE),
+                 "--shifts", "3", "--log", str(log)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "finished" in out and "p99 error" in out and "shift 3/3" in out
+    t, goal, present, current = read_log(log)
+    # one row per control tick at the requested rate
+    periods = np.diff(t)
+    assert np.median(periods) == pytest.approx(1 / RATE, rel=0.05)
+    # goals are sent as whole ticks: compare within half a tick (+ CSV rounding)
+    tol = RAD_PER_TICK / 2 + 2e-5
+    for k, target in enumerate(follow_the_leader_targets(SHAPE, AXES, 3)):
+        assert np.min(np.max(np.abs(goal - target), axis=1)) <= tol, f"shift {k} target never sent"
+    # no joint ever faster than the speed (per tick, allowing the tick quantisation) …
+    step = np.abs(np.diff(goal, axis=0))
+    assert step.max() <= SPEED / RATE + RAD_PER_TICK + 2e-5
+    # … and while moving, the fastest joint moves at it
+    moving = step.max(axis=1) > RAD_PER_TICK
+    assert np.median(step.max(axis=1)[moving]) == pytest.approx(SPEED / RATE, abs=RAD_PER_TICK)
+    # the robot followed: at the end it is straight again (shift 3 of a 6-per-axis shape is not straight,
+    # so compare with the last target instead)
+    np.testing.assert_allclose(present[-1], follow_the_leader_targets(SHAPE, AXES, 3)[-1], atol=3 * RAD_PER_TICK)
+
+
+def test_overload_mid_gait_stops_within_one_tick_and_sends_nothing_after(sim_lab_fast):
+    robot = RobotConfig()
+    controller = RobotController(ServoChain(robot), robot)
+    controller.start()
+    try:
+        source = FollowTheLeader(SHAPE, AXES, speed_rad_s=0.3, rate_hz=robot.control_rate_hz)
+        future = controller.run_motion(source, "follow")
+        started = threading.Event()
+        while not started.wait(0.005):
+            if source.progress.index >= 1:
+                started.set()
+        chain = sim_lab_fast.chain
+        writes_at_fault = chain.count(SYNC_WRITE)
+        chain.inject_overload(7)
+        with pytest.raises(ServoHardwareError, match=r"servo 7 overload.*reboot servo 7"):
+            future.result(timeout=2.0)
+        writes_at_stop = chain.count(SYNC_WRITE)
+        assert writes_at_stop - writes_at_fault <= 1  # at most the tick already under way
+        ticks_at_stop = controller.stats().ticks
+        later = threading.Event()
+        while not later.wait(0.005):
+            if controller.stats().ticks >= ticks_at_stop + 10:
+                later.set()
+        assert chain.count(SYNC_WRITE) == writes_at_stop  # nothing sent afterwards
+    finally:
+        controller.close()
+
+
+def test_cli_play_overload_is_one_clear_line(sim_lab_fast, tmp_path, capsys):
+    shape = write_shape_file(tmp_path / "bump.json")
+    chain = sim_lab_fast.chain
+    stop = threading.Event()
+
+    def trip_when_moving():
+        while not stop.wait(0.005):
+            if chain.count(SYNC_WRITE) >= 15:
+                chain.inject_overload(4)
+                return
+
+    tripper = threading.Thread(target=trip_when_moving, name="test-overload")
+    tripper.start()
+    try:
+        code = main(["play", str(shape), "--robot", "sim", "--speed", "0.3"])
+    finally:
+        stop.set()
+        tripper.join()
+    err = capsys.readouterr().err.strip()
+    assert code == 1
+    assert err.count("\n") == 0 and "servo 4 overload" in err and "Reboot" in err
+
+
+def test_play_refusals(sim_lab_fast, tmp_path, capsys):
+    shape = write_shape_file(tmp_path / "bump.json")
+    assert main(["play", str(shape), "--robot", "sim", "--mode", "keyframes"]) == 1
+    assert "no keyframes" in capsys.readouterr().err
+    too_fast = [{"t_s": 0.0, "angles_rad": [0.0] * 12}, {"t_s": 0.1, "angles_rad": [0.5] + [0.0] * 11}]
+    shape = write_shape_file(tmp_path / "fast.json", too_fast)
+    assert main(["play", str(shape), "--robot", "sim", "--mode", "keyframes"]) == 1
+    err = capsys.readouterr().err
+    assert "keyframe 2" in err and "joint 1" in err and "velocity limit" in err
+    assert main(["play", str(tmp_path / "missing.json"), "--robot", "sim"]) == 1
+    assert "cannot read shape file" in capsys.readouterr().err

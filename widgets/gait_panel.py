@@ -1,0 +1,266 @@
+"""GaitPanel: the Gait tab's view — mode, shape, parameters, play/pause/resume/stop, progress, body drawing.
+
+Passive: emits :class:`GaitRequest` on Play and plain signals for the transport buttons; the owner
+(``app/tabs/gait.py``) builds the motion and feeds back progress, angles and errors. Angles in rad, speeds in rad/s,
+rates in Hz. GUI thread only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QProgressBar,
+    QPushButton,
+    QSpinBox,
+    QStackedWidget,
+    QVBoxLayout,
+    QWidget,
+)
+
+from widgets import theme
+from widgets.body_view import BodyView
+
+MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
+MODE_TITLES = {
+    "follow": "Follow-the-leader (shape slides head → tail)",
+    "keyframes": "Keyframes (replay taught poses in time)",
+    "serpenoid": "Serpenoid lateral undulation",
+    "sidewinding": "Sidewinding",
+}
+
+
+@dataclass(frozen=True)
+class GaitRequest:
+    """Everything Play needs. Shape-based modes use ``shape_name``; parametric ones the wave parameters."""
+
+    mode: str
+    shape_name: str
+    speed_rad_s: float
+    rate_hz: float
+    shifts: int | None  # None = default (K = m)
+    time_scale: float
+    repeat: int
+    amplitude_rad: float
+    spatial_rad: float
+    frequency_hz: float
+    offset_rad: float
+    cycles: float
+    pitch_amplitude_rad: float
+    phase_rad: float
+
+
+def _spin(lo: float, hi: float, value: float, step: float, decimals: int, suffix: str) -> QDoubleSpinBox:
+    spin = QDoubleSpinBox()
+    spin.setRange(lo, hi)
+    spin.setDecimals(decimals)
+    spin.setSingleStep(step)
+    spin.setValue(value)
+    spin.setSuffix(suffix)
+    return spin
+
+
+class GaitPanel(QWidget):
+    play_requested = Signal(object)  # GaitRequest
+    pause_requested = Signal()
+    resume_requested = Signal()
+    stop_requested = Signal()
+    refresh_shapes_requested = Signal()
+    open_file_requested = Signal()
+    shape_selected = Signal(str)
+
+    def __init__(self, axes: Sequence[str], segment_length_m: float = 0.08, max_speed_rad_s: float = 1.0,
+                 rate_hz: float = 50.0, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        controls = QWidget()
+        controls.setMaximumWidth(380)
+        column = QVBoxLayout(controls)
+        column.setContentsMargins(0, 0, 0, 0)
+
+        mode_box = QGroupBox("Gait")
+        mode_form = QFormLayout(mode_box)
+        self.mode_combo = QComboBox()
+        for mode in MODES:
+            self.mode_combo.addItem(MODE_TITLES[mode], mode)
+        mode_form.addRow("mode", self.mode_combo)
+        shape_row = QHBoxLayout()
+        self.shape_combo = QComboBox()
+        self.shape_combo.setMinimumContentsLength(12)
+        self.refresh_button = QPushButton("↻")
+        self.refresh_button.setFixedWidth(30)
+        self.refresh_button.setToolTip("re-read the shape library")
+        self.open_button = QPushButton("File…")
+        shape_row.addWidget(self.shape_combo, 1)
+        shape_row.addWidget(self.refresh_button)
+        shape_row.addWidget(self.open_button)
+        self._shape_label = QLabel("shape")
+        mode_form.addRow(self._shape_label, shape_row)
+        self.rate_spin = _spin(1, 1000, rate_hz, 10, 0, " Hz")
+        self.rate_spin.setToolTip("control rate: one synchronised write of all goals per tick "
+                                  "(set by the lab config's robot.control_rate_hz)")
+        self.rate_spin.setEnabled(False)
+        mode_form.addRow("rate", self.rate_spin)
+        self.repeat_spin = QSpinBox()
+        self.repeat_spin.setRange(1, 1000)
+        mode_form.addRow("repeat", self.repeat_spin)
+        column.addWidget(mode_box)
+
+        self.params = QStackedWidget()
+        # follow
+        follow = QWidget()
+        f = QFormLayout(follow)
+        self.speed_spin = _spin(0.001, max_speed_rad_s, min(0.034, max_speed_rad_s), 0.005, 3, " rad/s")
+        self.shifts_spin = QSpinBox()
+        self.shifts_spin.setRange(-1, 99)
+        self.shifts_spin.setValue(-1)
+        self.shifts_spin.setSpecialValueText("default (K = m)")
+        f.addRow("speed", self.speed_spin)
+        f.addRow("shifts K", self.shifts_spin)
+        self.params.addWidget(follow)
+        # keyframes
+        keys = QWidget()
+        k = QFormLayout(keys)
+        self.time_scale_spin = _spin(0.05, 100, 1.0, 0.1, 2, " ×")
+        self.approach_spin = _spin(0.001, max_speed_rad_s, min(0.1, max_speed_rad_s), 0.01, 3, " rad/s")
+        k.addRow("time scale", self.time_scale_spin)
+        k.addRow("approach speed", self.approach_spin)
+        self.params.addWidget(keys)
+        # serpenoid / sidewinding share one form; the pitch rows only show for sidewinding
+        wave = QWidget()
+        w = QFormLayout(wave)
+        self.amplitude_spin = _spin(0, 1.5, 0.5, 0.05, 2, " rad")
+        self.spatial_spin = _spin(0, math.pi, math.pi / 3, 0.05, 2, " rad/joint")
+        self.frequency_spin = _spin(0.01, 2, 0.2, 0.05, 2, " Hz")
+        self.offset_spin = _spin(-0.8, 0.8, 0.0, 0.05, 2, " rad")
+        self.cycles_spin = _spin(0.5, 1000, 3, 1, 1, " cycles")
+        self.pitch_amplitude_spin = _spin(0, 1.5, 0.3, 0.05, 2, " rad")
+        self.phase_spin = _spin(-math.pi, math.pi, math.pi / 2, 0.1, 2, " rad")
+        w.addRow("amplitude (yaw)", self.amplitude_spin)
+        w.addRow("phase lag / joint", self.spatial_spin)
+        w.addRow("frequency", self.frequency_spin)
+        w.addRow("turn offset", self.offset_spin)
+        w.addRow("duration", self.cycles_spin)
+        self._pitch_label = QLabel("amplitude (pitch)")
+        self._phase_label = QLabel("pitch phase")
+        w.addRow(self._pitch_label, self.pitch_amplitude_spin)
+        w.addRow(self._phase_label, self.phase_spin)
+        self.params.addWidget(wave)
+        params_box = QGroupBox("Parameters")
+        QVBoxLayout(params_box).addWidget(self.params)
+        column.addWidget(params_box)
+
+        transport = QHBoxLayout()
+        self.play_button = QPushButton("▶ Play")
+        self.play_button.setStyleSheet("font-weight: bold;")
+        self.pause_button = QPushButton("❚❚ Pause")
+        self.resume_button = QPushButton("▶ Resume")
+        self.stop_button = QPushButton("■ Stop")
+        for b in (self.play_button, self.pause_button, self.resume_button, self.stop_button):
+            transport.addWidget(b)
+        column.addLayout(transport)
+        self.progress_bar = QProgressBar()
+        self.progress_bar.setRange(0, 1000)
+        self.progress_bar.setTextVisible(False)
+        column.addWidget(self.progress_bar)
+        self.progress_label = QLabel("idle")
+        self.progress_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
+        column.addWidget(self.progress_label)
+        self.status_label = QLabel("")
+        self.status_label.setWordWrap(True)
+        column.addWidget(self.status_label)
+        legend = QLabel(f"<span style='color:{theme.PRESENT_COLOR}'>━ present</span> &nbsp; "
+                        f"<span style='color:{theme.GOAL_COLOR}'>╌ goal</span> &nbsp; STOP: Esc")
+        column.addWidget(legend)
+        column.addStretch(1)
+
+        self.body_view = BodyView(axes, segment_length_m)
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(6, 6, 6, 6)
+        layout.addWidget(controls)
+        layout.addWidget(self.body_view, 1)
+
+        self.mode_combo.currentIndexChanged.connect(self._mode_changed)
+        self.play_button.clicked.connect(lambda: self.play_requested.emit(self.request()))
+        self.pause_button.clicked.connect(self.pause_requested)
+        self.resume_button.clicked.connect(self.resume_requested)
+        self.stop_button.clicked.connect(self.stop_requested)
+        self.refresh_button.clicked.connect(self.refresh_shapes_requested)
+        self.open_button.clicked.connect(self.open_file_requested)
+        self.shape_combo.currentTextChanged.connect(self.shape_selected)
+        self._mode_changed()
+        self.set_motion_state("idle")
+
+    # -- API ---------------------------------------------------------------------------------------------------------
+    @property
+    def mode(self) -> str:
+        return str(self.mode_combo.currentData())
+
+    def set_mode(self, mode: str) -> None:
+        self.mode_combo.setCurrentIndex(MODES.index(mode))
+
+    def request(self) -> GaitRequest:
+        shifts = self.shifts_spin.value()
+        return GaitRequest(
+            mode=self.mode, shape_name=self.shape_combo.currentText(),
+            speed_rad_s=self.approach_spin.value() if self.mode == "keyframes" else self.speed_spin.value(),
+            rate_hz=self.rate_spin.value(), shifts=None if shifts < 0 else shifts,
+            time_scale=self.time_scale_spin.value(), repeat=self.repeat_spin.value(),
+            amplitude_rad=self.amplitude_spin.value(), spatial_rad=self.spatial_spin.value(),
+            frequency_hz=self.frequency_spin.value(), offset_rad=self.offset_spin.value(),
+            cycles=self.cycles_spin.value(), pitch_amplitude_rad=self.pitch_amplitude_spin.value(),
+            phase_rad=self.phase_spin.value())
+
+    def set_shapes(self, names: Sequence[str], current: str = "") -> None:
+        keep = current or self.shape_combo.currentText()
+        self.shape_combo.blockSignals(True)
+        self.shape_combo.clear()
+        self.shape_combo.addItems(list(names))
+        if keep:
+            index = self.shape_combo.findText(keep)
+            if index < 0:
+                self.shape_combo.addItem(keep)
+                index = self.shape_combo.count() - 1
+            self.shape_combo.setCurrentIndex(index)
+        self.shape_combo.blockSignals(False)
+
+    def set_motion_state(self, state: str) -> None:
+        """Enable the transport buttons for ``idle``/``running``/``paused``/``finished``/``stopped``/``fault``."""
+        running, paused = state == "running", state == "paused"
+        self.play_button.setEnabled(not running and not paused)
+        self.pause_button.setEnabled(running)
+        self.resume_button.setEnabled(paused)
+        self.stop_button.setEnabled(running or paused)
+        self.mode_combo.setEnabled(not running and not paused)
+        self.params.setEnabled(not running and not paused)
+
+    def set_progress(self, text: str, fraction: float) -> None:
+        self.progress_label.setText(text)
+        self.progress_bar.setValue(int(round(min(max(fraction, 0.0), 1.0) * 1000)))
+
+    def set_status(self, text: str, level: str = theme.IDLE) -> None:
+        self.status_label.setText(text)
+        self.status_label.setStyleSheet(theme.status_style(level) if text else "")
+
+    def set_rate(self, rate_hz: float) -> None:
+        self.rate_spin.setValue(rate_hz)
+
+    # -- internals ---------------------------------------------------------------------------------------------------
+    def _mode_changed(self) -> None:
+        mode = self.mode
+        self.params.setCurrentIndex({"follow": 0, "keyframes": 1}.get(mode, 2))
+        uses_shape = mode in ("follow", "keyframes")
+        for w in (self.shape_combo, self.refresh_button, self.open_button, self._shape_label):
+            w.setVisible(uses_shape)
+        side = mode == "sidewinding"
+        for w in (self._pitch_label, self.pitch_amplitude_spin, self._phase_label, self.phase_spin):
+            w.setVisible(side)
+        self.params.setMaximumHeight(self.params.currentWidget().sizeHint().height() + 8)
