@@ -110,7 +110,7 @@ class SensorCalibration:
     """Everything ``sensnake fit`` writes for one sensor (SPEC §3.3) and what the GUI shows."""
 
     area_m2: float
-    linear: LinearFit
+    linear: LinearFit | None  # None when the trials cannot support it (one force level)
     sls: SLSParams
     sls_ci95: dict[str, tuple[float, float]]
     sls_trend: dict[str, tuple[float, float]] | None
@@ -123,15 +123,14 @@ class SensorCalibration:
 
     def to_dict(self) -> dict:
         """The sensor's SPEC §3.3 entry (``area_m2``, ``linear``, ``sls``, ``sls_trend``, ``trials``) plus extras."""
-        entry = {
-            "area_m2": self.area_m2,
-            "linear": self.linear.model.to_dict(),
-            "sls": self.sls.to_dict(),
-        }
+        entry: dict = {"area_m2": self.area_m2}
+        if self.linear is not None:
+            entry["linear"] = self.linear.model.to_dict()
+            entry["linear_r2"] = _or_none(self.linear.r_squared)
+        entry["sls"] = self.sls.to_dict()
         if self.sls_trend is not None:
             entry["sls_trend"] = {k: list(v) for k, v in self.sls_trend.items()}
         entry["trials"] = [t.to_dict() for t in self.trials]
-        entry["linear_r2"] = _or_none(self.linear.r_squared)
         entry["sls_ci95"] = {k: list(v) for k, v in self.sls_ci95.items()}
         if self.trend_ci95:
             entry["sls_trend_ci95"] = {k: list(v) for k, v in self.trend_ci95.items()}
@@ -168,6 +167,13 @@ def estimate_noise(conductance_s: np.ndarray) -> float:
         return math.nan
     d2 = np.diff(c, 2)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None) -> float:
+    """Noise (S) from the hold's unsaturated samples; NaN when fewer than 20 remain (no poor-fit verdict then)."""
+    if saturation_s is not None:
+        conductance_s = conductance_s[conductance_s < saturation_s * (1 - 1e-12)]
+    return estimate_noise(conductance_s) if conductance_s.size >= 20 else math.nan
 
 
 def _check_not_flat(trial: TrialInput, start: int) -> None:
@@ -265,7 +271,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, trial.conductance_s, hold_n))
         prelim.append({"start": start, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
-                       "sat": n_sat, "noise": estimate_noise(trial.conductance_s[start:])})
+                       "sat": n_sat, "noise": _hold_noise(trial.conductance_s[start:], saturation_s)})
 
     joint_start = estimate_sls([p["strain"] for p in prelim])
     start_params = SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)
@@ -324,8 +330,12 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     if trend is not None:
         sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
 
-    linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s)
-    sensor_warnings.extend(linear.warnings)
+    try:
+        linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s)
+        sensor_warnings.extend(linear.warnings)
+    except ValueError as exc:
+        linear = None
+        sensor_warnings.append(f"linear model not fitted: {exc}")
     joint_rmse = float(np.sqrt(np.sum(np.square(joint.rmse_s) * np.array(joint.n_used)) / sum(joint.n_used)))
     return SensorCalibration(
         area_m2=float(area_m2), linear=linear, sls=joint.ref, sls_ci95=joint.ci95,

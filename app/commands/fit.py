@@ -71,9 +71,10 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     if cal.sls_trend is not None:
         for key, (intercept, slope) in cal.sls_trend.items():
             print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")
-    r2 = cal.linear.r_squared
-    print(f"  linear m {cal.linear.model.m_S_per_N:.5e} S/N, d {cal.linear.model.d_S:.5e} S, "
-          f"R² {r2:.5f}" if math.isfinite(r2) else "  linear R² undefined")
+    if cal.linear is not None:
+        r2 = cal.linear.r_squared
+        print(f"  linear m {cal.linear.model.m_S_per_N:.5e} S/N, d {cal.linear.model.d_S:.5e} S, "
+              + (f"R² {r2:.5f}" if math.isfinite(r2) else "R² undefined"))
     details = [(t.name, w) for t in cal.trials for w in t.warnings] + [("sensor", w) for w in cal.warnings]
     if details:
         print("warnings:")

@@ -1,0 +1,86 @@
+"""Sensor calibration orchestration: the result, its SPEC §3.3 entry, refusals and warnings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.calibration import FlatSensorError, TrialInput, calibrate_sensor
+from models.fit_output import PARAM_NAMES
+from models.physics import PhysicsConstants
+from models.synthetic import TREND_TRUTH, TYPICAL_TRUTH, Readout, SensorTruth, make_trial, paper_protocol
+
+PHYS = PhysicsConstants()
+AREA_M2 = TYPICAL_TRUTH.area_m2
+SPEC_TRIAL_KEYS = {"file", "force_N", "c1", "c2", "c3", "E0_Pa", "E1_Pa", "mu1_Pa_s", "a_s", "b_Pa", "c_Pa_s",
+                   "rmse_S", "warnings"}
+
+
+def _inputs(trials):
+    return [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
+
+
+def test_noise_free_trend_calibration_and_spec_entry():
+    cal = calibrate_sensor(_inputs(paper_protocol(TREND_TRUTH, PHYS, repeats=1)), AREA_M2, PHYS)
+    for name in PARAM_NAMES:
+        assert cal.sls_trend[name][0] == pytest.approx(getattr(TREND_TRUTH, name)[0], rel=1e-6)
+        assert cal.sls_trend[name][1] == pytest.approx(getattr(TREND_TRUTH, name)[1], rel=1e-6)
+    for report in cal.trials:
+        truth = TREND_TRUTH.params_at(report.force_n)
+        assert float(report.params.E0_Pa) == pytest.approx(float(truth.E0_Pa), rel=1e-6)
+        assert report.has_ramp and not report.paper.ok  # the paper's LS cannot identify a from a hold
+    entry = cal.to_dict()
+    assert {"area_m2", "linear", "sls", "sls_trend", "trials"} <= set(entry)
+    assert set(entry["sls"]) == set(PARAM_NAMES)
+    assert all(len(v) == 2 for v in entry["sls_trend"].values())
+    assert SPEC_TRIAL_KEYS <= set(entry["trials"][0])
+    assert entry["linear"]["m_S_per_N"] > 0 and 0.9 < entry["linear_r2"] <= 1
+    assert entry["force_range_N"] == [1.75, 5.25]
+
+
+def test_flat_sensor_is_refused():
+    trial = make_trial(TYPICAL_TRUTH, PHYS, 3.0)
+    flat = TrialInput("flat.csv", trial.time_s, trial.force_n, np.full(trial.time_s.size, 5e-4))
+    with pytest.raises(FlatSensorError, match="flat.csv: conductance is flat"):
+        calibrate_sensor([flat], AREA_M2, PHYS)
+    dead = TrialInput("dead.csv", trial.time_s, trial.force_n, np.zeros(trial.time_s.size))
+    with pytest.raises(FlatSensorError, match="dead.csv: .*disconnected"):
+        calibrate_sensor([dead], AREA_M2, PHYS)
+
+
+def test_no_loading_ramp_is_reported():
+    trials = [make_trial(TYPICAL_TRUTH, PHYS, f, seed=i, noise_rel=0.001, preload_s=0.0, ramp_s=0.0)
+              for i, f in enumerate((1.75, 5.25))]
+    cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, solver="scipy")
+    assert all(any("no loading ramp" in w for w in r.warnings) for r in cal.trials)
+    assert any("no trial contains its loading ramp" in w for w in cal.warnings)
+
+
+def test_saturation_and_poor_fit_are_reported():
+    soft = SensorTruth.constant(5.0e5, 7.5e5, 7.5e7)  # saturates late in the 5.25 N hold
+    readout = Readout()
+    trials = [make_trial(soft, PHYS, 5.25, noise_rel=0.001, readout=readout, name="sat"),
+              make_trial(TYPICAL_TRUTH, PHYS, 1.75, noise_rel=0.001, drift_s_per_s=2e-7, name="drift")]
+    cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, saturation_s=readout.saturation_s, solver="scipy",
+                           fit_trend=False)
+    by_name = {r.name: r for r in cal.trials}
+    assert 0 < by_name["sat"].n_saturated < 0.8 * trials[0].time_s.size
+    assert any("saturated" in w for w in by_name["sat"].warnings)
+    assert any(w.startswith("poor fit") for w in by_name["drift"].warnings)
+    assert not any(w.startswith("poor fit") for w in by_name["sat"].warnings)
+
+
+def test_single_force_level_warns_and_skips_the_trend():
+    trials = [make_trial(TYPICAL_TRUTH, PHYS, 3.0, seed=s, noise_rel=0.001) for s in range(2)]
+    cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, solver="scipy")
+    assert cal.sls_trend is None
+    assert any("one force" in w for w in cal.warnings)
+    assert float(cal.sls.E0_Pa) == pytest.approx(6e5, rel=0.01)
+    assert cal.linear is None and any("linear model not fitted" in w for w in cal.warnings)
+    assert "linear" not in cal.to_dict()
+
+
+def test_window_outside_trial_names_the_trial():
+    trial = make_trial(TYPICAL_TRUTH, PHYS, 3.0, duration_s=200.0, name="short.csv")
+    with pytest.raises(ValueError, match="short.csv: no valid samples in the window"):
+        calibrate_sensor(_inputs([trial]), AREA_M2, PHYS)

@@ -1,0 +1,115 @@
+"""Output-error fits: recovery of known truth, CasADi = scipy = the project's forward model, honest intervals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.fit_output import PARAM_NAMES, FitTrial, casadi_conductance, fit_output_casadi, fit_output_scipy
+from models.physics import PhysicsConstants
+from models.sls import SLSParams, conductance_from_force
+from models.synthetic import TREND_TRUTH, TYPICAL_TRUTH, Readout, SensorTruth, paper_protocol
+
+PHYS = PhysicsConstants()
+AREA_M2 = TYPICAL_TRUTH.area_m2
+START = SLSParams(4.5e5, 6.5e5, 5e7)  # ~30 % off the truth, like a derivative-free estimate on noisy data
+
+
+def _fit_trials(trials):
+    return [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, t.nominal_force_n) for t in trials]
+
+
+def _rel_errors(params, truth):
+    return np.array([abs(float(getattr(params, n)) / float(getattr(truth, n)) - 1) for n in PARAM_NAMES])
+
+
+def test_casadi_graph_equals_the_sls_forward_model():
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.05, 0.5, 400))  # non-uniform steps
+    force = 0.2 + 4 * np.abs(np.sin(t / 9))
+    trials = [FitTrial("a", t, force, np.ones(t.size), 3.0),
+              FitTrial("b", t[:250], 1.3 * force[:250], np.ones(250), 3.0)]
+    params = SLSParams(5e5, 7e5, 3e7)
+    for trial, model in zip(trials, casadi_conductance(trials, AREA_M2, PHYS, params)):
+        reference = conductance_from_force(trial.time_s, trial.force_n, params, AREA_M2, PHYS)
+        np.testing.assert_allclose(model, reference, rtol=1e-12)
+
+
+@pytest.mark.parametrize("solver", ["scipy", "gauss-newton", "ipopt"])
+def test_noise_free_joint_fit_recovers_truth(solver):
+    trials = _fit_trials(paper_protocol(TYPICAL_TRUTH, PHYS, repeats=1))
+    if solver == "scipy":
+        fit = fit_output_scipy(trials, AREA_M2, PHYS, START)
+    else:
+        fit = fit_output_casadi(trials, AREA_M2, PHYS, START, solver=solver)
+    assert fit.success, fit.message
+    assert np.max(_rel_errors(fit.ref, TYPICAL_TRUTH.params_at(0))) <= 1e-6
+    assert max(fit.rmse_s) < 1e-12
+
+
+def test_noise_free_trend_fit_recovers_intercepts_and_slopes():
+    trials = _fit_trials(paper_protocol(TREND_TRUTH, PHYS, repeats=1))
+    fit = fit_output_scipy(trials, AREA_M2, PHYS, START, "trend")
+    for name in PARAM_NAMES:
+        intercept, slope = fit.trend[name]
+        true_intercept, true_slope = getattr(TREND_TRUTH, name)
+        assert intercept == pytest.approx(true_intercept, rel=1e-6)
+        assert slope == pytest.approx(true_slope, rel=1e-6)
+        lo, hi = fit.ci95[f"{name}.slope"]
+        assert lo <= slope <= hi
+
+
+def test_noise_free_per_trial_fits_and_nan_samples_are_skipped():
+    protocol = paper_protocol(TREND_TRUTH, PHYS, repeats=1)
+    trials = _fit_trials(protocol)
+    for trial in trials:
+        trial.conductance_s[100::37] = np.nan  # dropped samples
+    fit = fit_output_scipy(trials, AREA_M2, PHYS, START, "per_trial")
+    for params, synthetic in zip(fit.params, protocol):
+        assert np.max(_rel_errors(params, synthetic.params)) <= 1e-6
+    assert all(n < t.time_s.size - 50 for n, t in zip(fit.n_used, trials))
+
+
+@pytest.mark.parametrize(("noise_rel", "median_limit"), [(0.001, 0.01), (0.01, 0.05)])
+def test_noisy_fits_meet_the_accuracy_targets(noise_rel, median_limit):
+    protocol = paper_protocol(TYPICAL_TRUTH, PHYS, seed=11, noise_rel=noise_rel)
+    trials = _fit_trials(protocol)
+    per_trial = fit_output_scipy(trials, AREA_M2, PHYS, START, "per_trial")
+    errors = np.array([_rel_errors(p, TYPICAL_TRUTH.params_at(0)) for p in per_trial.params])
+    assert np.all(np.median(errors, axis=0) <= median_limit), np.median(errors, axis=0)
+    for p in per_trial.params:  # never non-physical
+        assert all(np.isfinite(float(getattr(p, n))) and float(getattr(p, n)) > 0 for n in PARAM_NAMES)
+    joint = fit_output_casadi(trials, AREA_M2, PHYS, START)
+    assert np.all(_rel_errors(joint.ref, TYPICAL_TRUTH.params_at(0)) <= median_limit)
+
+
+def test_saturated_samples_are_censored_not_fitted():
+    # A softer sensor: at 5.25 N the readout saturates (C > 1/900 S).
+    soft = SensorTruth.constant(4.0e5, 6.0e5, 6.0e7)
+    readout = Readout()
+    protocol = paper_protocol(soft, PHYS, seed=3, repeats=1, noise_rel=0.001, readout=readout)
+    assert any(t.saturated.any() for t in protocol)
+    trials = _fit_trials(protocol)
+    censored = fit_output_scipy(trials, AREA_M2, PHYS, START, saturation_s=readout.saturation_s)
+    naive = fit_output_scipy(trials, AREA_M2, PHYS, START)
+    assert censored.n_censored > 0
+    truth = soft.params_at(0)
+    assert np.max(_rel_errors(censored.ref, truth)) < 0.01
+    assert np.max(_rel_errors(naive.ref, truth)) > np.max(_rel_errors(censored.ref, truth))
+
+
+@pytest.mark.slow
+def test_confidence_intervals_cover_the_truth_about_95_percent():
+    n_seeds = 40
+    truth = TYPICAL_TRUTH.params_at(0)
+    covered = np.zeros((n_seeds, 3), dtype=bool)
+    for seed in range(n_seeds):
+        trials = _fit_trials(paper_protocol(TYPICAL_TRUTH, PHYS, seed=100 + seed, repeats=1, noise_rel=0.005))
+        fit = fit_output_scipy(trials, AREA_M2, PHYS, START)
+        for k, name in enumerate(PARAM_NAMES):
+            lo, hi = fit.ci95[name]
+            covered[seed, k] = lo <= float(getattr(truth, name)) <= hi
+    # Binomial: 40 draws at p = 0.95 → ≥ 34 covered with probability > 0.99 (per parameter).
+    assert np.all(covered.sum(axis=0) >= 34), covered.sum(axis=0)
+    # And the intervals are not vacuous: they must miss sometimes in 120 draws at 95 % (P(no miss) ≈ 0.2 %).
+    assert covered.sum() < covered.size
