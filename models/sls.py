@@ -633,7 +633,9 @@ class SLSInverse:
             status[np.isnan(cond)] = ForceStatus.NAN_INPUT
             status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
             status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
-        if self.phys.has_contact:
+        if s == 1:
+            self._run_one_sensor(cond[:, 0], oma[:, 0], None if ramp is None else ramp[:, 0], force, status)
+        elif self.phys.has_contact:
             self._run_contact(cond, oma, ramp, force, status)
         else:
             self._run_no_contact(cond, oma, ramp, force, status, clean)
@@ -709,6 +711,71 @@ class SLSInverse:
         last_valid = ~np.isnan(force[-1])
         st.force_prev = np.where(last_valid, force[-1], st.force_prev)
 
+    # -- one sensor: the same algebra as the vectorised paths on Python floats, ~10× faster per step than numpy
+    # calls on length-1 arrays (long single-sensor records: 370 s at 1 kHz is 370 000 steps).
+    def _run_one_sensor(self, cond, oma, ramp, force, status) -> None:
+        co, st, phys = self._co, self._state, self.phys
+        e0, e1, area = float(co.e0[0]), float(co.e1[0]), float(co.area[0])
+        inv_e0, inv_e1 = 1.0 / e0, 1.0 / e1
+        contact = phys.has_contact
+        if not contact:
+            valid = (cond > 0.0) & np.isfinite(cond)
+            strain_res = strain_from_resistance(1.0 / np.where(valid, cond, 1.0), 1.0, phys)
+            strain_list = strain_res.strain.tolist()
+            strain_status = strain_res.status.tolist()
+        k, r0, kc = phys.tunnelling_k, phys.R0_ohm, phys.K_contact_ohm_sqrtN
+        c_list = cond.tolist()
+        a_list = oma.tolist()
+        r_list = ramp.tolist() if ramp is not None else None
+        out = [0.0] * len(c_list)
+        codes = [0] * len(c_list)
+        q = float(st.q[0])
+        sig_prev = float(st.sigma_prev[0])
+        f_prev = float(st.force_prev[0])
+        for i, c in enumerate(c_list):
+            p = q + a_list[i] * (sig_prev * inv_e1 - q)
+            r_i = r_list[i] if r_list is not None else 0.0
+            p -= r_i * sig_prev * inv_e1
+            inv_eff = inv_e0 + r_i * inv_e1
+            code = 0
+            if c != c:  # NaN: hold the last stress over the gap
+                code = ForceStatus.NAN_INPUT
+                sig = sig_prev
+                f_out = math.nan
+            elif c <= 0.0:
+                code = ForceStatus.OPEN_CIRCUIT if c == 0.0 else ForceStatus.NEGATIVE_CONDUCTANCE
+                sig = 0.0
+                f_out = 0.0
+            elif c == math.inf:
+                code = ForceStatus.SATURATED
+                sig = max((1.0 - p) / inv_eff, 0.0)
+                f_out = sig * area
+            elif contact:
+                f_out, code = _solve_contact_scalar(c, p, inv_eff / area, f_prev, k, r0, kc)
+                sig = f_out / area
+            else:
+                sig = (strain_list[i] - p) / inv_eff
+                if strain_status[i] == StrainStatus.STRAIN_NEAR_ONE:
+                    code = ForceStatus.SATURATED
+                elif strain_status[i] == StrainStatus.NOT_CONVERGED:
+                    code = ForceStatus.NOT_CONVERGED
+                if sig < 0.0:
+                    if code == 0 and sig * area < -_BELOW_BASELINE_FLAG_N:
+                        code = ForceStatus.BELOW_BASELINE
+                    sig = 0.0
+                f_out = sig * area
+            out[i] = f_out
+            codes[i] = code
+            q = p + r_i * sig * inv_e1
+            sig_prev = sig
+            if f_out > 0.0:
+                f_prev = f_out
+        force[:, 0] = out
+        status[:, 0] = codes
+        st.q = np.array([q])
+        st.sigma_prev = np.array([sig_prev])
+        st.force_prev = np.array([f_prev])
+
     # -- the contact path: one scalar monotone equation per sensor and step.
     def _run_contact(self, cond, oma, ramp, force, status) -> None:
         co, st = self._co, self._state
@@ -745,6 +812,48 @@ class SLSInverse:
         st.q = q
         st.sigma_prev = sig_prev
         st.force_prev = f_prev
+
+
+def _solve_contact_scalar(
+    cond: float, p: float, w: float, f_guess: float, k: float, r0: float, kc: float
+) -> tuple[float, int]:
+    """Scalar twin of :func:`_solve_contact_step` (same bracket, same safeguarded Newton in log F)."""
+    f_max = (1.0 - p) / w
+    if not f_max > 0.0:
+        return 0.0, ForceStatus.SATURATED
+    if kc * cond * kc * cond >= f_max:
+        return f_max, ForceStatus.SATURATED
+    y_lo = 2.0 * math.log(kc * cond)
+    y_hi = math.log(f_max)
+    y = math.log(f_guess) if f_guess > 0.0 else 0.5 * (y_lo + y_hi)
+    if not y_lo < y < y_hi:
+        y = 0.5 * (y_lo + y_hi)
+    log_c = math.log(cond)
+    for _ in range(_NEWTON_MAX_ITER):
+        f = math.exp(y)
+        eps = p + w * f
+        one_minus = 1.0 - eps
+        tunnel = r0 * one_minus * math.exp(-k * eps)
+        contact = kc / math.sqrt(f)
+        r = contact + tunnel
+        phi = math.log(r) + log_c
+        if phi == 0.0:
+            return f, 0
+        if phi > 0.0:
+            y_lo = y
+        else:
+            y_hi = y
+        dphi = (-0.5 * contact - tunnel * (1.0 / one_minus + k) * w * f) / r
+        step = phi / dphi
+        y_new = y - step
+        if abs(step) <= _LOG_F_TOL * max(1.0, abs(y)):
+            return math.exp(y_new), 0
+        if not y_lo <= y_new <= y_hi:
+            y_new = 0.5 * (y_lo + y_hi)
+        y = y_new
+        if y_hi - y_lo <= 4e-16 * max(1.0, abs(y)):
+            return math.exp(y), 0
+    return math.exp(y), ForceStatus.NOT_CONVERGED
 
 
 def _solve_contact_step(
