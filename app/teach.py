@@ -106,7 +106,11 @@ class TeachSession:
                 result.set_exception(done.exception())
                 return
             goals = done.result()
-            torque = self._set_torque(True, chosen)
+            try:
+                torque = self._set_torque(True, chosen)
+            except (OSError, RuntimeError, ValueError) as exc:  # e.g. disconnected meanwhile
+                result.set_exception(exc)
+                return
             torque.add_done_callback(lambda t: _settle(result, t, goals))
 
         goals_written.add_done_callback(then_torque_on)

@@ -1,0 +1,214 @@
+"""The Gait tab: replay a shape follow-the-leader or as keyframes, or run a parametric gait, on ``lab.robot``.
+
+Wires :class:`widgets.gait_panel.GaitPanel` to the robot bridge. Motions are the MotionSources of
+:mod:`models.trajectory`, built by :func:`app.commands.play.build_source` — the code ``sensnake play`` runs — and
+sampled at the controller's rate (``robot.control_rate_hz``). Progress (shift / keyframe / cycle index and fraction)
+is read from the running source; the drawing shows the present pose with the goal overlaid, so the shape can be
+seen sliding along the body. Refreshed by a 20 Hz timer while the tab is visible. GUI thread only.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QTimer
+from PySide6.QtGui import QHideEvent, QShowEvent
+from PySide6.QtWidgets import QFileDialog, QVBoxLayout, QWidget
+
+from app.commands.play import build_source
+from app.lab import LabContext
+from app.robot_bridge import (
+    MOTION_FAULT,
+    MOTION_FINISHED,
+    MOTION_PAUSED,
+    MOTION_RUNNING,
+    MOTION_STOPPED,
+    describe_error,
+)
+from app.shapes import Shape, ShapeLibrary, read_shape
+from app.teach import TeachSession
+from models.trajectory import SerpenoidParams, SidewindingParams, TrajectoryError, serpenoid, sidewinding
+from widgets import theme
+from widgets.gait_panel import GaitPanel, GaitRequest
+
+REFRESH_INTERVAL_MS = 50
+
+
+class GaitTab(QWidget):
+    def __init__(self, lab: LabContext, library: ShapeLibrary | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        self.robot = lab.robot
+        self.config = lab.config.robot
+        self.library = library or ShapeLibrary()
+        self._files: dict[str, Path] = {}  # shapes opened from files, by display name
+        self.source: Any = None
+        self._preview: np.ndarray | None = None
+        self.teach = TeachSession(self.robot.run_on_bus, self.config, self._set_torque)
+
+        self.panel = GaitPanel(self.config.axes, self.config.segment_length_m, self.config.max_joint_speed_rad_s,
+                               self.config.control_rate_hz)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.panel)
+        p = self.panel
+        p.play_requested.connect(self.play)
+        p.pause_requested.connect(self.robot.pause_motion)
+        p.resume_requested.connect(self.robot.resume_motion)
+        p.stop_requested.connect(self.robot.stop_motion)
+        p.refresh_shapes_requested.connect(self.refresh_shapes)
+        p.open_file_requested.connect(self._open_file)
+        p.shape_selected.connect(self._preview_shape)
+        self.robot.motion_changed.connect(self._motion_changed)
+        self.robot.error.connect(self._robot_error)
+        self._timer = QTimer(self)
+        self._timer.setInterval(REFRESH_INTERVAL_MS)
+        self._timer.timeout.connect(self.refresh)
+        self.refresh_shapes()
+
+    # -- shapes ------------------------------------------------------------------------------------------------------
+    def refresh_shapes(self) -> None:
+        names = self.library.names() + sorted(self._files)
+        self.panel.set_shapes(names)
+        self._preview_shape(self.panel.shape_combo.currentText())
+
+    def add_shape_file(self, path: str | Path) -> str:
+        """Offer a shape file outside the library; returns its display name."""
+        path = Path(path)
+        name = f"{path.stem} (file)"
+        self._files[name] = path
+        self.panel.set_shapes(self.library.names() + sorted(self._files), current=name)
+        self._preview_shape(name)
+        return name
+
+    def _open_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open shape", str(self.library.root), "Shapes (*.json)")
+        if path:
+            self.add_shape_file(path)
+
+    def load_shape(self, name: str) -> Shape:
+        if not name:
+            raise ValueError("no shape chosen: save one in the Teach tab or open a shape file")
+        if name in self._files:
+            return read_shape(self._files[name])
+        return self.library.load(name)
+
+    def _preview_shape(self, name: str) -> None:
+        try:
+            shape = self.load_shape(name) if name else None
+        except (OSError, ValueError):
+            shape = None
+        ok = shape is not None and len(shape.angles_rad) == self.config.n_joints
+        self._preview = np.asarray(shape.angles_rad) if ok else None
+        self.refresh()
+
+    # -- motion ------------------------------------------------------------------------------------------------------
+    def build(self, request: GaitRequest) -> tuple[Any, str]:
+        """The MotionSource and its name for a request (ValueError with a readable message if it can't be made)."""
+        robot = self.config
+        if request.mode in ("follow", "keyframes"):
+            shape = self.load_shape(request.shape_name)
+            source = build_source(shape, robot, request.mode, request.speed_rad_s, request.time_scale,
+                                  request.shifts, request.repeat)
+            return source, f"{request.mode} {request.shape_name}"
+        wave = SerpenoidParams(amplitude_rad=request.amplitude_rad, spatial_rad=request.spatial_rad,
+                               frequency_hz=request.frequency_hz, offset_rad=request.offset_rad,
+                               cycles=request.cycles * request.repeat,
+                               ramp_s=min(2.0, 1.0 / request.frequency_hz))
+        amplitude = max(request.amplitude_rad + abs(request.offset_rad),
+                        request.pitch_amplitude_rad if request.mode == "sidewinding" else 0.0)
+        peak_speed = amplitude * 2 * math.pi * request.frequency_hz
+        if peak_speed > robot.max_joint_speed_rad_s:
+            raise TrajectoryError(
+                f"amplitude × 2π × frequency = {peak_speed:.2f} rad/s exceeds the robot's max joint speed "
+                f"{robot.max_joint_speed_rad_s:g} rad/s: lower the amplitude or the frequency")
+        limit = min(max(robot.joint_max_rad), -min(robot.joint_min_rad))
+        if amplitude > limit:
+            raise TrajectoryError(f"amplitude {amplitude:.2f} rad exceeds the joint limits (±{limit:.2f} rad)")
+        if request.mode == "serpenoid":
+            return serpenoid(robot.axes, wave), "serpenoid"
+        params = SidewindingParams(yaw=wave, pitch_amplitude_rad=request.pitch_amplitude_rad,
+                                   pitch_spatial_rad=request.spatial_rad, phase_rad=request.phase_rad)
+        return sidewinding(robot.axes, params), "sidewinding"
+
+    def play(self, request: GaitRequest) -> None:
+        if not self.robot.is_connected:
+            self.panel.set_status("the robot is not connected: connect it first (Hardware tab → Connect)",
+                                  theme.ERROR)
+            return
+        try:
+            source, name = self.build(request)
+        except (OSError, ValueError) as exc:
+            self.panel.set_status(str(exc), theme.ERROR)
+            return
+        self.source = source
+        self.panel.set_status(f"torque on, then playing {name}", theme.OK)
+        self.panel.set_motion_state(MOTION_RUNNING)  # no second Play while the hold is on its way
+
+        def start(_goals: Any) -> None:
+            if self.source is source:
+                self.robot.run_motion(source, name)
+
+        def failed(exc: BaseException) -> None:
+            self.panel.set_motion_state(self.robot.motion_state)
+            self.panel.set_status(f"cannot start {name}: {describe_error(exc)}", theme.ERROR)
+
+        # Limp joints (after teaching) must hold where they are before the motion plans from the present pose.
+        self.robot.when_done(self.teach.hold(), start, failed)
+
+    def _set_torque(self, enabled: bool, ids: list[int] | None) -> Any:
+        controller = self.robot.controller
+        if controller is None:
+            raise ConnectionError("the robot is not connected: connect it first (Hardware tab → Connect)")
+        return controller.set_torque(enabled, ids)
+
+    def _motion_changed(self, state: str) -> None:
+        self.panel.set_motion_state(state)
+        name = self.robot.motion_name
+        if state == MOTION_FINISHED:
+            self.panel.set_status(f"{name}: finished", theme.OK)
+        elif state == MOTION_STOPPED:
+            self.panel.set_status(f"{name}: stopped; the robot holds its last goal", theme.WARN)
+        elif state == MOTION_PAUSED:
+            self.panel.set_status(f"{name}: paused (Resume continues from here)", theme.WARN)
+        elif state == MOTION_RUNNING:
+            self.panel.set_status(f"playing {name}", theme.OK)
+        self.refresh()
+
+    def _robot_error(self, text: str) -> None:
+        if self.source is not None and self.robot.motion_state in (MOTION_FAULT, MOTION_RUNNING, MOTION_PAUSED,
+                                                                   MOTION_STOPPED):
+            self.panel.set_status(text, theme.ERROR)
+
+    # -- live view ---------------------------------------------------------------------------------------------------
+    def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt override
+        super().showEvent(event)
+        self._timer.start()
+        self.refresh()
+
+    def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt override
+        self._timer.stop()
+        super().hideEvent(event)
+
+    def refresh(self) -> None:
+        state = self.robot.latest_state
+        present = None if state is None else np.asarray(state.position_rad)
+        active = self.robot.motion_state in (MOTION_RUNNING, MOTION_PAUSED)
+        if active and state is not None and state.goal_rad is not None:
+            goal = np.asarray(state.goal_rad)
+        else:
+            goal = self._preview if self.panel.mode in ("follow", "keyframes") else None
+        self.panel.body_view.set_angles(present, goal)
+        source = self.source
+        if source is not None and hasattr(source, "progress"):
+            p = source.progress
+            text = (f"{p.kind} {p.index}/{max(p.count - 1, 0)}   move {p.move_fraction * 100:3.0f}%   "
+                    f"{p.elapsed_s:6.1f} / {p.total_s:.1f} s")
+            self.panel.set_progress(text, p.fraction)
+
+
+def create_tab(lab: LabContext) -> QWidget:
+    return GaitTab(lab)
