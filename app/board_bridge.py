@@ -27,7 +27,7 @@ from PySide6.QtCore import QObject, QTimer, Signal
 
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import BoardConfig
-from widgets.ring_plot import TraceHistory
+from widgets.ring_plot import TraceHistory, append_with_gaps
 
 MAX_DRAIN_HZ = 60.0
 DEFAULT_DRAIN_HZ = 30.0
@@ -148,7 +148,7 @@ class BoardBridge(QObject):
         if block is None or len(block) == 0:
             return None
         t_s = self.to_session_time(block.host_time_s)
-        self.history.append(t_s, block.conductance_s * 1e6)
+        append_with_gaps(self.history, t_s, block.conductance_s * 1e6, block.gap_before)
         lag_s = time.monotonic() - float(block.host_time_s[-1])
         stats = self.bridge_stats
         stats.blocks += 1

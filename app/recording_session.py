@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
-from app.recording import DEFAULT_MIN_FREE_BYTES, RecordingError, RecordingWriter
+from app.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
 
 FLUSH_INTERVAL_S = 0.5
 _STOP = object()
@@ -148,9 +148,8 @@ class RecordingSession(QObject):
             self._write_loop(writer)
         except (OSError, ValueError, RuntimeError) as exc:
             # RecordingError (disk full, file gone) lands here too: keep what is flushed, tell the user.
-            message = f"recording stopped: {exc}"
-            if isinstance(exc, RecordingError) and "space" in str(exc).lower():
-                message += " — free some disk space or record to another drive"
+            text = str(exc)
+            message = text if text.startswith("recording") else f"recording stopped: {text}"
             self.error = message  # set here, not in the GUI thread, so a stop() racing the failure sees it
             self._posted.emit(self._fail)
         finally:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QPointF, Qt, QTimer, Signal
+from PySide6.QtCore import QPoint, QPointF, QRect, Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QGridLayout,
     QHBoxLayout,
@@ -136,7 +136,8 @@ class _SegmentPlot(QWidget):
         self.curves: list[pg.PlotDataItem] = []
         for position, name in enumerate(group.names):
             pen = pg.mkPen(trace_color(name, position), width=1)
-            curve = item.plot([], [], pen=pen, name=name, antialias=False, skipFiniteCheck=True)
+            # connect="finite": a NaN row (a gap in the data) breaks the line instead of bridging it.
+            curve = item.plot([], [], pen=pen, name=name, antialias=False, connect="finite")
             self.curves.append(curve)
         self.cursor_line = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888888", style=Qt.DashLine))
         self.cursor_line.setZValue(10)
@@ -172,10 +173,13 @@ class _SegmentPlot(QWidget):
             if sample_label is not None:
                 sample_label.setText(label)
 
-    def on_screen(self) -> bool:
-        """True when the plot is expanded and at least partly visible in its scroll area."""
-        return (not self.collapsed and self.plot_widget.isVisible()
-                and not self.plot_widget.visibleRegion().isEmpty())
+    def on_screen(self, viewport: QWidget) -> bool:
+        """True when the plot is expanded and at least partly inside the scroll area's ``viewport``."""
+        if self.collapsed or not self.plot_widget.isVisible():
+            return False
+        # Geometry, not visibleRegion(): the latter stays empty on the offscreen platform until a paint.
+        top_left = self.plot_widget.mapTo(viewport, QPoint(0, 0))
+        return QRect(top_left, self.plot_widget.size()).intersects(viewport.rect())
 
 
 class ForcePlotGrid(QWidget):
@@ -359,8 +363,9 @@ class ForcePlotGrid(QWidget):
             finally:
                 self._setting_range = False
         drawn = False
+        viewport = self.scroll.viewport()
         for plot in self.plots:
-            if not force and not plot.on_screen():
+            if not force and not plot.on_screen(viewport):
                 continue
             if plot.collapsed:
                 continue

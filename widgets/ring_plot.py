@@ -296,3 +296,21 @@ class TraceHistory:
             t, lo, hi = np.concatenate(t_parts), np.concatenate(lo_parts), np.concatenate(hi_parts)
             level = max(level, 1)
         return TraceWindow(t, lo, hi, level)
+
+
+def append_with_gaps(history: TraceHistory, t_s: np.ndarray, values: np.ndarray,
+                     gap_before: np.ndarray | None) -> None:
+    """Append samples, with a NaN row just before every sample flagged in ``gap_before`` (N,) so the plotted line
+    breaks where data is missing (a pulled cable, dropped frames) instead of bridging the hole."""
+    if gap_before is None or not np.any(gap_before):
+        history.append(t_s, values)
+        return
+    cuts = np.flatnonzero(gap_before)
+    start = 0
+    for cut in cuts:
+        if cut > start:
+            history.append(t_s[start:cut], values[start:cut])
+        gap_t = t_s[cut] if cut == 0 else (t_s[cut - 1] + t_s[cut]) / 2
+        history.append(np.array([gap_t]), np.full((1, values.shape[1]), np.nan))
+        start = cut
+    history.append(t_s[start:], values[start:])

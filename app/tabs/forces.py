@@ -1,0 +1,587 @@
+"""The Forces tab: live per-segment force plots, the body force map, sensor health, recording and past recordings.
+
+Wiring (GUI thread): ``lab.board`` (:class:`app.board_bridge.BoardBridge`) delivers blocks at ≤ 60 Hz →
+:class:`app.forces_pipeline.ForcesPipeline` turns conductance into force → a bounded force history that the plots
+redraw from their own timer; :class:`models.health.HealthMonitor` classifies every sensor as blocks arrive; a running
+:class:`app.recording_session.RecordingSession` receives the same blocks, the forces, the robot's states
+(``lab.robot.state_block``) and the health/gap events, and writes them on its own thread. The body map redraws at
+``BODY_REFRESH_HZ`` from the newest forces and the robot's newest angles, only when something changed.
+
+Past recordings open in the same plots (``Back to live`` returns); several can be overlaid for one sensor on a
+common time zero; the one shown can be exported to CSV.
+
+GUI thread only.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import Qt, QTimer
+from PySide6.QtWidgets import (
+    QComboBox,
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QListWidget,
+    QPushButton,
+    QSplitter,
+    QTabWidget,
+    QVBoxLayout,
+    QWidget,
+)
+
+from app.forces_pipeline import ForcesPipeline
+from app.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
+from app.recording_session import RecordingSession
+from models.health import BAD_FLAGS, HealthMonitor, describe
+from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
+from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
+from widgets.ring_plot import TraceHistory, append_with_gaps
+
+try:
+    from widgets.body_view import BodyView
+except ImportError:  # pragma: no cover - only while widgets/body_view.py is absent
+    BodyView = None
+
+RECORDINGS_DIR_ENV = "SENSNAKE_RECORDINGS_DIR"
+FORCE_HISTORY_BUDGET_BYTES = 96_000_000
+BODY_REFRESH_HZ = 10.0
+STATUS_REFRESH_HZ = 2.0
+CRC_STORM_PER_S = 5.0
+BODY_FORCE_STEP_N = 0.05  # forces are compared at this resolution to decide whether the body map must redraw
+ONSET_FRACTION = 0.1
+
+
+def recordings_dir() -> Path:
+    """Where recordings go by default: ``$SENSNAKE_RECORDINGS_DIR`` or ``~/SenSnake/recordings``."""
+    configured = os.environ.get(RECORDINGS_DIR_ENV)
+    return Path(configured) if configured else Path.home() / "SenSnake" / "recordings"
+
+
+def default_recording_path(now: datetime | None = None) -> Path:
+    stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
+    return recordings_dir() / f"forces-{stamp}.h5"
+
+
+def onset_time_s(t_s: np.ndarray, values: np.ndarray, fraction: float = ONSET_FRACTION) -> float:
+    """First time the trace rises by ``fraction`` of its range above its starting level (load onset)."""
+    values = np.asarray(values, dtype=float)
+    finite = np.isfinite(values)
+    if not finite.any():
+        return float(t_s[0]) if t_s.size else 0.0
+    start = float(values[finite][0])
+    peak = float(np.nanmax(values))
+    if peak <= start:
+        return float(t_s[0])
+    above = np.flatnonzero(finite & (values >= start + fraction * (peak - start)))
+    return float(t_s[above[0]]) if above.size else float(t_s[0])
+
+
+class ForcesTab(QWidget):
+    """The tab; ``create_tab(lab)`` builds one."""
+
+    def __init__(self, lab: Any, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        config = lab.config
+        self.board = lab.board
+        self.channel_names = tuple(config.board.channel_names)
+        n_channels = len(self.channel_names)
+        self.pipeline = ForcesPipeline(self.channel_names)
+        self.force_history = TraceHistory.for_budget(n_channels, FORCE_HISTORY_BUDGET_BYTES)
+        self.health = HealthMonitor(n_channels, config.board.rate_hz)
+        self.quantity = "force"
+        self.session: RecordingSession | None = None
+        self.viewed: Recording | None = None
+        self.overlay_recordings: list[Recording] = []
+        self._last_stats: Any = None
+        self._last_stats_s = time.monotonic()
+        self._body_key: tuple | None = None
+        self._warnings: list[str] = [""] * n_channels
+        self.min_free_bytes = DEFAULT_MIN_FREE_BYTES  # a recording stops cleanly before the disk is this full
+
+        self.controls = ForcesControls(self)
+        self.plots = ForcePlotGrid(self.channel_names, parent=self)
+        self.overlay = TrialOverlayPlot(self)
+        self.body = None
+        if BodyView is not None and n_channels == 3 * config.robot.n_joints:
+            self.body = BodyView(config.robot.axes, config.robot.segment_length_m, self)
+        self._build_layout()
+        self._connect()
+        self._apply_calibration_labels()
+        self.controls.path.setText(str(default_recording_path()))
+        self._show_live()
+
+        self._body_timer = QTimer(self)
+        self._body_timer.setInterval(int(1000 / BODY_REFRESH_HZ))
+        self._body_timer.timeout.connect(self.refresh_body)
+        self._status_timer = QTimer(self)
+        self._status_timer.setInterval(int(1000 / STATUS_REFRESH_HZ))
+        self._status_timer.timeout.connect(self._refresh_status)
+        self._body_timer.start()
+        self._status_timer.start()
+        self.plots.start()
+        if self.board is None:
+            reason = getattr(lab, "board_unavailable_reason", "") or "no board bridge"
+            self.controls.set_board_status(f"board: {reason}", "error")
+        else:
+            self._on_board_connected(self.board.is_connected)
+
+    # -- layout ----------------------------------------------------------------------------------------------------
+    def _build_layout(self) -> None:
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addWidget(self.controls)
+        splitter = QSplitter(Qt.Horizontal, self)
+        self.views = QTabWidget(splitter)
+        self.views.addTab(self.plots, "Segments")
+        overlay_page = QWidget(self.views)
+        overlay_layout = QVBoxLayout(overlay_page)
+        overlay_bar = QHBoxLayout()
+        overlay_bar.addWidget(QLabel("Sensor"))
+        self.overlay_sensor = QComboBox(overlay_page)
+        self.overlay_sensor.addItems(self.channel_names)
+        overlay_bar.addWidget(self.overlay_sensor)
+        overlay_bar.addWidget(QLabel("Time zero"))
+        self.overlay_align = QComboBox(overlay_page)
+        self.overlay_align.addItem("load onset", "onset")
+        self.overlay_align.addItem("recording start", "start")
+        overlay_bar.addWidget(self.overlay_align)
+        self.overlay_clear = QPushButton("Clear", overlay_page)
+        overlay_bar.addWidget(self.overlay_clear)
+        overlay_bar.addStretch(1)
+        overlay_layout.addLayout(overlay_bar)
+        overlay_layout.addWidget(self.overlay, 1)
+        self.views.addTab(overlay_page, "Trial overlay")
+        side = QWidget(splitter)
+        side_layout = QVBoxLayout(side)
+        side_layout.setContentsMargins(2, 0, 2, 0)
+        if self.body is not None:
+            side_layout.addWidget(self.body, 3)
+        else:
+            side_layout.addWidget(QLabel("Body map needs widgets/body_view.py and 3 sensors per joint"))
+        health_bar = QHBoxLayout()
+        health_bar.addWidget(QLabel("Sensor health"))
+        health_bar.addStretch(1)
+        self.baseline_button = QPushButton("Set rest baseline", side)
+        self.baseline_button.setToolTip("Take the present readings as each sensor's resting level: later readings "
+                                        "well below it are flagged as drift, and a resting sensor that goes open "
+                                        "as disconnected")
+        health_bar.addWidget(self.baseline_button)
+        side_layout.addLayout(health_bar)
+        self.health_list = QListWidget(side)
+        self.health_list.setMaximumHeight(140)
+        side_layout.addWidget(self.health_list, 1)
+        splitter.addWidget(self.views)
+        splitter.addWidget(side)
+        splitter.setStretchFactor(0, 3)
+        splitter.setStretchFactor(1, 1)
+        splitter.setSizes([900, 330])
+        layout.addWidget(splitter, 1)
+
+    def _connect(self) -> None:
+        c = self.controls
+        c.window_changed.connect(self.plots.set_window_s)
+        c.pause_toggled.connect(self.plots.set_paused)
+        self.plots.paused_changed.connect(c.set_paused)
+        c.side_toggled.connect(self.plots.set_side_visible)
+        c.quantity_changed.connect(self.set_quantity)
+        c.estimator_changed.connect(self.set_estimator)
+        c.record_toggled.connect(self._on_record_toggled)
+        c.browse_requested.connect(self._browse_recording_path)
+        c.load_calibration_requested.connect(self._choose_calibration)
+        c.open_requested.connect(self._choose_recording)
+        c.overlay_requested.connect(self._choose_overlay)
+        c.export_requested.connect(self._choose_export)
+        c.live_requested.connect(self.show_live)
+        self.overlay_sensor.currentIndexChanged.connect(lambda _i: self.redraw_overlay())
+        self.overlay_align.currentIndexChanged.connect(lambda _i: self.redraw_overlay())
+        self.overlay_clear.clicked.connect(self.clear_overlay)
+        self.baseline_button.clicked.connect(self.set_rest_baseline)
+        if self.board is not None:
+            self.board.block.connect(self.on_block)
+            self.board.status.connect(self._on_board_message)
+            self.board.connected.connect(self._on_board_connected)
+            self.board.board_status.connect(self._on_board_status)
+            self.board.stats_changed.connect(self._on_stats)
+        robot = getattr(self.lab, "robot", None)
+        if robot is not None and hasattr(robot, "state_block"):
+            robot.state_block.connect(self._on_robot_states)
+
+    # -- live data -------------------------------------------------------------------------------------------------
+    def on_block(self, block: Any) -> None:
+        """A board block (GUI thread, ≤ 60 Hz): estimate, keep, classify, record."""
+        t_s = self.board.to_session_time(block.host_time_s)
+        result = self.pipeline.process(block.board_time_s, block.conductance_s)
+        append_with_gaps(self.force_history, t_s, result.display, block.gap_before)
+        report = self.health.update(t_s, block.conductance_s, block.saturated)
+        if report is not None and report.changed.size:
+            self._apply_health(report.changed)
+        if self.session is not None and self.session.is_active:
+            self.session.add_block(block, result.force_n if self.session.with_forces else None)
+
+    def _on_robot_states(self, states: Any) -> None:
+        if self.session is not None and self.session.is_active:
+            self.session.add_robot_states(states)
+
+    def _apply_health(self, changed: np.ndarray) -> None:
+        flags = self.health.flags
+        for i in changed:
+            name = self.channel_names[i]
+            word = describe(int(flags[i])) if flags[i] else ""
+            self._warnings[i] = word
+            if self.session is not None and self.session.is_active:
+                self.session.log_event(f"{name}: {word or 'ok'}", kind="health")
+        self.plots.set_channel_warnings(self._warnings)
+        self.health_list.clear()
+        bad = [(self.channel_names[i], w) for i, w in enumerate(self._warnings) if w]
+        self.health_list.addItems([f"{name}: {word}" for name, word in bad] or ["all sensors look healthy"])
+        self._body_key = None
+
+    def set_rest_baseline(self) -> None:
+        """Use the present window's median conductance as every sensor's resting level (the robot at rest)."""
+        report = self.health.report
+        if report is None:
+            self.controls.set_message("no data yet to take a baseline from", "warn")
+            return
+        self.health.set_baseline(report.level_s)
+        self.controls.set_message("rest baseline set from the last readings", "ok")
+
+    def refresh_body(self) -> None:
+        """Redraw the body map if the shape, the forces or the health changed (timer, ≤ 10 Hz)."""
+        if self.body is None or not self.isVisible():
+            return
+        robot = getattr(self.lab, "robot", None)
+        state = getattr(robot, "latest_state", None) if robot is not None else None
+        angles = None if state is None else np.asarray(state.position_rad, dtype=float)
+        latest = self.force_history.latest() if self.viewed is None else None
+        forces = None
+        if latest is not None and self.quantity == "force":
+            forces = np.where(self.pipeline.estimated, np.nan_to_num(latest[1].astype(float)), 0.0)
+        flags = self.health.flags
+        key = (None if angles is None else np.round(angles, 3).tobytes(),
+               None if forces is None else np.round(forces / BODY_FORCE_STEP_N).tobytes(), flags.tobytes())
+        if key == self._body_key:
+            return
+        self._body_key = key
+        self.body.set_angles(angles)
+        self.body.set_sensor_forces(forces, (flags & np.uint8(BAD_FLAGS)) != 0 if forces is not None else None)
+
+    # -- view options ----------------------------------------------------------------------------------------------
+    def set_quantity(self, quantity: str) -> None:
+        """``force`` (N; uncalibrated sensors in µS, labelled) or ``conductance`` (µS, raw)."""
+        self.quantity = quantity
+        if self.viewed is not None:
+            self._show_recording(self.viewed)
+        else:
+            self._show_live()
+        self._body_key = None
+
+    def set_estimator(self, kind: str) -> None:
+        self.pipeline.set_estimator(kind)
+        self._apply_calibration_labels()
+
+    def load_calibration(self, path: str | os.PathLike) -> bool:
+        """Load a calibration JSON; a bad file leaves the current one and says why. Returns success."""
+        try:
+            self.pipeline.load_calibration(path)
+        except (OSError, ValueError) as exc:
+            self.controls.set_message(f"calibration not loaded: {exc}", "error")
+            return False
+        self._apply_calibration_labels()
+        self.controls.set_message("; ".join(self.pipeline.problems), "warn")
+        return True
+
+    def _apply_calibration_labels(self) -> None:
+        text, level = self.pipeline.summary()
+        self.controls.set_calibration(text, level)
+        if self.quantity == "force" and self.viewed is None:
+            self.plots.set_channel_labels([self.pipeline.label(i) for i in range(len(self.channel_names))])
+        else:
+            self.plots.set_channel_labels(list(self.channel_names))
+
+    def _show_live(self) -> None:
+        if self.quantity == "force":
+            self.plots.set_history(self.force_history, "N")
+        else:
+            self.plots.set_history(self.board.history if self.board is not None else None, "µS")
+        self._apply_calibration_labels()
+
+    def show_live(self) -> None:
+        """Back from a past recording to the live board."""
+        self.viewed = None
+        self.controls.set_viewing_file(None)
+        self.controls.set_message("")
+        self._show_live()
+        self.plots.set_paused(False)
+
+    # -- recording -------------------------------------------------------------------------------------------------
+    def start_recording(self, path: str | os.PathLike | None = None) -> RecordingSession | None:
+        """Start recording to ``path`` (default: the path field); returns the session or None if refused."""
+        if self.session is not None and self.session.is_active:
+            return self.session
+        path = Path(path or self.controls.path.text().strip() or default_recording_path())
+        if path.suffix.lower() not in (".h5", ".hdf5"):
+            path = path.with_suffix(".h5")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            self.controls.set_message(f"cannot create folder {path.parent}: {exc.strerror or exc}", "error")
+            self.controls.set_recording(False, "not recording")
+            return None
+        robot = getattr(self.lab, "robot", None)
+        with_robot = bool(robot is not None and getattr(robot, "is_connected", False))
+        session = RecordingSession(path, self.lab.config.source_text, self.channel_names,
+                                   calibration_json=self._calibration_json_for_recording(), with_robot=with_robot,
+                                   n_joints=self.lab.config.robot.n_joints, min_free_bytes=self.min_free_bytes,
+                                   parent=self)
+        session.failed.connect(self._on_recording_failed)
+        session.stopped.connect(self._on_recording_stopped)
+        self.session = session
+        session.start()
+        session.log_event(f"calibration: {self.pipeline.summary()[0]}; estimator {self.pipeline.estimator_kind}")
+        bad = [f"{n}: {w}" for n, w in zip(self.channel_names, self._warnings) if w]
+        if bad:
+            session.log_event("health at start: " + "; ".join(bad), kind="health")
+        if self.board is not None and not self.board.is_connected:
+            session.mark_gap(time.monotonic(), "board not connected when the recording started")
+        self.lab.recording = session
+        self.controls.path.setText(str(path))
+        self.controls.set_recording(True, "recording…")
+        return session
+
+    def _calibration_json_for_recording(self) -> str | None:
+        """Forces are stored when they are estimated: with the loaded calibration, or a document describing the
+        typical-sensor defaults in force (so a reader knows those forces are indicative)."""
+        if self.pipeline.calibration_json is not None:
+            return self.pipeline.calibration_json
+        if self.pipeline.estimated.any():
+            import json
+
+            from models.physics import DEFAULT_PHYSICS
+            from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
+            entry = {"area_m2": TYPICAL_AREA_M2,
+                     "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
+                             "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)},
+                     "note": "typical-sensor default, not a calibration of this sensor"}
+            return json.dumps({"format": "sensnake-calibration", "version": 1, "physics": DEFAULT_PHYSICS.to_dict(),
+                               "sensors": {name: entry for name in self.channel_names},
+                               "estimator": self.pipeline.estimator_kind, "defaults": True})
+        return None
+
+    def stop_recording(self) -> None:
+        session = self.session
+        if session is not None:
+            session.stop()
+
+    def _on_record_toggled(self, start: bool) -> None:
+        if start:
+            self.start_recording()
+        else:
+            self.stop_recording()
+
+    def _on_recording_failed(self, message: str) -> None:
+        self.controls.set_message(message, "error")
+
+    def _on_recording_stopped(self, summary: str) -> None:
+        session = self.session
+        self.controls.set_recording(False, "not recording")
+        if session is not None and session.error:
+            self.controls.set_message(session.error + f" (kept: {session.path})", "error")
+        else:
+            self.controls.set_message(summary, "ok")
+        if self.lab.recording is session:
+            self.lab.recording = None
+        self.controls.path.setText(str(default_recording_path()))
+
+    # -- board status ----------------------------------------------------------------------------------------------
+    def _on_board_message(self, text: str) -> None:
+        level = "ok" if self.board is not None and self.board.is_connected else "warn"
+        self.controls.set_board_status(text, level)
+
+    def _on_board_connected(self, connected: bool) -> None:
+        if connected:
+            self.controls.set_board_status(f"board: {len(self.channel_names)} channels on "
+                                           f"{self.lab.config.board.port}", "ok")
+
+    def _on_board_status(self, status: Any) -> None:
+        level = {"connected": "ok", "reconnected": "ok", "closed": "idle"}.get(status.state, "error")
+        self.controls.set_board_status(status.message, level)
+        if status.state in ("disconnected", "mismatch", "error"):
+            self.controls.set_message(status.message, "error")
+            if self.session is not None and self.session.is_active:
+                self.session.mark_gap(status.host_time_s, status.message)
+        elif status.state == "reconnected":
+            self.controls.set_message("board reconnected; the gap is marked in the plots' data and the recording",
+                                      "warn")
+            self.health.reset()
+            if self.session is not None and self.session.is_active:
+                self.session.log_event("board reconnected: recording resumed", status.host_time_s, kind="gap")
+
+    def _on_stats(self, stats: Any) -> None:
+        now = time.monotonic()
+        previous, self._last_stats = self._last_stats, stats
+        elapsed = max(now - self._last_stats_s, 1e-3)
+        self._last_stats_s = now
+        crc_rate = 0.0 if previous is None else (stats.crc_errors - previous.crc_errors) / elapsed
+        text = (f"CRC {stats.crc_errors} · resync {stats.resyncs} · lost frames {stats.dropped_frames} · "
+                f"reconnects {stats.reconnects}")
+        level = "ok"
+        if crc_rate > CRC_STORM_PER_S:
+            level = "error"
+            text += f" — CRC storm ({crc_rate:.0f}/s): check the board cable and baud rate"
+        elif stats.crc_errors or stats.dropped_frames:
+            level = "warn"
+        self.controls.set_counters(text, level)
+        if self.session is not None and self.session.is_active:
+            self.session.update_stats(stats.crc_errors, stats.dropped_frames, stats.resyncs)
+
+    def _refresh_status(self) -> None:
+        session = self.session
+        if session is not None and session.is_active:
+            backlog = f" · queue {session.backlog}" if session.backlog > 50 else ""
+            self.controls.set_recording(True, f"{format_elapsed(session.elapsed_s)} · "
+                                              f"{format_bytes(session.size_bytes())}{backlog}")
+
+    # -- past recordings -------------------------------------------------------------------------------------------
+    def open_recording_file(self, path: str | os.PathLike) -> Recording | None:
+        """Show a recording in the plots (paused, whole length); None and a message if it cannot be read."""
+        try:
+            recording = open_recording(path)
+        except (OSError, ValueError) as exc:
+            self.controls.set_message(f"cannot open recording: {exc}", "error")
+            return None
+        if recording.channels != self.channel_names:
+            self.controls.set_message(
+                f"{Path(path).name} has {len(recording.channels)} channels "
+                f"({', '.join(recording.channels[:3])}…), this lab {len(self.channel_names)}: open it with the "
+                "matching config", "error")
+            return None
+        self.viewed = recording
+        self._show_recording(recording)
+        self.controls.set_viewing_file(Path(path).name)
+        gaps = len(recording.gaps)
+        if gaps:
+            self.controls.set_message(f"showing {Path(path).name}: {gaps} gap(s) marked", "warn")
+        return recording
+
+    def _show_recording(self, recording: Recording) -> None:
+        values, units = self._recording_values(recording)
+        history = TraceHistory(len(self.channel_names), max(16, recording.n_samples))
+        if recording.n_samples:
+            history.append(recording.time_s, values)
+        self.plots.set_history(history, units)
+        self.plots.set_channel_labels(list(self.channel_names))
+        if recording.n_samples:
+            self.plots.show_range(float(recording.time_s[0]), float(recording.time_s[-1]))
+
+    def _recording_values(self, recording: Recording) -> tuple[np.ndarray, str]:
+        if self.quantity == "force" and recording.forces_n is not None:
+            n = min(recording.forces_n.shape[0], recording.n_samples)
+            forces = np.array(recording.conductance_s * 1e6)
+            forces[:n] = np.where(np.isfinite(recording.forces_n[:n]), recording.forces_n[:n], forces[:n])
+            return forces, "N"
+        return recording.conductance_s * 1e6, "µS"
+
+    def export_viewed_csv(self, out: str | os.PathLike) -> Path | None:
+        if self.viewed is None:
+            self.controls.set_message("open a recording first, then export it", "warn")
+            return None
+        try:
+            written = export_csv(self.viewed, out)
+        except OSError as exc:
+            self.controls.set_message(str(exc), "error")
+            return None
+        self.controls.set_message(f"exported {written}", "ok")
+        return written
+
+    def add_overlay_files(self, paths: list[str | os.PathLike]) -> int:
+        """Add recordings to the trial overlay; returns how many were added."""
+        added = 0
+        for path in paths:
+            try:
+                recording = open_recording(path)
+            except (OSError, ValueError) as exc:
+                self.controls.set_message(f"cannot open {path}: {exc}", "error")
+                continue
+            self.overlay_recordings.append(recording)
+            added += 1
+        self.views.setCurrentIndex(1)
+        self.redraw_overlay()
+        return added
+
+    def clear_overlay(self) -> None:
+        self.overlay_recordings = []
+        self.redraw_overlay()
+
+    def redraw_overlay(self) -> None:
+        name = self.overlay_sensor.currentText()
+        align = self.overlay_align.currentData()
+        trials = []
+        units = "N"
+        for recording in self.overlay_recordings:
+            if name not in recording.channels or recording.n_samples == 0:
+                continue
+            index = recording.channels.index(name)
+            values, units = self._recording_values(recording)
+            trace = values[:, index]
+            zero = onset_time_s(recording.time_s, trace) if align == "onset" else float(recording.time_s[0])
+            trials.append((recording.path.stem, recording.time_s - zero, trace))
+        self.overlay.set_trials(trials, units)
+
+    # -- dialogs ---------------------------------------------------------------------------------------------------
+    def _browse_recording_path(self) -> None:
+        folder = recordings_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        path, _ = QFileDialog.getSaveFileName(self, "Record to", str(default_recording_path()),
+                                              "Recordings (*.h5)")
+        if path:
+            self.controls.path.setText(path)
+
+    def _choose_calibration(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Calibration file", "", "Calibration (*.json)")
+        if path:
+            self.load_calibration(path)
+
+    def _choose_recording(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open recording", str(recordings_dir()), "Recordings (*.h5)")
+        if path:
+            self.open_recording_file(path)
+
+    def _choose_overlay(self) -> None:
+        paths, _ = QFileDialog.getOpenFileNames(self, "Recordings to overlay", str(recordings_dir()),
+                                                "Recordings (*.h5)")
+        if paths:
+            self.add_overlay_files(paths)
+
+    def _choose_export(self) -> None:
+        if self.viewed is None:
+            return
+        default = self.viewed.path.with_suffix(".csv")
+        path, _ = QFileDialog.getSaveFileName(self, "Export CSV", str(default), "CSV (*.csv)")
+        if path:
+            self.export_viewed_csv(path)
+
+    # -- life cycle ------------------------------------------------------------------------------------------------
+    def shutdown(self) -> None:
+        """Stop timers and the recording (joins the writer thread)."""
+        self.plots.stop()
+        self._body_timer.stop()
+        self._status_timer.stop()
+        self.stop_recording()
+
+    def closeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        self.shutdown()
+        super().closeEvent(event)
+
+
+def create_tab(lab: Any) -> QWidget:
+    """The main window's entry point (``app/tabs/<name>.py`` contract)."""
+    # LabContext.close() stops lab.recording, so a running recording is closed cleanly with the window.
+    return ForcesTab(lab)

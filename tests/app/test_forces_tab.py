@@ -1,0 +1,173 @@
+"""The Forces tab on the simulated lab (real BoardReader/RobotController at the wire, 20× fast clock)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from app.lab import LabContext
+from app.recording import open_recording
+from app.tabs.forces import create_tab, onset_time_s
+from devices.config import LabConfig
+from models.physics import DEFAULT_PHYSICS
+from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
+
+pytestmark = pytest.mark.usefixtures("sim_lab_fast")
+
+
+@pytest.fixture
+def lab(qtbot, tmp_path, monkeypatch):
+    monkeypatch.setenv("SENSNAKE_RECORDINGS_DIR", str(tmp_path / "recordings"))
+    lab = LabContext(LabConfig())
+    yield lab
+    lab.close()
+
+
+@pytest.fixture
+def tab(qtbot, lab):
+    tab = create_tab(lab)
+    qtbot.addWidget(tab)
+    tab.resize(1600, 1300)  # all 12 plots on screen: plots scrolled out of view are not redrawn
+    tab.show()
+    yield tab
+    tab.shutdown()
+
+
+def curves_with_data(tab):
+    return [curve for plot in tab.plots.plots for curve in plot.curves
+            if curve.xData is not None and len(curve.xData) > 1]
+
+
+def test_tab_shows_36_live_traces_pause_and_legend_toggle(qtbot, lab, tab):
+    lab.board.start()
+    qtbot.waitUntil(lambda: len(curves_with_data(tab)) == 36, timeout=15_000)
+    assert len(tab.plots.plots) == 12
+    legend = tab.plots.plots[5].legend.getLabel(tab.plots.plots[5].curves[2]).text
+    assert legend.startswith("S06B") and "default" in legend  # no calibration file: labelled as such
+
+    tab.controls.pause.click()
+    assert tab.plots.paused
+    frozen = tab.plots.visible_range()
+    count = len(tab.force_history)
+    qtbot.waitUntil(lambda: len(tab.force_history) > count + 30, timeout=10_000)  # acquisition goes on
+    tab.plots.refresh(force=True)
+    assert tab.plots.visible_range() == pytest.approx(frozen)
+    tab.controls.pause.click()
+    qtbot.waitUntil(lambda: tab.plots.visible_range()[1] > frozen[1], timeout=10_000)
+
+    tab.controls.side_boxes["L"].setChecked(False)
+    assert not any(plot.curves[0].isVisible() for plot in tab.plots.plots)
+    assert all(plot.curves[2].isVisible() for plot in tab.plots.plots)
+
+    tab.plots.hover_at(5, tab.plots.visible_range()[1] - 1.0)
+    t_s, values = tab.plots.cursor_readout()
+    assert set(values) == {"S06L", "S06R", "S06B"} and np.isfinite(values["S06B"])
+
+    tab.controls.quantity.setCurrentIndex(1)  # raw conductance
+    assert tab.plots.history is lab.board.history
+
+
+def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, tmp_path):
+    with qtbot.waitSignal(lab.robot.connected, timeout=15_000):
+        lab.robot.connect_robot()
+    with qtbot.waitSignal(lab.board.connected, timeout=5000):
+        lab.board.start()
+    tab.controls.record.click()
+    session = tab.session
+    assert session is not None and session.is_active and lab.recording is session
+    qtbot.waitUntil(lambda: session.n_daq_samples > 60 and session.n_robot_samples > 5, timeout=15_000)
+    with qtbot.waitSignal(lab.board.connected, timeout=5000):
+        sim_lab_fast.board.unplug()
+    assert "disconnected" in tab.controls.message.text()
+    with qtbot.waitSignal(lab.board.connected, timeout=5000):
+        sim_lab_fast.board.replug()
+    before = session.n_daq_samples
+    qtbot.waitUntil(lambda: session.n_daq_samples > before + 30, timeout=15_000)
+    qtbot.waitUntil(lambda: "B" in tab.controls.record_info.text(), timeout=5000)  # elapsed · size shown
+    tab.controls.record.click()
+    assert not session.is_active and lab.recording is None
+    assert "saved" in tab.controls.message.text()
+
+    recording = open_recording(session.path)
+    assert recording.n_samples == session.n_daq_samples
+    assert recording.forces_n is not None and recording.forces_n.shape == (recording.n_samples, 36)
+    assert recording.robot is not None and recording.robot.time_s.size == session.n_robot_samples
+    assert recording.gaps, "the pulled cable must leave a gap event"
+    # board and robot share one clock: their time spans overlap
+    assert recording.robot.time_s[0] < recording.time_s[-1] and recording.time_s[0] < recording.robot.time_s[-1]
+
+    shown = tab.open_recording_file(session.path)
+    assert shown is not None and tab.viewed is shown
+    assert len(tab.plots.history) == recording.n_samples
+    assert tab.plots.paused
+    out = tab.export_viewed_csv(tmp_path / "rec.csv")
+    with open(out, newline="") as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == ["time_s", *LabConfig().board.channel_names]
+    assert len(rows) == recording.n_samples + 1
+    tab.controls.live.click()
+    assert tab.viewed is None and not tab.plots.paused
+
+    assert tab.add_overlay_files([session.path, session.path, tmp_path / "missing.h5"]) == 2
+    tab.overlay_sensor.setCurrentText("S06B")
+    assert len(tab.overlay.curves) == 2
+    x0 = tab.overlay.curves[0].xData
+    assert x0[0] <= 0.0 <= x0[-1]  # aligned on the load onset
+
+
+def test_loose_sensor_is_flagged_on_plot_and_list(qtbot, lab, tab, sim_lab_fast):
+    sim_lab_fast.board.set_loose(28)  # S10R, the paper's loose sensor 10
+    lab.board.start()
+    qtbot.waitUntil(lambda: "S10R" in tab.plots.plots[9].warning.text(), timeout=20_000)
+    assert "S10R" in tab.health_list.item(0).text()
+    other_warnings = [p.warning.text() for i, p in enumerate(tab.plots.plots) if i != 9]
+    assert not any(other_warnings), other_warnings
+
+
+def test_calibration_missing_sensors_plot_conductance_labelled(qtbot, tab, tmp_path):
+    entry = {"area_m2": TYPICAL_AREA_M2, "linear": {"m_S_per_N": 5e-5, "d_S": 1e-5},
+             "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
+                     "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)}}
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
+                               "physics": DEFAULT_PHYSICS.to_dict(), "sensors": {"S06B": entry}}))
+    assert tab.load_calibration(cal)
+    assert tab.pipeline.estimated.sum() == 1
+    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
+    assert "S06B" in labels and "S06L · µS, uncal." in labels
+    assert "35 shown as conductance" in tab.controls.calibration_label.text()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "something-else", "version": 1}')
+    assert not tab.load_calibration(bad)
+    assert "unknown format" in tab.controls.message.text()
+    assert tab.pipeline.estimated.sum() == 1  # the good calibration stays
+
+
+def test_full_disk_stops_recording_cleanly(qtbot, lab, tab):
+    lab.board.start()
+    tab.min_free_bytes = 1 << 62  # no disk has this much free: the first flush refuses
+    session = tab.start_recording()
+    with qtbot.waitSignal(session.failed, timeout=10_000) as failed:
+        pass
+    assert "disk" in failed.args[0]
+    assert not session.is_active
+    assert not tab.controls.record.isChecked()
+    assert "disk" in tab.controls.message.text()
+
+
+def test_channel_count_mismatch_is_explained(qtbot, lab, tab, sim_lab_fast):
+    sim_lab_fast.board.set_channel_count(24)
+    lab.board.start()
+    qtbot.waitUntil(lambda: "24" in tab.controls.message.text() and "36" in tab.controls.message.text(),
+                    timeout=10_000)
+    assert len(tab.force_history) == 0
+
+
+def test_onset_alignment_finds_the_rise():
+    t = np.linspace(0, 10, 101)
+    values = np.where(t >= 4.0, 5.0, 0.1)
+    assert onset_time_s(t, values) == pytest.approx(4.0)
+    assert onset_time_s(t, np.full(t.size, np.nan)) == 0.0
