@@ -28,6 +28,7 @@ from typing import Any, TypeVar
 
 from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
 
+import widgets  # noqa: F401 - installs the PySide6 6.12 refcount guard before this module's first emit
 from devices.config import RobotConfig
 from devices.errors import DeviceError, LinkLostError
 from devices.factory import is_sim
@@ -392,9 +393,9 @@ class RobotBridge(QObject):
         self._set_connection(f"{self.n_servos} servos on {self.port} ({kind})")
         self._state_timer.start()
         self.connected.emit(True)
-        self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind})")
-        for warning in self.timing_warnings:
-            self.event.emit(f"timing: {warning}")
+        n_warnings = len(self.timing_warnings)
+        timing = f"; {n_warnings} timing warning(s), see the Hardware tab" if n_warnings else ""
+        self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}")
 
     def _connect_failed(self, exc: BaseException) -> None:
         self._set_connection("not connected")

@@ -7,6 +7,7 @@ attribute) and emits signals for what the user asks; it never talks to a device.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -42,6 +43,11 @@ DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_0
 TEMPERATURE_WARN_C = 70.0  # XM430 shuts down at 80 °C by default
 VOLTAGE_RANGE_V = (10.0, 14.8)  # XM430-W350 recommended supply range
 ROW_HEIGHT_PX = 26  # twelve servos fit without scrolling at the default window size
+SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 110  # rows + header + the torque buttons above + margins
+SMALL_ROW_HEIGHT_PX = 22
+# After a click, the servo's reported state lags the request by a health poll or two; until it agrees (or this
+# long has passed) the button keeps showing what was asked instead of flicking back.
+PENDING_REQUEST_S = 1.5
 
 SERVO_COLUMNS: tuple[str, ...] = ("ID", "Axis", "Position (rad)", "Position (°)", "Velocity (rad/s)",
                                   "Current (mA)", "Temp (°C)", "Voltage (V)", "Hardware errors",
@@ -49,7 +55,7 @@ SERVO_COLUMNS: tuple[str, ...] = ("ID", "Axis", "Position (rad)", "Position (°)
 COL_ID, COL_AXIS, COL_RAD, COL_DEG, COL_VEL, COL_CUR, COL_TEMP, COL_VOLT, COL_ERR, COL_TORQUE, COL_LED, COL_REBOOT = (
     range(len(SERVO_COLUMNS)))
 SCAN_COLUMNS: tuple[str, ...] = ("ID", "Model", "Firmware", "Baud")
-LINK_COLUMNS: tuple[str, ...] = ("ID", "RTT mean (ms)", "RTT max (ms)", "No reply", "CRC", "Result")
+LINK_COLUMNS: tuple[str, ...] = ("ID", "RTT mean (ms)", "RTT max (ms)", "No reply", "CRC err", "Result")
 
 
 @dataclass(frozen=True)
@@ -98,12 +104,14 @@ class HardwarePanel(QWidget):
     reboot_requested = Signal(int)
     link_check_requested = Signal()
     timing_check_requested = Signal()
+    fix_return_delay_requested = Signal()
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.servo_ids: tuple[int, ...] = ()
         self._row_of_id: dict[int, int] = {}
         self._connected = False
+        self._pending: dict[tuple[int, int], tuple[bool, float]] = {}  # (servo ID, column) → (asked, deadline)
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
@@ -121,6 +129,7 @@ class HardwarePanel(QWidget):
         splitter.addWidget(tools)
         splitter.setStretchFactor(0, 3)
         splitter.setStretchFactor(1, 2)
+        splitter.setSizes([SERVO_TABLE_HEIGHT_PX, 240])
         layout.addWidget(splitter, 1)
         self.set_connection(False, "not connected")
 
@@ -219,6 +228,7 @@ class HardwarePanel(QWidget):
         self.scan_table.setObjectName("scan_table")
         self.scan_table.setHorizontalHeaderLabels(list(SCAN_COLUMNS))
         self.scan_table.verticalHeader().setVisible(False)
+        self.scan_table.verticalHeader().setDefaultSectionSize(SMALL_ROW_HEIGHT_PX)
         self.scan_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.scan_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
         column.addWidget(self.scan_table, 1)
@@ -243,9 +253,10 @@ class HardwarePanel(QWidget):
         self.link_table.setObjectName("link_table")
         self.link_table.setHorizontalHeaderLabels(list(LINK_COLUMNS))
         self.link_table.verticalHeader().setVisible(False)
+        self.link_table.verticalHeader().setDefaultSectionSize(SMALL_ROW_HEIGHT_PX)
         self.link_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.link_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        self.link_table.horizontalHeader().setStretchLastSection(True)
+        self.link_table.horizontalHeader().setSectionResizeMode(len(LINK_COLUMNS) - 1, QHeaderView.ResizeMode.Stretch)
         column.addWidget(self.link_table, 1)
         return box
 
@@ -265,6 +276,12 @@ class HardwarePanel(QWidget):
         self.timing_text.setReadOnly(True)
         self.timing_text.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         column.addWidget(self.timing_text, 1)
+        self.fix_return_delay_button = QPushButton("Set return delay to 0 µs")
+        self.fix_return_delay_button.setObjectName("fix_return_delay_button")
+        self.fix_return_delay_button.setToolTip("Writes Return Delay Time = 0 to every servo (EEPROM: torque must be "
+                                                "off). Every sync read gets faster.")
+        self.fix_return_delay_button.clicked.connect(self.fix_return_delay_requested)
+        column.addWidget(self.fix_return_delay_button, 0, Qt.AlignmentFlag.AlignRight)
         return box
 
     # -- inputs ----------------------------------------------------------------------------------------------------
@@ -330,7 +347,7 @@ class HardwarePanel(QWidget):
         self.disconnect_button.setEnabled(connected and not busy)
         self.port_edit.setEnabled(not connected and not busy)
         self.baud_combo.setEnabled(not connected and not busy)
-        for widget in (self.all_torque_on_button, self.all_torque_off_button):
+        for widget in (self.all_torque_on_button, self.all_torque_off_button, self.fix_return_delay_button):
             widget.setEnabled(connected)
         for row in range(self.servo_table.rowCount()):
             for col in (COL_TORQUE, COL_LED, COL_REBOOT):
@@ -356,11 +373,11 @@ class HardwarePanel(QWidget):
             table.setItem(row, COL_ERR, _item("", align_right=False))
             torque = _toggle_button("On", "Off")
             torque.setObjectName(f"torque_{sid}")
-            torque.clicked.connect(lambda on, s=sid: self.torque_requested.emit(s, on))
+            torque.clicked.connect(lambda on, s=sid: self._request(s, COL_TORQUE, on))
             table.setCellWidget(row, COL_TORQUE, torque)
             led = _toggle_button("On", "Off")
             led.setObjectName(f"led_{sid}")
-            led.clicked.connect(lambda on, s=sid: self.led_requested.emit(s, on))
+            led.clicked.connect(lambda on, s=sid: self._request(s, COL_LED, on))
             table.setCellWidget(row, COL_LED, led)
             reboot = QPushButton("Reboot")
             reboot.setObjectName(f"reboot_{sid}")
@@ -368,6 +385,10 @@ class HardwarePanel(QWidget):
             reboot.clicked.connect(lambda _checked=False, s=sid: self.reboot_requested.emit(s))
             table.setCellWidget(row, COL_REBOOT, reboot)
         self.set_connection(self._connected, self.connection_label.text())
+
+    def _request(self, servo_id: int, column: int, on: bool) -> None:
+        self._pending[(servo_id, column)] = (on, time.monotonic() + PENDING_REQUEST_S)
+        (self.torque_requested if column == COL_TORQUE else self.led_requested).emit(servo_id, on)
 
     def clear_live_values(self) -> None:
         for row in range(self.servo_table.rowCount()):
@@ -407,8 +428,8 @@ class HardwarePanel(QWidget):
             volt_item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.WARN])) if off_range else QBrush())
             self._set_errors(row, tuple(item.error_names))
             n_errors += bool(item.error_names)
-            self._set_toggle(row, COL_TORQUE, bool(item.torque_on))
-            self._set_toggle(row, COL_LED, bool(item.led_on))
+            self._set_toggle(int(item.servo_id), row, COL_TORQUE, bool(item.torque_on))
+            self._set_toggle(int(item.servo_id), row, COL_LED, bool(item.led_on))
         if n_errors:
             self.servo_summary_label.setText(f"{n_errors} servo(s) report a hardware error: remove the load, "
                                              "then Reboot the servo")
@@ -431,7 +452,13 @@ class HardwarePanel(QWidget):
             item.setBackground(QBrush())
             item.setFont(QFont())
 
-    def _set_toggle(self, row: int, col: int, on: bool) -> None:
+    def _set_toggle(self, servo_id: int, row: int, col: int, on: bool) -> None:
+        pending = self._pending.get((servo_id, col))
+        if pending is not None:
+            asked, deadline = pending
+            if on != asked and time.monotonic() < deadline:
+                return
+            del self._pending[(servo_id, col)]
         button = self.servo_table.cellWidget(row, col)
         if button is not None and button.isChecked() != on:
             # Reflect the servo's real state without echoing a request back to it.

@@ -6,7 +6,9 @@ Passive view; create and use on the GUI thread only.
 from __future__ import annotations
 
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QSizePolicy, QVBoxLayout, QWidget
+
+TEXT_WIDTH_PX = 640  # a comfortable reading width, centred in the page
 
 
 class PlaceholderPage(QWidget):
@@ -15,8 +17,17 @@ class PlaceholderPage(QWidget):
     def __init__(self, title: str, description: str, note: str = "", parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setObjectName(f"placeholder_{title.lower()}")
-        layout = QVBoxLayout(self)
-        layout.setContentsMargins(48, 48, 48, 48)
+        outer = QHBoxLayout(self)
+        outer.setContentsMargins(48, 48, 48, 48)
+        # Word-wrapped labels take the width they are given: a fixed-width column keeps them from collapsing.
+        column = QWidget()
+        column.setFixedWidth(TEXT_WIDTH_PX)
+        column.setSizePolicy(QSizePolicy.Policy.Fixed, QSizePolicy.Policy.Preferred)
+        outer.addStretch(1)
+        outer.addWidget(column)
+        outer.addStretch(1)
+        layout = QVBoxLayout(column)
+        layout.setSpacing(12)
         layout.addStretch(1)
 
         self.title_label = QLabel(title)
@@ -25,22 +36,21 @@ class PlaceholderPage(QWidget):
         font.setBold(True)
         self.title_label.setFont(font)
         self.title_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
+        self.title_label.setWordWrap(True)
 
         self.description_label = QLabel(description)
         self.description_label.setWordWrap(True)
         self.description_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
-        self.description_label.setMaximumWidth(640)
 
         self.note_label = QLabel(note)
         self.note_label.setWordWrap(True)
         self.note_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
         self.note_label.setStyleSheet("color: #6B6B6B;")
-        self.note_label.setMaximumWidth(640)
         self.note_label.setVisible(bool(note))
         self.note_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
 
         for label in (self.title_label, self.description_label, self.note_label):
-            layout.addWidget(label, 0, Qt.AlignmentFlag.AlignHCenter)
+            layout.addWidget(label)
         layout.addStretch(2)
 
     @property

@@ -89,6 +89,7 @@ class HardwareTab(QWidget):
         panel.reboot_requested.connect(self.robot.reboot)
         panel.link_check_requested.connect(self.start_link_check)
         panel.timing_check_requested.connect(self.start_timing_check)
+        panel.fix_return_delay_requested.connect(self.fix_return_delay)
 
         self.robot.connection_changed.connect(self._connection_changed)
         self.robot.connected.connect(self._connected_changed)
@@ -180,14 +181,29 @@ class HardwareTab(QWidget):
                              lambda exc: self.panel.set_link_check_failed(f"link check failed: {describe_error(exc)}"))
 
     def start_timing_check(self) -> None:
-        future = self.robot.run_on_bus(lambda chain: list(chain.timing_warnings()), report_errors=False)
+        self._check_timing(lambda chain: list(chain.timing_warnings()))
+
+    def fix_return_delay(self) -> None:
+        """Return Delay Time → 0 on every joint (EEPROM: refused while torque is on), then re-check timing."""
+        ids = list(self.robot.config.joint_ids)
+
+        def fix(chain: Any) -> list[str]:
+            chain.set_return_delay(0, ids)
+            return list(chain.timing_warnings())
+
+        self._check_timing(fix)
+
+    def _check_timing(self, fn: Any) -> None:
+        future = self.robot.run_on_bus(fn, report_errors=False)
 
         def done(warnings: list[str]) -> None:
             self.robot.timing_warnings = warnings
             self.panel.set_timing_warnings(warnings)
 
-        self.robot.when_done(future, done, lambda exc: self.panel.set_timing_warnings(
-            [f"timing check failed: {describe_error(exc)}"]))
+        def failed(exc: BaseException) -> None:
+            self.panel.set_timing_warnings([*self.robot.timing_warnings, f"could not do that: {describe_error(exc)}"])
+
+        self.robot.when_done(future, done, failed)
 
 
 def create_tab(lab: LabContext) -> QWidget:

@@ -119,6 +119,7 @@ def test_hardware_tab_torque_toggle_reaches_the_servo(window, qtbot, sim_lab_fas
     assert chain.register(4, "Torque Enable") == 0
     qtbot.mouseClick(panel.all_torque_on_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: all(chain.register(i, "Torque Enable") == 1 for i in range(1, 13)), timeout=5000)
+    qtbot.waitUntil(lambda: all(panel.toggle(i, COL_TORQUE).isChecked() for i in range(1, 13)), timeout=5000)
     qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: chain.register(3, "Torque Enable") == 0, timeout=5000)
     qtbot.waitUntil(lambda: not panel.toggle(3, COL_TORQUE).isChecked() and panel.toggle(4, COL_TORQUE).isChecked(),
@@ -181,3 +182,17 @@ def test_sensnake_gui_sim_starts_and_quits(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "Robot: 12 servos on sim (simulated)" in result.stdout
     assert "Traceback" not in result.stderr
+
+
+def test_timing_warning_and_its_fix_from_the_tab(window, qtbot, sim_lab_fast):
+    panel = window.show_tab("hardware").panel
+    chain = sim_lab_fast.chain
+    assert "Return Delay Time" in panel.timing_text.toPlainText()  # the sim servos ship with 500 µs, as real ones
+    window.lab.robot.set_torque(True, [2]).result(timeout=5)
+    qtbot.mouseClick(panel.fix_return_delay_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: "could not do that" in panel.timing_text.toPlainText(), timeout=5000)
+    assert "servo 2" in panel.timing_text.toPlainText()  # EEPROM write refused with torque on, naming the servo
+    window.lab.robot.set_torque(False).result(timeout=5)
+    qtbot.mouseClick(panel.fix_return_delay_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: "Return Delay" not in panel.timing_text.toPlainText(), timeout=5000)
+    assert all(chain.register(sid, "Return Delay Time") == 0 for sid in range(1, 13))

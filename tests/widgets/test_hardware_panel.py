@@ -133,3 +133,14 @@ def test_timing_warnings_shown_with_their_fix(panel):
     assert "1 timing warning" in panel.timing_summary_label.text()
     panel.set_timing_warnings([])
     assert "No timing problems" in panel.timing_summary_label.text()
+
+
+def test_a_clicked_toggle_is_not_undone_by_stale_health(panel, qtbot):
+    panel.set_connection(True, "12 servos on sim")
+    panel.set_health([health(i, torque=False) for i in IDS])
+    qtbot.mouseClick(panel.toggle(2, COL_TORQUE), Qt.MouseButton.LeftButton)
+    panel.set_health([health(i, torque=False) for i in IDS])  # polled before the write reached the servo
+    assert panel.toggle(2, COL_TORQUE).isChecked()
+    panel.set_health([health(i, torque=(i == 2)) for i in IDS])  # confirmed
+    panel.set_health([health(i, torque=False) for i in IDS])  # later the servo really turned off (e.g. overload)
+    assert not panel.toggle(2, COL_TORQUE).isChecked()
