@@ -18,19 +18,19 @@ from models.calibration import SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
 
 
-def _physics(args: argparse.Namespace) -> PhysicsConstants:
+def _physics(args: argparse.Namespace) -> tuple[PhysicsConstants, str | None]:
     """--physics, else the constants already in --out, else the paper's defaults (announced: they end up in the
     file, so every later command reads them from there, never from a hidden constant)."""
     if args.physics:
-        return calfiles.read_physics(args.physics)
+        return calfiles.read_physics(args.physics), None
     out = Path(args.out)
     if out.exists():
         document = calfiles.read_calibration(out)
         if "physics" in document:
-            return calfiles.physics_from_calibration(document, str(out))
-    print("sensnake fit: note: no --physics given; using the paper's constants (K_contact_ohm_sqrtN = 1772.45 is a "
-          "placeholder until the lab measures it); they are written to the calibration file", file=sys.stderr)
-    return PhysicsConstants()
+            return calfiles.physics_from_calibration(document, str(out)), None
+    note = ("sensnake fit: note: no --physics given; used the paper's constants (K_contact_ohm_sqrtN = 1772.45 is a "
+            "placeholder until the lab measures it); they are written to the calibration file")
+    return PhysicsConstants(), note
 
 
 def _short_tags(warnings: tuple[str, ...]) -> str:
@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--window start must be before its end, got {window[0]:g} {window[1]:g}")
     if Path(args.out).exists():
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before spending time fitting
-    physics = _physics(args)
+    physics, note = _physics(args)
     trials = []
     for path in args.trials:
         trial = calfiles.read_trial_csv(path)
@@ -102,4 +102,6 @@ def run(args: argparse.Namespace) -> int:
     cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s)
     calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
     print_report(args.sensor, cal, args.out)
+    if note:
+        print(note, file=sys.stderr)  # after success, so a failure stays one line
     return 0

@@ -1,0 +1,199 @@
+"""``sensnake fit / estimate / forward / bench`` in-process: round trip on synthetic files, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+
+import numpy as np
+import pytest
+
+import benchmarks
+from app import calfiles
+from app.cli import main
+from models.physics import PhysicsConstants
+from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
+
+AREA = "1.4e-3"
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """Four synthetic trials (one per paper force, 0.1 % noise, 12-bit readout) fitted once into cal.json."""
+    folder = tmp_path_factory.mktemp("cal")
+    trials = paper_protocol(TYPICAL_TRUTH, PhysicsConstants(), seed=5, repeats=1, noise_rel=0.001,
+                            readout=Readout())
+    paths = []
+    for t in trials:
+        path = folder / f"{t.name}.csv"
+        calfiles.write_trial_csv(path, t.time_s, t.force_n, t.conductance_s)
+        paths.append(str(path))
+    physics = folder / "physics.json"
+    physics.write_text(json.dumps(PhysicsConstants().to_dict()))
+    code = main(["fit", *paths, "--sensor", "S06B", "--area", AREA, "--physics", str(physics),
+                 "--out", str(folder / "cal.json")])
+    assert code == 0
+    return folder, paths
+
+
+def _run(argv, capsys):
+    code = main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_fit_writes_spec_calibration_and_prints_table(lab, capsys):
+    folder, paths = lab
+    document = json.loads((folder / "cal.json").read_text())
+    assert document["format"] == "sensnake-calibration" and document["version"] == 1
+    entry = document["sensors"]["S06B"]
+    assert entry["area_m2"] == pytest.approx(1.4e-3)
+    assert entry["sls"]["E0_Pa"] == pytest.approx(6e5, rel=0.01)
+    assert entry["sls"]["mu1_Pa_s"] == pytest.approx(9e7, rel=0.01)
+    assert [t["file"] for t in entry["trials"]] == [p.rsplit("/", 1)[1] for p in paths]
+    assert [t["force_N"] for t in entry["trials"]] == pytest.approx([1.75, 3.0, 4.0, 5.25])
+    # Re-fitting into another file prints the table: one row per trial with its file name.
+    code, out, err = _run(["fit", paths[0], paths[3], "--sensor", "S01L", "--area", AREA,
+                           "--out", str(folder / "other.json")], capsys)
+    assert code == 0
+    assert "file" in out.splitlines()[0] and "mu1_Pa_s" in out.splitlines()[0]
+    assert sum(line.startswith("F1.75_r1.csv") for line in out.splitlines()) == 1
+    assert "no --physics given" in err
+
+
+def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys):
+    folder, paths = lab
+    cal = tmp_path / "cal.json"
+    shutil.copy(folder / "cal.json", cal)
+    code, _, _ = _run(["fit", *paths[:2], "--sensor", "S01L", "--area", "1e-3", "--out", str(cal)], capsys)
+    assert code == 0
+    document = json.loads(cal.read_text())
+    assert set(document["sensors"]) == {"S06B", "S01L"}
+    assert document["sensors"]["S01L"]["area_m2"] == 1e-3
+
+
+def test_round_trip_forward_then_estimate(lab, tmp_path, capsys):
+    folder, _ = lab
+    cal = str(folder / "cal.json")
+    t = np.arange(0, 200, 1 / 6)
+    force = np.where(t > 5, 2.0, 0.0) + np.where(t > 80, 2.5, 0.0) - np.where(t > 150, 3.0, 0.0)
+    calfiles.write_series_csv(tmp_path / "force.csv", t, ("S06B",), force[:, None])
+    assert _run(["forward", str(tmp_path / "force.csv"), "--cal", cal, "--out", str(tmp_path / "c.csv")],
+                capsys)[0] == 0
+    conductance = calfiles.read_series_csv(tmp_path / "c.csv", "conductance_S")
+    assert conductance.columns == ("S06B",)
+    assert _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(tmp_path / "f.csv")],
+                capsys)[0] == 0
+    back = calfiles.read_series_csv(tmp_path / "f.csv", "force_N")
+    np.testing.assert_allclose(back.values[:, 0], force, atol=1e-9)
+    # The linear model ignores creep: same file, visibly different forces during the holds.
+    assert _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--model", "linear", "--out",
+                 str(tmp_path / "lin.csv")], capsys)[0] == 0
+    linear = calfiles.read_series_csv(tmp_path / "lin.csv", "force_N").values[:, 0]
+    assert 0.01 < np.max(np.abs(linear - force)[t > 6]) < 1.0
+
+
+def test_single_generic_column_maps_to_the_only_sensor(lab, tmp_path, capsys):
+    folder, paths = lab
+    code, _, _ = _run(["estimate", paths[1], "--cal", str(folder / "cal.json"), "--out", str(tmp_path / "f.csv")],
+                      capsys)
+    # A trial file has force_N and conductance_S: force_N is not a calibrated sensor.
+    assert code == 1
+    trial = calfiles.read_trial_csv(paths[1])
+    calfiles.write_series_csv(tmp_path / "c.csv", trial.time_s, ("conductance_S",), trial.conductance_s[:, None])
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(folder / "cal.json"),
+                         "--out", str(tmp_path / "f.csv")], capsys)
+    assert code == 0, err
+    estimate = calfiles.read_series_csv(tmp_path / "f.csv", "force_N")
+    assert estimate.columns == ("force_N",)
+    hold = trial.time_s > 10
+    assert np.median(estimate.values[hold, 0]) == pytest.approx(3.0, rel=0.01)
+
+
+def _bad_cases(folder, paths, tmp_path):
+    good_cal = str(folder / "cal.json")
+    text = (tmp_path / "x").parent
+    cases = {
+        "missing column": ("t.csv", "time_s,conductance_S\n0,1e-4\n", ["fit", "@", "--sensor", "S", "--area", AREA,
+                                                                        "--out", str(text / "o.json")],
+                           "t.csv:1: missing column 'force_N'"),
+        "kN units": ("t.csv", "time_s,force_kN,conductance_S\n0,1,1e-4\n",
+                     ["fit", "@", "--sensor", "S", "--area", AREA, "--out", str(text / "o.json")],
+                     "t.csv:1: column 'force_kN' is in kN"),
+        "NaN": ("t.csv", "time_s,force_N,conductance_S\n0,1,1e-4\n1,1,NaN\n",
+                ["fit", "@", "--sensor", "S", "--area", AREA, "--out", str(text / "o.json")],
+                "t.csv:3: column 'conductance_S' is NaN"),
+        "unsorted": ("t.csv", "time_s,force_N,conductance_S\n0,1,1e-4\n2,1,1e-4\n1,1,1e-4\n",
+                     ["fit", "@", "--sensor", "S", "--area", AREA, "--out", str(text / "o.json")],
+                     "t.csv:4: time_s goes backwards"),
+        "unknown format": ("cal.json", '{"format": "other", "version": 1}',
+                           ["estimate", paths[0], "--cal", "@", "--out", str(text / "o.csv")],
+                           "unknown format 'other'"),
+        "unknown version": ("cal.json", '{"format": "sensnake-calibration", "version": 9}',
+                            ["fit", paths[0], "--sensor", "S", "--area", AREA, "--out", "@"],
+                            "unsupported calibration version 9"),
+        "uncalibrated column": ("in.csv", "time_s,S06B,S07L\n0,1e-4,1e-4\n",
+                                ["estimate", "@", "--cal", good_cal, "--out", str(text / "o.csv")],
+                                "in.csv:1: column 'S07L' has no calibration"),
+        "forward kN": ("in.csv", "time_s,force_kN\n0,1\n",
+                       ["forward", "@", "--cal", good_cal, "--out", str(text / "o.csv")],
+                       "in.csv:1: column 'force_kN' is in kN"),
+        "missing file": (None, None, ["forward", str(text / "nope.csv"), "--cal", good_cal, "--out",
+                                      str(text / "o.csv")], "nope.csv: no such file"),
+        "no physics in cal": ("cal.json", '{"format": "sensnake-calibration", "version": 1, "sensors": {"S06B": '
+                              '{"area_m2": 1e-3, "sls": {"E0_Pa": 1, "E1_Pa": 1, "mu1_Pa_s": 1}}}}',
+                              ["forward", str(folder / "force_only.csv"), "--cal", "@", "--out", str(text / "o.csv")],
+                              "no 'physics' section"),
+    }
+    return cases
+
+
+@pytest.mark.parametrize("case", ["missing column", "kN units", "NaN", "unsorted", "unknown format",
+                                  "unknown version", "uncalibrated column", "forward kN", "missing file",
+                                  "no physics in cal"])
+def test_bad_files_give_one_line_and_exit_1(lab, tmp_path, capsys, case):
+    folder, paths = lab
+    calfiles.write_series_csv(folder / "force_only.csv", np.array([0.0, 1.0]), ("S06B",), np.ones((2, 1)))
+    name, content, argv, expected = _bad_cases(folder, paths, tmp_path)[case]
+    if name is not None:
+        path = tmp_path / name
+        path.write_text(content)
+        argv = [str(path) if a == "@" else a for a in argv]
+    code, _, err = _run(argv, capsys)
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert expected in lines[0]
+    assert "Traceback" not in err
+
+
+def test_flat_sensor_fit_is_refused(tmp_path, capsys):
+    t = np.arange(0, 370, 1 / 6)
+    force = np.where(t > 5, 3.0, 0.0)
+    calfiles.write_trial_csv(tmp_path / "flat.csv", t, force, np.full(t.size, 4e-4))
+    code, _, err = _run(["fit", str(tmp_path / "flat.csv"), "--sensor", "S01L", "--area", AREA, "--out",
+                         str(tmp_path / "cal.json")], capsys)
+    assert code == 1
+    assert "flat.csv: conductance is flat" in err and "refused" in err
+    assert not (tmp_path / "cal.json").exists()
+
+
+@pytest.fixture
+def fake_benchmarks(tmp_path, monkeypatch):
+    (tmp_path / "bench_aaa.py").write_text("def run(quick):\n    print('aaa ran', quick)\n")
+    (tmp_path / "bench_bbb.py").write_text("def run(quick):\n    raise RuntimeError('boom\\nsecond line')\n")
+    (tmp_path / "bench_ccc.py").write_text("def run(quick):\n    print('ccc ran', quick)\n")
+    (tmp_path / "helper.py").write_text("raise AssertionError('not a benchmark')\n")
+    monkeypatch.setattr(benchmarks, "__path__", [str(tmp_path)])
+    yield
+    for name in ("bench_aaa", "bench_bbb", "bench_ccc"):
+        sys.modules.pop(f"benchmarks.{name}", None)
+
+
+def test_bench_runs_every_module_and_survives_a_failure(fake_benchmarks, capsys):
+    code, out, err = _run(["bench", "--quick"], capsys)
+    assert code == 1
+    assert "=== bench_aaa (quick) ===" in out and "aaa ran True" in out and "ccc ran True" in out
+    failure = [line for line in err.splitlines() if "bench_bbb failed" in line]
+    assert failure == ["sensnake bench: bench_bbb failed: RuntimeError: boom second line"]
