@@ -54,6 +54,17 @@ def _flag_extrapolation(force: np.ndarray, status: np.ndarray, bounds) -> None:
     status[outside] = ForceStatus.EXTRAPOLATED
 
 
+def _flag_saturated(status: np.ndarray, saturated: np.ndarray | None, cond: np.ndarray) -> None:
+    if saturated is None:
+        return
+    mask = np.asarray(saturated, dtype=bool)
+    if mask.ndim == 1:
+        mask = mask[:, None]
+    if mask.shape != cond.shape:
+        raise ValueError(f"saturated mask has shape {mask.shape}, the conductance block {cond.shape}")
+    status[mask & ~np.isnan(cond)] = ForceStatus.SATURATED
+
+
 class LinearEstimator:
     """Eq. 1 inverse per sensor: ``F = (C − baseline − d)/m``, clipped at 0 N (flagged BELOW_BASELINE).
 
@@ -92,8 +103,11 @@ class LinearEstimator:
         """Forget the last timestamp (the linear model itself has no memory)."""
         self._t_prev_s = None
 
-    def update(self, t_s: np.ndarray, conductance_s: np.ndarray) -> np.ndarray:
-        """Force (N, S) in N for timestamps (N,) s and conductances (N, S) S."""
+    def update(
+        self, t_s: np.ndarray, conductance_s: np.ndarray, saturated: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Force (N, S) in N for timestamps (N,) s and conductances (N, S) S. ``saturated`` (N, S) bool marks
+        ADC-saturated (censored) samples: their force is a lower bound and is flagged SATURATED."""
         t = np.asarray(t_s, dtype=np.float64)
         check_timestamps(t, self._t_prev_s)
         cond = _as_block(conductance_s, t.size, self.n_sensors)
@@ -110,6 +124,7 @@ class LinearEstimator:
             status[negative & (status == ForceStatus.OK)] = ForceStatus.BELOW_BASELINE
             force[negative] = 0.0
         _flag_extrapolation(force, status, _range_bounds(self.force_range_n, force.shape[1]))
+        _flag_saturated(status, saturated, cond)
         self.last_status = status
         if t.size:
             self._t_prev_s = float(t[-1])
@@ -163,8 +178,14 @@ class SLSEstimator:
         if self._inverse is not None:
             self._inverse.reset()
 
-    def update(self, t_s: np.ndarray, conductance_s: np.ndarray) -> np.ndarray:
-        """Force (N, S) in N for timestamps (N,) s and conductances (N, S) S, continuing from the previous block."""
+    def update(
+        self, t_s: np.ndarray, conductance_s: np.ndarray, saturated: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Force (N, S) in N for timestamps (N,) s and conductances (N, S) S, continuing from the previous block.
+
+        ``saturated`` (N, S) bool marks ADC-saturated (censored) samples (``SampleBlock.saturated``): the reading is
+        a bound, so the force is a lower bound; it is computed and carried in the state like any other sample
+        (dropping it would hold an older, smaller force) and flagged SATURATED."""
         t = np.asarray(t_s, dtype=np.float64)
         cond = _as_block(conductance_s, t.shape[0] if t.ndim == 1 else -1, self.n_sensors)
         if self._inverse is None:
@@ -173,6 +194,7 @@ class SLSEstimator:
             )
         result = self._inverse.update(t, cond)
         _flag_extrapolation(result.force_n, result.status, _range_bounds(self.force_range_n, cond.shape[1]))
+        _flag_saturated(result.status, saturated, cond)
         self.last_status = result.status
         return result.force_n
 

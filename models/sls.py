@@ -492,8 +492,16 @@ def conductance_from_force(
     interp: str = "hold",
 ) -> np.ndarray:
     """Conductance (S) from force (N): SLS strain, then Eq. 3 with the contact term ``K/√F`` of ``phys`` (K = 0 in
-    ``phys`` switches it off). With the contact term, F ≤ 0 reads as an open circuit (C = 0)."""
+    ``phys`` switches it off). With the contact term, F ≤ 0 reads as an open circuit (C = 0). ValueError if a force
+    drives the strain to ≥ 1 (the model has no meaning there: R would be ≤ 0)."""
     strain = strain_from_force(t_s, force_n, params, area_m2, interp)
+    too_big = strain >= 1.0
+    if np.any(too_big):
+        index = np.unravel_index(int(np.argmax(too_big)), strain.shape)
+        raise ValueError(
+            f"force {np.asarray(force_n)[index]!r} N at sample {index[0]} drives the strain to "
+            f"{strain[index]:.3g} ≥ 1: far outside the sensor model (check the force units and the SLS parameters)"
+        )
     return conductance_from_strain(strain, np.asarray(force_n, dtype=np.float64), phys)
 
 
