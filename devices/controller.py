@@ -55,6 +55,8 @@ WATCHDOG_S = 0.2
 WATCHDOG_MIN_FAILED_READS = 2
 RECONNECT_INTERVAL_S = 0.5
 PERIOD_HISTORY = 4096
+TIMING_WINDOW_S = 5.0
+TIMING_WARN_FRACTION = 0.05
 
 MOTION_FINISHED = "finished"
 MOTION_STOPPED = "stopped"
@@ -140,6 +142,9 @@ class RobotController:
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._next_health_s = 0.0
         self._next_reconnect_s = 0.0
+        self._timing_window_start_s: float | None = None
+        self._timing_window_ticks = 0
+        self._timing_window_missed = 0
         # Statistics (read from any thread under _lock).
         self._periods = np.zeros(PERIOD_HISTORY)
         self._n_periods = 0
@@ -288,12 +293,30 @@ class RobotController:
                 self._emit(self._on_error, exc)
             deadline += self.period_s
             now = time.monotonic()
+            missed = 0
             if now > deadline:
                 missed = int((now - deadline) / self.period_s) + 1
                 deadline += missed * self.period_s
                 with self._lock:
                     self._missed += missed
+            self._watch_timing(now, missed)
             self._stop.wait(max(0.0, deadline - time.monotonic()))
+
+    def _watch_timing(self, now: float, missed: int) -> None:
+        """Warn (on_event, at most once per window) when the bus cannot keep the control rate."""
+        if self._timing_window_start_s is None:
+            self._timing_window_start_s = now
+        self._timing_window_ticks += 1
+        self._timing_window_missed += missed
+        if now - self._timing_window_start_s < TIMING_WINDOW_S:
+            return
+        ticks, lost = self._timing_window_ticks, self._timing_window_missed
+        self._timing_window_start_s, self._timing_window_ticks, self._timing_window_missed = now, 0, 0
+        if lost > TIMING_WARN_FRACTION * (ticks + lost):
+            self._emit(self._on_event, (
+                f"timing: {lost} of {ticks + lost} ticks missed at {self.robot.control_rate_hz:g} Hz in the last "
+                f"{TIMING_WINDOW_S:g} s: lower robot.control_rate_hz, or see the Hardware tab's timing checks "
+                "(Return Delay Time 0, USB latency timer 1 ms)"))
 
     def _record_period(self, start: float, last_start: float | None) -> None:
         with self._lock:
@@ -451,6 +474,7 @@ class RobotController:
         self._connected = True
         self._consecutive_failed_reads = 0
         self._last_good_read_s = time.monotonic()
+        self._estop.clear()  # the link loss already ended any motion; there is nothing left to freeze
         self._emit(self._on_event, f"reconnected to {self.chain.port_name}")
 
     # -- motion bookkeeping (bus thread) -----------------------------------------------------------------------------

@@ -249,33 +249,50 @@ class ServoChain:
     def scan(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None) -> list[ServoInfo]:
         """Servos answering on any of ``bauds`` (default: the configured one), sorted by baud then ID.
 
-        For a short ID list each ID is pinged; otherwise one broadcast ping per baud rate (≈ 0.8 s), followed by
-        per-ID pings only if the broadcast replies collided (a corrupt packet means someone is there).
+        For a short ID list each ID is pinged; otherwise one broadcast ping per baud rate (≈ 0.8 s at 1 Mbps).
+        dynamixel-sdk only reports a corrupt broadcast reply when it was the last one, so if some servos answered
+        at the configured rate but a configured joint was heard at no rate, the configured rate gets a second
+        broadcast and then a ping per missing joint.
         The port is left at the configured baud rate.
         """
         wanted = [i for i in ids if 0 <= i <= ct.MAX_ID]
+        bauds = list(bauds) if bauds else [self._baud]
         found: list[ServoInfo] = []
         try:
-            for baud in (list(bauds) if bauds else [self._baud]):
+            for baud in bauds:
                 self._set_port_baud(baud)
                 found.extend(self._scan_at(wanted, baud))
+            heard = {info.servo_id for info in found}
+            missing = [i for i in self.ids if i in wanted and i not in heard]
+            heard_at_configured = any(info.baud == self._baud for info in found)
+            if missing and heard_at_configured and not self._per_id_is_cheaper(wanted):
+                self._set_port_baud(self._baud)
+                data, _ = self._io(self._ph.broadcastPing, self._require_port())
+                found.extend(self._infos(data, missing, self._baud))
+                heard |= set(data)
+                found.extend(self._ping_each([i for i in missing if i not in heard], self._baud))
         finally:
             self._set_port_baud(self._baud)
         return sorted(found, key=lambda info: (info.baud, info.servo_id))
 
+    @staticmethod
+    def _per_id_is_cheaper(wanted: list[int]) -> bool:
+        return len(wanted) * PER_ID_PING_COST_S < BROADCAST_PING_COST_S
+
     def _scan_at(self, wanted: list[int], baud: int) -> list[ServoInfo]:
-        if len(wanted) * PER_ID_PING_COST_S < BROADCAST_PING_COST_S:
+        if self._per_id_is_cheaper(wanted):
             return self._ping_each(wanted, baud)
-        port = self._require_port()
-        data, result = self._io(self._ph.broadcastPing, port)
-        infos = [
-            ServoInfo(sid, model, ct.model_name(model), firmware, baud)
-            for sid, (model, firmware) in sorted(data.items()) if sid in wanted
-        ]
+        data, result = self._io(self._ph.broadcastPing, self._require_port())
+        infos = self._infos(data, wanted, baud)
         if result == COMM_RX_CORRUPT:
-            seen = {info.servo_id for info in infos}
-            infos += self._ping_each([i for i in wanted if i not in seen], baud)
+            # The last reply was garbled: someone else may be there; ask every other ID on its own.
+            infos += self._ping_each([i for i in wanted if i not in data], baud)
         return infos
+
+    @staticmethod
+    def _infos(seen: dict[int, tuple[int, int]], wanted: list[int], baud: int) -> list[ServoInfo]:
+        return [ServoInfo(sid, model, ct.model_name(model), firmware, baud)
+                for sid, (model, firmware) in sorted(seen.items()) if sid in wanted]
 
     def _ping_each(self, ids: Iterable[int], baud: int) -> list[ServoInfo]:
         infos = []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
@@ -262,3 +263,41 @@ def test_reply_timing_follows_baud_rate_and_return_delay():
     assert len(rest) == 11 * 21
     out = wire.PacketParser().feed(first + rest)
     assert [p.servo_id for p in out] == list(IDS)
+
+
+def test_hand_and_fault_methods_are_safe_while_the_wire_is_busy(bus):
+    chain, port, ph = bus
+    stop = threading.Event()
+    poses = []
+
+    def hand():
+        k = 0
+        while not stop.is_set():
+            chain.set_limp_position(1, 2048 + k % 100)
+            poses.append(chain.present_positions_rad()[0])
+            chain.corrupt_next_replies(0)
+            k += 1
+
+    thread = threading.Thread(target=hand, name="test-hand")
+    thread.start()
+    try:
+        reader = GroupSyncRead(port, ph, ct.STATE_BLOCK_ADDRESS, ct.STATE_BLOCK_SIZE)
+        for sid in IDS:
+            reader.addParam(sid)
+        for _ in range(30):
+            assert reader.txRxPacket() == COMM_SUCCESS
+            assert 2048 <= reader.getData(1, ct.ADDR_PRESENT_POSITION, 4) < 2148
+    finally:
+        stop.set()
+        thread.join()
+    assert poses and all(0 <= p < 100 * ct.RAD_PER_TICK for p in poses)
+
+
+def test_factory_reset_keeps_id_and_baud_with_option_2(bus):
+    chain, port, ph = bus
+    assert ph.write1ByteTxRx(port, 8, ct.ADDR_RETURN_DELAY_TIME, 0) == (COMM_SUCCESS, 0)
+    assert ph.factoryReset(port, 8, 0x02) == (COMM_SUCCESS, 0)
+    deadline = time.monotonic() + 2.0
+    while ph.ping(port, 8)[1] != COMM_SUCCESS and time.monotonic() < deadline:
+        pass
+    assert ph.read1ByteTxRx(port, 8, ct.ADDR_RETURN_DELAY_TIME) == (250, COMM_SUCCESS, 0)

@@ -22,11 +22,13 @@ def test_crc_matches_the_manual_example():
     assert wire.build_status(1, 0, bytes([0x06, 0x04, 0x26])) == bytes.fromhex("FFFFFD00010700550006042665 5D")
 
 
+@settings(max_examples=50)
 @given(pattern_bytes)
 def test_crc_agrees_with_dynamixel_sdk(data):
     assert wire.crc16(data) == SDK.updateCRC(0, list(data), len(data))
 
 
+@settings(max_examples=50)
 @given(pattern_bytes)
 def test_unstuff_inverts_stuff_and_no_header_survives(field):
     stuffed = wire.stuff(field)
@@ -37,7 +39,7 @@ def test_unstuff_inverts_stuff_and_no_header_survives(field):
             assert stuffed[i + 3] == wire.STUFF_BYTE
 
 
-@settings(max_examples=200)
+@settings(max_examples=80)
 @given(st.integers(0, 252), st.integers(1, 0x93), pattern_bytes)
 def test_stuffed_packet_is_byte_identical_to_the_sdk(servo_id, instruction, params):
     """Build the same packet with dynamixel-sdk's txPacket logic (addStuffing + CRC) and with our codec."""
@@ -55,6 +57,7 @@ def test_stuffed_packet_is_byte_identical_to_the_sdk(servo_id, instruction, para
     assert wire.build_packet(servo_id, instruction, params) == bytes(sdk[:total])
 
 
+@settings(max_examples=40)
 @given(st.lists(st.tuples(st.integers(0, 252), st.integers(1, 0x93), pattern_bytes), min_size=1, max_size=5),
        st.lists(pattern_bytes, min_size=6, max_size=6), st.integers(1, 17))
 def test_parser_finds_every_packet_between_garbage_in_any_chunking(packets, garbage, chunk):
@@ -71,6 +74,7 @@ def test_parser_finds_every_packet_between_garbage_in_any_chunking(packets, garb
     assert good == [(sid, instr, bytes(params)) for sid, instr, params in packets]
 
 
+@settings(max_examples=50)
 @given(st.integers(0, 252), pattern_bytes, st.data())
 def test_a_flipped_bit_is_reported_as_corrupt_never_delivered(servo_id, params, data):
     packet = bytearray(wire.build_packet(servo_id, wire.WRITE, params))

@@ -187,3 +187,10 @@ def test_pulled_cable_is_link_lost_then_reopens(servos, sim_chain):
     sim_chain.reconnect()
     servos.open()
     assert servos.read_state().position_rad.shape == (12,)
+
+
+def test_scan_repeats_a_broadcast_ping_whose_reply_was_corrupt(servos, sim_chain):
+    sim_chain.corrupt_next_replies(1, servo_id=6)
+    found = servos.scan()
+    assert [info.servo_id for info in found] == list(ROBOT.joint_ids)
+    assert sim_chain.count(wire.PING) == 2
