@@ -490,13 +490,21 @@ def conductance_from_force(
     area_m2: float | np.ndarray,
     phys: PhysicsConstants,
     interp: str = "hold",
+    *,
+    overstrain: str = "raise",
 ) -> np.ndarray:
     """Conductance (S) from force (N): SLS strain, then Eq. 3 with the contact term ``K/√F`` of ``phys`` (K = 0 in
     ``phys`` switches it off). With the contact term, F ≤ 0 reads as an open circuit (C = 0). ValueError if a force
-    drives the strain to ≥ 1 (the model has no meaning there: R would be ≤ 0)."""
+    drives the strain to ≥ 1 (the model has no meaning there: R would be ≤ 0); with ``overstrain="clamp"`` (for
+    optimisers exploring parameter space) the strain is clamped at 1 instead, i.e. the tunnelling part is 0 and
+    ``C = √F/K`` (∞ without a contact term)."""
+    if overstrain not in ("raise", "clamp"):
+        raise ValueError(f"overstrain must be 'raise' or 'clamp', got {overstrain!r}")
     strain = strain_from_force(t_s, force_n, params, area_m2, interp)
     too_big = strain >= 1.0
-    if np.any(too_big):
+    if overstrain == "clamp":
+        strain = np.minimum(strain, 1.0)
+    elif np.any(too_big):
         index = np.unravel_index(int(np.argmax(too_big)), strain.shape)
         raise ValueError(
             f"force {np.asarray(force_n)[index]!r} N at sample {index[0]} drives the strain to "
