@@ -65,11 +65,14 @@ def test_zero_conductance_is_zero_force_in_every_path():
             assert np.array_equal(one, np.zeros(4))
 
 
-def test_forward_refuses_a_force_that_drives_strain_to_one():
+def test_forward_refuses_a_force_that_drives_strain_to_one_unless_asked_to_clamp():
+    t, force = np.arange(3.0), np.array([0.0, 1e4, 1e4])
     with pytest.raises(ValueError, match="strain to .* ≥ 1"):
-        conductance_from_force(
-            np.arange(3.0), np.array([0.0, 1e4, 1e4]), TYPICAL_SLS, TYPICAL_AREA_M2, NO_CONTACT
-        )
+        conductance_from_force(t, force, TYPICAL_SLS, TYPICAL_AREA_M2, NO_CONTACT)
+    clamped = conductance_from_force(
+        t, force, TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS, overstrain="clamp"
+    )
+    assert np.allclose(clamped[1:], np.sqrt(1e4) / DEFAULT_PHYSICS.K_contact_ohm_sqrtN)
 
 
 @pytest.mark.parametrize("phys", [DEFAULT_PHYSICS, NO_CONTACT], ids=["contact", "no-contact"])
