@@ -94,8 +94,10 @@ class BodyView(QWidget):
             plot = self._canvas.addPlot(row=row, col=0, viewBox=box)
             plot.setTitle(titles[view], size="9pt", color="#444")
             plot.showGrid(x=True, y=True, alpha=0.15)
-            plot.setLabel("bottom", "x", units="m")
-            plot.setLabel("left", "z" if view == "side" else "y", units="m")
+            plot.setLabel("bottom", "x (m)")
+            plot.setLabel("left", "z (m)" if view == "side" else "y (m)")
+            for axis_name in ("left", "bottom"):
+                plot.getAxis(axis_name).enableAutoSIPrefix(False)  # metres throughout, no "×0.001"
             plot.hideButtons()
             plot.setMenuEnabled(False)
             self._plots[view] = plot
@@ -208,18 +210,39 @@ class BodyView(QWidget):
         return self._canvas
 
     # -- drawing ---------------------------------------------------------------------------------------------------
-    def _set_ranges(self) -> None:
+    def _default_box(self) -> tuple[float, float, float, float]:
         length = self._length_m * len(self._axes)
+        return (-length - 0.05, 0.08, -0.2 * length, 0.2 * length)
+
+    def _set_ranges(self, points: np.ndarray | None = None) -> None:
+        """Show the straight body; grow (never jitter) to keep a strongly bent body in view."""
+        x0, x1, y0, y1 = self._default_box()
+        box = {}
+        for view in VIEWS:
+            bx0, bx1, by0, by1 = x0, x1, y0, y1
+            if points is not None:
+                cols = [0, 2] if view == "side" else [0, 1]
+                p = points[:, cols]
+                margin = 0.05
+                bx0, bx1 = min(bx0, p[:, 0].min() - margin), max(bx1, p[:, 0].max() + margin)
+                by0, by1 = min(by0, p[:, 1].min() - margin), max(by1, p[:, 1].max() + margin)
+            box[view] = (bx0, bx1, by0, by1)
+        # both views share the x axis so a joint sits at the same x in each
+        x_lo, x_hi = min(b[0] for b in box.values()), max(b[1] for b in box.values())
+        box = {view: (x_lo, x_hi, b[2], b[3]) for view, b in box.items()}
+        if box == getattr(self, "_boxes", None):
+            return
+        self._boxes = box
         for view, plot in self._plots.items():
-            # fixed ranges: the drawing must not rescale while the robot moves
-            plot.setXRange(-length - 0.05, 0.08, padding=0)
-            plot.setYRange(-0.45 * length, 0.45 * length, padding=0)
+            bx0, bx1, by0, by1 = box[view]
             plot.vb.disableAutoRange()
-            del view
+            plot.setRange(xRange=(bx0, bx1), yRange=(by0, by1), padding=0)
 
     def _redraw(self) -> None:
         present = forward_kinematics(self._present, self._axes, self._length_m)
         goal = None if self._goal is None else forward_kinematics(self._goal, self._axes, self._length_m)
+        drawn = present.points_m if goal is None else np.vstack([present.points_m, goal.points_m])
+        self._set_ranges(drawn)
         for view in VIEWS:
             pts = present.side_view() if view == "side" else present.top_view()
             self._body_items[view].setData(pts[:, 0], pts[:, 1])

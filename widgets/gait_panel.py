@@ -11,18 +11,22 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
+    QAbstractItemView,
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
+    QHeaderView,
     QLabel,
     QProgressBar,
     QPushButton,
     QSpinBox,
     QStackedWidget,
+    QTableWidget,
+    QTableWidgetItem,
     QVBoxLayout,
     QWidget,
 )
@@ -180,6 +184,22 @@ class GaitPanel(QWidget):
         legend = QLabel(f"<span style='color:{theme.PRESENT_COLOR}'>━ present</span> &nbsp; "
                         f"<span style='color:{theme.GOAL_COLOR}'>╌ goal</span> &nbsp; STOP: Esc")
         column.addWidget(legend)
+        self.joint_table = QTableWidget(len(axes), 3)
+        self.joint_table.setHorizontalHeaderLabels(["goal (rad)", "present (rad)", "current (mA)"])
+        self.joint_table.setVerticalHeaderLabels([f"J{i + 1}" for i in range(len(axes))])
+        self.joint_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        self.joint_table.verticalHeader().setDefaultSectionSize(19)
+        self.joint_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.joint_table.setSelectionMode(QAbstractItemView.SelectionMode.NoSelection)
+        self.joint_table.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
+        for r in range(len(axes)):
+            for c in range(3):
+                item = QTableWidgetItem("")
+                item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                self.joint_table.setItem(r, c, item)
+        header_px = self.joint_table.horizontalHeader().sizeHint().height()
+        self.joint_table.setFixedHeight(header_px + 19 * len(axes) + 4)
+        column.addWidget(self.joint_table)
         column.addStretch(1)
 
         self.body_view = BodyView(axes, segment_length_m)
@@ -249,6 +269,16 @@ class GaitPanel(QWidget):
     def set_status(self, text: str, level: str = theme.IDLE) -> None:
         self.status_label.setText(text)
         self.status_label.setStyleSheet(theme.status_style(level) if text else "")
+
+    def set_joint_readout(self, goal_rad: Sequence[float] | None, present_rad: Sequence[float] | None,
+                          current_ma: Sequence[float] | None) -> None:
+        """Per-joint goal and present angle (rad) and current (mA); ``None`` columns show blank."""
+        for c, values, fmt in ((0, goal_rad, "{:+.3f}"), (1, present_rad, "{:+.3f}"), (2, current_ma, "{:+.0f}")):
+            for r in range(self.joint_table.rowCount()):
+                text = "" if values is None else fmt.format(float(values[r]))
+                item = self.joint_table.item(r, c)
+                if item.text() != text:
+                    item.setText(text)
 
     def set_rate(self, rate_hz: float) -> None:
         self.rate_spin.setValue(rate_hz)

@@ -202,6 +202,8 @@ class GaitTab(QWidget):
         else:
             goal = self._preview if self.panel.mode in ("follow", "keyframes") else None
         self.panel.body_view.set_angles(present, goal)
+        if state is not None:
+            self.panel.set_joint_readout(state.goal_rad, state.position_rad, state.current_ma)
         source = self.source
         if source is not None and hasattr(source, "progress"):
             p = source.progress
