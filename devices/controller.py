@@ -162,6 +162,7 @@ class RobotController:
         if not self.chain.is_open:
             self.chain.open()
         self._connected = True
+        self._last_good_read_s = time.monotonic()  # the watchdog counts from now, not from the epoch
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"RobotController[{self.chain.port_name}]",
                                         daemon=True)
@@ -251,7 +252,7 @@ class RobotController:
                 return
             try:
                 future.set_result(fn(self.chain))
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller through the Future
+            except Exception as exc:  # noqa: BLE001 - thread boundary: handed to the caller through the Future
                 future.set_exception(exc)
 
         self._commands.put((call, future))
@@ -492,6 +493,8 @@ class RobotController:
         if not self._connected:
             future.set_exception(LinkLostError(f"the servo bus on {self.chain.port_name} is not connected"))
             return
+        # The speed limit of a new motion starts from where the joints are (they may have been posed by hand).
+        self._last_goal = None
         self._motion = _Motion(source, name, future, time.monotonic())
         self._emit(self._on_event, f"motion {name!r} started")
 

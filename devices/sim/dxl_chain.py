@@ -598,6 +598,10 @@ class VirtualChain:
         pos, vel = servo.position_ticks, servo.velocity_ticks_s
         # A load beyond the motor's strength stalls the joint; held long enough it trips the overload shutdown.
         stalled = abs(servo.load_nm) >= OVERLOAD_TORQUE_NM
+        if not stalled and vel == 0.0 and pos == goal:
+            servo.overload_time_s = 0.0
+            servo.last_accel_ticks_s2 = 0.0
+            return  # holding still at the goal: nothing to integrate
         for _ in range(steps):
             if stalled:
                 vel = 0.0
