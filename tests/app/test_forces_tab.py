@@ -41,7 +41,7 @@ def curves_with_data(tab):
             if curve.xData is not None and len(curve.xData) > 1]
 
 
-def test_tab_shows_36_live_traces_pause_and_legend_toggle(qtbot, lab, tab):
+def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab, tab, tmp_path):
     lab.board.start()
     qtbot.waitUntil(lambda: len(curves_with_data(tab)) == 36, timeout=15_000)
     assert len(tab.plots.plots) == 12
@@ -62,12 +62,41 @@ def test_tab_shows_36_live_traces_pause_and_legend_toggle(qtbot, lab, tab):
     assert not any(plot.curves[0].isVisible() for plot in tab.plots.plots)
     assert all(plot.curves[2].isVisible() for plot in tab.plots.plots)
 
-    tab.plots.hover_at(5, tab.plots.visible_range()[1] - 1.0)
+    oldest, newest = tab.force_history.span()
+    tab.plots.hover_at(5, (oldest + newest) / 2)
     t_s, values = tab.plots.cursor_readout()
     assert set(values) == {"S06L", "S06R", "S06B"} and np.isfinite(values["S06B"])
 
     tab.controls.quantity.setCurrentIndex(1)  # raw conductance
     assert tab.plots.history is lab.board.history
+    tab.controls.quantity.setCurrentIndex(0)
+
+    # a calibration file that misses sensors: those plot conductance, labelled
+    entry = {"area_m2": TYPICAL_AREA_M2, "linear": {"m_S_per_N": 5e-5, "d_S": 1e-5},
+             "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
+                     "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)}}
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
+                               "physics": DEFAULT_PHYSICS.to_dict(), "sensors": {"S06B": entry}}))
+    assert tab.load_calibration(cal)
+    assert tab.pipeline.estimated.sum() == 1
+    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
+    assert "S06B" in labels and "S06L · µS, uncal." in labels
+    assert "35 shown as conductance" in tab.controls.calibration_label.text()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "something-else", "version": 1}')
+    assert not tab.load_calibration(bad)
+    assert "unknown format" in tab.controls.message.text()
+    assert tab.pipeline.estimated.sum() == 1  # the good calibration stays
+
+    tab.controls.estimator.setCurrentIndex(tab.controls.estimator.findData("linear"))
+    assert tab.pipeline.estimator_kind == "linear" and tab.pipeline.estimated.sum() == 1
+    count = len(tab.force_history)
+    qtbot.waitUntil(lambda: len(tab.force_history) > count + 3, timeout=10_000)
+    s06b = LabConfig().board.channel_names.index("S06B")
+    t_last, values = tab.force_history.latest()
+    conductance_us = lab.board.history.latest()[1][s06b]
+    assert values[s06b] == pytest.approx(max(0.0, (conductance_us * 1e-6 - 1e-5) / 5e-5), rel=1e-3, abs=1e-3)
 
 
 def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, tmp_path):
@@ -118,7 +147,7 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert x0[0] <= 0.0 <= x0[-1]  # aligned on the load onset
 
 
-def test_loose_sensor_is_flagged_on_plot_and_list(qtbot, lab, tab, sim_lab_fast):
+def test_loose_sensor_full_disk_and_channel_mismatch(qtbot, lab, tab, sim_lab_fast):
     sim_lab_fast.board.set_loose(28)  # S10R, the paper's loose sensor 10
     lab.board.start()
     qtbot.waitUntil(lambda: "S10R" in tab.plots.plots[9].warning.text(), timeout=20_000)
@@ -126,44 +155,18 @@ def test_loose_sensor_is_flagged_on_plot_and_list(qtbot, lab, tab, sim_lab_fast)
     other_warnings = [p.warning.text() for i, p in enumerate(tab.plots.plots) if i != 9]
     assert not any(other_warnings), other_warnings
 
-
-def test_calibration_missing_sensors_plot_conductance_labelled(qtbot, tab, tmp_path):
-    entry = {"area_m2": TYPICAL_AREA_M2, "linear": {"m_S_per_N": 5e-5, "d_S": 1e-5},
-             "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
-                     "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)}}
-    cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
-                               "physics": DEFAULT_PHYSICS.to_dict(), "sensors": {"S06B": entry}}))
-    assert tab.load_calibration(cal)
-    assert tab.pipeline.estimated.sum() == 1
-    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
-    assert "S06B" in labels and "S06L · µS, uncal." in labels
-    assert "35 shown as conductance" in tab.controls.calibration_label.text()
-    bad = tmp_path / "bad.json"
-    bad.write_text('{"format": "something-else", "version": 1}')
-    assert not tab.load_calibration(bad)
-    assert "unknown format" in tab.controls.message.text()
-    assert tab.pipeline.estimated.sum() == 1  # the good calibration stays
-
-
-def test_full_disk_stops_recording_cleanly(qtbot, lab, tab):
-    lab.board.start()
-    tab.min_free_bytes = 1 << 62  # no disk has this much free: the first flush refuses
+    tab.min_free_bytes = 1 << 62  # no disk has this much free: the first flush refuses, cleanly
     session = tab.start_recording()
     with qtbot.waitSignal(session.failed, timeout=10_000) as failed:
         pass
     assert "disk" in failed.args[0]
-    assert not session.is_active
-    assert not tab.controls.record.isChecked()
+    assert not session.is_active and not tab.controls.record.isChecked()
     assert "disk" in tab.controls.message.text()
 
-
-def test_channel_count_mismatch_is_explained(qtbot, lab, tab, sim_lab_fast):
     sim_lab_fast.board.set_channel_count(24)
-    lab.board.start()
     qtbot.waitUntil(lambda: "24" in tab.controls.message.text() and "36" in tab.controls.message.text(),
                     timeout=10_000)
-    assert len(tab.force_history) == 0
+    assert not lab.board.is_connected
 
 
 def test_onset_alignment_finds_the_rise():
