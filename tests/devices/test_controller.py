@@ -98,8 +98,12 @@ def test_idle_loop_reads_state_and_sends_nothing(controller, sim_chain):
 
 def test_motion_goals_are_clamped_and_speed_limited(controller, sim_chain):
     ctl, rec = controller
-    future = ctl.run_motion(HoldPose(np.full(12, 3.0), duration_s=1.0), "beyond the limits")
-    assert future.result(WAIT_S) == MOTION_FINISHED
+    future = ctl.run_motion(HoldPose(np.full(12, 3.0)), "beyond the limits")
+    rec.wait(lambda: rec.states[-1].goal_rad is not None and np.allclose(rec.states[-1].goal_rad, 1.57, atol=0.002),
+             "the goals to reach the joint limit")
+    rec.wait_more_states(3)
+    ctl.stop_motion()
+    assert future.result(WAIT_S) == "stopped"
     goals = np.array([s.goal_rad for s in rec.states if s.goal_rad is not None])
     assert len(goals) >= 20
     assert goals.max() <= 1.57 + 1e-9
@@ -107,7 +111,16 @@ def test_motion_goals_are_clamped_and_speed_limited(controller, sim_chain):
     step_rad = ROBOT.max_joint_speed_rad_s / ROBOT.control_rate_hz
     assert np.abs(np.diff(goals, axis=0)).max() <= step_rad + 0.002  # + one tick of rounding
     assert np.abs(np.diff(goals, axis=0)).max() >= step_rad - 0.002  # and it did move at the limit
-    assert "motion 'beyond the limits' finished" in rec.events
+    assert "motion 'beyond the limits' stopped" in rec.events
+
+
+def test_a_motion_that_ends_finishes_and_sends_no_more(controller, sim_chain):
+    ctl, rec = controller
+    assert ctl.run_motion(HoldPose(np.full(12, 0.1), duration_s=0.1), "short").result(WAIT_S) == MOTION_FINISHED
+    writes = sim_chain.count(wire.SYNC_WRITE)
+    assert writes >= 1 and ctl.motion_name is None
+    rec.wait_more_states(5)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes
 
 
 def test_emergency_stop_freezes_goals_within_one_tick(controller, sim_chain):
