@@ -121,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             outcome = _play(controller, source, state_log, args, shape)
         finally:
+            missed_ticks = controller.stats().missed_ticks
             controller.close()
             state_log.drain()
     finally:
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         error_ms = np.abs(periods - 1.0 / args.rate) * 1000.0
         print(f"control period at {args.rate:g} Hz over {periods.size} ticks: "
               f"p50 {np.median(periods) * 1000:.2f} ms, p99 error {np.percentile(error_ms, 99):.2f} ms, "
-              f"max error {error_ms.max():.2f} ms")
+              f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}")
     if args.log:
         print(f"wrote {Path(args.log)}")
     return 0 if outcome == "finished" else 1
