@@ -1,0 +1,109 @@
+"""widgets/force_plots.py ForcePlotGrid built directly on a TraceHistory (no devices)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from devices.config import default_sensor_names
+from widgets.force_plots import ForcePlotGrid, groups_from_names
+from widgets.ring_plot import TraceHistory, append_with_gaps
+
+NAMES = default_sensor_names()
+
+
+@pytest.fixture
+def grid(qtbot):
+    grid = ForcePlotGrid(NAMES)
+    qtbot.addWidget(grid)
+    grid.resize(1400, 1100)
+    grid.show()
+    qtbot.waitExposed(grid)
+    return grid
+
+
+def fill(history: TraceHistory, seconds: float, rate_hz: float = 30.0, t0: float = 0.0) -> np.ndarray:
+    t = t0 + np.arange(int(seconds * rate_hz)) / rate_hz
+    history.append(t, np.abs(np.sin(t[:, None] + np.arange(history.n_channels))) * 3.0)
+    return t
+
+
+def drawn_points(grid: ForcePlotGrid) -> list[int]:
+    return [0 if c.xData is None else len(c.xData) for p in grid.plots for c in p.curves]
+
+
+def test_groups_by_segment_and_other_names():
+    groups = groups_from_names(NAMES)
+    assert [g.title for g in groups][:2] == ["Segment 1", "Segment 2"] and len(groups) == 12
+    assert groups[9].names == ("S10L", "S10R", "S10B") and groups[9].channels == (27, 28, 29)
+    odd = groups_from_names(["a", "b", "c", "d"])
+    assert [g.channels for g in odd] == [(0, 1, 2), (3,)]
+
+
+def test_drawing_cost_does_not_grow_with_history(grid):
+    history = TraceHistory.for_budget(36, 20_000_000)
+    grid.set_history(history, "N")
+    grid.set_window_s(600.0)
+    fill(history, 60.0)
+    grid.refresh()
+    short = max(drawn_points(grid))
+    fill(history, 540.0, t0=60.0)
+    grid.refresh()
+    long = max(drawn_points(grid))
+    width = int(grid.plots[0].viewbox.width())
+    assert long <= 4 * width + 8  # ≤ two points (low, high) per pixel bucket, whatever the history length
+    assert long > short / 2
+
+
+def test_collapsed_and_hidden_are_not_redrawn(grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 10.0)
+    grid.set_collapsed(3, True)
+    grid.set_side_visible("R", False)
+    before = [[None if c.xData is None else c.xData.copy() for c in p.curves] for p in grid.plots]
+    fill(history, 5.0, t0=10.0)
+    grid.refresh()
+    after = [[c.xData for c in p.curves] for p in grid.plots]
+    assert np.array_equal(after[3][0], before[3][0])  # collapsed segment untouched
+    assert np.array_equal(after[0][1], before[0][1])  # hidden right trace untouched
+    assert after[0][0][-1] > before[0][0][-1]  # visible traces moved on
+    assert not grid.plots[0].curves[1].isVisible()
+
+
+def test_user_zoom_pauses_and_scrollbar_scrolls_back(qtbot, grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 120.0)
+    grid.refresh()
+    with qtbot.waitSignal(grid.paused_changed) as paused:
+        grid.plots[2].viewbox.scaleBy(x=0.5)
+        grid.plots[2].viewbox.sigRangeChangedManually.emit([True, False])
+    assert paused.args == [True]
+    grid.time_bar.setSliderPosition(0)
+    grid.time_bar.sliderMoved.emit(0)
+    x0, x1 = grid.visible_range()
+    assert x0 < 1.0 and x1 == pytest.approx(x0 + grid.window_s)
+    grid.set_paused(False)
+    grid.refresh()
+    assert grid.visible_range()[1] == pytest.approx(history.span()[1])
+
+
+def test_gap_breaks_the_line(grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    t = np.arange(20) / 10.0
+    gap = np.zeros(20, dtype=bool)
+    gap[10] = True
+    append_with_gaps(history, t, np.ones((20, 36)), gap)
+    grid.refresh()
+    y = grid.plots[0].curves[0].yData
+    assert np.isnan(y).sum() == 1 and len(y) == 21
+
+
+def test_warnings_show_on_the_plot_header(grid):
+    warnings = [""] * 36
+    warnings[28] = "noisy (loose?)"
+    grid.set_channel_warnings(warnings)
+    assert grid.plots[9].warning.text() == "S10R: noisy (loose?)"
+    assert all(not p.warning.text() for i, p in enumerate(grid.plots) if i != 9)
