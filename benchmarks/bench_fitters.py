@@ -82,6 +82,34 @@ def _scenarios(quick: bool):
         yield "1%+12bit", dict(noise_rel=0.01, readout=Readout())
 
 
+def _one_seed(rows: dict, calibration_times: list, seed: int, options: dict, start_guess: SLSParams,
+              saturation_s: float) -> None:
+    """Run every fitter on one synthetic sensor; append (time, errors, note) rows."""
+    trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=seed, **options)
+    fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, t.nominal_force_n) for t in trials]
+    (paper_err, refused), dt = _timed(lambda: _paper(trials))
+    rows.setdefault("paper LS (Eqs. 7-8)", []).append((dt, paper_err, f"refused {refused}/12 trials"))
+    values, dt = _timed(lambda: _dfree(trials))
+    rows.setdefault("derivative-free", []).append((dt, _errors(values), ""))
+    fit, dt = _timed(lambda: fit_output_scipy(fit_trials, AREA_M2, PHYS, start_guess))
+    rows.setdefault("scipy joint", []).append((dt, _errors(_params_tuple(fit.ref)), f"{fit.iterations} nfev"))
+    fit, dt = _timed(lambda: fit_output_scipy(fit_trials, AREA_M2, PHYS, start_guess, "per_trial"))
+    per = np.median([_errors(_params_tuple(p)) for p in fit.params], axis=0)
+    rows.setdefault("scipy per-trial (12)", []).append((dt, per, "median over trials"))
+    for solver in ("gauss-newton", "ipopt", "sqpmethod"):
+        fit, dt = _timed(lambda solver=solver: fit_output_casadi(fit_trials, AREA_M2, PHYS, start_guess,
+                                                                 solver=solver))
+        rows.setdefault(f"casadi {solver}", []).append(
+            (dt, _errors(_params_tuple(fit.ref)), f"{fit.iterations} it, {fit.message[:28]}"))
+    inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
+    for solver in ("gauss-newton", "scipy"):
+        cal, dt = _timed(lambda solver=solver: calibrate_sensor(inputs, AREA_M2, PHYS, solver=solver,
+                                                                saturation_s=saturation_s))
+        calibration_times.append((solver, dt))
+        rows.setdefault(f"calibrate_sensor {solver}"[:22], []).append(
+            (dt, _errors(_params_tuple(cal.sls)), "full pipeline incl. trend + per-trial"))
+
+
 def run(quick: bool) -> None:
     seeds = [1] if quick else [1, 2, 3, 4, 5]
     start_guess = SLSParams(4.5e5, 6.5e5, 5e7)  # ~30 % off, like a derivative-free estimate on noisy data
@@ -93,34 +121,14 @@ def run(quick: bool) -> None:
     for label, options in _scenarios(quick):
         rows: dict[str, list] = {}
         for seed in seeds:
-            trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=seed, **options)
-            fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, t.nominal_force_n) for t in trials]
-            (paper_err, refused), dt = _timed(lambda: _paper(trials))
-            rows.setdefault("paper LS (Eqs. 7-8)", []).append((dt, paper_err, f"refused {refused}/12 trials"))
-            values, dt = _timed(lambda: _dfree(trials))
-            rows.setdefault("derivative-free", []).append((dt, _errors(values), ""))
-            fit, dt = _timed(lambda: fit_output_scipy(fit_trials, AREA_M2, PHYS, start_guess))
-            rows.setdefault("scipy joint", []).append((dt, _errors(_params_tuple(fit.ref)), f"{fit.iterations} nfev"))
-            fit, dt = _timed(lambda: fit_output_scipy(fit_trials, AREA_M2, PHYS, start_guess, "per_trial"))
-            per = np.median([_errors(_params_tuple(p)) for p in fit.params], axis=0)
-            rows.setdefault("scipy per-trial (12)", []).append((dt, per, "median over trials"))
-            for solver in ("gauss-newton", "ipopt", "sqpmethod"):
-                fit, dt = _timed(lambda solver=solver: fit_output_casadi(fit_trials, AREA_M2, PHYS, start_guess,
-                                                                         solver=solver))
-                rows.setdefault(f"casadi {solver}", []).append(
-                    (dt, _errors(_params_tuple(fit.ref)), f"{fit.iterations} it, {fit.message[:28]}"))
-            inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
-            for solver in ("gauss-newton", "scipy"):
-                cal, dt = _timed(lambda solver=solver: calibrate_sensor(inputs, AREA_M2, PHYS, solver=solver,
-                                                                        saturation_s=saturation_s))
-                calibration_times.append((solver, dt))
-                rows.setdefault(f"calibrate_sensor {solver}"[:22], []).append(
-                    (dt, _errors(_params_tuple(cal.sls)), "full pipeline incl. trend + per-trial"))
+            _one_seed(rows, calibration_times, seed, options, start_guess, saturation_s)
         for name, entries in rows.items():
             dt = float(np.median([e[0] for e in entries]))
-            with np.errstate(all="ignore"):
-                err = np.nanmedian(np.array([e[1] for e in entries]), axis=0)
-            print(f"{name:<22} {label:>9} {dt:13.3f} {err[0]:9.2e} {err[1]:9.2e} {err[2]:9.2e}  {entries[-1][2]}")
+            errors = np.array([e[1] for e in entries])
+            err = [np.nanmedian(col) if np.any(np.isfinite(col)) else math.nan for col in errors.T]
+            cells = " ".join(f"{e:9.2e}" if math.isfinite(e) else f"{'—':>9}" for e in err)
+            note = entries[-1][2] + ("; no physical numbers" if not any(map(math.isfinite, err)) else "")
+            print(f"{name:<22} {label:>9} {dt:13.3f} {cells}  {note}")
     for solver in ("gauss-newton", "scipy"):
         times = [dt for s, dt in calibration_times if s == solver]
         verdict = "meets" if max(times) <= TARGET_CALIBRATION_S else "MISSES"
