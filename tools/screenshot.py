@@ -61,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
             page = window.show_tab(name)
             if name == "hardware":
                 page.panel.link_check_button.click()
+            if name == "calibration" and hasattr(page, "add_trial_files"):
+                _load_demo_trials(page, Path(tmp))
+                pump(60_000, until=lambda p=page: p.result is not None or not p.is_fitting)
             pump(args.settle_ms)
             path = out / f"{name}.png"
             window.grab().save(str(path))
@@ -68,6 +71,21 @@ def main(argv: list[str] | None = None) -> int:
         window.close()
         app.processEvents()
     return 0
+
+
+def _load_demo_trials(page, folder: Path) -> None:
+    """Synthetic trials (the paper's forces, one repeat, 0.2 % noise) written as CSVs, loaded and fitted."""
+    from app import calfiles
+    from models.physics import PhysicsConstants
+    from models.synthetic import TYPICAL_TRUTH, paper_protocol
+
+    paths = []
+    for trial in paper_protocol(TYPICAL_TRUTH, PhysicsConstants(), seed=7, repeats=1, noise_rel=0.002):
+        path = folder / f"{trial.name}.csv"
+        calfiles.write_trial_csv(path, trial.time_s, trial.force_n, trial.conductance_s)
+        paths.append(path)
+    page.add_trial_files(paths)
+    page.start_fit()
 
 
 if __name__ == "__main__":

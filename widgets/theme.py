@@ -41,6 +41,10 @@ STATUS_BACKGROUNDS: dict[str, str] = {
 STOP_RED = "#D32F2F"
 STOP_RED_PRESSED = "#9A0007"
 
+# Series that are told apart only by colour (calibration trials, overlaid recordings), Okabe–Ito order.
+SERIES_COLORS: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000",
+                                  "#F0E442")
+
 # Goal versus present overlays (Teach/Gait body drawing, plots).
 GOAL_COLOR = "#7F7F7F"
 PRESENT_COLOR = "#222222"
@@ -57,6 +61,11 @@ def qcolor(hex_color: str, alpha: int = 255) -> QColor:
     color = QColor(hex_color)
     color.setAlpha(alpha)
     return color
+
+
+def series_color(index: int) -> str:
+    """Colour of the ``index``-th series (cycles through :data:`SERIES_COLORS`)."""
+    return SERIES_COLORS[index % len(SERIES_COLORS)]
 
 
 def side_of(sensor_name: str) -> str:
