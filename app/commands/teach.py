@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"torque off on {robot.n_joints} joints: pose the robot by hand, then press Enter to capture")
             if sys.stdin.readline() == "":
-                raise EOFError("standard input closed before Enter: nothing captured (use --after SECONDS)")
+                raise RuntimeError("standard input closed before Enter: nothing captured (use --after SECONDS)")
         pose = session.capture().result(timeout=BUS_TIMEOUT_S)
         session.hold().result(timeout=BUS_TIMEOUT_S)
     finally:

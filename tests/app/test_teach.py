@@ -108,3 +108,16 @@ def test_cli_teach_bad_port_is_one_line(tmp_path, capsys):
     code = main(["teach", "--robot", "/dev/does-not-exist", "--after", "0", "--out", str(tmp_path / "x.json")])
     err = capsys.readouterr().err.strip()
     assert code == 1 and err.count("\n") == 0 and "/dev/does-not-exist" in err
+
+
+def test_cli_teach_waits_for_enter(sim_lab_fast, tmp_path, capsys, monkeypatch):
+    import io
+
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n"))
+    out = tmp_path / "enter.json"
+    assert main(["teach", "--robot", "sim", "--out", str(out)]) == 0
+    assert "press Enter" in capsys.readouterr().out and out.exists()
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    assert main(["teach", "--robot", "sim", "--out", str(tmp_path / "eof.json")]) == 1
+    assert "standard input closed" in capsys.readouterr().err
+    assert not (tmp_path / "eof.json").exists()
