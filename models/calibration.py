@@ -127,6 +127,8 @@ class SensorCalibration:
         if self.linear is not None:
             entry["linear"] = self.linear.model.to_dict()
             entry["linear_r2"] = _or_none(self.linear.r_squared)
+            if self.linear.baseline_s is not None:
+                entry["linear_baseline_S"] = [_or_none(float(b)) for b in self.linear.baseline_s]
         entry["sls"] = self.sls.to_dict()
         if self.sls_trend is not None:
             entry["sls_trend"] = {k: list(v) for k, v in self.sls_trend.items()}
@@ -228,10 +230,13 @@ def _fit(trials: list[FitTrial], area_m2: float, phys: PhysicsConstants, start, 
 
 def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
                      window_s: tuple[float, float] = DEFAULT_WINDOW_S, saturation_s: float | None = None,
-                     solver: str = "gauss-newton", fit_trend: bool = True) -> SensorCalibration:
+                     solver: str = "gauss-newton", fit_trend: bool = True,
+                     subtract_baseline: bool = False) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
     largest conductance (S) — samples at it are censored; ``solver``: ``"scipy"`` or a CasADi solver of
     :func:`models.fit_output.fit_output_casadi` for the joint fits (production default: CasADi Gauss–Newton).
+    ``subtract_baseline``: the linear model's drift handling — each trial's unloaded conductance is subtracted
+    from its window mean before the line is fitted (the per-trial baselines are kept in the result).
 
     Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
     trials (no force, too few samples), each naming the trial.
@@ -331,7 +336,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
 
     try:
-        linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s)
+        linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s,
+                                   subtract_baseline=subtract_baseline)
         sensor_warnings.extend(linear.warnings)
     except ValueError as exc:
         linear = None

@@ -75,11 +75,19 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
         r2 = cal.linear.r_squared
         print(f"  linear m {cal.linear.model.m_S_per_N:.5e} S/N, d {cal.linear.model.d_S:.5e} S, "
               + (f"R² {r2:.5f}" if math.isfinite(r2) else "R² undefined"))
-    details = [(t.name, w) for t in cal.trials for w in t.warnings] + [("sensor", w) for w in cal.warnings]
-    if details:
+    # The same warning on many trials is printed once with the list of trials (the paper's LS refuses every hold).
+    grouped: dict[str, list[str]] = {}
+    for t in cal.trials:
+        for text in t.warnings:
+            key = text.split(" (")[0] if text.startswith("paper LS") else text
+            grouped.setdefault(key, []).append(t.name)
+    if grouped or cal.warnings:
         print("warnings:")
-        for where, text in details:
+        for text, names in grouped.items():
+            where = names[0] if len(names) == 1 else f"{len(names)} trials ({', '.join(names)})"
             print(f"  {where}: {text}")
+        for text in cal.warnings:
+            print(f"  sensor: {text}")
     print(f"wrote {sensor} to {out}")
 
 

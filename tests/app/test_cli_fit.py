@@ -94,6 +94,19 @@ def test_round_trip_forward_then_estimate(lab, tmp_path, capsys):
     assert 0.01 < np.max(np.abs(linear - force)[t > 6]) < 1.0
 
 
+def test_estimate_warns_when_extrapolating(lab, tmp_path, capsys):
+    folder, _ = lab
+    cal = str(folder / "cal.json")
+    t = np.arange(0, 60, 1 / 6)
+    calfiles.write_series_csv(tmp_path / "big.csv", t, ("S06B",), np.where(t > 5, 9.0, 0.0)[:, None])
+    assert _run(["forward", str(tmp_path / "big.csv"), "--cal", cal, "--out", str(tmp_path / "c.csv")],
+                capsys)[0] == 0
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(tmp_path / "f.csv")],
+                        capsys)
+    assert code == 0
+    assert "S06B: forces up to 9 N are outside the calibrated range 1.75–5.25 N (extrapolated)" in err
+
+
 def test_single_generic_column_maps_to_the_only_sensor(lab, tmp_path, capsys):
     folder, paths = lab
     code, _, _ = _run(["estimate", paths[1], "--cal", str(folder / "cal.json"), "--out", str(tmp_path / "f.csv")],

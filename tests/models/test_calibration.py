@@ -84,3 +84,14 @@ def test_window_outside_trial_names_the_trial():
     trial = make_trial(TYPICAL_TRUTH, PHYS, 3.0, duration_s=200.0, name="short.csv")
     with pytest.raises(ValueError, match="short.csv: no valid samples in the window"):
         calibrate_sensor(_inputs([trial]), AREA_M2, PHYS)
+
+
+def test_linear_baseline_subtraction_removes_a_constant_offset():
+    clean = paper_protocol(TYPICAL_TRUTH, PHYS, repeats=1)
+    offset = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s + 2e-5 * (i + 1))
+              for i, t in enumerate(clean)]
+    plain = calibrate_sensor(_inputs(clean), AREA_M2, PHYS, solver="scipy", fit_trend=False)
+    shifted = calibrate_sensor(offset, AREA_M2, PHYS, solver="scipy", fit_trend=False, subtract_baseline=True)
+    assert shifted.linear.baseline_s == pytest.approx([2e-5 * (i + 1) for i in range(4)], rel=1e-9)
+    assert shifted.linear.model.m_S_per_N == pytest.approx(plain.linear.model.m_S_per_N, rel=1e-9)
+    assert shifted.to_dict()["linear_baseline_S"] == pytest.approx(list(shifted.linear.baseline_s))
