@@ -56,11 +56,16 @@ def main(argv: list[str] | None = None) -> int:
                 time.sleep(0.01)  # a script, not a test: idle between event batches
 
         pump(10_000, until=lambda: lab.robot.is_connected or "could not" in window.status.message)
+        _pose_by_hand(config)
         names = args.tabs or [spec.name for spec in TABS]
         for name in names:
             page = window.show_tab(name)
             if name == "hardware":
+                page.panel.scan_id_to.setValue(20)
+                page.panel.scan_button.click()
+                pump(20_000, until=lambda p=page: p.panel.scan_button.isEnabled())
                 page.panel.link_check_button.click()
+                pump(20_000, until=lambda p=page: p.panel.link_check_button.isEnabled())
             if name == "calibration" and hasattr(page, "add_trial_files"):
                 _load_demo_trials(page, Path(tmp))
                 pump(60_000, until=lambda p=page: p.result is not None or not p.is_fitting)
@@ -71,6 +76,21 @@ def main(argv: list[str] | None = None) -> int:
         window.close()
         app.processEvents()
     return 0
+
+
+def _pose_by_hand(config) -> None:
+    """Bend the simulated robot (torque is off at start) into a gentle curve, so the views show a shape."""
+    import math
+
+    from devices.factory import sim_lab
+
+    chain = sim_lab().chain
+    for index, servo_id in enumerate(config.robot.joint_ids):
+        angle_rad = 0.35 * math.sin(2 * math.pi * index / len(config.robot.joint_ids))
+        try:
+            chain.set_limp_position(servo_id, 2048 + angle_rad * 4096 / (2 * math.pi))
+        except ValueError:
+            return  # torque is on: leave the robot as it is
 
 
 def _load_demo_trials(page, folder: Path) -> None:
