@@ -627,7 +627,9 @@ class SLSInverse:
         if n == 0:
             return ForceResult(force, status)
         co = self._co
-        x = steps[:, None] / co.tau[None, :]
+        # Sensors sharing one τ share the step coefficients: (N, 1) broadcasts and saves two N×S passes of expm1.
+        tau = co.tau[:1] if np.all(co.tau == co.tau[0]) else co.tau
+        x = steps[:, None] / tau[None, :]
         oma = -np.expm1(-x)
         if self.interp == "linear":
             ramp = one_minus_phi1(x)
