@@ -32,6 +32,7 @@ from models.smoothing import smooth_tikhonov, tikhonov_lambda
 
 NOISE_S = 1e-6  # ≈ 0.15 % of a typical loaded reading, ~3 counts of the 12-bit readout
 NAIVE_MAX_SAMPLES = 10_000
+REPEATS = 3
 
 
 # ------------------------------------------------------------------------------------------------ scenarios
@@ -259,12 +260,14 @@ def _throughput_table(quick: bool) -> None:
             print(f"{'forward ' + label + ' (' + interp + ')':<34} {force.size / dt / 1e6:19.1f} {'':>10}")
             est = SLSEstimator(TYPICAL_SLS, TYPICAL_AREA_M2, phys, interp=interp, n_sensors=n_sensors)
             est.update(t[:block], cond[:block])  # warm-up (allocations, first-call costs)
-            est.reset()
             out = np.empty_like(cond)
-            start = time.perf_counter()
-            for lo in range(0, t.size, block):
-                out[lo : lo + block] = est.update(t[lo : lo + block], cond[lo : lo + block])
-            dt = time.perf_counter() - start
+            dt = np.inf
+            for _ in range(REPEATS):  # best of: the machine is shared, the minimum is the code's own cost
+                est.reset()
+                start = time.perf_counter()
+                for lo in range(0, t.size, block):
+                    out[lo : lo + block] = est.update(t[lo : lo + block], cond[lo : lo + block])
+                dt = min(dt, time.perf_counter() - start)
             err = float(np.max(np.abs(out - force)))
             print(f"{'inverse ' + label + ' (' + interp + ')':<34} {force.size / dt / 1e6:19.1f} {err:10.1e}")
     print("target: ≥ 10 M sensor-samples/s for the inverse without the contact term")
