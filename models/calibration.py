@@ -320,10 +320,21 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     if not distinct:
         sensor_warnings.append("all trials are at one force: no force trend fitted, and forces far from "
                                f"{float(np.mean(forces)):.3g} N will be extrapolated")
-    e0_lo, e0_hi = joint.ci95["E0_Pa"]
-    if not (e0_hi - e0_lo) / 2 < WIDE_INTERVAL * float(joint.ref.E0_Pa):
-        sensor_warnings.append(f"E0 poorly identified (95 % interval {e0_lo:.3g} … {e0_hi:.3g} Pa): record the "
-                               "loading ramp")
+    for name in PARAM_NAMES:
+        lo, hi = joint.ci95[name]
+        value = float(getattr(joint.ref, name))
+        if not (hi - lo) / 2 < WIDE_INTERVAL * value:
+            hint = {"E0_Pa": "record the loading ramp",
+                    "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
+                    "E1_Pa": "hold longer so the creep settles"}[name]
+            sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
+    tau_s = float(joint.ref.tau_s)
+    step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
+    span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
+    if not step_s <= tau_s <= 100 * span_s:
+        sensor_warnings.append(f"creep time τ = mu1/E1 = {tau_s:.3g} s is outside what {span_s:.0f} s records at "
+                               f"{step_s:.3g} s steps can resolve: the SLS parameters are degenerate; do not trust "
+                               "them (check the sensor, hold longer)")
     if not any(p["ramp"] for p in prelim):
         sensor_warnings.append("no trial contains its loading ramp: E0 is poorly identified")
     n_sat = sum(p["sat"] for p in prelim)

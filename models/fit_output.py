@@ -278,7 +278,9 @@ class _Problem:
                     grad = np.zeros(self.n_params)
                     grad[k] = slope
                     grad[3 + k] = ref_values[k] / self.ref_force_n
-                    se_slope = math.sqrt(max(float(grad @ cov @ grad), 0.0))
+                    with np.errstate(invalid="ignore"):
+                        variance = float(grad @ cov @ grad)
+                    se_slope = math.sqrt(variance) if variance >= 0 else math.inf
                     ci[f"{n}.slope"] = (float(slope - t_crit * se_slope), float(slope + t_crit * se_slope))
             if not np.all(np.isfinite(se)):
                 warnings.append("parameter uncertainty undefined: the Jacobian is singular (parameters not "

@@ -95,3 +95,10 @@ def test_linear_baseline_subtraction_removes_a_constant_offset():
     assert shifted.linear.baseline_s == pytest.approx([2e-5 * (i + 1) for i in range(4)], rel=1e-9)
     assert shifted.linear.model.m_S_per_N == pytest.approx(plain.linear.model.m_S_per_N, rel=1e-9)
     assert shifted.to_dict()["linear_baseline_S"] == pytest.approx(list(shifted.linear.baseline_s))
+
+
+def test_unresolvable_creep_time_is_reported():
+    slow = SensorTruth.constant(6.0e5, 9.0e5, 9.0e10)  # τ = 1e5 s, 270× the record
+    trials = paper_protocol(slow, PHYS, seed=2, repeats=1, noise_rel=0.01)
+    cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, solver="scipy", fit_trend=False)
+    assert any("poorly identified" in w or "outside what" in w for w in cal.warnings), cal.warnings
