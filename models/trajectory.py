@@ -333,10 +333,11 @@ class PlannedMotion:
     """A MotionSource that plans from the present pose on its first call and then follows the plan.
 
     ``planner(present_rad) -> Plan``. The plan is sampled at ``rate_hz`` (see :class:`Plan`): the controller's
-    time ``t_s`` is turned into the tick number ``round(t_s · rate_hz)``, so timing jitter never changes a step,
-    and a tick that lands on a move's end sends that target exactly. ``goal_at`` returns the final target once
-    the last tick is due, then ``None`` (done). Call from the controller thread only; read :attr:`progress`
-    from anywhere.
+    time ``t_s`` becomes the tick number ``round(t_s · rate_hz)``, so timing jitter never changes a step, but never
+    more than one tick past the previous call: when the loop misses a deadline the motion waits one tick rather
+    than take a double step (which would exceed the speed, and could skip a shift target). Every target is sent
+    exactly. ``goal_at`` returns the final target once the last tick is due, then ``None`` (done). Call from the
+    controller thread only; read :attr:`progress` from anywhere.
     """
 
     def __init__(self, planner: Callable[[np.ndarray], Plan], kind: str, rate_hz: float) -> None:
@@ -346,6 +347,7 @@ class PlannedMotion:
         self.rate_hz = float(rate_hz)
         self._plan: Plan | None = None
         self._finished = False
+        self._last_tick = -1
         self.progress = Progress(kind, 0, 1, 0.0, 0.0, 0.0, 0.0)
 
     @property
@@ -359,7 +361,9 @@ class PlannedMotion:
         if self._finished:
             return None
         plan = self._plan
-        tick = int(round(t_s * self.rate_hz))
+        tick = min(int(round(t_s * self.rate_hz)), self._last_tick + 1)
+        tick = max(tick, self._last_tick, 0)
+        self._last_tick = tick
         if tick >= plan.total_ticks(self.rate_hz):
             self._finished = True
         self.progress = plan.progress_at_tick(tick, self.rate_hz)

@@ -130,11 +130,19 @@ def test_motion_source_plans_from_present_and_ends_on_target_then_none():
     np.testing.assert_allclose(source.goal_at(0.0, present), present)
     plan = source.plan
     # timing jitter does not change the step: t is rounded to the tick
-    np.testing.assert_array_equal(source.goal_at(0.1 + 0.004, present), plan.goal_at_tick(5, 50.0))
-    total = plan.total_ticks(50.0) / 50.0
-    np.testing.assert_array_equal(source.goal_at(total + 0.003, present), plan.targets_rad[-1])
+    np.testing.assert_array_equal(source.goal_at(0.02 + 0.004, present), plan.goal_at_tick(1, 50.0))
+    np.testing.assert_array_equal(source.goal_at(0.04 - 0.006, present), plan.goal_at_tick(2, 50.0))
+    # a missed deadline (t jumps 3 ticks) advances one tick only: no double step
+    np.testing.assert_array_equal(source.goal_at(0.10, present), plan.goal_at_tick(3, 50.0))
+    total_ticks = plan.total_ticks(50.0)
+    t = 0.10
+    sent = []
+    while (goal := source.goal_at(t, present)) is not None:
+        sent.append(goal)
+        t += 0.02
+    assert len(sent) == total_ticks - 3  # ticks 4 … total, each sent once
+    np.testing.assert_array_equal(sent[-1], plan.targets_rad[-1])
     assert source.progress.done
-    assert source.goal_at(total + 0.02, present) is None
 
 
 def test_bad_requests_are_refused_with_clear_errors():
