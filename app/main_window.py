@@ -157,7 +157,15 @@ class MainWindow(QMainWindow):
             self.status.show_message(f"{spec.title} tab: {exc}", theme.ERROR)
             return PlaceholderPage(spec.title, spec.description, f"This tab failed to start: {exc}")
 
+    def _shutdown_tabs(self) -> None:
+        # A tab may own timers or worker threads; ``shutdown()`` (optional) stops them before the devices close.
+        for page in self._built.values():
+            shutdown = getattr(page, "shutdown", None)
+            if callable(shutdown):
+                shutdown()
+
     def _drop_tabs(self) -> None:
+        self._shutdown_tabs()
         for name, page in list(self._built.items()):
             page.setParent(None)
             page.deleteLater()
@@ -326,5 +334,6 @@ class MainWindow(QMainWindow):
 
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
         self.save_settings()
+        self._shutdown_tabs()
         self.lab.close()
         event.accept()

@@ -92,6 +92,8 @@ class RobotBridge(QObject):
         self._motion_name = ""
         self._motion_token = 0
         self.timing_warnings: list[str] = []
+        self._link_lost_at_s: float | None = None  # monotonic time the link was reported lost
+        self._last_reported: BaseException | None = None
         self.connection_text = "not connected"
         self.connected_at_s: float | None = None
 
@@ -286,7 +288,7 @@ class RobotBridge(QObject):
         future = controller.run_motion(source, name)
         self._set_motion(MOTION_RUNNING, name)
         self.when_done(future, lambda outcome: self._motion_ended(token, outcome),
-                       lambda _exc: self._motion_ended(token, MOTION_FAULT))
+                       lambda exc: self._motion_failed(token, exc))
         return future
 
     def pause_motion(self) -> None:
@@ -360,7 +362,8 @@ class RobotBridge(QObject):
         self._post.emit(lambda: self.event.emit(str(text)))
 
     def _on_error(self, exc: BaseException) -> None:
-        self._post.emit(lambda: self._device_error(exc))
+        at_s = time.monotonic()
+        self._post.emit(lambda: self._device_error(exc, at_s))
 
     # -- GUI-thread handlers ----------------------------------------------------------------------------------------
     def _open_controller(self, config: RobotConfig) -> tuple[Any, list[str]]:
@@ -390,12 +393,15 @@ class RobotBridge(QObject):
         self.timing_warnings = warnings
         self.connected_at_s = time.monotonic()
         kind = "simulated" if self.is_sim else "real"
-        self._set_connection(f"{self.n_servos} servos on {self.port} ({kind})")
+        self._set_connection(self._connected_text())
         self._state_timer.start()
         self.connected.emit(True)
         n_warnings = len(self.timing_warnings)
         timing = f"; {n_warnings} timing warning(s), see the Hardware tab" if n_warnings else ""
         self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}")
+
+    def _connected_text(self) -> str:
+        return f"{self.n_servos} servos on {self.port} ({'simulated' if self.is_sim else 'real'})"
 
     def _connect_failed(self, exc: BaseException) -> None:
         self._set_connection("not connected")
@@ -420,6 +426,12 @@ class RobotBridge(QObject):
                 return
             block = list(self._state_backlog)
             self._state_backlog.clear()
+        lost_at_s = self._link_lost_at_s
+        if lost_at_s is not None and block[-1].host_time_s > lost_at_s:
+            # Feedback read after the loss: the controller has reopened the port.
+            self._link_lost_at_s = None
+            self._set_connection(self._connected_text())
+            self.event.emit(f"robot link on {self.port} is back")
         self.state_block.emit(block)
         self.state.emit(block[-1])
 
@@ -428,10 +440,22 @@ class RobotBridge(QObject):
             self._health_by_id[item.servo_id] = item
         self.health.emit(health)
 
-    def _device_error(self, exc: BaseException) -> None:
-        if isinstance(exc, LinkLostError):
+    def _device_error(self, exc: BaseException, at_s: float) -> None:
+        if isinstance(exc, LinkLostError) and self._controller is not None:
+            self._link_lost_at_s = at_s
             self._set_connection(f"link lost on {self.port}: reconnecting…")
+        self._report_once(exc)
+
+    def _report_once(self, exc: BaseException) -> None:
+        # The controller both fails the motion's future and calls on_error with the same exception object.
+        if exc is self._last_reported:
+            return
+        self._last_reported = exc
         self.error.emit(describe_error(exc))
+
+    def _motion_failed(self, token: int, exc: BaseException) -> None:
+        self._report_once(exc)
+        self._motion_ended(token, MOTION_FAULT)
 
     def _motion_ended(self, token: int, outcome: str) -> None:
         # A later run_motion / stop / STOP already moved the state on; an old motion's ending is not news.

@@ -155,3 +155,27 @@ def test_close_while_connecting_leaves_no_thread(bridge):
     bridge.connect()
     bridge.close()  # the autouse fixture fails the test if the controller or worker thread survives
     assert not bridge.is_connected
+
+
+def test_pulled_cable_is_reported_and_recovered(connected, qtbot, sim_lab_fast):
+    texts: list[str] = []
+    connected.connection_changed.connect(texts.append)
+    with qtbot.waitSignal(connected.error, timeout=5000) as blocker:
+        sim_lab_fast.chain.disconnect()
+    assert "sim" in blocker.args[0] or "link" in blocker.args[0].lower()
+    qtbot.waitUntil(lambda: any("link lost" in t for t in texts), timeout=5000)
+    sim_lab_fast.chain.reconnect()
+    qtbot.waitUntil(lambda: connected.connection_text == "12 servos on sim (simulated)", timeout=10_000)
+    assert connected.is_connected
+
+
+def test_a_motion_failure_is_reported_once(connected, qtbot, sim_lab_fast):
+    connected.set_torque(True).result(timeout=5)
+    errors: list[str] = []
+    connected.error.connect(errors.append)
+    connected.run_motion(Ramp(index=6), "ramp")
+    qtbot.waitUntil(lambda: connected.latest_state is not None, timeout=3000)
+    sim_lab_fast.chain.inject_overload(7)
+    qtbot.waitUntil(lambda: connected.motion_state == "fault", timeout=5000)
+    wait_states(qtbot, connected, 10)
+    assert len([e for e in errors if "servo 7" in e]) == 1
