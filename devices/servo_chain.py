@@ -476,13 +476,9 @@ class ServoChain:
         times ``n_cycles`` sync reads (nothing is written) and adds the sync write's wire time.
         """
         warnings: list[str] = []
-        latency_ms = self.latency_timer_ms()
-        if latency_ms is not None and latency_ms > 1:
-            path = self._latency_timer_path()
-            warnings.append(
-                f"USB latency timer of {self.robot.port} is {latency_ms} ms (each reply waits up to that long): "
-                f"fix with `echo 1 | sudo tee {path}`"
-            )
+        latency = self.latency_warning()
+        if latency:
+            warnings.append(latency)
         delays = {sid: self.read_item(sid, "Return Delay Time") * 2 for sid in self.ids}
         slow = [sid for sid, us in delays.items() if us > 0]
         if slow:
@@ -511,6 +507,14 @@ class ServoChain:
             times.append(time.perf_counter() - t0)
         write_bytes = 14 + 5 * len(self.ids)
         return float(np.median(times)) + write_bytes * 10.0 / self._baud
+
+    def latency_warning(self) -> str | None:
+        """A warning with its fix if the USB adapter's latency timer is above 1 ms (Linux); needs no open port."""
+        latency_ms = self.latency_timer_ms()
+        if latency_ms is None or latency_ms <= 1:
+            return None
+        return (f"USB latency timer of {self.robot.port} is {latency_ms} ms (each reply waits up to that long): "
+                f"fix with `echo 1 | sudo tee {self._latency_timer_path()}`")
 
     def latency_timer_ms(self) -> int | None:
         """The USB adapter's latency timer (Linux), or None where there is none (sim, pty, other OS)."""

@@ -194,3 +194,20 @@ def test_scan_repeats_a_broadcast_ping_whose_reply_was_corrupt(servos, sim_chain
     found = servos.scan()
     assert [info.servo_id for info in found] == list(ROBOT.joint_ids)
     assert sim_chain.count(wire.PING) == 2
+
+
+def test_latency_timer_above_1_ms_is_flagged_with_the_fix(tmp_path, monkeypatch):
+    from devices import servo_chain
+
+    (tmp_path / "ttyUSB7").mkdir()
+    (tmp_path / "ttyUSB7" / "latency_timer").write_text("16\n")
+    monkeypatch.setattr(servo_chain, "LATENCY_TIMER_DIR", tmp_path)
+    monkeypatch.setattr(servo_chain.sys, "platform", "linux")
+    chain = ServoChain(dataclasses.replace(ROBOT, port="/dev/ttyUSB7"))
+    assert chain.latency_timer_ms() == 16
+    assert chain.latency_warning() == (
+        f"USB latency timer of /dev/ttyUSB7 is 16 ms (each reply waits up to that long): "
+        f"fix with `echo 1 | sudo tee {tmp_path / 'ttyUSB7' / 'latency_timer'}`")
+    (tmp_path / "ttyUSB7" / "latency_timer").write_text("1\n")
+    assert chain.latency_warning() is None
+    assert ServoChain(ROBOT).latency_warning() is None  # sim: no adapter
