@@ -16,8 +16,10 @@ import enum
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy import constants as _const
 
 # CODATA values as shipped by scipy.constants (h and e are exact; m_e is the release scipy carries).
@@ -99,11 +101,12 @@ class PhysicsConstants:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"physics must be a JSON object, got {type(data).__name__}")
-        source = data
+        source: Mapping[str, object] = data
         if "physics" in data and not any(key in data for key in PHYSICS_KEYS):
-            source = data["physics"]
-            if not isinstance(source, Mapping):
-                raise ValueError(f"'physics' must be a JSON object, got {type(source).__name__}")
+            nested = data["physics"]
+            if not isinstance(nested, Mapping):
+                raise ValueError(f"'physics' must be a JSON object, got {type(nested).__name__}")
+            source = nested
         missing = [key for key in PHYSICS_KEYS if key not in source]
         if missing:
             raise ValueError(
@@ -157,9 +160,11 @@ STRAIN_STATUS_TEXT = {
 }
 
 
-def explain_status(status: np.ndarray, texts: Mapping[enum.IntEnum, str] | None = None) -> list[str]:
-    """One line per non-OK status present in ``status``: '<count> sample(s): <explanation>'."""
-    texts = STRAIN_STATUS_TEXT if texts is None else texts
+def explain_status(status: np.ndarray, texts: Mapping[Any, str] | None = None) -> list[str]:
+    """One line per non-OK status present in ``status``: '<count> sample(s) NAME: <explanation>'. ``texts`` maps
+    each IntEnum member to its explanation (default: :class:`StrainStatus`)."""
+    if texts is None:
+        texts = STRAIN_STATUS_TEXT
     codes = np.asarray(status)
     lines = []
     for code, text in texts.items():
@@ -190,7 +195,7 @@ class StrainResult:
         return explain_status(self.status, STRAIN_STATUS_TEXT)
 
 
-def contact_resistance(force_n: np.ndarray, phys: PhysicsConstants) -> np.ndarray:
+def contact_resistance(force_n: npt.ArrayLike, phys: PhysicsConstants) -> np.ndarray:
     """K/√F in Ω; ∞ for F ≤ 0 when K > 0, 0 everywhere when K = 0. NaN force gives NaN."""
     force = np.asarray(force_n, dtype=np.float64)
     if not phys.has_contact:
@@ -200,13 +205,15 @@ def contact_resistance(force_n: np.ndarray, phys: PhysicsConstants) -> np.ndarra
     return np.where(np.isnan(force), np.nan, r)
 
 
-def tunnelling_resistance(strain: np.ndarray, phys: PhysicsConstants) -> np.ndarray:
+def tunnelling_resistance(strain: npt.ArrayLike, phys: PhysicsConstants) -> np.ndarray:
     """R0·(1−ε)·exp(−k·ε) in Ω (the strain-dependent part of Eq. 3)."""
     eps = np.asarray(strain, dtype=np.float64)
     return phys.R0_ohm * (1.0 - eps) * np.exp(-phys.tunnelling_k * eps)
 
 
-def resistance_from_strain(strain: np.ndarray, force_n: np.ndarray, phys: PhysicsConstants) -> np.ndarray:
+def resistance_from_strain(
+    strain: npt.ArrayLike, force_n: npt.ArrayLike, phys: PhysicsConstants
+) -> np.ndarray:
     """Eq. 3: total resistance in Ω from strain (dimensionless) and force (N), broadcast together.
 
     With a contact term, F → 0 gives R → ∞ (conductance 0); negative forces are treated as no contact (R = ∞).
@@ -215,7 +222,9 @@ def resistance_from_strain(strain: np.ndarray, force_n: np.ndarray, phys: Physic
     return contact_resistance(force_n, phys) + tunnelling_resistance(strain, phys)
 
 
-def conductance_from_strain(strain: np.ndarray, force_n: np.ndarray, phys: PhysicsConstants) -> np.ndarray:
+def conductance_from_strain(
+    strain: npt.ArrayLike, force_n: npt.ArrayLike, phys: PhysicsConstants
+) -> np.ndarray:
     """1/R of Eq. 3 in siemens; exactly 0 where R = ∞ (no contact)."""
     r = resistance_from_strain(strain, force_n, phys)
     with np.errstate(divide="ignore"):
@@ -333,7 +342,9 @@ def _newton_strain(log_ratio: np.ndarray, k: float) -> tuple[np.ndarray, np.ndar
     return eps, converged, max_iter_used
 
 
-def strain_from_resistance(r_ohm: np.ndarray, force_n: np.ndarray, phys: PhysicsConstants) -> StrainResult:
+def strain_from_resistance(
+    r_ohm: npt.ArrayLike, force_n: npt.ArrayLike, phys: PhysicsConstants
+) -> StrainResult:
     """Invert Eq. 3 for the strain, vectorised: ``ln(1−ε) − k·ε = ln(R_t/R0)`` with ``R_t = R_s − K/√F``.
 
     r_ohm: measured resistance in Ω (∞ allowed: open circuit); force_n: the force in N the contact term is evaluated

@@ -35,6 +35,7 @@ import enum
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -137,7 +138,8 @@ class SLSParams:
         missing = [key for key in SLS_KEYS if key not in data]
         if missing:
             raise ValueError(f"sls is missing key(s) {', '.join(missing)} (need {', '.join(SLS_KEYS)})")
-        return cls(*(data[key] for key in SLS_KEYS))
+        values: dict[str, Any] = {key: data[key] for key in SLS_KEYS}
+        return cls(**values)
 
     def to_dict(self) -> dict[str, float]:
         """SPEC §3.3 ``sls`` object (scalar parameters only)."""
@@ -173,7 +175,12 @@ class SLSTrend:
 
     def __post_init__(self) -> None:
         for key in SLS_KEYS:
-            pair = tuple(float(v) for v in getattr(self, key))
+            try:
+                pair = tuple(float(v) for v in getattr(self, key))
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"sls_trend {key} must be [intercept, slope_per_N], got {getattr(self, key)!r}"
+                ) from None
             if len(pair) != 2 or not all(math.isfinite(v) for v in pair):
                 raise ValueError(
                     f"sls_trend {key} must be [intercept, slope_per_N] (finite), got {getattr(self, key)!r}"
@@ -196,7 +203,8 @@ class SLSTrend:
         missing = [key for key in SLS_KEYS if key not in data]
         if missing:
             raise ValueError(f"sls_trend is missing key(s) {', '.join(missing)}")
-        return cls(*(tuple(data[key]) for key in SLS_KEYS))
+        values: dict[str, Any] = {key: data[key] for key in SLS_KEYS}
+        return cls(**values)
 
     def to_dict(self) -> dict[str, list[float]]:
         return {key: list(getattr(self, key)) for key in SLS_KEYS}
@@ -365,19 +373,19 @@ def _creep_strain(
             out[i] = q
         q_all[:, 0] = out
         return q_all
-    q = q0.astype(np.float64, copy=True)
+    q_vec = q0.astype(np.float64, copy=True)
     tmp = np.empty(s)
     for i in range(n):
         if i:
             prev_drive = drive[i - 1]
-        np.subtract(prev_drive, q, out=tmp)
+        np.subtract(prev_drive, q_vec, out=tmp)
         tmp *= one_minus_alpha[i]
-        q += tmp
+        q_vec += tmp
         if ramp is not None:
             np.subtract(drive[i], prev_drive, out=tmp)
             tmp *= ramp[i]
-            q += tmp
-        q_all[i] = q
+            q_vec += tmp
+        q_all[i] = q_vec
     return q_all
 
 
@@ -668,8 +676,7 @@ class SLSInverse:
         if clean:
             strain_res = strain_from_resistance(1.0 / cond, 1.0, self.phys)
             strain = strain_res.strain
-            use = None
-            zero = None
+            use = zero = np.empty((0, 0), dtype=bool)  # never indexed: every row is plain
             plain_rows = np.ones(n, dtype=bool)
             # ε ≥ 0.9: the ε → 1 limit (flagged, force kept).
             if strain_res.status.any():
