@@ -345,6 +345,13 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         sensor_warnings.append(f"poor fit in {', '.join(poor)}")
     if trend is not None:
         sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
+        trend_rmse = float(np.sqrt(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / sum(trend.n_used)))
+        joint_rmse_s = float(np.sqrt(np.sum(np.square(joint.rmse_s) * np.array(joint.n_used)) / sum(joint.n_used)))
+        if joint_rmse_s > POOR_FIT_NOISE_RATIO * trend_rmse:
+            sensor_warnings.append(
+                f"the parameters depend on force: one parameter set (sls, used by estimate) fits "
+                f"{joint_rmse_s / trend_rmse:.1f}× worse than the force trend (sls_trend); expect force errors "
+                f"away from {joint.ref_force_n:.3g} N")
 
     try:
         linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s,

@@ -62,7 +62,8 @@ class OutputFit:
     ``params`` holds one :class:`SLSParams` per trial (all equal for ``joint``); ``ref`` is the ``joint``/``trend``
     parameter set at ``ref_force_n``. ``trend`` maps each name of :data:`PARAM_NAMES` to ``(intercept, slope_per_N)``
     (``trend`` mode only). ``ci95`` maps each reported quantity to its (low, high) 95 % interval: for ``joint`` the
-    names of :data:`PARAM_NAMES`; for ``trend`` also ``"<name>.slope"``; for ``per_trial`` ``ci95_per_trial`` holds one
+    names of :data:`PARAM_NAMES`; for ``trend`` ``"<name>.intercept"``, ``"<name>.slope"`` and
+    ``"<name>.at_ref_force"``; for ``per_trial`` ``ci95_per_trial`` holds one
     such dict per trial. ``rmse_s`` per trial (S, over the samples used). ``n_censored`` saturated samples were
     treated as one-sided. ``warnings`` are for the user.
     """
@@ -267,21 +268,26 @@ class _Problem:
             ref_values = self.scale * np.exp(theta[:3])
             ref = SLSParams(*(float(v) for v in ref_values))
             for k, n in enumerate(PARAM_NAMES):
-                ci[n] = (float(ref_values[k] * math.exp(-t_crit * se[k])),
-                         float(ref_values[k] * math.exp(t_crit * se[k])))
+                # In trend mode these are the parameters at the reference force (the mean hold force).
+                key = n if self.mode == "joint" else f"{n}.at_ref_force"
+                ci[key] = (float(ref_values[k] * math.exp(-t_crit * se[k])),
+                           float(ref_values[k] * math.exp(t_crit * se[k])))
             if self.mode == "trend":
                 trend = {}
                 for k, n in enumerate(PARAM_NAMES):
-                    slope = ref_values[k] * theta[3 + k] / self.ref_force_n
-                    trend[n] = (float(ref_values[k] - slope * self.ref_force_n), float(slope))
-                    # Delta method: slope = P_ref·u/F_ref with P_ref = s·e^θ → ∂/∂θ = slope, ∂/∂u = P_ref/F_ref.
-                    grad = np.zeros(self.n_params)
-                    grad[k] = slope
-                    grad[3 + k] = ref_values[k] / self.ref_force_n
-                    with np.errstate(invalid="ignore"):
-                        variance = float(grad @ cov @ grad)
-                    se_slope = math.sqrt(variance) if variance >= 0 else math.inf
-                    ci[f"{n}.slope"] = (float(slope - t_crit * se_slope), float(slope + t_crit * se_slope))
+                    u = theta[3 + k]
+                    slope = ref_values[k] * u / self.ref_force_n
+                    intercept = ref_values[k] * (1 - u)
+                    trend[n] = (float(intercept), float(slope))
+                    # Delta method with P_ref = s·e^θ: slope = P_ref·u/F_ref, intercept = P_ref·(1 − u).
+                    for part, value, d_theta, d_u in (("slope", slope, slope, ref_values[k] / self.ref_force_n),
+                                                      ("intercept", intercept, intercept, -ref_values[k])):
+                        grad = np.zeros(self.n_params)
+                        grad[k], grad[3 + k] = d_theta, d_u
+                        with np.errstate(invalid="ignore"):
+                            variance = float(grad @ cov @ grad)
+                        half = t_crit * math.sqrt(variance) if variance >= 0 else math.inf
+                        ci[f"{n}.{part}"] = (float(value - half), float(value + half))
             if not np.all(np.isfinite(se)):
                 warnings.append("parameter uncertainty undefined: the Jacobian is singular (parameters not "
                                 "identifiable from these trials)")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -79,7 +80,7 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     grouped: dict[str, list[str]] = {}
     for t in cal.trials:
         for text in t.warnings:
-            key = text.split(" (")[0] if text.startswith("paper LS") else text
+            key = re.sub(r" \(±[^)]*\)", "", text)  # per-trial figures differ; the advice is the same
             grouped.setdefault(key, []).append(t.name)
     if grouped or cal.warnings:
         print("warnings:")

@@ -29,6 +29,7 @@ def test_noise_free_trend_calibration_and_spec_entry():
         truth = TREND_TRUTH.params_at(report.force_n)
         assert float(report.params.E0_Pa) == pytest.approx(float(truth.E0_Pa), rel=1e-6)
         assert report.has_ramp and not report.paper.ok  # the paper's LS cannot identify a from a hold
+    assert any("the parameters depend on force" in w for w in cal.warnings)
     entry = cal.to_dict()
     assert {"area_m2", "linear", "sls", "sls_trend", "trials"} <= set(entry)
     assert set(entry["sls"]) == set(PARAM_NAMES)

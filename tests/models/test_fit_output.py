@@ -55,8 +55,9 @@ def test_noise_free_trend_fit_recovers_intercepts_and_slopes():
         true_intercept, true_slope = getattr(TREND_TRUTH, name)
         assert intercept == pytest.approx(true_intercept, rel=1e-6)
         assert slope == pytest.approx(true_slope, rel=1e-6)
-        lo, hi = fit.ci95[f"{name}.slope"]
-        assert lo <= slope <= hi
+        for part, value in (("slope", slope), ("intercept", intercept)):
+            lo, hi = fit.ci95[f"{name}.{part}"]
+            assert lo <= value <= hi
 
 
 def test_noise_free_per_trial_fits_and_nan_samples_are_skipped():
