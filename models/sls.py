@@ -54,6 +54,8 @@ SLS_KEYS = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
 _SERIES_X = 0.1
 _NEWTON_MAX_ITER = 100  # per-step force solve: warm-started Newton needs ~3, the bisection fallback ≤ 60
 _LOG_F_TOL = 1e-13
+_FAST_NEWTON_ITER = 5  # warm-started Newton: typically 3 steps
+_FAST_STEP_TOL = 1e-8  # a last step this small in log F leaves a quadratic error ~1e-16
 _BELOW_BASELINE_FLAG_N = 1e-9  # negative forces are always clipped to 0 N; flagged only beyond this
 
 
@@ -906,39 +908,69 @@ def _solve_contact_step(
         idx = np.nonzero(active)[0]
         c = cond[idx]
         pa, wa = p[idx], w[idx]
-        y_lo = 2.0 * np.log(kc * c)
-        y_hi = np.log(f_max[idx])
-        g = f_guess[idx]
-        y = np.where((g > 0.0), np.log(np.where(g > 0.0, g, 1.0)), 0.5 * (y_lo + y_hi))
-        y = np.where((y > y_lo) & (y < y_hi), y, 0.5 * (y_lo + y_hi))
         log_c = np.log(c)
-        done = np.zeros(idx.size, dtype=bool)
-        for _ in range(_NEWTON_MAX_ITER):
-            f = np.exp(y)
-            eps = pa + wa * f
-            one_minus = 1.0 - eps
-            tunnel = r0 * one_minus * np.exp(-k * eps)
-            contact = kc / np.sqrt(f)
-            r = contact + tunnel
-            phi = np.log(r) + log_c
-            dphi = (-0.5 * contact - tunnel * (1.0 / one_minus + k) * wa * f) / r
-            # Keep the bracket: φ > 0 means the root is at larger F.
-            pos = phi > 0.0
-            y_lo = np.where(pos & ~done, y, y_lo)
-            y_hi = np.where(~pos & ~done, y, y_hi)
-            newton_step = phi / dphi
-            converged = (np.abs(newton_step) <= _LOG_F_TOL * np.maximum(1.0, np.abs(y))) | (phi == 0.0)
-            y_new = y - newton_step
-            outside = ~((y_new >= y_lo) & (y_new <= y_hi)) | ~np.isfinite(y_new)
-            y_new = np.where(outside & ~converged, 0.5 * (y_lo + y_hi), y_new)
-            y = np.where(done, y, y_new)
-            done |= converged | (y_hi - y_lo <= 4e-16 * np.maximum(1.0, np.abs(y)))
-            if done.all():
-                break
-        force[idx] = np.exp(y)
+        g = f_guess[idx]
+        if np.all(g > 0.0):
+            # Fast path: plain Newton from the previous force (one step earlier the force was nearly the same, so
+            # 2–3 quadratic steps suffice). Anything that does not settle inside the domain goes to the bracket.
+            y = np.log(g)
+            for _ in range(_FAST_NEWTON_ITER):
+                f = np.exp(y)
+                eps = pa + wa * f
+                one_minus = 1.0 - eps
+                tunnel = r0 * one_minus * np.exp(-k * eps)
+                contact = kc / np.sqrt(f)
+                r = contact + tunnel
+                step = (np.log(r) + log_c) * r / (-0.5 * contact - tunnel * (1.0 / one_minus + k) * wa * f)
+                y = y - step
+                if float(np.max(np.abs(step))) <= _FAST_STEP_TOL:
+                    break
+            # After a step ≤ 1e-8 in log F the quadratic error left is ~1e-16: converged.
+            settled = (np.abs(step) <= _FAST_STEP_TOL) & (one_minus > 0.0) & np.isfinite(y)
+            force[idx[settled]] = np.exp(y[settled])
+            if settled.all():
+                force[np.isnan(cond)] = np.nan
+                return force, status
+            rest = ~settled
+            idx, c, pa, wa, log_c, g = idx[rest], c[rest], pa[rest], wa[rest], log_c[rest], g[rest]
+        f_sub, done = _solve_contact_bracketed(c, log_c, pa, wa, g, f_max[idx], k, r0, kc)
+        force[idx] = f_sub
         status[idx[~done]] = ForceStatus.NOT_CONVERGED
         force[np.isnan(cond)] = np.nan
     return force, status
+
+
+def _solve_contact_bracketed(c, log_c, pa, wa, g, f_max, k, r0, kc) -> tuple[np.ndarray, np.ndarray]:
+    """The guaranteed solve of :func:`_solve_contact_step`: Newton in log F kept inside the shrinking bracket
+    ``[(K·C)², F_max]``, bisecting whenever a step would leave it. Returns (F, converged)."""
+    y_lo = 2.0 * np.log(kc * c)
+    y_hi = np.log(f_max)
+    y = np.where((g > 0.0), np.log(np.where(g > 0.0, g, 1.0)), 0.5 * (y_lo + y_hi))
+    y = np.where((y > y_lo) & (y < y_hi), y, 0.5 * (y_lo + y_hi))
+    done = np.zeros(c.size, dtype=bool)
+    for _ in range(_NEWTON_MAX_ITER):
+        f = np.exp(y)
+        eps = pa + wa * f
+        one_minus = 1.0 - eps
+        tunnel = r0 * one_minus * np.exp(-k * eps)
+        contact = kc / np.sqrt(f)
+        r = contact + tunnel
+        phi = np.log(r) + log_c
+        dphi = (-0.5 * contact - tunnel * (1.0 / one_minus + k) * wa * f) / r
+        # Keep the bracket: φ > 0 means the root is at larger F.
+        pos = phi > 0.0
+        y_lo = np.where(pos & ~done, y, y_lo)
+        y_hi = np.where(~pos & ~done, y, y_hi)
+        newton_step = phi / dphi
+        converged = (np.abs(newton_step) <= _LOG_F_TOL * np.maximum(1.0, np.abs(y))) | (phi == 0.0)
+        y_new = y - newton_step
+        outside = ~((y_new >= y_lo) & (y_new <= y_hi)) | ~np.isfinite(y_new)
+        y_new = np.where(outside & ~converged, 0.5 * (y_lo + y_hi), y_new)
+        y = np.where(done, y, y_new)
+        done |= converged | (y_hi - y_lo <= 4e-16 * np.maximum(1.0, np.abs(y)))
+        if done.all():
+            break
+    return np.exp(y), done
 
 
 def force_from_conductance(
