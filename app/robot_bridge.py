@@ -83,6 +83,7 @@ class RobotBridge(QObject):
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="robot-connect")
         self._controller: Any = None
         self._pending_connect: Future | None = None
+        self._connecting = False
         self._closed = False
         self._lock = threading.Lock()
         self._latest_state: Any = None
@@ -126,7 +127,8 @@ class RobotBridge(QObject):
 
     @property
     def is_connecting(self) -> bool:
-        return self._pending_connect is not None and not self._pending_connect.done()
+        """A connect is under way (until its outcome has been handled on the GUI thread)."""
+        return self._connecting
 
     @property
     def n_servos(self) -> int:
@@ -174,6 +176,7 @@ class RobotBridge(QObject):
         self._set_connection(f"connecting to {config.port} at {config.baud} baud…")
         future = self._executor.submit(self._open_controller, config)
         self._pending_connect = future
+        self._connecting = True
         self.when_done(future, self._adopt_controller, self._connect_failed)
         return future
 
@@ -386,6 +389,7 @@ class RobotBridge(QObject):
 
     def _adopt_controller(self, opened: tuple[Any, list[str]]) -> None:
         controller, warnings = opened
+        self._connecting = False
         if self._closed:
             controller.close()
             return
@@ -404,6 +408,7 @@ class RobotBridge(QObject):
         return f"{self.n_servos} servos on {self.port} ({'simulated' if self.is_sim else 'real'})"
 
     def _connect_failed(self, exc: BaseException) -> None:
+        self._connecting = False
         self._set_connection("not connected")
         reason = describe_error(exc)
         hint = "" if isinstance(exc, DeviceError) else (
