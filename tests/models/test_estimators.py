@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from models.estimators import LinearEstimator, SLSEstimator
 from models.linear import LinearModel, fit_linear_trials
@@ -124,3 +126,18 @@ def test_sls_estimator_flags_extrapolation_outside_the_calibrated_range():
     assert np.allclose(out[loaded, 0], 8.0, rtol=1e-10)
     assert np.all(est.last_status[loaded, 0] == ForceStatus.EXTRAPOLATED)
     assert any("calibrated range" in line for line in est.explain())
+
+
+@settings(max_examples=25, deadline=None)
+@given(cuts=st.lists(st.integers(0, 400), max_size=8), nan_rows=st.lists(st.integers(0, 399), max_size=10))
+def test_any_block_split_gives_the_same_forces(cuts, nan_rows):
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(0.02, 0.5, 400))
+    force = np.clip(2.5 + np.sin(t[:, None] / 4 + np.arange(3)) + rng.normal(0, 0.3, (400, 3)), 0, None)
+    cond = conductance_from_force(t, force, TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
+    cond[nan_rows, 1] = np.nan
+    whole = SLSEstimator(TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS).update(t, cond)
+    est = SLSEstimator(TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
+    bounds = [0, *sorted(cuts), 400]
+    parts = [est.update(t[a:b], cond[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    assert np.allclose(np.concatenate(parts), whole, rtol=1e-12, atol=1e-13, equal_nan=True)

@@ -286,3 +286,18 @@ def test_hold_inverse_stays_bounded_when_e0_exceeds_e1_and_steps_exceed_tau():
     # force change (the disagreement between the hold and linear assumptions) and does not grow.
     assert np.max(error) < 2 * np.max(np.abs(np.diff(force)))
     assert np.max(error[-100:]) < 2 * np.max(error[:100])
+
+
+@pytest.mark.parametrize("interp", ["hold", "linear"])
+@pytest.mark.parametrize("phys", [DEFAULT_PHYSICS, NO_CONTACT], ids=["contact", "no-contact"])
+def test_one_sensor_inverse_path_equals_the_vectorised_path(interp, phys):
+    rng = np.random.default_rng(17)
+    t, force = _nonuniform_record(rng, 400)
+    cond = conductance_from_force(t, force[:, 0], TYPICAL_SLS, TYPICAL_AREA_M2, phys, interp)
+    cond[[50, 51, 200]] = [np.nan, 0.0, np.nan]
+    single = force_from_conductance(t, cond, TYPICAL_SLS, TYPICAL_AREA_M2, phys, interp, with_status=True)
+    pair = force_from_conductance(
+        t, np.column_stack([cond, cond]), TYPICAL_SLS, TYPICAL_AREA_M2, phys, interp, with_status=True
+    )
+    assert np.allclose(single.force_n, pair.force_n[:, 0], rtol=1e-13, atol=1e-14, equal_nan=True)
+    assert np.array_equal(single.status, pair.status[:, 0])
