@@ -60,6 +60,7 @@ PER_ID_PING_COST_S = 0.035
 BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
 REBOOT_TIMEOUT_S = 2.0
 READ_POLL_S = 0.0001
+PTY_EXTRA_TIMEOUT_MS = 60.0
 LATENCY_TIMER_DIR = Path("/sys/bus/usb-serial/devices")
 
 
@@ -115,9 +116,14 @@ class ServoHealth:
 class _FactoryPortHandler(PortHandler):
     """dynamixel-sdk's PortHandler, opening its port through ``devices.factory`` (``sim``, pty or serial device)."""
 
-    def __init__(self, port_name: str, device: str) -> None:
+    def __init__(self, port_name: str, device: str, extra_timeout_ms: float = 0.0) -> None:
         super().__init__(port_name)
         self._device = device
+        self._extra_timeout_ms = extra_timeout_ms
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
+        super().setPacketTimeout(packet_length)
+        self.packet_timeout += self._extra_timeout_ms
 
     def setupPort(self, cflag_baud):  # noqa: N802 - dynamixel-sdk's name
         if self.is_open and self.ser is not None:
@@ -222,7 +228,9 @@ class ServoChain:
         """Open the port at the configured baud rate (raises :class:`PortOpenError`)."""
         if self.is_open:
             return
-        port = _FactoryPortHandler(self.robot.port, self.device)
+        # A pty's far end is a process that may wait for the scheduler; give its replies more time than USB's.
+        extra_ms = PTY_EXTRA_TIMEOUT_MS if _is_pty(self.robot.port) else 0.0
+        port = _FactoryPortHandler(self.robot.port, self.device, extra_ms)
         port.baudrate = self._baud
         try:
             ok = port.openPort()
@@ -600,3 +608,11 @@ class ServoChain:
 
 def _id_list(ids: Sequence[int]) -> str:
     return ", ".join(str(i) for i in ids)
+
+
+def _is_pty(port: str) -> bool:
+    """A pseudo-terminal (Linux /dev/pts/N, macOS /dev/ttysNNN), e.g. ``devices.sim.pty_server``."""
+    if is_sim(port):
+        return False
+    real = os.path.realpath(port)
+    return real.startswith("/dev/pts/") or (real.startswith("/dev/ttys") and real[9:].isdigit())

@@ -13,7 +13,7 @@ import pytest
 from app.cli import main
 from devices import control_table as ct
 from devices.config import RobotConfig
-from devices.controller import HoldPose, RobotController
+from devices.controller import RobotController
 from devices.errors import NoReplyError, ServoHardwareError
 from devices.servo_chain import ServoChain
 
@@ -74,13 +74,24 @@ def test_scan_sync_write_read_and_overload_over_a_pty(pty_server):
             chain.ping(3)
 
 
+class HoldForTicks:
+    """Hold a pose for a number of ticks (not seconds: a loaded machine must not shorten the motion)."""
+
+    def __init__(self, angles_rad, n_ticks):
+        self.angles_rad, self.n_left = angles_rad, n_ticks
+
+    def goal_at(self, t_s, present_rad):
+        self.n_left -= 1
+        return self.angles_rad if self.n_left >= 0 else None
+
+
 def test_controller_runs_a_motion_over_a_pty(pty_server):
     robot = dataclasses.replace(robot_on(pty_server.path), control_rate_hz=30.0, max_joint_speed_rad_s=3.0)
     controller = RobotController(ServoChain(robot), robot)
     controller.start()
     try:
         controller.set_torque(True).result(10)
-        assert controller.run_motion(HoldPose(np.full(12, 0.2), duration_s=0.3), "hold").result(10) == "finished"
+        assert controller.run_motion(HoldForTicks(np.full(12, 0.2), 10), "hold").result(10) == "finished"
         state = controller.latest_state
         assert state is not None and state.goal_rad is not None
         assert np.allclose(state.goal_rad, 0.2, atol=ct.RAD_PER_TICK)
