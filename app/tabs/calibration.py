@@ -16,7 +16,7 @@ import logging
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyqtgraph as pg
@@ -43,10 +43,11 @@ from PySide6.QtWidgets import (
 from app import calfiles
 from app.lab import LabContext
 from devices.config import BoardConfig
-from models.calibration import SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
-from models.sls import conductance_from_force
 from widgets import theme
+
+if TYPE_CHECKING:  # pragma: no cover
+    from models.calibration import SensorCalibration
 
 log = logging.getLogger(__name__)
 
@@ -60,13 +61,23 @@ PLOT_MAX_POINTS = 4000  # per curve: trials are minutes at a few Hz; decimate an
 
 
 @dataclass(frozen=True)
+class LoadedTrial:
+    """A trial read from its CSV: name (file), time (s), applied force (N), measured conductance (S)."""
+
+    name: str
+    time_s: np.ndarray
+    force_n: np.ndarray
+    conductance_s: np.ndarray
+
+
+@dataclass(frozen=True)
 class FitResult:
     """A finished fit, with everything the tab shows and saves."""
 
     sensor: str
     calibration: SensorCalibration
     physics: PhysicsConstants
-    trials: tuple[TrialInput, ...]
+    trials: tuple[LoadedTrial, ...]
     fitted_s: tuple[np.ndarray, ...]  # SLS-predicted conductance per trial (S)
 
 
@@ -79,7 +90,7 @@ class CalibrationTab(QWidget):
     def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lab = lab
-        self.trials: list[TrialInput] = []
+        self.trials: list[LoadedTrial] = []
         self.physics = PhysicsConstants()
         self.physics_source = "paper defaults"
         self.result: FitResult | None = None
@@ -210,7 +221,7 @@ class CalibrationTab(QWidget):
                 problems.append(str(exc))
                 continue
             name = Path(path).name
-            self.trials.append(TrialInput(name, trial.time_s, trial.force_n, trial.conductance_s))
+            self.trials.append(LoadedTrial(name, trial.time_s, trial.force_n, trial.conductance_s))
             self.trial_list.addItem(f"{name}  ({trial.time_s.size} samples, up to {np.max(trial.force_n):.2f} N)")
             added += 1
         if problems:
@@ -281,12 +292,18 @@ class CalibrationTab(QWidget):
         self._update_buttons(fitting=True)
         self._fit_thread.start()
 
-    def _fit_worker(self, sensor: str, trials: tuple[TrialInput, ...], area_m2: float,
+    def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
                     physics: PhysicsConstants) -> None:
         """Worker thread: the fit and the fitted curves; the outcome goes back through a queued signal."""
+        # Imported here, off the GUI thread: the fitting stack (scipy, CasADi graphs) takes seconds to load and the
+        # tab should open at once.
+        from models.calibration import TrialInput, calibrate_sensor
+        from models.sls import conductance_from_force
+
         saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4), as `sensnake fit`
+        inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
         try:
-            cal = calibrate_sensor(list(trials), area_m2, physics, saturation_s=saturation_s)
+            cal = calibrate_sensor(inputs, area_m2, physics, saturation_s=saturation_s)
             fitted = tuple(np.asarray(conductance_from_force(t.time_s, t.force_n, cal.sls, area_m2, physics),
                                       dtype=np.float64) for t in trials)
         except (ValueError, ArithmeticError, LookupError, RuntimeError) as exc:
@@ -354,7 +371,7 @@ class CalibrationTab(QWidget):
     def _plot_measured_only(self) -> None:
         self._plot(tuple(self.trials), None)
 
-    def _plot(self, trials: tuple[TrialInput, ...], fitted: tuple[np.ndarray, ...] | None) -> None:
+    def _plot(self, trials: tuple[LoadedTrial, ...], fitted: tuple[np.ndarray, ...] | None) -> None:
         self.plot.clear()
         self.legend.clear()
         for index, trial in enumerate(trials):

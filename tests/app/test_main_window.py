@@ -162,3 +162,18 @@ def test_failed_connect_says_why_and_what_to_do(window, qtbot):
     assert "could not connect" in message and "/dev/sensnake-test-no-such-port" in message
     assert "Traceback" not in message
     assert window.status.robot_label.text() == "Robot: not connected"
+
+
+def test_open_config_restarts_the_lab_on_it(window, qtbot, tmp_path):
+    path = tmp_path / "bench_lab.toml"
+    path.write_text('[robot]\nport = "/dev/sensnake-test-robot"\nbaud = 57600\n'
+                    '[board]\nport = "/dev/sensnake-test-board"\n', encoding="utf-8")
+    old_lab = window.lab
+    old_page = window.tab_widget(TABS[window.tabs.currentIndex()].name)
+    assert window.open_config(path) is True
+    assert window.lab is not old_lab and old_lab._closed
+    assert window.lab.robot.port == "/dev/sensnake-test-robot" and window.lab.robot.baud == 57600
+    assert "bench_lab.toml" in window.windowTitle()
+    assert window.tab_widget(TABS[window.tabs.currentIndex()].name) is not old_page
+    qtbot.waitUntil(lambda: "could not connect" in window.status.message, timeout=10_000)
+    assert "/dev/sensnake-test-robot" in window.status.message
