@@ -211,3 +211,16 @@ def test_latency_timer_above_1_ms_is_flagged_with_the_fix(tmp_path, monkeypatch)
     (tmp_path / "ttyUSB7" / "latency_timer").write_text("1\n")
     assert chain.latency_warning() is None
     assert ServoChain(ROBOT).latency_warning() is None  # sim: no adapter
+
+
+def test_signs_and_zero_offsets_reach_the_servo_ticks(sim_chain):
+    robot = dataclasses.replace(ROBOT, signs=(-1,) + (1,) * 11, zero_offsets_rad=(0.2,) + (0.0,) * 11,
+                                joint_min_rad=(-1.0,) * 12, joint_max_rad=(1.0,) * 12)
+    with ServoChain(robot) as chain:
+        sent = chain.write_goals(np.array([0.5, 2.0] + [0.0] * 10))
+        ticks = sim_chain.goal_positions_ticks()
+        assert ticks[0] == round(2048 - 0.3 / ct.RAD_PER_TICK)  # mirrored about the 0.2 rad zero
+        assert ticks[1] == math.floor(2048 + 1.0 / ct.RAD_PER_TICK)  # clamped inside +1.0 rad
+        assert sent[1] <= 1.0 and sent[0] == pytest.approx(0.5, abs=ct.RAD_PER_TICK)
+        sim_chain.set_limp_position(1, ticks[0])
+        assert chain.read_state().position_rad[0] == pytest.approx(0.5, abs=ct.RAD_PER_TICK)
