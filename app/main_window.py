@@ -13,9 +13,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from PySide6.QtCore import QByteArray, QSettings, Qt
-from PySide6.QtGui import QAction, QCloseEvent, QKeySequence, QShortcut
+from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt
+from PySide6.QtGui import QAction, QCloseEvent, QKeyEvent, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
+    QApplication,
     QFileDialog,
     QMainWindow,
     QMessageBox,
@@ -110,6 +111,11 @@ class MainWindow(QMainWindow):
         self.stop_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
         self.stop_shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
         self.stop_shortcut.activated.connect(self.emergency_stop)
+        # Qt blocks application shortcuts while a modal dialog (file chooser, message box) is up; the dialog would
+        # swallow Esc. An application-wide filter sees those Esc presses too (and lets the dialog close as usual).
+        self._app = QApplication.instance()
+        if self._app is not None:
+            self._app.installEventFilter(self)
 
         self._build_menus()
         self._attach_lab()
@@ -310,6 +316,13 @@ class MainWindow(QMainWindow):
         self.status.show_message(text, theme.IDLE)
 
     # -- STOP ------------------------------------------------------------------------------------------------------
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
+        if (event.type() == QEvent.Type.KeyPress and isinstance(event, QKeyEvent)
+                and event.key() == Qt.Key.Key_Escape and not event.isAutoRepeat()
+                and QApplication.activeModalWidget() is not None):
+            self.emergency_stop()
+        return False  # never consume: the dialog still gets its Esc
+
     def emergency_stop(self) -> None:
         """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present."""
         self.lab.robot.emergency_stop()
@@ -333,6 +346,8 @@ class MainWindow(QMainWindow):
         self.settings.sync()
 
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
+        if self._app is not None:
+            self._app.removeEventFilter(self)
         self.save_settings()
         self._shutdown_tabs()
         self.lab.close()

@@ -177,3 +177,17 @@ def test_open_config_restarts_the_lab_on_it(window, qtbot, tmp_path):
     assert window.tab_widget(TABS[window.tabs.currentIndex()].name) is not old_page
     qtbot.waitUntil(lambda: "could not connect" in window.status.message, timeout=10_000)
     assert "/dev/sensnake-test-robot" in window.status.message
+
+
+def test_escape_stops_even_while_a_modal_dialog_is_open(window, qtbot):
+    from PySide6.QtWidgets import QMessageBox
+
+    window.show()
+    events: list[str] = []
+    window.lab.robot.event.connect(events.append)
+    box = QMessageBox(QMessageBox.Icon.Information, "About", "text", QMessageBox.StandardButton.Ok, window)
+    box.open()  # window-modal, without a nested event loop
+    qtbot.waitUntil(box.isActiveWindow)
+    qtbot.keyClick(box, Qt.Key.Key_Escape)
+    assert events and events[-1].startswith("STOP")
+    qtbot.waitUntil(lambda: not box.isVisible())  # and the dialog still closed on Esc
