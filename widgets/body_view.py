@@ -30,6 +30,9 @@ from widgets import theme
 DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
 DEFAULT_FULL_SCALE_N = 10.0
 GRAB_RADIUS_PX = 14.0
+# 1 mrad turns the tail by < 1 mm: below a pixel at the drawing's scale, and below the ±1 tick (1.5 mrad)
+# encoder noise of a servo holding torque, so a robot standing still costs no redraws.
+REDRAW_TOLERANCE_RAD = 1e-3
 VIEWS = ("side", "top")
 
 
@@ -74,6 +77,10 @@ class BodyView(QWidget):
         self._highlight: set[int] = set()
         self.drag_enabled = False
         self._drag: tuple[int, int] | None = None  # (joint index, point index) while dragging
+        self._style_cache: dict = {}
+        self._sensor_style_cache: dict = {}
+        self._brush_cache: dict = {}
+        self._pen_cache: dict = {}
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -134,6 +141,7 @@ class BodyView(QWidget):
             self._length_m = float(segment_length_m)
         self._present = np.zeros(len(self._axes))
         self._goal = None
+        self._sensor_style_cache.clear()
         self._set_ranges()
         self._redraw()
 
@@ -147,11 +155,12 @@ class BodyView(QWidget):
         goal = None if goal_rad is None else np.asarray(goal_rad, dtype=float)
         if goal is not None and goal.shape != (n,):
             raise ValueError(f"{goal.size} goal angles for a body of {n} joints")
-        unchanged = np.array_equal(present, self._present) and (
+        tol = REDRAW_TOLERANCE_RAD
+        unchanged = np.max(np.abs(present - self._present), initial=0.0) < tol and (
             (goal is None and self._goal is None) or (goal is not None and self._goal is not None
-                                                      and np.array_equal(goal, self._goal)))
+                                                      and np.max(np.abs(goal - self._goal), initial=0.0) < tol))
         if unchanged:
-            return  # nothing moved: skip the redraw
+            return  # nothing moved by a visible amount (encoder noise is ±1 tick): skip the redraw
         self._present, self._goal = present.copy(), None if goal is None else goal.copy()
         self._redraw()
 
@@ -172,6 +181,7 @@ class BodyView(QWidget):
             self._full_scale_n = float(full_scale_n)
         if forces_n is None:
             self._forces_n, self._health = None, None
+            self._sensor_style_cache.clear()
         else:
             forces = np.asarray(forces_n, dtype=float)
             n_sensors = 3 * len(self._axes)
@@ -181,6 +191,7 @@ class BodyView(QWidget):
             if flags is not None and flags.shape != (n_sensors,):
                 raise ValueError(f"{flags.size} health flags for {n_sensors} sensors")
             self._forces_n, self._health = forces.copy(), flags
+        self._sensor_style_cache.clear()
         self._draw_sensors()
 
     def set_highlighted_joints(self, indices: Sequence[int]) -> None:
@@ -251,20 +262,67 @@ class BodyView(QWidget):
             else:
                 g = goal.side_view() if view == "side" else goal.top_view()
                 self._goal_items[view].setData(g[:, 0], g[:, 1])
-            bending = "pitch" if view == "side" else "yaw"
-            brushes, pens, sizes = [], [], []
-            for i, axis in enumerate(self._axes):
-                color = theme.AXIS_COLORS[axis]
-                alpha = 255 if axis == bending else 90
-                brushes.append(pg.mkBrush(theme.qcolor(color, alpha)))
-                highlighted = i in self._highlight
-                pens.append(pg.mkPen(theme.STATUS_COLORS[theme.WARN] if highlighted else "#333", width=2.5
-                                     if highlighted else 1))
-                sizes.append(12 if highlighted else 9)
+            brushes, pens, sizes = self._joint_style(view)
             self._joint_items[view].setData(pos=pts[:-1], brush=brushes, pen=pens, size=sizes)
             self._head_items[view].setData(pos=pts[:1])
         self._present_pose = present
         self._draw_sensors()
+
+    def _joint_style(self, view: str) -> tuple[list, list, list]:
+        """Brushes, pens and sizes of the joint markers; rebuilt only when the axes or highlights change
+        (building Qt pens and brushes for every frame costs more than drawing them)."""
+        key = (view, self._axes, frozenset(self._highlight))
+        cached = self._style_cache.get(key)
+        if cached is None:
+            bending = "pitch" if view == "side" else "yaw"
+            brushes, pens, sizes = [], [], []
+            for i, axis in enumerate(self._axes):
+                alpha = 255 if axis == bending else 90
+                brushes.append(pg.mkBrush(theme.qcolor(theme.AXIS_COLORS[axis], alpha)))
+                highlighted = i in self._highlight
+                pens.append(pg.mkPen(theme.STATUS_COLORS[theme.WARN], width=2.5) if highlighted
+                            else pg.mkPen("#333", width=1))
+                sizes.append(12 if highlighted else 9)
+            cached = self._style_cache[key] = (brushes, pens, sizes)
+        return cached
+
+    def _sensor_style(self, view: str, index: np.ndarray) -> tuple[list, list]:
+        """Brushes and pens of the sensors in ``view``, rebuilt only when forces or health change."""
+        key = view
+        cached = self._sensor_style_cache.get(key)
+        if cached is not None:
+            return cached
+        brushes, pens = [], []
+        for k in index:
+            side = "LRB"[k % 3]
+            if self._forces_n is None:
+                brushes.append(self._brush(theme.FORCE_ZERO_COLOR))
+                pens.append(self._pen(theme.SIDE_COLORS[side], 1.5))
+            elif self._health is not None and self._health[k]:
+                brushes.append(self._brush("#FFFFFF00"))
+                pens.append(self._pen(theme.STATUS_COLORS[theme.ERROR], 2.0))
+            else:
+                brushes.append(self._brush(theme.force_color(float(self._forces_n[k]), self._full_scale_n)))
+                pens.append(self._pen(theme.SIDE_COLORS[side], 1.5))
+        cached = self._sensor_style_cache[key] = (brushes, pens)
+        return cached
+
+    def _brush(self, color: str):
+        brush = self._brush_cache.get(color)
+        if brush is None:
+            if len(color) == 9:  # #RRGGBBAA
+                brush = pg.mkBrush(theme.qcolor(color[:7], int(color[7:], 16)))
+            else:
+                brush = pg.mkBrush(color)
+            self._brush_cache[color] = brush
+        return brush
+
+    def _pen(self, color: str, width: float):
+        key = (color, width)
+        pen = self._pen_cache.get(key)
+        if pen is None:
+            pen = self._pen_cache[key] = pg.mkPen(color, width=width)
+        return pen
 
     def _draw_sensors(self) -> None:
         pose = self._present_pose
@@ -274,19 +332,7 @@ class BodyView(QWidget):
             sides = (2,) if view == "side" else (0, 1)
             index = np.array([3 * seg + s for seg in range(n) for s in sides])
             cols = [0, 2] if view == "side" else [0, 1]
-            brushes, pens = [], []
-            for k in index:
-                side = "LRB"[k % 3]
-                if self._forces_n is None:
-                    brushes.append(pg.mkBrush(theme.qcolor(theme.FORCE_ZERO_COLOR)))
-                    pens.append(pg.mkPen(theme.SIDE_COLORS[side], width=1.5))
-                elif self._health is not None and self._health[k]:
-                    brushes.append(pg.mkBrush(255, 255, 255, 0))
-                    pens.append(pg.mkPen(theme.STATUS_COLORS[theme.ERROR], width=2))
-                else:
-                    color = theme.force_color(float(self._forces_n[k]), self._full_scale_n)
-                    brushes.append(pg.mkBrush(color))
-                    pens.append(pg.mkPen(theme.SIDE_COLORS[side], width=1.5))
+            brushes, pens = self._sensor_style(view, index)
             self._sensor_items[view].setData(pos=sensors[index][:, cols], brush=brushes, pen=pens)
 
     # -- dragging --------------------------------------------------------------------------------------------------

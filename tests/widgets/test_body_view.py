@@ -100,3 +100,13 @@ def test_no_drag_when_disabled(view, qtbot):
     end = view.view_point_to_scene("side", pts[4][0], pts[4][1] + 0.05)
     _drag(view, start, end)
     assert got == []
+
+
+def test_encoder_noise_does_not_redraw(view):
+    angles = np.full(12, 0.1)
+    view.set_angles(angles)
+    before = view._body_items["side"].getData()[1].copy()
+    view.set_angles(angles + 0.0005)  # a third of a servo tick
+    np.testing.assert_array_equal(view._body_items["side"].getData()[1], before)
+    view.set_angles(angles + 0.01)
+    assert not np.array_equal(view._body_items["side"].getData()[1], before)
