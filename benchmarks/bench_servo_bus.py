@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import threading
 import time
 
@@ -94,18 +95,19 @@ def bench_rates(seconds: float) -> None:
 
 
 def _print_stats_header() -> None:
-    print(f"    {'rate Hz':>8} {'ticks':>7} {'missed':>7} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
-          f"{'p99 err ms':>10} {'writes':>7}")
+    print(f"    {'rate Hz':>8} {'ticks':>7} {'missed':>7} {'period p50':>11} {'p99':>7} {'max':>7} "
+          f"{'jitter p50':>11} {'p99':>7} {'writes':>7}   (ms)")
 
 
 def _print_stats(rate: float, s: dict, writes: int) -> None:
-    period_ms = 1e3 / rate
-    print(f"    {rate:8.0f} {s['ticks']:7d} {s['missed_ticks']:7d} {s['period_p50_s'] * 1e3:8.2f} "
-          f"{s['period_p99_s'] * 1e3:8.2f} {s['period_max_s'] * 1e3:8.2f} "
-          f"{s['period_p99_s'] * 1e3 - period_ms:10.2f} {writes:7d}")
+    ms = {k: v * 1e3 for k, v in s.items() if k.endswith("_s")}
+    print(f"    {rate:8.0f} {s['ticks']:7d} {s['missed_ticks']:7d} {ms['period_p50_s']:11.2f} "
+          f"{ms['period_p99_s']:7.2f} {ms['period_max_s']:7.2f} {ms['jitter_p50_s']:11.3f} "
+          f"{ms['jitter_p99_s']:7.2f} {writes:7d}")
 
 
 def run(quick: bool) -> None:
+    print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     bench_cycle(100 if quick else 500)
     bench_jitter(10.0 if quick else 60.0)
     bench_rates(3.0 if quick else 10.0)

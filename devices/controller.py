@@ -91,6 +91,8 @@ class ControllerStats:
     period_p50_s: float
     period_p99_s: float
     period_max_s: float
+    jitter_p50_s: float  # |period − nominal period|
+    jitter_p99_s: float
     sync_writes: int
     failed_reads: int
 
@@ -214,10 +216,14 @@ class RobotController:
     def stats(self) -> ControllerStats:
         with self._lock:
             n = min(self._n_periods, PERIOD_HISTORY)
-            periods = self._periods[:n]
-            p50, p99, pmax = (np.percentile(periods, [50, 99]).tolist() + [float(periods.max())]) if n else (
-                math.nan, math.nan, math.nan)
-            return ControllerStats(self._ticks, self._missed, p50, p99, pmax, self._writes, self._failed_reads)
+            periods = self._periods[:n].copy()
+            ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
+        if n == 0:
+            return ControllerStats(ticks, missed, *([math.nan] * 5), writes, failed)
+        p50, p99 = np.percentile(periods, [50, 99])
+        j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
+        return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
+                               writes, failed)
 
     # -- commands (any thread) -------------------------------------------------------------------------------------
     def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
