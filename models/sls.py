@@ -413,7 +413,8 @@ def strain_from_force(
     co = _coeffs(params, area_m2, force.shape[1])
     sigma_raw = force / co.area
     sigma = _fill_forward(sigma_raw, np.zeros(force.shape[1]))
-    x = steps[:, None] / co.tau[None, :]
+    tau = co.tau[:1] if np.all(co.tau == co.tau[0]) else co.tau  # shared τ: (N, 1) coefficients broadcast
+    x = steps[:, None] / tau[None, :]
     oma = -np.expm1(-x)
     ramp = one_minus_phi1(x) if interp == "linear" else None
     drive = sigma / co.e1
