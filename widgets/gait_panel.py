@@ -108,10 +108,10 @@ class GaitPanel(QWidget):
         shape_row.addWidget(self.open_button)
         self._shape_label = QLabel("shape")
         mode_form.addRow(self._shape_label, shape_row)
-        self.rate_spin = _spin(1, 1000, rate_hz, 10, 0, " Hz")
-        self.rate_spin.setToolTip("control rate: one synchronised write of all goals per tick "
-                                  "(set by the lab config's robot.control_rate_hz)")
-        self.rate_spin.setEnabled(False)
+        self.rate_spin = _spin(1, rate_hz, rate_hz, 5, 0, " Hz")
+        self.rate_spin.setToolTip(f"how often the goal advances along the line (at most the control loop's "
+                                  f"{rate_hz:g} Hz, robot.control_rate_hz in the lab config; every control tick "
+                                  "still sends one synchronised write)")
         mode_form.addRow("rate", self.rate_spin)
         self.repeat_spin = QSpinBox()
         self.repeat_spin.setRange(1, 1000)
@@ -281,6 +281,8 @@ class GaitPanel(QWidget):
                     item.setText(text)
 
     def set_rate(self, rate_hz: float) -> None:
+        """The controller's rate: the most the goal can be advanced per second."""
+        self.rate_spin.setMaximum(rate_hz)
         self.rate_spin.setValue(rate_hz)
 
     # -- internals ---------------------------------------------------------------------------------------------------

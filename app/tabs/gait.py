@@ -10,6 +10,7 @@ seen sliding along the body. Refreshed by a 20 Hz timer while the tab is visible
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -111,7 +112,12 @@ class GaitTab(QWidget):
         robot = self.config
         if request.mode in ("follow", "keyframes"):
             shape = self.load_shape(request.shape_name)
-            source = build_source(shape, robot, request.mode, request.speed_rad_s, request.time_scale,
+            if not 0 < request.rate_hz <= robot.control_rate_hz:
+                raise ValueError(f"rate must be in (0, {robot.control_rate_hz:g}] Hz, the control loop's rate")
+            # A source sampled slower than the loop advances every few ticks; faster is impossible (one goal
+            # per tick), which is why the panel caps the rate at the loop's.
+            sampled = replace(robot, control_rate_hz=request.rate_hz)
+            source = build_source(shape, sampled, request.mode, request.speed_rad_s, request.time_scale,
                                   request.shifts, request.repeat)
             return source, f"{request.mode} {request.shape_name}"
         wave = SerpenoidParams(amplitude_rad=request.amplitude_rad, spatial_rad=request.spatial_rad,
