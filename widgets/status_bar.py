@@ -7,6 +7,7 @@ always visible (a permanent widget, never hidden behind a message). GUI thread o
 from __future__ import annotations
 
 from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtGui import QResizeEvent
 from PySide6.QtWidgets import QLabel, QPushButton, QSizePolicy, QStatusBar, QWidget
 
 from widgets import theme
@@ -29,6 +30,28 @@ class StateLabel(QLabel):
         self.setToolTip(tooltip or text)
 
 
+class ElidedLabel(QLabel):
+    """A one-line label that ends in "…" when its text does not fit; the full text is in the tooltip."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.full_text = ""
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+
+    def set_full_text(self, text: str) -> None:
+        self.full_text = text
+        self.setToolTip(text)
+        self._elide()
+
+    def resizeEvent(self, event: QResizeEvent) -> None:  # noqa: N802 - Qt override
+        super().resizeEvent(event)
+        self._elide()
+
+    def _elide(self) -> None:
+        one_line = " ".join(self.full_text.split())
+        self.setText(self.fontMetrics().elidedText(one_line, Qt.TextElideMode.ElideRight, max(self.width(), 0)))
+
+
 class LabStatusBar(QStatusBar):
     """Status of the lab's devices, the latest message and STOP."""
 
@@ -38,10 +61,8 @@ class LabStatusBar(QStatusBar):
         super().__init__(parent)
         self.setSizeGripEnabled(True)
 
-        self.message_label = QLabel("")
+        self.message_label = ElidedLabel()
         self.message_label.setObjectName("status_message")
-        self.message_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-        self.message_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         self.message_level = theme.IDLE
         self._message_timer = QTimer(self)
         self._message_timer.setSingleShot(True)
@@ -84,8 +105,7 @@ class LabStatusBar(QStatusBar):
     def show_message(self, text: str, level: str = theme.IDLE) -> None:
         """Show ``text`` in the message area; errors stay until replaced, others fade after a few seconds."""
         self.message_level = level
-        self.message_label.setText(text)
-        self.message_label.setToolTip(text)
+        self.message_label.set_full_text(text)
         self.message_label.setStyleSheet(f"color: {theme.STATUS_COLORS[level]};")
         keep_ms = MESSAGE_KEEP_MS[level]
         if keep_ms:
@@ -96,9 +116,9 @@ class LabStatusBar(QStatusBar):
     def clear_message(self) -> None:
         self._message_timer.stop()
         self.message_level = theme.IDLE
-        self.message_label.clear()
-        self.message_label.setToolTip("")
+        self.message_label.set_full_text("")
 
     @property
     def message(self) -> str:
-        return self.message_label.text()
+        """The whole current message (the label may show it shortened)."""
+        return self.message_label.full_text
