@@ -192,6 +192,7 @@ class GaitTab(QWidget):
     # -- live view ---------------------------------------------------------------------------------------------------
     def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt override
         super().showEvent(event)
+        self.refresh_shapes()  # shapes saved in the Teach tab meanwhile appear without a click
         self._timer.start()
         self.refresh()
 
