@@ -299,6 +299,11 @@ class _Problem:
                          solver, at_bound, tuple(warnings))
 
 
+def _sumsq(x: np.ndarray) -> float:
+    """Σx² without a BLAS call (a threaded BLAS dot on a vector is slow on a busy machine)."""
+    return float(np.sum(x * x))
+
+
 def _covariance(jac: np.ndarray, sigma2: float) -> np.ndarray:
     """σ²·(JᵀJ)⁻¹ via the SVD of J (never forming JᵀJ); inf on the diagonal where J is rank-deficient."""
     _, s, vt = np.linalg.svd(jac, full_matrices=False)
@@ -329,7 +334,7 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
 
     theta = np.zeros((n_trials, 3))
     r_blocks, j_blocks = split(theta.ravel())
-    cost = np.array([float(r @ r) for r in r_blocks])
+    cost = np.array([_sumsq(r) for r in r_blocks])
     damping = np.full(n_trials, 1e-3)
     active = np.ones(n_trials, dtype=bool)
     failed = np.zeros(n_trials, dtype=bool)
@@ -341,7 +346,7 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
         for i in np.flatnonzero(active):
             delta = _damped_step(r_blocks[i], j_blocks[i], damping[i])
             linear = r_blocks[i] + j_blocks[i] @ delta
-            predicted[i] = cost[i] - float(linear @ linear)
+            predicted[i] = cost[i] - _sumsq(linear)
             if predicted[i] <= 1e-12 * cost[i] or np.max(np.abs(delta)) < 1e-10:
                 active[i] = False
             else:
@@ -352,7 +357,7 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
         accepted = False
         for i in np.flatnonzero(active):
             block = r_new[rows[i]]
-            cost_new = float(block @ block)
+            cost_new = _sumsq(block)
             if np.isfinite(cost_new) and cost_new < cost[i]:
                 gain = (cost[i] - cost_new) / predicted[i]
                 theta[i] = candidate[i]
@@ -365,7 +370,7 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
                     failed[i] = True
         if accepted:
             r_blocks, j_blocks = split(theta.ravel())
-            cost = np.array([float(r @ r) for r in r_blocks])
+            cost = np.array([_sumsq(r) for r in r_blocks])
     if failed.any():
         return theta.ravel(), iteration, False, f"no decrease for trial(s) {np.flatnonzero(failed).tolist()}"
     if active.any():
@@ -553,7 +558,7 @@ def _levenberg_marquardt(residual_fn, res_jac, theta0: np.ndarray, lower: np.nda
     theta = theta0.copy()
     r, j = (np.asarray(x) for x in res_jac(theta))
     r = r.ravel()
-    cost = float(r @ r)
+    cost = _sumsq(r)
     damping = 1e-3
     for iteration in range(1, max_iter + 1):
         diag = np.sqrt(np.einsum("ij,ij->j", j, j)) + 1e-300
@@ -563,11 +568,11 @@ def _levenberg_marquardt(residual_fn, res_jac, theta0: np.ndarray, lower: np.nda
             delta = -np.linalg.lstsq(augmented, np.concatenate([r, np.zeros(theta.size)]), rcond=None)[0]
             candidate = np.clip(theta + delta, lower, upper)
             linear = r + j @ (candidate - theta)
-            predicted = cost - float(linear @ linear)
+            predicted = cost - _sumsq(linear)
             if predicted <= 1e-12 * cost or np.max(np.abs(candidate - theta)) < 1e-10:
                 return theta, iteration, True, "converged"
             r_new = np.asarray(residual_fn(candidate)).ravel()
-            cost_new = float(r_new @ r_new)
+            cost_new = _sumsq(r_new)
             if np.isfinite(cost_new) and cost_new < cost:
                 break
             damping *= 10.0
