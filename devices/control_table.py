@@ -149,7 +149,7 @@ XM430_W350_ITEMS: tuple[Item, ...] = (
     Item("Goal Velocity", 104, 4, True, 0, -1023, 1023, signed=True),
     Item("Profile Acceleration", 108, 4, True, 0, 0, 32767),
     Item("Profile Velocity", 112, 4, True, 0, 0, 32767),
-    Item("Goal Position", 116, 4, True, 2048, 0, 4095, signed=True),
+    Item("Goal Position", 116, 4, True, 2048, -1_048_575, 1_048_575, signed=True),  # limits checked separately
     Item("Realtime Tick", 120, 2, False, 0),
     Item("Moving", 122, 1, False, 0),
     Item("Moving Status", 123, 1, False, 0),

@@ -9,7 +9,8 @@ this simulator are two implementations of the protocol meeting on the wire.
 Each servo has the XM430-W350 control table (:mod:`devices.control_table`) with its access rules (EEPROM only with
 torque off, read-only items, data range/length/limit errors), moves toward its goal with a velocity limit and a
 finite acceleration, goes limp with torque off (a "hand" can then pose it with :meth:`VirtualChain.set_limp_position`),
-draws a current proportional to its load and reports seeded noise in the last bits of current and position.
+draws a current proportional to its load and reports seeded noise in the last bits of current and position. Only
+position control (Operating Mode 3) is emulated; other modes are stored but behave the same.
 
 Faults for tests and demos: overload (Hardware Error Status bit 5, torque off, alert bit on every status until a
 reboot), no reply from an ID, corrupt CRC on the next N replies, a pulled cable (every host read/write raises
