@@ -52,6 +52,7 @@ class _Servo:
     position_ticks: float
     velocity_ticks_s: float = 0.0
     load_nm: float = 0.0
+    ambient_c: float = 32.0
     overload_time_s: float = 0.0
     no_reply: bool = False
     corrupt_replies: int = 0
@@ -145,6 +146,7 @@ class VirtualChain:
         self._host_open = False
         self._connected = True
         self._corrupt_any = 0
+        self._supply_v = 12.0
         self.instruction_counts: Counter[int] = Counter()
         self.crc_errors_from_host = 0
 
@@ -236,6 +238,23 @@ class VirtualChain:
         with self._lock:
             self._advance(self._clock.now())
             self._servo(servo_id).load_nm = float(torque_nm)
+
+    def set_temperature(self, servo_id: int, celsius: float) -> None:
+        """Motor temperature (°C) before load heating; above the Temperature Limit (80 °C) it trips overheating."""
+        with self._lock:
+            self._advance(self._clock.now())
+            servo = self._servo(servo_id)
+            servo.ambient_c = float(celsius)
+            self._check_supply_and_heat(servo)
+
+    def set_supply_voltage(self, volts: float) -> None:
+        """The bus supply (V) every servo sees; outside its voltage limits (9.5…16 V) it flags an input-voltage
+        error (alert bit; torque stays on, as the default Shutdown setting leaves that bit out)."""
+        with self._lock:
+            self._advance(self._clock.now())
+            self._supply_v = float(volts)
+            for servo in self._servos:
+                self._check_supply_and_heat(servo)
 
     def inject_overload(self, servo_id: int) -> None:
         """Trip the overload shutdown now: Hardware Error Status bit 5, torque off, alert bit until reboot."""
@@ -554,8 +573,18 @@ class VirtualChain:
         servo.put(_ITEM["Present Current"], current)
         servo.put(_ITEM["Moving"], int(moving))
         servo.put(_ITEM["Realtime Tick"], int(self._sim_time_s * 1000) % 32768)
-        temperature = 32 + int(min(abs(current) * ct.CURRENT_MA_PER_LSB / 200.0, 40))
-        servo.put(_ITEM["Present Temperature"], temperature)
+        servo.put(_ITEM["Present Temperature"], self._temperature_c(servo, current))
+        servo.put(_ITEM["Present Input Voltage"], int(round(self._supply_v / ct.VOLTAGE_V_PER_LSB)))
+
+    def _temperature_c(self, servo: _Servo, current_lsb: int) -> int:
+        return int(round(servo.ambient_c + min(abs(current_lsb) * ct.CURRENT_MA_PER_LSB / 200.0, 40.0)))
+
+    def _check_supply_and_heat(self, servo: _Servo) -> None:
+        voltage = self._supply_v / ct.VOLTAGE_V_PER_LSB
+        if not servo.get(_ITEM["Min Voltage Limit"]) <= voltage <= servo.get(_ITEM["Max Voltage Limit"]):
+            self._raise_hardware_error(servo, 0)
+        if self._temperature_c(servo, 0) > servo.get(_ITEM["Temperature Limit"]):
+            self._raise_hardware_error(servo, 2)
 
     def _raise_hardware_error(self, servo: _Servo, bit: int) -> None:
         servo.table[ct.ADDR_HARDWARE_ERROR_STATUS] |= 1 << bit

@@ -8,7 +8,8 @@ from the pty's termios settings, so a servo is only heard when the host uses its
 
 Faults can be injected by writing lines on stdin (each answered by ``ok`` or ``error: …`` on stdout)::
 
-    overload ID | no_reply ID | reply ID | corrupt N [ID] | load ID NM | limp ID TICKS
+    overload ID | no_reply ID | reply ID | corrupt N [ID] | load ID NM | limp ID TICKS | temperature ID C |
+    voltage V
 
 Linux and macOS only (``os.openpty``). A sim module: it may import ``devices.sim.*`` directly.
 """
@@ -72,6 +73,10 @@ def handle_command(chain: VirtualChain, line: str) -> str:
             chain.set_load(int(args[0]), float(args[1]))
         elif verb == "limp":
             chain.set_limp_position(int(args[0]), float(args[1]))
+        elif verb == "temperature":
+            chain.set_temperature(int(args[0]), float(args[1]))
+        elif verb == "voltage":
+            chain.set_supply_voltage(float(args[0]))
         else:
             return f"error: unknown command {verb!r}"
     except (IndexError, KeyError, ValueError) as exc:

@@ -301,3 +301,16 @@ def test_factory_reset_keeps_id_and_baud_with_option_2(bus):
     while ph.ping(port, 8)[1] != COMM_SUCCESS and time.monotonic() < deadline:
         pass
     assert ph.read1ByteTxRx(port, 8, ct.ADDR_RETURN_DELAY_TIME) == (250, COMM_SUCCESS, 0)
+
+
+def test_supply_and_heat_faults_set_their_bits(bus):
+    chain, port, ph = bus
+    assert ph.write1ByteTxRx(port, 2, ct.ADDR_TORQUE_ENABLE, 1) == (COMM_SUCCESS, 0)
+    chain.set_supply_voltage(8.0)
+    voltage, result, error = ph.read2ByteTxRx(port, 2, ct.ADDR_PRESENT_INPUT_VOLTAGE)
+    assert (voltage, result) == (80, COMM_SUCCESS) and error & ct.ERROR_ALERT_BIT
+    assert ct.hardware_error_names(chain.register(2, "Hardware Error Status")) == ("input voltage error",)
+    assert chain.register(2, "Torque Enable") == 1  # the default Shutdown mask leaves voltage errors out
+    chain.set_temperature(3, 85.0)
+    assert ph.read1ByteTxRx(port, 3, ct.ADDR_PRESENT_TEMPERATURE)[0] == 85
+    assert "overheating" in ct.hardware_error_names(chain.register(3, "Hardware Error Status"))
