@@ -1,9 +1,10 @@
 """The Calibration tab: load calibration trials, fit the sensor models, see measured against fitted conductance.
 
 Trials are SPEC §3.1 CSVs (``time_s,force_N,conductance_S``), read with :mod:`app.calfiles`; the fit is
-:func:`models.calibration.calibrate_sensor` (the same as ``sensnake fit``), run on a worker thread so the window never
-waits for it. The plot overlays each trial's measured conductance and the conductance the fitted SLS model predicts
-from its force — the model ``sensnake estimate`` and the Forces tab use. "Save" writes the sensor into a calibration
+:func:`models.calibration.calibrate_sensor` (the same as ``sensnake fit``), run from a worker thread so the window never
+waits for it, in a child process so it never starves the robot's control thread of the GIL. The plot overlays each
+trial's measured conductance and the conductance the fitted SLS model predicts from its force — the model
+``sensnake estimate`` and the Forces tab use. "Save" writes the sensor into a calibration
 file (created, or updated keeping its other sensors).
 
 Driving the rig through the 4-force × 3-trial protocol from this tab is not built yet; the rig's settings are shown.
@@ -13,7 +14,9 @@ GUI thread only, except :meth:`CalibrationTab._fit_worker`.
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import threading
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -294,19 +297,23 @@ class CalibrationTab(QWidget):
 
     def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
                     physics: PhysicsConstants) -> None:
-        """Worker thread: the fit and the fitted curves; the outcome goes back through a queued signal."""
-        # Imported here, off the GUI thread: the fitting stack (scipy, CasADi graphs) takes seconds to load and the
-        # tab should open at once.
+        """Worker thread: the fit (in a child process) and the fitted curves; the outcome goes back through a
+        queued signal."""
+        # Imported here, off the GUI thread: the fitting stack takes seconds to load and the tab opens at once.
         from models.calibration import TrialInput, calibrate_sensor
         from models.sls import conductance_from_force
 
         saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4), as `sensnake fit`
         inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
         try:
-            cal = calibrate_sensor(inputs, area_m2, physics, saturation_s=saturation_s)
+            # A fit is seconds of Python-level work: in this process it would hold the GIL against the robot's
+            # control thread (missed ticks, a tripped feedback watchdog). A child process keeps the loop on time.
+            with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+                cal = pool.submit(calibrate_sensor, inputs, area_m2, physics, saturation_s=saturation_s).result()
             fitted = tuple(np.asarray(conductance_from_force(t.time_s, t.force_n, cal.sls, area_m2, physics),
                                       dtype=np.float64) for t in trials)
-        except (ValueError, ArithmeticError, LookupError, RuntimeError) as exc:
+        except (ValueError, ArithmeticError, LookupError, RuntimeError, OSError) as exc:
+            # BrokenProcessPool (a RuntimeError) if the child died; the fit's own refusals are ValueErrors.
             self._deliver(self.fit_failed, f"fit refused: {exc}")
             return
         self._deliver(self.fit_finished, FitResult(sensor, cal, physics, trials, fitted))

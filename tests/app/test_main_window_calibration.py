@@ -36,6 +36,7 @@ def tab(qtbot):
     lab.close()
 
 
+@pytest.mark.slow  # the fit runs in a spawned process: interpreter start + fitting stack import, ~3-7 s
 def test_fit_plots_measured_and_fitted_and_saves(tab, qtbot, trial_files, tmp_path):
     assert tab.add_trial_files(trial_files) == 2
     assert len(tab.curves()) == 2  # measured only, before the fit
