@@ -600,6 +600,7 @@ class VirtualChain:
         servo.overload_time_s = 0.0
         servo.registered = None
         servo.booting_until_s = sim_s + BOOT_TIME_S
+        self._check_supply_and_heat(servo)  # a cause that is still there trips the error again
 
     # physics ------------------------------------------------------------------------------------------------------
     def _advance(self, sim_s: float) -> None:
