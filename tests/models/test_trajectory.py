@@ -224,3 +224,23 @@ def test_sidewinding_pitch_wave_lags_yaw_by_phase():
     i = np.arange(6)
     np.testing.assert_allclose(pose[1::2], 0.5 * np.sin(-0.5 * i), atol=1e-12)
     np.testing.assert_allclose(pose[0::2], 0.5 * np.cos(-0.5 * i), atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.lists(st.floats(-1.0, 1.0), min_size=12, max_size=12), min_size=1, max_size=5),
+       st.lists(st.floats(0.05, 3.0), min_size=4, max_size=4), st.floats(0.2, 3.0))
+def test_accepted_keyframes_never_exceed_the_velocity_limit(poses, gaps, scale):
+    poses = np.array(poses)
+    times = np.concatenate([[0.0], np.cumsum(gaps)])[: len(poses)]
+    limit = 1.0
+    try:
+        plan = plan_keyframes(np.zeros(12), times, poses, time_scale=scale, approach_speed_rad_s=0.5,
+                              velocity_limit_rad_s=limit)
+    except TrajectoryError as exc:
+        assert "velocity limit" in str(exc)
+        return
+    t, goals = plan.sample(50.0)
+    if len(t) > 1:
+        assert (np.abs(np.diff(goals, axis=0)) / np.diff(t)[:, None]).max() <= limit * (1 + 1e-9)
+    for end, target in zip(np.cumsum(plan.tick_counts(50.0)), plan.targets_rad):
+        np.testing.assert_array_equal(goals[end], target)
