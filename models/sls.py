@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from models.physics import (
+    STRAIN_NEAR_ONE,
     PhysicsConstants,
     StrainStatus,
     conductance_from_strain,
@@ -783,6 +784,8 @@ class SLSInverse:
                 f_out = sig * area
             elif contact:
                 f_out, code = _solve_contact_scalar(c, p, inv_eff / area, f_prev, k, r0, kc)
+                if code == 0 and p + inv_eff / area * f_out >= STRAIN_NEAR_ONE:
+                    code = ForceStatus.SATURATED
                 sig = f_out / area
             else:
                 sig = (strain_list[i] - p) / inv_eff
@@ -830,6 +833,8 @@ class SLSInverse:
             w = inv_eff / co.area  # strain per newton of new force
             c_i = cond[i]
             f_new, st_new = _solve_contact_step(c_i, p, w, f_prev, k, r0, kc)
+            # A root at ε ≥ 0.9 is far outside the model's range: flagged like the no-contact path does.
+            st_new[(st_new == 0) & (p + w * f_new >= STRAIN_NEAR_ONE)] = ForceStatus.SATURATED
             nan_i = np.isnan(c_i)
             status[i] = np.where(status[i] == 0, st_new, status[i])
             sig = np.where(nan_i, sig_prev, f_new / co.area)
@@ -901,10 +906,13 @@ def _solve_contact_step(
     status = np.zeros(s, dtype=np.int8)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         f_max = (1.0 - p) / w
-        active = np.isfinite(cond) & (cond > 0.0) & (f_max > 0.0)
+        readable = np.isfinite(cond) & (cond > 0.0)
+        active = readable & (f_max > 0.0)
         sat = (np.isposinf(cond) | (active & (kc * cond * kc * cond >= f_max))) & (f_max > 0.0)
         force[sat] = f_max[sat]
         status[sat] = ForceStatus.SATURATED
+        # Creep strain alone already at ε ≥ 1 (absurd loading history): nothing left to explain the reading.
+        status[readable & ~(f_max > 0.0)] = ForceStatus.SATURATED
         active &= ~sat
         if not np.any(active):
             force[np.isnan(cond)] = np.nan

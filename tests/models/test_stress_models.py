@@ -299,3 +299,16 @@ def test_conductance_below_unloaded_baseline_is_clipped_and_flagged():
     assert np.all(res.force_n >= 0.0)
     assert np.all(res.status[3:6] == ForceStatus.BELOW_BASELINE)
     assert any("baseline" in line for line in res.explain())
+
+
+@pytest.mark.parametrize("n_sensors", [1, 2])
+def test_contact_path_flags_strains_near_one(n_sensors):
+    # With the contact term a reading just below √F_max/K solves to ε ≈ 1: a finite force, flagged.
+    p = TYPICAL_SLS
+    f_max = TYPICAL_AREA_M2 * p.E0_Pa  # ε = 1 on the first sample (no creep yet)
+    c_edge = 0.999999 * np.sqrt(f_max) / DEFAULT_PHYSICS.K_contact_ohm_sqrtN
+    cond = np.full((1, n_sensors), c_edge)
+    res = force_from_conductance(np.zeros(1), cond, p, TYPICAL_AREA_M2, DEFAULT_PHYSICS, with_status=True)
+    assert np.all(np.isfinite(res.force_n))
+    assert np.all(res.status == ForceStatus.SATURATED)
+    assert np.all(res.force_n > 0.9 * f_max)
