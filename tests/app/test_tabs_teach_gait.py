@@ -189,3 +189,24 @@ def test_gait_tab_refuses_too_fast_serpenoid(qtbot, lab, library):
     panel.play_button.click()
     assert "exceeds the robot's max joint speed" in panel.status_label.text()
     assert lab.robot.motion_state not in (MOTION_RUNNING,)
+
+
+def test_gait_panel_request_reflects_the_form(qtbot):
+    from widgets.gait_panel import GaitPanel
+
+    panel = GaitPanel(AXES, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    panel.show()
+    request = panel.request()
+    assert (request.mode, request.speed_rad_s, request.rate_hz, request.shifts) == ("follow", 0.034, 50.0, None)
+    panel.shifts_spin.setValue(4)
+    panel.rate_spin.setValue(80.0)  # capped at the control loop's rate
+    assert panel.request().shifts == 4 and panel.request().rate_hz == 50.0
+    panel.set_mode("sidewinding")
+    assert not panel.shape_combo.isVisible() and panel.phase_spin.isVisible()
+    panel.set_mode("serpenoid")
+    assert not panel.phase_spin.isVisible()
+    panel.set_motion_state("running")
+    assert not panel.play_button.isEnabled() and panel.pause_button.isEnabled()
+    panel.set_motion_state("paused")
+    assert panel.resume_button.isEnabled() and panel.stop_button.isEnabled()
