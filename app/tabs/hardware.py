@@ -71,9 +71,11 @@ class HardwareTab(QWidget):
         self.panel.set_port_baud(self.robot.port, self.robot.baud)
         self.refresh_count = 0
         self._shown_state: Any = None
-        self._scan_queue: list[int] = []
+        self._scan_ids: list[int] = []
+        self._scan_queue: list[int] = []  # baud rates still to scan
         self._scan_found = 0
         self._scan_steps = 0
+        self._scan_started_s = 0.0
 
         self.refresh_timer = QTimer(self)
         self.refresh_timer.setInterval(REFRESH_INTERVAL_MS)
