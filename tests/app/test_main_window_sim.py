@@ -196,3 +196,18 @@ def test_timing_warning_and_its_fix_from_the_tab(window, qtbot, sim_lab_fast):
     qtbot.mouseClick(panel.fix_return_delay_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: "Return Delay" not in panel.timing_text.toPlainText(), timeout=5000)
     assert all(chain.register(sid, "Return Delay Time") == 0 for sid in range(1, 13))
+
+
+def test_link_check_counts_crc_errors_on_a_quiet_bus(window, qtbot, sim_lab_fast):
+    panel = window.show_tab("hardware").panel
+    robot = window.lab.robot
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS):
+        robot.disconnect_robot()  # no control loop: only the link check talks on the bus
+    sim_lab_fast.chain.corrupt_next_replies(2, servo_id=3)
+    qtbot.mouseClick(panel.link_check_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(panel.link_check_button.isEnabled, timeout=10_000)
+    crc_by_id = {int(panel.link_table.item(r, 0).text()): int(panel.link_table.item(r, 4).text()) for r in range(12)}
+    assert crc_by_id[3] == 2
+    assert sum(crc_by_id.values()) == 2
+    assert "12/12 servos answered" in panel.link_summary_label.text()
+    assert "2 CRC errors" in panel.link_summary_label.text()
