@@ -22,6 +22,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPoint, QPointF, QRect, Qt, QTimer, Signal
 from PySide6.QtWidgets import (
+    QGraphicsItem,
     QGridLayout,
     QHBoxLayout,
     QLabel,
@@ -60,8 +61,9 @@ class PlotGroup:
     names: tuple[str, ...]
 
 
-def groups_from_names(names: Sequence[str], per_plot: int = 3) -> list[PlotGroup]:
-    """Group channels by segment (``S06L S06R S06B`` → "Segment 6"); other names go ``per_plot`` to a plot."""
+def groups_from_names(names: Sequence[str], per_plot: int | None = None) -> list[PlotGroup]:
+    """Group channels by segment (``S06L S06R S06B`` → "Segment 6"); other names go ``per_plot`` to a plot
+    (default 3, or 16 when there are more than 48 of them, so a 1024-channel board makes 64 plots, not 342)."""
     by_segment: dict[int, list[int]] = {}
     others: list[int] = []
     for i, name in enumerate(names):
@@ -72,6 +74,8 @@ def groups_from_names(names: Sequence[str], per_plot: int = 3) -> list[PlotGroup
             others.append(i)
     groups = [PlotGroup(f"Segment {seg}", tuple(idx), tuple(names[i] for i in idx))
               for seg, idx in sorted(by_segment.items())]
+    if per_plot is None:
+        per_plot = 3 if len(others) <= 48 else 16
     for start in range(0, len(others), per_plot):
         idx = others[start:start + per_plot]
         groups.append(PlotGroup(f"Channels {idx[0]}–{idx[-1]}", tuple(idx), tuple(names[i] for i in idx)))
@@ -121,10 +125,15 @@ class _SegmentPlot(QWidget):
         self.plot_widget.setFixedHeight(PLOT_HEIGHT_PX)
         layout.addWidget(self.plot_widget)
         item = self.plot_widget.getPlotItem()
+        # The history already clips to the view and peak-decimates to ~1 bucket per pixel; pyqtgraph's own
+        # clip-to-view stays on (cheap, and right when the user zooms in between redraws) but its auto downsampling
+        # would only redo our work each frame (+30 % frame time measured).
         item.setClipToView(True)
-        item.setDownsampling(auto=True, mode="peak")
-        item.showGrid(x=True, y=True, alpha=0.2)
+        item.setDownsampling(auto=False, mode="peak")
+        # No grid: pyqtgraph draws grid lines as part of the axis picture, and replaying it costs ~5 ms per plot
+        # per frame on a software raster — most of a 30 fps budget for 12 plots.
         item.setMenuEnabled(False)
+        item.disableAutoRange()  # x follows the history window, y has its own hysteresis: ForcePlotGrid._fit_y
         item.hideButtons()
         for axis_name in ("left", "bottom"):
             axis = item.getAxis(axis_name)
@@ -133,6 +142,9 @@ class _SegmentPlot(QWidget):
         item.getAxis("left").setWidth(48)
         self.legend = item.addLegend(offset=(-4, 4), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 200),
                                      labelTextColor=AXIS_COLOR, verSpacing=-6)
+        # Axes and legend rarely change in live mode: paint them from a pixmap instead of replaying their pictures.
+        for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
+            cached.setCacheMode(QGraphicsItem.DeviceCoordinateCache)
         self.curves: list[pg.PlotDataItem] = []
         for position, name in enumerate(group.names):
             pen = pg.mkPen(trace_color(name, position), width=1)
@@ -150,6 +162,7 @@ class _SegmentPlot(QWidget):
         self.readout.move(54, 4)
         self.readout.hide()
         self._labels = list(group.names)
+        self.auto_y = True  # off once the user zooms this plot; back on when the view resumes following
 
     @property
     def viewbox(self) -> pg.ViewBox:
@@ -202,6 +215,11 @@ class ForcePlotGrid(QWidget):
         self._units = "N"
         self._window_s = 30.0
         self._paused = False
+        # Live, the x axis is "seconds before the newest sample": the view range stays put and only the data moves,
+        # so no axis is regenerated and no linked view re-laid out per frame (that cost ~50 ms per frame for 12
+        # plots). Paused, x is session time. view x + _x_offset_s = session time.
+        self._x_offset_s = 0.0
+        self._live_range_s: float | None = None
         self._hidden_sides: set[str] = set()
         self._hover: tuple[_SegmentPlot, QPointF] | None = None
         self._setting_range = False
@@ -224,7 +242,7 @@ class ForcePlotGrid(QWidget):
             grid.addWidget(plot, i // columns, i % columns, Qt.AlignTop)
             self.plots.append(plot)
             plot.collapsed_changed.connect(lambda _c: self.refresh())
-            plot.viewbox.sigRangeChangedManually.connect(self._on_user_range)
+            plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
             plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
             if i:
                 plot.plot_widget.setXLink(self.plots[0].plot_widget)
@@ -237,8 +255,13 @@ class ForcePlotGrid(QWidget):
         self.time_bar.setToolTip("Scroll back through the whole session (moving it pauses the live view)")
         self.time_bar.sliderMoved.connect(self._on_time_bar)
         layout.addWidget(self.time_bar)
-        for plot in self.plots:
-            plot.plot_widget.setLabel("bottom", "time", units="s")
+        last_row = (len(self.groups) - 1) // columns
+        for i, plot in enumerate(self.plots):
+            if i // columns == last_row:
+                plot.plot_widget.setLabel("bottom", "time before newest sample", units="s")
+            else:
+                # Shared time axis: only the bottom row draws it (an x axis regenerates every live frame).
+                plot.plot_widget.getPlotItem().hideAxis("bottom")
         self.set_units("N")
 
         self._timer = QTimer(self)
@@ -280,11 +303,33 @@ class ForcePlotGrid(QWidget):
         """Stop (True) or resume (False) following the newest data; the data keeps arriving either way."""
         if paused == self._paused:
             return
-        self._paused = paused
-        if not paused:
+        if paused:
+            # Keep exactly what is on screen, switching its x from "before now" to session time.
+            t0, t1 = self.visible_range()
+            self._x_offset_s = 0.0
+            self._set_view_x(t0, t1)
+            self._set_time_label("time", "s")
+        else:
             self.time_bar.setValue(SCROLL_STEPS)
+            for plot in self.plots:
+                plot.auto_y = True
+            self._live_range_s = None
+            self._set_time_label("time before newest sample", "s")
+        self._paused = paused
         self.paused_changed.emit(paused)
         self.refresh(force=True)
+
+    def _set_view_x(self, x0: float, x1: float) -> None:
+        self._setting_range = True
+        try:
+            self.plots[0].viewbox.setXRange(x0, x1, padding=0)
+        finally:
+            self._setting_range = False
+
+    def _set_time_label(self, text: str, units: str) -> None:
+        for plot in self.plots:
+            if plot.plot_widget.getPlotItem().getAxis("bottom").isVisible():
+                plot.plot_widget.setLabel("bottom", text, units=units)
 
     @property
     def paused(self) -> bool:
@@ -338,11 +383,11 @@ class ForcePlotGrid(QWidget):
         return self._timer.isActive()
 
     def visible_range(self) -> tuple[float, float]:
-        """The time range (s) the plots show."""
+        """The session-time range (s) the plots show."""
         if not self.plots:
             return (0.0, 0.0)
         (x0, x1), _ = self.plots[0].viewbox.viewRange()
-        return (float(x0), float(x1))
+        return (float(x0) + self._x_offset_s, float(x1) + self._x_offset_s)
 
     def refresh(self, force: bool = False) -> None:
         """Redraw the visible plots from the history (the timer calls this; ``force`` redraws even if hidden)."""
@@ -357,11 +402,11 @@ class ForcePlotGrid(QWidget):
         else:
             t1 = newest
             t0 = t1 - self._window_s
-            self._setting_range = True
-            try:
-                self.plots[0].viewbox.setXRange(t0, t1, padding=0)
-            finally:
-                self._setting_range = False
+            self._x_offset_s = newest
+            if self._live_range_s != self._window_s:
+                self._live_range_s = self._window_s
+                self._set_view_x(-self._window_s, 0.0)
+        offset = self._x_offset_s
         drawn = False
         viewport = self.scroll.viewport()
         for plot in self.plots:
@@ -376,7 +421,9 @@ class ForcePlotGrid(QWidget):
             window = history.window(t0, t1, width_px, channels=plot.channels[visible])
             for column, k in enumerate(visible):
                 x, y = window.peak_interleaved(column)
-                plot.curves[k].setData(x, y)
+                plot.curves[k].setData(x - offset if offset else x, y)
+            if plot.auto_y:
+                self._fit_y(plot, window)
             drawn = True
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
@@ -385,10 +432,33 @@ class ForcePlotGrid(QWidget):
             self.last_redraw_s = float(newest)
             self.redrawn.emit()
 
+    @staticmethod
+    def _fit_y(plot: _SegmentPlot, window) -> None:
+        """Keep the data in view, but change the y range only when the data leaves it or uses under 40 % of it:
+        a y range that moves every frame would regenerate the y axis every frame."""
+        if window.t_s.size == 0:
+            return
+        with np.errstate(all="ignore"):
+            lo = float(np.nanmin(window.low)) if np.isfinite(window.low).any() else np.nan
+            hi = float(np.nanmax(window.high)) if np.isfinite(window.high).any() else np.nan
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return
+        # A nearly flat trace still gets a sensible range, so sensor noise does not rescale it every frame.
+        span = max(hi - lo, 1e-3, 0.05 * max(abs(lo), abs(hi)))
+        (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
+        if y0 <= lo and hi <= y1 and span >= 0.4 * (y1 - y0):
+            return
+        center = (lo + hi) / 2
+        half = 0.65 * span
+        plot.viewbox.setYRange(center - half, center + half, padding=0)
+
     # -- interaction -----------------------------------------------------------------------------------------------
-    def _on_user_range(self, *_args) -> None:
-        if not self._setting_range:
-            self.set_paused(True)
+    def _on_user_range(self, plot: _SegmentPlot, mask) -> None:
+        if self._setting_range:
+            return
+        if len(mask) > 1 and mask[1]:
+            plot.auto_y = False  # the user set this plot's y range: keep it
+        self.set_paused(True)
 
     def _update_time_bar(self, oldest: float, newest: float, t1: float) -> None:
         if self.time_bar.isSliderDown():
@@ -409,11 +479,7 @@ class ForcePlotGrid(QWidget):
     def show_range(self, t0_s: float, t1_s: float) -> None:
         """Pause and show [t0, t1] (seconds)."""
         self.set_paused(True)
-        self._setting_range = True
-        try:
-            self.plots[0].viewbox.setXRange(t0_s, t1_s, padding=0)
-        finally:
-            self._setting_range = False
+        self._set_view_x(t0_s, t1_s)
         self.refresh(force=True)
 
     def _on_mouse(self, plot: _SegmentPlot, scene_pos: QPointF) -> None:
@@ -431,7 +497,7 @@ class ForcePlotGrid(QWidget):
         if self._hover is None or self._history is None:
             return None
         plot, scene_pos = self._hover
-        t_s = float(plot.viewbox.mapSceneToView(scene_pos).x())
+        t_s = float(plot.viewbox.mapSceneToView(scene_pos).x()) + self._x_offset_s
         found = self._history.value_at(t_s)
         if found is None:
             return None
@@ -450,15 +516,15 @@ class ForcePlotGrid(QWidget):
         plot.readout.show()
         plot.readout.raise_()
         for other in self.plots:
-            other.cursor_line.setPos(t_s)
+            other.cursor_line.setPos(t_s - self._x_offset_s)
             other.cursor_line.setVisible(not other.collapsed)
         self.cursor_moved.emit(t_s)
 
     def hover_at(self, plot_index: int, t_s: float) -> None:
-        """Put the readout cursor at time ``t_s`` on plot ``plot_index`` as if the mouse were there."""
+        """Put the readout cursor at session time ``t_s`` on plot ``plot_index`` as if the mouse were there."""
         plot = self.plots[plot_index]
         (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
-        scene_pos = plot.viewbox.mapViewToScene(QPointF(t_s, (y0 + y1) / 2))
+        scene_pos = plot.viewbox.mapViewToScene(QPointF(t_s - self._x_offset_s, (y0 + y1) / 2))
         self._hover = (plot, QPointF(scene_pos))
         self._update_readout()
 

@@ -1,0 +1,197 @@
+"""Forces tab benchmark: the real tab, offscreen, fed by the simulated board at the wire in real time.
+
+Scenarios
+- 36 channels at 30 Hz with 10 minutes of history already in the plots, 10-minute window: redraw rate (target
+  ≥ 30 fps), GUI-thread CPU (target < 25 % of one core), sample-to-screen latency.
+- 1024 channels at 100 Hz (64 plots of 16 traces): frames lost anywhere between the board and the GUI (target 0),
+  event-loop stalls (responsiveness), redraw rate, CPU, latency.
+- Memory: a plot history fed one hour of data stays at its fixed size (RSS before/after).
+
+CPU is measured two ways: the GUI thread alone (``time.thread_time``: drain, estimation, health, redraw) and the whole
+process (adds the board reader thread and the simulated board, which a real board does not cost).
+Latency is from the host receiving a frame's bytes to the end of the redraw that first shows it.
+
+``run(quick)``: quick runs each live scenario for ~3 s. ``python -m benchmarks.bench_forces_gui [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import replace
+
+import numpy as np
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+import widgets  # noqa: E402,F401 - installs the PySide6 refcount guard before Qt is used
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as handle:
+            pages = int(handle.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except (OSError, ValueError):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+
+
+def _prefill(history, seconds: float, rate_hz: float, chunk_s: float = 10.0) -> None:
+    """Synthetic past data at negative session times (the live data starts at t ≈ 0)."""
+    rng = np.random.default_rng(0)
+    n = history.n_channels
+    phases = rng.uniform(0, 2 * np.pi, n)
+    t = -seconds
+    while t < -1.0 / rate_hz:
+        t_block = t + np.arange(int(chunk_s * rate_hz)) / rate_hz
+        t_block = t_block[t_block < 0]
+        values = 2.0 + 1.5 * np.sin(0.3 * t_block[:, None] + phases) + 0.05 * rng.standard_normal((t_block.size, n))
+        history.append(t_block, values)
+        t += chunk_s
+
+
+def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, window_s: float, run_s: float,
+                   baud: int) -> dict:
+    from PySide6.QtCore import QEventLoop, QTimer
+
+    from app.lab import LabContext
+    from app.tabs.forces import ForcesTab
+    from devices import factory
+    from devices.config import BoardConfig, LabConfig, default_sensor_names
+    from devices.sim.lab import SimLab
+
+    names = default_sensor_names() if n_channels == 36 else tuple(f"C{i:04d}" for i in range(n_channels))
+    config = LabConfig(board=replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud))
+    previous = factory.install_sim_lab(SimLab(config, seed=7, speed=1.0))
+    lab = LabContext(config)
+    tab = ForcesTab(lab)
+    tab.resize(1600, 1000)
+    tab.show()
+    try:
+        _prefill(tab.force_history, prefill_s, rate_hz)
+        _prefill(lab.board.history, prefill_s, rate_hz)
+        tab.controls.window.setCurrentIndex(tab.controls.window.findData(window_s))
+        board = lab.board
+        board.start()
+        deadline = time.monotonic() + 10
+        while not board.is_connected and time.monotonic() < deadline:
+            app.processEvents()
+        latencies: list[float] = []
+        tab.plots.redrawn.connect(
+            lambda: latencies.append(time.monotonic() - (board.t0_monotonic_s + tab.plots.last_redraw_s)))
+        stalls = {"last": time.monotonic(), "max": 0.0}
+        tick_s = 0.005
+
+        def tick() -> None:
+            now = time.monotonic()
+            stalls["max"] = max(stalls["max"], now - stalls["last"] - tick_s)
+            stalls["last"] = now
+
+        ticker = QTimer()
+        ticker.setInterval(int(tick_s * 1000))
+        ticker.timeout.connect(tick)
+        # warm-up, then measure
+        loop = QEventLoop()
+        QTimer.singleShot(1000, loop.quit)
+        loop.exec()
+        latencies.clear()
+        stats0 = board.stats
+        samples0 = board.bridge_stats.samples
+        redraws0 = tab.plots.redraw_count
+        ticker.start()
+        stalls["last"] = time.monotonic()
+        wall0, gui0, proc0 = time.monotonic(), time.thread_time(), time.process_time()
+        QTimer.singleShot(int(run_s * 1000), loop.quit)
+        loop.exec()
+        wall = time.monotonic() - wall0
+        gui_cpu = (time.thread_time() - gui0) / wall
+        proc_cpu = (time.process_time() - proc0) / wall
+        ticker.stop()
+        board.drain()
+        stats = board.stats
+        frames = stats.frames - stats0.frames
+        lost = ((stats.overflow_frames - stats0.overflow_frames) + (stats.dropped_frames - stats0.dropped_frames)
+                + (stats.crc_errors - stats0.crc_errors))
+        lat = np.array(latencies) if latencies else np.array([np.nan])
+        return {
+            "scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {prefill_s / 60:g} min history, {window_s / 60:g} min window",
+            "fps": (tab.plots.redraw_count - redraws0) / wall,
+            "gui_cpu_pct": 100 * gui_cpu,
+            "proc_cpu_pct": 100 * proc_cpu,
+            "latency_ms_mean": 1e3 * float(np.nanmean(lat)),
+            "latency_ms_p95": 1e3 * float(np.nanpercentile(lat, 95)),
+            "frames": frames,
+            "expected_frames": int(round(wall * rate_hz)),
+            "delivered": board.bridge_stats.samples - samples0,
+            "lost_frames": lost,
+            "max_stall_ms": 1e3 * stalls["max"],
+            "plots": len(tab.plots.plots),
+        }
+    finally:
+        tab.shutdown()
+        lab.close()
+        tab.deleteLater()
+        factory.install_sim_lab(previous)
+
+
+def _memory_scenario(n_channels: int, rate_hz: float, hours: float) -> dict:
+    from app.tabs.forces import FORCE_HISTORY_BUDGET_BYTES
+    from widgets.ring_plot import TraceHistory
+
+    rss0 = _rss_mb()
+    history = TraceHistory.for_budget(n_channels, FORCE_HISTORY_BUDGET_BYTES)
+    rss_alloc = _rss_mb()
+    block = np.ones((int(rate_hz), n_channels))
+    seconds = int(hours * 3600)
+    t0 = time.perf_counter()
+    for second in range(seconds):
+        history.append(second + np.arange(block.shape[0]) / rate_hz, block)
+    append_s = time.perf_counter() - t0
+    rss1 = _rss_mb()
+    oldest, newest = history.span()
+    return {"scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {hours:g} h of data", "history_mb": history.nbytes / 1e6,
+            "rss_growth_mb": rss1 - rss0, "rss_after_alloc_mb": rss_alloc - rss0,
+            "browsable_s": newest - oldest, "full_rate_s": len(history) / rate_hz,
+            "append_us_per_sample": 1e6 * append_s / max(1, seconds * block.shape[0])}
+
+
+def run(quick: bool) -> None:
+    from PySide6.QtWidgets import QApplication
+
+    app = QApplication.instance() or QApplication([])
+    run_s = 3.0 if quick else 15.0
+    print("Forces tab, live (real widgets offscreen, simulated board at the wire, real time)")
+    header = (f"{'scenario':<50} {'plots':>5} {'fps':>6} {'GUI CPU%':>9} {'proc CPU%':>9} {'lat ms':>7} "
+              f"{'p95 ms':>7} {'frames':>7} {'expected':>8} {'lost':>5} {'stall ms':>8}")
+    print(header)
+    print("-" * len(header))
+    for n_channels, rate_hz, prefill_s, window_s, baud in ((36, 30.0, 600.0, 600.0, 2_000_000),
+                                                           (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000)):
+        r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud)
+        print(f"{r['scenario']:<50} {r['plots']:>5} {r['fps']:>6.1f} {r['gui_cpu_pct']:>9.1f} "
+              f"{r['proc_cpu_pct']:>9.1f} {r['latency_ms_mean']:>7.1f} {r['latency_ms_p95']:>7.1f} {r['frames']:>7} "
+              f"{r['expected_frames']:>8} {r['lost_frames']:>5} {r['max_stall_ms']:>8.1f}")
+    print()
+    print("Plot history memory (fixed at construction; one hour of data appended)")
+    header = (f"{'scenario':<34} {'history MB':>10} {'RSS growth MB':>13} {'full-rate s':>11} {'browsable s':>11} "
+              f"{'append µs/sample':>16}")
+    print(header)
+    print("-" * len(header))
+    for n_channels, rate_hz, hours in ((36, 30.0, 1.0), (1024, 100.0, 0.1 if quick else 1.0)):
+        m = _memory_scenario(n_channels, rate_hz, hours)
+        print(f"{m['scenario']:<34} {m['history_mb']:>10.1f} {m['rss_growth_mb']:>13.1f} {m['full_rate_s']:>11.0f} "
+              f"{m['browsable_s']:>11.0f} {m['append_us_per_sample']:>16.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="a few seconds per scenario")
+    run(parser.parse_args().quick)
+
+
+if __name__ == "__main__":
+    main()
