@@ -26,7 +26,9 @@ from PySide6.QtWidgets import (
 )
 
 from app.lab import LabContext
+from app.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
 from devices.config import ConfigError, load_config
+from devices.factory import is_sim
 from widgets import theme
 from widgets.placeholder import PlaceholderPage
 from widgets.status_bar import LabStatusBar
@@ -270,12 +272,12 @@ class MainWindow(QMainWindow):
         text = f"Robot: {robot.connection_text}"
         if robot.is_connected:
             level = theme.OK
-            if robot.motion_state in ("running", "paused"):
+            if robot.motion_state in (MOTION_RUNNING, MOTION_PAUSED):
                 text += f" · {robot.motion_state} {robot.motion_name}".rstrip()
-            elif robot.motion_state == "fault":
+            elif robot.motion_state == MOTION_FAULT:
                 level = theme.ERROR
                 text += " · motion stopped by a fault"
-            if "lost" in robot.connection_text:
+            if robot.is_link_lost:
                 level = theme.ERROR
         elif robot.is_connecting:
             level = theme.WARN
@@ -285,7 +287,7 @@ class MainWindow(QMainWindow):
 
     def _board_connected(self, ok: bool) -> None:
         port = self.lab.config.board.port
-        kind = "simulated" if port.strip().lower() == "sim" else "real"
+        kind = "simulated" if is_sim(port) else "real"
         if ok:
             self.status.set_board_state(f"Board: {self.lab.config.board.n_channels} ch on {port} ({kind})",
                                         theme.OK)

@@ -131,6 +131,11 @@ class RobotBridge(QObject):
         return self._connecting
 
     @property
+    def is_link_lost(self) -> bool:
+        """Connected, but the controller reported the link lost and no feedback has arrived since."""
+        return self._link_lost_at_s is not None
+
+    @property
     def n_servos(self) -> int:
         return self._config.n_joints
 
