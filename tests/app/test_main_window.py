@@ -191,3 +191,13 @@ def test_escape_stops_even_while_a_modal_dialog_is_open(window, qtbot):
     qtbot.keyClick(box, Qt.Key.Key_Escape)
     assert events and events[-1].startswith("STOP")
     qtbot.waitUntil(lambda: not box.isVisible())  # and the dialog still closed on Esc
+
+
+def test_gui_with_a_missing_config_fails_in_one_line(tmp_path, capsys):
+    from app.cli import main
+
+    missing = tmp_path / "nowhere.toml"
+    assert main(["gui", "--config", str(missing)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sensnake gui: error:") and "nowhere.toml" in err
+    assert len(err.splitlines()) == 1
