@@ -219,7 +219,8 @@ class RobotController:
             periods = self._periods[:n].copy()
             ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
         if n == 0:
-            return ControllerStats(ticks, missed, *([math.nan] * 5), writes, failed)
+            nan = math.nan
+            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed)
         p50, p99 = np.percentile(periods, [50, 99])
         j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),

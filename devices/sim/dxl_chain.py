@@ -198,6 +198,10 @@ class VirtualChain:
             return bytes(out)
 
     @property
+    def clock(self) -> SimClock:
+        return self._clock
+
+    @property
     def host_baud(self) -> int:
         """The baud rate the host's port runs at (bps); servos at another rate hear only noise."""
         return self._host_baud
@@ -686,7 +690,7 @@ class ChainLab:
 
     def __init__(self, chain: VirtualChain) -> None:
         self.chain = chain
-        self.clock = chain._clock
+        self.clock = chain.clock
 
     def endpoint(self, device: str) -> VirtualChain:
         if device in ("robot", "rig"):
