@@ -4,8 +4,9 @@ Data: the paper's protocol (4 forces × 3 trials, 370 s at 6 Hz, loading ramp) f
 (models.synthetic.TYPICAL_TRUTH), conductance noise 0, 0.1 % and 1 % of the hold level (plus 1 % with the board's
 12-bit readout). Fitters:
 
-* paper LS — Eq. 9 per trial, strain from Eq. 3, Eqs. 7–8; "refused" counts trials it declines (rank-deficient or
-  non-physical); the error columns show what its raw numbers would have been;
+* paper LS — Eq. 9 per trial on the hold, strain from Eq. 3, Eqs. 7–8; "refused" counts trials it declines
+  (rank-deficient or non-physical); the error columns show what its raw numbers would have been (— = none physical);
+* paper LS with ramp — Eqs. 7–8 on the measured strain including the loading ramp, finite-difference derivatives;
 * derivative-free — integrated Eq. 5, all 12 trials at once (the starting values);
 * scipy joint / scipy per-trial — output-error in the conductance domain, batched finite-difference Jacobian;
 * casadi GN / ipopt / sqpmethod — the joint output-error fit on the CasADi graph (mapaccum), exact AD Jacobian;
@@ -25,7 +26,7 @@ import numpy as np
 from models.calibration import TrialInput, _paper_procedure, calibrate_sensor, hold_segment
 from models.fit_dfree import estimate_sls
 from models.fit_output import PARAM_NAMES, FitTrial, fit_output_casadi, fit_output_scipy
-from models.fit_paper import sls_from_abc
+from models.fit_paper import fit_paper_ls, sls_from_abc
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams
 from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
@@ -64,6 +65,23 @@ def _paper(trials) -> tuple[np.ndarray, int]:
         return np.nanmedian(np.array(errors), axis=0) if np.any(np.isfinite(errors)) else np.full(3, np.nan), refused
 
 
+def _paper_with_ramp(trials) -> tuple[np.ndarray, int]:
+    """Eqs. 7–8 on the measured strain of the whole loaded record (ramp included, so σ̇ ≠ 0), derivatives by finite
+    differences — the regression NUMERICS pitfall 4 warns about."""
+    errors, refused = [], 0
+    for t in trials:
+        loaded = t.force_n >= 0.2 * t.nominal_force_n
+        time_s = t.time_s[loaded]
+        stress = t.force_n[loaded] / AREA_M2
+        strain = strain_from_conductance(t.conductance_s[loaded], t.force_n[loaded], PHYS)
+        eps = np.where(strain.ok, strain.strain, np.nan)
+        result = fit_paper_ls(stress, eps, np.gradient(eps, time_s), np.gradient(stress, time_s))
+        refused += not result.ok
+        errors.append(_errors(sls_from_abc(result.a_s, result.b_Pa, result.c_Pa_s)))
+    with np.errstate(all="ignore"):
+        return np.nanmedian(np.array(errors), axis=0) if np.any(np.isfinite(errors)) else np.full(3, np.nan), refused
+
+
 def _dfree(trials) -> tuple[float, float, float]:
     rows = []
     for t in trials:
@@ -88,7 +106,10 @@ def _one_seed(rows: dict, calibration_times: list, seed: int, options: dict, sta
     trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=seed, **options)
     fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, t.nominal_force_n) for t in trials]
     (paper_err, refused), dt = _timed(lambda: _paper(trials))
-    rows.setdefault("paper LS (Eqs. 7-8)", []).append((dt, paper_err, f"refused {refused}/12 trials"))
+    rows.setdefault("paper LS (Eqs. 7-8)", []).append((dt, paper_err, f"hold, Eq. 9 fit; refused {refused}/12"))
+    (paper_err, refused), dt = _timed(lambda: _paper_with_ramp(trials))
+    rows.setdefault("paper LS with ramp", []).append((dt, paper_err, f"measured ε, finite diff.; refused "
+                                                                       f"{refused}/12 (errors: raw numbers)"))
     values, dt = _timed(lambda: _dfree(trials))
     rows.setdefault("derivative-free", []).append((dt, _errors(values), ""))
     fit, dt = _timed(lambda: fit_output_scipy(fit_trials, AREA_M2, PHYS, start_guess))

@@ -12,10 +12,13 @@ Three shapes of problem, all through one residual machinery:
 * ``per_trial`` — independent parameters for every trial (the per-trial table), solved as one block-diagonal
   problem so each Jacobian costs 4 batched model runs however many trials there are.
 
-Two solvers: :func:`fit_output_scipy` (``scipy.optimize.least_squares`` with a batched finite-difference Jacobian —
-the cross-check and the fast path for a few parameters) and :func:`fit_output_casadi` (the production joint fit:
-a CasADi step ``Function`` rolled out with ``mapaccum``, exact AD Jacobian, Gauss–Newton Hessian for ipopt or
-``sqpmethod``+``qrqp``). casadi is imported inside the function, never at module import.
+Two solvers: :func:`fit_output_scipy` (``scipy.optimize.least_squares`` with a batched finite-difference Jacobian:
+all Jacobian columns come from one model run over extra columns) and :func:`fit_output_casadi` (a CasADi step
+``Function`` rolled out with ``mapaccum``, exact AD Jacobian, Gauss–Newton Hessian for ipopt or
+``sqpmethod``+``qrqp``, or a damped Gauss–Newton loop on the CasADi residual/Jacobian). They agree to ≤ 1e-8; the
+scipy path measured 2–3× faster for these 3–6 parameter joint fits, so it is the default in
+:mod:`models.calibration` and CasADi is the cross-check (numbers in benchmarks/bench_fitters.py). casadi is imported
+inside the function, never at module import.
 
 Samples are weighted equally in units of the trial's typical conductance; samples below ``min_force_fraction`` of
 the hold force are left out (the contact term makes the model singular at F → 0 and the readout there is noise);
@@ -416,7 +419,7 @@ def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsCo
 def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams,
                       mode: str = "joint", *, saturation_s: float | None = None, min_force_fraction: float = 0.05,
                       solver: str = "gauss-newton", max_iter: int = 50) -> OutputFit:
-    """Production joint fit with CasADi (``joint`` or ``trend`` mode; the force is held between samples).
+    """Joint fit with CasADi (``joint`` or ``trend`` mode; the force is held between samples).
 
     The SLS creep state ``q`` (strain beyond the instantaneous ``σ/E0``) advances by the exact zero-order-hold step
     ``q⁺ = α·q + (1−α)·σ/E1``, ``α = exp(−h·E1/mu1)`` — the same recursion :mod:`models.sls` runs with

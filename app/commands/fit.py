@@ -2,21 +2,25 @@
 
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
 calibration file (created, or updated with other sensors kept) and prints a per-trial table. Runs on the CLI's main
-thread.
+thread. ``SENSNAKE_FIT_SOLVER=gauss-newton|ipopt|sqpmethod`` switches the joint fits to CasADi (default scipy).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 from pathlib import Path
 
 from app import calfiles
 from devices.config import BoardConfig
-from models.calibration import SensorCalibration, TrialInput, calibrate_sensor
+from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
+
+# The joint-fit solver; SENSNAKE_FIT_SOLVER picks another (the CasADi ones are the cross-check, same results).
+SOLVERS = ("scipy", "gauss-newton", "ipopt", "sqpmethod")
 
 
 def _physics(args: argparse.Namespace) -> tuple[PhysicsConstants, str | None]:
@@ -108,7 +112,10 @@ def run(args: argparse.Namespace) -> int:
         trial = calfiles.read_trial_csv(path)
         trials.append(TrialInput(Path(path).name, trial.time_s, trial.force_n, trial.conductance_s))
     saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4: counts = 0)
-    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s)
+    solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
+    if solver not in SOLVERS:
+        raise ValueError(f"SENSNAKE_FIT_SOLVER={solver!r} is not one of {', '.join(SOLVERS)}")
+    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver)
     calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
     print_report(args.sensor, cal, args.out)
     if note:

@@ -62,15 +62,20 @@ def test_fit_writes_spec_calibration_and_prints_table(lab, capsys):
     assert "no --physics given" in err
 
 
-def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys):
+def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys, monkeypatch):
     folder, paths = lab
     cal = tmp_path / "cal.json"
     shutil.copy(folder / "cal.json", cal)
+    monkeypatch.setenv("SENSNAKE_FIT_SOLVER", "gauss-newton")  # the CasADi path through the CLI
     code, _, _ = _run(["fit", *paths[:2], "--sensor", "S01L", "--area", "1e-3", "--out", str(cal)], capsys)
     assert code == 0
     document = json.loads(cal.read_text())
     assert set(document["sensors"]) == {"S06B", "S01L"}
     assert document["sensors"]["S01L"]["area_m2"] == 1e-3
+    assert document["sensors"]["S01L"]["solver"] == "casadi gauss-newton"
+    monkeypatch.setenv("SENSNAKE_FIT_SOLVER", "newton-raphson")
+    code, _, err = _run(["fit", paths[0], "--sensor", "S01L", "--area", "1e-3", "--out", str(cal)], capsys)
+    assert code == 1 and "SENSNAKE_FIT_SOLVER='newton-raphson' is not one of" in err
 
 
 def test_round_trip_forward_then_estimate(lab, tmp_path, capsys):
