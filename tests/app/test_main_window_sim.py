@@ -15,7 +15,7 @@ from app.lab import LabContext
 from app.main_window import MainWindow
 from app.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
 from devices.config import SIM_PORT, load_config
-from widgets.hardware_panel import COL_DEG, COL_RAD, COL_TORQUE
+from widgets.hardware_panel import COL_DEG, COL_RAD, COL_REBOOT, COL_TEMP, COL_TORQUE
 
 CONNECT_TIMEOUT_MS = 10_000
 REPO = Path(__file__).resolve().parents[2]
@@ -106,7 +106,7 @@ def test_hardware_tab_scans_twelve_servos_and_shows_live_state(window, qtbot, si
     sim_lab_fast.chain.set_limp_position(5, 2048 + 512)  # torque is off at start: pose joint 5 by hand, +45°
     qtbot.waitUntil(lambda: panel.cell_text(5, COL_DEG) == "+45.0", timeout=5000)
     assert panel.cell_text(5, COL_RAD) == f"{np.pi / 4:+.3f}"
-    qtbot.waitUntil(lambda: panel.cell_text(5, 6) not in ("—", ""), timeout=5000)  # temperature from health
+    qtbot.waitUntil(lambda: panel.cell_text(5, COL_TEMP) not in ("—", ""), timeout=5000)  # from health
 
 
 def test_hardware_tab_torque_toggle_reaches_the_servo(window, qtbot, sim_lab_fast):
@@ -134,7 +134,7 @@ def test_overload_names_the_servo_in_status_and_table_and_reboot_clears_it(windo
     assert "overload" in window.status.message.lower()
     qtbot.waitUntil(lambda: "overload" in panel.errors_text(7).lower(), timeout=5000)
     assert panel.errors_text(6) == "none"
-    qtbot.mouseClick(panel.toggle(7, 11), Qt.MouseButton.LeftButton)  # Reboot
+    qtbot.mouseClick(panel.toggle(7, COL_REBOOT), Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: panel.errors_text(7) == "none", timeout=5000)
 
 
