@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from models.calibration import TrialInput, _paper_procedure, calibrate_sensor, hold_segment
+from models.calibration import TrialInput, calibrate_sensor, hold_segment, paper_procedure
 from models.fit_dfree import estimate_sls
 from models.fit_output import PARAM_NAMES, FitTrial, fit_output_casadi, fit_output_scipy
 from models.fit_paper import fit_paper_ls, sls_from_abc
@@ -58,7 +58,7 @@ def _paper(trials) -> tuple[np.ndarray, int]:
     for t in trials:
         start, hold_n = hold_segment(t.force_n)
         inp = TrialInput(t.name, t.time_s, t.force_n, t.conductance_s)
-        _, result = _paper_procedure(inp, start, hold_n, AREA_M2, PHYS)
+        _, result = paper_procedure(inp, start, hold_n, AREA_M2, PHYS)
         refused += not result.ok
         errors.append(_errors(sls_from_abc(result.a_s, result.b_Pa, result.c_Pa_s)))
     with np.errstate(all="ignore"):

@@ -208,7 +208,7 @@ def _strain(trial: TrialInput, phys: PhysicsConstants, rows: np.ndarray) -> np.n
     return strain
 
 
-def _paper_procedure(trial: TrialInput, start: int, force_n: float, area_m2: float,
+def paper_procedure(trial: TrialInput, start: int, force_n: float, area_m2: float,
                      phys: PhysicsConstants) -> tuple[ExponentialFit, PaperLSResult]:
     """The paper's Sec. IV-B on the hold: Eq. 9, strain from Eq. 3 at the constant force using the fitted C, then
     Eqs. 7–8 with ε̇ from the fit and σ̇ from the measured force."""
@@ -268,7 +268,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
             raise ValueError(f"{trial.name}: {exc}; choose another --window") from exc
         if trial.time_s.size - start < 10:
             raise ValueError(f"{trial.name}: the hold has only {trial.time_s.size - start} samples; need ≥ 10")
-        exp_fit, paper = _paper_procedure(trial, start, hold_n, area_m2, phys)
+        exp_fit, paper = paper_procedure(trial, start, hold_n, area_m2, phys)
         loaded = trial.force_n >= DFREE_FORCE_FRACTION * hold_n
         rows = np.flatnonzero(loaded)
         strain = _strain(trial, phys, rows)

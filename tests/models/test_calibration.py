@@ -103,3 +103,12 @@ def test_unresolvable_creep_time_is_reported():
     trials = paper_protocol(slow, PHYS, seed=2, repeats=1, noise_rel=0.01)
     cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, solver="scipy", fit_trend=False)
     assert any("poorly identified" in w or "outside what" in w for w in cal.warnings), cal.warnings
+
+
+def test_noisy_force_reading_still_gives_the_hold_force_and_parameters():
+    trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=7, repeats=1, noise_rel=0.001, force_noise_n=0.01)
+    cal = calibrate_sensor(_inputs(trials), AREA_M2, PHYS, fit_trend=False)
+    assert [r.force_n for r in cal.trials] == pytest.approx([1.75, 3.0, 4.0, 5.25], abs=2e-3)
+    for name in PARAM_NAMES:
+        assert float(getattr(cal.sls, name)) == pytest.approx(float(getattr(TYPICAL_TRUTH.params_at(0), name)),
+                                                             rel=0.02)
