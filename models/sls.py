@@ -61,6 +61,7 @@ _NEWTON_MAX_ITER = 100  # per-step force solve: warm-started Newton needs ~3, th
 _LOG_F_TOL = 1e-13
 _FAST_NEWTON_ITER = 5  # warm-started Newton: typically 3 steps
 _FAST_STEP_TOL = 1e-8  # a last step this small in log F leaves a quadratic error ~1e-16
+_OPEN_BELOW_S = float(np.finfo(np.float64).tiny)  # conductances below this read as open circuits
 _BELOW_BASELINE_FLAG_N = 1e-9  # negative forces are always clipped to 0 N; flagged only beyond this
 
 
@@ -661,8 +662,10 @@ class SLSInverse:
 
         # One min/max pass decides whether the block needs per-sample masks at all (NaN propagates into both).
         c_min, c_max = float(cond.min()), float(cond.max())
-        clean = c_min > 0.0 and c_max < np.inf
+        clean = c_min >= _OPEN_BELOW_S and c_max < np.inf
         if not clean:
+            # Below ~2e-308 S the resistance overflows float64: such a reading is an open circuit.
+            cond = np.where((cond > 0.0) & (cond < _OPEN_BELOW_S), 0.0, cond)
             status[np.isnan(cond)] = ForceStatus.NAN_INPUT
             status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
             status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
@@ -870,7 +873,7 @@ def _solve_contact_scalar(
         eps = p + w * f
         one_minus = 1.0 - eps
         tunnel = r0 * one_minus * math.exp(-k * eps)
-        contact = kc / math.sqrt(f)
+        contact = kc * math.exp(-0.5 * y)  # K/√F without underflowing F
         r = contact + tunnel
         phi = math.log(r) + log_c
         if phi == 0.0:
@@ -931,7 +934,7 @@ def _solve_contact_step(
                 eps = pa + wa * f
                 one_minus = 1.0 - eps
                 tunnel = r0 * one_minus * np.exp(-k * eps)
-                contact = kc / np.sqrt(f)
+                contact = kc * np.exp(-0.5 * y)  # K/√F without underflowing F
                 r = contact + tunnel
                 step = (np.log(r) + log_c) * r / (-0.5 * contact - tunnel * (1.0 / one_minus + k) * wa * f)
                 y = y - step
@@ -965,7 +968,7 @@ def _solve_contact_bracketed(c, log_c, pa, wa, g, f_max, k, r0, kc) -> tuple[np.
         eps = pa + wa * f
         one_minus = 1.0 - eps
         tunnel = r0 * one_minus * np.exp(-k * eps)
-        contact = kc / np.sqrt(f)
+        contact = kc * np.exp(-0.5 * y)  # K/√F without underflowing F
         r = contact + tunnel
         phi = np.log(r) + log_c
         dphi = (-0.5 * contact - tunnel * (1.0 / one_minus + k) * wa * f) / r

@@ -312,3 +312,30 @@ def test_contact_path_flags_strains_near_one(n_sensors):
     assert np.all(np.isfinite(res.force_n))
     assert np.all(res.status == ForceStatus.SATURATED)
     assert np.all(res.force_n > 0.9 * f_max)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    readings=st.lists(
+        st.one_of(
+            st.floats(min_value=-1e-3, max_value=1e3),
+            st.floats(min_value=1e-9, max_value=5e-3),
+            st.sampled_from([0.0, np.nan, np.inf, 1e300, 5e-324]),
+        ),
+        min_size=1,
+        max_size=40,
+    ),
+    contact=st.booleans(),
+    interp=st.sampled_from(["hold", "linear"]),
+    n_sensors=st.sampled_from([1, 2]),
+)
+def test_arbitrary_readings_never_leak_nan_and_never_hang(readings, contact, interp, n_sensors):
+    phys = DEFAULT_PHYSICS if contact else NO_CONTACT
+    cond = np.tile(np.array(readings)[:, None], (1, n_sensors))
+    t = np.arange(cond.shape[0]) * 0.1
+    res = force_from_conductance(t, cond, TYPICAL_SLS, TYPICAL_AREA_M2, phys, interp, with_status=True)
+    _assert_no_silent_nan(res, cond)
+    finite = np.isfinite(res.force_n)
+    assert np.all(res.force_n[finite] >= 0.0)
+    assert np.all(res.status != ForceStatus.NOT_CONVERGED)
+    assert np.all(np.isin(res.status, [int(s) for s in ForceStatus]))
