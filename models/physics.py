@@ -299,10 +299,9 @@ def _newton_strain(log_ratio: np.ndarray, k: float) -> tuple[np.ndarray, np.ndar
     """Root ε of ``g(ε) = ln(1−ε) − k·ε − L = 0`` for each L = ln(R_t/R0) (finite). Returns (ε, converged, iters).
 
     g is strictly decreasing and concave on ε < 1, so Newton started to the right of the root decreases monotonically
-    onto it and never leaves the domain. Both ``−L/(1+k)`` (the tangent at 0 lies above g) and ``−expm1(L)`` (there
-    g = −k·(1−e^L) ≤ 0) are right of the root; the smaller is the start. When both round to ≥ 1 (L < −(1+k), i.e.
-    ε > 0.996) Newton runs on v = ln(1−ε), where ``v + k·e^v = k + L`` is convex increasing, from v = k + L (right
-    of its root), so that even strains within 1e-300 of 1 are resolved without leaving the domain.
+    onto it and never leaves the domain (starts: :func:`_newton_strain_low`). For L ≤ −(1+k), i.e. ε > 0.996, Newton
+    runs on v = ln(1−ε) instead, where ``v + k·e^v = k + L`` is convex increasing, from v = k + L (right of its
+    root), so that even strains within 1e-300 of 1 are resolved without leaving the domain.
     """
     log_r = np.asarray(log_ratio, dtype=np.float64)
     eps = np.empty_like(log_r)
