@@ -271,15 +271,18 @@ def test_nan_conductance_does_not_corrupt_the_state():
         assert np.allclose(got[:, :2], force[:, :2], rtol=1e-10, atol=1e-10)
 
 
-def test_hold_inverse_stays_bounded_when_e0_exceeds_e1_and_steps_exceed_tau():
+@pytest.mark.parametrize("phys", [DEFAULT_PHYSICS, NO_CONTACT], ids=["contact", "no-contact"])
+@pytest.mark.parametrize("n_sensors", [1, 2])
+def test_hold_inverse_stays_bounded_when_e0_exceeds_e1_and_steps_exceed_tau(phys, n_sensors):
     # Per step the hold inverse multiplies an error by −E0/E1 when h ≫ τ; such steps are inverted as "linear".
     p = SLSParams(6e5, 1.5e5, 1.5e5 * 0.01)  # τ = 10 ms, E0/E1 = 4
     t = np.arange(0.0, 300.0, 1.0)
     rng = np.random.default_rng(1)
     force = 3.0 + rng.normal(0, 0.3, t.size)
-    cond = conductance_from_force(t, force, p, TYPICAL_AREA_M2, NO_CONTACT, "hold")
+    cond = conductance_from_force(t, force, p, TYPICAL_AREA_M2, phys, "hold")
     noisy = cond * (1 + rng.normal(0, 1e-4, t.size))
-    est = force_from_conductance(t, noisy, p, TYPICAL_AREA_M2, NO_CONTACT, "hold")
+    block = np.tile(noisy[:, None], (1, n_sensors))
+    est = force_from_conductance(t, block, p, TYPICAL_AREA_M2, phys, "hold")[:, 0]
     assert np.all(np.isfinite(est))
     error = np.abs(est - force)
     # Without the fallback the error would grow like 4^n; with it, it stays at the scale of the sample-to-sample
