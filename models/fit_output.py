@@ -153,7 +153,9 @@ class _Problem:
                 raise ValueError(f"{trial.name}: no usable conductance samples under load (flat or disconnected)")
             self.weights.append(1.0 / typical)
         self.saturation_s = saturation_s
-        self.forces = [np.where(np.isfinite(t.force_n), t.force_n, 0.0) for t in self.trials]
+        # A dropped force sample is held at the last valid value (what models.sls does with NaN), so the creep state
+        # is not disturbed by a fake unloading; the sample itself is masked out of the residual above.
+        self.forces = [_hold_last_valid(t.force_n) for t in self.trials]
         # Trials that share a time grid are run through the forward model as columns of one call.
         self.grid_groups: list[list[int]] = []
         for i, trial in enumerate(self.trials):
@@ -300,6 +302,16 @@ class _Problem:
         return OutputFit(self.mode, per_trial, ref, self.ref_force_n, trend, ci, tuple(ci_trials), rmse,
                          self.n_used, int(sum(int(c.sum()) for c in self.censored)), iterations, success, message,
                          solver, at_bound, tuple(warnings))
+
+
+def _hold_last_valid(values: np.ndarray) -> np.ndarray:
+    """NaN/inf samples replaced by the last finite value before them (0 before the first)."""
+    finite = np.isfinite(values)
+    if finite.all():
+        return np.asarray(values, dtype=np.float64)
+    index = np.where(finite, np.arange(values.size), -1)
+    np.maximum.accumulate(index, out=index)
+    return np.where(index >= 0, values[np.maximum(index, 0)], 0.0)
 
 
 def _sumsq(x: np.ndarray) -> float:

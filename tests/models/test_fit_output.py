@@ -65,6 +65,7 @@ def test_noise_free_per_trial_fits_and_nan_samples_are_skipped():
     trials = _fit_trials(protocol)
     for trial in trials:
         trial.conductance_s[100::37] = np.nan  # dropped samples
+        trial.force_n[500::53] = np.nan  # dropped force readings: held, not read as unloading
     fit = fit_output_scipy(trials, AREA_M2, PHYS, START, "per_trial")
     for params, synthetic in zip(fit.params, protocol):
         assert np.max(_rel_errors(params, synthetic.params)) <= 1e-6
