@@ -134,6 +134,9 @@ def _errors(estimate, truth, mask):
 
 def _scenario_table(quick: bool, linear_model, instant_model) -> None:
     rng = np.random.default_rng(7)
+    LinearEstimator(linear_model).update(
+        np.arange(3.0), np.ones((3, 1))
+    )  # warm-up: first-call costs not timed
     print("\nforce estimators on known truth (typical sensor, contact term on, Gaussian conductance noise)")
     header = f"{'scenario':<38} {'estimator':<26} {'ns/sample':>10} {'rms_N':>8} {'max_N':>8}"
     print(header)
