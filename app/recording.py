@@ -1,0 +1,509 @@
+"""Recording files (SPEC §3.5): the force-sensor board, the robot and live forces on one clock, in HDF5.
+
+Layout (SPEC §3.5, plus two extras that readers may ignore): root attributes ``format``, ``version``, ``started``
+(ISO 8601, UTC), ``config`` (TOML text); ``/daq`` with ``time_s``, ``seq``, ``counts``, ``conductance_S`` and
+attributes ``channels``, ``crc_errors``, ``dropped_frames``, ``resyncs``; ``/robot`` (``time_s``, ``goal_rad``,
+``present_rad``, ``current_mA``) when a robot is connected; ``/forces/force_N`` with the calibration JSON as the
+attribute ``calibration`` when forces are estimated live. Extras: ``/daq/board_time_s`` (the board's own clock,
+unwrapped, for exact sample spacing) and ``/events`` (``time_s``, ``kind``, ``text``: the gap and health log).
+
+One clock: every ``time_s`` is seconds since ``started``. The writer takes a host ``time.monotonic()`` reading when
+it starts and converts every host time stamp it is given (``SampleBlock.host_time_s``, ``ChainState.host_time_s``).
+
+Crash safety: datasets are chunked and resizable and the file is in SWMR mode (``libver='latest'``), so every
+:meth:`RecordingWriter.flush` leaves a file that opens; the writer flushes at least every ``flush_interval_s``
+(0.5 s by default) while data arrives, so ``kill -9`` or a pulled cable loses at most the last second.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import shutil
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Protocol
+
+import h5py
+import numpy as np
+
+FORMAT = "sensnake-recording"
+VERSION = 1
+DEFAULT_FLUSH_INTERVAL_S = 0.5
+CHUNK_BYTES = 1 << 14
+DEFAULT_MIN_FREE_BYTES = 16_000_000  # stop before the disk is full: HDF5 cannot recover from a failed write
+METADATA_RESERVE_BYTES = 1_000_000
+EVENT_TEXT_BYTES = 256
+EVENT_KIND_BYTES = 16
+
+
+class RecordingError(OSError):
+    """Writing a recording failed (disk full, file gone); what was flushed before stays readable."""
+
+
+class RecordingFormatError(ValueError):
+    """A file is not a SenSnake recording this version can read; the message names the file."""
+
+
+class DaqBlock(Protocol):
+    """What :meth:`RecordingWriter.append_daq` needs from a ``devices.board.SampleBlock``."""
+
+    counts: np.ndarray
+    conductance_s: np.ndarray
+    host_time_s: np.ndarray
+    seq: np.ndarray
+
+
+# -- writer ------------------------------------------------------------------------------------------------------
+class _Table:
+    """Columns of one group appended together; rows buffered in memory until the next flush."""
+
+    def __init__(self, group: h5py.Group, columns: dict[str, tuple[np.dtype, tuple[int, ...]]]) -> None:
+        self.datasets: dict[str, h5py.Dataset] = {}
+        for name, (dtype, row_shape) in columns.items():
+            row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
+            chunk_rows = max(16, CHUNK_BYTES // row_bytes)
+            self.datasets[name] = group.create_dataset(
+                name, shape=(0, *row_shape), maxshape=(None, *row_shape), chunks=(chunk_rows, *row_shape),
+                dtype=dtype)
+        self.pending: dict[str, list[np.ndarray]] = {name: [] for name in columns}
+        self.rows = 0  # rows on disk
+
+    def append(self, **columns: np.ndarray) -> None:
+        for name, values in columns.items():
+            self.pending[name].append(values)
+
+    @property
+    def pending_rows(self) -> int:
+        first = next(iter(self.pending.values()))
+        return sum(len(v) for v in first)
+
+    def write_pending(self) -> None:
+        n_new = self.pending_rows
+        if n_new == 0:
+            return
+        for name, dataset in self.datasets.items():
+            chunks = self.pending[name]
+            values = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
+            dataset.resize(self.rows + n_new, axis=0)
+            dataset[self.rows:self.rows + n_new] = values
+            chunks.clear()
+        self.rows += n_new
+
+
+class RecordingWriter:
+    """Writes one recording file; see the module docstring.
+
+    Not thread-safe: call it from one thread (the GUI uses a writer thread, the CLI its main thread). Time stamps
+    passed in are host ``time.monotonic()`` seconds. After a write failure every call raises :class:`RecordingError`.
+    """
+
+    def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
+                 calibration_json: str | None = None, with_robot: bool = False, n_joints: int = 12,
+                 flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, t0_monotonic_s: float | None = None,
+                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> None:
+        self.path = Path(path)
+        self.min_free_bytes = int(min_free_bytes)
+        self.channel_names = tuple(channel_names)
+        self.flush_interval_s = flush_interval_s
+        self.t0_monotonic_s = time.monotonic() if t0_monotonic_s is None else t0_monotonic_s
+        self.started = datetime.now(timezone.utc)
+        self._failed: RecordingError | None = None
+        self._closed = False
+        n = len(self.channel_names)
+        try:
+            self._file = h5py.File(self.path, "w", libver="latest")
+        except OSError as exc:
+            raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
+        try:
+            f = self._file
+            f.attrs["format"] = FORMAT
+            f.attrs["version"] = VERSION
+            f.attrs["started"] = self.started.isoformat(timespec="milliseconds")
+            f.attrs["config"] = config_text
+            f.attrs["duration_s"] = 0.0
+            daq = f.create_group("daq")
+            daq.attrs["channels"] = np.array(self.channel_names, dtype=h5py.string_dtype())
+            for key in ("crc_errors", "dropped_frames", "resyncs"):
+                daq.attrs[key] = np.int64(0)
+            self._daq = _Table(daq, {"time_s": (np.float64, ()), "seq": (np.uint32, ()),
+                                     "counts": (np.uint16, (n,)), "conductance_S": (np.float64, (n,)),
+                                     "board_time_s": (np.float64, ())})
+            self._daq_group = daq
+            self._robot: _Table | None = None
+            if with_robot:
+                self._robot = _Table(f.create_group("robot"), {
+                    "time_s": (np.float64, ()), "goal_rad": (np.float64, (n_joints,)),
+                    "present_rad": (np.float64, (n_joints,)), "current_mA": (np.float64, (n_joints,))})
+            self._forces: _Table | None = None
+            if calibration_json is not None:
+                forces = f.create_group("forces")
+                forces.attrs["calibration"] = calibration_json
+                self._forces = _Table(forces, {"force_N": (np.float64, (n,))})
+            self._events = _Table(f.create_group("events"), {
+                "time_s": (np.float64, ()), "kind": (f"S{EVENT_KIND_BYTES}", ()),
+                "text": (f"S{EVENT_TEXT_BYTES}", ())})
+            # Every object exists now; from here on readers may open the file while it grows.
+            f.swmr_mode = True
+            f.flush()
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
+        self._last_flush = time.monotonic()
+        self._last_time_s = 0.0
+        self._last_flushed_time_s = 0.0
+        self._stats: dict[str, int] = {}
+
+    # -- appending ---------------------------------------------------------------------------------------------
+    def time_s(self, host_monotonic_s: float | np.ndarray) -> float | np.ndarray:
+        """Recording time (seconds since ``started``) of a host ``time.monotonic()`` reading."""
+        return np.asarray(host_monotonic_s, dtype=np.float64) - self.t0_monotonic_s
+
+    def append_daq(self, block: DaqBlock) -> None:
+        """Append a board :class:`~devices.board.SampleBlock`; its ``gap_before`` flags become gap events."""
+        self._check()
+        n_rows = len(block.seq)
+        if n_rows == 0:
+            return
+        counts = np.asarray(block.counts, dtype=np.uint16)
+        if counts.shape[1] != len(self.channel_names):
+            raise ValueError(f"recording {self.path} has {len(self.channel_names)} channels, the block "
+                             f"{counts.shape[1]}")
+        times = self.time_s(block.host_time_s)
+        board_time = getattr(block, "board_time_s", None)
+        self._daq.append(time_s=times, seq=np.asarray(block.seq, dtype=np.uint32), counts=counts,
+                         conductance_S=np.asarray(block.conductance_s, dtype=np.float64),
+                         board_time_s=np.full(n_rows, np.nan) if board_time is None else np.asarray(board_time))
+        gap_before = getattr(block, "gap_before", None)
+        if gap_before is not None:
+            for i in np.flatnonzero(gap_before):
+                self._event(float(times[i]), "gap", f"board frames missing before seq {int(block.seq[i])}")
+        self._last_time_s = max(self._last_time_s, float(times[-1]))
+        self._maybe_flush()
+
+    def append_robot(self, time_s: float | np.ndarray, goal_rad: np.ndarray, present_rad: np.ndarray,
+                     current_ma: np.ndarray) -> None:
+        """Append robot samples: host monotonic ``time_s`` (scalar or (N,)), joint arrays (J,) or (N, J)."""
+        self._check()
+        if self._robot is None:
+            raise RuntimeError(f"recording {self.path} was created without a robot (with_robot=False)")
+        times = np.atleast_1d(self.time_s(time_s))
+        n_joints = self._robot.datasets["goal_rad"].shape[1]
+
+        def rows(values: np.ndarray) -> np.ndarray:
+            return np.asarray(values, dtype=np.float64).reshape(len(times), n_joints)
+
+        self._robot.append(time_s=times, goal_rad=rows(goal_rad), present_rad=rows(present_rad),
+                           current_mA=rows(current_ma))
+        self._last_time_s = max(self._last_time_s, float(times[-1]))
+        self._maybe_flush()
+
+    def append_forces(self, force_n: np.ndarray) -> None:
+        """Append estimated forces (N×C newtons), one row per board sample appended with :meth:`append_daq`."""
+        self._check()
+        if self._forces is None:
+            raise RuntimeError(f"recording {self.path} was created without a calibration: no forces to store")
+        self._forces.append(force_N=np.asarray(force_n, dtype=np.float64).reshape(-1, len(self.channel_names)))
+        self._maybe_flush()
+
+    def mark_gap(self, host_monotonic_s: float, reason: str) -> None:
+        """Log that data is missing from ``host_monotonic_s`` on (e.g. the board was unplugged)."""
+        self._check()
+        self._event(float(self.time_s(host_monotonic_s)), "gap", reason)
+
+    def log_event(self, text: str, host_monotonic_s: float | None = None, kind: str = "event") -> None:
+        """Log a line (sensor health change, user note) at ``host_monotonic_s`` (default: now)."""
+        self._check()
+        when = time.monotonic() if host_monotonic_s is None else host_monotonic_s
+        self._event(float(self.time_s(when)), kind, text)
+
+    def update_stats(self, crc_errors: int, dropped_frames: int, resyncs: int) -> None:
+        """The board link's cumulative counters, stored as ``/daq`` attributes at the next flush."""
+        self._check()
+        self._stats = {"crc_errors": int(crc_errors), "dropped_frames": int(dropped_frames),
+                       "resyncs": int(resyncs)}
+
+    def _event(self, time_s: float, kind: str, text: str) -> None:
+        self._events.append(time_s=np.array([time_s]),
+                            kind=np.array([kind.encode()[:EVENT_KIND_BYTES]], dtype=f"S{EVENT_KIND_BYTES}"),
+                            text=np.array([_truncate_utf8(text, EVENT_TEXT_BYTES)], dtype=f"S{EVENT_TEXT_BYTES}"))
+
+    # -- flushing ----------------------------------------------------------------------------------------------
+    @property
+    def n_daq_samples(self) -> int:
+        return self._daq.rows + self._daq.pending_rows
+
+    @property
+    def duration_s(self) -> float:
+        return self._last_time_s
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def size_bytes(self) -> int:
+        try:
+            return self.path.stat().st_size
+        except OSError:
+            return 0
+
+    def _maybe_flush(self) -> None:
+        if time.monotonic() - self._last_flush >= self.flush_interval_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write everything buffered and make it durable for readers (SWMR flush).
+
+        Stops the recording cleanly (file closed, :class:`RecordingError` raised) when the disk would be left with
+        less than ``min_free_bytes``: HDF5 cannot recover from a failed write, so running out is avoided, not caught.
+        """
+        self._check()
+        self._check_free_space()
+        try:
+            for table in (self._daq, self._robot, self._forces, self._events):
+                if table is not None:
+                    table.write_pending()
+            for key, value in self._stats.items():
+                self._daq_group.attrs[key] = np.int64(value)
+            self._file.attrs["duration_s"] = float(self._last_time_s)
+            self._file.flush()
+            self._last_flushed_time_s = self._last_time_s
+        except (OSError, RuntimeError) as exc:
+            # HDF5 reports a failed write (ENOSPC, EFBIG, EIO) as OSError or, from H5Fflush, RuntimeError.
+            self._fail(exc)
+        self._last_flush = time.monotonic()
+
+    def _pending_bytes(self) -> int:
+        total = 0
+        for table in (self._daq, self._robot, self._forces, self._events):
+            if table is not None:
+                total += sum(int(a.nbytes) for chunks in table.pending.values() for a in chunks)
+        return total
+
+    def _check_free_space(self) -> None:
+        try:
+            free = shutil.disk_usage(self.path.parent).free
+        except OSError:
+            return  # cannot tell (e.g. a network share): let the write itself decide
+        needed = self._pending_bytes() + METADATA_RESERVE_BYTES
+        if free - needed >= self.min_free_bytes:
+            return
+        self._pending_clear()
+        with contextlib.suppress(OSError, RuntimeError):
+            self._file.attrs["duration_s"] = float(self._last_flushed_time_s)
+            self._file.flush()
+        self._closed = True
+        with contextlib.suppress(OSError, RuntimeError):
+            self._file.close()
+        self._failed = RecordingError(
+            f"recording {self.path} stopped: the disk is almost full ({free / 1e6:.1f} MB free, keeping "
+            f"{self.min_free_bytes / 1e6:.0f} MB spare). The file keeps the first {self._daq.rows} board samples; "
+            "free some space and record again")
+        raise self._failed
+
+    def _pending_clear(self) -> None:
+        for table in (self._daq, self._robot, self._forces, self._events):
+            if table is not None:
+                for chunks in table.pending.values():
+                    chunks.clear()
+
+    def close(self) -> None:
+        """Flush and close. Idempotent; after a failure it just releases the file."""
+        if self._closed:
+            return
+        try:
+            if self._failed is None:
+                self.flush()
+        finally:
+            self._closed = True
+            with contextlib.suppress(OSError, RuntimeError):
+                self._file.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _check(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            raise RuntimeError(f"recording {self.path} is closed")
+
+    def _fail(self, exc: BaseException) -> None:
+        why = getattr(exc, "strerror", None) or " ".join(str(exc).split())[:200]
+        self._failed = RecordingError(
+            f"recording {self.path} stopped: cannot write ({why}); is the disk full? "
+            f"The file keeps what was saved up to the last flush")
+        self._release_after_failure()
+        raise self._failed from exc
+
+    def _release_after_failure(self) -> None:
+        # HDF5 cannot flush its metadata once a write failed; closing the file normally then leaves ids that
+        # crash the garbage collector later. Drop every object handle first, then close the file id itself.
+        self._closed = True
+        self._daq_group = None  # type: ignore[assignment]
+        for table in (self._daq, self._robot, self._forces, self._events):
+            if table is not None:
+                table.datasets.clear()
+        file_id = self._file.id
+        self._file = None  # type: ignore[assignment]
+        with contextlib.suppress(OSError, RuntimeError, ValueError):
+            file_id.close()
+
+
+def _truncate_utf8(text: str, max_bytes: int) -> bytes:
+    return text.encode("utf-8")[:max_bytes].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+# -- reader ------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RobotRecord:
+    time_s: np.ndarray  # (M,)
+    goal_rad: np.ndarray  # (M, J)
+    present_rad: np.ndarray  # (M, J)
+    current_ma: np.ndarray  # (M, J)
+
+
+@dataclass(frozen=True)
+class RecordingEvent:
+    time_s: float
+    kind: str  # "gap", "health", "event", …
+    text: str
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A recording read into memory. Times are seconds since ``started``."""
+
+    path: Path
+    version: int
+    started: str
+    config_text: str
+    channels: tuple[str, ...]
+    time_s: np.ndarray  # (N,)
+    seq: np.ndarray  # (N,) uint32
+    counts: np.ndarray  # (N, C) uint16
+    conductance_s: np.ndarray  # (N, C)
+    board_time_s: np.ndarray | None
+    crc_errors: int
+    dropped_frames: int
+    resyncs: int
+    robot: RobotRecord | None
+    forces_n: np.ndarray | None  # (N, C) when forces were estimated live
+    calibration_json: str | None
+    events: tuple[RecordingEvent, ...]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def gaps(self) -> tuple[RecordingEvent, ...]:
+        return tuple(e for e in self.events if e.kind == "gap")
+
+    @property
+    def duration_s(self) -> float:
+        ends = [self.time_s[-1]] if self.n_samples else []
+        if self.robot is not None and self.robot.time_s.size:
+            ends.append(self.robot.time_s[-1])
+        return float(max(ends)) if ends else 0.0
+
+
+def open_recording(path: str | Path) -> Recording:
+    """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"recording {path} does not exist")
+    try:
+        try:
+            handle = h5py.File(path, "r")
+        except OSError as exc:
+            if "already open for write" not in str(exc):
+                raise
+            # The writer was killed (or is still recording): its SWMR flag is set and only a SWMR reader may
+            # open it. Plain mode goes first because a SWMR reader retries bad checksums for a long time,
+            # which a truncated file would turn into a hang.
+            handle = h5py.File(path, "r", libver="latest", swmr=True)
+    except OSError as exc:
+        raise RecordingFormatError(f"{path} is not a readable SenSnake recording (not HDF5, or truncated/corrupt: "
+                                   f"{' '.join(str(exc).split())})") from exc
+    try:
+        with handle as f:
+            return _read(f, path)
+    except (KeyError, OSError, TypeError) as exc:
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
+
+
+def _attr_text(value: Any) -> str:
+    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+
+
+def _read(f: h5py.File, path: Path) -> Recording:
+    fmt = _attr_text(f.attrs.get("format", ""))
+    if fmt != FORMAT:
+        raise RecordingFormatError(f"{path} is not a SenSnake recording (format {fmt!r}, expected {FORMAT!r})")
+    version = int(f.attrs.get("version", -1))
+    if version != VERSION:
+        raise RecordingFormatError(f"{path} is a version-{version} recording; this program reads version {VERSION}"
+                                   " — update SenSnake Studio")
+    if "daq" not in f:
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording (no /daq group)")
+    daq = f["daq"]
+    channels = tuple(_attr_text(c) for c in daq.attrs["channels"])
+    names = ["time_s", "seq", "counts", "conductance_S"]
+    # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
+    n = min(daq[name].shape[0] for name in names)
+    forces = calibration = None
+    if "forces" in f:
+        calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
+        n_forces = f["forces/force_N"].shape[0]
+        forces = f["forces/force_N"][:min(n, n_forces)]
+    board_time = daq["board_time_s"][:n] if "board_time_s" in daq else None
+    robot = None
+    if "robot" in f:
+        group = f["robot"]
+        m = min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA"))
+        robot = RobotRecord(time_s=group["time_s"][:m], goal_rad=group["goal_rad"][:m],
+                            present_rad=group["present_rad"][:m], current_ma=group["current_mA"][:m])
+    events: tuple[RecordingEvent, ...] = ()
+    if "events" in f:
+        group = f["events"]
+        m = min(group[name].shape[0] for name in ("time_s", "kind", "text"))
+        events = tuple(RecordingEvent(float(t), k.decode("utf-8", "replace"), x.decode("utf-8", "replace"))
+                       for t, k, x in zip(group["time_s"][:m], group["kind"][:m], group["text"][:m]))
+    counts = daq["counts"][:n]
+    if counts.ndim != 2 or counts.shape[1] != len(channels):
+        raise RecordingFormatError(f"{path}: /daq/counts has {counts.shape[1:]} columns but {len(channels)} "
+                                   "channel names")
+    return Recording(
+        path=path, version=version, started=_attr_text(f.attrs.get("started", "")),
+        config_text=_attr_text(f.attrs.get("config", "")), channels=channels,
+        time_s=daq["time_s"][:n], seq=daq["seq"][:n], counts=counts, conductance_s=daq["conductance_S"][:n],
+        board_time_s=board_time, crc_errors=int(daq.attrs.get("crc_errors", 0)),
+        dropped_frames=int(daq.attrs.get("dropped_frames", 0)), resyncs=int(daq.attrs.get("resyncs", 0)),
+        robot=robot, forces_n=forces, calibration_json=calibration, events=events)
+
+
+# -- export ------------------------------------------------------------------------------------------------------
+def export_csv(recording: Recording, out: str | Path) -> Path:
+    """Write ``time_s`` then one column per channel: forces (N) if stored, else conductance (S). Returns ``out``."""
+    out = Path(out)
+    values = recording.conductance_s
+    if recording.forces_n is not None:
+        values = recording.forces_n
+    n = min(values.shape[0], recording.n_samples)
+    table = np.column_stack([recording.time_s[:n], values[:n]])
+    try:
+        with out.open("w", newline="", encoding="utf-8") as handle:
+            csv.writer(handle).writerow(["time_s", *recording.channels])
+            np.savetxt(handle, table, delimiter=",", fmt="%.10g")
+    except OSError as exc:
+        raise OSError(f"cannot write {out}: {exc.strerror or exc}") from exc
+    return out
+

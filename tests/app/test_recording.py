@@ -1,0 +1,268 @@
+"""Recording files (SPEC §3.5): round trip, crash safety (SIGKILL), disk full, bad files, CSV export."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from app.recording import (
+    RecordingError,
+    RecordingFormatError,
+    RecordingWriter,
+    export_csv,
+    open_recording,
+)
+from devices.board import SampleBlock, conductance_from_counts
+from devices.config import BoardConfig, default_sensor_names
+
+CHANNELS = default_sensor_names()
+REPO = Path(__file__).resolve().parents[2]
+
+
+def make_block(first_seq: int, n: int, host_t0: float, rate_hz: float = 30.0, seed: int = 0,
+               gap_at: int | None = None) -> SampleBlock:
+    rng = np.random.default_rng(seed + first_seq)
+    counts = rng.integers(1, 4096, (n, len(CHANNELS))).astype(np.uint16)
+    seq = (first_seq + np.arange(n)).astype(np.uint32)
+    times = host_t0 + seq / rate_hz
+    gap = None
+    if gap_at is not None:
+        gap = np.zeros(n, dtype=bool)
+        gap[gap_at] = True
+    return SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, BoardConfig()),
+                       board_time_s=seq / rate_hz, host_time_s=times, seq=seq, saturated=counts == 0,
+                       gap_before=gap)
+
+
+def test_round_trip_keeps_every_field_on_one_clock(tmp_path):
+    path = tmp_path / "rec.h5"
+    t0 = time.monotonic()
+    calibration = '{"format": "sensnake-calibration", "version": 1, "sensors": {}}'
+    blocks = [make_block(0, 20, t0), make_block(20, 15, t0, gap_at=3)]
+    with RecordingWriter(path, "[board]\nrate_hz = 30.0\n", CHANNELS, calibration_json=calibration,
+                         with_robot=True, t0_monotonic_s=t0) as writer:
+        for block in blocks:
+            writer.append_daq(block)
+            writer.append_forces(block.conductance_s * 1000.0)
+        for k in range(5):
+            angles = np.full(12, 0.1 * k)
+            writer.append_robot(t0 + 0.02 * k, angles, angles - 0.01, np.full(12, 50.0 + k))
+        writer.update_stats(crc_errors=3, dropped_frames=2, resyncs=1)
+        writer.log_event("S10B loose: noisy", t0 + 0.5, kind="health")
+        assert writer.n_daq_samples == 35
+    rec = open_recording(path)
+    assert rec.version == 1 and rec.started.endswith("+00:00")
+    assert rec.config_text.startswith("[board]")
+    assert rec.channels == CHANNELS
+    assert rec.n_samples == 35
+    assert np.array_equal(rec.counts, np.concatenate([b.counts for b in blocks]))
+    assert rec.counts.dtype == np.uint16 and rec.seq.dtype == np.uint32
+    assert np.allclose(rec.conductance_s, np.concatenate([b.conductance_s for b in blocks]))
+    assert np.allclose(rec.time_s, np.arange(35) / 30.0)  # seconds since started
+    assert np.allclose(rec.forces_n, rec.conductance_s * 1000.0)
+    assert rec.calibration_json == calibration
+    assert (rec.crc_errors, rec.dropped_frames, rec.resyncs) == (3, 2, 1)
+    assert rec.robot is not None
+    assert np.allclose(rec.robot.time_s, 0.02 * np.arange(5))
+    assert np.allclose(rec.robot.current_ma[:, 0], 50.0 + np.arange(5))
+    assert rec.robot.goal_rad.shape == (5, 12)
+    assert [g.time_s for g in rec.gaps] == pytest.approx([23 / 30.0])
+    assert any(e.kind == "health" and "S10B" in e.text for e in rec.events)
+    # Layout exactly as SPEC §3.5 for other tools.
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format"] == "sensnake-recording" and f.attrs["version"] == 1
+        assert set(f["daq"]) >= {"time_s", "seq", "counts", "conductance_S"}
+        assert f["daq/counts"].dtype == np.uint16 and f["daq/counts"].shape == (35, 36)
+        assert list(f["daq"].attrs["channels"].astype(str))[:2] == ["S01L", "S01R"]
+        assert set(f["robot"]) == {"time_s", "goal_rad", "present_rad", "current_mA"}
+        assert f["forces/force_N"].shape == (35, 36)
+
+
+def test_recording_without_robot_or_calibration_has_neither(tmp_path):
+    path = tmp_path / "plain.h5"
+    with RecordingWriter(path, "", CHANNELS) as writer:
+        writer.append_daq(make_block(0, 5, time.monotonic()))
+        with pytest.raises(RuntimeError, match="without a robot"):
+            writer.append_robot(0.0, np.zeros(12), np.zeros(12), np.zeros(12))
+    rec = open_recording(path)
+    assert rec.robot is None and rec.forces_n is None and rec.n_samples == 5
+
+
+def test_export_csv_writes_conductance_or_forces(tmp_path):
+    t0 = time.monotonic()
+    plain, with_forces = tmp_path / "a.h5", tmp_path / "b.h5"
+    block = make_block(0, 12, t0)
+    with RecordingWriter(plain, "", CHANNELS, t0_monotonic_s=t0) as writer:
+        writer.append_daq(block)
+    with RecordingWriter(with_forces, "", CHANNELS, calibration_json="{}", t0_monotonic_s=t0) as writer:
+        writer.append_daq(block)
+        writer.append_forces(np.full((12, 36), 2.5))
+    out = export_csv(open_recording(plain), tmp_path / "a.csv")
+    header = out.read_text().splitlines()[0].split(",")
+    assert header == ["time_s", *CHANNELS]
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert table.shape == (12, 37)
+    assert np.allclose(table[:, 0], np.arange(12) / 30.0)
+    assert np.allclose(table[:, 1:], block.conductance_s, rtol=1e-9, atol=1e-15)
+    forces = np.loadtxt(export_csv(open_recording(with_forces), tmp_path / "b.csv"), delimiter=",", skiprows=1)
+    assert np.all(forces[:, 1:] == 2.5)
+
+
+def test_disk_almost_full_stops_cleanly_and_keeps_what_was_flushed(tmp_path):
+    path = tmp_path / "full.h5"
+    t0 = time.monotonic()
+    writer = RecordingWriter(path, "", CHANNELS, flush_interval_s=3600.0, t0_monotonic_s=t0)
+    writer.append_daq(make_block(0, 30, t0))
+    writer.flush()
+    # The spare-space rule is what stops it: ask for more spare space than the disk has.
+    writer.min_free_bytes = shutil.disk_usage(tmp_path).free + 10**12
+    writer.append_daq(make_block(30, 30, t0))
+    with pytest.raises(RecordingError, match="disk is almost full") as info:
+        writer.flush()
+    assert isinstance(info.value, OSError)
+    with pytest.raises(RecordingError):
+        writer.append_daq(make_block(60, 1, t0))
+    writer.close()
+    rec = open_recording(path)
+    assert rec.n_samples == 30
+
+
+def test_bad_files_get_clear_messages(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothere.h5"):
+        open_recording(tmp_path / "nothere.h5")
+    text = tmp_path / "notes.h5"
+    text.write_text("not hdf5")
+    with pytest.raises(RecordingFormatError, match="notes.h5.*not a readable SenSnake recording"):
+        open_recording(text)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["format"] = "something-else"
+    with pytest.raises(RecordingFormatError, match="other.h5 is not a SenSnake recording"):
+        open_recording(other)
+    future = tmp_path / "future.h5"
+    with RecordingWriter(future, "", CHANNELS) as writer:
+        writer.append_daq(make_block(0, 3, time.monotonic()))
+    with h5py.File(future, "r+") as f:
+        f.attrs["version"] = 2
+    with pytest.raises(RecordingFormatError, match="future.h5 is a version-2 recording"):
+        open_recording(future)
+    good = tmp_path / "good.h5"
+    with RecordingWriter(good, "", CHANNELS) as writer:
+        writer.append_daq(make_block(0, 300, time.monotonic()))
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(RecordingFormatError, match="truncated.h5"):
+        open_recording(truncated)
+
+
+# -- crash safety --------------------------------------------------------------------------------------------------
+CHILD_RECORDER = textwrap.dedent("""
+    import sys, time
+    from devices import factory
+    from devices.board import BoardReader
+    from devices.config import LabConfig, BoardConfig
+    from devices.sim.board import VirtualBoard
+    from devices.sim.clock import SimClock
+    from devices.sim.contact import ContactModel
+    from app.recording import RecordingWriter
+
+    class BoardOnlyLab:
+        def __init__(self, board):
+            self.board = board
+        def endpoint(self, device):
+            return self.board
+
+    board_cfg = BoardConfig(rate_hz=100.0)
+    config = LabConfig(board=board_cfg)
+    board = VirtualBoard(board_cfg, SimClock(1.0), ContactModel(config, None, seed=1).forces_n, seed=2)
+    factory.install_sim_lab(BoardOnlyLab(board))
+    reader = BoardReader(board_cfg)
+    reader.start()
+    writer = RecordingWriter(sys.argv[1], "", board_cfg.channel_names, flush_interval_s=0.5)
+    while True:
+        reader.wait_for_frames(1, 1.0)
+        block = reader.read_block()
+        if block is not None:
+            writer.append_daq(block)
+            print(time.monotonic(), writer.n_daq_samples, flush=True)
+""")
+
+
+@pytest.mark.slow
+def test_sigkill_loses_at_most_the_last_second(tmp_path):
+    path = tmp_path / "killed.h5"
+    child = subprocess.Popen([sys.executable, "-c", CHILD_RECORDER, str(path)], cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    reports: list[tuple[float, int]] = []
+    try:
+        assert child.stdout is not None
+        for line in child.stdout:  # blocks on the child's progress, no sleeping
+            when, samples = line.split()
+            reports.append((float(when), int(samples)))
+            if reports[-1][0] - reports[0][0] >= 2.0:
+                break
+        killed_at = time.monotonic()
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+        child.stdout.close()
+        child.stderr.close()
+    assert reports, "the recorder never reported progress"
+    rec = open_recording(path)
+    appended_by_one_second_before = max(n for t, n in reports if t <= killed_at - 1.0)
+    assert appended_by_one_second_before >= 50  # 100 Hz for ≥ 1 s: the check is not vacuous
+    assert appended_by_one_second_before <= rec.n_samples <= reports[-1][1]
+    assert np.all(np.diff(rec.seq.astype(np.int64)) == 1)
+    assert np.all(np.diff(rec.time_s) >= 0)
+
+
+CHILD_HARD_FAILURE = textwrap.dedent("""
+    import os, resource, signal, sys, time
+    import numpy as np
+    from app.recording import RecordingWriter, RecordingError
+    from devices.board import SampleBlock
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # so an over-size write fails with EFBIG, like ENOSPC
+    resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000))
+    names = [f"c{i}" for i in range(36)]
+    writer = RecordingWriter(sys.argv[1], "", names, flush_interval_s=0.0, min_free_bytes=0)
+    t0 = time.monotonic()
+    try:
+        for k in range(100_000):
+            counts = np.full((30, 36), k % 4096, np.uint16)
+            seq = np.arange(30) + 30 * k
+            writer.append_daq(SampleBlock(counts, counts * 1e-7, seq * 0.01, t0 + seq * 0.01, seq, counts == 0))
+    except RecordingError as exc:
+        print("STOPPED", writer.n_daq_samples, exc, flush=True)
+    # HDF5 2.0 / h5py 3.16 crash in their exit-time cleanup after a failed write (see app/recording.py);
+    # the file on disk is what this test is about, so skip that cleanup.
+    os._exit(0)
+""")
+
+
+@pytest.mark.slow
+def test_hard_write_failure_raises_recording_error_and_reading_never_hangs(tmp_path):
+    # A write that fails inside HDF5 (here EFBIG; the spare-space rule normally stops us long before) leaves the
+    # superblock claiming more bytes than the file holds. Known limitation: such a file may not reopen. What is
+    # guaranteed: a clear RecordingError for the recorder and, for the reader, either whole rows or a clear error.
+    path = tmp_path / "efbig.h5"
+    done = subprocess.run([sys.executable, "-c", CHILD_HARD_FAILURE, str(path)], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)
+    assert done.stdout.startswith("STOPPED"), done.stdout + done.stderr
+    assert "is the disk full?" in done.stdout
+    try:
+        rec = open_recording(path)
+    except RecordingFormatError as exc:
+        assert "efbig.h5" in str(exc) and "truncated" in str(exc)
+    else:
+        assert np.all(rec.counts[:, 0] == (rec.seq // 30) % 4096)  # rows are whole, not torn
