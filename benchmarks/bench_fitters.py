@@ -56,9 +56,9 @@ def _paper(trials) -> tuple[np.ndarray, int]:
     """Median raw error over trials and how many trials the checked estimator refused."""
     errors, refused = [], 0
     for t in trials:
-        start, hold_n = hold_segment(t.force_n)
+        hold, hold_n = hold_segment(t.force_n)
         inp = TrialInput(t.name, t.time_s, t.force_n, t.conductance_s)
-        _, result = paper_procedure(inp, start, hold_n, AREA_M2, PHYS)
+        _, result = paper_procedure(inp, hold, hold_n, AREA_M2, PHYS)
         refused += not result.ok
         errors.append(_errors(sls_from_abc(result.a_s, result.b_Pa, result.c_Pa_s)))
     with np.errstate(all="ignore"):

@@ -37,8 +37,11 @@ from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams
 
-# The hold starts where the applied force first reaches this fraction of the trial's top force.
+# The hold starts where the applied force first reaches this fraction of the trial's top force, and ends where it
+# falls below the second fraction.
 HOLD_FRACTION = 0.95
+HOLD_END_FRACTION = 0.9
+HOLD_END_SAMPLES = 3
 # Samples below this fraction of the hold force are left out of the SLS fits (see models.fit_output).
 MIN_FORCE_FRACTION = 0.05
 # Strain for the derivative-free estimate is taken where the force is at least this fraction of the hold force:
@@ -83,6 +86,7 @@ class TrialReport:
     name: str
     force_n: float
     hold_start_s: float
+    hold_end_s: float
     exp_fit: ExponentialFit
     paper: PaperLSResult
     dfree: DerivativeFreeEstimate | None
@@ -104,7 +108,8 @@ class TrialReport:
             "mu1_Pa_s": float(self.params.mu1_Pa_s), "a_s": a, "b_Pa": b, "c_Pa_s": c,
             "rmse_S": self.rmse_s, "warnings": list(self.warnings),
             "ci95": {k: list(v) for k, v in self.ci95.items()},
-            "hold_start_s": self.hold_start_s, "noise_S": self.noise_s, "saturated_samples": self.n_saturated,
+            "hold_s": [self.hold_start_s, self.hold_end_s], "noise_S": self.noise_s,
+            "saturated_samples": self.n_saturated,
             "exp_fit_t0_s": self.exp_fit.t0_s,
             "paper_ls": {"ok": self.paper.ok, "E0_Pa": _or_none(self.paper.E0_Pa),
                          "E1_Pa": _or_none(self.paper.E1_Pa), "mu1_Pa_s": _or_none(self.paper.mu1_Pa_s),
@@ -155,9 +160,14 @@ def _or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def hold_segment(force_n: np.ndarray) -> tuple[int, float]:
-    """Index where the hold starts and the hold force (N): the mean applied force from the first sample at
-    :data:`HOLD_FRACTION` of the top force (its 99th percentile, robust to spikes) to the end."""
+def hold_segment(force_n: np.ndarray) -> tuple[slice, float]:
+    """The hold (a slice of samples) and its force (N, the mean applied force over it).
+
+    The hold starts at the first sample at :data:`HOLD_FRACTION` of the top force (its 99th percentile, robust to
+    spikes) and ends where the force stays below :data:`HOLD_END_FRACTION` of it for :data:`HOLD_END_SAMPLES`
+    samples (unloading at the end of a record, a slipping probe), or at the end of the record. NaN force samples do
+    not end it.
+    """
     finite = force_n[np.isfinite(force_n)]
     if finite.size == 0:
         raise ValueError("the force column has no finite sample")
@@ -166,8 +176,13 @@ def hold_segment(force_n: np.ndarray) -> tuple[int, float]:
         raise ValueError(f"the applied force never rises above zero (top {top:g} N): was the rig loading?")
     reached = np.flatnonzero(np.nan_to_num(force_n, nan=-np.inf) >= HOLD_FRACTION * top)
     start = int(reached[0])
-    hold = force_n[start:]
-    return start, float(np.nanmean(hold[hold >= 0.5 * top]))
+    below = (np.nan_to_num(force_n[start:], nan=np.inf) < HOLD_END_FRACTION * top).astype(int)
+    # The force must stay low for HOLD_END_SAMPLES samples: a single glitch in the force reading does not end it.
+    run = np.convolve(below, np.ones(HOLD_END_SAMPLES, dtype=int), mode="valid")
+    dropped = np.flatnonzero(run == HOLD_END_SAMPLES)
+    stop = start + int(dropped[0]) if dropped.size else force_n.size
+    hold = force_n[start:stop]
+    return slice(start, stop), float(np.nanmean(hold[hold >= HOLD_END_FRACTION * top]))  # glitches left out
 
 
 def estimate_noise(conductance_s: np.ndarray) -> float:
@@ -186,7 +201,7 @@ def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None) -> float:
     return estimate_noise(conductance_s) if conductance_s.size >= 20 else math.nan
 
 
-def _check_not_flat(trial: TrialInput, start: int) -> None:
+def _check_not_flat(trial: TrialInput) -> None:
     c = trial.conductance_s[np.isfinite(trial.conductance_s)]
     level = float(np.max(np.abs(c))) if c.size else 0.0
     if not level > 1e-12:
@@ -208,12 +223,12 @@ def _strain(trial: TrialInput, phys: PhysicsConstants, rows: np.ndarray) -> np.n
     return strain
 
 
-def paper_procedure(trial: TrialInput, start: int, force_n: float, area_m2: float,
-                     phys: PhysicsConstants) -> tuple[ExponentialFit, PaperLSResult]:
-    """The paper's Sec. IV-B on the hold: Eq. 9, strain from Eq. 3 at the constant force using the fitted C, then
-    Eqs. 7–8 with ε̇ from the fit and σ̇ from the measured force."""
-    t = trial.time_s[start:]
-    exp_fit = fit_exponential(t, trial.conductance_s[start:])
+def paper_procedure(trial: TrialInput, hold: slice, force_n: float, area_m2: float,
+                    phys: PhysicsConstants) -> tuple[ExponentialFit, PaperLSResult]:
+    """The paper's Sec. IV-B on the hold (a slice of samples at ``force_n`` N): Eq. 9, strain from Eq. 3 at the
+    constant force using the fitted C, then Eqs. 7–8 with ε̇ from the fit and σ̇ from the measured force."""
+    t = trial.time_s[hold]
+    exp_fit = fit_exponential(t, trial.conductance_s[hold])
     fitted = exp_fit(t)
     result = strain_from_conductance(fitted, np.full(t.shape, force_n), phys)
     strain = np.where(result.ok, result.strain, np.nan)
@@ -222,7 +237,7 @@ def paper_procedure(trial: TrialInput, start: int, force_n: float, area_m2: floa
     up = strain_from_conductance(fitted + dc, np.full(t.shape, force_n), phys).strain
     down = strain_from_conductance(fitted - dc, np.full(t.shape, force_n), phys).strain
     strain_rate = (up - down) / (2 * dc) * exp_fit.derivative(t)
-    stress = trial.force_n[start:] / area_m2
+    stress = trial.force_n[hold] / area_m2
     stress_rate = np.gradient(stress, t) if t.size > 1 else np.zeros_like(t)
     return exp_fit, fit_paper_ls(stress, strain, strain_rate, stress_rate)
 
@@ -258,17 +273,18 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     prelim: list[dict] = []
     for trial in trials:
         try:
-            start, hold_n = hold_segment(trial.force_n)
+            hold, hold_n = hold_segment(trial.force_n)
         except ValueError as exc:
             raise ValueError(f"{trial.name}: {exc}") from exc
-        _check_not_flat(trial, start)
+        _check_not_flat(trial)
         try:
             trial_mean(trial.time_s, trial.conductance_s, window_s)
         except ValueError as exc:
             raise ValueError(f"{trial.name}: {exc}; choose another --window") from exc
-        if trial.time_s.size - start < 10:
-            raise ValueError(f"{trial.name}: the hold has only {trial.time_s.size - start} samples; need ≥ 10")
-        exp_fit, paper = paper_procedure(trial, start, hold_n, area_m2, phys)
+        n_hold = hold.stop - hold.start
+        if n_hold < 10:
+            raise ValueError(f"{trial.name}: the hold has only {n_hold} samples; need ≥ 10")
+        exp_fit, paper = paper_procedure(trial, hold, hold_n, area_m2, phys)
         loaded = trial.force_n >= DFREE_FORCE_FRACTION * hold_n
         rows = np.flatnonzero(loaded)
         strain = _strain(trial, phys, rows)
@@ -283,9 +299,9 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         has_ramp = bool(trial.force_n[first_loaded] < 0.9 * hold_n)
         n_sat = int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12))) if saturation_s else 0
         fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, trial.conductance_s, hold_n))
-        prelim.append({"start": start, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
+        prelim.append({"hold": hold, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
-                       "sat": n_sat, "noise": _hold_noise(trial.conductance_s[start:], saturation_s)})
+                       "sat": n_sat, "noise": _hold_noise(trial.conductance_s[hold], saturation_s)})
 
     joint_start = estimate_sls([p["strain"] for p in prelim])
     start_params = SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)
@@ -314,7 +330,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")
         rmse = per_trial.rmse_s[i]
-        typical = float(np.nanmedian(trial.conductance_s[p["start"]:]))
+        typical = float(np.nanmedian(trial.conductance_s[p["hold"]]))
         if (math.isfinite(p["noise"]) and rmse > POOR_FIT_NOISE_RATIO * p["noise"]
                 and rmse > 1e-4 * typical):
             warnings.append(f"poor fit: rmse {rmse:.3g} S is {rmse / max(p['noise'], 1e-300):.1f}× the noise "
@@ -322,7 +338,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                             "slipping probe, drift?)")
         if not p["paper"].ok:
             warnings.extend(p["paper"].warnings)
-        reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["start"]]), p["exp"], p["paper"],
+        reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["hold"].start]),
+                                   float(trial.time_s[p["hold"].stop - 1]), p["exp"], p["paper"],
                                    p["dfree"], per_trial.params[i], per_trial.ci95_per_trial[i], rmse, p["noise"],
                                    p["sat"], p["ramp"], tuple(warnings)))
 

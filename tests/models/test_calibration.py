@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.calibration import FlatSensorError, TrialInput, calibrate_sensor
+from models.calibration import FlatSensorError, TrialInput, calibrate_sensor, hold_segment
 from models.fit_output import PARAM_NAMES
 from models.physics import PhysicsConstants
 from models.synthetic import TREND_TRUTH, TYPICAL_TRUTH, Readout, SensorTruth, make_trial, paper_protocol
@@ -112,3 +112,16 @@ def test_noisy_force_reading_still_gives_the_hold_force_and_parameters():
     for name in PARAM_NAMES:
         assert float(getattr(cal.sls, name)) == pytest.approx(float(getattr(TYPICAL_TRUTH.params_at(0), name)),
                                                              rel=0.02)
+
+
+def test_hold_ends_where_the_force_is_released():
+    trial = make_trial(TYPICAL_TRUTH, PHYS, 3.0, noise_rel=0.001, seed=4)
+    released = trial.force_n.copy()
+    released[trial.time_s > 300.0] = 0.0  # the rig lets go 70 s before the end of the record
+    released[1000] = 0.0  # a glitch in the force reading does not end the hold
+    clean = TrialInput("released.csv", trial.time_s, released, trial.conductance_s)
+    hold, force = hold_segment(released)
+    assert force == pytest.approx(3.0)
+    assert trial.time_s[hold.stop - 1] == pytest.approx(300.0, abs=0.2)
+    cal = calibrate_sensor([clean], AREA_M2, PHYS, fit_trend=False)
+    assert cal.trials[0].hold_end_s == pytest.approx(300.0, abs=0.2)
