@@ -115,14 +115,12 @@ class ForcesPipeline:
         self._build()
 
     def label(self, index: int) -> str:
-        """Legend text for channel ``index``, e.g. ``S06B`` or ``S06B · µS, uncalibrated``."""
+        """Legend text for channel ``index``: ``S06B`` when it gets a force (calibrated, or the typical-sensor
+        default that the calibration label announces), ``S06B (µS, uncal.)`` when it shows conductance."""
         name = self.channel_names[index]
-        status = self.status[index]
-        if status == CALIBRATED:
-            return name
-        if status == DEFAULT:
-            return f"{name} · default cal."
-        return f"{name} · µS, uncal."
+        if self.status[index] == UNCALIBRATED:
+            return f"{name} (µS, uncal.)"
+        return name
 
     def summary(self) -> tuple[str, str]:
         """(text, level) for the calibration label: how many sensors are calibrated / default / conductance."""

@@ -56,6 +56,7 @@ STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
 BODY_FORCE_STEP_N = 0.05  # forces are compared at this resolution to decide whether the body map must redraw
 ONSET_FRACTION = 0.1
+BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
 
 
 def recordings_dir() -> Path:
@@ -271,7 +272,8 @@ class ForcesTab(QWidget):
             return
         self._body_key = key
         self.body.set_angles(angles)
-        self.body.set_sensor_forces(forces, (flags & np.uint8(BAD_FLAGS)) != 0 if forces is not None else None)
+        self.body.set_sensor_forces(forces, (flags & np.uint8(BAD_FLAGS)) != 0 if forces is not None else None,
+                                    full_scale_n=BODY_FULL_SCALE_N)
 
     # -- view options ----------------------------------------------------------------------------------------------
     def set_quantity(self, quantity: str) -> None:

@@ -46,7 +46,8 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     qtbot.waitUntil(lambda: len(curves_with_data(tab)) == 36, timeout=15_000)
     assert len(tab.plots.plots) == 12
     legend = tab.plots.plots[5].legend.getLabel(tab.plots.plots[5].curves[2]).text
-    assert legend.startswith("S06B") and "default" in legend  # no calibration file: labelled as such
+    assert legend == "S06B"
+    assert "typical-sensor defaults" in tab.controls.calibration_label.text()  # no calibration file: said so
 
     tab.controls.pause.click()
     assert tab.plots.paused
@@ -81,7 +82,7 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     assert tab.load_calibration(cal)
     assert tab.pipeline.estimated.sum() == 1
     labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
-    assert "S06B" in labels and "S06L · µS, uncal." in labels
+    assert "S06B" in labels and "S06L (µS, uncal.)" in labels
     assert "35 shown as conductance" in tab.controls.calibration_label.text()
     bad = tmp_path / "bad.json"
     bad.write_text('{"format": "something-else", "version": 1}')
