@@ -108,9 +108,9 @@ def build_packet(servo_id: int, instruction: int, params: bytes = b"") -> bytes:
     if not 0 <= servo_id <= 0xFE:
         raise ValueError(f"servo ID {servo_id} outside 0…254")
     field = stuff(bytes([instruction]) + bytes(params))
-    length = len(field) + 2
-    if length + 7 - 2 > MAX_PACKET_BYTES:
-        raise ValueError(f"packet of {length + 5} bytes exceeds {MAX_PACKET_BYTES}")
+    length = len(field) + 2  # LEN counts the (stuffed) field and the CRC
+    if 7 + length > MAX_PACKET_BYTES:
+        raise ValueError(f"packet of {7 + length} bytes exceeds {MAX_PACKET_BYTES}")
     head = HEADER + bytes([servo_id, length & 0xFF, length >> 8])
     body = head + field
     crc = crc16(body)

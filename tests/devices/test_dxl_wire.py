@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from dynamixel_sdk import PacketHandler
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -91,3 +92,9 @@ def test_status_error_and_data_fields():
     assert packet.instruction == wire.STATUS
     assert packet.error == 0x87
     assert packet.data == b"\x01\x02"
+
+
+def test_oversized_packet_is_refused():
+    assert len(wire.build_packet(1, wire.WRITE, bytes(1024 - 10))) == 1024
+    with pytest.raises(ValueError, match="exceeds 1024"):
+        wire.build_packet(1, wire.WRITE, bytes(1024 - 9))
