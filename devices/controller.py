@@ -5,8 +5,8 @@ Every tick, on a deadline schedule (sleep until the next deadline; overruns are 
     motion goal → joint-limit clamp → max-speed limit (max_joint_speed_rad_s × period) → ONE GroupSyncWrite
     ONE GroupSyncRead → on_state(ChainState)
 
-Health (hardware error, temperature, voltage, torque, LED) is polled at ``robot.status_rate_hz`` and at once when a
-status packet carries the alert bit. A hardware error stops the motion before anything else is sent and reports
+Health (hardware error, torque, LED; voltage and temperature on every 5th poll) is polled at
+``robot.status_rate_hz`` and at once when a status packet carries the alert bit. A hardware error stops the motion before anything else is sent and reports
 :class:`ServoHardwareError` naming the servo. If feedback goes stale (consecutive failed reads for
 ``WATCHDOG_S``), the motion stops and ``on_error`` names the servo that stopped answering. A pulled cable reports
 :class:`LinkLostError` and the loop tries to reopen the port every ``RECONNECT_INTERVAL_S``.
@@ -56,6 +56,7 @@ WATCHDOG_MIN_FAILED_READS = 2
 RECONNECT_INTERVAL_S = 0.5
 PERIOD_HISTORY = 4096
 TIMING_WINDOW_S = 5.0
+SUPPLY_EVERY_N_POLLS = 5  # voltage and temperature change slowly: read them on every 5th health poll
 TIMING_WARN_FRACTION = 0.05
 
 MOTION_FINISHED = "finished"
@@ -143,6 +144,7 @@ class RobotController:
         self._stale_reported = False
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._next_health_s = 0.0
+        self._health_polls = 0
         self._next_reconnect_s = 0.0
         self._timing_window_start_s: float | None = None
         self._timing_window_ticks = 0
@@ -428,8 +430,10 @@ class RobotController:
 
     def _poll_health(self, now: float, newly_alerted: Sequence[int] = ()) -> None:
         self._next_health_s = now + self.health_period_s
+        supply = self._health_polls % SUPPLY_EVERY_N_POLLS == 0
+        self._health_polls += 1
         try:
-            health = self.chain.read_health()
+            health = self.chain.read_health(supply=supply)
         except (NoReplyError, CorruptPacketError) as exc:
             log.debug("health poll failed: %s", exc)
             for sid in newly_alerted:

@@ -19,6 +19,7 @@ the :class:`devices.controller.RobotController` thread; use its ``submit``).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 import time
@@ -206,6 +207,7 @@ class ServoChain:
         self._ph = PacketHandler(PROTOCOL_VERSION)
         self._goal_writer: GroupSyncWrite | None = None
         self._state_reader: _TrackingSyncRead | None = None
+        self._supply_cache: dict[int, tuple[float, float]] = {}  # servo ID -> (voltage V, temperature °C)
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
     @property
@@ -446,35 +448,42 @@ class ServoChain:
             alert_ids=alerts,
         )
 
-    def read_health(self, ids: Sequence[int] | None = None) -> list[ServoHealth]:
-        """Hardware error, temperature, voltage, torque and LED of each servo (two sync reads)."""
+    def read_health(self, ids: Sequence[int] | None = None, *, supply: bool = True) -> list[ServoHealth]:
+        """Hardware error, torque and LED (one sync read of 64…70) and, with ``supply``, input voltage (V) and
+        temperature (°C) (a second sync read of 144…146). Without ``supply`` the last values read are reported
+        (NaN before the first), which halves the cost of a frequent poll: temperature and voltage change slowly.
+        """
         ids = self._ids_or_all(ids)
-        port = self._require_port()
-        blocks = []
-        for address, size in ((ct.HEALTH_BLOCK_ADDRESS, ct.HEALTH_BLOCK_SIZE),
-                              (ct.SUPPLY_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_SIZE)):
-            reader = _TrackingSyncRead(port, self._ph, address, size)
-            for sid in ids:
-                reader.addParam(sid)
-            result = self._io(reader.txRxPacket)
-            if result != COMM_SUCCESS:
-                sid = reader.failed_id if reader.failed_id is not None else ids[0]
-                self._check_comm(result, sid, "sync read of hardware status")
-            blocks.append({sid: bytes(reader.data_dict[sid]) for sid in ids})
+        status = self._sync_read_blocks(ids, ct.HEALTH_BLOCK_ADDRESS, ct.HEALTH_BLOCK_SIZE)
+        if supply:
+            for sid, block in self._sync_read_blocks(ids, ct.SUPPLY_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_SIZE).items():
+                self._supply_cache[sid] = (int.from_bytes(block[0:2], "little") * ct.VOLTAGE_V_PER_LSB,
+                                           float(block[2]))
         health = []
         for sid in ids:
-            status, supply = blocks[0][sid], blocks[1][sid]
-            error = status[ct.ADDR_HARDWARE_ERROR_STATUS - ct.HEALTH_BLOCK_ADDRESS]
+            block = status[sid]
+            error = block[ct.ADDR_HARDWARE_ERROR_STATUS - ct.HEALTH_BLOCK_ADDRESS]
+            voltage_v, temperature_c = self._supply_cache.get(sid, (math.nan, math.nan))
             health.append(ServoHealth(
                 servo_id=sid,
                 hardware_error=error,
                 error_names=ct.hardware_error_names(error),
-                temperature_c=float(supply[2]),
-                voltage_v=int.from_bytes(supply[0:2], "little") * ct.VOLTAGE_V_PER_LSB,
-                torque_on=bool(status[0]),
-                led_on=bool(status[1]),
+                temperature_c=temperature_c,
+                voltage_v=voltage_v,
+                torque_on=bool(block[0]),
+                led_on=bool(block[1]),
             ))
         return health
+
+    def _sync_read_blocks(self, ids: list[int], address: int, size: int) -> dict[int, bytes]:
+        reader = _TrackingSyncRead(self._require_port(), self._ph, address, size)
+        for sid in ids:
+            reader.addParam(sid)
+        result = self._io(reader.txRxPacket)
+        if result != COMM_SUCCESS:
+            sid = reader.failed_id if reader.failed_id is not None else ids[0]
+            self._check_comm(result, sid, "sync read of hardware status")
+        return {sid: bytes(reader.data_dict[sid]) for sid in ids}
 
     # -- timing checks ---------------------------------------------------------------------------------------------
     def timing_warnings(self, control_rate_hz: float | None = None, n_cycles: int = 5) -> list[str]:

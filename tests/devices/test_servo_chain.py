@@ -224,3 +224,13 @@ def test_signs_and_zero_offsets_reach_the_servo_ticks(sim_chain):
         assert sent[1] <= 1.0 and sent[0] == pytest.approx(0.5, abs=ct.RAD_PER_TICK)
         sim_chain.set_limp_position(1, ticks[0])
         assert chain.read_state().position_rad[0] == pytest.approx(0.5, abs=ct.RAD_PER_TICK)
+
+
+def test_health_without_supply_reuses_the_last_voltage_and_temperature(servos, sim_chain):
+    assert math.isnan(servos.read_health([1], supply=False)[0].voltage_v)
+    assert servos.read_health([1])[0].voltage_v == pytest.approx(12.0)
+    sim_chain.set_supply_voltage(11.0)
+    reads = sim_chain.count(wire.SYNC_READ)
+    assert servos.read_health([1], supply=False)[0].voltage_v == pytest.approx(12.0)
+    assert sim_chain.count(wire.SYNC_READ) == reads + 1
+    assert servos.read_health([1])[0].voltage_v == pytest.approx(11.0)
