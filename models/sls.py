@@ -1012,3 +1012,148 @@ def force_from_conductance(
     if was_1d:
         result = ForceResult(result.force_n[:, 0], result.status[:, 0])
     return result if with_status else result.force_n
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# the force-dependent variant (the paper's parameters linear in force), one sensor, hold interpolation
+
+
+def _trend_value(pair: tuple[float, float], force_n: float, key: str, index: int) -> float:
+    value = pair[0] + pair[1] * force_n
+    if not value > 0.0:
+        raise ValueError(
+            f"sls_trend gives {key} = {value:.4g} ≤ 0 at the estimated force {force_n:.4g} N (sample {index}): "
+            f"the trend is not valid there; use fixed parameters (the calibration's 'sls' entry)"
+        )
+    return value
+
+
+def _solve_contact_trend_scalar(
+    cond: float, q: float, area: float, e0: tuple[float, float], k: float, r0: float, kc: float
+) -> tuple[float, int]:
+    """Solve ``C·(K/√F + R0·(1−ε)·e^(−kε)) = 1`` with ``ε = q + F/(A·(a + b·F))`` (E0 linear in F) for F > 0.
+
+    ``F/(a + bF)`` increases with F whenever a > 0, so φ(ln F) is still strictly decreasing: bracket
+    ``[(K·C)², F_cap]`` (F_cap: ε = 1, E0 → 0, or 1e12 N) and safeguarded Newton in log F, as in the fixed case."""
+    a, b = e0
+    caps = [1e12]
+    if b < 0.0:
+        caps.append(-a / b * (1.0 - 1e-12))
+    room = 1.0 - q  # strain left before ε = 1
+    if room <= 0.0:
+        return 0.0, ForceStatus.SATURATED
+    if room * area * b < 1.0:
+        caps.append(room * area * a / (1.0 - room * area * b))
+    f_cap = min(caps)
+    y_lo = 2.0 * math.log(kc * cond)
+    y_hi = math.log(f_cap)
+    log_c = math.log(cond)
+
+    def phi_dphi(y: float) -> tuple[float, float, float]:
+        f = math.exp(y)
+        e0_f = a + b * f
+        eps = q + f / (area * e0_f)
+        deps = a / (area * e0_f * e0_f)
+        one_minus = 1.0 - eps
+        tunnel = r0 * one_minus * math.exp(-k * eps) if one_minus > 0.0 else 0.0
+        contact = kc * math.exp(-0.5 * y)
+        r = contact + tunnel
+        dphi = (-0.5 * contact - tunnel * (1.0 / one_minus + k) * deps * f) / r if one_minus > 0.0 else -0.5
+        return math.log(r) + log_c, dphi, eps
+
+    if y_lo >= y_hi or phi_dphi(y_hi)[0] >= 0.0:
+        return f_cap, ForceStatus.SATURATED
+    y = 0.5 * (y_lo + y_hi)
+    for _ in range(_NEWTON_MAX_ITER):
+        phi, dphi, _eps = phi_dphi(y)
+        if phi == 0.0:
+            return math.exp(y), 0
+        if phi > 0.0:
+            y_lo = y
+        else:
+            y_hi = y
+        step = phi / dphi
+        y_new = y - step
+        if abs(step) <= _LOG_F_TOL * max(1.0, abs(y)):
+            return math.exp(y_new), 0
+        if not y_lo <= y_new <= y_hi:
+            y_new = 0.5 * (y_lo + y_hi)
+        y = y_new
+        if y_hi - y_lo <= 4e-16 * max(1.0, abs(y)):
+            return math.exp(y), 0
+    return math.exp(y), ForceStatus.NOT_CONVERGED
+
+
+def force_from_conductance_trend(
+    t_s: np.ndarray,
+    conductance_s: np.ndarray,
+    trend: SLSTrend,
+    area_m2: float,
+    phys: PhysicsConstants,
+    *,
+    with_contact: bool = True,
+) -> ForceResult:
+    """Force (N) from conductance (S) with the paper's force-dependent parameters: the exact inverse of
+    :func:`strain_from_force_trend` + Eq. 3 (one sensor (N,), hold interpolation, any thread).
+
+    Per step the creep uses E1, τ at the force held over the step and the instantaneous part uses E0 at the new force,
+    so the per-step equation stays scalar and monotone (needs E0's intercept > 0). Statuses as
+    :func:`force_from_conductance`; ValueError (naming the sample) if the trend turns non-positive at an estimated
+    force. O(1) per sample, but a Python loop: for offline use and benchmarks, not the 1 kHz many-sensor stream.
+    """
+    steps = check_timestamps(t_s)
+    cond = np.asarray(conductance_s, dtype=np.float64)
+    if cond.shape != steps.shape:
+        raise ValueError(f"conductance_s must be (N,) with N = {steps.size}, got shape {cond.shape}")
+    area = float(_check_area(area_m2, 1)[0])
+    if not trend.E0_Pa[0] > 0.0:
+        raise ValueError(
+            f"sls_trend E0_Pa intercept must be > 0 for a monotone inverse, got {trend.E0_Pa[0]!r}"
+        )
+    phys_used = phys if with_contact else phys.without_contact()
+    contact = phys_used.has_contact
+    k, r0, kc = phys_used.tunnelling_k, phys_used.R0_ohm, phys_used.K_contact_ohm_sqrtN
+    valid = (cond >= _OPEN_BELOW_S) & np.isfinite(cond)
+    if not contact:
+        strain_res = strain_from_resistance(1.0 / np.where(valid, cond, 1.0), 1.0, phys_used)
+    force = np.zeros(cond.size)
+    status = np.zeros(cond.size, dtype=np.int8)
+    q = 0.0
+    f_prev = 0.0  # force held over the coming step (N)
+    sig_over_e1 = 0.0
+    for i, c in enumerate(cond.tolist()):
+        tau = _trend_value(trend.mu1_Pa_s, f_prev, "mu1_Pa_s", i) / _trend_value(
+            trend.E1_Pa, f_prev, "E1_Pa", i
+        )
+        q += -math.expm1(-steps[i] / tau) * (sig_over_e1 - q)
+        if c != c:
+            force[i] = math.nan
+            status[i] = ForceStatus.NAN_INPUT
+            continue  # the previous force stays held over the gap
+        code: int = ForceStatus.OK
+        if not valid[i] and c != math.inf:
+            f_new = 0.0
+            code = ForceStatus.NEGATIVE_CONDUCTANCE if c < 0.0 else ForceStatus.OPEN_CIRCUIT
+        elif contact:
+            # C = ∞ is beyond every finite reading: the solver returns the ε → 1 cap, flagged SATURATED.
+            f_new, code = _solve_contact_trend_scalar(min(c, 1e300), q, area, trend.E0_Pa, k, r0, kc)
+        else:
+            strain = 1.0 if c == math.inf else float(strain_res.strain[i])
+            d = strain - q  # = F/(A·E0(F))
+            a, b = trend.E0_Pa
+            code = 0
+            if c == math.inf or strain_res.status[i] == StrainStatus.STRAIN_NEAR_ONE:
+                code = ForceStatus.SATURATED
+            if d * area * b >= 1.0:
+                f_new, code = 1e12, ForceStatus.SATURATED
+            else:
+                f_new = d * area * a / (1.0 - d * area * b)
+            if f_new < 0.0:
+                if f_new < -_BELOW_BASELINE_FLAG_N and code == 0:
+                    code = ForceStatus.BELOW_BASELINE
+                f_new = 0.0
+        force[i] = f_new
+        status[i] = code
+        f_prev = f_new
+        sig_over_e1 = f_new / area / _trend_value(trend.E1_Pa, f_new, "E1_Pa", i)
+    return ForceResult(force, status)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.physics import DEFAULT_PHYSICS, tunnelling_resistance
+from models.physics import DEFAULT_PHYSICS, conductance_from_strain, tunnelling_resistance
 from models.sls import (
     TYPICAL_AREA_M2,
     TYPICAL_SLS,
@@ -15,6 +15,7 @@ from models.sls import (
     SLSTrend,
     conductance_from_force,
     force_from_conductance,
+    force_from_conductance_trend,
     one_minus_phi1,
     strain_from_force,
     strain_from_force_superposition,
@@ -304,3 +305,46 @@ def test_one_sensor_inverse_path_equals_the_vectorised_path(interp, phys):
     )
     assert np.allclose(single.force_n, pair.force_n[:, 0], rtol=1e-13, atol=1e-14, equal_nan=True)
     assert np.array_equal(single.status, pair.status[:, 0])
+
+
+RISING = SLSTrend(
+    E0_Pa=(1.5e5, 3e5 / 7), E1_Pa=(2.5e5, 5e5 / 7), mu1_Pa_s=(2.5e7, 5e7 / 7)
+)  # each parameter ∝ (0.5 + F/7 N): ±25 % over 1.75–5.25 N around the typical sensor
+
+
+@pytest.mark.parametrize("phys", [DEFAULT_PHYSICS, NO_CONTACT], ids=["contact", "no-contact"])
+def test_force_dependent_inverse_round_trips_the_force_dependent_forward(phys):
+    rng = np.random.default_rng(12)
+    t, force = _nonuniform_record(rng, 500)
+    strain = strain_from_force_trend(t, force[:, 0], RISING, TYPICAL_AREA_M2)
+    cond = conductance_from_strain(strain, force[:, 0], phys)
+    result = force_from_conductance_trend(t, cond, RISING, TYPICAL_AREA_M2, phys)
+    assert np.max(np.abs(result.force_n - force[:, 0])) <= 1e-10 * np.max(force)
+    # the fixed-parameter inverse at the middle of the range is visibly wrong on the same data
+    fixed = force_from_conductance(t, cond, RISING.at(3.5), TYPICAL_AREA_M2, phys)
+    assert np.max(np.abs(fixed - force[:, 0])) > 0.05
+
+
+def test_force_dependent_inverse_with_flat_trend_equals_the_fixed_inverse():
+    rng = np.random.default_rng(13)
+    t, force = _nonuniform_record(rng, 300)
+    p = TYPICAL_SLS
+    flat = SLSTrend((p.E0_Pa, 0.0), (p.E1_Pa, 0.0), (p.mu1_Pa_s, 0.0))
+    cond = conductance_from_force(t, force[:, 0], p, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
+    cond[[40, 41]] = np.nan
+    trend_res = force_from_conductance_trend(t, cond, flat, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
+    fixed_res = force_from_conductance(t, cond, p, TYPICAL_AREA_M2, DEFAULT_PHYSICS, with_status=True)
+    assert np.allclose(trend_res.force_n, fixed_res.force_n, rtol=1e-12, atol=1e-13, equal_nan=True)
+    assert np.array_equal(trend_res.status, fixed_res.status)
+
+
+def test_force_dependent_inverse_refuses_invalid_trends():
+    t = np.arange(3.0)
+    cond = np.full(3, 1e-3)
+    with pytest.raises(ValueError, match="intercept"):
+        force_from_conductance_trend(
+            t, cond, SLSTrend((0.0, 1e5), (1e5, 0), (1e7, 0)), TYPICAL_AREA_M2, NO_CONTACT
+        )
+    falling = SLSTrend((3e5, 0.0), (5e5, -2e5), (5e7, 0.0))  # E1 ≤ 0 beyond 2.5 N
+    with pytest.raises(ValueError, match="sample 0"):
+        force_from_conductance_trend(t, np.full(3, 2e-3), falling, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
