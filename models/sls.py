@@ -23,7 +23,8 @@ Conventions shared by every function here:
 - The paper's parameters "increase linearly with force" (Sec. IV-A). Strictly that breaks superposition; here the
   model uses fixed parameters, i.e. the parameters at one reference force: the calibration's ``sls`` entry, or
   ``SLSTrend.at(reference_force_n)`` (the middle of the calibrated range is the natural choice).
-  ``strain_from_force_trend`` runs the force-dependent variant so the benchmark can measure the error of that choice
+  ``strain_from_force_trend`` / ``force_from_conductance_trend`` run the force-dependent variant (parameters at the
+  current force inside each step; one sensor, hold) so the benchmark can measure the error of the fixed choice
   (bench_estimators: up to ~18 % at the ends of 1.75–5.25 N when the parameters change by ±25 % over that range).
 - The inverse under "hold" propagates an error by ``1 − (1−α)(1 + E0/E1)`` per step, which exceeds 1 in magnitude
   only when E0 > E1 and a step is longer than about τ (a long gap, or τ → 0); such steps are inverted under the
