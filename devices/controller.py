@@ -2,23 +2,27 @@
 
 Every tick, on a deadline schedule (sleep until the next deadline; overruns are counted as missed ticks)::
 
+    ONE GroupSyncRead → on_state(ChainState)           (read first, so a fresh alert bit blocks the write)
     motion goal → joint-limit clamp → max-speed limit (max_joint_speed_rad_s × period) → ONE GroupSyncWrite
-    ONE GroupSyncRead → on_state(ChainState)
 
+``ChainState.goal_rad`` carries the goals of the previous write, the ones the servos were tracking when read.
 Health (hardware error, torque, LED; voltage and temperature on every 5th poll) is polled at
-``robot.status_rate_hz`` and at once when a status packet carries the alert bit. A hardware error stops the motion before anything else is sent and reports
-:class:`ServoHardwareError` naming the servo. If feedback goes stale (consecutive failed reads for
-``WATCHDOG_S``), the motion stops and ``on_error`` names the servo that stopped answering. A pulled cable reports
-:class:`LinkLostError` and the loop tries to reopen the port every ``RECONNECT_INTERVAL_S``.
+``robot.status_rate_hz`` and at once when a status packet carries the alert bit. A hardware error stops the motion
+before anything else is sent and reports :class:`ServoHardwareError` naming the servo; nothing is written until the
+servo is rebooted. If feedback goes stale (consecutive failed reads for ``WATCHDOG_S``), the motion stops and
+``on_error`` names the servo that stopped answering. A pulled cable reports :class:`LinkLostError` and the loop
+tries to reopen the port every ``RECONNECT_INTERVAL_S``.
 
-With no motion running the loop still reads the state every tick and sends nothing. ``emergency_stop`` freezes the
-goals at the present position on the next tick (torque stays on). Anything else that needs the bus (scan, torque,
-LED, reboot, a teach capture) goes through :meth:`RobotController.submit`, which runs it on the bus thread between
-ticks and returns a :class:`concurrent.futures.Future`.
+With no motion running the loop still reads the state every tick and sends nothing. ``run_motion`` returns a Future
+resolved when the motion finishes or stops (or failed with the error that stopped it). ``emergency_stop`` freezes
+the goals at the present position on the next tick (torque stays on). Anything else that needs the bus (scan,
+torque, LED, reboot, a teach capture) goes through :meth:`RobotController.submit`, which runs it on the bus thread
+between ticks (ticks wait while it runs) and returns a :class:`concurrent.futures.Future`.
 
 Threads: the public methods may be called from any thread. The callbacks ``on_state``, ``on_health``, ``on_event``
 (a human-readable ``str``) and ``on_error`` (an exception whose message names the servo and the recovery) are
-called from the controller thread; keep them short (queue to Qt, etc.).
+called from the controller thread; keep them short (queue to Qt, etc.). The same exception object goes to
+``on_error`` and to the failed motion's Future.
 """
 
 from __future__ import annotations
