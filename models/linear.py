@@ -48,6 +48,20 @@ class LinearModel:
             )
         return (np.asarray(conductance_s, dtype=np.float64) - self.d_S) / self.m_S_per_N
 
+    @staticmethod
+    def fit(force_n: Sequence[float], conductance_s: Sequence[float]) -> LinearFit:
+        """Same as :func:`fit_linear` (one point per trial)."""
+        return fit_linear(force_n, conductance_s)
+
+    @staticmethod
+    def fit_trials(
+        trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        window_s: tuple[float, float] = DEFAULT_WINDOW_S,
+        subtract_baseline: bool = False,
+    ) -> LinearFit:
+        """Same as :func:`fit_linear_trials` (whole trials, the paper's window means)."""
+        return fit_linear_trials(trials, window_s, subtract_baseline)
+
     @classmethod
     def from_dict(cls, data: dict) -> LinearModel:
         missing = [key for key in ("m_S_per_N", "d_S") if key not in data]

@@ -40,6 +40,7 @@ def test_inverse_refuses_a_non_positive_slope_and_constructor_non_finite():
 def test_fit_recovers_an_exact_line_with_r2_one():
     force = np.array([1.75, 3.0, 4.0, 5.25] * 3)
     fit = fit_linear(force, 2e-4 * force + 1e-4)
+    assert LinearModel.fit(force, 2e-4 * force + 1e-4).model == fit.model
     assert fit.model.m_S_per_N == pytest.approx(2e-4, rel=1e-12)
     assert fit.model.d_S == pytest.approx(1e-4, rel=1e-10)
     assert fit.r_squared == pytest.approx(1.0, abs=1e-12)
@@ -83,7 +84,7 @@ def test_fit_from_trials_with_per_trial_baseline_removes_drift():
         _trial(f, b, seed=i) for i, (f, b) in enumerate(zip([1.75, 3.0, 4.0, 5.25], [0.0, 4e-5, -3e-5, 6e-5]))
     ]
     drifting = fit_linear_trials(trials)
-    corrected = fit_linear_trials(trials, subtract_baseline=True)
+    corrected = LinearModel.fit_trials(trials, subtract_baseline=True)
     assert corrected.model.m_S_per_N == pytest.approx(2e-4, rel=1e-3)
     assert corrected.model.d_S == pytest.approx(1e-4, rel=1e-2)
     assert corrected.r_squared > drifting.r_squared
