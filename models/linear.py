@@ -199,7 +199,7 @@ def paper_negative_offset(force_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The paper's fix for "negative pressure" (Fig. 6): each column's force is offset by the absolute value of its
     most negative value. Returns (offset forces, offsets per column in N). NaN samples are ignored."""
     force = np.asarray(force_n, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        lowest = np.nanmin(force, axis=0) if force.size else np.zeros(force.shape[1:])
+    # NaN → +∞ so an all-NaN column has no minimum to offset by (and no warning)
+    lowest = np.where(np.isnan(force), np.inf, force).min(axis=0, initial=np.inf)
     offset = np.where(np.isfinite(lowest) & (lowest < 0.0), -lowest, 0.0)
     return force + offset, offset
