@@ -1,0 +1,180 @@
+"""The calibration rig: a position-controlled servo winds a cable through a spring onto a probe (SPEC §2).
+
+Past the angle ``θ_contact`` where the cable goes taut the probe presses the sensor with ``F = k·r·(θ − θ_contact)``,
+so a force is commanded by a position: ``θ = θ_contact + F/(k·r)``. :meth:`CalibrationRig.find_contact` finds
+``θ_contact`` from the servo's present current, which rises with the cable tension: it winds in small steps from a
+slack position, averages the current at rest after each step, and fits a line to the loaded steps; where that line
+meets the unloaded current is the contact.
+
+Threads: like :class:`devices.servo_chain.ServoChain`, a rig is NOT thread-safe; one thread owns it. Every call
+blocks until the servo has settled (a few tens of ms per step on the bench).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from devices.config import RigConfig, RobotConfig
+from devices.errors import DeviceError
+from devices.servo_chain import ServoChain
+
+DEFAULT_MAX_FORCE_N = 8.0  # above the paper's largest calibration force (5.25 N), well below the spring's range
+TORQUE_CONSTANT_NM_PER_A = 1.78  # XM430-W350 at 12 V (4.1 N·m stall at 2.3 A): only used to scale thresholds
+ANGLE_LIMIT_RAD = math.pi - 0.01
+SETTLE_TOLERANCE_RAD = 3 * 2 * math.pi / 4096  # three ticks
+SETTLE_TIMEOUT_S = 5.0
+CURRENT_SAMPLES = 12  # reads averaged per step; the current's last bits are noisy (±2 LSB ≈ ±0.5 N here)
+
+
+class RigForceError(DeviceError, ValueError):
+    """A force the rig must not or cannot apply."""
+
+
+class CalibrationRig:
+    """Drives the calibration rig of ``rig``; see the module docstring."""
+
+    def __init__(self, rig: RigConfig, max_force_n: float = DEFAULT_MAX_FORCE_N, *,
+                 search_step_rad: float = 0.02, unwind_rad: float = 0.4, contact_threshold_n: float = 0.5,
+                 fit_until_n: float = 2.0) -> None:
+        self.config = rig
+        self.max_force_n = float(max_force_n)
+        self.search_step_rad = search_step_rad
+        self.unwind_rad = unwind_rad
+        self.contact_threshold_n = contact_threshold_n
+        self.fit_until_n = fit_until_n
+        self.contact_rad: float | None = None
+        self._chain = ServoChain(RobotConfig(
+            port=rig.port, baud=rig.baud, joint_ids=(rig.servo_id,), axes=("pitch",), signs=(1,),
+            zero_offsets_rad=(0.0,), joint_min_rad=(-ANGLE_LIMIT_RAD,), joint_max_rad=(ANGLE_LIMIT_RAD,),
+            max_joint_speed_rad_s=2.0), device="rig")
+
+    @property
+    def newtons_per_rad(self) -> float:
+        """``k·r``: force per radian of winding past the contact."""
+        return self.config.spring_k_n_per_m * self.config.wheel_radius_m
+
+    # -- lifecycle ---------------------------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the rig's port, check the servo answers and is an XM430-W350, and turn its torque on."""
+        self._chain.open()
+        try:
+            self._chain.check_models()
+            self._chain.set_torque(True)
+        except BaseException:
+            self._chain.close()
+            raise
+
+    def close(self) -> None:
+        """Close the port (the servo keeps holding its position)."""
+        self._chain.close()
+
+    def __enter__(self) -> CalibrationRig:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- motion ------------------------------------------------------------------------------------------------
+    def position_rad(self) -> float:
+        return float(self._chain.read_state().position_rad[0])
+
+    def move_to(self, angle_rad: float, timeout_s: float = SETTLE_TIMEOUT_S) -> float:
+        """Command ``angle_rad`` and wait until the servo is there (rad); returns the settled position."""
+        sent = float(self._chain.write_goals(np.array([angle_rad]))[0])
+        deadline = time.monotonic() + timeout_s
+        while True:
+            state = self._chain.read_state()
+            position = float(state.position_rad[0])
+            if abs(position - sent) <= SETTLE_TOLERANCE_RAD and abs(float(state.velocity_rad_s[0])) < 0.05:
+                return position
+            if time.monotonic() > deadline:
+                raise DeviceError(f"rig servo {self.config.servo_id} did not reach {sent:.3f} rad within "
+                                  f"{timeout_s:g} s (at {position:.3f} rad): check the cable is not jammed")
+
+    def _mean_current_ma(self) -> float:
+        """Present current at rest (mA): a trimmed mean, so the spike of the last acceleration step drops out."""
+        samples = np.sort([self._chain.read_state().current_ma[0] for _ in range(CURRENT_SAMPLES)])
+        trim = CURRENT_SAMPLES // 4
+        return float(samples[trim:CURRENT_SAMPLES - trim].mean())
+
+    def find_contact(self) -> float:
+        """Find ``θ_contact`` (rad), store it, leave the probe just touching (zero force) and return it."""
+        ma_per_n = self.config.wheel_radius_m / TORQUE_CONSTANT_NM_PER_A * 1000.0
+        start = max(-ANGLE_LIMIT_RAD, self.position_rad() - self.unwind_rad)
+        self.move_to(start)
+        baseline_ma = self._mean_current_ma()
+        angles: list[float] = []
+        excess_n: list[float] = []
+        angle = start
+        while True:
+            angle += self.search_step_rad
+            if angle > ANGLE_LIMIT_RAD:
+                self.move_to(start)
+                raise DeviceError(f"rig servo {self.config.servo_id}: no contact found up to {ANGLE_LIMIT_RAD:.2f} rad; "
+                                  "check that the cable is attached and the probe sits on the sensor")
+            position = self.move_to(angle)
+            force_n = (self._mean_current_ma() - baseline_ma) / ma_per_n
+            angles.append(position)
+            excess_n.append(force_n)
+            # Two steps in a row: one noisy reading must not end the search.
+            if len(excess_n) >= 2 and min(excess_n[-2:]) >= self.fit_until_n:
+                break
+        self.contact_rad = _hinge_fit_contact(np.array(angles), np.array(excess_n))
+        if self.contact_rad is None:
+            self.move_to(start)
+            raise DeviceError(f"rig servo {self.config.servo_id}: the current did not rise with winding; check "
+                              "the spring and the cable")
+        self.move_to(self.contact_rad)
+        return self.contact_rad
+
+    def command_force(self, force_n: float) -> float:
+        """Apply ``force_n`` (N): move to ``θ_contact + F/(k·r)`` and wait there. Returns the angle (rad).
+
+        Refuses (:class:`RigForceError`) a negative force, one above ``max_force_n``, or one past the servo's range.
+        """
+        if self.contact_rad is None:
+            raise RuntimeError("the rig does not know where the probe touches the sensor: run find_contact() first")
+        if not math.isfinite(force_n) or force_n < 0:
+            raise RigForceError(f"cannot apply {force_n} N: the rig only pushes (0 N or more)")
+        if force_n > self.max_force_n:
+            raise RigForceError(f"refusing {force_n:g} N: beyond the rig's safe maximum of {self.max_force_n:g} N "
+                                "(protects the sensor and the spring); raise max_force_n only if the hardware allows")
+        target = self.contact_rad + force_n / self.newtons_per_rad
+        if target > ANGLE_LIMIT_RAD:
+            reachable = (ANGLE_LIMIT_RAD - self.contact_rad) * self.newtons_per_rad
+            raise RigForceError(f"cannot apply {force_n:g} N: the servo would pass its range (at most "
+                                f"{reachable:.2f} N from this contact angle); re-spool the cable")
+        return self.move_to(target)
+
+    def applied_force_n(self) -> float:
+        """The force now (N) from the present position: ``k·r·(θ − θ_contact)``, 0 while the cable is slack."""
+        if self.contact_rad is None:
+            raise RuntimeError("the rig does not know where the probe touches the sensor: run find_contact() first")
+        return max(0.0, self.newtons_per_rad * (self.position_rad() - self.contact_rad))
+
+    def release(self) -> None:
+        """Take the load off: unwind to just before the contact."""
+        if self.contact_rad is not None:
+            self.move_to(max(-ANGLE_LIMIT_RAD, self.contact_rad - 0.1))
+
+
+def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> float | None:
+    """The knee of ``F = b + s·max(0, θ − θ_c)`` fitted by least squares (grid over θ_c, linear in b and s).
+
+    Fitting the flat part and the loaded part together uses every step, so one noisy step cannot drag the contact
+    the way a line through "loaded" steps picked by a threshold would. ``None`` if the load does not rise.
+    """
+    best_sse, best_knee = math.inf, None
+    for knee in np.linspace(angles_rad[0], angles_rad[-1], 4 * len(angles_rad)):
+        design = np.column_stack([np.ones_like(angles_rad), np.maximum(0.0, angles_rad - knee)])
+        coef, *_ = np.linalg.lstsq(design, excess_n, rcond=None)
+        if coef[1] <= 0:
+            continue
+        sse = float(np.sum((design @ coef - excess_n) ** 2))
+        if sse < best_sse:
+            best_sse, best_knee = sse, float(knee)
+    return best_knee

@@ -1,0 +1,75 @@
+"""The simulated calibration rig: one rig servo winding a cable through a spring onto a probe that presses a sensor.
+
+The servo is a one-servo :class:`~devices.sim.dxl_chain.VirtualChain` (``.chain``, the wire end of device ``rig``),
+so :class:`devices.rig.CalibrationRig` drives it through dynamixel-sdk exactly as on the bench. While the cable is
+slack nothing happens; past the (seeded, unknown to the driver) contact angle ``θ_c`` the spring stretches and the
+probe presses the sensor with ``F = k·r·(θ − θ_c)`` (SPEC §2). The cable tension loads the servo (torque ``F·r``),
+so its present current rises with the force — which is how the driver finds the contact.
+
+The sensor under the probe creeps (standard linear solid, the same physics as the simulated board's sensors);
+:meth:`VirtualRig.sensor_conductance_s` gives its conductance. Thread-safe like the chain (one lock).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from devices.config import RigConfig
+from devices.sim.board import SensorBank
+from devices.sim.clock import SimClock
+from devices.sim.dxl_chain import VirtualChain
+
+CONTACT_ANGLE_RAD = 0.6  # from the servo's centre position; the seeded rig varies it by ±0.1 rad
+
+
+class _RigChain(VirtualChain):
+    """The rig's servo: before every exchange on the wire, the spring's pull is applied as the servo's load."""
+
+    def __init__(self, rig: VirtualRig, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._rig = rig
+
+    def host_write(self, data: bytes, now_s: float) -> None:
+        self._rig.update_load()
+        super().host_write(data, now_s)
+
+    def host_read(self, now_s: float) -> bytes:
+        self._rig.update_load()
+        return super().host_read(now_s)
+
+
+class VirtualRig:
+    """A simulated calibration rig; see the module docstring."""
+
+    def __init__(self, rig: RigConfig, clock: SimClock, seed: int = 0) -> None:
+        self.config = rig
+        self.clock = clock
+        rng = np.random.default_rng(seed)
+        self.contact_angle_rad = CONTACT_ANGLE_RAD + float(rng.uniform(-0.1, 0.1))
+        self._lock = threading.RLock()
+        self.chain: VirtualChain = _RigChain(self, ids=(rig.servo_id,), baud=rig.baud, clock=clock,
+                                             seed=int(rng.integers(2**31)))
+        self.sensor = SensorBank.create(1, rng)
+
+    def applied_force_n(self) -> float:
+        """The probe's true force on the sensor now (N): ``k·r·max(0, θ − θ_c)``."""
+        theta = float(self.chain.present_positions_rad()[0])
+        stretch_m = self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
+        return self.config.spring_k_n_per_m * stretch_m
+
+    def update_load(self) -> None:
+        """Apply the cable tension to the servo as a load torque (N·m). Called before each wire exchange."""
+        with self._lock:
+            self.chain.set_load(self.config.servo_id, self.applied_force_n() * self.config.wheel_radius_m)
+
+    def sensor_conductance_s(self, t_s: float | None = None) -> float:
+        """The sensor's conductance (S) at simulated time ``t_s`` (default: now).
+
+        The creep state advances from the previous call with the force held, so call it regularly (every sample
+        of a trial) and with non-decreasing times.
+        """
+        with self._lock:
+            now = self.clock.now() if t_s is None else t_s
+            return float(self.sensor.step(now, np.array([self.applied_force_n()]))[0])

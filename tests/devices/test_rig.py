@@ -1,0 +1,71 @@
+"""CalibrationRig (through ServoChain and dynamixel-sdk) against the simulated rig at the wire."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from devices import factory
+from devices.config import RigConfig
+from devices.rig import CalibrationRig, RigForceError
+from devices.sim.clock import SimClock
+from devices.sim.rig import VirtualRig
+
+FORCE_TOLERANCE_N = 0.2  # the contact angle is found from a noisy current: ±0.03 rad ≈ ±0.15 N
+
+
+class RigOnlyLab:
+    def __init__(self, rig: VirtualRig) -> None:
+        self.rig = rig
+
+    def endpoint(self, device: str):
+        assert device == "rig"
+        return self.rig.chain
+
+
+@pytest.fixture
+def virtual_rig(request):
+    rig = VirtualRig(RigConfig(), SimClock(20.0), seed=getattr(request, "param", 11))
+    previous = factory.install_sim_lab(RigOnlyLab(rig))
+    yield rig
+    factory.install_sim_lab(previous)
+
+
+@pytest.mark.parametrize("virtual_rig", [11, 12], indirect=True)
+def test_find_contact_and_command_force(virtual_rig):
+    with CalibrationRig(RigConfig()) as rig:
+        contact = rig.find_contact()
+        assert contact == pytest.approx(virtual_rig.contact_angle_rad, abs=0.04)
+        assert virtual_rig.applied_force_n() < FORCE_TOLERANCE_N  # left just touching
+        for force in (1.75, 3.0, 4.0, 5.25):  # the paper's calibration forces
+            rig.command_force(force)
+            assert virtual_rig.applied_force_n() == pytest.approx(force, abs=FORCE_TOLERANCE_N)
+            assert rig.applied_force_n() == pytest.approx(force, abs=0.05)
+        rig.release()
+        assert virtual_rig.applied_force_n() == 0.0
+
+
+def test_unsafe_forces_are_refused_with_a_clear_error(virtual_rig):
+    with CalibrationRig(RigConfig(), max_force_n=6.0) as rig:
+        with pytest.raises(RuntimeError, match="find_contact"):
+            rig.command_force(1.0)
+        rig.find_contact()
+        with pytest.raises(RigForceError, match="refusing 50 N: beyond the rig's safe maximum of 6 N"):
+            rig.command_force(50.0)
+        with pytest.raises(ValueError, match="only pushes"):
+            rig.command_force(-1.0)
+        assert virtual_rig.applied_force_n() < FORCE_TOLERANCE_N  # nothing was moved
+
+
+def test_sensor_under_the_probe_creeps_at_constant_force(virtual_rig):
+    with CalibrationRig(RigConfig()) as rig:
+        rig.find_contact()
+        rig.command_force(3.0)
+        now = virtual_rig.clock.now()
+        # Sample a 300 s hold in simulated time (the servo holds still; only the sensor's creep moves).
+        times = now + np.linspace(0.0, 300.0, 61)
+        conductance = np.array([virtual_rig.sensor_conductance_s(t) for t in times])
+    assert conductance[0] > 1e-4  # a real signal at 3 N
+    assert np.all(np.diff(conductance) > 0)  # creep: conductance keeps rising at constant force
+    # The retardation time is ~100 s: most of the creep is over by 300 s.
+    assert conductance[-1] - conductance[30] < conductance[30] - conductance[0]
