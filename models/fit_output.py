@@ -436,8 +436,8 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     The SLS creep state ``q`` (strain beyond the instantaneous ``σ/E0``) advances by the exact zero-order-hold step
     ``q⁺ = α·q + (1−α)·σ/E1``, ``α = exp(−h·E1/mu1)`` — the same recursion :mod:`models.sls` runs with
     ``interp="hold"`` (tested equal to 1e-12), written here symbolically because CasADi needs the expression graph.
-    The step is a ``Function`` rolled out with ``mapaccum`` over time and ``map`` over trials (trials are padded
-    with zero-length steps). Residuals and their exact Jacobian come from AD. ``solver``:
+    The step (all trials at once, padded with zero-length steps) carries its forward sensitivities and is rolled out
+    with ``mapaccum``; the Jacobian is exact (CasADi ``jtimes`` inside the step). ``solver``:
 
     * ``"gauss-newton"`` — Levenberg–Marquardt-damped Gauss–Newton on the CasADi residual/Jacobian (default,
       fastest for 3–6 parameters; bounds of ``trend`` enforced by step clipping);
@@ -449,7 +449,7 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     if mode not in ("joint", "trend"):
         raise ValueError(f"the CasADi fit is for joint fits ('joint' or 'trend'), got {mode!r}")
     problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, "hold")
-    theta, conductance, n_max = _casadi_graph(ca, problem)
+    theta, conductance, derivatives = _casadi_graph(ca, problem)
     n_trials = len(problem.trials)
 
     rows, weights, targets, censored = [], [], [], []
@@ -463,12 +463,17 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     weight = np.concatenate(weights)
     target = np.concatenate(targets)
     cens = np.concatenate(censored)
-    model = ca.vec(conductance)[index.tolist()]
+    selected = index.tolist()
+    model = ca.vec(conductance)[selected]
     residual = weight * (model - target)
+    jac = ca.horzcat(*[weight * ca.vec(d)[selected] for d in derivatives])
     if cens.any():
+        # Censored samples: only a model below the saturation level is penalised (zero residual and slope above).
         sat = float(problem.saturation_s)
+        below = ca.DM(cens.astype(float)) * (model < sat)
         residual = ca.if_else(ca.DM(cens.astype(float)), weight * ca.fmin(model - sat, 0), residual)
-    jac = ca.densify(ca.jacobian(residual, theta))
+        active = 1 - ca.DM(cens.astype(float)) + below
+        jac = jac * ca.repmat(active, 1, problem.n_params)
     res_jac = ca.Function("residual_jacobian", [theta], [residual, jac])
     res_only = ca.Function("residual", [theta], [residual])
 
@@ -510,11 +515,16 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
 
 
 def _casadi_graph(ca, problem: _Problem):
-    """Symbolic θ (MX) and the model conductance of every trial (T×N MX, trials padded to the longest, force held
-    between samples). Returns (θ, conductance, N)."""
+    """The model conductance of every trial and its exact derivatives with respect to θ, as CasADi MX (T×N each;
+    trials padded to the longest with zero-length steps; force held between samples). Returns (θ, C, [∂C/∂θ_k]).
+
+    The SLS state is carried with its forward sensitivities: one SX step advances the creep strain q of all trials
+    and dq/d(log E1), dq/d(log mu1) (differentiated by CasADi's ``jtimes``), and emits the conductance with its
+    derivatives with respect to the log-parameters; ``mapaccum`` rolls it over time. This is ~5× cheaper than
+    reverse-engineering the same Jacobian by AD through the rolled-out graph.
+    """
     n_trials = len(problem.trials)
     n_max = max(t.time_s.size for t in problem.trials)
-
     steps = np.zeros((n_trials, n_max))
     stress = np.zeros((n_trials, n_max))
     force_c = np.ones((n_trials, n_max))
@@ -524,33 +534,51 @@ def _casadi_graph(ca, problem: _Problem):
         stress[i, :n] = problem.forces[i] / problem.area_m2
         stress[i, n:] = stress[i, n - 1]
         force_c[i, :n] = np.maximum(problem.forces[i], 1e-12)
+        force_c[i, n:] = force_c[i, n - 1]
+    phys = problem.phys
+    contact = phys.K_contact_ohm_sqrtN / np.sqrt(force_c)
 
-    # One step advances all trials at once (state vector of T creep strains): N calls of a T-wide step evaluate
-    # ~4× faster in CasADi's VM than T·N calls of a scalar step.
-    q = ca.SX.sym("q", n_trials)
-    u = ca.SX.sym("u", 2 * n_trials)  # [h_s per trial; σ_Pa per trial]
-    p = ca.SX.sym("p", 2 * n_trials)  # [E1_Pa per trial; mu1_Pa_s per trial]
-    alpha = ca.exp(-u[:n_trials] * p[:n_trials] / p[n_trials:])
-    step = ca.Function("sls_hold_step", [q, u, p], [alpha * q + (1 - alpha) * u[n_trials:] / p[:n_trials]])
-    roll = step.mapaccum("sls_roll", n_max)  # (q0, U 2T×N, P 2T×N) → [q_1 … q_N] (T×N)
+    sx = ca.SX
+    q, s_e1, s_mu1 = sx.sym("q", n_trials), sx.sym("s_e1", n_trials), sx.sym("s_mu1", n_trials)
+    h, sigma, r_contact = sx.sym("h", n_trials), sx.sym("sigma", n_trials), sx.sym("contact", n_trials)
+    log_e0, log_e1, log_mu1 = sx.sym("log_e0", n_trials), sx.sym("log_e1", n_trials), sx.sym("log_mu1", n_trials)
+    e0, e1, mu1 = ca.exp(log_e0), ca.exp(log_e1), ca.exp(log_mu1)
+    k = phys.tunnelling_k
+    strain = sigma / e0 + q
+    tunnel = phys.R0_ohm * (1 - strain) * ca.exp(-k * strain)
+    conductance = 1 / (r_contact + tunnel)
+    # dC/dε = C²·R0·e^(−kε)·(1 + k(1−ε)); ε depends on log E0 through σ/E0 and on log E1, log mu1 through q.
+    dc_dstrain = conductance**2 * phys.R0_ohm * ca.exp(-k * strain) * (1 + k * (1 - strain))
+    outputs = ca.vertcat(conductance, dc_dstrain * (-sigma / e0), dc_dstrain * s_e1, dc_dstrain * s_mu1)
+    alpha = ca.exp(-h * e1 / mu1)
+    q_next = alpha * q + (1 - alpha) * sigma / e1
+    ones = sx.ones(n_trials)
+    s_e1_next = ca.jtimes(q_next, ca.vertcat(q, log_e1), ca.vertcat(s_e1, ones))
+    s_mu1_next = ca.jtimes(q_next, ca.vertcat(q, log_mu1), ca.vertcat(s_mu1, ones))
+    step = ca.Function("sls_hold_step", [ca.vertcat(q, s_e1, s_mu1), ca.vertcat(h, sigma, r_contact),
+                                         ca.vertcat(log_e0, log_e1, log_mu1)],
+                       [ca.vertcat(q_next, s_e1_next, s_mu1_next), outputs])
+    roll = step.mapaccum("sls_roll", n_max)  # (x0, U, P) → states x_1 … x_N, outputs y_0 … y_{N−1}
 
     theta = ca.MX.sym("theta", problem.n_params)
-    scale = problem.scale
-    ref = [scale[k] * ca.exp(theta[k]) for k in range(3)]
+    log_scale = np.log(problem.scale)
+    log_ref = [log_scale[j] + theta[j] for j in range(3)]
     if problem.mode == "trend":
         rel_force = ca.DM((problem.hold_n - problem.ref_force_n) / problem.ref_force_n)
-        per_trial = [ref[k] * (1 + theta[3 + k] * rel_force) for k in range(3)]  # each T×1
+        log_params = [log_ref[j] + ca.log(1 + theta[3 + j] * rel_force) for j in range(3)]  # each T×1
+        # d log P_j / d u_j per trial
+        d_log_du = [rel_force / (1 + theta[3 + j] * rel_force) for j in range(3)]
     else:
-        per_trial = [ca.repmat(ref[k], n_trials, 1) for k in range(3)]
-    p_cols = ca.repmat(ca.vertcat(per_trial[1], per_trial[2]), 1, n_max)
-    q_next = roll(ca.DM.zeros(n_trials), ca.DM(np.vstack([steps, stress])), p_cols)
-    q_now = ca.horzcat(ca.DM.zeros(n_trials), q_next[:, : n_max - 1])  # q_k, k = 0 … N−1
-    strain = ca.DM(stress) / ca.repmat(per_trial[0], 1, n_max) + q_now  # T×N
-    k = problem.phys.tunnelling_k
-    contact = problem.phys.K_contact_ohm_sqrtN / np.sqrt(force_c)
-    conductance = 1 / (ca.DM(contact) + problem.phys.R0_ohm * (1 - strain) * ca.exp(-k * strain))
-
-    return theta, conductance, n_max
+        log_params = [ca.repmat(log_ref[j], n_trials, 1) for j in range(3)]
+        d_log_du = []
+    data = ca.DM(np.vstack([steps, stress, contact]))
+    _, out = roll(ca.DM.zeros(3 * n_trials), data, ca.repmat(ca.vertcat(*log_params), 1, n_max))
+    model = out[:n_trials, :]
+    d_log = [out[(j + 1) * n_trials:(j + 2) * n_trials, :] for j in range(3)]  # ∂C/∂log P_j, T×N
+    derivatives = list(d_log)
+    for j, factor in enumerate(d_log_du):
+        derivatives.append(d_log[j] * ca.repmat(factor, 1, n_max))
+    return theta, model, derivatives
 
 
 def casadi_conductance(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,

@@ -141,3 +141,24 @@ def test_unidentifiable_creep_gives_a_wide_interval():
     fit = fit_output_scipy(trials, AREA_M2, PHYS, SLSParams(6e5, 9e5, 9e9))
     lo, hi = fit.ci95["E1_Pa"]
     assert (hi - lo) / float(fit.ref.E1_Pa) > 1.0
+
+
+@pytest.mark.parametrize("mode", ["joint", "trend"])
+def test_casadi_jacobian_matches_finite_differences(mode):
+    import casadi as ca
+
+    from models.fit_output import _casadi_graph, _Problem
+
+    trials = _fit_trials(paper_protocol(TREND_TRUTH, PHYS, repeats=1, duration_s=120.0))
+    problem = _Problem(trials, AREA_M2, PHYS, START, mode, None, 0.05, "hold")
+    theta, model, derivatives = _casadi_graph(ca, problem)
+    evaluate = ca.Function("f", [theta], [model, *derivatives])
+    point = np.linspace(0.1, -0.2, problem.n_params)
+    outputs = [np.asarray(x) for x in evaluate(point)]
+    for k in range(problem.n_params):
+        h = 1e-6
+        up, down = point.copy(), point.copy()
+        up[k] += h
+        down[k] -= h
+        central = (np.asarray(evaluate(up)[0]) - np.asarray(evaluate(down)[0])) / (2 * h)
+        np.testing.assert_allclose(outputs[k + 1], central, rtol=1e-5, atol=1e-8 * np.max(np.abs(central)))
