@@ -31,7 +31,7 @@ def test_polynomials_in_the_null_space_pass_unchanged():
 
 
 @pytest.mark.parametrize("order", [1, 2])
-def test_half_power_at_the_requested_cutoff(order):
+def test_gain_is_one_half_at_the_requested_cutoff(order):
     rate_hz, cutoff_hz = 30.0, 0.5
     t = np.arange(6000) / rate_hz
     signal = np.sin(2 * np.pi * cutoff_hz * t)
