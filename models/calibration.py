@@ -55,11 +55,11 @@ POOR_FIT_NOISE_RATIO = 2.0
 WIDE_INTERVAL = 0.5
 
 
-# Measured (benchmarks/bench_fitters.py, 12 trials × 2221 samples): the scipy path with its batched finite-difference
-# Jacobian reaches the same parameters as the CasADi Gauss–Newton fit (to ≤ 1e-8 relative) 2–3× faster, because
-# one batched model run yields the residual and all Jacobian columns while CasADi's VM evaluates the AD Jacobian
-# through mapaccum at ~30 ms per call. The whole 12-trial calibration takes ~0.5 s with scipy and ~1.5 s with CasADi
-# (quiet machine), so scipy is the default and CasADi the cross-check; pass solver="gauss-newton" to switch.
+# Measured (benchmarks/bench_fitters.py, 12 trials × 2221 samples, one BLAS thread): the scipy path, whose batched
+# finite-difference Jacobian costs one model run over 4 columns, reaches the same parameters as the CasADi
+# Gauss–Newton fit (≤ 1e-8 relative) in 0.1–0.2 s against 0.3–0.5 s (CasADi: ~0.15 s to build the graph, ~11 ms
+# per residual+Jacobian); the whole 12-trial calibration takes 0.4–0.7 s with scipy and 0.5–1.1 s with CasADi.
+# Both meet the 2 s target; scipy is the default, CasADi the cross-check (solver="gauss-newton" to switch).
 DEFAULT_SOLVER = "scipy"
 
 

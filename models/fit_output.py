@@ -16,8 +16,8 @@ Two solvers: :func:`fit_output_scipy` (``scipy.optimize.least_squares`` with a b
 all Jacobian columns come from one model run over extra columns) and :func:`fit_output_casadi` (a CasADi step
 ``Function`` rolled out with ``mapaccum``, exact AD Jacobian, Gauss–Newton Hessian for ipopt or
 ``sqpmethod``+``qrqp``, or a damped Gauss–Newton loop on the CasADi residual/Jacobian). They agree to ≤ 1e-8; the
-scipy path measured 2–3× faster for these 3–6 parameter joint fits, so it is the default in
-:mod:`models.calibration` and CasADi is the cross-check (numbers in benchmarks/bench_fitters.py). casadi is imported
+scipy path measured 2–3× faster for these 3–6 parameter joint fits (CasADi pays ~0.15 s to build its graph), so
+it is the default in :mod:`models.calibration` and CasADi is the cross-check (benchmarks/bench_fitters.py). casadi is imported
 inside the function, never at module import.
 
 Samples are weighted equally in units of the trial's typical conductance; samples below ``min_force_fraction`` of
