@@ -1,0 +1,19 @@
+"""``sensnake export REC.h5 --csv OUT.csv`` (SPEC §1, §3.5): a recording to CSV.
+
+Columns: ``time_s`` (seconds since the recording started) then one per channel — forces in newtons when the
+recording stored live forces (a calibration was in use), otherwise conductance in siemens. Runs on the main thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from app.recording import export_csv, open_recording
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = open_recording(args.recording)
+    out = export_csv(recording, args.csv)
+    what = "forces (N)" if recording.forces_n is not None else "conductance (S)"
+    print(f"wrote {recording.n_samples} rows × {len(recording.channels)} channels of {what} to {out}")
+    return 0
