@@ -220,6 +220,7 @@ class ForcePlotGrid(QWidget):
         # plots). Paused, x is session time. view x + _x_offset_s = session time.
         self._x_offset_s = 0.0
         self._live_range_s: float | None = None
+        self._drawn_key: tuple | None = None
         self._hidden_sides: set[str] = set()
         self._hover: tuple[_SegmentPlot, QPointF] | None = None
         self._setting_range = False
@@ -241,13 +242,15 @@ class ForcePlotGrid(QWidget):
             plot = _SegmentPlot(group, inner)
             grid.addWidget(plot, i // columns, i % columns, Qt.AlignTop)
             self.plots.append(plot)
-            plot.collapsed_changed.connect(lambda _c: self.refresh())
+            plot.collapsed_changed.connect(lambda _c: self.invalidate())
             plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
             plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
             if i:
                 plot.plot_widget.setXLink(self.plots[0].plot_widget)
         grid.setRowStretch(len(self.groups) // columns + 1, 1)
         self.scroll.setWidget(inner)
+        # Plots scrolled into view may hold stale data (off-screen plots are not redrawn): draw them now.
+        self.scroll.verticalScrollBar().valueChanged.connect(lambda _v: self.invalidate())
         layout.addWidget(self.scroll, 1)
         self.time_bar = QScrollBar(Qt.Horizontal, self)
         self.time_bar.setRange(0, SCROLL_STEPS)
@@ -389,12 +392,21 @@ class ForcePlotGrid(QWidget):
         (x0, x1), _ = self.plots[0].viewbox.viewRange()
         return (float(x0) + self._x_offset_s, float(x1) + self._x_offset_s)
 
+    def invalidate(self) -> None:
+        """Redraw at once even if no new data arrived (a plot was expanded or scrolled into view)."""
+        self._drawn_key = None
+        self.refresh()
+
     def refresh(self, force: bool = False) -> None:
         """Redraw the visible plots from the history (the timer calls this; ``force`` redraws even if hidden)."""
         history = self._history
         if history is None or len(history) == 0 or not self.plots:
             return
         if not force and not self.isVisible():
+            return
+        # Nothing new and the same view: the picture would not change (paused, or the board is quiet).
+        key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
+        if not force and key == self._drawn_key:
             return
         oldest, newest = history.span()
         if self._paused:
@@ -427,6 +439,7 @@ class ForcePlotGrid(QWidget):
             drawn = True
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
+        self._drawn_key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
         if drawn:
             self.redraw_count += 1
             self.last_redraw_s = float(newest)

@@ -51,6 +51,7 @@ except ImportError:  # pragma: no cover - only while widgets/body_view.py is abs
 
 RECORDINGS_DIR_ENV = "SENSNAKE_RECORDINGS_DIR"
 FORCE_HISTORY_BUDGET_BYTES = 96_000_000
+RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
 STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
@@ -475,7 +476,11 @@ class ForcesTab(QWidget):
 
     def _show_recording(self, recording: Recording) -> None:
         values, units = self._recording_values(recording)
-        history = TraceHistory(len(self.channel_names), max(16, recording.n_samples))
+        n_channels = len(self.channel_names)
+        if recording.n_samples * n_channels * 4 * 2.5 <= RECORDING_VIEW_BUDGET_BYTES:
+            history = TraceHistory(n_channels, max(16, recording.n_samples))  # every sample at full resolution
+        else:  # a long, wide recording: the newest part at full rate, the rest as min/max buckets
+            history = TraceHistory.for_budget(n_channels, RECORDING_VIEW_BUDGET_BYTES)
         if recording.n_samples:
             history.append(recording.time_s, values)
         self.plots.set_history(history, units)

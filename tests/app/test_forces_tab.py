@@ -148,13 +148,17 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert x0[0] <= 0.0 <= x0[-1]  # aligned on the load onset
 
 
-def test_loose_sensor_full_disk_and_channel_mismatch(qtbot, lab, tab, sim_lab_fast):
+def test_loose_sensor_crc_storm_full_disk_and_channel_mismatch(qtbot, lab, tab, sim_lab_fast):
     sim_lab_fast.board.set_loose(28)  # S10R, the paper's loose sensor 10
     lab.board.start()
     qtbot.waitUntil(lambda: "S10R" in tab.plots.plots[9].warning.text(), timeout=20_000)
     assert "S10R" in tab.health_list.item(0).text()
     other_warnings = [p.warning.text() for i, p in enumerate(tab.plots.plots) if i != 9]
     assert not any(other_warnings), other_warnings
+
+    sim_lab_fast.board.corrupt_frames(120)  # a CRC storm: counted, shown, warned about
+    qtbot.waitUntil(lambda: "CRC storm" in tab.controls.counters.text(), timeout=10_000)
+    assert lab.board.stats.crc_errors >= 100
 
     tab.min_free_bytes = 1 << 62  # no disk has this much free: the first flush refuses, cleanly
     session = tab.start_recording()

@@ -107,3 +107,20 @@ def test_warnings_show_on_the_plot_header(grid):
     grid.set_channel_warnings(warnings)
     assert grid.plots[9].warning.text() == "S10R: noisy (loose?)"
     assert all(not p.warning.text() for i, p in enumerate(grid.plots) if i != 9)
+
+
+def test_nothing_new_means_no_redraw_but_expanding_redraws(grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 10.0)
+    grid.refresh()
+    count = grid.redraw_count
+    grid.refresh()
+    assert grid.redraw_count == count  # same data, same view: skipped
+    grid.set_collapsed(4, True)
+    fill(history, 2.0, t0=10.0)
+    grid.refresh()
+    stale = grid.plots[4].curves[0].yData.copy()
+    grid.set_collapsed(4, False)
+    assert grid.redraw_count > count + 1
+    assert len(grid.plots[4].curves[0].yData) != len(stale) or not np.array_equal(grid.plots[4].curves[0].yData, stale)
