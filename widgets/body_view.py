@@ -238,9 +238,12 @@ class BodyView(QWidget):
                 bx0, bx1 = min(bx0, p[:, 0].min() - margin), max(bx1, p[:, 0].max() + margin)
                 by0, by1 = min(by0, p[:, 1].min() - margin), max(by1, p[:, 1].max() + margin)
             box[view] = (bx0, bx1, by0, by1)
-        # both views share the x axis so a joint sits at the same x in each
+        # Both views get the same x range and the same y height (each centred on its own content): with the
+        # aspect locked and equal plot sizes, a joint then sits at the same x in both views.
         x_lo, x_hi = min(b[0] for b in box.values()), max(b[1] for b in box.values())
-        box = {view: (x_lo, x_hi, b[2], b[3]) for view, b in box.items()}
+        height = max(b[3] - b[2] for b in box.values())
+        box = {view: (x_lo, x_hi, 0.5 * (b[2] + b[3] - height), 0.5 * (b[2] + b[3] + height))
+               for view, b in box.items()}
         if box == getattr(self, "_boxes", None):
             return
         self._boxes = box
