@@ -362,7 +362,7 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
             delta = _damped_step(r_blocks[i], j_blocks[i], damping[i])
             linear = r_blocks[i] + j_blocks[i] @ delta
             predicted[i] = cost[i] - _sumsq(linear)
-            if predicted[i] <= 1e-12 * cost[i] or np.max(np.abs(delta)) < 1e-10:
+            if predicted[i] <= 1e-14 * cost[i] or np.max(np.abs(delta)) < 1e-10:
                 active[i] = False
             else:
                 candidate[i] = theta[i] + delta
@@ -491,12 +491,18 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
                            [sigma * (ca.triu(gauss_newton) if solver == "ipopt" else gauss_newton)],
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x" if solver == "ipopt"
                                                           else "hess_gamma_x_x"])
-        nlp = {"x": theta, "f": 0.5 * ca.sumsqr(residual)}
+        objective = 0.5 * ca.sumsqr(residual)
+        # The gradient Jᵀr from the carried sensitivities; left to AD it would run backwards through mapaccum.
+        grad = ca.Function("nlp_grad_f", [theta, p_sym], [objective, ca.mtimes(jac.T, residual)], ["x", "p"],
+                           ["f", "grad_f_x"])
+        nlp = {"x": theta, "f": objective}
         if solver == "ipopt":
-            opts = {"hess_lag": hess, "print_time": False,
+            opts = {"hess_lag": hess, "grad_f": grad, "print_time": False,
                     "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "sb": "yes"}}
         else:
-            opts = {"hess_lag": hess, "qpsol": "qrqp", "print_time": False, "print_header": False, "print_status": False,
+            # sqpmethod has no grad_f option: it differentiates the objective itself.
+            opts = {"hess_lag": hess, "qpsol": "qrqp", "print_time": False, "print_header": False,
+                    "print_status": False,
                     "print_iteration": False, "max_iter": max_iter, "tol_pr": 1e-12, "tol_du": 1e-12,
                     "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False}}
         nlp_solver = ca.nlpsol("output_error", solver, nlp, opts)
@@ -597,7 +603,7 @@ def _levenberg_marquardt(residual_fn, res_jac, theta0: np.ndarray, lower: np.nda
                          max_iter: int) -> tuple[np.ndarray, int, bool, str]:
     """Damped Gauss–Newton (Levenberg–Marquardt with Marquardt's diagonal scaling) on the CasADi residual and
     Jacobian, box bounds by clipping. Trial points cost a residual only; the Jacobian is evaluated on acceptance.
-    Stops when the model predicts a relative decrease below 1e-12 (rounding level) or the step is below 1e-10."""
+    Stops when the model predicts a relative decrease below 1e-14 (rounding level) or the step is below 1e-10."""
     theta = theta0.copy()
     r, j = (np.asarray(x) for x in res_jac(theta))
     r = r.ravel()
@@ -612,7 +618,7 @@ def _levenberg_marquardt(residual_fn, res_jac, theta0: np.ndarray, lower: np.nda
             candidate = np.clip(theta + delta, lower, upper)
             linear = r + j @ (candidate - theta)
             predicted = cost - _sumsq(linear)
-            if predicted <= 1e-12 * cost or np.max(np.abs(candidate - theta)) < 1e-10:
+            if predicted <= 1e-14 * cost or np.max(np.abs(candidate - theta)) < 1e-10:
                 return theta, iteration, True, "converged"
             r_new = np.asarray(residual_fn(candidate)).ravel()
             cost_new = _sumsq(r_new)
