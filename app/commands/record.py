@@ -97,10 +97,9 @@ def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.Simple
         _store_stats(writer, stats)
         _check_crc(stats, writer)
         progress.show(board_span, stats, writer.n_daq_samples)
-        if board_span >= seconds:
-            return
         # The board went quiet (cable pulled): fall back to the host clock for the remaining time.
-        if now - wall_start >= seconds and now - last_data_wall > 1.0:
+        if board_span >= seconds or (now - wall_start >= seconds and now - last_data_wall > 1.0):
+            _handle_statuses(statuses, writer, progress)
             return
 
 

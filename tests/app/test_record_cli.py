@@ -112,7 +112,8 @@ def test_cable_pull_mid_recording_is_logged_as_a_gap(fast_board, tmp_path, capsy
         original_show(self, recorded_s, stats, frames)
 
     monkeypatch.setattr(record_cmd._Progress, "show", show_and_pull)
-    assert main(["record", "--daq", "sim", "--seconds", "3", "--out", str(out)]) == 0
+    # 20 s of board time (1 s here): the half-second reconnect interval is 10 s of the fast board's time.
+    assert main(["record", "--daq", "sim", "--seconds", "20", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "disconnected" in err and "reconnected" in err
     rec = open_recording(out)
