@@ -259,8 +259,10 @@ class GaitPanel(QWidget):
         self.pause_button.setEnabled(running)
         self.resume_button.setEnabled(paused)
         self.stop_button.setEnabled(running or paused)
-        self.mode_combo.setEnabled(not running and not paused)
-        self.params.setEnabled(not running and not paused)
+        idle = not running and not paused
+        for w in (self.mode_combo, self.params, self.shape_combo, self.rate_spin, self.repeat_spin,
+                  self.refresh_button, self.open_button):
+            w.setEnabled(idle)
 
     def set_progress(self, text: str, fraction: float) -> None:
         self.progress_label.setText(text)
