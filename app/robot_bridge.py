@@ -150,6 +150,11 @@ class RobotBridge(QObject):
         with self._lock:
             return self._latest_state
 
+    def loop_stats(self) -> Any:
+        """The control loop's ControllerStats (ticks, missed ticks, period percentiles), or None when disconnected."""
+        controller = self._controller
+        return None if controller is None else controller.stats()
+
     @property
     def latest_health(self) -> list:
         """The newest ServoHealth of every servo polled so far, in ID order."""

@@ -277,6 +277,12 @@ class HardwarePanel(QWidget):
         self.timing_text.setReadOnly(True)
         self.timing_text.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         column.addWidget(self.timing_text, 1)
+        self.loop_label = QLabel("")
+        self.loop_label.setObjectName("loop_label")
+        self.loop_label.setWordWrap(True)
+        self.loop_label.setToolTip("The robot's control loop since connect: period between tick starts and ticks "
+                                   "that missed their deadline (each missed tick delays motion by one period)")
+        column.addWidget(self.loop_label)
         self.fix_return_delay_button = QPushButton("Set return delay to 0 µs")
         self.fix_return_delay_button.setObjectName("fix_return_delay_button")
         self.fix_return_delay_button.setToolTip("Writes Return Delay Time = 0 to every servo (EEPROM: torque must be "
@@ -357,6 +363,7 @@ class HardwarePanel(QWidget):
                     cell.setEnabled(connected)
         if not connected:
             self.clear_live_values()
+            self.clear_loop_stats()
 
     def set_servos(self, servo_ids: Sequence[int], axes: Sequence[str]) -> None:
         """One row per joint, head first."""
@@ -554,6 +561,23 @@ class HardwarePanel(QWidget):
         self.link_check_button.setEnabled(True)
 
     # timing
+    def set_loop_stats(self, rate_hz: float, ticks: int, missed_ticks: int, period_p50_s: float,
+                       period_p99_s: float) -> None:
+        """The control loop's timing since connect (periods in s)."""
+        if ticks == 0:
+            self.loop_label.setText("")
+            return
+        missed_fraction = missed_ticks / max(ticks + missed_ticks, 1)
+        self.loop_label.setText(f"Control loop {rate_hz:g} Hz: period p50 {period_p50_s * 1e3:.1f} ms, "
+                                f"p99 {period_p99_s * 1e3:.1f} ms; {missed_ticks} of {ticks + missed_ticks} ticks "
+                                "missed")
+        level = theme.OK if missed_fraction < 0.01 else theme.WARN if missed_fraction < 0.1 else theme.ERROR
+        self.loop_label.setStyleSheet(theme.status_style(level))
+
+    def clear_loop_stats(self) -> None:
+        self.loop_label.setText("")
+        self.loop_label.setStyleSheet("")
+
     def set_timing_warnings(self, warnings: Sequence[str], checked: bool = True) -> None:
         if not checked:
             self.timing_summary_label.setText("Latency timer and return delay checks run on connect.")

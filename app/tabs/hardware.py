@@ -21,6 +21,7 @@ from devices.errors import CorruptPacketError, DeviceError, NoReplyError
 from widgets.hardware_panel import HardwarePanel, LinkCheckRow
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
+LOOP_STATS_EVERY = 5  # refreshes between control-loop statistics updates (2 Hz; they sort 4096 periods)
 LINK_CHECK_ROUNDS = 5
 
 
@@ -121,6 +122,11 @@ class HardwareTab(QWidget):
         health = self.robot.latest_health
         if health:
             self.panel.set_health(health)
+        if self.refresh_count % LOOP_STATS_EVERY == 1:
+            stats = self.robot.loop_stats()
+            if stats is not None:
+                self.panel.set_loop_stats(self.robot.config.control_rate_hz, stats.ticks, stats.missed_ticks,
+                                          stats.period_p50_s, stats.period_p99_s)
 
     # -- connection ------------------------------------------------------------------------------------------------
     def _connect(self, port: str, baud: int) -> None:

@@ -152,6 +152,7 @@ def test_link_check_pings_every_servo(window, qtbot, sim_lab_fast):
 def test_hardware_tab_refresh_skips_when_hidden(window, qtbot):
     tab = window.show_tab("hardware")
     qtbot.waitUntil(lambda: tab.refresh_count >= 2, timeout=3000)
+    qtbot.waitUntil(lambda: tab.panel.loop_label.text().startswith("Control loop 50 Hz"), timeout=3000)
     window.show_tab("calibration")
     assert not tab.refresh_timer.isActive()
     count = tab.refresh_count

@@ -144,3 +144,13 @@ def test_a_clicked_toggle_is_not_undone_by_stale_health(panel, qtbot):
     panel.set_health([health(i, torque=(i == 2)) for i in IDS])  # confirmed
     panel.set_health([health(i, torque=False) for i in IDS])  # later the servo really turned off (e.g. overload)
     assert not panel.toggle(2, COL_TORQUE).isChecked()
+
+
+def test_loop_stats_warn_when_ticks_are_missed(panel):
+    panel.set_loop_stats(50.0, ticks=1000, missed_ticks=0, period_p50_s=0.020, period_p99_s=0.0231)
+    assert panel.loop_label.text() == ("Control loop 50 Hz: period p50 20.0 ms, p99 23.1 ms; 0 of 1000 ticks missed")
+    assert theme.STATUS_COLORS[theme.OK] in panel.loop_label.styleSheet()
+    panel.set_loop_stats(50.0, ticks=800, missed_ticks=200, period_p50_s=0.020, period_p99_s=0.080)
+    assert theme.STATUS_COLORS[theme.ERROR] in panel.loop_label.styleSheet()
+    panel.set_connection(False, "not connected")
+    assert panel.loop_label.text() == ""
