@@ -215,3 +215,25 @@ def test_bench_runs_every_module_and_survives_a_failure(fake_benchmarks, capsys)
     assert "=== bench_aaa (quick) ===" in out and "aaa ran True" in out and "ccc ran True" in out
     failure = [line for line in err.splitlines() if "bench_bbb failed" in line]
     assert failure == ["sensnake bench: bench_bbb failed: RuntimeError: boom second line"]
+
+
+def test_several_sensor_columns_round_trip(lab, tmp_path, capsys):
+    folder, _ = lab
+    document = calfiles.read_calibration(folder / "cal.json")
+    second = dict(document["sensors"]["S06B"], area_m2=2.0e-3)
+    cal = tmp_path / "cal.json"
+    shutil.copy(folder / "cal.json", cal)
+    calfiles.update_calibration(cal, "S01L", second, PhysicsConstants())
+    t = np.arange(0, 100, 1 / 6)
+    forces = np.column_stack([np.where(t > 5, 4.0, 0.0), np.where(t > 5, 4.0, 0.0) - np.where(t > 60, 1.0, 0.0)])
+    calfiles.write_series_csv(tmp_path / "f.csv", t, ("S01L", "S06B"), forces)
+    assert _run(["forward", str(tmp_path / "f.csv"), "--cal", str(cal), "--out", str(tmp_path / "c.csv")],
+                capsys)[0] == 0
+    conductance = calfiles.read_series_csv(tmp_path / "c.csv", "conductance_S")
+    assert conductance.columns == ("S01L", "S06B")
+    # The larger area sees less stress: lower conductance at the same force.
+    late = (t > 6) & (t < 60)
+    assert np.all(conductance.values[late, 0] < conductance.values[late, 1])
+    assert _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(cal), "--out", str(tmp_path / "e.csv")],
+                capsys)[0] == 0
+    np.testing.assert_allclose(calfiles.read_series_csv(tmp_path / "e.csv", "force_N").values, forces, atol=1e-9)
