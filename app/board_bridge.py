@@ -184,7 +184,7 @@ class BoardBridge(QObject):
             reader.close()
             return
         self._reader = reader
-        self._set_connected(reader.status.connected)
+        self._set_connected(_delivers_data(reader.status))
 
     def _open_failed(self, reader: BoardReader, exc: BaseException) -> None:
         if self._opener is not None:
@@ -209,9 +209,14 @@ class BoardBridge(QObject):
         self.board_status.emit(status)
         self.status.emit(status.message)
         if status.state != "closed" or not self._wanted:
-            self._set_connected(status.connected and status.state != "mismatch")
+            self._set_connected(_delivers_data(status))
 
     def _set_connected(self, connected: bool) -> None:
         if connected != self._is_connected:
             self._is_connected = connected
             self.connected.emit(connected)
+
+
+def _delivers_data(status: BoardStatus) -> bool:
+    """Connected in the sense the GUI cares about: a board whose frames are accepted (not a channel mismatch)."""
+    return status.connected and status.state != "mismatch"
