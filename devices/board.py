@@ -40,6 +40,7 @@ _CRC = struct.Struct("<H")
 
 RECONNECT_INTERVAL_S = 0.5
 READ_TIMEOUT_S = 0.02
+IDLE_POLL_S = 0.004
 MAX_READ_BYTES = 1 << 16
 DEFAULT_RING_SECONDS = 20.0
 MIN_RING_FRAMES = 256
@@ -417,12 +418,17 @@ class BoardReader:
                     self._try_reconnect()
                     continue
                 try:
-                    data = self._port.read(min(max(self._port.in_waiting, 1), MAX_READ_BYTES))
+                    waiting = self._port.in_waiting
+                    data = self._port.read(min(waiting, MAX_READ_BYTES)) if waiting else b""
                 except (serial.SerialException, OSError) as exc:
                     self._on_link_lost(exc)
                     continue
                 if data:
                     self._ingest(data, time.monotonic())
+                else:
+                    # Idle: poll a few hundred times a second rather than block in read(), which on the simulated
+                    # port would spin; the added latency (< IDLE_POLL_S) is far below a GUI frame.
+                    self._stop.wait(IDLE_POLL_S)
         except BaseException as exc:
             # Thread boundary: tell the user the board stopped, then let threading.excepthook print the traceback.
             self._set_status("error", f"board reader on {self.board.port} stopped: {type(exc).__name__}: {exc}",

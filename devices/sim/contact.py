@@ -59,6 +59,8 @@ class ContactModel:
                 self._segment[channel] = int(match.group(1)) - 1
                 self._side[channel] = match.group(2)
         self._known = self._segment >= 0
+        self._known_segment = self._segment[self._known]
+        self._known_side = np.array(["BLR".index(side) for side in self._side[self._known]], dtype=np.intp)
         rng = np.random.default_rng(seed)
         # Shells are not identical: each sensor picks up a slightly different share of the same load.
         self._coupling = np.clip(rng.normal(1.0, 0.08, len(names)), 0.7, 1.3)
@@ -103,10 +105,7 @@ class ContactModel:
     def forces_n(self, t_s: float) -> np.ndarray:
         """Force in newtons on each channel of ``config.board`` at simulated time ``t_s``, shape (C,), ≥ 0."""
         bottom, left, right = self.segment_loads_n(t_s)
+        loads = np.stack([bottom, left, right])  # rows in the order of "BLR"
         forces = np.zeros(self._segment.size)
-        known = self._known
-        segment = self._segment[known]
-        side = self._side[known]
-        forces[known] = np.select([side == "B", side == "L", side == "R"],
-                                  [bottom[segment], left[segment], right[segment]])
+        forces[self._known] = loads[self._known_side, self._known_segment]
         return forces * self._coupling
