@@ -30,75 +30,78 @@ import serial
 from devices.board import FLAG_SATURATED, counts_from_conductance, encode_frame
 from devices.config import BoardConfig
 from devices.sim.clock import SimClock
+from models.physics import PhysicsConstants, conductance_from_strain
+from models.sls import SLSParams
 
 BITS_PER_BYTE = 10  # start + 8 data + stop
 CATCH_UP_LIMIT_S = 1.0  # frames older than this that nobody can receive are skipped, not generated
 TRUTH_FRAMES = 512
 
-# Sensor physics (paper Sec. IV, values from its ref. [44]); per-sensor values vary by a few per cent (seeded).
-PLANCK_J_S = 6.62607015e-34
-ELECTRON_MASS_KG = 9.1093837015e-31
-ELECTRON_VOLT_J = 1.602176634e-19
-R0_OHM = 2580.0
-PARTICLE_D_M = 5e-7
-FILLER_PHI = 0.2873
-BARRIER_EV = 0.05
-K_CONTACT_OHM_SQRT_N = 1772.45
+# Sensor physics: the paper's Sec. IV models, with the constants of models.physics (the same code the estimators
+# invert). Each sensor's SLS parameters and area vary by a few per cent (seeded); the resistance–strain constants
+# are shared, as a calibration file stores them (SPEC §3.3).
 AREA_M2 = 0.0014
 E0_PA = 2.0e6
 E1_PA = 4.0e6
 TAU_S = 100.0  # retardation time mu1/E1: the paper's creep is ~10² s
 PARAM_SPREAD = 0.05
-
-
-def tunnelling_k(particle_d_m: float = PARTICLE_D_M, phi: float = FILLER_PHI, barrier_ev: float = BARRIER_EV) -> float:
-    """``k = γ·D·((π/(6φ))^(1/3) − 1)``, ``γ = (4π/h)·√(2·m_e·φ_b)`` (paper Eq. 4); ≈ 253.7 for the defaults."""
-    gamma = 4.0 * math.pi / PLANCK_J_S * math.sqrt(2.0 * ELECTRON_MASS_KG * barrier_ev * ELECTRON_VOLT_J)
-    return gamma * particle_d_m * ((math.pi / (6.0 * phi)) ** (1.0 / 3.0) - 1.0)
+CALIBRATION_FORCES_N = (1.75, 3.0, 4.0, 5.25)  # the paper's calibration forces, for the linear model
 
 
 @dataclass
 class SensorBank:
-    """S sensors with SLS creep and the resistance–strain law; state carried between calls (O(1) per sample).
+    """S sensors with SLS creep (Eq. 2) and the resistance–strain law (Eq. 3); state carried between calls.
 
-    Strain is split as ``ε = σ/E0 + q`` with ``τ·q̇ + q = σ/E1``; the force is held between samples (exact for
-    non-uniform steps). Conductance ``C = 1/R``, ``R = K/√F + R0·(1−ε)·exp(−k·ε)``; ``F = 0`` gives ``C = 0``.
+    Strain is split as ``ε = σ/E0 + q`` with ``τ·q̇ + q = σ/E1``; the force is held between samples, the
+    ``interp="hold"`` rule of :mod:`models.sls` (exact for non-uniform steps, O(1) per sample). ``F = 0`` reads 0 S.
     """
 
-    e0_pa: np.ndarray
-    e1_pa: np.ndarray
-    tau_s: np.ndarray
+    params: SLSParams
     area_m2: np.ndarray
-    r0_ohm: np.ndarray
-    k_contact_ohm_sqrt_n: np.ndarray
-    k_tunnel: float
+    physics: PhysicsConstants
     q: np.ndarray  # creep part of the strain, (S,)
     t_s: float | None = None
     sigma_pa: np.ndarray | None = None  # stress held since t_s
 
     @classmethod
-    def create(cls, n_sensors: int, rng: np.random.Generator) -> SensorBank:
+    def create(cls, n_sensors: int, rng: np.random.Generator,
+               physics: PhysicsConstants | None = None) -> SensorBank:
         def vary(value: float) -> np.ndarray:
             return value * np.clip(rng.normal(1.0, PARAM_SPREAD, n_sensors), 0.8, 1.2)
 
-        return cls(e0_pa=vary(E0_PA), e1_pa=vary(E1_PA), tau_s=vary(TAU_S), area_m2=vary(AREA_M2),
-                   r0_ohm=vary(R0_OHM), k_contact_ohm_sqrt_n=vary(K_CONTACT_OHM_SQRT_N), k_tunnel=tunnelling_k(),
+        e1 = vary(E1_PA)
+        params = SLSParams(E0_Pa=vary(E0_PA), E1_Pa=e1, mu1_Pa_s=e1 * vary(TAU_S))
+        return cls(params=params, area_m2=vary(AREA_M2), physics=physics or PhysicsConstants(),
                    q=np.zeros(n_sensors))
 
     def step(self, t_s: float, force_n: np.ndarray) -> np.ndarray:
         """Advance to ``t_s`` (force held since the previous call), apply ``force_n`` (S,), return conductance (S,)."""
         force = np.maximum(np.asarray(force_n, dtype=np.float64), 0.0)
         sigma = force / self.area_m2
+        params = self.params
         if self.t_s is not None and self.sigma_pa is not None and t_s > self.t_s:
-            alpha = np.exp(-(t_s - self.t_s) / self.tau_s)
-            self.q = alpha * self.q + (1.0 - alpha) * self.sigma_pa / self.e1_pa
+            alpha = np.exp(-(t_s - self.t_s) / params.tau_s)
+            self.q = alpha * self.q + (1.0 - alpha) * self.sigma_pa / params.E1_Pa
         self.t_s = t_s
         self.sigma_pa = sigma
-        strain = np.clip(sigma / self.e0_pa + self.q, 0.0, 0.999)
-        r_tunnel = self.r0_ohm * (1.0 - strain) * np.exp(-self.k_tunnel * strain)
-        sqrt_f = np.sqrt(force)
-        # C = 1/(K/√F + R_t) written so that F = 0 gives exactly 0 without dividing by zero.
-        return sqrt_f / (self.k_contact_ohm_sqrt_n + sqrt_f * r_tunnel)
+        strain = np.clip(sigma / params.E0_Pa + self.q, 0.0, 0.999)  # ε → 1 is outside the model
+        return conductance_from_strain(strain, force, self.physics)
+
+    def calibration(self, names: tuple[str, ...]) -> dict:
+        """The sensors' true parameters as a SPEC §3.3 calibration document (``linear``: the steady state fitted
+        at the paper's calibration forces)."""
+        forces = np.array(CALIBRATION_FORCES_N)
+        sensors = {}
+        for k, name in enumerate(names):
+            one = self.params.sensor(k)
+            steady_strain = forces / self.area_m2[k] / one.b
+            steady = conductance_from_strain(steady_strain, forces, self.physics)
+            slope, intercept = np.polyfit(forces, steady, 1)
+            sensors[name] = {"area_m2": float(self.area_m2[k]),
+                             "linear": {"m_S_per_N": float(slope), "d_S": float(intercept)},
+                             "sls": {key: float(value) for key, value in one.to_dict().items()}}
+        return {"format": "sensnake-calibration", "version": 1, "physics": self.physics.to_dict(),
+                "sensors": sensors}
 
 
 @dataclass
@@ -253,6 +256,10 @@ class VirtualBoard:
             self._channel_count = None
 
     # -- ground truth (any thread) ---------------------------------------------------------------------------
+    def ground_truth_calibration(self) -> dict:
+        """The simulated sensors' true parameters as a SPEC §3.3 calibration document (for the sim lab's demos)."""
+        return self.sensors.calibration(self.board.channel_names)
+
     def true_conductance_s(self, seq: np.ndarray) -> np.ndarray:
         """Conductance (N×C, siemens) before noise and quantisation of the frames with these ``seq`` numbers.
 
