@@ -214,12 +214,14 @@ class RecordingWriter:
         """Log that data is missing from ``host_monotonic_s`` on (e.g. the board was unplugged)."""
         self._check()
         self._event(float(self.time_s(host_monotonic_s)), "gap", reason)
+        self._maybe_flush()
 
     def log_event(self, text: str, host_monotonic_s: float | None = None, kind: str = "event") -> None:
         """Log a line (sensor health change, user note) at ``host_monotonic_s`` (default: now)."""
         self._check()
         when = time.monotonic() if host_monotonic_s is None else host_monotonic_s
         self._event(float(self.time_s(when)), kind, text)
+        self._maybe_flush()
 
     def update_stats(self, crc_errors: int, dropped_frames: int, resyncs: int) -> None:
         """The board link's cumulative counters, stored as ``/daq`` attributes at the next flush."""

@@ -196,3 +196,16 @@ def test_faulty_sensors_show_in_the_samples(virtual_board):
     assert np.all(block.counts[:, 8] == 2000)
     assert np.std(block.counts[:, 11].astype(float)) > 50
     assert np.std(block.counts[:, 14].astype(float)) < 5
+
+
+def test_full_sim_lab_board_feels_the_robot_pose(sim_lab_fast):
+    """The whole simulated lab: posing the (limp) robot by hand moves the load between the bottom sensors."""
+    tail_bottom = [3 * (segment - 1) + 2 for segment in range(9, 13)]
+    with BoardReader(sim_lab_fast.config.board) as reader:
+        before = drain(reader, 15)
+        # Joint 5 (pitch) bent: the tail end of the body lifts off the ground.
+        sim_lab_fast.chain.set_limp_position(5, 2048 + 0.5 / (2 * np.pi / 4096))
+        reader.read_block()  # drop the frames sampled around the move
+        after = drain(reader, 15)
+    lifted = after.conductance_s[:, tail_bottom].mean()
+    assert lifted < 0.5 * before.conductance_s[:, tail_bottom].mean()
