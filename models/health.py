@@ -205,7 +205,8 @@ class HealthMonitor:
             noisy = noise > th.noisy_min_s
             if reading.sum() >= 4:
                 noisy &= noise > th.noisy_factor * np.median(noise[reading])
-            flags[noisy & (open_count == 0)] |= np.uint8(SensorHealth.NOISY)
+            # Dropouts do not hide noise: the median ignores sparse drops, so a loose sensor can be both.
+            flags[noisy & ~all_open] |= np.uint8(SensorHealth.NOISY)
             if self.baseline_s is not None:
                 below = level < self.baseline_s * (1.0 - th.below_baseline_frac)
                 flags[below & (open_count == 0) & (self.baseline_s > th.loaded_s)] |= np.uint8(

@@ -258,13 +258,12 @@ class ForcePlotGrid(QWidget):
         self.time_bar.setToolTip("Scroll back through the whole session (moving it pauses the live view)")
         self.time_bar.sliderMoved.connect(self._on_time_bar)
         layout.addWidget(self.time_bar)
+        # Every plot shows time ticks (live they do not move, so the cached axis costs nothing per frame); only the
+        # bottom row spends height on the axis title.
         last_row = (len(self.groups) - 1) // columns
         for i, plot in enumerate(self.plots):
             if i // columns == last_row:
                 plot.plot_widget.setLabel("bottom", "time before newest sample", units="s")
-            else:
-                # Shared time axis: only the bottom row draws it (an x axis regenerates every live frame).
-                plot.plot_widget.getPlotItem().hideAxis("bottom")
         self.set_units("N")
 
         self._timer = QTimer(self)
@@ -331,7 +330,7 @@ class ForcePlotGrid(QWidget):
 
     def _set_time_label(self, text: str, units: str) -> None:
         for plot in self.plots:
-            if plot.plot_widget.getPlotItem().getAxis("bottom").isVisible():
+            if plot.plot_widget.getPlotItem().getAxis("bottom").labelText:
                 plot.plot_widget.setLabel("bottom", text, units=units)
 
     @property

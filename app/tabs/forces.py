@@ -179,6 +179,7 @@ class ForcesTab(QWidget):
         side_layout.addLayout(health_bar)
         self.health_list = QListWidget(side)
         self.health_list.setMaximumHeight(140)
+        self.health_list.addItem("no sensor problems seen (yet)")
         side_layout.addWidget(self.health_list, 1)
         splitter.addWidget(self.views)
         splitter.addWidget(side)
