@@ -8,10 +8,10 @@ thread. ``SENSNAKE_FIT_SOLVER=gauss-newton|ipopt|sqpmethod`` switches the joint 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import re
-import sys
 from pathlib import Path
 
 from app import calfiles
@@ -23,19 +23,19 @@ from models.physics import PhysicsConstants
 SOLVERS = ("scipy", "gauss-newton", "ipopt", "sqpmethod")
 
 
-def _physics(args: argparse.Namespace) -> tuple[PhysicsConstants, str | None]:
-    """--physics, else the constants already in --out, else the paper's defaults (announced: they end up in the
-    file, so every later command reads them from there, never from a hidden constant)."""
+def _physics(args: argparse.Namespace) -> PhysicsConstants:
+    """--physics, else the constants already in --out; never a built-in default (SPEC §5 note: the contact constant
+    is a placeholder until the lab measures it, so the user must choose it knowingly)."""
     if args.physics:
-        return calfiles.read_physics(args.physics), None
+        return calfiles.read_physics(args.physics)
     out = Path(args.out)
     if out.exists():
         document = calfiles.read_calibration(out)
         if "physics" in document:
-            return calfiles.physics_from_calibration(document, str(out)), None
-    note = ("sensnake fit: note: no --physics given; used the paper's constants (K_contact_ohm_sqrtN = 1772.45 is a "
-            "placeholder until the lab measures it); they are written to the calibration file")
-    return PhysicsConstants(), note
+            return calfiles.physics_from_calibration(document, str(out))
+    paper = json.dumps(PhysicsConstants().to_dict())
+    raise ValueError(f"no physics constants: {out} has none, so pass --physics FILE.json (a JSON object with the "
+                     f"SPEC §3.3 physics keys; the paper's values are {paper}, with K_contact a placeholder)")
 
 
 def _short_tags(warnings: tuple[str, ...]) -> str:
@@ -106,11 +106,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--window start must be before its end, got {window[0]:g} {window[1]:g}")
     if Path(args.out).exists():
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before spending time fitting
-    physics, note = _physics(args)
     trials = []
     for path in args.trials:
         trial = calfiles.read_trial_csv(path)
         trials.append(TrialInput(Path(path).name, trial.time_s, trial.force_n, trial.conductance_s))
+    physics = _physics(args)
     saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4: counts = 0)
     solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
     if solver not in SOLVERS:
@@ -118,6 +118,4 @@ def run(args: argparse.Namespace) -> int:
     cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver)
     calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
     print_report(args.sensor, cal, args.out)
-    if note:
-        print(note, file=sys.stderr)  # after success, so a failure stays one line
     return 0

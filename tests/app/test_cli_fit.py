@@ -53,13 +53,22 @@ def test_fit_writes_spec_calibration_and_prints_table(lab, capsys):
     assert entry["sls"]["mu1_Pa_s"] == pytest.approx(9e7, rel=0.01)
     assert [t["file"] for t in entry["trials"]] == [p.rsplit("/", 1)[1] for p in paths]
     assert [t["force_N"] for t in entry["trials"]] == pytest.approx([1.75, 3.0, 4.0, 5.25])
-    # Re-fitting into another file prints the table: one row per trial with its file name.
-    code, out, err = _run(["fit", paths[0], paths[3], "--sensor", "S01L", "--area", AREA,
-                           "--out", str(folder / "other.json")], capsys)
-    assert code == 0
+    # Fitting into another file (physics taken from the first one) prints the table: one row per trial.
+    code, out, err = _run(["fit", paths[0], paths[3], "--sensor", "S01L", "--area", AREA, "--physics",
+                           str(folder / "cal.json"), "--out", str(folder / "other.json")], capsys)
+    assert code == 0, err
     assert "file" in out.splitlines()[0] and "mu1_Pa_s" in out.splitlines()[0]
     assert sum(line.startswith("F1.75_r1.csv") for line in out.splitlines()) == 1
-    assert "no --physics given" in err
+
+
+def test_fit_without_physics_is_refused_for_a_new_file(lab, tmp_path, capsys):
+    _, paths = lab
+    code, _, err = _run(["fit", paths[0], "--sensor", "S01L", "--area", AREA, "--out", str(tmp_path / "new.json")],
+                        capsys)
+    assert code == 1
+    assert "no physics constants" in err and "--physics FILE.json" in err and "K_contact_ohm_sqrtN" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "new.json").exists()
 
 
 def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys, monkeypatch):
@@ -190,8 +199,10 @@ def test_flat_sensor_fit_is_refused(tmp_path, capsys):
     t = np.arange(0, 370, 1 / 6)
     force = np.where(t > 5, 3.0, 0.0)
     calfiles.write_trial_csv(tmp_path / "flat.csv", t, force, np.full(t.size, 4e-4))
-    code, _, err = _run(["fit", str(tmp_path / "flat.csv"), "--sensor", "S01L", "--area", AREA, "--out",
-                         str(tmp_path / "cal.json")], capsys)
+    physics = tmp_path / "physics.json"
+    physics.write_text(json.dumps(PhysicsConstants().to_dict()))
+    code, _, err = _run(["fit", str(tmp_path / "flat.csv"), "--sensor", "S01L", "--area", AREA, "--physics",
+                         str(physics), "--out", str(tmp_path / "cal.json")], capsys)
     assert code == 1
     assert "flat.csv: conductance is flat" in err and "refused" in err
     assert not (tmp_path / "cal.json").exists()
