@@ -71,6 +71,7 @@ class ForcesPipeline:
         self._columns = np.zeros(0, dtype=np.intp)
         self.status: tuple[str, ...] = ()
         self.problems: list[str] = []
+        self.last_block_problem: str | None = None  # why the last block got no force, if it did not
         self._default_linear: LinearModel | None = None
         self._t_last_s: float | None = None
         self.set_estimator(estimator)
@@ -137,12 +138,21 @@ class ForcesPipeline:
         """Estimate forces for a block: ``t_s`` (N,) board seconds, ``conductance_s`` (N×C) siemens."""
         conductance_s = np.asarray(conductance_s, dtype=float)
         t_s = np.asarray(t_s, dtype=float)
+        self.last_block_problem = None
         force_n = np.full(conductance_s.shape, np.nan)
         display = conductance_s * US_PER_S
         if self._estimator is not None and self._columns.size and t_s.size:
             if self._t_last_s is not None and t_s[0] < self._t_last_s:
                 self._build()  # the board clock restarted (new board or power cycle): the creep state is stale
-            estimated = self._estimator.update(t_s, conductance_s[:, self._columns])
+            try:
+                estimated = self._estimator.update(t_s, conductance_s[:, self._columns])
+            except ValueError as exc:
+                # A block the estimator refuses (clock jumping back inside a block, non-finite time): show its
+                # conductance, say why, and start the estimator afresh from the next block.
+                self._build()
+                self.last_block_problem = f"force estimate skipped for one block: {exc}"
+                self.problems.insert(0, self.last_block_problem)
+                return ForcesBlock(display=display, force_n=force_n)
             force_n[:, self._columns] = estimated
             display[:, self._columns] = estimated
             self._t_last_s = float(t_s[-1])

@@ -222,6 +222,8 @@ class ForcesTab(QWidget):
         """A board block (GUI thread, ≤ 60 Hz): estimate, keep, classify, record."""
         t_s = self.board.to_session_time(block.host_time_s)
         result = self.pipeline.process(block.board_time_s, block.conductance_s)
+        if self.pipeline.last_block_problem:
+            self.controls.set_message(self.pipeline.last_block_problem, "warn")
         append_with_gaps(self.force_history, t_s, result.display, block.gap_before)
         report = self.health.update(t_s, block.conductance_s, block.saturated)
         if report is not None and report.changed.size:

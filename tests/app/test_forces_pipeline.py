@@ -1,0 +1,73 @@
+"""app/forces_pipeline.py: per-sensor status from a calibration file and live estimation on real models."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.forces_pipeline import CALIBRATED, DEFAULT, UNCALIBRATED, ForcesPipeline
+from devices.config import default_sensor_names
+from models.linear import LinearModel
+from models.physics import DEFAULT_PHYSICS
+from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, conductance_from_force
+
+NAMES = default_sensor_names()
+
+
+def write_cal(path, sensors):
+    path.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
+                                "physics": DEFAULT_PHYSICS.to_dict(), "sensors": sensors}))
+    return path
+
+
+def sls_entry():
+    return {"area_m2": TYPICAL_AREA_M2, "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
+                                                "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)}}
+
+
+def test_sls_recovers_a_constant_force_from_the_models_forward_conductance(tmp_path):
+    pipeline = ForcesPipeline(NAMES)
+    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S06B": sls_entry()}))
+    assert pipeline.status[NAMES.index("S06B")] == CALIBRATED
+    assert pipeline.status.count(UNCALIBRATED) == 35
+    t = np.arange(0, 60, 1 / 30)
+    truth = conductance_from_force(t, np.full(t.size, 3.0), TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
+    conductance = np.full((t.size, 36), 2e-4)
+    conductance[:, NAMES.index("S06B")] = np.asarray(truth).ravel()
+    forces = np.concatenate([pipeline.process(t[i:i + 7], conductance[i:i + 7]).force_n
+                             for i in range(0, t.size, 7)])
+    s06b = forces[:, NAMES.index("S06B")]
+    assert s06b[-1] == pytest.approx(3.0, rel=0.02)  # creep-aware: right after a minute of creep
+    assert np.isnan(np.delete(forces, NAMES.index("S06B"), axis=1)).all()
+    display = pipeline.process(t[-1:] + 1 / 30, conductance[-1:]).display
+    assert display[0, 0] == pytest.approx(200.0)  # uncalibrated sensors plot conductance in µS
+
+
+def test_linear_uses_the_file_and_default_without_a_file(tmp_path):
+    pipeline = ForcesPipeline(NAMES, estimator="linear")
+    assert set(pipeline.status) == {DEFAULT}
+    entry = sls_entry() | {"linear": {"m_S_per_N": 1e-4, "d_S": 5e-5}}
+    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S01L": entry}))
+    out = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3.5e-4))
+    model = LinearModel(m_S_per_N=1e-4, d_S=5e-5)
+    assert out.force_n[0, 0] == pytest.approx(float(model.force_from_conductance(np.array([3.5e-4]))[0]))
+    pipeline.clear_calibration()
+    assert set(pipeline.status) == {DEFAULT} and "typical-sensor" in pipeline.summary()[0]
+
+
+def test_unusable_entry_is_explained_and_clock_restart_recovers(tmp_path):
+    pipeline = ForcesPipeline(NAMES)
+    bad = sls_entry()
+    bad["sls"]["E0_Pa"] = "soft"
+    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S02R": bad, "S03B": sls_entry()}))
+    assert pipeline.status[NAMES.index("S02R")] == UNCALIBRATED
+    assert any("S02R" in problem and "E0_Pa" in problem for problem in pipeline.problems)
+    pipeline.process(np.array([10.0, 10.1]), np.full((2, 36), 3e-4))
+    restarted = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3e-4))  # board power-cycled
+    assert np.isfinite(restarted.force_n[:, NAMES.index("S03B")]).all()
+    backwards_inside = pipeline.process(np.array([5.0, 4.0]), np.full((2, 36), 3e-4))
+    assert np.isnan(backwards_inside.force_n).all() and "backwards" in pipeline.last_block_problem
+    with pytest.raises(ValueError, match="estimator"):
+        pipeline.set_estimator("magic")
