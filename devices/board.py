@@ -169,7 +169,15 @@ class FrameParser:
                 continue
             frame_end = pos + HEADER_SIZE + 2 * n + CRC_SIZE
             if frame_end > end:
-                break
+                # Garbage that looks like a header with a large n would make us wait for up to 2 KB (most of a
+                # second on a 36-channel board). A complete, CRC-valid frame further on proves it false.
+                later = self._next_valid_frame(buf, pos + 1, end)
+                if later < 0:
+                    break
+                self.bad_headers += 1
+                self._discard(later - pos)
+                pos = later
+                continue
             (crc_wire,) = _CRC.unpack_from(buf, frame_end - CRC_SIZE)
             if crc16_ccitt_false(memoryview(buf)[pos + 2:frame_end - CRC_SIZE]) != crc_wire:
                 self.crc_errors += 1
@@ -185,6 +193,19 @@ class FrameParser:
             pos = frame_end
         del buf[:pos]
         return frames
+
+    def _next_valid_frame(self, buf: bytearray, start: int, end: int) -> int:
+        """Offset of the first complete frame with a valid CRC at or after ``start``, or -1."""
+        at = buf.find(SYNC, start)
+        while at >= 0 and at + HEADER_SIZE <= end:
+            version, _, _, _, n = _HEADER.unpack_from(buf, at + 2)
+            frame_end = at + HEADER_SIZE + 2 * n + CRC_SIZE
+            if version == PROTOCOL_VERSION and 1 <= n <= self.max_channels and frame_end <= end:
+                (crc_wire,) = _CRC.unpack_from(buf, frame_end - CRC_SIZE)
+                if crc16_ccitt_false(memoryview(buf)[at + 2:frame_end - CRC_SIZE]) == crc_wire:
+                    return at
+            at = buf.find(SYNC, at + 1)
+        return -1
 
     def _discard(self, n_bytes: int) -> None:
         if n_bytes <= 0:
