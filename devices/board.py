@@ -347,8 +347,8 @@ class BoardReader:
     # -- public API -------------------------------------------------------------------------------------------
     def start(self) -> None:
         """Open the port and start the reader thread. Raises :class:`PortOpenError` if the port cannot be opened."""
-        if self._thread is not None:
-            raise RuntimeError("BoardReader already started")
+        if self._thread is not None or self._stop.is_set():
+            raise RuntimeError("a BoardReader starts once; create a new one to read again")
         self._port = self._open()
         self._set_status("connected", f"board connected on {self.board.port}", True)
         self._thread = threading.Thread(target=self._run, name=f"board-reader:{self.board.port}", daemon=True)
