@@ -312,8 +312,11 @@ class BoardStats:
 class BoardReader:
     """Reads one force-sensor board on its own thread; see the module docstring.
 
-    ``on_status`` is called from the reader thread (keep it short; Qt users re-emit it as a queued signal).
-    :meth:`start`, :meth:`close`, :meth:`read_block`, :attr:`status` and :attr:`stats` may be called from any thread.
+    ``on_status`` is called from the reader thread (keep it short; Qt users re-emit it as a queued signal), except
+    the first ``connected`` and the final ``closed``, which come from the threads calling :meth:`start` and
+    :meth:`close`. :meth:`start`, :meth:`close`, :meth:`read_block`, :attr:`status` and :attr:`stats` may be called
+    from any thread. The ring holds ``ring_seconds`` of frames; a consumer that drains less often loses the oldest
+    (counted in ``stats.overflow_frames``).
     """
 
     def __init__(self, board: BoardConfig, on_status: Callable[[BoardStatus], None] | None = None,
