@@ -31,6 +31,7 @@ from models.fit_output import (
     OutputFit,
     fit_output_casadi,
     fit_output_scipy,
+    trial_costs,
 )
 from models.fit_paper import ExponentialFit, PaperLSResult, abc_from_sls, fit_exponential, fit_paper_ls
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
@@ -49,6 +50,7 @@ MIN_FORCE_FRACTION = 0.05
 DFREE_FORCE_FRACTION = 0.2
 # A trial whose smoothed conductance varies by less than this fraction of its level is flat (sensor not responding).
 FLAT_RELATIVE_SPAN = 5e-3
+FLAT_NOISE_MULTIPLE = 8.0
 # A poor fit: rmse above this multiple of the estimated noise (and above 1e-4 relative, so noise-free fits pass).
 POOR_FIT_NOISE_RATIO = 2.0
 # E0's 95 % interval wider than this fraction of E0 is reported as poorly identified.
@@ -202,19 +204,24 @@ def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None) -> float:
 
 
 def _check_not_flat(trial: TrialInput) -> None:
+    """Refuse a trial whose conductance does not respond: its smoothed span must exceed both
+    :data:`FLAT_RELATIVE_SPAN` of its level and :data:`FLAT_NOISE_MULTIPLE` × the noise left after smoothing (a
+    flat-lined but noisy channel must not pass for a working one)."""
     c = trial.conductance_s[np.isfinite(trial.conductance_s)]
-    level = float(np.max(np.abs(c))) if c.size else 0.0
-    if not level > 1e-12:
+    if not (c.size and float(np.max(np.abs(c))) > 1e-12):
         raise FlatSensorError(f"{trial.name}: conductance is zero throughout: the sensor is disconnected (check its "
                               "wiring and board channel); fit refused")
     window = max(3, c.size // 50)
-    kernel = np.ones(window) / window
-    smooth = np.convolve(c, kernel, mode="valid")
-    if np.ptp(smooth) < FLAT_RELATIVE_SPAN * level:
+    smooth = np.convolve(c, np.ones(window) / window, mode="valid")
+    level = float(np.max(np.abs(smooth)))
+    noise = estimate_noise(c)
+    smooth_noise = noise / math.sqrt(window) if math.isfinite(noise) else 0.0
+    span = float(np.ptp(smooth))
+    if span < max(FLAT_RELATIVE_SPAN * level, FLAT_NOISE_MULTIPLE * smooth_noise):
         raise FlatSensorError(
-            f"{trial.name}: conductance is flat ({np.ptp(smooth):.3g} S span at {level:.3g} S) while the force goes "
-            f"to {np.nanmax(trial.force_n):.3g} N: the sensor is not responding (flat-lined, loose or not under "
-            "the probe); fit refused")
+            f"{trial.name}: conductance is flat ({span:.3g} S span at {level:.3g} S, noise {noise:.3g} S) while the "
+            f"force goes to {np.nanmax(trial.force_n):.3g} N: the sensor is not responding (flat-lined, loose or "
+            "not under the probe); fit refused")
 
 
 def _strain(trial: TrialInput, phys: PhysicsConstants, rows: np.ndarray) -> np.ndarray:
@@ -304,15 +311,30 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                        "sat": n_sat, "noise": _hold_noise(trial.conductance_s[hold], saturation_s)})
 
     joint_start = estimate_sls([p["strain"] for p in prelim])
-    start_params = SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)
-    per_trial_start = [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) if p["dfree"]
-                       else start_params for p in prelim]
+    candidates = [SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)]
+    candidates += [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) for p in prelim if p["dfree"]]
+    # Each trial starts from whichever derivative-free estimate fits it best (one batched model run): a noisy
+    # trial's own estimate can sit on a plateau (E0 → ∞) that another trial's estimate avoids.
+    costs = trial_costs(fit_trials, area_m2, phys, candidates, saturation_s=saturation_s,
+                        min_force_fraction=MIN_FORCE_FRACTION)
+    per_trial_start = [candidates[int(np.argmin(costs[:, i]))] for i in range(len(fit_trials))]
     per_trial = fit_output_scipy(fit_trials, area_m2, phys, per_trial_start, "per_trial",
                                  saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
-    # The joint fit starts from the per-trial fits' median: closer than the derivative-free estimate.
-    median_start = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params]))
-                               for n in PARAM_NAMES))
-    joint = _fit(fit_trials, area_m2, phys, median_start, "joint", saturation_s, solver)
+    # The joint fit starts from the candidate (per-trial results, their median) with the lowest total cost.
+    median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
+    joint_candidates = [median, *per_trial.params]
+    totals = trial_costs(fit_trials, area_m2, phys, joint_candidates, saturation_s=saturation_s,
+                         min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
+    joint = _fit(fit_trials, area_m2, phys, joint_candidates[int(np.argmin(totals))], "joint", saturation_s, solver)
+    # A per-trial fit must do at least as well on its trial as the joint parameters: if not, it stopped in a worse
+    # local minimum; those trials are refitted from the joint solution.
+    own = trial_costs(fit_trials, area_m2, phys, [joint.ref], saturation_s=saturation_s,
+                      min_force_fraction=MIN_FORCE_FRACTION)[0]
+    stuck = own < np.array(per_trial.cost_per_trial) * (1 - 1e-6)
+    if stuck.any():
+        restart = [joint.ref if stuck[i] else per_trial.params[i] for i in range(len(fit_trials))]
+        per_trial = fit_output_scipy(fit_trials, area_m2, phys, restart, "per_trial", saturation_s=saturation_s,
+                                     min_force_fraction=MIN_FORCE_FRACTION)
     forces = np.array([p["hold_n"] for p in prelim])
     distinct = np.ptp(forces) > 0.05 * float(np.mean(forces))
     trend = None

@@ -43,6 +43,15 @@ class DerivativeFreeEstimate:
     note: str = ""
 
 
+# E0/b = 1 + E0/E1: a starting value outside (1, MAX_E0_OVER_B) means a ≈ 0 or a < 0 came out of the noise, and an
+# optimiser started there sits on a plateau (E0 → ∞ makes the instantaneous strain vanish and its gradient with it).
+MAX_E0_OVER_B = 100.0
+
+
+def _plausible(e0_pa: float, b_pa: float) -> bool:
+    return math.isfinite(e0_pa) and b_pa < e0_pa < MAX_E0_OVER_B * b_pa
+
+
 def _rows(t_s: np.ndarray, stress_pa: np.ndarray, strain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keep = np.isfinite(t_s) & np.isfinite(stress_pa) & np.isfinite(strain)
     t, s, e = t_s[keep], stress_pa[keep], strain[keep]
@@ -77,7 +86,7 @@ def estimate_sls(trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
     b, c = float(coef[0]), float(coef[1])
     a = float(coef[2]) if has_ramp else math.nan
     e0, e1, mu1 = sls_from_abc(a, b, c)
-    if math.isfinite(e0):
+    if _plausible(e0, b):
         return DerivativeFreeEstimate(a, b, c, e0, e1, mu1, projected=False)
 
     # Physical projection: non-negative coefficients by bounded least squares; then, if still E0 ≤ b, keep b (the
@@ -87,7 +96,7 @@ def estimate_sls(trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
     c = float(bounded[1]) if bounded[1] > 0 else abs(c) or b
     a = float(bounded[2]) if has_ramp and bounded[2] > 0 else math.nan
     e0, e1, mu1 = sls_from_abc(a, b, c)
-    if math.isfinite(e0):
+    if _plausible(e0, b):
         return DerivativeFreeEstimate(a, b, c, e0, e1, mu1, projected=True,
                                       note="negative coefficient clipped to zero by bounded least squares")
     tau_s = c / b
@@ -95,5 +104,6 @@ def estimate_sls(trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
     mu1 = e1 * tau_s
     a, b2, c2 = mu1 / (e0 + e1), e0 * e1 / (e0 + e1), mu1 * e0 / (e0 + e1)
     note = ("no loading ramp in the records: E0 not identified, guessed as 2·b" if not has_ramp
-            else "E0 ≤ b (non-physical); E0 guessed as 2·b from the long-run stiffness")
+            else "E0 not physical or not plausible (a ≈ 0 or E0 ≤ b); E0 guessed as 2·b from the long-run "
+            "stiffness")
     return DerivativeFreeEstimate(a, b2, c2, e0, e1, mu1, projected=True, note=note)

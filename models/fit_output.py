@@ -87,6 +87,7 @@ class OutputFit:
     solver: str
     at_bound: bool = False
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    cost_per_trial: tuple[float, ...] = ()  # weighted residual sum of squares per trial (see trial_costs)
 
 
 class _Problem:
@@ -301,7 +302,7 @@ class _Problem:
                             "calibrated force range): the linear trend does not describe this sensor")
         return OutputFit(self.mode, per_trial, ref, self.ref_force_n, trend, ci, tuple(ci_trials), rmse,
                          self.n_used, int(sum(int(c.sum()) for c in self.censored)), iterations, success, message,
-                         solver, at_bound, tuple(warnings))
+                         solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks))
 
 
 def _hold_last_valid(values: np.ndarray) -> np.ndarray:
@@ -391,6 +392,18 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
     if active.any():
         return theta.ravel(), iteration, False, f"stopped after {max_iter} iterations"
     return theta.ravel(), iteration, True, "converged"
+
+
+def trial_costs(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,
+                candidates: Sequence[SLSParams], *, saturation_s: float | None = None,
+                min_force_fraction: float = 0.05, interp: str = "hold") -> np.ndarray:
+    """(K, T) weighted residual sum of squares of each candidate parameter set on each trial, from one batched model
+    run (the candidates are extra columns). Used to pick starting values that are not on a plateau."""
+    problem = _Problem(trials, area_m2, phys, candidates[0], "joint", saturation_s, min_force_fraction, interp)
+    params = np.array([[float(getattr(c, n)) for n in PARAM_NAMES] for c in candidates])
+    stacked = np.broadcast_to(params[None, :, :], (len(problem.trials), len(candidates), 3))
+    blocks = problem.residual_blocks(problem.conductance(np.ascontiguousarray(stacked)))
+    return np.array([[_sumsq(block[:, k]) for block in blocks] for k in range(len(candidates))])
 
 
 def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,

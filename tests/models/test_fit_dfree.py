@@ -51,3 +51,11 @@ def test_flat_strain_is_refused():
     t = np.arange(0, 100, 1 / 6)
     with pytest.raises(ValueError, match="flat or disconnected"):
         estimate_sls([(t, np.full(t.size, 2000.0), np.full(t.size, 1e-3))])
+
+
+def test_implausible_instantaneous_stiffness_falls_back_to_the_prior():
+    # A trial whose noise pushes a to ~0 (E0 → ∞) must not hand an optimiser a plateau as its start.
+    trial = make_trial(TYPICAL_TRUTH, PHYS, 1.75, seed=3, noise_rel=0.03)
+    estimate = estimate_sls([_rows(trial)])
+    assert estimate.b_Pa < estimate.E0_Pa < 100 * estimate.b_Pa
+    assert np.isfinite(estimate.mu1_Pa_s) and estimate.mu1_Pa_s > 0
