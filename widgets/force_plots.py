@@ -361,6 +361,12 @@ class ForcePlotGrid(QWidget):
         for plot in self.plots:
             plot.set_labels([labels[i] for i in plot.group.channels])
 
+    def set_channel_notes(self, notes: Sequence[str]) -> None:
+        """A note per channel (e.g. its calibration status), listed in the tooltip of its plot's header."""
+        for plot in self.plots:
+            lines = [f"{plot.group.names[k]}: {notes[i]}" for k, i in enumerate(plot.group.channels) if notes[i]]
+            plot.toggle.setToolTip("\n".join(lines))
+
     def set_channel_warnings(self, warnings: Sequence[str]) -> None:
         """A warning per channel (empty = fine) shown in red on the plot's header and as the trace style."""
         for plot in self.plots:

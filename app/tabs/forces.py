@@ -307,6 +307,9 @@ class ForcesTab(QWidget):
     def _apply_calibration_labels(self) -> None:
         text, level = self.pipeline.summary()
         self.controls.set_calibration(text, level)
+        self.plots.set_channel_notes([f"{status} ({self.pipeline.estimator_kind})" if status != "uncalibrated"
+                                      else "uncalibrated: shown as conductance (µS)"
+                                      for status in self.pipeline.status])
         if self.quantity == "force" and self.viewed is None:
             self.plots.set_channel_labels([self.pipeline.label(i) for i in range(len(self.channel_names))])
         else:

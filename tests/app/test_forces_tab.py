@@ -84,6 +84,8 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
     assert "S06B" in labels and "S06L (µS, uncal.)" in labels
     assert "35 shown as conductance" in tab.controls.calibration_label.text()
+    assert "S06B: calibrated (sls)" in tab.plots.plots[5].toggle.toolTip()
+    assert "S06L: uncalibrated" in tab.plots.plots[5].toggle.toolTip()
     bad = tmp_path / "bad.json"
     bad.write_text('{"format": "something-else", "version": 1}')
     assert not tab.load_calibration(bad)
