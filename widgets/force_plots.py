@@ -46,6 +46,7 @@ MAX_REDRAW_HZ = 60.0
 DEFAULT_REDRAW_HZ = 30.0
 PLOT_HEIGHT_PX = 170
 SCROLL_STEPS = 10_000
+BUCKETS_PER_PIXEL = 1.0  # history buckets per plot pixel (each drawn as its low and high)
 AXIS_COLOR = "#444444"
 OTHER_COLORS = ("#444444", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
 
@@ -444,7 +445,7 @@ class ForcePlotGrid(QWidget):
         if jobs:
             # One history query for every channel drawn (one pass over the window, not one per plot).
             channels = np.concatenate([plot.channels[visible] for plot, visible in jobs])
-            width_px = max(100, max(int(plot.viewbox.width()) for plot, _ in jobs))
+            width_px = max(100, int(BUCKETS_PER_PIXEL * max(int(plot.viewbox.width()) for plot, _ in jobs)))
             window = history.window(t0, t1, width_px, channels=channels)
             x = window.t_s - offset if offset else window.t_s
             if window.level:
