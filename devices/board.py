@@ -32,6 +32,7 @@ PROTOCOL_VERSION = 1
 HEADER_SIZE = 14  # sync(2) version(1) flags(1) seq(4) t_us(4) n(2)
 CRC_SIZE = 2
 MAX_CHANNELS = 1024
+BITS_PER_BYTE = 10  # start + 8 data + stop
 FLAG_SATURATED = 0x01
 SEQ_MODULUS = 1 << 32
 T_US_MODULUS = 1 << 32
@@ -260,8 +261,9 @@ class SampleBlock:
     """Samples drained from a :class:`BoardReader`; N frames × C channels.
 
     ``board_time_s`` is the board clock (``t_us`` unwrapped across its 2³² µs wrap), ``host_time_s`` the host's
-    ``time.monotonic()`` when the frame's bytes were read. ``gap_before[i]`` is True when frames are missing just
-    before sample ``i`` (dropped frames, or a reconnect after a pulled cable).
+    ``time.monotonic()`` when the frame's last byte arrived (the read time, less the wire time of the bytes read
+    after it; never before the previous frame's). ``gap_before[i]`` is True when frames are missing just before
+    sample ``i`` (dropped frames, or a reconnect after a pulled cable).
     """
 
     counts: np.ndarray  # (N, C) uint16
@@ -345,6 +347,7 @@ class BoardReader:
         self._gap_pending = False
         self._last_t_us: int | None = None
         self._last_seq_stored: int | None = None
+        self._last_host_time_s = -np.inf
         self._board_time_base_s = 0.0
 
     # -- public API -------------------------------------------------------------------------------------------
@@ -480,7 +483,19 @@ class BoardReader:
 
     def _ingest(self, data: bytes, host_time_s: float) -> None:
         expected = self.board.n_channels
-        for frame in self._parser.feed(data):
+        frames = self._parser.feed(data)
+        # Frames read together arrived one after another: date each by when its last byte came off the wire
+        # (bytes behind it × byte time before the read), so their host times keep the board's spacing.
+        byte_time_s = BITS_PER_BYTE / self.board.baud
+        behind = self._parser.bytes_pending
+        arrival = np.empty(len(frames))
+        for k in range(len(frames) - 1, -1, -1):
+            arrival[k] = host_time_s - behind * byte_time_s
+            behind += HEADER_SIZE + 2 * frames[k].counts.size + CRC_SIZE
+        np.maximum(arrival, self._last_host_time_s, out=arrival)
+        if len(frames):
+            self._last_host_time_s = float(arrival[-1])
+        for frame, frame_host_time_s in zip(frames, arrival):
             if frame.counts.size != expected:
                 self._channel_mismatches += 1
                 if self._status.state != "mismatch":
@@ -491,7 +506,7 @@ class BoardReader:
                 continue
             if self._status.state == "mismatch":
                 self._set_status("connected", f"board on {self.board.port} sends {expected} channels again", True)
-            self._store(frame, host_time_s)
+            self._store(frame, float(frame_host_time_s))
 
     def _store(self, frame: Frame, host_time_s: float) -> None:
         if self._last_t_us is not None:
