@@ -209,3 +209,20 @@ def test_full_sim_lab_board_feels_the_robot_pose(sim_lab_fast):
         after = drain(reader, 15)
     lifted = after.conductance_s[:, tail_bottom].mean()
     assert lifted < 0.5 * before.conductance_s[:, tail_bottom].mean()
+
+
+@pytest.mark.hardware
+def test_real_board_streams_verified_frames():
+    """On the bench: SENSNAKE_HARDWARE=1 SENSNAKE_BOARD_PORT=/dev/ttyUSB1 pytest -k real_board."""
+    import os
+
+    from devices.config import load_config
+
+    config = load_config(os.environ["SENSNAKE_CONFIG"]) if "SENSNAKE_CONFIG" in os.environ else LabConfig()
+    board_cfg = replace(config.board, port=os.environ.get("SENSNAKE_BOARD_PORT", config.board.port))
+    with BoardReader(board_cfg) as reader:
+        block = drain(reader, int(board_cfg.rate_hz * 2))
+        stats = reader.stats
+    assert block.counts.shape[1] == board_cfg.n_channels
+    assert stats.crc_errors <= 0.01 * stats.frames
+    assert np.median(np.diff(block.board_time_s)) == pytest.approx(1 / board_cfg.rate_hz, rel=0.2)
