@@ -297,6 +297,9 @@ class _Problem:
             if not np.all(np.isfinite(se)):
                 warnings.append("parameter uncertainty undefined: the Jacobian is singular (parameters not "
                                 "identifiable from these trials)")
+        if not success:
+            warnings.append(f"the optimiser stopped before converging ({message}): the parameters may be off; "
+                            "check the trials")
         if at_bound:
             warnings.append("a force-trend slope hit its bound (a parameter would turn non-positive inside the "
                             "calibrated force range): the linear trend does not describe this sensor")
@@ -525,8 +528,9 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
         stats_ = nlp_solver.stats()
         theta_opt = np.asarray(solution["x"]).ravel()
         iterations = int(stats_.get("iter_count", -1))
-        success = bool(stats_.get("success", False))
         message = str(stats_.get("return_status", ""))
+        # sqpmethod ends a converged Gauss–Newton run with this status: the step is below its resolution.
+        success = bool(stats_.get("success", False)) or message == "Search_Direction_Becomes_Too_Small"
     else:
         raise ValueError(f"solver must be 'gauss-newton', 'ipopt' or 'sqpmethod', got {solver!r}")
     r_opt, j_opt = (np.asarray(x) for x in res_jac(theta_opt))
