@@ -3,7 +3,8 @@
 Records the force-sensor board to a recording file, with one progress line on stderr updated in place. The length
 ``S`` is measured on the board's clock (the data's own time), or on the host clock if the board stops sending, so
 a pulled cable cannot make it run forever. Exits non-zero with one line when the port cannot be opened, the board
-sends a channel count other than the config's, or CRC errors exceed :data:`CRC_ERROR_FRACTION` of the frames;
+sends a channel count other than the config's, no frame arrives within :data:`NO_FRAMES_TIMEOUT_S` (board off,
+wrong ``--baud``), or CRC errors exceed :data:`CRC_ERROR_FRACTION` of the frames;
 the file keeps what was recorded. Ctrl-C stops early and keeps the file. The main thread owns the writer; the
 board reader has its own thread.
 """
@@ -27,7 +28,12 @@ CRC_ERROR_FRACTION = 0.05
 CRC_ERROR_MIN = 10  # a handful of CRC errors (e.g. on plugging in) is not a storm
 PROGRESS_INTERVAL_S = 0.25
 WAIT_S = 0.1
+NO_FRAMES_TIMEOUT_S = 3.0
 EXIT_INTERRUPTED = 130
+
+
+class BoardSilentError(TimeoutError):
+    """The port opened but no valid frame arrived."""
 
 
 class CrcStormError(RuntimeError):
@@ -61,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         progress.finish()
         print(f"sensnake record: interrupted; kept {writer.n_daq_samples} frames in {out}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except (CrcStormError, BoardProtocolError):
+    except (CrcStormError, BoardProtocolError, BoardSilentError):
         progress.finish()
         raise
     finally:
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
 def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.SimpleQueue[BoardStatus],
             progress: _Progress, seconds: float) -> None:
     wall_start = time.monotonic()
+    bytes_at_start = reader.stats.bytes_discarded
     board_start: float | None = None
     board_span = 0.0
     last_data_wall = wall_start
@@ -96,6 +103,12 @@ def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.Simple
         stats = reader.stats
         _store_stats(writer, stats)
         _check_crc(stats, writer)
+        if board_start is None and stats.connected and now - wall_start > NO_FRAMES_TIMEOUT_S:
+            noise = stats.bytes_discarded - bytes_at_start
+            heard = f"only {noise} bytes of noise" if noise else "nothing"
+            raise BoardSilentError(
+                f"no frames from the board on {reader.board.port} in {NO_FRAMES_TIMEOUT_S:g} s ({heard}): check "
+                f"that the board is powered and streaming and that --baud matches it (tried {reader.board.baud})")
         progress.show(board_span, stats, writer.n_daq_samples)
         # The board went quiet (cable pulled): fall back to the host clock for the remaining time.
         if board_span >= seconds or (now - wall_start >= seconds and now - last_data_wall > 1.0):

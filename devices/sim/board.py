@@ -9,7 +9,8 @@ as on the real board.
 
 Faults a test or the GUI can inject from Python (any thread): garbage bytes, CRC errors, dropped frames, a
 flat-lined sensor, a loose/noisy sensor (the paper's sensor 10), a saturated sensor, a pulled cable and a wrong
-channel count. Ground truth (the conductance before noise and quantisation) of recent frames is kept for tests.
+channel count; a host opening the port at another baud rate than ``board.baud`` reads noise. Ground truth (the
+conductance before noise and quantisation) of recent frames is kept for tests.
 
 Cost: the per-frame work is a handful of vector operations over the channels, so 36 channels at 30 Hz is
 negligible and 1024 channels at 100 Hz is a few per cent of a core (note that 1024 channels at 100 Hz need more
@@ -132,7 +133,7 @@ class VirtualBoard:
         self._period_s = 1.0 / board.rate_hz
         self._next_index = 0  # frame index k, sampled at k·period; seq = k mod 2³²
         self._host_open = False
-        self._baud = board.baud
+        self._host_baud = board.baud
         self._deliver_after_s = math.inf  # bytes arriving before this sim time are lost (host not listening)
         self._wire_free_s = 0.0
         self._segments: deque[tuple[float, bytes]] = deque()  # (first byte's start time, bytes), in wire order
@@ -165,7 +166,7 @@ class VirtualBoard:
             if not self._host_open:
                 self._deliver_after_s = self.clock.now()
             self._host_open = True
-            self._baud = int(baud)
+            self._host_baud = int(baud)
 
     def host_closed(self) -> None:
         with self._lock:
@@ -284,7 +285,7 @@ class VirtualBoard:
 
     # -- emission --------------------------------------------------------------------------------------------
     def _byte_time_s(self) -> float:
-        return BITS_PER_BYTE / self._baud
+        return BITS_PER_BYTE / self.board.baud  # the board's UART sets the pace, whatever the host expects
 
     def _emit_until(self, sim_now: float) -> None:
         last_due = math.floor(sim_now / self._period_s)
@@ -395,4 +396,7 @@ class VirtualBoard:
             self._segments.popleft()
             self._segment_offset = 0
         self.bytes_sent += len(out)
+        if self._host_baud != self.board.baud:
+            # A UART at the wrong rate reads framing noise, not the board's bytes.
+            return self._rng.integers(0, 256, len(out), dtype=np.uint8).tobytes()
         return bytes(out)

@@ -82,6 +82,16 @@ def test_channel_count_mismatch_fails_naming_both_counts(fast_board, tmp_path, c
     assert "48 channels" in line and "36" in line
 
 
+def test_wrong_baud_rate_is_one_line_naming_the_baud(fast_board, tmp_path, capsys, monkeypatch):
+    from app.commands import record as record_cmd
+
+    monkeypatch.setattr(record_cmd, "NO_FRAMES_TIMEOUT_S", 0.5)  # the default 3 s, shortened for the test
+    code = main(["record", "--daq", "sim", "--baud", "115200", "--seconds", "5", "--out", str(tmp_path / "r.h5")])
+    assert code == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert "no frames from the board" in line and "bytes of noise" in line and "115200" in line
+
+
 def test_crc_storm_fails_and_keeps_the_file(fast_board, tmp_path, capsys):
     out = tmp_path / "storm.h5"
     fast_board.corrupt_frames(1000)
