@@ -61,14 +61,14 @@ def test_fit_writes_spec_calibration_and_prints_table(lab, capsys):
     assert sum(line.startswith("F1.75_r1.csv") for line in out.splitlines()) == 1
 
 
-def test_fit_without_physics_is_refused_for_a_new_file(lab, tmp_path, capsys):
+def test_fit_without_physics_uses_the_papers_constants_and_says_so(lab, tmp_path, capsys):
     _, paths = lab
-    code, _, err = _run(["fit", paths[0], "--sensor", "S01L", "--area", AREA, "--out", str(tmp_path / "new.json")],
-                        capsys)
-    assert code == 1
-    assert "no physics constants" in err and "--physics FILE.json" in err and "K_contact_ohm_sqrtN" in err
-    assert len(err.strip().splitlines()) == 1
-    assert not (tmp_path / "new.json").exists()
+    out = tmp_path / "new.json"
+    code, _, err = _run(["fit", paths[0], "--sensor", "S01L", "--area", AREA, "--out", str(out)], capsys)
+    assert code == 0
+    assert "no --physics given" in err and "K_contact_ohm_sqrtN" in err
+    stored = json.loads(out.read_text())["physics"]
+    assert stored == PhysicsConstants().to_dict()
 
 
 def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys, monkeypatch):
