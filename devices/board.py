@@ -344,6 +344,7 @@ class BoardReader:
         self._reconnects = 0
         self._channel_mismatches = 0
         self._overflow = 0
+        self._overflow_since_read = 0
         self._gap_pending = False
         self._last_t_us: int | None = None
         self._last_seq_stored: int | None = None
@@ -400,12 +401,14 @@ class BoardReader:
             return self._write_total - self._read_total
 
     def wait_for_frames(self, n_frames: int = 1, timeout_s: float | None = None) -> bool:
-        """Block until at least ``n_frames`` frames wait in the ring (True) or ``timeout_s`` passes (False).
+        """Block until at least ``n_frames`` frames arrived since the last :meth:`read_block` (True), counting any
+        the ring had to drop, or until ``timeout_s`` passes (False).
 
         For consumers without an event loop (the CLI, tests). Any thread but the reader's.
         """
         with self._data_ready:
-            return self._data_ready.wait_for(lambda: self._write_total - self._read_total >= n_frames, timeout_s)
+            return self._data_ready.wait_for(
+                lambda: self._write_total - self._read_total + self._overflow_since_read >= n_frames, timeout_s)
 
     def read_block(self) -> SampleBlock | None:
         """Everything received since the previous call (oldest first), or ``None`` if nothing arrived."""
@@ -420,6 +423,7 @@ class BoardReader:
             seq = self._seq[idx]
             gap = self._gap[idx]
             self._read_total = self._write_total
+            self._overflow_since_read = 0
         return SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, self.board),
                            board_time_s=board_time, host_time_s=host_time, seq=seq,
                            saturated=saturated_from_counts(counts), gap_before=gap if gap.any() else None)
@@ -527,7 +531,9 @@ class BoardReader:
             self._gap[slot] = gap
             self._write_total += 1
             if self._write_total - self._read_total > self._capacity:
-                self._overflow += self._write_total - self._read_total - self._capacity
+                lost = self._write_total - self._read_total - self._capacity
+                self._overflow += lost
+                self._overflow_since_read += lost
                 self._read_total = self._write_total - self._capacity
             self._data_ready.notify_all()
 

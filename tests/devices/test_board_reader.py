@@ -226,3 +226,15 @@ def test_real_board_streams_verified_frames():
     assert block.counts.shape[1] == board_cfg.n_channels
     assert stats.crc_errors <= 0.01 * stats.frames
     assert np.median(np.diff(block.board_time_s)) == pytest.approx(1 / board_cfg.rate_hz, rel=0.2)
+
+
+def test_ring_overflow_keeps_the_newest_frames_and_counts_the_rest(virtual_board):
+    with BoardReader(BoardConfig(), ring_seconds=0.0) as reader:  # the minimum ring: 256 frames
+        # Nobody drains while 300 frames arrive: the oldest 44 or more must make way.
+        assert reader.wait_for_frames(300, WAIT_S), reader.stats
+        block = reader.read_block()
+        stats = reader.stats
+    assert len(block) == 256
+    assert np.all(np.diff(block.seq.astype(np.int64)) == 1)  # the newest 256, in order
+    assert stats.overflow_frames >= 300 - 256
+    assert block.seq[-1] - block.seq[0] == 255
