@@ -55,7 +55,7 @@ RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
 STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
-BODY_FORCE_STEP_N = 0.05  # forces are compared at this resolution to decide whether the body map must redraw
+BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
 BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
 
