@@ -23,7 +23,7 @@ import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -109,8 +109,10 @@ class RecordingWriter:
         self.min_free_bytes = int(min_free_bytes)
         self.channel_names = tuple(channel_names)
         self.flush_interval_s = flush_interval_s
-        self.t0_monotonic_s = time.monotonic() if t0_monotonic_s is None else t0_monotonic_s
-        self.started = datetime.now(timezone.utc)
+        now_monotonic_s = time.monotonic()
+        self.t0_monotonic_s = now_monotonic_s if t0_monotonic_s is None else t0_monotonic_s
+        # ``started`` is the wall-clock instant of t0, so "seconds since started" is the same for both clocks.
+        self.started = datetime.now(timezone.utc) - timedelta(seconds=now_monotonic_s - self.t0_monotonic_s)
         self._failed: RecordingError | None = None
         self._closed = False
         n = len(self.channel_names)
