@@ -124,3 +124,16 @@ def test_nothing_new_means_no_redraw_but_expanding_redraws(grid):
     grid.set_collapsed(4, False)
     assert grid.redraw_count > count + 1
     assert len(grid.plots[4].curves[0].yData) != len(stale) or not np.array_equal(grid.plots[4].curves[0].yData, stale)
+
+
+def test_legend_click_hides_a_trace_at_the_next_redraw(grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 5.0)
+    grid.refresh()
+    plot = grid.plots[2]
+    assert len(plot.bundle._paths) == 3
+    plot.curves[1].setVisible(False)  # what pyqtgraph's legend sample does on a click
+    grid.refresh()  # no new data, yet the picture changed: it redraws
+    assert len(plot.bundle._paths) == 2
+    assert [pen for pen, _ in plot.bundle._paths] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
