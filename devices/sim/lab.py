@@ -28,9 +28,19 @@ class SimLab:
         self.chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=self.clock,
                                   seed=int(rng.integers(2**31)))
         self.contact = ContactModel(self.config, self.chain, seed=int(rng.integers(2**31)))
-        self.board = VirtualBoard(self.config.board, self.clock, force_source=self.contact.forces_n,
-                                  seed=int(rng.integers(2**31)))
-        self.rig = VirtualRig(self.config.rig, self.clock, seed=int(rng.integers(2**31)))
+        board_seed, rig_seed = int(rng.integers(2**31)), int(rng.integers(2**31))
+        self.rig = VirtualRig(self.config.rig, self.clock, seed=rig_seed)
+        names = self.config.board.channel_names
+        self._rig_channel = names.index(self.config.rig.sensor) if self.config.rig.sensor in names else None
+        self.board = VirtualBoard(self.config.board, self.clock, force_source=self.forces_n, seed=board_seed)
+
+    def forces_n(self, t_s: float) -> np.ndarray:
+        """Force on every board channel: robot contacts, plus the rig's probe on the channel of ``rig.sensor``
+        (the simulated rig presses that sensor, so a calibration run reads it through the board as in the lab)."""
+        forces = self.contact.forces_n(t_s)
+        if self._rig_channel is not None:
+            forces[self._rig_channel] += self.rig.applied_force_n()
+        return forces
 
     def endpoint(self, device: str) -> SimEndpoint:
         """The wire end of ``device``: ``robot`` (servo bus), ``board`` (force sensors) or ``rig`` (rig servo bus)."""
