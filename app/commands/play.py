@@ -22,7 +22,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from app.commands.teach import BUS_TIMEOUT_S, robot_config
+from app.commands._robot import BUS_TIMEOUT_S, robot_config, start_controller
 from app.shapes import Shape, read_shape
 from app.teach import TeachSession
 from devices.config import RobotConfig
@@ -96,9 +96,6 @@ class StateLog:
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.controller import RobotController
-    from devices.servo_chain import ServoChain
-
     if not (math.isfinite(args.rate) and 0 < args.rate <= 1000):
         raise ValueError(f"--rate must be in (0, 1000] Hz, got {args.rate}")
     if not (math.isfinite(args.time_scale) and args.time_scale > 0):
@@ -109,15 +106,7 @@ def run(args: argparse.Namespace) -> int:
     log_file = open(args.log, "w", newline="", encoding="utf-8") if args.log else None  # noqa: SIM115
     try:
         state_log = StateLog(robot.n_joints, log_file)
-        chain = ServoChain(robot, device="robot")
-        chain.open()
-        try:
-            chain.check_models()
-        except BaseException:
-            chain.close()
-            raise
-        controller = RobotController(chain, robot, on_state=state_log.on_state)
-        controller.start()
+        controller = start_controller(robot, on_state=state_log.on_state)
         try:
             outcome = _play(controller, source, state_log, args, shape)
         finally:

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
 
-from devices.config import LabConfig
+from app.commands._robot import robot_config
 
 EXIT_NOTHING_FOUND = 1
 
@@ -20,11 +19,7 @@ def run(args: argparse.Namespace) -> int:
     from devices.control_table import BAUD_RATES_BPS
     from devices.servo_chain import ServoChain
 
-    robot = replace(LabConfig().robot, port=args.robot.strip())
-    if args.baud is not None:
-        if args.baud <= 0:
-            raise ValueError(f"--baud must be a positive rate in bps, got {args.baud}")
-        robot = replace(robot, baud=int(args.baud))
+    robot = robot_config(args)
     # Fastest rates first: they are the likely ones and their broadcast window is the shortest.
     bauds = sorted(BAUD_RATES_BPS.values(), reverse=True) if args.all_bauds else [robot.baud]
     found = []

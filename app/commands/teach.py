@@ -12,42 +12,19 @@ import argparse
 import math
 import sys
 import threading
-from dataclasses import replace
 from pathlib import Path
 
+from app.commands._robot import BUS_TIMEOUT_S, robot_config, start_controller
 from app.shapes import Shape, write_shape
 from app.teach import TeachSession
-from devices.config import LabConfig, RobotConfig, load_config
-
-BUS_TIMEOUT_S = 5.0
-
-
-def robot_config(args: argparse.Namespace) -> RobotConfig:
-    """The robot config from ``--config`` (or the defaults) with ``--robot``/``--baud`` applied."""
-    config = load_config(args.config) if getattr(args, "config", None) else LabConfig()
-    robot = replace(config.robot, port=args.robot.strip())
-    if args.baud is not None:
-        robot = replace(robot, baud=int(args.baud))
-    return robot
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.controller import RobotController
-    from devices.servo_chain import ServoChain
-
     if args.after is not None and not (math.isfinite(args.after) and args.after >= 0):
         raise ValueError(f"--after must be 0 s or more, got {args.after}")
     out = Path(args.out)
     robot = robot_config(args)
-    chain = ServoChain(robot, device="robot")
-    chain.open()
-    try:
-        chain.check_models()
-    except BaseException:
-        chain.close()
-        raise
-    controller = RobotController(chain, robot)
-    controller.start()
+    controller = start_controller(robot)
     try:
         session = TeachSession(controller.submit, robot, controller.set_torque)
         session.torque_off().result(timeout=BUS_TIMEOUT_S)
