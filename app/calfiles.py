@@ -282,10 +282,17 @@ def physics_from_calibration(document: dict[str, Any], source: str) -> PhysicsCo
 
 
 def read_physics(path: str | os.PathLike) -> PhysicsConstants:
-    """Read ``--physics FILE.json``: the SPEC §3.3 physics keys at the top level or under ``physics``."""
+    """Read ``--physics FILE.json``: the SPEC §3.3 physics keys at the top level or under ``physics``.
+
+    A file that names a ``format`` or ``version`` is a calibration file: one of another format or version is refused
+    (SPEC §3.3: readers reject what they do not know) and its ``physics`` section is read. A bare object of physics
+    keys has neither and is read as it is."""
     file, document = _load_json(path)
     if not isinstance(document, dict):
         raise CalFileError(f"{file}: expected a JSON object with the physics keys")
+    if "format" in document or "version" in document:
+        _check_format(file, document)
+        return physics_from_calibration(document, str(file))
     try:
         return PhysicsConstants.from_dict(document)
     except (KeyError, TypeError, ValueError) as exc:

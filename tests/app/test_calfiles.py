@@ -148,6 +148,21 @@ def test_read_physics_top_level_or_nested(tmp_path):
         calfiles.read_physics(broken)
 
 
+@pytest.mark.parametrize(
+    ("header", "expected"),
+    [
+        ({"format": "sensnake-calibration", "version": 2}, "unsupported calibration version 2"),
+        ({"format": "sensnake-shape", "version": 1}, "unknown format 'sensnake-shape'"),
+        ({"version": 1}, "unknown format None"),
+    ],
+)
+def test_read_physics_refuses_a_file_of_unknown_format_or_version(tmp_path, header, expected):
+    # SPEC §3.3: --physics takes a calibration file too, and readers reject a format/version they do not know.
+    path = _write(tmp_path / "p.json", json.dumps({**header, "physics": PhysicsConstants().to_dict()}))
+    with pytest.raises(CalFileError, match=f"p.json: {expected}"):
+        calfiles.read_physics(path)
+
+
 def test_sensor_entry_checks_model_section(tmp_path):
     document = {"sensors": {"S01L": {"area_m2": 1e-3, "linear": {"m_S_per_N": 1e-4, "d_S": None}}}}
     with pytest.raises(CalFileError, match="no calibration for sensor 'S02L'"):
