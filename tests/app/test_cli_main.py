@@ -39,3 +39,17 @@ def test_python_dash_m_app_shows_help():
     result = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0
     assert "sensnake" in result.stdout and "record" in result.stdout
+
+
+@pytest.mark.parametrize("command", ["scan", "teach", "play"])
+def test_robot_commands_refuse_a_non_positive_baud_in_one_line(command, tmp_path, capsys):
+    from app.shapes import Shape, write_shape
+    from devices.config import RobotConfig
+
+    shape = tmp_path / "s.json"
+    write_shape(Shape("s", RobotConfig().axes, (0.0,) * 12), shape)
+    argv = {"scan": ["scan"], "teach": ["teach", "--out", str(tmp_path / "t.json")], "play": ["play", str(shape)]}
+    code = main([*argv[command], "--robot", "sim", "--baud", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert err == [f"sensnake {command}: error: --baud must be a positive rate in bps, got 0"]
