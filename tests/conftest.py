@@ -40,6 +40,37 @@ def sim_lab_fast():
     factory.install_sim_lab(previous)
 
 
+class OneDeviceLab:
+    """Stands in for the simulated lab with one device endpoint (``"board"``, ``"rig"``, …): tests of one driver do
+    not need the other simulators running."""
+
+    def __init__(self, device: str, endpoint: object) -> None:
+        self.device, self._endpoint = device, endpoint
+
+    def endpoint(self, device: str) -> object:
+        assert device == self.device, f"this test installed only the {self.device!r} simulator, not {device!r}"
+        return self._endpoint
+
+
+@pytest.fixture
+def install_sim_device():
+    """``install_sim_device(device, endpoint)`` routes the factory's ``sim`` port of that device kind to
+    ``endpoint`` and returns it; the previous lab is back when the test ends."""
+    from devices import factory
+
+    previous: list[object] = []
+
+    def install(device: str, endpoint: object) -> object:
+        lab = factory.install_sim_lab(OneDeviceLab(device, endpoint))
+        if not previous:
+            previous.append(lab)
+        return endpoint
+
+    yield install
+    if previous:
+        factory.install_sim_lab(previous[0])
+
+
 def pytest_collection_modifyitems(config, items):
     if os.environ.get("SENSNAKE_HARDWARE") == "1":
         return

@@ -12,7 +12,6 @@ import pytest
 
 from app.cli import main
 from app.recording import open_recording
-from devices import factory
 from devices.config import LabConfig
 from devices.sim.board import VirtualBoard
 from devices.sim.clock import SimClock
@@ -21,22 +20,11 @@ from devices.sim.contact import ContactModel
 REPO = Path(__file__).resolve().parents[2]
 
 
-class BoardOnlyLab:
-    def __init__(self, board: VirtualBoard) -> None:
-        self.board = board
-
-    def endpoint(self, device: str):
-        assert device == "board"
-        return self.board
-
-
 @pytest.fixture
-def fast_board():
+def fast_board(install_sim_device):
     config = LabConfig()
     board = VirtualBoard(config.board, SimClock(20.0), ContactModel(config, None, seed=5).forces_n, seed=6)
-    previous = factory.install_sim_lab(BoardOnlyLab(board))
-    yield board
-    factory.install_sim_lab(previous)
+    return install_sim_device("board", board)
 
 
 def one_error_line(err: str) -> str:

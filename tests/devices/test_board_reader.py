@@ -8,7 +8,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from devices import factory
 from devices.board import BoardReader, BoardStatus
 from devices.config import BoardConfig, LabConfig
 from devices.errors import PortOpenError
@@ -18,17 +17,6 @@ from devices.sim.contact import ContactModel
 
 WAIT_S = 10.0
 LSB_S = (3.3 / 4095) / (2.5 * 900.0)  # conductance of one ADC count
-
-
-class BoardOnlyLab:
-    """Just the board of the simulated lab (the servo sims are not needed here)."""
-
-    def __init__(self, board: VirtualBoard) -> None:
-        self.board = board
-
-    def endpoint(self, device: str):
-        assert device == "board"
-        return self.board
 
 
 class StatusLog:
@@ -59,15 +47,8 @@ def make_board(board_cfg: BoardConfig | None = None, *, noise_counts: float = 0.
 
 
 @pytest.fixture
-def virtual_board():
-    board = make_board()
-    previous = factory.install_sim_lab(BoardOnlyLab(board))
-    yield board
-    factory.install_sim_lab(previous)
-
-
-def install(board: VirtualBoard):
-    return factory.install_sim_lab(BoardOnlyLab(board))
+def virtual_board(install_sim_device):
+    return install_sim_device("board", make_board())
 
 
 def drain(reader: BoardReader, n_frames: int):
@@ -126,17 +107,14 @@ def test_cable_pull_reconnects_and_marks_the_gap(virtual_board):
     assert log.states[-1] == "closed"
 
 
-def test_unplugged_board_cannot_be_opened():
+def test_unplugged_board_cannot_be_opened(install_sim_device):
     board = make_board()
     board.unplug()
-    previous = install(board)
-    try:
-        reader = BoardReader(BoardConfig())
-        with pytest.raises(PortOpenError, match="board port sim"):
-            reader.start()
-        reader.close()
-    finally:
-        factory.install_sim_lab(previous)
+    install_sim_device("board", board)
+    reader = BoardReader(BoardConfig())
+    with pytest.raises(PortOpenError, match="board port sim"):
+        reader.start()
+    reader.close()
 
 
 def test_channel_count_mismatch_names_both_counts(virtual_board):
@@ -173,14 +151,10 @@ def test_crc_errors_and_garbage_are_counted_and_never_delivered(virtual_board):
     assert block.gap_before is not None and block.gap_before.sum() >= 1
 
 
-def test_board_clock_wrap_is_unwrapped():
-    board = make_board(board_clock_offset_us=2**32 - 300_000)  # wraps 0.3 s (sim) after start
-    previous = install(board)
-    try:
-        with BoardReader(BoardConfig()) as reader:
-            block = drain(reader, 25)
-    finally:
-        factory.install_sim_lab(previous)
+def test_board_clock_wrap_is_unwrapped(install_sim_device):
+    install_sim_device("board", make_board(board_clock_offset_us=2**32 - 300_000))  # wraps 0.3 s (sim) after start
+    with BoardReader(BoardConfig()) as reader:
+        block = drain(reader, 25)
     assert block.board_time_s[0] < 2**32 * 1e-6 < block.board_time_s[-1]  # the block spans the wrap
     assert np.allclose(np.diff(block.board_time_s), 1 / 30.0, atol=2e-6)
 
