@@ -50,6 +50,14 @@ class _SimPort(PortHandler):
         return baudrate
 
 
+def wait_for_ping(port, ph, servo_id: int, timeout_s: float = 2.0) -> None:
+    """Ping until ``servo_id`` answers again after a reboot or factory reset (which take simulated time); the
+    caller's next assertion fails if it never does. Polls: the simulated chain advances with the wall clock."""
+    deadline = time.monotonic() + timeout_s
+    while ph.ping(port, servo_id)[1] != COMM_SUCCESS and time.monotonic() < deadline:
+        pass
+
+
 @pytest.fixture
 def bus():
     chain = VirtualChain(ids=IDS, baud=1_000_000, clock=SimClock(20.0), seed=7)
@@ -188,9 +196,7 @@ def test_overload_sets_alert_bit_and_torque_off_until_reboot(bus):
     # Torque cannot come back while the error stands.
     assert ph.write1ByteTxRx(port, 4, ct.ADDR_TORQUE_ENABLE, 1) == (COMM_SUCCESS, ct.ERROR_ALERT_BIT | RESULT_FAIL)
     assert ph.reboot(port, 4) == (COMM_SUCCESS, ct.ERROR_ALERT_BIT)
-    deadline = time.monotonic() + 2.0
-    while ph.ping(port, 4)[1] != COMM_SUCCESS and time.monotonic() < deadline:
-        pass
+    wait_for_ping(port, ph, 4)
     assert ph.read1ByteTxRx(port, 4, ct.ADDR_HARDWARE_ERROR_STATUS) == (0, COMM_SUCCESS, 0)
 
 
@@ -297,9 +303,7 @@ def test_factory_reset_keeps_id_and_baud_with_option_2(bus):
     chain, port, ph = bus
     assert ph.write1ByteTxRx(port, 8, ct.ADDR_RETURN_DELAY_TIME, 0) == (COMM_SUCCESS, 0)
     assert ph.factoryReset(port, 8, 0x02) == (COMM_SUCCESS, 0)
-    deadline = time.monotonic() + 2.0
-    while ph.ping(port, 8)[1] != COMM_SUCCESS and time.monotonic() < deadline:
-        pass
+    wait_for_ping(port, ph, 8)
     assert ph.read1ByteTxRx(port, 8, ct.ADDR_RETURN_DELAY_TIME) == (250, COMM_SUCCESS, 0)
 
 

@@ -51,7 +51,7 @@ def robot_on(path: str) -> RobotConfig:
     return dataclasses.replace(RobotConfig(), port=path)
 
 
-def test_scan_sync_write_read_and_overload_over_a_pty(pty_server):
+def test_scan_sync_write_read_and_overload_over_a_pty(pty_server, read_until_at):
     with ServoChain(robot_on(pty_server.path)) as chain:
         found = chain.scan(ids=range(1, 15))
         assert [i.servo_id for i in found] == list(range(1, 13))
@@ -61,10 +61,7 @@ def test_scan_sync_write_read_and_overload_over_a_pty(pty_server):
         chain.set_torque(True)
         goal = np.linspace(-0.5, 0.5, 12)
         chain.write_goals(goal)
-        for _ in range(300):
-            state = chain.read_state()
-            if np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK):
-                break
+        state = read_until_at(chain, goal)
         assert np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK)
         assert pty_server.command("overload 7") == "ok"
         with pytest.raises(ServoHardwareError, match="servo 7 overload"):

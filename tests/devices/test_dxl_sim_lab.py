@@ -14,16 +14,13 @@ from devices.servo_chain import ServoChain
 pytest.importorskip("devices.sim.rig", reason="the simulated lab needs devices/sim/rig.py (board engineer's)")
 
 
-def test_robot_bus_on_the_sim_lab(sim_lab_fast):
+def test_robot_bus_on_the_sim_lab(sim_lab_fast, read_until_at):
     with ServoChain(RobotConfig()) as chain:
         assert [i.servo_id for i in chain.scan(ids=range(1, 13))] == list(range(1, 13))
         chain.set_torque(True)
         goal = np.linspace(-0.3, 0.3, 12)
         chain.write_goals(goal)
-        for _ in range(300):
-            state = chain.read_state()
-            if np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK):
-                break
+        state = read_until_at(chain, goal)
         assert np.allclose(state.position_rad, goal, atol=3 * ct.RAD_PER_TICK)
         assert np.allclose(sim_lab_fast.chain.present_positions_rad(), goal, atol=3 * ct.RAD_PER_TICK)
 
