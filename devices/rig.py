@@ -7,13 +7,17 @@ slack position, averages the current at rest after each step, and fits a line to
 meets the unloaded current is the contact.
 
 Threads: like :class:`devices.servo_chain.ServoChain`, a rig is NOT thread-safe; one thread owns it. Every call
-blocks until the servo has settled (a few tens of ms per step on the bench).
+blocks until the servo has settled (a few tens of ms per step on the bench), except :meth:`CalibrationRig.start_force`
+which only sends the goal (so the loading ramp can be sampled). ``interrupt`` (a callable any thread may make true)
+ends a wait early with :class:`RigInterrupted`; :meth:`CalibrationRig.release` ignores it, so a stopped run can
+still take the load off.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,19 +37,25 @@ class RigForceError(DeviceError, ValueError):
     """A force the rig must not or cannot apply."""
 
 
+class RigInterrupted(DeviceError):
+    """A wait was cut short because the caller's ``interrupt`` became true (abort, STOP)."""
+
+
 class CalibrationRig:
     """Drives the calibration rig of ``rig``; see the module docstring."""
 
     def __init__(self, rig: RigConfig, max_force_n: float = DEFAULT_MAX_FORCE_N, *,
                  search_step_rad: float = 0.02, unwind_rad: float = 0.4, contact_threshold_n: float = 0.5,
-                 fit_until_n: float = 2.0) -> None:
+                 fit_until_n: float = 2.0, interrupt: Callable[[], bool] | None = None) -> None:
         self.config = rig
+        self.interrupt = interrupt
         self.max_force_n = float(max_force_n)
         self.search_step_rad = search_step_rad
         self.unwind_rad = unwind_rad
         self.contact_threshold_n = contact_threshold_n
         self.fit_until_n = fit_until_n
         self.contact_rad: float | None = None
+        self._slack_rad: float | None = None  # where the contact search started (cable slack)
         self._chain = ServoChain(RobotConfig(
             port=rig.port, baud=rig.baud, joint_ids=(rig.servo_id,), axes=("pitch",), signs=(1,),
             zero_offsets_rad=(0.0,), joint_min_rad=(-ANGLE_LIMIT_RAD,), joint_max_rad=(ANGLE_LIMIT_RAD,),
@@ -82,11 +92,17 @@ class CalibrationRig:
     def position_rad(self) -> float:
         return float(self._chain.read_state().position_rad[0])
 
-    def move_to(self, angle_rad: float, timeout_s: float = SETTLE_TIMEOUT_S) -> float:
-        """Command ``angle_rad`` and wait until the servo is there (rad); returns the settled position."""
+    def move_to(self, angle_rad: float, timeout_s: float = SETTLE_TIMEOUT_S, *, interruptible: bool = True) -> float:
+        """Command ``angle_rad`` and wait until the servo is there (rad); returns the settled position.
+
+        Raises :class:`RigInterrupted` when ``interrupt()`` turns true during the wait (unless ``interruptible`` is
+        False); the servo then holds wherever it is going.
+        """
         sent = float(self._chain.write_goals(np.array([angle_rad]))[0])
         deadline = time.monotonic() + timeout_s
         while True:
+            if interruptible and self.interrupt is not None and self.interrupt():
+                raise RigInterrupted(f"rig servo {self.config.servo_id}: move to {sent:.3f} rad interrupted")
             state = self._chain.read_state()
             position = float(state.position_rad[0])
             if abs(position - sent) <= SETTLE_TOLERANCE_RAD and abs(float(state.velocity_rad_s[0])) < 0.05:
@@ -105,6 +121,7 @@ class CalibrationRig:
         """Find ``θ_contact`` (rad), store it, leave the probe just touching (zero force) and return it."""
         ma_per_n = self.config.wheel_radius_m / TORQUE_CONSTANT_NM_PER_A * 1000.0
         start = max(-ANGLE_LIMIT_RAD, self.position_rad() - self.unwind_rad)
+        self._slack_rad = start
         self.move_to(start)
         baseline_ma = self._mean_current_ma()
         angles: list[float] = []
@@ -136,6 +153,14 @@ class CalibrationRig:
 
         Refuses (:class:`RigForceError`) a negative force, one above ``max_force_n``, or one past the servo's range.
         """
+        return self.move_to(self._target_for(force_n))
+
+    def start_force(self, force_n: float) -> float:
+        """Send the goal for ``force_n`` (N) and return at once with the goal angle (rad); the servo ramps there
+        while the caller samples :meth:`applied_force_n`. Same refusals as :meth:`command_force`."""
+        return float(self._chain.write_goals(np.array([self._target_for(force_n)]))[0])
+
+    def _target_for(self, force_n: float) -> float:
         if self.contact_rad is None:
             raise RuntimeError("the rig does not know where the probe touches the sensor: run find_contact() first")
         if not math.isfinite(force_n) or force_n < 0:
@@ -148,7 +173,7 @@ class CalibrationRig:
             reachable = (ANGLE_LIMIT_RAD - self.contact_rad) * self.newtons_per_rad
             raise RigForceError(f"cannot apply {force_n:g} N: the servo would pass its range (at most "
                                 f"{reachable:.2f} N from this contact angle); re-spool the cable")
-        return self.move_to(target)
+        return target
 
     def applied_force_n(self) -> float:
         """The force now (N) from the present position: ``k·r·(θ − θ_contact)``, 0 while the cable is slack."""
@@ -157,9 +182,12 @@ class CalibrationRig:
         return max(0.0, self.newtons_per_rad * (self.position_rad() - self.contact_rad))
 
     def release(self) -> None:
-        """Take the load off: unwind to just before the contact."""
+        """Take the load off: unwind to just before the contact, or, if a contact search was cut short, back to
+        where it started. Not interruptible (it is what a stop does)."""
         if self.contact_rad is not None:
-            self.move_to(max(-ANGLE_LIMIT_RAD, self.contact_rad - 0.1))
+            self.move_to(max(-ANGLE_LIMIT_RAD, self.contact_rad - 0.1), interruptible=False)
+        elif self._slack_rad is not None:
+            self.move_to(self._slack_rad, interruptible=False)
 
 
 def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> float | None:

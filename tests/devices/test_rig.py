@@ -69,3 +69,29 @@ def test_sensor_under_the_probe_creeps_at_constant_force(virtual_rig):
     assert np.all(np.diff(conductance) > 0)  # creep: conductance keeps rising at constant force
     # The retardation time is ~100 s: most of the creep is over by 300 s.
     assert conductance[-1] - conductance[30] < conductance[30] - conductance[0]
+
+
+def test_interrupted_contact_search_is_released_back_to_slack(virtual_rig):
+    from devices.rig import RigInterrupted
+
+    # Interrupt once the search has wound the probe onto the sensor (it winds past 1 N before it knows the contact).
+    with CalibrationRig(RigConfig(), interrupt=lambda: virtual_rig.applied_force_n() > 1.0) as rig:
+        with pytest.raises(RigInterrupted, match="interrupted"):
+            rig.find_contact()
+        assert rig.contact_rad is None and virtual_rig.applied_force_n() > 1.0
+        rig.release()  # not interruptible, and it knows where the slack cable was
+        assert virtual_rig.applied_force_n() == 0.0
+
+
+def test_start_force_returns_at_once_and_the_ramp_can_be_sampled(virtual_rig):
+    with CalibrationRig(RigConfig()) as rig:
+        rig.find_contact()
+        target = rig.start_force(4.0)
+        assert target == pytest.approx(rig.contact_rad + 4.0 / rig.newtons_per_rad, abs=0.002)
+        ramp = [rig.applied_force_n()]
+        while ramp[-1] < 3.9 and len(ramp) < 2000:
+            ramp.append(rig.applied_force_n())
+        assert ramp[0] < 3.0 < ramp[-1]  # intermediate forces were seen on the way up
+        assert any(0.5 < f < 3.5 for f in ramp)
+        with pytest.raises(ValueError, match="safe maximum"):
+            rig.start_force(50.0)

@@ -1,0 +1,201 @@
+"""Qt bridge for a calibration run: owns the rig's I/O thread, feeds it the board stream, reports to the GUI.
+
+One :class:`RigSession` per Calibration tab. :meth:`RigSession.start` opens the rig (``lab.config.rig``: its own servo
+bus, device kind ``rig``) on a worker thread that then runs :class:`app.rig_protocol.ProtocolRunner`; the GUI thread
+never touches the rig's port. The sensor's conductance comes from the lab's board bridge (``lab.board``, started if
+it is not running): every drained block's column for the sensor is pushed into the runner's
+:class:`~app.rig_protocol.ConductanceFeed`.
+
+STOP: the main window's STOP (button or Esc) calls ``lab.robot.emergency_stop()``, which announces itself on
+``lab.robot.event`` with a message starting ``"STOP"``; the session listens for it and aborts the run, which takes the
+load off the sensor (the rig's release is not interruptible). A dedicated "emergency" signal on the lab would be
+cleaner; until it exists this is the hook that works without touching the main window.
+
+Signals (GUI thread): ``progress(Progress)``, ``sample(Sample)`` at the protocol's sampling rate (6 Hz by default),
+``trial_saved(TrialRecord)``, ``finished(Outcome)``, ``running_changed(bool)``. All public methods: GUI thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QObject, Signal
+
+from app.lab import LabContext
+from app.rig_protocol import (
+    FAILED,
+    ConductanceFeed,
+    Outcome,
+    ProtocolRunner,
+    ProtocolSettings,
+    session_folder,
+)
+from devices.errors import DeviceError
+from devices.rig import CalibrationRig
+
+log = logging.getLogger(__name__)
+
+STOP_EVENT_PREFIX = "STOP"  # RobotBridge.emergency_stop's event messages start with this
+
+
+class RigSession(QObject):
+    """A calibration run on the rig, seen from the GUI; see the module docstring."""
+
+    progress = Signal(object)
+    sample = Signal(object)
+    trial_saved = Signal(object)
+    finished = Signal(object)
+    running_changed = Signal(bool)
+    _posted = Signal(object)  # worker thread → GUI thread (queued): public signals are emitted on the GUI thread
+
+    def __init__(self, lab: LabContext, parent: QObject | None = None, *, rig_factory: Any = CalibrationRig) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        self._rig_factory = rig_factory
+        self._runner: ProtocolRunner | None = None
+        self._thread: threading.Thread | None = None
+        self._feed: ConductanceFeed | None = None
+        self._channel: int | None = None
+        self._board: Any = None
+        self.outcome: Outcome | None = None
+        self._posted.connect(self._run_posted)
+        lab.robot.event.connect(self._on_robot_event)
+
+    # -- state -----------------------------------------------------------------------------------------------------
+    @property
+    def is_running(self) -> bool:
+        return self._runner is not None
+
+    @property
+    def is_paused(self) -> bool:
+        return self._runner is not None and self._runner.paused
+
+    @property
+    def folder(self) -> Path | None:
+        return self._runner.folder if self._runner is not None else None
+
+    # -- control ---------------------------------------------------------------------------------------------------
+    def start(self, settings: ProtocolSettings, base_folder: str | Path) -> Path:
+        """Start a run; returns its session folder. Raises ValueError (a run is going, the sensor is not a board
+        channel, no board) with a sentence for the user; everything after this is reported through ``finished``."""
+        if self.is_running:
+            raise ValueError("a calibration run is already going: abort it first")
+        board = self.lab.board
+        if board is None:
+            raise ValueError(f"no force-sensor board: {self.lab.board_unavailable_reason}")
+        names = tuple(board.channel_names)
+        if settings.sensor not in names:
+            raise ValueError(f"sensor {settings.sensor} is not a channel of the board ({names[0]} … {names[-1]}); "
+                             "check the name or the board's channel map")
+        self._channel = names.index(settings.sensor)
+        self._feed = ConductanceFeed()
+        self._board = board
+        board.block.connect(self._on_block)
+        if not board.is_running:
+            board.start()
+        folder = session_folder(Path(base_folder), settings.sensor)
+        runner = ProtocolRunner(settings, _Deferred(), self._feed, folder,
+                                on_progress=lambda p: self._post(self.progress, p),
+                                on_sample=lambda s: self._post(self.sample, s),
+                                on_trial=lambda t: self._post(self.trial_saved, t))
+        self._runner = runner
+        self.outcome = None
+        self._thread = threading.Thread(target=self._worker, args=(runner,), name="calibration-rig", daemon=True)
+        self._thread.start()
+        self.running_changed.emit(True)
+        return folder
+
+    def abort(self, reason: str = "aborted by the user") -> None:
+        if self._runner is not None:
+            self._runner.abort(reason)
+
+    def emergency_stop(self) -> None:
+        """STOP: abort now; the load comes off the sensor."""
+        self.abort("STOP pressed")
+
+    def pause(self) -> None:
+        if self._runner is not None:
+            self._runner.pause()
+
+    def resume(self) -> None:
+        if self._runner is not None:
+            self._runner.resume()
+
+    def shutdown(self) -> None:
+        """Abort a run and wait for the rig to be released and closed (blocks up to a few seconds)."""
+        self.abort("the window closed")
+        thread = self._thread
+        if thread is not None:
+            thread.join()
+        self._disconnect_board()
+        # Already disconnected (shutdown called twice) or the bridge is gone: nothing to undo.
+        with contextlib.suppress(RuntimeError, TypeError):
+            self.lab.robot.event.disconnect(self._on_robot_event)
+
+    # -- worker thread ---------------------------------------------------------------------------------------------
+    def _worker(self, runner: ProtocolRunner) -> None:
+        """Rig thread: open the rig, run, close; the outcome goes to the GUI through ``finished`` (queued)."""
+        rig = self._rig_factory(self.lab.config.rig, interrupt=runner.stop_requested)
+        try:
+            rig.open()
+        except (DeviceError, OSError, ValueError) as exc:
+            outcome = Outcome(FAILED, f"cannot open the calibration rig on {self.lab.config.rig.port}: {exc}",
+                              runner.folder)
+        else:
+            runner.rig = rig
+            try:
+                outcome = runner.run()
+            finally:
+                try:
+                    rig.close()
+                except (DeviceError, OSError) as exc:
+                    log.warning("closing the rig: %s", exc)
+        try:
+            self._posted.emit(lambda: self._on_finished(outcome))
+        except RuntimeError:
+            log.info("calibration run ended after its session was deleted: %s", outcome.message)
+
+    def _post(self, signal: Any, value: object) -> None:
+        """Worker thread: emit ``signal(value)`` on the GUI thread."""
+        # RuntimeError: the session was deleted (window closed); shutdown() is joining this thread.
+        with contextlib.suppress(RuntimeError):
+            self._posted.emit(lambda: signal.emit(value))
+
+    # -- GUI thread ------------------------------------------------------------------------------------------------
+    def _run_posted(self, fn: Any) -> None:
+        fn()
+
+    def _on_block(self, block: Any) -> None:
+        if self._feed is not None and self._channel is not None and len(block):
+            self._feed.push(block.host_time_s, block.conductance_s[:, self._channel])
+
+    def _on_robot_event(self, text: str) -> None:
+        if self.is_running and text.startswith(STOP_EVENT_PREFIX):
+            self.emergency_stop()
+
+    def _on_finished(self, outcome: Outcome) -> None:
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join()
+        self._runner = None
+        self._disconnect_board()
+        self.outcome = outcome
+        self.running_changed.emit(False)
+        self.finished.emit(outcome)
+
+    def _disconnect_board(self) -> None:
+        board, self._board = self._board, None
+        if board is not None:
+            with contextlib.suppress(RuntimeError, TypeError):  # already disconnected
+                board.block.disconnect(self._on_block)
+
+
+class _Deferred:
+    """Placeholder rig until the worker has opened the real one (the runner is built on the GUI thread)."""
+
+    def __getattr__(self, name: str) -> Any:
+        raise RuntimeError(f"the rig is not open yet ({name})")

@@ -1,0 +1,129 @@
+"""A calibration run on the simulated rig, through RigSession: the rig's own bus, the board stream, trial CSVs.
+
+The lab runs 50× faster than real time; the protocol's holds are a few wall seconds (the trial's clock is the wall
+clock, so a 2 s hold here is 100 s of the simulated sensor's creep).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app import calfiles
+from app.lab import LabContext
+from app.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
+from app.rig_session import RigSession
+from devices import factory
+from devices.config import LabConfig
+from devices.sim.lab import SimLab
+
+FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus the servo's tick resolution
+SHORT = dict(trials_per_force=1, hold_s=2.0, baseline_s=1.0, rest_s=0.3, sample_rate_hz=6.0)
+
+
+@pytest.fixture
+def fast_lab():
+    lab = SimLab(seed=7, speed=50.0)
+    previous = factory.install_sim_lab(lab)
+    yield lab
+    factory.install_sim_lab(previous)
+
+
+@pytest.fixture
+def session(qtbot, fast_lab):
+    lab = LabContext(LabConfig())
+    rig_session = RigSession(lab)
+    yield rig_session
+    rig_session.shutdown()
+    lab.close()
+
+
+def _hold_rows(force_n: np.ndarray) -> np.ndarray:
+    return force_n >= 0.95 * np.percentile(force_n, 99)
+
+
+def test_short_protocol_writes_trials_whose_force_and_conductance_follow_the_command(session, qtbot, tmp_path):
+    settings = ProtocolSettings(forces_n=(1.75, 5.25), **SHORT)
+    saved = []
+    session.trial_saved.connect(saved.append)
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        folder = session.start(settings, tmp_path)
+    outcome = blocker.args[0]
+    assert outcome.status == COMPLETED, outcome.message
+    assert folder.parent == tmp_path and (folder / "protocol.json").is_file()
+    assert [t.force_n for t in saved] == [1.75, 5.25]
+    hold_means = []
+    for record in outcome.trials:
+        trial = calfiles.read_trial_csv(record.path)  # SPEC §3.1, read back with the fit's own reader
+        assert trial.time_s[0] == 0.0 and np.all(np.diff(trial.time_s) > 0)
+        duration = settings.baseline_s + settings.hold_s
+        assert trial.time_s.size == pytest.approx(duration * settings.sample_rate_hz, abs=2)
+        assert np.all(np.isfinite(trial.conductance_s))
+        assert np.all(trial.force_n[trial.time_s < settings.baseline_s - 0.2] < FORCE_TOLERANCE_N)  # unloaded
+        hold = _hold_rows(trial.force_n)
+        assert hold.sum() >= 10
+        assert np.median(trial.force_n[hold]) == pytest.approx(record.force_n, abs=FORCE_TOLERANCE_N)
+        hold_means.append(float(np.mean(trial.conductance_s[hold])))
+        baseline = float(np.mean(trial.conductance_s[trial.time_s < settings.baseline_s - 0.2]))
+        assert hold_means[-1] > baseline  # the probe's load reaches the sensor's board channel
+    assert hold_means[1] > hold_means[0]  # more force, more conductance
+
+
+def test_abort_keeps_the_finished_trials_and_releases_the_load(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(1.75, 3.0, 4.0), **{**SHORT, "rest_s": 30.0})
+    with qtbot.waitSignal(session.trial_saved, timeout=60_000):
+        session.start(settings, tmp_path)
+    with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
+        session.abort()  # during the rest after trial 1
+    outcome = blocker.args[0]
+    assert outcome.status == ABORTED
+    assert len(outcome.trials) == 1 and outcome.trials[0].path.is_file()
+    assert "1 finished trial(s) are kept" in outcome.message
+    assert fast_lab.rig.applied_force_n() == 0.0
+    assert sorted(p.name for p in outcome.folder.glob("*.csv")) == [outcome.trials[0].path.name]
+
+
+def test_stop_during_a_hold_releases_the_force(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(3.0,), **{**SHORT, "hold_s": 60.0})
+    session.start(settings, tmp_path)
+    qtbot.waitUntil(lambda: fast_lab.rig.applied_force_n() > 2.5, timeout=30_000)
+    with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
+        session.lab.robot.emergency_stop()  # what the window's STOP / Esc calls (robot not connected here)
+    outcome = blocker.args[0]
+    assert outcome.status == ABORTED and outcome.message.startswith("STOP")
+    assert outcome.trials == ()
+    assert fast_lab.rig.applied_force_n() == 0.0
+
+
+def test_pulled_rig_cable_stops_the_run_and_says_what_to_do(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(1.75, 3.0), **{**SHORT, "hold_s": 30.0})
+    session.start(settings, tmp_path)
+    # In the hold of trial 1 (the contact search also winds past 1.5 N, so wait for a sample of the trial).
+    with qtbot.waitSignal(session.sample, timeout=30_000, check_params_cb=lambda s: s.force_n > 1.5):
+        pass
+    fast_lab.rig.chain.disconnect()
+    with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
+        pass
+    outcome = blocker.args[0]
+    assert outcome.status == FAILED
+    assert outcome.message.startswith("rig error:")
+    assert "cable" in outcome.message and "run again" in outcome.message
+    assert "could NOT take the load off" in outcome.message  # the cable is out: the user must know
+    fast_lab.rig.chain.reconnect()
+
+
+def test_sensor_not_on_the_board_is_refused(session, tmp_path):
+    with pytest.raises(ValueError, match="S99X is not a channel of the board"):
+        session.start(ProtocolSettings(sensor="S99X", **SHORT), tmp_path)
+    assert not session.is_running
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"forces_n": ()}, "at least one force"),
+    ({"forces_n": (2.0, -1.0)}, "-1 N is not a positive force"),
+    ({"hold_s": 1.0}, "fewer than 10 samples"),
+    ({"trials_per_force": 0}, "1 or more"),
+])
+def test_settings_are_checked(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ProtocolSettings(**kwargs)
