@@ -37,6 +37,8 @@ POLL_INTERVAL_S = 0.0002
 class SimSerial(serial.SerialBase):
     """pyserial-compatible port connected to a :class:`SimEndpoint`."""
 
+    is_open: bool
+
     def __init__(self, endpoint: SimEndpoint, *args, **kwargs) -> None:
         self._endpoint = endpoint
         self._rx = bytearray()
