@@ -120,9 +120,12 @@ class Plan:
         """(move index, fraction of that move done) at ``tick`` (≥ 1, ≤ total)."""
         ends = self._tick_ends(rate_hz)
         m = int(np.searchsorted(ends, tick, side="left"))  # first move whose end tick ≥ tick
+        if tick >= ends[m]:
+            # The move's last tick is its target exactly: with T·rate a hair above a whole number (the 1e-9 slack
+            # in tick_counts) the ratio below would stop 1e-16 short and the target would never be sent as such.
+            return m, 1.0
         before = int(ends[m - 1]) if m > 0 else 0
-        fraction = min((tick - before) / (self.durations_s[m] * rate_hz), 1.0)
-        return m, fraction
+        return m, min((tick - before) / (self.durations_s[m] * rate_hz), 1.0)
 
     def goal_at_tick(self, tick: int, rate_hz: float) -> np.ndarray:
         """The goal sent on tick ``tick`` (0 = the start pose) at ``rate_hz``; the last target after the end."""
