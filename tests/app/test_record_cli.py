@@ -55,6 +55,38 @@ def test_record_then_export(fast_board, tmp_path, capsys):
     assert np.allclose(table[:, 1:], rec.conductance_s, rtol=1e-9, atol=1e-15)
 
 
+def test_recorded_file_has_the_spec_layout_on_disk(fast_board, tmp_path, capsys):
+    """SPEC §3.5 as another tool reads it with plain h5py: root attributes, /daq datasets and dtypes, no /robot."""
+    import datetime
+
+    import h5py
+
+    from devices.config import load_config
+
+    out = tmp_path / "rec.h5"
+    assert main(["record", "--daq", "sim", "--seconds", "1", "--out", str(out)]) == 0
+    capsys.readouterr()
+    with h5py.File(out, "r") as f:
+        assert f.attrs["format"] == "sensnake-recording" and int(f.attrs["version"]) == 1
+        started = datetime.datetime.fromisoformat(str(f.attrs["started"]))
+        assert started.tzinfo is not None
+        assert f.attrs["config"] == load_config().source_text
+        daq = f["daq"]
+        n = daq["time_s"].shape[0]
+        assert n > 0
+        expected = {"time_s": (np.float64, (n,)), "seq": (np.uint32, (n,)), "counts": (np.uint16, (n, 36)),
+                    "conductance_S": (np.float64, (n, 36))}
+        for name, (dtype, shape) in expected.items():
+            assert (daq[name].dtype, daq[name].shape) == (np.dtype(dtype), shape), name
+        assert [c.decode() if isinstance(c, bytes) else c for c in daq.attrs["channels"]] == \
+            list(LabConfig().board.channel_names)
+        assert all(int(daq.attrs[key]) >= 0 for key in ("crc_errors", "dropped_frames", "resyncs"))
+        time_s = daq["time_s"][:]
+        # Seconds since ``started``: the first frame arrives within the first second, and time runs forward.
+        assert 0.0 <= time_s[0] < 1.0 and np.all(np.diff(time_s) >= 0.0)
+        assert "robot" not in f  # no robot is connected to ``sensnake record``
+
+
 def test_port_that_cannot_be_opened_is_one_line(tmp_path, capsys):
     code = main(["record", "--daq", str(tmp_path / "ttyNOPE"), "--seconds", "1", "--out", str(tmp_path / "r.h5")])
     assert code == 1
