@@ -13,6 +13,7 @@ import importlib
 import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 # Errors a user can cause and fix. Every project error subclasses one of these builtins
 # (ConfigError(ValueError), NoReplyError(TimeoutError), CsvFormatError(ValueError), …).
@@ -24,8 +25,16 @@ EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
 
+class _OneLineErrorParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (SPEC §1) that points to ``--help`` instead of printing
+    the whole usage block first. Subparsers inherit the class. Exit code stays argparse's 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {' '.join(message.split())} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrorParser(
         prog="sensnake",
         description="SenSnake Studio: run the snake robot, its force sensors and the calibration rig. "
         "With no command, opens the desktop app.",

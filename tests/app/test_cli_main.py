@@ -53,3 +53,20 @@ def test_robot_commands_refuse_a_non_positive_baud_in_one_line(command, tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1
     assert err == [f"sensnake {command}: error: --baud must be a positive rate in bps, got 0"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["bogus"], "sensnake: error: argument COMMAND: invalid choice: 'bogus'"),
+        (["fit"], "sensnake fit: error: the following arguments are required: TRIAL.csv, --sensor, --area, --out"),
+        (["play", "s.json", "--robot", "sim", "--speed", "abc"],
+         "sensnake play: error: argument --speed: invalid float value: 'abc'"),
+    ],
+)
+def test_usage_errors_are_one_line_with_exit_2(argv, expected, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2
+    assert len(err) == 1 and err[0].startswith(expected) and err[0].endswith("--help')")
