@@ -16,6 +16,7 @@ from devices.dxl_wire import SYNC_WRITE
 from devices.errors import ServoHardwareError
 from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader, follow_the_leader_targets
+from tests.waiting import wait_until
 
 AXES = RobotConfig().axes
 SHAPE = np.array([0.12, -0.06, 0.10, 0.04, -0.08, 0.02, 0.05, 0.0, 0.0, 0.03, 0.0, 0.0])
@@ -80,10 +81,7 @@ def test_overload_mid_gait_stops_within_one_tick_and_sends_nothing_after(sim_lab
     try:
         source = FollowTheLeader(SHAPE, AXES, speed_rad_s=0.3, rate_hz=robot.control_rate_hz)
         future = controller.run_motion(source, "follow")
-        started = threading.Event()
-        while not started.wait(0.005):
-            if source.progress.index >= 1:
-                started.set()
+        assert wait_until(lambda: source.progress.index >= 1), "the motion never reached shift 1"
         chain = sim_lab_fast.chain
         writes_at_fault = chain.count(SYNC_WRITE)
         chain.inject_overload(7)
@@ -92,10 +90,7 @@ def test_overload_mid_gait_stops_within_one_tick_and_sends_nothing_after(sim_lab
         writes_at_stop = chain.count(SYNC_WRITE)
         assert writes_at_stop - writes_at_fault <= 1  # at most the tick already under way
         ticks_at_stop = controller.stats().ticks
-        later = threading.Event()
-        while not later.wait(0.005):
-            if controller.stats().ticks >= ticks_at_stop + 10:
-                later.set()
+        assert wait_until(lambda: controller.stats().ticks >= ticks_at_stop + 10), "the controller stopped ticking"
         assert chain.count(SYNC_WRITE) == writes_at_stop  # nothing sent afterwards
     finally:
         controller.close()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import threading
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from devices.config import RobotConfig
 from devices.controller import RobotController
 from devices.errors import JointLimitError
 from devices.servo_chain import ServoChain
+from tests.waiting import wait_until
 
 BUS_TIMEOUT_S = 3.0
 POSE_TICKS = np.array([2048 + 37 * k * (-1) ** k for k in range(12)], dtype=int)
@@ -30,12 +30,9 @@ def controller(sim_lab_fast):
 
 
 def _wait_states(controller, n):
-    """Block until the controller has read ``n`` more states (condition wait, not a sleep)."""
-    seen = threading.Event()
+    """Block until the controller has read ``n`` more states; fails the test if it does not within WAIT_S."""
     start = controller.stats().ticks
-    while not seen.wait(0.005):
-        if controller.stats().ticks >= start + n:
-            seen.set()
+    assert wait_until(lambda: controller.stats().ticks >= start + n), f"the controller did not tick {n} times"
 
 
 def test_teach_captures_a_hand_pose_to_the_tick_and_holds_it(controller, sim_lab_fast):
