@@ -79,6 +79,14 @@ def _as_param_array(value: object, name: str) -> float | np.ndarray:
     return float(arr) if arr.ndim == 0 else arr
 
 
+def _sls_section(data: Mapping[str, object], section: str) -> dict[str, Any]:
+    """The E0_Pa/E1_Pa/mu1_Pa_s entries of a SPEC §3.3 ``section`` object; ValueError names any missing key."""
+    missing = [key for key in SLS_KEYS if key not in data]
+    if missing:
+        raise ValueError(f"{section} is missing key(s) {', '.join(missing)} (need {', '.join(SLS_KEYS)})")
+    return {key: data[key] for key in SLS_KEYS}
+
+
 @dataclass(frozen=True)
 class SLSParams:
     """SLS parameters: E0_Pa, E1_Pa (Pa), mu1_Pa_s (Pa·s); each a positive finite scalar or a (S,) per-sensor array.
@@ -144,11 +152,7 @@ class SLSParams:
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> SLSParams:
         """From SPEC §3.3 ``sls`` keys; ValueError names a missing or bad key."""
-        missing = [key for key in SLS_KEYS if key not in data]
-        if missing:
-            raise ValueError(f"sls is missing key(s) {', '.join(missing)} (need {', '.join(SLS_KEYS)})")
-        values: dict[str, Any] = {key: data[key] for key in SLS_KEYS}
-        return cls(**values)
+        return cls(**_sls_section(data, "sls"))
 
     def to_dict(self) -> dict[str, float]:
         """SPEC §3.3 ``sls`` object (scalar parameters only)."""
@@ -209,11 +213,8 @@ class SLSTrend:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> SLSTrend:
-        missing = [key for key in SLS_KEYS if key not in data]
-        if missing:
-            raise ValueError(f"sls_trend is missing key(s) {', '.join(missing)}")
-        values: dict[str, Any] = {key: data[key] for key in SLS_KEYS}
-        return cls(**values)
+        """From the SPEC §3.3 ``sls_trend`` object; ValueError names a missing or bad key."""
+        return cls(**_sls_section(data, "sls_trend"))
 
     def to_dict(self) -> dict[str, list[float]]:
         return {key: list(getattr(self, key)) for key in SLS_KEYS}
