@@ -15,7 +15,6 @@ chain directly (``VirtualChain.set_limp_position``); :func:`sim_hand_for` return
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -24,15 +23,13 @@ from typing import Any, TypeVar
 import numpy as np
 
 from devices.config import RobotConfig
+from devices.control_table import CENTER_TICKS, RAD_PER_TICK
 from devices.errors import JointLimitError
 from devices.factory import is_sim
 
 T = TypeVar("T")
 RunOnBus = Callable[[Callable[[Any], T]], "Future[T]"]
 
-TICKS_PER_TURN = 4096
-CENTER_TICKS = 2048
-RAD_PER_TICK = 2 * math.pi / TICKS_PER_TURN
 LIMIT_TOLERANCE_RAD = RAD_PER_TICK  # one tick of slack: a joint resting on its limit may be held there
 
 
