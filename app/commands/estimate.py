@@ -12,6 +12,7 @@ import sys
 import numpy as np
 
 from app import calfiles
+from models.estimators import LinearEstimator
 from models.linear import LinearModel
 from models.sls import SLSParams, explain_force_status, force_from_conductance
 
@@ -58,17 +59,23 @@ def run(args: argparse.Namespace) -> int:
     names = resolve_columns(table, document, calfiles.CONDUCTANCE_COLUMN, args.cal)
     entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
     if args.model == "linear":
-        force = np.column_stack([
-            LinearModel.from_dict(entry["linear"]).force_from_conductance(table.values[:, i])
-            for i, entry in enumerate(entries)])
+        # The live Forces tab's estimator, so both treat a reading below the baseline alike (0 N, flagged).
+        models = [LinearModel.from_dict(entry["linear"]) for entry in entries]
+        for name, model in zip(names, models, strict=True):
+            if not model.m_S_per_N > 0.0:
+                raise calfiles.CalFileError(f"{args.cal}: sensor '{name}' linear.m_S_per_N = {model.m_S_per_N!r} "
+                                            "must be > 0 to invert: re-run 'sensnake fit'")
+        estimator = LinearEstimator(models)
+        force = estimator.update(table.time_s, table.values)
+        status = estimator.last_status
     else:
         phys = calfiles.physics_from_calibration(document, args.cal)
         params = SLSParams.stack([SLSParams.from_dict(entry["sls"]) for entry in entries])
         areas = np.array([float(entry["area_m2"]) for entry in entries])
         result = force_from_conductance(table.time_s, table.values, params, areas, phys, with_status=True)
-        force = result.force_n
-        for line in explain_force_status(result.status):
-            print(f"sensnake estimate: warning: {line}", file=sys.stderr)
+        force, status = result.force_n, result.status
+    for line in explain_force_status(status):
+        print(f"sensnake estimate: warning: {line}", file=sys.stderr)
     warn_extrapolation(document, names, force)
     calfiles.write_series_csv(args.out, table.time_s, output_names(table, calfiles.CONDUCTANCE_COLUMN,
                                                                    calfiles.FORCE_COLUMN), force)

@@ -108,6 +108,21 @@ def test_round_trip_forward_then_estimate(lab, tmp_path, capsys):
     assert 0.01 < np.max(np.abs(linear - force)[t > 6]) < 1.0
 
 
+def test_linear_estimate_clips_below_baseline_like_sls_and_says_so(lab, tmp_path, capsys):
+    folder, _ = lab
+    cal = str(folder / "cal.json")
+    t = np.arange(0.0, 10.0, 1 / 6)
+    # Below the linear model's offset d (0 S and a tiny reading): the line would give negative forces.
+    conductance = np.where(t < 5, 0.0, 1e-9)
+    calfiles.write_series_csv(tmp_path / "low.csv", t, ("S06B",), conductance[:, None])
+    code, _, err = _run(["estimate", str(tmp_path / "low.csv"), "--cal", cal, "--model", "linear",
+                         "--out", str(tmp_path / "f.csv")], capsys)
+    assert code == 0, err
+    force = calfiles.read_series_csv(tmp_path / "f.csv", "force_N").values[:, 0]
+    assert np.all(force == 0.0)
+    assert "BELOW_BASELINE" in err and "OPEN_CIRCUIT" in err
+
+
 def test_estimate_warns_when_extrapolating(lab, tmp_path, capsys):
     folder, _ = lab
     cal = str(folder / "cal.json")
