@@ -61,6 +61,23 @@ def test_fit_writes_spec_calibration_and_prints_table(lab, capsys):
     assert sum(line.startswith("F1.75_r1.csv") for line in out.splitlines()) == 1
 
 
+def test_fit_writes_every_spec_key(lab):
+    """SPEC §3.3: the keys other tools may read are all there (extra keys are allowed)."""
+    folder, _ = lab
+    document = json.loads((folder / "cal.json").read_text())
+    assert set(document["physics"]) == set(PhysicsConstants().to_dict())
+    entry = document["sensors"]["S06B"]
+    assert {"area_m2", "linear", "sls", "sls_trend", "trials"} <= set(entry)
+    assert set(entry["linear"]) == {"m_S_per_N", "d_S"}
+    assert set(entry["sls"]) == {"E0_Pa", "E1_Pa", "mu1_Pa_s"}
+    assert {key: len(pair) for key, pair in entry["sls_trend"].items()} == {"E0_Pa": 2, "E1_Pa": 2, "mu1_Pa_s": 2}
+    spec_trial_keys = {"file", "force_N", "c1", "c2", "c3", "E0_Pa", "E1_Pa", "mu1_Pa_s", "a_s", "b_Pa", "c_Pa_s",
+                       "rmse_S", "warnings"}
+    for trial in entry["trials"]:
+        assert spec_trial_keys <= set(trial)
+        assert isinstance(trial["warnings"], list)
+
+
 def test_fit_without_physics_uses_the_papers_constants_and_says_so(lab, tmp_path, capsys):
     _, paths = lab
     out = tmp_path / "new.json"
