@@ -35,7 +35,7 @@ from widgets.status_bar import LabStatusBar
 
 APP_NAME = "SenSnake Studio"
 ORGANIZATION = "SenSnake"
-DEFAULT_SIZE = (1280, 820)
+DEFAULT_SIZE = (1280, 800)  # the lab's laptops; every tab is laid out for it (and for 1920×1080)
 MINIMUM_SIZE = (960, 600)
 EVENT_KEEPS_ERROR_S = 8.0  # an informational message does not hide an error younger than this
 
@@ -63,6 +63,9 @@ TABS: tuple[TabSpec, ...] = (
 SHORTCUTS_TEXT = (
     "<table cellspacing=6>"
     "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on)</td></tr>"
+    "<tr><td><b>Ctrl+Enter</b></td><td>Teach: capture the present pose as a keyframe</td></tr>"
+    "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
+    "plots</td></tr>"
     "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
     "<tr><td><b>Ctrl+1 … Ctrl+5</b></td><td>Teach, Gait, Calibration, Forces, Hardware</td></tr>"
     "<tr><td><b>Ctrl+Q</b></td><td>Quit (devices are shut down cleanly)</td></tr>"

@@ -1,6 +1,6 @@
 """Open the app offscreen on the simulated lab, visit every tab and save docs/screenshots/<tab>.png.
 
-    QT_QPA_PLATFORM=offscreen python tools/screenshot.py [--out docs/screenshots] [--size 1280x820] [--settle-ms 1500]
+    QT_QPA_PLATFORM=offscreen python tools/screenshot.py [--out docs/screenshots] [--size 1280x800] [--settle-ms 1500]
 
 Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab.
 The user's saved window geometry is not touched (settings go to a temporary file).
@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots", help="folder for the PNGs")
-    parser.add_argument("--size", default="1280x820", help="window size WxH in pixels")
+    parser.add_argument("--size", default="1280x800", help="window size WxH in pixels")
     parser.add_argument("--settle-ms", type=int, default=1500, help="time each tab gets to fill in live data")
     parser.add_argument("--tabs", nargs="*", default=None, help="only these tabs (default: all)")
     args = parser.parse_args(argv)

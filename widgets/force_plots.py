@@ -352,6 +352,9 @@ class ForcePlotGrid(QWidget):
         """Y-axis units, e.g. ``"N"`` or ``"µS"``."""
         self._units = units
         for plot in self.plots:
+            # No automatic SI prefix: it labelled small ranges "N (x0.001)", and neighbouring plots in different
+            # scales are misread; every plot stays in the units named here.
+            plot.plot_widget.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
             plot.plot_widget.setLabel("left", units)
 
     def set_window_s(self, window_s: float) -> None:
@@ -658,4 +661,5 @@ class TrialOverlayPlot(QWidget):
         for k, (label, t_s, values) in enumerate(trials):
             pen = pg.mkPen(colors[k], width=1)
             self.curves.append(item.plot(t_s, values, pen=pen, name=label, antialias=False))
+        item.getAxis("left").enableAutoSIPrefix(False)  # same units as the segment plots, never "(x0.001)"
         item.setLabel("left", units)

@@ -1,12 +1,13 @@
 """The Forces tab's controls: view options, recording, past recordings, and the board's status line.
 
 Passive view: it emits what the user asked for and shows what it is told; the tab (``app/tabs/forces.py``) decides.
-GUI thread only.
+Space toggles Pause while the controls are on screen. GUI thread only.
 """
 
 from __future__ import annotations
 
 from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -35,6 +36,10 @@ WINDOW_CHOICES_S: tuple[tuple[str, float], ...] = (
 )
 DEFAULT_WINDOW_S = 30.0
 QUANTITIES = (("force", "Force (N)"), ("conductance", "Raw conductance (µS)"))
+RECORD_TEXT = "● Record"
+STOP_RECORDING_TEXT = "■ Stop recording"  # not just "Stop": the status bar's STOP halts the robot
+EXPORT_TIP = "Write the recording shown to CSV: time_s, then one column per sensor (forces if estimated)"
+EXPORT_DISABLED_TIP = "Open a recording first (Open recording…): Export writes the recording shown"
 ESTIMATORS = (("sls", "Creep-aware (SLS)"), ("linear", "Linear"))
 
 
@@ -85,13 +90,16 @@ class ForcesControls(QWidget):
         self.quantity = QComboBox(self)
         for key, text in QUANTITIES:
             self.quantity.addItem(text, key)
+        self.quantity.setToolTip("Force estimated from each sensor's calibration, or the raw conductance the board "
+                                 "measures")
         self.quantity.currentIndexChanged.connect(lambda _i: self.quantity_changed.emit(self.quantity.currentData()))
         view_row.addWidget(self.quantity)
         view_row.addWidget(QLabel("Estimator"))
         self.estimator = QComboBox(self)
         for key, text in ESTIMATORS:
             self.estimator.addItem(text, key)
-        self.estimator.setToolTip("How conductance becomes force, applied live to new samples")
+        self.estimator.setToolTip("How conductance becomes force, applied live to new samples: creep-aware "
+                                  "(SLS) follows the sensor's slow relaxation, linear is a straight-line fit")
         self.estimator.currentIndexChanged.connect(
             lambda _i: self.estimator_changed.emit(self.estimator.currentData()))
         view_row.addWidget(self.estimator)
@@ -108,14 +116,21 @@ class ForcesControls(QWidget):
         for text, seconds in WINDOW_CHOICES_S:
             self.window.addItem(text, seconds)
         self.window.setCurrentIndex([s for _t, s in WINDOW_CHOICES_S].index(DEFAULT_WINDOW_S))
+        self.window.setToolTip("Time span shown in the live plots")
         self.window.currentIndexChanged.connect(lambda _i: self.window_changed.emit(float(self.window.currentData())))
         view_row.addWidget(self.window)
         self.pause = QToolButton(self)
         self.pause.setText("Pause")
         self.pause.setCheckable(True)
-        self.pause.setToolTip("Stop following the newest data (acquisition and recording continue)")
+        self.pause.setToolTip("Stop following the newest data to look back (Space); acquisition and recording "
+                              "continue")
         self.pause.toggled.connect(self._on_pause)
         view_row.addWidget(self.pause)
+        # Application-wide so focus does not matter, yet only while these controls are visible (Qt ignores
+        # shortcuts of hidden widgets) and never while a modal dialog is up.
+        self.pause_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Space), self)
+        self.pause_shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self.pause_shortcut.activated.connect(self.pause.toggle)
         self.side_boxes: dict[str, QCheckBox] = {}
         for side, color in SIDE_COLORS.items():
             box = QCheckBox(SIDE_LABELS.get(side, side), self)
@@ -128,7 +143,7 @@ class ForcesControls(QWidget):
         outer.addLayout(view_row)
 
         record_row = QHBoxLayout()
-        self.record = QPushButton("● Record", self)
+        self.record = QPushButton(RECORD_TEXT, self)
         self.record.setCheckable(True)
         self.record.setToolTip("Record the board (and the robot when connected) to an HDF5 file")
         self.record.toggled.connect(self._on_record)
@@ -147,6 +162,7 @@ class ForcesControls(QWidget):
         record_row.addWidget(self.record_info)
         record_row.addSpacing(12)
         self.open = QPushButton("Open recording…", self)
+        self.open.setToolTip("Show a past recording in the plots (Back to live returns)")
         self.open.clicked.connect(self.open_requested)
         record_row.addWidget(self.open)
         self.overlay = QPushButton("Overlay trials…", self)
@@ -156,9 +172,11 @@ class ForcesControls(QWidget):
         self.export = QPushButton("Export CSV…", self)
         self.export.clicked.connect(self.export_requested)
         self.export.setEnabled(False)
+        self.export.setToolTip(EXPORT_DISABLED_TIP)
         record_row.addWidget(self.export)
         self.live = QPushButton("Back to live", self)
         self.live.clicked.connect(self.live_requested)
+        self.live.setToolTip("Leave the recording and show the live board again")
         self.live.setVisible(False)
         record_row.addWidget(self.live)
         outer.addLayout(record_row)
@@ -180,7 +198,7 @@ class ForcesControls(QWidget):
         self.pause_toggled.emit(paused)
 
     def _on_record(self, start: bool) -> None:
-        self.record.setText("■ Stop" if start else "● Record")
+        self.record.setText(STOP_RECORDING_TEXT if start else RECORD_TEXT)
         self.record_toggled.emit(start)
 
     # -- state shown ----------------------------------------------------------------------------------------------
@@ -194,7 +212,7 @@ class ForcesControls(QWidget):
     def set_recording(self, recording: bool, text: str) -> None:
         self.record.blockSignals(True)
         self.record.setChecked(recording)
-        self.record.setText("■ Stop" if recording else "● Record")
+        self.record.setText(STOP_RECORDING_TEXT if recording else RECORD_TEXT)
         self.record.blockSignals(False)
         self.record_info.setText(text)
         self.path.setEnabled(not recording)
@@ -220,5 +238,6 @@ class ForcesControls(QWidget):
         """Showing a past recording (``name``) instead of the live board, or live (None)."""
         self.live.setVisible(name is not None)
         self.export.setEnabled(name is not None)
+        self.export.setToolTip(EXPORT_TIP if name is not None else EXPORT_DISABLED_TIP)
         if name is not None:
             self.set_message(f"showing recording {name}", "ok")

@@ -3,6 +3,8 @@
 Passive: emits :class:`GaitRequest` on Play and plain signals for the transport buttons; the owner
 (``app/tabs/gait.py``) builds the motion and feeds back progress, angles and errors. Angles in rad, speeds in rad/s,
 rates in Hz. GUI thread only.
+Play is enabled only when it can work (robot connected, a shape chosen for the shape modes); its tooltip says what is
+missing. Space pauses and resumes a running gait while the panel is on screen (Esc is STOP, app-wide).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QComboBox,
@@ -95,6 +98,8 @@ class GaitPanel(QWidget):
         self.mode_combo = QComboBox()
         for mode in MODES:
             self.mode_combo.addItem(MODE_TITLES[mode], mode)
+        self.mode_combo.setToolTip("Follow-the-leader and keyframes replay a shape taught in the Teach tab; "
+                                   "serpenoid and sidewinding are travelling waves set by the parameters below")
         mode_form.addRow("mode", self.mode_combo)
         shape_row = QHBoxLayout()
         self.shape_combo = QComboBox()
@@ -103,6 +108,8 @@ class GaitPanel(QWidget):
         self.refresh_button.setFixedWidth(30)
         self.refresh_button.setToolTip("re-read the shape library")
         self.open_button = QPushButton("File…")
+        self.open_button.setToolTip("Play a shape file (.json) from outside the library")
+        self.shape_combo.setToolTip("Shapes in the library (save them in the Teach tab)")
         shape_row.addWidget(self.shape_combo, 1)
         shape_row.addWidget(self.refresh_button)
         shape_row.addWidget(self.open_button)
@@ -115,6 +122,7 @@ class GaitPanel(QWidget):
         mode_form.addRow("rate", self.rate_spin)
         self.repeat_spin = QSpinBox()
         self.repeat_spin.setRange(1, 1000)
+        self.repeat_spin.setToolTip("How many times the whole motion is played")
         mode_form.addRow("repeat", self.repeat_spin)
         column.addWidget(mode_box)
 
@@ -127,6 +135,10 @@ class GaitPanel(QWidget):
         self.shifts_spin.setRange(-1, 99)
         self.shifts_spin.setValue(-1)
         self.shifts_spin.setSpecialValueText("default (K = m)")
+        self.speed_spin.setToolTip("Speed of the fastest joint in each move; the others are slower so all arrive "
+                                   "together (sensnake play --speed; the lab's default is 0.034 rad/s)")
+        self.shifts_spin.setToolTip("How far the shape slides: shift k moves it k joints of each axis toward the "
+                                    "tail; default K = the number of joints per axis (the shape leaves the body)")
         f.addRow("speed", self.speed_spin)
         f.addRow("shifts K", self.shifts_spin)
         self.params.addWidget(follow)
@@ -135,6 +147,10 @@ class GaitPanel(QWidget):
         k = QFormLayout(keys)
         self.time_scale_spin = _spin(0.05, 100, 1.0, 0.1, 2, " ×")
         self.approach_spin = _spin(0.001, max_speed_rad_s, min(0.1, max_speed_rad_s), 0.01, 3, " rad/s")
+        self.time_scale_spin.setToolTip("Stretch the keyframe times: 2 × plays twice as slowly (refused if a step "
+                                        "would need a joint faster than the servo's velocity limit)")
+        self.approach_spin.setToolTip("Speed of the fastest joint while moving from the present pose to the first "
+                                      "keyframe")
         k.addRow("time scale", self.time_scale_spin)
         k.addRow("approach speed", self.approach_spin)
         self.params.addWidget(keys)
@@ -148,6 +164,15 @@ class GaitPanel(QWidget):
         self.cycles_spin = _spin(0.5, 1000, 3, 1, 1, " cycles")
         self.pitch_amplitude_spin = _spin(0, 1.5, 0.3, 0.05, 2, " rad")
         self.phase_spin = _spin(-math.pi, math.pi, math.pi / 2, 0.1, 2, " rad")
+        self.amplitude_spin.setToolTip("Peak yaw angle of the wave (rad)")
+        self.spatial_spin.setToolTip("Phase difference between consecutive joints of an axis: smaller = longer "
+                                     "wave along the body")
+        self.frequency_spin.setToolTip("Wave frequency; amplitude × 2π × frequency must stay below the servo's "
+                                       "max joint speed")
+        self.offset_spin.setToolTip("Constant yaw added to every yaw joint: the robot turns (positive: left)")
+        self.cycles_spin.setToolTip("How many wave periods to play (the first is blended in from the present pose)")
+        self.pitch_amplitude_spin.setToolTip("Peak pitch angle: lifts segments off the ground for sidewinding")
+        self.phase_spin.setToolTip("Phase of the pitch wave relative to the yaw wave (π/2 for classic sidewinding)")
         w.addRow("amplitude (yaw)", self.amplitude_spin)
         w.addRow("phase lag / joint", self.spatial_spin)
         w.addRow("frequency", self.frequency_spin)
@@ -168,6 +193,10 @@ class GaitPanel(QWidget):
         self.pause_button = QPushButton("❚❚ Pause")
         self.resume_button = QPushButton("▶ Resume")
         self.stop_button = QPushButton("■ Stop")
+        self.pause_button.setToolTip("Hold the motion where it is (Space); Resume continues from there")
+        self.resume_button.setToolTip("Continue the paused motion (Space)")
+        self.stop_button.setToolTip("End the motion; the robot holds its last goal. Esc (STOP) halts at once from "
+                                    "any tab")
         for b in (self.play_button, self.pause_button, self.resume_button, self.stop_button):
             transport.addWidget(b)
         column.addLayout(transport)
@@ -216,6 +245,14 @@ class GaitPanel(QWidget):
         self.refresh_button.clicked.connect(self.refresh_shapes_requested)
         self.open_button.clicked.connect(self.open_file_requested)
         self.shape_combo.currentTextChanged.connect(self.shape_selected)
+        self.shape_combo.currentTextChanged.connect(lambda _text: self._update_play())
+        # Application-wide so focus does not matter, yet only while this panel is visible (Qt ignores shortcuts of
+        # hidden widgets) and never while a modal dialog is up.
+        self.pause_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Space), self)
+        self.pause_shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self.pause_shortcut.activated.connect(self.toggle_pause)
+        self._connected = True  # until the owner says otherwise (a panel on its own can play)
+        self._state = "idle"
         self._mode_changed()
         self.set_motion_state("idle")
 
@@ -251,11 +288,25 @@ class GaitPanel(QWidget):
                 index = self.shape_combo.count() - 1
             self.shape_combo.setCurrentIndex(index)
         self.shape_combo.blockSignals(False)
+        self._update_play()
+
+    def set_connected(self, connected: bool) -> None:
+        """Whether the robot is connected (Play needs it)."""
+        self._connected = bool(connected)
+        self._update_play()
+
+    def toggle_pause(self) -> None:
+        """Pause a running motion or resume a paused one (the Space key); nothing otherwise."""
+        if self.pause_button.isEnabled():
+            self.pause_button.click()
+        elif self.resume_button.isEnabled():
+            self.resume_button.click()
 
     def set_motion_state(self, state: str) -> None:
         """Enable the transport buttons for ``idle``/``running``/``paused``/``finished``/``stopped``/``fault``."""
+        self._state = state
         running, paused = state == "running", state == "paused"
-        self.play_button.setEnabled(not running and not paused)
+        self._update_play()
         self.pause_button.setEnabled(running)
         self.resume_button.setEnabled(paused)
         self.stop_button.setEnabled(running or paused)
@@ -288,6 +339,21 @@ class GaitPanel(QWidget):
         self.rate_spin.setValue(rate_hz)
 
     # -- internals ---------------------------------------------------------------------------------------------------
+    def _play_blocker(self) -> str:
+        """Why Play cannot work now ('' if it can)."""
+        if self._state in ("running", "paused"):
+            return "A motion is playing: Stop it first"
+        if not self._connected:
+            return "The robot is not connected: connect it in the Hardware tab"
+        if self.mode in ("follow", "keyframes") and not self.shape_combo.currentText():
+            return "No shape chosen: save one in the Teach tab, or open a shape file (File…)"
+        return ""
+
+    def _update_play(self) -> None:
+        blocker = self._play_blocker()
+        self.play_button.setEnabled(not blocker)
+        self.play_button.setToolTip(blocker or "Play the motion (torque goes on first; Esc is STOP)")
+
     def _mode_changed(self) -> None:
         mode = self.mode
         self.params.setCurrentIndex({"follow": 0, "keyframes": 1}.get(mode, 2))
@@ -297,4 +363,5 @@ class GaitPanel(QWidget):
         side = mode == "sidewinding"
         for w in (self._pitch_label, self.pitch_amplitude_spin, self._phase_label, self.phase_spin):
             w.setVisible(side)
+        self._update_play()
         self.params.setMaximumHeight(self.params.currentWidget().sizeHint().height() + 8)

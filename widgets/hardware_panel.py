@@ -92,6 +92,12 @@ def _toggle_button(text_on: str, text_off: str) -> QPushButton:
     return button
 
 
+# Scan, link check and timing check all work disconnected too (the bridge opens the port for the call).
+LINK_CHECK_TIP = ("Ping every configured servo 5 times: round-trip time, missing replies and CRC errors per servo "
+                  "(connected or not: a quiet bus shows the link alone)")
+TIMING_CHECK_TIP = "Check the USB latency timer and each servo's Return Delay Time again"
+
+
 class HardwarePanel(QWidget):
     """Dynamixel Wizard's essentials for the robot's bus."""
 
@@ -170,6 +176,7 @@ class HardwarePanel(QWidget):
         bar = QHBoxLayout()
         self.all_torque_on_button = QPushButton("All torque on")
         self.all_torque_on_button.clicked.connect(lambda: self.all_torque_requested.emit(True))
+        self.all_torque_on_button.setToolTip("Every servo holds its present position")
         self.all_torque_off_button = QPushButton("All torque off")
         self.all_torque_off_button.setToolTip("The robot goes limp: support it before switching torque off")
         self.all_torque_off_button.clicked.connect(lambda: self.all_torque_requested.emit(False))
@@ -216,6 +223,7 @@ class HardwarePanel(QWidget):
         self.scan_button = QPushButton("Scan")
         self.scan_button.setObjectName("scan_button")
         self.scan_button.clicked.connect(self._emit_scan)
+        self.scan_button.setToolTip("Ping every ID in the range (works connected, or opens the port above briefly)")
         row.addWidget(self.scan_button)
         column.addLayout(row)
         self.scan_progress = QProgressBar()
@@ -248,6 +256,7 @@ class HardwarePanel(QWidget):
         self.link_check_button = QPushButton("Check link")
         self.link_check_button.setObjectName("link_check_button")
         self.link_check_button.clicked.connect(self.link_check_requested)
+        self.link_check_button.setToolTip(LINK_CHECK_TIP)
         row.addWidget(self.link_check_button)
         column.addLayout(row)
         self.link_table = QTableWidget(0, len(LINK_COLUMNS))
@@ -270,6 +279,7 @@ class HardwarePanel(QWidget):
         row.addWidget(self.timing_summary_label, 1)
         self.timing_check_button = QPushButton("Re-check")
         self.timing_check_button.clicked.connect(self.timing_check_requested)
+        self.timing_check_button.setToolTip(TIMING_CHECK_TIP)
         row.addWidget(self.timing_check_button)
         column.addLayout(row)
         self.timing_text = QPlainTextEdit()
@@ -382,10 +392,13 @@ class HardwarePanel(QWidget):
             torque = _toggle_button("On", "Off")
             torque.setObjectName(f"torque_{sid}")
             torque.clicked.connect(lambda on, s=sid: self._request(s, COL_TORQUE, on))
+            torque.setToolTip(f"Servo {sid} torque: shows the present state; click to switch it")
             table.setCellWidget(row, COL_TORQUE, torque)
             led = _toggle_button("On", "Off")
             led.setObjectName(f"led_{sid}")
             led.clicked.connect(lambda on, s=sid: self._request(s, COL_LED, on))
+            led.setToolTip(f"Servo {sid} LED: shows the present state; click to switch it (find the servo on "
+                           "the robot)")
             table.setCellWidget(row, COL_LED, led)
             reboot = QPushButton("Reboot")
             reboot.setObjectName(f"reboot_{sid}")

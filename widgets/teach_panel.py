@@ -2,6 +2,8 @@
 
 Passive: the owner (``app/tabs/teach.py``) feeds it the live angles, the keyframe list and the library names, and
 reacts to its signals. Nothing here talks to the robot or the disk. Angles in rad, times in s. GUI thread only.
+Buttons that cannot work are disabled with a tooltip saying what they need (a name, a keyframe, a saved shape);
+Ctrl+Enter captures (a person posing the robot has one hand free at best), while the panel is on screen.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QComboBox,
@@ -33,6 +36,8 @@ from PySide6.QtWidgets import (
 from widgets import theme
 from widgets.body_view import BodyView
 from widgets.joint_sliders import JointSliders
+
+CAPTURE_SHORTCUTS = ("Ctrl+Return", "Ctrl+Enter")  # main and keypad Enter
 
 
 class TeachPanel(QWidget):
@@ -68,7 +73,8 @@ class TeachPanel(QWidget):
         # -- posing column ---------------------------------------------------------------------------------------
         pose_box = QGroupBox("Pose by hand")
         pose_layout = QVBoxLayout(pose_box)
-        hint = QLabel("Turn torque off, bend the robot (in sim: drag the drawing or the sliders), then capture.")
+        hint = QLabel("Turn torque off, bend the robot (in sim: drag the drawing or the sliders), then capture "
+                      "(Ctrl+Enter).")
         hint.setWordWrap(True)
         hint.setStyleSheet("color: #555;")
         pose_layout.addWidget(hint)
@@ -80,6 +86,11 @@ class TeachPanel(QWidget):
         self.hold_button = QPushButton("Torque on (hold pose)")
         self.capture_button = QPushButton("Capture pose")
         self.capture_button.setStyleSheet("font-weight: bold;")
+        self.torque_off_selected_button.setToolTip("Torque off for the joints ticked beside the sliders; the others "
+                                                   "keep holding")
+        self.torque_off_all_button.setToolTip("Torque off for every joint: the robot goes limp, support it first")
+        self.hold_button.setToolTip("Torque back on for every joint, holding the present pose")
+        self.capture_button.setToolTip("Add the present pose to the keyframe list (Ctrl+Enter)")
         torque_row.addWidget(self.torque_off_selected_button, 0, 0)
         torque_row.addWidget(self.torque_off_all_button, 0, 1)
         torque_row.addWidget(self.hold_button, 1, 0)
@@ -100,6 +111,8 @@ class TeachPanel(QWidget):
         self.keyframe_table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.keyframe_table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.keyframe_table.setMinimumHeight(130)
+        self.keyframe_table.setToolTip("Double-click a name to rename it, or a time (s) to change when the pose "
+                                       "is reached in keyframe playback")
         frames_layout.addWidget(self.keyframe_table, 2)
         list_buttons = QHBoxLayout()
         self.up_button = QPushButton("▲")
@@ -110,6 +123,10 @@ class TeachPanel(QWidget):
         self.clear_button = QPushButton("Clear")
         for b in (self.up_button, self.down_button):
             b.setFixedWidth(34)
+        self.up_button.setToolTip("Move the selected keyframe one place earlier (the times stay in their slots)")
+        self.down_button.setToolTip("Move the selected keyframe one place later (the times stay in their slots)")
+        self.delete_button.setToolTip("Delete the selected keyframe (Undo brings it back)")
+        self.clear_button.setToolTip("Delete every keyframe (Undo brings them back)")
         for b in (self.up_button, self.down_button, self.delete_button, self.clear_button, self.undo_button,
                   self.redo_button):
             list_buttons.addWidget(b)
@@ -121,28 +138,39 @@ class TeachPanel(QWidget):
         self.joint_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
         self.joint_table.verticalHeader().setDefaultSectionSize(20)
         self.joint_table.setMinimumHeight(200)
+        self.joint_table.setToolTip("Double-click a value in the rad column to correct that joint of the selected "
+                                    "keyframe")
         frames_layout.addWidget(self.joint_table, 3)
 
         library_box = QGroupBox("Shape library")
         lib = QGridLayout(library_box)
         self.name_edit = QLineEdit()
         self.name_edit.setPlaceholderText("shape name, e.g. conform-obstacle")
+        self.name_edit.setToolTip("Name of the shape in the library (also its file name)")
         self.save_button = QPushButton("Save")
         self.library_combo = QComboBox()
         self.library_combo.setMinimumContentsLength(14)
+        self.library_combo.setToolTip("Shapes saved in the library")
         self.load_button = QPushButton("Load")
         self.mirror_button = QPushButton("Mirror L↔R")
+        self.mirror_button.setToolTip("Swap left and right in every keyframe: yaw angles change sign, pitch angles "
+                                      "stay")
         self.scale_spin = QDoubleSpinBox()
         self.scale_spin.setRange(-3.0, 3.0)
         self.scale_spin.setSingleStep(0.1)
         self.scale_spin.setValue(1.2)
         self.scale_spin.setPrefix("× ")
         self.scale_button = QPushButton("Scale")
+        self.scale_button.setToolTip("Multiply every angle of every keyframe by the factor beside it (refused if a "
+                                     "joint would leave its limits)")
         self.shift_spin = QSpinBox()
         self.shift_spin.setRange(-11, 11)
         self.shift_spin.setValue(1)
         self.shift_spin.setSuffix(" joint(s)")
         self.shift_button = QPushButton("Shift to tail")
+        self.shift_button.setToolTip("Slide every keyframe along the body by this many joints of each axis "
+                                     "(positive: toward the tail, negative: toward the head); uncovered joints "
+                                     "become straight")
         lib.addWidget(self.name_edit, 0, 0, 1, 2)
         lib.addWidget(self.save_button, 0, 2)
         lib.addWidget(self.library_combo, 1, 0, 1, 2)
@@ -207,7 +235,18 @@ class TeachPanel(QWidget):
         self.mirror_button.clicked.connect(self.mirror_requested)
         self.scale_button.clicked.connect(lambda: self.scale_requested.emit(self.scale_spin.value()))
         self.shift_button.clicked.connect(lambda: self.shift_requested.emit(self.shift_spin.value()))
+        self.name_edit.textChanged.connect(lambda _text: self._update_library_buttons())
+        self.capture_shortcuts = []
+        for keys in CAPTURE_SHORTCUTS:
+            # Application-wide so it works whatever has focus, but only while this panel is visible (Qt ignores
+            # shortcuts of hidden widgets) and not while a modal dialog is up. click() does nothing when disabled.
+            shortcut = QShortcut(QKeySequence(keys), self)
+            shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+            shortcut.activated.connect(self.capture_button.click)
+            self.capture_shortcuts.append(shortcut)
+        self._has_keyframes = False
         self.set_keyframe_angles(None)
+        self._update_library_buttons()
 
     # -- display API -------------------------------------------------------------------------------------------------
     def set_live_angles(self, present_rad: np.ndarray | None, goal_rad: np.ndarray | None = None) -> None:
@@ -250,6 +289,8 @@ class TeachPanel(QWidget):
         has = len(rows) > 0
         for b in (self.delete_button, self.up_button, self.down_button, self.clear_button):
             b.setEnabled(has)
+        self._has_keyframes = has
+        self._update_library_buttons()
 
     def current_row(self) -> int:
         rows = self.keyframe_table.selectionModel().selectedRows()
@@ -285,6 +326,7 @@ class TeachPanel(QWidget):
         if current in names:
             self.library_combo.setCurrentText(current)
         self.library_path_label.setText(f"library: {folder}" if folder else "")
+        self._update_library_buttons()
 
     def set_undo_state(self, can_undo: bool, can_redo: bool, undo_text: str = "", redo_text: str = "") -> None:
         self.undo_button.setEnabled(can_undo)
@@ -304,6 +346,21 @@ class TeachPanel(QWidget):
         self.status_label.setStyleSheet(theme.status_style(level) if text else "")
 
     # -- internals ---------------------------------------------------------------------------------------------------
+    def _update_library_buttons(self) -> None:
+        """Enable what can work now; a disabled button's tooltip says what it needs."""
+        has, named = self._has_keyframes, bool(self.name_edit.text().strip())
+        self.save_button.setEnabled(has and named)
+        self.save_button.setToolTip(
+            "Save the keyframes as a shape in the library (the selected keyframe is the shape's pose)" if has and named
+            else "Capture or load a pose first" if not has else "Type a name for the shape first")
+        saved = self.library_combo.count() > 0
+        self.load_button.setEnabled(saved)
+        self.library_combo.setEnabled(saved)
+        self.load_button.setToolTip("Replace the keyframe list with the chosen shape (Undo brings the list back)"
+                                    if saved else "No shape saved yet: capture poses and Save one")
+        for button in (self.mirror_button, self.scale_button, self.shift_button):
+            button.setEnabled(has)
+
     def _torque_off_selected(self) -> None:
         ids = self.sliders.selected_ids()
         if not ids:

@@ -107,6 +107,8 @@ class ForcesTab(QWidget):
         self._body_key: tuple | None = None
         self._warnings: list[str] = [""] * n_channels
         self.min_free_bytes = DEFAULT_MIN_FREE_BYTES  # a recording stops cleanly before the disk is this full
+        self.last_recording_path: Path | None = None  # Open recording… starts here: reopening is one click
+        self._overlay_sensor_chosen = False  # until the user picks one, the overlay shows the liveliest sensor
 
         self.controls = ForcesControls(self)
         self.plots = ForcePlotGrid(self.channel_names, parent=self)
@@ -204,6 +206,7 @@ class ForcesTab(QWidget):
         c.export_requested.connect(self._choose_export)
         c.live_requested.connect(self.show_live)
         self.overlay_sensor.currentIndexChanged.connect(lambda _i: self.redraw_overlay())
+        self.overlay_sensor.activated.connect(self._overlay_sensor_picked)
         self.overlay_align.currentIndexChanged.connect(lambda _i: self.redraw_overlay())
         self.overlay_clear.clicked.connect(self.clear_overlay)
         self.baseline_button.clicked.connect(self.set_rest_baseline)
@@ -404,9 +407,11 @@ class ForcesTab(QWidget):
         if session is not None and session.error:
             self.controls.set_message(session.error + f" (kept: {session.path})", "error")
         else:
-            self.controls.set_message(summary, "ok")
+            self.controls.set_message(f"{summary} · Open recording… shows it", "ok")
         if self.lab.recording is session:
             self.lab.recording = None
+        if session is not None:
+            self.last_recording_path = Path(session.path)
         self.controls.path.setText(str(default_recording_path()))
 
     # -- board status ----------------------------------------------------------------------------------------------
@@ -525,9 +530,30 @@ class ForcesTab(QWidget):
                 continue
             self.overlay_recordings.append(recording)
             added += 1
+        if added and not self._overlay_sensor_chosen:
+            self._select_liveliest_overlay_sensor()
         self.views.setCurrentIndex(1)
         self.redraw_overlay()
         return added
+
+    def _overlay_sensor_picked(self, _index: int) -> None:
+        self._overlay_sensor_chosen = True
+
+    def _select_liveliest_overlay_sensor(self) -> None:
+        """Show the sensor whose load changes most in the first overlaid recording (not S01L, often at rest or
+        flat-lined), so the overlay says something before the user picks a sensor."""
+        recording = self.overlay_recordings[0]
+        if recording.n_samples < 2:
+            return
+        values, _units = self._recording_values(recording)
+        with np.errstate(all="ignore"):
+            spread = np.nanmax(values, axis=0) - np.nanmin(values, axis=0)
+        healthy = [i for i, name in enumerate(recording.channels)
+                   if name in self.channel_names and not self._warnings[self.channel_names.index(name)]]
+        candidates = [i for i in healthy if np.isfinite(spread[i])]
+        if candidates:
+            best = max(candidates, key=lambda i: spread[i])
+            self.overlay_sensor.setCurrentText(recording.channels[best])
 
     def clear_overlay(self) -> None:
         self.overlay_recordings = []
@@ -563,7 +589,8 @@ class ForcesTab(QWidget):
             self.load_calibration(path)
 
     def _choose_recording(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open recording", str(recordings_dir()), "Recordings (*.h5)")
+        start = self.last_recording_path if self.last_recording_path is not None else recordings_dir()
+        path, _ = QFileDialog.getOpenFileName(self, "Open recording", str(start), "Recordings (*.h5)")
         if path:
             self.open_recording_file(path)
 

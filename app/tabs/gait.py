@@ -65,6 +65,8 @@ class GaitTab(QWidget):
         p.shape_selected.connect(self._preview_shape)
         self.robot.motion_changed.connect(self._motion_changed)
         self.robot.error.connect(self._robot_error)
+        self.robot.connected.connect(p.set_connected)
+        p.set_connected(self.robot.is_connected)
         self._timer = QTimer(self)
         self._timer.setInterval(REFRESH_INTERVAL_MS)
         self._timer.timeout.connect(self.refresh)
@@ -214,9 +216,24 @@ class GaitTab(QWidget):
         source = self.source
         if source is not None and hasattr(source, "progress"):
             p = source.progress
-            text = (f"{p.kind} {p.index}/{max(p.count - 1, 0)}   move {p.move_fraction * 100:3.0f}%   "
-                    f"{p.elapsed_s:6.1f} / {p.total_s:.1f} s")
-            self.panel.set_progress(text, p.fraction)
+            self.panel.set_progress(progress_text(p), p.fraction)
+
+
+def progress_text(p: Any) -> str:
+    """One line for a :class:`models.trajectory.Progress`: where the motion is, and the time left (s).
+
+    Shifts count k = 0 … K as SPEC §5 numbers them (shift 0 is the approach to the first pose); keyframes and
+    cycles count from 1, as a person counts them.
+    """
+    if p.kind == "shift":
+        where = f"shift {p.index}/{max(p.count - 1, 0)}   move {p.move_fraction * 100:3.0f}%"
+    elif p.kind == "cycle":
+        where = f"cycle {min(p.index + 1, p.count)}/{p.count}"
+    else:
+        where = f"{p.kind} {min(p.index + 1, max(p.count, 1))}/{max(p.count, 1)}"
+    left_s = max(p.total_s - p.elapsed_s, 0.0)
+    tail = "done" if p.done else f"{left_s:.1f} s left"
+    return f"{where}   {p.elapsed_s:.1f} / {p.total_s:.1f} s   {tail}"
 
 
 def create_tab(lab: LabContext) -> QWidget:
