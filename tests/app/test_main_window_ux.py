@@ -1,0 +1,85 @@
+"""The keyboard and the enabled states a lab user relies on, in the whole window on the simulated lab."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtCore import QSettings, Qt
+
+from app.lab import LabContext
+from app.main_window import SHORTCUTS_TEXT, MainWindow
+from app.robot_bridge import MOTION_PAUSED, MOTION_RUNNING
+from app.tabs.gait import progress_text
+from devices.config import SIM_PORT, load_config
+from models.trajectory import Progress
+
+CONNECT_TIMEOUT_MS = 10_000
+
+
+@pytest.fixture
+def window(qtbot, sim_lab_fast, tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))  # an empty shape library
+    config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    lab = LabContext(config)
+    win = MainWindow(lab, settings=QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitExposed(win)
+    win.activateWindow()  # shortcuts reach the active window only; offscreen, showing does not activate
+    qtbot.waitUntil(win.isActiveWindow)
+    with qtbot.waitSignal(lab.robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+        lab.robot.connect_robot()
+    assert blocker.args == [True]
+    yield win
+    win.close()
+
+
+def test_space_acts_on_the_tab_on_screen_only(window, qtbot):
+    forces = window.show_tab("forces")
+    gait = window.show_tab("gait")
+    panel = gait.panel
+    panel.set_mode("serpenoid")
+    panel.cycles_spin.setValue(50)
+    panel.play_button.click()
+    robot = window.lab.robot
+    qtbot.waitUntil(lambda: robot.motion_state == MOTION_RUNNING, timeout=CONNECT_TIMEOUT_MS)
+    with qtbot.waitSignal(robot.motion_changed, check_params_cb=lambda s: s == MOTION_PAUSED):
+        qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Space)
+    assert not forces.plots.paused  # the hidden Forces tab ignored the key
+
+    window.show_tab("forces")
+    qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Space)
+    assert forces.plots.paused and robot.motion_state == MOTION_PAUSED
+    qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Space)
+    assert not forces.plots.paused
+    robot.stop_motion()
+
+
+def test_ctrl_enter_captures_a_keyframe_in_teach(window, qtbot):
+    teach = window.show_tab("teach")
+    qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Return, Qt.KeyboardModifier.ControlModifier)
+    qtbot.waitUntil(lambda: len(teach.keyframes) == 1, timeout=CONNECT_TIMEOUT_MS)
+    assert teach.panel.save_button.toolTip().startswith("Type a name")  # next step named, not a dead button
+    assert "Ctrl+Enter" in SHORTCUTS_TEXT and "Space" in SHORTCUTS_TEXT
+
+
+def test_gait_play_follows_the_connection(window, qtbot):
+    panel = window.show_tab("gait").panel
+    panel.set_mode("serpenoid")
+    assert panel.play_button.isEnabled()
+    robot = window.lab.robot
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS):
+        robot.disconnect_robot()
+    assert not panel.play_button.isEnabled() and "Hardware tab" in panel.play_button.toolTip()
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS):
+        robot.connect_robot()
+    assert panel.play_button.isEnabled()
+
+
+@pytest.mark.parametrize(("progress", "expected"), [
+    (Progress("cycle", 0, 3, 0.8, 0.27, 4.0, 15.0), "cycle 1/3   4.0 / 15.0 s   11.0 s left"),
+    (Progress("cycle", 2, 3, 1.0, 1.0, 15.0, 15.0, done=True), "cycle 3/3   15.0 / 15.0 s   done"),
+    (Progress("keyframe", 0, 4, 0.5, 0.1, 1.0, 10.0), "keyframe 1/4   1.0 / 10.0 s   9.0 s left"),
+    (Progress("shift", 2, 7, 0.32, 0.3, 2.4, 7.0), "shift 2/6   move  32%   2.4 / 7.0 s   4.6 s left"),
+])
+def test_gait_progress_counts_like_a_person(progress, expected):
+    assert progress_text(progress) == expected

@@ -1,0 +1,154 @@
+"""What a new user meets in the passive panels: buttons enabled only when they can work (the tooltip says what is
+missing), keyboard shortcuts, labels that cannot be misread. No devices: the panels are built directly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QLineEdit
+
+from devices.config import LabConfig
+from widgets.force_plots import ForcePlotGrid
+from widgets.forces_panel import RECORD_TEXT, STOP_RECORDING_TEXT, ForcesControls
+from widgets.gait_panel import GaitPanel
+from widgets.ring_plot import TraceHistory
+from widgets.teach_panel import TeachPanel
+
+ROBOT = LabConfig().robot
+
+
+def show_active(qtbot, widget) -> None:
+    """Shortcuts reach the active window only; offscreen, a shown window is not activated by itself."""
+    widget.show()
+    qtbot.waitExposed(widget)
+    widget.activateWindow()
+    qtbot.waitUntil(widget.isActiveWindow)
+
+
+@pytest.fixture
+def teach_panel(qtbot):
+    panel = TeachPanel(ROBOT.joint_ids, ROBOT.axes, ROBOT.joint_min_rad, ROBOT.joint_max_rad)
+    qtbot.addWidget(panel)
+    return panel
+
+
+def test_teach_library_buttons_need_a_pose_a_name_and_a_saved_shape(teach_panel):
+    p = teach_panel
+    assert not p.save_button.isEnabled() and "Capture" in p.save_button.toolTip()
+    assert not p.load_button.isEnabled() and "No shape saved" in p.load_button.toolTip()
+    assert not any(b.isEnabled() for b in (p.mirror_button, p.scale_button, p.shift_button))
+
+    p.set_keyframes([("pose 1", 0.0)], 0)
+    assert not p.save_button.isEnabled() and "name" in p.save_button.toolTip()
+    assert all(b.isEnabled() for b in (p.mirror_button, p.scale_button, p.shift_button))
+    p.name_edit.setText("   ")
+    assert not p.save_button.isEnabled()  # blanks are not a name
+    p.name_edit.setText("bump")
+    assert p.save_button.isEnabled()
+
+    p.set_library(["bump"], "/tmp/shapes")
+    assert p.load_button.isEnabled() and p.library_combo.isEnabled()
+    p.set_keyframes([])
+    assert not p.save_button.isEnabled() and not p.mirror_button.isEnabled()
+
+
+def test_ctrl_enter_captures_while_the_teach_panel_is_shown(teach_panel, qtbot):
+    p = teach_panel
+    captured: list[int] = []
+    p.capture_requested.connect(lambda: captured.append(1))
+    show_active(qtbot, p)
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Return, Qt.KeyboardModifier.ControlModifier)
+    assert captured == [1]
+    qtbot.keyClick(p.sliders.spins[0], Qt.Key.Key_Enter, Qt.KeyboardModifier.ControlModifier)  # keypad Enter
+    assert captured == [1, 1]
+    p.set_connected(False)  # the button is disabled: the shortcut does nothing either
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Return, Qt.KeyboardModifier.ControlModifier)
+    assert captured == [1, 1]
+    p.hide()
+    p.set_connected(True)
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Return, Qt.KeyboardModifier.ControlModifier)
+    assert captured == [1, 1]  # a hidden tab's shortcut is inert
+
+
+def test_gait_play_says_why_it_cannot_play(qtbot):
+    panel = GaitPanel(ROBOT.axes, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    panel.set_mode("follow")
+    panel.set_shapes([])
+    assert not panel.play_button.isEnabled() and "Teach tab" in panel.play_button.toolTip()
+    panel.set_mode("serpenoid")  # a parametric gait needs no shape
+    assert panel.play_button.isEnabled()
+    panel.set_connected(False)
+    assert not panel.play_button.isEnabled() and "Hardware tab" in panel.play_button.toolTip()
+    panel.set_connected(True)
+    panel.set_mode("keyframes")
+    panel.set_shapes(["bump"])
+    assert panel.play_button.isEnabled()
+    panel.set_motion_state("running")
+    assert not panel.play_button.isEnabled()
+    panel.set_motion_state("stopped")
+    assert panel.play_button.isEnabled()
+
+
+def test_gait_defaults_are_the_labs_and_space_pauses_and_resumes(qtbot):
+    panel = GaitPanel(ROBOT.axes, max_speed_rad_s=ROBOT.max_joint_speed_rad_s, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    assert panel.speed_spin.value() == pytest.approx(0.034)  # SPEC §1: sensnake play's defaults
+    assert panel.rate_spin.value() == pytest.approx(50.0)
+    asked: list[str] = []
+    panel.pause_requested.connect(lambda: asked.append("pause"))
+    panel.resume_requested.connect(lambda: asked.append("resume"))
+    show_active(qtbot, panel)
+    qtbot.keyClick(panel, Qt.Key.Key_Space)
+    assert asked == []  # idle: nothing to pause
+    panel.set_motion_state("running")
+    qtbot.keyClick(panel.body_view, Qt.Key.Key_Space)
+    assert asked == ["pause"]
+    panel.set_motion_state("paused")
+    qtbot.keyClick(panel, Qt.Key.Key_Space)
+    assert asked == ["pause", "resume"]
+
+
+def test_forces_space_pauses_but_types_in_the_path_field(qtbot):
+    controls = ForcesControls()
+    qtbot.addWidget(controls)
+    show_active(qtbot, controls)
+    with qtbot.waitSignal(controls.pause_toggled) as blocker:
+        qtbot.keyClick(controls.window, Qt.Key.Key_Space)
+    assert blocker.args == [True] and controls.pause.text() == "Resume"
+    qtbot.keyClick(controls, Qt.Key.Key_Space)
+    assert not controls.pause.isChecked()
+    controls.path.setText("trial")
+    controls.path.setFocus()
+    qtbot.keyClick(controls.path, Qt.Key.Key_Space)
+    assert controls.path.text() == "trial " and not controls.pause.isChecked()
+    assert isinstance(controls.path, QLineEdit)
+
+
+def test_record_button_is_not_a_second_stop_and_export_says_what_it_needs(qtbot):
+    controls = ForcesControls()
+    qtbot.addWidget(controls)
+    assert not controls.export.isEnabled() and "Open a recording" in controls.export.toolTip()
+    controls.set_recording(True, "0:00:01")
+    assert controls.record.text() == STOP_RECORDING_TEXT != "■ Stop"
+    controls.set_recording(False, "not recording")
+    assert controls.record.text() == RECORD_TEXT
+    controls.set_viewing_file("trial.h5")
+    assert controls.export.isEnabled() and "CSV" in controls.export.toolTip()
+
+
+def test_small_forces_are_labelled_in_newtons_not_scaled(qtbot):
+    names = [f"S01{side}" for side in "LRB"]
+    grid = ForcePlotGrid(names)
+    qtbot.addWidget(grid)
+    grid.resize(900, 300)
+    grid.show()
+    history = TraceHistory(len(names), 256)
+    t_s = np.linspace(0.0, 2.0, 100)
+    history.append(t_s, np.column_stack([0.001 + 0.002 * np.sin(t_s)] * 3))  # mN-sized loads
+    grid.set_history(history, "N")
+    grid.refresh(force=True)
+    axis = grid.plots[0].plot_widget.getPlotItem().getAxis("left")
+    assert axis.autoSIPrefixScale == 1.0
+    assert "x0.001" not in axis.labelString() and "N" in axis.labelString()
