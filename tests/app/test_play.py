@@ -130,3 +130,30 @@ def test_play_refusals(sim_lab_fast, tmp_path, capsys):
     assert "keyframe 2" in err and "joint 1" in err and "velocity limit" in err
     assert main(["play", str(tmp_path / "missing.json"), "--robot", "sim"]) == 1
     assert "cannot read shape file" in capsys.readouterr().err
+
+
+def test_play_keyframes_stretched_by_time_scale(sim_lab_fast, tmp_path, capsys):
+    """SPEC §5 --mode keyframes: move to the first keyframe, then linear in time at t_s × --time-scale."""
+    poses = [np.zeros(12), np.zeros(12), np.zeros(12)]
+    poses[0][0], poses[1][0], poses[2][0] = 0.05, 0.15, 0.05
+    keyframes = [{"t_s": t, "angles_rad": p.tolist()} for t, p in zip((0.0, 0.2, 0.4), poses, strict=True)]
+    shape = write_shape_file(tmp_path / "kf.json", keyframes)
+    log = tmp_path / "log.csv"
+    # Without the stretch the 0.1 rad steps in 0.2 s need 0.5 rad/s; the robot's limit is 1 rad/s, so both pass.
+    code = main(["play", str(shape), "--robot", "sim", "--mode", "keyframes", "--time-scale", "2", "--speed", "0.5",
+                 "--rate", str(RATE), "--log", str(log)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "finished" in out
+    t, goal, _, _ = read_log(log)
+    tol = RAD_PER_TICK / 2 + 2e-5
+    at_peak = np.flatnonzero(np.abs(goal[:, 0] - 0.15) <= tol)
+    assert at_peak.size, "the middle keyframe was never sent"
+    first_at_start = np.flatnonzero(np.abs(goal[:, 0] - 0.05) <= tol)[0]
+    # The peak is 0.2 s × 2 after the first keyframe (± a tick of rounding on each side).
+    assert t[at_peak[0]] - t[first_at_start] == pytest.approx(0.4, abs=2.5 / RATE)
+    # and the slope on the way is the stretched one, 0.1 rad / 0.4 s.
+    rising = slice(first_at_start, at_peak[0] + 1)
+    slope = np.polyfit(t[rising], goal[rising, 0], 1)[0]
+    assert slope == pytest.approx(0.25, rel=0.1)
+    np.testing.assert_allclose(goal[-1], poses[2], atol=tol)
