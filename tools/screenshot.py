@@ -2,8 +2,12 @@
 
     QT_QPA_PLATFORM=offscreen python tools/screenshot.py [--out docs/screenshots] [--size 1280x800] [--settle-ms 1500]
 
-Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab.
-The user's saved window geometry is not touched (settings go to a temporary file).
+Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab. Each tab
+is staged the way a user would use it: Teach captures three keyframes by posing the limp simulated robot and saves
+them as a shape; Gait plays that shape follow-the-leader and is grabbed mid-motion (the motion keeps running for the
+Forces and Hardware pictures, so they show a moving robot); Forces shows the last 10 s of live forces; Hardware
+scans and checks the link. The user's saved window geometry and shape library are not touched (settings and shapes
+go to a temporary folder).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
+        os.environ["XDG_DATA_HOME"] = str(Path(tmp) / "data")  # the shape library the Teach picture saves into
         settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
         lab = LabContext(config)
@@ -60,6 +65,13 @@ def main(argv: list[str] | None = None) -> int:
         names = args.tabs or [spec.name for spec in TABS]
         for name in names:
             page = window.show_tab(name)
+            if name == "teach":
+                _stage_teach(page, pump)
+            if name == "gait":
+                _stage_gait(page, pump)
+            if name == "forces":
+                page.controls.window.setCurrentIndex(page.controls.window.findText("10 s"))
+                pump(10_000)  # the tab keeps what arrives after it opens: fill the 10 s window
             if name == "hardware":
                 page.panel.scan_id_to.setValue(20)
                 page.panel.scan_button.click()
@@ -91,6 +103,53 @@ def _pose_by_hand(config) -> None:
             chain.set_limp_position(servo_id, 2048 + angle_rad * 4096 / (2 * math.pi))
         except ValueError:
             return  # torque is on: leave the robot as it is
+
+
+DEMO_SHAPE = "conform-obstacle"
+
+
+def _demo_poses(n_joints: int) -> list[list[float]]:
+    """Three poses (rad) a person might teach: an S-curve, the head lifted over an obstacle, a C-curve."""
+    import math
+
+    s_curve = [0.35 * math.sin(2 * math.pi * j / n_joints) for j in range(n_joints)]
+    lift = [(-0.45 if j in (0, 2) else 0.2 if j == 4 else 0.0) + (0.25 if j % 2 else 0.0) for j in range(n_joints)]
+    c_curve = [0.28 if j % 2 else 0.0 for j in range(n_joints)]
+    return [s_curve, lift, c_curve]
+
+
+def _stage_teach(page, pump) -> None:
+    """Torque off, pose the limp robot three times (as dragging the drawing does), capture, rename, save."""
+    import numpy as np
+
+    panel = page.panel
+    panel.torque_off_all_button.click()
+    pump(5_000, until=lambda: all(page.limp))
+    for k, pose in enumerate(_demo_poses(len(page.limp))):
+        for joint, angle_rad in enumerate(pose):
+            page.pose_joint(joint, angle_rad)
+        pump(5_000, until=lambda pose=pose: page.robot.latest_state is not None and np.allclose(
+            page.robot.latest_state.position_rad, pose, atol=0.01))
+        panel.capture_button.click()
+        pump(5_000, until=lambda k=k: len(page.keyframes) == k + 1)
+    page.rename_keyframe(1, "lift head")
+    panel.name_edit.setText(DEMO_SHAPE)
+    panel.save_button.click()
+    panel.keyframe_table.selectRow(0)  # the dashed overlay: keyframe 1 against the present pose
+    pump(300)
+
+
+def _stage_gait(page, pump) -> None:
+    """Play the taught shape follow-the-leader at 0.1 rad/s and wait until it is well under way."""
+    panel = page.panel
+    panel.set_mode("follow")
+    index = panel.shape_combo.findText(DEMO_SHAPE)
+    if index < 0:
+        return  # the Teach picture was not taken: nothing to play
+    panel.shape_combo.setCurrentIndex(index)
+    panel.speed_spin.setValue(0.1)
+    panel.play_button.click()
+    pump(20_000, until=lambda: page.source is not None and page.source.progress.fraction > 0.3)
 
 
 def _load_demo_trials(page, folder: Path) -> None:

@@ -50,6 +50,10 @@ except ImportError:  # pragma: no cover - only while widgets/theme.py is absent
 MAX_REDRAW_HZ = 60.0
 DEFAULT_REDRAW_HZ = 30.0
 PLOT_HEIGHT_PX = 170
+# Smallest y range shown, per unit: an unloaded sensor's sub-mN wiggle drawn across a whole plot reads as a load
+# (seen in the lab walkthrough: "0.0005 N" full scale). 0.1 N is the body map's step; conductance keeps a tiny floor.
+MIN_Y_SPAN = {"N": 0.1}
+DEFAULT_MIN_Y_SPAN = 1e-3
 SCROLL_STEPS = 10_000
 BUCKETS_PER_PIXEL = 1.0  # history buckets per plot pixel (each drawn as its low and high)
 AXIS_COLOR = "#444444"
@@ -524,7 +528,8 @@ class ForcePlotGrid(QWidget):
                     column += 1
                 plot.bundle.set_traces(traces)
                 if plot.auto_y:
-                    self._fit_y(plot, window.low[:, first:column], window.high[:, first:column])
+                    self._fit_y(plot, window.low[:, first:column], window.high[:, first:column],
+                                MIN_Y_SPAN.get(self._units, DEFAULT_MIN_Y_SPAN))
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
         self._drawn_key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
@@ -534,9 +539,10 @@ class ForcePlotGrid(QWidget):
             self.redrawn.emit()
 
     @staticmethod
-    def _fit_y(plot: _SegmentPlot, low: np.ndarray, high: np.ndarray) -> None:
+    def _fit_y(plot: _SegmentPlot, low: np.ndarray, high: np.ndarray, min_span: float = 1e-3) -> None:
         """Keep the data (``low``/``high`` M×k) in view, but change the y range only when the data leaves it or
-        uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame."""
+        uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame.
+        ``min_span`` (data units) is the smallest range shown, so an unloaded sensor's noise stays a flat line."""
         if low.size == 0:
             return
         with np.errstate(all="ignore"):
@@ -545,7 +551,7 @@ class ForcePlotGrid(QWidget):
         if not (np.isfinite(lo) and np.isfinite(hi)):
             return
         # A nearly flat trace still gets a sensible range, so sensor noise does not rescale it every frame.
-        span = max(hi - lo, 1e-3, 0.05 * max(abs(lo), abs(hi)))
+        span = max(hi - lo, min_span, 0.05 * max(abs(lo), abs(hi)))
         (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
         if y0 <= lo and hi <= y1 and span >= 0.4 * (y1 - y0):
             return

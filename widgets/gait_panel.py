@@ -20,12 +20,14 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QHeaderView,
     QLabel,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QSpinBox,
     QStackedWidget,
     QTableWidget,
@@ -37,6 +39,7 @@ from PySide6.QtWidgets import (
 from widgets import theme
 from widgets.body_view import BodyView
 
+JOINT_ROW_PX = 18
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
 MODE_TITLES = {
     "follow": "Follow-the-leader (shape slides head → tail)",
@@ -104,6 +107,7 @@ class GaitPanel(QWidget):
         shape_row = QHBoxLayout()
         self.shape_combo = QComboBox()
         self.shape_combo.setMinimumContentsLength(12)
+        self.shape_combo.setPlaceholderText("none saved yet: see Teach")
         self.refresh_button = QPushButton("↻")
         self.refresh_button.setFixedWidth(30)
         self.refresh_button.setToolTip("re-read the shape library")
@@ -209,15 +213,18 @@ class GaitPanel(QWidget):
         column.addWidget(self.progress_label)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
+        self.status_label.setVisible(False)  # no blank line while there is nothing to say
         column.addWidget(self.status_label)
-        legend = QLabel(f"<span style='color:{theme.PRESENT_COLOR}'>━ present</span> &nbsp; "
-                        f"<span style='color:{theme.GOAL_COLOR}'>╌ goal</span> &nbsp; STOP: Esc")
+        legend = QLabel(f"drawing: <span style='color:{theme.PRESENT_COLOR}'>━ present</span> &nbsp; "
+                        f"<span style='color:{theme.GOAL_COLOR}'>╌ goal</span>")
+        legend.setToolTip("Solid: where the robot is. Dashed: where it is told to go (the chosen shape before "
+                          "Play). Esc is STOP from any tab.")
         column.addWidget(legend)
         self.joint_table = QTableWidget(len(axes), 3)
         self.joint_table.setHorizontalHeaderLabels(["goal (rad)", "present (rad)", "current (mA)"])
         self.joint_table.setVerticalHeaderLabels([f"J{i + 1}" for i in range(len(axes))])
         self.joint_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
-        self.joint_table.verticalHeader().setDefaultSectionSize(19)
+        self.joint_table.verticalHeader().setDefaultSectionSize(JOINT_ROW_PX)
         self.joint_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.joint_table.setSelectionMode(QAbstractItemView.SelectionMode.NoSelection)
         self.joint_table.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
@@ -227,14 +234,21 @@ class GaitPanel(QWidget):
                 item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
                 self.joint_table.setItem(r, c, item)
         header_px = self.joint_table.horizontalHeader().sizeHint().height()
-        self.joint_table.setFixedHeight(header_px + 19 * len(axes) + 4)
+        self.joint_table.setFixedHeight(header_px + JOINT_ROW_PX * len(axes) + 4)
         column.addWidget(self.joint_table)
         column.addStretch(1)
+        # The sidewinding form is the tallest: at 1280×800 the column would clip the joint table, so it scrolls.
+        scroll = QScrollArea()
+        scroll.setWidget(controls)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setMaximumWidth(controls.maximumWidth() + scroll.verticalScrollBar().sizeHint().width() + 2)
 
         self.body_view = BodyView(axes, segment_length_m)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(6, 6, 6, 6)
-        layout.addWidget(controls)
+        layout.addWidget(scroll)
         layout.addWidget(self.body_view, 1)
 
         self.mode_combo.currentIndexChanged.connect(self._mode_changed)
@@ -287,6 +301,8 @@ class GaitPanel(QWidget):
                 self.shape_combo.addItem(keep)
                 index = self.shape_combo.count() - 1
             self.shape_combo.setCurrentIndex(index)
+        elif names:
+            self.shape_combo.setCurrentIndex(0)  # with a placeholder text set, Qt would leave none chosen
         self.shape_combo.blockSignals(False)
         self._update_play()
 
@@ -321,6 +337,7 @@ class GaitPanel(QWidget):
 
     def set_status(self, text: str, level: str = theme.IDLE) -> None:
         self.status_label.setText(text)
+        self.status_label.setVisible(bool(text))
         self.status_label.setStyleSheet(theme.status_style(level) if text else "")
 
     def set_joint_readout(self, goal_rad: Sequence[float] | None, present_rad: Sequence[float] | None,

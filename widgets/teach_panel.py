@@ -97,6 +97,7 @@ class TeachPanel(QWidget):
         torque_row.addWidget(self.capture_button, 1, 1)
         pose_layout.addLayout(torque_row)
         self.torque_label = QLabel("torque: unknown")
+        self.torque_label.setWordWrap(True)  # the longest state must not be cut at the minimum window width
         pose_layout.addWidget(self.torque_label)
         pose_layout.addStretch(1)
 
@@ -193,7 +194,7 @@ class TeachPanel(QWidget):
 
         # -- drawing column --------------------------------------------------------------------------------------
         self.body_view = BodyView(axes, segment_length_m)
-        self.body_view.setMinimumWidth(380)
+        self.body_view.setMinimumWidth(300)  # at the 960 px minimum window width it is not cut off
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
         right = QWidget()

@@ -138,7 +138,7 @@ def test_record_button_is_not_a_second_stop_and_export_says_what_it_needs(qtbot)
     assert controls.export.isEnabled() and "CSV" in controls.export.toolTip()
 
 
-def test_small_forces_are_labelled_in_newtons_not_scaled(qtbot):
+def test_small_forces_are_labelled_in_newtons_and_not_blown_up(qtbot):
     names = [f"S01{side}" for side in "LRB"]
     grid = ForcePlotGrid(names)
     qtbot.addWidget(grid)
@@ -152,3 +152,6 @@ def test_small_forces_are_labelled_in_newtons_not_scaled(qtbot):
     axis = grid.plots[0].plot_widget.getPlotItem().getAxis("left")
     assert axis.autoSIPrefixScale == 1.0
     assert "x0.001" not in axis.labelString() and "N" in axis.labelString()
+    y0, y1 = grid.plots[0].viewbox.viewRange()[1]
+    assert y1 - y0 >= 0.1  # an unloaded sensor's mN wiggle is drawn as the flat line it is, not full scale
+    assert y0 <= 0.001 - 0.002 and y1 >= 0.001 + 0.002
