@@ -17,13 +17,17 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PySide6.QtCore import Qt, QTimer
+from PySide6.QtGui import QCursor
 from PySide6.QtWidgets import (
+    QApplication,
     QComboBox,
     QFileDialog,
     QHBoxLayout,
@@ -58,6 +62,16 @@ CRC_STORM_PER_S = 5.0
 BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
 BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
+
+
+@contextmanager
+def busy_cursor() -> Iterator[None]:
+    """Wait cursor around a file read or write done on the GUI thread (an hour-long recording takes seconds)."""
+    QApplication.setOverrideCursor(QCursor(Qt.CursorShape.WaitCursor))
+    try:
+        yield
+    finally:
+        QApplication.restoreOverrideCursor()
 
 
 def recordings_dir() -> Path:
@@ -467,7 +481,8 @@ class ForcesTab(QWidget):
     def open_recording_file(self, path: str | os.PathLike) -> Recording | None:
         """Show a recording in the plots (paused, whole length); None and a message if it cannot be read."""
         try:
-            recording = open_recording(path)
+            with busy_cursor():
+                recording = open_recording(path)
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"cannot open recording: {exc}", "error")
             return None
@@ -478,7 +493,8 @@ class ForcesTab(QWidget):
                 "matching config", "error")
             return None
         self.viewed = recording
-        self._show_recording(recording)
+        with busy_cursor():
+            self._show_recording(recording)
         self.controls.set_viewing_file(Path(path).name)
         gaps = len(recording.gaps)
         if gaps:
@@ -512,7 +528,8 @@ class ForcesTab(QWidget):
             self.controls.set_message("open a recording first, then export it", "warn")
             return None
         try:
-            written = export_csv(self.viewed, out)
+            with busy_cursor():
+                written = export_csv(self.viewed, out)
         except OSError as exc:
             self.controls.set_message(str(exc), "error")
             return None
@@ -524,7 +541,8 @@ class ForcesTab(QWidget):
         added = 0
         for path in paths:
             try:
-                recording = open_recording(path)
+                with busy_cursor():
+                    recording = open_recording(path)
             except (OSError, ValueError) as exc:
                 self.controls.set_message(f"cannot open {path}: {exc}", "error")
                 continue

@@ -272,7 +272,8 @@ class TeachTab(QWidget):
             return
         lo, hi = self.config.joint_min_rad[joint_index], self.config.joint_max_rad[joint_index]
         if not (math.isfinite(angle_rad) and lo <= angle_rad <= hi):
-            self._error(f"J{self.config.joint_ids[joint_index]}: angle must be within [{lo}, {hi}] rad")
+            self._error(f"J{self.config.joint_ids[joint_index]}: angle must be within [{lo:.3f}, {hi:.3f}] rad "
+                        "(the joint limits in the lab config); the keyframe is unchanged")
             self._apply(self.keyframes, row)
             return
         frames = list(self.keyframes)
