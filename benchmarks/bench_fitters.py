@@ -26,9 +26,9 @@ import numpy as np
 from models.calibration import TrialInput, calibrate_sensor, hold_segment, paper_procedure
 from models.fit_dfree import estimate_sls
 from models.fit_output import PARAM_NAMES, FitTrial, fit_output_casadi, fit_output_scipy
-from models.fit_paper import fit_paper_ls, sls_from_abc
+from models.fit_paper import fit_paper_ls
 from models.physics import PhysicsConstants, strain_from_conductance
-from models.sls import SLSParams
+from models.sls import SLSParams, sls_from_abc
 from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
 
 PHYS = PhysicsConstants()

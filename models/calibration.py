@@ -33,10 +33,10 @@ from models.fit_output import (
     fit_output_scipy,
     trial_costs,
 )
-from models.fit_paper import ExponentialFit, PaperLSResult, abc_from_sls, fit_exponential, fit_paper_ls
+from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit_paper_ls
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
-from models.sls import SLSParams
+from models.sls import SLSParams, abc_from_sls
 
 # The hold starts where the applied force first reaches this fraction of the trial's top force, and ends where it
 # falls below the second fraction.

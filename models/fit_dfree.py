@@ -22,7 +22,7 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import lsq_linear
 
-from models.fit_paper import sls_from_abc
+from models.sls import abc_from_sls, sls_from_abc
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,7 @@ def estimate_sls(trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
     tau_s = c / b
     e0 = e1 = 2.0 * b
     mu1 = e1 * tau_s
-    a, b2, c2 = mu1 / (e0 + e1), e0 * e1 / (e0 + e1), mu1 * e0 / (e0 + e1)
+    a, b2, c2 = abc_from_sls(e0, e1, mu1)
     note = ("no loading ramp in the records: E0 not identified, guessed as 2·b" if not has_ramp
             else "E0 not physical or not plausible (a ≈ 0 or E0 ≤ b); E0 guessed as 2·b from the long-run "
             "stiffness")

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from models.sls import sls_from_abc
+
 # Column-scaled condition numbers above this mean a coefficient is a near-linear combination of the others.
 RANK_CONDITION_LIMIT = 1e8
 # A coefficient whose standard error exceeds this fraction of its value is reported as not identified.
@@ -117,23 +119,6 @@ class PaperLSResult:
     condition_number: float
     rel_std_error: tuple[float, float, float]  # of (b, c, a)
     warnings: tuple[str, ...] = field(default_factory=tuple)
-
-
-def sls_from_abc(a_s: float, b_pa: float, c_pa_s: float) -> tuple[float, float, float]:
-    """Invert Eq. 6: ``E0 = c/a``, ``E1 = b·E0/(E0 − b)``, ``mu1 = a·(E0 + E1)``. NaN where not physical."""
-    if not (a_s > 0 and b_pa > 0 and c_pa_s > 0):
-        return math.nan, math.nan, math.nan
-    e0 = c_pa_s / a_s
-    if e0 <= b_pa:
-        return math.nan, math.nan, math.nan
-    e1 = b_pa * e0 / (e0 - b_pa)
-    return e0, e1, a_s * (e0 + e1)
-
-
-def abc_from_sls(e0_pa: float, e1_pa: float, mu1_pa_s: float) -> tuple[float, float, float]:
-    """Eq. 6: ``a = mu1/(E0+E1)`` (s), ``b = E0·E1/(E0+E1)`` (Pa), ``c = mu1·E0/(E0+E1)`` (Pa·s)."""
-    total = e0_pa + e1_pa
-    return mu1_pa_s / total, e0_pa * e1_pa / total, mu1_pa_s * e0_pa / total
 
 
 def fit_paper_ls(stress_pa: np.ndarray, strain: np.ndarray, strain_rate_per_s: np.ndarray,

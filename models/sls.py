@@ -87,6 +87,23 @@ def _sls_section(data: Mapping[str, object], section: str) -> dict[str, Any]:
     return {key: data[key] for key in SLS_KEYS}
 
 
+def sls_from_abc(a_s: float, b_pa: float, c_pa_s: float) -> tuple[float, float, float]:
+    """Invert Eq. 6: ``E0 = c/a``, ``E1 = b·E0/(E0 − b)``, ``mu1 = a·(E0 + E1)``. NaN where not physical."""
+    if not (a_s > 0 and b_pa > 0 and c_pa_s > 0):
+        return math.nan, math.nan, math.nan
+    e0 = c_pa_s / a_s
+    if e0 <= b_pa:
+        return math.nan, math.nan, math.nan
+    e1 = b_pa * e0 / (e0 - b_pa)
+    return e0, e1, a_s * (e0 + e1)
+
+
+def abc_from_sls(e0_pa: float, e1_pa: float, mu1_pa_s: float) -> tuple[float, float, float]:
+    """Eq. 6: ``a = mu1/(E0+E1)`` (s), ``b = E0·E1/(E0+E1)`` (Pa), ``c = mu1·E0/(E0+E1)`` (Pa·s)."""
+    total = e0_pa + e1_pa
+    return mu1_pa_s / total, e0_pa * e1_pa / total, mu1_pa_s * e0_pa / total
+
+
 @dataclass(frozen=True)
 class SLSParams:
     """SLS parameters: E0_Pa, E1_Pa (Pa), mu1_Pa_s (Pa·s); each a positive finite scalar or a (S,) per-sensor array.
@@ -141,13 +158,11 @@ class SLSParams:
             raise ValueError(
                 f"a, b, c must be positive and finite for a physical SLS, got a={a}, b={b}, c={c}"
             )
-        e0 = c / a
-        if e0 <= b:
+        if c / a <= b:
             raise ValueError(
-                f"non-physical SLS: E0 = c/a = {e0:.6g} Pa must exceed b = {b:.6g} Pa (E1 would be < 0)"
+                f"non-physical SLS: E0 = c/a = {c / a:.6g} Pa must exceed b = {b:.6g} Pa (E1 would be < 0)"
             )
-        e1 = b * e0 / (e0 - b)
-        return cls(e0, e1, a * (e0 + e1))
+        return cls(*sls_from_abc(a, b, c))
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> SLSParams:

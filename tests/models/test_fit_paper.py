@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from models.fit_paper import abc_from_sls, fit_exponential, fit_paper_ls, sls_from_abc
-from models.sls import SLSParams, strain_from_force
+from models.fit_paper import fit_exponential, fit_paper_ls
+from models.sls import SLSParams, abc_from_sls, sls_from_abc, strain_from_force
 
 AREA_M2 = 1.4e-3
 TRUTH = SLSParams(6.0e5, 9.0e5, 9.0e7)
