@@ -143,7 +143,14 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     tab.controls.live.click()
     assert tab.viewed is None and not tab.plots.paused
 
+    assert tab.last_recording_path == session.path  # Open recording… starts at the file just saved
     assert tab.add_overlay_files([session.path, session.path, tmp_path / "missing.h5"]) == 2
+    # before the user picks a sensor, the overlay shows the healthy one whose force moved most, not S01L
+    values, _units = tab._recording_values(recording)
+    spread = np.nanmax(values, axis=0) - np.nanmin(values, axis=0)
+    shown_index = recording.channels.index(tab.overlay_sensor.currentText())
+    healthy = [i for i, word in enumerate(tab._warnings) if not word]
+    assert shown_index in healthy and spread[shown_index] == max(spread[i] for i in healthy)
     tab.overlay_sensor.setCurrentText("S06B")
     assert len(tab.overlay.curves) == 2
     x0 = tab.overlay.curves[0].xData
