@@ -32,6 +32,7 @@ import dataclasses
 import logging
 import math
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -61,10 +62,25 @@ RECONNECT_INTERVAL_S = 0.5
 PERIOD_HISTORY = 4096
 TIMING_WINDOW_S = 5.0
 SUPPLY_EVERY_N_POLLS = 5  # voltage and temperature change slowly: read them on every 5th health poll
+LATE_FRACTION = 0.25  # a tick starting this fraction of a period after its slot counts as late
+GIL_SWITCH_INTERVAL_S = 0.001  # see _lower_switch_interval
+HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this long before the next deadline
+HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
 TIMING_WARN_FRACTION = 0.05
 
 MOTION_FINISHED = "finished"
 MOTION_STOPPED = "stopped"
+
+
+def _lower_switch_interval() -> None:
+    """Hand the GIL over within 1 ms instead of CPython's default 5 ms (process-wide; never raised back).
+
+    The bus thread sleeps through every reply and wakes at every deadline; each wake-up waits for the GIL while
+    another thread (the GUI, a simulated device) runs Python. With the default interval one tick can wait 5 ms at
+    each of its two or three wake-ups, a quarter of a 50 Hz period.
+    """
+    if sys.getswitchinterval() > GIL_SWITCH_INTERVAL_S:
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 
 
 class MotionSource(Protocol):
@@ -100,6 +116,7 @@ class ControllerStats:
     jitter_p99_s: float
     sync_writes: int
     failed_reads: int
+    late_ticks: int = 0  # ticks that started more than LATE_FRACTION of a period after their slot
 
 
 @dataclass
@@ -110,6 +127,7 @@ class _Motion:
     started_s: float
     paused_at_s: float | None = None
     paused_total_s: float = 0.0
+    has_written: bool = False  # this motion has sent goals (its speed limit then runs from the last of them)
 
     def t_s(self, now_s: float) -> float:
         end = self.paused_at_s if self.paused_at_s is not None else now_s
@@ -140,7 +158,6 @@ class RobotController:
         self._lock = threading.Lock()
         # Bus-thread state.
         self._motion: _Motion | None = None
-        self._last_goal: np.ndarray | None = None
         self._last_state: ChainState | None = None
         self._connected = False
         self._last_good_read_s = 0.0
@@ -149,6 +166,12 @@ class RobotController:
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._next_health_s = 0.0
         self._health_polls = 0
+        self._health_due_s = 0.0  # when the poll in progress fell due
+        self._health_pending: list[int] = []  # servos the poll in progress has still to read
+        self._health_supply = False  # the poll in progress reads voltage and temperature too
+        self._health_results: dict[int, ServoHealth] = {}
+        self._health_s_per_servo: float | None = None  # learned cost of a health read, per servo (s)
+        self._state_read_s = 0.0  # duration of the last state sync read (s)
         self._next_reconnect_s = 0.0
         self._timing_window_start_s: float | None = None
         self._timing_window_ticks = 0
@@ -158,6 +181,7 @@ class RobotController:
         self._n_periods = 0
         self._ticks = 0
         self._missed = 0
+        self._late = 0
         self._writes = 0
         self._failed_reads = 0
         self._latest_state: ChainState | None = None
@@ -224,13 +248,14 @@ class RobotController:
             n = min(self._n_periods, PERIOD_HISTORY)
             periods = self._periods[:n].copy()
             ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
+            late = self._late
         if n == 0:
             nan = math.nan
-            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed)
+            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late)
         p50, p99 = np.percentile(periods, [50, 99])
         j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
-                               writes, failed)
+                               writes, failed, late)
 
     # -- commands (any thread) -------------------------------------------------------------------------------------
     def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
@@ -272,11 +297,7 @@ class RobotController:
         return future
 
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> concurrent.futures.Future[None]:
-        def torque(chain: ServoChain) -> None:
-            chain.set_torque(enabled, ids)
-            # The next motion's speed limit starts from where the joints are, not from an old goal.
-            self._last_goal = None
-        return self.submit(torque)
+        return self.submit(lambda chain: chain.set_torque(enabled, ids))
 
     def set_led(self, servo_id: int, on: bool) -> concurrent.futures.Future[None]:
         return self.submit(lambda chain: chain.set_led(servo_id, on))
@@ -284,8 +305,8 @@ class RobotController:
     def reboot(self, servo_id: int) -> concurrent.futures.Future[None]:
         def reboot(chain: ServoChain) -> None:
             chain.reboot(servo_id)
-            self._last_goal = None
             self._next_health_s = 0.0  # re-read health now so the cleared error shows at once
+            self._health_pending = []
         return self.submit(reboot)
 
     def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future[list[ServoInfo]]:
@@ -293,14 +314,15 @@ class RobotController:
 
     # -- the bus thread ----------------------------------------------------------------------------------------------
     def _run(self) -> None:
-        deadline = time.monotonic()
+        _lower_switch_interval()
+        deadline = time.monotonic()  # the slot of the tick about to run
         last_start: float | None = None
         while not self._stop.is_set():
             start = time.monotonic()
-            self._record_period(start, last_start)
+            self._record_period(start, last_start, late=start - deadline > LATE_FRACTION * self.period_s)
             last_start = start
             try:
-                self._tick(start)
+                self._tick(start, deadline + self.period_s)
             except Exception as exc:  # noqa: BLE001 - thread boundary: a bug must not kill the bus thread silently
                 log.exception("robot controller tick failed")
                 self._stop_motion_with(exc)
@@ -308,11 +330,13 @@ class RobotController:
             deadline += self.period_s
             now = time.monotonic()
             missed = 0
-            if now > deadline:
-                missed = int((now - deadline) / self.period_s) + 1
+            if now >= deadline + self.period_s:
+                # Whole slots went by without a tick: skip them (no burst of catch-up ticks) and count them.
+                missed = int((now - deadline) / self.period_s)
                 deadline += missed * self.period_s
                 with self._lock:
                     self._missed += missed
+            # A tick that overran into the next slot runs at once, late (counted in late_ticks and the periods).
             self._watch_timing(now, missed)
             self._stop.wait(max(0.0, deadline - time.monotonic()))
 
@@ -332,14 +356,17 @@ class RobotController:
                 f"{TIMING_WINDOW_S:g} s: lower robot.control_rate_hz, or see the Hardware tab's timing checks "
                 "(Return Delay Time 0, USB latency timer 1 ms)"))
 
-    def _record_period(self, start: float, last_start: float | None) -> None:
+    def _record_period(self, start: float, last_start: float | None, late: bool) -> None:
         with self._lock:
             self._ticks += 1
+            self._late += late
             if last_start is not None:
                 self._periods[self._n_periods % PERIOD_HISTORY] = start - last_start
                 self._n_periods += 1
 
-    def _tick(self, now: float) -> None:
+    def _tick(self, now: float, next_deadline: float) -> None:
+        """One control tick; ``next_deadline`` (monotonic s) is when the next one is due: health reads use only
+        the time left before it."""
         if not self._connected:
             self._try_reconnect(now)
             if not self._connected:
@@ -356,8 +383,7 @@ class RobotController:
                 self._freeze_at_present()
             elif self._motion is not None and self._motion.paused_at_s is None:
                 self._send_motion_goal(now)
-            if now >= self._next_health_s:
-                self._poll_health(now)
+            self._health_in_slack(now, next_deadline)
         except LinkLostError as exc:
             self._link_lost(exc)
 
@@ -377,7 +403,12 @@ class RobotController:
             self._end_motion(MOTION_FINISHED)
             return
         goal = self.chain.clamp_to_limits(goal)
-        previous = self._last_goal if self._last_goal is not None else state.position_rad
+        # The speed limit runs from the goal this motion sent last. A motion's first goal starts from the present
+        # pose (read this tick), as does one after anything that moved the goals behind it (a torque toggle, a hand
+        # pose): never from another motion's last goal, or the joints would jump.
+        previous = self.chain.last_goal_rad if motion.has_written else None
+        if previous is None:
+            previous = state.position_rad
         step = self.robot.max_joint_speed_rad_s * self.period_s
         goal = previous + np.clip(goal - previous, -step, step)
         self._write(goal)
@@ -395,13 +426,17 @@ class RobotController:
     def _write(self, goal: np.ndarray) -> None:
         if self._servos_in_error:
             return  # nothing is sent while a servo reports a hardware error
-        self._last_goal = self.chain.write_goals(goal)
+        self.chain.write_goals(goal)
+        if self._motion is not None:
+            self._motion.has_written = True
         with self._lock:
             self._writes += 1
 
     def _read_feedback(self, now: float) -> None:
         try:
+            t0 = time.monotonic()
             state = self.chain.read_state(raise_on_alert=False)
+            self._state_read_s = time.monotonic() - t0
         except (NoReplyError, CorruptPacketError) as exc:
             self._consecutive_failed_reads += 1
             with self._lock:
@@ -418,8 +453,10 @@ class RobotController:
         self._last_good_read_s = time.monotonic()
         self._consecutive_failed_reads = 0
         self._stale_reported = False
-        if self._last_goal is not None:
-            state = dataclasses.replace(state, goal_rad=self._last_goal.copy())
+        # The goals the servos were tracking: whoever wrote them (a motion, STOP, a teach hold through submit).
+        last_goal = self.chain.last_goal_rad
+        if last_goal is not None:
+            state = dataclasses.replace(state, goal_rad=last_goal)
         self._last_state = state
         with self._lock:
             self._latest_state = state
@@ -429,22 +466,72 @@ class RobotController:
                 # Marking the servos blocks every write at once; the health read (reads only) names the error.
                 for sid in new:
                     self._servos_in_error[sid] = ("hardware error",)
-                self._poll_health(now, newly_alerted=new)
+                self._poll_alerted(new)
         self._emit(self._on_state, state)
 
-    def _poll_health(self, now: float, newly_alerted: Sequence[int] = ()) -> None:
-        self._next_health_s = now + self.health_period_s
-        supply = self._health_polls % SUPPLY_EVERY_N_POLLS == 0
-        self._health_polls += 1
-        try:
-            health = self.chain.read_health(supply=supply)
-        except (NoReplyError, CorruptPacketError) as exc:
-            log.debug("health poll failed: %s", exc)
+    def _health_in_slack(self, now: float, next_deadline: float) -> None:
+        """Scheduled health polling, spread over ticks: every ``health_period_s`` a poll of all servos falls due; it
+        is read in chunks of servos, each only when the learned cost of the chunk fits before ``next_deadline``
+        (minus ``HEALTH_MARGIN_S``), so a tick never carries a health read it has no time for. A poll overdue by
+        ``HEALTH_OVERDUE_S`` reads one servo per tick regardless. ``on_health`` gets the whole poll at its end."""
+        if not self._health_pending:
+            if now < self._next_health_s:
+                return
+            self._health_due_s = now
+            self._next_health_s = now + self.health_period_s
+            self._health_pending = list(self.chain.ids)
+            self._health_results = {}
+            self._health_supply = self._health_polls % SUPPLY_EVERY_N_POLLS == 0
+            self._health_polls += 1
+        # Before the first health read, a servo's state reply (similar in size) stands in for its cost.
+        per_servo_s = self._health_s_per_servo
+        if per_servo_s is None:
+            per_servo_s = (2.0 if self._health_supply else 1.0) * self._state_read_s / max(len(self.chain.ids), 1)
+        start = time.monotonic()
+        budget_s = next_deadline - start - HEALTH_MARGIN_S
+        n = int(budget_s / per_servo_s) if per_servo_s > 0 else len(self._health_pending)
+        if n < 1:
+            if start - self._health_due_s < HEALTH_OVERDUE_S:
+                return
+            n = 1
+        chunk, self._health_pending = self._health_pending[:n], self._health_pending[n:]
+        health = self._read_health(chunk, supply=self._health_supply)
+        if health is None:
+            self._health_pending = []  # a failed poll is not retried servo by servo; the next one is due soon
+            return
+        cost_s = (time.monotonic() - start) / len(chunk)
+        if self._health_supply:
+            cost_s /= 2.0  # learn the cost of a status-only read; a supply poll reads twice
+        self._health_s_per_servo = cost_s if self._health_s_per_servo is None else \
+            0.7 * self._health_s_per_servo + 0.3 * cost_s
+        for h in health:
+            self._health_results[h.servo_id] = h
+        self._check_health(health, newly_alerted=())
+        if not self._health_pending:
+            self._emit(self._on_health, [self._health_results[sid] for sid in self.chain.ids
+                                         if sid in self._health_results])
+
+    def _poll_alerted(self, newly_alerted: Sequence[int]) -> None:
+        """A status packet carried the alert bit: read every servo's health at once to name the error."""
+        health = self._read_health(list(self.chain.ids), supply=False)
+        if health is None:
             for sid in newly_alerted:
                 error = ServoHardwareError(sid, ("hardware error",))
                 self._stop_motion_with(error)
                 self._emit(self._on_error, error)
             return
+        self._check_health(health, newly_alerted)
+        self._emit(self._on_health, health)
+
+    def _read_health(self, ids: list[int], supply: bool) -> list[ServoHealth] | None:
+        try:
+            return self.chain.read_health(ids, supply=supply)
+        except (NoReplyError, CorruptPacketError) as exc:
+            log.debug("health poll failed: %s", exc)
+            return None
+
+    def _check_health(self, health: list[ServoHealth], newly_alerted: Sequence[int]) -> None:
+        """Stop the motion on a new hardware error (reported once per servo); note errors that were cleared."""
         reported = set()
         for h in health:
             if h.hardware_error:
@@ -464,14 +551,12 @@ class RobotController:
                 error = ServoHardwareError(sid, self._servos_in_error[sid])
                 self._stop_motion_with(error)
                 self._emit(self._on_error, error)
-        self._emit(self._on_health, health)
 
     def _link_lost(self, exc: LinkLostError) -> None:
         self._connected = False
         self._stop_motion_with(exc)
         self.chain.close()
-        self._last_state = None
-        self._last_goal = None
+        self._last_state = None  # (closing the chain forgot its last goals too)
         self._next_reconnect_s = time.monotonic() + RECONNECT_INTERVAL_S
         self._emit(self._on_error, exc)
         self._emit(self._on_event, f"link lost on {self.chain.port_name}; reconnecting")
@@ -508,8 +593,7 @@ class RobotController:
         if not self._connected:
             future.set_exception(LinkLostError(f"the servo bus on {self.chain.port_name} is not connected"))
             return
-        # The speed limit of a new motion starts from where the joints are (they may have been posed by hand).
-        self._last_goal = None
+        # Its first goal is speed-limited from the present pose of that tick (see _send_motion_goal).
         self._motion = _Motion(source, name, future, time.monotonic())
         self._emit(self._on_event, f"motion {name!r} started")
 

@@ -60,7 +60,12 @@ PROTOCOL_VERSION = 2.0
 PER_ID_PING_COST_S = 0.035
 BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
 REBOOT_TIMEOUT_S = 2.0
-READ_POLL_S = 0.0001
+READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
+MAX_LATE_POLL_S = 0.002  # longest sleep between polls for a reply that is late, s
+LATE_POLL_FRACTION = 0.25  # a late reply is polled every quarter of its lateness (≤ MAX_LATE_POLL_S)
+MAX_REPLY_GAP_S = 0.01  # cap on the learned per-reply delay (Return Delay Time ≤ 508 µs + adapter latency), s
+MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
+DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 60.0
 LATENCY_TIMER_DIR = Path("/sys/bus/usb-serial/devices")
 
@@ -115,12 +120,29 @@ class ServoHealth:
 
 
 class _FactoryPortHandler(PortHandler):
-    """dynamixel-sdk's PortHandler, opening its port through ``devices.factory`` (``sim``, pty or serial device)."""
+    """dynamixel-sdk's PortHandler, opening its port through ``devices.factory`` (``sim``, pty or serial device),
+    that sleeps through a reply's expected wire time instead of polling.
+
+    The SDK reads a non-blocking port in a tight loop while a reply is on the wire. Every wake-up of the bus thread
+    has to win the GIL back from the GUI thread (up to ``sys.getswitchinterval()``, 5 ms, when the GUI is busy), so
+    the number of wake-ups per transaction, not their length, decides how long a control tick takes. This handler
+    knows when its own bytes leave the wire (baud rate) and learns the time each reply adds on top of its bytes
+    (Return Delay Time plus adapter latency, ``reply_gap_s``) from what has arrived when it wakes; a sync read of 12
+    servos then costs one or two wake-ups instead of ~100 polls. The SDK's packet handling (header search, CRC,
+    timeouts) is unchanged: this only decides how long a read that came up short sleeps.
+
+    Times are ``time.monotonic()`` seconds. Owned by the thread that owns the port.
+    """
 
     def __init__(self, port_name: str, device: str, extra_timeout_ms: float = 0.0) -> None:
         super().__init__(port_name)
         self._device = device
         self._extra_timeout_ms = extra_timeout_ms
+        self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
+        self.reply_gap_s = 0.0  # learned time a reply adds before its bytes (return delay, adapter latency), s
+        self.wakeups = 0  # sleeps taken while waiting for replies (a cost figure for tests and benchmarks)
+        self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
+        self._expected_s = -math.inf  # when the awaited reply bytes should all have arrived
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -135,19 +157,77 @@ class _FactoryPortHandler(PortHandler):
             self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        self.byte_s = 10.0 / self.baudrate
+        self.reply_gap_s = 0.0  # another baud rate (or adapter): learn it again
         return True
 
     def getCFlagBaud(self, baudrate):  # noqa: N802 - dynamixel-sdk's name
         # The SDK's list lacks 4.5 Mbps; pyserial (and the simulator) accept any positive rate.
         return baudrate if baudrate > 0 else -1
 
+    def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
+        written = self.ser.write(packet)
+        self._wire_free_s = max(time.monotonic(), self._wire_free_s) + len(packet) * self.byte_s
+        # Until told otherwise (expect_replies), wait for one minimal status packet.
+        self._expected_s = self._wire_free_s + self.reply_gap_s + MIN_STATUS_BYTES * self.byte_s
+        return written
+
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
         data = self.ser.read(length)
-        if not data:
-            # The SDK polls a non-blocking port in a tight loop while a reply is on the wire; yielding the CPU for
-            # a fraction of a byte-train keeps a 50 Hz loop from burning a core (adds < 0.2 ms per transaction).
-            time.sleep(READ_POLL_S)
+        if len(data) < length:
+            self._sleep_for_bytes(length - len(data))
         return data
+
+    def expect_replies(self, n_replies: int, n_bytes: int) -> None:
+        """The instruction just written is answered by ``n_replies`` status packets of ``n_bytes`` in all."""
+        self._expected_s = self._wire_free_s + n_replies * self.reply_gap_s + n_bytes * self.byte_s
+
+    def wait_for_replies(self, n_replies: int, n_bytes: int) -> None:
+        """Sleep until ``n_bytes`` of reply have arrived or the SDK's packet timeout has passed; reads nothing.
+
+        Each wake-up that finds the replies incomplete re-learns ``reply_gap_s`` from the pace at which they have
+        arrived since the instruction left the wire, and sleeps for the rest at that pace.
+        """
+        self.expect_replies(n_replies, n_bytes)
+        reply_bytes = n_bytes / max(n_replies, 1)
+        wake_s = self._expected_s
+        while True:
+            now = time.monotonic()
+            time_left_s = self._time_left_s()
+            if time_left_s <= 0.0:
+                return
+            if now < wake_s:
+                self._sleep(min(wake_s - now, time_left_s))
+            arrived = self.ser.in_waiting
+            if arrived >= n_bytes:
+                return
+            now = time.monotonic()
+            elapsed_s = now - self._wire_free_s
+            if arrived > 0 and elapsed_s > 0.0:
+                per_reply_s = elapsed_s * reply_bytes / arrived
+                self.reply_gap_s = min(MAX_REPLY_GAP_S, max(0.0, per_reply_s - reply_bytes * self.byte_s))
+                wake_s = now + (n_bytes - arrived) / reply_bytes * per_reply_s
+            else:
+                wake_s = now + self._late_poll_s(now, n_bytes)
+
+    def _sleep_for_bytes(self, missing: int) -> None:
+        now = time.monotonic()
+        wait_s = self._expected_s - now if now < self._expected_s else self._late_poll_s(now, missing)
+        self._sleep(min(wait_s, max(READ_POLL_S, self._time_left_s())))
+
+    def _late_poll_s(self, now: float, missing: int) -> float:
+        # Past the expected time: poll at the pace of the missing bytes, backing off as the reply grows late (a
+        # silent servo then costs a few dozen wake-ups over the SDK's timeout instead of hundreds).
+        overdue_s = max(0.0, now - self._expected_s)
+        return max(READ_POLL_S, missing * self.byte_s, min(MAX_LATE_POLL_S, LATE_POLL_FRACTION * overdue_s))
+
+    def _time_left_s(self) -> float:
+        """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time())."""
+        return (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+
+    def _sleep(self, seconds: float) -> None:
+        self.wakeups += 1
+        time.sleep(max(seconds, READ_POLL_S))
 
     def closePort(self):  # noqa: N802 - dynamixel-sdk's name
         if self.ser is not None:
@@ -175,6 +255,9 @@ class _TrackingSyncRead(GroupSyncRead):
         self.errors = {}
         self.failed_id = None
         result = COMM_RX_FAIL
+        # One sleep through all the replies (see _FactoryPortHandler), then the SDK parses them from the buffer.
+        n = len(self.data_dict)
+        self.port.wait_for_replies(n, n * (MIN_STATUS_BYTES + self.data_length))
         for dxl_id in self.data_dict:
             data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
             if result != COMM_SUCCESS:
@@ -208,6 +291,7 @@ class ServoChain:
         self._goal_writer: GroupSyncWrite | None = None
         self._state_reader: _TrackingSyncRead | None = None
         self._supply_cache: dict[int, tuple[float, float]] = {}  # servo ID -> (voltage V, temperature °C)
+        self._last_goal_rad: np.ndarray | None = None
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
     @property
@@ -253,6 +337,7 @@ class ServoChain:
     def close(self) -> None:
         if self._port is not None:
             self._port.closePort()
+        self._last_goal_rad = None
         self._port = None
         self._goal_writer = None
         self._state_reader = None
@@ -346,7 +431,12 @@ class ServoChain:
 
     # -- commands --------------------------------------------------------------------------------------------------
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
-        """Torque on or off, servo by servo (each write acknowledged). Torque-on fails on a servo in error."""
+        """Torque on or off, servo by servo (each write acknowledged). Torque-on fails on a servo in error.
+
+        Forgets :attr:`last_goal_rad`: a servo turning torque on takes its present position as its goal, and a limp
+        one can be moved by hand away from the goal it was sent.
+        """
+        self._last_goal_rad = None
         for sid in self._ids_or_all(ids):
             self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
 
@@ -356,6 +446,7 @@ class ServoChain:
     def reboot(self, servo_id: int) -> None:
         """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""
         port = self._require_port()
+        self._last_goal_rad = None  # the servo comes back with torque off and its goal at its present position
         result, error = self._io(self._ph.reboot, port, servo_id)
         self._check_comm(result, servo_id, "reboot")
         deadline = time.monotonic() + REBOOT_TIMEOUT_S
@@ -394,6 +485,12 @@ class ServoChain:
         self._check_error(error, servo_id, f"writing {name} = {value}")
 
     # -- the control tick ------------------------------------------------------------------------------------------
+    @property
+    def last_goal_rad(self) -> np.ndarray | None:
+        """The goals of the last :meth:`write_goals` (rad, joint order; a copy), whoever called it; ``None`` before
+        the first and after anything that moves the servos' goals behind it (torque on/off, reboot, reopen)."""
+        return None if self._last_goal_rad is None else self._last_goal_rad.copy()
+
     def clamp_to_limits(self, angles_rad: np.ndarray) -> np.ndarray:
         angles = np.asarray(angles_rad, dtype=float)
         if angles.shape != (len(self.ids),):
@@ -414,7 +511,9 @@ class ServoChain:
         if result != COMM_SUCCESS:
             raise DeviceError(f"sync write of goal positions failed on {self.robot.port}: "
                               f"{self._ph.getTxRxResult(result)}")
-        return self.angles_from_ticks(ticks)
+        sent = self.angles_from_ticks(ticks)
+        self._last_goal_rad = sent
+        return sent.copy()
 
     def read_state(self, *, raise_on_alert: bool = True) -> ChainState:
         """ONE GroupSyncRead of present current, velocity and position of every joint.

@@ -24,6 +24,7 @@ is advanced lazily to the simulated time of each event.
 from __future__ import annotations
 
 import math
+import struct
 import threading
 from collections import Counter
 from collections.abc import Sequence
@@ -44,6 +45,17 @@ OVERLOAD_TORQUE_NM = 3.6
 OVERLOAD_AFTER_S = 1.0  # a load above OVERLOAD_TORQUE_NM held this long trips the overload shutdown
 BOOT_TIME_S = 0.05
 INTER_BYTE_TIMEOUT_S = 0.02  # a partial packet older than this is dropped, as a servo's receive timeout does
+NOISE_BATCH = 4096  # encoder/current noise is drawn this many values at a time (a numpy call per value is slow)
+
+# The items the physics reads and the present values it writes, packed straight into the table (hot path).
+_U32 = struct.Struct("<I")
+_I32 = struct.Struct("<i")
+_MOTION_PROFILE = struct.Struct("<II")  # Profile Acceleration (108), Profile Velocity (112)
+_PRESENT_STATE = struct.Struct("<hii")  # Present Current (126), Present Velocity (128), Present Position (132)
+_TICK_AND_MOVING = struct.Struct("<HB")  # Realtime Tick (120), Moving (122)
+_SUPPLY = struct.Struct("<HB")  # Present Input Voltage (144), Present Temperature (146)
+_ADDR_MOVING_THRESHOLD = 24
+_ADDR_REALTIME_TICK = 120
 
 
 @dataclass
@@ -127,6 +139,8 @@ class VirtualChain:
             raise ValueError(f"servo IDs must be distinct and within 0…{ct.MAX_ID}, got {list(ids)}")
         self._clock = clock
         self._rng = np.random.default_rng(seed)
+        self._position_noise: list[int] = []  # ticks, −1…1, drawn NOISE_BATCH at a time
+        self._current_noise: list[int] = []  # LSB, −2…2
         self._lock = threading.RLock()
         self._order = tuple(ids)  # joint order for present_positions_rad
         self._model_number = model_number
@@ -560,25 +574,30 @@ class VirtualChain:
         return 0, apply
 
     def _refresh_present(self, servo: _Servo) -> None:
-        noise_pos = int(self._rng.integers(-1, 2)) if servo.torque_on else 0
-        position = int(round(servo.position_ticks)) + noise_pos
+        table = servo.table
+        torque_on = bool(table[ct.ADDR_TORQUE_ENABLE])
+        position = int(round(servo.position_ticks)) + (self._noise(self._position_noise, 1) if torque_on else 0)
         velocity = int(round(servo.velocity_ticks_s * ct.RAD_PER_TICK / ct.RAD_S_PER_VELOCITY_LSB))
-        if servo.torque_on:
+        if torque_on:
             inertia_nm = 0.002 * servo.last_accel_ticks_s2 * ct.RAD_PER_TICK
             current_ma = (servo.load_nm + inertia_nm) / TORQUE_CONSTANT_NM_PER_A * 1000.0
-            current = int(round(current_ma / ct.CURRENT_MA_PER_LSB)) + int(self._rng.integers(-2, 3))
+            current = int(round(current_ma / ct.CURRENT_MA_PER_LSB)) + self._noise(self._current_noise, 2)
             current = max(-1193, min(1193, current))
         else:
             current = 0
-        goal = servo.get(_ITEM["Goal Position"])
-        moving = servo.torque_on and (abs(velocity) > 0 or abs(goal - position) > servo.get(_ITEM["Moving Threshold"]))
-        servo.put(_ITEM["Present Position"], position)
-        servo.put(_ITEM["Present Velocity"], velocity)
-        servo.put(_ITEM["Present Current"], current)
-        servo.put(_ITEM["Moving"], int(moving))
-        servo.put(_ITEM["Realtime Tick"], int(self._sim_time_s * 1000) % 32768)
-        servo.put(_ITEM["Present Temperature"], self._temperature_c(servo, current))
-        servo.put(_ITEM["Present Input Voltage"], int(round(self._supply_v / ct.VOLTAGE_V_PER_LSB)))
+        goal = _I32.unpack_from(table, ct.ADDR_GOAL_POSITION)[0]
+        threshold = _U32.unpack_from(table, _ADDR_MOVING_THRESHOLD)[0]
+        moving = torque_on and (velocity != 0 or abs(goal - position) > threshold)
+        _PRESENT_STATE.pack_into(table, ct.ADDR_PRESENT_CURRENT, current, velocity, position)
+        _TICK_AND_MOVING.pack_into(table, _ADDR_REALTIME_TICK, int(self._sim_time_s * 1000) % 32768, int(moving))
+        _SUPPLY.pack_into(table, ct.ADDR_PRESENT_INPUT_VOLTAGE, int(round(self._supply_v / ct.VOLTAGE_V_PER_LSB)),
+                          self._temperature_c(servo, current))
+
+    def _noise(self, buffer: list[int], amplitude: int) -> int:
+        """One uniform integer in −amplitude…amplitude from ``buffer`` (refilled from the seeded generator)."""
+        if not buffer:
+            buffer.extend(self._rng.integers(-amplitude, amplitude + 1, NOISE_BATCH).tolist())
+        return buffer.pop()
 
     def _temperature_c(self, servo: _Servo, current_lsb: int) -> int:
         return int(round(servo.ambient_c + min(abs(current_lsb) * ct.CURRENT_MA_PER_LSB / 200.0, 40.0)))
@@ -622,14 +641,8 @@ class VirtualChain:
             self._step_servo(servo, dt, steps)
 
     def _step_servo(self, servo: _Servo, dt: float, steps: int) -> None:
-        goal = float(servo.get(_ITEM["Goal Position"]))
-        limit = servo.get(_ITEM["Velocity Limit"])
-        profile = servo.get(_ITEM["Profile Velocity"])
-        v_lsb = min(profile, limit) if profile > 0 else limit
-        vmax = v_lsb * ct.RAD_S_PER_VELOCITY_LSB / ct.RAD_PER_TICK
-        acc_lsb = servo.get(_ITEM["Profile Acceleration"])
-        acc_rad = acc_lsb * ct.RAD_S2_PER_ACCELERATION_LSB if acc_lsb > 0 else MAX_ACCELERATION_RAD_S2
-        amax = min(acc_rad, MAX_ACCELERATION_RAD_S2) / ct.RAD_PER_TICK
+        table = servo.table
+        goal = float(_I32.unpack_from(table, ct.ADDR_GOAL_POSITION)[0])
         pos, vel = servo.position_ticks, servo.velocity_ticks_s
         # A load beyond the motor's strength stalls the joint; held long enough it trips the overload shutdown.
         stalled = abs(servo.load_nm) >= OVERLOAD_TORQUE_NM
@@ -637,6 +650,12 @@ class VirtualChain:
             servo.overload_time_s = 0.0
             servo.last_accel_ticks_s2 = 0.0
             return  # holding still at the goal: nothing to integrate
+        limit = _U32.unpack_from(table, ct.ADDR_VELOCITY_LIMIT)[0]
+        acc_lsb, profile = _MOTION_PROFILE.unpack_from(table, ct.ADDR_PROFILE_ACCELERATION)
+        v_lsb = min(profile, limit) if profile > 0 else limit
+        vmax = v_lsb * ct.RAD_S_PER_VELOCITY_LSB / ct.RAD_PER_TICK
+        acc_rad = acc_lsb * ct.RAD_S2_PER_ACCELERATION_LSB if acc_lsb > 0 else MAX_ACCELERATION_RAD_S2
+        amax = min(acc_rad, MAX_ACCELERATION_RAD_S2) / ct.RAD_PER_TICK
         for _ in range(steps):
             if stalled:
                 vel = 0.0
