@@ -5,9 +5,9 @@
 Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab. Each tab
 is staged the way a user would use it: Teach captures three keyframes by posing the limp simulated robot and saves
 them as a shape; Gait plays that shape follow-the-leader and is grabbed mid-motion (the motion keeps running for the
-Forces and Hardware pictures, so they show a moving robot); Forces shows the last 10 s of live forces; Hardware
-scans and checks the link. The user's saved window geometry and shape library are not touched (settings and shapes
-go to a temporary folder).
+Forces and Hardware pictures, so they show a moving robot); Forces shows the last 10 s of live forces while
+recording; Hardware scans and checks the link. The user's saved window geometry, shape library and recordings are
+not touched (settings, shapes and the recording go to a temporary folder).
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     app = QApplication.instance() or QApplication(sys.argv[:1])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory(prefix="sensnake-demo-") as tmp:
         os.environ["XDG_DATA_HOME"] = str(Path(tmp) / "data")  # the shape library the Teach picture saves into
+        os.environ["SENSNAKE_RECORDINGS_DIR"] = str(Path(tmp) / "recordings")  # the Forces picture records
         settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
         lab = LabContext(config)
@@ -71,7 +72,9 @@ def main(argv: list[str] | None = None) -> int:
                 _stage_gait(page, pump)
             if name == "forces":
                 page.controls.window.setCurrentIndex(page.controls.window.findText("10 s"))
-                pump(10_000)  # the tab keeps what arrives after it opens: fill the 10 s window
+                pump(4_000)
+                page.controls.record.click()  # recording while the robot moves: REC in the status bar
+                pump(6_000)  # the tab keeps what arrives after it opens: fill the 10 s window
             if name == "hardware":
                 page.panel.scan_id_to.setValue(20)
                 page.panel.scan_button.click()
