@@ -1,13 +1,26 @@
 """The robot's control loop: one thread owns the servo bus and ticks at ``robot.control_rate_hz``.
 
-Every tick, on a deadline schedule (sleep until the next deadline; overruns are counted as missed ticks)::
+Every tick, on a deadline schedule (one slot per period; the thread sleeps until the next slot)::
 
     ONE GroupSyncRead → on_state(ChainState)           (read first, so a fresh alert bit blocks the write)
     motion goal → joint-limit clamp → max-speed limit (max_joint_speed_rad_s × period) → ONE GroupSyncWrite
+    a chunk of the health poll, if the time left before the next slot allows it
 
-``ChainState.goal_rad`` carries the goals of the previous write, the ones the servos were tracking when read.
+Timing: a tick that overruns into the next slot is followed at once by the next, late (``late_ticks`` counts ticks
+starting more than ``LATE_FRACTION`` of a period after their slot); slots that pass entirely without a tick are
+skipped, not caught up in a burst, and counted in ``missed_ticks``. Periods (start to start) are kept for the p50/
+p99/max figures. The loop lowers the GIL switch interval to ``GIL_SWITCH_INTERVAL_S`` (see
+:func:`_lower_switch_interval`), and the port sleeps through each reply's expected wire time instead of polling
+(``devices.servo_chain``), so a tick costs two or three wake-ups of this thread.
+
+``ChainState.goal_rad`` carries the goals the servos were tracking when read: the last ones written through the
+chain (by a motion, STOP, or a command run through ``submit``), ``None`` after a torque toggle or reboot. A motion's
+first goal is speed-limited from the present pose read in that tick, never from an earlier motion's last goal, and
+so is a resumed motion's if the goals were moved behind it meanwhile (torque toggled, joints posed by hand).
 Health (hardware error, torque, LED; voltage and temperature on every 5th poll) is polled at
-``robot.status_rate_hz`` and at once when a status packet carries the alert bit. A hardware error stops the motion
+``robot.status_rate_hz``, in chunks of servos that fit the slack after the tick's sync cycle (a poll overdue by
+``HEALTH_OVERDUE_S`` reads one servo per tick regardless); ``on_health`` gets the whole poll once complete. It is
+read at once, all servos, when a status packet carries the alert bit. A hardware error stops the motion
 before anything else is sent and reports :class:`ServoHardwareError` naming the servo; nothing is written until the
 servo is rebooted. If feedback goes stale (consecutive failed reads for ``WATCHDOG_S``), the motion stops and
 ``on_error`` names the servo that stopped answering. A pulled cable reports :class:`LinkLostError` and the loop

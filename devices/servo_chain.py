@@ -64,6 +64,7 @@ READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
 MAX_LATE_POLL_S = 0.002  # longest sleep between polls for a reply that is late, s
 LATE_POLL_FRACTION = 0.25  # a late reply is polled every quarter of its lateness (≤ MAX_LATE_POLL_S)
 MAX_REPLY_GAP_S = 0.01  # cap on the learned per-reply delay (Return Delay Time ≤ 508 µs + adapter latency), s
+GAP_PROBE_EVERY = 32  # see _FactoryPortHandler.wait_for_replies
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
 DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 60.0
@@ -141,6 +142,7 @@ class _FactoryPortHandler(PortHandler):
         self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
         self.reply_gap_s = 0.0  # learned time a reply adds before its bytes (return delay, adapter latency), s
         self.wakeups = 0  # sleeps taken while waiting for replies (a cost figure for tests and benchmarks)
+        self._complete_streak = 0  # transactions in a row complete at their first wake-up
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._expected_s = -math.inf  # when the awaited reply bytes should all have arrived
 
@@ -185,12 +187,16 @@ class _FactoryPortHandler(PortHandler):
     def wait_for_replies(self, n_replies: int, n_bytes: int) -> None:
         """Sleep until ``n_bytes`` of reply have arrived or the SDK's packet timeout has passed; reads nothing.
 
-        Each wake-up that finds the replies incomplete re-learns ``reply_gap_s`` from the pace at which they have
-        arrived since the instruction left the wire, and sleeps for the rest at that pace.
+        A wake-up that finds the replies incomplete re-learns ``reply_gap_s`` from the pace at which they have
+        arrived since the instruction left the wire, and sleeps for the rest at that pace. The pace is taken before
+        the bytes are counted, so a wake-up delayed by the scheduler can only make the estimate short (corrected at
+        the next wake-up), never long. A long estimate costs no wake-up to notice, so every ``GAP_PROBE_EVERY``-th
+        transaction that completes at its first wake-up halves the estimate to probe whether the delay has shrunk.
         """
         self.expect_replies(n_replies, n_bytes)
         reply_bytes = n_bytes / max(n_replies, 1)
         wake_s = self._expected_s
+        first = True
         while True:
             now = time.monotonic()
             time_left_s = self._time_left_s()
@@ -198,10 +204,17 @@ class _FactoryPortHandler(PortHandler):
                 return
             if now < wake_s:
                 self._sleep(min(wake_s - now, time_left_s))
+            now = time.monotonic()
             arrived = self.ser.in_waiting
             if arrived >= n_bytes:
+                if first:
+                    self._complete_streak += 1
+                    if self._complete_streak >= GAP_PROBE_EVERY:
+                        self._complete_streak = 0
+                        self.reply_gap_s *= 0.5
                 return
-            now = time.monotonic()
+            first = False
+            self._complete_streak = 0
             elapsed_s = now - self._wire_free_s
             if arrived > 0 and elapsed_s > 0.0:
                 per_reply_s = elapsed_s * reply_bytes / arrived
@@ -309,6 +322,17 @@ class ServoChain:
     @property
     def is_simulated(self) -> bool:
         return is_sim(self.robot.port)
+
+    @property
+    def reply_wakeups(self) -> int:
+        """How many times the bus thread has slept waiting for replies since the port was opened (a cost figure:
+        each wake-up must win the GIL back). 0 when closed."""
+        return self._port.wakeups if self._port is not None else 0
+
+    @property
+    def reply_gap_s(self) -> float:
+        """Learned time each status packet adds before its bytes (Return Delay Time plus adapter latency), s."""
+        return self._port.reply_gap_s if self._port is not None else 0.0
 
     def open(self) -> None:
         """Open the port at the configured baud rate (raises :class:`PortOpenError`)."""
@@ -477,6 +501,8 @@ class ServoChain:
         """Write one control-table item (acknowledged); raises :class:`ServoCommandError` if the servo refuses."""
         item = ct.ITEMS_BY_NAME[name]
         port = self._require_port()
+        if item.address == ct.ADDR_RETURN_DELAY_TIME:
+            port.reply_gap_s = 0.0  # replies change pace: learn it again
         data = list(int(value).to_bytes(item.size, "little", signed=value < 0))
         result, error = self._io(self._ph.writeTxRx, port, servo_id, item.address, item.size, data)
         self._check_comm(result, servo_id, f"writing {name}")

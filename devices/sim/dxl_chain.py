@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -45,6 +45,7 @@ OVERLOAD_TORQUE_NM = 3.6
 OVERLOAD_AFTER_S = 1.0  # a load above OVERLOAD_TORQUE_NM held this long trips the overload shutdown
 BOOT_TIME_S = 0.05
 INTER_BYTE_TIMEOUT_S = 0.02  # a partial packet older than this is dropped, as a servo's receive timeout does
+SYNC_READ_LOG_SIZE = 4096
 NOISE_BATCH = 4096  # encoder/current noise is drawn this many values at a time (a numpy call per value is slow)
 
 # The items the physics reads and the present values it writes, packed straight into the table (hot path).
@@ -162,6 +163,7 @@ class VirtualChain:
         self._corrupt_any = 0
         self._supply_v = 12.0
         self.instruction_counts: Counter[int] = Counter()
+        self._sync_read_log: deque[tuple[int, int, tuple[int, ...]]] = deque(maxlen=SYNC_READ_LOG_SIZE)
         self.crc_errors_from_host = 0
 
     # -- SimEndpoint -------------------------------------------------------------------------------------------------
@@ -315,6 +317,12 @@ class VirtualChain:
     def goal_positions_ticks(self) -> np.ndarray:
         with self._lock:
             return np.array([s.get(_ITEM["Goal Position"]) for s in self._servos])
+
+    def sync_reads(self) -> list[tuple[int, int, tuple[int, ...]]]:
+        """(start address, data length, IDs asked) of the latest sync reads received (up to
+        ``SYNC_READ_LOG_SIZE``), oldest first: which items a driver polls, and how many servos at a time."""
+        with self._lock:
+            return list(self._sync_read_log)
 
     def count(self, instruction: int) -> int:
         """How many packets with this instruction code the chain has received intact (e.g. ``dxl_wire.SYNC_WRITE``)."""
@@ -471,6 +479,7 @@ class VirtualChain:
         if packet.servo_id != wire.BROADCAST_ID or len(packet.params) < 5:
             return
         address, length = _u16(packet.params, 0), _u16(packet.params, 2)
+        self._sync_read_log.append((address, length, tuple(packet.params[4:])))
         by_id = {s.servo_id: s for s in listeners}
         after = end_wall_s
         for sid in packet.params[4:]:

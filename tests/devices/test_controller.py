@@ -233,3 +233,51 @@ def test_a_failing_motion_source_is_reported_and_the_loop_goes_on(controller):
         ctl.run_motion(Broken(), "broken").result(WAIT_S)
     rec.wait_more_states(3)
     assert isinstance(rec.errors[0], ArithmeticError)
+
+
+def _pose_by_hand_through_submit(ctl, sim_chain, angle_rad: float) -> None:
+    """What TeachSession does with its default set_torque, all through submit: torque off, the joints bent by hand,
+    goals := present, torque on. The controller's own set_torque is not used."""
+    ctl.submit(lambda chain: chain.set_torque(False)).result(WAIT_S)
+    for sid, ticks in zip(ROBOT.joint_ids, ctl.chain.ticks_from_angles(np.full(12, angle_rad))):
+        sim_chain.set_limp_position(sid, float(ticks))
+
+    def hold(chain):
+        chain.write_goals(chain.read_state().position_rad)
+        chain.set_torque(True)
+
+    ctl.submit(hold).result(WAIT_S)
+
+
+def _first_goal_after(rec, n_states: int):
+    rec.wait(lambda: any(s.goal_rad is not None for s in rec.states[n_states:]), "a goal to be sent")
+    return next(s.goal_rad for s in rec.states[n_states:] if s.goal_rad is not None)
+
+
+def test_resumed_and_new_motions_start_from_the_present_pose_not_an_old_goal(controller, sim_chain):
+    ctl, rec = controller
+    step_rad = ROBOT.max_joint_speed_rad_s / ROBOT.control_rate_hz
+    far = ctl.run_motion(HoldPose(np.full(12, 0.6)), "far")
+    rec.wait(lambda: np.allclose(rec.states[-1].position_rad, 0.6, atol=0.02), "the joints to reach 0.6 rad")
+    ctl.pause()
+    rec.wait(lambda: any("paused" in e for e in rec.events), "pause")
+    _pose_by_hand_through_submit(ctl, sim_chain, -0.4)
+    rec.wait_more_states(2)
+    # The reported goal is no longer the motion's 0.6 rad: the servos took their present pose as goal at torque-on.
+    assert rec.states[-1].goal_rad is None or np.allclose(rec.states[-1].goal_rad, -0.4, atol=0.01)
+
+    n_states = len(rec.states)
+    ctl.resume()
+    first = _first_goal_after(rec, n_states)
+    assert np.all(first >= -0.4 - 0.01) and np.all(first <= -0.4 + step_rad + 0.01)  # no jump back to 0.6
+    ctl.stop_motion()
+    assert far.result(WAIT_S) == "stopped"
+
+    _pose_by_hand_through_submit(ctl, sim_chain, 0.3)
+    rec.wait_more_states(2)
+    n_states = len(rec.states)
+    again = ctl.run_motion(HoldPose(np.full(12, -0.6)), "again")
+    first = _first_goal_after(rec, n_states)
+    assert np.all(first <= 0.3 + 0.01) and np.all(first >= 0.3 - step_rad - 0.01)  # from 0.3, not from -0.4
+    ctl.stop_motion()
+    assert again.result(WAIT_S) == "stopped"

@@ -1,0 +1,110 @@
+"""RobotController timing policy: late ticks versus skipped slots, and health reads confined to the slack."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+
+import pytest
+
+from devices import control_table as ct
+from devices import controller as controller_module
+from devices import factory
+from devices.config import RobotConfig
+from devices.controller import RobotController
+from devices.servo_chain import ServoChain
+from devices.sim.clock import SimClock
+from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+WAIT_S = 10.0
+
+
+class States:
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.count = 0
+        self.health: list[list] = []
+
+    def on_state(self, _state) -> None:
+        with self.cond:
+            self.count += 1
+            self.cond.notify_all()
+
+    def on_health(self, health) -> None:
+        with self.cond:
+            self.health.append(health)
+            self.cond.notify_all()
+
+    def wait(self, predicate, what: str) -> None:
+        with self.cond:
+            assert self.cond.wait_for(predicate, WAIT_S), f"timed out waiting for {what}"
+
+    def wait_more(self, n: int) -> None:
+        target = self.count + n
+        self.wait(lambda: self.count >= target, f"{n} more states")
+
+
+def _run_controller(robot: RobotConfig, clock_speed: float, return_delay_time: int):
+    chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=SimClock(clock_speed), seed=9,
+                         return_delay_time=return_delay_time)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    rec = States()
+    ctl = RobotController(ServoChain(robot), robot, on_state=rec.on_state, on_health=rec.on_health)
+    ctl.start()
+    return ctl, rec, chain, previous
+
+
+def test_an_overrun_runs_the_next_tick_late_and_only_whole_slots_count_as_missed():
+    robot = dataclasses.replace(RobotConfig(), control_rate_hz=5.0)  # 200 ms slots: scheduler noise cannot blur
+    ctl, rec, _, previous = _run_controller(robot, 20.0, 0)
+    try:
+        rec.wait_more(2)
+        before = ctl.stats()
+        # A bus command holding the thread (a stand-in for a slow transaction) through 1.25 slots: the next tick
+        # runs at once, late; no slot passed without a tick.
+        ctl.submit(lambda chain: threading.Event().wait(0.25)).result(WAIT_S)
+        rec.wait_more(2)
+        after_overrun = ctl.stats()
+        assert after_overrun.missed_ticks == before.missed_ticks
+        assert after_overrun.late_ticks >= before.late_ticks + 1
+        # Through 2.5 slots: one slot went by entirely and is counted; the next is not caught up twice.
+        ctl.submit(lambda chain: threading.Event().wait(0.5)).result(WAIT_S)
+        rec.wait_more(2)
+        after_stall = ctl.stats()
+        assert after_stall.missed_ticks >= after_overrun.missed_ticks + 1
+        assert after_stall.late_ticks >= after_overrun.late_ticks + 1
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+
+
+def test_health_is_read_one_servo_per_tick_when_the_sync_cycle_leaves_no_slack(monkeypatch):
+    monkeypatch.setattr(controller_module, "HEALTH_OVERDUE_S", 0.05)
+    # Real-time wire with the factory 500 µs Return Delay Time: the state sync read alone takes ~9.5 ms of each
+    # 10 ms tick, so no health read ever fits before the next deadline; an overdue poll reads one servo per tick.
+    robot = dataclasses.replace(RobotConfig(), control_rate_hz=100.0, status_rate_hz=5.0)
+    ctl, rec, chain, previous = _run_controller(robot, 1.0, 250)
+    try:
+        rec.wait(lambda: len(rec.health) >= 1, "a complete health poll")
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+    assert [h.servo_id for h in rec.health[0]] == list(robot.joint_ids)
+    assert rec.health[0][0].voltage_v == pytest.approx(12.0)  # the first poll reads the supply too
+    health_reads = [ids for address, _, ids in chain.sync_reads()
+                    if address in (ct.HEALTH_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_ADDRESS)]
+    assert len(health_reads) >= 2 * len(robot.joint_ids)
+    assert all(len(ids) == 1 for ids in health_reads)
+
+
+def test_health_is_read_in_one_go_when_the_tick_has_time_for_it():
+    robot = dataclasses.replace(RobotConfig(), control_rate_hz=50.0, status_rate_hz=10.0)
+    ctl, rec, chain, previous = _run_controller(robot, 20.0, 0)  # a fast wire: the sync cycle is ~0.3 ms
+    try:
+        rec.wait(lambda: len(rec.health) >= 3, "three health polls")
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+    assert all([h.servo_id for h in health] == list(robot.joint_ids) for health in rec.health)
+    status_reads = [ids for address, _, ids in chain.sync_reads() if address == ct.HEALTH_BLOCK_ADDRESS]
+    assert any(len(ids) == len(robot.joint_ids) for ids in status_reads)

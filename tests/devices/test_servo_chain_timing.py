@@ -1,0 +1,71 @@
+"""How ServoChain waits for replies: it sleeps through their expected wire time instead of polling the port.
+
+Every wake-up of the bus thread has to win the GIL back from the GUI thread, so the number of sleeps per transaction
+is the cost that matters; these tests count them (``ServoChain.reply_wakeups``). The simulated chain runs at real
+speed here, with the factory Return Delay Time (500 µs per reply), so the wire timings are the real ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from devices import factory
+from devices.config import RobotConfig
+from devices.errors import NoReplyError
+from devices.servo_chain import ServoChain
+from devices.sim.clock import SimClock
+from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+ROBOT = RobotConfig()
+FACTORY_RETURN_DELAY = 250  # × 2 µs
+
+
+@pytest.fixture
+def servos():
+    chain = VirtualChain(ids=ROBOT.joint_ids, baud=ROBOT.baud, clock=SimClock(1.0), seed=7,
+                         return_delay_time=FACTORY_RETURN_DELAY)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    try:
+        with ServoChain(ROBOT) as servo_chain:
+            yield servo_chain, chain
+    finally:
+        factory.install_sim_lab(previous)
+
+
+def test_a_sync_read_costs_one_or_two_wakeups_once_the_reply_delay_is_learned(servos):
+    chain, sim = servos
+    for _ in range(3):
+        chain.read_state()  # the first reads learn the per-reply delay
+    # 500 µs Return Delay Time; a wake-up the scheduler delays can only make the estimate short (re-learned next read)
+    assert 0.0001 <= chain.reply_gap_s <= 0.001
+    before = chain.reply_wakeups
+    n_reads = 10
+    for _ in range(n_reads):
+        state = chain.read_state()
+    # Polling the port (the SDK's way) takes ~100 sleeps per 12-servo sync read at 1 Mbps.
+    assert chain.reply_wakeups - before <= 2 * n_reads
+    assert np.allclose(state.position_rad, sim.present_positions_rad(), atol=0.01)
+
+
+def test_single_replies_and_health_reads_wait_without_polling(servos):
+    chain, _ = servos
+    chain.read_state()
+    before = chain.reply_wakeups
+    assert chain.read_item(5, "Return Delay Time") == FACTORY_RETURN_DELAY
+    health = chain.read_health()  # two sync reads (status, supply)
+    assert [h.servo_id for h in health] == list(ROBOT.joint_ids) and health[0].voltage_v == pytest.approx(12.0)
+    assert chain.reply_wakeups - before <= 8
+
+
+def test_a_silent_servo_still_times_out_by_name_with_few_wakeups(servos):
+    chain, sim = servos
+    chain.read_state()
+    sim.set_no_reply(9)
+    before = chain.reply_wakeups
+    with pytest.raises(NoReplyError, match="servo 9"):
+        chain.read_state()
+    # The SDK's ~36 ms timeout, polled at a pace that backs off as the reply grows late (100 µs polls: ~300 sleeps).
+    assert chain.reply_wakeups - before <= 60
+    sim.set_no_reply(9, False)
+    assert chain.read_state().position_rad.shape == (12,)
