@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--window", nargs=2, type=float, default=(225.0, 300.0), metavar=("START", "END"),
                      help="time window in s for the linear model's mean conductance (default 225 300)")
     fit.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
+    fit.add_argument("--config", metavar="FILE",
+                     help="lab config whose readout circuit (board.r_c_ohm) sets the saturation level not to fit")
 
     estimate = sub.add_parser("estimate", help="conductance → force for every sensor column")
     estimate.add_argument("input", metavar="IN.csv")

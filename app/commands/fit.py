@@ -1,8 +1,10 @@
-"""``sensnake fit TRIAL.csv... --sensor NAME --area M2 [--physics FILE.json] [--window 225 300] --out CAL.json``.
+"""``sensnake fit TRIAL.csv... --sensor NAME --area M2 [--physics FILE.json] [--window 225 300] --out CAL.json
+[--config FILE]``.
 
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
-calibration file (created, or updated with other sensors kept) and prints a per-trial table. Runs on the CLI's main
-thread. ``SENSNAKE_FIT_SOLVER=gauss-newton|ipopt|sqpmethod`` switches the joint fits to CasADi (default scipy).
+calibration file (created, or updated with other sensors kept) and prints a per-trial table. Samples at the readout's
+ceiling ``1/R_C`` (``board.r_c_ohm`` of ``--config``, else the default circuit) are saturated and not fitted. Runs
+on the CLI's main thread. ``SENSNAKE_FIT_SOLVER=gauss-newton|ipopt|sqpmethod`` switches the joint fits to CasADi (default scipy).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import sys
 from pathlib import Path
 
 from app import calfiles
-from devices.config import BoardConfig
+from devices.config import BoardConfig, load_config
 from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
 
@@ -115,7 +117,9 @@ def run(args: argparse.Namespace) -> int:
         trial = calfiles.read_trial_csv(path)
         trials.append(TrialInput(Path(path).name, trial.time_s, trial.force_n, trial.conductance_s))
     physics = _physics(args)
-    saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4: counts = 0)
+    # The readout's ceiling (SPEC §4: counts = 0 reads 1/R_C): such samples are censored, not fitted.
+    board = load_config(args.config).board if getattr(args, "config", None) else BoardConfig()
+    saturation_s = 1.0 / board.r_c_ohm
     solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
     if solver not in SOLVERS:
         raise ValueError(f"SENSNAKE_FIT_SOLVER={solver!r} is not one of {', '.join(SOLVERS)}")

@@ -78,6 +78,27 @@ def test_fit_writes_every_spec_key(lab):
         assert isinstance(trial["warnings"], list)
 
 
+def test_fit_takes_the_saturation_level_from_the_configured_readout(lab, tmp_path, capsys):
+    """SPEC §4: R_C is configurable, and samples at the readout's ceiling 1/R_C are flagged, not fitted."""
+    folder, paths = lab
+    trial = calfiles.read_trial_csv(paths[1])
+    conductance = trial.conductance_s.copy()
+    hold = np.flatnonzero(trial.force_n > 0)
+    conductance[hold[100:103]] = 1.0 / 900.0  # three samples at the default circuit's ceiling
+    calfiles.write_trial_csv(tmp_path / "t.csv", trial.time_s, trial.force_n, conductance)
+    physics = ["--physics", str(folder / "cal.json")]
+    config = tmp_path / "lab.toml"
+    config.write_text("[board]\nr_c_ohm = 450.0\n")
+    saturated = {}
+    for name, extra in (("default", []), ("configured", ["--config", str(config)])):
+        out = tmp_path / f"{name}.json"
+        code, _, err = _run(["fit", str(tmp_path / "t.csv"), "--sensor", "S06B", "--area", AREA, *physics,
+                             "--out", str(out), *extra], capsys)
+        assert code == 0, err
+        saturated[name] = json.loads(out.read_text())["sensors"]["S06B"]["trials"][0]["saturated_samples"]
+    assert saturated == {"default": 3, "configured": 0}
+
+
 def test_fit_without_physics_uses_the_papers_constants_and_says_so(lab, tmp_path, capsys):
     _, paths = lab
     out = tmp_path / "new.json"
