@@ -66,7 +66,8 @@ class StateLog:
         self._pending: list[Any] = []
         self._times: list[float] = []
         self._writer = csv.writer(out) if out is not None else None
-        self.t0_s: float | None = None
+        self.t0_s: float | None = None  # time.monotonic() when the motion started; states before it are skipped
+        self.missed_ticks_before = 0  # the controller's missed ticks before the motion (start-up, torque on)
         if self._writer is not None:
             header = ["time_s"] + [f"goal_rad_{i}" for i in range(1, n_joints + 1)] + \
                 [f"present_rad_{i}" for i in range(1, n_joints + 1)] + \
@@ -110,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             outcome = _play(controller, source, state_log, args, shape)
         finally:
-            missed_ticks = controller.stats().missed_ticks
+            missed_ticks = controller.stats().missed_ticks - state_log.missed_ticks_before
             controller.close()
             state_log.drain()
     finally:
@@ -132,6 +133,7 @@ def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: arg
     name = f"{args.mode} {shape.name or Path(args.shape).stem}"
     # Servos power up limp: torque on where they are (goals = present first, so nothing jumps) before moving.
     TeachSession(controller.submit, controller.robot, controller.set_torque).hold().result(timeout=BUS_TIMEOUT_S)
+    state_log.missed_ticks_before = controller.stats().missed_ticks
     state_log.t0_s = time.monotonic()
     future = controller.run_motion(source, name)
     print(f"playing {name} at {args.speed:g} rad/s, {args.rate:g} Hz")
