@@ -54,6 +54,7 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
+from devices import control_table as ct
 from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
@@ -183,8 +184,7 @@ class RobotController:
         self._health_pending: list[int] = []  # servos the poll in progress has still to read
         self._health_supply = False  # the poll in progress reads voltage and temperature too
         self._health_results: dict[int, ServoHealth] = {}
-        self._health_s_per_servo: float | None = None  # learned cost of a health read, per servo (s)
-        self._state_read_s = 0.0  # duration of the last state sync read (s)
+        self._health_overhead_s = 0.0  # learned time a health sync read takes beyond its bus time (s)
         self._next_reconnect_s = 0.0
         self._timing_window_start_s: float | None = None
         self._timing_window_ticks = 0
@@ -447,9 +447,7 @@ class RobotController:
 
     def _read_feedback(self, now: float) -> None:
         try:
-            t0 = time.monotonic()
             state = self.chain.read_state(raise_on_alert=False)
-            self._state_read_s = time.monotonic() - t0
         except (NoReplyError, CorruptPacketError) as exc:
             self._consecutive_failed_reads += 1
             with self._lock:
@@ -484,7 +482,8 @@ class RobotController:
 
     def _health_in_slack(self, now: float, next_deadline: float) -> None:
         """Scheduled health polling, spread over ticks: every ``health_period_s`` a poll of all servos falls due; it
-        is read in chunks of servos, each only when the learned cost of the chunk fits before ``next_deadline``
+        is read in chunks of servos, each only when the chunk's expected time (bus time from the learned reply delay, plus
+        a learned overhead per read) fits before ``next_deadline``
         (minus ``HEALTH_MARGIN_S``), so a tick never carries a health read it has no time for. A poll overdue by
         ``HEALTH_OVERDUE_S`` reads one servo per tick regardless. ``on_health`` gets the whole poll at its end."""
         if not self._health_pending:
@@ -496,13 +495,11 @@ class RobotController:
             self._health_results = {}
             self._health_supply = self._health_polls % SUPPLY_EVERY_N_POLLS == 0
             self._health_polls += 1
-        # Before the first health read, a servo's state reply (similar in size) stands in for its cost.
-        per_servo_s = self._health_s_per_servo
-        if per_servo_s is None:
-            per_servo_s = (2.0 if self._health_supply else 1.0) * self._state_read_s / max(len(self.chain.ids), 1)
         start = time.monotonic()
         budget_s = next_deadline - start - HEALTH_MARGIN_S
-        n = int(budget_s / per_servo_s) if per_servo_s > 0 else len(self._health_pending)
+        n = len(self._health_pending)
+        while n > 0 and self._health_read_estimate_s(n) > budget_s:
+            n -= 1
         if n < 1:
             if start - self._health_due_s < HEALTH_OVERDUE_S:
                 return
@@ -512,17 +509,23 @@ class RobotController:
         if health is None:
             self._health_pending = []  # a failed poll is not retried servo by servo; the next one is due soon
             return
-        cost_s = (time.monotonic() - start) / len(chunk)
-        if self._health_supply:
-            cost_s /= 2.0  # learn the cost of a status-only read; a supply poll reads twice
-        self._health_s_per_servo = cost_s if self._health_s_per_servo is None else \
-            0.7 * self._health_s_per_servo + 0.3 * cost_s
+        # What the bus time does not explain is this machine's cost of a read (wake-ups, GIL, Python): learn it.
+        overhead_s = max(0.0, time.monotonic() - start - self._health_read_estimate_s(n, with_overhead=False))
+        overhead_s /= 2 if self._health_supply else 1  # per sync read
+        self._health_overhead_s = 0.7 * self._health_overhead_s + 0.3 * overhead_s
         for h in health:
             self._health_results[h.servo_id] = h
         self._check_health(health, newly_alerted=())
         if not self._health_pending:
             self._emit(self._on_health, [self._health_results[sid] for sid in self.chain.ids
                                          if sid in self._health_results])
+
+    def _health_read_estimate_s(self, n_servos: int, with_overhead: bool = True) -> float:
+        """Expected duration (s) of a health read of ``n_servos`` in the poll in progress."""
+        bus_s = self.chain.sync_read_time_s(n_servos, ct.HEALTH_BLOCK_SIZE)
+        if self._health_supply:
+            bus_s += self.chain.sync_read_time_s(n_servos, ct.SUPPLY_BLOCK_SIZE)
+        return bus_s + (self._health_overhead_s * (2 if self._health_supply else 1) if with_overhead else 0.0)
 
     def _poll_alerted(self, newly_alerted: Sequence[int]) -> None:
         """A status packet carried the alert bit: read every servo's health at once to name the error."""

@@ -334,6 +334,13 @@ class ServoChain:
         """Learned time each status packet adds before its bytes (Return Delay Time plus adapter latency), s."""
         return self._port.reply_gap_s if self._port is not None else 0.0
 
+    def sync_read_time_s(self, n_servos: int, data_length: int) -> float:
+        """Expected bus time (s) of a sync read of ``data_length`` bytes from ``n_servos``: the instruction, then
+        each reply's learned delay and bytes. This machine's wake-up latency comes on top."""
+        byte_s = 10.0 / self._baud
+        instruction_bytes = 14 + n_servos
+        return (instruction_bytes + n_servos * (MIN_STATUS_BYTES + data_length)) * byte_s + n_servos * self.reply_gap_s
+
     def open(self) -> None:
         """Open the port at the configured baud rate (raises :class:`PortOpenError`)."""
         if self.is_open:
