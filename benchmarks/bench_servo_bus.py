@@ -1,14 +1,20 @@
 """Servo bus timing on the simulated 12-servo chain at 1 Mbps (real-time simulated clock).
 
 (a) one sync write + sync read cycle (ServoChain on dynamixel-sdk), with the factory Return Delay Time (500 µs)
-    and with it set to 0;
-(b) a 50 Hz RobotController loop's tick period over 60 s (10 s with --quick): p50/p99/max, missed ticks;
-(c) the control loop at 50, 100 and 200 Hz holding a pose: period p50/p99 and missed ticks.
+    and with it set to 0: wall time, bus-thread CPU time and wake-ups (sleeps waiting for replies) per cycle;
+(b) a 50 Hz RobotController loop's tick period over 60 s (10 s with --quick): p50/p99/max, missed and late ticks;
+(c) the control loop at 50, 100 and 200 Hz holding a pose;
+(d) the same loop inside the running app (``MainWindow`` offscreen on the simulated lab, the factory 500 µs Return
+    Delay Time, a wave motion playing, the Gait tab then the Hardware tab shown) at 50, 100 and 200 Hz.
 
     python -m benchmarks.bench_servo_bus [--quick]
 
-The virtual chain charges real wire time (10 bits per byte, return delay per reply), so these figures are what the
-protocol costs plus this machine's scheduling; a U2D2 adds its USB latency (set latency_timer to 1 ms).
+Columns: ``missed`` are tick slots that passed without a tick (skipped, never caught up in a burst); ``late`` are
+ticks that started more than a quarter period after their slot (an overrunning tick is followed at once by the next,
+late). Periods are start to start. The virtual chain charges real wire time (10 bits per byte, return delay per
+reply), so these figures are what the protocol costs plus this machine's scheduling; the machine's load average is
+printed first because a shared machine's other work shows up in p99/max. A U2D2 adds its USB latency (set
+latency_timer to 1 ms).
 """
 
 from __future__ import annotations
@@ -23,11 +29,13 @@ import numpy as np
 
 from devices import dxl_wire as wire
 from devices import factory
-from devices.config import RobotConfig
+from devices.config import SIM_PORT, RobotConfig
 from devices.controller import HoldPose, RobotController
 from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+RATES_HZ = (50.0, 100.0, 200.0)
 
 
 def _install_chain(return_delay_time: int, robot: RobotConfig) -> tuple[VirtualChain, object]:
@@ -39,24 +47,29 @@ def _install_chain(return_delay_time: int, robot: RobotConfig) -> tuple[VirtualC
 def bench_cycle(n_cycles: int) -> None:
     robot = RobotConfig()
     print(f"(a) one 12-servo sync write + sync read cycle at {robot.baud} bps ({n_cycles} cycles)")
-    print(f"    {'return delay':>14} {'mean ms':>9} {'p50 ms':>9} {'p99 ms':>9} {'max ms':>9}")
+    print(f"    {'return delay':>14} {'mean ms':>9} {'p50 ms':>9} {'p99 ms':>9} {'max ms':>9} {'CPU ms':>8} "
+          f"{'wake-ups':>9}")
     for delay in (250, 0):
         chain, previous = _install_chain(delay, robot)
         try:
             with ServoChain(robot) as servos:
                 servos.set_torque(True)
                 goal = np.zeros(robot.n_joints)
+                servos.read_state()  # learn the reply delay
                 times = np.empty(n_cycles)
+                wakeups0, cpu0 = servos.reply_wakeups, time.thread_time()
                 for i in range(n_cycles):
                     t0 = time.perf_counter()
                     servos.write_goals(goal)
                     servos.read_state()
                     times[i] = time.perf_counter() - t0
+                cpu_ms = (time.thread_time() - cpu0) / n_cycles * 1e3
+                wakeups = (servos.reply_wakeups - wakeups0) / n_cycles
         finally:
             factory.install_sim_lab(previous)
         ms = times * 1e3
         print(f"    {delay * 2:>11} µs {ms.mean():9.2f} {np.percentile(ms, 50):9.2f} {np.percentile(ms, 99):9.2f} "
-              f"{ms.max():9.2f}")
+              f"{ms.max():9.2f} {cpu_ms:8.2f} {wakeups:9.2f}")
 
 
 def _run_loop(rate_hz: float, seconds: float) -> tuple[dict, int]:
@@ -89,19 +102,87 @@ def bench_jitter(seconds: float) -> None:
 def bench_rates(seconds: float) -> None:
     print(f"(c) control loop at several rates, {seconds:g} s each (return delay 0)")
     _print_stats_header()
-    for rate in (50.0, 100.0, 200.0):
+    for rate in RATES_HZ:
         stats, writes = _run_loop(rate, seconds)
         _print_stats(rate, stats, writes)
 
 
+class _Wave:
+    """Every joint follows a travelling sine wave (0.4 rad, 0.3 Hz): goals change every tick."""
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray:
+        return 0.4 * np.sin(2 * np.pi * 0.3 * t_s + 0.6 * np.arange(present_rad.size))
+
+
+def bench_gui(seconds: float) -> None:
+    """The loop inside the running app: GUI thread, board reader and the simulated devices share the interpreter."""
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+    from PySide6.QtCore import QEventLoop, QTimer
+    from PySide6.QtWidgets import QApplication
+
+    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
+    from app.lab import LabContext
+    from app.main_window import MainWindow
+    from devices.config import load_config
+    from devices.sim.lab import SimLab
+
+    print(f"(d) control loop in the running app (offscreen, sim lab, return delay 500 µs, wave motion), "
+          f"{seconds:g} s per tab")
+    print(f"    {'rate Hz':>8} {'tab':>9} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} {'p99':>7} "
+          f"{'max':>7} {'CPU %':>6}   (ms; CPU: the whole process, % of one core)")
+    app = QApplication.instance() or QApplication([])
+    loop = QEventLoop()
+
+    def spin(seconds_: float, until=lambda: False) -> None:
+        end = time.monotonic() + seconds_
+        while time.monotonic() < end and not until():
+            QTimer.singleShot(20, loop.quit)
+            loop.exec()
+
+    base = load_config(None).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    for rate in RATES_HZ:
+        config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
+        previous = factory.install_sim_lab(SimLab(config))
+        lab = LabContext(config)
+        window = MainWindow(lab)
+        try:
+            window.show()
+            lab.connect_all()
+            spin(10.0, lambda robot=lab.robot: robot.is_connected)
+            if not lab.robot.is_connected:
+                print(f"    {rate:8.0f}  the robot did not connect within 10 s")
+                continue
+            lab.robot.set_torque(True)
+            spin(0.3)
+            lab.robot.run_motion(_Wave(), "bench wave")
+            for tab in ("gait", "hardware"):
+                window.show_tab(tab)
+                spin(0.5)
+                s0 = lab.robot.loop_stats()
+                t0, cpu0 = time.monotonic(), time.process_time()
+                spin(seconds)
+                s1 = lab.robot.loop_stats()
+                cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
+                # Period percentiles cover the controller's recent history (up to 4096 ticks), mostly this window.
+                print(f"    {rate:8.0f} {tab:>9} {s1.ticks - s0.ticks:7d} {s1.missed_ticks - s0.missed_ticks:7d} "
+                      f"{s1.late_ticks - s0.late_ticks:6d} {s1.period_p50_s * 1e3:11.2f} "
+                      f"{s1.period_p99_s * 1e3:7.2f} {s1.period_max_s * 1e3:7.2f} {cpu:6.0f}")
+        finally:
+            window.close()
+            lab.close()
+            factory.install_sim_lab(previous)
+    del app
+
+
 def _print_stats_header() -> None:
-    print(f"    {'rate Hz':>8} {'ticks':>7} {'missed':>7} {'period p50':>11} {'p99':>7} {'max':>7} "
+    print(f"    {'rate Hz':>8} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} {'p99':>7} {'max':>7} "
           f"{'jitter p50':>11} {'p99':>7} {'writes':>7}   (ms)")
 
 
 def _print_stats(rate: float, s: dict, writes: int) -> None:
     ms = {k: v * 1e3 for k, v in s.items() if k.endswith("_s")}
-    print(f"    {rate:8.0f} {s['ticks']:7d} {s['missed_ticks']:7d} {ms['period_p50_s']:11.2f} "
+    print(f"    {rate:8.0f} {s['ticks']:7d} {s['missed_ticks']:7d} {s['late_ticks']:6d} {ms['period_p50_s']:11.2f} "
           f"{ms['period_p99_s']:7.2f} {ms['period_max_s']:7.2f} {ms['jitter_p50_s']:11.3f} "
           f"{ms['jitter_p99_s']:7.2f} {writes:7d}")
 
@@ -111,6 +192,8 @@ def run(quick: bool) -> None:
     bench_cycle(100 if quick else 500)
     bench_jitter(10.0 if quick else 60.0)
     bench_rates(3.0 if quick else 10.0)
+    bench_gui(4.0 if quick else 15.0)
+    print(f"machine load average (1 min) at the end: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
