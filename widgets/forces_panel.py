@@ -109,6 +109,9 @@ class ForcesControls(QWidget):
         view_row.addWidget(self.load_calibration)
         self.calibration_label = QLabel("no calibration", self)
         self.calibration_label.setStyleSheet(status_style("idle"))
+        # May be cut short in a narrow window (the tooltip keeps the whole text) rather than push the plots' side
+        # panel off screen at the minimum window width.
+        self.calibration_label.setMinimumWidth(80)
         view_row.addWidget(self.calibration_label)
         view_row.addSpacing(12)
         view_row.addWidget(QLabel("Window"))
@@ -150,7 +153,7 @@ class ForcesControls(QWidget):
         record_row.addWidget(self.record)
         self.path = QLineEdit(self)
         self.path.setPlaceholderText("recording file (.h5)")
-        self.path.setMinimumWidth(260)
+        self.path.setMinimumWidth(160)  # the row must fit the 960 px minimum window width
         record_row.addWidget(self.path, 1)
         self.browse = QToolButton(self)
         self.browse.setText("…")
@@ -158,7 +161,7 @@ class ForcesControls(QWidget):
         self.browse.clicked.connect(self.browse_requested)
         record_row.addWidget(self.browse)
         self.record_info = QLabel("not recording", self)
-        self.record_info.setMinimumWidth(170)
+        self.record_info.setMinimumWidth(140)
         record_row.addWidget(self.record_info)
         record_row.addSpacing(12)
         self.open = QPushButton("Open recording…", self)
@@ -232,6 +235,7 @@ class ForcesControls(QWidget):
 
     def set_calibration(self, text: str, level: str) -> None:
         self.calibration_label.setText(text)
+        self.calibration_label.setToolTip(text)
         self.calibration_label.setStyleSheet(status_style(level))
 
     def set_viewing_file(self, name: str | None) -> None:

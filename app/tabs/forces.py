@@ -66,7 +66,10 @@ BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the rob
 
 @contextmanager
 def busy_cursor() -> Iterator[None]:
-    """Wait cursor around a file read or write done on the GUI thread (an hour-long recording takes seconds)."""
+    """Wait cursor around a file read or write done on the GUI thread (an hour-long recording takes seconds).
+
+    GUI thread only.
+    """
     QApplication.setOverrideCursor(QCursor(Qt.CursorShape.WaitCursor))
     try:
         yield
