@@ -179,6 +179,9 @@ class TeachPanel(QWidget):
         lib.addWidget(self.mirror_button, 2, 0)
         lib.addWidget(self.scale_spin, 2, 1)
         lib.addWidget(self.scale_button, 2, 2)
+        shift_label = QLabel("slide by")
+        shift_label.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        lib.addWidget(shift_label, 3, 0)
         lib.addWidget(self.shift_spin, 3, 1)
         lib.addWidget(self.shift_button, 3, 2)
         self.library_path_label = QLabel("")
@@ -201,6 +204,10 @@ class TeachPanel(QWidget):
         right_layout = QVBoxLayout(right)
         right_layout.setContentsMargins(0, 0, 0, 0)
         right_layout.addWidget(self.body_view, 1)
+        legend = QLabel(f"<span style='color:{theme.PRESENT_COLOR}'>━ present pose</span> &nbsp; "
+                        f"<span style='color:{theme.GOAL_COLOR}'>╌ selected keyframe</span>")
+        legend.setToolTip("Ringed joints have torque off; in the simulated lab, drag one in either view to bend it")
+        right_layout.addWidget(legend)
         right_layout.addWidget(self.status_label)
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
