@@ -15,6 +15,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QPushButton,
+    QSpinBox,
     QToolButton,
     QVBoxLayout,
     QWidget,
@@ -151,6 +152,14 @@ class ForcesControls(QWidget):
         self.record.setToolTip("Record the board (and the robot when connected) to an HDF5 file")
         self.record.toggled.connect(self._on_record)
         record_row.addWidget(self.record)
+        self.duration = QSpinBox(self)
+        self.duration.setRange(0, 24 * 3600)
+        self.duration.setSingleStep(5)
+        self.duration.setSuffix(" s")
+        self.duration.setSpecialValueText("until stopped")
+        self.duration.setToolTip("Stop the recording by itself after this many seconds (a timed trial); "
+                                 "'until stopped' records until you click Stop recording")
+        record_row.addWidget(self.duration)
         self.path = QLineEdit(self)
         self.path.setPlaceholderText("recording file (.h5)")
         self.path.setMinimumWidth(160)  # the row must fit the 960 px minimum window width
@@ -212,6 +221,11 @@ class ForcesControls(QWidget):
         self.pause.setText("Resume" if paused else "Pause")
         self.pause.blockSignals(False)
 
+    @property
+    def duration_s(self) -> float | None:
+        """The chosen recording length in s, or None to record until stopped."""
+        return float(self.duration.value()) or None
+
     def set_recording(self, recording: bool, text: str) -> None:
         self.record.blockSignals(True)
         self.record.setChecked(recording)
@@ -220,6 +234,7 @@ class ForcesControls(QWidget):
         self.record_info.setText(text)
         self.path.setEnabled(not recording)
         self.browse.setEnabled(not recording)
+        self.duration.setEnabled(not recording)
 
     def set_board_status(self, text: str, level: str) -> None:
         self.board_status.setText(text)

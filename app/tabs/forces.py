@@ -125,7 +125,8 @@ class ForcesTab(QWidget):
         self._warnings: list[str] = [""] * n_channels
         self.min_free_bytes = DEFAULT_MIN_FREE_BYTES  # a recording stops cleanly before the disk is this full
         self.last_recording_path: Path | None = None  # Open recording… starts here: reopening is one click
-        self._overlay_sensor_chosen = False  # until the user picks one, the overlay shows the liveliest sensor
+        self._overlay_sensor_chosen = False
+        self._planned_s: float | None = None  # length of a timed recording (s)  # until the user picks one, the overlay shows the liveliest sensor
 
         self.controls = ForcesControls(self)
         self.plots = ForcePlotGrid(self.channel_names, parent=self)
@@ -145,6 +146,9 @@ class ForcesTab(QWidget):
         self._status_timer = QTimer(self)
         self._status_timer.setInterval(int(1000 / STATUS_REFRESH_HZ))
         self._status_timer.timeout.connect(self._refresh_status)
+        self._auto_stop_timer = QTimer(self)  # a timed recording (the duration box) stops itself
+        self._auto_stop_timer.setSingleShot(True)
+        self._auto_stop_timer.timeout.connect(self.stop_recording)
         self._body_timer.start()
         self._status_timer.start()
         self.plots.start()
@@ -351,8 +355,10 @@ class ForcesTab(QWidget):
         self.plots.set_paused(False)
 
     # -- recording -------------------------------------------------------------------------------------------------
-    def start_recording(self, path: str | os.PathLike | None = None) -> RecordingSession | None:
-        """Start recording to ``path`` (default: the path field); returns the session or None if refused."""
+    def start_recording(self, path: str | os.PathLike | None = None,
+                        duration_s: float | None = None) -> RecordingSession | None:
+        """Start recording to ``path`` (default: the path field) for ``duration_s`` seconds (default: the duration
+        box; None records until stopped). Returns the session or None if refused."""
         if self.session is not None and self.session.is_active:
             return self.session
         path = Path(path or self.controls.path.text().strip() or default_recording_path())
@@ -383,6 +389,10 @@ class ForcesTab(QWidget):
         self.lab.recording = session
         self.controls.path.setText(str(path))
         self.controls.set_recording(True, "recording…")
+        duration_s = self.controls.duration_s if duration_s is None else duration_s
+        self._planned_s = duration_s
+        if duration_s:
+            self._auto_stop_timer.start(int(round(duration_s * 1000)))
         return session
 
     def _calibration_json_for_recording(self) -> str | None:
@@ -405,6 +415,7 @@ class ForcesTab(QWidget):
         return None
 
     def stop_recording(self) -> None:
+        self._auto_stop_timer.stop()
         session = self.session
         if session is not None:
             session.stop()
@@ -477,7 +488,8 @@ class ForcesTab(QWidget):
         session = self.session
         if session is not None and session.is_active:
             backlog = f" · queue {session.backlog}" if session.backlog > 50 else ""
-            self.controls.set_recording(True, f"{format_elapsed(session.elapsed_s)} · "
+            planned = f" / {format_elapsed(self._planned_s)}" if self._planned_s else ""
+            self.controls.set_recording(True, f"{format_elapsed(session.elapsed_s)}{planned} · "
                                               f"{format_bytes(session.size_bytes())}{backlog}")
 
     # -- past recordings -------------------------------------------------------------------------------------------

@@ -188,3 +188,20 @@ def test_onset_alignment_finds_the_rise():
     values = np.where(t >= 4.0, 5.0, 0.1)
     assert onset_time_s(t, values) == pytest.approx(4.0)
     assert onset_time_s(t, np.full(t.size, np.nan)) == 0.0
+
+
+def test_timed_recording_stops_by_itself(qtbot, lab, tab):
+    from widgets.forces_panel import RECORD_TEXT
+
+    with qtbot.waitSignal(lab.board.connected, timeout=5000):
+        lab.board.start()
+    tab.controls.duration.setValue(1)
+    tab.controls.record.click()
+    session = tab.session
+    assert session is not None and session.is_active and not tab.controls.duration.isEnabled()
+    qtbot.waitUntil(lambda: "/ 0:00:01" in tab.controls.record_info.text(), timeout=3000)  # elapsed / planned
+    qtbot.waitUntil(lambda: not session.is_active, timeout=5000)
+    assert session.elapsed_s == pytest.approx(1.0, abs=0.5)
+    assert session.n_daq_samples > 0
+    assert tab.controls.record.text() == RECORD_TEXT and "saved" in tab.controls.message.text()
+    assert tab.controls.duration.isEnabled() and tab.last_recording_path == session.path
