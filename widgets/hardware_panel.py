@@ -43,7 +43,7 @@ DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_0
 TEMPERATURE_WARN_C = 70.0  # XM430 shuts down at 80 °C by default
 VOLTAGE_RANGE_V = (10.0, 14.8)  # XM430-W350 recommended supply range
 ROW_HEIGHT_PX = 26  # twelve servos fit without scrolling at the default window size
-SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 110  # rows + header + the torque buttons above + margins
+SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 98  # rows + header + the torque buttons above + margins
 SMALL_ROW_HEIGHT_PX = 22
 # After a click, the servo's reported state lags the request by a health poll or two; until it agrees (or this
 # long has passed) the button keeps showing what was asked instead of flicking back.
@@ -133,8 +133,10 @@ class HardwarePanel(QWidget):
         tools_layout.addWidget(self._build_link_check(), 5)
         tools_layout.addWidget(self._build_timing(), 4)
         splitter.addWidget(tools)
-        splitter.setStretchFactor(0, 3)
-        splitter.setStretchFactor(1, 2)
+        # Extra height goes to scan / link check / timing: the servo table only ever needs its 12 rows (at 1920×1080
+        # it used to grow a blank area while the scan and link tables scrolled).
+        splitter.setStretchFactor(0, 0)
+        splitter.setStretchFactor(1, 1)
         splitter.setSizes([SERVO_TABLE_HEIGHT_PX, 240])
         layout.addWidget(splitter, 1)
         self.set_connection(False, "not connected")
