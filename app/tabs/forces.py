@@ -277,7 +277,8 @@ class ForcesTab(QWidget):
         """Use the present window's median conductance as every sensor's resting level (the robot at rest)."""
         report = self.health.report
         if report is None:
-            self.controls.set_message("no data yet to take a baseline from", "warn")
+            self.controls.set_message("no data yet to take a baseline from: wait until the board status above "
+                                      "says it is connected and readings arrive", "warn")
             return
         self.health.set_baseline(report.level_s)
         self.controls.set_message("rest baseline set from the last readings", "ok")
@@ -367,7 +368,8 @@ class ForcesTab(QWidget):
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            self.controls.set_message(f"cannot create folder {path.parent}: {exc.strerror or exc}", "error")
+            self.controls.set_message(f"cannot create folder {path.parent}: {exc.strerror or exc}; choose another "
+                                      "place with … beside the file name", "error")
             self.controls.set_recording(False, "not recording")
             return None
         robot = getattr(self.lab, "robot", None)
