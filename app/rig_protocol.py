@@ -1,18 +1,23 @@
 """The calibration protocol on the rig (paper Sec. IV-C), without Qt: forces × trials, each trial held and sampled.
 
 For each force in ``forces_n`` and each of ``trials_per_force`` repeats (force-major order, the paper's 4 × 3):
-the probe comes back to the contact (0 N) and rests there for ``baseline_s`` while sampling starts (so the record
-holds the unloaded level and the loading ramp, which identify E0); the rig is sent to the force and the trial samples
+the sensor rests unloaded (probe lifted) for ``rest_s`` — also before the first trial, since the contact search
+loads the sensor to about 2 N — then sampling starts with ``baseline_s`` still unloaded (so the record holds the
+unloaded level and the loading ramp, which identify E0; the probe is lifted rather than just touching, so the force
+column reads exactly 0 N there instead of a tick's worth of spring stretch); the rig ramps the force up linearly over
+``ramp_s`` (one goal per sample: a servo left to itself loads in a fraction of a second, too fast for a 6 Hz record to
+see the ramp, and too fast for the fit to identify E0) and the trial samples
 ``time_s``, the rig's applied force (``F = k·r·(θ − θ_contact)`` from the servo's present position, SPEC §2) and the
-sensor's conductance at ``sample_rate_hz`` for ``hold_s`` from the command; then the load comes off, the trial is
-written as a SPEC §3.1 CSV into the session folder, and the sensor rests (unloaded) for ``rest_s``. The contact is
-found once, at the start.
+sensor's conductance at ``sample_rate_hz`` for ``hold_s`` from the command; then the load comes off and the trial is
+written as a SPEC §3.1 CSV into the session folder. The contact is found once, at the start.
 
 Conductance comes from the board stream (:class:`ConductanceFeed`: the board's samples of the sensor's channel,
-pushed by whoever drains the board, with their host ``time.monotonic()`` times). Each trial row takes the mean of
-the board samples in the sampling interval that ends at its time (a boxcar decimation from the board's rate to
-``sample_rate_hz``), computed when the trial ends, so a late delivery of board data (a busy GUI) does not misalign
-force and conductance.
+pushed by whoever drains the board, with their host ``time.monotonic()`` and board-clock times). Each trial row takes
+the mean of the board samples in the sampling interval that ends at its time (a boxcar decimation from the board's
+rate to ``sample_rate_hz``), computed when the trial ends, so a late delivery of board data (a busy GUI) does not
+misalign force and conductance. The samples are placed on the host clock through the board's own clock
+(:func:`board_times_on_host_clock`): a frame's host time is when the reader got to it, late by however long the
+reader thread waited for the CPU, while the board clock ticks evenly.
 
 Control (any thread): :meth:`ProtocolRunner.abort` ends the run at once — the load comes off, the trial in progress is
 discarded, the finished trials stay on disk. :meth:`ProtocolRunner.pause` takes effect after the trial in progress
@@ -76,6 +81,7 @@ class ProtocolSettings:
     sample_rate_hz: float = 6.0
     rest_s: float = 60.0
     baseline_s: float = 3.0
+    ramp_s: float = 2.0
     sensor: str = "S06B"
     area_m2: float = 1.4e-3
 
@@ -90,12 +96,15 @@ class ProtocolSettings:
         if not (isinstance(self.trials_per_force, int) and self.trials_per_force >= 1):
             raise ValueError(f"trials per force must be 1 or more, got {self.trials_per_force!r}")
         checks = (("hold", self.hold_s, 0.0), ("rest", self.rest_s, -1e-12), ("baseline", self.baseline_s, -1e-12),
+                  ("ramp", self.ramp_s, -1e-12),
                   ("sample rate", self.sample_rate_hz, 0.0), ("area", self.area_m2, 0.0))
         for name, value, above in checks:
             if not (math.isfinite(value) and value > above):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         if not self.sensor.strip():
             raise ValueError("name the sensor (e.g. S06B)")
+        if self.ramp_s >= self.hold_s:
+            raise ValueError(f"the loading ramp ({self.ramp_s:g} s) must be shorter than the hold ({self.hold_s:g} s)")
         if self.hold_s * self.sample_rate_hz < 10:
             raise ValueError(f"a {self.hold_s:g} s hold at {self.sample_rate_hz:g} Hz gives fewer than 10 samples; "
                              "the fit needs at least 10 in the hold")
@@ -114,8 +123,8 @@ class ProtocolSettings:
         return self.baseline_s + self.hold_s
 
     def total_duration_s(self) -> float:
-        """Expected run time (s) without contact search and settling: every trial and the rests between them."""
-        return self.n_trials * self.trial_duration_s() + (self.n_trials - 1) * self.rest_s
+        """Expected run time (s) without contact search and settling: every trial and the rest before each."""
+        return self.n_trials * (self.trial_duration_s() + self.rest_s)
 
     def fit_window_s(self) -> tuple[float, float]:
         """The linear model's averaging window (s of trial time): the paper's 225–300 s of a 370 s hold, scaled to
@@ -180,20 +189,25 @@ class ConductanceFeed:
 
     def __init__(self, capacity: int = FEED_CAPACITY) -> None:
         self._t = np.full(capacity, -np.inf)
+        self._b = np.full(capacity, np.nan)
         self._c = np.full(capacity, np.nan)
         self._n = 0  # samples ever pushed
         self._lock = threading.Lock()
 
-    def push(self, host_time_s: np.ndarray, conductance_s: np.ndarray) -> None:
-        """Add samples (times non-decreasing, s; conductance S). Any thread."""
+    def push(self, host_time_s: np.ndarray, conductance_s: np.ndarray, board_time_s: np.ndarray | None = None) -> None:
+        """Add samples: host times (non-decreasing, s), conductance (S), board-clock times (s; NaN if unknown).
+        Any thread."""
         t = np.asarray(host_time_s, dtype=np.float64).ravel()
         c = np.asarray(conductance_s, dtype=np.float64).ravel()
+        b = (np.full(t.shape, np.nan) if board_time_s is None
+             else np.asarray(board_time_s, dtype=np.float64).ravel())
         cap = self._t.size
         if t.size > cap:
-            t, c = t[-cap:], c[-cap:]
+            t, c, b = t[-cap:], c[-cap:], b[-cap:]
         with self._lock:
             idx = (self._n + np.arange(t.size)) % cap
             self._t[idx] = t
+            self._b[idx] = b
             self._c[idx] = c
             self._n += t.size
 
@@ -205,14 +219,30 @@ class ConductanceFeed:
             k = (self._n - 1) % self._t.size
             return float(self._t[k]), float(self._c[k])
 
-    def snapshot(self, since_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Copies of the samples newer than ``since_s`` (s), oldest first."""
+    def snapshot(self, since_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of the samples with host time after ``since_s`` (s), oldest first: host times (s), conductance
+        (S), board times (s)."""
         with self._lock:
             n = min(self._n, self._t.size)
             order = (self._n - n + np.arange(n)) % self._t.size
-            t, c = self._t[order], self._c[order]
+            t, c, b = self._t[order], self._c[order], self._b[order]
         keep = t > since_s
-        return t[keep].copy(), c[keep].copy()
+        return t[keep].copy(), c[keep].copy(), b[keep].copy()
+
+
+def board_times_on_host_clock(host_time_s: np.ndarray, board_time_s: np.ndarray) -> np.ndarray:
+    """Each sample's time on the host clock (s), from the board clock: ``host ≈ a + b·board`` with the rate ``b``
+    fitted over the samples and the offset ``a`` from the least-delayed sample (the lower envelope: a frame can reach
+    the host late, never early). The host times themselves when the board clock cannot be used (unknown, not
+    increasing — a board reset after a pulled cable —, or too few samples)."""
+    if (host_time_s.size < 10 or not np.all(np.isfinite(board_time_s))
+            or not np.all(np.diff(board_time_s) > 0)):
+        return host_time_s
+    rate = float(np.polyfit(board_time_s - board_time_s[0], host_time_s - host_time_s[0], 1)[0])
+    if not rate > 0:
+        return host_time_s
+    offset = float(np.min(host_time_s - rate * board_time_s))
+    return offset + rate * board_time_s
 
 
 def decimate_to(row_times_s: np.ndarray, period_s: float, board_t_s: np.ndarray,
@@ -289,9 +319,9 @@ class ProtocolRunner:
                 {"format": "sensnake-calibration-protocol", "version": 1, **asdict(s)}, indent=2), encoding="utf-8")
             self._progress("contact", -1, 0.0, 0, 0.0, "finding where the probe touches the sensor…")
             self.rig.find_contact()
+            self.rig.release()
             for index, (force, repeat) in enumerate(s.plan):
-                if index > 0:
-                    self._rest(index)
+                self._rest(index)
                 self._check_stop()
                 self.trials.append(self._trial(index, force, repeat))
                 self._on_trial(self.trials[-1])
@@ -346,10 +376,11 @@ class ProtocolRunner:
             if self._stop.wait(left):
                 raise _Stopped
 
-    def _time_left(self, index: int, elapsed_in_trial_s: float) -> float:
+    def _time_left(self, index: int, elapsed_in_trial_s: float, rest_left_s: float = 0.0) -> float:
+        """Estimated run time left (s) from inside trial ``index`` (or its rest, with ``rest_left_s`` to go)."""
         s = self.settings
         remaining_trials = s.n_trials - index - 1
-        return (max(0.0, s.trial_duration_s() - elapsed_in_trial_s)
+        return (rest_left_s + max(0.0, s.trial_duration_s() - elapsed_in_trial_s)
                 + remaining_trials * (s.trial_duration_s() + s.rest_s))
 
     def _progress(self, phase: str, index: int, force: float, repeat: int, elapsed_s: float, message: str,
@@ -366,7 +397,7 @@ class ProtocolRunner:
             if left <= 0:
                 break
             self._progress("rest", index, force, repeat, 0.0, f"resting unloaded, {left:.0f} s before trial "
-                           f"{index + 1}/{s.n_trials}", self._time_left(index, 0.0) + left)
+                           f"{index + 1}/{s.n_trials}", self._time_left(index, 0.0, left))
             if self._stop.wait(min(left, PROGRESS_INTERVAL_S)):
                 raise _Stopped
         while not self._resume.is_set():
@@ -378,19 +409,21 @@ class ProtocolRunner:
     def _trial(self, index: int, force: float, repeat: int) -> TrialRecord:
         s = self.settings
         label = f"trial {index + 1}/{s.n_trials}: {force:g} N, repeat {repeat}"
-        self.rig.command_force(0.0)  # probe back on the sensor, unloaded
         period = 1.0 / s.sample_rate_hz
         n_rows = int(math.floor(s.trial_duration_s() * s.sample_rate_hz)) + 1
         times = np.empty(n_rows)
         forces = np.empty(n_rows)
         t0 = self._clock()
         loaded = False
+        ramped = False
         for row in range(n_rows):
             self._wait_until(t0 + row * period)
             now = self._clock()
-            if not loaded and now - t0 >= s.baseline_s:
-                self.rig.start_force(force)
+            if not ramped and now - t0 >= s.baseline_s:
                 loaded = True
+                share = (now - t0 - s.baseline_s + period) / s.ramp_s if s.ramp_s > 0 else 1.0
+                ramped = share >= 1.0
+                self.rig.start_force(force * min(share, 1.0))
             times[row] = now
             forces[row] = self.rig.applied_force_n()
             board_t, board_c = self.feed.latest()
@@ -410,8 +443,8 @@ class ProtocolRunner:
                 raise _Stopped
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
         self.rig.release()
-        board_t, board_c = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times, period, board_t, board_c)
+        host_t, board_c, board_t = self.feed.snapshot(times[0] - 2 * period)
+        conductance = decimate_to(times, period, board_times_on_host_clock(host_t, board_t), board_c)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)

@@ -171,7 +171,7 @@ class RigSession(QObject):
 
     def _on_block(self, block: Any) -> None:
         if self._feed is not None and self._channel is not None and len(block):
-            self._feed.push(block.host_time_s, block.conductance_s[:, self._channel])
+            self._feed.push(block.host_time_s, block.conductance_s[:, self._channel], block.board_time_s)
 
     def _on_robot_event(self, text: str) -> None:
         if self.is_running and text.startswith(STOP_EVENT_PREFIX):

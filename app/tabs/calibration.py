@@ -7,7 +7,11 @@ trial's measured conductance and the conductance the fitted SLS model predicts f
 ``sensnake estimate`` and the Forces tab use. "Save" writes the sensor into a calibration
 file (created, or updated keeping its other sensors).
 
-Driving the rig through the 4-force × 3-trial protocol from this tab is not built yet; the rig's settings are shown.
+"Run on the rig" drives the calibration rig through the paper's protocol (forces × trials, each held while the rig's
+applied force and the sensor's conductance are sampled; :mod:`app.rig_protocol`) on the rig's own thread
+(:mod:`app.rig_session`). Each finished trial is written as a CSV into the run's folder and joins the trial list; a
+completed run is fitted at once, with the linear model's window scaled to the hold. Abort, STOP (Esc) or a rig error
+take the load off and keep the finished trials.
 GUI thread only, except :meth:`CalibrationTab._fit_worker`.
 """
 
@@ -39,15 +43,29 @@ from PySide6.QtWidgets import (
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
+    QTabWidget,
     QVBoxLayout,
     QWidget,
 )
 
 from app import calfiles
 from app.lab import LabContext
+from app.rig_protocol import (
+    ABORTED,
+    COMPLETED,
+    Outcome,
+    Progress,
+    ProtocolSettings,
+    Sample,
+    TrialRecord,
+    format_forces,
+    parse_forces,
+)
+from app.rig_session import RigSession
 from devices.config import BoardConfig
 from models.physics import PhysicsConstants
 from widgets import theme
+from widgets.calibration_run import LiveTrialPlot, ProtocolForm, default_runs_folder, format_duration
 
 if TYPE_CHECKING:  # pragma: no cover
     from models.calibration import SensorCalibration
@@ -61,6 +79,9 @@ DESCRIPTION = (
     "The fit gives the linear model and the creep-aware SLS model used by the Forces tab and `sensnake estimate`."
 )
 PLOT_MAX_POINTS = 4000  # per curve: trials are minutes at a few Hz; decimate anything longer for drawing
+PARAM_LABELS = (("E0_Pa", "E0", "Pa"), ("E1_Pa", "E1", "Pa"), ("mu1_Pa_s", "μ1", "Pa·s"))
+PHASE_WORDS = {"contact": "finding the contact", "baseline": "baseline", "loading": "loading", "hold": "holding",
+               "release": "releasing", "rest": "resting", "paused": "paused", "done": "done"}
 
 
 @dataclass(frozen=True)
@@ -82,6 +103,7 @@ class FitResult:
     physics: PhysicsConstants
     trials: tuple[LoadedTrial, ...]
     fitted_s: tuple[np.ndarray, ...]  # SLS-predicted conductance per trial (S)
+    window_s: tuple[float, float] | None = None  # the linear model's window (s), None for the paper's default
 
 
 class CalibrationTab(QWidget):
@@ -89,6 +111,7 @@ class CalibrationTab(QWidget):
 
     fit_finished = Signal(object)  # FitResult
     fit_failed = Signal(str)
+    _fit_outcome = Signal(object)  # worker → GUI thread (queued): the tab updates, then the public signal goes out
 
     def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -97,16 +120,24 @@ class CalibrationTab(QWidget):
         self.physics = PhysicsConstants()
         self.physics_source = "paper defaults"
         self.result: FitResult | None = None
+        self.fit_window_s: tuple[float, float] | None = None  # set by a rig run (window scaled to its hold)
+        self.last_fit_window_s: tuple[float, float] | None = None  # the window the latest fit was started with
         self._fit_thread: threading.Thread | None = None
-        self.fit_finished.connect(self._show_result)
-        self.fit_failed.connect(self._show_failure)
+        self._fit_outcome.connect(self._on_fit_outcome)
+        self.rig_session = RigSession(lab, self)
+        self.run_settings: ProtocolSettings | None = None
+        self.rig_session.progress.connect(self._show_progress)
+        self.rig_session.sample.connect(self._show_sample)
+        self.rig_session.trial_saved.connect(self._trial_saved)
+        self.rig_session.finished.connect(self._run_finished)
 
         intro = QLabel(DESCRIPTION)
         intro.setWordWrap(True)
         rig = lab.config.rig
         rig_note = QLabel(f"Rig: port {rig.port}, servo {rig.servo_id}, wheel radius {rig.wheel_radius_m * 1e3:.0f} "
-                          f"mm, spring {rig.spring_k_n_per_m:.0f} N/m, sensor {rig.sensor}. Driving the rig from "
-                          "this tab is not built yet: load trials recorded with it.")
+                          f"mm, spring {rig.spring_k_n_per_m:.0f} N/m (k·r = "
+                          f"{rig.spring_k_n_per_m * rig.wheel_radius_m:.2f} N/rad), presses sensor {rig.sensor}; "
+                          f"board on {lab.config.board.port}.")
         rig_note.setWordWrap(True)
         rig_note.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
 
@@ -115,7 +146,7 @@ class CalibrationTab(QWidget):
         splitter.addWidget(self._build_results())
         splitter.setStretchFactor(0, 0)
         splitter.setStretchFactor(1, 1)
-        splitter.setSizes([360, 900])
+        splitter.setSizes([380, 900])
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
@@ -127,30 +158,15 @@ class CalibrationTab(QWidget):
     # -- construction ----------------------------------------------------------------------------------------------
     def _build_inputs(self) -> QWidget:
         column = QWidget()
-        column.setMinimumWidth(320)
+        column.setMinimumWidth(340)
         layout = QVBoxLayout(column)
         layout.setContentsMargins(0, 0, 0, 0)
-
-        trials_box = QGroupBox("Trials (time_s, force_N, conductance_S)")
-        trials_layout = QVBoxLayout(trials_box)
-        self.trial_list = QListWidget()
-        self.trial_list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
-        trials_layout.addWidget(self.trial_list, 1)
-        row = QHBoxLayout()
-        self.add_button = QPushButton("Add CSVs…")
-        self.add_button.clicked.connect(self._choose_trials)
-        self.remove_button = QPushButton("Remove")
-        self.remove_button.clicked.connect(self._remove_selected)
-        self.clear_button = QPushButton("Clear")
-        self.clear_button.clicked.connect(self.clear_trials)
-        for button in (self.add_button, self.remove_button, self.clear_button):
-            row.addWidget(button)
-        trials_layout.addLayout(row)
-        layout.addWidget(trials_box, 1)
 
         sensor_box = QGroupBox("Sensor")
         form = QFormLayout(sensor_box)
         self.sensor_edit = QLineEdit(self.lab.config.rig.sensor)
+        self.sensor_edit.setToolTip("The sensor's name in the calibration file; a rig run reads the board channel "
+                                    "of this name")
         form.addRow("Name", self.sensor_edit)
         self.area_spin = QDoubleSpinBox()
         self.area_spin.setRange(1.0, 100_000.0)
@@ -170,24 +186,62 @@ class CalibrationTab(QWidget):
         form.addRow("Physics", physics_row)
         layout.addWidget(sensor_box)
 
+        self.source_tabs = QTabWidget()
+        self.source_tabs.addTab(self._build_trial_files(), "Trial files")
+        defaults = ProtocolSettings()
+        self.protocol_form = ProtocolForm(format_forces(defaults.forces_n), defaults.trials_per_force,
+                                          defaults.hold_s, defaults.rest_s, defaults.baseline_s, defaults.ramp_s,
+                                          defaults.sample_rate_hz, default_runs_folder())
+        self.protocol_form.run_requested.connect(self.start_run)
+        self.protocol_form.pause_toggled.connect(self._pause_toggled)
+        self.protocol_form.abort_requested.connect(self.rig_session.abort)
+        self.source_tabs.addTab(self.protocol_form, "Run on the rig")
+        layout.addWidget(self.source_tabs, 1)
+
         row = QHBoxLayout()
         self.fit_button = QPushButton("Fit")
         self.fit_button.setObjectName("fit_button")
         self.fit_button.clicked.connect(self.start_fit)
         self.save_button = QPushButton("Save to calibration file…")
+        self.save_button.setToolTip("Write this sensor into a calibration file; other sensors in it are kept")
         self.save_button.clicked.connect(self._choose_save)
         row.addWidget(self.fit_button)
         row.addWidget(self.save_button)
         layout.addLayout(row)
-        self.status_label = QLabel("Add trial CSVs, then Fit.")
+        self.status_label = QLabel("Add trial CSVs, or run the protocol on the rig, then Fit.")
         self.status_label.setWordWrap(True)
+        self.status_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         layout.addWidget(self.status_label)
         return column
 
+    def _build_trial_files(self) -> QWidget:
+        page = QWidget()
+        trials_layout = QVBoxLayout(page)
+        trials_layout.setContentsMargins(4, 4, 4, 4)
+        hint = QLabel("CSV files with columns time_s, force_N, conductance_S (one trial each)")
+        hint.setWordWrap(True)
+        hint.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
+        trials_layout.addWidget(hint)
+        self.trial_list = QListWidget()
+        self.trial_list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
+        trials_layout.addWidget(self.trial_list, 1)
+        row = QHBoxLayout()
+        self.add_button = QPushButton("Add CSVs…")
+        self.add_button.clicked.connect(self._choose_trials)
+        self.remove_button = QPushButton("Remove")
+        self.remove_button.clicked.connect(self._remove_selected)
+        self.clear_button = QPushButton("Clear")
+        self.clear_button.clicked.connect(self.clear_trials)
+        for button in (self.add_button, self.remove_button, self.clear_button):
+            row.addWidget(button)
+        trials_layout.addLayout(row)
+        return page
+
     def _build_results(self) -> QWidget:
-        column = QWidget()
-        layout = QVBoxLayout(column)
-        layout.setContentsMargins(0, 0, 0, 0)
+        self.view_tabs = QTabWidget()
+        fit_page = QWidget()
+        layout = QVBoxLayout(fit_page)
+        layout.setContentsMargins(4, 4, 4, 4)
         self.plot = pg.PlotWidget(background="w")
         self.plot.setLabel("left", "conductance", units="S")
         self.plot.setLabel("bottom", "time", units="s")
@@ -201,16 +255,20 @@ class CalibrationTab(QWidget):
         self.summary_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         layout.addWidget(self.summary_label)
 
-        self.trial_table = QTableWidget(0, 4)
-        self.trial_table.setHorizontalHeaderLabels(["Trial", "Force (N)", "RMSE (S)", "Warnings"])
+        headers = ["Trial", "Force (N)", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "RMSE (S)", "Warnings"]
+        self.trial_table = QTableWidget(0, len(headers))
+        self.trial_table.setHorizontalHeaderLabels(headers)
         self.trial_table.verticalHeader().setVisible(False)
         self.trial_table.verticalHeader().setDefaultSectionSize(22)
         self.trial_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         header = self.trial_table.horizontalHeader()
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        header.setSectionResizeMode(3, QHeaderView.ResizeMode.Stretch)
-        layout.addWidget(self.trial_table, 1)
-        return column
+        header.setSectionResizeMode(len(headers) - 1, QHeaderView.ResizeMode.Stretch)
+        layout.addWidget(self.trial_table, 2)
+        self.view_tabs.addTab(fit_page, "Fit")
+        self.live_plot = LiveTrialPlot()
+        self.view_tabs.addTab(self.live_plot, "Live trial")
+        return self.view_tabs
 
     # -- trials and physics ----------------------------------------------------------------------------------------
     def add_trial_files(self, paths: list[str] | list[Path]) -> int:
@@ -239,6 +297,7 @@ class CalibrationTab(QWidget):
         self.trials.clear()
         self.trial_list.clear()
         self.result = None
+        self.fit_window_s = None
         self._plot_measured_only()
         self.trial_table.setRowCount(0)
         self.summary_label.clear()
@@ -290,15 +349,17 @@ class CalibrationTab(QWidget):
         area_m2 = self.area_spin.value() * 1e-6
         trials = tuple(self.trials)
         self._set_status(f"fitting {sensor} to {len(trials)} trial(s)…", theme.WARN)
-        self._fit_thread = threading.Thread(target=self._fit_worker, args=(sensor, trials, area_m2, self.physics),
+        self.last_fit_window_s = self.fit_window_s
+        self._fit_thread = threading.Thread(target=self._fit_worker,
+                                            args=(sensor, trials, area_m2, self.physics, self.fit_window_s),
                                             name="calibration-fit", daemon=True)
         self._update_buttons(fitting=True)
         self._fit_thread.start()
 
     def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
-                    physics: PhysicsConstants) -> None:
+                    physics: PhysicsConstants, window_s: tuple[float, float] | None = None) -> None:
         """Worker thread: the fit (in a child process) and the fitted curves; the outcome goes back through a
-        queued signal."""
+        queued signal. ``window_s``: the linear model's averaging window (s), None for the paper's 225–300 s."""
         # Imported here, off the GUI thread: the fitting stack takes seconds to load and the tab opens at once.
         from models.calibration import TrialInput, calibrate_sensor
         from models.sls import conductance_from_force
@@ -309,22 +370,42 @@ class CalibrationTab(QWidget):
             # A fit is seconds of Python-level work: in this process it would hold the GIL against the robot's
             # control thread (missed ticks, a tripped feedback watchdog). A child process keeps the loop on time.
             with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-                cal = pool.submit(calibrate_sensor, inputs, area_m2, physics, saturation_s=saturation_s).result()
+                options: dict[str, Any] = {"saturation_s": saturation_s}
+                if window_s is not None:
+                    options["window_s"] = window_s
+                cal = pool.submit(calibrate_sensor, inputs, area_m2, physics, **options).result()
             fitted = tuple(np.asarray(conductance_from_force(t.time_s, t.force_n, cal.sls, area_m2, physics),
                                       dtype=np.float64) for t in trials)
         except (ValueError, ArithmeticError, LookupError, RuntimeError, OSError) as exc:
             # BrokenProcessPool (a RuntimeError) if the child died; the fit's own refusals are ValueErrors.
-            self._deliver(self.fit_failed, f"fit refused: {exc}")
+            self._deliver(f"fit refused: {exc}")
             return
-        self._deliver(self.fit_finished, FitResult(sensor, cal, physics, trials, fitted))
+        self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s))
 
-    @staticmethod
-    def _deliver(signal: Any, value: object) -> None:
+    def _deliver(self, outcome: FitResult | str) -> None:
+        """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread."""
         try:
-            signal.emit(value)
+            self._fit_outcome.emit(outcome)
         except RuntimeError:
             # The tab was closed while the fit ran: nobody is left to show the result.
             log.info("calibration fit finished after its tab was closed; result dropped")
+
+    def _fit_done(self) -> None:
+        """The worker's last act is the signal that brought us here: wait for it to exit so ``is_fitting`` is False
+        (without this the buttons could stay disabled when the signal is handled before the thread has ended)."""
+        thread, self._fit_thread = self._fit_thread, None
+        if thread is not None:
+            thread.join()
+
+    def _on_fit_outcome(self, outcome: FitResult | str) -> None:
+        """GUI thread: show the outcome, then tell listeners (so they see the tab already updated)."""
+        self._fit_done()
+        if isinstance(outcome, FitResult):
+            self._show_result(outcome)
+            self.fit_finished.emit(outcome)
+        else:
+            self._show_failure(outcome)
+            self.fit_failed.emit(outcome)
 
     def _show_result(self, result: FitResult) -> None:
         self.result = result
@@ -332,27 +413,122 @@ class CalibrationTab(QWidget):
         self._plot(result.trials, result.fitted_s)
         self.trial_table.setRowCount(len(cal.trials))
         for row, report in enumerate(cal.trials):
-            cells = (report.name, f"{report.force_n:.3f}", f"{report.rmse_s:.3e}", "; ".join(report.warnings) or "—")
+            params = report.params
+            cells = (report.name, f"{report.force_n:.3f}", f"{float(params.E0_Pa):.4g}", f"{float(params.E1_Pa):.4g}",
+                     f"{float(params.mu1_Pa_s):.4g}", f"{float(params.tau_s):.4g}", f"{report.rmse_s:.3e}",
+                     "; ".join(report.warnings) or "—")
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
-                item.setToolTip(text)
-                if col in (1, 2):
+                item.setToolTip(text if col in (0, len(cells) - 1) else _interval_tip(report.ci95, col))
+                if 0 < col < len(cells) - 1:
                     item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                if col == len(cells) - 1 and report.warnings:
+                    item.setForeground(theme.qcolor(theme.STATUS_COLORS[theme.WARN]))
                 self.trial_table.setItem(row, col, item)
-        sls = cal.sls
-        lines = [f"<b>{result.sensor}</b> SLS: E0 = {float(sls.E0_Pa):.4g} Pa, E1 = {float(sls.E1_Pa):.4g} Pa, "
-                 f"μ1 = {float(sls.mu1_Pa_s):.4g} Pa·s (τ = {float(sls.tau_s):.4g} s); RMSE {cal.rmse_s:.3e} S"]
-        if cal.linear is not None:
-            lines.append(f"linear: m = {cal.linear.model.m_S_per_N:.4e} S/N, d = {cal.linear.model.d_S:.4e} S")
-        if cal.warnings:
-            lines.append("warnings: " + "; ".join(cal.warnings))
-        self.summary_label.setText("<br>".join(lines))
-        self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s); Save to keep it.", theme.OK)
+        self.summary_label.setText(summary_html(result))
+        n_warn = len(cal.warnings)
+        level = theme.WARN if n_warn else theme.OK
+        note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
+        self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
+        self.view_tabs.setCurrentWidget(self.view_tabs.widget(0))
         self._update_buttons()
 
     def _show_failure(self, message: str) -> None:
         self._set_status(message, theme.ERROR)
         self._update_buttons()
+
+    # -- running the protocol on the rig ---------------------------------------------------------------------------
+    def protocol_settings(self) -> ProtocolSettings:
+        """The protocol from the form and the sensor box; ValueError naming the field that is wrong."""
+        form = self.protocol_form
+        return ProtocolSettings(
+            forces_n=parse_forces(form.forces_edit.text()), trials_per_force=form.trials_spin.value(),
+            hold_s=form.hold_spin.value(), sample_rate_hz=form.rate_spin.value(), rest_s=form.rest_spin.value(),
+            baseline_s=form.baseline_spin.value(), ramp_s=form.ramp_spin.value(), sensor=self.sensor_edit.text().strip(),
+            area_m2=self.area_spin.value() * 1e-6)
+
+    def start_run(self) -> bool:
+        """Start the protocol on the rig (Run button); False, with the reason shown, if it cannot start."""
+        if self.rig_session.is_running or self.is_fitting:
+            return False
+        try:
+            settings = self.protocol_settings()
+            folder = self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip() or ".")
+        except ValueError as exc:
+            self.protocol_form.set_message(str(exc), theme.ERROR)
+            return False
+        self.run_settings = settings
+        self.clear_trials()
+        self.fit_window_s = settings.fit_window_s()
+        self.protocol_form.set_running(True)
+        self.protocol_form.set_message(f"running; trials go to {folder}", theme.WARN)
+        self.protocol_form.show_progress(0.0, f"0/{settings.n_trials} trials", "opening the rig…")
+        self.view_tabs.setCurrentWidget(self.live_plot)
+        self._set_status(f"rig run on {settings.sensor}: {settings.n_trials} trial(s)", theme.WARN)
+        self._update_buttons()
+        return True
+
+    def _pause_toggled(self, paused: bool) -> None:
+        if paused:
+            self.rig_session.pause()
+            self.protocol_form.set_message("pause requested: the run waits, unloaded, after the trial in progress",
+                                           theme.WARN)
+        else:
+            self.rig_session.resume()
+            self.protocol_form.set_message("resumed", theme.WARN)
+
+    def _show_progress(self, progress: Progress) -> None:
+        settings = self.run_settings
+        if settings is None:
+            return
+        total = max(settings.total_duration_s(), 1e-9)
+        done = 1.0 - progress.time_left_s / total if progress.phase != "contact" else 0.0
+        finished = max(0, progress.trial + (1 if progress.phase in ("release", "done") else 0))
+        bar = f"{finished}/{progress.n_trials} trials"
+        if progress.phase == "done":
+            self.protocol_form.show_progress(1.0 if finished == progress.n_trials else done, bar, progress.message)
+            return
+        phase = PHASE_WORDS.get(progress.phase, progress.phase)
+        if progress.trial >= 0 and progress.phase not in ("rest", "paused"):
+            detail = (f"trial {progress.trial + 1}/{progress.n_trials} · {progress.force_n:g} N, repeat "
+                      f"{progress.repeat} · {phase} {progress.elapsed_s:.0f}/{settings.trial_duration_s():.0f} s · "
+                      f"about {format_duration(progress.time_left_s)} left")
+        else:
+            detail = f"{progress.message} · about {format_duration(progress.time_left_s)} left"
+        self.protocol_form.show_progress(done, bar, detail)
+
+    def _show_sample(self, sample: Sample) -> None:
+        settings = self.run_settings
+        if settings is None:
+            return
+        if sample.trial != self.live_plot.trial:
+            force, repeat = settings.plan[sample.trial]
+            self.live_plot.start_trial(sample.trial, f"{settings.sensor} · trial {sample.trial + 1}/"
+                                       f"{settings.n_trials} · {force:g} N, repeat {repeat}", force,
+                                       settings.trial_duration_s())
+        self.live_plot.append(sample.time_s, sample.force_n, sample.conductance_s)
+
+    def _trial_saved(self, record: TrialRecord) -> None:
+        self.add_trial_files([record.path])
+
+    def _run_finished(self, outcome: Outcome) -> None:
+        self.protocol_form.set_running(False)
+        self.live_plot.trial = -1
+        level = {COMPLETED: theme.OK, ABORTED: theme.WARN}.get(outcome.status, theme.ERROR)
+        self.protocol_form.set_message(outcome.message, level)
+        self._update_buttons()
+        if outcome.status == COMPLETED:
+            self._set_status(f"run complete: {len(outcome.trials)} trial(s) in {outcome.folder}; fitting…", theme.OK)
+            self.start_fit()
+        elif outcome.trials:
+            self._set_status(f"run {outcome.status}: {len(outcome.trials)} trial(s) kept in the list; Fit them if "
+                             "they cover what you need, or run again", level)
+        else:
+            self._set_status(f"run {outcome.status}: no trial was recorded", level)
+
+    def shutdown(self) -> None:
+        """The window is closing: abort a run and wait until the rig has released the load and closed."""
+        self.rig_session.shutdown()
 
     # -- saving ----------------------------------------------------------------------------------------------------
     def save(self, path: str | Path) -> bool:
@@ -398,16 +574,59 @@ class CalibrationTab(QWidget):
 
     def _update_buttons(self, fitting: bool = False) -> None:
         fitting = fitting or self.is_fitting
+        busy = fitting or self.rig_session.is_running
         has_trials = bool(self.trials)
-        self.fit_button.setEnabled(has_trials and not fitting)
-        self.add_button.setEnabled(not fitting)
-        self.remove_button.setEnabled(has_trials and not fitting)
-        self.clear_button.setEnabled(has_trials and not fitting)
-        self.save_button.setEnabled(self.result is not None and not fitting)
+        self.fit_button.setEnabled(has_trials and not busy)
+        self.add_button.setEnabled(not busy)
+        self.remove_button.setEnabled(has_trials and not busy)
+        self.clear_button.setEnabled(has_trials and not busy)
+        self.save_button.setEnabled(self.result is not None and not busy)
+        self.sensor_edit.setEnabled(not self.rig_session.is_running)
+        self.area_spin.setEnabled(not self.rig_session.is_running)
+        self.protocol_form.run_button.setEnabled(not busy)
 
     def curves(self) -> list[Any]:
         """The plotted curves (measured and fitted), for tests and screenshots."""
         return self.plot.getPlotItem().listDataItems()
+
+
+def _interval_tip(ci95: dict[str, tuple[float, float]], column: int) -> str:
+    """Tooltip of a per-trial table cell: the parameter's 95 % interval, where the fit gave one."""
+    names = {2: "E0_Pa", 3: "E1_Pa", 4: "mu1_Pa_s"}
+    name = names.get(column)
+    if name is None or name not in ci95:
+        return ""
+    lo, hi = ci95[name]
+    return f"95 % interval {lo:.4g} … {hi:.4g}"
+
+
+def summary_html(result: FitResult) -> str:
+    """The fitted parameters with their 95 % intervals, the linear model, and the warnings, as rich text."""
+    cal = result.calibration
+    sls = cal.sls
+    parts = []
+    for key, label, unit in PARAM_LABELS:
+        value = float(getattr(sls, key))
+        interval = cal.sls_ci95.get(key)
+        ci = f" <span style='color:#666'>(95 %: {interval[0]:.3g} … {interval[1]:.3g})</span>" if interval else ""
+        parts.append(f"{label} = {value:.4g} {unit}{ci}")
+    lines = [f"<b>{result.sensor}</b> SLS, one set for all forces (used by estimate): " + ", ".join(parts)
+             + f"; τ = {float(sls.tau_s):.4g} s; RMSE {cal.rmse_s:.3e} S; forces {cal.force_range_n[0]:.3g}–"
+             f"{cal.force_range_n[1]:.3g} N"]
+    if cal.linear is not None:
+        lines.append(f"linear: m = {cal.linear.model.m_S_per_N:.4e} S/N, d = {cal.linear.model.d_S:.4e} S"
+                     + (f" (window {result.window_s[0]:.0f}–{result.window_s[1]:.0f} s)" if result.window_s else ""))
+    if cal.sls_trend is not None:
+        lines.append("force trend (sls_trend) fitted: the parameters vary with force")
+    if cal.warnings:
+        color = theme.STATUS_COLORS[theme.WARN]
+        items = "".join(f"<li>{_escape(w)}</li>" for w in cal.warnings)
+        lines.append(f"<span style='color:{color}'><b>warnings</b></span><ul style='margin:0'>{items}</ul>")
+    return "<br>".join(lines)
+
+
+def _escape(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 def create_tab(lab: LabContext) -> QWidget:

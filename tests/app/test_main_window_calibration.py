@@ -8,11 +8,14 @@ import pytest
 from app import calfiles
 from app.lab import LabContext
 from app.tabs.calibration import CalibrationTab
-from devices.config import LabConfig, RobotConfig
+from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, default_sensor_names
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, paper_protocol
 
 NO_PORT_CONFIG = LabConfig(robot=RobotConfig(port="/dev/sensnake-test-no-such-port"))
+# The rig's sensor on a spare board channel, away from the lying robot's weight (see tests/app/test_rig_session.py).
+BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
+                         rig=RigConfig(sensor="BENCH"))
 
 
 @pytest.fixture
@@ -52,6 +55,14 @@ def test_fit_plots_measured_and_fitted_and_saves(tab, qtbot, trial_files, tmp_pa
     assert abs(float(result.calibration.sls.E1_Pa) / TYPICAL_TRUTH.E1_Pa[0] - 1) < 0.2
     assert tab.trial_table.rowCount() == 2
     assert "S06B" in tab.summary_label.text() and "τ" in tab.summary_label.text()
+    headers = [tab.trial_table.horizontalHeaderItem(c).text() for c in range(tab.trial_table.columnCount())]
+    assert headers[:4] == ["Trial", "Force (N)", "E0 (Pa)", "E1 (Pa)"]
+    for row, report in enumerate(result.calibration.trials):
+        e1_cell = tab.trial_table.item(row, headers.index("E1 (Pa)"))
+        assert float(e1_cell.text()) == pytest.approx(float(report.params.E1_Pa), rel=1e-3)
+        assert e1_cell.toolTip().startswith("95 % interval")
+    lo, hi = result.calibration.sls_ci95["E1_Pa"]
+    assert f"95 %: {lo:.3g} … {hi:.3g}" in tab.summary_label.text()
     out = tmp_path / "cal.json"
     assert tab.save(out)
     document = calfiles.read_calibration(out)
@@ -77,3 +88,123 @@ def test_flat_sensor_fit_is_refused_with_a_reason(tab, qtbot, tmp_path):
         tab.start_fit()
     assert "flat.csv" in blocker.args[0]
     assert tab.fit_button.isEnabled() and not tab.save_button.isEnabled()
+
+
+# -- running the protocol on the (simulated) rig -------------------------------------------------------------------
+@pytest.fixture
+def fast_sim_lab():
+    from devices import factory
+    from devices.sim.lab import SimLab
+
+    lab = SimLab(BENCH_CONFIG, seed=5, speed=50.0)
+    previous = factory.install_sim_lab(lab)
+    yield lab
+    factory.install_sim_lab(previous)
+
+
+@pytest.fixture
+def rig_tab(qtbot, fast_sim_lab, tmp_path):
+    lab = LabContext(BENCH_CONFIG)  # every port on the simulated lab; the robot is never connected
+    page = CalibrationTab(lab)
+    qtbot.addWidget(page)
+    form = page.protocol_form
+    form.forces_edit.setText("1.75, 5.25")
+    form.trials_spin.setValue(1)
+    form.hold_spin.setValue(4.0)
+    form.baseline_spin.setValue(1.0)
+    form.ramp_spin.setValue(1.0)
+    form.rest_spin.setValue(0.3)
+    form.folder_edit.setText(str(tmp_path))
+    yield page
+    page.shutdown()
+    lab.close()
+
+
+@pytest.mark.slow  # a 2-trial run on the 50× sim (~12 s) and the fit in a spawned process
+def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
+    tab = rig_tab
+    with qtbot.waitSignal(tab.rig_session.running_changed, timeout=5_000):
+        assert tab.start_run()
+    assert not tab.fit_button.isEnabled() and not tab.protocol_form.run_button.isEnabled()
+    assert tab.protocol_form.abort_button.isEnabled()
+    assert tab.view_tabs.currentWidget() is tab.live_plot
+    qtbot.waitUntil(lambda: tab.live_plot.n_samples > 10, timeout=30_000)  # the live trial is drawn
+    t, force, conductance = tab.live_plot.data()
+    assert np.all(np.diff(t) > 0) and np.all(np.isfinite(force)) and np.all(np.isfinite(conductance))
+    # The run ends, its trials join the list and the fit starts by itself with the window scaled to the 4 s hold.
+    qtbot.waitUntil(lambda: not tab.rig_session.is_running and not tab.is_fitting
+                    and ("fitted" in tab.status_label.text() or "refused" in tab.status_label.text()),
+                    timeout=120_000)
+    assert tab.last_fit_window_s == pytest.approx((1.0 + 225 * 4 / 370, 1.0 + 300 * 4 / 370))
+    assert len(tab.trials) == 2 and tab.trial_list.count() == 2
+    assert "2/2 trials" in tab.protocol_form.progress_bar.format()
+    assert tab.protocol_form.run_button.isEnabled() and not tab.protocol_form.abort_button.isEnabled()
+    # On the 50× simulated lab the wall-clock protocol squeezes the sensor's creep (τ ≈ 100 s simulated) into ~2 s
+    # and a busy CPU shifts force against conductance by a sample: the fit of such short trials is sometimes refused
+    # (models issue reported to the lead). Either way the outcome is shown; the result display itself is checked
+    # deterministically by test_fit_plots_measured_and_fitted_and_saves.
+    if tab.result is None:
+        assert tab.status_label.text().startswith("fit refused: ")
+        return
+    assert [t.name for t in tab.result.trials] == [t.name for t in tab.trials]
+    forces = [float(tab.trial_table.item(row, 1).text()) for row in range(2)]
+    assert forces == pytest.approx([1.75, 5.25], abs=0.25)
+    assert tab.view_tabs.currentIndex() == 0 and tab.save_button.isEnabled()
+
+
+def test_abort_from_the_tab_keeps_the_finished_trial_in_the_list(rig_tab, qtbot, fast_sim_lab):
+    tab = rig_tab
+    tab.start_run()
+    qtbot.waitUntil(lambda: len(tab.trials) == 1, timeout=30_000)  # then abort while trial 2 rests or runs
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
+        tab.protocol_form.abort_button.click()
+    assert tab.trial_list.count() == 1 and tab.fit_button.isEnabled()
+    assert "aborted by the user" in tab.protocol_form.message_label.text()
+    assert "kept" in tab.status_label.text()
+    assert fast_sim_lab.rig.applied_force_n() == 0.0
+    assert not tab.is_fitting  # an aborted run is not fitted without asking
+
+
+def test_a_rig_that_does_not_answer_is_reported_on_the_form(rig_tab, qtbot, fast_sim_lab):
+    tab = rig_tab
+    fast_sim_lab.rig.chain.set_no_reply(tab.lab.config.rig.servo_id)
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
+        tab.start_run()
+    message = tab.protocol_form.message_label.text()
+    assert "no reply from servo 1" in message and "check its cable" in message
+    assert tab.trial_list.count() == 0 and tab.protocol_form.run_button.isEnabled()
+
+
+def test_bad_protocol_fields_are_refused_before_anything_moves(rig_tab):
+    tab = rig_tab
+    tab.protocol_form.forces_edit.setText("1.75, three")
+    assert not tab.start_run()
+    assert "'three' is not a number" in tab.protocol_form.message_label.text()
+    assert not tab.rig_session.is_running
+
+
+def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, fast_sim_lab, tmp_path):
+    from PySide6.QtCore import QSettings, Qt
+
+    from app.main_window import MainWindow
+
+    window = MainWindow(LabContext(BENCH_CONFIG), settings=QSettings(str(tmp_path / "s.ini"),
+                                                                    QSettings.Format.IniFormat))
+    qtbot.addWidget(window)
+    tab = window.show_tab("calibration")
+    tab.protocol_form.forces_edit.setText("3")
+    tab.protocol_form.trials_spin.setValue(1)
+    tab.protocol_form.hold_spin.setValue(60.0)
+    tab.protocol_form.rest_spin.setValue(0.3)
+    tab.protocol_form.folder_edit.setText(str(tmp_path))
+    window.show()
+    window.activateWindow()
+    qtbot.waitUntil(window.isActiveWindow)
+    tab.start_run()
+    qtbot.waitUntil(lambda: tab.live_plot.n_samples > 0 and fast_sim_lab.rig.applied_force_n() > 2.5,
+                    timeout=30_000)
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
+        qtbot.keyClick(tab.live_plot, Qt.Key.Key_Escape)
+    assert fast_sim_lab.rig.applied_force_n() == 0.0
+    assert tab.protocol_form.message_label.text().startswith("STOP pressed")
+    window.close()

@@ -14,16 +14,20 @@ from app.lab import LabContext
 from app.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
 from app.rig_session import RigSession
 from devices import factory
-from devices.config import LabConfig
+from devices.config import BoardConfig, LabConfig, RigConfig, default_sensor_names
 from devices.sim.lab import SimLab
 
 FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus the servo's tick resolution
-SHORT = dict(trials_per_force=1, hold_s=2.0, baseline_s=1.0, rest_s=0.3, sample_rate_hz=6.0)
+# The rig's sensor on a spare board channel: the robot's own sensors carry its (varying) weight in the simulated lab,
+# as a sensor mounted on a lying robot would; a bench sensor under the probe carries only the probe's force.
+BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
+                         rig=RigConfig(sensor="BENCH"))
+SHORT = dict(trials_per_force=1, hold_s=2.0, baseline_s=1.0, ramp_s=0.5, rest_s=0.3, sample_rate_hz=6.0)
 
 
 @pytest.fixture
 def fast_lab():
-    lab = SimLab(seed=7, speed=50.0)
+    lab = SimLab(BENCH_CONFIG, seed=7, speed=50.0)
     previous = factory.install_sim_lab(lab)
     yield lab
     factory.install_sim_lab(previous)
@@ -31,7 +35,7 @@ def fast_lab():
 
 @pytest.fixture
 def session(qtbot, fast_lab):
-    lab = LabContext(LabConfig())
+    lab = LabContext(BENCH_CONFIG)
     rig_session = RigSession(lab)
     yield rig_session
     rig_session.shutdown()
@@ -43,7 +47,7 @@ def _hold_rows(force_n: np.ndarray) -> np.ndarray:
 
 
 def test_short_protocol_writes_trials_whose_force_and_conductance_follow_the_command(session, qtbot, tmp_path):
-    settings = ProtocolSettings(forces_n=(1.75, 5.25), **SHORT)
+    settings = ProtocolSettings(forces_n=(1.75, 5.25), sensor="BENCH", **SHORT)
     saved = []
     session.trial_saved.connect(saved.append)
     with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
@@ -70,11 +74,11 @@ def test_short_protocol_writes_trials_whose_force_and_conductance_follow_the_com
 
 
 def test_abort_keeps_the_finished_trials_and_releases_the_load(session, qtbot, tmp_path, fast_lab):
-    settings = ProtocolSettings(forces_n=(1.75, 3.0, 4.0), **{**SHORT, "rest_s": 30.0})
+    settings = ProtocolSettings(forces_n=(1.75, 3.0, 4.0), sensor="BENCH", **SHORT)
     with qtbot.waitSignal(session.trial_saved, timeout=60_000):
         session.start(settings, tmp_path)
     with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
-        session.abort()  # during the rest after trial 1
+        session.abort()  # during the rest before trial 2, or early in trial 2 (which is then discarded)
     outcome = blocker.args[0]
     assert outcome.status == ABORTED
     assert len(outcome.trials) == 1 and outcome.trials[0].path.is_file()
@@ -84,7 +88,7 @@ def test_abort_keeps_the_finished_trials_and_releases_the_load(session, qtbot, t
 
 
 def test_stop_during_a_hold_releases_the_force(session, qtbot, tmp_path, fast_lab):
-    settings = ProtocolSettings(forces_n=(3.0,), **{**SHORT, "hold_s": 60.0})
+    settings = ProtocolSettings(forces_n=(3.0,), sensor="BENCH", **{**SHORT, "hold_s": 60.0})
     session.start(settings, tmp_path)
     qtbot.waitUntil(lambda: fast_lab.rig.applied_force_n() > 2.5, timeout=30_000)
     with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
@@ -96,7 +100,7 @@ def test_stop_during_a_hold_releases_the_force(session, qtbot, tmp_path, fast_la
 
 
 def test_pulled_rig_cable_stops_the_run_and_says_what_to_do(session, qtbot, tmp_path, fast_lab):
-    settings = ProtocolSettings(forces_n=(1.75, 3.0), **{**SHORT, "hold_s": 30.0})
+    settings = ProtocolSettings(forces_n=(1.75, 3.0), sensor="BENCH", **{**SHORT, "hold_s": 30.0})
     session.start(settings, tmp_path)
     # In the hold of trial 1 (the contact search also winds past 1.5 N, so wait for a sample of the trial).
     with qtbot.waitSignal(session.sample, timeout=30_000, check_params_cb=lambda s: s.force_n > 1.5):
@@ -121,7 +125,8 @@ def test_sensor_not_on_the_board_is_refused(session, tmp_path):
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"forces_n": ()}, "at least one force"),
     ({"forces_n": (2.0, -1.0)}, "-1 N is not a positive force"),
-    ({"hold_s": 1.0}, "fewer than 10 samples"),
+    ({"hold_s": 1.0, "ramp_s": 0.5}, "fewer than 10 samples"),
+    ({"hold_s": 5.0, "ramp_s": 5.0}, "ramp .* must be shorter than the hold"),
     ({"trials_per_force": 0}, "1 or more"),
 ])
 def test_settings_are_checked(kwargs, message):
