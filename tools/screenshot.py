@@ -84,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
             if name == "calibration" and hasattr(page, "add_trial_files"):
                 _load_demo_trials(page, Path(tmp))
                 pump(60_000, until=lambda p=page: p.result is not None or not p.is_fitting)
+                if hasattr(page, "source_tabs"):
+                    page.source_tabs.setCurrentWidget(page.protocol_form)  # the rig panel beside the fit
             pump(args.settle_ms)
             path = out / f"{name}.png"
             window.grab().save(str(path))

@@ -100,8 +100,8 @@ class ProtocolForm(QWidget):
         folder_row.addWidget(browse)
         form.addRow("Save under", folder_row)
         self.duration_label = QLabel()
+        self.duration_label.setWordWrap(True)
         self.duration_label.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
-        form.addRow("", self.duration_label)
 
         buttons = QHBoxLayout()
         self.run_button = QPushButton("Run protocol")
@@ -133,6 +133,7 @@ class ProtocolForm(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(4, 4, 4, 4)
         layout.addLayout(form)
+        layout.addWidget(self.duration_label)
         layout.addLayout(buttons)
         layout.addWidget(self.progress_bar)
         layout.addWidget(self.progress_label)
@@ -184,8 +185,8 @@ class ProtocolForm(QWidget):
 
     def _update_duration(self, *_args: object) -> None:
         n = self.forces_count() * self.trials_spin.value()
-        self.duration_label.setText(f"{n} trial(s), about {format_duration(self.estimated_duration_s())} "
-                                    "plus the contact search")
+        self.duration_label.setText(f"{n} trial(s) · about {format_duration(self.estimated_duration_s())} "
+                                    "(+ the contact search)")
 
     def _browse(self) -> None:
         folder = QFileDialog.getExistingDirectory(self, "Save calibration runs under", self.folder_edit.text())

@@ -510,6 +510,9 @@ class CalibrationTab(QWidget):
 
     def _trial_saved(self, record: TrialRecord) -> None:
         self.add_trial_files([record.path])
+        settings = self.run_settings
+        total = settings.n_trials if settings is not None else "?"
+        self._set_status(f"trial {record.index + 1}/{total} saved: {record.path.name}", theme.WARN)
 
     def _run_finished(self, outcome: Outcome) -> None:
         self.protocol_form.set_running(False)
@@ -608,7 +611,7 @@ def summary_html(result: FitResult) -> str:
     for key, label, unit in PARAM_LABELS:
         value = float(getattr(sls, key))
         interval = cal.sls_ci95.get(key)
-        ci = f" <span style='color:#666'>(95 %: {interval[0]:.3g} … {interval[1]:.3g})</span>" if interval else ""
+        ci = f" <span style='color:#666'>(95 %: {interval[0]:.4g} … {interval[1]:.4g})</span>" if interval else ""
         parts.append(f"{label} = {value:.4g} {unit}{ci}")
     lines = [f"<b>{result.sensor}</b> SLS, one set for all forces (used by estimate): " + ", ".join(parts)
              + f"; τ = {float(sls.tau_s):.4g} s; RMSE {cal.rmse_s:.3e} S; forces {cal.force_range_n[0]:.3g}–"

@@ -62,7 +62,7 @@ def test_fit_plots_measured_and_fitted_and_saves(tab, qtbot, trial_files, tmp_pa
         assert float(e1_cell.text()) == pytest.approx(float(report.params.E1_Pa), rel=1e-3)
         assert e1_cell.toolTip().startswith("95 % interval")
     lo, hi = result.calibration.sls_ci95["E1_Pa"]
-    assert f"95 %: {lo:.3g} … {hi:.3g}" in tab.summary_label.text()
+    assert f"95 %: {lo:.4g} … {hi:.4g}" in tab.summary_label.text()
     out = tmp_path / "cal.json"
     assert tab.save(out)
     document = calfiles.read_calibration(out)
