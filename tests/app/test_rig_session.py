@@ -132,3 +132,15 @@ def test_sensor_not_on_the_board_is_refused(session, tmp_path):
 def test_settings_are_checked(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ProtocolSettings(**kwargs)
+
+
+def test_pause_holds_the_run_unloaded_before_the_next_trial_until_resumed(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(3.0,), sensor="BENCH", **SHORT)
+    session.start(settings, tmp_path)
+    session.pause()  # takes effect at the end of the rest before trial 1 (after the contact search)
+    with qtbot.waitSignal(session.progress, timeout=30_000, check_params_cb=lambda p: p.phase == "paused"):
+        pass
+    assert session.is_paused and fast_lab.rig.applied_force_n() == 0.0
+    with qtbot.waitSignal(session.finished, timeout=30_000) as blocker:
+        session.resume()
+    assert blocker.args[0].status == COMPLETED and len(blocker.args[0].trials) == 1
