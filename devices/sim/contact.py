@@ -25,11 +25,21 @@ ROBOT_MASS_KG = 2.4  # SenSnake v2
 LIFT_SCALE_M = 0.01  # a segment 1 cm above the lowest one carries e⁻¹ of a grounded segment's share
 WALL_OFFSET_M = 0.12
 WALL_STIFFNESS_N_PER_M = 400.0
+# A wall press levels off at this force (the shell gives way): a hard yaw bend must not read as ~100 N.
+WALL_MAX_FORCE_N = 3.0
 BUMP_SPEED_M_S = 0.03
 BUMP_WIDTH_M = 0.06
-BUMP_FORCE_N = 3.0
-SIDE_BUMP_FORCE_N = 1.5
+# Weight share (~2 N) + bump stays below ~5 N, where the typical sensor saturates the default readout (1/R_C),
+# so a resting robot does not show saturated sensors; posing it over an obstacle can still saturate, as in the lab.
+BUMP_FORCE_N = 1.5
+SIDE_BUMP_FORCE_N = 1.0
 _NAME = re.compile(r"^S(\d+)([LRB])$")
+
+
+def _wall_force_n(penetration_m: np.ndarray) -> np.ndarray:
+    """Spring force of a wall pressed ``penetration_m`` deep (≤ 0: no contact), levelling off at WALL_MAX_FORCE_N."""
+    linear = WALL_STIFFNESS_N_PER_M * np.maximum(0.0, penetration_m)
+    return WALL_MAX_FORCE_N * np.tanh(linear / WALL_MAX_FORCE_N)
 
 
 class HasJointAngles(Protocol):
@@ -87,8 +97,8 @@ class ContactModel:
         lateral -= lateral.mean()
         share = np.exp(-(heights - heights.min()) / LIFT_SCALE_M)
         bottom = self.weight_n * share / share.sum()
-        left = WALL_STIFFNESS_N_PER_M * np.maximum(0.0, lateral - WALL_OFFSET_M)
-        right = WALL_STIFFNESS_N_PER_M * np.maximum(0.0, -lateral - WALL_OFFSET_M)
+        left = _wall_force_n(lateral - WALL_OFFSET_M)
+        right = _wall_force_n(-lateral - WALL_OFFSET_M)
         # The travelling bump.
         body_length = self.n_segments * length
         along = (np.arange(self.n_segments) + 0.5) * length

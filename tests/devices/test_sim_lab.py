@@ -22,3 +22,15 @@ def test_rig_probe_force_reaches_its_board_channel():
     assert np.isclose(after[channel] - before[channel], expected)
     others = np.delete(np.arange(after.size), channel)
     np.testing.assert_array_equal(after[others], before[others])
+
+
+def test_resting_robot_stays_below_the_readout_saturation_and_walls_level_off():
+    lab = SimLab(seed=2, speed=50.0)
+    peak = max(float(lab.contact.forces_n(t).max()) for t in np.arange(0.0, 120.0, 0.5))
+    assert 1.0 < peak < 4.5  # weight share + travelling bump, below ~5 N where the typical sensor saturates
+    # A hard yaw bend by hand pushes the body far past the virtual walls: the press levels off, it does not explode.
+    for joint_id, axis in zip(lab.config.robot.joint_ids, lab.config.robot.axes):
+        if axis == "yaw":
+            lab.chain.set_limp_position(joint_id, 2048 + 1000)
+    _, left, right = lab.contact.segment_loads_n(0.0)
+    assert max(left.max(), right.max()) <= 3.0 + 1.0 + 1e-9  # wall cap + side bump
