@@ -158,6 +158,14 @@ class SensorCalibration:
         return entry
 
 
+def _present(params: Sequence[SLSParams | None]) -> list[SLSParams]:
+    """Per-trial fits always carry parameters; this states it for the type checker (and fails loudly if not)."""
+    out = [p for p in params if p is not None]
+    if len(out) != len(params):
+        raise RuntimeError("a per-trial fit returned no parameters")
+    return out
+
+
 def _or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
@@ -322,17 +330,18 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                                  saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
     # The joint fit starts from the candidate (per-trial results, their median) with the lowest total cost.
     median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
-    joint_candidates = [median, *per_trial.params]
+    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params)]
     totals = trial_costs(fit_trials, area_m2, phys, joint_candidates, saturation_s=saturation_s,
                          min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
     joint = _fit(fit_trials, area_m2, phys, joint_candidates[int(np.argmin(totals))], "joint", saturation_s, solver)
+    assert joint.ref is not None  # a joint fit always returns its parameters
     # A per-trial fit must do at least as well on its trial as the joint parameters: if not, it stopped in a worse
     # local minimum; those trials are refitted from the joint solution.
     own = trial_costs(fit_trials, area_m2, phys, [joint.ref], saturation_s=saturation_s,
                       min_force_fraction=MIN_FORCE_FRACTION)[0]
     stuck = own < np.array(per_trial.cost_per_trial) * (1 - 1e-6)
     if stuck.any():
-        restart = [joint.ref if stuck[i] else per_trial.params[i] for i in range(len(fit_trials))]
+        restart = [joint.ref if stuck[i] else _present(per_trial.params)[i] for i in range(len(fit_trials))]
         per_trial = fit_output_scipy(fit_trials, area_m2, phys, restart, "per_trial", saturation_s=saturation_s,
                                      min_force_fraction=MIN_FORCE_FRACTION)
     forces = np.array([p["hold_n"] for p in prelim])

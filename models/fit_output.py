@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -485,6 +486,7 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     jac = ca.horzcat(*[weight * ca.vec(d)[selected] for d in derivatives])
     if cens.any():
         # Censored samples: only a model below the saturation level is penalised (zero residual and slope above).
+        assert problem.saturation_s is not None  # censored samples exist only when a saturation level was given
         sat = float(problem.saturation_s)
         below = ca.DM(cens.astype(float)) * (model < sat)
         residual = ca.if_else(ca.DM(cens.astype(float)), weight * ca.fmin(model - sat, 0), residual)
@@ -512,6 +514,7 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
         grad = ca.Function("nlp_grad_f", [theta, p_sym], [objective, ca.mtimes(jac.T, residual)], ["x", "p"],
                            ["f", "grad_f_x"])
         nlp = {"x": theta, "f": objective}
+        opts: dict[str, Any]
         if solver == "ipopt":
             opts = {"hess_lag": hess, "grad_f": grad, "print_time": False,
                     "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "sb": "yes"}}

@@ -167,7 +167,8 @@ def fit_paper_ls(stress_pa: np.ndarray, strain: np.ndarray, strain_rate_per_s: n
     cov_scaled = (vt.T / s**2) @ vt * sigma2
     se = np.sqrt(np.diag(cov_scaled)) / norms
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel = tuple(float(x) for x in np.abs(se / coef))
+        rel_b, rel_c, rel_a = (float(x) for x in np.abs(se / coef))
+    rel = (rel_b, rel_c, rel_a)
     b, c, a = (float(x) for x in coef)
     poorly = [f"{label} (±{100 * r:.0f}%)" for label, r in zip(("b", "c", "a"), rel) if not r < IDENTIFIABILITY_REL_SE]
     if poorly:

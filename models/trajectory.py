@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -75,6 +76,10 @@ class Plan:
     durations_s: np.ndarray
     labels: np.ndarray
     kind: str = "shift"
+    # derived in __post_init__ (a frozen dataclass sets them with object.__setattr__)
+    _ends_s: np.ndarray = field(init=False, repr=False, compare=False)
+    _starts_s: np.ndarray = field(init=False, repr=False, compare=False)
+    _tick_cache: dict[float, np.ndarray] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         starts = np.concatenate([[0.0], np.cumsum(self.durations_s)])
@@ -397,8 +402,9 @@ class Keyframes(PlannedMotion):
                  names: Sequence[str] | None = None, repeat: int = 1, rate_hz: float = 50.0) -> None:
         poses = np.array(poses_rad, dtype=float)
         times = np.array(times_s, dtype=float)
-        kwargs = dict(time_scale=time_scale, approach_speed_rad_s=approach_speed_rad_s,
-                      velocity_limit_rad_s=velocity_limit_rad_s, joint_ids=joint_ids, names=names, repeat=repeat)
+        kwargs: dict[str, Any] = dict(time_scale=time_scale, approach_speed_rad_s=approach_speed_rad_s,
+                                      velocity_limit_rad_s=velocity_limit_rad_s, joint_ids=joint_ids, names=names,
+                                      repeat=repeat)
         if poses.ndim == 2:
             plan_keyframes(poses[0], times, poses, **kwargs)  # validation only: refuse before anything moves
         else:

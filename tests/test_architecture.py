@@ -28,6 +28,12 @@ def test_ruff_is_clean():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+@pytest.mark.skipif(shutil.which("mypy") is None, reason="mypy not installed")
+def test_type_checker_is_clean_on_models_and_devices():
+    result = _run([sys.executable, "-m", "mypy"])  # files and options from [tool.mypy] in pyproject.toml
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
 def test_casadi_loads_only_when_first_needed():
     code = (
         "import sys, importlib, pkgutil\n"
