@@ -64,6 +64,7 @@ class RigSession(QObject):
         self.outcome: Outcome | None = None
         self._posted.connect(self._run_posted)
         lab.robot.event.connect(self._on_robot_event)
+        self._listening_for_stop = True
 
     # -- state -----------------------------------------------------------------------------------------------------
     @property
@@ -132,9 +133,10 @@ class RigSession(QObject):
         if thread is not None:
             thread.join()
         self._disconnect_board()
-        # Already disconnected (shutdown called twice) or the bridge is gone: nothing to undo.
-        with contextlib.suppress(RuntimeError, TypeError):
-            self.lab.robot.event.disconnect(self._on_robot_event)
+        if self._listening_for_stop:
+            self._listening_for_stop = False
+            with contextlib.suppress(RuntimeError, TypeError):  # the bridge is already gone
+                self.lab.robot.event.disconnect(self._on_robot_event)
 
     # -- worker thread ---------------------------------------------------------------------------------------------
     def _worker(self, runner: ProtocolRunner) -> None:

@@ -154,6 +154,9 @@ def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
 
 def test_abort_from_the_tab_keeps_the_finished_trial_in_the_list(rig_tab, qtbot, fast_sim_lab):
     tab = rig_tab
+    tab.protocol_form.hold_spin.setValue(2.0)
+    tab.protocol_form.ramp_spin.setValue(0.3)
+    tab.protocol_form.baseline_spin.setValue(0.5)
     tab.start_run()
     qtbot.waitUntil(lambda: len(tab.trials) == 1, timeout=30_000)  # then abort while trial 2 rests or runs
     with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
@@ -195,7 +198,9 @@ def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, f
     tab.protocol_form.forces_edit.setText("3")
     tab.protocol_form.trials_spin.setValue(1)
     tab.protocol_form.hold_spin.setValue(60.0)
-    tab.protocol_form.rest_spin.setValue(0.3)
+    tab.protocol_form.rest_spin.setValue(0.2)
+    tab.protocol_form.baseline_spin.setValue(0.3)
+    tab.protocol_form.ramp_spin.setValue(0.3)
     tab.protocol_form.folder_edit.setText(str(tmp_path))
     window.show()
     window.activateWindow()

@@ -1,7 +1,7 @@
 """A calibration run on the simulated rig, through RigSession: the rig's own bus, the board stream, trial CSVs.
 
 The lab runs 50× faster than real time; the protocol's holds are a few wall seconds (the trial's clock is the wall
-clock, so a 2 s hold here is 100 s of the simulated sensor's creep).
+clock, so a 2.5 s hold here is 125 s of the simulated sensor's creep).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus t
 # as a sensor mounted on a lying robot would; a bench sensor under the probe carries only the probe's force.
 BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
                          rig=RigConfig(sensor="BENCH"))
-SHORT = dict(trials_per_force=1, hold_s=2.0, baseline_s=1.0, ramp_s=0.5, rest_s=0.3, sample_rate_hz=6.0)
+SHORT = dict(trials_per_force=1, hold_s=2.5, baseline_s=0.7, ramp_s=0.5, rest_s=0.2, sample_rate_hz=6.0)
 
 
 @pytest.fixture
