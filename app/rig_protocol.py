@@ -266,19 +266,20 @@ def decimate_to(row_times_s: np.ndarray, period_s: float, board_t_s: np.ndarray,
 class ProtocolRunner:
     """Runs :class:`ProtocolSettings` on a rig; see the module docstring."""
 
-    def __init__(self, settings: ProtocolSettings, rig: RigDevice, feed: ConductanceFeed, folder: Path, *,
+    def __init__(self, settings: ProtocolSettings, feed: ConductanceFeed, folder: Path, *,
                  on_progress: Callable[[Progress], None] | None = None,
                  on_sample: Callable[[Sample], None] | None = None,
                  on_trial: Callable[[TrialRecord], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, board_stale_s: float = BOARD_STALE_S) -> None:
         self.settings = settings
-        self.rig = rig
+        self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
         self._on_progress = on_progress or (lambda _p: None)
         self._on_sample = on_sample or (lambda _s: None)
         self._on_trial = on_trial or (lambda _t: None)
         self._clock = clock
+        self.board_stale_s = board_stale_s  # no board sample for this long (s) ends the run
         self._stop = threading.Event()
         self._resume = threading.Event()
         self._resume.set()
@@ -309,17 +310,19 @@ class ProtocolRunner:
         return self._stop.is_set()
 
     # -- the run (worker thread) -----------------------------------------------------------------------------------
-    def run(self) -> Outcome:
-        """Run the whole protocol and return how it ended. Never raises for rig, board or file problems."""
+    def run(self, rig: RigDevice) -> Outcome:
+        """Run the whole protocol on ``rig`` (open, owned by the calling thread) and return how it ended. Never
+        raises for rig, board or file problems."""
         s = self.settings
+        self.rig = rig
         self._started_s = self._clock()
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             (self.folder / "protocol.json").write_text(json.dumps(
                 {"format": "sensnake-calibration-protocol", "version": 1, **asdict(s)}, indent=2), encoding="utf-8")
             self._progress("contact", -1, 0.0, 0, 0.0, "finding where the probe touches the sensor…")
-            self.rig.find_contact()
-            self.rig.release()
+            rig.find_contact()
+            rig.release()
             for index, (force, repeat) in enumerate(s.plan):
                 self._rest(index)
                 self._check_stop()
@@ -345,10 +348,13 @@ class ProtocolRunner:
         n = len(self.trials)
         kept = (f"the {n} finished trial(s) are kept in {self.folder}" if n else
                 f"no trial was finished (folder {self.folder})")
-        if status == FAILED:
+        if isinstance(exc, DeviceError):
             todo = ("fix the cause (cable, power, then reboot the rig servo if it reports an error), then run again; "
-                    "you can fit the kept trials now" if isinstance(exc, DeviceError) else
-                    "check the board's cable and that it streams (Forces tab), then run again")
+                    "you can fit the kept trials now")
+        elif isinstance(exc, BoardStreamError):
+            todo = "check the board's cable and that it streams (Forces tab), then run again"
+        elif exc is not None:
+            todo = "choose a folder you can write to (Save under), then run again"
         else:
             todo = "the trial in progress was discarded"
         load = "load released" if released else "the rig could NOT take the load off: unwind it by hand"
@@ -357,6 +363,8 @@ class ProtocolRunner:
         return Outcome(status, message, self.folder, tuple(self.trials))
 
     def _release_safely(self) -> bool:
+        if self.rig is None:
+            return True
         try:
             self.rig.release()
         except DeviceError:
@@ -408,6 +416,8 @@ class ProtocolRunner:
 
     def _trial(self, index: int, force: float, repeat: int) -> TrialRecord:
         s = self.settings
+        rig = self.rig
+        assert rig is not None  # run() set it
         label = f"trial {index + 1}/{s.n_trials}: {force:g} N, repeat {repeat}"
         period = 1.0 / s.sample_rate_hz
         n_rows = int(math.floor(s.trial_duration_s() * s.sample_rate_hz)) + 1
@@ -423,13 +433,13 @@ class ProtocolRunner:
                 loaded = True
                 share = (now - t0 - s.baseline_s + period) / s.ramp_s if s.ramp_s > 0 else 1.0
                 ramped = share >= 1.0
-                self.rig.start_force(force * min(share, 1.0))
+                rig.start_force(force * min(share, 1.0))
             times[row] = now
-            forces[row] = self.rig.applied_force_n()
+            forces[row] = rig.applied_force_n()
             board_t, board_c = self.feed.latest()
-            if now - board_t > BOARD_STALE_S:
+            if now - board_t > self.board_stale_s:
                 raise BoardStreamError(
-                    f"no conductance from the board for sensor {s.sensor} for {BOARD_STALE_S:g} s during {label}"
+                    f"no conductance from the board for sensor {s.sensor} for {self.board_stale_s:g} s during {label}"
                     if math.isfinite(board_t) else f"no conductance from the board for sensor {s.sensor}")
             elapsed = now - t0
             phase = "baseline" if not loaded else ("loading" if forces[row] < 0.95 * force else "hold")
@@ -442,7 +452,7 @@ class ProtocolRunner:
             if self._stop.wait(0.05):
                 raise _Stopped
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
-        self.rig.release()
+        rig.release()
         host_t, board_c, board_t = self.feed.snapshot(times[0] - 2 * period)
         conductance = decimate_to(times, period, board_times_on_host_clock(host_t, board_t), board_c)
         time_s = times - times[0]  # measured sample times (s), the first at 0

@@ -27,6 +27,7 @@ from PySide6.QtCore import QObject, Signal
 
 from app.lab import LabContext
 from app.rig_protocol import (
+    BOARD_STALE_S,
     FAILED,
     ConductanceFeed,
     Outcome,
@@ -52,9 +53,11 @@ class RigSession(QObject):
     running_changed = Signal(bool)
     _posted = Signal(object)  # worker thread → GUI thread (queued): public signals are emitted on the GUI thread
 
-    def __init__(self, lab: LabContext, parent: QObject | None = None, *, rig_factory: Any = CalibrationRig) -> None:
+    def __init__(self, lab: LabContext, parent: QObject | None = None, *, rig_factory: Any = CalibrationRig,
+                 board_stale_s: float = BOARD_STALE_S) -> None:
         super().__init__(parent)
         self.lab = lab
+        self.board_stale_s = board_stale_s
         self._rig_factory = rig_factory
         self._runner: ProtocolRunner | None = None
         self._thread: threading.Thread | None = None
@@ -99,10 +102,11 @@ class RigSession(QObject):
         if not board.is_running:
             board.start()
         folder = session_folder(Path(base_folder), settings.sensor)
-        runner = ProtocolRunner(settings, _Deferred(), self._feed, folder,
+        runner = ProtocolRunner(settings, self._feed, folder,
                                 on_progress=lambda p: self._post(self.progress, p),
                                 on_sample=lambda s: self._post(self.sample, s),
-                                on_trial=lambda t: self._post(self.trial_saved, t))
+                                on_trial=lambda t: self._post(self.trial_saved, t),
+                                board_stale_s=self.board_stale_s)
         self._runner = runner
         self.outcome = None
         self._thread = threading.Thread(target=self._worker, args=(runner,), name="calibration-rig", daemon=True)
@@ -148,9 +152,8 @@ class RigSession(QObject):
             outcome = Outcome(FAILED, f"cannot open the calibration rig on {self.lab.config.rig.port}: {exc}",
                               runner.folder)
         else:
-            runner.rig = rig
             try:
-                outcome = runner.run()
+                outcome = runner.run(rig)
             finally:
                 try:
                     rig.close()
@@ -195,9 +198,3 @@ class RigSession(QObject):
             with contextlib.suppress(RuntimeError, TypeError):  # already disconnected
                 board.block.disconnect(self._on_block)
 
-
-class _Deferred:
-    """Placeholder rig until the worker has opened the real one (the runner is built on the GUI thread)."""
-
-    def __getattr__(self, name: str) -> Any:
-        raise RuntimeError(f"the rig is not open yet ({name})")

@@ -36,7 +36,7 @@ def fast_lab():
 @pytest.fixture
 def session(qtbot, fast_lab):
     lab = LabContext(BENCH_CONFIG)
-    rig_session = RigSession(lab)
+    rig_session = RigSession(lab, board_stale_s=1.0)  # a stopped board stream ends the run after 1 s
     yield rig_session
     rig_session.shutdown()
     lab.close()
@@ -144,3 +144,19 @@ def test_pause_holds_the_run_unloaded_before_the_next_trial_until_resumed(sessio
     with qtbot.waitSignal(session.finished, timeout=30_000) as blocker:
         session.resume()
     assert blocker.args[0].status == COMPLETED and len(blocker.args[0].trials) == 1
+
+
+def test_board_cable_pulled_during_a_hold_stops_the_run_and_releases(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(3.0,), sensor="BENCH", **{**SHORT, "hold_s": 60.0})
+    session.start(settings, tmp_path)
+    with qtbot.waitSignal(session.sample, timeout=30_000, check_params_cb=lambda s: s.force_n > 2.5):
+        pass
+    fast_lab.board.unplug()
+    with qtbot.waitSignal(session.finished, timeout=30_000) as blocker:
+        pass  # no board sample for the session's board_stale_s (1 s)
+    fast_lab.board.replug()
+    outcome = blocker.args[0]
+    assert outcome.status == FAILED
+    assert outcome.message.startswith("no conductance from the board for sensor BENCH for 1 s during trial 1/1")
+    assert "load released" in outcome.message and "check the board's cable" in outcome.message
+    assert fast_lab.rig.applied_force_n() == 0.0
