@@ -145,6 +145,7 @@ class _FactoryPortHandler(PortHandler):
         self._complete_streak = 0  # transactions in a row complete at their first wake-up
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._expected_s = -math.inf  # when the awaited reply bytes should all have arrived
+        self._tx_start_s = -math.inf  # when the last instruction was handed to the port
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -168,6 +169,7 @@ class _FactoryPortHandler(PortHandler):
         return baudrate if baudrate > 0 else -1
 
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
+        self._tx_start_s = time.monotonic()
         written = self.ser.write(packet)
         self._wire_free_s = max(time.monotonic(), self._wire_free_s) + len(packet) * self.byte_s
         # Until told otherwise (expect_replies), wait for one minimal status packet.
@@ -192,10 +194,18 @@ class _FactoryPortHandler(PortHandler):
         the bytes are counted, so a wake-up delayed by the scheduler can only make the estimate short (corrected at
         the next wake-up), never long. A long estimate costs no wake-up to notice, so every ``GAP_PROBE_EVERY``-th
         transaction that completes at its first wake-up halves the estimate to probe whether the delay has shrunk.
+        Bytes already there before the first sleep (free to check) mean a device faster than the wire, i.e. the
+        simulator on an accelerated clock: the rest is then awaited at the pace observed, not at the baud rate.
         """
         self.expect_replies(n_replies, n_bytes)
         reply_bytes = n_bytes / max(n_replies, 1)
         wake_s = self._expected_s
+        now = time.monotonic()
+        arrived = self.ser.in_waiting
+        if arrived >= n_bytes:
+            return
+        if arrived > 0:
+            wake_s = now + (n_bytes - arrived) * (now - self._tx_start_s) / arrived
         first = True
         while True:
             now = time.monotonic()
@@ -220,6 +230,8 @@ class _FactoryPortHandler(PortHandler):
                 per_reply_s = elapsed_s * reply_bytes / arrived
                 self.reply_gap_s = min(MAX_REPLY_GAP_S, max(0.0, per_reply_s - reply_bytes * self.byte_s))
                 wake_s = now + (n_bytes - arrived) / reply_bytes * per_reply_s
+            elif arrived > 0:  # faster than the wire (accelerated simulator): the pace since the instruction
+                wake_s = now + (n_bytes - arrived) * (now - self._tx_start_s) / arrived
             else:
                 wake_s = now + self._late_poll_s(now, n_bytes)
 
