@@ -45,6 +45,7 @@ from models.sls import SLSParams, conductance_from_force
 
 PARAM_NAMES = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
 MODES = ("joint", "trend", "per_trial")
+LOG_PARAM_BOUND = math.log(1e6)  # log-parameters stay within 10^±6 of the starting scale
 _FD_STEP = 1e-7  # relative step in the log-parameters: ~√eps, the model is smooth
 
 
@@ -132,6 +133,10 @@ class _Problem:
             self.groups = [[3 * t + j for t in range(n_trials)] for j in range(3)]
         lower = np.full(self.n_params, -np.inf)
         upper = np.full(self.n_params, np.inf)
+        # Log-parameters stay within 10^±6 of the starting scale: a creep too fast or too slow for the record drives
+        # them towards ±∞ (exp overflow → inf parameters); at the bound the fit is reported as degenerate instead.
+        log_entries = slice(0, 3) if mode == "trend" else slice(None)
+        lower[log_entries], upper[log_entries] = -LOG_PARAM_BOUND, LOG_PARAM_BOUND
         if mode == "trend":
             # u is scaled by F_ref; keep every parameter ≥ 5 % of its reference value over the calibrated forces.
             span_up = (self.hold_n.max() - self.ref_force_n) / self.ref_force_n
@@ -199,7 +204,10 @@ class _Problem:
             force = np.repeat(np.column_stack([self.forces[i] for i in group]), n_cols, axis=1)
             p = params[group].reshape(-1, 3)
             sls = SLSParams(p[:, 0].copy(), p[:, 1].copy(), p[:, 2].copy())
-            c = np.asarray(conductance_from_force(t_s, force, sls, self.area_m2, self.phys, interp=self.interp))
+            # An optimiser's trial step may overstrain the model (ε ≥ 1): clamp, so the step is simply rejected by its
+            # large residual instead of aborting the fit.
+            c = np.asarray(conductance_from_force(t_s, force, sls, self.area_m2, self.phys, interp=self.interp,
+                                                  overstrain="clamp"))
             c = c.reshape(t_s.shape[0], len(group), n_cols)
             for j, i in enumerate(group):
                 out[i] = c[:, j, :]
@@ -266,8 +274,7 @@ class _Problem:
                 cov = _covariance(j_i, float(r_i @ r_i) / max(r_i.size - 3, 1))
                 se = np.sqrt(np.diag(cov))
                 t_i = float(stats.t.ppf(0.975, max(r_i.size - 3, 1)))
-                ci_trials.append({n: (float(params[i, k] * math.exp(-t_i * se[k])),
-                                      float(params[i, k] * math.exp(t_i * se[k])))
+                ci_trials.append({n: _log_interval(float(params[i, k]), t_i * se[k])
                                   for k, n in enumerate(PARAM_NAMES)})
         else:
             cov = _covariance(jac, float(residual @ residual) / dof)
@@ -277,8 +284,7 @@ class _Problem:
             for k, n in enumerate(PARAM_NAMES):
                 # In trend mode these are the parameters at the reference force (the mean hold force).
                 key = n if self.mode == "joint" else f"{n}.at_ref_force"
-                ci[key] = (float(ref_values[k] * math.exp(-t_crit * se[k])),
-                           float(ref_values[k] * math.exp(t_crit * se[k])))
+                ci[key] = _log_interval(float(ref_values[k]), t_crit * se[k])
             if self.mode == "trend":
                 trend = {}
                 for k, n in enumerate(PARAM_NAMES):
@@ -322,6 +328,14 @@ def _hold_last_valid(values: np.ndarray) -> np.ndarray:
 def _sumsq(x: np.ndarray) -> float:
     """Σx² without a BLAS call (a threaded BLAS dot on a vector is slow on a busy machine)."""
     return float(np.sum(x * x))
+
+
+def _log_interval(value: float, half_width_log: float) -> tuple[float, float]:
+    """``value·e^(∓w)``: a 95 % interval from a half-width ``w`` in log-parameter space. An unidentified parameter
+    (w huge or inf) gets (0, inf) rather than an overflow."""
+    if not half_width_log < 700.0:
+        return (0.0, math.inf)
+    return (value * math.exp(-half_width_log), value * math.exp(half_width_log))
 
 
 def _covariance(jac: np.ndarray, sigma2: float) -> np.ndarray:
@@ -370,7 +384,8 @@ def _block_levenberg_marquardt(problem: _Problem, max_iter: int) -> tuple[np.nda
             if predicted[i] <= 1e-14 * cost[i] or np.max(np.abs(delta)) < 1e-10:
                 active[i] = False
             else:
-                candidate[i] = theta[i] + delta
+                candidate[i] = np.clip(theta[i] + delta, problem.bounds[0][3 * i:3 * i + 3],
+                                       problem.bounds[1][3 * i:3 * i + 3])
         if not active.any():
             break
         r_new = problem.residual(candidate.ravel())
