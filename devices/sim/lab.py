@@ -35,11 +35,14 @@ class SimLab:
         self.board = VirtualBoard(self.config.board, self.clock, force_source=self.forces_n, seed=board_seed)
 
     def forces_n(self, t_s: float) -> np.ndarray:
-        """Force on every board channel: robot contacts, plus the rig's probe on the channel of ``rig.sensor``
-        (the simulated rig presses that sensor, so a calibration run reads it through the board as in the lab)."""
+        """Force on every board channel from the robot's contacts — except that while the rig's probe presses, the
+        channel of ``rig.sensor`` feels the probe alone: in the lab that segment sits on the calibration beam, not
+        under the robot's weight, so a calibration run reads the rig force through the board as it would there."""
         forces = self.contact.forces_n(t_s)
         if self._rig_channel is not None:
-            forces[self._rig_channel] += self.rig.applied_force_n()
+            probe_n = self.rig.applied_force_n()
+            if probe_n > 0.0:
+                forces[self._rig_channel] = probe_n
         return forces
 
     def endpoint(self, device: str) -> SimEndpoint:
