@@ -29,6 +29,7 @@ class LabContext(QObject):
 
     recording_changed = Signal(object)
     board_created = Signal(object)
+    stop_requested = Signal()  # STOP / Esc: every device that can move or load something halts (robot, rig)
 
     def __init__(self, config: LabConfig, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -84,6 +85,12 @@ class LabContext(QObject):
         board = self.board
         if board is not None:
             board.start()
+
+    def emergency_stop(self) -> None:
+        """STOP (button or Esc, GUI thread): the robot halts within one control tick (torque stays on, goals frozen
+        at present) and ``stop_requested`` tells every other moving device (the calibration rig) to halt too."""
+        self.robot.emergency_stop()
+        self.stop_requested.emit()
 
     def close(self) -> None:
         """Stop recording, stop every device and join their threads. Blocks briefly; safe to call twice."""

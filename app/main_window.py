@@ -2,7 +2,8 @@
 
 Tabs are built from ``app/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
-do. STOP (the red button, or Esc anywhere in the app) calls ``lab.robot.emergency_stop()``.
+do. STOP (the red button, or Esc anywhere in the app) calls ``lab.emergency_stop()``: the robot halts and the
+calibration rig releases its load.
 GUI thread only.
 """
 
@@ -329,8 +330,9 @@ class MainWindow(QMainWindow):
         return False  # never consume: the dialog still gets its Esc
 
     def emergency_stop(self) -> None:
-        """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present."""
-        self.lab.robot.emergency_stop()
+        """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present; the rig
+        releases its load (``LabContext.emergency_stop``)."""
+        self.lab.emergency_stop()
 
     # -- settings and shutdown -------------------------------------------------------------------------------------
     def _restore_settings(self) -> None:

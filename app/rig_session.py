@@ -6,10 +6,9 @@ never touches the rig's port. The sensor's conductance comes from the lab's boar
 it is not running): every drained block's column for the sensor is pushed into the runner's
 :class:`~app.rig_protocol.ConductanceFeed`.
 
-STOP: the main window's STOP (button or Esc) calls ``lab.robot.emergency_stop()``, which announces itself on
-``lab.robot.event`` with a message starting ``"STOP"``; the session listens for it and aborts the run, which takes the
-load off the sensor (the rig's release is not interruptible). A dedicated "emergency" signal on the lab would be
-cleaner; until it exists this is the hook that works without touching the main window.
+STOP: the main window's STOP (button or Esc) calls ``lab.emergency_stop()``, which emits ``lab.stop_requested``; the
+session listens for it and aborts the run, which takes the load off the sensor (the rig's release is not
+interruptible).
 
 Signals (GUI thread): ``progress(Progress)``, ``sample(Sample)`` at the protocol's sampling rate (6 Hz by default),
 ``trial_saved(TrialRecord)``, ``finished(Outcome)``, ``running_changed(bool)``. All public methods: GUI thread.
@@ -40,7 +39,6 @@ from devices.rig import CalibrationRig
 
 log = logging.getLogger(__name__)
 
-STOP_EVENT_PREFIX = "STOP"  # RobotBridge.emergency_stop's event messages start with this
 
 
 class RigSession(QObject):
@@ -66,7 +64,7 @@ class RigSession(QObject):
         self._board: Any = None
         self.outcome: Outcome | None = None
         self._posted.connect(self._run_posted)
-        lab.robot.event.connect(self._on_robot_event)
+        lab.stop_requested.connect(self._on_stop_requested)
         self._listening_for_stop = True
 
     # -- state -----------------------------------------------------------------------------------------------------
@@ -140,7 +138,7 @@ class RigSession(QObject):
         if self._listening_for_stop:
             self._listening_for_stop = False
             with contextlib.suppress(RuntimeError, TypeError):  # the bridge is already gone
-                self.lab.robot.event.disconnect(self._on_robot_event)
+                self.lab.stop_requested.disconnect(self._on_stop_requested)
 
     # -- worker thread ---------------------------------------------------------------------------------------------
     def _worker(self, runner: ProtocolRunner) -> None:
@@ -178,8 +176,8 @@ class RigSession(QObject):
         if self._feed is not None and self._channel is not None and len(block):
             self._feed.push(block.host_time_s, block.conductance_s[:, self._channel], block.board_time_s)
 
-    def _on_robot_event(self, text: str) -> None:
-        if self.is_running and text.startswith(STOP_EVENT_PREFIX):
+    def _on_stop_requested(self) -> None:
+        if self.is_running:
             self.emergency_stop()
 
     def _on_finished(self, outcome: Outcome) -> None:

@@ -92,7 +92,7 @@ def test_stop_during_a_hold_releases_the_force(session, qtbot, tmp_path, fast_la
     session.start(settings, tmp_path)
     qtbot.waitUntil(lambda: fast_lab.rig.applied_force_n() > 2.5, timeout=30_000)
     with qtbot.waitSignal(session.finished, timeout=20_000) as blocker:
-        session.lab.robot.emergency_stop()  # what the window's STOP / Esc calls (robot not connected here)
+        session.lab.emergency_stop()  # what the window's STOP / Esc calls (robot not connected here)
     outcome = blocker.args[0]
     assert outcome.status == ABORTED and outcome.message.startswith("STOP")
     assert outcome.trials == ()
