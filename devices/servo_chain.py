@@ -171,7 +171,8 @@ class _FactoryPortHandler(PortHandler):
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
         self._tx_start_s = time.monotonic()
         written = self.ser.write(packet)
-        self._wire_free_s = max(time.monotonic(), self._wire_free_s) + len(packet) * self.byte_s
+        # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
+        self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
         # Until told otherwise (expect_replies), wait for one minimal status packet.
         self._expected_s = self._wire_free_s + self.reply_gap_s + MIN_STATUS_BYTES * self.byte_s
         return written
@@ -194,8 +195,9 @@ class _FactoryPortHandler(PortHandler):
         the bytes are counted, so a wake-up delayed by the scheduler can only make the estimate short (corrected at
         the next wake-up), never long. A long estimate costs no wake-up to notice, so every ``GAP_PROBE_EVERY``-th
         transaction that completes at its first wake-up halves the estimate to probe whether the delay has shrunk.
-        Bytes already there before the first sleep (free to check) mean a device faster than the wire, i.e. the
-        simulator on an accelerated clock: the rest is then awaited at the pace observed, not at the baud rate.
+        Bytes already there before the instruction can have left the wire (free to check: no sleep) mean a device
+        faster than the wire, i.e. the simulator on an accelerated clock: the rest is then awaited at the pace
+        observed since the instruction was written, not at the baud rate.
         """
         self.expect_replies(n_replies, n_bytes)
         reply_bytes = n_bytes / max(n_replies, 1)
@@ -204,7 +206,7 @@ class _FactoryPortHandler(PortHandler):
         arrived = self.ser.in_waiting
         if arrived >= n_bytes:
             return
-        if arrived > 0:
+        if arrived > 0 and now < self._wire_free_s:  # replies before our instruction can have left the wire
             wake_s = now + (n_bytes - arrived) * (now - self._tx_start_s) / arrived
         first = True
         while True:

@@ -7,6 +7,8 @@ speed here, with the factory Return Delay Time (500 µs per reply), so the wire 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -69,3 +71,33 @@ def test_a_silent_servo_still_times_out_by_name_with_few_wakeups(servos):
     assert chain.reply_wakeups - before <= 60
     sim.set_no_reply(9, False)
     assert chain.read_state().position_rad.shape == (12,)
+
+
+@pytest.mark.parametrize("clock_speed", [1.0, 20.0])
+def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_speed):
+    # Regression: bytes seen right after the instruction once set the pace from the instruction's own wire time,
+    # planning sleeps up to the SDK's 36 ms timeout for a 4 ms sync read.
+    sim = VirtualChain(ids=ROBOT.joint_ids, baud=ROBOT.baud, clock=SimClock(clock_speed), seed=7, return_delay_time=0)
+    previous = factory.install_sim_lab(ChainLab(sim))
+    planned: list[float] = []
+    real_sleep = time.sleep
+
+    def recording_sleep(seconds: float) -> None:
+        planned.append(seconds)
+        real_sleep(seconds)
+
+    try:
+        with ServoChain(ROBOT) as chain:
+            chain.set_torque(True)
+            monkeypatch.setattr(time, "sleep", recording_sleep)
+            for _ in range(20):
+                chain.read_state()  # back to back, with the bus idle when each starts (as in a control tick)
+            monkeypatch.undo()
+            cycle_s = chain.sync_read_time_s(12, 10)
+    finally:
+        factory.install_sim_lab(previous)
+    assert max(planned, default=0.0) <= 1.5 * cycle_s
+    if clock_speed == 1.0:
+        assert len(planned) >= 20  # at real speed the replies are slept through, not polled
+    else:
+        assert len(planned) <= 20  # a faster simulator has answered before the driver looks
