@@ -21,11 +21,12 @@ from collections.abc import Sequence
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QPointF, Qt, Signal
+from PySide6.QtCore import QPointF, Qt, QTimer, Signal
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from models.kinematics import SEGMENT_LENGTH_M, bend_for_point, forward_kinematics, sensor_points
 from widgets import theme
+from widgets.force_plots import _cache_subtree
 
 DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
 DEFAULT_FULL_SCALE_N = 10.0
@@ -33,7 +34,24 @@ GRAB_RADIUS_PX = 14.0
 # 1 mrad turns the tail by < 1 mm: below a pixel at the drawing's scale, and below the ±1 tick (1.5 mrad)
 # encoder noise of a servo holding torque, so a robot standing still costs no redraws.
 REDRAW_TOLERANCE_RAD = 1e-3
+# When a bent body leaves the drawn range, the range grows past it by this fraction of the body length, and it
+# shrinks back (to the drawing plus this headroom) only after being more than twice the headroom too wide for
+# RANGE_SHRINK_AFTER_S: a gait settles on its envelope and the axes stay put (see BodyView._set_ranges).
+RANGE_HEADROOM = 0.1
+RANGE_SHRINK_AFTER_S = 3.0
 VIEWS = ("side", "top")
+
+
+def _contains(outer: tuple[float, float, float, float], inner: tuple[float, float, float, float]) -> bool:
+    return outer[0] <= inner[0] and outer[1] >= inner[1] and outer[2] <= inner[2] and outer[3] >= inner[3]
+
+
+def _union(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> tuple[float, ...]:
+    return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
+
+
+def _grown(box: tuple[float, float, float, float], pad: float) -> tuple[float, float, float, float]:
+    return (box[0] - pad, box[1] + pad, box[2] - pad, box[3] + pad)
 
 
 class _BodyViewBox(pg.ViewBox):
@@ -81,6 +99,13 @@ class BodyView(QWidget):
         self._sensor_style_cache: dict = {}
         self._brush_cache: dict = {}
         self._pen_cache: dict = {}
+        self.range_changes = 0  # how often the views' ranges were set (each one redraws the axes)
+        # What was drawn since the range first looked too wide; when shrink_timer fires, the range shrinks to it
+        self._envelope: dict[str, tuple[float, float, float, float]] | None = None
+        self.shrink_timer = QTimer(self)
+        self.shrink_timer.setSingleShot(True)
+        self.shrink_timer.setInterval(int(RANGE_SHRINK_AFTER_S * 1000))
+        self.shrink_timer.timeout.connect(self._shrink_ranges)
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -107,6 +132,10 @@ class BodyView(QWidget):
                 plot.getAxis(axis_name).enableAutoSIPrefix(False)  # metres throughout, no "×0.001"
             plot.hideButtons()
             plot.setMenuEnabled(False)
+            # The axes (grid lines, tick labels and title included) change only with the range: paint them from a
+            # pixmap, not by replaying their pictures under every frame of a moving body (as the force plots do).
+            for axis_name in ("left", "bottom"):
+                _cache_subtree(plot.getAxis(axis_name))
             self._plots[view] = plot
             goal = pg.PlotDataItem(pen=pg.mkPen(theme.GOAL_COLOR, width=2, style=Qt.PenStyle.DashLine))
             body = pg.PlotDataItem(pen=pg.mkPen(theme.PRESENT_COLOR, width=3))
@@ -226,31 +255,96 @@ class BodyView(QWidget):
         return (-length - 0.05, 0.08, -0.2 * length, 0.2 * length)
 
     def _set_ranges(self, points: np.ndarray | None = None) -> None:
-        """Show the straight body; grow (never jitter) to keep a strongly bent body in view."""
+        """Show the straight body; grow at once to keep a bent body in view (m).
+
+        pyqtgraph regenerates an axis picture on every range change, which made the axes most of the Gait tab's
+        drawing cost, so the range has hysteresis: it grows only when the drawing leaves it (by the side that was
+        left, with headroom). When a pose leaves much of the range empty, ``shrink_timer`` starts, and when it fires
+        (``RANGE_SHRINK_AFTER_S`` later, also if the body stopped moving meanwhile) the range shrinks to what was
+        drawn in that time (the straight body's box if the body stayed in it). So while a gait plays the range
+        settles on the gait's envelope and stays put.
+        """
         x0, x1, y0, y1 = self._default_box()
+        default = self._equalized({view: (x0, x1, y0, y1) for view in VIEWS})
+        current = getattr(self, "_boxes", None)
+        if points is None or current is None:
+            self._apply_ranges(default)
+            return
         box = {}
         for view in VIEWS:
-            bx0, bx1, by0, by1 = x0, x1, y0, y1
-            if points is not None:
-                cols = [0, 2] if view == "side" else [0, 1]
-                p = points[:, cols]
-                margin = 0.05
-                bx0, bx1 = min(bx0, p[:, 0].min() - margin), max(bx1, p[:, 0].max() + margin)
-                by0, by1 = min(by0, p[:, 1].min() - margin), max(by1, p[:, 1].max() + margin)
-            box[view] = (bx0, bx1, by0, by1)
-        # Both views get the same x range and the same y height (each centred on its own content): with the
-        # aspect locked and equal plot sizes, a joint then sits at the same x in both views.
-        x_lo, x_hi = min(b[0] for b in box.values()), max(b[1] for b in box.values())
-        height = max(b[3] - b[2] for b in box.values())
-        box = {view: (x_lo, x_hi, 0.5 * (b[2] + b[3] - height), 0.5 * (b[2] + b[3] + height))
-               for view, b in box.items()}
+            cols = [0, 2] if view == "side" else [0, 1]
+            p = points[:, cols]
+            margin = 0.05
+            box[view] = (min(x0, p[:, 0].min() - margin), max(x1, p[:, 0].max() + margin),
+                         min(y0, p[:, 1].min() - margin), max(y1, p[:, 1].max() + margin))
+        needed = self._equalized(box)
+        pad = RANGE_HEADROOM * self._length_m * len(self._axes)
+        if all(_contains(current[v], needed[v]) for v in VIEWS):
+            if self.shrink_timer.isActive() and self._envelope is not None:
+                self._envelope = {v: _union(self._envelope[v], needed[v]) for v in VIEWS}
+            elif self._too_wide(current, needed, default):
+                self._envelope = needed
+                self.shrink_timer.start()
+            return
+        # The drawing left the range: move out the sides it crossed, with headroom, keep the others.
+        grown = {}
+        for v in VIEWS:
+            c, n = current[v], needed[v]
+            grown[v] = (min(c[0], n[0] - pad) if n[0] < c[0] else c[0], max(c[1], n[1] + pad) if n[1] > c[1] else c[1],
+                        min(c[2], n[2] - pad) if n[2] < c[2] else c[2], max(c[3], n[3] + pad) if n[3] > c[3] else c[3])
+        self._apply_ranges(self._equalized(grown))
+
+    def _snug(self, needed: dict, default: dict) -> dict:
+        """The range that fits ``needed`` (equalized boxes, m): the default one, or ``needed`` with headroom."""
+        if needed == default:
+            return default
+        pad = RANGE_HEADROOM * self._length_m * len(self._axes)
+        return self._equalized({v: _grown(b, pad) for v, b in needed.items()})
+
+    def _too_wide(self, current: dict, needed: dict, default: dict) -> bool:
+        """Is ``current`` more than twice the headroom wider or taller than ``needed`` requires (or not the default
+        range for a body inside the straight body's box)?"""
+        snug = self._snug(needed, default)
+        if snug == default:
+            return current != default
+        slack = 2 * RANGE_HEADROOM * self._length_m * len(self._axes) + 1e-9
+        return any(current[v][1] - current[v][0] > snug[v][1] - snug[v][0] + slack
+                   or current[v][3] - current[v][2] > snug[v][3] - snug[v][2] + slack for v in VIEWS)
+
+    def _shrink_ranges(self) -> None:
+        """shrink_timer fired: fit the range to what was drawn since it started, if that is much smaller."""
+        envelope, self._envelope = self._envelope, None
+        if envelope is None:
+            return
+        x0, x1, y0, y1 = self._default_box()
+        default = self._equalized({view: (x0, x1, y0, y1) for view in VIEWS})
+        if self._too_wide(self._boxes, envelope, default):
+            self._apply_ranges(self._snug(envelope, default))
+
+    def _apply_ranges(self, box: dict[str, tuple[float, float, float, float]]) -> None:
+        self.shrink_timer.stop()
+        self._envelope = None
         if box == getattr(self, "_boxes", None):
             return
         self._boxes = box
+        self.range_changes += 1
         for view, plot in self._plots.items():
             bx0, bx1, by0, by1 = box[view]
             plot.vb.disableAutoRange()
             plot.setRange(xRange=(bx0, bx1), yRange=(by0, by1), padding=0)
+
+    def view_ranges(self) -> dict[str, tuple[float, float, float, float]]:
+        """The box each view was last asked to show: (x0, x1, y0, y1) in m (the locked aspect may show more)."""
+        return dict(self._boxes)
+
+    @staticmethod
+    def _equalized(box: dict[str, tuple[float, float, float, float]]) -> dict[str, tuple[float, float, float, float]]:
+        """Both views get the same x range and the same y height (each centred on its own content): with the
+        aspect locked and equal plot sizes, a joint then sits at the same x in both views."""
+        x_lo, x_hi = min(b[0] for b in box.values()), max(b[1] for b in box.values())
+        height = max(b[3] - b[2] for b in box.values())
+        return {view: (x_lo, x_hi, 0.5 * (b[2] + b[3] - height), 0.5 * (b[2] + b[3] + height))
+                for view, b in box.items()}
 
     def _redraw(self) -> None:
         present = forward_kinematics(self._present, self._axes, self._length_m)

@@ -7,11 +7,12 @@ import pyqtgraph as pg
 import pytest
 from PySide6.QtCore import QPointF, Qt
 from PySide6.QtGui import QMouseEvent
-from PySide6.QtWidgets import QApplication
+from PySide6.QtWidgets import QApplication, QGraphicsItem
 
 from models.kinematics import forward_kinematics
+from models.trajectory import SerpenoidParams, serpenoid
 from widgets import theme
-from widgets.body_view import DEFAULT_AXES, BodyView
+from widgets.body_view import DEFAULT_AXES, RANGE_SHRINK_AFTER_S, BodyView
 
 
 @pytest.fixture
@@ -110,3 +111,69 @@ def test_encoder_noise_does_not_redraw(view):
     np.testing.assert_array_equal(view._body_items["side"].getData()[1], before)
     view.set_angles(angles + 0.01)
     assert not np.array_equal(view._body_items["side"].getData()[1], before)
+
+
+def test_axes_are_painted_from_a_pixmap(view):
+    # Replaying the axes' pictures (grid lines, ticks, labels) under every frame of a moving body was ~40 % of the
+    # Gait tab's GUI time; cached, a frame blits them.
+    for view_name in ("side", "top"):
+        plot = view._plots[view_name]
+        for axis_name in ("left", "bottom"):
+            axis = plot.getAxis(axis_name)
+            assert axis.cacheMode() == QGraphicsItem.CacheMode.DeviceCoordinateCache
+            assert all(child.cacheMode() == QGraphicsItem.CacheMode.DeviceCoordinateCache
+                       for child in axis.childItems())
+
+
+def _inside(box, points):
+    x0, x1, y0, y1 = box
+    return bool(np.all((points[:, 0] >= x0) & (points[:, 0] <= x1) & (points[:, 1] >= y0) & (points[:, 1] <= y1)))
+
+
+def test_range_settles_on_a_gait_and_keeps_the_body_in_view(view):
+    # A range change regenerates every axis picture: while a gait plays, the range must settle on the gait's
+    # envelope instead of following each frame, and never cut off the body or the goal.
+    gait = serpenoid(DEFAULT_AXES, SerpenoidParams(amplitude_rad=0.7, frequency_hz=0.5, cycles=10, ramp_s=0.0),
+                     blend_s=0.0)
+    rate_hz, frames_per_cycle = 50, 100
+    changes_after_first_cycle = None
+    started, fired = None, 0
+    for k in range(4 * frames_per_cycle):
+        goal = gait.goal_at(k / rate_hz, np.zeros(12))
+        view.set_angles(0.9 * goal, goal)
+        boxes = view.view_ranges()
+        goal_pose = forward_kinematics(goal, DEFAULT_AXES)
+        for name in ("side", "top"):
+            assert _inside(boxes[name], view.body_points(name)), (k, name)
+            assert _inside(boxes[name], goal_pose.side_view() if name == "side" else goal_pose.top_view()), k
+        if k == frames_per_cycle:
+            changes_after_first_cycle = view.range_changes
+        # The frames come faster than the event loop runs here: fire the shrink timer on the gait's clock.
+        if not view.shrink_timer.isActive():
+            started = None
+        elif started is None:
+            started = k
+        elif (k - started) / rate_hz >= RANGE_SHRINK_AFTER_S:
+            view.shrink_timer.stop()
+            view.shrink_timer.timeout.emit()
+            started, fired = None, fired + 1
+    assert fired >= 1  # a pose of the gait left much of the range empty for the whole delay ...
+    assert view.range_changes == changes_after_first_cycle  # ... yet three whole cycles without a range change
+    assert changes_after_first_cycle < 15  # it grew in a few steps, not once per frame (100 frames)
+
+
+def test_range_goes_back_to_the_straight_body_after_the_delay(view, qtbot):
+    straight = view.view_ranges()
+    bent = np.zeros(12)
+    bent[0::2] = 0.5  # every yaw joint: the body curls in the top view
+    view.set_angles(bent)
+    curled = view.view_ranges()
+    assert curled["top"][3] - curled["top"][2] > straight["top"][3] - straight["top"][2]
+    assert _inside(curled["top"], view.body_points("top"))
+    view.set_angles(np.zeros(12))
+    assert view.view_ranges() == curled  # not at once: a gait passing through straight would flicker the axes
+    assert view.shrink_timer.isActive()
+    assert RANGE_SHRINK_AFTER_S >= 1.0
+    view.shrink_timer.setInterval(20)  # the test does not wait the full delay
+    view.shrink_timer.start()
+    qtbot.waitUntil(lambda: view.view_ranges() == straight, timeout=2000)
