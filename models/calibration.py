@@ -57,12 +57,13 @@ POOR_FIT_NOISE_RATIO = 2.0
 WIDE_INTERVAL = 0.5
 
 
-# Measured (benchmarks/bench_fitters.py, 12 trials × 2221 samples, one BLAS thread): the scipy path, whose batched
-# finite-difference Jacobian costs one model run over 4 columns, reaches the same parameters as the CasADi
-# Gauss–Newton fit (≤ 1e-8 relative) in 0.1–0.2 s against 0.3–0.5 s (CasADi: ~0.15 s to build the graph, ~11 ms
-# per residual+Jacobian); the whole 12-trial calibration takes 0.4–0.7 s with scipy and 0.5–1.1 s with CasADi.
-# Both meet the 2 s target; scipy is the default, CasADi the cross-check (solver="gauss-newton" to switch).
-DEFAULT_SOLVER = "scipy"
+# Measured (benchmarks/bench_fitters.py, 12 trials × 2221 samples): the CasADi Gauss–Newton joint fit (exact
+# Jacobian from sensitivities carried through the mapaccum roll-out) and the scipy path (batched finite differences)
+# reach the same parameters (≤ 1e-8 relative). A joint fit alone is faster with scipy (0.1–0.2 s vs 0.2–0.3 s: CasADi
+# spends ~0.15 s building its graph), but the whole 12-trial calibration is steadier with CasADi (median 0.76 s,
+# max 0.89 s, against 0.93 s / 1.95 s with scipy on the same shared machine). Both meet the 2 s target. CasADi is
+# the production solver, as the calibration issue asks; scipy is the cross-check (solver="scipy").
+DEFAULT_SOLVER = "gauss-newton"
 
 
 class FlatSensorError(ValueError):
@@ -271,9 +272,9 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                      solver: str = DEFAULT_SOLVER, fit_trend: bool = True,
                      subtract_baseline: bool = False) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
-    largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: ``"scipy"``
-    (default, see :data:`DEFAULT_SOLVER`) or a CasADi solver of :func:`models.fit_output.fit_output_casadi`
-    (``"gauss-newton"``, ``"ipopt"``, ``"sqpmethod"``); all agree to ≤ 1e-8 relative (benchmarks/bench_fitters.py).
+    largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: a CasADi solver
+    of :func:`models.fit_output.fit_output_casadi` (``"gauss-newton"``, the default, see :data:`DEFAULT_SOLVER`;
+    ``"ipopt"``, ``"sqpmethod"``) or ``"scipy"`` (the cross-check); all agree to ≤ 1e-8 relative (benchmarks/bench_fitters.py).
     ``subtract_baseline``: the linear model's drift handling — each trial's unloaded conductance is subtracted
     from its window mean before the line is fitted (the per-trial baselines are kept in the result).
 

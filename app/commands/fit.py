@@ -4,7 +4,8 @@
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
 calibration file (created, or updated with other sensors kept) and prints a per-trial table. Samples at the readout's
 ceiling ``1/R_C`` (``board.r_c_ohm`` of ``--config``, else the default circuit) are saturated and not fitted. Runs
-on the CLI's main thread. ``SENSNAKE_FIT_SOLVER=gauss-newton|ipopt|sqpmethod`` switches the joint fits to CasADi (default scipy).
+on the CLI's main thread. ``SENSNAKE_FIT_SOLVER=scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
+Gauss–Newton; scipy is the cross-check).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from devices.config import BoardConfig, load_config
 from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
 
-# The joint-fit solver; SENSNAKE_FIT_SOLVER picks another (the CasADi ones are the cross-check, same results).
+# The joint-fit solver; SENSNAKE_FIT_SOLVER picks another (default CasADi Gauss–Newton; scipy is the cross-check).
 SOLVERS = ("scipy", "gauss-newton", "ipopt", "sqpmethod")
 
 
