@@ -7,17 +7,21 @@ import math
 import numpy as np
 import pytest
 from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QHeaderView
 
 from devices.servo_chain import ServoHealth, ServoInfo
 from widgets import theme
 from widgets.hardware_panel import (
+    COL_CUR,
     COL_DEG,
+    COL_ERR,
     COL_LED,
     COL_RAD,
     COL_TEMP,
     COL_TORQUE,
     COL_VOLT,
     DXL_BAUDS_BPS,
+    LIVE_SAMPLE_TEXT,
     HardwarePanel,
     LinkCheckRow,
 )
@@ -154,3 +158,68 @@ def test_loop_stats_warn_when_ticks_are_missed(panel):
     assert theme.STATUS_COLORS[theme.ERROR] in panel.loop_label.styleSheet()
     panel.set_connection(False, "not connected")
     assert panel.loop_label.text() == ""
+
+
+def _count_changes(panel):
+    changed: list[tuple[int, int]] = []
+    panel.servo_table.model().dataChanged.connect(
+        lambda top, bottom, roles=(): changed.extend((r, c) for r in range(top.row(), bottom.row() + 1)
+                                                     for c in range(top.column(), bottom.column() + 1)))
+    return changed
+
+
+def test_set_state_touches_only_cells_whose_text_changed(panel):
+    angles, velocity, current = np.radians(np.arange(12) * 10.0), np.full(12, 0.25), np.arange(12) * 10.0
+    panel.set_state(angles, velocity, current)
+    changed = _count_changes(panel)
+    panel.set_state(angles + 1e-4, velocity, current)  # encoder noise below the shown precision: same text
+    assert changed == []
+    angles[3] += 0.01  # joint 4 moved: its radians and degrees change, nothing else
+    panel.set_state(angles, velocity, current)
+    assert sorted(changed) == [(3, COL_RAD), (3, COL_DEG)]
+    assert panel.cell_text(4, COL_RAD) == f"{angles[3]:+.3f}"
+
+
+def test_live_columns_are_not_measured_per_update_and_fit_their_text(panel):
+    # ResizeToContents made every setText re-measure the whole table (30 ms per state update for 48 cells).
+    table = panel.servo_table
+    header = table.horizontalHeader()
+    for col in range(table.columnCount()):
+        assert header.sectionResizeMode(col) != QHeaderView.ResizeMode.ResizeToContents, col
+    metrics = table.fontMetrics()
+    for col, sample in LIVE_SAMPLE_TEXT.items():
+        assert table.columnWidth(col) >= metrics.horizontalAdvance(sample), col
+    width = table.columnWidth(COL_CUR)
+    panel.set_state(np.zeros(12), np.zeros(12), np.full(12, -1.5e12))  # a garbage reading, wider than the header
+    assert table.columnWidth(COL_CUR) > width
+    assert table.columnWidth(COL_CUR) >= metrics.horizontalAdvance("-1500000000000")
+
+
+def test_repeated_health_touches_nothing_and_warnings_come_and_go(panel):
+    warn = theme.STATUS_COLORS[theme.WARN].upper()
+    panel.set_health([health(i, errors=("overload",) if i == 2 else ()) for i in IDS])
+    changed = _count_changes(panel)
+    panel.set_health([health(i, errors=("overload",) if i == 2 else ()) for i in IDS])
+    assert changed == []
+    panel.set_health([health(i, temperature_c=75.0 if i == 5 else 31.0, voltage_v=9.0 if i == 6 else 12.1)
+                      for i in IDS])
+    assert panel.servo_table.item(4, COL_TEMP).foreground().color().name().upper() == warn
+    assert panel.servo_table.item(5, COL_VOLT).foreground().color().name().upper() == warn
+    assert panel.errors_text(2) == "none"
+    assert panel.servo_table.item(1, COL_ERR).background().style() == Qt.BrushStyle.NoBrush
+    panel.set_health([health(i) for i in IDS])
+    assert panel.servo_table.item(4, COL_TEMP).foreground().style() == Qt.BrushStyle.NoBrush
+    assert panel.cell_text(5, COL_TEMP) == "31"
+
+
+def test_values_come_back_after_a_disconnect_cleared_them(panel):
+    panel.set_connection(True, "12 servos on sim")
+    angles = np.full(12, 0.5)
+    panel.set_state(angles, np.zeros(12), np.zeros(12))
+    panel.set_health([health(i) for i in IDS])
+    panel.set_connection(False, "not connected")
+    assert panel.cell_text(1, COL_RAD) == "—" and panel.cell_text(1, COL_TEMP) == "—"
+    panel.set_connection(True, "12 servos on sim")
+    panel.set_state(angles, np.zeros(12), np.zeros(12))  # the same values as before the disconnect
+    panel.set_health([health(i) for i in IDS])
+    assert panel.cell_text(1, COL_RAD) == "+0.500" and panel.cell_text(1, COL_TEMP) == "31"
