@@ -26,7 +26,7 @@ from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from models.kinematics import SEGMENT_LENGTH_M, bend_for_point, forward_kinematics, sensor_points
 from widgets import theme
-from widgets.force_plots import _cache_subtree
+from widgets.force_plots import cache_subtree
 
 DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
 DEFAULT_FULL_SCALE_N = 10.0
@@ -135,7 +135,7 @@ class BodyView(QWidget):
             # The axes (grid lines, tick labels and title included) change only with the range: paint them from a
             # pixmap, not by replaying their pictures under every frame of a moving body (as the force plots do).
             for axis_name in ("left", "bottom"):
-                _cache_subtree(plot.getAxis(axis_name))
+                cache_subtree(plot.getAxis(axis_name))
             self._plots[view] = plot
             goal = pg.PlotDataItem(pen=pg.mkPen(theme.GOAL_COLOR, width=2, style=Qt.PenStyle.DashLine))
             body = pg.PlotDataItem(pen=pg.mkPen(theme.PRESENT_COLOR, width=3))

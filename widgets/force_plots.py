@@ -103,10 +103,10 @@ def side_of(name: str) -> str:
     return side if side in SIDE_COLORS else ""
 
 
-def _cache_subtree(item: QGraphicsItem) -> None:
+def cache_subtree(item: QGraphicsItem) -> None:
     item.setCacheMode(QGraphicsItem.DeviceCoordinateCache)
     for child in item.childItems():
-        _cache_subtree(child)
+        cache_subtree(child)
 
 
 class _Trace(pg.PlotDataItem):
@@ -217,7 +217,7 @@ class _SegmentPlot(QWidget):
         # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
         # pixmap instead of re-rendering them each frame: -20 % frame time measured on 12 plots.
         for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
-            _cache_subtree(cached)
+            cache_subtree(cached)
         self.cursor_line = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888888", style=Qt.DashLine))
         self.cursor_line.setZValue(10)
         self.cursor_line.hide()
