@@ -104,6 +104,7 @@ def side_of(name: str) -> str:
 
 
 def cache_subtree(item: QGraphicsItem) -> None:
+    """Paint ``item`` and its children from a device pixmap (GUI thread): axes repaint only when they change."""
     item.setCacheMode(QGraphicsItem.DeviceCoordinateCache)
     for child in item.childItems():
         cache_subtree(child)
