@@ -18,9 +18,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from app.recording import RecordingWriter
 from devices import factory
-from devices.board import BoardReader, BoardStats, BoardStatus
+from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import load_config
 from devices.errors import BoardProtocolError
 
@@ -98,6 +100,14 @@ def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.Simple
             last_data_wall = now
             if board_start is None:
                 board_start = float(block.board_time_s[0])
+            # --seconds is board time: frames drained past it (a late read at a high rate) are not written.
+            keep = int(np.searchsorted(block.board_time_s - board_start, seconds + 1e-6, side="right"))
+            if keep < len(block):
+                if keep:
+                    writer.append_daq(_first_frames(block, keep))
+                progress.show(seconds, reader.stats, writer.n_daq_samples)
+                _handle_statuses(statuses, writer, progress)
+                return
             board_span = float(block.board_time_s[-1]) - board_start
             writer.append_daq(block)
         stats = reader.stats
@@ -114,6 +124,14 @@ def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.Simple
         if board_span >= seconds or (now - wall_start >= seconds and now - last_data_wall > 1.0):
             _handle_statuses(statuses, writer, progress)
             return
+
+
+def _first_frames(block: SampleBlock, n: int) -> SampleBlock:
+    """The first ``n`` frames of ``block`` (n ≥ 1)."""
+    gap = None if block.gap_before is None else block.gap_before[:n]
+    return replace(block, counts=block.counts[:n], conductance_s=block.conductance_s[:n],
+                               board_time_s=block.board_time_s[:n], host_time_s=block.host_time_s[:n],
+                               seq=block.seq[:n], saturated=block.saturated[:n], gap_before=gap)
 
 
 def _handle_statuses(statuses: queue.SimpleQueue[BoardStatus], writer: RecordingWriter,
