@@ -15,27 +15,11 @@ from app.lab import LabContext
 from app.main_window import MainWindow
 from app.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
 from devices.config import SIM_PORT, load_config
+from tests.motion_sources import JointRamp
 from widgets.hardware_panel import COL_DEG, COL_RAD, COL_REBOOT, COL_TEMP, COL_TORQUE
 
 CONNECT_TIMEOUT_MS = 10_000
 REPO = Path(__file__).resolve().parents[2]
-
-
-class Ramp:
-    """Moves joint ``index`` at ``speed_rad_s`` from where it started, for ``duration_s``."""
-
-    def __init__(self, index: int = 0, speed_rad_s: float = 0.5, duration_s: float = 30.0) -> None:
-        self.index, self.speed_rad_s, self.duration_s = index, speed_rad_s, duration_s
-        self.start: np.ndarray | None = None
-
-    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
-        if t_s > self.duration_s:
-            return None
-        if self.start is None:
-            self.start = present_rad.copy()
-        goal = self.start.copy()
-        goal[self.index] += self.speed_rad_s * t_s
-        return goal
 
 
 @pytest.fixture
@@ -56,7 +40,7 @@ def moving_then_stop(qtbot, window, sim_lab_fast, press_stop) -> None:
     robot = window.lab.robot
     chain = sim_lab_fast.chain
     robot.set_torque(True).result(timeout=5)
-    robot.run_motion(Ramp(index=2), "ramp")
+    robot.run_motion(JointRamp(index=2), "ramp")
     assert robot.motion_state == MOTION_RUNNING
     before = chain.goal_positions_ticks()[2]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[2] - before) > 20, timeout=5000)

@@ -7,25 +7,9 @@ import pytest
 
 from app.robot_bridge import MOTION_FINISHED, MOTION_RUNNING, MOTION_STOPPED, RobotBridge
 from devices.config import LabConfig
+from tests.motion_sources import JointRamp
 
 CONNECT_TIMEOUT_MS = 10_000
-
-
-class Ramp:
-    """Moves joint ``index`` away from where it started at ``speed_rad_s`` for ``duration_s``."""
-
-    def __init__(self, index: int = 0, speed_rad_s: float = 0.5, duration_s: float = 30.0) -> None:
-        self.index, self.speed_rad_s, self.duration_s = index, speed_rad_s, duration_s
-        self.start: np.ndarray | None = None
-
-    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
-        if t_s > self.duration_s:
-            return None
-        if self.start is None:
-            self.start = present_rad.copy()
-        goal = self.start.copy()
-        goal[self.index] += self.speed_rad_s * t_s
-        return goal
 
 
 @pytest.fixture
@@ -114,7 +98,7 @@ def test_emergency_stop_freezes_goals_and_keeps_torque(connected, qtbot, sim_lab
     connected.set_torque(True).result(timeout=5)
     motions: list[str] = []
     connected.motion_changed.connect(motions.append)
-    connected.run_motion(Ramp(index=0), "ramp")
+    connected.run_motion(JointRamp(index=0), "ramp")
     assert motions == [MOTION_RUNNING]
     start_goal = chain.goal_positions_ticks()[0]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[0] - start_goal) > 20, timeout=5000)
@@ -131,7 +115,7 @@ def test_finished_motion_is_announced(connected, qtbot):
     connected.set_torque(True).result(timeout=5)
     with qtbot.waitSignal(connected.motion_changed, timeout=5000,
                           check_params_cb=lambda state: state == MOTION_FINISHED):
-        connected.run_motion(Ramp(index=2, speed_rad_s=0.2, duration_s=0.2), "short ramp")
+        connected.run_motion(JointRamp(index=2, speed_rad_s=0.2, duration_s=0.2), "short ramp")
     assert connected.motion_state == MOTION_FINISHED
 
 
@@ -173,7 +157,7 @@ def test_a_motion_failure_is_reported_once(connected, qtbot, sim_lab_fast):
     connected.set_torque(True).result(timeout=5)
     errors: list[str] = []
     connected.error.connect(errors.append)
-    connected.run_motion(Ramp(index=6), "ramp")
+    connected.run_motion(JointRamp(index=6), "ramp")
     qtbot.waitUntil(lambda: connected.latest_state is not None, timeout=3000)
     sim_lab_fast.chain.inject_overload(7)
     qtbot.waitUntil(lambda: connected.motion_state == "fault", timeout=5000)
