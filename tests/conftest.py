@@ -29,15 +29,30 @@ def no_thread_left_running():
 
 
 @pytest.fixture
-def sim_lab_fast():
-    """A seeded simulated lab running 20× faster than real time, installed for the test and removed after."""
+def install_fast_sim_lab():
+    """``install_fast_sim_lab(config=None, seed=1234, speed=20.0)`` builds a seeded simulated lab running ``speed``×
+    faster than real time, installs it behind the factory's ``sim`` ports and returns it; removed after the test."""
     from devices import factory
     from devices.sim.lab import SimLab
 
-    lab = SimLab(seed=1234, speed=20.0)
-    previous = factory.install_sim_lab(lab)
-    yield lab
-    factory.install_sim_lab(previous)
+    previous: list[object] = []
+
+    def install(config=None, *, seed: int = 1234, speed: float = 20.0):
+        lab = SimLab(config, seed=seed, speed=speed)
+        replaced = factory.install_sim_lab(lab)
+        if not previous:
+            previous.append(replaced)
+        return lab
+
+    yield install
+    if previous:
+        factory.install_sim_lab(previous[0])
+
+
+@pytest.fixture
+def sim_lab_fast(install_fast_sim_lab):
+    """A seeded simulated lab running 20× faster than real time, installed for the test and removed after."""
+    return install_fast_sim_lab()
 
 
 class OneDeviceLab:

@@ -92,14 +92,8 @@ def test_flat_sensor_fit_is_refused_with_a_reason(tab, qtbot, tmp_path):
 
 # -- running the protocol on the (simulated) rig -------------------------------------------------------------------
 @pytest.fixture
-def fast_sim_lab():
-    from devices import factory
-    from devices.sim.lab import SimLab
-
-    lab = SimLab(BENCH_CONFIG, seed=5, speed=50.0)
-    previous = factory.install_sim_lab(lab)
-    yield lab
-    factory.install_sim_lab(previous)
+def fast_sim_lab(install_fast_sim_lab):
+    return install_fast_sim_lab(BENCH_CONFIG, seed=5, speed=50.0)
 
 
 @pytest.fixture

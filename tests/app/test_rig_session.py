@@ -13,9 +13,7 @@ from app import calfiles
 from app.lab import LabContext
 from app.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
 from app.rig_session import RigSession
-from devices import factory
 from devices.config import BoardConfig, LabConfig, RigConfig, default_sensor_names
-from devices.sim.lab import SimLab
 
 FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus the servo's tick resolution
 # The rig's sensor on a spare board channel: the robot's own sensors carry its (varying) weight in the simulated lab,
@@ -26,11 +24,8 @@ SHORT = dict(trials_per_force=1, hold_s=2.5, baseline_s=0.7, ramp_s=0.5, rest_s=
 
 
 @pytest.fixture
-def fast_lab():
-    lab = SimLab(BENCH_CONFIG, seed=7, speed=50.0)
-    previous = factory.install_sim_lab(lab)
-    yield lab
-    factory.install_sim_lab(previous)
+def fast_lab(install_fast_sim_lab):
+    return install_fast_sim_lab(BENCH_CONFIG, seed=7, speed=50.0)
 
 
 @pytest.fixture
