@@ -137,7 +137,9 @@ class _TraceBundle(pg.GraphicsObject):
     (measured offscreen). The view box clips its children, so the unbounded rect draws nothing outside the plot.
     """
 
-    _BOUNDS = QRectF(-1e15, -1e15, 2e15, 2e15)
+    # Large enough for any view (seconds, newtons, µS) yet small enough for Qt's update-region arithmetic: at
+    # ±1e15 the exposed region rounds away and a real X display never repaints the plot (offscreen hides it).
+    _BOUNDS = QRectF(-1e6, -1e6, 2e6, 2e6)
 
     def __init__(self) -> None:
         super().__init__()
