@@ -60,8 +60,8 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
                    baud: int) -> dict:
     from PySide6.QtCore import QEventLoop, QTimer
 
-    from app.lab import LabContext
-    from app.tabs.forces import ForcesTab
+    from app.gui.lab import LabContext
+    from app.gui.tabs.forces import ForcesTab
     from devices import factory
     from devices.config import BoardConfig, LabConfig, default_sensor_names
     from devices.sim.lab import SimLab
@@ -141,7 +141,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
 
 
 def _memory_scenario(n_channels: int, rate_hz: float, hours: float) -> dict:
-    from app.tabs.forces import FORCE_HISTORY_BUDGET_BYTES
+    from app.gui.tabs.forces import FORCE_HISTORY_BUDGET_BYTES
     from widgets.ring_plot import TraceHistory
 
     rss0 = _rss_mb()

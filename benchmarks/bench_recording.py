@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.recording import RecordingWriter, open_recording
+from app.core.recording import RecordingWriter, open_recording
 from devices.board import SampleBlock, conductance_from_counts
 from devices.config import BoardConfig
 

@@ -122,8 +122,8 @@ def bench_gui(seconds: float) -> None:
     from PySide6.QtWidgets import QApplication
 
     import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
-    from app.lab import LabContext
-    from app.main_window import MainWindow
+    from app.gui.lab import LabContext
+    from app.gui.main_window import MainWindow
     from devices.config import load_config
     from devices.sim.lab import SimLab
 

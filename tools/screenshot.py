@@ -35,8 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
     from PySide6.QtWidgets import QApplication
 
-    from app.lab import LabContext
-    from app.main_window import TABS, MainWindow
+    from app.gui.lab import LabContext
+    from app.gui.main_window import TABS, MainWindow
     from devices.config import SIM_PORT, load_config
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
@@ -159,7 +159,7 @@ def _stage_gait(page, pump) -> None:
 
 def _load_demo_trials(page, folder: Path) -> None:
     """Synthetic trials (the paper's forces, one repeat, 0.2 % noise) written as CSVs, loaded and fitted."""
-    from app import calfiles
+    from app.core import calfiles
     from models.physics import PhysicsConstants
     from models.synthetic import TYPICAL_TRUTH, paper_protocol
 

@@ -1,6 +1,6 @@
 """The Forces tab's controls: view options, recording, past recordings, and the board's status line.
 
-Passive view: it emits what the user asked for and shows what it is told; the tab (``app/tabs/forces.py``) decides.
+Passive view: it emits what the user asked for and shows what it is told; the tab (``app/gui/tabs/forces.py``) decides.
 Space toggles Pause while the controls are on screen. GUI thread only.
 """
 

@@ -1,7 +1,7 @@
 """GaitPanel: the Gait tab's view — mode, shape, parameters, play/pause/resume/stop, progress, body drawing.
 
 Passive: emits :class:`GaitRequest` on Play and plain signals for the transport buttons; the owner
-(``app/tabs/gait.py``) builds the motion and feeds back progress, angles and errors. Angles in rad, speeds in rad/s,
+(``app/gui/tabs/gait.py``) builds the motion and feeds back progress, angles and errors. Angles in rad, speeds in rad/s,
 rates in Hz. GUI thread only.
 Play is enabled only when it can work (robot connected, a shape chosen for the shape modes); its tooltip says what is
 missing. Space pauses and resumes a running gait while the panel is on screen (Esc is STOP, app-wide).

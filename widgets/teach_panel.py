@@ -1,6 +1,6 @@
 """TeachPanel: the Teach tab's view — posing controls, keyframe list, joint editor, shape library, body drawing.
 
-Passive: the owner (``app/tabs/teach.py``) feeds it the live angles, the keyframe list and the library names, and
+Passive: the owner (``app/gui/tabs/teach.py``) feeds it the live angles, the keyframe list and the library names, and
 reacts to its signals. Nothing here talks to the robot or the disk. Angles in rad, times in s. GUI thread only.
 Buttons that cannot work are disabled with a tooltip saying what they need (a name, a keyframe, a saved shape);
 Ctrl+Enter captures (a person posing the robot has one hand free at best), while the panel is on screen.

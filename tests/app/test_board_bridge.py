@@ -1,11 +1,11 @@
-"""app/board_bridge.py against the simulated board at the wire (real BoardReader, fast SimClock)."""
+"""app/gui/board_bridge.py against the simulated board at the wire (real BoardReader, fast SimClock)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from app.board_bridge import BoardBridge
+from app.gui.board_bridge import BoardBridge
 from devices.config import LabConfig
 
 pytestmark = pytest.mark.usefixtures("sim_lab_fast")

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from app import calfiles
-from app.calfiles import CalFileError
+from app.core import calfiles
+from app.core.calfiles import CalFileError
 from models.physics import PhysicsConstants
 
 

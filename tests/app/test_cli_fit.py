@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import benchmarks
-from app import calfiles
 from app.cli import main
+from app.core import calfiles
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
 

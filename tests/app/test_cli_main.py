@@ -43,7 +43,7 @@ def test_python_dash_m_app_shows_help():
 
 @pytest.mark.parametrize("command", ["scan", "teach", "play"])
 def test_robot_commands_refuse_a_non_positive_baud_in_one_line(command, tmp_path, capsys):
-    from app.shapes import Shape, write_shape
+    from app.core.shapes import Shape, write_shape
     from devices.config import RobotConfig
 
     shape = tmp_path / "s.json"

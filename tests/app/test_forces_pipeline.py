@@ -1,4 +1,4 @@
-"""app/forces_pipeline.py: per-sensor status from a calibration file and live estimation on real models."""
+"""app/core/forces_pipeline.py: per-sensor status from a calibration file and live estimation on real models."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from app.forces_pipeline import CALIBRATED, DEFAULT, UNCALIBRATED, ForcesPipeline
+from app.core.forces_pipeline import CALIBRATED, DEFAULT, UNCALIBRATED, ForcesPipeline
 from devices.config import default_sensor_names
 from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS

@@ -1,4 +1,4 @@
-"""app/recording_session.py: the GUI's writer-thread recording, on real SampleBlocks and ChainStates."""
+"""app/gui/recording_session.py: the GUI's writer-thread recording, on real SampleBlocks and ChainStates."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from app.recording import open_recording
-from app.recording_session import RecordingSession
+from app.core.recording import open_recording
+from app.gui.recording_session import RecordingSession
 from devices.board import SampleBlock
 from devices.servo_chain import ChainState
 

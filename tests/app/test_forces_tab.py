@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from app.lab import LabContext
-from app.recording import open_recording
-from app.tabs.forces import create_tab, onset_time_s
+from app.core.recording import open_recording
+from app.gui.lab import LabContext
+from app.gui.tabs.forces import create_tab, onset_time_s
 from devices.config import LabConfig
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS

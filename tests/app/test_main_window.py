@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from PySide6.QtCore import QSettings, Qt
 
-from app.lab import LabContext
-from app.main_window import DEFAULT_SIZE, TABS, MainWindow, TabSpec, tab_index
+from app.gui.lab import LabContext
+from app.gui.main_window import DEFAULT_SIZE, TABS, MainWindow, TabSpec, tab_index
 from devices.config import LabConfig, RobotConfig
 from widgets import theme
 from widgets.placeholder import PlaceholderPage

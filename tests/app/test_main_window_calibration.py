@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app import calfiles
-from app.lab import LabContext
-from app.tabs.calibration import CalibrationTab
+from app.core import calfiles
+from app.gui.lab import LabContext
+from app.gui.tabs.calibration import CalibrationTab
 from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, default_sensor_names
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, paper_protocol
@@ -183,7 +183,7 @@ def test_bad_protocol_fields_are_refused_before_anything_moves(rig_tab):
 def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, fast_sim_lab, tmp_path):
     from PySide6.QtCore import QSettings, Qt
 
-    from app.main_window import MainWindow
+    from app.gui.main_window import MainWindow
 
     window = MainWindow(LabContext(BENCH_CONFIG), settings=QSettings(str(tmp_path / "s.ini"),
                                                                     QSettings.Format.IniFormat))

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from PySide6.QtCore import QSettings, Qt
 
-from app.lab import LabContext
-from app.main_window import MainWindow
-from app.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
+from app.gui.lab import LabContext
+from app.gui.main_window import MainWindow
+from app.gui.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
 from devices.config import SIM_PORT, load_config
 from tests.motion_sources import JointRamp
 from widgets.hardware_panel import COL_DEG, COL_RAD, COL_REBOOT, COL_TEMP, COL_TORQUE

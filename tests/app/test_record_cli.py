@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.recording import open_recording
+from app.core.recording import open_recording
 from devices.config import LabConfig
 from devices.sim.board import VirtualBoard
 from devices.sim.clock import SimClock
@@ -103,7 +103,7 @@ def test_channel_count_mismatch_fails_naming_both_counts(fast_board, tmp_path, c
 
 
 def test_wrong_baud_rate_is_one_line_naming_the_baud(fast_board, tmp_path, capsys, monkeypatch):
-    from app.commands import record as record_cmd
+    from app.cli import record as record_cmd
 
     monkeypatch.setattr(record_cmd, "NO_FRAMES_TIMEOUT_S", 0.5)  # the default 3 s, shortened for the test
     code = main(["record", "--daq", "sim", "--baud", "115200", "--seconds", "5", "--out", str(tmp_path / "r.h5")])
@@ -127,7 +127,7 @@ def test_cable_pull_mid_recording_is_logged_as_a_gap(fast_board, tmp_path, capsy
     out = tmp_path / "pulled.h5"
     # Pull the cable once the recorder has been running for a while: the progress update runs in the recording
     # loop, so wrapping it (and still calling it) lets the test act at a known point without any sleeping.
-    from app.commands import record as record_cmd
+    from app.cli import record as record_cmd
 
     original_show = record_cmd._Progress.show
     pulled = []

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
-from app.recording import (
+from app.core.recording import (
     RecordingError,
     RecordingFormatError,
     RecordingWriter,
@@ -174,7 +174,7 @@ CHILD_RECORDER = textwrap.dedent("""
     from devices.sim.board import VirtualBoard
     from devices.sim.clock import SimClock
     from devices.sim.contact import ContactModel
-    from app.recording import RecordingWriter
+    from app.core.recording import RecordingWriter
 
     class BoardOnlyLab:
         def __init__(self, board):
@@ -230,7 +230,7 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
 CHILD_HARD_FAILURE = textwrap.dedent("""
     import os, resource, signal, sys, time
     import numpy as np
-    from app.recording import RecordingWriter, RecordingError
+    from app.core.recording import RecordingWriter, RecordingError
     from devices.board import SampleBlock
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # so an over-size write fails with EFBIG, like ENOSPC
     resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000))
@@ -244,7 +244,7 @@ CHILD_HARD_FAILURE = textwrap.dedent("""
             writer.append_daq(SampleBlock(counts, counts * 1e-7, seq * 0.01, t0 + seq * 0.01, seq, counts == 0))
     except RecordingError as exc:
         print("STOPPED", writer.n_daq_samples, exc, flush=True)
-    # HDF5 2.0 / h5py 3.16 crash in their exit-time cleanup after a failed write (see app/recording.py);
+    # HDF5 2.0 / h5py 3.16 crash in their exit-time cleanup after a failed write (see app/core/recording.py);
     # the file on disk is what this test is about, so skip that cleanup.
     os._exit(0)
 """)

@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app import calfiles
-from app.lab import LabContext
-from app.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
-from app.rig_session import RigSession
+from app.core import calfiles
+from app.core.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
+from app.gui.lab import LabContext
+from app.gui.rig_session import RigSession
 from devices.config import BoardConfig, LabConfig, RigConfig, default_sensor_names
 
 FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus the servo's tick resolution

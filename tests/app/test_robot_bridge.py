@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.robot_bridge import MOTION_FINISHED, MOTION_RUNNING, MOTION_STOPPED, RobotBridge
+from app.gui.robot_bridge import MOTION_FINISHED, MOTION_RUNNING, MOTION_STOPPED, RobotBridge
 from devices.config import LabConfig
 from tests.motion_sources import JointRamp
 

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from app.shapes import (
+from app.core.shapes import (
     Keyframe,
     Shape,
     ShapeFormatError,

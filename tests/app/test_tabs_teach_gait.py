@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from PySide6.QtCore import Qt
 
-from app.lab import LabContext
-from app.robot_bridge import MOTION_FINISHED, MOTION_PAUSED, MOTION_RUNNING, MOTION_STOPPED
-from app.shapes import Keyframe, Shape, ShapeLibrary
-from app.tabs.gait import GaitTab
-from app.tabs.teach import TeachTab
+from app.core.shapes import Keyframe, Shape, ShapeLibrary
+from app.gui.lab import LabContext
+from app.gui.robot_bridge import MOTION_FINISHED, MOTION_PAUSED, MOTION_RUNNING, MOTION_STOPPED
+from app.gui.tabs.gait import GaitTab
+from app.gui.tabs.teach import TeachTab
 from devices.config import LabConfig
 from devices.dxl_wire import SYNC_WRITE
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.teach import TeachSession, sim_hand_for, ticks_from_angle
+from app.core.teach import TeachSession, sim_hand_for, ticks_from_angle
 from devices.config import RobotConfig
 from devices.controller import RobotController
 from devices.errors import JointLimitError

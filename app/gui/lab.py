@@ -12,17 +12,17 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-from app.robot_bridge import RobotBridge
+from app.gui.robot_bridge import RobotBridge
 from devices.config import LabConfig
 from devices.factory import is_sim
 
-BOARD_BRIDGE_MODULE = "app.board_bridge"
+BOARD_BRIDGE_MODULE = "app.gui.board_bridge"
 
 
 class LabContext(QObject):
     """Holds the lab's devices for the GUI.
 
-    ``robot`` is a :class:`RobotBridge`; ``board`` is the BoardBridge from ``app/board_bridge.py`` created on first
+    ``robot`` is a :class:`RobotBridge`; ``board`` is the BoardBridge from ``app/gui/board_bridge.py`` created on first
     use (``None`` while that module is not part of the build: ``board_unavailable_reason`` says so); ``recording``
     is the active recording session (set by the Forces tab; ``recording_changed`` is emitted when it changes).
     """
@@ -44,7 +44,7 @@ class LabContext(QObject):
     # -- board (created lazily so the app starts even before the board bridge exists) ------------------------------
     @property
     def board(self) -> Any:
-        """The BoardBridge (``BoardBridge(config.board, parent)``), or None if ``app/board_bridge.py`` is missing."""
+        """The BoardBridge (``BoardBridge(config.board, parent)``), or None if ``app/gui/board_bridge.py`` is missing."""
         if not self._board_loaded and not self._closed:
             self._board_loaded = True
             try:
@@ -52,7 +52,7 @@ class LabContext(QObject):
             except ModuleNotFoundError as exc:
                 if exc.name != BOARD_BRIDGE_MODULE:
                     raise
-                self.board_unavailable_reason = "board support is not built yet (app/board_bridge.py missing)"
+                self.board_unavailable_reason = "board support is not built yet (app/gui/board_bridge.py missing)"
                 return None
             self._board = module.BoardBridge(self.config.board, self)
             self.board_created.emit(self._board)

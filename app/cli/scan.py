@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from app.commands._robot import robot_config
+from app.cli._robot import robot_config
 
 EXIT_NOTHING_FOUND = 1
 

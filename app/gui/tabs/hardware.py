@@ -15,8 +15,8 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
-from app.lab import LabContext
-from app.robot_bridge import describe_error
+from app.gui.lab import LabContext
+from app.gui.robot_bridge import describe_error
 from devices.errors import CorruptPacketError, DeviceError, NoReplyError
 from widgets.hardware_panel import HardwarePanel, LinkCheckRow
 

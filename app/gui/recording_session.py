@@ -1,7 +1,7 @@
 """A recording started from the GUI: board blocks, robot states, live forces and events written on a writer thread.
 
 The GUI thread only enqueues (O(1), never waits on the disk); a writer thread owns the
-:class:`app.recording.RecordingWriter` from creation to close (it is not thread-safe) and flushes at least every
+:class:`app.core.recording.RecordingWriter` from creation to close (it is not thread-safe) and flushes at least every
 ``FLUSH_INTERVAL_S`` even when no data arrives, so a pulled cable or a crash loses at most about a second.
 
 A write failure (disk full, file removed) stops the session cleanly: what was flushed stays readable, the queue is
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
-from app.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
+from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
 
 FLUSH_INTERVAL_S = 0.5
 _STOP = object()

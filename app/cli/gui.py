@@ -21,8 +21,8 @@ def run(args: argparse.Namespace) -> int:
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
-    from app.lab import LabContext
-    from app.main_window import APP_NAME, ORGANIZATION, MainWindow
+    from app.gui.lab import LabContext
+    from app.gui.main_window import APP_NAME, ORGANIZATION, MainWindow
     from devices.config import SIM_PORT, load_config
 
     config = load_config(args.config)  # None → packaged default: the simulated lab

@@ -1,10 +1,10 @@
 """The Teach tab: pose the robot by hand with torque off, capture keyframes, hold, edit, save to the shape library.
 
-Wires :class:`widgets.teach_panel.TeachPanel` to ``lab.robot`` through :class:`app.teach.TeachSession` (the same
+Wires :class:`widgets.teach_panel.TeachPanel` to ``lab.robot`` through :class:`app.core.teach.TeachSession` (the same
 logic as ``sensnake teach``). The keyframe list is a plain Python list edited through a ``QUndoStack`` (each edit is a
 before/after snapshot: the list is a few dozen poses, so snapshots are cheap and can't get out of step).
 In the simulated lab, dragging the drawing or a slider bends a limp joint of the simulated chain
-(:class:`app.teach.SimHand`); with a real robot a person bends it and the drawing follows.
+(:class:`app.core.teach.SimHand`); with a real robot a person bends it and the drawing follows.
 Live angles are refreshed from ``lab.robot.latest_state`` by a 20 Hz timer while the tab is visible.
 GUI thread only.
 """
@@ -19,10 +19,10 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent, QUndoCommand, QUndoStack
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
-from app.lab import LabContext
-from app.robot_bridge import describe_error
-from app.shapes import Keyframe, Shape, ShapeLibrary, mirror, scale, shift
-from app.teach import SimHand, TeachSession, sim_hand_for
+from app.core.shapes import Keyframe, Shape, ShapeLibrary, mirror, scale, shift
+from app.core.teach import SimHand, TeachSession, sim_hand_for
+from app.gui.lab import LabContext
+from app.gui.robot_bridge import describe_error
 from widgets import theme
 from widgets.teach_panel import TeachPanel
 

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from app import calfiles
+from app.core import calfiles
 from models.estimators import LinearEstimator
 from models.linear import LinearModel
 from models.sls import SLSParams, explain_force_status, force_from_conductance

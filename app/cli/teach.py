@@ -2,7 +2,7 @@
 
 Torque off, a person poses the robot by hand, the pose is captured after Enter (or after ``--after`` seconds), then
 torque comes back on holding the captured pose (goals = present first, so nothing jumps) and the shape is written.
-The robot is driven through :class:`devices.controller.RobotController` and :class:`app.teach.TeachSession`, the
+The robot is driven through :class:`devices.controller.RobotController` and :class:`app.core.teach.TeachSession`, the
 same code as the Teach tab. Runs on the main thread; bus work happens on the controller thread.
 """
 
@@ -14,9 +14,9 @@ import sys
 import threading
 from pathlib import Path
 
-from app.commands._robot import BUS_TIMEOUT_S, robot_config, start_controller
-from app.shapes import Shape, write_shape
-from app.teach import TeachSession
+from app.cli._robot import BUS_TIMEOUT_S, robot_config, start_controller
+from app.core.shapes import Shape, write_shape
+from app.core.teach import TeachSession
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,7 +1,7 @@
 """The Gait tab: replay a shape follow-the-leader or as keyframes, or run a parametric gait, on ``lab.robot``.
 
 Wires :class:`widgets.gait_panel.GaitPanel` to the robot bridge. Motions are the MotionSources of
-:mod:`models.trajectory`, built by :func:`app.commands.play.build_source` — the code ``sensnake play`` runs — and
+:mod:`models.trajectory`, built by :func:`app.cli.play.build_source` — the code ``sensnake play`` runs — and
 sampled at the controller's rate (``robot.control_rate_hz``). Progress (shift / keyframe / cycle index and fraction)
 is read from the running source; the drawing shows the present pose with the goal overlaid, so the shape can be
 seen sliding along the body. Refreshed by a 20 Hz timer while the tab is visible. GUI thread only.
@@ -19,9 +19,11 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QFileDialog, QVBoxLayout, QWidget
 
-from app.commands.play import build_source
-from app.lab import LabContext
-from app.robot_bridge import (
+from app.cli.play import build_source
+from app.core.shapes import Shape, ShapeLibrary, read_shape
+from app.core.teach import TeachSession
+from app.gui.lab import LabContext
+from app.gui.robot_bridge import (
     MOTION_FAULT,
     MOTION_FINISHED,
     MOTION_PAUSED,
@@ -29,8 +31,6 @@ from app.robot_bridge import (
     MOTION_STOPPED,
     describe_error,
 )
-from app.shapes import Shape, ShapeLibrary, read_shape
-from app.teach import TeachSession
 from models.trajectory import SerpenoidParams, SidewindingParams, TrajectoryError, serpenoid, sidewinding
 from widgets import theme
 from widgets.gait_panel import GaitPanel, GaitRequest

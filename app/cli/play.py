@@ -22,9 +22,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from app.commands._robot import BUS_TIMEOUT_S, robot_config, start_controller
-from app.shapes import Shape, read_shape
-from app.teach import TeachSession
+from app.cli._robot import BUS_TIMEOUT_S, robot_config, start_controller
+from app.core.shapes import Shape, read_shape
+from app.core.teach import TeachSession
 from devices.config import RobotConfig
 from models.trajectory import FollowTheLeader, Keyframes, PlannedMotion
 

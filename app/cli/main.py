@@ -1,6 +1,6 @@
 """The ``sensnake`` command line (SPEC §1).
 
-The parser is the contract; each command's work lives in ``app/commands/<name>.py`` as ``run(args) -> int`` and is
+The parser is the contract; each command's work lives in ``app/cli/<name>.py`` as ``run(args) -> int`` and is
 imported only when that command runs, so ``sensnake fit`` never loads Qt and ``sensnake gui`` never loads casadi.
 Expected failures (bad file, no reply from a servo, CRC storm, …) end with one line on stderr and a non-zero exit;
 set ``SENSNAKE_DEBUG=1`` to see the traceback instead.
@@ -120,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv = ["gui", *argv]
     args = parser.parse_args(argv)
     command = args.command or "gui"
-    module = importlib.import_module(f"app.commands.{command}")
+    module = importlib.import_module(f"app.cli.{command}")
     try:
         return int(module.run(args) or EXIT_OK)
     except KeyboardInterrupt:

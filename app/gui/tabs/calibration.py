@@ -1,6 +1,6 @@
 """The Calibration tab: load calibration trials, fit the sensor models, see measured against fitted conductance.
 
-Trials are SPEC §3.1 CSVs (``time_s,force_N,conductance_S``), read with :mod:`app.calfiles`; the fit is
+Trials are SPEC §3.1 CSVs (``time_s,force_N,conductance_S``), read with :mod:`app.core.calfiles`; the fit is
 :func:`models.calibration.calibrate_sensor` (the same as ``sensnake fit``), run from a worker thread so the window never
 waits for it, in a child process so it never starves the robot's control thread of the GIL. The plot overlays each
 trial's measured conductance and the conductance the fitted SLS model predicts from its force — the model
@@ -8,8 +8,8 @@ trial's measured conductance and the conductance the fitted SLS model predicts f
 file (created, or updated keeping its other sensors).
 
 "Run on the rig" drives the calibration rig through the paper's protocol (forces × trials, each held while the rig's
-applied force and the sensor's conductance are sampled; :mod:`app.rig_protocol`) on the rig's own thread
-(:mod:`app.rig_session`). Each finished trial is written as a CSV into the run's folder and joins the trial list; a
+applied force and the sensor's conductance are sampled; :mod:`app.core.rig_protocol`) on the rig's own thread
+(:mod:`app.gui.rig_session`). Each finished trial is written as a CSV into the run's folder and joins the trial list; a
 completed run is fitted at once, with the linear model's window scaled to the hold. Abort, STOP (Esc) or a rig error
 take the load off and keep the finished trials.
 GUI thread only, except :meth:`CalibrationTab._fit_worker`.
@@ -48,9 +48,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app import calfiles
-from app.lab import LabContext
-from app.rig_protocol import (
+from app.core import calfiles
+from app.core.rig_protocol import (
     ABORTED,
     COMPLETED,
     Outcome,
@@ -61,7 +60,8 @@ from app.rig_protocol import (
     format_forces,
     parse_forces,
 )
-from app.rig_session import RigSession
+from app.gui.lab import LabContext
+from app.gui.rig_session import RigSession
 from devices.config import BoardConfig
 from models.physics import PhysicsConstants
 from widgets import theme

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.recording import RecordingWriter
+from app.core.recording import RecordingWriter
 from devices import factory
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import load_config

@@ -2,7 +2,7 @@
 
 Per sensor the status is one of:
 
-- ``calibrated``: the loaded calibration JSON (SPEC §3.3, read by :mod:`app.calfiles`) has this sensor's model;
+- ``calibrated``: the loaded calibration JSON (SPEC §3.3, read by :mod:`app.core.calfiles`) has this sensor's model;
 - ``default``: no calibration file is loaded, so the models' typical sensor (``models.sls.TYPICAL_SLS``,
   ``TYPICAL_AREA_M2`` and ``models.physics.DEFAULT_PHYSICS``) stands in. Its forces are indicative only and are
   labelled so: the physics constants are placeholders until the lab measures them (SPEC §5);
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app import calfiles
+from app.core import calfiles
 from models.estimators import LinearEstimator, SLSEstimator
 from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS, PhysicsConstants
@@ -101,7 +101,7 @@ class ForcesPipeline:
         self._build()
 
     def load_calibration(self, path: str | os.PathLike) -> None:
-        """Read a calibration JSON via :mod:`app.calfiles`; raises CalFileError (a ValueError) with the reason."""
+        """Read a calibration JSON via :mod:`app.core.calfiles`; raises CalFileError (a ValueError) with the reason."""
         document = calfiles.read_calibration(path)
         physics = calfiles.physics_from_calibration(document, str(path))
         self.calibration, self.calibration_source, self.physics = document, str(path), physics

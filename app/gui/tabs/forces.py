@@ -1,9 +1,9 @@
 """The Forces tab: live per-segment force plots, the body force map, sensor health, recording and past recordings.
 
-Wiring (GUI thread): ``lab.board`` (:class:`app.board_bridge.BoardBridge`) delivers blocks at ≤ 60 Hz →
-:class:`app.forces_pipeline.ForcesPipeline` turns conductance into force → a bounded force history that the plots
+Wiring (GUI thread): ``lab.board`` (:class:`app.gui.board_bridge.BoardBridge`) delivers blocks at ≤ 60 Hz →
+:class:`app.core.forces_pipeline.ForcesPipeline` turns conductance into force → a bounded force history that the plots
 redraw from their own timer; :class:`models.health.HealthMonitor` classifies every sensor as blocks arrive; a running
-:class:`app.recording_session.RecordingSession` receives the same blocks, the forces, the robot's states
+:class:`app.gui.recording_session.RecordingSession` receives the same blocks, the forces, the robot's states
 (``lab.robot.state_block``) and the health/gap events, and writes them on its own thread. The body map redraws at
 ``BODY_REFRESH_HZ`` from the newest forces and the robot's newest angles, only when something changed.
 
@@ -40,9 +40,9 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.forces_pipeline import ForcesPipeline
-from app.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
-from app.recording_session import RecordingSession
+from app.core.forces_pipeline import ForcesPipeline
+from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
+from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
@@ -657,6 +657,6 @@ class ForcesTab(QWidget):
 
 
 def create_tab(lab: Any) -> QWidget:
-    """The main window's entry point (``app/tabs/<name>.py`` contract)."""
+    """The main window's entry point (``app/gui/tabs/<name>.py`` contract)."""
     # LabContext.close() stops lab.recording, so a running recording is closed cleanly with the window.
     return ForcesTab(lab)

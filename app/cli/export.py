@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.recording import export_csv, open_recording
+from app.core.recording import export_csv, open_recording
 
 
 def run(args: argparse.Namespace) -> int:

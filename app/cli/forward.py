@@ -10,8 +10,8 @@ import argparse
 
 import numpy as np
 
-from app import calfiles
-from app.commands.estimate import output_names, resolve_columns
+from app.cli.estimate import output_names, resolve_columns
+from app.core import calfiles
 from models.sls import SLSParams, conductance_from_force
 
 

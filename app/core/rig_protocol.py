@@ -25,7 +25,7 @@ discarded, the finished trials stay on disk. :meth:`ProtocolRunner.pause` takes 
 A rig error (pulled cable, no reply, overload) or a board stream that stops ends the run with a message that says
 what happened and what to do; finished trials stay on disk.
 
-Threads: :meth:`ProtocolRunner.run` blocks and owns the rig; call it from one worker thread (``app.rig_session``
+Threads: :meth:`ProtocolRunner.run` blocks and owns the rig; call it from one worker thread (``app.gui.rig_session``
 does). The callbacks are called from that thread.
 """
 
@@ -42,7 +42,7 @@ from typing import Protocol
 
 import numpy as np
 
-from app import calfiles
+from app.core import calfiles
 from devices.errors import DeviceError
 from devices.rig import RigInterrupted
 

@@ -18,7 +18,7 @@ import re
 import sys
 from pathlib import Path
 
-from app import calfiles
+from app.core import calfiles
 from devices.config import BoardConfig, load_config
 from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants

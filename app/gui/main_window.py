@@ -1,6 +1,6 @@
 """The main window: five tabs, the menu, and the status bar with STOP.
 
-Tabs are built from ``app/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
+Tabs are built from ``app/gui/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
 do. STOP (the red button, or Esc anywhere in the app) calls ``lab.emergency_stop()``: the robot halts and the
 calibration rig releases its load.
@@ -26,8 +26,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.lab import LabContext
-from app.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
+from app.gui.lab import LabContext
+from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
 from devices.config import ConfigError, load_config
 from devices.factory import is_sim
 from widgets import theme
@@ -43,7 +43,7 @@ EVENT_KEEPS_ERROR_S = 8.0  # an informational message does not hide an error you
 
 @dataclass(frozen=True)
 class TabSpec:
-    name: str  # module app/tabs/<name>.py
+    name: str  # module app/gui/tabs/<name>.py
     title: str
     description: str
 
@@ -152,7 +152,7 @@ class MainWindow(QMainWindow):
         self._containers[index].layout().addWidget(page)
 
     def _create_page(self, spec: TabSpec) -> QWidget:
-        module_name = f"app.tabs.{spec.name}"
+        module_name = f"app.gui.tabs.{spec.name}"
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:

@@ -1,10 +1,10 @@
 """Qt bridge for a calibration run: owns the rig's I/O thread, feeds it the board stream, reports to the GUI.
 
 One :class:`RigSession` per Calibration tab. :meth:`RigSession.start` opens the rig (``lab.config.rig``: its own servo
-bus, device kind ``rig``) on a worker thread that then runs :class:`app.rig_protocol.ProtocolRunner`; the GUI thread
+bus, device kind ``rig``) on a worker thread that then runs :class:`app.core.rig_protocol.ProtocolRunner`; the GUI thread
 never touches the rig's port. The sensor's conductance comes from the lab's board bridge (``lab.board``, started if
 it is not running): every drained block's column for the sensor is pushed into the runner's
-:class:`~app.rig_protocol.ConductanceFeed`.
+:class:`~app.core.rig_protocol.ConductanceFeed`.
 
 STOP: the main window's STOP (button or Esc) calls ``lab.emergency_stop()``, which emits ``lab.stop_requested``; the
 session listens for it and aborts the run, which takes the load off the sensor (the rig's release is not
@@ -24,8 +24,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-from app.lab import LabContext
-from app.rig_protocol import (
+from app.core.rig_protocol import (
     BOARD_STALE_S,
     FAILED,
     ConductanceFeed,
@@ -34,6 +33,7 @@ from app.rig_protocol import (
     ProtocolSettings,
     session_folder,
 )
+from app.gui.lab import LabContext
 from devices.errors import DeviceError
 from devices.rig import CalibrationRig
 

@@ -1,1 +1,0 @@
-"""One module per CLI command (``run(args) -> int``), imported only when that command runs."""
