@@ -1,2 +1,2 @@
-"""Independent device emulators (SPEC §4 board, XM430 servo chain): separate processes on pseudo-terminals,
-written from the datasheets and the SPEC, never from ``devices/``."""
+"""Independent emulators of the lab's devices, each served on a pseudo-terminal by its own process and written from
+the datasheets and SPEC, not from ``devices/`` or ``devices/sim`` (tests/test_architecture.py checks that)."""
