@@ -34,11 +34,11 @@ from app.core.rig_protocol import (
     session_folder,
 )
 from app.gui.lab import LabContext
+from app.gui.thread_bridge import ThreadBridge
 from devices.errors import DeviceError
 from devices.rig import CalibrationRig
 
 log = logging.getLogger(__name__)
-
 
 
 class RigSession(QObject):
@@ -49,7 +49,6 @@ class RigSession(QObject):
     trial_saved = Signal(object)
     finished = Signal(object)
     running_changed = Signal(bool)
-    _posted = Signal(object)  # worker thread → GUI thread (queued): public signals are emitted on the GUI thread
 
     def __init__(self, lab: LabContext, parent: QObject | None = None, *, rig_factory: Any = CalibrationRig,
                  board_stale_s: float = BOARD_STALE_S) -> None:
@@ -63,7 +62,7 @@ class RigSession(QObject):
         self._channel: int | None = None
         self._board: Any = None
         self.outcome: Outcome | None = None
-        self._posted.connect(self._run_posted)
+        self._bridge = ThreadBridge(self)  # rig thread → GUI thread: public signals are emitted on the GUI thread
         lab.stop_requested.connect(self._on_stop_requested)
         self._listening_for_stop = True
 
@@ -101,9 +100,9 @@ class RigSession(QObject):
             board.start()
         folder = session_folder(Path(base_folder), settings.sensor)
         runner = ProtocolRunner(settings, self._feed, folder,
-                                on_progress=lambda p: self._post(self.progress, p),
-                                on_sample=lambda s: self._post(self.sample, s),
-                                on_trial=lambda t: self._post(self.trial_saved, t),
+                                on_progress=self._bridge.emitter(self.progress),
+                                on_sample=self._bridge.emitter(self.sample),
+                                on_trial=self._bridge.emitter(self.trial_saved),
                                 board_stale_s=self.board_stale_s)
         self._runner = runner
         self.outcome = None
@@ -157,21 +156,10 @@ class RigSession(QObject):
                     rig.close()
                 except (DeviceError, OSError) as exc:
                     log.warning("closing the rig: %s", exc)
-        try:
-            self._posted.emit(lambda: self._on_finished(outcome))
-        except RuntimeError:
-            log.info("calibration run ended after its session was deleted: %s", outcome.message)
-
-    def _post(self, signal: Any, value: object) -> None:
-        """Worker thread: emit ``signal(value)`` on the GUI thread."""
-        # RuntimeError: the session was deleted (window closed); shutdown() is joining this thread.
-        with contextlib.suppress(RuntimeError):
-            self._posted.emit(lambda: signal.emit(value))
+        # If the session was deleted meanwhile (window closed; shutdown() is joining this thread) the bridge drops it.
+        self._bridge.post(self._on_finished, outcome)
 
     # -- GUI thread ------------------------------------------------------------------------------------------------
-    def _run_posted(self, fn: Any) -> None:
-        fn()
-
     def _on_block(self, block: Any) -> None:
         if self._feed is not None and self._channel is not None and len(block):
             self._feed.push(block.host_time_s, block.conductance_s[:, self._channel], block.board_time_s)

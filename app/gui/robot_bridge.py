@@ -18,17 +18,15 @@ Opening and closing the port happen on a worker thread. Bus operations return ``
 from __future__ import annotations
 
 import logging
-import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any, TypeVar
 
-from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
+from PySide6.QtCore import QObject, Signal
 
-import widgets  # noqa: F401 - installs the PySide6 6.12 refcount guard before this module's first emit
+from app.gui.thread_bridge import Coalescer, ThreadBridge
 from devices.config import RobotConfig
 from devices.errors import DeviceError, LinkLostError
 from devices.factory import is_sim
@@ -74,9 +72,6 @@ class RobotBridge(QObject):
     event = Signal(str)
     motion_changed = Signal(str)
 
-    # Carries a callable from any thread to the GUI thread (queued).
-    _post = Signal(object)
-
     def __init__(self, config: RobotConfig, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self._config = config
@@ -85,9 +80,10 @@ class RobotBridge(QObject):
         self._pending_connect: Future | None = None
         self._connecting = False
         self._closed = False
-        self._lock = threading.Lock()
-        self._latest_state: Any = None
-        self._state_backlog: deque = deque(maxlen=STATE_BACKLOG_MAX)
+        # Controller thread → GUI thread: callbacks through the one bridge, states coalesced to ≤ 60 Hz.
+        self._bridge = ThreadBridge(self)
+        self._states: Coalescer = Coalescer(self._deliver_states, self, STATE_DELIVERY_INTERVAL_MS,
+                                            STATE_BACKLOG_MAX)
         self._health_by_id: dict[int, Any] = {}
         self._motion_state = MOTION_IDLE
         self._motion_name = ""
@@ -97,11 +93,6 @@ class RobotBridge(QObject):
         self._last_reported: BaseException | None = None
         self.connection_text = "not connected"
         self.connected_at_s: float | None = None
-
-        self._post.connect(self._run_posted, Qt.ConnectionType.QueuedConnection)
-        self._state_timer = QTimer(self)
-        self._state_timer.setInterval(STATE_DELIVERY_INTERVAL_MS)
-        self._state_timer.timeout.connect(self._deliver_states)
 
     # -- properties (GUI thread; latest_state from any thread) ------------------------------------------------------
     @property
@@ -147,8 +138,7 @@ class RobotBridge(QObject):
     @property
     def latest_state(self) -> Any:
         """The newest ChainState from the controller thread (None before the first); any thread may read it."""
-        with self._lock:
-            return self._latest_state
+        return self._states.latest
 
     def loop_stats(self) -> Any:
         """The control loop's ControllerStats (ticks, missed ticks, period percentiles), or None when disconnected."""
@@ -198,7 +188,7 @@ class RobotBridge(QObject):
     def disconnect_robot(self) -> Future:
         """Stop the control loop and close the port on the worker thread; ``connected(False)`` follows."""
         controller, self._controller = self._controller, None
-        self._state_timer.stop()
+        self._states.stop()
         if controller is None:
             return _done_future(None)
         self._motion_token += 1
@@ -219,7 +209,7 @@ class RobotBridge(QObject):
         if self._closed:
             return
         self._closed = True
-        self._state_timer.stop()
+        self._states.stop()
         controller, self._controller = self._controller, None
         if controller is not None:
             controller.close()
@@ -343,40 +333,23 @@ class RobotBridge(QObject):
 
         Without ``on_error`` a failure is reported through ``error``. Cancelled futures are ignored.
         """
-        future.add_done_callback(lambda f: self._post.emit(lambda: self._finish(f, on_result, on_error)))
+        self._bridge.when_done(future, on_result, on_error if on_error is not None else self._report_error)
 
-    def _finish(self, future: Future, on_result: Callable[[Any], None] | None,
-                on_error: Callable[[BaseException], None] | None) -> None:
-        if future.cancelled():
-            return
-        exc = future.exception()
-        if exc is not None:
-            if on_error is not None:
-                on_error(exc)
-            else:
-                self.error.emit(describe_error(exc))
-        elif on_result is not None:
-            on_result(future.result())
-
-    @Slot(object)
-    def _run_posted(self, fn: Callable[[], None]) -> None:
-        fn()
+    def _report_error(self, exc: BaseException) -> None:
+        self.error.emit(describe_error(exc))
 
     # -- controller callbacks (controller thread) -------------------------------------------------------------------
     def _on_state(self, chain_state: Any) -> None:
-        with self._lock:
-            self._latest_state = chain_state
-            self._state_backlog.append(chain_state)
+        self._states.push(chain_state)
 
     def _on_health(self, health: list) -> None:
-        self._post.emit(lambda: self._deliver_health(list(health)))
+        self._bridge.post(self._deliver_health, list(health))
 
     def _on_event(self, text: str) -> None:
-        self._post.emit(lambda: self.event.emit(str(text)))
+        self._bridge.post(self.event.emit, str(text))
 
     def _on_error(self, exc: BaseException) -> None:
-        at_s = time.monotonic()
-        self._post.emit(lambda: self._device_error(exc, at_s))
+        self._bridge.post(self._device_error, exc, time.monotonic())
 
     # -- GUI-thread handlers ----------------------------------------------------------------------------------------
     def _open_controller(self, config: RobotConfig) -> tuple[Any, list[str]]:
@@ -408,7 +381,7 @@ class RobotBridge(QObject):
         self.connected_at_s = time.monotonic()
         kind = "simulated" if self.is_sim else "real"
         self._set_connection(self._connected_text())
-        self._state_timer.start()
+        self._states.start()
         self.connected.emit(True)
         n_warnings = len(self.timing_warnings)
         timing = f"; {n_warnings} timing warning(s), see the Hardware tab" if n_warnings else ""
@@ -435,12 +408,7 @@ class RobotBridge(QObject):
         self.error.emit(f"robot: closing {self.port} failed: {describe_error(exc)}")
         self._after_disconnect()
 
-    def _deliver_states(self) -> None:
-        with self._lock:
-            if not self._state_backlog:
-                return
-            block = list(self._state_backlog)
-            self._state_backlog.clear()
+    def _deliver_states(self, block: list) -> None:
         lost_at_s = self._link_lost_at_s
         if lost_at_s is not None and block[-1].host_time_s > lost_at_s:
             # Feedback read after the loss: the controller has reopened the port.

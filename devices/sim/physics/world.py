@@ -1,0 +1,276 @@
+"""One MuJoCo world: SenSnake v2 with position servos, the ground and the obstacle; joint states and sensor forces.
+
+The servo loop (XM430-W350 in position mode, :class:`devices.sim.physics.model.ServoParams`) runs here at every
+physics step: the set point slews toward the goal at the commanded speed (the servo's profile velocity), the motor
+torque is ``kp·(set point − angle)`` clipped to the stall torque along the motor's torque–speed line, and torque off
+leaves only the joint's passive damping and friction (the limp robot). A joint whose demanded torque stays above
+the stall torque is *saturated*; :attr:`JointState.saturated_s` says for how long, so the simulated chain trips the
+overload error from physics, as the servo firmware does.
+
+Sensor forces: every contact between a segment and the terrain is classified by where it touches the segment's
+circumference (in the segment's frame: left = +y, bottom = −z, right = −y, each sheet ``SHEET_HALF_ARC_DEG`` either
+side; the top carries no sheet) and its normal force (``mj_contactForce``) is added to that sensor.
+
+Threads: every public method takes the world's lock, so the chain (the robot port's thread), the board (its port's
+thread) and a stepping thread may all call; :meth:`advance_to` steps until the world's clock reaches a time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from devices.sim.physics.model import SceneParams, build_mjcf, joint_name, segment_name
+
+SHEET_HALF_ARC_DEG = 45.0
+MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
+SIDES = ("B", "L", "R")  # row order of segment_loads_n (the scripted ContactModel's order too)
+
+
+@dataclass(frozen=True)
+class JointState:
+    """Per joint, head first: angle (rad), velocity (rad/s), motor torque applied (N·m), demanded (N·m, before
+    the stall-torque clip) and how long the demand has been above the stall torque without a break (s)."""
+
+    position_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+    torque_nm: np.ndarray
+    demand_nm: np.ndarray
+    saturated_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class BodyState:
+    """Where the robot is: ``points_m`` (n+1, 3) head tip then the back end of each segment, ``frames`` (n, 3, 3)
+    each segment's rotation (columns: forward x, left y, up z), world frame (obstacle axis at x = 0)."""
+
+    time_s: float
+    points_m: np.ndarray
+    frames: np.ndarray
+
+
+class PhysicsWorld:
+    """SenSnake v2 in MuJoCo. ``place`` puts the straight robot somewhere; then command and advance it."""
+
+    def __init__(self, scene: SceneParams | None = None) -> None:
+        self.scene = scene or SceneParams()
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.scene))
+        self.data = mujoco.MjData(self.model)
+        self._lock = threading.RLock()
+        n = self.scene.n_segments
+        self.n_joints = n
+        joints = [self.model.joint(joint_name(i)) for i in range(n)]
+        self._qadr = np.array([int(j.qposadr[0]) for j in joints])
+        self._dadr = np.array([int(j.dofadr[0]) for j in joints])
+        self._seg_body = np.array([self.model.body(segment_name(i)).id for i in range(n)])
+        self._seg_geom = np.array([self.model.geom(segment_name(i)).id for i in range(n)])
+        self._segment_of_geom = np.full(self.model.ngeom, -1)
+        self._segment_of_geom[self._seg_geom] = np.arange(n)
+        servo = self.scene.servo
+        self._kp = servo.position_gain_nm_per_rad
+        self._stall = servo.stall_torque_nm
+        self._w0 = servo.no_load_speed_rad_s
+        self._dt = float(self.model.opt.timestep)
+        self._torque_on = np.zeros(n, dtype=bool)
+        self._goal = np.zeros(n)
+        self._speed = np.full(n, self._w0)
+        self._setpoint = np.zeros(n)
+        self._external = np.zeros(n)
+        self._applied = np.zeros(n)
+        self._demand = np.zeros(n)
+        self._saturated_s = np.zeros(n)
+        self._offset_s = 0.0
+        self.lagged_s = 0.0  # simulated time skipped because stepping fell behind the clock
+        self.steps = 0
+        self._force_buf = np.zeros(6)
+        self.place()
+
+    # -- set-up ------------------------------------------------------------------------------------------------------
+    def place(self, head_x_m: float | None = None, height_m: float | None = None,
+              angles_rad: Sequence[float] | None = None) -> None:
+        """Put the robot at rest with its head tip at ``head_x_m`` (default: segment 6 over the obstacle's top, the
+        paper's start) and its axis ``height_m`` above the ground (default: resting on the ground, or on the
+        obstacle's top when there is one), joints at ``angles_rad`` (default straight)."""
+        with self._lock:
+            scene = self.scene
+            mujoco.mj_resetData(self.model, self.data)
+            if head_x_m is None:
+                head_x_m = 5.5 * scene.segment_length_m if scene.obstacle_height_m > 0 else 0.5 * scene.body_length_m
+            if height_m is None:
+                height_m = scene.segment_radius_m + 0.002
+                if scene.obstacle_height_m > 0 and head_x_m - scene.body_length_m < 0 < head_x_m:
+                    height_m += scene.obstacle_height_m
+            self.data.qpos[0:3] = (head_x_m, 0.0, height_m)
+            self.data.qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
+            angles = np.zeros(self.n_joints) if angles_rad is None else np.asarray(angles_rad, dtype=float)
+            self.data.qpos[self._qadr] = angles
+            self._setpoint[:] = angles
+            self._goal[:] = angles
+            self._saturated_s[:] = 0.0
+            mujoco.mj_forward(self.model, self.data)
+
+    # -- commands (any thread) ---------------------------------------------------------------------------------------
+    def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray | None = None) -> None:
+        """Torque enable, goal angle (rad) and profile speed (rad/s, default the no-load speed) per joint. A joint
+        turned on holds where it is and then moves toward its goal (the firmware's goal = present on torque-on)."""
+        with self._lock:
+            on = np.asarray(torque_on, dtype=bool)
+            newly_on = on & ~self._torque_on
+            if newly_on.any():
+                self._setpoint[newly_on] = self.data.qpos[self._qadr][newly_on]
+            self._torque_on[:] = on
+            self._goal[:] = goal_rad
+            if speed_rad_s is not None:
+                self._speed[:] = np.clip(speed_rad_s, 0.0, self._w0)
+            self._saturated_s[~on] = 0.0
+
+    def set_joint_angle(self, joint: int, angle_rad: float) -> None:
+        """Pose a joint by hand (the teach "hand"): sets its angle and stops it."""
+        with self._lock:
+            self.data.qpos[self._qadr[joint]] = angle_rad
+            self.data.qvel[self._dadr[joint]] = 0.0
+            self._setpoint[joint] = angle_rad
+            mujoco.mj_forward(self.model, self.data)
+
+    def set_external_torque(self, joint: int, torque_nm: float) -> None:
+        """An extra torque on a joint (N·m), e.g. a hand pushing on the body."""
+        with self._lock:
+            self._external[joint] = torque_nm
+
+    # -- time ------------------------------------------------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """The world's clock (s): simulated time stepped, plus any time skipped (``lagged_s``)."""
+        with self._lock:
+            return float(self.data.time) + self._offset_s
+
+    def step(self, n: int = 1) -> None:
+        """``n`` physics steps of ``scene.timestep_s``, each with one servo-loop update."""
+        with self._lock:
+            data, model = self.data, self.model
+            qadr, dadr = self._qadr, self._dadr
+            for _ in range(n):
+                q = data.qpos[qadr]
+                qd = data.qvel[dadr]
+                slew = self._speed * self._dt
+                self._setpoint += np.clip(self._goal - self._setpoint, -slew, slew)
+                demand = self._kp * (self._setpoint - q)
+                # A DC motor's torque–speed line: turning at ω in the torque's direction leaves τ_stall·(1 − ω/ω0).
+                along = np.where(demand * qd > 0.0, np.abs(qd), 0.0)
+                limit = self._stall * np.clip(1.0 - along / self._w0, 0.0, 1.0)
+                applied = np.where(self._torque_on, np.clip(demand, -limit, limit), 0.0)
+                over = self._torque_on & (np.abs(demand) > self._stall)
+                self._saturated_s = np.where(over, self._saturated_s + self._dt, 0.0)
+                self._demand = np.where(self._torque_on, demand, 0.0)
+                self._applied = applied
+                data.ctrl[:] = applied
+                data.qfrc_applied[dadr] = self._external
+                mujoco.mj_step(model, data)
+            self.steps += n
+
+    def advance_to(self, t_s: float) -> None:
+        """Step until the world's clock reaches ``t_s`` (s); if that is more than ``MAX_CATCH_UP_S`` ahead, skip the
+        excess (the robot freezes for it, counted in ``lagged_s``) so a slow machine never blocks a caller long."""
+        with self._lock:
+            behind = t_s - self.time_s
+            if behind > MAX_CATCH_UP_S:
+                skip = behind - MAX_CATCH_UP_S
+                self._offset_s += skip
+                self.lagged_s += skip
+                behind = MAX_CATCH_UP_S
+            n = int(math.floor(behind / self._dt))
+            if n > 0:
+                self.step(n)
+
+    # -- readings (any thread) -------------------------------------------------------------------------------------------
+    def joint_state(self) -> JointState:
+        with self._lock:
+            return JointState(
+                position_rad=self.data.qpos[self._qadr].copy(),
+                velocity_rad_s=self.data.qvel[self._dadr].copy(),
+                torque_nm=self._applied.copy(),
+                demand_nm=self._demand.copy(),
+                saturated_s=self._saturated_s.copy(),
+            )
+
+    def segment_loads_n(self) -> np.ndarray:
+        """(3, n) normal force (N) on the bottom, left and right sheet of every segment (rows in ``SIDES`` order)."""
+        with self._lock:
+            loads = np.zeros((3, self.n_joints))
+            data, model = self.data, self.model
+            buf = self._force_buf
+            cos_half = math.cos(math.radians(SHEET_HALF_ARC_DEG))
+            for i in range(data.ncon):
+                contact = data.contact[i]
+                segment = self._segment_of_geom[contact.geom1]
+                if segment < 0:
+                    segment = self._segment_of_geom[contact.geom2]
+                if segment < 0:
+                    continue
+                mujoco.mj_contactForce(model, data, i, buf)
+                normal_n = float(buf[0])
+                if normal_n <= 0.0:
+                    continue
+                rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
+                local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
+                ly, lz = float(local[1]), float(local[2])
+                radial = math.hypot(ly, lz)
+                if radial < 1e-9:
+                    continue
+                ly, lz = ly / radial, lz / radial
+                if -lz >= cos_half:
+                    loads[0, segment] += normal_n
+                elif ly >= cos_half:
+                    loads[1, segment] += normal_n
+                elif -ly >= cos_half:
+                    loads[2, segment] += normal_n
+                elif lz < 0.0:  # between two sheets (exactly on a sheet's edge): the nearer one
+                    loads[0 if -lz >= abs(ly) else (1 if ly > 0 else 2), segment] += normal_n
+            return loads
+
+    def total_contact_normal_n(self) -> float:
+        """Sum of the normal forces of every robot contact, sensed or not (N): the weight check's reference."""
+        with self._lock:
+            total = 0.0
+            for i in range(self.data.ncon):
+                contact = self.data.contact[i]
+                head = self.model.geom("head").id
+                robot = self._segment_of_geom[contact.geom1] >= 0 or self._segment_of_geom[contact.geom2] >= 0 \
+                    or head in (contact.geom1, contact.geom2)
+                if robot:
+                    mujoco.mj_contactForce(self.model, self.data, i, self._force_buf)
+                    total += float(self._force_buf[0])
+            return total
+
+    def body_state(self) -> BodyState:
+        with self._lock:
+            frames = self.data.xmat[self._seg_body].reshape(-1, 3, 3).copy()
+            starts = self.data.xpos[self._seg_body].copy()
+            back = frames[-1] @ np.array([-self.scene.segment_length_m, 0.0, 0.0])
+            points = np.vstack([starts, starts[-1] + back])
+            return BodyState(self.time_s, points, frames)
+
+    @property
+    def weight_n(self) -> float:
+        return self.scene.robot_mass_kg * abs(float(self.model.opt.gravity[2]))
+
+
+def channel_map(channel_names: Sequence[str], n_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """For SPEC §2 names (``S06B``): per channel the row in ``SIDES`` and the segment index (−1, −1: not a sensor
+    the robot carries, which then reads no force)."""
+    import re
+
+    pattern = re.compile(r"^S(\d+)([LRB])$")
+    rows = np.full(len(channel_names), -1)
+    segments = np.full(len(channel_names), -1)
+    for channel, name in enumerate(channel_names):
+        match = pattern.match(name)
+        if match and 1 <= int(match.group(1)) <= n_segments:
+            rows[channel] = SIDES.index(match.group(2))
+            segments[channel] = int(match.group(1)) - 1
+    return rows, segments
