@@ -60,7 +60,9 @@ class JointSliders(QWidget):
             spin.setDecimals(1)
             spin.setRange(math.degrees(lo), math.degrees(hi))
             spin.setSuffix("°")
-            spin.setSingleStep(1.0)
+            spin.setSingleStep(0.1)  # arrow keys / wheel pose a joint to a tenth of a degree
+            spin.setToolTip("angle in degrees: type it, or step 0.1° with the arrow keys or the wheel "
+                            "(PgUp/PgDn: 1°)")
             spin.setKeyboardTracking(False)
             spin.setFixedWidth(78)
             rad = QLabel("+0.000")
@@ -112,12 +114,18 @@ class JointSliders(QWidget):
     # -- internals -------------------------------------------------------------------------------------------------
     def _show(self, i: int, angle: float) -> None:
         self._angles[i] = angle
-        self.sliders[i].blockSignals(True)
-        self.spins[i].blockSignals(True)
-        self.sliders[i].setValue(int(round(angle * SLIDER_STEPS_PER_RAD)))
-        self.spins[i].setValue(math.degrees(angle))
-        self.sliders[i].blockSignals(False)
-        self.spins[i].blockSignals(False)
+        slider_value = int(round(angle * SLIDER_STEPS_PER_RAD))
+        degrees = round(math.degrees(angle), self.spins[i].decimals())
+        # Touch a widget only when what it shows changes: QDoubleSpinBox.setValue repaints its line edit (and, on
+        # X, the parents under it) even for the same value, and set_angles runs 20×/s while the robot rests.
+        if self.sliders[i].value() != slider_value:
+            self.sliders[i].blockSignals(True)
+            self.sliders[i].setValue(slider_value)
+            self.sliders[i].blockSignals(False)
+        if self.spins[i].value() != degrees:
+            self.spins[i].blockSignals(True)
+            self.spins[i].setValue(degrees)
+            self.spins[i].blockSignals(False)
         self._rad_labels[i].setText(f"{angle:+.3f}")
 
     def _from_slider(self, i: int, value: int) -> None:
