@@ -152,7 +152,7 @@ class LiveSession:
         """A block of verified samples: estimate forces, update health, record, tell subscribers."""
         forces = problem = None
         if self.pipeline is not None:
-            forces = self.pipeline.process(block.board_time_s, block.conductance_s)
+            forces = self.pipeline.process(block.board_time_s, block.conductance_s, block.saturated)
             problem = self.pipeline.last_block_problem
         changed = np.zeros(0, dtype=np.intp)
         if self.health is not None:

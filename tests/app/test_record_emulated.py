@@ -73,7 +73,8 @@ def test_noisy_link_records_to_the_end_with_every_good_frame_exact(tmp_path, con
     rec = open_recording(out)
     seqs = assert_exact_and_complete(rec, log)
     assert rec.board_time_s is not None
-    assert rec.board_time_s[-1] - rec.board_time_s[0] == pytest.approx(3.0, abs=2.0 / RATE_HZ)
+    # To the end: the last frames before the 3 s mark may be among the corrupt or dropped ones.
+    assert rec.board_time_s[-1] - rec.board_time_s[0] == pytest.approx(3.0, abs=6.0 / RATE_HZ)
     assert seqs.size >= 0.9 * 3.0 * RATE_HZ  # 5 % CRC flips + 2 % drops: about 93 % of the frames are good
     # The link's faults are counted and written into the file (SPEC §3.5).
     sent_window = [s for s in log["segments"][0]["corrupt"] if seqs[0] < s < seqs[-1]]
