@@ -36,6 +36,7 @@ def sim_lab(config: LabConfig | None = None) -> SimLab:
             from devices.sim.lab import SimLab
 
             _lab = SimLab(config)
+            _lab.start_background()  # the physics lab keeps stepping between driver events
         return _lab
 
 
