@@ -23,8 +23,12 @@ BENCHMARK_PREFIX = "bench_"
 
 def discover(package: str = BENCHMARK_PACKAGE) -> list[str]:
     """Names of the benchmark modules in ``package`` (found on ``sys.path``, not imported), sorted; [] if absent."""
-    spec = importlib.util.find_spec(package)
-    locations = spec.submodule_search_locations if spec is not None else None
+    loaded = sys.modules.get(package)
+    if loaded is not None and hasattr(loaded, "__path__"):
+        locations = list(loaded.__path__)  # an imported package's live path (what import_module will search)
+    else:
+        spec = importlib.util.find_spec(package)
+        locations = list(spec.submodule_search_locations or []) if spec is not None else None
     if not locations:
         return []
     return sorted(m.name for m in pkgutil.iter_modules(list(locations)) if m.name.startswith(BENCHMARK_PREFIX))

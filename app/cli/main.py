@@ -60,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
     estimate.add_argument("--cal", required=True, metavar="CAL.json")
     estimate.add_argument("--model", choices=("linear", "sls"), default="sls")
     estimate.add_argument("--out", required=True, metavar="OUT.csv")
+    estimate.add_argument("--flags", metavar="FLAGS.csv",
+                          help="also write per-sample flag codes (same columns; 0 = ok, legend in docs/NUMERICS.md)")
+    estimate.add_argument("--config", metavar="FILE",
+                          help="lab config whose readout circuit (board.r_c_ohm) sets the ceiling 1/R_C")
+    estimate.add_argument("--allow-degenerate", action="store_true",
+                          help="use a calibration that 'sensnake fit' marked degenerate (at a bound/unidentifiable)")
 
     forward = sub.add_parser("forward", help="force → conductance (the model run forwards)")
     forward.add_argument("input", metavar="IN.csv")
