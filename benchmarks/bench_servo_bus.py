@@ -53,9 +53,9 @@ def bench_cycle(n_cycles: int) -> None:
         chain, previous = _install_chain(delay, robot)
         try:
             with ServoChain(robot) as servos:
+                servos.check_models()  # as the app and the CLI do: reads each servo's Return Delay Time
                 servos.set_torque(True)
                 goal = np.zeros(robot.n_joints)
-                servos.read_state()  # learn the reply delay
                 times = np.empty(n_cycles)
                 wakeups0, cpu0 = servos.reply_wakeups, time.thread_time()
                 for i in range(n_cycles):
@@ -175,6 +175,65 @@ def bench_gui(seconds: float) -> None:
     del app
 
 
+def _late_reply_trace(read_once, inject, n_reads: int, at: int) -> np.ndarray:
+    """Durations (s) of ``n_reads`` back-to-back sync reads, with ``inject()`` making the replies of read ``at``
+    late once."""
+    times = np.empty(n_reads)
+    for i in range(n_reads):
+        if i == at:
+            inject()
+        t0 = time.perf_counter()
+        read_once()
+        times[i] = time.perf_counter() - t0
+    return times
+
+
+def bench_late_reply(n_reads: int = 120, at: int = 20, stall_s: float = 0.012) -> None:
+    """The cause of the in-app bursts: ONE late reply (the far end, or our timestamp of the instruction, delayed
+    once by the scheduler) and what it costs the reads after it. Replies are made late deterministically, so this
+    does not depend on the machine's load: on the simulated chain by stamping one instruction ``stall_s`` late, on
+    the independent emulator by its ``stall`` command."""
+    print(f"(e) one late reply ({stall_s * 1e3:g} ms) at read {at} of {n_reads} 12-servo sync reads, return delay "
+          "500 µs: reads after it slower than 1.5× the median before it")
+    print(f"    {'chain':>10} {'median before':>14} {'the late read':>14} {'slow reads after':>17} "
+          f"{'median after':>13}   (ms)")
+    robot = RobotConfig()
+    sim, previous = _install_chain(250, robot)
+    real_write = sim.host_write
+    pending = {"stall": 0.0}
+
+    def stamped_late(data: bytes, now_s: float) -> None:
+        real_write(data, now_s + pending["stall"])
+        pending["stall"] = 0.0
+
+    sim.host_write = stamped_late  # type: ignore[method-assign]
+    try:
+        with ServoChain(robot) as servos:
+            servos.check_models()
+            times = _late_reply_trace(servos.read_state, lambda: pending.update(stall=stall_s), n_reads, at)
+    finally:
+        factory.install_sim_lab(previous)
+    _print_late_reply("sim", times, at)
+    from tests.emulators.xm430_emulator import EmulatorProcess
+
+    emulator = EmulatorProcess()
+    try:
+        with ServoChain(dataclasses.replace(robot, port=emulator.path)) as servos:
+            servos.check_models()
+            times = _late_reply_trace(servos.read_state, lambda: emulator.command(f"stall {stall_s}"), n_reads, at)
+    finally:
+        emulator.close()
+    _print_late_reply("emulator", times, at)
+
+
+def _print_late_reply(name: str, times: np.ndarray, at: int) -> None:
+    ms = times * 1e3
+    before = float(np.median(ms[:at]))
+    after = ms[at + 1:]
+    slow = int(np.sum(after > 1.5 * before))
+    print(f"    {name:>10} {before:14.2f} {ms[at]:14.2f} {slow:17d} {np.median(after[:32]):13.2f}")
+
+
 def _print_stats_header() -> None:
     print(f"    {'rate Hz':>8} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} {'p99':>7} {'max':>7} "
           f"{'jitter p50':>11} {'p99':>7} {'writes':>7}   (ms)")
@@ -190,6 +249,7 @@ def _print_stats(rate: float, s: dict, writes: int) -> None:
 def run(quick: bool) -> None:
     print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     bench_cycle(100 if quick else 500)
+    bench_late_reply()
     bench_jitter(10.0 if quick else 60.0)
     bench_rates(3.0 if quick else 10.0)
     bench_gui(4.0 if quick else 15.0)

@@ -85,11 +85,28 @@ class RigConfig:
     sensor: str = "S06B"
 
 
+PHYSICS_KINDS = ("scripted", "mujoco")
+
+
+@dataclass(frozen=True)
+class SimLabConfig:
+    """What the simulated lab (port ``sim``) simulates. ``physics = "scripted"``: the cheap contact model;
+    ``"mujoco"``: the robot, the ground and the paper's half-cylindrical obstacle in MuJoCo (needs the ``mujoco``
+    package). The obstacle's height is a fraction of the body length (paper: 0.28; 0 = flat ground); friction
+    coefficients are Coulomb's μ (the paper's obstacle is covered with PTFE)."""
+
+    physics: str = "scripted"
+    obstacle_height_ratio: float = 0.28
+    obstacle_friction: float = 0.1
+    ground_friction: float = 0.3
+
+
 @dataclass(frozen=True)
 class LabConfig:
     robot: RobotConfig = field(default_factory=RobotConfig)
     board: BoardConfig = field(default_factory=BoardConfig)
     rig: RigConfig = field(default_factory=RigConfig)
+    lab: SimLabConfig = field(default_factory=SimLabConfig)
     source_text: str = ""  # the TOML text this was loaded from, stored in recordings
 
     def with_ports(self, robot: str | None = None, board: str | None = None, rig: str | None = None) -> LabConfig:
@@ -122,16 +139,18 @@ def parse_config(text: str, source: str = "<config>") -> LabConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
-    unknown = set(data) - {"robot", "board", "rig"}
+    unknown = set(data) - {"robot", "board", "rig", "lab"}
     if unknown:
-        raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig)")
+        raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab)")
     robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
     board = _build(BoardConfig, data.get("board", {}), "board", source)
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
     _validate_robot(robot, source)
     _validate_board(board, source)
     _validate_rig(rig, source)
-    return LabConfig(robot=robot, board=board, rig=rig, source_text=text)
+    lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
+    _validate_lab(lab, source)
+    return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text)
 
 
 def _build(cls: type, table: Any, section: str, source: str) -> Any:
@@ -220,3 +239,10 @@ def _validate_rig(rig: RigConfig, source: str) -> None:
     _require(rig.wheel_radius_m > 0, source, "rig.wheel_radius_m", "must be positive")
     _require(rig.spring_k_n_per_m > 0, source, "rig.spring_k_n_per_m", "must be positive")
     _require(rig.baud > 0, source, "rig.baud", "must be positive")
+
+
+def _validate_lab(lab: SimLabConfig, source: str) -> None:
+    _require(lab.physics in PHYSICS_KINDS, source, "lab.physics", f"= {lab.physics!r} must be one of {PHYSICS_KINDS}")
+    _require(0.0 <= lab.obstacle_height_ratio <= 1.0, source, "lab.obstacle_height_ratio", "must be in [0, 1]")
+    _require(0.0 <= lab.obstacle_friction <= 2.0, source, "lab.obstacle_friction", "must be in [0, 2]")
+    _require(0.0 <= lab.ground_friction <= 2.0, source, "lab.ground_friction", "must be in [0, 2]")

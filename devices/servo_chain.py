@@ -21,7 +21,9 @@ from __future__ import annotations
 import logging
 import math
 import os
+import select
 import sys
+import termios
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -61,10 +63,9 @@ PER_ID_PING_COST_S = 0.035
 BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
 REBOOT_TIMEOUT_S = 2.0
 READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
-MAX_LATE_POLL_S = 0.002  # longest sleep between polls for a reply that is late, s
-LATE_POLL_FRACTION = 0.25  # a late reply is polled every quarter of its lateness (≤ MAX_LATE_POLL_S)
-MAX_REPLY_GAP_S = 0.002  # cap on the learned per-reply delay (Return Delay Time ≤ 508 µs + 1 ms latency timer), s
-GAP_PROBE_EVERY = 32  # see _FactoryPortHandler.wait_for_replies
+MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a port without a descriptor, s
+LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
+SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
 DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 60.0
@@ -122,17 +123,24 @@ class ServoHealth:
 
 class _FactoryPortHandler(PortHandler):
     """dynamixel-sdk's PortHandler, opening its port through ``devices.factory`` (``sim``, pty or serial device),
-    that sleeps through a reply's expected wire time instead of polling.
+    whose reads wait for bytes instead of polling for them or sleeping through a learned worst case.
 
     The SDK reads a non-blocking port in a tight loop while a reply is on the wire. Every wake-up of the bus thread
-    has to win the GIL back from the GUI thread (up to ``sys.getswitchinterval()``, 5 ms, when the GUI is busy), so
-    the number of wake-ups per transaction, not their length, decides how long a control tick takes. This handler
-    knows when its own bytes leave the wire (baud rate) and learns the time each reply adds on top of its bytes
-    (Return Delay Time plus adapter latency, ``reply_gap_s``) from what has arrived when it wakes; a sync read of 12
-    servos then costs one or two wake-ups instead of ~100 polls. The SDK's packet handling (header search, CRC,
-    timeouts) is unchanged: this only decides how long a read that came up short sleeps.
+    has to win the GIL back from the GUI thread, so the number of wake-ups per transaction, not their length, decides
+    how long a control tick takes. This handler sleeps until the replies' bytes can first all have arrived -- a lower
+    bound from the wire alone: the instruction's and the replies' bytes at the baud rate plus each servo's Return
+    Delay Time as read from (or written to) its control table (``return_delays_s``; 0 until known) -- and, if they
+    have not all arrived by then, waits for the missing bytes themselves (``select`` on the port, or a sleep of the
+    missing bytes' wire time where the port has no file descriptor), until the SDK's packet deadline.
 
-    Times are ``time.monotonic()`` seconds. Owned by the thread that owns the port.
+    Nothing is learned from the timing of earlier transactions: one reply that is late (the far end descheduled, or
+    this thread's time stamp of its instruction delayed) costs that transaction only. The previous design learned a
+    per-reply gap from arrival times, capped at 2 ms and halved only every 32 transactions, so one late reply made
+    the next ~32 sync reads sleep 12 × 2 ms (the ~1 s bursts of ~28 ms ticks measured in the app; see
+    ``benchmarks/bench_servo_bus.py`` (e)).
+
+    Bytes taken off the port while waiting are kept in ``_rx`` and handed to the SDK by :meth:`readPort`. Times are
+    ``time.monotonic()`` seconds. Owned by the thread that owns the port.
     """
 
     def __init__(self, port_name: str, device: str, extra_timeout_ms: float = 0.0) -> None:
@@ -140,12 +148,12 @@ class _FactoryPortHandler(PortHandler):
         self._device = device
         self._extra_timeout_ms = extra_timeout_ms
         self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
-        self.reply_gap_s = 0.0  # learned time a reply adds before its bytes (return delay, adapter latency), s
-        self.wakeups = 0  # sleeps taken while waiting for replies (a cost figure for tests and benchmarks)
-        self._complete_streak = 0  # transactions in a row complete at their first wake-up
+        self.return_delays_s: dict[int, float] = {}  # servo ID -> Return Delay Time (s) read from its table
+        self.wakeups = 0  # sleeps and waits for bytes (a cost figure for tests and benchmarks)
+        self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
-        self._expected_s = -math.inf  # when the awaited reply bytes should all have arrived
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
+        self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -158,95 +166,92 @@ class _FactoryPortHandler(PortHandler):
         else:
             self.ser = open_serial(self.port_name, self.baudrate, self._device, timeout_s=0.0)
             self.is_open = True
-        self.ser.reset_input_buffer()
+        self.clearPort()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
         self.byte_s = 10.0 / self.baudrate
-        self.reply_gap_s = 0.0  # another baud rate (or adapter): learn it again
         return True
+
+    def clearPort(self):  # noqa: N802 - dynamixel-sdk's name
+        self._rx.clear()
+        self.ser.reset_input_buffer()
 
     def getCFlagBaud(self, baudrate):  # noqa: N802 - dynamixel-sdk's name
         # The SDK's list lacks 4.5 Mbps; pyserial (and the simulator) accept any positive rate.
         return baudrate if baudrate > 0 else -1
+
+    def getBytesAvailable(self):  # noqa: N802 - dynamixel-sdk's name
+        return len(self._rx) + self.ser.in_waiting
 
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
         self._tx_start_s = time.monotonic()
         written = self.ser.write(packet)
         # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
         self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
-        # Until told otherwise (expect_replies), wait for one minimal status packet.
-        self._expected_s = self._wire_free_s + self.reply_gap_s + MIN_STATUS_BYTES * self.byte_s
+        self._reply_ids = (packet[4],) if len(packet) > 4 else ()
         return written
 
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
-        data = self.ser.read(length)
-        if len(data) < length:
-            self._sleep_for_bytes(length - len(data))
+        """Up to ``length`` bytes; waits for them (not past the SDK's packet deadline) if fewer have arrived."""
+        if len(self._rx) < length:
+            self._take_waiting()
+            if len(self._rx) < length:
+                self._wait_for_bytes(length, self._reply_ids[:1])
+        data = bytes(self._rx[:length])
+        del self._rx[:length]
         return data
 
-    def expect_replies(self, n_replies: int, n_bytes: int) -> None:
-        """The instruction just written is answered by ``n_replies`` status packets of ``n_bytes`` in all."""
-        self._expected_s = self._wire_free_s + n_replies * self.reply_gap_s + n_bytes * self.byte_s
+    def wait_for_replies(self, reply_ids: Sequence[int], n_bytes: int) -> None:
+        """Wait until ``n_bytes`` of status packets from ``reply_ids`` (in wire order) have arrived, or the SDK's
+        packet deadline has passed; the bytes stay buffered for :meth:`readPort`."""
+        self._take_waiting()
+        if len(self._rx) < n_bytes:
+            self._wait_for_bytes(n_bytes, tuple(reply_ids))
 
-    def wait_for_replies(self, n_replies: int, n_bytes: int) -> None:
-        """Sleep until ``n_bytes`` of reply have arrived or the SDK's packet timeout has passed; reads nothing.
-
-        A wake-up that finds the replies incomplete re-learns ``reply_gap_s`` from the pace at which they have
-        arrived since the instruction left the wire, and sleeps for the rest at that pace. The pace is taken before
-        the bytes are counted, so a wake-up delayed by the scheduler can only make the estimate short (corrected at
-        the next wake-up), never long. A long estimate costs no wake-up to notice, so every ``GAP_PROBE_EVERY``-th
-        transaction that completes at its first wake-up halves the estimate to probe whether the delay has shrunk.
-        Bytes already there before the instruction can have left the wire (free to check: no sleep) mean a device
-        faster than the wire, i.e. the simulator on an accelerated clock: the rest is then awaited at the pace
-        observed since the instruction was written, not at the baud rate.
-        """
-        self.expect_replies(n_replies, n_bytes)
-        reply_bytes = n_bytes / max(n_replies, 1)
-        wake_s = self._expected_s
+    def _wait_for_bytes(self, n_bytes: int, reply_ids: tuple[int, ...]) -> None:
+        reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
-        arrived = self.ser.in_waiting
-        if arrived >= n_bytes:
-            return
-        if arrived > 0 and now < self._wire_free_s:  # replies before our instruction can have left the wire
-            wake_s = now + (n_bytes - arrived) * (now - self._tx_start_s) / arrived
-        first = True
-        while True:
-            now = time.monotonic()
+        # A device faster than the wire (the simulator on an accelerated clock) has bytes there before they could
+        # have crossed it: wait at the pace observed since the instruction was written, not at the baud rate.
+        elapsed_s = now - self._tx_start_s
+        faster_than_wire = bool(self._rx) and now < self._wire_free_s
+        due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
+        while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
                 return
-            if now < wake_s:
-                self._sleep(min(wake_s - now, time_left_s))
-            now = time.monotonic()
-            arrived = self.ser.in_waiting
-            if arrived >= n_bytes:
-                if first:
-                    self._complete_streak += 1
-                    if self._complete_streak >= GAP_PROBE_EVERY:
-                        self._complete_streak = 0
-                        self.reply_gap_s *= 0.5
-                return
-            first = False
-            self._complete_streak = 0
-            elapsed_s = now - self._wire_free_s
-            if arrived > 0 and elapsed_s > 0.0:
-                per_reply_s = elapsed_s * reply_bytes / arrived
-                self.reply_gap_s = min(MAX_REPLY_GAP_S, max(0.0, per_reply_s - reply_bytes * self.byte_s))
-                wake_s = now + (n_bytes - arrived) / reply_bytes * per_reply_s
-            elif arrived > 0:  # faster than the wire (accelerated simulator): the pace since the instruction
-                wake_s = now + (n_bytes - arrived) * (now - self._tx_start_s) / arrived
+            missing = n_bytes - len(self._rx)
+            if faster_than_wire:
+                wait_s = missing * elapsed_s / max(len(self._rx), 1)
             else:
-                wake_s = now + self._late_poll_s(now, n_bytes)
+                replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
+                delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
+                earliest_s = max(now, self._wire_free_s) if not self._rx else now
+                wait_s = earliest_s - now + missing * self.byte_s + delay_s
+                if due_s is None:
+                    due_s = now + wait_s
+                elif now > due_s:
+                    # Overdue (a silent servo, a slow far end): back off as it grows late, so waiting out the
+                    # SDK's timeout costs a few dozen wake-ups, not hundreds. Only where nothing wakes us on bytes.
+                    wait_s = max(wait_s, min(MAX_LATE_POLL_S, LATE_POLL_FRACTION * (now - due_s)))
+            if wait_s > SELECT_SLACK_S or not self._can_select():
+                self._sleep(min(max(wait_s, READ_POLL_S), time_left_s))
+            else:
+                self._select(time_left_s)
+            self._take_waiting()
+            now = time.monotonic()
 
-    def _sleep_for_bytes(self, missing: int) -> None:
-        now = time.monotonic()
-        wait_s = self._expected_s - now if now < self._expected_s else self._late_poll_s(now, missing)
-        self._sleep(min(wait_s, max(READ_POLL_S, self._time_left_s())))
+    def _take_waiting(self) -> None:
+        waiting = self.ser.in_waiting
+        if waiting:
+            self._rx += self.ser.read(waiting)
 
-    def _late_poll_s(self, now: float, missing: int) -> float:
-        # Past the expected time: poll at the pace of the missing bytes, backing off as the reply grows late (a
-        # silent servo then costs a few dozen wake-ups over the SDK's timeout instead of hundreds).
-        overdue_s = max(0.0, now - self._expected_s)
-        return max(READ_POLL_S, missing * self.byte_s, min(MAX_LATE_POLL_S, LATE_POLL_FRACTION * overdue_s))
+    def _can_select(self) -> bool:
+        return isinstance(getattr(self.ser, "fd", None), int)  # a real port or pty; the simulator's has none
+
+    def _select(self, timeout_s: float) -> None:
+        """Block until the port has bytes (it has none buffered: they were all taken) or ``timeout_s`` passes."""
+        self.wakeups += 1
+        select.select([self.ser.fd], [], [], timeout_s)
 
     def _time_left_s(self) -> float:
         """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time())."""
@@ -257,10 +262,11 @@ class _FactoryPortHandler(PortHandler):
         time.sleep(max(seconds, READ_POLL_S))
 
     def closePort(self):  # noqa: N802 - dynamixel-sdk's name
+        self._rx.clear()
         if self.ser is not None:
             try:
                 self.ser.close()
-            except (serial.SerialException, OSError) as exc:
+            except (serial.SerialException, OSError, termios.error) as exc:
                 log.debug("closing %s: %s", self.port_name, exc)
         self.is_open = False
         self.is_using = False
@@ -284,7 +290,7 @@ class _TrackingSyncRead(GroupSyncRead):
         result = COMM_RX_FAIL
         # One sleep through all the replies (see _FactoryPortHandler), then the SDK parses them from the buffer.
         n = len(self.data_dict)
-        self.port.wait_for_replies(n, n * (MIN_STATUS_BYTES + self.data_length))
+        self.port.wait_for_replies(tuple(self.data_dict), n * (MIN_STATUS_BYTES + self.data_length))
         for dxl_id in self.data_dict:
             data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
             if result != COMM_SUCCESS:
@@ -319,6 +325,8 @@ class ServoChain:
         self._state_reader: _TrackingSyncRead | None = None
         self._supply_cache: dict[int, tuple[float, float]] = {}  # servo ID -> (voltage V, temperature °C)
         self._last_goal_rad: np.ndarray | None = None
+        self._return_delays_s: dict[int, float] = {}  # shared with each port opened (survives a reconnect)
+        self._torque_commanded: set[int] = set()  # servos this chain last turned torque on (and not off since)
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
     @property
@@ -344,16 +352,27 @@ class ServoChain:
         return self._port.wakeups if self._port is not None else 0
 
     @property
-    def reply_gap_s(self) -> float:
-        """Learned time each status packet adds before its bytes (Return Delay Time plus adapter latency), s."""
-        return self._port.reply_gap_s if self._port is not None else 0.0
+    def return_delays_s(self) -> dict[int, float]:
+        """Each servo's Return Delay Time (s) as last read from or written to its control table (a copy; servos not
+        read yet are missing). The reads wait for replies on this, never on timings learned from earlier replies."""
+        return dict(self._return_delays_s)
 
     def sync_read_time_s(self, n_servos: int, data_length: int) -> float:
-        """Expected bus time (s) of a sync read of ``data_length`` bytes from ``n_servos``: the instruction, then
-        each reply's learned delay and bytes. This machine's wake-up latency comes on top."""
+        """Bus time (s) of a sync read of ``data_length`` bytes from ``n_servos``: the instruction, then each reply's
+        Return Delay Time (the largest known; 0 if none is known) and bytes. This machine's wake-up latency comes on
+        top."""
         byte_s = 10.0 / self._baud
         instruction_bytes = 14 + n_servos
-        return (instruction_bytes + n_servos * (MIN_STATUS_BYTES + data_length)) * byte_s + n_servos * self.reply_gap_s
+        delay_s = max(self.return_delays_s.values(), default=0.0)
+        return (instruction_bytes + n_servos * (MIN_STATUS_BYTES + data_length)) * byte_s + n_servos * delay_s
+
+    def sync_write_time_s(self, n_servos: int, data_length: int = 4) -> float:
+        """Wire time (s) of a sync write of ``data_length`` bytes to each of ``n_servos`` (no reply)."""
+        return (14 + n_servos * (1 + data_length)) * 10.0 / self._baud
+
+    def read_return_delays(self) -> dict[int, int]:
+        """Read every configured servo's Return Delay Time (µs) and remember it for the reads' waits."""
+        return {sid: self.read_item(sid, "Return Delay Time") * 2 for sid in self.ids}
 
     def open(self) -> None:
         """Open the port at the configured baud rate (raises :class:`PortOpenError`)."""
@@ -371,6 +390,7 @@ class ServoChain:
             raise PortOpenError(f"cannot open {self.device} port {self.robot.port}: {exc}") from exc
         if not ok:
             raise PortOpenError(f"cannot open {self.device} port {self.robot.port} at {self._baud} bps")
+        port.return_delays_s = self._return_delays_s
         self._port = port
         self._goal_writer = GroupSyncWrite(port, self._ph, ct.ADDR_GOAL_POSITION, 4)
         for sid in self.ids:
@@ -383,6 +403,7 @@ class ServoChain:
         if self._port is not None:
             self._port.closePort()
         self._last_goal_rad = None
+        self._torque_commanded.clear()  # whatever the servos do while we are away is not ours to judge
         self._port = None
         self._goal_writer = None
         self._state_reader = None
@@ -465,7 +486,8 @@ class ServoChain:
         return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud)
 
     def check_models(self) -> None:
-        """Every configured joint answers and is an XM430-W350 (raises ModelMismatchError / NoReplyError)."""
+        """Every configured joint answers and is an XM430-W350 (raises ModelMismatchError / NoReplyError); their
+        Return Delay Times are read too (the reads' waits and the rate checks need them)."""
         for sid in self.ids:
             info = self.ping(sid)
             if info.model_number != ct.MODEL_NUMBER_XM430_W350:
@@ -473,6 +495,7 @@ class ServoChain:
                     f"servo {sid} is a {info.model_name} (model {info.model_number}), but this driver is written "
                     f"for the XM430-W350 (model {ct.MODEL_NUMBER_XM430_W350}): check robot.joint_ids in the config"
                 )
+        self.read_return_delays()
 
     # -- commands --------------------------------------------------------------------------------------------------
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
@@ -483,7 +506,10 @@ class ServoChain:
         """
         self._last_goal_rad = None
         for sid in self._ids_or_all(ids):
+            self._torque_commanded.discard(sid)
             self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
+            if enabled:
+                self._torque_commanded.add(sid)
 
     def set_led(self, servo_id: int, on: bool) -> None:
         self.write_item(servo_id, "LED", int(bool(on)))
@@ -492,6 +518,7 @@ class ServoChain:
         """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""
         port = self._require_port()
         self._last_goal_rad = None  # the servo comes back with torque off and its goal at its present position
+        self._torque_commanded.discard(servo_id)
         result, error = self._io(self._ph.reboot, port, servo_id)
         self._check_comm(result, servo_id, "reboot")
         deadline = time.monotonic() + REBOOT_TIMEOUT_S
@@ -516,20 +543,28 @@ class ServoChain:
         self._check_comm(result, servo_id, f"reading {name}")
         self._check_error(error, servo_id, f"reading {name}")
         raw = int.from_bytes(bytes(data), "little")
+        if item.address == ct.ADDR_RETURN_DELAY_TIME:
+            port.return_delays_s[servo_id] = raw * ct.RETURN_DELAY_S_PER_LSB
         return ct.to_signed(raw, item.size) if item.signed else raw
 
     def write_item(self, servo_id: int, name: str, value: int, *, hardware_error_fails: bool = False) -> None:
         """Write one control-table item (acknowledged); raises :class:`ServoCommandError` if the servo refuses."""
         item = ct.ITEMS_BY_NAME[name]
         port = self._require_port()
-        if item.address == ct.ADDR_RETURN_DELAY_TIME:
-            port.reply_gap_s = 0.0  # replies change pace: learn it again
         data = list(int(value).to_bytes(item.size, "little", signed=value < 0))
         result, error = self._io(self._ph.writeTxRx, port, servo_id, item.address, item.size, data)
         self._check_comm(result, servo_id, f"writing {name}")
         if error & ct.ERROR_ALERT_BIT and (error & 0x7F or hardware_error_fails):
             raise self._hardware_error(servo_id)
         self._check_error(error, servo_id, f"writing {name} = {value}")
+        if item.address == ct.ADDR_RETURN_DELAY_TIME:
+            port.return_delays_s[servo_id] = int(value) * ct.RETURN_DELAY_S_PER_LSB
+
+    @property
+    def torque_commanded(self) -> frozenset[int]:
+        """Servos whose torque this chain turned on (and has not turned off or rebooted since): one of them found
+        with torque off has rebooted or lost power."""
+        return frozenset(self._torque_commanded)
 
     # -- the control tick ------------------------------------------------------------------------------------------
     @property
@@ -642,7 +677,7 @@ class ServoChain:
         latency = self.latency_warning()
         if latency:
             warnings.append(latency)
-        delays = {sid: self.read_item(sid, "Return Delay Time") * 2 for sid in self.ids}
+        delays = self.read_return_delays()
         slow = [sid for sid, us in delays.items() if us > 0]
         if slow:
             worst = max(delays[sid] for sid in slow)
@@ -732,7 +767,8 @@ class ServoChain:
         """Run one SDK call; a vanished port becomes LinkLostError (and the SDK's busy flag is released)."""
         try:
             return fn(*args)
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
+            # termios.error (e.g. EIO from tcflush when the adapter or pty vanishes) is no OSError.
             if self._port is not None:
                 self._port.is_using = False
             raise LinkLostError(

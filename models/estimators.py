@@ -1,8 +1,9 @@
 """Streaming force estimators for live use: conductance blocks in, force blocks out, state carried between blocks.
 
 Both estimators take ``update(t_s (N,), conductance_s (N, S)) -> force_n (N, S)`` and keep the per-sample status
-codes of the last block in ``last_status`` (:class:`models.sls.ForceStatus`). NaN conductance samples (dropped
-frames) come out as NaN force and do not corrupt the state. Timestamps must never go backwards, also across
+codes of the last block in ``last_status`` (:class:`models.sls.ForceStatus`). Every block first passes the one
+sample-validation rule of :mod:`models.validation`: non-finite, negative, above-ceiling and flat-lined readings are
+rejected (NaN force, flagged) and never reach the inverse; a gap lets time pass with the last force held. Timestamps must never go backwards, also across
 blocks (ValueError); duplicates are zero-length steps.
 
 An estimator is not thread-safe: create it and call ``update``/``reset`` from one thread (e.g. the thread that
@@ -18,6 +19,28 @@ import numpy as np
 from models.linear import LinearModel
 from models.physics import PhysicsConstants
 from models.sls import ForceStatus, SLSInverse, SLSParams, check_timestamps, explain_force_status
+from models.validation import SampleValidator, ValidationRule
+
+# The estimators do not know the readout: no ceiling (the board already clamps at 1/R_C and reports saturation in
+# its ``saturated`` mask); non-finite, negative and flat-lined readings are still rejected. Callers that know R_C
+# (``sensnake estimate``) pass ``ValidationRule.for_readout(r_c_ohm)``.
+ESTIMATOR_RULE = ValidationRule(ceiling_s=None)
+
+
+def _validated(
+    validator: SampleValidator | None, rule: ValidationRule, t: np.ndarray, cond: np.ndarray,
+    saturated: np.ndarray | None,
+) -> tuple[SampleValidator, np.ndarray, np.ndarray]:
+    """Run the sample-validation rule (models.validation) on a block: (validator, cleaned conductance, codes)."""
+    if validator is None or validator.n_sensors != cond.shape[1]:
+        validator = SampleValidator(cond.shape[1], rule)
+    checked = validator.check(t, cond, saturated)
+    return validator, checked.conductance_s, checked.status
+
+
+def _merge(status: np.ndarray, checked: np.ndarray) -> None:
+    """Validation codes win over the inverse's own (a rejected sample reaches the inverse as NaN)."""
+    np.copyto(status, checked, where=checked != 0)
 
 
 def _as_block(conductance_s: np.ndarray, n_samples: int, n_sensors: int | None) -> np.ndarray:
@@ -54,17 +77,6 @@ def _flag_extrapolation(force: np.ndarray, status: np.ndarray, bounds) -> None:
     status[outside] = ForceStatus.EXTRAPOLATED
 
 
-def _flag_saturated(status: np.ndarray, saturated: np.ndarray | None, cond: np.ndarray) -> None:
-    if saturated is None:
-        return
-    mask = np.asarray(saturated, dtype=bool)
-    if mask.ndim == 1:
-        mask = mask[:, None]
-    if mask.shape != cond.shape:
-        raise ValueError(f"saturated mask has shape {mask.shape}, the conductance block {cond.shape}")
-    status[mask & ~np.isnan(cond)] = ForceStatus.SATURATED
-
-
 class LinearEstimator:
     """Eq. 1 inverse per sensor: ``F = (C − baseline − d)/m``, clipped at 0 N (flagged BELOW_BASELINE).
 
@@ -79,6 +91,7 @@ class LinearEstimator:
         baseline_s: float | np.ndarray | None = None,
         clip_negative: bool = True,
         force_range_n: tuple[float, float] | None = None,
+        validation: ValidationRule = ESTIMATOR_RULE,
     ) -> None:
         model_list = [models] if isinstance(models, LinearModel) else list(models)
         if not model_list:
@@ -94,23 +107,27 @@ class LinearEstimator:
         self.force_range_n = force_range_n
         self.last_status = np.zeros((0, len(model_list)), dtype=np.int8)
         self._t_prev_s: float | None = None
+        self.validation = validation
+        self._validator: SampleValidator | None = None
 
     @property
     def n_sensors(self) -> int | None:
         return self.m_S_per_N.size if self._per_sensor else None
 
     def reset(self) -> None:
-        """Forget the last timestamp (the linear model itself has no memory)."""
+        """Forget the last timestamp (the linear model itself has no memory) and the flat-line runs."""
         self._t_prev_s = None
+        self._validator = None
 
     def update(
         self, t_s: np.ndarray, conductance_s: np.ndarray, saturated: np.ndarray | None = None
     ) -> np.ndarray:
         """Force (N, S) in N for timestamps (N,) s and conductances (N, S) S. ``saturated`` (N, S) bool marks
-        ADC-saturated (censored) samples: their force is a lower bound and is flagged SATURATED."""
+        ADC-saturated (censored) samples: their force is a lower bound and is flagged READOUT_SATURATED."""
         t = np.asarray(t_s, dtype=np.float64)
         check_timestamps(t, self._t_prev_s)
         cond = _as_block(conductance_s, t.size, self.n_sensors)
+        self._validator, cond, checked = _validated(self._validator, self.validation, t, cond, saturated)
         excess = cond - self.d_S
         if self.baseline_s is not None:
             excess = excess - self.baseline_s
@@ -123,8 +140,8 @@ class LinearEstimator:
             negative = force < 0.0
             status[negative & (status == ForceStatus.OK)] = ForceStatus.BELOW_BASELINE
             force[negative] = 0.0
+        _merge(status, checked)
         _flag_extrapolation(force, status, _range_bounds(self.force_range_n, force.shape[1]))
-        _flag_saturated(status, saturated, cond)
         self.last_status = status
         if t.size:
             self._t_prev_s = float(t[-1])
@@ -153,6 +170,7 @@ class SLSEstimator:
         with_contact: bool = True,
         n_sensors: int | None = None,
         force_range_n: tuple[float, float] | None = None,
+        validation: ValidationRule = ESTIMATOR_RULE,
     ) -> None:
         self.params = params
         self.area_m2 = area_m2
@@ -160,6 +178,8 @@ class SLSEstimator:
         self.interp = interp
         self.with_contact = with_contact
         self.force_range_n = force_range_n
+        self.validation = validation
+        self._validator: SampleValidator | None = None
         if n_sensors is None:
             n_sensors = params.n_sensors
         if n_sensors is None and np.ndim(area_m2) == 1:
@@ -174,9 +194,10 @@ class SLSEstimator:
         return None if self._inverse is None else self._inverse.n_sensors
 
     def reset(self) -> None:
-        """Back to rest (zero force, no creep history, no previous timestamp)."""
+        """Back to rest (zero force, no creep history, no previous timestamp, no flat-line runs)."""
         if self._inverse is not None:
             self._inverse.reset()
+        self._validator = None
 
     def update(
         self, t_s: np.ndarray, conductance_s: np.ndarray, saturated: np.ndarray | None = None
@@ -185,16 +206,17 @@ class SLSEstimator:
 
         ``saturated`` (N, S) bool marks ADC-saturated (censored) samples (``SampleBlock.saturated``): the reading is
         a bound, so the force is a lower bound; it is computed and carried in the state like any other sample
-        (dropping it would hold an older, smaller force) and flagged SATURATED."""
+        (dropping it would hold an older, smaller force) and flagged READOUT_SATURATED."""
         t = np.asarray(t_s, dtype=np.float64)
         cond = _as_block(conductance_s, t.shape[0] if t.ndim == 1 else -1, self.n_sensors)
         if self._inverse is None:
             self._inverse = SLSInverse(
                 self.params, self.area_m2, self.phys, cond.shape[1], self.interp, self.with_contact
             )
+        self._validator, cond, checked = _validated(self._validator, self.validation, t, cond, saturated)
         result = self._inverse.update(t, cond)
+        _merge(result.status, checked)
         _flag_extrapolation(result.force_n, result.status, _range_bounds(self.force_range_n, cond.shape[1]))
-        _flag_saturated(result.status, saturated, cond)
         self.last_status = result.status
         return result.force_n
 

@@ -564,18 +564,26 @@ class ForceStatus(enum.IntEnum):
     SATURATED = 5  # reading at or beyond ε → 1 (or C = ∞): force at that limit, far outside the model's range
     NOT_CONVERGED = 6  # the per-step solve hit its iteration cap (should not happen); last iterate kept
     EXTRAPOLATED = 7  # force outside the calibrated range given to the estimator; value kept
+    # The sample-validation rule (models.validation) adds these; the inverse itself never sets them.
+    ABOVE_CEILING = 8  # reading above the readout's ceiling 1/R_C: impossible, rejected (gap, force NaN)
+    FLAT = 9  # the same reading for flat_s seconds: a stuck channel, rejected (gap, force NaN)
+    READOUT_SATURATED = 10  # reading at the ceiling 1/R_C (counts = 0): the force is a lower bound
 
 
 FORCE_STATUS_TEXT = {
     ForceStatus.OK: "ok",
-    ForceStatus.NAN_INPUT: "conductance is NaN (dropped sample): force NaN, last force held over the gap",
+    ForceStatus.NAN_INPUT: "conductance is not finite (dropped sample, empty cell): gap, force NaN, last force "
+    "held over the gap",
     ForceStatus.OPEN_CIRCUIT: "conductance 0 (open circuit, no contact): force 0 N",
-    ForceStatus.NEGATIVE_CONDUCTANCE: "negative conductance is not a reading: force 0 N",
+    ForceStatus.NEGATIVE_CONDUCTANCE: "negative conductance is not a reading: rejected (gap, force NaN)",
     ForceStatus.BELOW_BASELINE: "reading below the unloaded baseline (negative force): clipped to 0 N",
     ForceStatus.SATURATED: "reading beyond the model's strain limit ε → 1: force at that limit (check for a short "
     "or a wrong calibration)",
     ForceStatus.NOT_CONVERGED: "per-step force solve did not converge",
     ForceStatus.EXTRAPOLATED: "force outside the calibrated range: extrapolated",
+    ForceStatus.ABOVE_CEILING: "reading above the readout's ceiling 1/R_C is impossible: rejected (gap, force NaN)",
+    ForceStatus.FLAT: "reading frozen (flat-lined channel): rejected, no force claimed (gap, force NaN)",
+    ForceStatus.READOUT_SATURATED: "readout saturated (at 1/R_C): force is a lower bound",
 }
 
 

@@ -3,6 +3,7 @@ lazy loading of the heavy optional import (casadi)."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 import sys
@@ -45,3 +46,58 @@ def test_casadi_loads_only_when_first_needed():
     )
     result = _run([sys.executable, "-c", code])
     assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.skipif(importlib.util.find_spec("grimp") is None, reason="grimp (import-linter's graph) not installed")
+def test_no_import_circles_between_our_modules():
+    """Any two of our modules importing each other, directly or round a longer loop (function-level imports count),
+    is a circle: list every strongly connected component of the module graph with more than one member."""
+    import grimp
+
+    graph = grimp.build_graph("app", "widgets", "devices", "models", "benchmarks", cache_dir=None)
+    circles = [sorted(component) for component in _strongly_connected(graph) if len(component) > 1]
+    assert not circles, f"import circles: {circles}"
+
+
+def _strongly_connected(graph) -> list[list[str]]:
+    """Tarjan's algorithm, iterative (the graph has a few hundred modules)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+    for root in sorted(graph.modules):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph.find_modules_directly_imported_by(root))))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, successors = work[-1]
+            advanced = False
+            for succ in successors:
+                if succ not in index:
+                    index[succ] = low[succ] = len(index)
+                    stack.append(succ)
+                    on_stack.add(succ)
+                    work.append((succ, iter(sorted(graph.find_modules_directly_imported_by(succ)))))
+                    advanced = True
+                    break
+                if succ in on_stack:
+                    low[node] = min(low[node], index[succ])
+            if advanced:
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                components.append(component)
+    return components

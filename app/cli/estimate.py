@@ -1,7 +1,15 @@
-"""``sensnake estimate IN.csv --cal CAL.json [--model linear|sls] --out OUT.csv``: conductance → force.
+"""``sensnake estimate IN.csv --cal CAL.json [--model linear|sls] --out OUT.csv [--flags FLAGS.csv] [--config FILE]
+[--allow-degenerate]``: conductance → force.
 
 Every sensor column of IN.csv is converted with its calibration (SPEC §3.2); a single ``conductance_S`` column maps
-to the calibration's only sensor. Physics constants come from the calibration file. Runs on the CLI's main thread.
+to the calibration's only sensor. Physics constants come from the calibration file. Every sample first passes the
+sample-validation rule of :mod:`models.validation` with the readout ceiling ``1/R_C`` (``board.r_c_ohm`` of
+``--config``, else the default circuit): an empty/NaN cell, a negative, above-ceiling or flat-lined reading is a gap
+(force NaN in OUT.csv; time passes for the creep state), never a refusal of the file. OUT.csv keeps exactly the SPEC
+§3.2 columns; ``--flags`` writes a sidecar CSV with the same header holding each sample's integer
+:class:`models.sls.ForceStatus` code (0 = ok; legend in docs/NUMERICS.md); stderr gets one line per affected sensor.
+A calibration that ``sensnake fit`` marked ``"degenerate": true`` is refused unless ``--allow-degenerate``.
+Runs on the CLI's main thread.
 """
 
 from __future__ import annotations
@@ -12,12 +20,11 @@ import sys
 import numpy as np
 
 from app.core import calfiles
-from models.estimators import LinearEstimator
+from devices.config import BoardConfig, load_config
+from models.estimators import LinearEstimator, SLSEstimator
 from models.linear import LinearModel
-from models.sls import SLSParams, explain_force_status, force_from_conductance
-
-# Estimated forces beyond the calibrated range by more than this fraction are reported as extrapolated.
-EXTRAPOLATION_MARGIN = 0.1
+from models.sls import SLSParams
+from models.validation import ValidationRule, summarise
 
 
 def resolve_columns(table: calfiles.SeriesTable, document: dict, generic: str, cal_path: str) -> list[str]:
@@ -41,23 +48,46 @@ def output_names(table: calfiles.SeriesTable, generic_in: str, generic_out: str)
     return (generic_out,) if table.columns == (generic_in,) else table.columns
 
 
-def warn_extrapolation(document: dict, names: list[str], force_n: np.ndarray) -> None:
-    for i, name in enumerate(names):
+def _force_ranges(document: dict, names: list[str]) -> list[tuple[float, float] | None]:
+    ranges: list[tuple[float, float] | None] = []
+    for name in names:
         span = document["sensors"][name].get("force_range_N")
-        if not (isinstance(span, list) and len(span) == 2):
-            continue
-        column = force_n[:, i]
-        finite = column[np.isfinite(column)]
-        if finite.size and finite.max() > span[1] * (1 + EXTRAPOLATION_MARGIN):
-            print(f"sensnake: warning: {name}: forces up to {finite.max():.3g} N are outside the calibrated range "
-                  f"{span[0]:g}–{span[1]:g} N (extrapolated)", file=sys.stderr)
+        ok = isinstance(span, list) and len(span) == 2 and all(isinstance(v, (int, float)) for v in span)
+        ranges.append((float(span[0]), float(span[1])) if ok else None)
+    return ranges
+
+
+def _range_arrays(ranges: list[tuple[float, float] | None]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sensor (low, high) for the EXTRAPOLATED flag; an unknown range never flags (−∞, ∞)."""
+    low = np.array([r[0] if r else -np.inf for r in ranges])
+    high = np.array([r[1] if r else np.inf for r in ranges])
+    return low, high
+
+
+def refuse_degenerate(document: dict, names: list[str], model: str, cal_path: str, allow: bool) -> None:
+    """A sensor whose fit was marked degenerate is refused (CalFileError naming why) unless ``allow``."""
+    for name in names:
+        entry = document["sensors"][name]
+        if model == "sls" and entry.get("degenerate") is True:
+            why = "; ".join(entry.get("degenerate_reasons", [])) or "marked degenerate by 'sensnake fit'"
+            if not allow:
+                raise calfiles.CalFileError(
+                    f"{cal_path}: sensor '{name}' has a degenerate SLS fit ({why}): its forces would not be "
+                    "trustworthy; recalibrate, or pass --allow-degenerate to use it anyway")
+            print(f"sensnake estimate: warning: {name}: using a degenerate SLS fit ({why})", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
     document = calfiles.read_calibration(args.cal)
-    table = calfiles.read_series_csv(args.input, calfiles.CONDUCTANCE_COLUMN)
+    table = calfiles.read_series_csv(args.input, calfiles.CONDUCTANCE_COLUMN, allow_gaps=True)
     names = resolve_columns(table, document, calfiles.CONDUCTANCE_COLUMN, args.cal)
     entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
+    refuse_degenerate(document, names, args.model, args.cal, getattr(args, "allow_degenerate", False))
+    board = load_config(args.config).board if getattr(args, "config", None) else BoardConfig()
+    rule = ValidationRule.for_readout(board.r_c_ohm)
+    ranges = _force_ranges(document, names)
+    bounds = _range_arrays(ranges)
+    estimator: LinearEstimator | SLSEstimator
     if args.model == "linear":
         # The live Forces tab's estimator, so both treat a reading below the baseline alike (0 N, flagged).
         models = [LinearModel.from_dict(entry["linear"]) for entry in entries]
@@ -65,19 +95,21 @@ def run(args: argparse.Namespace) -> int:
             if not model.m_S_per_N > 0.0:
                 raise calfiles.CalFileError(f"{args.cal}: sensor '{name}' linear.m_S_per_N = {model.m_S_per_N!r} "
                                             "must be > 0 to invert: re-run 'sensnake fit'")
-        estimator = LinearEstimator(models)
-        force = estimator.update(table.time_s, table.values)
-        status = estimator.last_status
+        estimator = LinearEstimator(models, force_range_n=bounds, validation=rule)
     else:
         phys = calfiles.physics_from_calibration(document, args.cal)
         params = SLSParams.stack([SLSParams.from_dict(entry["sls"]) for entry in entries])
         areas = np.array([float(entry["area_m2"]) for entry in entries])
-        result = force_from_conductance(table.time_s, table.values, params, areas, phys, with_status=True)
-        force, status = result.force_n, result.status
-    for line in explain_force_status(status):
+        estimator = SLSEstimator(params, areas, phys, n_sensors=len(names), force_range_n=bounds, validation=rule)
+    force = estimator.update(table.time_s, table.values)
+    status = estimator.last_status
+    out_names = output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN)
+    for line in summarise(names, force, status, ranges):
         print(f"sensnake estimate: warning: {line}", file=sys.stderr)
-    warn_extrapolation(document, names, force)
-    calfiles.write_series_csv(args.out, table.time_s, output_names(table, calfiles.CONDUCTANCE_COLUMN,
-                                                                   calfiles.FORCE_COLUMN), force)
+    calfiles.write_series_csv(args.out, table.time_s, out_names, force)
+    if getattr(args, "flags", None):
+        calfiles.write_series_csv(args.flags, table.time_s, out_names, status.astype(np.float64))
+    elif status.any():
+        print("sensnake estimate: note: per-sample flags: add --flags FLAGS.csv", file=sys.stderr)
     print(f"wrote {force.shape[0]} samples × {force.shape[1]} sensor(s) of force ({args.model}) to {args.out}")
     return 0

@@ -89,8 +89,9 @@ def _column_index(path: Path, header: list[str], name: str) -> int:
     return header.index(name)
 
 
-def _locate_bad_cell(path: Path, header: list[str], indices: list[int]) -> CalFileError:
-    """Walk the file row by row to report the first unparsable or non-finite cell with its line number."""
+def _locate_bad_cell(path: Path, header: list[str], indices: list[int], gaps_from: int | None = None) -> CalFileError:
+    """Walk the file row by row to report the first unparsable or non-finite cell with its line number.
+    Columns at positions ≥ ``gaps_from`` of ``indices`` may be empty or non-finite (gaps); text is still refused."""
     with path.open(newline="", encoding="utf-8-sig") as handle:
         reader = csv.reader(handle)
         seen_header = False
@@ -101,15 +102,18 @@ def _locate_bad_cell(path: Path, header: list[str], indices: list[int]) -> CalFi
             if not seen_header:
                 seen_header = True
                 continue
-            for index in indices:
+            for position, index in enumerate(indices):
+                gap_ok = gaps_from is not None and position >= gaps_from
                 if index >= len(row):
                     return CalFileError(f"{path}:{line}: row has {len(row)} cells, expected {len(header)}")
                 cell = row[index].strip()
+                if gap_ok and not cell:
+                    continue
                 try:
                     value = float(cell)
                 except ValueError:
                     return CalFileError(f"{path}:{line}: column '{header[index]}' holds '{cell}', not a number")
-                if not math.isfinite(value):
+                if not math.isfinite(value) and not gap_ok:
                     return CalFileError(
                         f"{path}:{line}: column '{header[index]}' is {cell}: every sample must be a finite number "
                         "(remove or repair the row)"
@@ -117,8 +121,15 @@ def _locate_bad_cell(path: Path, header: list[str], indices: list[int]) -> CalFi
     return CalFileError(f"{path}: could not parse the numeric columns")
 
 
-def _read_columns(path: Path, header: list[str], indices: list[int]) -> np.ndarray:
-    """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite."""
+def _gap_cell(cell: str) -> float:
+    """A data cell that may be empty (a dropped sample: NaN)."""
+    return float(cell) if cell.strip() else math.nan
+
+
+def _read_columns(path: Path, header: list[str], indices: list[int], gaps_from: int | None = None) -> np.ndarray:
+    """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite, except that
+    columns at positions ≥ ``gaps_from`` may hold empty or non-finite cells (read as NaN/±inf: the caller's sample
+    validation treats them as gaps)."""
     with path.open(encoding="utf-8-sig") as handle:
         lines = [line for line in handle if line.strip()]
     if len(lines) < 2:
@@ -126,11 +137,18 @@ def _read_columns(path: Path, header: list[str], indices: list[int]) -> np.ndarr
     try:
         data = np.loadtxt(lines[1:], delimiter=",", usecols=indices, ndmin=2, dtype=np.float64, comments=None)
     except ValueError:
-        raise _locate_bad_cell(path, header, indices) from None
+        if gaps_from is None:
+            raise _locate_bad_cell(path, header, indices) from None
+        try:  # the slow path only for files with empty cells
+            data = np.loadtxt(lines[1:], delimiter=",", usecols=indices, ndmin=2, dtype=np.float64, comments=None,
+                              converters=_gap_cell)
+        except ValueError:
+            raise _locate_bad_cell(path, header, indices, gaps_from) from None
     if data.shape[0] == 0:
         raise CalFileError(f"{path}: no data rows after the header")
-    if not np.all(np.isfinite(data)):
-        raise _locate_bad_cell(path, header, indices)
+    checked = data if gaps_from is None else data[:, :gaps_from]
+    if not np.all(np.isfinite(checked)):
+        raise _locate_bad_cell(path, header, indices, gaps_from)
     return data
 
 
@@ -172,8 +190,11 @@ def read_trial_csv(path: str | os.PathLike) -> Trial:
                  conductance_s=data[:, 2].copy())
 
 
-def read_series_csv(path: str | os.PathLike, single_column: str) -> SeriesTable:
+def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: bool = False) -> SeriesTable:
     """Read an estimate/forward input CSV (SPEC §3.2): ``time_s`` then one column per sensor.
+
+    ``allow_gaps`` (estimate): a data cell may be empty or NaN/inf — a dropped sample the caller's validation turns
+    into a gap — instead of refusing the file; time must always be finite.
 
     ``single_column`` is the generic name (``conductance_S`` for estimate, ``force_N`` for forward) that a file with
     exactly one data column may use instead of a sensor name; the caller maps it to the calibration's only sensor.
@@ -190,7 +211,8 @@ def read_series_csv(path: str | os.PathLike, single_column: str) -> SeriesTable:
     if len(set(names)) != len(names):
         duplicate = next(name for name in names if names.count(name) > 1)
         raise CalFileError(f"{file}:1: column '{duplicate}' appears twice")
-    data = _read_columns(file, header, [time_index] + [header.index(name) for name in names])
+    data = _read_columns(file, header, [time_index] + [header.index(name) for name in names],
+                         gaps_from=1 if allow_gaps else None)
     _check_time(file, data[:, 0])
     return SeriesTable(file=str(file), time_s=data[:, 0].copy(), columns=tuple(names),
                        values=np.ascontiguousarray(data[:, 1:]))

@@ -10,7 +10,10 @@ Per sensor the status is one of:
   conductance in µS, labelled, never a made-up force.
 
 The estimator (``sls`` creep-aware, or ``linear``) is applied live to new blocks; switching it restarts the estimator
-state (the creep history starts afresh). Time stamps fed to the estimators are the board clock (seconds).
+state (the creep history starts afresh). Time stamps fed to the estimators are the board clock (seconds). Every block
+passes the one sample-validation rule of :mod:`models.validation` inside the estimators (non-finite, negative and
+flat-lined readings are rejected: NaN force, flagged; the board's saturation mask flags READOUT_SATURATED); the
+per-sample :class:`models.sls.ForceStatus` codes come back in :attr:`ForcesBlock.status`.
 
 Not thread-safe: the Forces tab calls it from the GUI thread as blocks arrive.
 """
@@ -39,10 +42,12 @@ US_PER_S = 1e6
 @dataclass(frozen=True)
 class ForcesBlock:
     """One processed block: ``display`` (N×C) what the force view plots (N for estimated sensors, µS for the
-    others), ``force_n`` (N×C) forces in N with NaN for sensors without an estimate."""
+    others), ``force_n`` (N×C) forces in N with NaN for sensors without an estimate, ``status`` (N×C) int8
+    :class:`models.sls.ForceStatus` codes (0 = ok, also for sensors shown as conductance)."""
 
     display: np.ndarray
     force_n: np.ndarray
+    status: np.ndarray | None = None
 
 
 def _typical_linear_model() -> LinearModel:
@@ -134,29 +139,34 @@ class ForcesPipeline:
         return (f"{name}: all {counts[CALIBRATED]} sensors calibrated", "ok")
 
     # -- processing ------------------------------------------------------------------------------------------------
-    def process(self, t_s: np.ndarray, conductance_s: np.ndarray) -> ForcesBlock:
-        """Estimate forces for a block: ``t_s`` (N,) board seconds, ``conductance_s`` (N×C) siemens."""
+    def process(self, t_s: np.ndarray, conductance_s: np.ndarray,
+                saturated: np.ndarray | None = None) -> ForcesBlock:
+        """Estimate forces for a block: ``t_s`` (N,) board seconds, ``conductance_s`` (N×C) siemens, ``saturated``
+        (N×C) bool the board's counts = 0 mask (optional)."""
         conductance_s = np.asarray(conductance_s, dtype=float)
         t_s = np.asarray(t_s, dtype=float)
         self.last_block_problem = None
         force_n = np.full(conductance_s.shape, np.nan)
+        status = np.zeros(conductance_s.shape, dtype=np.int8)
         display = conductance_s * US_PER_S
         if self._estimator is not None and self._columns.size and t_s.size:
             if self._t_last_s is not None and t_s[0] < self._t_last_s:
                 self._build()  # the board clock restarted (new board or power cycle): the creep state is stale
+            columns_saturated = None if saturated is None else np.asarray(saturated, dtype=bool)[:, self._columns]
             try:
-                estimated = self._estimator.update(t_s, conductance_s[:, self._columns])
+                estimated = self._estimator.update(t_s, conductance_s[:, self._columns], columns_saturated)
             except ValueError as exc:
                 # A block the estimator refuses (clock jumping back inside a block, non-finite time): show its
                 # conductance, say why, and start the estimator afresh from the next block.
                 self._build()
                 self.last_block_problem = f"force estimate skipped for one block: {exc}"
                 self.problems.insert(0, self.last_block_problem)
-                return ForcesBlock(display=display, force_n=force_n)
+                return ForcesBlock(display=display, force_n=force_n, status=status)
             force_n[:, self._columns] = estimated
             display[:, self._columns] = estimated
+            status[:, self._columns] = self._estimator.last_status
             self._t_last_s = float(t_s[-1])
-        return ForcesBlock(display=display, force_n=force_n)
+        return ForcesBlock(display=display, force_n=force_n, status=status)
 
     # -- internals -------------------------------------------------------------------------------------------------
     def _build(self) -> None:

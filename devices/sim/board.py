@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from devices.board import FLAG_SATURATED, counts_from_conductance, encode_frame
+from devices.board_wire import FLAG_SATURATED, counts_from_conductance, encode_frame
 from devices.config import BoardConfig
 from devices.sim.clock import SimClock
 from models.physics import PhysicsConstants, conductance_from_strain

@@ -29,6 +29,7 @@ import threading
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 import serial
@@ -128,17 +129,34 @@ class _Chunk:
         return self.start_wall_s + len(self.data) * self.byte_s
 
 
+class JointPhysics(Protocol):
+    """A physics simulation that moves the joints instead of the chain's own servo model
+    (``devices.sim.physics.backend.PhysicsBackend``): per joint in ID order, torque enable, goal (rad) and profile
+    speed (rad/s) in; angle (rad), velocity (rad/s), motor torque (N·m) and time spent saturated (s) out."""
+
+    def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None: ...
+    def advance_to(self, sim_s: float) -> None: ...
+    def joint_state(self) -> Any: ...
+    def set_joint_angle(self, joint: int, angle_rad: float) -> None: ...
+    def set_external_torque(self, joint: int, torque_nm: float) -> None: ...
+
+
 class VirtualChain:
-    """Simulated XM430-W350 servos sharing one Protocol 2.0 bus. See the module docstring."""
+    """Simulated XM430-W350 servos sharing one Protocol 2.0 bus. See the module docstring.
+
+    With ``physics`` the joints are bodies in a physics simulation (:class:`JointPhysics`): the servo's present
+    position, velocity and current come from it, its goals and torque enable drive it, and a demanded torque above
+    the stall torque for ``OVERLOAD_AFTER_S`` trips the overload error, as the firmware does."""
 
     def __init__(self, ids: Sequence[int], baud: int, clock: SimClock, seed: int,
                  model_number: int = ct.MODEL_NUMBER_XM430_W350, *, return_delay_time: int = 250,
-                 firmware: int = 46) -> None:
+                 firmware: int = 46, physics: JointPhysics | None = None) -> None:
         if baud not in ct.BAUD_INDEX_FROM_BPS:
             raise ValueError(f"{baud} bps is not a Dynamixel baud rate ({sorted(ct.BAUD_INDEX_FROM_BPS)})")
         if len(set(ids)) != len(ids) or not all(0 <= i <= ct.MAX_ID for i in ids):
             raise ValueError(f"servo IDs must be distinct and within 0…{ct.MAX_ID}, got {list(ids)}")
         self._clock = clock
+        self._physics = physics
         self._rng = np.random.default_rng(seed)
         self._position_noise: list[int] = []  # ticks, −1…1, drawn NOISE_BATCH at a time
         self._current_noise: list[int] = []  # LSB, −2…2
@@ -252,11 +270,17 @@ class VirtualChain:
                 raise ValueError(f"servo {servo_id} has torque on and holds its position; turn torque off to pose it")
             servo.position_ticks = float(min(max(ticks, 0.0), 4095.0))
             servo.velocity_ticks_s = 0.0
+            if self._physics is not None:
+                joint = self._servos.index(servo)
+                self._physics.set_joint_angle(joint, (servo.position_ticks - ct.CENTER_TICKS) * ct.RAD_PER_TICK)
 
     def set_load(self, servo_id: int, torque_nm: float) -> None:
         """External load torque on a joint (N·m); the current follows it, and a large one trips the overload."""
         with self._lock:
             self._advance(self._clock.now())
+            if self._physics is not None:
+                self._physics.set_external_torque(self._servos.index(self._servo(servo_id)), float(torque_nm))
+                return
             self._servo(servo_id).load_nm = float(torque_nm)
 
     def set_temperature(self, servo_id: int, celsius: float) -> None:
@@ -639,6 +663,10 @@ class VirtualChain:
         dt_total = sim_s - self._sim_time_s
         if dt_total <= 0:
             return
+        if self._physics is not None:
+            self._sim_time_s = sim_s
+            self._advance_physics(sim_s)
+            return
         self._sim_time_s = sim_s
         steps = max(1, min(2000, int(math.ceil(dt_total / PHYSICS_STEP_S))))
         dt = dt_total / steps
@@ -648,6 +676,28 @@ class VirtualChain:
                 servo.last_accel_ticks_s2 = 0.0
                 continue
             self._step_servo(servo, dt, steps)
+
+    def _advance_physics(self, sim_s: float) -> None:
+        assert self._physics is not None
+        on = np.array([servo.torque_on for servo in self._servos])
+        goal = np.array([(_I32.unpack_from(s.table, ct.ADDR_GOAL_POSITION)[0] - ct.CENTER_TICKS) * ct.RAD_PER_TICK
+                         for s in self._servos])
+        speed = np.empty(len(self._servos))
+        for j, servo in enumerate(self._servos):
+            limit = _U32.unpack_from(servo.table, ct.ADDR_VELOCITY_LIMIT)[0]
+            profile = _MOTION_PROFILE.unpack_from(servo.table, ct.ADDR_PROFILE_ACCELERATION)[1]
+            speed[j] = (min(profile, limit) if profile > 0 else limit) * ct.RAD_S_PER_VELOCITY_LSB
+        self._physics.command(on, goal, speed)
+        self._physics.advance_to(sim_s)
+        state = self._physics.joint_state()
+        for j, servo in enumerate(self._servos):
+            servo.position_ticks = min(max(ct.CENTER_TICKS + float(state.position_rad[j]) / ct.RAD_PER_TICK, 0.0),
+                                       4095.0)
+            servo.velocity_ticks_s = float(state.velocity_rad_s[j]) / ct.RAD_PER_TICK
+            servo.load_nm = float(state.torque_nm[j])  # the current follows the motor's torque
+            servo.last_accel_ticks_s2 = 0.0
+            if servo.torque_on and state.saturated_s[j] >= OVERLOAD_AFTER_S:
+                self._raise_hardware_error(servo, ct.OVERLOAD_BIT)
 
     def _step_servo(self, servo: _Servo, dt: float, steps: int) -> None:
         table = servo.table

@@ -6,6 +6,8 @@ Only ``devices.factory`` creates a :class:`SimLab`; tests build their own (seede
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from devices.config import LabConfig
@@ -16,6 +18,9 @@ from devices.sim.dxl_chain import VirtualChain
 from devices.sim.rig import VirtualRig
 from devices.sim.transport import SimEndpoint
 
+if TYPE_CHECKING:  # pragma: no cover
+    from devices.sim.physics.backend import PhysicsBackend
+
 
 class SimLab:
     """The simulated robot, board and rig sharing one clock and one random seed."""
@@ -25,8 +30,14 @@ class SimLab:
         self.clock = SimClock(speed)
         rng = np.random.default_rng(seed)
         robot = self.config.robot
+        # [lab] physics = "mujoco": the robot is a body in a physics world that the chain drives and the board feels.
+        self.physics: PhysicsBackend | None = None
+        if self.config.lab.physics == "mujoco":
+            from devices.sim.physics.backend import PhysicsBackend
+
+            self.physics = PhysicsBackend(self.config, self.clock)
         self.chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=self.clock,
-                                  seed=int(rng.integers(2**31)))
+                                  seed=int(rng.integers(2**31)), physics=self.physics)
         self.contact = ContactModel(self.config, self.chain, seed=int(rng.integers(2**31)))
         board_seed, rig_seed = int(rng.integers(2**31)), int(rng.integers(2**31))
         self.rig = VirtualRig(self.config.rig, self.clock, seed=rig_seed)
@@ -38,12 +49,22 @@ class SimLab:
         """Force on every board channel from the robot's contacts — except that while the rig's probe presses, the
         channel of ``rig.sensor`` feels the probe alone: in the lab that segment sits on the calibration beam, not
         under the robot's weight, so a calibration run reads the rig force through the board as it would there."""
-        forces = self.contact.forces_n(t_s)
+        forces = self.physics.forces_n(t_s) if self.physics is not None else self.contact.forces_n(t_s)
         if self._rig_channel is not None:
             probe_n = self.rig.applied_force_n()
             if probe_n > 0.0:
                 forces[self._rig_channel] = probe_n
         return forces
+
+    def start_background(self) -> None:
+        """Keep the physics world stepping with the clock between driver events (the app's lab); no-op when the
+        lab is scripted. Daemon thread; :meth:`close` stops it."""
+        if self.physics is not None:
+            self.physics.start()
+
+    def close(self) -> None:
+        if self.physics is not None:
+            self.physics.close()
 
     def endpoint(self, device: str) -> SimEndpoint:
         """The wire end of ``device``: ``robot`` (servo bus), ``board`` (force sensors) or ``rig`` (rig servo bus)."""

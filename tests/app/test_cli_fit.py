@@ -168,10 +168,19 @@ def test_estimate_warns_when_extrapolating(lab, tmp_path, capsys):
     calfiles.write_series_csv(tmp_path / "big.csv", t, ("S06B",), np.where(t > 5, 9.0, 0.0)[:, None])
     assert _run(["forward", str(tmp_path / "big.csv"), "--cal", cal, "--out", str(tmp_path / "c.csv")],
                 capsys)[0] == 0
+    # 9 N reads above the default readout's ceiling 1/900 S: impossible there, so rejected and said so.
     code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(tmp_path / "f.csv")],
                         capsys)
     assert code == 0
-    assert "S06B: forces up to 9 N are outside the calibrated range 1.75–5.25 N (extrapolated)" in err
+    assert "S06B: 329 sample(s) rejected, force NaN (ABOVE_CEILING 329)" in err
+    assert np.all(np.isnan(calfiles.read_series_csv(tmp_path / "f.csv", "force_N", allow_gaps=True).values[t > 5]))
+    # With a readout that can report it (R_C = 100 Ω), 9 N is estimated and flagged as extrapolated.
+    config = tmp_path / "lab.toml"
+    config.write_text("[board]\nr_c_ohm = 100.0\n")
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(tmp_path / "f.csv"),
+                         "--config", str(config)], capsys)
+    assert code == 0
+    assert "329 extrapolated (forces 9–9 N outside the calibrated range 1.75–5.25 N)" in err
 
 
 def test_single_generic_column_maps_to_the_only_sensor(lab, tmp_path, capsys):
@@ -301,3 +310,45 @@ def test_several_sensor_columns_round_trip(lab, tmp_path, capsys):
     assert _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(cal), "--out", str(tmp_path / "e.csv")],
                 capsys)[0] == 0
     np.testing.assert_allclose(calfiles.read_series_csv(tmp_path / "e.csv", "force_N").values, forces, atol=1e-9)
+
+
+def test_estimate_treats_an_empty_cell_as_a_gap_and_writes_flags(lab, tmp_path, capsys):
+    """Issue 10: one empty/NaN sample in a 6000-row file is a gap (NaN out, flagged), not a refusal of the file."""
+    folder, _ = lab
+    cal = str(folder / "cal.json")
+    t = np.arange(6000) / 6.0
+    force = np.where(t > 5, 3.0, 0.0)
+    calfiles.write_series_csv(tmp_path / "force.csv", t, ("S06B",), force[:, None])
+    assert _run(["forward", str(tmp_path / "force.csv"), "--cal", cal, "--out", str(tmp_path / "c.csv")],
+                capsys)[0] == 0
+    lines = (tmp_path / "c.csv").read_text().splitlines()
+    lines[3001] = lines[3001].split(",")[0] + ","  # row 3000: empty conductance cell
+    lines[4001] = lines[4001].split(",")[0] + ",nan"
+    (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(tmp_path / "f.csv"),
+                         "--flags", str(tmp_path / "flags.csv")], capsys)
+    assert code == 0, err
+    assert "S06B: 2 sample(s) rejected, force NaN (NAN_INPUT 2)" in err
+    out = calfiles.read_series_csv(tmp_path / "f.csv", "force_N", allow_gaps=True)
+    assert out.columns == ("S06B",)  # SPEC §3.2 columns only
+    gaps = np.isnan(out.values[:, 0])
+    assert np.flatnonzero(gaps).tolist() == [3000, 4000]
+    np.testing.assert_allclose(out.values[~gaps & (t > 6), 0], 3.0, atol=1e-6)
+    flags = calfiles.read_series_csv(tmp_path / "flags.csv", "force_N").values[:, 0]
+    assert flags[3000] == 1 and flags[4000] == 1
+
+
+def test_estimate_refuses_a_degenerate_calibration_unless_allowed(lab, tmp_path, capsys):
+    folder, paths = lab
+    document = json.loads((folder / "cal.json").read_text())
+    document["sensors"]["S06B"]["degenerate"] = True
+    document["sensors"]["S06B"]["degenerate_reasons"] = ["E1_Pa at its upper bound"]
+    cal = tmp_path / "deg.json"
+    cal.write_text(json.dumps(document))
+    trial = calfiles.read_trial_csv(paths[1])
+    calfiles.write_series_csv(tmp_path / "c.csv", trial.time_s, ("S06B",), trial.conductance_s[:, None])
+    argv = ["estimate", str(tmp_path / "c.csv"), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]
+    code, _, err = _run(argv, capsys)
+    assert code == 1 and "degenerate SLS fit (E1_Pa at its upper bound)" in err and "--allow-degenerate" in err
+    code, _, err = _run([*argv, "--allow-degenerate"], capsys)
+    assert code == 0 and "using a degenerate SLS fit" in err

@@ -1,4 +1,6 @@
-"""How ServoChain waits for replies: it sleeps through their expected wire time instead of polling the port.
+"""How ServoChain waits for replies: it sleeps until their bytes can first have crossed the wire (baud rate and each
+servo's Return Delay Time from its control table), then waits for the missing bytes; it never polls the port and
+never sleeps through a delay learned from earlier replies.
 
 Every wake-up of the bus thread has to win the GIL back from the GUI thread, so the number of sleeps per transaction
 is the cost that matters; these tests count them (``ServoChain.reply_wakeups``). The simulated chain runs at real
@@ -35,12 +37,10 @@ def servos():
         factory.install_sim_lab(previous)
 
 
-def test_a_sync_read_costs_one_or_two_wakeups_once_the_reply_delay_is_learned(servos):
+def test_a_sync_read_costs_one_or_two_wakeups_once_the_return_delays_are_read(servos):
     chain, sim = servos
-    for _ in range(3):
-        chain.read_state()  # the first reads learn the per-reply delay
-    # 500 µs Return Delay Time; a wake-up the scheduler delays can only make the estimate short (re-learned next read)
-    assert 0.0001 <= chain.reply_gap_s <= 0.001
+    chain.check_models()  # reads each servo's Return Delay Time
+    assert chain.return_delays_s == {sid: pytest.approx(500e-6) for sid in ROBOT.joint_ids}
     before = chain.reply_wakeups
     n_reads = 10
     for _ in range(n_reads):
@@ -52,7 +52,7 @@ def test_a_sync_read_costs_one_or_two_wakeups_once_the_reply_delay_is_learned(se
 
 def test_single_replies_and_health_reads_wait_without_polling(servos):
     chain, _ = servos
-    chain.read_state()
+    chain.check_models()
     before = chain.reply_wakeups
     assert chain.read_item(5, "Return Delay Time") == FACTORY_RETURN_DELAY
     health = chain.read_health()  # two sync reads (status, supply)
@@ -67,7 +67,7 @@ def test_a_silent_servo_still_times_out_by_name_with_few_wakeups(servos):
     before = chain.reply_wakeups
     with pytest.raises(NoReplyError, match="servo 9"):
         chain.read_state()
-    # The SDK's ~36 ms timeout, polled at a pace that backs off as the reply grows late (100 µs polls: ~300 sleeps).
+    # The SDK's ~36 ms timeout is waited out without polling (100 µs polls would be ~300 sleeps).
     assert chain.reply_wakeups - before <= 60
     sim.set_no_reply(9, False)
     assert chain.read_state().position_rad.shape == (12,)
@@ -101,3 +101,36 @@ def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_spe
         assert len(planned) >= 20  # at real speed the replies are slept through, not polled
     else:
         assert len(planned) <= 20  # a faster simulator has answered before the driver looks
+
+
+def test_one_late_reply_costs_only_its_own_read(servos, monkeypatch):
+    """The cause of the in-app bursts (issue 11): one late reply taught the old driver a 2 ms per-reply gap that it
+    slept through on each of the next ~32 sync reads (12 × 2 ms: ~28 ms ticks). Now no read after it plans a sleep
+    longer than the bus time of a sync read."""
+    chain, sim = servos
+    chain.check_models()
+    real_write = sim.host_write
+    late = {"by_s": 0.0}
+
+    def stamped_late(data: bytes, now_s: float) -> None:
+        real_write(data, now_s + late["by_s"])
+        late["by_s"] = 0.0
+
+    sim.host_write = stamped_late
+    for _ in range(3):
+        chain.read_state()
+    late["by_s"] = 0.015
+    chain.read_state()  # its replies come 15 ms late
+    planned: list[float] = []
+    real_sleep = time.sleep
+
+    def recording_sleep(seconds: float) -> None:
+        planned.append(seconds)
+        real_sleep(seconds)
+
+    monkeypatch.setattr(time, "sleep", recording_sleep)
+    for _ in range(10):
+        chain.read_state()
+    monkeypatch.undo()
+    assert planned and max(planned) <= 1.05 * chain.sync_read_time_s(12, 10)
+    assert chain.return_delays_s[ROBOT.joint_ids[0]] == pytest.approx(500e-6)  # nothing learned from the late one

@@ -20,6 +20,7 @@ channel):
   overload); every status packet of that servo carries the alert bit until it is rebooted.
 - ``silent ID`` / ``answer ID``: the servo stops / resumes answering.
 - ``push ID TICKS``: an external force moves the joint by TICKS (torque on: it returns towards its goal).
+- ``stall SECONDS``: the replies to the next instruction start SECONDS late (the far end was descheduled once).
 - ``kill``: close the pseudo-terminal (the host's next I/O fails, as when a USB adapter is pulled) and exit.
 
 Wire timing: every instruction occupies the wire for its bytes at the configured baud (10 bits per byte); each
@@ -292,6 +293,7 @@ class Bus:
         self.baud_index = baud_index
         self.counts = dict.fromkeys(COUNTED.values(), 0)
         self.crc_errors = 0
+        self.stall_s = 0.0  # one-off extra delay before the next instruction's replies
 
     @property
     def byte_s(self) -> float:
@@ -406,6 +408,9 @@ class Bus:
         try:
             if verb == "count":
                 return "ok " + " ".join(f"{k}={v}" for k, v in self.counts.items()) + f" crc_errors={self.crc_errors}"
+            if verb == "stall":
+                self.stall_s = float(args[0])
+                return f"ok next replies {self.stall_s:g} s late"
             servo = self.servos[int(args[0])]
             servo.update(now)
             if verb == "state":
@@ -517,6 +522,9 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                     wire_free_s = max(now, wire_free_s) + len(data) * bus.byte_s
                     for dev_id, inst, params in parser.feed(data):
                         replies = bus.handle(dev_id, inst, params, now)
+                        if replies and bus.stall_s:
+                            wire_free_s += bus.stall_s
+                            bus.stall_s = 0.0
                         for servo, reply in replies:
                             start = wire_free_s + servo.get("return_delay_time") * 2e-6
                             wire_free_s = start + len(reply) * bus.byte_s

@@ -99,11 +99,11 @@ def test_adc_saturated_samples_are_flagged_by_the_estimators():
     mask = cond > c_max
     est = SLSEstimator(TYPICAL_SLS, TYPICAL_AREA_M2, DEFAULT_PHYSICS)
     out = est.update(t, censored[:, None], saturated=mask)
-    assert np.all(est.last_status[mask[:, None]] == ForceStatus.SATURATED)
+    assert np.all(est.last_status[mask[:, None]] == ForceStatus.READOUT_SATURATED)
     assert np.all(out[mask] < 3.0)  # a lower bound
     lin = LinearEstimator(LinearModel(2e-4, 0.0))
     lin.update(t, censored[:, None], saturated=mask)
-    assert np.all(lin.last_status[mask[:, None]] == ForceStatus.SATURATED)
+    assert np.all(lin.last_status[mask[:, None]] == ForceStatus.READOUT_SATURATED)
     with pytest.raises(ValueError, match="saturated mask"):
         est.update(t + 100, censored[:, None], saturated=np.zeros((t.size, 2), dtype=bool))
 

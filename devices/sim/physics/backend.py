@@ -1,0 +1,107 @@
+"""The physics world under the simulated lab: joints for the servo chain, contact forces for the board.
+
+:class:`PhysicsBackend` is what ``devices.sim.lab.SimLab`` builds when ``[lab] physics = "mujoco"``: the virtual
+chain hands it torque enable, goals and profile speeds and reads angles, velocities and motor torques back
+(:meth:`command` / :meth:`advance_to` / :meth:`joint_state`); the virtual board asks it for each channel's normal
+force (:meth:`forces_n`), which the board's sensor models turn into conductance and counts. Both advance the world
+lazily to the simulated time of their event; :meth:`start` adds a thread that keeps it at the clock between events
+(the GUI's lab), so a plot or a 3-D view sees the robot move even when no driver asks.
+
+Threads: all methods may be called from any thread (the world locks).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from devices.config import LabConfig
+from devices.sim.clock import SimClock
+from devices.sim.physics.model import SceneParams
+from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
+
+STEP_INTERVAL_S = 0.004  # the background thread catches up every 4 ms of wall time
+
+
+def scene_from_config(config: LabConfig) -> SceneParams:
+    robot, lab = config.robot, config.lab
+    body_length_m = robot.n_joints * robot.segment_length_m
+    return SceneParams(
+        n_segments=robot.n_joints, axes=tuple(robot.axes), segment_length_m=robot.segment_length_m,
+        obstacle_height_m=lab.obstacle_height_ratio * body_length_m, obstacle_friction=lab.obstacle_friction,
+        ground_friction=lab.ground_friction,
+    )
+
+
+class PhysicsBackend:
+    """A :class:`PhysicsWorld` on a :class:`SimClock`, with the board's channel map."""
+
+    def __init__(self, config: LabConfig, clock: SimClock, scene: SceneParams | None = None) -> None:
+        self.config = config
+        self.clock = clock
+        self.world = PhysicsWorld(scene or scene_from_config(config))
+        self._rows, self._segments = channel_map(config.board.channel_names, self.world.n_joints)
+        self._known = self._rows >= 0
+        self._time0_s = clock.now()  # the world starts at 0 s when the clock reads this
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    # -- joints (the chain) ----------------------------------------------------------------------------------------------
+    def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
+        self.world.command(torque_on, goal_rad, speed_rad_s)
+
+    def advance_to(self, sim_s: float) -> None:
+        """Step the world to the clock's simulated time ``sim_s`` (s)."""
+        self.world.advance_to(sim_s - self._time0_s)
+
+    def joint_state(self) -> JointState:
+        return self.world.joint_state()
+
+    def set_joint_angle(self, joint: int, angle_rad: float) -> None:
+        self.world.set_joint_angle(joint, angle_rad)
+
+    def set_external_torque(self, joint: int, torque_nm: float) -> None:
+        self.world.set_external_torque(joint, torque_nm)
+
+    # -- forces (the board) --------------------------------------------------------------------------------------------
+    def forces_n(self, t_s: float) -> np.ndarray:
+        """Normal force (N) on each channel of ``config.board`` at the clock's time ``t_s``: the contact force on
+        the sheet the channel names (``S06B``), 0 for a channel the robot does not carry. A time already stepped
+        past reads the present forces (the board catches up a few frames at most)."""
+        self.advance_to(t_s)
+        loads = self.world.segment_loads_n()
+        forces = np.zeros(self._rows.size)
+        forces[self._known] = loads[self._rows[self._known], self._segments[self._known]]
+        return forces
+
+    def body_state(self) -> BodyState:
+        return self.world.body_state()
+
+    # -- background stepping -------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Keep the world at the clock in a daemon thread until :meth:`close`."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="physics-lab", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            started = time.monotonic()
+            self.advance_to(self.clock.now())
+            self._stop.wait(max(0.0, STEP_INTERVAL_S - (time.monotonic() - started)))
+
+    def real_time_factor(self) -> float:
+        """Simulated seconds stepped per simulated second of clock so far (1.0 = kept up; < 1: ``lagged_s``
+        skipped)."""
+        elapsed = self.clock.now() - self._time0_s
+        return 1.0 if elapsed <= 0 else max(0.0, 1.0 - self.world.lagged_s / elapsed)

@@ -1,0 +1,81 @@
+"""The physics world under the virtual hardware: the real drivers talk to a chain and a board backed by MuJoCo.
+
+Clocks run 4× real time (the physics keeps up with that on a loaded 2-core machine); every wait is on a condition.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from devices import control_table as ct  # noqa: E402
+from devices.board import BoardReader  # noqa: E402
+from devices.config import LabConfig, SimLabConfig  # noqa: E402
+from devices.errors import ServoHardwareError  # noqa: E402
+from devices.servo_chain import ServoChain  # noqa: E402
+from devices.sim.clock import SimClock  # noqa: E402
+from devices.sim.dxl_chain import ChainLab, VirtualChain  # noqa: E402
+from devices.sim.physics.backend import PhysicsBackend  # noqa: E402
+from devices.sim.physics.model import SceneParams  # noqa: E402
+
+FLAT = dataclasses.replace(LabConfig(), lab=SimLabConfig(physics="mujoco", obstacle_height_ratio=0.0))
+STALL_CURRENT_MA = 4.1 / (4.1 / 2.3) * 1000.0
+
+
+def _frames(reader: BoardReader, n: int):
+    assert reader.wait_for_frames(n, timeout_s=30.0), "the board sent no frames"
+    block = reader.read_block()
+    assert block is not None
+    return block
+
+
+def test_drivers_move_the_simulated_body_and_the_board_feels_it(install_fast_sim_lab):
+    lab = install_fast_sim_lab(FLAT, speed=4.0)
+    assert lab.physics is not None
+    names = lab.config.board.channel_names
+    tail, middle = names.index("S12B"), names.index("S06B")
+    with ServoChain(lab.config.robot) as chain, BoardReader(lab.config.board) as reader:
+        chain.set_torque(True)
+        resting = _frames(reader, 10).conductance_s[-1]
+        assert resting[tail] > 0 and resting[middle] > 0  # every segment rests on the ground
+        goal = np.zeros(12)
+        goal[10] = 0.5  # joint 11 (pitch) lifts segments 11 and 12
+        chain.write_goals(goal)
+        for _ in range(400):
+            state = chain.read_state()
+            if abs(state.position_rad[10] - 0.5) < 0.03:
+                break
+        assert state.position_rad[10] == pytest.approx(0.5, abs=0.03)
+        # The driver reads what the physics says (to the encoder's noise), and a held joint draws current.
+        assert lab.physics.joint_state().position_rad[10] == pytest.approx(state.position_rad[10], abs=0.01)
+        assert abs(state.current_ma[10]) > 20.0
+        _frames(reader, 1)
+        lifted = _frames(reader, 5).conductance_s[-1]
+    assert lifted[tail] < 0.02 * resting[tail]  # no force: the sensor reads open (to the ADC noise)
+    assert lifted[middle] > 0.0
+
+
+def test_a_joint_stalled_against_a_wall_draws_current_then_trips_overload(install_sim_device):
+    clock = SimClock(4.0)
+    backend = PhysicsBackend(FLAT, clock, scene=SceneParams(obstacle_height_m=0.0, wall_offset_m=0.045))
+    robot = FLAT.robot
+    chain_sim = VirtualChain(robot.joint_ids, robot.baud, clock, seed=3, physics=backend)
+    install_sim_device("robot", ChainLab(chain_sim).chain)
+    goal = np.zeros(12)
+    goal[11] = 1.0  # joint 12 (yaw) swings the tail right, into the wall
+    currents = []
+    with ServoChain(robot) as chain:
+        chain.set_torque(True)
+        chain.write_goals(goal)
+        with pytest.raises(ServoHardwareError) as tripped:
+            for _ in range(2000):
+                currents.append(abs(chain.read_state().current_ma[11]))
+    assert tripped.value.servo_id == 12
+    assert "overload" in str(tripped.value).lower()
+    assert max(currents) > 0.85 * STALL_CURRENT_MA  # rising toward the limit before the trip
+    assert chain_sim.register(12, "Hardware Error Status") & (1 << ct.OVERLOAD_BIT)
+    assert chain_sim.register(12, "Torque Enable") == 0  # the firmware let go
