@@ -30,7 +30,7 @@ import shutil
 import time
 import traceback
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Protocol
@@ -499,6 +499,8 @@ class Recording:
     forces_n: np.ndarray | None  # (N, C) when forces were estimated live
     calibration_json: str | None
     events: tuple[RecordingEvent, ...]
+    clock_segment: np.ndarray | None = None  # (N,) the board clock's segment (re-plugs, power cycles)
+    recovery: str | None = None  # set when the file was salvaged: how much was recovered
 
     @property
     def n_samples(self) -> int:
@@ -516,24 +518,23 @@ class Recording:
         return float(max(ends)) if ends else 0.0
 
 
-def open_recording(path: str | Path) -> Recording:
-    """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file."""
+def open_recording(path: str | Path, recover: bool = False) -> Recording:
+    """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file.
+
+    A file that HDF5 refuses because it is truncated is salvaged when ``recover`` is True (the GUI does this and
+    shows :attr:`Recording.recovery`); otherwise the error says to run ``sensnake repair``.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"recording {path} does not exist")
     try:
-        try:
-            handle = h5py.File(path, "r")
-        except OSError as exc:
-            if "already open for write" not in str(exc):
-                raise
-            # The writer was killed (or is still recording): its SWMR flag is set and only a SWMR reader may
-            # open it. Plain mode goes first because a SWMR reader retries bad checksums for a long time,
-            # which a truncated file would turn into a hang.
-            handle = h5py.File(path, "r", libver="latest", swmr=True)
+        handle = _open_h5(path)
     except OSError as exc:
+        if recover and _stored_eof(path) is not None:
+            return recover_recording(path)[0]
+        hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
         raise RecordingFormatError(f"{path} is not a readable SenSnake recording (not HDF5, or truncated/corrupt: "
-                                   f"{' '.join(str(exc).split())})") from exc
+                                   f"{_h5_reason(exc)}){hint}") from exc
     try:
         with handle as f:
             return _read(f, path)
@@ -541,11 +542,212 @@ def open_recording(path: str | Path) -> Recording:
         raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
 
 
+def _open_h5(path: Path) -> h5py.File:
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        if "already open for write" not in str(exc):
+            raise
+        # Written by an older SenSnake (SWMR mode) that was killed: its SWMR flag is set and only a SWMR reader
+        # may open it. Plain mode goes first because a SWMR reader retries bad checksums for a long time, which a
+        # truncated file would turn into a hang.
+        return h5py.File(path, "r", libver="latest", swmr=True)
+
+
+def _h5_reason(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if "truncated file" in text:
+        return "truncated file"
+    return text.split(" (file name")[0][:160]
+
+
+# -- salvage -----------------------------------------------------------------------------------------------------
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What :func:`recover_recording` could read from a damaged file. ``rows`` maps each group (``daq``,
+    ``robot``, ``forces``, ``events``) to (rows recovered, rows the file's metadata claimed)."""
+
+    path: Path
+    file_bytes: int
+    claimed_bytes: int
+    rows: dict[str, tuple[int, int]]
+    duration_s: float
+
+    @property
+    def text(self) -> str:
+        got, claimed = self.rows.get("daq", (0, 0))
+        share = f"{got / claimed:.1%}" if claimed else "none"
+        extra = "; ".join(f"{name} {g}/{c}" for name, (g, c) in self.rows.items() if name != "daq")
+        return (f"{self.path.name} is truncated ({self.file_bytes} of {self.claimed_bytes} bytes): recovered "
+                f"{got} of {claimed} board samples ({share}, {self.duration_s:.1f} s)" + (f"; {extra}" if extra
+                                                                                           else ""))
+
+
+def _stored_eof(path: Path) -> int | None:
+    """The end-of-file address the HDF5 superblock claims, or None if ``path`` is not HDF5 (superblock at 0)."""
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(64)
+    except OSError:
+        return None
+    if len(head) < 48 or head[:8] != HDF5_SIGNATURE:
+        return None
+    version = head[8]
+    if version in (0, 1):
+        size_of_offsets = head[13]
+        eof_at = (24 if version == 0 else 28) + 2 * size_of_offsets
+    elif version in (2, 3):
+        size_of_offsets = head[9]
+        eof_at = 12 + 2 * size_of_offsets
+    else:
+        return None
+    if size_of_offsets not in (4, 8) or eof_at + size_of_offsets > len(head):
+        return None
+    return int.from_bytes(head[eof_at:eof_at + size_of_offsets], "little")
+
+
+def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
+    """Salvage a recording that was cut short (copy interrupted, disk failure): every row whose data chunk lies
+    wholly inside the bytes that survive is kept, the rest is dropped, never guessed. Raises
+    :class:`RecordingFormatError` when not even the file's structure survives."""
+    import tempfile
+
+    path = Path(path)
+    claimed = _stored_eof(path)
+    size = path.stat().st_size
+    if claimed is None:
+        raise RecordingFormatError(f"{path} is not an HDF5 file: nothing to recover")
+    with tempfile.TemporaryDirectory(prefix="sensnake-repair-") as folder:
+        padded = Path(folder) / "padded.h5"
+        # HDF5 refuses a file shorter than its superblock says; zero-padding it back makes the surviving
+        # structure readable, and the chunk check below makes sure no padded (zero) byte reaches the data.
+        shutil.copyfile(path, padded)
+        if claimed > size:
+            with padded.open("r+b") as handle:
+                handle.truncate(claimed)
+        try:
+            handle5 = _open_h5(padded)
+        except OSError as exc:
+            raise RecordingFormatError(f"{path} is damaged beyond repair (HDF5: {_h5_reason(exc)})") from exc
+        limits: dict[str, int] = {}
+        claimed_rows: dict[str, int] = {}
+        try:
+            with handle5 as f:
+                for group_name in ("daq", "robot", "forces", "events"):
+                    if group_name not in f:
+                        continue
+                    group = f[group_name]
+                    lengths, intact = [], []
+                    for name in group:
+                        dataset = group[name]
+                        if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
+                            continue
+                        lengths.append(dataset.shape[0])
+                        intact.append(_intact_rows(dataset, min(size, claimed)))
+                    if lengths:
+                        claimed_rows[group_name] = min(lengths)
+                        limits[group_name] = min(intact)
+                recording = _read(f, path, limits)
+        except (KeyError, OSError, TypeError, ValueError) as exc:
+            raise RecordingFormatError(f"{path} is damaged beyond repair ({type(exc).__name__}: {exc})") from exc
+    rows = {name: (limits[name], claimed_rows[name]) for name in limits}
+    report = RecoveryReport(path=path, file_bytes=size, claimed_bytes=claimed, rows=rows,
+                            duration_s=recording.duration_s)
+    return replace(recording, recovery=report.text), report
+
+
+def _intact_rows(dataset: h5py.Dataset, good_bytes: int) -> int:
+    """Leading rows of a chunked dataset whose chunks all lie inside the first ``good_bytes`` of the file."""
+    if dataset.chunks is None:
+        offset = dataset.id.get_offset()
+        nbytes = dataset.id.get_storage_size()
+        return dataset.shape[0] if offset is not None and offset + nbytes <= good_bytes else 0
+    chunk_rows = dataset.chunks[0]
+    chunks = sorted((dataset.id.get_chunk_info(i) for i in range(dataset.id.get_num_chunks())),
+                    key=lambda c: c.chunk_offset[0])
+    rows = 0
+    for chunk in chunks:
+        if chunk.chunk_offset[0] != rows or chunk.byte_offset is None or chunk.byte_offset + chunk.size > good_bytes:
+            break
+        rows = min(dataset.shape[0], rows + chunk_rows)
+    return rows
+
+
+def repair_recording(path: str | Path, out: str | Path) -> RecoveryReport:
+    """Write what :func:`recover_recording` salvages from ``path`` to a new, clean file ``out`` (moved into place
+    only when complete; ``path`` itself is never changed unless ``out`` names it). Returns the report."""
+    path, out = Path(path), Path(out)
+    try:
+        recording, report = recover_recording(path)
+    except RecordingFormatError:
+        raise
+    except OSError as exc:
+        raise RecordingFormatError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    write_recording(recording, out)
+    return report
+
+
+def write_recording(recording: Recording, out: str | Path) -> Path:
+    """Write a whole :class:`Recording` (read or salvaged) as a SPEC §3.5 file at ``out`` (atomically)."""
+    out = Path(out)
+    work = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    try:
+        with h5py.File(work, "w", locking=False) as f:
+            f.attrs["format"] = FORMAT
+            f.attrs["version"] = VERSION
+            f.attrs["started"] = recording.started
+            f.attrs["config"] = recording.config_text
+            f.attrs["duration_s"] = recording.duration_s
+            if recording.recovery:
+                f.attrs["recovered"] = recording.recovery
+            daq = f.create_group("daq")
+            daq.attrs["channels"] = np.array(recording.channels, dtype=h5py.string_dtype())
+            for key, value in (("crc_errors", recording.crc_errors), ("dropped_frames", recording.dropped_frames),
+                               ("resyncs", recording.resyncs)):
+                daq.attrs[key] = np.int64(value)
+            daq["time_s"] = recording.time_s
+            daq["seq"] = recording.seq.astype(np.uint32)
+            daq["counts"] = recording.counts.astype(np.uint16)
+            daq["conductance_S"] = recording.conductance_s
+            if recording.board_time_s is not None:
+                daq["board_time_s"] = recording.board_time_s
+            if recording.clock_segment is not None:
+                daq["clock_segment"] = recording.clock_segment.astype(np.int32)
+            if recording.robot is not None:
+                robot = f.create_group("robot")
+                robot["time_s"] = recording.robot.time_s
+                robot["goal_rad"] = recording.robot.goal_rad
+                robot["present_rad"] = recording.robot.present_rad
+                robot["current_mA"] = recording.robot.current_ma
+            if recording.forces_n is not None:
+                forces = f.create_group("forces")
+                forces.attrs["calibration"] = recording.calibration_json or ""
+                forces["force_N"] = recording.forces_n
+            events = f.create_group("events")
+            events["time_s"] = np.array([e.time_s for e in recording.events], dtype=np.float64)
+            events["kind"] = np.array([e.kind.encode()[:EVENT_KIND_BYTES] for e in recording.events],
+                                      dtype=f"S{EVENT_KIND_BYTES}")
+            events["text"] = np.array([_truncate_utf8(e.text, EVENT_TEXT_BYTES) for e in recording.events],
+                                      dtype=f"S{EVENT_TEXT_BYTES}")
+        _fsync(work)
+        os.replace(work, out)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+    return out
+
+
 def _attr_text(value: Any) -> str:
     return value.decode("utf-8") if isinstance(value, bytes) else str(value)
 
 
-def _read(f: h5py.File, path: Path) -> Recording:
+def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Recording:
+    """The recording in ``f``; ``limits`` caps the rows read per group (salvage)."""
+    cap = limits or {}
     fmt = _attr_text(f.attrs.get("format", ""))
     if fmt != FORMAT:
         raise RecordingFormatError(f"{path} is not a SenSnake recording (format {fmt!r}, expected {FORMAT!r})")
@@ -559,23 +761,26 @@ def _read(f: h5py.File, path: Path) -> Recording:
     channels = tuple(_attr_text(c) for c in daq.attrs["channels"])
     names = ["time_s", "seq", "counts", "conductance_S"]
     # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
-    n = min(daq[name].shape[0] for name in names)
+    n = min(min(daq[name].shape[0] for name in names), cap.get("daq", np.iinfo(np.int64).max))
     forces = calibration = None
     if "forces" in f:
         calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
-        n_forces = f["forces/force_N"].shape[0]
+        n_forces = min(f["forces/force_N"].shape[0], cap.get("forces", np.iinfo(np.int64).max))
         forces = f["forces/force_N"][:min(n, n_forces)]
     board_time = daq["board_time_s"][:n] if "board_time_s" in daq else None
+    segment = daq["clock_segment"][:n] if "clock_segment" in daq else None
     robot = None
     if "robot" in f:
         group = f["robot"]
-        m = min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA"))
+        m = min(min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA")),
+                cap.get("robot", np.iinfo(np.int64).max))
         robot = RobotRecord(time_s=group["time_s"][:m], goal_rad=group["goal_rad"][:m],
                             present_rad=group["present_rad"][:m], current_ma=group["current_mA"][:m])
     events: tuple[RecordingEvent, ...] = ()
     if "events" in f:
         group = f["events"]
-        m = min(group[name].shape[0] for name in ("time_s", "kind", "text"))
+        m = min(min(group[name].shape[0] for name in ("time_s", "kind", "text")),
+                cap.get("events", np.iinfo(np.int64).max))
         events = tuple(RecordingEvent(float(t), k.decode("utf-8", "replace"), x.decode("utf-8", "replace"))
                        for t, k, x in zip(group["time_s"][:m], group["kind"][:m], group["text"][:m]))
     counts = daq["counts"][:n]
@@ -586,7 +791,7 @@ def _read(f: h5py.File, path: Path) -> Recording:
         path=path, version=version, started=_attr_text(f.attrs.get("started", "")),
         config_text=_attr_text(f.attrs.get("config", "")), channels=channels,
         time_s=daq["time_s"][:n], seq=daq["seq"][:n], counts=counts, conductance_s=daq["conductance_S"][:n],
-        board_time_s=board_time, crc_errors=int(daq.attrs.get("crc_errors", 0)),
+        board_time_s=board_time, clock_segment=segment, crc_errors=int(daq.attrs.get("crc_errors", 0)),
         dropped_frames=int(daq.attrs.get("dropped_frames", 0)), resyncs=int(daq.attrs.get("resyncs", 0)),
         robot=robot, forces_n=forces, calibration_json=calibration, events=events)
 
