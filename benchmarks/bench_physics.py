@@ -84,10 +84,10 @@ def _headless_rtf(quick: bool) -> float:
 
 
 def _app_rows(quick: bool) -> list[dict]:
-    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
     from PySide6.QtCore import QEventLoop, QTimer
     from PySide6.QtWidgets import QApplication
 
+    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
     from app.gui.lab import LabContext
     from app.gui.tabs.forces import ForcesTab
     from devices import factory

@@ -65,7 +65,7 @@ def main(recording_path: str, png_path: str) -> None:
     exporter = pg.exporters.ImageExporter(layout.scene())
     exporter.parameters()["width"] = 1100
     exporter.export(png_path)
-    print(f"wrote {png_path}")
+    print(f"wrote {png_path}")  # noqa: T201 - a script reporting what it wrote
 
 
 if __name__ == "__main__":
