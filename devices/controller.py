@@ -59,6 +59,7 @@ from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
     DeviceError,
+    JointLimitError,
     LinkLostError,
     NoReplyError,
     PortOpenError,
@@ -82,6 +83,12 @@ HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this l
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
 TIMING_WARN_FRACTION = 0.05
 
+LIMIT_TOLERANCE_RAD = ct.RAD_PER_TICK  # one tick of slack: a goal on its limit may round just past it
+# A servo tracking its goals lags by a few hundredths of a radian (goals move at most max_joint_speed_rad_s); one that
+# rebooted, lost power or was forced away is far off (1.05 rad after a power cycle in the lab's fault runs).
+TRACKING_ERROR_BOUND_RAD = 0.5
+SPEED_TOLERANCE = 1.001  # plans are built at exactly the speed limit: allow rounding
+
 MOTION_FINISHED = "finished"
 MOTION_STOPPED = "stopped"
 
@@ -95,6 +102,31 @@ def _lower_switch_interval() -> None:
     """
     if sys.getswitchinterval() > GIL_SWITCH_INTERVAL_S:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+
+
+class ServoLostError(DeviceError):
+    """A servo stopped doing what it was told mid-motion: it dropped its torque (a reboot, a power cut) or is far
+    from its goal. Names the servo."""
+
+    def __init__(self, servo_id: int, what: str) -> None:
+        self.servo_id = servo_id
+        super().__init__(f"servo {servo_id} {what}: motion stopped; check its power and cable, then turn torque on "
+                         "again (a rebooted servo comes back limp)")
+
+
+def joint_limit_error(robot: RobotConfig, angles_rad: np.ndarray, what: str) -> JointLimitError | None:
+    """The one joint-limit check of every goal (a shape before play, a plan's targets, each tick's goal): the first
+    joint beyond its limit (more than ``LIMIT_TOLERANCE_RAD``) as an error naming joint, value and limit, else None.
+    Pure; any thread."""
+    angles = np.asarray(angles_rad, dtype=float)
+    lo, hi = np.asarray(robot.joint_min_rad, dtype=float), np.asarray(robot.joint_max_rad, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(angles) | (angles < lo - LIMIT_TOLERANCE_RAD) | (angles > hi + LIMIT_TOLERANCE_RAD))
+    if not bad.size:
+        return None
+    j = int(bad[0])
+    limit = hi[j] if angles[j] > hi[j] else lo[j]
+    return JointLimitError(f"{what}: joint {robot.joint_ids[j]} (index {j}) = {angles[j]:.3f} rad is beyond its limit "
+                           f"{limit:+.3f} rad (robot.joint_min_rad/joint_max_rad): nothing was sent")
 
 
 class MotionSource(Protocol):
@@ -178,6 +210,7 @@ class RobotController:
         self._consecutive_failed_reads = 0
         self._stale_reported = False
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
+        self._torque_lost: set[int] = set()  # servos reported for dropping their torque (until it is on again)
         self._next_health_s = 0.0
         self._health_polls = 0
         self._health_due_s = 0.0  # when the poll in progress fell due
@@ -278,6 +311,19 @@ class RobotController:
         """
         future: concurrent.futures.Future[str] = concurrent.futures.Future()
         self._commands.put((lambda: self._begin_motion(source, name, future), future))
+        return future
+
+    def play(self, source: MotionSource, name: str, *, hold_first: bool = True) -> concurrent.futures.Future[str]:
+        """Start ``source`` in ONE command on the bus thread (what ``sensnake play`` and the Gait tab run).
+
+        In that command: read the present pose; with ``hold_first`` torque on holding it (goals = present first,
+        so limp joints do not jump); let the source plan from it and check the plan -- every target within the
+        joint limits, no move faster than ``max_joint_speed_rad_s`` -- before any goal is written; then start the
+        motion (replacing any running one). A refusal fails the Future with :class:`JointLimitError` naming the
+        joint, its value and the limit. Otherwise as :meth:`run_motion`.
+        """
+        future: concurrent.futures.Future[str] = concurrent.futures.Future()
+        self._commands.put((lambda: self._begin_play(source, name, future, hold_first), future))
         return future
 
     def pause(self) -> None:
@@ -415,7 +461,12 @@ class RobotController:
         if goal is None:
             self._end_motion(MOTION_FINISHED)
             return
-        goal = self.chain.clamp_to_limits(goal)
+        error = joint_limit_error(self.robot, goal, f"motion {motion.name!r}")
+        if error is not None:  # refused, never clamped: a clamped goal is a silently different motion
+            self._stop_motion_with(error)
+            self._emit(self._on_error, error)
+            return
+        goal = self.chain.clamp_to_limits(goal)  # within LIMIT_TOLERANCE_RAD: rounding only
         # The speed limit runs from the goal this motion sent last. A motion's first goal starts from the present
         # pose (read this tick), as does one after anything that moved the goals behind it (a torque toggle, a hand
         # pose): never from another motion's last goal, or the joints would jump.
@@ -478,7 +529,22 @@ class RobotController:
                 for sid in new:
                     self._servos_in_error[sid] = ("hardware error",)
                 self._poll_alerted(new)
+        self._check_tracking(state)
         self._emit(self._on_state, state)
+
+    def _check_tracking(self, state: ChainState) -> None:
+        """A motion whose servo is far from the goal it was sent (it rebooted and sagged, lost power, was forced
+        away) stops at once, naming the servo: every tick, from the state just read."""
+        motion = self._motion
+        if motion is None or not motion.has_written or state.goal_rad is None:
+            return
+        error_rad = np.abs(state.position_rad - state.goal_rad)
+        j = int(np.argmax(error_rad))
+        if error_rad[j] > TRACKING_ERROR_BOUND_RAD:
+            error = ServoLostError(self.chain.ids[j], f"is {error_rad[j]:.2f} rad from its goal (more than "
+                                                        f"{TRACKING_ERROR_BOUND_RAD:g} rad: did it reboot?)")
+            self._stop_motion_with(error)
+            self._emit(self._on_error, error)
 
     def _health_in_slack(self, now: float, next_deadline: float) -> None:
         """Scheduled health polling, spread over ticks: every ``health_period_s`` a poll of all servos falls due; it
@@ -549,7 +615,16 @@ class RobotController:
     def _check_health(self, health: list[ServoHealth], newly_alerted: Sequence[int]) -> None:
         """Stop the motion on a new hardware error (reported once per servo); note errors that were cleared."""
         reported = set()
+        commanded = self.chain.torque_commanded
         for h in health:
+            if not h.torque_on and h.servo_id in commanded and not h.hardware_error:
+                if h.servo_id not in self._torque_lost:
+                    self._torque_lost.add(h.servo_id)
+                    lost = ServoLostError(h.servo_id, "dropped its torque (it rebooted or lost power)")
+                    self._stop_motion_with(lost)
+                    self._emit(self._on_error, lost)
+            elif h.torque_on:
+                self._torque_lost.discard(h.servo_id)
             if h.hardware_error:
                 names = h.error_names or ("hardware error",)
                 first_time = h.servo_id in newly_alerted or h.servo_id not in self._servos_in_error
@@ -612,6 +687,67 @@ class RobotController:
         # Its first goal is speed-limited from the present pose of that tick (see _send_motion_goal).
         self._motion = _Motion(source, name, future, time.monotonic())
         self._emit(self._on_event, f"motion {name!r} started")
+
+    def _begin_play(self, source: MotionSource, name: str, future: concurrent.futures.Future,
+                    hold_first: bool) -> None:
+        """Bus thread: see :meth:`play`. Nothing is written before every check has passed."""
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            if not self._connected:
+                raise LinkLostError(f"the servo bus on {self.chain.port_name} is not connected")
+            if self._servos_in_error:
+                sid, names = next(iter(self._servos_in_error.items()))
+                raise ServoHardwareError(sid, names)
+            present = self.chain.read_state().position_rad
+            error = joint_limit_error(self.robot, present, "cannot hold the present pose")
+            if hold_first and error is not None:
+                raise error
+            self._check_plan(source, name, present)
+            if self._motion is not None:
+                self._end_motion(MOTION_STOPPED)
+            if hold_first:
+                self._write_unconditionally(present)
+                self.chain.set_torque(True)
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the Future (and on_error)
+            future.set_exception(exc)
+            self._emit(self._on_error, exc)
+            return
+        self._motion = _Motion(source, name, future, time.monotonic())
+        self._emit(self._on_event, f"motion {name!r} started")
+
+    def _check_plan(self, source: MotionSource, name: str, present: np.ndarray) -> None:
+        """Let a planning source fix its plan from ``present`` and refuse it if any target lies beyond a joint
+        limit or any move is faster than the robot's max joint speed (a source without a plan is checked tick by
+        tick instead)."""
+        first = source.goal_at(0.0, present.copy())
+        if first is not None:
+            error = joint_limit_error(self.robot, first, f"{name}: the first goal")
+            if error is not None:
+                raise error
+        plan = getattr(source, "plan", None)
+        if plan is None:
+            return
+        targets = np.asarray(plan.targets_rad, dtype=float)
+        for m, target in enumerate(targets):
+            error = joint_limit_error(self.robot, target, f"{name}: target {m + 1} of {len(targets)}")
+            if error is not None:
+                raise error
+        starts = np.vstack([np.asarray(plan.start_rad, dtype=float)[None, :], targets[:-1]])
+        durations = np.asarray(plan.durations_s, dtype=float)
+        moving = durations > 0
+        if np.any(moving):
+            speeds = np.abs(targets[moving] - starts[moving]) / durations[moving, None]
+            m, j = (int(k) for k in np.unravel_index(int(np.argmax(speeds)), speeds.shape))
+            if speeds[m, j] > self.robot.max_joint_speed_rad_s * SPEED_TOLERANCE:
+                raise JointLimitError(
+                    f"{name}: joint {self.robot.joint_ids[j]} would move at {speeds[m, j]:.2f} rad/s, above the "
+                    f"robot's max_joint_speed_rad_s = {self.robot.max_joint_speed_rad_s:g} rad/s: nothing was sent")
+
+    def _write_unconditionally(self, goal: np.ndarray) -> None:
+        self.chain.write_goals(goal)
+        with self._lock:
+            self._writes += 1
 
     def _pause(self) -> None:
         motion = self._motion

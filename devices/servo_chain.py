@@ -326,6 +326,7 @@ class ServoChain:
         self._supply_cache: dict[int, tuple[float, float]] = {}  # servo ID -> (voltage V, temperature °C)
         self._last_goal_rad: np.ndarray | None = None
         self._return_delays_s: dict[int, float] = {}  # shared with each port opened (survives a reconnect)
+        self._torque_commanded: set[int] = set()  # servos this chain last turned torque on (and not off since)
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
     @property
@@ -402,6 +403,7 @@ class ServoChain:
         if self._port is not None:
             self._port.closePort()
         self._last_goal_rad = None
+        self._torque_commanded.clear()  # whatever the servos do while we are away is not ours to judge
         self._port = None
         self._goal_writer = None
         self._state_reader = None
@@ -504,7 +506,10 @@ class ServoChain:
         """
         self._last_goal_rad = None
         for sid in self._ids_or_all(ids):
+            self._torque_commanded.discard(sid)
             self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
+            if enabled:
+                self._torque_commanded.add(sid)
 
     def set_led(self, servo_id: int, on: bool) -> None:
         self.write_item(servo_id, "LED", int(bool(on)))
@@ -513,6 +518,7 @@ class ServoChain:
         """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""
         port = self._require_port()
         self._last_goal_rad = None  # the servo comes back with torque off and its goal at its present position
+        self._torque_commanded.discard(servo_id)
         result, error = self._io(self._ph.reboot, port, servo_id)
         self._check_comm(result, servo_id, "reboot")
         deadline = time.monotonic() + REBOOT_TIMEOUT_S
@@ -553,6 +559,12 @@ class ServoChain:
         self._check_error(error, servo_id, f"writing {name} = {value}")
         if item.address == ct.ADDR_RETURN_DELAY_TIME:
             port.return_delays_s[servo_id] = int(value) * ct.RETURN_DELAY_S_PER_LSB
+
+    @property
+    def torque_commanded(self) -> frozenset[int]:
+        """Servos whose torque this chain turned on (and has not turned off or rebooted since): one of them found
+        with torque off has rebooted or lost power."""
+        return frozenset(self._torque_commanded)
 
     # -- the control tick ------------------------------------------------------------------------------------------
     @property

@@ -1,8 +1,9 @@
 """``sensnake play SHAPE.json --robot PORT [--mode follow|keyframes] [--speed] [--time-scale] [--rate] [--shifts]
 [--log LOG.csv]`` (SPEC §1, §5).
 
-Plays a shape through :class:`devices.controller.RobotController` (the same code path as the Gait tab) with the
-control loop ticking at ``--rate`` Hz (one synchronised write per tick), prints progress, writes the optional log
+Plays a shape through :meth:`devices.controller.RobotController.play` with the source from
+:func:`app.core.play.build_source` (the same code path as the Gait tab): one command on the bus thread holds the
+limp joints, checks the plan against the joint limits and speed, then starts the motion, with the control loop ticking at ``--rate`` Hz (one synchronised write per tick), prints progress, writes the optional log
 (``time_s, goal_rad_1..n, present_rad_1..n, current_mA_1..n``, one row per tick) and reports the control period's
 p99 error at the end. A servo error or a lost link ends it with one clear line and a non-zero exit.
 Runs on the main thread; the controller thread only appends states to a list the main thread drains.
@@ -22,40 +23,13 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from app.cli._robot import BUS_TIMEOUT_S, robot_config, start_controller
+from app.cli._robot import robot_config, start_controller
+from app.core.play import build_source
 from app.core.shapes import Shape, read_shape
-from app.core.teach import TeachSession
-from devices.config import RobotConfig
-from models.trajectory import FollowTheLeader, Keyframes, PlannedMotion
+from models.trajectory import PlannedMotion
 
 PROGRESS_INTERVAL_S = 2.0
 POLL_INTERVAL_S = 0.2
-
-
-def build_source(shape: Shape, robot: RobotConfig, mode: str, speed_rad_s: float, time_scale: float,
-                 shifts: int | None, repeat: int = 1) -> PlannedMotion:
-    """The MotionSource for a shape, sampled at ``robot.control_rate_hz`` (raises ValueError with a clear message
-    before anything moves). Shared by ``sensnake play`` and the Gait tab."""
-    if shape.n_joints != robot.n_joints:
-        raise ValueError(f"the shape has {shape.n_joints} joints but the robot has {robot.n_joints}")
-    if tuple(shape.axes) != tuple(robot.axes):
-        raise ValueError("the shape's joint axes differ from the robot's (robot.axes in the config): "
-                         f"shape {list(shape.axes)}, robot {list(robot.axes)}")
-    if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= robot.max_joint_speed_rad_s):
-        raise ValueError(f"--speed {speed_rad_s} rad/s must be positive and at most the robot's "
-                         f"max_joint_speed_rad_s = {robot.max_joint_speed_rad_s} rad/s")
-    if shifts is not None and shifts < 0:
-        raise ValueError(f"--shifts must be 0 or more, got {shifts}")
-    if mode == "follow":
-        return FollowTheLeader(shape.angles_rad, shape.axes, speed_rad_s, shifts, repeat,
-                               rate_hz=robot.control_rate_hz)
-    if not shape.keyframes:
-        raise ValueError("the shape has no keyframes: play it with --mode follow, or teach several poses")
-    return Keyframes([k.t_s for k in shape.keyframes], [k.angles_rad for k in shape.keyframes],
-                     time_scale=time_scale, approach_speed_rad_s=speed_rad_s,
-                     velocity_limit_rad_s=robot.max_joint_speed_rad_s, joint_ids=robot.joint_ids,
-                     names=[k.name or f"#{i + 1}" for i, k in enumerate(shape.keyframes)], repeat=repeat,
-                     rate_hz=robot.control_rate_hz)
 
 
 class StateLog:
@@ -131,11 +105,10 @@ def run(args: argparse.Namespace) -> int:
 def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: argparse.Namespace,
           shape: Shape) -> str:
     name = f"{args.mode} {shape.name or Path(args.shape).stem}"
-    # Servos power up limp: torque on where they are (goals = present first, so nothing jumps) before moving.
-    TeachSession(controller.submit, controller.robot, controller.set_torque).hold().result(timeout=BUS_TIMEOUT_S)
     state_log.missed_ticks_before = controller.stats().missed_ticks
     state_log.t0_s = time.monotonic()
-    future = controller.run_motion(source, name)
+    # One command: servos power up limp, so torque on where they are, check the plan, then move.
+    future = controller.play(source, name)
     print(f"playing {name} at {args.speed:g} rad/s, {args.rate:g} Hz")
     last_print = -math.inf
     last_index = -1

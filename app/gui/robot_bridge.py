@@ -276,7 +276,7 @@ class RobotBridge(QObject):
         return future
 
     # -- motion ----------------------------------------------------------------------------------------------------
-    def run_motion(self, source: Any, name: str) -> Future:
+    def run_motion(self, source: Any, name: str, *, play: bool = False) -> Future:
         """Start a MotionSource on the controller (replacing any running motion); ``motion_changed`` follows.
 
         Returns the controller's Future: ``"finished"`` or ``"stopped"``, or the error that stopped the motion
@@ -288,11 +288,17 @@ class RobotBridge(QObject):
             return _failed_future(ConnectionError(NOT_CONNECTED_MESSAGE))
         self._motion_token += 1
         token = self._motion_token
-        future = controller.run_motion(source, name)
+        future = controller.play(source, name) if play else controller.run_motion(source, name)
         self._set_motion(MOTION_RUNNING, name)
         self.when_done(future, lambda outcome: self._motion_ended(token, outcome),
                        lambda exc: self._motion_failed(token, exc))
         return future
+
+    def play(self, source: Any, name: str) -> Future:
+        """Hold the limp joints, check the plan (joint limits, speed) and start ``source``: ONE command on the bus
+        thread (:meth:`devices.controller.RobotController.play`, what ``sensnake play`` runs). Otherwise as
+        :meth:`run_motion`; a refusal arrives through ``error`` and the Future, before any goal is written."""
+        return self.run_motion(source, name, play=True)
 
     def pause_motion(self) -> None:
         if self._controller is not None and self._motion_state == MOTION_RUNNING:

@@ -12,7 +12,7 @@ from devices import dxl_wire as wire
 from devices import factory
 from devices.config import RobotConfig
 from devices.controller import MOTION_FINISHED, HoldPose, RobotController
-from devices.errors import LinkLostError, NoReplyError, ServoHardwareError
+from devices.errors import JointLimitError, LinkLostError, NoReplyError, ServoHardwareError
 from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
@@ -96,22 +96,32 @@ def test_idle_loop_reads_state_and_sends_nothing(controller, sim_chain):
     assert stats.period_p50_s > 0  # timing figures are measured in benchmarks/bench_servo_bus.py
 
 
-def test_motion_goals_are_clamped_and_speed_limited(controller, sim_chain):
+def test_motion_goals_beyond_the_limits_are_refused_not_clamped(controller, sim_chain):
+    # Issue 15 item 6: a clamped goal is a silently different motion.
     ctl, rec = controller
+    writes = sim_chain.count(wire.SYNC_WRITE)
     future = ctl.run_motion(HoldPose(np.full(12, 3.0)), "beyond the limits")
-    rec.wait(lambda: rec.states[-1].goal_rad is not None and np.allclose(rec.states[-1].goal_rad, 1.57, atol=0.002),
-             "the goals to reach the joint limit")
+    with pytest.raises(JointLimitError, match=r"joint 1 \(index 0\) = 3\.000 rad is beyond its limit \+1\.570 rad"):
+        future.result(WAIT_S)
+    assert sim_chain.count(wire.SYNC_WRITE) == writes  # nothing was sent
+    assert any(isinstance(e, JointLimitError) for e in rec.errors)
+
+
+def test_motion_goals_are_speed_limited(controller, sim_chain):
+    ctl, rec = controller
+    future = ctl.run_motion(HoldPose(np.full(12, 1.5)), "far")
+    rec.wait(lambda: rec.states[-1].goal_rad is not None and np.allclose(rec.states[-1].goal_rad, 1.5, atol=0.002),
+             "the goals to reach the far pose")
     rec.wait_more_states(3)
     ctl.stop_motion()
     assert future.result(WAIT_S) == "stopped"
     goals = np.array([s.goal_rad for s in rec.states if s.goal_rad is not None])
     assert len(goals) >= 20
-    assert goals.max() <= 1.57 + 1e-9
-    assert goals[-1] == pytest.approx(np.full(12, 1.57), abs=0.002)
+    assert goals[-1] == pytest.approx(np.full(12, 1.5), abs=0.002)
     step_rad = ROBOT.max_joint_speed_rad_s / ROBOT.control_rate_hz
     assert np.abs(np.diff(goals, axis=0)).max() <= step_rad + 0.002  # + one tick of rounding
     assert np.abs(np.diff(goals, axis=0)).max() >= step_rad - 0.002  # and it did move at the limit
-    assert "motion 'beyond the limits' stopped" in rec.events
+    assert "motion 'far' stopped" in rec.events
 
 
 def test_a_motion_that_ends_finishes_and_sends_no_more(controller, sim_chain):

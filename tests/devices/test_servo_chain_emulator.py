@@ -7,6 +7,8 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -16,9 +18,13 @@ import pytest
 
 from app.cli import main
 from devices.config import RobotConfig
+from devices.controller import RobotController
+from devices.errors import JointLimitError
 from devices.servo_chain import ServoChain
+from models.trajectory import FollowTheLeader
 from tests.emulators import xm430_emulator as emu_module
 from tests.emulators.xm430_emulator import EmulatorProcess
+from tests.waiting import wait_until
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith(("linux", "darwin")),
                                 reason="the emulator needs os.openpty (Linux or macOS)")
@@ -96,3 +102,89 @@ def test_scan_teach_and_play_commands_on_the_independent_chain(emulator, tmp_pat
         state = emulator.state(sid)
         assert state["goal_writes"] > 0
         assert (state["goal"] - 2048) * 2 * np.pi / 4096 == pytest.approx(last[1 + k], abs=2e-3)
+
+
+# -- faults (issue 15 items 5, 6, 8), each against the emulator in its own process ------------------------------------
+def _write_shape(path: Path, angles: list[float]) -> Path:
+    path.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": path.stem,
+                                "axes": ["pitch", "yaw"] * 6, "angles_rad": angles}))
+    return path
+
+
+def _start_play(emulator: EmulatorProcess, shape: Path) -> subprocess.Popen:
+    """``sensnake play`` in its own process (so stderr shows everything, thread tracebacks included), slow enough
+    to still be playing when a fault is injected."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    env.pop("SENSNAKE_DEBUG", None)
+    return subprocess.Popen([sys.executable, "-m", "app", "play", str(shape), "--robot", emulator.path,
+                             "--speed", "0.05"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _wait_for_goals(emulator: EmulatorProcess, n_writes: int) -> None:
+    assert wait_until(lambda: emulator.counts()["sync_write"] >= n_writes, 30.0), "play never wrote goals"
+
+
+def test_a_shape_beyond_the_joint_limits_is_refused_before_any_goal(emulator, tmp_path, capsys):
+    shape = _write_shape(tmp_path / "wild.json", [0.0, 0.0, 10.0] + [0.0] * 9)
+    assert main(["play", str(shape), "--robot", emulator.path, "--speed", "1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "joint 3 (index 2) = 10.000 rad is beyond its limit +1.570 rad" in err[0]
+    assert emulator.counts()["sync_write"] == 0
+    assert all(emulator.state(sid)["goal_writes"] == 0 for sid in range(1, 13))
+
+
+def test_a_plan_beyond_a_joint_limit_is_refused_on_the_bus_thread_before_any_goal(emulator):
+    # Each angle is within its own joint's limits, but follow-the-leader carries joint 1's 1.0 rad down the body to
+    # joint 3, whose limit is 0.5 rad: only the plan shows it.
+    limits = [1.57] * 12
+    limits[2] = 0.5
+    robot = robot_on(emulator.path, joint_max_rad=tuple(limits))
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        controller = RobotController(chain, robot)
+        controller.start()
+        try:
+            source = FollowTheLeader([1.0] + [0.0] * 11, robot.axes, 1.0, 1, rate_hz=robot.control_rate_hz)
+            with pytest.raises(JointLimitError, match=r"target \d+ of \d+: joint 3 \(index 2\) = 1\.000 rad"):
+                controller.play(source, "too far down").result(10)
+        finally:
+            controller.close()
+    assert emulator.counts()["sync_write"] == 0
+    assert emulator.state(1)["torque"] == 0  # refused before the hold: the servos were not even torqued
+
+
+@pytest.mark.parametrize("jump_ticks", [700, 0])
+def test_a_servo_that_reboots_mid_play_stops_it_naming_the_servo(emulator, tmp_path, jump_ticks):
+    # 700 ticks: the limp joint sagged 1.07 rad (caught at the next tick by the tracking error); 0: it only
+    # dropped its torque (caught by the next status poll, 5 Hz).
+    proc = _start_play(emulator, _write_shape(tmp_path / "slow.json", [0.5 * (-1) ** i for i in range(12)]))
+    try:
+        _wait_for_goals(emulator, 15)
+        assert emulator.command(f"reboot 5 0.05 {jump_ticks}").startswith("ok")
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("sensnake play: error: servo 5 ")
+    assert ("from its goal" if jump_ticks else "dropped its torque") in lines[0]
+    assert "Traceback" not in out + err
+
+
+def test_killing_the_bus_mid_play_is_one_line_never_a_traceback(tmp_path):
+    for attempt in range(3):  # the traceback came in 2 runs of 4: the I/O call the kill lands in varies
+        emulator = EmulatorProcess()
+        proc = _start_play(emulator, _write_shape(tmp_path / "slow.json", [0.5 * (-1) ** i for i in range(12)]))
+        try:
+            _wait_for_goals(emulator, 10 + 7 * attempt)
+            assert emulator.command("kill") == "ok killed"
+            out, err = proc.communicate(timeout=30)
+        finally:
+            proc.kill()
+            emulator.close()
+        assert proc.returncode == 1, (out, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in err, err
+        assert lines[0].startswith("sensnake play: error: lost the link to the servo bus"), err

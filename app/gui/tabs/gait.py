@@ -1,7 +1,7 @@
 """The Gait tab: replay a shape follow-the-leader or as keyframes, or run a parametric gait, on ``lab.robot``.
 
 Wires :class:`widgets.gait_panel.GaitPanel` to the robot bridge. Motions are the MotionSources of
-:mod:`models.trajectory`, built by :func:`app.cli.play.build_source` — the code ``sensnake play`` runs — and
+:mod:`models.trajectory`, built by :func:`app.core.play.build_source` — the code ``sensnake play`` runs — and
 sampled at the controller's rate (``robot.control_rate_hz``). Progress (shift / keyframe / cycle index and fraction)
 is read from the running source; the drawing shows the present pose with the goal overlaid, so the shape can be
 seen sliding along the body. Refreshed by a 20 Hz timer while the tab is visible. GUI thread only.
@@ -19,7 +19,8 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QFileDialog, QVBoxLayout, QWidget
 
-from app.cli.play import build_source
+from app.core import user_folders
+from app.core.play import build_source
 from app.core.shapes import Shape, ShapeLibrary, read_shape
 from app.core.teach import TeachSession
 from app.gui.lab import LabContext
@@ -88,7 +89,8 @@ class GaitTab(QWidget):
         return name
 
     def _open_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open shape", str(self.library.root), "Shapes (*.json)")
+        path, _ = QFileDialog.getOpenFileName(self, "Open shape", user_folders.dialog_folder(self.library.root),
+                                              "Shapes (*.json)")
         if path:
             self.add_shape_file(path)
 
@@ -154,18 +156,14 @@ class GaitTab(QWidget):
             return
         self.source = source
         self.panel.set_status(f"torque on, then playing {name}", theme.OK)
-        self.panel.set_motion_state(MOTION_RUNNING)  # no second Play while the hold is on its way
-
-        def start(_goals: Any) -> None:
-            if self.source is source:
-                self.robot.run_motion(source, name)
 
         def failed(exc: BaseException) -> None:
             self.panel.set_motion_state(self.robot.motion_state)
             self.panel.set_status(f"cannot start {name}: {describe_error(exc)}", theme.ERROR)
 
-        # Limp joints (after teaching) must hold where they are before the motion plans from the present pose.
-        self.robot.when_done(self.teach.hold(), start, failed)
+        # One bus-thread command: limp joints (after teaching) hold where they are, the plan from the present pose
+        # is checked against the joint limits and speed, then the motion starts.
+        self.robot.when_done(self.robot.play(source, name), None, failed)
 
     def _set_torque(self, enabled: bool, ids: list[int] | None) -> Any:
         controller = self.robot.controller
