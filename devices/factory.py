@@ -17,6 +17,7 @@ from devices.errors import PortOpenError
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
+    from devices.sim.physics.headless import HeadlessPhysicsLab
 
 DEVICE_KINDS = ("robot", "board", "rig")
 
@@ -46,6 +47,14 @@ def install_sim_lab(lab: SimLab | None) -> SimLab | None:
     with _lab_lock:
         previous, _lab = _lab, lab
         return previous
+
+
+def headless_physics_lab(config: LabConfig, seed: int = 0) -> HeadlessPhysicsLab:
+    """A physics lab (MuJoCo) that its caller steps as fast as the machine goes, for batch experiments; its devices
+    are reached through their wire protocol (see ``devices.sim.physics.headless``). Needs the ``mujoco`` package."""
+    from devices.sim.physics.headless import HeadlessPhysicsLab
+
+    return HeadlessPhysicsLab(config, seed=seed)
 
 
 def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0) -> serial.SerialBase:

@@ -40,6 +40,12 @@ REDRAW_TOLERANCE_RAD = 1e-3
 RANGE_HEADROOM = 0.1
 RANGE_SHRINK_AFTER_S = 3.0
 VIEWS = ("side", "top")
+# Sensor colours: the force ramp drawn in FORCE_LEVELS steps (5 % of full scale each; finer steps are not visible),
+# and a sensor changes step only once its force is a whole step from the one drawn (so what is drawn is never more
+# than one step off), so sensor noise near a step boundary does not repaint the map (it did: ~19 % of the GUI thread
+# at 36 ch).
+FORCE_LEVELS = 20
+LEVEL_HYSTERESIS = 1.0
 
 
 def _contains(outer: tuple[float, float, float, float], inner: tuple[float, float, float, float]) -> bool:
@@ -90,6 +96,8 @@ class BodyView(QWidget):
         self._present = np.zeros(len(self._axes))
         self._goal: np.ndarray | None = None
         self._forces_n: np.ndarray | None = None
+        self._levels: np.ndarray | None = None  # colour step drawn per sensor (0…FORCE_LEVELS)
+        self.sensor_redraws = 0  # how often the sensors were drawn (tests: noise must not redraw them)
         self._health: np.ndarray | None = None
         self._full_scale_n = DEFAULT_FULL_SCALE_N
         self._highlight: set[int] = set()
@@ -202,15 +210,20 @@ class BodyView(QWidget):
         """Colour the sensors by force (N, (3·n_joints,) channel order); ``None`` clears them.
 
         ``health_flags`` (same length): 0/False = healthy, anything else = a problem (drawn hollow, error colour).
-        ``full_scale_n`` sets the force drawn darkest red (default 10 N).
+        ``full_scale_n`` sets the force drawn darkest red (default 10 N). Only what visibly changes is redrawn: the
+        colours are :data:`FORCE_LEVELS` steps with hysteresis, and a change of colours alone swaps brushes
+        without rebuilding the sensor items.
         """
         if full_scale_n is not None:
             if not full_scale_n > 0:
                 raise ValueError(f"full_scale_n must be positive, got {full_scale_n}")
-            self._full_scale_n = float(full_scale_n)
+            if full_scale_n != self._full_scale_n:
+                self._full_scale_n = float(full_scale_n)
+                self._levels = None
         if forces_n is None:
-            self._forces_n, self._health = None, None
-            self._sensor_style_cache.clear()
+            if self._forces_n is None:
+                return
+            self._forces_n, self._health, self._levels = None, None, None
         else:
             forces = np.asarray(forces_n, dtype=float)
             n_sensors = 3 * len(self._axes)
@@ -219,9 +232,20 @@ class BodyView(QWidget):
             flags = None if health_flags is None else np.asarray(health_flags).astype(bool)
             if flags is not None and flags.shape != (n_sensors,):
                 raise ValueError(f"{flags.size} health flags for {n_sensors} sensors")
-            self._forces_n, self._health = forces.copy(), flags
+            raw = np.clip(np.nan_to_num(forces) / self._full_scale_n, 0.0, 1.0) * FORCE_LEVELS
+            previous = self._levels
+            if previous is None:
+                levels = np.round(raw)
+            else:
+                levels = np.where(np.abs(raw - previous) < LEVEL_HYSTERESIS, previous, np.round(raw))
+            same_health = (flags is None and self._health is None) or (
+                flags is not None and self._health is not None and np.array_equal(flags, self._health))
+            self._forces_n = forces.copy()
+            if previous is not None and same_health and np.array_equal(levels, previous):
+                return  # no sensor changed colour: nothing to draw
+            self._levels, self._health = levels, flags
         self._sensor_style_cache.clear()
-        self._draw_sensors()
+        self._draw_sensors(positions=False)
 
     def set_highlighted_joints(self, indices: Sequence[int]) -> None:
         """Mark joints (0-based), e.g. the ones whose torque is off while posing."""
@@ -399,7 +423,9 @@ class BodyView(QWidget):
                 brushes.append(self._brush("#FFFFFF00"))
                 pens.append(self._pen(theme.STATUS_COLORS[theme.ERROR], 2.0))
             else:
-                brushes.append(self._brush(theme.force_color(float(self._forces_n[k]), self._full_scale_n)))
+                level = float(self._levels[k]) if self._levels is not None else 0.0
+                brushes.append(self._brush(theme.force_color(level / FORCE_LEVELS * self._full_scale_n,
+                                                             self._full_scale_n)))
                 pens.append(self._pen(theme.SIDE_COLORS[side], 1.5))
         cached = self._sensor_style_cache[key] = (brushes, pens)
         return cached
@@ -421,16 +447,25 @@ class BodyView(QWidget):
             pen = self._pen_cache[key] = pg.mkPen(color, width=width)
         return pen
 
-    def _draw_sensors(self) -> None:
-        pose = self._present_pose
-        sensors = sensor_points(pose, radius_m=0.02)
+    def _draw_sensors(self, positions: bool = True) -> None:
+        """Draw the sensors: where they are (``positions``, after the pose changed) and their colours; with
+        ``positions`` False only the brushes and pens are swapped (the points keep their place)."""
+        self.sensor_redraws += 1
         n = len(self._axes)
+        sensors = sensor_points(self._present_pose, radius_m=0.02) if positions else None
         for view in VIEWS:
             sides = (2,) if view == "side" else (0, 1)
             index = np.array([3 * seg + s for seg in range(n) for s in sides])
-            cols = [0, 2] if view == "side" else [0, 1]
             brushes, pens = self._sensor_style(view, index)
-            self._sensor_items[view].setData(pos=sensors[index][:, cols], brush=brushes, pen=pens)
+            item = self._sensor_items[view]
+            if sensors is None and len(item.data) == len(index):
+                item.setPen(pens, update=False)
+                item.setBrush(brushes)
+                continue
+            if sensors is None:
+                sensors = sensor_points(self._present_pose, radius_m=0.02)
+            cols = [0, 2] if view == "side" else [0, 1]
+            item.setData(pos=sensors[index][:, cols], brush=brushes, pen=pens)
 
     # -- dragging --------------------------------------------------------------------------------------------------
     def _begin_drag(self, view: str, press: QPointF, box: pg.ViewBox) -> None:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPoint, QPointF, QRect, QRectF, Qt, QTimer, Signal
-from PySide6.QtGui import QPainterPath
+from PySide6.QtGui import QPainterPath, QPolygonF
 from PySide6.QtWidgets import (
     QGraphicsItem,
     QGridLayout,
@@ -55,6 +55,7 @@ PLOT_HEIGHT_PX = 170
 MIN_Y_SPAN = {"N": 0.1}
 DEFAULT_MIN_Y_SPAN = 1e-3
 SCROLL_STEPS = 10_000
+PEN_PAD_PX = 2.0  # a trace's bounds reach this far past its data (the pen and rounding)
 BUCKETS_PER_PIXEL = 1.0  # history buckets per plot pixel (each drawn as its low and high)
 AXIS_COLOR = "#444444"
 OTHER_COLORS = ("#444444", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -129,37 +130,65 @@ class _Trace(pg.PlotDataItem):
 
 
 class _TraceBundle(pg.GraphicsObject):
-    """Draws all of one plot's traces in a single item with a fixed, unbounded bounding rect.
+    """Draws all of one plot's traces in a single item whose bounding rect is the drawn data's (plus the pen).
 
     Why not one PlotCurveItem per trace: each setData there changes the item's geometry (prepareGeometryChange,
     scene index update, bounds from nanmin/nanmax, pixel padding) and that, not the line drawing, is most of the
     frame: 36 PlotCurveItems cost 15–18 ms per frame against ~3 ms for 12 bundles drawing the same paths
-    (measured offscreen). The view box clips its children, so the unbounded rect draws nothing outside the plot.
-    """
+    (measured offscreen). Here the bounds come once per frame from the paths Qt already built (C++), and the
+    geometry changes only when they do.
 
-    # Large enough for any view (seconds, newtons, µS) yet small enough for Qt's update-region arithmetic: at
-    # ±1e15 the exposed region rounds away and a real X display never repaints the plot (offscreen hides it).
-    _BOUNDS = QRectF(-1e6, -1e6, 2e6, 2e6)
+    Why bounds from the data and not a huge fixed rect: Qt maps the rect to the view to find what to repaint; at
+    ±1e15 that arithmetic overflowed and a real X display repainted the plot ~0.4×/s (offscreen hid it), and any
+    fixed rect makes every frame repaint the whole plot, axes and legend included.
+    """
 
     def __init__(self) -> None:
         super().__init__()
-        self._paths: list[tuple[object, QPainterPath]] = []
+        self._lines: list[tuple[object, QPolygonF | QPainterPath]] = []
+        self._bounds = QRectF()
 
-    def set_traces(self, traces: Sequence[tuple[object, np.ndarray, np.ndarray]]) -> None:
-        """``(pen, x, y)`` per trace to draw (view coordinates); NaN breaks a line (a gap in the data)."""
-        self._paths = [(pen, pg.arrayToQPath(x, y, connect="finite")) for pen, x, y in traces if x.size]
+    def set_traces(self, traces: Sequence[tuple[object, np.ndarray, np.ndarray]],
+                   pad: tuple[float, float] = (0.0, 0.0)) -> None:
+        """``(pen, x, y)`` per trace to draw (view coordinates); NaN breaks a line (a gap in the data). ``pad``
+        (view units, x and y) widens the bounds by the pen's reach: about 2 pixels."""
+        lines: list[tuple[object, QPolygonF | QPainterPath]] = []
+        bounds = QRectF()
+        for pen, x, y in traces:
+            if not x.size:
+                continue
+            if np.isfinite(y).all():
+                # A polyline straight from the arrays: half the cost of a QPainterPath (no element copy), and
+                # its bounds come from C++.
+                line = pg.functions.create_qpolygonf(x.size)
+                points = pg.functions.ndarray_from_qpolygonf(line)
+                points[:, 0] = x
+                points[:, 1] = y
+            else:
+                line = pg.arrayToQPath(x, y, connect="finite")  # gaps: a path of separate runs
+            lines.append((pen, line))
+            bounds = bounds.united(line.boundingRect())
+        if not bounds.isNull():
+            bounds = bounds.adjusted(-pad[0], -pad[1], pad[0], pad[1])
+        self._lines = lines
+        if bounds != self._bounds:
+            self.prepareGeometryChange()  # Qt repaints the old and the new rect
+            self._bounds = bounds
         self.update()
 
     def boundingRect(self) -> QRectF:  # noqa: N802 - Qt override
-        return self._BOUNDS
+        return self._bounds
 
     def dataBounds(self, ax, frac=1.0, orthoRange=None):  # noqa: N802,N803 - pyqtgraph's auto-range hook
         return (None, None)  # never part of auto-range: the grid sets the ranges itself
 
     def paint(self, painter, *_args) -> None:
-        for pen, path in self._paths:
+        for pen, line in self._lines:
             painter.setPen(pen)
-            painter.drawPath(path)
+            if isinstance(line, QPolygonF):
+                painter.drawPolyline(line)
+            else:
+                painter.drawPath(line)
 
 
 class _SegmentPlot(QWidget):
@@ -529,7 +558,11 @@ class ForcePlotGrid(QWidget):
                     trace._x, trace._y = x, y
                     traces.append((trace.opts["pen"], x, y))
                     column += 1
-                plot.bundle.set_traces(traces)
+                (x0, x1), (y0, y1) = plot.viewbox.viewRange()
+                size = plot.viewbox.size()
+                # 2 px: the 1-px cosmetic pen reaches half a pixel past the data, plus rounding
+                pad = (PEN_PAD_PX * (x1 - x0) / max(size.width(), 1.0), PEN_PAD_PX * (y1 - y0) / max(size.height(), 1.0))
+                plot.bundle.set_traces(traces, pad)
                 if plot.auto_y:
                     self._fit_y(plot, window.low[:, first:column], window.high[:, first:column],
                                 MIN_Y_SPAN.get(self._units, DEFAULT_MIN_Y_SPAN))

@@ -237,21 +237,17 @@ class ForcesControls(QWidget):
         self.duration.setEnabled(not recording)
 
     def set_board_status(self, text: str, level: str) -> None:
-        self.board_status.setText(text)
-        self.board_status.setStyleSheet(status_style(level))
+        _show(self.board_status, text, status_style(level))
 
     def set_counters(self, text: str, level: str) -> None:
-        self.counters.setText(text)
-        self.counters.setStyleSheet(status_style(level) if text else "")
+        _show(self.counters, text, status_style(level) if text else "")
 
     def set_message(self, text: str, level: str = "warn") -> None:
-        self.message.setText(text)
-        self.message.setStyleSheet(status_style(level) if text else "")
+        _show(self.message, text, status_style(level) if text else "")
 
     def set_calibration(self, text: str, level: str) -> None:
-        self.calibration_label.setText(text)
+        _show(self.calibration_label, text, status_style(level))
         self.calibration_label.setToolTip(text)
-        self.calibration_label.setStyleSheet(status_style(level))
 
     def set_viewing_file(self, name: str | None) -> None:
         """Showing a past recording (``name``) instead of the live board, or live (None)."""
@@ -260,3 +256,13 @@ class ForcesControls(QWidget):
         self.export.setToolTip(EXPORT_TIP if name is not None else EXPORT_DISABLED_TIP)
         if name is not None:
             self.set_message(f"showing recording {name}", "ok")
+
+
+def _show(label: QLabel, text: str, style: str) -> None:
+    """Set a status label's text and style only when they change: setStyleSheet re-polishes the label and, through
+    the layout, repaints the window around it even when the style is the same (these arrive several times a
+    second while streaming)."""
+    if label.text() != text:
+        label.setText(text)
+    if label.styleSheet() != style:
+        label.setStyleSheet(style)

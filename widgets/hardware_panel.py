@@ -313,6 +313,10 @@ class HardwarePanel(QWidget):
         self.loop_label = QLabel("")
         self.loop_label.setObjectName("loop_label")
         self.loop_label.setWordWrap(True)
+        # Two lines, fixed: the text changes every refresh, and a word-wrapped label whose height follows its text
+        # re-lays out (and so repaints) the whole window each time.
+        self.loop_label.setFixedHeight(2 * self.loop_label.fontMetrics().lineSpacing() + 4)
+        self.loop_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
         self.loop_label.setToolTip("The robot's control loop since connect: period between tick starts and ticks "
                                    "that missed their deadline (each missed tick delays motion by one period)")
         column.addWidget(self.loop_label)

@@ -109,6 +109,24 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("recording", metavar="REC.h5")
     export.add_argument("--csv", required=True, metavar="OUT.csv")
 
+    repair = sub.add_parser("repair", help="salvage a truncated recording into a clean file")
+    repair.add_argument("recording", metavar="REC.h5")
+    repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
+
+    experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
+    experiment.add_argument("name", choices=("obstacle",), help="obstacle: the paper's Sec. III-C experiment")
+    experiment.add_argument("--out", required=True, metavar="REC.h5")
+    experiment.add_argument("--seconds", type=float, default=None, metavar="S",
+                            help="stop playing after S simulated seconds (default: the whole follow-the-leader)")
+    experiment.add_argument("--height-ratio", type=float, default=0.28, metavar="R",
+                            help="obstacle height × body length (default 0.28, the paper's)")
+    experiment.add_argument("--speed", type=float, default=0.034, metavar="RAD_S",
+                            help="follow-the-leader speed (default 0.034 rad/s, the paper's)")
+    experiment.add_argument("--settle", type=float, default=6.0, metavar="S",
+                            help="seconds the limp robot settles over the obstacle before the capture")
+    experiment.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors' spread and noise")
+    experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] frictions)")
+
     bench = sub.add_parser("bench", help="print the benchmark tables")
     bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")
     return parser

@@ -87,22 +87,24 @@ def pump_until(predicate: Callable[[], bool], timeout_s: float = WAIT_S, what: s
         pump(20)
 
 
-def measure(views: dict[str, QWidget], counter: PaintCounter, seconds: float = 2.0) -> dict:
+def measure(views: dict[str, QWidget], counter: PaintCounter, seconds: float = 2.0, grabs_on: bool = True) -> dict:
     """Paint events per second reaching each view (the view and every widget inside it), frames per second (paints
     in one flush counted once), the fraction of 100-ms intervals in which its pixels on the X
-    server changed, and the process CPU (fraction of one core) over the same ``seconds``."""
+    server changed, and the CPU (fraction of one core) of the whole process and of the GUI thread over the same
+    ``seconds``."""
     grabs: dict[str, list[QImage]] = {name: [grab(w)] for name, w in views.items()}
     counter.watch(views)
-    t0, cpu0 = time.monotonic(), time.process_time()
+    t0, cpu0, gui0 = time.monotonic(), time.process_time(), time.thread_time()
     deadline = t0 + seconds
     while time.monotonic() < deadline:
         pump(GRAB_EVERY_MS)
-        for name, widget in views.items():
-            grabs[name].append(grab(widget))
-    wall, cpu = time.monotonic() - t0, time.process_time() - cpu0
+        if grabs_on:  # off when measuring CPU: reading pixels back costs more than drawing them
+            for name, widget in views.items():
+                grabs[name].append(grab(widget))
+    wall, cpu, gui = time.monotonic() - t0, time.process_time() - cpu0, time.thread_time() - gui0
     counts, frames = dict(counter.counts), dict(counter.frames)
     counter.watch({})
-    result: dict = {"seconds": wall, "cpu": cpu / wall, "views": {}}
+    result: dict = {"seconds": wall, "cpu": cpu / wall, "gui_cpu": gui / wall, "views": {}}
     for name, widget in views.items():
         images = grabs[name]
         changed = sum(a != b for a, b in zip(images, images[1:])) / max(1, len(images) - 1)
@@ -161,7 +163,7 @@ def open_app(tmp: Path, tab: str):
     window = MainWindow(lab, settings=QSettings(str(tmp / "settings.ini"), QSettings.Format.IniFormat))
     window.resize(*WINDOW_SIZE)
     window.move(0, 0)
-    page = window.show_tab(tab)
+    page = window.show_tab(tab.split("_")[0])
     window.show()
     window.raise_()
     pump_until(lambda: window.windowHandle() is not None and window.windowHandle().isExposed(), what="the window")
@@ -180,6 +182,17 @@ def scenario_forces(window, page, seconds: float) -> dict:
     wiggle = Wiggle(page.lab.config.robot.joint_ids)
     wiggle.start()
     return measure(views, PaintCounter(), seconds)
+
+
+def scenario_forces_cost(window, page, seconds: float) -> dict:
+    """The issue's cost case: 36 channels at 30 Hz, Forces tab visible, robot at rest, nobody reading pixels."""
+    pump_until(lambda: len(page.force_history) > 0 and page.force_history.span()[1] > 1.0, what="board data")
+    pump(1000)
+    viewport = page.plots.scroll.viewport()
+    views = {f"plot{i}": plot.plot_widget for i, plot in enumerate(page.plots.plots) if plot.on_screen(viewport)}
+    if page.body is not None:
+        views["body_map"] = page.body
+    return measure(views, PaintCounter(), seconds, grabs_on=False)
 
 
 def scenario_teach(window, page, seconds: float) -> dict:
@@ -230,7 +243,7 @@ def scenario_hardware(window, page, seconds: float) -> dict:
     return measure({"servo_table": page.panel.servo_table}, PaintCounter(), seconds)
 
 
-SCENARIOS = {"forces": scenario_forces, "teach": scenario_teach, "gait": scenario_gait,
+SCENARIOS = {"forces": scenario_forces, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait,
              "calibration": scenario_calibration, "hardware": scenario_hardware}
 
 
@@ -243,7 +256,14 @@ def main(argv: list[str]) -> int:
     QTimer.singleShot(int(1000 * (WAIT_S * 3 + seconds * 3)), lambda: fail("probe timed out"))
     with tempfile.TemporaryDirectory(prefix="sensnake-xprobe-") as tmp:
         window, page = open_app(Path(tmp), name)
-        result = SCENARIOS[name](window, page, seconds)
+        if os.environ.get("PROBE_PROFILE"):  # cProfile of the GUI thread over the scenario, to that file
+            import cProfile
+
+            profiler = cProfile.Profile()
+            result = profiler.runcall(SCENARIOS[name], window, page, seconds)
+            profiler.dump_stats(os.environ["PROBE_PROFILE"])
+        else:
+            result = SCENARIOS[name](window, page, seconds)
         result["scenario"] = name
         print(json.dumps(result), flush=True)  # noqa: T201 - the result for the test
         window.close()

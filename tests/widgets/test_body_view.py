@@ -177,3 +177,23 @@ def test_range_goes_back_to_the_straight_body_after_the_delay(view, qtbot):
     view.shrink_timer.setInterval(20)  # the test does not wait the full delay
     view.shrink_timer.start()
     qtbot.waitUntil(lambda: view.view_ranges() == straight, timeout=2000)
+
+
+def test_sensor_noise_at_a_colour_step_does_not_redraw_but_a_real_change_does(view):
+    from widgets.body_view import FORCE_LEVELS
+
+    step_n = 10.0 / FORCE_LEVELS
+    forces = np.full(36, 2.5 * step_n)  # right on a step boundary: the worst case for noise
+    view.set_sensor_forces(forces, full_scale_n=10.0)
+    drawn = view.sensor_redraws
+    before = [b.color().name() for b in view.sensor_brushes("top")]
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        view.set_sensor_forces(forces + rng.normal(0.0, 0.1 * step_n, 36))
+    assert view.sensor_redraws == drawn, "sensor noise repainted the body map"
+    assert [b.color().name() for b in view.sensor_brushes("top")] == before
+    loaded = forces.copy()
+    loaded[0] = 10.0  # S01L at full scale: the top view's first sensor turns darkest red
+    view.set_sensor_forces(loaded)
+    assert view.sensor_redraws == drawn + 1
+    assert view.sensor_brushes("top")[0].color().name().upper() == theme.FORCE_FULL_COLOR.upper()

@@ -132,8 +132,8 @@ def test_legend_click_hides_a_trace_at_the_next_redraw(grid):
     fill(history, 5.0)
     grid.refresh()
     plot = grid.plots[2]
-    assert len(plot.bundle._paths) == 3
+    assert len(plot.bundle._lines) == 3
     plot.curves[1].setVisible(False)  # what pyqtgraph's legend sample does on a click
     grid.refresh()  # no new data, yet the picture changed: it redraws
-    assert len(plot.bundle._paths) == 2
-    assert [pen for pen, _ in plot.bundle._paths] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
+    assert len(plot.bundle._lines) == 2
+    assert [pen for pen, _ in plot.bundle._lines] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
