@@ -234,7 +234,7 @@ class LiveSession:
             calibration_json = self.recording_calibration_json()
         recorder = Recorder(path, config_text, self.channel_names, calibration_json=calibration_json,
                             with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
-                            t0_monotonic_s=self.t0_monotonic_s, on_failed=on_failed)
+                            on_failed=on_failed)
         recorder.start()
         self.attach_recorder(recorder)
         return recorder

@@ -382,7 +382,7 @@ class ForcesTab(QWidget):
         session = RecordingSession(path, self.lab.config.source_text, self.channel_names,
                                    calibration_json=self.live.recording_calibration_json(), with_robot=with_robot,
                                    n_joints=self.lab.config.robot.n_joints, min_free_bytes=self.min_free_bytes,
-                                   t0_monotonic_s=self.live.t0_monotonic_s, parent=self)
+                                   parent=self)
         session.failed.connect(self._on_recording_failed)
         session.stopped.connect(self._on_recording_stopped)
         self.session = session
