@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -163,3 +165,18 @@ def test_a_motion_failure_is_reported_once(connected, qtbot, sim_lab_fast):
     qtbot.waitUntil(lambda: connected.motion_state == "fault", timeout=5000)
     wait_states(qtbot, connected, 10)
     assert len([e for e in errors if "servo 7" in e]) == 1
+
+
+def test_a_rate_the_bus_cannot_keep_is_refused_on_connect_with_the_fix(qtbot, sim_lab_fast):
+    # The simulated servos keep the factory Return Delay Time (500 µs): a tick's bus time is ~9.5 ms.
+    robot = RobotBridge(dataclasses.replace(LabConfig().robot, control_rate_hz=200.0))
+    errors: list[str] = []
+    robot.error.connect(errors.append)
+    try:
+        with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+            robot.connect()
+        assert blocker.args == [False] and not robot.is_connected
+        assert "200 Hz cannot be kept" in errors[-1] and "set Return Delay Time to 0" in errors[-1]
+        assert "Traceback" not in errors[-1]
+    finally:
+        robot.close()
