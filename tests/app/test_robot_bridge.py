@@ -104,9 +104,11 @@ def test_emergency_stop_freezes_goals_and_keeps_torque(connected, qtbot, sim_lab
     assert motions == [MOTION_RUNNING]
     start_goal = chain.goal_positions_ticks()[0]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[0] - start_goal) > 20, timeout=5000)
-    connected.emergency_stop()
+    # Wait for the controller's own word that the goals are frozen (it writes them first), not for "2 more
+    # states": those can predate the freeze tick when the GUI thread is slow (issue 14's flaky STOP test).
+    with qtbot.waitSignal(connected.event, timeout=5000, check_params_cb=lambda text: "goals frozen" in text):
+        connected.emergency_stop()
     assert motions[-1] == MOTION_STOPPED
-    wait_states(qtbot, connected, 2)
     frozen = chain.goal_positions_ticks().copy()
     wait_states(qtbot, connected, 5)
     np.testing.assert_array_equal(chain.goal_positions_ticks(), frozen)
