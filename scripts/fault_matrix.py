@@ -216,6 +216,36 @@ def record_signal(signum: int, expect_code: int | None) -> Callable[[Path], Outc
     return case
 
 
+def kill_at_random_moments(trials: int) -> Callable[[Path], Outcome]:
+    """``kill -9`` the recorder at random moments (not just after a flush): the file must open in plain h5py with
+    exact values every time. The writer's flush (open, append, close) is the only window where it could not."""
+    def case(folder: Path) -> Outcome:
+        import random
+
+        rng = random.Random(9)
+        config = folder / "lab.toml"
+        config.write_text(f"[board]\nrate_hz = {RATE_HZ}\n")
+        failures = []
+        for trial in range(trials):
+            out = folder / f"killed{trial}.h5"
+            with EmulatedBoard(folder, rate_hz=RATE_HZ, seed=trial) as emu:
+                child = subprocess.Popen([sys.executable, "-m", "app", "record", "--daq", emu.path, "--seconds",
+                                          "60", "--out", str(out), "--config", str(config)], cwd=REPO,
+                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                _drive(child, emu, [("120", "noop")])
+                time.sleep(rng.uniform(0.0, 1.0))  # a random moment relative to the 0.5 s flushes
+                child.kill()
+                child.communicate(timeout=30)
+                log = emu.stop()
+            opened, rows = plain_h5py(out)
+            exact, note = check_exact(out, log) if opened else (False, rows)
+            if not (opened and exact):
+                failures.append(f"trial {trial}: {note}")
+        return Outcome(not failures, f"{trials - len(failures)}/{trials} killed files open in plain h5py, exact"
+                       + (f"; {failures[0]}" if failures else ""))
+    return case
+
+
 def one_line(args: Callable[[Path], list[str]], code: int = 1, *words: str) -> Callable[[Path], Outcome]:
     def case(folder: Path) -> Outcome:
         return Outcome(*clean_failure(sensnake(*args(folder)), code, *words))
@@ -272,6 +302,76 @@ def export_unwritable(folder: Path) -> Outcome:
     return Outcome(*clean_failure(sensnake("export", str(good), "--csv", str(blocker / "out.csv")), 1, "out.csv"))
 
 
+# -- servo cases (tests/emulators/xm430_emulator.py) ---------------------------------------------------------------
+def _servo_emulator(*args: str):
+    from tests.emulators.xm430_emulator import EmulatorProcess
+
+    return EmulatorProcess(*args)
+
+
+def _shape(path: Path, angles: list[float]) -> Path:
+    path.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": path.stem,
+                                "axes": ["pitch", "yaw"] * 6, "angles_rad": angles}))
+    return path
+
+
+def scan_case(emulator_args: tuple[str, ...] = (), commands: tuple[str, ...] = (), baud: str = "1000000",
+              expect_ids: int = 12) -> Callable[[Path], Outcome]:
+    def case(folder: Path) -> Outcome:
+        emu = _servo_emulator(*emulator_args)
+        try:
+            for command in commands:
+                emu.command(command)
+            run = sensnake("scan", "--robot", emu.path, "--baud", baud)
+        finally:
+            emu.close()
+        if run.traceback:
+            return Outcome(False, "traceback")
+        if expect_ids:
+            found = [line for line in run.out.splitlines() if "XM430" in line]
+            return Outcome(run.code == 0 and len(found) == expect_ids, f"exit {run.code}, {len(found)} servos")
+        ok = run.code == 0 and "no servo" in (run.out + run.err).lower() or run.code == 1 and len(
+            run.error_lines()) == 1
+        return Outcome(ok, f"exit {run.code}: {(run.out + run.err).strip()[:100]}")
+    return case
+
+
+def play_case(fault: str | None, angles: list[float], words: tuple[str, ...]) -> Callable[[Path], Outcome]:
+    """``sensnake play`` (slow) with ``fault`` sent to the emulator once goals flow; expects exit 1, one line."""
+    def case(folder: Path) -> Outcome:
+        emu = _servo_emulator()
+        shape = _shape(folder / "shape.json", angles)
+        try:
+            child = subprocess.Popen([sys.executable, "-m", "app", "play", str(shape), "--robot", emu.path,
+                                      "--speed", "0.05"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+            if fault is not None:
+                deadline = time.monotonic() + 30
+                while emu.counts()["sync_write"] < 15 and child.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.05)  # a script polling the emulator's counters, not a test
+                emu.command(fault)
+            out, err = child.communicate(timeout=60)
+            goals = emu.counts()["sync_write"] if fault is None else 0  # after "kill" the emulator is gone
+        finally:
+            emu.close()
+        ok, note = clean_failure(Run(child.returncode, out, err), 1, *words)
+        if ok and fault is None and goals:
+            return Outcome(False, f"{goals} goal writes before the refusal")
+        return Outcome(ok, note)
+    return case
+
+
+def teach_silent_servo(folder: Path) -> Outcome:
+    emu = _servo_emulator()
+    try:
+        emu.command("silent 7")
+        run = sensnake("teach", "--robot", emu.path, "--after", "0", "--out", str(folder / "t.json"))
+    finally:
+        emu.close()
+    ok, note = clean_failure(run, 1, "7")
+    return Outcome(ok and not (folder / "t.json").exists(), note)
+
+
 CASES: dict[str, Callable[[Path], Outcome]] = {
     "board: clean stream": record_case(),
     "board: 5% garbage": record_case(garbage=0.05),
@@ -300,11 +400,26 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "record: SIGHUP": record_signal(signal.SIGHUP, 128 + signal.SIGHUP),
     "record: Ctrl-C": record_signal(signal.SIGINT, 130),
     "record: kill -9": record_signal(signal.SIGKILL, -signal.SIGKILL),
+    "record: kill -9 at 12 random moments": kill_at_random_moments(12),
     "file: truncated at 99.9%": truncated(0.999, 0.95),
     "file: truncated at 90%": truncated(0.9, 0.5),
     "file: truncated at 50%": truncated(0.5, 0.1),
     "file: not HDF5": not_hdf5_export,
     "file: export to an unwritable path": export_unwritable,
+    "servo: scan a clean chain": scan_case(),
+    "servo: scan with servo 4 silent": scan_case(commands=("silent 4",), expect_ids=11),
+    "servo: scan at the wrong baud": scan_case(baud="57600", expect_ids=0),
+    "servo: teach with servo 7 silent": teach_silent_servo,
+    "servo: play a shape beyond the joint limits": play_case(None, [0.0, 0.0, 10.0] + [0.0] * 9,
+                                                             ("joint 3", "10.000", "limit")),
+    "servo: servo 5 reboots mid-play (sags)": play_case("reboot 5 0.05 700", [0.5 * (-1) ** i for i in range(12)],
+                                                        ("servo 5",)),
+    "servo: servo 5 reboots mid-play (torque off only)": play_case("reboot 5 0.05 0",
+                                                                   [0.5 * (-1) ** i for i in range(12)],
+                                                                   ("servo 5",)),
+    "servo: servo 3 overload mid-play": play_case("overload 3", [0.5 * (-1) ** i for i in range(12)],
+                                                  ("servo 3",)),
+    "servo: bus killed mid-play": play_case("kill", [0.5 * (-1) ** i for i in range(12)], ("servo bus",)),
 }
 
 
