@@ -1,12 +1,15 @@
 """The multiplexing force-sensor board: wire protocol (SPEC §4), readout circuit, and a threaded reader.
 
 :class:`FrameParser` turns a byte stream into verified frames: it resynchronises on the sync bytes after garbage,
-checks version, channel count and CRC-16/CCITT-FALSE, and never hands out a frame whose CRC is wrong. It counts
-every CRC error, resync, ``seq`` gap and discarded byte.
+checks version, channel count and CRC-16/CCITT-FALSE, and never hands out a frame whose CRC is wrong or whose counts
+exceed the 12-bit ADC's range (a CRC-valid frame with a count above 4095 is corrupt all the same). It counts every CRC
+error, out-of-range frame, resync, ``seq`` gap and discarded byte.
 
 :class:`BoardReader` owns one reader thread per board: it opens the port through :func:`devices.factory.open_serial`
 (so ``sim`` and real ports share this code), parses frames into a preallocated ring, and survives a pulled cable by
-reopening the port every :data:`RECONNECT_INTERVAL_S` and marking the gap. Consumers drain the ring with
+reopening the port every :data:`RECONNECT_INTERVAL_S` and marking the gap. A board that comes back (re-plugged or
+power-cycled) restarts its clock at 0: that starts a new clock segment, never a 2³² µs wrap. Frames whose channel
+count differs from the configured board are counted and never stored. Consumers drain the ring with
 :meth:`BoardReader.read_block`, which returns a :class:`SampleBlock` with counts, conductance and time stamps.
 """
 
@@ -47,6 +50,8 @@ from devices.board_wire import HEADER_STRUCT as _HEADER
 from devices.config import BoardConfig
 from devices.errors import BoardProtocolError, PortOpenError
 
+ADC_MAX_COUNTS = 4095  # SPEC §4: 12-bit readings; a CRC-valid frame above this is corrupt
+
 RECONNECT_INTERVAL_S = 0.5
 READ_TIMEOUT_S = 0.02
 IDLE_POLL_S = 0.004
@@ -73,12 +78,14 @@ class FrameParser:
     match), ``bad_headers`` (sync found but version or ``n`` impossible), ``resyncs`` (times the parser had to search
     for the next sync instead of finding it where the previous frame ended), ``seq_gaps`` (a delivered frame whose
     ``seq`` is not the previous + 1, modulo 2³²), ``dropped_frames`` (frames missing inside those gaps),
-    ``bytes_discarded`` (bytes skipped while searching). Invariant:
+    ``bytes_discarded`` (bytes skipped while searching), ``out_of_range_frames`` (a CRC-valid frame with a count
+    above ``max_count``: impossible for the ADC, so corrupt; dropped whole). Invariant:
     ``bytes_received == bytes_in_frames + bytes_discarded + bytes_pending``.
     """
 
-    def __init__(self, max_channels: int = MAX_CHANNELS) -> None:
+    def __init__(self, max_channels: int = MAX_CHANNELS, max_count: int = ADC_MAX_COUNTS) -> None:
         self.max_channels = max_channels
+        self.max_count = max_count
         self._buf = bytearray()
         self._last_seq: int | None = None
         self._in_sync = True  # a fresh stream is expected to start on a frame
@@ -89,6 +96,7 @@ class FrameParser:
         self.seq_gaps = 0
         self.dropped_frames = 0
         self.bytes_discarded = 0
+        self.out_of_range_frames = 0
         self.bytes_received = 0
         self.bytes_in_frames = 0
 
@@ -149,6 +157,13 @@ class FrameParser:
                 pos += 1
                 continue
             counts = np.frombuffer(buf, dtype="<u2", count=n, offset=pos + HEADER_SIZE).astype(np.uint16)
+            if int(counts.max()) > self.max_count:
+                # A 12-bit ADC cannot read this: the frame is corrupt despite its CRC. Skip it whole (its bytes
+                # were a frame, so the stream is still in step); its seq shows up as a gap.
+                self.out_of_range_frames += 1
+                self.bytes_in_frames += frame_end - pos
+                pos = frame_end
+                continue
             frames.append(Frame(seq=seq, t_us=t_us, flags=flags, counts=counts))
             self._count_seq(seq)
             self.frames += 1
@@ -198,7 +213,9 @@ class FrameParser:
 class SampleBlock:
     """Samples drained from a :class:`BoardReader`; N frames × C channels.
 
-    ``board_time_s`` is the board clock (``t_us`` unwrapped across its 2³² µs wrap), ``host_time_s`` the host's
+    ``board_time_s`` is the board clock (``t_us`` unwrapped across its 2³² µs wrap; when the board restarts — a new
+    clock segment — it continues from the previous segment's end plus the host clock's gap, so it never runs
+    backwards), ``clock_segment[i]`` counts the board's restarts since the reader started (0 first), ``host_time_s`` the host's
     ``time.monotonic()`` when the frame's last byte arrived (the read time, less the wire time of the bytes read
     after it; never before the previous frame's). ``gap_before[i]`` is True when frames are missing just before
     sample ``i`` (dropped frames, or a reconnect after a pulled cable).
@@ -211,6 +228,7 @@ class SampleBlock:
     seq: np.ndarray  # (N,) uint32
     saturated: np.ndarray  # (N, C) bool
     gap_before: np.ndarray | None = None  # (N,) bool; None means no gap anywhere
+    clock_segment: np.ndarray | None = None  # (N,) int32; None means segment 0 throughout
 
     def __len__(self) -> int:
         return int(self.seq.shape[0])
@@ -246,6 +264,10 @@ class BoardStats:
     reconnects: int = 0
     channel_mismatches: int = 0
     overflow_frames: int = 0  # frames lost because nobody drained the ring in time
+    out_of_range_frames: int = 0  # CRC-valid frames with a count above the ADC's maximum (rejected)
+    clock_segments: int = 1  # the board's clock restarted clock_segments − 1 times (re-plug, power cycle)
+    missing_s: float = 0.0  # total time the port was gone (including now, if it is gone)
+    disconnected_since_s: float | None = None  # host monotonic time the port went away, None while connected
     connected: bool = False
 
 
@@ -277,7 +299,7 @@ class BoardReader:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._port: serial.SerialBase | None = None
-        self._parser = FrameParser()
+        self._parser = FrameParser(max_count=board.adc_max_counts)
         self._status = BoardStatus("closed", f"board on {board.port} not started", False)
         self._reconnects = 0
         self._channel_mismatches = 0
@@ -288,6 +310,12 @@ class BoardReader:
         self._last_seq_stored: int | None = None
         self._last_host_time_s = -np.inf
         self._board_time_base_s = 0.0
+        self._segment = 0
+        self._segment_pending = False
+        self._last_store_host_s: float | None = None
+        self._lost_at_s: float | None = None
+        self._missing_s = 0.0
+        self._segment_col = np.zeros(self._capacity, dtype=np.int32)
 
     # -- public API -------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -327,11 +355,14 @@ class BoardReader:
     @property
     def stats(self) -> BoardStats:
         p = self._parser
+        lost_at = self._lost_at_s
+        missing = self._missing_s + (time.monotonic() - lost_at if lost_at is not None else 0.0)
         return BoardStats(frames=p.frames, crc_errors=p.crc_errors, resyncs=p.resyncs, seq_gaps=p.seq_gaps,
                           dropped_frames=p.dropped_frames, bytes_discarded=p.bytes_discarded,
                           bad_headers=p.bad_headers, reconnects=self._reconnects,
                           channel_mismatches=self._channel_mismatches, overflow_frames=self._overflow,
-                          connected=self._status.connected)
+                          out_of_range_frames=p.out_of_range_frames, clock_segments=self._segment + 1,
+                          missing_s=missing, disconnected_since_s=lost_at, connected=self._status.connected)
 
     @property
     def frames_available(self) -> int:
@@ -360,11 +391,13 @@ class BoardReader:
             host_time = self._host_time[idx]
             seq = self._seq[idx]
             gap = self._gap[idx]
+            segment = self._segment_col[idx]
             self._read_total = self._write_total
             self._overflow_since_read = 0
         return SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, self.board),
                            board_time_s=board_time, host_time_s=host_time, seq=seq,
-                           saturated=saturated_from_counts(counts), gap_before=gap if gap.any() else None)
+                           saturated=saturated_from_counts(counts), gap_before=gap if gap.any() else None,
+                           clock_segment=segment if segment.any() else None)
 
     # -- reader thread ----------------------------------------------------------------------------------------
     def _open(self) -> serial.SerialBase:
@@ -408,6 +441,8 @@ class BoardReader:
 
     def _on_link_lost(self, exc: BaseException) -> None:
         self._close_port()
+        if self._lost_at_s is None:
+            self._lost_at_s = time.monotonic()
         self._set_status("disconnected", f"board on {self.board.port} disconnected ({exc}); retrying every "
                          f"{RECONNECT_INTERVAL_S:g} s — check the cable", False)
 
@@ -421,7 +456,16 @@ class BoardReader:
         self._parser.reset_stream()
         self._reconnects += 1
         self._gap_pending = True
-        self._set_status("reconnected", f"board reconnected on {self.board.port}; the gap is marked", True)
+        # A board that was unplugged restarts its clock (and seq) at 0: the next frame opens a new clock segment.
+        self._segment_pending = True
+        missing = ""
+        if self._lost_at_s is not None:
+            gone_s = time.monotonic() - self._lost_at_s
+            self._missing_s += gone_s
+            self._lost_at_s = None
+            missing = f" after {gone_s:.1f} s missing"
+        self._set_status("reconnected", f"board reconnected on {self.board.port}{missing}; the gap is marked and "
+                         "the board's clock starts a new segment", True)
 
     def _ingest(self, data: bytes, host_time_s: float) -> None:
         expected = self.board.n_channels
@@ -451,11 +495,25 @@ class BoardReader:
             self._store(frame, float(frame_host_time_s))
 
     def _store(self, frame: Frame, host_time_s: float) -> None:
-        if self._last_t_us is not None:
-            self._board_time_base_s += ((frame.t_us - self._last_t_us) % T_US_MODULUS) * 1e-6
-        else:
+        last_t_us, last_seq = self._last_t_us, self._last_seq_stored
+        if last_t_us is None or last_seq is None:
             self._board_time_base_s = frame.t_us * 1e-6
+        else:
+            t_step = (frame.t_us - last_t_us) % T_US_MODULUS
+            seq_step = (frame.seq - last_seq) % SEQ_MODULUS
+            # Backwards by less than half the modulus is a restart (power cycle without a reconnect), not a wrap:
+            # a real 2³² µs wrap moves forward by one frame period and seq by one.
+            restarted = t_step >= T_US_MODULUS // 2 or seq_step >= SEQ_MODULUS // 2
+            if self._segment_pending or restarted:
+                self._segment += 1
+                self._gap_pending = True
+                last_host = self._last_store_host_s if self._last_store_host_s is not None else host_time_s
+                self._board_time_base_s += max(host_time_s - last_host, 0.0)
+            else:
+                self._board_time_base_s += t_step * 1e-6
+        self._segment_pending = False
         self._last_t_us = frame.t_us
+        self._last_store_host_s = host_time_s
         gap = self._gap_pending or (self._last_seq_stored is not None
                                     and (frame.seq - self._last_seq_stored) % SEQ_MODULUS != 1)
         self._gap_pending = False
@@ -467,6 +525,7 @@ class BoardReader:
             self._host_time[slot] = host_time_s
             self._seq[slot] = frame.seq
             self._gap[slot] = gap
+            self._segment_col[slot] = self._segment
             self._write_total += 1
             if self._write_total - self._read_total > self._capacity:
                 lost = self._write_total - self._read_total - self._capacity

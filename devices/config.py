@@ -1,7 +1,10 @@
-"""Lab configuration: frozen dataclasses loaded from TOML and validated at load.
+"""Lab configuration: frozen dataclasses loaded from TOML and validated whenever one is built.
 
 Every quantity carries its unit in its name. An invalid file raises :class:`ConfigError` naming the key
-(``robot.joint_ids[3]``) and the problem, so a lab user can fix the TOML without reading code.
+(``robot.joint_ids[3]``) and the problem, so a lab user can fix the TOML without reading code. Validation runs in
+each dataclass's ``__post_init__``, so a config built any other way — ``dataclasses.replace`` with a command-line
+override (``play --rate``), :meth:`LabConfig.with_ports`, a test — is checked by the same rules; there is no way to
+hold an unchecked config.
 Any thread may call these functions; the objects are immutable.
 """
 
@@ -50,6 +53,9 @@ class RobotConfig:
     status_rate_hz: float = 5.0
     segment_length_m: float = 0.08
 
+    def __post_init__(self) -> None:
+        _validate_robot(self, "")
+
     @property
     def n_joints(self) -> int:
         return len(self.joint_ids)
@@ -68,6 +74,9 @@ class BoardConfig:
     r_c_ohm: float = 900.0
     adc_max_counts: int = 4095
 
+    def __post_init__(self) -> None:
+        _validate_board(self, "")
+
     @property
     def n_channels(self) -> int:
         return len(self.channel_names)
@@ -84,6 +93,9 @@ class RigConfig:
     spring_k_n_per_m: float = 246.0
     sensor: str = "S06B"
 
+    def __post_init__(self) -> None:
+        _validate_rig(self, "")
+
 
 PHYSICS_KINDS = ("scripted", "mujoco")
 
@@ -99,6 +111,9 @@ class SimLabConfig:
     obstacle_height_ratio: float = 0.28
     obstacle_friction: float = 0.1
     ground_friction: float = 0.3
+
+    def __post_init__(self) -> None:
+        _validate_lab(self, "")
 
 
 @dataclass(frozen=True)
@@ -142,14 +157,11 @@ def parse_config(text: str, source: str = "<config>") -> LabConfig:
     unknown = set(data) - {"robot", "board", "rig", "lab"}
     if unknown:
         raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab)")
+    # Each section is validated as it is built (__post_init__); _build prefixes the file's name to any error.
     robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
     board = _build(BoardConfig, data.get("board", {}), "board", source)
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
-    _validate_robot(robot, source)
-    _validate_board(board, source)
-    _validate_rig(rig, source)
     lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
-    _validate_lab(lab, source)
     return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text)
 
 
@@ -163,7 +175,10 @@ def _build(cls: type, table: Any, section: str, source: str) -> Any:
         if key not in known:
             raise ConfigError(f"{source}: unknown key {section}.{key} (known: {', '.join(sorted(known))})")
         kwargs[key] = _coerce(value, getattr(defaults, key), f"{section}.{key}", source)
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)  # __post_init__ validates
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def _coerce(value: Any, default: Any, key: str, source: str) -> Any:
@@ -196,10 +211,16 @@ def _coerce(value: Any, default: Any, key: str, source: str) -> Any:
 
 def _require(ok: bool, source: str, key: str, problem: str) -> None:
     if not ok:
-        raise ConfigError(f"{source}: {key} {problem}")
+        raise ConfigError(f"{source}: {key} {problem}" if source else f"{key} {problem}")
+
+
+def _require_port(port: object, key: str) -> None:
+    _require(isinstance(port, str) and bool(port.strip()), "", key,
+             f"= {port!r} must name a serial port (/dev/ttyUSB0, COM3) or '{SIM_PORT}'")
 
 
 def _validate_robot(robot: RobotConfig, source: str) -> None:
+    _require_port(robot.port, "robot.port")
     n = robot.n_joints
     _require(n >= 1, source, "robot.joint_ids", "must list at least one servo ID")
     _require(len(set(robot.joint_ids)) == n, source, "robot.joint_ids", "has duplicate IDs")
@@ -223,6 +244,7 @@ def _validate_robot(robot: RobotConfig, source: str) -> None:
 
 
 def _validate_board(board: BoardConfig, source: str) -> None:
+    _require_port(board.port, "board.port")
     n = board.n_channels
     _require(1 <= n <= 1024, source, "board.channel_names", f"has {n} channels; the board carries 1…1024")
     _require(len(set(board.channel_names)) == n, source, "board.channel_names", "has duplicate names")
@@ -235,6 +257,7 @@ def _validate_board(board: BoardConfig, source: str) -> None:
 
 
 def _validate_rig(rig: RigConfig, source: str) -> None:
+    _require_port(rig.port, "rig.port")
     _require(0 <= rig.servo_id <= 252, source, "rig.servo_id", f"= {rig.servo_id} is not a Dynamixel ID (0…252)")
     _require(rig.wheel_radius_m > 0, source, "rig.wheel_radius_m", "must be positive")
     _require(rig.spring_k_n_per_m > 0, source, "rig.spring_k_n_per_m", "must be positive")

@@ -150,6 +150,7 @@ class _FactoryPortHandler(PortHandler):
         self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
         self.return_delays_s: dict[int, float] = {}  # servo ID -> Return Delay Time (s) read from its table
         self.wakeups = 0  # sleeps and waits for bytes (a cost figure for tests and benchmarks)
+        self.faster_than_wire = False  # the device answers faster than the wire allows (an accelerated simulator)
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
@@ -211,17 +212,19 @@ class _FactoryPortHandler(PortHandler):
         reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
         # A device faster than the wire (the simulator on an accelerated clock) has bytes there before they could
-        # have crossed it: wait at the pace observed since the instruction was written, not at the baud rate.
-        elapsed_s = now - self._tx_start_s
-        faster_than_wire = bool(self._rx) and now < self._wire_free_s
+        # have crossed it. That is a fact about the device, kept for the port's life: its replies are then awaited
+        # at the pace observed since the instruction was written, never at the baud rate and Return Delay Time.
+        if self._rx and now < self._wire_free_s:
+            self.faster_than_wire = True
         due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
                 return
             missing = n_bytes - len(self._rx)
-            if faster_than_wire:
-                wait_s = missing * elapsed_s / max(len(self._rx), 1)
+            if self.faster_than_wire:
+                elapsed_s = now - self._tx_start_s
+                wait_s = missing * elapsed_s / len(self._rx) if self._rx else READ_POLL_S
             else:
                 replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
                 delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
@@ -251,7 +254,11 @@ class _FactoryPortHandler(PortHandler):
     def _select(self, timeout_s: float) -> None:
         """Block until the port has bytes (it has none buffered: they were all taken) or ``timeout_s`` passes."""
         self.wakeups += 1
-        select.select([self.ser.fd], [], [], timeout_s)
+        readable, _, _ = select.select([self.ser.fd], [], [], timeout_s)
+        if readable and not self.ser.in_waiting:
+            # Readable with nothing to read: the far end hung up. pyserial's read says so (SerialException, a
+            # lost link), where looking again would spin until the deadline.
+            self._rx += self.ser.read(1)
 
     def _time_left_s(self) -> float:
         """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time())."""
@@ -445,6 +452,12 @@ class ServoChain:
             self._set_port_baud(self._baud)
         return sorted(found, key=lambda info: (info.baud, info.servo_id))
 
+    def scan_time_s(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None) -> float:
+        """About how long (s) :meth:`scan` holds the bus when nobody answers (its worst case)."""
+        wanted = [i for i in ids if 0 <= i <= ct.MAX_ID]
+        per_baud = len(wanted) * PER_ID_PING_COST_S if self._per_id_is_cheaper(wanted) else BROADCAST_PING_COST_S
+        return per_baud * len(list(bauds) if bauds else [self._baud])
+
     @staticmethod
     def _per_id_is_cheaper(wanted: list[int]) -> bool:
         return len(wanted) * PER_ID_PING_COST_S < BROADCAST_PING_COST_S
@@ -505,11 +518,27 @@ class ServoChain:
         one can be moved by hand away from the goal it was sent.
         """
         self._last_goal_rad = None
-        for sid in self._ids_or_all(ids):
+        chosen = self._ids_or_all(ids)
+        if enabled:
+            self._goals_to_present(chosen)
+        for sid in chosen:
             self._torque_commanded.discard(sid)
             self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
             if enabled:
                 self._torque_commanded.add(sid)
+
+    def _goals_to_present(self, ids: list[int]) -> None:
+        """Goal Position := Present Position on ``ids`` (one sync read, one sync write), so torque coming on
+        holds each joint where it is: after an overload and reboot, or posing by hand, the goal register may still
+        hold a goal from before, and the joint would jump to it."""
+        present = self._sync_read_blocks(ids, ct.ADDR_PRESENT_POSITION, 4)
+        writer = GroupSyncWrite(self._require_port(), self._ph, ct.ADDR_GOAL_POSITION, 4)
+        for sid in ids:
+            writer.addParam(sid, list(present[sid]))
+        result = self._io(writer.txPacket)
+        if result != COMM_SUCCESS:
+            raise DeviceError(f"sync write of goal positions failed on {self.robot.port}: "
+                              f"{self._ph.getTxRxResult(result)}")
 
     def set_led(self, servo_id: int, on: bool) -> None:
         self.write_item(servo_id, "LED", int(bool(on)))

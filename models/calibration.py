@@ -55,6 +55,16 @@ FLAT_NOISE_MULTIPLE = 8.0
 POOR_FIT_NOISE_RATIO = 2.0
 # E0's 95 % interval wider than this fraction of E0 is reported as poorly identified.
 WIDE_INTERVAL = 0.5
+# A trial with more than this fraction of its hold saturated is refused for the per-trial table (it only says
+# "at least this much"); it still enters the joint fit as one-sided (censored) residuals.
+MAX_CENSORED_FRACTION = 0.5
+# Multi-start over log τ: starting creep times from TAU_GRID_LOW × the sample step to TAU_GRID_HIGH × the record
+# length, TAU_GRID_POINTS of them; the joint fit runs from the JOINT_STARTS best distinct ones and keeps the lowest
+# cost (a slow-creep sensor otherwise stops on the τ → 0 plateau, whose cost is far above the optimum).
+TAU_GRID_LOW, TAU_GRID_HIGH, TAU_GRID_POINTS = 3.0, 30.0, 9
+JOINT_STARTS = 2
+# The resolvable creep: τ between the sample step and this multiple of the record length.
+TAU_RESOLVABLE_SPANS = 100.0
 
 
 # Measured (benchmarks/bench_fitters.py, 12 trials × 2221 samples): the CasADi Gauss–Newton joint fit (exact
@@ -100,15 +110,21 @@ class TrialReport:
     n_saturated: int
     has_ramp: bool
     warnings: tuple[str, ...]
+    refused: str | None = None  # why this trial's own parameters are not reported (None: they are)
 
     def to_dict(self) -> dict:
-        """The SPEC §3.3 ``trials`` entry (plus extra keys that ``estimate`` ignores)."""
+        """The SPEC §3.3 ``trials`` entry (plus extra keys that ``estimate`` ignores). A refused trial writes null
+        parameters and its reason under ``refused``."""
         a, b, c = abc_from_sls(float(self.params.E0_Pa), float(self.params.E1_Pa), float(self.params.mu1_Pa_s))
+        values: dict[str, float | None] = {
+            "E0_Pa": float(self.params.E0_Pa), "E1_Pa": float(self.params.E1_Pa),
+            "mu1_Pa_s": float(self.params.mu1_Pa_s), "a_s": a, "b_Pa": b, "c_Pa_s": c}
+        if self.refused is not None:
+            values = dict.fromkeys(values)
         return {
             "file": self.name, "force_N": self.force_n,
             "c1": self.exp_fit.c1, "c2": self.exp_fit.c2, "c3": self.exp_fit.c3,
-            "E0_Pa": float(self.params.E0_Pa), "E1_Pa": float(self.params.E1_Pa),
-            "mu1_Pa_s": float(self.params.mu1_Pa_s), "a_s": a, "b_Pa": b, "c_Pa_s": c,
+            **values, "refused": self.refused,
             "rmse_S": self.rmse_s, "warnings": list(self.warnings),
             "ci95": {k: list(v) for k, v in self.ci95.items()},
             "hold_s": [self.hold_start_s, self.hold_end_s], "noise_S": self.noise_s,
@@ -136,9 +152,18 @@ class SensorCalibration:
     rmse_s: float
     solver: str
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    # At a search bound, unidentifiable (singular Jacobian), not converged, or τ outside what the records resolve:
+    # ``sls`` is then not to be trusted; ``estimate`` refuses it unless --allow-degenerate.
+    degenerate_reasons: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def degenerate(self) -> bool:
+        """True when the joint SLS fit must not be used as if it were good (see ``degenerate_reasons``)."""
+        return bool(self.degenerate_reasons)
 
     def to_dict(self) -> dict:
-        """The sensor's SPEC §3.3 entry (``area_m2``, ``linear``, ``sls``, ``sls_trend``, ``trials``) plus extras."""
+        """The sensor's SPEC §3.3 entry (``area_m2``, ``linear``, ``sls``, ``sls_trend``, ``trials``) plus extras
+        (``degenerate``, ``degenerate_reasons``, ``sls_ci95``, ``warnings``, …)."""
         entry: dict = {"area_m2": self.area_m2}
         if self.linear is not None:
             entry["linear"] = self.linear.model.to_dict()
@@ -156,6 +181,8 @@ class SensorCalibration:
         entry["rmse_S"] = self.rmse_s
         entry["solver"] = self.solver
         entry["warnings"] = list(self.warnings)
+        entry["degenerate"] = self.degenerate
+        entry["degenerate_reasons"] = list(self.degenerate_reasons)
         return entry
 
 
@@ -227,6 +254,13 @@ def _check_not_flat(trial: TrialInput) -> None:
     smooth_noise = noise / math.sqrt(window) if math.isfinite(noise) else 0.0
     span = float(np.ptp(smooth))
     if span < max(FLAT_RELATIVE_SPAN * level, FLAT_NOISE_MULTIPLE * smooth_noise):
+        force = trial.force_n[np.isfinite(trial.force_n)]
+        if force.size and float(np.ptp(force)) < 0.1 * float(np.max(np.abs(force))):
+            raise FlatSensorError(
+                f"{trial.name}: the force is constant throughout the record ({float(np.median(force)):.3g} N, no "
+                f"loading ramp) and the conductance does not change ({span:.3g} S span at {level:.3g} S): no creep "
+                "is visible, so τ → 0 or τ → ∞ (purely elastic over this record) cannot be told apart from a stuck "
+                "channel; record the loading ramp and a longer hold; fit refused")
         raise FlatSensorError(
             f"{trial.name}: conductance is flat ({span:.3g} S span at {level:.3g} S, noise {noise:.3g} S) while the "
             f"force goes to {np.nanmax(trial.force_n):.3g} N: the sensor is not responding (flat-lined, loose or "
@@ -265,6 +299,47 @@ def _fit(trials: list[FitTrial], area_m2: float, phys: PhysicsConstants, start, 
                                 min_force_fraction=MIN_FORCE_FRACTION)
     return fit_output_casadi(trials, area_m2, phys, start, mode, saturation_s=saturation_s,
                              min_force_fraction=MIN_FORCE_FRACTION, solver=solver)
+
+
+def _tau_grid(base: SLSParams, step_s: float, span_s: float) -> list[SLSParams]:
+    """``base`` with its creep time moved over a log grid (E0, E1 kept; mu1 = E1·τ): starts for the multi-start."""
+    taus = np.geomspace(TAU_GRID_LOW * step_s, TAU_GRID_HIGH * span_s, TAU_GRID_POINTS)
+    e1 = float(base.E1_Pa)
+    return [SLSParams(float(base.E0_Pa), e1, e1 * float(tau)) for tau in taus]
+
+
+def _distinct_starts(candidates: Sequence[SLSParams], totals: np.ndarray, count: int) -> list[SLSParams]:
+    """The ``count`` lowest-cost candidates whose creep times differ by more than a factor 3 (distinct basins)."""
+    chosen: list[SLSParams] = []
+    for index in np.argsort(totals):
+        if not np.isfinite(totals[index]):
+            continue
+        tau = math.log(float(candidates[index].tau_s))
+        if all(abs(tau - math.log(float(c.tau_s))) > math.log(3.0) for c in chosen):
+            chosen.append(candidates[index])
+        if len(chosen) == count:
+            break
+    return chosen or [candidates[int(np.argmin(totals))]]
+
+
+def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float) -> list[str]:
+    """Why the joint fit must not be stored as good: at a bound, unidentifiable, not converged, or a creep time
+    the records cannot resolve (τ → 0 and τ → ∞ both look elastic; the reason names both)."""
+    assert joint.ref is not None
+    reasons = []
+    if joint.at_bound:
+        reasons.append("a parameter sits at its search bound (10^±6 of the starting scale)")
+    if any(not (math.isfinite(hi) and lo > 0) for lo, hi in joint.ci95.values()):
+        reasons.append("parameters not identifiable from these trials (singular Jacobian: infinite 95 % interval)")
+    if not joint.success:
+        reasons.append(f"the optimiser did not converge ({joint.message})")
+    tau_s = float(joint.ref.tau_s)
+    if not step_s <= tau_s <= TAU_RESOLVABLE_SPANS * span_s:
+        side = "shorter than one sample step" if tau_s < step_s else "longer than the records"
+        reasons.append(f"creep time τ = mu1/E1 = {tau_s:.3g} s is far {side} ({step_s:.3g} s steps, {span_s:.0f} s "
+                       "records): no creep is resolved, and τ → 0 and τ → ∞ both look purely elastic here; hold "
+                       "longer or sample faster")
+    return reasons
 
 
 def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
@@ -311,31 +386,55 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
             dfree = estimate_sls([(trial.time_s[rows], trial.force_n[rows] / area_m2, strain)])
         except ValueError:
             dfree = None
-        first_loaded = int(np.argmax(trial.force_n >= MIN_FORCE_FRACTION * hold_n))
-        has_ramp = bool(trial.force_n[first_loaded] < 0.9 * hold_n)
+        # The record shows its loading when it starts unloaded: a ramp or a step faster than one sample both
+        # identify E0 (the instantaneous response); only a record that starts already loaded does not.
+        before = trial.force_n[: hold.start + 1]
+        has_ramp = bool(np.any(before[np.isfinite(before)] < MIN_FORCE_FRACTION * hold_n))
         n_sat = int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12))) if saturation_s else 0
+        hold_c = trial.conductance_s[hold]
+        sat_fraction = (float(np.count_nonzero(hold_c >= saturation_s * (1 - 1e-12))) / max(hold_c.size, 1)
+                        if saturation_s else 0.0)
         fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, trial.conductance_s, hold_n))
         prelim.append({"hold": hold, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
-                       "sat": n_sat, "noise": _hold_noise(trial.conductance_s[hold], saturation_s)})
+                       "sat": n_sat, "sat_fraction": sat_fraction, "noise": _hold_noise(trial.conductance_s[hold], saturation_s)})
 
+    step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
+    span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
     joint_start = estimate_sls([p["strain"] for p in prelim])
     candidates = [SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)]
     candidates += [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) for p in prelim if p["dfree"]]
-    # Each trial starts from whichever derivative-free estimate fits it best (one batched model run): a noisy
-    # trial's own estimate can sit on a plateau (E0 → ∞) that another trial's estimate avoids.
+    candidates += _tau_grid(candidates[0], step_s, span_s)
+    # Each trial starts from whichever candidate fits it best (one batched model run): a noisy trial's own
+    # estimate can sit on a plateau (E0 → ∞, τ → 0) that another start avoids.
     costs = trial_costs(fit_trials, area_m2, phys, candidates, saturation_s=saturation_s,
                         min_force_fraction=MIN_FORCE_FRACTION)
     per_trial_start = [candidates[int(np.argmin(costs[:, i]))] for i in range(len(fit_trials))]
     per_trial = fit_output_scipy(fit_trials, area_m2, phys, per_trial_start, "per_trial",
                                  saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
-    # The joint fit starts from the candidate (per-trial results, their median) with the lowest total cost.
+    # The joint fit runs from the best few distinct starts (the per-trial results, their median, the τ grid) and
+    # keeps the lowest cost; the check below holds it to every candidate's cost.
     median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
-    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params)]
+    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params), *_tau_grid(median, step_s, span_s)]
     totals = trial_costs(fit_trials, area_m2, phys, joint_candidates, saturation_s=saturation_s,
                          min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
-    joint = _fit(fit_trials, area_m2, phys, joint_candidates[int(np.argmin(totals))], "joint", saturation_s, solver)
-    assert joint.ref is not None  # a joint fit always returns its parameters
+    joint = None
+    for start in _distinct_starts(joint_candidates, totals, JOINT_STARTS):
+        fit = _fit(fit_trials, area_m2, phys, start, "joint", saturation_s, solver)
+        if joint is None or sum(fit.cost_per_trial) < sum(joint.cost_per_trial):
+            joint = fit
+        assert joint.ref is not None  # a joint fit always returns its parameters
+        if not _degenerate_reasons(joint, step_s, span_s):
+            break  # a regular optimum below every evaluated start: no need for the next basin
+    assert joint is not None and joint.ref is not None
+    best_candidate = float(np.min(totals))
+    if sum(joint.cost_per_trial) > best_candidate * (1 + 1e-6):
+        # Never return a worse optimum than a point already evaluated: restart from the best candidate.
+        fit = _fit(fit_trials, area_m2, phys, joint_candidates[int(np.argmin(totals))], "joint", saturation_s,
+                   solver)
+        if sum(fit.cost_per_trial) < sum(joint.cost_per_trial):
+            joint = fit
+    assert joint.ref is not None
     # A per-trial fit must do at least as well on its trial as the joint parameters: if not, it stopped in a worse
     # local minimum; those trials are refitted from the joint solution.
     own = trial_costs(fit_trials, area_m2, phys, [joint.ref], saturation_s=saturation_s,
@@ -358,6 +457,12 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         if p["sat"]:
             warnings.append(f"{p['sat']} saturated sample(s) (readout at its limit): censored in the fit; lower "
                             "the force or the readout gain")
+        refused = None
+        if p["sat_fraction"] > MAX_CENSORED_FRACTION:
+            refused = (f"{100 * p['sat_fraction']:.0f} % of the hold is saturated (readout at 1/R_C): the trial only "
+                       "says 'at least this much', so its own SLS parameters are not identifiable; refused for the "
+                       "per-trial table (it still bounds the joint fit)")
+            warnings.append(f"per-trial fit refused: {refused}")
         if not p["ramp"]:
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")
@@ -373,7 +478,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["hold"].start]),
                                    float(trial.time_s[p["hold"].stop - 1]), p["exp"], p["paper"],
                                    p["dfree"], per_trial.params[i], per_trial.ci95_per_trial[i], rmse, p["noise"],
-                                   p["sat"], p["ramp"], tuple(warnings)))
+                                   p["sat"], p["ramp"], tuple(warnings), refused))
 
     if not distinct:
         sensor_warnings.append("all trials are at one force: no force trend fitted, and forces far from "
@@ -386,13 +491,9 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                     "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
                     "E1_Pa": "hold longer so the creep settles"}[name]
             sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
-    tau_s = float(joint.ref.tau_s)
-    step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
-    span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
-    if not step_s <= tau_s <= 100 * span_s:
-        sensor_warnings.append(f"creep time τ = mu1/E1 = {tau_s:.3g} s is outside what {span_s:.0f} s records at "
-                               f"{step_s:.3g} s steps can resolve: the SLS parameters are degenerate; do not trust "
-                               "them (check the sensor, hold longer)")
+    degenerate = _degenerate_reasons(joint, step_s, span_s)
+    sensor_warnings.extend(f"degenerate SLS fit: {reason}" for reason in degenerate
+                           if not any(reason in w for w in sensor_warnings))
     if not any(p["ramp"] for p in prelim):
         sensor_warnings.append("no trial contains its loading ramp: E0 is poorly identified")
     n_sat = sum(p["sat"] for p in prelim)
@@ -423,4 +524,4 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         area_m2=float(area_m2), linear=linear, sls=joint.ref, sls_ci95=joint.ci95,
         sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
         trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
-        solver=joint.solver, warnings=tuple(sensor_warnings))
+        solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate))

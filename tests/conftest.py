@@ -17,6 +17,19 @@ os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 THREAD_JOIN_GRACE_S = 3.0
 
 
+@pytest.fixture(autouse=True, scope="session")
+def user_data_folder_of_the_test_run(tmp_path_factory):
+    """The per-user data folder (recordings, shapes, calibrations, settings) is a temporary one for the whole run:
+    no test reads or writes the real user's folder."""
+    previous = os.environ.get("SENSNAKE_DATA_DIR")
+    os.environ["SENSNAKE_DATA_DIR"] = str(tmp_path_factory.mktemp("user-data"))
+    yield
+    if previous is None:
+        os.environ.pop("SENSNAKE_DATA_DIR", None)
+    else:
+        os.environ["SENSNAKE_DATA_DIR"] = previous
+
+
 @pytest.fixture(autouse=True)
 def no_thread_left_running():
     before = set(threading.enumerate())

@@ -9,7 +9,6 @@ preallocated arrays. GUI thread only.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
@@ -269,7 +268,3 @@ class LiveTrialPlot(QWidget):
         """Copies of the drawn samples: time (s), force (N), conductance (µS)."""
         n = self._n
         return self._t[:n].copy(), self._f[:n].copy(), self._c[:n].copy()
-
-
-def default_runs_folder() -> str:
-    return str(Path.home() / "sensnake-calibration")

@@ -56,6 +56,8 @@ def _short_tags(warnings: tuple[str, ...]) -> str:
             tags.append("poor-fit")
         elif text.startswith("paper LS"):
             tags.append("paper-LS-refused")
+        elif text.startswith("per-trial fit refused"):
+            tags.append("REFUSED")
         else:
             tags.append("see-below")
     return ",".join(dict.fromkeys(tags)) or "-"
@@ -69,9 +71,10 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     print("-" * len(header))
     for t in cal.trials:
         name = t.name if len(t.name) <= 24 else "…" + t.name[-23:]
+        values = (f"{'refused':>11} {'-':>11} {'-':>11}" if t.refused else
+                  f"{float(t.params.E0_Pa):11.4e} {float(t.params.E1_Pa):11.4e} {float(t.params.mu1_Pa_s):11.4e}")
         print(f"{name:<24} {t.force_n:8.3f} {t.exp_fit.c1:11.4e} {t.exp_fit.c2:11.4e} {t.exp_fit.c3:10.4e} "
-              f"{float(t.params.E0_Pa):11.4e} {float(t.params.E1_Pa):11.4e} {float(t.params.mu1_Pa_s):11.4e} "
-              f"{t.rmse_s:10.3e}  {_short_tags(t.warnings)}")
+              f"{values} {t.rmse_s:10.3e}  {_short_tags(t.warnings)}")
     print()
     s = cal.sls
     print(f"sensor {sensor}: area {cal.area_m2:g} m², forces {cal.force_range_n[0]:g}–{cal.force_range_n[1]:g} N, "
@@ -83,6 +86,9 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     if cal.sls_trend is not None:
         for key, (intercept, slope) in cal.sls_trend.items():
             print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")
+    if cal.degenerate:
+        print(f"  DEGENERATE SLS fit (stored with \"degenerate\": true; 'sensnake estimate' refuses it unless "
+              f"--allow-degenerate): {'; '.join(cal.degenerate_reasons)}")
     if cal.linear is not None:
         r2 = cal.linear.r_squared
         print(f"  linear m {cal.linear.model.m_S_per_N:.5e} S/N, d {cal.linear.model.d_S:.5e} S, "

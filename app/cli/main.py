@@ -109,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("recording", metavar="REC.h5")
     export.add_argument("--csv", required=True, metavar="OUT.csv")
 
+    repair = sub.add_parser("repair", help="salvage a truncated recording into a clean file")
+    repair.add_argument("recording", metavar="REC.h5")
+    repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
+
     experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
     experiment.add_argument("name", choices=("obstacle",), help="obstacle: the paper's Sec. III-C experiment")
     experiment.add_argument("--out", required=True, metavar="REC.h5")

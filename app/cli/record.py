@@ -1,45 +1,59 @@
 """``sensnake record --daq PORT [--baud B] --seconds S --out REC.h5 [--config FILE]`` (SPEC §1, §3.5, §4).
 
-Records the force-sensor board to a recording file, with one progress line on stderr updated in place. The length
-``S`` is measured on the board's clock (the data's own time), or on the host clock if the board stops sending, so
-a pulled cable cannot make it run forever. Exits non-zero with one line when the port cannot be opened, the board
-sends a channel count other than the config's, no frame arrives within :data:`NO_FRAMES_TIMEOUT_S` (board off,
-wrong ``--baud``), or CRC errors exceed :data:`CRC_ERROR_FRACTION` of the frames;
-the file keeps what was recorded. Ctrl-C stops early and keeps the file. The main thread owns the writer; the
-board reader has its own thread.
+A thin face over the core: :class:`app.core.live_session.LiveSession` (the same data path the GUI's Forces tab
+uses: verified frames → health → :class:`app.core.recorder.Recorder`) driven by
+:func:`app.core.live_session.record_timed`. This module parses arguments, prints one progress line on stderr
+(updated in place) and turns the outcome into an exit code.
+
+What the user gets: ``S`` seconds of board time (gaps included). A noisy link (garbage, CRC errors, dropped frames,
+out-of-range frames) is counted, warned about loudly and written into the file; every good frame is kept. A pulled
+cable is marked as a gap and the board is picked up again when it comes back (a new clock segment); if the recording
+ends with the board gone, the command exits 1 saying how long it was missing. Ctrl-C, SIGTERM and SIGHUP stop
+early, keep the file and exit 128 + the signal number. A recording that never receives a frame does not touch an
+existing file at ``--out``. Exits 1 with one line when the port cannot be opened, no frame arrives within
+:data:`NO_FRAMES_TIMEOUT_S` (board off, wrong ``--baud``) or the board's channel count differs from the config's.
 """
 
 from __future__ import annotations
 
 import argparse
-import queue
+import signal
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-from app.core.recording import RecordingWriter
+from app.core import live_session
+from app.core.live_session import (
+    BoardGoneError,
+    BoardSilentError,
+    LiveSession,
+    TimedOutcome,
+    describe_stats,
+    record_timed,
+)
 from devices import factory
-from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
+from devices.board import BoardReader, BoardStats
 from devices.config import load_config
 from devices.errors import BoardProtocolError
+from models.health import HealthMonitor
 
-CRC_ERROR_FRACTION = 0.05
-CRC_ERROR_MIN = 10  # a handful of CRC errors (e.g. on plugging in) is not a storm
 PROGRESS_INTERVAL_S = 0.25
-WAIT_S = 0.1
-NO_FRAMES_TIMEOUT_S = 3.0
+NO_FRAMES_TIMEOUT_S = live_session.NO_FRAMES_TIMEOUT_S
 EXIT_INTERRUPTED = 130
+STOP_SIGNALS = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s)
 
 
-class BoardSilentError(TimeoutError):
-    """The port opened but no valid frame arrived."""
+class StopSignal(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread so the recording ends like Ctrl-C (file kept)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
-class CrcStormError(RuntimeError):
-    """Too many frames from the board fail their CRC: the link is bad."""
+def _raise_stop(signum: int, _frame: object) -> None:
+    raise StopSignal(signum)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,114 +68,70 @@ def run(args: argparse.Namespace) -> int:
     if factory.is_sim(board.port):
         factory.sim_lab(replace(config, board=board))  # the simulated board follows the config's channel list
     out = Path(args.out)
-    statuses: queue.SimpleQueue[BoardStatus] = queue.SimpleQueue()
-    reader = BoardReader(board, on_status=statuses.put)
-    reader.start()  # PortOpenError (an OSError) ends the command with one line
-    try:
-        writer = RecordingWriter(out, config.source_text, board.channel_names)
-    except BaseException:
-        reader.close()
-        raise
+    live = LiveSession(board, health=HealthMonitor(board.n_channels, board.rate_hz))
+    reader = BoardReader(board, on_status=live.post_status)
+    previous = {s: signal.signal(s, _raise_stop) for s in STOP_SIGNALS}
     progress = _Progress(out, args.seconds)
     try:
-        _record(reader, writer, statuses, progress, args.seconds)
-    except KeyboardInterrupt:
-        progress.finish()
-        print(f"sensnake record: interrupted; kept {writer.n_daq_samples} frames in {out}", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except (CrcStormError, BoardProtocolError, BoardSilentError):
-        progress.finish()
-        raise
+        reader.start()  # PortOpenError (an OSError) ends the command with one line
+        recorder = live.start_recording(out, config.source_text)
+        try:
+            outcome = record_timed(live, reader, args.seconds, on_progress=progress.show, on_message=progress.note,
+                                   no_frames_timeout_s=NO_FRAMES_TIMEOUT_S)
+        except StopSignal as stop:
+            return _interrupted(live, reader, progress, out, 128 + stop.signum, f"terminated by {stop}")
+        except KeyboardInterrupt:
+            return _interrupted(live, reader, progress, out, EXIT_INTERRUPTED, "interrupted")
+        except (BoardProtocolError, BoardSilentError):
+            progress.finish()
+            _close(live, reader)
+            raise
+        _close(live, reader)
     finally:
         reader.close()
-        _store_stats(writer, reader.stats)
-        writer.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     progress.finish()
-    stats = reader.stats
-    print(f"recorded {writer.n_daq_samples} frames ({writer.duration_s:.1f} s) of {board.n_channels} channels to "
-          f"{out}: {stats.crc_errors} CRC errors, {stats.dropped_frames} dropped frames, "
-          f"{stats.reconnects} reconnects")
+    outcome = replace(outcome, kept=recorder.kept, error=recorder.error)
+    return _report(outcome, out, board.n_channels)
+
+
+def _close(live: LiveSession, reader: BoardReader) -> None:
+    reader.close()
+    live.pending_statuses()
+    live.handle_stats(reader.stats)
+    live.stop_recording()
+
+
+def _interrupted(live: LiveSession, reader: BoardReader, progress: _Progress, out: Path, code: int,
+                 why: str) -> int:
+    # A second signal while the file is closed must not cut the close short: ignore them from here on.
+    for s in (signal.SIGINT, *STOP_SIGNALS):
+        signal.signal(s, signal.SIG_IGN)
+    progress.finish()
+    _close(live, reader)
+    recorder = live.recorder
+    frames = recorder.n_daq_samples if recorder is not None else 0
+    where = f"kept {frames} frames in {out}" if recorder is not None and recorder.kept else \
+        f"no frames recorded; {out} not written"
+    print(f"sensnake record: {why}; {where}", file=sys.stderr)
+    return code
+
+
+def _report(outcome: TimedOutcome, out: Path, n_channels: int) -> int:
+    if outcome.error:
+        raise OSError(outcome.error)
+    stats = outcome.stats
+    summary = (f"recorded {outcome.frames} frames ({outcome.recorded_s:.1f} s) of {n_channels} channels to {out}: "
+               f"{describe_stats(stats)}")
+    if outcome.gone_for_s > 0.0:
+        since = f" since {outcome.gone_since_s:.1f} s" if outcome.gone_since_s is not None else ""
+        raise BoardGoneError(
+            f"the board on the --daq port was gone{since} and still missing when the recording ended "
+            f"({outcome.gone_for_s:.1f} s missing at the end, {outcome.missing_s:.1f} s in all); {out} keeps the "
+            f"{outcome.frames} frames received before ({describe_stats(stats)})")
+    print(summary)
     return 0
-
-
-def _record(reader: BoardReader, writer: RecordingWriter, statuses: queue.SimpleQueue[BoardStatus],
-            progress: _Progress, seconds: float) -> None:
-    wall_start = time.monotonic()
-    bytes_at_start = reader.stats.bytes_discarded
-    board_start: float | None = None
-    board_span = 0.0
-    last_data_wall = wall_start
-    while True:
-        _handle_statuses(statuses, writer, progress)
-        reader.wait_for_frames(1, WAIT_S)
-        block = reader.read_block()
-        now = time.monotonic()
-        if block is not None:
-            last_data_wall = now
-            if board_start is None:
-                board_start = float(block.board_time_s[0])
-            # --seconds is board time: frames drained past it (a late read at a high rate) are not written.
-            keep = int(np.searchsorted(block.board_time_s - board_start, seconds + 1e-6, side="right"))
-            if keep < len(block):
-                if keep:
-                    writer.append_daq(_first_frames(block, keep))
-                progress.show(seconds, reader.stats, writer.n_daq_samples)
-                _handle_statuses(statuses, writer, progress)
-                return
-            board_span = float(block.board_time_s[-1]) - board_start
-            writer.append_daq(block)
-        stats = reader.stats
-        _store_stats(writer, stats)
-        _check_crc(stats, writer)
-        if board_start is None and stats.connected and now - wall_start > NO_FRAMES_TIMEOUT_S:
-            noise = stats.bytes_discarded - bytes_at_start
-            heard = f"only {noise} bytes of noise" if noise else "nothing"
-            raise BoardSilentError(
-                f"no frames from the board on {reader.board.port} in {NO_FRAMES_TIMEOUT_S:g} s ({heard}): check "
-                f"that the board is powered and streaming and that --baud matches it (tried {reader.board.baud})")
-        progress.show(board_span, stats, writer.n_daq_samples)
-        # The board went quiet (cable pulled): fall back to the host clock for the remaining time.
-        if board_span >= seconds or (now - wall_start >= seconds and now - last_data_wall > 1.0):
-            _handle_statuses(statuses, writer, progress)
-            return
-
-
-def _first_frames(block: SampleBlock, n: int) -> SampleBlock:
-    """The first ``n`` frames of ``block`` (n ≥ 1)."""
-    gap = None if block.gap_before is None else block.gap_before[:n]
-    return replace(block, counts=block.counts[:n], conductance_s=block.conductance_s[:n],
-                               board_time_s=block.board_time_s[:n], host_time_s=block.host_time_s[:n],
-                               seq=block.seq[:n], saturated=block.saturated[:n], gap_before=gap)
-
-
-def _handle_statuses(statuses: queue.SimpleQueue[BoardStatus], writer: RecordingWriter,
-                     progress: _Progress) -> None:
-    while True:
-        try:
-            status = statuses.get_nowait()
-        except queue.Empty:
-            return
-        if status.state == "mismatch":
-            raise BoardProtocolError(f"{status.message}; the recording {writer.path} keeps what came before")
-        if status.state == "disconnected":
-            writer.mark_gap(status.host_time_s, status.message)
-            progress.note(status.message)
-        elif status.state in ("reconnected", "error"):
-            writer.log_event(status.message, status.host_time_s, kind=status.state)
-            progress.note(status.message)
-
-
-def _check_crc(stats: BoardStats, writer: RecordingWriter) -> None:
-    seen = stats.frames + stats.crc_errors
-    if stats.crc_errors >= CRC_ERROR_MIN and stats.crc_errors > CRC_ERROR_FRACTION * seen:
-        raise CrcStormError(
-            f"{stats.crc_errors} CRC errors in {seen} frames (more than {CRC_ERROR_FRACTION:.0%}): the board link "
-            f"is bad — check the cable, its shielding and the baud rate; {writer.path} keeps what was recorded")
-
-
-def _store_stats(writer: RecordingWriter, stats: BoardStats) -> None:
-    if not writer.closed:
-        writer.update_stats(stats.crc_errors, stats.dropped_frames, stats.resyncs)
 
 
 class _Progress:
@@ -179,8 +149,11 @@ class _Progress:
         if now - self._last < PROGRESS_INTERVAL_S:
             return
         self._last = now
+        gone = ""
+        if stats.disconnected_since_s is not None:
+            gone = f"  BOARD MISSING {now - stats.disconnected_since_s:.1f} s"
         line = (f"recording {self.out.name}: {min(recorded_s, self.seconds):6.1f}/{self.seconds:g} s  "
-                f"{frames} frames  {stats.crc_errors} CRC errors  {stats.dropped_frames} dropped")
+                f"{frames} frames  {stats.crc_errors} CRC errors  {stats.dropped_frames} dropped{gone}")
         clear_to_end = "\x1b[K" if self._interactive else ""
         print(f"\r{line}{clear_to_end}", end="", file=sys.stderr, flush=True)
         self._shown = True

@@ -1,28 +1,36 @@
 """Recording files (SPEC §3.5): the force-sensor board, the robot and live forces on one clock, in HDF5.
 
-Layout (SPEC §3.5, plus two extras that readers may ignore): root attributes ``format``, ``version``, ``started``
+Layout (SPEC §3.5, plus extras that readers may ignore): root attributes ``format``, ``version``, ``started``
 (ISO 8601, UTC), ``config`` (TOML text); ``/daq`` with ``time_s``, ``seq``, ``counts``, ``conductance_S`` and
 attributes ``channels``, ``crc_errors``, ``dropped_frames``, ``resyncs``; ``/robot`` (``time_s``, ``goal_rad``,
 ``present_rad``, ``current_mA``) when a robot is connected; ``/forces/force_N`` with the calibration JSON as the
 attribute ``calibration`` when forces are estimated live. Extras: ``/daq/board_time_s`` (the board's own clock,
-unwrapped, for exact sample spacing) and ``/events`` (``time_s``, ``kind``, ``text``: the gap and health log).
+unwrapped, for exact sample spacing), ``/daq/clock_segment`` (0, then +1 each time the board restarted its clock —
+a re-plug or power cycle; ``seq`` and the board clock restart with it), more link counters as ``/daq`` attributes
+(``out_of_range_frames``, ``channel_mismatches``, ``reconnects``), and ``/events`` (``time_s``, ``kind``, ``text``:
+the gap, segment and health log).
 
 One clock: every ``time_s`` is seconds since ``started``. The writer takes a host ``time.monotonic()`` reading when
 it starts and converts every host time stamp it is given (``SampleBlock.host_time_s``, ``ChainState.host_time_s``).
 
-Crash safety: datasets are chunked and resizable and the file is in SWMR mode (``libver='latest'``), so every
-:meth:`RecordingWriter.flush` leaves a file that opens; the writer flushes at least every ``flush_interval_s``
-(0.5 s by default) while data arrives, so ``kill -9`` or a pulled cable loses at most the last second.
+Crash safety: the writer keeps no HDF5 handle open between flushes. Each :meth:`RecordingWriter.flush` (at least
+every ``flush_interval_s``, 0.5 s by default, while data arrives) opens the file, appends the buffered rows, closes
+it and fsyncs it (a few ms). So ``kill -9``, SIGTERM, a crash, a pulled cable or a power cut leave a file that plain
+``h5py.File(path, "r")`` and HDFView open, holding everything up to the last flush. A file cut short anyway (a copy
+interrupted, a disk failure) is salvaged by :func:`recover_recording` / ``sensnake repair``: every whole chunk of
+rows that survives is kept, and the report says how much.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import os
 import shutil
 import time
+import traceback
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Protocol
@@ -38,6 +46,7 @@ DEFAULT_MIN_FREE_BYTES = 16_000_000  # stop before the disk is full: HDF5 cannot
 METADATA_RESERVE_BYTES = 1_000_000
 EVENT_TEXT_BYTES = 256
 EVENT_KIND_BYTES = 16
+STAT_KEYS = ("crc_errors", "dropped_frames", "resyncs")  # SPEC §3.5's /daq attributes
 
 
 class RecordingError(OSError):
@@ -59,16 +68,17 @@ class DaqBlock(Protocol):
 
 # -- writer ------------------------------------------------------------------------------------------------------
 class _Table:
-    """Columns of one group appended together; rows buffered in memory until the next flush."""
+    """Columns of one group appended together; rows buffered in memory until the next flush, when they are written
+    through the file opened for that flush (the writer keeps no HDF5 handle between flushes)."""
 
-    def __init__(self, group: h5py.Group, columns: dict[str, tuple[np.dtype, tuple[int, ...]]]) -> None:
-        self.datasets: dict[str, h5py.Dataset] = {}
+    def __init__(self, group: h5py.Group, columns: dict[str, tuple[Any, tuple[int, ...]]]) -> None:
+        self.group_name = group.name
+        self.columns = dict(columns)
         for name, (dtype, row_shape) in columns.items():
             row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
             chunk_rows = max(16, CHUNK_BYTES // row_bytes)
-            self.datasets[name] = group.create_dataset(
-                name, shape=(0, *row_shape), maxshape=(None, *row_shape), chunks=(chunk_rows, *row_shape),
-                dtype=dtype)
+            group.create_dataset(name, shape=(0, *row_shape), maxshape=(None, *row_shape),
+                                 chunks=(chunk_rows, *row_shape), dtype=dtype)
         self.pending: dict[str, list[np.ndarray]] = {name: [] for name in columns}
         self.rows = 0  # rows on disk
 
@@ -81,24 +91,42 @@ class _Table:
         first = next(iter(self.pending.values()))
         return sum(len(v) for v in first)
 
-    def write_pending(self) -> None:
+    def row_shape(self, name: str) -> tuple[int, ...]:
+        return self.columns[name][1]
+
+    def write_pending(self, f: h5py.File, handles: list[Any]) -> None:
+        """Append the buffered rows. The datasets opened go into ``handles``: the caller keeps them alive until
+        the file is flushed, because closing a dataset writes its chunk cache, and a write failing there (disk
+        full) is silently lost inside h5py's deallocator and leaves HDF5 to crash on the next call."""
         n_new = self.pending_rows
         if n_new == 0:
             return
-        for name, dataset in self.datasets.items():
-            chunks = self.pending[name]
+        group = f[self.group_name]
+        handles.append(group)
+        for name, chunks in self.pending.items():
             values = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
+            dataset = group[name]
+            handles.append(dataset)
             dataset.resize(self.rows + n_new, axis=0)
             dataset[self.rows:self.rows + n_new] = values
             chunks.clear()
         self.rows += n_new
 
+    def clear_pending(self) -> None:
+        for chunks in self.pending.values():
+            chunks.clear()
+
 
 class RecordingWriter:
     """Writes one recording file; see the module docstring.
 
-    Not thread-safe: call it from one thread (the GUI uses a writer thread, the CLI its main thread). Time stamps
-    passed in are host ``time.monotonic()`` seconds. After a write failure every call raises :class:`RecordingError`.
+    Not thread-safe: call it from one thread (:class:`app.core.recorder.Recorder` runs it on a writer thread).
+    Time stamps passed in are host ``time.monotonic()`` seconds. After a write failure every call raises
+    :class:`RecordingError`.
+
+    The file is built under a hidden name beside ``path`` and moved onto ``path`` by the first flush that holds
+    data, so a recording that never receives any (board silent, wrong port) leaves an existing file at ``path``
+    untouched; :meth:`close` then removes the hidden file and :attr:`kept` stays False.
     """
 
     def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
@@ -115,50 +143,56 @@ class RecordingWriter:
         self.started = datetime.now(timezone.utc) - timedelta(seconds=now_monotonic_s - self.t0_monotonic_s)
         self._failed: RecordingError | None = None
         self._closed = False
+        self.kept = False  # True once the file holds data at ``path``
+        self._work_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
         n = len(self.channel_names)
         try:
-            self._file = h5py.File(self.path, "w", libver="latest")
+            if self.path.is_dir():
+                raise IsADirectoryError(f"{self.path} is a folder")
+            f = h5py.File(self._work_path, "w", locking=False)
         except OSError as exc:
-            raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
+            raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
         try:
-            f = self._file
-            f.attrs["format"] = FORMAT
-            f.attrs["version"] = VERSION
-            f.attrs["started"] = self.started.isoformat(timespec="milliseconds")
-            f.attrs["config"] = config_text
-            f.attrs["duration_s"] = 0.0
-            daq = f.create_group("daq")
-            daq.attrs["channels"] = np.array(self.channel_names, dtype=h5py.string_dtype())
-            for key in ("crc_errors", "dropped_frames", "resyncs"):
-                daq.attrs[key] = np.int64(0)
-            self._daq = _Table(daq, {"time_s": (np.float64, ()), "seq": (np.uint32, ()),
-                                     "counts": (np.uint16, (n,)), "conductance_S": (np.float64, (n,)),
-                                     "board_time_s": (np.float64, ())})
-            self._daq_group = daq
-            self._robot: _Table | None = None
-            if with_robot:
-                self._robot = _Table(f.create_group("robot"), {
-                    "time_s": (np.float64, ()), "goal_rad": (np.float64, (n_joints,)),
-                    "present_rad": (np.float64, (n_joints,)), "current_mA": (np.float64, (n_joints,))})
-            self._forces: _Table | None = None
-            if calibration_json is not None:
-                forces = f.create_group("forces")
-                forces.attrs["calibration"] = calibration_json
-                self._forces = _Table(forces, {"force_N": (np.float64, (n,))})
-            self._events = _Table(f.create_group("events"), {
-                "time_s": (np.float64, ()), "kind": (f"S{EVENT_KIND_BYTES}", ()),
-                "text": (f"S{EVENT_TEXT_BYTES}", ())})
-            # Every object exists now; from here on readers may open the file while it grows.
-            f.swmr_mode = True
-            f.flush()
-        except OSError as exc:
+            with f:
+                f.attrs["format"] = FORMAT
+                f.attrs["version"] = VERSION
+                f.attrs["started"] = self.started.isoformat(timespec="milliseconds")
+                f.attrs["config"] = config_text
+                f.attrs["duration_s"] = 0.0
+                daq = f.create_group("daq")
+                daq.attrs["channels"] = np.array(self.channel_names, dtype=h5py.string_dtype())
+                for key in STAT_KEYS:
+                    daq.attrs[key] = np.int64(0)
+                self._daq = _Table(daq, {"time_s": (np.float64, ()), "seq": (np.uint32, ()),
+                                         "counts": (np.uint16, (n,)), "conductance_S": (np.float64, (n,)),
+                                         "board_time_s": (np.float64, ()), "clock_segment": (np.int32, ())})
+                self._robot: _Table | None = None
+                if with_robot:
+                    self._robot = _Table(f.create_group("robot"), {
+                        "time_s": (np.float64, ()), "goal_rad": (np.float64, (n_joints,)),
+                        "present_rad": (np.float64, (n_joints,)), "current_mA": (np.float64, (n_joints,))})
+                self._forces: _Table | None = None
+                if calibration_json is not None:
+                    forces = f.create_group("forces")
+                    forces.attrs["calibration"] = calibration_json
+                    self._forces = _Table(forces, {"force_N": (np.float64, (n,))})
+                self._events = _Table(f.create_group("events"), {
+                    "time_s": (np.float64, ()), "kind": (f"S{EVENT_KIND_BYTES}", ()),
+                    "text": (f"S{EVENT_TEXT_BYTES}", ())})
+        except (OSError, RuntimeError) as exc:
             with contextlib.suppress(OSError):
-                self._file.close()
-            raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
+                self._work_path.unlink()
+            raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
         self._last_flush = time.monotonic()
         self._last_time_s = 0.0
         self._last_flushed_time_s = 0.0
         self._stats: dict[str, int] = {}
+        self._stats_written: dict[str, int] = {}
+        self._last_segment = 0
+
+    @property
+    def _tables(self) -> tuple[_Table, ...]:
+        return tuple(t for t in (self._daq, self._robot, self._forces, self._events) if t is not None)
 
     # -- appending ---------------------------------------------------------------------------------------------
     def time_s(self, host_monotonic_s: float | np.ndarray) -> float | np.ndarray:
@@ -166,7 +200,8 @@ class RecordingWriter:
         return np.asarray(host_monotonic_s, dtype=np.float64) - self.t0_monotonic_s
 
     def append_daq(self, block: DaqBlock) -> None:
-        """Append a board :class:`~devices.board.SampleBlock`; its ``gap_before`` flags become gap events."""
+        """Append a board :class:`~devices.board.SampleBlock`; its ``gap_before`` flags become gap events and a
+        change of ``clock_segment`` (the board restarted its clock) a ``segment`` event."""
         self._check()
         n_rows = len(block.seq)
         if n_rows == 0:
@@ -175,15 +210,22 @@ class RecordingWriter:
         if counts.shape[1] != len(self.channel_names):
             raise ValueError(f"recording {self.path} has {len(self.channel_names)} channels, the block "
                              f"{counts.shape[1]}")
-        times = self.time_s(block.host_time_s)
+        times = np.asarray(self.time_s(block.host_time_s))
         board_time = getattr(block, "board_time_s", None)
+        segment = getattr(block, "clock_segment", None)
+        segments = np.zeros(n_rows, dtype=np.int32) if segment is None else np.asarray(segment, dtype=np.int32)
         self._daq.append(time_s=times, seq=np.asarray(block.seq, dtype=np.uint32), counts=counts,
                          conductance_S=np.asarray(block.conductance_s, dtype=np.float64),
-                         board_time_s=np.full(n_rows, np.nan) if board_time is None else np.asarray(board_time))
+                         board_time_s=np.full(n_rows, np.nan) if board_time is None else np.asarray(board_time),
+                         clock_segment=segments)
         gap_before = getattr(block, "gap_before", None)
         if gap_before is not None:
             for i in np.flatnonzero(gap_before):
                 self._event(float(times[i]), "gap", f"board frames missing before seq {int(block.seq[i])}")
+        for i in np.flatnonzero(np.diff(segments, prepend=self._last_segment)):
+            self._event(float(times[i]), "segment", f"board clock restarted: clock segment {int(segments[i])} "
+                        f"starts at seq {int(block.seq[i])}")
+        self._last_segment = int(segments[-1])
         self._last_time_s = max(self._last_time_s, float(times[-1]))
         self._maybe_flush()
 
@@ -194,7 +236,7 @@ class RecordingWriter:
         if self._robot is None:
             raise RuntimeError(f"recording {self.path} was created without a robot (with_robot=False)")
         times = np.atleast_1d(self.time_s(time_s))
-        n_joints = self._robot.datasets["goal_rad"].shape[1]
+        n_joints = self._robot.row_shape("goal_rad")[0]
 
         def rows(values: np.ndarray) -> np.ndarray:
             return np.asarray(values, dtype=np.float64).reshape(len(times), n_joints)
@@ -225,11 +267,12 @@ class RecordingWriter:
         self._event(float(self.time_s(when)), kind, text)
         self._maybe_flush()
 
-    def update_stats(self, crc_errors: int, dropped_frames: int, resyncs: int) -> None:
-        """The board link's cumulative counters, stored as ``/daq`` attributes at the next flush."""
+    def update_stats(self, crc_errors: int, dropped_frames: int, resyncs: int, **more: int) -> None:
+        """The board link's cumulative counters, stored as ``/daq`` attributes at the next flush (SPEC §3.5's
+        ``crc_errors``, ``dropped_frames``, ``resyncs``; extra keys such as ``out_of_range_frames`` too)."""
         self._check()
         self._stats = {"crc_errors": int(crc_errors), "dropped_frames": int(dropped_frames),
-                       "resyncs": int(resyncs)}
+                       "resyncs": int(resyncs), **{k: int(v) for k, v in more.items()}}
 
     def _event(self, time_s: float, kind: str, text: str) -> None:
         self._events.append(time_s=np.array([time_s]),
@@ -251,7 +294,7 @@ class RecordingWriter:
 
     def size_bytes(self) -> int:
         try:
-            return self.path.stat().st_size
+            return (self.path if self.kept else self._work_path).stat().st_size
         except OSError:
             return 0
 
@@ -260,33 +303,66 @@ class RecordingWriter:
             self.flush()
 
     def flush(self) -> None:
-        """Write everything buffered and make it durable for readers (SWMR flush).
+        """Write everything buffered, close the file and sync it to disk; move it onto ``path`` once it holds data.
 
-        Stops the recording cleanly (file closed, :class:`RecordingError` raised) when the disk would be left with
-        less than ``min_free_bytes``: HDF5 cannot recover from a failed write, so running out is avoided, not caught.
+        Between flushes no HDF5 handle is open, so ``kill -9``, a crash or a power cut leave a file that plain
+        h5py (and HDFView) opens, holding everything up to the last flush. Stops the recording cleanly (file
+        closed, :class:`RecordingError` raised) when the disk would be left with less than ``min_free_bytes``:
+        HDF5 cannot recover from a failed write, so running out is avoided, not caught.
         """
         self._check()
-        self._check_free_space()
-        try:
-            for table in (self._daq, self._robot, self._forces, self._events):
-                if table is not None:
-                    table.write_pending()
-            for key, value in self._stats.items():
-                self._daq_group.attrs[key] = np.int64(value)
-            self._file.attrs["duration_s"] = float(self._last_time_s)
-            self._file.flush()
-            self._last_flushed_time_s = self._last_time_s
-        except (OSError, RuntimeError) as exc:
-            # HDF5 reports a failed write (ENOSPC, EFBIG, EIO) as OSError or, from H5Fflush, RuntimeError.
-            self._fail(exc)
         self._last_flush = time.monotonic()
+        if not any(t.pending_rows for t in self._tables) and self._stats == self._stats_written:
+            return
+        self._check_free_space()
+        # No file locking: a reader holding the file open (HDFView, a second SenSnake) must not stop the
+        # recording; between flushes the file is complete, so such a reader sees a consistent file.
+        try:
+            f = h5py.File(self._work_path, "a", locking=False)
+        except OSError as exc:
+            self._fail(exc)
+        failure = None
+        handles: list[Any] = []
+        try:
+            for table in self._tables:
+                table.write_pending(f, handles)
+            daq = f["daq"]
+            handles.append(daq)
+            for key, value in self._stats.items():
+                daq.attrs[key] = np.int64(value)
+            f.attrs["duration_s"] = float(self._last_time_s)
+            del daq
+            f.flush()  # a failed write shows here, where it can be handled, not inside a deallocator
+        except (OSError, RuntimeError, KeyError) as exc:
+            # HDF5 reports a failed write (ENOSPC, EFBIG, EIO) as OSError or, from H5Fflush, RuntimeError.
+            failure = _os_reason(exc)
+            traceback.clear_frames(exc.__traceback__)  # frames holding dataset handles would outlive the file
+        if failure is not None:
+            handles.clear()
+            _close_after_failure(f)
+            del f
+            self._fail(OSError(failure))
+        handles.clear()
+        f.close()
+        _fsync(self._work_path)
+        self._stats_written = dict(self._stats)
+        self._last_flushed_time_s = self._last_time_s
+        if not self.kept and any(t.rows for t in self._tables if t is not self._events):
+            self._move_into_place()
+
+    def _move_into_place(self) -> None:
+        try:
+            os.replace(self._work_path, self.path)
+        except OSError as exc:
+            self._closed = True
+            self._failed = RecordingError(f"recording stopped: cannot move the new recording onto {self.path} "
+                                          f"({_os_reason(exc)}); it is kept as {self._work_path}")
+            raise self._failed from exc
+        self._work_path = self.path
+        self.kept = True
 
     def _pending_bytes(self) -> int:
-        total = 0
-        for table in (self._daq, self._robot, self._forces, self._events):
-            if table is not None:
-                total += sum(int(a.nbytes) for chunks in table.pending.values() for a in chunks)
-        return total
+        return sum(int(a.nbytes) for table in self._tables for chunks in table.pending.values() for a in chunks)
 
     def _check_free_space(self) -> None:
         try:
@@ -296,27 +372,19 @@ class RecordingWriter:
         needed = self._pending_bytes() + METADATA_RESERVE_BYTES
         if free - needed >= self.min_free_bytes:
             return
-        self._pending_clear()
-        with contextlib.suppress(OSError, RuntimeError):
-            self._file.attrs["duration_s"] = float(self._last_flushed_time_s)
-            self._file.flush()
+        for table in self._tables:
+            table.clear_pending()
         self._closed = True
-        with contextlib.suppress(OSError, RuntimeError):
-            self._file.close()
         self._failed = RecordingError(
             f"recording {self.path} stopped: the disk is almost full ({free / 1e6:.1f} MB free, keeping "
             f"{self.min_free_bytes / 1e6:.0f} MB spare). The file keeps the first {self._daq.rows} board samples; "
             "free some space and record again")
+        self._discard_if_empty()
         raise self._failed
 
-    def _pending_clear(self) -> None:
-        for table in (self._daq, self._robot, self._forces, self._events):
-            if table is not None:
-                for chunks in table.pending.values():
-                    chunks.clear()
-
     def close(self) -> None:
-        """Flush and close. Idempotent; after a failure it just releases the file."""
+        """Flush and close. Idempotent; after a failure it just releases the file. A recording that never held
+        data leaves nothing behind (an existing file at ``path`` is untouched)."""
         if self._closed:
             return
         try:
@@ -324,8 +392,12 @@ class RecordingWriter:
                 self.flush()
         finally:
             self._closed = True
-            with contextlib.suppress(OSError, RuntimeError):
-                self._file.close()
+            self._discard_if_empty()
+
+    def _discard_if_empty(self) -> None:
+        if not self.kept:
+            with contextlib.suppress(OSError):
+                self._work_path.unlink()
 
     def __enter__(self) -> RecordingWriter:
         return self
@@ -340,25 +412,50 @@ class RecordingWriter:
             raise RuntimeError(f"recording {self.path} is closed")
 
     def _fail(self, exc: BaseException) -> None:
-        why = getattr(exc, "strerror", None) or " ".join(str(exc).split())[:200]
+        self._closed = True
+        for table in self._tables:
+            table.clear_pending()
         self._failed = RecordingError(
-            f"recording {self.path} stopped: cannot write ({why}); is the disk full? "
+            f"recording {self.path} stopped: cannot write ({_os_reason(exc)}); is the disk full? "
             f"The file keeps what was saved up to the last flush")
-        self._release_after_failure()
+        self._discard_if_empty()
         raise self._failed from exc
 
-    def _release_after_failure(self) -> None:
-        # HDF5 cannot flush its metadata once a write failed; closing the file normally then leaves ids that
-        # crash the garbage collector later. Drop every object handle first, then close the file id itself.
-        self._closed = True
-        self._daq_group = None  # type: ignore[assignment]
-        for table in (self._daq, self._robot, self._forces, self._events):
-            if table is not None:
-                table.datasets.clear()
-        file_id = self._file.id
-        self._file = None  # type: ignore[assignment]
-        with contextlib.suppress(OSError, RuntimeError, ValueError):
-            file_id.close()
+
+def _os_reason(exc: BaseException) -> str:
+    """The OS's words for a failure, without HDF5's internals (``flags = 13, o_flags = 242`` …)."""
+    strerror = getattr(exc, "strerror", None)
+    if strerror:
+        return str(strerror)
+    text = " ".join(str(exc).split())
+    for marker in (", errno = ", "errno = "):
+        if marker in text:
+            tail = text.split(marker, 1)[1]
+            code = tail.split(",", 1)[0].strip()
+            if code.isdigit():
+                return os.strerror(int(code))
+    return text.split(" (file name")[0][:200]
+
+
+def _close_after_failure(f: h5py.File) -> None:
+    """Release a file whose write failed. HDF5 cannot flush its metadata once a write failed, and closing the
+    file normally then crashes (HDF5 2.0 / h5py 3.16 segfault in the id clean-up): close the file id itself."""
+    with contextlib.suppress(OSError, RuntimeError, ValueError):
+        f.id.close()
+
+
+def _fsync(path: Path) -> None:
+    """Push the closed file's bytes to the disk, so a power cut keeps what the last flush wrote."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some file systems cannot fsync; the data is still in the OS's hands
+    finally:
+        os.close(fd)
 
 
 def _truncate_utf8(text: str, max_bytes: int) -> bytes:
@@ -402,6 +499,8 @@ class Recording:
     forces_n: np.ndarray | None  # (N, C) when forces were estimated live
     calibration_json: str | None
     events: tuple[RecordingEvent, ...]
+    clock_segment: np.ndarray | None = None  # (N,) the board clock's segment (re-plugs, power cycles)
+    recovery: str | None = None  # set when the file was salvaged: how much was recovered
 
     @property
     def n_samples(self) -> int:
@@ -419,24 +518,23 @@ class Recording:
         return float(max(ends)) if ends else 0.0
 
 
-def open_recording(path: str | Path) -> Recording:
-    """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file."""
+def open_recording(path: str | Path, recover: bool = False) -> Recording:
+    """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file.
+
+    A file that HDF5 refuses because it is truncated is salvaged when ``recover`` is True (the GUI does this and
+    shows :attr:`Recording.recovery`); otherwise the error says to run ``sensnake repair``.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"recording {path} does not exist")
     try:
-        try:
-            handle = h5py.File(path, "r")
-        except OSError as exc:
-            if "already open for write" not in str(exc):
-                raise
-            # The writer was killed (or is still recording): its SWMR flag is set and only a SWMR reader may
-            # open it. Plain mode goes first because a SWMR reader retries bad checksums for a long time,
-            # which a truncated file would turn into a hang.
-            handle = h5py.File(path, "r", libver="latest", swmr=True)
+        handle = _open_h5(path)
     except OSError as exc:
+        if recover and _stored_eof(path) is not None:
+            return recover_recording(path)[0]
+        hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
         raise RecordingFormatError(f"{path} is not a readable SenSnake recording (not HDF5, or truncated/corrupt: "
-                                   f"{' '.join(str(exc).split())})") from exc
+                                   f"{_h5_reason(exc)}){hint}") from exc
     try:
         with handle as f:
             return _read(f, path)
@@ -444,11 +542,212 @@ def open_recording(path: str | Path) -> Recording:
         raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
 
 
+def _open_h5(path: Path) -> h5py.File:
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        if "already open for write" not in str(exc):
+            raise
+        # Written by an older SenSnake (SWMR mode) that was killed: its SWMR flag is set and only a SWMR reader
+        # may open it. Plain mode goes first because a SWMR reader retries bad checksums for a long time, which a
+        # truncated file would turn into a hang.
+        return h5py.File(path, "r", libver="latest", swmr=True)
+
+
+def _h5_reason(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if "truncated file" in text:
+        return "truncated file"
+    return text.split(" (file name")[0][:160]
+
+
+# -- salvage -----------------------------------------------------------------------------------------------------
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What :func:`recover_recording` could read from a damaged file. ``rows`` maps each group (``daq``,
+    ``robot``, ``forces``, ``events``) to (rows recovered, rows the file's metadata claimed)."""
+
+    path: Path
+    file_bytes: int
+    claimed_bytes: int
+    rows: dict[str, tuple[int, int]]
+    duration_s: float
+
+    @property
+    def text(self) -> str:
+        got, claimed = self.rows.get("daq", (0, 0))
+        share = f"{got / claimed:.1%}" if claimed else "none"
+        extra = "; ".join(f"{name} {g}/{c}" for name, (g, c) in self.rows.items() if name != "daq")
+        return (f"{self.path.name} is truncated ({self.file_bytes} of {self.claimed_bytes} bytes): recovered "
+                f"{got} of {claimed} board samples ({share}, {self.duration_s:.1f} s)" + (f"; {extra}" if extra
+                                                                                           else ""))
+
+
+def _stored_eof(path: Path) -> int | None:
+    """The end-of-file address the HDF5 superblock claims, or None if ``path`` is not HDF5 (superblock at 0)."""
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(64)
+    except OSError:
+        return None
+    if len(head) < 48 or head[:8] != HDF5_SIGNATURE:
+        return None
+    version = head[8]
+    if version in (0, 1):
+        size_of_offsets = head[13]
+        eof_at = (24 if version == 0 else 28) + 2 * size_of_offsets
+    elif version in (2, 3):
+        size_of_offsets = head[9]
+        eof_at = 12 + 2 * size_of_offsets
+    else:
+        return None
+    if size_of_offsets not in (4, 8) or eof_at + size_of_offsets > len(head):
+        return None
+    return int.from_bytes(head[eof_at:eof_at + size_of_offsets], "little")
+
+
+def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
+    """Salvage a recording that was cut short (copy interrupted, disk failure): every row whose data chunk lies
+    wholly inside the bytes that survive is kept, the rest is dropped, never guessed. Raises
+    :class:`RecordingFormatError` when not even the file's structure survives."""
+    import tempfile
+
+    path = Path(path)
+    claimed = _stored_eof(path)
+    size = path.stat().st_size
+    if claimed is None:
+        raise RecordingFormatError(f"{path} is not an HDF5 file: nothing to recover")
+    with tempfile.TemporaryDirectory(prefix="sensnake-repair-") as folder:
+        padded = Path(folder) / "padded.h5"
+        # HDF5 refuses a file shorter than its superblock says; zero-padding it back makes the surviving
+        # structure readable, and the chunk check below makes sure no padded (zero) byte reaches the data.
+        shutil.copyfile(path, padded)
+        if claimed > size:
+            with padded.open("r+b") as handle:
+                handle.truncate(claimed)
+        try:
+            handle5 = _open_h5(padded)
+        except OSError as exc:
+            raise RecordingFormatError(f"{path} is damaged beyond repair (HDF5: {_h5_reason(exc)})") from exc
+        limits: dict[str, int] = {}
+        claimed_rows: dict[str, int] = {}
+        try:
+            with handle5 as f:
+                for group_name in ("daq", "robot", "forces", "events"):
+                    if group_name not in f:
+                        continue
+                    group = f[group_name]
+                    lengths, intact = [], []
+                    for name in group:
+                        dataset = group[name]
+                        if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
+                            continue
+                        lengths.append(dataset.shape[0])
+                        intact.append(_intact_rows(dataset, min(size, claimed)))
+                    if lengths:
+                        claimed_rows[group_name] = min(lengths)
+                        limits[group_name] = min(intact)
+                recording = _read(f, path, limits)
+        except (KeyError, OSError, TypeError, ValueError) as exc:
+            raise RecordingFormatError(f"{path} is damaged beyond repair ({type(exc).__name__}: {exc})") from exc
+    rows = {name: (limits[name], claimed_rows[name]) for name in limits}
+    report = RecoveryReport(path=path, file_bytes=size, claimed_bytes=claimed, rows=rows,
+                            duration_s=recording.duration_s)
+    return replace(recording, recovery=report.text), report
+
+
+def _intact_rows(dataset: h5py.Dataset, good_bytes: int) -> int:
+    """Leading rows of a chunked dataset whose chunks all lie inside the first ``good_bytes`` of the file."""
+    if dataset.chunks is None:
+        offset = dataset.id.get_offset()
+        nbytes = dataset.id.get_storage_size()
+        return dataset.shape[0] if offset is not None and offset + nbytes <= good_bytes else 0
+    chunk_rows = dataset.chunks[0]
+    chunks = sorted((dataset.id.get_chunk_info(i) for i in range(dataset.id.get_num_chunks())),
+                    key=lambda c: c.chunk_offset[0])
+    rows = 0
+    for chunk in chunks:
+        if chunk.chunk_offset[0] != rows or chunk.byte_offset is None or chunk.byte_offset + chunk.size > good_bytes:
+            break
+        rows = min(dataset.shape[0], rows + chunk_rows)
+    return rows
+
+
+def repair_recording(path: str | Path, out: str | Path) -> RecoveryReport:
+    """Write what :func:`recover_recording` salvages from ``path`` to a new, clean file ``out`` (moved into place
+    only when complete; ``path`` itself is never changed unless ``out`` names it). Returns the report."""
+    path, out = Path(path), Path(out)
+    try:
+        recording, report = recover_recording(path)
+    except RecordingFormatError:
+        raise
+    except OSError as exc:
+        raise RecordingFormatError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    write_recording(recording, out)
+    return report
+
+
+def write_recording(recording: Recording, out: str | Path) -> Path:
+    """Write a whole :class:`Recording` (read or salvaged) as a SPEC §3.5 file at ``out`` (atomically)."""
+    out = Path(out)
+    work = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    try:
+        with h5py.File(work, "w", locking=False) as f:
+            f.attrs["format"] = FORMAT
+            f.attrs["version"] = VERSION
+            f.attrs["started"] = recording.started
+            f.attrs["config"] = recording.config_text
+            f.attrs["duration_s"] = recording.duration_s
+            if recording.recovery:
+                f.attrs["recovered"] = recording.recovery
+            daq = f.create_group("daq")
+            daq.attrs["channels"] = np.array(recording.channels, dtype=h5py.string_dtype())
+            for key, value in (("crc_errors", recording.crc_errors), ("dropped_frames", recording.dropped_frames),
+                               ("resyncs", recording.resyncs)):
+                daq.attrs[key] = np.int64(value)
+            daq["time_s"] = recording.time_s
+            daq["seq"] = recording.seq.astype(np.uint32)
+            daq["counts"] = recording.counts.astype(np.uint16)
+            daq["conductance_S"] = recording.conductance_s
+            if recording.board_time_s is not None:
+                daq["board_time_s"] = recording.board_time_s
+            if recording.clock_segment is not None:
+                daq["clock_segment"] = recording.clock_segment.astype(np.int32)
+            if recording.robot is not None:
+                robot = f.create_group("robot")
+                robot["time_s"] = recording.robot.time_s
+                robot["goal_rad"] = recording.robot.goal_rad
+                robot["present_rad"] = recording.robot.present_rad
+                robot["current_mA"] = recording.robot.current_ma
+            if recording.forces_n is not None:
+                forces = f.create_group("forces")
+                forces.attrs["calibration"] = recording.calibration_json or ""
+                forces["force_N"] = recording.forces_n
+            events = f.create_group("events")
+            events["time_s"] = np.array([e.time_s for e in recording.events], dtype=np.float64)
+            events["kind"] = np.array([e.kind.encode()[:EVENT_KIND_BYTES] for e in recording.events],
+                                      dtype=f"S{EVENT_KIND_BYTES}")
+            events["text"] = np.array([_truncate_utf8(e.text, EVENT_TEXT_BYTES) for e in recording.events],
+                                      dtype=f"S{EVENT_TEXT_BYTES}")
+        _fsync(work)
+        os.replace(work, out)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+    return out
+
+
 def _attr_text(value: Any) -> str:
     return value.decode("utf-8") if isinstance(value, bytes) else str(value)
 
 
-def _read(f: h5py.File, path: Path) -> Recording:
+def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Recording:
+    """The recording in ``f``; ``limits`` caps the rows read per group (salvage)."""
+    cap = limits or {}
     fmt = _attr_text(f.attrs.get("format", ""))
     if fmt != FORMAT:
         raise RecordingFormatError(f"{path} is not a SenSnake recording (format {fmt!r}, expected {FORMAT!r})")
@@ -462,23 +761,26 @@ def _read(f: h5py.File, path: Path) -> Recording:
     channels = tuple(_attr_text(c) for c in daq.attrs["channels"])
     names = ["time_s", "seq", "counts", "conductance_S"]
     # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
-    n = min(daq[name].shape[0] for name in names)
+    n = min(min(daq[name].shape[0] for name in names), cap.get("daq", np.iinfo(np.int64).max))
     forces = calibration = None
     if "forces" in f:
         calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
-        n_forces = f["forces/force_N"].shape[0]
+        n_forces = min(f["forces/force_N"].shape[0], cap.get("forces", np.iinfo(np.int64).max))
         forces = f["forces/force_N"][:min(n, n_forces)]
     board_time = daq["board_time_s"][:n] if "board_time_s" in daq else None
+    segment = daq["clock_segment"][:n] if "clock_segment" in daq else None
     robot = None
     if "robot" in f:
         group = f["robot"]
-        m = min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA"))
+        m = min(min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA")),
+                cap.get("robot", np.iinfo(np.int64).max))
         robot = RobotRecord(time_s=group["time_s"][:m], goal_rad=group["goal_rad"][:m],
                             present_rad=group["present_rad"][:m], current_ma=group["current_mA"][:m])
     events: tuple[RecordingEvent, ...] = ()
     if "events" in f:
         group = f["events"]
-        m = min(group[name].shape[0] for name in ("time_s", "kind", "text"))
+        m = min(min(group[name].shape[0] for name in ("time_s", "kind", "text")),
+                cap.get("events", np.iinfo(np.int64).max))
         events = tuple(RecordingEvent(float(t), k.decode("utf-8", "replace"), x.decode("utf-8", "replace"))
                        for t, k, x in zip(group["time_s"][:m], group["kind"][:m], group["text"][:m]))
     counts = daq["counts"][:n]
@@ -489,7 +791,7 @@ def _read(f: h5py.File, path: Path) -> Recording:
         path=path, version=version, started=_attr_text(f.attrs.get("started", "")),
         config_text=_attr_text(f.attrs.get("config", "")), channels=channels,
         time_s=daq["time_s"][:n], seq=daq["seq"][:n], counts=counts, conductance_s=daq["conductance_S"][:n],
-        board_time_s=board_time, crc_errors=int(daq.attrs.get("crc_errors", 0)),
+        board_time_s=board_time, clock_segment=segment, crc_errors=int(daq.attrs.get("crc_errors", 0)),
         dropped_frames=int(daq.attrs.get("dropped_frames", 0)), resyncs=int(daq.attrs.get("resyncs", 0)),
         robot=robot, forces_n=forces, calibration_json=calibration, events=events)
 

@@ -13,16 +13,16 @@ import json
 import math
 import os
 import re
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from app.core import user_folders
+
 SHAPE_FORMAT = "sensnake-shape"
 SHAPE_VERSION = 1
-SHAPES_DIR_ENV = "SENSNAKE_SHAPES_DIR"  # overrides the library folder (tests, shared lab folders)
 
 
 class ShapeFormatError(ValueError):
@@ -198,18 +198,8 @@ def shift(shape: Shape, joints: int) -> Shape:
 # Library on disk
 # ----------------------------------------------------------------------------------------------------------------
 def default_library_dir() -> Path:
-    """Per-user shape folder: $SENSNAKE_SHAPES_DIR, else the platform's user data folder + sensnake/shapes."""
-    override = os.environ.get(SHAPES_DIR_ENV)
-    if override:
-        return Path(override)
-    home = Path.home()
-    if sys.platform.startswith("win"):
-        base = Path(os.environ.get("APPDATA") or home / "AppData" / "Roaming")
-    elif sys.platform == "darwin":
-        base = home / "Library" / "Application Support"
-    else:
-        base = Path(os.environ.get("XDG_DATA_HOME") or home / ".local" / "share")
-    return base / "sensnake" / "shapes"
+    """The per-user shape folder (``shapes/`` in the one user data folder, see :mod:`app.core.user_folders`)."""
+    return user_folders.shapes_dir()
 
 
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")

@@ -9,6 +9,7 @@ GUI thread only.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import time
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from app.core import user_folders
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
 from devices.config import ConfigError, load_config
@@ -82,13 +84,21 @@ def tab_index(name: str) -> int:
     raise LookupError(f"no tab named {name!r}; tabs are {', '.join(s.name for s in TABS)}")
 
 
+def user_settings() -> QSettings:
+    """The window's settings: ``settings.ini`` in the one per-user data folder (:mod:`app.core.user_folders`)."""
+    path = user_folders.settings_path()
+    with contextlib.suppress(OSError):  # an unwritable folder: Qt keeps the settings in memory and says nothing
+        user_folders.ensure_folder(path.parent)
+    return QSettings(str(path), QSettings.Format.IniFormat)
+
+
 class MainWindow(QMainWindow):
     """SenSnake Studio's window around one :class:`LabContext` (which it closes when it closes)."""
 
     def __init__(self, lab: LabContext, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lab = lab
-        self.settings = settings if settings is not None else QSettings(ORGANIZATION, APP_NAME)
+        self.settings = settings if settings is not None else user_settings()
         self.config_path: Path | None = None
         self._last_error_s = -1e9
         self._built: dict[str, QWidget] = {}
@@ -220,7 +230,8 @@ class MainWindow(QMainWindow):
             "Every device can run on the built-in simulated lab (port <tt>sim</tt>).</p>")
 
     def _choose_config(self) -> None:
-        path, _filter = QFileDialog.getOpenFileName(self, "Open lab configuration", str(Path.cwd()),
+        path, _filter = QFileDialog.getOpenFileName(self, "Open lab configuration",
+                                                    user_folders.dialog_folder(user_folders.data_dir()),
                                                     "Lab configuration (*.toml);;All files (*)")
         if path:
             self.open_config(path)

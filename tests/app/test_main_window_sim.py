@@ -14,6 +14,7 @@ from PySide6.QtCore import QSettings, Qt
 from app.gui.lab import LabContext
 from app.gui.main_window import MainWindow
 from app.gui.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
+from devices import dxl_wire as wire
 from devices.config import SIM_PORT, load_config
 from tests.motion_sources import JointRamp
 from widgets.hardware_panel import COL_DEG, COL_RAD, COL_REBOOT, COL_TEMP, COL_TORQUE
@@ -111,13 +112,22 @@ def test_hardware_tab_torque_toggle_reaches_the_servo(window, qtbot, sim_lab_fas
 
 
 def test_overload_names_the_servo_in_status_and_table_and_reboot_clears_it(window, qtbot, sim_lab_fast):
-    panel = window.show_tab("hardware").panel
+    tab = window.show_tab("hardware")
+    panel = tab.panel
+    questions: list[str] = []
+    answer = {"yes": False}
+    tab.confirm = lambda question: questions.append(question) or answer["yes"]  # the modal question, answered
     window.lab.robot.set_torque(True).result(timeout=5)
     sim_lab_fast.chain.inject_overload(7)
     qtbot.waitUntil(lambda: "servo 7" in window.status.message, timeout=5000)
     assert "overload" in window.status.message.lower()
     qtbot.waitUntil(lambda: "overload" in panel.errors_text(7).lower(), timeout=5000)
     assert panel.errors_text(6) == "none"
+    reboots = sim_lab_fast.chain.count(wire.REBOOT)
+    qtbot.mouseClick(panel.toggle(7, COL_REBOOT), Qt.MouseButton.LeftButton)  # asked, and declined: nothing sent
+    assert len(questions) == 1 and "servo 7" in questions[0] and "torque OFF" in questions[0]
+    assert sim_lab_fast.chain.count(wire.REBOOT) == reboots
+    answer["yes"] = True
     qtbot.mouseClick(panel.toggle(7, COL_REBOOT), Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: panel.errors_text(7) == "none", timeout=5000)
 

@@ -112,15 +112,20 @@ def test_wrong_baud_rate_is_one_line_naming_the_baud(fast_board, tmp_path, capsy
     assert "no frames from the board" in line and "bytes of noise" in line and "115200" in line
 
 
-def test_crc_storm_fails_and_keeps_the_file(fast_board, tmp_path, capsys):
+def test_crc_storm_warns_loudly_and_records_to_the_end(fast_board, tmp_path, capsys):
     out = tmp_path / "storm.h5"
-    fast_board.corrupt_frames(1000)
+    fast_board.corrupt_frames(300)
     code = main(["record", "--daq", "sim", "--seconds", "5", "--out", str(out)])
-    assert code == 1
-    line = one_error_line(capsys.readouterr().err)
-    assert "CRC errors" in line and "check the cable" in line
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "WARNING: bad board link" in captured.err and "check the cable" in captured.err
+    assert "Traceback" not in captured.err
     rec = open_recording(out)
-    assert rec.crc_errors >= 10
+    assert rec.crc_errors >= 250  # the counters are in the file (SPEC §3.5)
+    assert f"{rec.crc_errors} CRC errors" in captured.out
+    assert 140 <= rec.n_samples <= 151  # 5 s at 30 Hz after the storm: the good frames are all there
+    assert np.all(np.diff(rec.seq.astype(np.int64)) == 1)
+    assert any(e.kind == "link" and "bad board link" in e.text for e in rec.events)
 
 
 def test_cable_pull_mid_recording_is_logged_as_a_gap(fast_board, tmp_path, capsys, monkeypatch):

@@ -2,9 +2,21 @@
 
 from __future__ import annotations
 
+import re
+from dataclasses import replace
+
 import pytest
 
-from devices.config import ConfigError, LabConfig, default_sensor_names, load_config, parse_config
+from devices.config import (
+    BoardConfig,
+    ConfigError,
+    LabConfig,
+    RigConfig,
+    RobotConfig,
+    default_sensor_names,
+    load_config,
+    parse_config,
+)
 
 
 def test_default_config_is_the_simulated_lab():
@@ -68,3 +80,26 @@ def test_broken_toml_and_missing_file_are_config_errors(tmp_path):
 
 def test_config_error_is_a_value_error():
     assert issubclass(ConfigError, ValueError)
+
+
+@pytest.mark.parametrize(("build", "key"), [
+    (lambda: replace(RobotConfig(), control_rate_hz=5000.0), "robot.control_rate_hz"),
+    (lambda: replace(RobotConfig(), joint_ids=(1, 2, 2) + tuple(range(4, 13))), "robot.joint_ids"),
+    (lambda: replace(BoardConfig(), baud=-1), "board.baud"),
+    (lambda: replace(BoardConfig(), channel_names=()), "board.channel_names"),
+    (lambda: replace(RigConfig(), spring_k_n_per_m=0.0), "rig.spring_k_n_per_m"),
+    (lambda: LabConfig().with_ports(board="   "), "board.port"),
+    (lambda: RobotConfig(port=""), "robot.port"),
+])
+def test_a_config_built_without_a_file_is_validated_too(build, key):
+    """dataclasses.replace (command-line overrides such as play --rate), with_ports and plain construction run the
+    same checks as loading a file: there is no unchecked config."""
+    with pytest.raises(ConfigError, match=re.escape(key)):
+        build()
+
+
+def test_a_file_error_still_names_the_file_and_the_key(tmp_path):
+    path = tmp_path / "lab.toml"
+    path.write_text('[board]\nport = ""\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: board\.port "):
+        load_config(path)

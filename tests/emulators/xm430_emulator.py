@@ -28,7 +28,8 @@ status packet starts Return Delay Time (2 µs per unit, factory 250 = 500 µs) a
 the previous servo's status packet (sync/bulk read), and is written to the pty whole when its last byte would have
 arrived. Bytes sent at another baud rate (the slave's termios speed) are not understood, as on a real bus.
 
-Motion: with torque on, the present position moves towards the goal at up to the no-load speed (or Profile
+Motion: torque on drives to whatever Goal Position holds (it is set to the present position only at power-on); with
+torque on, the present position moves towards the goal at up to the no-load speed (or Profile
 Velocity where set); present velocity and current follow from it. Linux and macOS (``os.openpty``).
 """
 
@@ -274,11 +275,10 @@ class Servo:
                 if self.get("operating_mode") == 3 and not low <= value <= high:
                     return ERR_DATA_LIMIT
         for name, value in touched:
-            if name == "torque_enable" and value == 1:
-                if self.get("hardware_error_status"):
-                    continue  # a servo in error keeps its torque off until rebooted (the alert bit says why)
-                if not self.torque:
-                    self.set("goal_position", round(self.position))  # torque on holds where it is
+            if name == "torque_enable" and value == 1 and self.get("hardware_error_status"):
+                continue  # a servo in error keeps its torque off until rebooted (the alert bit says why)
+            # Torque on drives to whatever Goal Position holds (written while limp, or left from before): the
+            # conservative reading of the e-manual; a host must set the goal to the present position first.
             if name == "goal_position":
                 self.goal_writes += 1
             self.set(name, value)

@@ -48,7 +48,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.core import calfiles
+from app.core import calfiles, user_folders
 from app.core.rig_protocol import (
     ABORTED,
     COMPLETED,
@@ -65,7 +65,7 @@ from app.gui.rig_session import RigSession
 from devices.config import BoardConfig
 from models.physics import PhysicsConstants
 from widgets import theme
-from widgets.calibration_run import LiveTrialPlot, ProtocolForm, default_runs_folder, format_duration
+from widgets.calibration_run import LiveTrialPlot, ProtocolForm, format_duration
 
 if TYPE_CHECKING:  # pragma: no cover
     from models.calibration import SensorCalibration
@@ -191,7 +191,7 @@ class CalibrationTab(QWidget):
         defaults = ProtocolSettings()
         self.protocol_form = ProtocolForm(format_forces(defaults.forces_n), defaults.trials_per_force,
                                           defaults.hold_s, defaults.rest_s, defaults.baseline_s, defaults.ramp_s,
-                                          defaults.sample_rate_hz, default_runs_folder())
+                                          defaults.sample_rate_hz, str(user_folders.calibrations_dir()))
         self.protocol_form.run_requested.connect(self.start_run)
         self.protocol_form.pause_toggled.connect(self._pause_toggled)
         self.protocol_form.abort_requested.connect(self.rig_session.abort)
@@ -329,13 +329,15 @@ class CalibrationTab(QWidget):
         self._update_buttons()
 
     def _choose_trials(self) -> None:
-        paths, _filter = QFileDialog.getOpenFileNames(self, "Calibration trials", str(Path.cwd()),
+        paths, _filter = QFileDialog.getOpenFileNames(self, "Calibration trials",
+                                                      user_folders.dialog_folder(user_folders.calibrations_dir()),
                                                       "Trial CSV (*.csv);;All files (*)")
         if paths:
             self.add_trial_files(paths)
 
     def _choose_physics(self) -> None:
-        path, _filter = QFileDialog.getOpenFileName(self, "Physics constants", str(Path.cwd()),
+        path, _filter = QFileDialog.getOpenFileName(self, "Physics constants",
+                                                    user_folders.dialog_folder(user_folders.calibrations_dir()),
                                                     "JSON (*.json);;All files (*)")
         if path:
             self.load_physics(path)
@@ -461,7 +463,8 @@ class CalibrationTab(QWidget):
             return False
         try:
             settings = self.protocol_settings()
-            folder = self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip() or ".")
+            folder = self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip()
+                                                 or user_folders.calibrations_dir())
         except ValueError as exc:
             self.protocol_form.set_message(str(exc), theme.ERROR)
             return False
@@ -556,8 +559,8 @@ class CalibrationTab(QWidget):
         return True
 
     def _choose_save(self) -> None:
-        path, _filter = QFileDialog.getSaveFileName(self, "Save calibration", str(Path.cwd() / "calibration.json"),
-                                                    "Calibration (*.json)")
+        start = Path(user_folders.dialog_folder(user_folders.calibrations_dir())) / "calibration.json"
+        path, _filter = QFileDialog.getSaveFileName(self, "Save calibration", str(start), "Calibration (*.json)")
         if path:
             self.save(path)
 

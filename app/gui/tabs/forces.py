@@ -40,6 +40,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from app.core import user_folders
 from app.core.forces_pipeline import UNCALIBRATED, ForcesPipeline
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
 from app.gui.recording_session import RecordingSession
@@ -53,7 +54,6 @@ try:
 except ImportError:  # pragma: no cover - only while widgets/body_view.py is absent
     BodyView = None
 
-RECORDINGS_DIR_ENV = "SENSNAKE_RECORDINGS_DIR"
 FORCE_HISTORY_BUDGET_BYTES = 96_000_000
 RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
@@ -78,9 +78,8 @@ def busy_cursor() -> Iterator[None]:
 
 
 def recordings_dir() -> Path:
-    """Where recordings go by default: ``$SENSNAKE_RECORDINGS_DIR`` or ``~/SenSnake/recordings``."""
-    configured = os.environ.get(RECORDINGS_DIR_ENV)
-    return Path(configured) if configured else Path.home() / "SenSnake" / "recordings"
+    """Where recordings go by default: ``recordings/`` in the one user data folder (:mod:`app.core.user_folders`)."""
+    return user_folders.recordings_dir()
 
 
 def default_recording_path(now: datetime | None = None) -> Path:
@@ -614,26 +613,29 @@ class ForcesTab(QWidget):
 
     # -- dialogs ---------------------------------------------------------------------------------------------------
     def _browse_recording_path(self) -> None:
-        folder = recordings_dir()
-        folder.mkdir(parents=True, exist_ok=True)
-        path, _ = QFileDialog.getSaveFileName(self, "Record to", str(default_recording_path()),
+        folder = user_folders.dialog_folder(recordings_dir())
+        path, _ = QFileDialog.getSaveFileName(self, "Record to", str(Path(folder) / default_recording_path().name),
                                               "Recordings (*.h5)")
         if path:
             self.controls.path.setText(path)
 
     def _choose_calibration(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Calibration file", "", "Calibration (*.json)")
+        path, _ = QFileDialog.getOpenFileName(self, "Calibration file",
+                                              user_folders.dialog_folder(user_folders.calibrations_dir()),
+                                              "Calibration (*.json)")
         if path:
             self.load_calibration(path)
 
     def _choose_recording(self) -> None:
-        start = self.last_recording_path if self.last_recording_path is not None else recordings_dir()
-        path, _ = QFileDialog.getOpenFileName(self, "Open recording", str(start), "Recordings (*.h5)")
+        start = (str(self.last_recording_path) if self.last_recording_path is not None
+                 else user_folders.dialog_folder(recordings_dir()))
+        path, _ = QFileDialog.getOpenFileName(self, "Open recording", start, "Recordings (*.h5)")
         if path:
             self.open_recording_file(path)
 
     def _choose_overlay(self) -> None:
-        paths, _ = QFileDialog.getOpenFileNames(self, "Recordings to overlay", str(recordings_dir()),
+        paths, _ = QFileDialog.getOpenFileNames(self, "Recordings to overlay",
+                                                user_folders.dialog_folder(recordings_dir()),
                                                 "Recordings (*.h5)")
         if paths:
             self.add_overlay_files(paths)

@@ -19,6 +19,7 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QFileDialog, QVBoxLayout, QWidget
 
+from app.core import user_folders
 from app.core.play import build_source
 from app.core.shapes import Shape, ShapeLibrary, read_shape
 from app.core.teach import TeachSession
@@ -88,7 +89,8 @@ class GaitTab(QWidget):
         return name
 
     def _open_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open shape", str(self.library.root), "Shapes (*.json)")
+        path, _ = QFileDialog.getOpenFileName(self, "Open shape", user_folders.dialog_folder(self.library.root),
+                                              "Shapes (*.json)")
         if path:
             self.add_shape_file(path)
 

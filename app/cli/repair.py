@@ -1,0 +1,29 @@
+"""``sensnake repair REC.h5 [--out FIXED.h5]``: salvage a recording that was cut short (copy interrupted, disk full,
+a failing USB stick) into a clean file.
+
+Every row whose data lies wholly inside the bytes that survive is kept; nothing is guessed. Prints how much was
+recovered. ``REC.h5`` is never changed; the default output is ``REC-repaired.h5`` beside it. A file that is not
+damaged is copied as it is (and says so). Runs on the main thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from app.core.recording import RecordingFormatError, open_recording, repair_recording, write_recording
+
+
+def run(args: argparse.Namespace) -> int:
+    path = Path(args.recording)
+    out = Path(args.out) if args.out else path.with_name(f"{path.stem}-repaired{path.suffix or '.h5'}")
+    try:
+        recording = open_recording(path)
+    except RecordingFormatError:
+        report = repair_recording(path, out)
+        print(f"{report.text}; wrote {out}")
+        return 0
+    write_recording(recording, out)
+    print(f"{path.name} is not damaged: all {recording.n_samples} board samples ({recording.duration_s:.1f} s) "
+          f"copied to {out}")
+    return 0

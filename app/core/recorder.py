@@ -1,0 +1,203 @@
+"""A recording being written: board blocks, forces, robot states and events queued to a writer thread.
+
+The caller (the CLI's main thread, the GUI thread) only enqueues — O(1), never waiting on the disk. A writer thread
+owns the :class:`app.core.recording.RecordingWriter` from creation to close (it is not thread-safe) and flushes at
+least every :data:`FLUSH_INTERVAL_S` even when no data arrives, so a pulled cable, ``kill -9`` or a crash loses at
+most about half a second, and the file on disk always opens in plain h5py.
+
+A write failure (disk full, file removed) stops the recorder cleanly: what was flushed stays readable, the queue is
+dropped, :attr:`Recorder.error` says what happened and ``on_failed(message)`` is called (from the writer thread).
+Nothing here imports Qt: :class:`app.gui.recording_session.RecordingSession` re-emits these as signals, and
+``sensnake record`` uses the recorder as it is.
+
+Public methods are for one controlling thread (the one that called :meth:`Recorder.start`), except
+:attr:`error`, :attr:`backlog`, :meth:`size_bytes` which any thread may read.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
+
+FLUSH_INTERVAL_S = 0.5
+_STOP = object()
+LINK_STAT_FIELDS = ("out_of_range_frames", "channel_mismatches", "reconnects", "bad_headers")
+
+
+class Recorder:
+    """One recording file being written; see the module docstring."""
+
+    def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
+                 calibration_json: str | None = None, with_robot: bool = False, n_joints: int = 12,
+                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES, t0_monotonic_s: float | None = None,
+                 on_failed: Callable[[str], None] | None = None) -> None:
+        self.path = Path(path)
+        self.channel_names = tuple(channel_names)
+        self.with_robot = with_robot
+        self.with_forces = calibration_json is not None
+        self.t0_monotonic_s = time.monotonic() if t0_monotonic_s is None else t0_monotonic_s
+        self._writer_args = dict(config_text=config_text, channel_names=self.channel_names,
+                                 calibration_json=calibration_json, with_robot=with_robot, n_joints=n_joints,
+                                 flush_interval_s=FLUSH_INTERVAL_S, t0_monotonic_s=self.t0_monotonic_s,
+                                 min_free_bytes=min_free_bytes)
+        self._on_failed = on_failed
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._writer: RecordingWriter | None = None
+        self._active = False
+        self.error: str | None = None
+        self.kept = False  # the file at ``path`` holds this recording (set when the writer closes)
+        self.n_daq_samples = 0
+        self.n_robot_samples = 0
+        self.stop_time_s: float | None = None
+
+    # -- state -----------------------------------------------------------------------------------------------------
+    @property
+    def is_active(self) -> bool:
+        return self._active and self.error is None
+
+    @property
+    def elapsed_s(self) -> float:
+        end = self.stop_time_s if self.stop_time_s is not None else time.monotonic()
+        return end - self.t0_monotonic_s
+
+    def size_bytes(self) -> int:
+        writer = self._writer
+        if writer is not None:
+            return writer.size_bytes()
+        try:
+            return self.path.stat().st_size if self.kept else 0
+        except OSError:
+            return 0
+
+    @property
+    def backlog(self) -> int:
+        """Items waiting for the writer thread (grows only if the disk is slower than the data)."""
+        return self._queue.qsize()
+
+    # -- life cycle ------------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the writer thread, which creates the file; a failure to create it arrives as ``on_failed``."""
+        if self._thread is not None:
+            raise RuntimeError("recording already started")
+        self._active = True
+        self._thread = threading.Thread(target=self._run, name=f"recording:{self.path.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Write what is queued, close the file and join the writer thread. Safe to call twice."""
+        thread = self._thread
+        if thread is None:
+            return
+        self._active = False
+        if self.stop_time_s is None:
+            self.stop_time_s = time.monotonic()
+        self._queue.put(_STOP)
+        thread.join()
+        self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    # -- data (controlling thread: enqueue only) -------------------------------------------------------------------
+    def add_block(self, block: Any, force_n: np.ndarray | None = None) -> None:
+        """A board :class:`~devices.board.SampleBlock` and, when forces are recorded, its (N×C) forces in N."""
+        if not self.is_active:
+            return
+        self.n_daq_samples += len(block.seq)
+        forces = force_n if self.with_forces else None
+        self._queue.put(lambda w: _append_daq(w, block, forces))
+
+    def add_robot_states(self, states: Iterable[Any]) -> None:
+        """``ChainState`` objects (host_time_s, position_rad, current_ma, and goal_rad when the chain has it)."""
+        if not self.is_active or not self.with_robot:
+            return
+        states = list(states)
+        if not states:
+            return
+        self.n_robot_samples += len(states)
+        self._queue.put(lambda w: _append_robot(w, states))
+
+    def mark_gap(self, host_monotonic_s: float, reason: str) -> None:
+        if self.is_active:
+            self._queue.put(lambda w: w.mark_gap(host_monotonic_s, reason))
+
+    def log_event(self, text: str, host_monotonic_s: float | None = None, kind: str = "event") -> None:
+        if self.is_active:
+            when = time.monotonic() if host_monotonic_s is None else host_monotonic_s
+            self._queue.put(lambda w: w.log_event(text, when, kind))
+
+    def update_stats(self, stats: Any) -> None:
+        """The board link's cumulative counters (a :class:`~devices.board.BoardStats`), stored in the file."""
+        if self.is_active:
+            more = {name: int(getattr(stats, name)) for name in LINK_STAT_FIELDS if hasattr(stats, name)}
+            self._queue.put(lambda w: w.update_stats(stats.crc_errors, stats.dropped_frames, stats.resyncs, **more))
+
+    # -- writer thread ---------------------------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            writer = RecordingWriter(self.path, **self._writer_args)  # type: ignore[arg-type]
+        except (OSError, ValueError) as exc:
+            self._failed(f"cannot start recording: {exc}")
+            return
+        self._writer = writer
+        try:
+            self._write_loop(writer)
+        except (OSError, ValueError, RuntimeError) as exc:
+            # RecordingError (disk full, file gone) lands here too: keep what is flushed, tell the user.
+            text = str(exc)
+            self._failed(text if text.startswith("recording") else f"recording stopped: {text}")
+        finally:
+            # A failed writer already released what it could; the flushed part stays readable.
+            with contextlib.suppress(OSError, RuntimeError):
+                writer.close()
+            self.kept = writer.kept
+            self._writer = None
+
+    def _write_loop(self, writer: RecordingWriter) -> None:
+        last_flush = time.monotonic()
+        while True:
+            try:
+                item = self._queue.get(timeout=FLUSH_INTERVAL_S)
+            except queue.Empty:
+                item = None
+            if item is _STOP:
+                return
+            if item is not None:
+                item(writer)
+            if time.monotonic() - last_flush >= FLUSH_INTERVAL_S:
+                writer.flush()
+                last_flush = time.monotonic()
+
+    def _failed(self, message: str) -> None:
+        self.error = message
+        self._active = False
+        if self.stop_time_s is None:
+            self.stop_time_s = time.monotonic()
+        if self._on_failed is not None:
+            self._on_failed(message)
+
+
+def _append_daq(writer: RecordingWriter, block: Any, force_n: np.ndarray | None) -> None:
+    writer.append_daq(block)
+    if force_n is not None:
+        writer.append_forces(force_n)
+
+
+def _append_robot(writer: RecordingWriter, states: list[Any]) -> None:
+    present = np.array([s.position_rad for s in states], dtype=float)
+    goal = np.array([getattr(s, "goal_rad", None) if getattr(s, "goal_rad", None) is not None
+                     else s.position_rad for s in states], dtype=float)
+    current = np.array([s.current_ma for s in states], dtype=float)
+    times = np.array([s.host_time_s for s in states], dtype=float)
+    writer.append_robot(times, goal, present, current)

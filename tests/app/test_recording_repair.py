@@ -1,0 +1,98 @@
+"""Truncated recordings are salvaged (``sensnake repair`` and recovery on open), saying how much was recovered;
+nothing past the cut is guessed."""
+
+from __future__ import annotations
+
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.core.recording import RecordingFormatError, RecordingWriter, open_recording, recover_recording
+from devices.board import SampleBlock, conductance_from_counts
+from devices.config import BoardConfig, default_sensor_names
+
+CHANNELS = default_sensor_names()
+
+
+def counts_for(seq: np.ndarray) -> np.ndarray:
+    return ((seq[:, None] * 7 + np.arange(len(CHANNELS))) % 4095 + 1).astype(np.uint16)
+
+
+def write_recording(path, blocks: int = 100, rows: int = 30) -> None:
+    t0 = time.monotonic()
+    with RecordingWriter(path, "[board]\n", CHANNELS, calibration_json="{}", flush_interval_s=0.0,
+                         t0_monotonic_s=t0) as writer:
+        for k in range(blocks):
+            seq = (np.arange(rows) + rows * k).astype(np.uint32)
+            counts = counts_for(seq)
+            writer.append_daq(SampleBlock(counts, conductance_from_counts(counts, BoardConfig()), seq / 30.0,
+                                          t0 + seq / 30.0, seq, counts == 0))
+            writer.append_forces(np.full((rows, len(CHANNELS)), float(k)))
+            if k % 10 == 0:
+                writer.log_event(f"block {k}")
+
+
+@pytest.fixture(scope="module")
+def good_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "good.h5"
+    write_recording(path)
+    return path
+
+
+def truncate(good, tmp_path, fraction: float):
+    data = good.read_bytes()
+    cut = tmp_path / f"cut{fraction}.h5"
+    cut.write_bytes(data[: int(len(data) * fraction)])
+    return cut
+
+
+@pytest.mark.parametrize("fraction", [0.999, 0.9, 0.5])
+def test_truncated_file_is_salvaged_with_only_intact_rows(good_file, tmp_path, fraction):
+    cut = truncate(good_file, tmp_path, fraction)
+    with pytest.raises(RecordingFormatError, match="sensnake repair"):
+        open_recording(cut)  # strict by default: a command never reads a damaged file without saying so
+    rec, report = recover_recording(cut)
+    got, claimed = report.rows["daq"]
+    assert claimed == 3000 and 0 < got <= 3000
+    if fraction >= 0.999:
+        assert got >= 2900
+    assert rec.n_samples == got
+    # What is recovered is exact: nothing from the zero-padded tail.
+    np.testing.assert_array_equal(rec.seq, np.arange(got))
+    np.testing.assert_array_equal(rec.counts, counts_for(rec.seq.astype(np.int64)))
+    assert "recovered" in report.text and f"{got} of 3000" in report.text
+    assert open_recording(cut, recover=True).recovery == report.text
+
+
+def test_repair_command_writes_a_clean_file_and_says_how_much(good_file, tmp_path, capsys):
+    cut = truncate(good_file, tmp_path, 0.95)
+    before = cut.read_bytes()
+    fixed = tmp_path / "fixed.h5"
+    assert main(["repair", str(cut), "--out", str(fixed)]) == 0
+    out = capsys.readouterr().out
+    assert "recovered" in out and "board samples" in out and str(fixed) in out
+    assert cut.read_bytes() == before  # the damaged original is never changed
+    with h5py.File(fixed, "r") as f:  # a plain reader opens the repaired file
+        n = f["daq/seq"].shape[0]
+        assert f["daq/counts"].shape == (n, 36) and f.attrs["format"] == "sensnake-recording"
+    rec = open_recording(fixed)
+    assert rec.n_samples == n > 0 and rec.recovery is None
+    assert main(["export", str(fixed), "--csv", str(tmp_path / "fixed.csv")]) == 0
+
+
+def test_repair_of_an_intact_file_copies_it_and_says_so(good_file, tmp_path, capsys):
+    out = tmp_path / "copy.h5"
+    assert main(["repair", str(good_file), "--out", str(out)]) == 0
+    assert "not damaged" in capsys.readouterr().out
+    assert open_recording(out).n_samples == 3000
+
+
+def test_repair_of_a_non_hdf5_file_is_one_line(tmp_path, capsys):
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"\x00" * 1000)
+    assert main(["repair", str(junk)]) == 1
+    err = capsys.readouterr().err
+    assert "junk.h5" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -1,0 +1,98 @@
+"""The board parser and reader against frames built by the independent emulator (tests/emulators, SPEC §4 only):
+impossible counts, the configured channel count, and board clock segments after a restart."""
+
+from __future__ import annotations
+
+import os
+import sys
+import tty
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from devices.board import BoardReader, FrameParser
+from devices.config import BoardConfig
+from tests.emulators.board_emulator import EmulatedBoard, encode, expected_counts
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux pseudo-terminals")
+
+
+def test_crc_valid_frame_with_a_count_above_4095_is_corrupt():
+    good = encode(1, 0, expected_counts(1, 4))
+    impossible = encode(2, 1000, [5, 4096, 7, 8])  # a valid CRC over an impossible 12-bit reading
+    after = encode(3, 2000, expected_counts(3, 4))
+    parser = FrameParser()
+    frames = parser.feed(good + impossible + after)
+    assert [f.seq for f in frames] == [1, 3]
+    assert parser.out_of_range_frames == 1 and parser.crc_errors == 0
+    assert parser.dropped_frames == 1  # its seq is a gap like any lost frame
+    assert parser.bytes_received == parser.bytes_in_frames + parser.bytes_discarded + parser.bytes_pending
+
+
+def test_wrong_channel_count_frames_are_counted_and_never_stored(tmp_path):
+    board = replace(BoardConfig(), rate_hz=200.0)
+    statuses = []
+    with EmulatedBoard(tmp_path, rate_hz=200.0, channels=48) as emu, \
+            BoardReader(replace(board, port=emu.path), on_status=statuses.append) as reader:
+        assert _wait(lambda: reader.stats.channel_mismatches >= 20)
+        assert reader.read_block() is None
+    assert any(s.state == "mismatch" and "48 channels" in s.message and "36" in s.message for s in statuses)
+
+
+class RawPty:
+    """A pty the test writes frames into by hand (a board that power-cycles without the USB link dropping)."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def test_board_restart_without_a_reconnect_is_a_new_clock_segment_not_a_wrap():
+    pty = RawPty()
+    try:
+        board = replace(BoardConfig(), port=pty.path, rate_hz=100.0)
+        with BoardReader(board) as reader:
+            for seq in range(50, 60):  # the board had been running for a while
+                os.write(pty.master, encode(seq, 3_000_000 + seq * 10_000, expected_counts(seq, 36)))
+            for seq in range(0, 10):  # power cycle: seq and clock restart at 0
+                os.write(pty.master, encode(seq, seq * 10_000, expected_counts(seq, 36, 1)))
+            assert reader.wait_for_frames(20, 10.0)
+            block = reader.read_block()
+            stats = reader.stats
+    finally:
+        pty.close()
+    assert block is not None and len(block) == 20
+    assert block.clock_segment is not None
+    np.testing.assert_array_equal(block.clock_segment, [0] * 10 + [1] * 10)
+    assert np.all(np.diff(block.board_time_s) >= 0)  # never backwards, never a 71-minute jump
+    assert block.board_time_s[-1] - block.board_time_s[0] < 5.0
+    assert block.gap_before is not None and block.gap_before[10]
+    assert stats.clock_segments == 2 and stats.dropped_frames == 0
+
+
+def test_replug_through_the_emulator_opens_a_new_segment(tmp_path):
+    board = replace(BoardConfig(), rate_hz=200.0)
+    with EmulatedBoard(tmp_path, rate_hz=200.0) as emu, \
+            BoardReader(replace(board, port=emu.path)) as reader:
+        assert reader.wait_for_frames(20, 10.0)
+        emu.command("unplug")
+        assert _wait(lambda: reader.stats.disconnected_since_s is not None)
+        emu.command("replug")
+        assert _wait(lambda: reader.stats.clock_segments == 2 and reader.frames_available > 40)
+        block = reader.read_block()
+        stats = reader.stats
+    assert block is not None and block.clock_segment is not None
+    assert np.all(np.diff(block.board_time_s) > 0)
+    assert stats.missing_s > 0 and stats.reconnects == 1 and stats.disconnected_since_s is None
+
+
+def _wait(predicate) -> bool:
+    from tests.waiting import wait_until
+
+    return wait_until(predicate)
