@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
+pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from devices.sim.physics.model import SceneParams  # noqa: E402
 from devices.sim.physics.world import PhysicsWorld  # noqa: E402

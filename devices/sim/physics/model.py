@@ -109,7 +109,7 @@ def build_mjcf(scene: SceneParams) -> str:
         obstacle = (
             f'<geom name="obstacle" type="capsule" size="{scene.obstacle_height_m:.6f} {scene.obstacle_width_m / 2:.6f}" '
             f'pos="0 0 0" euler="90 0 0" friction="{scene.obstacle_friction} 0.005 0.0001" '
-            f'contype="0" conaffinity="1" rgba="0.92 0.92 0.95 1"/>'
+            f'contype="0" conaffinity="1" rgba="0.85 0.88 0.95 0.45"/>'
         )
     walls = ""
     if scene.wall_offset_m is not None:
