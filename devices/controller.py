@@ -307,6 +307,14 @@ class RobotController:
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
                                writes, failed, late)
 
+    def recent_periods_s(self, n: int) -> np.ndarray:
+        """The last ``n`` tick periods (s, start to start, oldest first; at most the history kept). Any thread."""
+        with self._lock:
+            total = self._n_periods
+            n = max(0, min(n, total, PERIOD_HISTORY))
+            idx = (np.arange(total - n, total) % PERIOD_HISTORY)
+            return self._periods[idx].copy()
+
     # -- commands (any thread) -------------------------------------------------------------------------------------
     def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
         """Start ``source`` on the next tick (replacing any running motion, which ends "stopped").

@@ -66,6 +66,8 @@ READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
 MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a port without a descriptor, s
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
+RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
+RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
 DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 60.0
@@ -87,6 +89,10 @@ class ServoCommandError(DeviceError, ValueError):
             ct.ERRNUM_CRC: "the servo received a corrupted packet; check the bus wiring",
         }.get(errnum, "see the Dynamixel e-manual")
         super().__init__(f"servo {servo_id} refused {what}: {name} ({hint})")
+
+
+class RateError(DeviceError, ValueError):
+    """A control rate this bus cannot keep (the message says why and how to fix it)."""
 
 
 @dataclass(frozen=True)
@@ -696,6 +702,52 @@ class ServoChain:
         return {sid: bytes(reader.data_dict[sid]) for sid in ids}
 
     # -- timing checks ---------------------------------------------------------------------------------------------
+    def cycle_time_s(self) -> float:
+        """Bus time (s) of one control tick from the configuration alone: the goals' sync write and the feedback
+        sync read at this baud rate, each servo's Return Delay Time (as read by :meth:`check_models` or
+        :meth:`read_return_delays`; 0 for servos not read) and, on a USB adapter, its latency timer once per read.
+        This machine's wake-up latency comes on top; see :meth:`measure_cycle_s` for a measured figure."""
+        n = len(self.ids)
+        latency_s = (self.latency_timer_ms() or 0) / 1000.0
+        return self.sync_write_time_s(n) + self.sync_read_time_s(n, ct.STATE_BLOCK_SIZE) + latency_s
+
+    def check_rate(self, rate_hz: float) -> str | None:
+        """Before a loop starts at ``rate_hz``: raise :class:`RateError` if the bus cannot keep it, return the
+        warning if it barely can (both say the fix), else None. Needs the Return Delay Times (``check_models``)."""
+        problem = self.rate_problem(rate_hz)
+        if problem is None:
+            return None
+        verdict, message = problem
+        if verdict == "refuse":
+            raise RateError(message)
+        return message
+
+    def rate_problem(self, rate_hz: float) -> tuple[str, str] | None:
+        """``("refuse" | "warn", message with the fix)`` if ``rate_hz`` cannot (or can only barely) be kept on this
+        bus: refused when a tick's bus time exceeds ``RATE_REFUSE_FRACTION`` of the period (a tick then has no room
+        for the host's own latency and the health poll), a warning past ``RATE_WARN_FRACTION``; None if it fits."""
+        cycle_s = self.cycle_time_s()
+        period_s = 1.0 / rate_hz
+        if cycle_s <= RATE_WARN_FRACTION * period_s:
+            return None
+        delays_us = sorted({round(d * 1e6) for d in self._return_delays_s.values()})
+        fixes = []
+        if any(delays_us):
+            fixes.append("set Return Delay Time to 0 (Hardware tab → Return Delay Time → 0, torque off)")
+        if (self.latency_timer_ms() or 0) > 1:
+            fixes.append(f"set the USB latency timer to 1 ms (`echo 1 | sudo tee {self._latency_timer_path()}`)")
+        if self._baud < 4_000_000:
+            fixes.append("raise the baud rate")
+        max_rate_hz = RATE_REFUSE_FRACTION / cycle_s
+        fixes.append(f"or run at ≤ {math.floor(max_rate_hz):d} Hz")
+        delay_text = "/".join(str(d) for d in delays_us) if delays_us else "unknown"
+        verdict = "refuse" if cycle_s > RATE_REFUSE_FRACTION * period_s else "warn"
+        what = "cannot be kept" if verdict == "refuse" else "leaves little room"
+        return verdict, (
+            f"{rate_hz:g} Hz {what}: a tick has {period_s * 1e3:.1f} ms, and the sync write + sync read of "
+            f"{len(self.ids)} servos at {self._baud} bps with Return Delay Time {delay_text} µs take "
+            f"{cycle_s * 1e3:.1f} ms on the bus. Fix: " + "; ".join(fixes))
+
     def timing_warnings(self, control_rate_hz: float | None = None, n_cycles: int = 5) -> list[str]:
         """Latency-timer, Return Delay Time and cycle-time checks; each warning says how to fix it.
 
@@ -715,6 +767,9 @@ class ServoChain:
                 "long per servo. Fix: with torque off set it to 0 (Hardware tab, or ServoChain.set_return_delay(0))"
             )
         rate_hz = control_rate_hz or self.robot.control_rate_hz
+        problem = self.rate_problem(rate_hz)
+        if problem is not None:
+            warnings.append(problem[1])
         cycle_s = self.measure_cycle_s(n_cycles)
         period_s = 1.0 / rate_hz
         if cycle_s > 0.8 * period_s:

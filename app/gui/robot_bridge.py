@@ -373,6 +373,7 @@ class RobotBridge(QObject):
         chain.open()
         try:
             chain.check_models()
+            chain.check_rate(config.control_rate_hz)  # RateError (with the fix) before the loop starts
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, config, on_state=self._on_state, on_health=self._on_health,
                                          on_event=self._on_event, on_error=self._on_error)

@@ -45,12 +45,15 @@ def moving_then_stop(qtbot, window, sim_lab_fast, press_stop) -> None:
     assert robot.motion_state == MOTION_RUNNING
     before = chain.goal_positions_ticks()[2]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[2] - before) > 20, timeout=5000)
-    press_stop()
+    # The controller announces the freeze after writing it. (Waiting for "2 more states" instead was the flaky
+    # STOP test of issue 14: the first states delivered after the press can all predate the freeze tick when the
+    # GUI thread is slow, so `frozen` was sometimes read before the freeze was written.)
+    with qtbot.waitSignal(robot.event, timeout=3000, check_params_cb=lambda text: "goals frozen" in text):
+        press_stop()
     assert robot.motion_state == MOTION_STOPPED
+    frozen = chain.goal_positions_ticks().copy()
     ticks: list = []
     robot.state_block.connect(ticks.extend)
-    qtbot.waitUntil(lambda: len(ticks) >= 2, timeout=3000)  # the freeze happens on the next tick
-    frozen = chain.goal_positions_ticks().copy()
     qtbot.waitUntil(lambda: len(ticks) >= 8, timeout=3000)
     np.testing.assert_array_equal(chain.goal_positions_ticks(), frozen)
     present_ticks = chain.present_positions_rad()[2] * 4096 / (2 * np.pi) + 2048

@@ -230,3 +230,31 @@ def test_a_scan_while_a_motion_plays_is_refused_with_the_reason(emulator):
             assert [i.servo_id for i in controller.scan(ids=range(1, 13)).result(10)] == list(range(1, 13))
         finally:
             controller.close()
+
+
+def test_a_rate_the_bus_cannot_keep_is_refused_with_the_fix_before_it_starts(emulator, tmp_path, capsys):
+    shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
+    # Factory Return Delay Time: 12 × (500 µs + 21 bytes) + the instruction + the goals' sync write ≈ 9.5 ms.
+    assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "100 Hz cannot be kept: a tick has 10.0 ms" in err[0] and "take 9.5 ms on the bus" in err[0]
+    assert "set Return Delay Time to 0" in err[0] and "or run at ≤ 84 Hz" in err[0]
+    assert emulator.counts()["sync_write"] == 0
+    with ServoChain(robot_on(emulator.path)) as chain:
+        chain.check_models()
+        assert chain.rate_problem(50.0) is None
+        verdict, message = chain.rate_problem(60.0)
+        assert verdict == "warn" and "60 Hz leaves little room" in message
+
+
+def test_with_return_delay_0_the_same_rate_plays(tmp_path, capsys):
+    emulator = EmulatorProcess("--return-delay", "0")
+    try:
+        shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
+        assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "1",
+                     "--shifts", "1"]) == 0
+        captured = capsys.readouterr()
+        assert "finished" in captured.out and "warning" not in captured.err
+    finally:
+        assert emulator.close() == 0

@@ -495,6 +495,17 @@ def _sleep_until(t: float) -> None:
         time.sleep(delay)
 
 
+def _run_like_hardware() -> str:
+    """Ask for a real-time scheduling class: servos answer on time whatever else the host runs, and a shared,
+    loaded machine would otherwise make the emulator, not the driver under test, late. Best effort (needs the
+    privilege); returns what was obtained, for the log line."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        return "SCHED_FIFO"
+    except (AttributeError, PermissionError, OSError):
+        return "normal scheduling (no privilege for SCHED_FIFO: replies may be late on a loaded machine)"
+
+
 def serve(bus: Bus, out=sys.stdout) -> int:
     master_fd, slave_fd = os.openpty()
     tty.setraw(master_fd)
@@ -609,6 +620,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate in bps (default 1000000)")
     parser.add_argument("--return-delay", type=int, default=250,
                         help="Return Delay Time register, 2 µs units (default 250 = 500 µs, the factory value)")
+    parser.add_argument("--no-realtime", action="store_true",
+                        help="do not ask for SCHED_FIFO (by default the emulator tries to answer on time like hardware)")
     args = parser.parse_args(argv)
     index = {bps: i for i, bps in BAUD_BPS.items()}.get(args.baud)
     if index is None:
@@ -616,6 +629,9 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(os, "openpty"):
         print("the emulator needs os.openpty (Linux or macOS)", file=sys.stderr)
         return 2
+    scheduling = "normal scheduling" if args.no_realtime else _run_like_hardware()
+    print(f"xm430 emulator: {args.ids} at {args.baud} bps, Return Delay Time {args.return_delay}, {scheduling}",
+          file=sys.stderr)
     return serve(Bus(_parse_ids(args.ids), index, args.return_delay))
 
 
