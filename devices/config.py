@@ -146,6 +146,9 @@ def load_config(path: str | Path | None = None) -> LabConfig:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a lab configuration: byte {exc.start} is not UTF-8 text (a binary file?); "
+                          "the config is a TOML text file like resources/default_lab.toml") from None
     return parse_config(text, source=str(path))
 
 

@@ -104,6 +104,10 @@ def _lower_switch_interval() -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 
 
+class BusBusyError(DeviceError):
+    """A bus command that cannot share the bus with the control loop right now (says why and what to do)."""
+
+
 class ServoLostError(DeviceError):
     """A servo stopped doing what it was told mid-motion: it dropped its torque (a reboot, a power cut) or is far
     from its goal. Names the servo."""
@@ -303,6 +307,14 @@ class RobotController:
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
                                writes, failed, late)
 
+    def recent_periods_s(self, n: int) -> np.ndarray:
+        """The last ``n`` tick periods (s, start to start, oldest first; at most the history kept). Any thread."""
+        with self._lock:
+            total = self._n_periods
+            n = max(0, min(n, total, PERIOD_HISTORY))
+            idx = (np.arange(total - n, total) % PERIOD_HISTORY)
+            return self._periods[idx].copy()
+
     # -- commands (any thread) -------------------------------------------------------------------------------------
     def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
         """Start ``source`` on the next tick (replacing any running motion, which ends "stopped").
@@ -369,7 +381,18 @@ class RobotController:
         return self.submit(reboot)
 
     def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future[list[ServoInfo]]:
-        return self.submit(lambda chain: chain.scan(ids, bauds))
+        """Scan on the bus thread between ticks; refused (:class:`BusBusyError`) while a motion plays: a scan holds
+        the bus for whole periods (a broadcast ping waits its full ~0.8 s window, a silent ID ~35 ms), which no tick
+        slack can carry, and a motion starved of ticks is a motion that stalls mid-gait."""
+        def scan(chain: ServoChain) -> list[ServoInfo]:
+            motion = self._motion
+            if motion is not None:
+                raise BusBusyError(
+                    f"scan refused while motion {motion.name!r} plays: a scan holds the bus for "
+                    f"~{chain.scan_time_s(ids, bauds):.1f} s ({chain.scan_time_s(ids, bauds) / self.period_s:.0f} "
+                    f"control ticks at {self.robot.control_rate_hz:g} Hz); stop the motion, then scan")
+            return chain.scan(ids, bauds)
+        return self.submit(scan)
 
     # -- the bus thread ----------------------------------------------------------------------------------------------
     def _run(self) -> None:

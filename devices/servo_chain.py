@@ -66,6 +66,8 @@ READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
 MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a port without a descriptor, s
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
+RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
+RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
 DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 60.0
@@ -87,6 +89,10 @@ class ServoCommandError(DeviceError, ValueError):
             ct.ERRNUM_CRC: "the servo received a corrupted packet; check the bus wiring",
         }.get(errnum, "see the Dynamixel e-manual")
         super().__init__(f"servo {servo_id} refused {what}: {name} ({hint})")
+
+
+class RateError(DeviceError, ValueError):
+    """A control rate this bus cannot keep (the message says why and how to fix it)."""
 
 
 @dataclass(frozen=True)
@@ -150,6 +156,7 @@ class _FactoryPortHandler(PortHandler):
         self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
         self.return_delays_s: dict[int, float] = {}  # servo ID -> Return Delay Time (s) read from its table
         self.wakeups = 0  # sleeps and waits for bytes (a cost figure for tests and benchmarks)
+        self.faster_than_wire = False  # the device answers faster than the wire allows (an accelerated simulator)
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
@@ -211,17 +218,19 @@ class _FactoryPortHandler(PortHandler):
         reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
         # A device faster than the wire (the simulator on an accelerated clock) has bytes there before they could
-        # have crossed it: wait at the pace observed since the instruction was written, not at the baud rate.
-        elapsed_s = now - self._tx_start_s
-        faster_than_wire = bool(self._rx) and now < self._wire_free_s
+        # have crossed it. That is a fact about the device, kept for the port's life: its replies are then awaited
+        # at the pace observed since the instruction was written, never at the baud rate and Return Delay Time.
+        if self._rx and now < self._wire_free_s:
+            self.faster_than_wire = True
         due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
                 return
             missing = n_bytes - len(self._rx)
-            if faster_than_wire:
-                wait_s = missing * elapsed_s / max(len(self._rx), 1)
+            if self.faster_than_wire:
+                elapsed_s = now - self._tx_start_s
+                wait_s = missing * elapsed_s / len(self._rx) if self._rx else READ_POLL_S
             else:
                 replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
                 delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
@@ -251,7 +260,11 @@ class _FactoryPortHandler(PortHandler):
     def _select(self, timeout_s: float) -> None:
         """Block until the port has bytes (it has none buffered: they were all taken) or ``timeout_s`` passes."""
         self.wakeups += 1
-        select.select([self.ser.fd], [], [], timeout_s)
+        readable, _, _ = select.select([self.ser.fd], [], [], timeout_s)
+        if readable and not self.ser.in_waiting:
+            # Readable with nothing to read: the far end hung up. pyserial's read says so (SerialException, a
+            # lost link), where looking again would spin until the deadline.
+            self._rx += self.ser.read(1)
 
     def _time_left_s(self) -> float:
         """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time())."""
@@ -445,6 +458,12 @@ class ServoChain:
             self._set_port_baud(self._baud)
         return sorted(found, key=lambda info: (info.baud, info.servo_id))
 
+    def scan_time_s(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None) -> float:
+        """About how long (s) :meth:`scan` holds the bus when nobody answers (its worst case)."""
+        wanted = [i for i in ids if 0 <= i <= ct.MAX_ID]
+        per_baud = len(wanted) * PER_ID_PING_COST_S if self._per_id_is_cheaper(wanted) else BROADCAST_PING_COST_S
+        return per_baud * len(list(bauds) if bauds else [self._baud])
+
     @staticmethod
     def _per_id_is_cheaper(wanted: list[int]) -> bool:
         return len(wanted) * PER_ID_PING_COST_S < BROADCAST_PING_COST_S
@@ -505,11 +524,27 @@ class ServoChain:
         one can be moved by hand away from the goal it was sent.
         """
         self._last_goal_rad = None
-        for sid in self._ids_or_all(ids):
+        chosen = self._ids_or_all(ids)
+        if enabled:
+            self._goals_to_present(chosen)
+        for sid in chosen:
             self._torque_commanded.discard(sid)
             self.write_item(sid, "Torque Enable", int(bool(enabled)), hardware_error_fails=bool(enabled))
             if enabled:
                 self._torque_commanded.add(sid)
+
+    def _goals_to_present(self, ids: list[int]) -> None:
+        """Goal Position := Present Position on ``ids`` (one sync read, one sync write), so torque coming on
+        holds each joint where it is: after an overload and reboot, or posing by hand, the goal register may still
+        hold a goal from before, and the joint would jump to it."""
+        present = self._sync_read_blocks(ids, ct.ADDR_PRESENT_POSITION, 4)
+        writer = GroupSyncWrite(self._require_port(), self._ph, ct.ADDR_GOAL_POSITION, 4)
+        for sid in ids:
+            writer.addParam(sid, list(present[sid]))
+        result = self._io(writer.txPacket)
+        if result != COMM_SUCCESS:
+            raise DeviceError(f"sync write of goal positions failed on {self.robot.port}: "
+                              f"{self._ph.getTxRxResult(result)}")
 
     def set_led(self, servo_id: int, on: bool) -> None:
         self.write_item(servo_id, "LED", int(bool(on)))
@@ -667,6 +702,52 @@ class ServoChain:
         return {sid: bytes(reader.data_dict[sid]) for sid in ids}
 
     # -- timing checks ---------------------------------------------------------------------------------------------
+    def cycle_time_s(self) -> float:
+        """Bus time (s) of one control tick from the configuration alone: the goals' sync write and the feedback
+        sync read at this baud rate, each servo's Return Delay Time (as read by :meth:`check_models` or
+        :meth:`read_return_delays`; 0 for servos not read) and, on a USB adapter, its latency timer once per read.
+        This machine's wake-up latency comes on top; see :meth:`measure_cycle_s` for a measured figure."""
+        n = len(self.ids)
+        latency_s = (self.latency_timer_ms() or 0) / 1000.0
+        return self.sync_write_time_s(n) + self.sync_read_time_s(n, ct.STATE_BLOCK_SIZE) + latency_s
+
+    def check_rate(self, rate_hz: float) -> str | None:
+        """Before a loop starts at ``rate_hz``: raise :class:`RateError` if the bus cannot keep it, return the
+        warning if it barely can (both say the fix), else None. Needs the Return Delay Times (``check_models``)."""
+        problem = self.rate_problem(rate_hz)
+        if problem is None:
+            return None
+        verdict, message = problem
+        if verdict == "refuse":
+            raise RateError(message)
+        return message
+
+    def rate_problem(self, rate_hz: float) -> tuple[str, str] | None:
+        """``("refuse" | "warn", message with the fix)`` if ``rate_hz`` cannot (or can only barely) be kept on this
+        bus: refused when a tick's bus time exceeds ``RATE_REFUSE_FRACTION`` of the period (a tick then has no room
+        for the host's own latency and the health poll), a warning past ``RATE_WARN_FRACTION``; None if it fits."""
+        cycle_s = self.cycle_time_s()
+        period_s = 1.0 / rate_hz
+        if cycle_s <= RATE_WARN_FRACTION * period_s:
+            return None
+        delays_us = sorted({round(d * 1e6) for d in self._return_delays_s.values()})
+        fixes = []
+        if any(delays_us):
+            fixes.append("set Return Delay Time to 0 (Hardware tab → Return Delay Time → 0, torque off)")
+        if (self.latency_timer_ms() or 0) > 1:
+            fixes.append(f"set the USB latency timer to 1 ms (`echo 1 | sudo tee {self._latency_timer_path()}`)")
+        if self._baud < 4_000_000:
+            fixes.append("raise the baud rate")
+        max_rate_hz = RATE_REFUSE_FRACTION / cycle_s
+        fixes.append(f"or run at ≤ {math.floor(max_rate_hz):d} Hz")
+        delay_text = "/".join(str(d) for d in delays_us) if delays_us else "unknown"
+        verdict = "refuse" if cycle_s > RATE_REFUSE_FRACTION * period_s else "warn"
+        what = "cannot be kept" if verdict == "refuse" else "leaves little room"
+        return verdict, (
+            f"{rate_hz:g} Hz {what}: a tick has {period_s * 1e3:.1f} ms, and the sync write + sync read of "
+            f"{len(self.ids)} servos at {self._baud} bps with Return Delay Time {delay_text} µs take "
+            f"{cycle_s * 1e3:.1f} ms on the bus. Fix: " + "; ".join(fixes))
+
     def timing_warnings(self, control_rate_hz: float | None = None, n_cycles: int = 5) -> list[str]:
         """Latency-timer, Return Delay Time and cycle-time checks; each warning says how to fix it.
 
@@ -686,6 +767,9 @@ class ServoChain:
                 "long per servo. Fix: with torque off set it to 0 (Hardware tab, or ServoChain.set_return_delay(0))"
             )
         rate_hz = control_rate_hz or self.robot.control_rate_hz
+        problem = self.rate_problem(rate_hz)
+        if problem is not None:
+            warnings.append(problem[1])
         cycle_s = self.measure_cycle_s(n_cycles)
         period_s = 1.0 / rate_hz
         if cycle_s > 0.8 * period_s:

@@ -6,6 +6,7 @@ of the parser's list). Called from the CLI's main thread.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -32,9 +33,11 @@ def robot_config(args: argparse.Namespace) -> RobotConfig:
 
 
 def start_controller(robot: RobotConfig, on_state: Callable[[Any], None] | None = None) -> RobotController:
-    """Open the robot's bus, check every configured servo answers with the expected model, and start the control
-    loop. Raises PortOpenError / NoReplyError / ModelMismatchError (one clear line each) with the port closed again.
-    The caller owns the returned controller and must ``close()`` it."""
+    """Open the robot's bus, check every configured servo answers with the expected model, check the bus can keep
+    ``robot.control_rate_hz`` (baud, servo count, each servo's Return Delay Time: refused, or a warning on stderr,
+    with the fix), and start the control loop. Raises PortOpenError / NoReplyError / ModelMismatchError / RateError
+    (one clear line each) with the port closed again. The caller owns the returned controller and must ``close()``
+    it."""
     from devices.controller import RobotController
     from devices.servo_chain import ServoChain
 
@@ -42,6 +45,9 @@ def start_controller(robot: RobotConfig, on_state: Callable[[Any], None] | None 
     chain.open()
     try:
         chain.check_models()
+        warning = chain.check_rate(robot.control_rate_hz)
+        if warning:
+            print(f"sensnake: warning: {warning}", file=sys.stderr)
         controller = RobotController(chain, robot, on_state=on_state)
         controller.start()
     except BaseException:  # cleanup only: the error itself goes on to the CLI's one-line report

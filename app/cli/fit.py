@@ -109,6 +109,17 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     print(f"wrote {sensor} to {out}")
 
 
+def _check_sensor_on_board(sensor: str, board: BoardConfig, config_path: str | None) -> None:
+    """A calibration for a sensor the board does not carry would never be used (and hides a typo): refuse it."""
+    if sensor in board.channel_names:
+        return
+    names = board.channel_names
+    where = (f"the board of {config_path}" if config_path else
+             "the default board (pass --config FILE for a board with other channels)")
+    raise ValueError(f"--sensor {sensor} is not a channel of {where}: its {len(names)} channels are "
+                     f"{names[0]} … {names[-1]}")
+
+
 def run(args: argparse.Namespace) -> int:
     if not args.sensor.strip():
         raise ValueError("--sensor must name the sensor, e.g. S06B")
@@ -123,9 +134,10 @@ def run(args: argparse.Namespace) -> int:
     for path in args.trials:
         trial = calfiles.read_trial_csv(path)
         trials.append(TrialInput(Path(path).name, trial.time_s, trial.force_n, trial.conductance_s))
+    board = load_config(args.config).board if getattr(args, "config", None) else BoardConfig()
+    _check_sensor_on_board(args.sensor, board, getattr(args, "config", None))
     physics = _physics(args)
     # The readout's ceiling (SPEC §4: counts = 0 reads 1/R_C): such samples are censored, not fitted.
-    board = load_config(args.config).board if getattr(args, "config", None) else BoardConfig()
     saturation_s = 1.0 / board.r_c_ohm
     solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
     if solver not in SOLVERS:

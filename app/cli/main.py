@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="time window in s for the linear model's mean conductance (default 225 300)")
     fit.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
     fit.add_argument("--config", metavar="FILE",
-                     help="lab config whose readout circuit (board.r_c_ohm) sets the saturation level not to fit")
+                     help="lab config: its board's channel names (--sensor must be one) and readout circuit "
+                          "(board.r_c_ohm, the saturation level not to fit)")
 
     estimate = sub.add_parser("estimate", help="conductance → force for every sensor column")
     estimate.add_argument("input", metavar="IN.csv")
@@ -71,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     forward.add_argument("input", metavar="IN.csv")
     forward.add_argument("--cal", required=True, metavar="CAL.json")
     forward.add_argument("--out", required=True, metavar="OUT.csv")
+    forward.add_argument("--clip-negative", action="store_true",
+                         help="read negative forces (load-cell noise) as 0 N, with a warning; without it they are "
+                              "refused: a contact sensor is pressed, never pulled")
 
     scan = sub.add_parser("scan", help="list the servos on a bus")
     scan.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")

@@ -8,11 +8,14 @@ state between calls.
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
 import json
 import math
 import os
-import tempfile
+import secrets
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -130,8 +133,11 @@ def _read_columns(path: Path, header: list[str], indices: list[int], gaps_from: 
     """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite, except that
     columns at positions ≥ ``gaps_from`` may hold empty or non-finite cells (read as NaN/±inf: the caller's sample
     validation treats them as gaps)."""
-    with path.open(encoding="utf-8-sig") as handle:
-        lines = [line for line in handle if line.strip()]
+    try:
+        with path.open(encoding="utf-8-sig") as handle:
+            lines = [line for line in handle if line.strip()]
+    except UnicodeDecodeError as exc:  # a text header over binary data
+        raise CalFileError(f"{path}: not a text CSV file past its header (byte {exc.start}: {exc.reason})") from None
     if len(lines) < 2:
         raise CalFileError(f"{path}: no data rows after the header")
     try:
@@ -241,18 +247,45 @@ def write_trial_csv(path: str | os.PathLike, time_s: np.ndarray, force_n: np.nda
 
 
 def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary file in the same folder so a crash never leaves a half-written file."""
+    """Write through a temporary file in the same folder so a crash never leaves a half-written file.
+
+    The file gets the permissions any new file of the user gets (0666 less the umask), or keeps those of the file
+    it replaces; a failure is an ``OSError`` naming ``path`` (the user's file), never the hidden temporary one.
+    """
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise CalFileError(f"{path}: folder {folder} does not exist")
-    fd, temp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        fd, temp_name = _create_temporary(folder, path.name)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
+    try:
+        # Replacing a file: keep its mode. A new file keeps the mode os.open gave it (from the umask).
+        with contextlib.suppress(FileNotFoundError):
+            mode = stat.S_IMODE(path.stat().st_mode)
+            os.chmod(fd if os.chmod in os.supports_fd else temp_name, mode)
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
             write(handle)
         os.replace(temp_name, path)
+    except OSError as exc:
+        Path(temp_name).unlink(missing_ok=True)
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     except BaseException:
         Path(temp_name).unlink(missing_ok=True)
         raise
+
+
+def _create_temporary(folder: Path, name: str) -> tuple[int, str]:
+    """Create ``folder/.name.<random>.tmp`` exclusively with mode 0666 less the umask (the kernel applies it, so
+    the process's umask is never touched; ``tempfile.mkstemp`` would make it 0600)."""
+    for _attempt in range(100):
+        temp_name = str(folder / f".{name}.{secrets.token_hex(4)}.tmp")
+        try:
+            return os.open(temp_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666), \
+                temp_name
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, f"no free temporary name for {name} in {folder}")
 
 
 # --------------------------------------------------------------------------------------------------------- JSON

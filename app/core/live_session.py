@@ -182,7 +182,7 @@ class LiveSession:
 
     def pending_statuses(self) -> list[BoardStatus]:
         """Statuses posted since the last call, each already applied with :meth:`handle_status`."""
-        out = []
+        out: list[BoardStatus] = []
         while True:
             try:
                 status = self._statuses.get_nowait()
@@ -234,9 +234,17 @@ class LiveSession:
             calibration_json = self.recording_calibration_json()
         recorder = Recorder(path, config_text, self.channel_names, calibration_json=calibration_json,
                             with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
-                            t0_monotonic_s=self.t0_monotonic_s, on_failed=on_failed)
-        self.recorder = recorder
+                            on_failed=on_failed)
         recorder.start()
+        self.attach_recorder(recorder)
+        return recorder
+
+    def attach_recorder(self, recorder: Recorder) -> None:
+        """Feed a started recorder from now on (the GUI builds it inside its Qt face); logs the session's state at
+        the start: calibration, sensor health, a board not connected, the link counters so far."""
+        if self.recorder is not None and self.recorder.running and self.recorder is not recorder:
+            raise RuntimeError(f"already recording to {self.recorder.path}")
+        self.recorder = recorder
         if self.pipeline is not None:
             recorder.log_event(f"calibration: {self.pipeline.summary()[0]}; estimator "
                                f"{self.pipeline.estimator_kind}")
@@ -249,7 +257,6 @@ class LiveSession:
         if status is not None and not status.connected:
             recorder.mark_gap(time.monotonic(), "board not connected when the recording started")
         recorder.update_stats(self.stats)
-        return recorder
 
     def stop_recording(self) -> Recorder | None:
         """Flush and close the running recording (joins its writer thread); returns it."""

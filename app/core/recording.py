@@ -563,6 +563,7 @@ def _h5_reason(exc: BaseException) -> str:
 
 # -- salvage -----------------------------------------------------------------------------------------------------
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+OPTIONAL_COLUMNS = ("daq/board_time_s", "daq/clock_segment")  # extras a salvage drops rather than cut rows for
 
 
 @dataclass(frozen=True)
@@ -645,15 +646,19 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
                         dataset = group[name]
                         if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
                             continue
+                        rows = _intact_rows(dataset, min(size, claimed))
+                        limits[f"{group_name}/{name}"] = rows
+                        if f"{group_name}/{name}" in OPTIONAL_COLUMNS:
+                            continue  # dropped below if shorter than the rest, never a reason to lose rows
                         lengths.append(dataset.shape[0])
-                        intact.append(_intact_rows(dataset, min(size, claimed)))
+                        intact.append(rows)
                     if lengths:
                         claimed_rows[group_name] = min(lengths)
                         limits[group_name] = min(intact)
                 recording = _read(f, path, limits)
         except (KeyError, OSError, TypeError, ValueError) as exc:
             raise RecordingFormatError(f"{path} is damaged beyond repair ({type(exc).__name__}: {exc})") from exc
-    rows = {name: (limits[name], claimed_rows[name]) for name in limits}
+    rows = {name: (limits[name], claimed_rows[name]) for name in claimed_rows}
     report = RecoveryReport(path=path, file_bytes=size, claimed_bytes=claimed, rows=rows,
                             duration_s=recording.duration_s)
     return replace(recording, recovery=report.text), report
@@ -767,8 +772,9 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
         calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
         n_forces = min(f["forces/force_N"].shape[0], cap.get("forces", np.iinfo(np.int64).max))
         forces = f["forces/force_N"][:min(n, n_forces)]
-    board_time = daq["board_time_s"][:n] if "board_time_s" in daq else None
-    segment = daq["clock_segment"][:n] if "clock_segment" in daq else None
+    big = np.iinfo(np.int64).max
+    board_time = daq["board_time_s"][:n] if "board_time_s" in daq and cap.get("daq/board_time_s", big) >= n else None
+    segment = daq["clock_segment"][:n] if "clock_segment" in daq and cap.get("daq/clock_segment", big) >= n else None
     robot = None
     if "robot" in f:
         group = f["robot"]

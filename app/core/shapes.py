@@ -134,6 +134,9 @@ def read_shape(path: str | Path) -> Shape:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ShapeFormatError(f"cannot read shape file {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ShapeFormatError(f"{path}: not a shape file: byte {exc.start} is not UTF-8 text (a binary file?); "
+                               "a shape is a JSON file saved by Teach or `sensnake teach`") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

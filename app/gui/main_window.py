@@ -61,6 +61,8 @@ TABS: tuple[TabSpec, ...] = (
             "to HDF5 with replay and trial overlay."),
     TabSpec("hardware", "Hardware", "Connect to the servo bus, scan for servos, watch each servo's position, "
             "current, temperature, voltage and errors, toggle torque and LEDs, reboot, and check the link."),
+    TabSpec("scene", "3-D lab", "The simulated lab in 3-D (physics lab, [lab] physics = \"mujoco\"): the robot, the "
+            "ground and the obstacle; the 2-D body drawing otherwise."),
 )
 
 SHORTCUTS_TEXT = (

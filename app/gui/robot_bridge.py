@@ -247,6 +247,12 @@ class RobotBridge(QObject):
             self._config = replace(self._config, port=port.strip())
         bauds = list(bauds) if bauds is not None else None
         ids = list(ids)
+        controller = self._controller
+        if controller is not None:  # the controller refuses a scan while a motion plays, and says why
+            future = controller.scan(ids, bauds)
+            if report_errors:
+                self.when_done(future, None)
+            return future
         return self.run_on_bus(lambda chain: chain.scan(ids, bauds), report_errors)
 
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> Future:
@@ -367,6 +373,7 @@ class RobotBridge(QObject):
         chain.open()
         try:
             chain.check_models()
+            chain.check_rate(config.control_rate_hz)  # RateError (with the fix) before the loop starts
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, config, on_state=self._on_state, on_health=self._on_health,
                                          on_event=self._on_event, on_error=self._on_error)

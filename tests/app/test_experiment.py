@@ -13,7 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
+pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from app.cli import main  # noqa: E402
 from app.core.recording import open_recording  # noqa: E402

@@ -177,9 +177,12 @@ def test_loose_sensor_crc_storm_full_disk_and_channel_mismatch(qtbot, lab, tab, 
     assert not session.is_active and not tab.controls.record.isChecked()
     assert "disk" in tab.controls.message.text()
 
+    # Wait for the mismatch itself. Waiting for "24" and "36" anywhere in the message was the flaky test of issue
+    # 14: the disk-full message above names the file, whose time stamp (forces-…-HHMMSS.h5) or free-space figure
+    # holds those digits now and then (06:24:36), so the wait ended before the board had sent a 24-channel frame.
     sim_lab_fast.board.set_channel_count(24)
-    qtbot.waitUntil(lambda: "24" in tab.controls.message.text() and "36" in tab.controls.message.text(),
-                    timeout=10_000)
+    qtbot.waitUntil(lambda: lab.board.last_status.state == "mismatch", timeout=10_000)
+    assert "sends 24 channels but the config lists 36" in tab.controls.message.text()
     assert not lab.board.is_connected
 
 

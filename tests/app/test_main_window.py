@@ -31,8 +31,8 @@ def window(qtbot, settings):
 
 def test_tabs_in_contract_order(window):
     titles = [window.tabs.tabText(i) for i in range(window.tabs.count())]
-    assert titles == ["Teach", "Gait", "Calibration", "Forces", "Hardware"]
-    assert [spec.name for spec in TABS] == ["teach", "gait", "calibration", "forces", "hardware"]
+    assert titles == ["Teach", "Gait", "Calibration", "Forces", "Hardware", "3-D lab"]
+    assert [spec.name for spec in TABS] == ["teach", "gait", "calibration", "forces", "hardware", "scene"]
 
 
 def test_tabs_are_built_only_when_shown(window):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -102,9 +104,11 @@ def test_emergency_stop_freezes_goals_and_keeps_torque(connected, qtbot, sim_lab
     assert motions == [MOTION_RUNNING]
     start_goal = chain.goal_positions_ticks()[0]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[0] - start_goal) > 20, timeout=5000)
-    connected.emergency_stop()
+    # Wait for the controller's own word that the goals are frozen (it writes them first), not for "2 more
+    # states": those can predate the freeze tick when the GUI thread is slow (issue 14's flaky STOP test).
+    with qtbot.waitSignal(connected.event, timeout=5000, check_params_cb=lambda text: "goals frozen" in text):
+        connected.emergency_stop()
     assert motions[-1] == MOTION_STOPPED
-    wait_states(qtbot, connected, 2)
     frozen = chain.goal_positions_ticks().copy()
     wait_states(qtbot, connected, 5)
     np.testing.assert_array_equal(chain.goal_positions_ticks(), frozen)
@@ -163,3 +167,18 @@ def test_a_motion_failure_is_reported_once(connected, qtbot, sim_lab_fast):
     qtbot.waitUntil(lambda: connected.motion_state == "fault", timeout=5000)
     wait_states(qtbot, connected, 10)
     assert len([e for e in errors if "servo 7" in e]) == 1
+
+
+def test_a_rate_the_bus_cannot_keep_is_refused_on_connect_with_the_fix(qtbot, sim_lab_fast):
+    # The simulated servos keep the factory Return Delay Time (500 µs): a tick's bus time is ~9.5 ms.
+    robot = RobotBridge(dataclasses.replace(LabConfig().robot, control_rate_hz=200.0))
+    errors: list[str] = []
+    robot.error.connect(errors.append)
+    try:
+        with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
+            robot.connect()
+        assert blocker.args == [False] and not robot.is_connected
+        assert "200 Hz cannot be kept" in errors[-1] and "set Return Delay Time to 0" in errors[-1]
+        assert "Traceback" not in errors[-1]
+    finally:
+        robot.close()

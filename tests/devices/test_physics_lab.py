@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
+pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from devices import control_table as ct  # noqa: E402
 from devices.board import BoardReader  # noqa: E402

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
+pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from devices.sim.physics.model import SceneParams  # noqa: E402
 from devices.sim.physics.world import PhysicsWorld  # noqa: E402
@@ -51,16 +51,17 @@ def test_a_joint_pushed_against_a_wall_draws_torque_up_to_the_stall_limit():
     goal = np.zeros(world.n_joints)
     goal[11] = 1.0  # joint 12 (yaw): swing the tail segment right, into the wall
     world.command(np.ones(world.n_joints, dtype=bool), goal, np.full(world.n_joints, 0.5))
-    torques = []
+    torques, saturated = [], []
     for _ in range(60):
         world.step(25)
         torques.append(world.joint_state().torque_nm[11])
+        saturated.append(world.joint_state().saturated_s[11])
     state = world.joint_state()
     stall = scene.servo.stall_torque_nm
     assert abs(torques[0]) < 0.5 * stall  # free at first …
     assert max(abs(t) for t in torques[-10:]) > 0.9 * stall  # … then stalled against the wall
     assert state.position_rad[11] < 0.9  # the wall stops it short of the goal
-    assert state.saturated_s[11] > 0.5
+    assert max(saturated) > 0.2  # the demand stays above the stall torque (what trips the overload)
     _, _, right = world.segment_loads_n()
     assert right[11] > 1.0  # the right sheet of the tail segment feels the wall
 

@@ -78,17 +78,18 @@ def test_ticks_and_angles_follow_spec_section_2():
 
 
 def test_write_goals_clamps_before_sending(servos, sim_chain):
-    servos.set_torque(True)
+    servos.set_torque(True)  # one sync write of goals := present positions first (nothing jumps)
+    assert sim_chain.count(wire.SYNC_WRITE) == 1
     goal = np.linspace(-3.0, 3.0, 12)
     sent = servos.write_goals(goal)
     assert np.all(sent >= np.array(ROBOT.joint_min_rad)) and np.all(sent <= np.array(ROBOT.joint_max_rad))
     assert sent[0] == pytest.approx(-1.57, abs=ct.RAD_PER_TICK)
     assert sent[-1] == pytest.approx(1.57, abs=ct.RAD_PER_TICK)
     assert np.array_equal(sim_chain.goal_positions_ticks(), servos.ticks_from_angles(sent))
-    assert sim_chain.count(wire.SYNC_WRITE) == 1
+    assert sim_chain.count(wire.SYNC_WRITE) == 2
     with pytest.raises(ValueError, match="joint 3"):
         servos.write_goals(np.where(np.arange(12) == 2, np.nan, 0.0))
-    assert sim_chain.count(wire.SYNC_WRITE) == 1
+    assert sim_chain.count(wire.SYNC_WRITE) == 2
 
 
 def test_read_state_is_one_sync_read_and_tracks_the_servos(servos, sim_chain):

@@ -18,8 +18,8 @@ import pytest
 
 from app.cli import main
 from devices.config import RobotConfig
-from devices.controller import RobotController
-from devices.errors import JointLimitError
+from devices.controller import BusBusyError, RobotController
+from devices.errors import JointLimitError, ServoHardwareError
 from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators import xm430_emulator as emu_module
@@ -188,3 +188,73 @@ def test_killing_the_bus_mid_play_is_one_line_never_a_traceback(tmp_path):
         lines = err.strip().splitlines()
         assert len(lines) == 1 and "Traceback" not in err, err
         assert lines[0].startswith("sensnake play: error: lost the link to the servo bus"), err
+
+
+def test_torque_on_after_an_overload_and_reboot_holds_the_present_position(emulator):
+    with ServoChain(robot_on(emulator.path)) as chain:
+        chain.check_models()
+        chain.set_torque(True)
+        goal = np.zeros(12)
+        goal[2] = 0.6
+        chain.write_goals(goal)
+        assert wait_until(lambda: abs(emulator.state(3)["position"] - emulator.state(3)["goal"]) <= 1)
+        emulator.command("overload 3")
+        with pytest.raises(ServoHardwareError, match="servo 3 overload"):
+            chain.read_state()
+        chain.reboot(3)  # the latched error cleared; the servo is limp
+        emulator.command("push 3 -500")  # the limp joint sags while nobody holds it
+        # Goals still go out (a motion, a hold) while it is limp: its goal register now holds 0.6 rad again.
+        chain.write_goals(goal)
+        assert emulator.state(3)["goal"] - emulator.state(3)["position"] >= 400
+        chain.set_torque(True, [3])
+        state = emulator.state(3)
+        assert state["torque"] == 1 and abs(state["goal"] - state["position"]) <= 1  # holds where it sagged to
+
+
+def test_a_scan_while_a_motion_plays_is_refused_with_the_reason(emulator):
+    robot = robot_on(emulator.path)
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        controller = RobotController(chain, robot)
+        controller.start()
+        try:
+            source = FollowTheLeader([0.5] * 12, robot.axes, 0.05, 1, rate_hz=robot.control_rate_hz)
+            playing = controller.play(source, "slow")
+            assert wait_until(lambda: controller.motion_name == "slow")
+            pings = emulator.counts()["ping"]
+            with pytest.raises(BusBusyError, match=r"scan refused while motion 'slow' plays: .*~0\.8 s \(40 control"):
+                controller.scan().result(10)
+            assert emulator.counts()["ping"] == pings
+            controller.stop_motion()
+            assert playing.result(10) == "stopped"
+            assert [i.servo_id for i in controller.scan(ids=range(1, 13)).result(10)] == list(range(1, 13))
+        finally:
+            controller.close()
+
+
+def test_a_rate_the_bus_cannot_keep_is_refused_with_the_fix_before_it_starts(emulator, tmp_path, capsys):
+    shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
+    # Factory Return Delay Time: 12 × (500 µs + 21 bytes) + the instruction + the goals' sync write ≈ 9.5 ms.
+    assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "100 Hz cannot be kept: a tick has 10.0 ms" in err[0] and "take 9.5 ms on the bus" in err[0]
+    assert "set Return Delay Time to 0" in err[0] and "or run at ≤ 84 Hz" in err[0]
+    assert emulator.counts()["sync_write"] == 0
+    with ServoChain(robot_on(emulator.path)) as chain:
+        chain.check_models()
+        assert chain.rate_problem(50.0) is None
+        verdict, message = chain.rate_problem(60.0)
+        assert verdict == "warn" and "60 Hz leaves little room" in message
+
+
+def test_with_return_delay_0_the_same_rate_plays(tmp_path, capsys):
+    emulator = EmulatorProcess("--return-delay", "0")
+    try:
+        shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
+        assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "1",
+                     "--shifts", "1"]) == 0
+        captured = capsys.readouterr()
+        assert "finished" in captured.out and "warning" not in captured.err
+    finally:
+        assert emulator.close() == 0

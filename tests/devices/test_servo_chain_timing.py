@@ -86,9 +86,20 @@ def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_spe
         planned.append(seconds)
         real_sleep(seconds)
 
+    sleeps_per_wait: list[int] = []  # one entry per time the driver found a reply incomplete and had to wait
+
     try:
         with ServoChain(ROBOT) as chain:
             chain.set_torque(True)
+            port = chain._port
+            real_wait = port._wait_for_bytes
+
+            def counting_wait(n_bytes: int, reply_ids: tuple[int, ...]) -> None:
+                before = len(planned)
+                real_wait(n_bytes, reply_ids)
+                sleeps_per_wait.append(len(planned) - before)
+
+            monkeypatch.setattr(port, "_wait_for_bytes", counting_wait)
             monkeypatch.setattr(time, "sleep", recording_sleep)
             for _ in range(20):
                 chain.read_state()  # back to back, with the bus idle when each starts (as in a control tick)
@@ -98,7 +109,12 @@ def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_spe
         factory.install_sim_lab(previous)
     assert max(planned, default=0.0) <= 1.5 * cycle_s
     if clock_speed == 1.0:
-        assert len(planned) >= 20  # at real speed the replies are slept through, not polled
+        # At real speed a missing reply is slept through, not polled: every wait sleeps, once or twice. This used
+        # to assert ≥ 20 sleeps in 20 reads, which failed now and then on a loaded machine (issue 14): a bus thread
+        # descheduled for the ~2 ms of a sync read between writing the instruction and looking for the reply finds
+        # it complete and rightly does not sleep at all. So count the sleeps per wait the driver actually entered.
+        assert sleeps_per_wait, "no read ever waited for its reply: the simulated chain answered before the wire could"
+        assert min(sleeps_per_wait) >= 1 and sum(sleeps_per_wait) <= 2 * len(sleeps_per_wait), sleeps_per_wait
     else:
         assert len(planned) <= 20  # a faster simulator has answered before the driver looks
 

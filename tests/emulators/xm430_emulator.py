@@ -28,7 +28,8 @@ status packet starts Return Delay Time (2 µs per unit, factory 250 = 500 µs) a
 the previous servo's status packet (sync/bulk read), and is written to the pty whole when its last byte would have
 arrived. Bytes sent at another baud rate (the slave's termios speed) are not understood, as on a real bus.
 
-Motion: with torque on, the present position moves towards the goal at up to the no-load speed (or Profile
+Motion: torque on drives to whatever Goal Position holds (it is set to the present position only at power-on); with
+torque on, the present position moves towards the goal at up to the no-load speed (or Profile
 Velocity where set); present velocity and current follow from it. Linux and macOS (``os.openpty``).
 """
 
@@ -274,11 +275,10 @@ class Servo:
                 if self.get("operating_mode") == 3 and not low <= value <= high:
                     return ERR_DATA_LIMIT
         for name, value in touched:
-            if name == "torque_enable" and value == 1:
-                if self.get("hardware_error_status"):
-                    continue  # a servo in error keeps its torque off until rebooted (the alert bit says why)
-                if not self.torque:
-                    self.set("goal_position", round(self.position))  # torque on holds where it is
+            if name == "torque_enable" and value == 1 and self.get("hardware_error_status"):
+                continue  # a servo in error keeps its torque off until rebooted (the alert bit says why)
+            # Torque on drives to whatever Goal Position holds (written while limp, or left from before): the
+            # conservative reading of the e-manual; a host must set the goal to the present position first.
             if name == "goal_position":
                 self.goal_writes += 1
             self.set(name, value)
@@ -495,6 +495,17 @@ def _sleep_until(t: float) -> None:
         time.sleep(delay)
 
 
+def _run_like_hardware() -> str:
+    """Ask for a real-time scheduling class: servos answer on time whatever else the host runs, and a shared,
+    loaded machine would otherwise make the emulator, not the driver under test, late. Best effort (needs the
+    privilege); returns what was obtained, for the log line."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        return "SCHED_FIFO"
+    except (AttributeError, PermissionError, OSError):
+        return "normal scheduling (no privilege for SCHED_FIFO: replies may be late on a loaded machine)"
+
+
 def serve(bus: Bus, out=sys.stdout) -> int:
     master_fd, slave_fd = os.openpty()
     tty.setraw(master_fd)
@@ -609,6 +620,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate in bps (default 1000000)")
     parser.add_argument("--return-delay", type=int, default=250,
                         help="Return Delay Time register, 2 µs units (default 250 = 500 µs, the factory value)")
+    parser.add_argument("--no-realtime", action="store_true",
+                        help="do not ask for SCHED_FIFO (by default the emulator tries to answer on time like hardware)")
     args = parser.parse_args(argv)
     index = {bps: i for i, bps in BAUD_BPS.items()}.get(args.baud)
     if index is None:
@@ -616,6 +629,9 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(os, "openpty"):
         print("the emulator needs os.openpty (Linux or macOS)", file=sys.stderr)
         return 2
+    scheduling = "normal scheduling" if args.no_realtime else _run_like_hardware()
+    print(f"xm430 emulator: {args.ids} at {args.baud} bps, Return Delay Time {args.return_delay}, {scheduling}",
+          file=sys.stderr)
     return serve(Bus(_parse_ids(args.ids), index, args.return_delay))
 
 

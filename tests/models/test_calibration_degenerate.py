@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from devices.config import default_sensor_names
 from models.calibration import TrialInput, calibrate_sensor
 from models.physics import PhysicsConstants
 from models.sls import TYPICAL_AREA_M2
@@ -50,8 +51,12 @@ def test_fast_sim_rig_run_fits_with_warnings(tmp_path, capsys):
 
     trials = sorted(str(p) for p in DATA.glob("BENCH_t0*.csv"))
     assert len(trials) == 2
+    # BENCH is the rig's bench sensor: a channel of the rig's board, not of the robot's default one.
+    names = ", ".join(f'"{name}"' for name in (*default_sensor_names(), "BENCH"))
+    config = tmp_path / "bench.toml"
+    config.write_text(f"[board]\nchannel_names = [{names}]\n", encoding="utf-8")
     code = main(["fit", *trials, "--sensor", "BENCH", "--area", "0.0014", "--window", "3", "5",
-                 "--out", str(tmp_path / "cal.json")])
+                 "--config", str(config), "--out", str(tmp_path / "cal.json")])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "degenerate" in captured.out + captured.err

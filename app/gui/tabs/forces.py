@@ -1,11 +1,13 @@
 """The Forces tab: live per-segment force plots, the body force map, sensor health, recording and past recordings.
 
-Wiring (GUI thread): ``lab.board`` (:class:`app.gui.board_bridge.BoardBridge`) delivers blocks at ≤ 60 Hz →
-:class:`app.core.forces_pipeline.ForcesPipeline` turns conductance into force → a bounded force history that the plots
-redraw from their own timer; :class:`models.health.HealthMonitor` classifies every sensor as blocks arrive; a running
-:class:`app.gui.recording_session.RecordingSession` receives the same blocks, the forces, the robot's states
-(``lab.robot.state_block``) and the health/gap events, and writes them on its own thread. The body map redraws at
-``BODY_REFRESH_HZ`` from the newest forces and the robot's newest angles, only when something changed.
+Wiring (GUI thread): ``lab.board`` (:class:`app.gui.board_bridge.BoardBridge`) delivers verified blocks at ≤ 60 Hz
+to :class:`app.core.live_session.LiveSession` — the same Qt-free data path ``sensnake record`` uses: the force
+pipeline, the sensor health monitor and, while recording, the core :class:`app.core.recorder.Recorder` (inside
+:class:`app.gui.recording_session.RecordingSession`, which only adds signals) with the robot's states
+(``lab.robot.state_block``), gaps, clock segments and link counters. This tab subscribes to the session and draws:
+a bounded force history that the plots redraw from their own timer (drawing only; nothing a recording needs lives in
+it), the health list, the link counters. The body map redraws at ``BODY_REFRESH_HZ`` from the newest forces and the
+robot's newest angles, only when something changed.
 
 Past recordings open in the same plots (``Back to live`` returns); several can be overlaid for one sensor on a
 common time zero; the one shown can be exported to CSV.
@@ -42,6 +44,7 @@ from PySide6.QtWidgets import (
 
 from app.core import user_folders
 from app.core.forces_pipeline import ForcesPipeline
+from app.core.live_session import LiveSession, LiveUpdate
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
 from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
@@ -114,6 +117,11 @@ class ForcesTab(QWidget):
         self.pipeline = ForcesPipeline(self.channel_names)
         self.force_history = TraceHistory.for_budget(n_channels, FORCE_HISTORY_BUDGET_BYTES)
         self.health = HealthMonitor(n_channels, config.board.rate_hz)
+        # The data path (pipeline → health → recording) is the core's, the same one ``sensnake record`` runs; this
+        # tab subscribes to it and draws.
+        self.live = LiveSession(config.board, pipeline=self.pipeline, health=self.health,
+                                t0_monotonic_s=self.board.t0_monotonic_s if self.board is not None else None)
+        self.live.subscribe(self._draw_update)
         self.quantity = "force"
         self.session: RecordingSession | None = None
         self.viewed: Recording | None = None
@@ -242,30 +250,28 @@ class ForcesTab(QWidget):
 
     # -- live data -------------------------------------------------------------------------------------------------
     def on_block(self, block: Any) -> None:
-        """A board block (GUI thread, ≤ 60 Hz): estimate, keep, classify, record."""
-        t_s = self.board.to_session_time(block.host_time_s)
-        result = self.pipeline.process(block.board_time_s, block.conductance_s)
-        if self.pipeline.last_block_problem:
-            self.controls.set_message(self.pipeline.last_block_problem, "warn")
-        append_with_gaps(self.force_history, t_s, result.display, block.gap_before)
-        report = self.health.update(t_s, block.conductance_s, block.saturated)
-        if report is not None and report.changed.size:
-            self._apply_health(report.changed)
-        if self.session is not None and self.session.is_active:
-            self.session.add_block(block, result.force_n if self.session.with_forces else None)
+        """A board block (GUI thread, ≤ 60 Hz): through the core's live session (estimate, classify, record)."""
+        self.live.process_block(block)
+
+    def _draw_update(self, update: LiveUpdate) -> None:
+        """The live session's subscriber: keep the forces for the plots and show health changes (GUI thread)."""
+        block = update.block
+        if update.problem:
+            self.controls.set_message(update.problem, "warn")
+        if update.forces is not None:
+            append_with_gaps(self.force_history, self.live.session_time_s(block.host_time_s), update.forces.display,
+                             block.gap_before)
+        if update.health_changed.size:
+            self._apply_health(update.health_changed)
 
     def _on_robot_states(self, states: Any) -> None:
-        if self.session is not None and self.session.is_active:
-            self.session.add_robot_states(states)
+        self.live.add_robot_states(states)
 
     def _apply_health(self, changed: np.ndarray) -> None:
         flags = self.health.flags
         for i in changed:
-            name = self.channel_names[i]
             word = describe(int(flags[i])) if flags[i] else ""
             self._warnings[i] = word
-            if self.session is not None and self.session.is_active:
-                self.session.log_event(f"{name}: {word or 'ok'}", kind="health")
         self.plots.set_channel_warnings(self._warnings)
         self.health_list.clear()
         bad = [(self.channel_names[i], w) for i, w in enumerate(self._warnings) if w]
@@ -374,19 +380,16 @@ class ForcesTab(QWidget):
         robot = getattr(self.lab, "robot", None)
         with_robot = bool(robot is not None and getattr(robot, "is_connected", False))
         session = RecordingSession(path, self.lab.config.source_text, self.channel_names,
-                                   calibration_json=self._calibration_json_for_recording(), with_robot=with_robot,
+                                   calibration_json=self.live.recording_calibration_json(), with_robot=with_robot,
                                    n_joints=self.lab.config.robot.n_joints, min_free_bytes=self.min_free_bytes,
                                    parent=self)
         session.failed.connect(self._on_recording_failed)
         session.stopped.connect(self._on_recording_stopped)
         self.session = session
         session.start()
-        session.log_event(f"calibration: {self.pipeline.summary()[0]}; estimator {self.pipeline.estimator_kind}")
-        bad = [f"{n}: {w}" for n, w in zip(self.channel_names, self._warnings) if w]
-        if bad:
-            session.log_event("health at start: " + "; ".join(bad), kind="health")
-        if self.board is not None and not self.board.is_connected:
-            session.mark_gap(time.monotonic(), "board not connected when the recording started")
+        if self.board is not None and not self.board.is_connected and self.live.last_status is None:
+            self.live.handle_status(self.board.last_status)
+        self.live.attach_recorder(session.recorder)
         self.lab.recording = session
         self.controls.path.setText(str(path))
         self.controls.set_recording(True, "recording…")
@@ -395,25 +398,6 @@ class ForcesTab(QWidget):
         if duration_s:
             self._auto_stop_timer.start(int(round(duration_s * 1000)))
         return session
-
-    def _calibration_json_for_recording(self) -> str | None:
-        """Forces are stored when they are estimated: with the loaded calibration, or a document describing the
-        typical-sensor defaults in force (so a reader knows those forces are indicative)."""
-        if self.pipeline.calibration_json is not None:
-            return self.pipeline.calibration_json
-        if self.pipeline.estimated.any():
-            import json
-
-            from models.physics import DEFAULT_PHYSICS
-            from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
-            entry = {"area_m2": TYPICAL_AREA_M2,
-                     "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
-                             "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)},
-                     "note": "typical-sensor default, not a calibration of this sensor"}
-            return json.dumps({"format": "sensnake-calibration", "version": 1, "physics": DEFAULT_PHYSICS.to_dict(),
-                               "sensors": {name: entry for name in self.channel_names},
-                               "estimator": self.pipeline.estimator_kind, "defaults": True})
-        return None
 
     def stop_recording(self) -> None:
         self._auto_stop_timer.stop()
@@ -454,20 +438,16 @@ class ForcesTab(QWidget):
                                            f"{self.lab.config.board.port}", "ok")
 
     def _on_board_status(self, status: Any) -> None:
+        self.live.handle_status(status)  # gaps, reconnects and segments go into the recording there
         level = {"connected": "ok", "reconnected": "ok", "closed": "idle"}.get(status.state, "error")
         self.controls.set_board_status(status.message, level)
         if status.state in ("disconnected", "mismatch", "error"):
             self.controls.set_message(status.message, "error")
-            if self.session is not None and self.session.is_active:
-                self.session.mark_gap(status.host_time_s, status.message)
         elif status.state == "reconnected":
-            self.controls.set_message("board reconnected; the gap is marked in the plots' data and the recording",
-                                      "warn")
-            self.health.reset()
-            if self.session is not None and self.session.is_active:
-                self.session.log_event("board reconnected: recording resumed", status.host_time_s, kind="gap")
+            self.controls.set_message(f"{status.message} (plots and recording)", "warn")
 
     def _on_stats(self, stats: Any) -> None:
+        warning = self.live.handle_stats(stats)  # counted into the recording; never stops it
         now = time.monotonic()
         previous, self._last_stats = self._last_stats, stats
         elapsed = max(now - self._last_stats_s, 1e-3)
@@ -475,15 +455,20 @@ class ForcesTab(QWidget):
         crc_rate = 0.0 if previous is None else (stats.crc_errors - previous.crc_errors) / elapsed
         text = (f"CRC {stats.crc_errors} · resync {stats.resyncs} · lost frames {stats.dropped_frames} · "
                 f"reconnects {stats.reconnects}")
-        level = "ok"
+        if getattr(stats, "out_of_range_frames", 0):
+            text += f" · out of range {stats.out_of_range_frames}"
+        since = getattr(stats, "disconnected_since_s", None)
+        if since is not None:
+            text += f" · BOARD MISSING {now - since:.0f} s"
+        level = self.live.link.level
         if crc_rate > CRC_STORM_PER_S:
             level = "error"
             text += f" — CRC storm ({crc_rate:.0f}/s): check the board cable and baud rate"
-        elif stats.crc_errors or stats.dropped_frames:
-            level = "warn"
+        elif since is not None:
+            level = "error"
         self.controls.set_counters(text, level)
-        if self.session is not None and self.session.is_active:
-            self.session.update_stats(stats.crc_errors, stats.dropped_frames, stats.resyncs)
+        if warning:
+            self.controls.set_message(warning, "error")
 
     def _refresh_status(self) -> None:
         session = self.session
@@ -498,7 +483,7 @@ class ForcesTab(QWidget):
         """Show a recording in the plots (paused, whole length); None and a message if it cannot be read."""
         try:
             with busy_cursor():
-                recording = open_recording(path)
+                recording = open_recording(path, recover=True)
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"cannot open recording: {exc}", "error")
             return None
@@ -513,7 +498,10 @@ class ForcesTab(QWidget):
             self._show_recording(recording)
         self.controls.set_viewing_file(Path(path).name)
         gaps = len(recording.gaps)
-        if gaps:
+        if recording.recovery:
+            self.controls.set_message(f"{recording.recovery} — showing what survives; 'sensnake repair' writes a "
+                                      "clean copy", "warn")
+        elif gaps:
             self.controls.set_message(f"showing {Path(path).name}: {gaps} gap(s) marked", "warn")
         return recording
 

@@ -13,7 +13,7 @@ from typing import Any
 
 from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
-from PySide6.QtWidgets import QVBoxLayout, QWidget
+from PySide6.QtWidgets import QMessageBox, QVBoxLayout, QWidget
 
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
@@ -89,7 +89,7 @@ class HardwareTab(QWidget):
         panel.torque_requested.connect(lambda sid, on: self.robot.set_torque(on, [sid]))
         panel.all_torque_requested.connect(lambda on: self.robot.set_torque(on))
         panel.led_requested.connect(self.robot.set_led)
-        panel.reboot_requested.connect(self.robot.reboot)
+        panel.reboot_requested.connect(self.ask_reboot)
         panel.link_check_requested.connect(self.start_link_check)
         panel.timing_check_requested.connect(self.start_timing_check)
         panel.fix_return_delay_requested.connect(self.fix_return_delay)
@@ -144,6 +144,21 @@ class HardwareTab(QWidget):
             self.refresh()
         else:
             self.panel.set_timing_warnings([], checked=False)
+
+    # -- reboot ----------------------------------------------------------------------------------------------------
+    def ask_reboot(self, servo_id: int) -> None:
+        """Reboot after the user confirms: the servo comes back limp, so a joint carrying load drops."""
+        question = (f"Reboot servo {servo_id}? It clears a latched hardware error, but the servo comes back with "
+                    "torque OFF: a joint carrying weight will drop. Support the robot first.")
+        if self.confirm(question):
+            self.robot.reboot(servo_id)
+
+    def confirm(self, question: str) -> bool:
+        """Ask a yes/no question (modal); tests replace this method."""
+        answer = QMessageBox.question(self, "Reboot servo", question,
+                                      QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+                                      QMessageBox.StandardButton.No)
+        return answer == QMessageBox.StandardButton.Yes
 
     # -- scan ------------------------------------------------------------------------------------------------------
     def start_scan(self, ids: Sequence[int], bauds: Sequence[int]) -> None:

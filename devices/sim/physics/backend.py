@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from devices.config import LabConfig
 from devices.sim.clock import SimClock
 from devices.sim.physics.model import SceneParams
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
+
+if TYPE_CHECKING:  # pragma: no cover
+    from devices.sim.physics.render import SceneRenderer
 
 STEP_INTERVAL_S = 0.004  # the background thread catches up every 4 ms of wall time
 
@@ -47,6 +51,8 @@ class PhysicsBackend:
         self._time0_s = clock.now()  # the world starts at 0 s when the clock reads this
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._renderer: SceneRenderer | None = None
+        self._renderer_key = (0, 0, 0)
 
     # -- joints (the chain) ----------------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
@@ -78,6 +84,21 @@ class PhysicsBackend:
 
     def body_state(self) -> BodyState:
         return self.world.body_state()
+
+    # -- pictures (one thread: the one that first asks, the GUI's) -------------------------------------------------------
+    def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
+        """A (height, width, 3) uint8 picture of the scene; raises ``RenderUnavailable`` (a RuntimeError) when this
+        machine cannot render offscreen. The renderer (an OpenGL context) is made on the first call in the caller's
+        thread; a call from another thread or at another size makes a new one. One thread at a time."""
+        from devices.sim.physics.render import SceneRenderer
+
+        key = (width, height, threading.get_ident())
+        if self._renderer is None or self._renderer_key != key:
+            if self._renderer is not None and self._renderer_key[2] == key[2]:
+                self._renderer.close()  # (another thread's context is left to that thread's end)
+            self._renderer = SceneRenderer(self.world, width, height)
+            self._renderer_key = key
+        return self._renderer.render()
 
     # -- background stepping -------------------------------------------------------------------------------------------
     def start(self) -> None:

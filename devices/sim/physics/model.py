@@ -109,14 +109,14 @@ def build_mjcf(scene: SceneParams) -> str:
         obstacle = (
             f'<geom name="obstacle" type="capsule" size="{scene.obstacle_height_m:.6f} {scene.obstacle_width_m / 2:.6f}" '
             f'pos="0 0 0" euler="90 0 0" friction="{scene.obstacle_friction} 0.005 0.0001" '
-            f'contype="0" conaffinity="1" rgba="0.92 0.92 0.95 1"/>'
+            f'contype="0" conaffinity="1" rgba="0.85 0.88 0.95 0.45"/>'
         )
     walls = ""
     if scene.wall_offset_m is not None:
         for side, name in ((-1, "wall_right"), (1, "wall_left")):
             walls += (
-                f'<geom name="{name}" type="box" size="{scene.body_length_m:.4f} 0.01 0.1" '
-                f'pos="0 {side * (scene.wall_offset_m + 0.01):.6f} 0.1" '
+                f'<geom name="{name}" type="box" size="{scene.body_length_m:.4f} 0.1 0.1" '
+                f'pos="0 {side * (scene.wall_offset_m + 0.1):.6f} 0.1" '
                 f'contype="0" conaffinity="1" rgba="0.6 0.6 0.7 0.5"/>'
             )
     actuators = "".join(
@@ -131,7 +131,9 @@ def build_mjcf(scene: SceneParams) -> str:
   <default>
     <joint damping="{servo.damping_nm_s_per_rad}" armature="{servo.armature_kg_m2}"
            frictionloss="{servo.friction_loss_nm}"/>
-    <geom friction="{scene.ground_friction} 0.005 0.0001" solref="0.01 1"/>
+    <!-- Soft contacts (40 ms time constant) stand for the compliant TPU shell: two neighbouring segments on the
+         obstacle's top share the load instead of rocking between rigid contacts (which chatters the sensors). -->
+    <geom friction="{scene.ground_friction} 0.005 0.0001" solref="0.04 1"/>
   </default>
   <visual><global offwidth="640" offheight="480"/><quality shadowsize="0"/></visual>
   <asset>

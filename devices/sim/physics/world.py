@@ -255,6 +255,12 @@ class PhysicsWorld:
             points = np.vstack([starts, starts[-1] + back])
             return BodyState(self.time_s, points, frames)
 
+    def update_scene(self, renderer: mujoco.Renderer, camera: mujoco.MjvCamera) -> None:
+        """Copy the world into ``renderer``'s scene (under the lock), the camera looking at the body's centroid."""
+        with self._lock:
+            camera.lookat[:] = self.data.xpos[self._seg_body].mean(axis=0)
+            renderer.update_scene(self.data, camera)
+
     @property
     def weight_n(self) -> float:
         return self.scene.robot_mass_kg * abs(float(self.model.opt.gravity[2]))

@@ -1,0 +1,118 @@
+"""The "3-D lab" tab: the physics lab's scene rendered offscreen (MuJoCo, EGL on Linux), or the 2-D body drawing.
+
+The picture is rendered in a worker thread of this tab (an OpenGL context belongs to the thread that made it), at
+most ``FRAME_RATE_HZ`` and only while the tab is visible; frames reach the GUI thread through the app's one
+:class:`app.gui.thread_bridge.ThreadBridge`. Without a physics lab (a real robot, ``[lab] physics = "scripted"``) or
+without OpenGL it shows the 2-D body drawing of the robot's present joint angles and says why.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QTimer
+from PySide6.QtWidgets import QVBoxLayout, QWidget
+
+from app.gui.thread_bridge import ThreadBridge
+from widgets.scene_view import SceneView
+
+FRAME_RATE_HZ = 10.0
+FRAME_SIZE = (640, 480)
+BODY_RATE_MS = 100
+
+
+def _physics_of(lab: Any) -> Any:
+    """The simulated lab's physics backend, or None (a real robot, or the scripted simulated lab)."""
+    if not lab.robot.is_sim:
+        return None
+    from devices.factory import sim_lab
+
+    return getattr(sim_lab(), "physics", None)
+
+
+class SceneTab(QWidget):
+    """See the module docstring. ``shutdown()`` stops the render thread (the main window calls it)."""
+
+    def __init__(self, lab: Any, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lab = lab
+        robot = lab.config.robot
+        self.view = SceneView(robot.axes, robot.segment_length_m)
+        layout = QVBoxLayout(self)
+        layout.addWidget(self.view)
+        self._bridge = ThreadBridge(self)
+        self._physics = _physics_of(lab)
+        self._visible = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.render_error = ""
+        self._body_timer = QTimer(self)
+        self._body_timer.setInterval(BODY_RATE_MS)
+        self._body_timer.timeout.connect(self._draw_body)
+        if self._physics is None:
+            self.view.show_fallback("No physics lab: this is a real robot or the scripted simulated lab "
+                                    "([lab] physics = \"scripted\"). The 2-D drawing shows the present joint angles.")
+
+    @property
+    def rendering(self) -> bool:
+        """True while the render thread is allowed to draw (the tab is visible and has a physics lab)."""
+        return self._thread is not None and self._visible.is_set() and not self._stop.is_set()
+
+    # -- visibility drives the work ----------------------------------------------------------------------------------
+    def showEvent(self, event) -> None:  # noqa: N802 - Qt's name
+        super().showEvent(event)
+        if self._physics is not None and not self.render_error:
+            self._visible.set()
+            if self._thread is None:
+                self._stop.clear()
+                self._thread = threading.Thread(target=self._render_loop, name="scene-render", daemon=True)
+                self._thread.start()
+        else:
+            self._body_timer.start()
+
+    def hideEvent(self, event) -> None:  # noqa: N802 - Qt's name
+        super().hideEvent(event)
+        self._visible.clear()
+        self._body_timer.stop()
+
+    def shutdown(self) -> None:
+        self._stop.set()
+        self._visible.set()  # wake the loop so it sees the stop
+        if self._thread is not None:
+            self._thread.join(timeout=3.0)
+            self._thread = None
+        self._body_timer.stop()
+        self._bridge.close()
+
+    # -- render thread -------------------------------------------------------------------------------------------------
+    def _render_loop(self) -> None:
+        period = 1.0 / FRAME_RATE_HZ
+        try:
+            while not self._stop.is_set():
+                self._visible.wait()
+                if self._stop.is_set():
+                    break
+                frame = self._physics.render_rgb(*FRAME_SIZE)
+                self._bridge.post(self.view.set_frame, frame)
+                self._stop.wait(period)
+        except RuntimeError as exc:  # RenderUnavailable (no EGL/OSMesa here), or the world went away
+            self._bridge.post(self._on_render_error, str(exc))
+
+    def _on_render_error(self, message: str) -> None:
+        self.render_error = message
+        self.view.show_fallback(f"{message}; showing the 2-D body drawing instead.")
+        if self.isVisible():
+            self._body_timer.start()
+
+    # -- 2-D fallback --------------------------------------------------------------------------------------------------
+    def _draw_body(self) -> None:
+        state = self.lab.robot.latest_state
+        if state is not None:
+            self.view.body.set_angles(np.asarray(state.position_rad))
+
+
+def create_tab(lab: Any) -> QWidget:
+    """The main window's entry point (``app/gui/tabs/<name>.py`` contract)."""
+    return SceneTab(lab)

@@ -1,0 +1,48 @@
+"""Pictures of the physics lab: an offscreen MuJoCo renderer (EGL on Linux) following the robot.
+
+Thread: a renderer owns an OpenGL context made current in the thread that created it; call :meth:`render` from that
+thread only (the app's GUI thread). The world is read under its lock (``PhysicsWorld.update_scene``), drawing happens
+outside it, so the physics thread is held up only for the scene update.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from devices.sim.physics.world import PhysicsWorld
+
+CAMERA_DISTANCE_M = 1.7
+CAMERA_AZIMUTH_DEG = 60.0  # from the robot's right, a little from behind; the obstacle is drawn see-through
+CAMERA_ELEVATION_DEG = -25.0
+
+
+class RenderUnavailable(RuntimeError):
+    """No OpenGL rendering here (no EGL/OSMesa/display); the message says why."""
+
+
+class SceneRenderer:
+    """Renders ``world`` at ``width`` × ``height`` pixels from a camera that follows the body's centroid."""
+
+    def __init__(self, world: PhysicsWorld, width: int = 640, height: int = 480) -> None:
+        self.world = world
+        try:
+            self._renderer = mujoco.Renderer(world.model, height=height, width=width)
+        except Exception as exc:  # noqa: BLE001 - GL back ends fail with many types; all mean "cannot render here"
+            raise RenderUnavailable(f"no OpenGL rendering for the 3-D view ({type(exc).__name__}: {exc})") from exc
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self._camera.distance = CAMERA_DISTANCE_M
+        self._camera.azimuth = CAMERA_AZIMUTH_DEG
+        self._camera.elevation = CAMERA_ELEVATION_DEG
+        self.frames = 0
+
+    def render(self) -> np.ndarray:
+        """One frame, (height, width, 3) uint8 RGB."""
+        self.world.update_scene(self._renderer, self._camera)
+        frame = self._renderer.render()
+        self.frames += 1
+        return frame
+
+    def close(self) -> None:
+        self._renderer.close()

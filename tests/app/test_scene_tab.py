@@ -1,0 +1,63 @@
+"""The "3-D lab" tab: offscreen MuJoCo pictures of the physics lab, the 2-D drawing for the scripted lab."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
+
+from app.gui.lab import LabContext  # noqa: E402
+from app.gui.tabs.scene import SceneTab  # noqa: E402
+from devices.config import LabConfig, SimLabConfig  # noqa: E402
+
+PHYSICS = dataclasses.replace(LabConfig(), lab=SimLabConfig(physics="mujoco"))
+
+
+@pytest.fixture
+def tab_on(qtbot, install_fast_sim_lab):
+    made = []
+
+    def make(config):
+        lab_sim = install_fast_sim_lab(config, speed=1.0)
+        lab = LabContext(config)
+        tab = SceneTab(lab)
+        qtbot.addWidget(tab)
+        tab.resize(640, 480)
+        made.append((tab, lab, lab_sim))
+        return tab, lab_sim
+
+    yield make
+    for tab, lab, lab_sim in made:
+        tab.shutdown()
+        lab.close()
+        lab_sim.close()
+
+
+def test_the_physics_lab_is_drawn_in_3d_and_the_picture_follows_the_world(qtbot, tab_on):
+    tab, lab_sim = tab_on(PHYSICS)
+    tab.show()
+    qtbot.waitUntil(lambda: tab.view.frames_shown >= 2 or bool(tab.render_error), timeout=20000)
+    if tab.render_error:
+        pytest.skip(f"no offscreen OpenGL on this machine: {tab.render_error}")
+    assert tab.view.showing_picture
+    image = tab.view.picture.pixmap().toImage()
+    assert image.width() > 100 and image.height() > 100
+    # Not a blank frame: the rendered scene has structure (ground, obstacle, robot).
+    frame = lab_sim.physics.render_rgb(160, 120)
+    assert frame.shape == (120, 160, 3) and frame.std() > 10
+    before = frame.copy()
+    lab_sim.physics.world.place(head_x_m=-1.0)  # move the robot away from the obstacle: the picture changes
+    after = lab_sim.physics.render_rgb(160, 120)
+    assert np.abs(after.astype(int) - before.astype(int)).mean() > 1.0
+    tab.hide()
+    assert not tab.rendering  # hidden: the render thread waits instead of drawing
+
+
+def test_the_scripted_lab_falls_back_to_the_2d_body_drawing(qtbot, tab_on):
+    tab, _ = tab_on(LabConfig())
+    tab.show()
+    assert not tab.view.showing_picture
+    assert "scripted" in tab.view.reason.text()
