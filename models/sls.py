@@ -36,14 +36,16 @@ holds state and must be used from one thread at a time.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from models import sls_kernels
 from models.physics import (
     STRAIN_NEAR_ONE,
     PhysicsConstants,
@@ -54,6 +56,27 @@ from models.physics import (
 )
 
 INTERPOLATIONS = ("hold", "linear")
+ENGINES = ("auto", "numpy")
+_engine = "auto"  # "auto": the compiled kernels (models.sls_kernels) when numba is there; "numpy": the reference
+
+
+@contextlib.contextmanager
+def engine(name: str) -> Iterator[None]:
+    """Run the recursions with ``name``: ``"auto"`` (compiled when numba is available) or ``"numpy"`` (the exact
+    pure-numpy reference paths). For tests and benchmarks; not thread-safe (it sets a module-wide choice)."""
+    global _engine
+    if name not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {name!r}")
+    previous, _engine = _engine, name
+    try:
+        yield
+    finally:
+        _engine = previous
+
+
+def _compiled():
+    return sls_kernels.kernels() if _engine == "auto" else None
+
 SLS_KEYS = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
 
 # Below this x = h/τ, 1 − φ1 comes from its Taylor series (direct evaluation cancels: relative error ~ε_mach/x).
@@ -380,6 +403,13 @@ def _creep_strain(
     interpolation) or None (hold). one_minus_alpha[n] is for the step ending at sample n. Returns (N, S)."""
     n, s = drive.shape
     q_all = np.empty((n, s))
+    compiled = _compiled()
+    if compiled is not None and n:
+        oma_c = np.ascontiguousarray(np.broadcast_to(one_minus_alpha, (n, one_minus_alpha.shape[1])))
+        ramp_c = oma_c if ramp is None else np.ascontiguousarray(ramp)
+        compiled.creep_strain(oma_c, np.ascontiguousarray(drive), ramp_c, ramp is not None,
+                              np.ascontiguousarray(q0, dtype=np.float64), q_all)
+        return q_all
     prev_drive = np.zeros(s) if n == 0 else drive[0] * 0.0
     if s == 1:
         # One sensor: plain Python floats are ~10× faster per step than numpy scalars.
@@ -694,7 +724,10 @@ class SLSInverse:
             status[np.isnan(cond)] = ForceStatus.NAN_INPUT
             status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
             status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
-        if s == 1:
+        compiled = _compiled()
+        if compiled is not None:
+            self._run_compiled(compiled, cond, oma, ramp, force, status)
+        elif s == 1:
             self._run_one_sensor(cond[:, 0], oma[:, 0], None if ramp is None else ramp[:, 0], force, status)
         elif self.phys.has_contact:
             self._run_contact(cond, oma, ramp, force, status)
@@ -702,6 +735,28 @@ class SLSInverse:
             self._run_no_contact(cond, oma, ramp, force, status, clean)
         self._state.t_prev_s = float(t[-1])
         return ForceResult(force, status)
+
+    # -- the compiled path (models.sls_kernels): the one-sensor algebra below, compiled, for every sensor.
+    def _run_compiled(self, kern, cond, oma, ramp, force, status) -> None:
+        co, st, phys = self._co, self._state, self.phys
+        contact = phys.has_contact
+        if contact:
+            strain = strain_status = np.zeros((1, 1))
+        else:
+            valid = (cond > 0.0) & np.isfinite(cond)
+            res = strain_from_resistance(1.0 / np.where(valid, cond, 1.0), 1.0, phys)
+            strain, strain_status = res.strain, res.status.astype(np.int64)
+        # Sensor-major copies (S, N): each sensor's row is contiguous for the compiled loop.
+        n, s = cond.shape
+        oma_t = np.ascontiguousarray(np.broadcast_to(oma, (n, oma.shape[1])).T)
+        ramp_t = oma_t if ramp is None else np.ascontiguousarray(ramp.T)
+        force_t = np.empty((s, n))
+        status_t = np.ascontiguousarray(status.T)
+        kern.inverse(np.ascontiguousarray(cond.T), oma_t, ramp_t, ramp is not None, co.e0, co.e1, co.area, contact,
+                     phys.tunnelling_k, phys.R0_ohm, phys.K_contact_ohm_sqrtN, np.ascontiguousarray(strain.T),
+                     np.ascontiguousarray(strain_status.T), st.q, st.sigma_prev, st.force_prev, force_t, status_t)
+        force[...] = force_t.T
+        status[...] = status_t.T
 
     # -- the no-contact path: strain is a function of the reading alone, so Eq. 3 is inverted for the whole block
     # at once and only the linear recursion runs per step.

@@ -58,6 +58,7 @@ SCROLL_STEPS = 10_000
 PEN_PAD_PX = 2.0  # a trace's bounds reach this far past its data (the pen and rounding)
 BUCKETS_PER_PIXEL = 1.0  # history buckets per plot pixel (each drawn as its low and high)
 AXIS_COLOR = "#444444"
+OTHER_UNITS_COLOR = "#7A5C00"  # the right-hand axis (uncalibrated sensors' µS): told apart from the plot's own
 OTHER_COLORS = ("#444444", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
 
 _SEGMENT_NAME = re.compile(r"^S(\d+)([A-Za-z])$")
@@ -191,6 +192,13 @@ class _TraceBundle(pg.GraphicsObject):
                 painter.drawPath(line)
 
 
+def _pen_pad(box: pg.ViewBox) -> tuple[float, float]:
+    """How far (view units, x and y) a trace's bounds reach past its data in ``box``: PEN_PAD_PX pixels."""
+    (x0, x1), (y0, y1) = box.viewRange()
+    size = box.size()
+    return (PEN_PAD_PX * (x1 - x0) / max(size.width(), 1.0), PEN_PAD_PX * (y1 - y0) / max(size.height(), 1.0))
+
+
 class _SegmentPlot(QWidget):
     """A collapsible box holding one PlotWidget and its curves."""
 
@@ -260,11 +268,53 @@ class _SegmentPlot(QWidget):
                                    "font-size: 8pt; padding: 1px 3px;")
         self.readout.hide()
         self._labels = list(group.names)
+        self.alt: tuple[pg.ViewBox, _TraceBundle] | None = None  # right-hand axis for channels in other units
         self.auto_y = True  # off once the user zooms this plot; back on when the view resumes following
 
     @property
     def viewbox(self) -> pg.ViewBox:
         return self.plot_widget.getPlotItem().getViewBox()
+
+    def other_axis(self, units: str) -> tuple[pg.ViewBox, _TraceBundle]:
+        """The right-hand axis (its own view box and trace bundle, same time axis) for the channels of this plot that
+        are in ``units`` rather than the plot's: an uncalibrated sensor's µS never share an axis labelled N.
+        Created the first time it is needed."""
+        if self.alt is None:
+            item = self.plot_widget.getPlotItem()
+            box = pg.ViewBox(enableMenu=False)
+            box.setMouseEnabled(x=False, y=False)
+            item.scene().addItem(box)
+            item.showAxis("right")
+            axis = item.getAxis("right")
+            axis.linkToView(box)
+            axis.enableAutoSIPrefix(False)
+            axis.setPen(pg.mkPen(OTHER_UNITS_COLOR))
+            axis.setTextPen(pg.mkPen(OTHER_UNITS_COLOR))
+            axis.setWidth(44)
+            box.setXLink(self.viewbox)
+            bundle = _TraceBundle()
+            box.addItem(bundle)
+
+            def follow() -> None:
+                box.setGeometry(self.viewbox.sceneBoundingRect())
+                box.linkedViewChanged(self.viewbox, box.XAxis)
+
+            self.viewbox.sigResized.connect(follow)
+            follow()
+            self.alt = (box, bundle)
+        box, bundle = self.alt
+        item = self.plot_widget.getPlotItem()
+        if item.getAxis("right").labelText != units:
+            item.setLabel("right", units, color=OTHER_UNITS_COLOR)
+        item.showAxis("right")
+        box.show()
+        return self.alt
+
+    def hide_other_axis(self) -> None:
+        if self.alt is not None:
+            self.alt[1].set_traces([])
+            self.alt[0].hide()
+            self.plot_widget.getPlotItem().hideAxis("right")
 
     @property
     def collapsed(self) -> bool:
@@ -311,6 +361,7 @@ class ForcePlotGrid(QWidget):
         self.groups = groups_from_names(self.channel_names)
         self._history: TraceHistory | None = None
         self._units = "N"
+        self._channel_units: tuple[str, ...] | None = None  # per channel, when some differ from _units
         self._window_s = 30.0
         self._paused = False
         # Live, the x axis is "seconds before the newest sample": the view range stays put and only the data moves,
@@ -358,12 +409,10 @@ class ForcePlotGrid(QWidget):
         self.time_bar.setToolTip("Scroll back through the whole session (moving it pauses the live view)")
         self.time_bar.sliderMoved.connect(self._on_time_bar)
         layout.addWidget(self.time_bar)
-        # Every plot shows time ticks (live they do not move, so the cached axis costs nothing per frame); only the
-        # bottom row spends height on the axis title.
-        last_row = (len(self.groups) - 1) // columns
-        for i, plot in enumerate(self.plots):
-            if i // columns == last_row:
-                plot.plot_widget.setLabel("bottom", "time before newest sample", units="s")
+        # Every plot's time axis is labelled with its unit: a plot seen on its own (the grid scrolled, one plot
+        # exported) must say what its x is. Live the axis does not move, so the cached label costs nothing per frame.
+        for plot in self.plots:
+            plot.plot_widget.setLabel("bottom", "time before newest sample", units="s")
         self.set_units("N")
 
         self._timer = QTimer(self)
@@ -385,13 +434,36 @@ class ForcePlotGrid(QWidget):
         return self._history
 
     def set_units(self, units: str) -> None:
-        """Y-axis units, e.g. ``"N"`` or ``"µS"``."""
+        """Y-axis units, e.g. ``"N"`` or ``"µS"`` (every channel; see :meth:`set_channel_units`)."""
         self._units = units
+        self._channel_units = None
+        for plot in self.plots:
+            plot.hide_other_axis()
         for plot in self.plots:
             # No automatic SI prefix: it labelled small ranges "N (x0.001)", and neighbouring plots in different
             # scales are misread; every plot stays in the units named here.
             plot.plot_widget.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
             plot.plot_widget.setLabel("left", units)
+
+    def set_channel_units(self, units: Sequence[str] | None) -> None:
+        """Units per channel (``channel_names`` order), or None for all in the plots' units. Channels whose unit
+        differs from the plots' (an uncalibrated sensor's µS among forces in N) are drawn on each plot's own
+        right-hand axis labelled with their unit, never on the left axis, and read out in their unit."""
+        if units is not None and len(units) != len(self.channel_names):
+            raise ValueError(f"{len(units)} units for {len(self.channel_names)} channels")
+        units = None if units is None or all(u == self._units for u in units) else tuple(units)
+        if units == self._channel_units:
+            return
+        self._channel_units = units
+        self._drawn_key = None
+        for plot in self.plots:
+            if units is None or all(units[i] == self._units for i in plot.group.channels):
+                plot.hide_other_axis()
+        self.refresh(force=True)
+
+    def channel_unit(self, index: int) -> str:
+        """The unit channel ``index`` is drawn and read out in."""
+        return self._units if self._channel_units is None else self._channel_units[index]
 
     def set_window_s(self, window_s: float) -> None:
         """Width of the live window in seconds (5 s … 10 min in the Forces tab)."""
@@ -550,22 +622,26 @@ class ForcePlotGrid(QWidget):
                 x = np.repeat(x, 2)
             column = 0
             for plot, visible in jobs:
-                first = column
-                traces = []
+                # Channels in the plots' units on the left axis; others (µS of uncalibrated sensors) on the right.
+                by_units: dict[str, tuple[list, list[int]]] = {}
                 for k in visible:
                     _x, y = window.peak_interleaved(column)
                     trace = plot.curves[k]
                     trace._x, trace._y = x, y
+                    traces, columns = by_units.setdefault(self.channel_unit(int(plot.channels[k])), ([], []))
                     traces.append((trace.opts["pen"], x, y))
+                    columns.append(column)
                     column += 1
-                (x0, x1), (y0, y1) = plot.viewbox.viewRange()
-                size = plot.viewbox.size()
-                # 2 px: the 1-px cosmetic pen reaches half a pixel past the data, plus rounding
-                pad = (PEN_PAD_PX * (x1 - x0) / max(size.width(), 1.0), PEN_PAD_PX * (y1 - y0) / max(size.height(), 1.0))
-                plot.bundle.set_traces(traces, pad)
-                if plot.auto_y:
-                    self._fit_y(plot, window.low[:, first:column], window.high[:, first:column],
-                                MIN_Y_SPAN.get(self._units, DEFAULT_MIN_Y_SPAN))
+                for units, (traces, columns) in by_units.items():
+                    box, bundle = (plot.viewbox, plot.bundle) if units == self._units else plot.other_axis(units)
+                    bundle.set_traces(traces, _pen_pad(box))
+                    if plot.auto_y or box is not plot.viewbox:
+                        self._fit_y(box, window.low[:, columns], window.high[:, columns],
+                                    MIN_Y_SPAN.get(units, DEFAULT_MIN_Y_SPAN))
+                if self._units not in by_units:
+                    plot.bundle.set_traces([])
+                if plot.alt is not None and len(by_units) == 1 and self._units in by_units:
+                    plot.alt[1].set_traces([])
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
         self._drawn_key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
@@ -575,7 +651,7 @@ class ForcePlotGrid(QWidget):
             self.redrawn.emit()
 
     @staticmethod
-    def _fit_y(plot: _SegmentPlot, low: np.ndarray, high: np.ndarray, min_span: float = 1e-3) -> None:
+    def _fit_y(box: pg.ViewBox, low: np.ndarray, high: np.ndarray, min_span: float = 1e-3) -> None:
         """Keep the data (``low``/``high`` M×k) in view, but change the y range only when the data leaves it or
         uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame.
         ``min_span`` (data units) is the smallest range shown, so an unloaded sensor's noise stays a flat line."""
@@ -588,12 +664,12 @@ class ForcePlotGrid(QWidget):
             return
         # A nearly flat trace still gets a sensible range, so sensor noise does not rescale it every frame.
         span = max(hi - lo, min_span, 0.05 * max(abs(lo), abs(hi)))
-        (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
+        (_x0, _x1), (y0, y1) = box.viewRange()
         if y0 <= lo and hi <= y1 and span >= 0.4 * (y1 - y0):
             return
         center = (lo + hi) / 2
         half = 0.65 * span
-        plot.viewbox.setYRange(center - half, center + half, padding=0)
+        box.setYRange(center - half, center + half, padding=0)
 
     # -- interaction -----------------------------------------------------------------------------------------------
     def _on_user_range(self, plot: _SegmentPlot, mask) -> None:
@@ -653,9 +729,10 @@ class ForcePlotGrid(QWidget):
             return
         plot, _ = self._hover
         t_s, values = readout
-        value_format = "{:.3f}" if self._units == "N" else "{:.4g}"
-        lines = [f"t = {t_s:.2f} s"] + [f"{name}: {value_format.format(value)} {self._units}"
-                                        for name, value in values.items()]
+        lines = [f"t = {t_s:.2f} s"]
+        for (name, value), index in zip(values.items(), plot.group.channels):
+            units = self.channel_unit(index)
+            lines.append(f"{name}: {('{:.3f}' if units == 'N' else '{:.4g}').format(value)} {units}")
         plot.readout.setText("\n".join(lines))
         plot.readout.adjustSize()
         plot.readout.move(plot.plot_widget.width() - plot.readout.width() - 6, 4)

@@ -40,6 +40,10 @@ class LabContext(QObject):
         self.board_unavailable_reason = ""
         self._recording: Any = None
         self._closed = False
+        if any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port)):
+            from devices.factory import sim_lab
+
+            sim_lab(config)  # a simulated lab made now follows this config ([lab] physics, the channel list)
 
     # -- board (created lazily so the app starts even before the board bridge exists) ------------------------------
     @property

@@ -54,6 +54,12 @@ def test_fit_plots_measured_and_fitted_and_saves(tab, qtbot, trial_files, tmp_pa
         assert np.median(relative) < 0.02  # the model follows the measurement on the hold
     assert abs(float(result.calibration.sls.E1_Pa) / TYPICAL_TRUTH.E1_Pa[0] - 1) < 0.2
     assert tab.trial_table.rowCount() == 2
+    # One unit on screen: the fit axis stays µS (no automatic mS/µS prefix), RMSE in µS like the plot.
+    left = tab.plot.getPlotItem().getAxis("left")
+    assert left.labelText == "conductance (µS)" and not left.autoSIPrefix
+    assert tab.trial_table.horizontalHeaderItem(6).text() == "RMSE (µS)"
+    rmse_us = float(tab.trial_table.item(0, 6).text())
+    assert rmse_us == pytest.approx(result.calibration.trials[0].rmse_s * 1e6, rel=1e-3)
     assert "S06B" in tab.summary_label.text() and "τ" in tab.summary_label.text()
     headers = [tab.trial_table.horizontalHeaderItem(c).text() for c in range(tab.trial_table.columnCount())]
     assert headers[:4] == ["Trial", "Force (N)", "E0 (Pa)", "E1 (Pa)"]

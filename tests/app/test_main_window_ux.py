@@ -39,9 +39,11 @@ def test_space_acts_on_the_tab_on_screen_only(window, qtbot):
     panel = gait.panel
     panel.set_mode("serpenoid")
     panel.cycles_spin.setValue(50)
-    panel.play_button.click()
     robot = window.lab.robot
-    qtbot.waitUntil(lambda: robot.motion_state == MOTION_RUNNING, timeout=CONNECT_TIMEOUT_MS)
+    # Play is one bus-thread command now: wait until the bus thread has really started the motion.
+    with qtbot.waitSignal(robot.event, timeout=CONNECT_TIMEOUT_MS, check_params_cb=lambda text: "started" in text):
+        panel.play_button.click()
+    assert robot.motion_state == MOTION_RUNNING
     with qtbot.waitSignal(robot.motion_changed, check_params_cb=lambda s: s == MOTION_PAUSED):
         qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Space)
     assert not forces.plots.paused  # the hidden Forces tab ignored the key

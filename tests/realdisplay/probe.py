@@ -159,6 +159,10 @@ def open_app(tmp: Path, tab: str):
     from devices.config import SIM_PORT, load_config
 
     config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    if tab == "scene":  # the 3-D view draws the physics lab
+        from dataclasses import replace
+
+        config = replace(config, lab=replace(config.lab, physics="mujoco"))
     lab = LabContext(config)
     window = MainWindow(lab, settings=QSettings(str(tmp / "settings.ini"), QSettings.Format.IniFormat))
     window.resize(*WINDOW_SIZE)
@@ -243,8 +247,18 @@ def scenario_hardware(window, page, seconds: float) -> dict:
     return measure({"servo_table": page.panel.servo_table}, PaintCounter(), seconds)
 
 
+def scenario_scene(window, page, seconds: float) -> dict:
+    pump_until(lambda: page.view.frames_shown > 0 or bool(page.render_error), what="the first 3-D frame")
+    if page.render_error:
+        fail(f"no 3-D rendering: {page.render_error}")
+    wiggle = Wiggle(page.lab.config.robot.joint_ids)  # limp joints posed by the hand move the simulated body
+    wiggle.start()
+    pump(500)
+    return measure({"scene": page.view.picture}, PaintCounter(), seconds)
+
+
 SCENARIOS = {"forces": scenario_forces, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait,
-             "calibration": scenario_calibration, "hardware": scenario_hardware}
+             "calibration": scenario_calibration, "hardware": scenario_hardware, "scene": scenario_scene}
 
 
 def main(argv: list[str]) -> int:

@@ -58,3 +58,10 @@ def test_calibration_live_trace_repaints_on_x(x_display):
 def test_hardware_status_repaints_on_x(x_display):
     result = run_probe(x_display, "hardware")
     _check_live(result, "servo_table", min_frames_per_s=5.0)
+
+
+def test_the_3d_lab_repaints_on_x_while_the_simulated_body_moves(x_display):
+    pytest.importorskip("devices.sim.physics.world")
+    result = run_probe(x_display, "scene")
+    # Rendered at most 10 Hz (offscreen GL, ~0.1 s a frame under load here): floors well under that.
+    _check_live(result, "scene", min_frames_per_s=2.0, min_changed=0.3)

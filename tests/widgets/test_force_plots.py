@@ -137,3 +137,32 @@ def test_legend_click_hides_a_trace_at_the_next_redraw(grid):
     grid.refresh()  # no new data, yet the picture changed: it redraws
     assert len(plot.bundle._lines) == 2
     assert [pen for pen, _ in plot.bundle._lines] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
+
+
+def test_uncalibrated_sensors_get_their_own_microsiemens_axis_and_readout(grid):
+    """One calibrated sensor (S06B, ~2 N) among uncalibrated ones (S06L/S06R in µS, ~300): the µS never land on
+    the axis labelled N, and the cursor reads them in µS."""
+    history = TraceHistory(len(NAMES), 4096)
+    t = np.arange(300) / 30.0
+    values = np.full((t.size, len(NAMES)), 300.0) + np.sin(t)[:, None]  # µS-sized numbers everywhere…
+    values[:, 17] = 2.0 + 0.5 * np.sin(t)  # …but S06B is a force in N
+    history.append(t, values)
+    grid.set_history(history, "N")
+    grid.set_channel_units(["N" if i == 17 else "µS" for i in range(len(NAMES))])
+    grid.refresh(force=True)
+    plot = grid.plots[5]  # Segment 6: S06L S06R S06B
+    assert plot.alt is not None, "no separate axis for the µS channels"
+    item = plot.plot_widget.getPlotItem()
+    assert item.getAxis("right").isVisible() and "µS" in item.getAxis("right").labelText
+    assert item.getAxis("left").labelText == "N"
+    assert len(plot.bundle._lines) == 1 and len(plot.alt[1]._lines) == 2
+    (_x0, _x1), (y0, y1) = plot.viewbox.viewRange()
+    assert y0 < 1.5 and 2.5 < y1 < 10, f"the N axis was stretched by µS values: {y0}..{y1}"
+    (_x0, _x1), (a0, a1) = plot.alt[0].viewRange()
+    assert a0 < 299 and a1 > 301
+    grid.hover_at(5, float(t[150]))
+    text = plot.readout.text()
+    assert "S06L:" in text and "µS" in text.split("S06L:")[1].splitlines()[0]
+    assert " N" in text.split("S06B:")[1].splitlines()[0]
+    grid.set_channel_units(None)
+    assert not item.getAxis("right").isVisible()

@@ -243,11 +243,17 @@ class CalibrationTab(QWidget):
         layout = QVBoxLayout(fit_page)
         layout.setContentsMargins(4, 4, 4, 4)
         self.plot = pg.PlotWidget(background="w")
-        self.plot.setLabel("left", "conductance", units="S")
-        self.plot.setLabel("bottom", "time", units="s")
+        # Fixed µS (the unit of every other conductance on screen): pyqtgraph's automatic SI prefix switched this
+        # axis between µS and mS by itself as trials were added.
+        self.plot.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
+        self.plot.setLabel("left", "conductance (µS)")
+        self.plot.getPlotItem().getAxis("bottom").enableAutoSIPrefix(False)
+        self.plot.setLabel("bottom", "time (s)")
         self.plot.showGrid(x=True, y=True, alpha=0.2)
         self.plot.setTitle("measured (solid) and SLS fit (dashed)", color="#444", size="10pt")
-        self.legend = self.plot.addLegend(offset=(-10, 10))
+        # Small text, two columns once there are many trials (_plot): a 12-trial legend ran off the plot.
+        self.legend = self.plot.addLegend(offset=(-10, 10), labelTextSize="8pt", verSpacing=-6,
+                                          brush=pg.mkBrush(255, 255, 255, 200))
         layout.addWidget(self.plot, 3)
 
         self.summary_label = QLabel("")
@@ -255,11 +261,12 @@ class CalibrationTab(QWidget):
         self.summary_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         layout.addWidget(self.summary_label)
 
-        headers = ["Trial", "Force (N)", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "RMSE (S)", "Warnings"]
+        headers = ["Trial", "Force (N)", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "RMSE (µS)", "Warnings"]
         self.trial_table = QTableWidget(0, len(headers))
         self.trial_table.setHorizontalHeaderLabels(headers)
         self.trial_table.verticalHeader().setVisible(False)
         self.trial_table.verticalHeader().setDefaultSectionSize(22)
+        self.trial_table.setWordWrap(True)  # long warnings wrap in their row instead of being cut
         self.trial_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         header = self.trial_table.horizontalHeader()
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
@@ -417,7 +424,7 @@ class CalibrationTab(QWidget):
         for row, report in enumerate(cal.trials):
             params = report.params
             cells = (report.name, f"{report.force_n:.3f}", f"{float(params.E0_Pa):.4g}", f"{float(params.E1_Pa):.4g}",
-                     f"{float(params.mu1_Pa_s):.4g}", f"{float(params.tau_s):.4g}", f"{report.rmse_s:.3e}",
+                     f"{float(params.mu1_Pa_s):.4g}", f"{float(params.tau_s):.4g}", f"{report.rmse_s * 1e6:.4g}",
                      "; ".join(report.warnings) or "—")
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
@@ -427,6 +434,7 @@ class CalibrationTab(QWidget):
                 if col == len(cells) - 1 and report.warnings:
                     item.setForeground(theme.qcolor(theme.STATUS_COLORS[theme.WARN]))
                 self.trial_table.setItem(row, col, item)
+        self.trial_table.resizeRowsToContents()
         self.summary_label.setText(summary_html(result))
         n_warn = len(cal.warnings)
         level = theme.WARN if n_warn else theme.OK
@@ -563,14 +571,15 @@ class CalibrationTab(QWidget):
     def _plot(self, trials: tuple[LoadedTrial, ...], fitted: tuple[np.ndarray, ...] | None) -> None:
         self.plot.clear()
         self.legend.clear()
+        self.legend.setColumnCount(2 if len(trials) > 6 else 1)
         for index, trial in enumerate(trials):
             color = theme.series_color(index)
             step = max(1, trial.time_s.size // PLOT_MAX_POINTS)
             t = trial.time_s[::step]
             measured_pen = pg.mkPen(theme.qcolor(color, alpha=140), width=1)
-            self.plot.plot(t, trial.conductance_s[::step], pen=measured_pen, name=trial.name)
+            self.plot.plot(t, trial.conductance_s[::step] * 1e6, pen=measured_pen, name=trial.name)
             if fitted is not None:
-                self.plot.plot(t, fitted[index][::step],
+                self.plot.plot(t, fitted[index][::step] * 1e6,
                                pen=pg.mkPen(color, width=2, style=Qt.PenStyle.DashLine))
 
     # -- helpers ---------------------------------------------------------------------------------------------------
@@ -617,7 +626,7 @@ def summary_html(result: FitResult) -> str:
         ci = f" <span style='color:#666'>(95 %: {interval[0]:.4g} … {interval[1]:.4g})</span>" if interval else ""
         parts.append(f"{label} = {value:.4g} {unit}{ci}")
     lines = [f"<b>{result.sensor}</b> SLS, one set for all forces (used by estimate): " + ", ".join(parts)
-             + f"; τ = {float(sls.tau_s):.4g} s; RMSE {cal.rmse_s:.3e} S; forces {cal.force_range_n[0]:.3g}–"
+             + f"; τ = {float(sls.tau_s):.4g} s; RMSE {cal.rmse_s * 1e6:.4g} µS; forces {cal.force_range_n[0]:.3g}–"
              f"{cal.force_range_n[1]:.3g} N"]
     if cal.linear is not None:
         lines.append(f"linear: m = {cal.linear.model.m_S_per_N:.4e} S/N, d = {cal.linear.model.d_S:.4e} S"

@@ -43,7 +43,7 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import user_folders
-from app.core.forces_pipeline import ForcesPipeline
+from app.core.forces_pipeline import UNCALIBRATED, ForcesPipeline
 from app.core.live_session import LiveSession, LiveUpdate
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
 from app.gui.recording_session import RecordingSession
@@ -342,8 +342,11 @@ class ForcesTab(QWidget):
                                       for status in self.pipeline.status])
         if self.quantity == "force" and self.viewed is None:
             self.plots.set_channel_labels([self.pipeline.label(i) for i in range(len(self.channel_names))])
+            # An uncalibrated sensor's µS go on each plot's own right-hand axis, never on the axis labelled N.
+            self.plots.set_channel_units(["µS" if status == UNCALIBRATED else "N" for status in self.pipeline.status])
         else:
             self.plots.set_channel_labels(list(self.channel_names))
+            self.plots.set_channel_units(None)
 
     def _show_live(self) -> None:
         if self.quantity == "force":
