@@ -69,6 +69,7 @@ SHORTCUTS_TEXT = (
     "<table cellspacing=6>"
     "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on)</td></tr>"
     "<tr><td><b>Ctrl+Enter</b></td><td>Teach: capture the present pose as a keyframe</td></tr>"
+    "<tr><td><b>Ctrl+Z / Ctrl+Shift+Z</b></td><td>Teach: undo / redo a keyframe edit (Ctrl+Y also redoes)</td></tr>"
     "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
     "plots</td></tr>"
     "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
