@@ -58,12 +58,17 @@ class RecordingFormatError(ValueError):
 
 
 class DaqBlock(Protocol):
-    """What :meth:`RecordingWriter.append_daq` needs from a ``devices.board.SampleBlock``."""
+    """What :meth:`RecordingWriter.append_daq` needs from a ``devices.board.SampleBlock`` (read-only, so frozen
+    dataclasses fit)."""
 
-    counts: np.ndarray
-    conductance_s: np.ndarray
-    host_time_s: np.ndarray
-    seq: np.ndarray
+    @property
+    def counts(self) -> np.ndarray: ...
+    @property
+    def conductance_s(self) -> np.ndarray: ...
+    @property
+    def host_time_s(self) -> np.ndarray: ...
+    @property
+    def seq(self) -> np.ndarray: ...
 
 
 # -- writer ------------------------------------------------------------------------------------------------------
@@ -652,12 +657,12 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
                         dataset = group[name]
                         if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
                             continue
-                        rows = _intact_rows(dataset, min(size, claimed))
-                        limits[f"{group_name}/{name}"] = rows
+                        intact_rows = _intact_rows(dataset, min(size, claimed))
+                        limits[f"{group_name}/{name}"] = intact_rows
                         if f"{group_name}/{name}" in OPTIONAL_COLUMNS:
                             continue  # dropped below if shorter than the rest, never a reason to lose rows
                         lengths.append(dataset.shape[0])
-                        intact.append(rows)
+                        intact.append(intact_rows)
                     if lengths:
                         claimed_rows[group_name] = min(lengths)
                         limits[group_name] = min(intact)
