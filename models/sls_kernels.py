@@ -50,7 +50,7 @@ def solve_contact(cond: float, p: float, w: float, f_guess: float, k: float, r0:
     """One step's force F (N) with the contact term: the root of ``g(F) = C·(K/√F + R0·(1−ε)·e^(−kε)) − 1``,
     ε = p + w·F. g is convex and strictly decreasing (both resistance terms are), positive at ``(K·C)²`` (the contact
     term alone is 1/C there) and negative at ``F_max = (1 − p)/w`` (ε = 1) when ``K·C < √F_max``; otherwise the
-    reading is beyond the ε → 1 limit (SATURATED, F = F_max), as in :func:`models.sls._solve_contact_step`.
+    reading is beyond the ε → 1 limit (SATURATED, F = F_max), as in :func:`models.sls_contact._solve_contact_step`.
 
     Newton in F itself (one sqrt and one exp per iteration, no logarithms: the reference solves in ln F and pays two
     more transcendental calls), warm-started at ``f_guess`` and kept inside the shrinking bracket, with a geometric

@@ -29,6 +29,8 @@ def main(recording_path: str, png_path: str) -> None:
     app = QApplication.instance() or QApplication([])
     pg.setConfigOptions(antialias=True, background="w", foreground="k")
     recording = open_recording(recording_path)
+    if recording.forces_n is None:
+        raise SystemExit(f"{recording_path} has no estimated forces (/forces): record it with a calibration")
     bottom = [i for i, name in enumerate(recording.channels) if name.endswith("B")]
     forces = np.nan_to_num(recording.forces_n[:, bottom])
     with h5py.File(recording_path) as f:

@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         _pose_by_hand(config)
         names = args.tabs or [spec.name for spec in TABS]
         for name in names:
-            page = window.show_tab(name)
+            page: Any = window.show_tab(name)  # each tab page has its own widgets, reached by name below
             if name == "teach":
                 _stage_teach(page, pump)
             if name == "gait":

@@ -37,6 +37,7 @@ from PySide6.QtWidgets import (
 )
 
 from widgets import theme
+from widgets.tables import cell_item
 
 # Dynamixel X-series baud rates (control table item 8), most common first.
 DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_000, 4_000_000, 4_500_000, 9_600)
@@ -438,13 +439,13 @@ class HardwarePanel(QWidget):
         # Size the columns once, for the widest live values and error names expected, then show the placeholders.
         if self.servo_ids:
             for col, sample in LIVE_SAMPLE_TEXT.items():
-                table.item(0, col).setText(sample)
-            table.item(0, COL_ERR).setText("none")
+                cell_item(table, 0, col).setText(sample)
+            cell_item(table, 0, COL_ERR).setText("none")
             table.resizeColumnsToContents()
             self._column_chars = {col: len(sample) for col, sample in LIVE_SAMPLE_TEXT.items()}
             for col in LIVE_SAMPLE_TEXT:
-                table.item(0, col).setText("—")
-            table.item(0, COL_ERR).setText("")
+                cell_item(table, 0, col).setText("—")
+            cell_item(table, 0, COL_ERR).setText("")
         self.set_connection(self._connected, self.connection_label.text())
 
     def _request(self, servo_id: int, column: int, on: bool) -> None:
@@ -519,7 +520,7 @@ class HardwarePanel(QWidget):
         if self._shown_errors.get(row) == names:
             return
         self._shown_errors[row] = names
-        item = self.servo_table.item(row, COL_ERR)
+        item = cell_item(self.servo_table, row, COL_ERR)
         item.setText(", ".join(names) if names else "none")
         if names:
             item.setForeground(QBrush(theme.qcolor("#FFFFFF")))
@@ -540,7 +541,7 @@ class HardwarePanel(QWidget):
                 return
             del self._pending[(servo_id, col)]
         button = self.servo_table.cellWidget(row, col)
-        if button is not None and button.isChecked() != on:
+        if isinstance(button, QPushButton) and button.isChecked() != on:
             # Reflect the servo's real state without echoing a request back to it.
             button.blockSignals(True)
             button.setChecked(on)
@@ -549,14 +550,17 @@ class HardwarePanel(QWidget):
 
     def errors_text(self, servo_id: int) -> str:
         """The hardware-error cell of ``servo_id`` as shown."""
-        return self.servo_table.item(self._row_of_id[servo_id], COL_ERR).text()
+        return cell_item(self.servo_table, self._row_of_id[servo_id], COL_ERR).text()
 
     def cell_text(self, servo_id: int, column: int) -> str:
-        return self.servo_table.item(self._row_of_id[servo_id], column).text()
+        return cell_item(self.servo_table, self._row_of_id[servo_id], column).text()
 
     def toggle(self, servo_id: int, column: int) -> QPushButton:
         """The torque (COL_TORQUE) or LED (COL_LED) button, or the Reboot button (COL_REBOOT), of a servo."""
-        return self.servo_table.cellWidget(self._row_of_id[servo_id], column)
+        button = self.servo_table.cellWidget(self._row_of_id[servo_id], column)
+        if not isinstance(button, QPushButton):
+            raise LookupError(f"servo {servo_id} has no button in column {column}")
+        return button
 
     # scan
     def set_scan_running(self, n_steps: int, text: str) -> None:
@@ -592,7 +596,7 @@ class HardwarePanel(QWidget):
 
     @property
     def scan_result_ids(self) -> list[int]:
-        return [int(self.scan_table.item(row, 0).text()) for row in range(self.scan_table.rowCount())]
+        return [int(cell_item(self.scan_table, row, 0).text()) for row in range(self.scan_table.rowCount())]
 
     # link check
     def set_link_check_running(self) -> None:

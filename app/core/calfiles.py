@@ -395,8 +395,11 @@ def update_calibration(path: str | os.PathLike, sensor_name: str, entry: dict[st
         document = {"format": CAL_FORMAT, "version": CAL_VERSION}
     document["physics"] = physics.to_dict()
     document.setdefault("sensors", {})[sensor_name] = entry
-    _atomic_write(file, lambda handle: (json.dump(_jsonable(document), handle, indent=2, allow_nan=False),
-                                        handle.write("\n")))
+    def write(handle) -> None:
+        json.dump(_jsonable(document), handle, indent=2, allow_nan=False)
+        handle.write("\n")
+
+    _atomic_write(file, write)
     return document
 
 

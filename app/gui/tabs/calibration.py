@@ -440,7 +440,7 @@ class CalibrationTab(QWidget):
         level = theme.WARN if n_warn else theme.OK
         note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
         self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
-        self.view_tabs.setCurrentWidget(self.view_tabs.widget(0))
+        self.view_tabs.setCurrentIndex(0)
         self._update_buttons()
 
     def _show_failure(self, message: str) -> None:
