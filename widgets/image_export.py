@@ -19,7 +19,7 @@ PNG_SCALE = 2  # a PNG at twice the screen's pixels: sharp in a paper or a slide
 
 def _uncached(widget: QWidget) -> list[tuple[QGraphicsItem, QGraphicsItem.CacheMode]]:
     """Turn off every graphics item's pixmap cache inside ``widget``; returns what to restore."""
-    changed = []
+    changed: list[tuple[QGraphicsItem, QGraphicsItem.CacheMode]] = []
     views = [widget] if isinstance(widget, QGraphicsView) else []
     views += widget.findChildren(QGraphicsView)
     for view in views:
@@ -85,7 +85,7 @@ def save_widget_image(widget: QWidget, path: str | Path, title: str = "") -> Pat
                 _paint(painter, widget, title, width)
             finally:
                 painter.end()
-            if not image.save(str(path), "PNG"):
+            if not image.save(str(path)):  # PNG: the suffix was checked above
                 raise OSError(f"cannot write {path}")
     finally:
         for item, mode in restore:
