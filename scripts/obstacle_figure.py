@@ -70,13 +70,22 @@ def main(recording_path: str, png_path: str) -> None:
     recording = open_recording(recording_path)
     bottom = [i for i, name in enumerate(recording.channels) if name.endswith("B")]
     names = [recording.channels[i] for i in bottom]
+    if recording.forces_n is None or not bottom:
+        raise SystemExit(f"{recording_path}: no estimated bottom-sensor forces (/forces); record it with "
+                         "sensnake experiment obstacle")
     forces = np.nan_to_num(recording.forces_n[:, bottom])
     t = recording.time_s
     with h5py.File(recording_path) as f:
+        if "sim" not in f:
+            raise SystemExit(f"{recording_path}: no simulated body (/sim); record it with sensnake experiment obstacle")
         sim_t = f["sim/time_s"][:]
         points = f["sim/points_m"][:]
         height = float(f["sim"].attrs["obstacle_height_m"])
-        weight_n = float(f["sim"].attrs.get("weight_N", 2.4 * 9.81))
+        if "weight_N" in f["sim"].attrs:
+            weight_n = float(f["sim"].attrs["weight_N"])
+        else:  # recordings made before the attribute: SenSnake v2's 2.4 kg, said so
+            weight_n = 2.4 * 9.81
+            print(f"{recording_path}: no /sim weight_N attribute; taking the paper's 2.4 kg robot")  # noqa: T201
     layout = pg.GraphicsLayoutWidget()
     layout.resize(1100, 1000)
     side = layout.addPlot(row=0, col=0, title="side view of the simulated body (head at the right end; obstacle in "
