@@ -39,6 +39,7 @@ def test_the_recording_is_a_sensnake_recording_with_forces_robot_and_body(obstac
         assert f["sim/points_m"].shape[1:] == (13, 3)
         assert f["sim/time_s"].shape[0] == f["robot/time_s"].shape[0]
         assert f.attrs["config"].startswith("# sensnake experiment obstacle")
+        assert f["sim"].attrs["weight_N"] == pytest.approx(WEIGHT_N)
 
 
 def test_the_bottom_sensors_carry_the_weight(obstacle_run):
