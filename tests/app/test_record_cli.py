@@ -92,6 +92,8 @@ def test_port_that_cannot_be_opened_is_one_line(tmp_path, capsys):
     assert code == 1
     line = one_error_line(capsys.readouterr().err)
     assert "cannot open board port" in line and "ttyNOPE" in line
+    # The OS's words once, not pyserial's echo ("[Errno 2] could not open port …: [Errno 2] No such file …").
+    assert "No such file or directory" in line and "[Errno" not in line and line.count("ttyNOPE") == 1, line
 
 
 def test_channel_count_mismatch_fails_naming_both_counts(fast_board, tmp_path, capsys):
