@@ -23,6 +23,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
+from scipy.optimize import minimize_scalar
 
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
@@ -34,6 +36,7 @@ from models.fit_output import (
     trial_costs,
 )
 from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit_paper_ls
+from models.fit_profile import profile_tau
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams, abc_from_sls
@@ -63,6 +66,11 @@ MAX_CENSORED_FRACTION = 0.5
 # cost (a slow-creep sensor otherwise stops on the τ → 0 plateau, whose cost is far above the optimum).
 TAU_GRID_LOW, TAU_GRID_HIGH, TAU_GRID_POINTS = 3.0, 30.0, 9
 JOINT_STARTS = 2
+# Profile over log τ (models.fit_profile): from PROFILE_TAU_LOW × the sample step to TAU_RESOLVABLE_SPANS × the
+# record length, PROFILE_TAU_POINTS values; (E0, E1) follow τ, so its minima are starts in the right basin even where
+# the τ grid above (E0, E1 held) only sees the τ → 0 plateau; its curve gives τ's profile-likelihood interval.
+PROFILE_TAU_LOW, PROFILE_TAU_POINTS = 0.5, 41
+PROFILE_STARTS = 2
 # The resolvable creep: τ between the sample step and this multiple of the record length.
 TAU_RESOLVABLE_SPANS = 100.0
 
@@ -322,11 +330,47 @@ def _distinct_starts(candidates: Sequence[SLSParams], totals: np.ndarray, count:
     return chosen or [candidates[int(np.argmin(totals))]]
 
 
-def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float) -> list[str]:
-    """Why the joint fit must not be stored as good: at a bound, unidentifiable, not converged, or a creep time
-    the records cannot resolve (τ → 0 and τ → ∞ both look elastic; the reason names both)."""
+def _elastic_cost(fit_trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, joint: SLSParams,
+                  saturation_s: float | None) -> float:
+    """The lowest cost (as ``trial_costs``, summed over trials) of a purely elastic sensor (no creep: E1 → ∞),
+    searched over its stiffness between the joint fit's long-run and instantaneous stiffnesses (two batched grids)."""
+    e0, e1 = float(joint.E0_Pa), float(joint.E1_Pa)
+    b = e0 * e1 / (e0 + e1)
+
+    def costs(stiffness: np.ndarray) -> np.ndarray:
+        params = [SLSParams(float(e), float(e) * 1e12, float(e) * 1e12) for e in stiffness]
+        return trial_costs(fit_trials, area_m2, phys, params, saturation_s=saturation_s,
+                           min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
+
+    grid = np.geomspace(b / 1.5, e0 * 1.5, 25)
+    totals = costs(grid)
+    best = int(np.argmin(totals))
+    lo, hi = math.log(grid[max(best - 1, 0)]), math.log(grid[min(best + 1, grid.size - 1)])
+    refined = minimize_scalar(lambda log_e: float(costs(np.array([math.exp(log_e)]))[0]), bounds=(lo, hi),
+                              method="bounded", options={"xatol": 1e-9})
+    return float(min(float(refined.fun), float(np.min(totals))))
+
+
+def _creep_resolved(joint: OutputFit, elastic_cost: float) -> bool:
+    """Does the creep term (E1, mu1) lower the cost significantly below the best purely elastic model? F-test,
+    2 extra parameters, at the 0.1 % level (the residuals of a real record are not independent: a strict level)."""
+    cost = float(sum(joint.cost_per_trial))
+    dof = max(int(sum(joint.n_used)) - 3, 1)
+    if not cost > 0:
+        return elastic_cost > 0
+    f = ((elastic_cost - cost) / 2) / (cost / dof)
+    return bool(f > stats.f.ppf(0.999, 2, dof))
+
+
+def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float, creep_resolved: bool = True) -> list[str]:
+    """Why the joint fit must not be stored as good: at a bound, unidentifiable, not converged, or a creep the
+    records cannot resolve (τ → 0 and τ → ∞ both look elastic; the reason names both)."""
     assert joint.ref is not None
     reasons = []
+    if not creep_resolved:
+        reasons.append("no creep is resolved: the creep term does not fit these records significantly better than "
+                       "a purely elastic sensor (F-test, 0.1 %), so τ → 0 and τ → ∞ both look purely elastic here and "
+                       "E1, mu1 are not identified; hold longer, or check the sensor")
     if joint.at_bound:
         reasons.append("a parameter sits at its search bound (10^±6 of the starting scale)")
     if any(not (math.isfinite(hi) and lo > 0) for lo, hi in joint.ci95.values()):
@@ -340,6 +384,18 @@ def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float) -> list[
                        "records): no creep is resolved, and τ → 0 and τ → ∞ both look purely elastic here; hold "
                        "longer or sample faster")
     return reasons
+
+
+def _trial_unresolved(params: SLSParams, ci95: dict[str, tuple[float, float]], step_s: float,
+                      span_s: float) -> str | None:
+    """Why one trial's own fit is not identified (None when it is): τ outside what a record resolves, or an
+    infinite / non-positive 95 % interval (singular Jacobian)."""
+    tau_s = float(params.tau_s)
+    if not step_s <= tau_s <= TAU_RESOLVABLE_SPANS * span_s:
+        return f"creep time τ = {tau_s:.3g} s is outside what a {span_s:.0f} s record at {step_s:.3g} s steps resolves"
+    if any(not (math.isfinite(hi) and lo > 0) for lo, hi in ci95.values()):
+        return "singular Jacobian (infinite 95 % interval)"
+    return None
 
 
 def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
@@ -405,6 +461,13 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     candidates = [SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)]
     candidates += [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) for p in prelim if p["dfree"]]
     candidates += _tau_grid(candidates[0], step_s, span_s)
+    # The profile over log τ: each trial's own minimum and the joint minima join the starts.
+    profile = profile_tau(fit_trials, area_m2, phys,
+                          np.geomspace(PROFILE_TAU_LOW * step_s, TAU_RESOLVABLE_SPANS * span_s, PROFILE_TAU_POINTS),
+                          saturation_s=saturation_s)
+    profile_starts = [p for p in profile.best_per_trial() if p is not None]
+    profile_joint = profile.joint_minima(PROFILE_STARTS)
+    candidates += profile_starts + profile_joint
     # Each trial starts from whichever candidate fits it best (one batched model run): a noisy trial's own
     # estimate can sit on a plateau (E0 → ∞, τ → 0) that another start avoids.
     costs = trial_costs(fit_trials, area_m2, phys, candidates, saturation_s=saturation_s,
@@ -415,7 +478,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     # The joint fit runs from the best few distinct starts (the per-trial results, their median, the τ grid) and
     # keeps the lowest cost; the check below holds it to every candidate's cost.
     median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
-    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params), *_tau_grid(median, step_s, span_s)]
+    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params), *_tau_grid(median, step_s, span_s),
+                                         *profile_joint, *profile_starts]
     totals = trial_costs(fit_trials, area_m2, phys, joint_candidates, saturation_s=saturation_s,
                          min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
     joint = None
@@ -463,6 +527,13 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                        "says 'at least this much', so its own SLS parameters are not identifiable; refused for the "
                        "per-trial table (it still bounds the joint fit)")
             warnings.append(f"per-trial fit refused: {refused}")
+        trial_params = per_trial.params[i]
+        assert trial_params is not None
+        unresolved = _trial_unresolved(trial_params, per_trial.ci95_per_trial[i], step_s, span_s)
+        if refused is None and unresolved:
+            refused = (f"{unresolved}: this trial alone does not identify its SLS parameters (they would sit at a "
+                       "search bound); refused for the per-trial table (it still enters the joint fit)")
+            warnings.append(f"per-trial fit refused: {refused}")
         if not p["ramp"]:
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")
@@ -491,7 +562,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                     "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
                     "E1_Pa": "hold longer so the creep settles"}[name]
             sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
-    degenerate = _degenerate_reasons(joint, step_s, span_s)
+    degenerate = _degenerate_reasons(joint, step_s, span_s, _creep_resolved(
+        joint, _elastic_cost(fit_trials, area_m2, phys, joint.ref, saturation_s)))
     sensor_warnings.extend(f"degenerate SLS fit: {reason}" for reason in degenerate
                            if not any(reason in w for w in sensor_warnings))
     if not any(p["ramp"] for p in prelim):
