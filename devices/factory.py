@@ -7,14 +7,13 @@ real-time lab with :func:`install_sim_lab`.
 
 from __future__ import annotations
 
-import os
 import threading
 from typing import TYPE_CHECKING
 
 import serial
 
 from devices.config import SIM_PORT, LabConfig
-from devices.errors import PortOpenError
+from devices.errors import PortOpenError, os_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
@@ -70,14 +69,6 @@ def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0
         return serial.Serial(port=port, baudrate=baud, timeout=timeout_s)
     except (serial.SerialException, OSError) as exc:
         raise PortOpenError(
-            f"cannot open {device} port {port}: {_os_words(exc)}. Check the cable and the port name "
+            f"cannot open {device} port {port}: {os_words(exc)}. Check the cable and the port name "
             "(Linux: /dev/ttyUSB0, Windows: COM3), or use 'sim' for the simulated lab"
         ) from exc
-
-
-def _os_words(exc: BaseException) -> str:
-    """The OS's reason without pyserial's echo ("could not open port P: [Errno 2] No such file …: 'P'")."""
-    code = getattr(exc, "errno", None)
-    if isinstance(code, int) and code > 0:
-        return os.strerror(code)
-    return " ".join(str(exc).split())
