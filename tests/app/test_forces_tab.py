@@ -184,6 +184,13 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert shown_index in healthy and spread[shown_index] == max(spread[i] for i in healthy)
     tab.overlay_sensor.setCurrentText("S06B")
     assert len(tab.overlay.curves) == 2
+    # Every plot saves an image: a segment plot and the overlay, PNG and SVG; a bad name is one line, nothing saved.
+    assert tab.export_plot_image(5, tmp_path / "seg6.svg").stat().st_size > 0
+    assert tab.export_plot_image(-1, tmp_path / "overlay.png").stat().st_size > 0
+    svg = tab.export_plot_image(-1, tmp_path / "overlay.svg")
+    assert svg is not None and "S06B" in svg.read_text(encoding="utf-8")  # the title names the sensor
+    assert tab.export_plot_image(-1, tmp_path / "overlay.bmp") is None
+    assert "png or .svg" in tab.controls.message.text() and not (tmp_path / "overlay.bmp").exists()
     x0 = tab.overlay.curves[0].xData
     assert x0[0] <= 0.0 <= x0[-1]  # aligned on the load onset
 
