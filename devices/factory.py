@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 import serial
 
 from devices.config import SIM_PORT, LabConfig
-from devices.errors import PortOpenError
+from devices.errors import PortOpenError, os_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
@@ -79,6 +79,6 @@ def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0
         return serial.Serial(port=port, baudrate=baud, timeout=timeout_s)
     except (serial.SerialException, OSError) as exc:
         raise PortOpenError(
-            f"cannot open {device} port {port}: {exc}. Check the cable and the port name "
+            f"cannot open {device} port {port}: {os_words(exc)}. Check the cable and the port name "
             "(Linux: /dev/ttyUSB0, Windows: COM3), or use 'sim' for the simulated lab"
         ) from exc
