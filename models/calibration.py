@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.optimize import minimize_scalar
 
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
@@ -403,7 +403,7 @@ def _creep_resolved(joint: OutputFit, elastic_cost: float) -> bool:
     if not cost > 0:
         return elastic_cost > 0
     f = ((elastic_cost - cost) / 2) / (cost / dof)
-    return bool(f > stats.f.ppf(0.999, 2, dof))
+    return bool(f > special.fdtri(2, dof, 0.999))
 
 
 def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float, creep_resolved: bool = True) -> list[str]:

@@ -1,10 +1,10 @@
 """``sensnake fit TRIAL.csv... --sensor NAME --area M2 [--physics FILE.json] [--window 225 300] --out CAL.json
-[--config FILE] [--fit-rate HZ]``.
+[--config FILE] [--fit-rate HZ] [--solver NAME]``.
 
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
 calibration file (created, or updated with other sensors kept) and prints a per-trial table. Samples at the readout's
 ceiling ``1/R_C`` (``board.r_c_ohm`` of ``--config``, else the default circuit) are saturated and not fitted. Runs
-on the CLI's main thread. ``SENSNAKE_FIT_SOLVER=scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
+on the CLI's main thread. ``--solver`` (or ``SENSNAKE_FIT_SOLVER``) ``scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
 Gauss–Newton; scipy is the cross-check). ``--fit-rate`` (default 10 Hz) block-averages faster trials before the
 fit (models.calibration.decimate_trial): a 1 kHz calibration costs about what a 10 Hz one does.
 """
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     physics = _physics(args)
     # The readout's ceiling (SPEC §4: counts = 0 reads 1/R_C): such samples are censored, not fitted.
     saturation_s = 1.0 / board.r_c_ohm
-    solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
+    solver = getattr(args, "solver", None) or os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
     if solver not in SOLVERS:
         raise ValueError(f"SENSNAKE_FIT_SOLVER={solver!r} is not one of {', '.join(SOLVERS)}")
     fit_rate = getattr(args, "fit_rate", None)
