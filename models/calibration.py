@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.optimize import minimize_scalar
 
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
@@ -82,6 +82,50 @@ TAU_RESOLVABLE_SPANS = 100.0
 # max 0.89 s, against 0.93 s / 1.95 s with scipy on the same shared machine). Both meet the 2 s target. CasADi is
 # the production solver, as the calibration issue asks; scipy is the cross-check (solver="scipy").
 DEFAULT_SOLVER = "gauss-newton"
+
+
+# Records sampled faster than this are block-averaged to it before fitting (sensnake fit --fit-rate): a 1 kHz trial of
+# 370 s is 370 000 samples, which the output-error fit would run through its recursion ~100 times per start (minutes
+# and ~0.45 GB per trial). Averaging k samples keeps their information about a slow creep (white noise shrinks by
+# √k) at 1/k of the cost; the error it costs is measured in benchmarks/bench_fitters.py (decimation rows).
+DEFAULT_FIT_RATE_HZ = 10.0
+
+
+def decimate_trial(trial: TrialInput, rate_hz: float, saturation_s: float | None = None) -> TrialInput:
+    """``trial`` block-averaged to at most ``rate_hz`` (unchanged when it is not faster). Blocks of k consecutive
+    samples (k from the median step) become one sample at their mean time, mean force and mean conductance (NaN
+    samples left out; an all-NaN block is NaN). A block holding any sample at the readout ceiling ``saturation_s``
+    reads as the ceiling, so it stays censored ("at least this much") instead of averaging to a value too low."""
+    t = np.asarray(trial.time_s, dtype=np.float64)
+    if not rate_hz > 0 or t.size < 4:
+        return trial
+    step = float(np.median(np.diff(t)))
+    k = int(math.floor(1.0 / (rate_hz * step) + 1e-6)) if step > 0 else 1
+    if k < 2:
+        return trial
+    n = t.size // k * k
+    rest = t.size - n
+
+    def blocks(values: np.ndarray) -> np.ndarray:
+        values = np.asarray(values, dtype=np.float64)
+        head = values[:n].reshape(-1, k)
+        finite = np.isfinite(head)
+        count = finite.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(finite, head, 0.0).sum(axis=1) / count
+        if rest:
+            tail = values[n:]
+            tail_mean = float(np.nanmean(tail)) if np.isfinite(tail).any() else math.nan
+            mean = np.append(mean, tail_mean)
+        return mean
+
+    conductance = blocks(trial.conductance_s)
+    if saturation_s is not None:
+        at_ceiling = np.asarray(trial.conductance_s) >= saturation_s * (1 - 1e-12)
+        hit = np.append(at_ceiling[:n].reshape(-1, k).any(axis=1), at_ceiling[n:].any()) if rest else \
+            at_ceiling[:n].reshape(-1, k).any(axis=1)
+        conductance = np.where(hit, saturation_s, conductance)
+    return TrialInput(trial.name, blocks(t), blocks(trial.force_n), conductance)
 
 
 class FlatSensorError(ValueError):
@@ -359,7 +403,7 @@ def _creep_resolved(joint: OutputFit, elastic_cost: float) -> bool:
     if not cost > 0:
         return elastic_cost > 0
     f = ((elastic_cost - cost) / 2) / (cost / dof)
-    return bool(f > stats.f.ppf(0.999, 2, dof))
+    return bool(f > special.fdtri(2, dof, 0.999))
 
 
 def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float, creep_resolved: bool = True) -> list[str]:
@@ -401,7 +445,8 @@ def _trial_unresolved(params: SLSParams, ci95: dict[str, tuple[float, float]], s
 def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
                      window_s: tuple[float, float] = DEFAULT_WINDOW_S, saturation_s: float | None = None,
                      solver: str = DEFAULT_SOLVER, fit_trend: bool = True,
-                     subtract_baseline: bool = False) -> SensorCalibration:
+                     subtract_baseline: bool = False,
+                     fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
     largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: a CasADi solver
     of :func:`models.fit_output.fit_output_casadi` (``"gauss-newton"``, the default, see :data:`DEFAULT_SOLVER`;
@@ -409,11 +454,16 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     ``subtract_baseline``: the linear model's drift handling — each trial's unloaded conductance is subtracted
     from its window mean before the line is fitted (the per-trial baselines are kept in the result).
 
+    ``fit_rate_hz``: trials sampled faster are block-averaged to this rate first (:func:`decimate_trial`; None or 0
+    fits every sample).
+
     Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
     trials (no force, too few samples), each naming the trial.
     """
     if not trials:
         raise ValueError("no trials given")
+    if fit_rate_hz:
+        trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
     if not (area_m2 > 0 and math.isfinite(area_m2)):
         raise ValueError(f"sensor area must be a positive number of m², got {area_m2!r}")
     fit_trials: list[FitTrial] = []

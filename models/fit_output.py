@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.optimize import least_squares
 
 from models.physics import PhysicsConstants
@@ -283,7 +283,7 @@ class _Problem:
         rmse = tuple(float(np.sqrt(np.mean(b**2)) / w) if b.size else math.nan
                      for b, w in zip(blocks, self.weights))
         dof = max(self.n_residuals - self.n_params, 1)
-        t_crit = float(stats.t.ppf(0.975, dof))
+        t_crit = float(special.stdtrit(dof, 0.975))
         at_bound = bool(np.any(np.isclose(theta, self.bounds[0]) | np.isclose(theta, self.bounds[1])))
         ci: dict[str, tuple[float, float]] = {}
         ci_trials: list[dict[str, tuple[float, float]]] = []
@@ -297,7 +297,7 @@ class _Problem:
                 r_i, j_i = residual[rows], jac[rows, cols]
                 cov = _covariance(j_i, float(r_i @ r_i) / max(r_i.size - 3, 1))
                 se = np.sqrt(np.diag(cov))
-                t_i = float(stats.t.ppf(0.975, max(r_i.size - 3, 1)))
+                t_i = float(special.stdtrit(max(r_i.size - 3, 1), 0.975))
                 ci_trials.append({n: _log_interval(float(params[i, k]), t_i * se[k])
                                   for k, n in enumerate(PARAM_NAMES)})
         else:

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from models.fit_output import FitTrial
 from models.physics import PhysicsConstants, strain_from_conductance
@@ -85,7 +85,7 @@ class TauProfile:
         if not math.isfinite(best):
             return (0.0, math.inf)
         dof = max(sum(self.n_used) - n_params, 1)
-        inside = np.flatnonzero(cost <= best + float(stats.chi2.ppf(0.95, 1)) * best / dof)
+        inside = np.flatnonzero(cost <= best + float(special.chdtri(1, 0.05)) * best / dof)
         lo, hi = int(inside[0]), int(inside[-1])
         return (0.0 if lo == 0 else float(self.taus[lo - 1]),
                 math.inf if hi == self.taus.size - 1 else float(self.taus[hi + 1]))

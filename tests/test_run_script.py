@@ -22,7 +22,9 @@ echo "python3 $*" >> "$LOG"
 case "$1" in
   -m) [ "$2" = "pip" ] && exit 0; [ "$2" = "app" ] && exit 0 ;;
   -c) case "$2" in *PySide6*) echo "$QT_DIR" ;; *) echo "/usr/bin/python3 3.11.7" ;; esac; exit 0 ;;
-  -) cat > /dev/null; exit "${INSTALLED_EXIT:-0}" ;;
+  -) cat > /dev/null; echo "/usr/bin/python3 3.11.7"
+     if [ "${INSTALLED_EXIT:-0}" = "0" ]; then echo installed; else echo missing; fi
+     echo "$QT_DIR"; exit 0 ;;
 esac
 exit 0
 """

@@ -44,7 +44,7 @@ DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_0
 TEMPERATURE_WARN_C = 70.0  # XM430 shuts down at 80 °C by default
 VOLTAGE_RANGE_V = (10.0, 14.8)  # XM430-W350 recommended supply range
 ROW_HEIGHT_PX = 26  # twelve servos fit without scrolling at the default window size
-SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 98  # rows + header + the torque buttons above + margins
+SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 64  # rows + header + the group's title and margins
 SMALL_ROW_HEIGHT_PX = 22
 # After a click, the servo's reported state lags the request by a health poll or two; until it agrees (or this
 # long has passed) the button keeps showing what was asked instead of flicking back.
@@ -140,11 +140,18 @@ class HardwarePanel(QWidget):
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
-        layout.addWidget(self._build_connection())
+        connection = self._build_connection()
+        layout.addWidget(connection)
+        servos = self._build_servos()
+        # The all-torque buttons sit at the right of the connection row, not on a row of their own: that height
+        # goes to the scan and link tables (at 1280×800 the scan list showed only four rows).
+        connection_row = connection.layout()
+        assert isinstance(connection_row, QHBoxLayout)
+        connection_row.addLayout(self._servo_bar)
 
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.setChildrenCollapsible(False)
-        splitter.addWidget(self._build_servos())
+        splitter.addWidget(servos)
         tools = QWidget()
         tools_layout = QHBoxLayout(tools)
         tools_layout.setContentsMargins(0, 0, 0, 0)
@@ -201,12 +208,11 @@ class HardwarePanel(QWidget):
         self.all_torque_off_button = QPushButton("All torque off")
         self.all_torque_off_button.setToolTip("The robot goes limp: support it before switching torque off")
         self.all_torque_off_button.clicked.connect(lambda: self.all_torque_requested.emit(False))
-        bar.addWidget(self.all_torque_on_button)
-        bar.addWidget(self.all_torque_off_button)
-        bar.addStretch(1)
         self.servo_summary_label = QLabel("")
         bar.addWidget(self.servo_summary_label)
-        column.addLayout(bar)
+        bar.addWidget(self.all_torque_on_button)
+        bar.addWidget(self.all_torque_off_button)
+        self._servo_bar = bar  # placed in the connection row by __init__
 
         self.servo_table = QTableWidget(0, len(SERVO_COLUMNS))
         self.servo_table.setObjectName("servo_table")
@@ -255,6 +261,7 @@ class HardwarePanel(QWidget):
         self.scan_progress.setRange(0, 1)
         self.scan_progress.setValue(0)
         self.scan_progress.setFormat("idle")
+        self.scan_progress.setVisible(False)  # shown while a scan runs; the status line says how it ended
         column.addWidget(self.scan_progress)
         self.scan_table = QTableWidget(0, len(SCAN_COLUMNS))
         self.scan_table.setObjectName("scan_table")
@@ -267,6 +274,7 @@ class HardwarePanel(QWidget):
         column.addWidget(self.scan_table, 1)
         self.scan_status_label = QLabel("")
         self.scan_status_label.setWordWrap(True)
+        self.scan_status_label.setVisible(False)  # shown when it has something to say
         column.addWidget(self.scan_status_label)
         return box
 
@@ -370,6 +378,7 @@ class HardwarePanel(QWidget):
                 bauds = [self.baud]
             except ValueError as exc:
                 self.scan_status_label.setText(str(exc))
+                self.scan_status_label.setVisible(True)
                 return
         self.scan_requested.emit(list(range(lo, hi + 1)), bauds)
 
@@ -569,8 +578,10 @@ class HardwarePanel(QWidget):
         self.scan_progress.setRange(0, max(n_steps, 1))
         self.scan_progress.setValue(0)
         self.scan_progress.setFormat(text)
+        self.scan_progress.setVisible(True)
         self.scan_status_label.setText("")
         self.scan_status_label.setStyleSheet("")
+        self.scan_status_label.setVisible(False)
 
     def set_scan_progress(self, done_steps: int, text: str) -> None:
         self.scan_progress.setValue(done_steps)
@@ -591,8 +602,10 @@ class HardwarePanel(QWidget):
         self.scan_button.setEnabled(True)
         self.scan_progress.setValue(self.scan_progress.maximum())
         self.scan_progress.setFormat("done" if ok else "stopped")
+        self.scan_progress.setVisible(False)
         self.scan_status_label.setText(text)
         self.scan_status_label.setStyleSheet(theme.status_style(theme.OK if ok else theme.ERROR))
+        self.scan_status_label.setVisible(bool(text))
 
     @property
     def scan_result_ids(self) -> list[int]:

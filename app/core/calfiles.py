@@ -16,9 +16,10 @@ import math
 import os
 import secrets
 import stat
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -225,15 +226,17 @@ def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: boo
 
 
 def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],
-                     values: np.ndarray) -> None:
-    """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision."""
+                     values: np.ndarray, digits: int = 17) -> None:
+    """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision
+    (``digits`` significant digits for the values: 17 round-trips float64, 9 float32; time always 17)."""
     time_s = np.asarray(time_s, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64).reshape(time_s.shape[0], -1)
     if values.shape[1] != len(columns):
         raise ValueError(f"{len(columns)} column names for {values.shape[1]} columns")
     table = np.column_stack([time_s, values])
     header = ",".join([TIME_COLUMN, *columns])
-    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
+    fmt = ["%.17g"] + [f"%.{int(digits)}g"] * values.shape[1]
+    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt=fmt,
                                                         header=header, comments=""))
 
 
@@ -244,6 +247,12 @@ def write_trial_csv(path: str | os.PathLike, time_s: np.ndarray, force_n: np.nda
     header = ",".join([TIME_COLUMN, FORCE_COLUMN, CONDUCTANCE_COLUMN])
     _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
                                                         header=header, comments=""))
+
+
+def write_atomically(path: str | os.PathLike, write: Callable[[TextIO], object]) -> None:
+    """``write(handle)`` into a new text file at ``path``, all or nothing (see :func:`_atomic_write`); for writers
+    outside this module (a recording's CSV export)."""
+    _atomic_write(Path(path), write)
 
 
 def _atomic_write(path: Path, write) -> None:

@@ -120,6 +120,7 @@ def run_obstacle_experiment(out: str | Path, config: LabConfig | None = None, *,
     bottom = np.array([i for i, name in enumerate(names) if name.endswith("B")])
     stream = BoardStream(lab, config)
     pipeline = ForcesPipeline(names)
+    pipeline.set_readout(config.board.r_c_ohm)
     calibration = json.dumps(lab.ground_truth_calibration())
     with tempfile.TemporaryDirectory() as scratch:
         cal_path = Path(scratch) / "board_truth.json"
@@ -229,5 +230,6 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, bottom_
         group.attrs["obstacle_friction"] = scene.obstacle_friction
         group.attrs["ground_friction"] = scene.ground_friction
         group.attrs["segment_length_m"] = scene.segment_length_m
+        group.attrs["weight_N"] = lab.physics.world.weight_n  # type: ignore[attr-defined]
         group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
                                "end of segment i; the obstacle's axis lies along y at x = 0 on the ground")

@@ -373,5 +373,6 @@ class MainWindow(QMainWindow):
             self._app.removeEventFilter(self)
         self.save_settings()
         self._shutdown_tabs()
+        self.status.shutdown()
         self.lab.close()
         event.accept()

@@ -39,6 +39,7 @@ def test_the_recording_is_a_sensnake_recording_with_forces_robot_and_body(obstac
         assert f["sim/points_m"].shape[1:] == (13, 3)
         assert f["sim/time_s"].shape[0] == f["robot/time_s"].shape[0]
         assert f.attrs["config"].startswith("# sensnake experiment obstacle")
+        assert f["sim"].attrs["weight_N"] == pytest.approx(WEIGHT_N)
 
 
 def test_the_bottom_sensors_carry_the_weight(obstacle_run):
@@ -66,6 +67,10 @@ def test_the_robot_advances_and_the_force_pattern_travels_backward_along_the_bod
     # Fig. 6E: the force pattern travels backward relative to the body (toward the tail, higher segment numbers).
     assert slope > 0.05  # segments per second
     assert np.median(front[-30:]) - np.median(front[:30]) >= 2
+    # The same seen from the sensor pressed hardest (the obstacle's top contact; robust to the head touching down).
+    most = np.argmax(forces[moving], axis=1) + 1
+    assert np.polyfit(recording.time_s[moving], most, 1)[0] > 0.05
+    assert np.median(most[-30:]) - np.median(most[:30]) >= 2
     assert true_bottom.shape[1] == 12
 
 
@@ -89,3 +94,15 @@ def test_teach_captures_the_limp_robot_settled_over_the_obstacle(install_fast_si
     assert angles[[2, 4, 6, 8]] == pytest.approx(np.full(4, wrap), abs=0.1)  # conformed to the obstacle
     assert np.abs(angles[1::2]).max() < 0.05  # yaw joints stay straight
     assert all(lab.chain.register(sid, "Torque Enable") == 1 for sid in config.robot.joint_ids)  # then holds
+
+
+def test_a_short_run_prints_progress_and_a_summary(tmp_path, capsys):
+    out = tmp_path / "short.h5"
+    code = main(["experiment", "obstacle", "--out", str(out), "--seconds", "1", "--settle", "1"])
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("t = ") and "real time" in line and "shift" in line for line in lines)  # progress
+    summary = "\n".join(lines)
+    assert "simulated 2." in summary and "real time" in summary  # 1 s settle + 1 s played
+    assert "median total bottom force" in summary and f"wrote {out}" in summary
+    assert open_recording(out).time_s[-1] == pytest.approx(1.0, abs=0.1)

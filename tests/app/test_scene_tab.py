@@ -70,3 +70,22 @@ def test_the_scripted_lab_falls_back_to_the_2d_body_drawing(qtbot, tab_on):
     tab.show()
     assert not tab.view.showing_picture
     assert "scripted" in tab.view.reason.text()
+
+
+def test_without_opengl_the_physics_lab_is_drawn_in_2d_with_the_reason(qtbot, tab_on, monkeypatch):
+    from devices.sim.physics import render
+
+    def no_gl(*_args, **_kwargs):
+        raise render.RenderUnavailable("no OpenGL rendering for the 3-D view (EGLError: no display)")
+
+    monkeypatch.setattr(render, "SceneRenderer", no_gl)  # a machine without EGL/OSMesa
+    tab, lab_sim = tab_on(PHYSICS)
+    lab_sim.start_background()
+    tab.lab.robot.connect_robot()
+    tab.show()
+    qtbot.waitUntil(lambda: bool(tab.render_error), timeout=20000)
+    assert not tab.view.showing_picture
+    assert "no OpenGL" in tab.view.reason.text() and "2-D" in tab.view.reason.text()
+    # The 2-D drawing follows the simulated robot's joints (the limp robot drapes over the obstacle).
+    qtbot.waitUntil(lambda: tab.lab.robot.latest_state is not None, timeout=20000)
+    qtbot.waitUntil(lambda: abs(tab.view.body.present_rad[2]) > 0.2, timeout=20000)

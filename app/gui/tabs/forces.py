@@ -35,9 +35,11 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QListWidget,
+    QMenu,
     QPushButton,
     QSplitter,
     QTabWidget,
+    QToolButton,
     QVBoxLayout,
     QWidget,
 )
@@ -51,6 +53,7 @@ from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
+from widgets.image_export import save_widget_image
 from widgets.ring_plot import TraceHistory, append_with_gaps
 
 try:
@@ -189,6 +192,15 @@ class ForcesTab(QWidget):
         overlay_bar.addWidget(self.overlay_align)
         self.overlay_clear = QPushButton("Clear", overlay_page)
         overlay_bar.addWidget(self.overlay_clear)
+        self.overlay_image = QToolButton(overlay_page)
+        self.overlay_image.setText("Image…")
+        self.overlay_image.setToolTip("Save the trial overlay as an image: PNG, or SVG (vector)")
+        self.overlay_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
+        overlay_menu = QMenu(self.overlay_image)
+        for kind in ("png", "svg"):
+            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(-1, k))
+        self.overlay_image.setMenu(overlay_menu)
+        overlay_bar.addWidget(self.overlay_image)
         overlay_bar.addStretch(1)
         overlay_layout.addLayout(overlay_bar)
         overlay_layout.addWidget(self.overlay, 1)
@@ -226,6 +238,7 @@ class ForcesTab(QWidget):
         c.pause_toggled.connect(self.plots.set_paused)
         self.plots.paused_changed.connect(c.set_paused)
         self.plots.cursor_moved.connect(self._on_cursor_moved)
+        self.plots.image_requested.connect(self._choose_image)
         c.side_toggled.connect(self.plots.set_side_visible)
         c.quantity_changed.connect(self.set_quantity)
         c.estimator_changed.connect(self.set_estimator)
@@ -684,6 +697,32 @@ class ForcesTab(QWidget):
         path, _ = QFileDialog.getSaveFileName(self, title, str(default), "CSV (*.csv)")
         if path:
             self.export_viewed_csv(path, visible_only)
+
+    def export_plot_image(self, index: int, path: str | os.PathLike) -> Path | None:
+        """Save plot ``index`` (-1: the trial overlay) as a PNG or SVG image (by the suffix); None and a message when
+        it cannot be."""
+        try:
+            if index < 0:
+                title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
+                written = save_widget_image(self.overlay.plot_widget, path, title)
+            else:
+                written = self.plots.export_image(index, path)
+        except (OSError, ValueError) as exc:
+            self.controls.set_message(f"image not saved: {exc}", "error")
+            return None
+        self.controls.set_message(f"saved {written}", "ok")
+        return written
+
+    def _choose_image(self, index: int, kind: str) -> None:
+        title = "overlay" if index < 0 else self.plots.groups[index].title
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        default = Path(user_folders.dialog_folder(recordings_dir())) / f"{title}-{stamp}.{kind}"
+        path, _ = QFileDialog.getSaveFileName(self, f"Save {title} as {kind.upper()}", str(default),
+                                              f"{kind.upper()} image (*.{kind})")
+        if path:
+            if not Path(path).suffix:
+                path = f"{path}.{kind}"
+            self.export_plot_image(index, path)
 
     # -- life cycle ------------------------------------------------------------------------------------------------
     def shutdown(self) -> None:
