@@ -179,6 +179,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
+    if isinstance(exc, OSError) and exc.strerror and text.startswith("[Errno"):
+        # "[Errno 21] cannot write out.csv: Is a directory" reads as Python, not as the cause: keep the words.
+        text = str(exc.strerror)
+        if exc.filename is not None and str(exc.filename) not in text:
+            text += f": {exc.filename}"
     return " ".join(text.split())
 
 
