@@ -83,7 +83,7 @@ SCENARIOS: list[tuple[str, Callable, float, float]] = [
 
 def _naive_superposition_inverse(t, cond, params: SLSParams, area_m2: float, phys) -> np.ndarray:
     """The paper's reverse superposition: at each sample the past increments are summed afresh (O(N²))."""
-    e0, e1, tau = params.E0_Pa, params.E1_Pa, params.tau_s
+    e0, e1, tau = float(params.E0_Pa), float(params.E1_Pa), float(params.tau_s)  # one sensor
     k, r0, kc = phys.tunnelling_k, phys.R0_ohm, phys.K_contact_ohm_sqrtN
     sigma = np.zeros(t.size)
     force = np.zeros(t.size)
@@ -209,12 +209,13 @@ def _pulse_length_table(linear_model, instant_model) -> None:
 def _force_dependent_table() -> None:
     """The paper's parameters grow with force; the estimator uses them at one reference force (3.5 N)."""
     p = TYPICAL_SLS
+    e0, e1, mu1 = float(p.E0_Pa), float(p.E1_Pa), float(p.mu1_Pa_s)  # one sensor
     # ±25 % over the calibrated range, all three parameters rising with force (Fig. 9 iii)
     slope = 0.5 / 3.5
     trend = SLSTrend(
-        E0_Pa=(p.E0_Pa * (1 - 0.5), p.E0_Pa * slope),
-        E1_Pa=(p.E1_Pa * (1 - 0.5), p.E1_Pa * slope),
-        mu1_Pa_s=(p.mu1_Pa_s * (1 - 0.5), p.mu1_Pa_s * slope),
+        E0_Pa=(e0 * (1 - 0.5), e0 * slope),
+        E1_Pa=(e1 * (1 - 0.5), e1 * slope),
+        mu1_Pa_s=(mu1 * (1 - 0.5), mu1 * slope),
     )
     reference = trend.at(3.5)
     print("\nforce-dependent parameters (truth: E0, E1, mu1 ∝ (0.5 + F/7 N), i.e. ±25 % over 1.75–5.25 N);")

@@ -143,7 +143,7 @@ def run(quick: bool) -> None:
     print(f"fitters on the paper's protocol (12 trials × 2221 samples), truth E0={TRUTH.E0_Pa:.3g} Pa, "
           f"E1={TRUTH.E1_Pa:.3g} Pa, mu1={TRUTH.mu1_Pa_s:.3g} Pa·s; {len(seeds)} seed(s), median over seeds")
     print(f"{'fitter':<22} {'noise':>9} {'time/sensor_s':>13} {'E0_err':>9} {'E1_err':>9} {'mu1_err':>9}  note")
-    calibration_times = []
+    calibration_times: list[tuple[str, float]] = []
     for label, options in _scenarios(quick):
         rows: dict[str, list] = {}
         for seed in seeds:

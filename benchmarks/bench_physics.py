@@ -116,6 +116,7 @@ def _app_rows(quick: bool) -> list[dict]:
             loop.exec()
             world = sim.physics.world
             steps0, lag0, wall0, cpu0 = world.steps, world.lagged_s, time.monotonic(), time.process_time()
+            stepping0 = world.stepping_s
             redraws0 = tab.plots.redraw_count if tab is not None else 0
             QTimer.singleShot(int(run_s * 1000), loop.quit)
             loop.exec()
@@ -123,6 +124,7 @@ def _app_rows(quick: bool) -> list[dict]:
             simulated = (world.steps - steps0) * world.scene.timestep_s
             rows.append({"scenario": "physics thread + Forces tab plots" if with_plots else "physics thread alone",
                          "rtf": simulated / wall, "lagged_s": world.lagged_s - lag0,
+                         "busy": (world.stepping_s - stepping0) / wall,
                          "cpu_pct": 100 * (time.process_time() - cpu0) / wall,
                          "fps": ((tab.plots.redraw_count - redraws0) / wall) if tab is not None else float("nan")})
         finally:
@@ -147,10 +149,14 @@ def run(quick: bool) -> None:
     print("\n(b) headless lab (world + virtual chain + virtual board through their wire protocols), 2 ms step: "
           f"{_headless_rtf(quick):.1f}× real time")
     print("\n(c) the app's physics lab at real time (speed 1), 2 ms step; target: RTF ≥ 1.0 with the plots running")
-    print(f"{'scenario':<36} {'world RTF':>9} {'skipped s':>10} {'process CPU':>12} {'plot fps':>9}")
+    print("    stepping = wall time inside PhysicsWorld.step per wall second; headroom = 1 / stepping (how much faster "
+          "than real time the world could run here, at this load)")
+    print(f"{'scenario':<36} {'world RTF':>9} {'skipped s':>10} {'stepping':>9} {'headroom':>9} {'process CPU':>12} "
+          f"{'plot fps':>9}")
     for row in _app_rows(quick):
-        print(f"{row['scenario']:<36} {row['rtf']:9.2f} {row['lagged_s']:10.2f} {row['cpu_pct']:11.0f}% "
-              f"{row['fps']:9.1f}")
+        headroom = 1.0 / row["busy"] if row["busy"] > 0 else float("inf")
+        print(f"{row['scenario']:<36} {row['rtf']:9.2f} {row['lagged_s']:10.2f} {100 * row['busy']:8.1f}% "
+              f"{headroom:8.1f}× {row['cpu_pct']:11.0f}% {row['fps']:9.1f}")
     print("(machine load changes every wall-clock figure; the lab's 2 cores are shared)")
 
 

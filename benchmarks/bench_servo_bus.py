@@ -11,7 +11,8 @@
     and on the independent emulator;
 (f) ``sensnake play`` at 50 Hz on the independent emulator (tests/emulators) of twelve XM430s on a pty.
 
-    python -m benchmarks.bench_servo_bus [--quick]
+    python -m benchmarks.bench_servo_bus [--quick] [--case bare|gui|pty|…] [--seconds S] [--gui-rate 50]
+        [--rotate S] [--plays N]
 
 Columns: ``missed`` are tick slots that passed without a tick (skipped, never caught up in a burst); ``late`` are
 ticks that started more than a quarter period after their slot (an overrunning tick is followed at once by the next,
@@ -76,35 +77,54 @@ def bench_cycle(n_cycles: int) -> None:
               f"{ms.max():9.2f} {cpu_ms:8.2f} {wakeups:9.2f}")
 
 
-def _run_loop(rate_hz: float, seconds: float) -> tuple[dict, int]:
+def _run_loop(rate_hz: float, seconds: float, return_delay_time: int = 0, wave: bool = False) -> tuple[dict, int]:
+    """The bare loop (no GUI) for ``seconds``: holding a pose, or with ``wave`` a motion whose goals change every
+    tick. Periods are collected every 30 s, so the window may exceed the controller's period history."""
     robot = dataclasses.replace(RobotConfig(), control_rate_hz=rate_hz)
-    chain, previous = _install_chain(0, robot)
+    chain, previous = _install_chain(return_delay_time, robot)
     done = threading.Event()
     try:
         controller = RobotController(ServoChain(robot), robot)
         controller.start()
         try:
             controller.set_torque(True).result(5)
-            future = controller.run_motion(HoldPose(np.zeros(robot.n_joints), duration_s=seconds), "bench")
+            source = _Wave() if wave else HoldPose(np.zeros(robot.n_joints), duration_s=seconds)
+            s0 = controller.stats()
+            future = controller.run_motion(source, "bench")
             future.add_done_callback(lambda _: done.set())
-            done.wait(seconds + 10)
-            stats = controller.stats()
+            t0, chunks, taken = time.monotonic(), [], s0.ticks
+            while not done.wait(min(30.0, max(0.0, seconds - (time.monotonic() - t0)))):
+                s = controller.stats()
+                chunks.append(controller.recent_periods_s(s.ticks - taken))
+                taken = s.ticks
+                if time.monotonic() - t0 >= seconds:
+                    break
+            controller.stop_motion()
+            s1 = controller.stats()
+            chunks.append(controller.recent_periods_s(s1.ticks - taken))
         finally:
             controller.close()
     finally:
         factory.install_sim_lab(previous)
-    return dataclasses.asdict(stats), chain.count(wire.SYNC_WRITE)
+    periods = np.concatenate(chunks)
+    jitter = np.abs(periods - 1.0 / rate_hz)
+    stats = {"ticks": s1.ticks - s0.ticks, "missed_ticks": s1.missed_ticks - s0.missed_ticks,
+             "late_ticks": s1.late_ticks - s0.late_ticks, "period_p50_s": float(np.median(periods)),
+             "period_p99_s": float(np.percentile(periods, 99)), "period_max_s": float(periods.max()),
+             "jitter_p50_s": float(np.median(jitter)), "jitter_p99_s": float(np.percentile(jitter, 99))}
+    return stats, chain.count(wire.SYNC_WRITE)
 
 
 def bench_jitter(seconds: float) -> None:
-    print(f"(b) 50 Hz control loop, {seconds:g} s (write + read every tick, return delay 0)")
-    stats, writes = _run_loop(50.0, seconds)
+    print(f"(b) the bare 50 Hz control loop (no GUI), {seconds:g} s, a wave motion writing new goals every tick, "
+          "factory return delay 500 µs")
+    stats, writes = _run_loop(50.0, seconds, return_delay_time=250, wave=True)
     _print_stats_header()
     _print_stats(50.0, stats, writes)
 
 
 def bench_rates(seconds: float) -> None:
-    print(f"(c) control loop at several rates, {seconds:g} s each (return delay 0)")
+    print(f"(c) the bare control loop at several rates, {seconds:g} s each, holding a pose (return delay 0)")
     _print_stats_header()
     for rate in RATES_HZ:
         stats, writes = _run_loop(rate, seconds)
@@ -120,11 +140,16 @@ class _Wave:
 
 GUI_CASES = ((50.0, 250), (100.0, 0))  # (rate Hz, Return Delay Time register): the issue's two in-app targets
 GUI_TABS = ("forces", "gait", "hardware")
+ALL_TABS = ("teach", "gait", "calibration", "forces", "hardware", "scene")
 
 
-def bench_gui(seconds: float) -> None:
+def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | None = None) -> None:
     """The loop inside the running app: GUI thread, board reader and the simulated devices share the interpreter.
-    The Forces tab plots the board's 36 channels live; a wave motion writes goals every tick."""
+    The Forces tab plots the board's 36 channels live; a wave motion writes goals every tick.
+
+    Without ``rotate_s``: one ``seconds`` window per tab in ``tabs``. With it: one window of ``seconds`` per case in
+    which the shown tab changes every ``rotate_s`` through ``tabs`` (every tab live in turn); periods are collected
+    in chunks, so the window may be longer than the controller's period history."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     from PySide6.QtCore import QEventLoop, QTimer
@@ -136,9 +161,10 @@ def bench_gui(seconds: float) -> None:
     from devices.config import load_config
     from devices.sim.lab import SimLab
 
+    shown = f"every {rotate_s:g} s through {'/'.join(tabs)}" if rotate_s else "per tab"
     print(f"(d) control loop in the running app ({os.environ['QT_QPA_PLATFORM']}, sim lab, wave motion, board "
-          f"streaming), {seconds:g} s per tab. Targets: 50 Hz p99 jitter ≤ 2 ms and no late tick; 100 Hz (return "
-          "delay 0) p99 jitter ≤ 2 ms")
+          f"streaming 36 channels), {seconds:g} s {shown}. Targets: 50 Hz p99 jitter ≤ 2 ms and no late tick; "
+          "100 Hz (return delay 0) p99 jitter ≤ 2 ms")
     print(f"    {'rate Hz':>8} {'RDT µs':>7} {'tab':>9} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} "
           f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6}   (ms; CPU: the whole process, % of one core)")
     app = QApplication.instance() or QApplication([])
@@ -151,7 +177,7 @@ def bench_gui(seconds: float) -> None:
             loop.exec()
 
     base = load_config(None).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
-    for rate, delay in GUI_CASES:
+    for rate, delay in cases:
         config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
         previous = factory.install_sim_lab(SimLab(config))
         with ServoChain(config.robot) as servos:  # the Hardware tab's Return Delay Time button, before connecting
@@ -168,17 +194,28 @@ def bench_gui(seconds: float) -> None:
             lab.robot.set_torque(True)
             spin(0.3)
             lab.robot.run_motion(_Wave(), "bench wave")
-            for tab in GUI_TABS:
-                window.show_tab(tab)
+            windows = [(tab, seconds) for tab in tabs] if not rotate_s else [("rotating", seconds)]
+            for name, length in windows:
+                window.show_tab(name if not rotate_s else tabs[0])
                 spin(0.5)
+                load0 = os.getloadavg()[0]
                 s0 = lab.robot.loop_stats()
                 t0, cpu0 = time.monotonic(), time.process_time()
-                spin(seconds)
+                chunks, taken, k = [], s0.ticks, 0
+                while time.monotonic() - t0 < length:
+                    spin(min(rotate_s or length, length - (time.monotonic() - t0)))
+                    s = lab.robot.loop_stats()
+                    chunks.append(lab.robot.controller.recent_periods_s(s.ticks - taken))
+                    taken = s.ticks
+                    if rotate_s:
+                        k += 1
+                        window.show_tab(tabs[k % len(tabs)])
                 s1 = lab.robot.loop_stats()
+                chunks.append(lab.robot.controller.recent_periods_s(s1.ticks - taken))
                 cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
-                periods = lab.robot.controller.recent_periods_s(s1.ticks - s0.ticks)
-                _print_window(rate, delay * 2, tab, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,
-                              s1.late_ticks - s0.late_ticks, periods, cpu)
+                _print_window(rate, delay * 2, name, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,
+                              s1.late_ticks - s0.late_ticks, np.concatenate(chunks), cpu,
+                              f"load {load0:.2f}->{os.getloadavg()[0]:.2f}")
         finally:
             window.close()
             lab.close()
@@ -187,11 +224,12 @@ def bench_gui(seconds: float) -> None:
 
 
 def _print_window(rate: float, delay_us: int, name: str, ticks: int, missed: int, late: int, periods: np.ndarray,
-                  cpu: float) -> None:
+                  cpu: float, note: str = "") -> None:
     ms = periods * 1e3
     jitter = np.abs(ms - 1e3 / rate)
     print(f"    {rate:8.0f} {delay_us:7d} {name:>9} {ticks:7d} {missed:7d} {late:6d} {np.median(ms):11.2f} "
-          f"{np.percentile(ms, 99):7.2f} {ms.max():7.2f} {np.percentile(jitter, 99):11.2f} {cpu:6.0f}")
+          f"{np.percentile(ms, 99):7.2f} {ms.max():7.2f} {np.percentile(jitter, 99):11.2f} {cpu:6.0f}   {note}",
+          flush=True)
 
 
 def bench_pty_chain(plays: int = 1) -> None:
@@ -306,21 +344,42 @@ def _print_stats(rate: float, s: dict, writes: int) -> None:
           f"{ms['jitter_p99_s']:7.2f} {writes:7d}")
 
 
-def run(quick: bool) -> None:
-    print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
-    bench_cycle(100 if quick else 500)
-    try:
-        bench_late_reply()
-    except ImportError:
-        print("(e) skipped: the emulator (tests/emulators) is not importable; run from the source tree")
-    bench_jitter(10.0 if quick else 60.0)
-    bench_rates(3.0 if quick else 10.0)
-    bench_pty_chain(1 if quick else 3)
-    bench_gui(4.0 if quick else 15.0)
+CASES = ("cycle", "late", "bare", "rates", "pty", "gui")
+
+
+def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = None, gui_rates: tuple[float, ...] = (),
+        rotate_s: float | None = None, plays: int | None = None) -> None:
+    print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
+    if "cycle" in cases:
+        bench_cycle(100 if quick else 500)
+    if "late" in cases:
+        try:
+            bench_late_reply()
+        except ImportError:
+            print("(e) skipped: the emulator (tests/emulators) is not importable; run from the source tree")
+    if "bare" in cases:
+        bench_jitter(seconds or (10.0 if quick else 60.0))
+    if "rates" in cases:
+        bench_rates(seconds or (3.0 if quick else 10.0))
+    if "pty" in cases:
+        bench_pty_chain(plays or (1 if quick else 3))
+    if "gui" in cases:
+        gui_cases = tuple(c for c in GUI_CASES if not gui_rates or c[0] in gui_rates)
+        bench_gui(seconds or (4.0 if quick else 15.0), gui_cases, ALL_TABS if rotate_s else GUI_TABS, rotate_s)
     print(f"machine load average (1 min) at the end: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true")
-    run(parser.parse_args().quick)
+    parser.add_argument("--quick", action="store_true", help="short windows (a smoke run, not the targets)")
+    parser.add_argument("--case", action="append", choices=CASES,
+                        help="run only this case (repeatable): cycle (a), late (e), bare (b), rates (c), pty (f), "
+                             "gui (d); default all")
+    parser.add_argument("--seconds", type=float, help="window length for bare, rates and gui (per tab or rotating)")
+    parser.add_argument("--gui-rate", type=float, action="append", choices=[c[0] for c in GUI_CASES],
+                        help="gui case: only this rate (50 = factory return delay, 100 = return delay 0)")
+    parser.add_argument("--rotate", type=float, metavar="S",
+                        help="gui case: one window per rate, the shown tab changing every S s through all six tabs")
+    parser.add_argument("--plays", type=int, help="pty case: number of full plays")
+    args = parser.parse_args()
+    run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays)

@@ -44,6 +44,7 @@ import concurrent.futures
 import dataclasses
 import logging
 import math
+import os
 import queue
 import sys
 import threading
@@ -79,6 +80,7 @@ TIMING_WINDOW_S = 5.0
 SUPPLY_EVERY_N_POLLS = 5  # voltage and temperature change slowly: read them on every 5th health poll
 LATE_FRACTION = 0.25  # a tick starting this fraction of a period after its slot counts as late
 GIL_SWITCH_INTERVAL_S = 0.001  # see _lower_switch_interval
+BUS_THREAD_RT_PRIORITY = 20  # SCHED_FIFO priority of the bus thread when permitted (see _raise_thread_priority)
 HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this long before the next deadline
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
 TIMING_WARN_FRACTION = 0.05
@@ -102,6 +104,24 @@ def _lower_switch_interval() -> None:
     """
     if sys.getswitchinterval() > GIL_SWITCH_INTERVAL_S:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+
+
+def _raise_thread_priority() -> str:
+    """Ask for real-time scheduling (SCHED_FIFO, priority ``BUS_THREAD_RT_PRIORITY``) for the calling thread only
+    (Linux: scheduling is per thread), as a control loop on a PC should have: then another program busy on the
+    machine cannot delay a tick's wake-up. Needs the privilege (root, CAP_SYS_NICE or an ``rtprio`` limit, e.g.
+    ``@dialout - rtprio 20`` in /etc/security/limits.conf); without it the thread keeps normal scheduling. The
+    environment variable ``SENSNAKE_REALTIME=0`` turns it off. Returns what was obtained, in words."""
+    if os.environ.get("SENSNAKE_REALTIME", "1").strip() in ("0", "no", "off", "false"):
+        return "normal scheduling (SENSNAKE_REALTIME=0)"
+    if not sys.platform.startswith("linux") or not hasattr(os, "sched_setscheduler"):
+        return "normal scheduling (real-time priority is only asked for on Linux)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BUS_THREAD_RT_PRIORITY))
+    except OSError:
+        return ("normal scheduling (no privilege for real-time priority: a busy machine may delay ticks; allow "
+                "it with an rtprio limit, see the README)")
+    return f"real-time scheduling (SCHED_FIFO {BUS_THREAD_RT_PRIORITY})"
 
 
 class BusBusyError(DeviceError):
@@ -235,6 +255,7 @@ class RobotController:
         self._writes = 0
         self._failed_reads = 0
         self._latest_state: ChainState | None = None
+        self.scheduling = "not started"  # the bus thread's scheduling, in words (set when it starts)
 
     # -- lifecycle (any thread) ------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -397,6 +418,8 @@ class RobotController:
     # -- the bus thread ----------------------------------------------------------------------------------------------
     def _run(self) -> None:
         _lower_switch_interval()
+        self.scheduling = _raise_thread_priority()
+        log.info("robot bus thread: %s", self.scheduling)
         deadline = time.monotonic()  # the slot of the tick about to run
         last_start: float | None = None
         while not self._stop.is_set():

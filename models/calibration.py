@@ -23,6 +23,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import special
+from scipy.optimize import minimize_scalar
 
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
@@ -34,6 +36,7 @@ from models.fit_output import (
     trial_costs,
 )
 from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit_paper_ls
+from models.fit_profile import profile_tau
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams, abc_from_sls
@@ -63,6 +66,11 @@ MAX_CENSORED_FRACTION = 0.5
 # cost (a slow-creep sensor otherwise stops on the τ → 0 plateau, whose cost is far above the optimum).
 TAU_GRID_LOW, TAU_GRID_HIGH, TAU_GRID_POINTS = 3.0, 30.0, 9
 JOINT_STARTS = 2
+# Profile over log τ (models.fit_profile): from PROFILE_TAU_LOW × the sample step to TAU_RESOLVABLE_SPANS × the
+# record length, PROFILE_TAU_POINTS values; (E0, E1) follow τ, so its minima are starts in the right basin even where
+# the τ grid above (E0, E1 held) only sees the τ → 0 plateau; its curve gives τ's profile-likelihood interval.
+PROFILE_TAU_LOW, PROFILE_TAU_POINTS = 0.5, 41
+PROFILE_STARTS = 2
 # The resolvable creep: τ between the sample step and this multiple of the record length.
 TAU_RESOLVABLE_SPANS = 100.0
 
@@ -74,6 +82,50 @@ TAU_RESOLVABLE_SPANS = 100.0
 # max 0.89 s, against 0.93 s / 1.95 s with scipy on the same shared machine). Both meet the 2 s target. CasADi is
 # the production solver, as the calibration issue asks; scipy is the cross-check (solver="scipy").
 DEFAULT_SOLVER = "gauss-newton"
+
+
+# Records sampled faster than this are block-averaged to it before fitting (sensnake fit --fit-rate): a 1 kHz trial of
+# 370 s is 370 000 samples, which the output-error fit would run through its recursion ~100 times per start (minutes
+# and ~0.45 GB per trial). Averaging k samples keeps their information about a slow creep (white noise shrinks by
+# √k) at 1/k of the cost; the error it costs is measured in benchmarks/bench_fitters.py (decimation rows).
+DEFAULT_FIT_RATE_HZ = 10.0
+
+
+def decimate_trial(trial: TrialInput, rate_hz: float, saturation_s: float | None = None) -> TrialInput:
+    """``trial`` block-averaged to at most ``rate_hz`` (unchanged when it is not faster). Blocks of k consecutive
+    samples (k from the median step) become one sample at their mean time, mean force and mean conductance (NaN
+    samples left out; an all-NaN block is NaN). A block holding any sample at the readout ceiling ``saturation_s``
+    reads as the ceiling, so it stays censored ("at least this much") instead of averaging to a value too low."""
+    t = np.asarray(trial.time_s, dtype=np.float64)
+    if not rate_hz > 0 or t.size < 4:
+        return trial
+    step = float(np.median(np.diff(t)))
+    k = int(math.floor(1.0 / (rate_hz * step) + 1e-6)) if step > 0 else 1
+    if k < 2:
+        return trial
+    n = t.size // k * k
+    rest = t.size - n
+
+    def blocks(values: np.ndarray) -> np.ndarray:
+        values = np.asarray(values, dtype=np.float64)
+        head = values[:n].reshape(-1, k)
+        finite = np.isfinite(head)
+        count = finite.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(finite, head, 0.0).sum(axis=1) / count
+        if rest:
+            tail = values[n:]
+            tail_mean = float(np.nanmean(tail)) if np.isfinite(tail).any() else math.nan
+            mean = np.append(mean, tail_mean)
+        return mean
+
+    conductance = blocks(trial.conductance_s)
+    if saturation_s is not None:
+        at_ceiling = np.asarray(trial.conductance_s) >= saturation_s * (1 - 1e-12)
+        hit = np.append(at_ceiling[:n].reshape(-1, k).any(axis=1), at_ceiling[n:].any()) if rest else \
+            at_ceiling[:n].reshape(-1, k).any(axis=1)
+        conductance = np.where(hit, saturation_s, conductance)
+    return TrialInput(trial.name, blocks(t), blocks(trial.force_n), conductance)
 
 
 class FlatSensorError(ValueError):
@@ -322,11 +374,47 @@ def _distinct_starts(candidates: Sequence[SLSParams], totals: np.ndarray, count:
     return chosen or [candidates[int(np.argmin(totals))]]
 
 
-def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float) -> list[str]:
-    """Why the joint fit must not be stored as good: at a bound, unidentifiable, not converged, or a creep time
-    the records cannot resolve (τ → 0 and τ → ∞ both look elastic; the reason names both)."""
+def _elastic_cost(fit_trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, joint: SLSParams,
+                  saturation_s: float | None) -> float:
+    """The lowest cost (as ``trial_costs``, summed over trials) of a purely elastic sensor (no creep: E1 → ∞),
+    searched over its stiffness between the joint fit's long-run and instantaneous stiffnesses (two batched grids)."""
+    e0, e1 = float(joint.E0_Pa), float(joint.E1_Pa)
+    b = e0 * e1 / (e0 + e1)
+
+    def costs(stiffness: np.ndarray) -> np.ndarray:
+        params = [SLSParams(float(e), float(e) * 1e12, float(e) * 1e12) for e in stiffness]
+        return trial_costs(fit_trials, area_m2, phys, params, saturation_s=saturation_s,
+                           min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
+
+    grid = np.geomspace(b / 1.5, e0 * 1.5, 25)
+    totals = costs(grid)
+    best = int(np.argmin(totals))
+    lo, hi = math.log(grid[max(best - 1, 0)]), math.log(grid[min(best + 1, grid.size - 1)])
+    refined = minimize_scalar(lambda log_e: float(costs(np.array([math.exp(log_e)]))[0]), bounds=(lo, hi),
+                              method="bounded", options={"xatol": 1e-9})
+    return float(min(float(refined.fun), float(np.min(totals))))
+
+
+def _creep_resolved(joint: OutputFit, elastic_cost: float) -> bool:
+    """Does the creep term (E1, mu1) lower the cost significantly below the best purely elastic model? F-test,
+    2 extra parameters, at the 0.1 % level (the residuals of a real record are not independent: a strict level)."""
+    cost = float(sum(joint.cost_per_trial))
+    dof = max(int(sum(joint.n_used)) - 3, 1)
+    if not cost > 0:
+        return elastic_cost > 0
+    f = ((elastic_cost - cost) / 2) / (cost / dof)
+    return bool(f > special.fdtri(2, dof, 0.999))
+
+
+def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float, creep_resolved: bool = True) -> list[str]:
+    """Why the joint fit must not be stored as good: at a bound, unidentifiable, not converged, or a creep the
+    records cannot resolve (τ → 0 and τ → ∞ both look elastic; the reason names both)."""
     assert joint.ref is not None
     reasons = []
+    if not creep_resolved:
+        reasons.append("no creep is resolved: the creep term does not fit these records significantly better than "
+                       "a purely elastic sensor (F-test, 0.1 %), so τ → 0 and τ → ∞ both look purely elastic here and "
+                       "E1, mu1 are not identified; hold longer, or check the sensor")
     if joint.at_bound:
         reasons.append("a parameter sits at its search bound (10^±6 of the starting scale)")
     if any(not (math.isfinite(hi) and lo > 0) for lo, hi in joint.ci95.values()):
@@ -342,10 +430,23 @@ def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float) -> list[
     return reasons
 
 
+def _trial_unresolved(params: SLSParams, ci95: dict[str, tuple[float, float]], step_s: float,
+                      span_s: float) -> str | None:
+    """Why one trial's own fit is not identified (None when it is): τ outside what a record resolves, or an
+    infinite / non-positive 95 % interval (singular Jacobian)."""
+    tau_s = float(params.tau_s)
+    if not step_s <= tau_s <= TAU_RESOLVABLE_SPANS * span_s:
+        return f"creep time τ = {tau_s:.3g} s is outside what a {span_s:.0f} s record at {step_s:.3g} s steps resolves"
+    if any(not (math.isfinite(hi) and lo > 0) for lo, hi in ci95.values()):
+        return "singular Jacobian (infinite 95 % interval)"
+    return None
+
+
 def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
                      window_s: tuple[float, float] = DEFAULT_WINDOW_S, saturation_s: float | None = None,
                      solver: str = DEFAULT_SOLVER, fit_trend: bool = True,
-                     subtract_baseline: bool = False) -> SensorCalibration:
+                     subtract_baseline: bool = False,
+                     fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
     largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: a CasADi solver
     of :func:`models.fit_output.fit_output_casadi` (``"gauss-newton"``, the default, see :data:`DEFAULT_SOLVER`;
@@ -353,11 +454,16 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     ``subtract_baseline``: the linear model's drift handling — each trial's unloaded conductance is subtracted
     from its window mean before the line is fitted (the per-trial baselines are kept in the result).
 
+    ``fit_rate_hz``: trials sampled faster are block-averaged to this rate first (:func:`decimate_trial`; None or 0
+    fits every sample).
+
     Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
     trials (no force, too few samples), each naming the trial.
     """
     if not trials:
         raise ValueError("no trials given")
+    if fit_rate_hz:
+        trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
     if not (area_m2 > 0 and math.isfinite(area_m2)):
         raise ValueError(f"sensor area must be a positive number of m², got {area_m2!r}")
     fit_trials: list[FitTrial] = []
@@ -405,6 +511,13 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     candidates = [SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)]
     candidates += [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) for p in prelim if p["dfree"]]
     candidates += _tau_grid(candidates[0], step_s, span_s)
+    # The profile over log τ: each trial's own minimum and the joint minima join the starts.
+    profile = profile_tau(fit_trials, area_m2, phys,
+                          np.geomspace(PROFILE_TAU_LOW * step_s, TAU_RESOLVABLE_SPANS * span_s, PROFILE_TAU_POINTS),
+                          saturation_s=saturation_s)
+    profile_starts = [p for p in profile.best_per_trial() if p is not None]
+    profile_joint = profile.joint_minima(PROFILE_STARTS)
+    candidates += profile_starts + profile_joint
     # Each trial starts from whichever candidate fits it best (one batched model run): a noisy trial's own
     # estimate can sit on a plateau (E0 → ∞, τ → 0) that another start avoids.
     costs = trial_costs(fit_trials, area_m2, phys, candidates, saturation_s=saturation_s,
@@ -415,7 +528,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     # The joint fit runs from the best few distinct starts (the per-trial results, their median, the τ grid) and
     # keeps the lowest cost; the check below holds it to every candidate's cost.
     median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
-    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params), *_tau_grid(median, step_s, span_s)]
+    joint_candidates: list[SLSParams] = [median, *_present(per_trial.params), *_tau_grid(median, step_s, span_s),
+                                         *profile_joint, *profile_starts]
     totals = trial_costs(fit_trials, area_m2, phys, joint_candidates, saturation_s=saturation_s,
                          min_force_fraction=MIN_FORCE_FRACTION).sum(axis=1)
     joint = None
@@ -463,6 +577,13 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                        "says 'at least this much', so its own SLS parameters are not identifiable; refused for the "
                        "per-trial table (it still bounds the joint fit)")
             warnings.append(f"per-trial fit refused: {refused}")
+        trial_params = per_trial.params[i]
+        assert trial_params is not None
+        unresolved = _trial_unresolved(trial_params, per_trial.ci95_per_trial[i], step_s, span_s)
+        if refused is None and unresolved:
+            refused = (f"{unresolved}: this trial alone does not identify its SLS parameters (they would sit at a "
+                       "search bound); refused for the per-trial table (it still enters the joint fit)")
+            warnings.append(f"per-trial fit refused: {refused}")
         if not p["ramp"]:
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")
@@ -491,7 +612,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                     "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
                     "E1_Pa": "hold longer so the creep settles"}[name]
             sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
-    degenerate = _degenerate_reasons(joint, step_s, span_s)
+    degenerate = _degenerate_reasons(joint, step_s, span_s, _creep_resolved(
+        joint, _elastic_cost(fit_trials, area_m2, phys, joint.ref, saturation_s)))
     sensor_warnings.extend(f"degenerate SLS fit: {reason}" for reason in degenerate
                            if not any(reason in w for w in sensor_warnings))
     if not any(p["ramp"] for p in prelim):

@@ -90,7 +90,7 @@ class LinearEstimator:
         models: LinearModel | Sequence[LinearModel],
         baseline_s: float | np.ndarray | None = None,
         clip_negative: bool = True,
-        force_range_n: tuple[float, float] | None = None,
+        force_range_n: tuple[float | np.ndarray, float | np.ndarray] | None = None,
         validation: ValidationRule = ESTIMATOR_RULE,
     ) -> None:
         model_list = [models] if isinstance(models, LinearModel) else list(models)
@@ -169,7 +169,7 @@ class SLSEstimator:
         interp: str = "hold",
         with_contact: bool = True,
         n_sensors: int | None = None,
-        force_range_n: tuple[float, float] | None = None,
+        force_range_n: tuple[float | np.ndarray, float | np.ndarray] | None = None,
         validation: ValidationRule = ESTIMATOR_RULE,
     ) -> None:
         self.params = params

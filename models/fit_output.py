@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.optimize import least_squares
 
 from models.physics import PhysicsConstants
@@ -92,6 +92,85 @@ class OutputFit:
     cost_per_trial: tuple[float, ...] = ()  # weighted residual sum of squares per trial (see trial_costs)
 
 
+def _start_scale(start: SLSParams | Sequence[SLSParams], n_trials: int, mode: str) -> np.ndarray:
+    """θ's scale: the starting parameters (Pa, Pa, Pa·s), (T, 3) per trial or (3,) shared. ValueError if unusable."""
+    starts = [start] * n_trials if isinstance(start, SLSParams) else list(start)
+    if len(starts) != n_trials:
+        raise ValueError("per-trial starting values: one per trial")
+    if mode == "per_trial":
+        scale = np.array([[float(getattr(s, n)) for n in PARAM_NAMES] for s in starts])  # (T, 3)
+    else:
+        scale = np.array([float(getattr(starts[0], n)) for n in PARAM_NAMES])  # (3,)
+    if not np.all(np.isfinite(scale) & (scale > 0)):
+        raise ValueError(f"starting parameters must be positive and finite, got {scale}")
+    return scale
+
+
+def _theta_layout(mode: str, n_trials: int, hold_n: np.ndarray, ref_force_n: float) -> tuple[int, list[list[int]]]:
+    """The length of θ and its groups of components no two of which touch the same residual (one batched model run
+    per group)."""
+    if mode == "joint":
+        return 3, [[0], [1], [2]]
+    if mode == "trend":
+        if np.ptp(hold_n) <= 1e-6 * ref_force_n:
+            raise ValueError("a force trend needs trials at two or more different forces")
+        return 6, [[i] for i in range(6)]
+    return 3 * n_trials, [[3 * t + j for t in range(n_trials)] for j in range(3)]
+
+
+def _theta_bounds(mode: str, n_params: int, hold_n: np.ndarray, ref_force_n: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) bounds on θ."""
+    lower = np.full(n_params, -np.inf)
+    upper = np.full(n_params, np.inf)
+    # Log-parameters stay within 10^±6 of the starting scale: a creep too fast or too slow for the record drives
+    # them towards ±∞ (exp overflow → inf parameters); at the bound the fit is reported as degenerate instead.
+    log_entries = slice(0, 3) if mode == "trend" else slice(None)
+    lower[log_entries], upper[log_entries] = -LOG_PARAM_BOUND, LOG_PARAM_BOUND
+    if mode == "trend":
+        # u is scaled by F_ref; keep every parameter ≥ 5 % of its reference value over the calibrated forces.
+        span_up = (hold_n.max() - ref_force_n) / ref_force_n
+        span_down = (ref_force_n - hold_n.min()) / ref_force_n
+        lower[3:] = -0.95 / span_up if span_up > 0 else -np.inf
+        upper[3:] = 0.95 / span_down if span_down > 0 else np.inf
+    return lower, upper
+
+
+def _residual_masks(trials: Sequence[FitTrial], saturation_s: float | None, min_force_fraction: float
+                    ) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
+    """Per trial: the samples in the residual (finite, under load), those censored at the readout's saturation, and
+    the weight 1/typical conductance. ValueError naming a trial with no usable sample."""
+    masks: list[np.ndarray] = []
+    censored: list[np.ndarray] = []
+    weights: list[float] = []
+    for trial in trials:
+        y = trial.conductance_s
+        usable = np.isfinite(y) & np.isfinite(trial.force_n) & (
+            trial.force_n >= min_force_fraction * trial.hold_force_n)
+        sat = usable & (y >= saturation_s * (1 - 1e-12)) if saturation_s is not None else np.zeros_like(usable)
+        masks.append(usable)
+        censored.append(sat)
+        typical = float(np.median(y[usable])) if usable.any() else 0.0
+        if not typical > 0:
+            raise ValueError(f"{trial.name}: no usable conductance samples under load (flat or disconnected)")
+        weights.append(1.0 / typical)
+    return masks, censored, weights
+
+
+def _shared_time_grids(trials: Sequence[FitTrial]) -> list[list[int]]:
+    """Indices of trials grouped by identical time grids: each group runs through the forward model as columns of
+    one call."""
+    groups: list[list[int]] = []
+    for i, trial in enumerate(trials):
+        for group in groups:
+            first = trials[group[0]].time_s
+            if first.shape == trial.time_s.shape and np.array_equal(first, trial.time_s):
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return groups
+
+
 class _Problem:
     """The parameterisation θ ↔ per-trial SLS parameters and the weighted, masked residual."""
 
@@ -107,72 +186,17 @@ class _Problem:
         self.phys = phys
         self.mode = mode
         self.interp = interp
-        n_trials = len(self.trials)
-        starts = [start] * n_trials if isinstance(start, SLSParams) else list(start)
-        if len(starts) != n_trials:
-            raise ValueError("per-trial starting values: one per trial")
-        if mode == "per_trial":
-            self.scale = np.array([[float(getattr(s, n)) for n in PARAM_NAMES] for s in starts])  # (T, 3)
-        else:
-            self.scale = np.array([float(getattr(starts[0], n)) for n in PARAM_NAMES])  # (3,)
-        if not np.all(np.isfinite(self.scale) & (self.scale > 0)):
-            raise ValueError(f"starting parameters must be positive and finite, got {self.scale}")
+        self.scale = _start_scale(start, len(self.trials), mode)
         self.hold_n = np.array([t.hold_force_n for t in self.trials])
         self.ref_force_n = float(np.mean(self.hold_n))
-        # Groups of θ components no two of which touch the same residual: one batched model run per group.
-        if mode == "joint":
-            self.n_params = 3
-            self.groups = [[0], [1], [2]]
-        elif mode == "trend":
-            if np.ptp(self.hold_n) <= 1e-6 * self.ref_force_n:
-                raise ValueError("a force trend needs trials at two or more different forces")
-            self.n_params = 6
-            self.groups = [[i] for i in range(6)]
-        else:
-            self.n_params = 3 * n_trials
-            self.groups = [[3 * t + j for t in range(n_trials)] for j in range(3)]
-        lower = np.full(self.n_params, -np.inf)
-        upper = np.full(self.n_params, np.inf)
-        # Log-parameters stay within 10^±6 of the starting scale: a creep too fast or too slow for the record drives
-        # them towards ±∞ (exp overflow → inf parameters); at the bound the fit is reported as degenerate instead.
-        log_entries = slice(0, 3) if mode == "trend" else slice(None)
-        lower[log_entries], upper[log_entries] = -LOG_PARAM_BOUND, LOG_PARAM_BOUND
-        if mode == "trend":
-            # u is scaled by F_ref; keep every parameter ≥ 5 % of its reference value over the calibrated forces.
-            span_up = (self.hold_n.max() - self.ref_force_n) / self.ref_force_n
-            span_down = (self.ref_force_n - self.hold_n.min()) / self.ref_force_n
-            lower[3:] = -0.95 / span_up if span_up > 0 else -np.inf
-            upper[3:] = 0.95 / span_down if span_down > 0 else np.inf
-        self.bounds = (lower, upper)
-
-        self.masks: list[np.ndarray] = []
-        self.censored: list[np.ndarray] = []
-        self.weights: list[float] = []
-        for trial in self.trials:
-            y = trial.conductance_s
-            usable = np.isfinite(y) & np.isfinite(trial.force_n) & (
-                trial.force_n >= min_force_fraction * trial.hold_force_n)
-            sat = usable & (y >= saturation_s * (1 - 1e-12)) if saturation_s is not None else np.zeros_like(usable)
-            self.masks.append(usable)
-            self.censored.append(sat)
-            typical = float(np.median(y[usable])) if usable.any() else 0.0
-            if not typical > 0:
-                raise ValueError(f"{trial.name}: no usable conductance samples under load (flat or disconnected)")
-            self.weights.append(1.0 / typical)
+        self.n_params, self.groups = _theta_layout(mode, len(self.trials), self.hold_n, self.ref_force_n)
+        self.bounds = _theta_bounds(mode, self.n_params, self.hold_n, self.ref_force_n)
+        self.masks, self.censored, self.weights = _residual_masks(self.trials, saturation_s, min_force_fraction)
         self.saturation_s = saturation_s
         # A dropped force sample is held at the last valid value (what models.sls does with NaN), so the creep state
         # is not disturbed by a fake unloading; the sample itself is masked out of the residual above.
         self.forces = [_hold_last_valid(t.force_n) for t in self.trials]
-        # Trials that share a time grid are run through the forward model as columns of one call.
-        self.grid_groups: list[list[int]] = []
-        for i, trial in enumerate(self.trials):
-            for group in self.grid_groups:
-                first = self.trials[group[0]].time_s
-                if first.shape == trial.time_s.shape and np.array_equal(first, trial.time_s):
-                    group.append(i)
-                    break
-            else:
-                self.grid_groups.append([i])
+        self.grid_groups = _shared_time_grids(self.trials)
         self.n_used = tuple(int(m.sum()) for m in self.masks)
         self.n_residuals = int(sum(self.n_used))
 
@@ -259,7 +283,7 @@ class _Problem:
         rmse = tuple(float(np.sqrt(np.mean(b**2)) / w) if b.size else math.nan
                      for b, w in zip(blocks, self.weights))
         dof = max(self.n_residuals - self.n_params, 1)
-        t_crit = float(stats.t.ppf(0.975, dof))
+        t_crit = float(special.stdtrit(dof, 0.975))
         at_bound = bool(np.any(np.isclose(theta, self.bounds[0]) | np.isclose(theta, self.bounds[1])))
         ci: dict[str, tuple[float, float]] = {}
         ci_trials: list[dict[str, tuple[float, float]]] = []
@@ -273,7 +297,7 @@ class _Problem:
                 r_i, j_i = residual[rows], jac[rows, cols]
                 cov = _covariance(j_i, float(r_i @ r_i) / max(r_i.size - 3, 1))
                 se = np.sqrt(np.diag(cov))
-                t_i = float(stats.t.ppf(0.975, max(r_i.size - 3, 1)))
+                t_i = float(special.stdtrit(max(r_i.size - 3, 1), 0.975))
                 ci_trials.append({n: _log_interval(float(params[i, k]), t_i * se[k])
                                   for k, n in enumerate(PARAM_NAMES)})
         else:

@@ -25,7 +25,7 @@ _OK, _NAN_INPUT, _OPEN_CIRCUIT, _NEGATIVE, _BELOW_BASELINE, _SATURATED, _NOT_CON
 _STRAIN_NEAR_ONE_CODE, _STRAIN_NOT_CONVERGED_CODE = 5, 7
 _STRAIN_NEAR_ONE = 0.9
 _NEWTON_MAX_ITER = 100
-_ACCEPT_STEP = 1e-8  # relative: the quadratic error left after such a step is ~1e-16
+_ACCEPT_STEP_HALLEY = 1e-6  # relative: the cubic error left after a Halley step this small is ~1e-18
 _BELOW_BASELINE_FLAG_N = 1e-9
 
 
@@ -50,11 +50,13 @@ def solve_contact(cond: float, p: float, w: float, f_guess: float, k: float, r0:
     """One step's force F (N) with the contact term: the root of ``g(F) = C·(K/√F + R0·(1−ε)·e^(−kε)) − 1``,
     ε = p + w·F. g is convex and strictly decreasing (both resistance terms are), positive at ``(K·C)²`` (the contact
     term alone is 1/C there) and negative at ``F_max = (1 − p)/w`` (ε = 1) when ``K·C < √F_max``; otherwise the
-    reading is beyond the ε → 1 limit (SATURATED, F = F_max), as in :func:`models.sls._solve_contact_step`.
+    reading is beyond the ε → 1 limit (SATURATED, F = F_max), as in :func:`models.sls_contact._solve_contact_step`.
 
-    Newton in F itself (one sqrt and one exp per iteration, no logarithms: the reference solves in ln F and pays two
-    more transcendental calls), warm-started at ``f_guess`` and kept inside the shrinking bracket, with a geometric
-    bisection whenever a step would leave it. A relative step below ``_ACCEPT_STEP`` ends it (error ~step²)."""
+    Halley's method in F itself (one sqrt and one exp per iteration serve g, g' and g''; no logarithms: the reference
+    solves by Newton in ln F and pays two more transcendental calls), warm-started at ``f_guess`` and kept inside the
+    shrinking bracket, with a geometric bisection whenever a step would leave it. A relative step below
+    ``_ACCEPT_STEP_HALLEY`` ends it (error ~step³). Measured (1 core, process time, shared machine): Halley + fastmath
+    without nnan/ninf (NaN checks stay exact) 13-15 M sensor-samples/s at 36 sensors against 11-13 with Newton."""
     f_max = (1.0 - p) / w
     if not f_max > 0.0:
         return 0.0, _SATURATED
@@ -68,26 +70,32 @@ def solve_contact(cond: float, p: float, w: float, f_guess: float, k: float, r0:
     f_hi = f_max
     f = f_guess if f_lo < f_guess < f_hi else math.sqrt(f_lo * f_hi) if f_lo > 0.0 else 0.5 * f_hi
     for _ in range(_NEWTON_MAX_ITER):
-        contact = kc / math.sqrt(f)
+        inv_f = 1.0 / f
+        contact = kc * math.sqrt(inv_f)
         eps = p + w * f
         one_minus = 1.0 - eps
         if one_minus > 0.0:
             decay = r0 * math.exp(-k * eps)
             g = cond * (contact + one_minus * decay) - 1.0
-            slope = cond * (-0.5 * contact / f - decay * (1.0 + k * one_minus) * w)
+            slope = cond * (-0.5 * contact * inv_f - decay * (1.0 + k * one_minus) * w)
+            curve = cond * (0.75 * contact * inv_f * inv_f + w * w * decay * k * (2.0 + k * one_minus))
         else:
             g = cond * contact - 1.0
-            slope = cond * (-0.5 * contact / f)
+            slope = cond * (-0.5 * contact * inv_f)
+            curve = cond * (0.75 * contact * inv_f * inv_f)
         if g == 0.0:
             return f, _OK
         if g > 0.0:
             f_lo = f
         else:
             f_hi = f
+        # Halley's step (cubic convergence; g' and g'' reuse the sqrt and exp): the error left after a step of
+        # relative size s is ~s³, so a step below _ACCEPT_STEP_HALLEY ends it at rounding level.
         step = g / slope
+        step = step / (1.0 - 0.5 * step * curve / slope)
         f_new = f - step
         inside = f_lo <= f_new <= f_hi
-        if inside and abs(step) <= _ACCEPT_STEP * f:
+        if inside and abs(step) <= _ACCEPT_STEP_HALLEY * f:
             return f_new, _OK
         if not inside:
             f_new = math.sqrt(f_lo * f_hi) if f_lo > 0.0 else 0.5 * f_hi
@@ -181,7 +189,9 @@ def kernels() -> SimpleNamespace | None:
         import numba
     except ImportError:
         return None
-    jit = numba.njit(cache=True, nogil=True)
+    # fastmath without "nnan"/"ninf": NaN and inf samples are tested inside the loops, so those checks stay exact;
+    # fused multiply-add, reciprocal and approximate-function flags cost ≤ 1e-15 relative (tests hold it to 1e-9).
+    jit = numba.njit(cache=True, nogil=True, fastmath={"contract", "arcp", "nsz", "afn"})
     global solve_contact
     solve_contact = jit(solve_contact)
     _KERNELS = SimpleNamespace(creep_strain=jit(creep_strain), inverse=jit(inverse))

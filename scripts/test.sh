@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Install what the tests need (from pyproject.toml) and run them. This is the README's test command.
+# Install what the tests need (from pyproject.toml), run ruff, mypy and the import contracts, then the tests. This is
+# the README's test command (and all that .ci/run runs).
 # Everything runs on Qt's offscreen platform except tests/realdisplay, which start their own Xvfb and run the app on
 # it with the xcb platform (repaint bugs show only on a real display). Xvfb and the xcb libraries are installed here
 # when root with apt; otherwise those tests are skipped and this script says so.
@@ -12,4 +13,12 @@ if ! ensure_x_packages xvfb; then
     echo "NOTE: the real-display tests (tests/realdisplay) will be SKIPPED: no usable Xvfb/xcb here (see above)."
 fi
 export QT_QPA_PLATFORM=offscreen
+# Static checks first (a few seconds together); any error fails the run before the tests start.
+echo "== ruff (lint, every file)"
+python3 -m ruff check .
+echo "== mypy (every package, scripts and tools; [tool.mypy] in pyproject.toml)"
+python3 -m mypy
+echo "== import contracts (lint-imports; [tool.importlinter] in pyproject.toml)"
+lint-imports
+echo "== tests"
 python3 -m pytest -q "$@"

@@ -5,8 +5,11 @@
 # libfooN, libfoo1.so.N -> libfoo1-N (lower case).
 xcb_missing_packages() {
     local qt libs lib base version pkg
-    qt=$(python3 -c "import os, PySide6; print(os.path.join(os.path.dirname(PySide6.__file__), 'Qt'))" 2>/dev/null) \
-        || return 0
+    qt=${XCB_QT_DIR:-}  # run.sh already knows it (saves a python start)
+    if [ -z "$qt" ]; then
+        qt=$(python3 -c "import os, PySide6; print(os.path.join(os.path.dirname(PySide6.__file__), 'Qt'))" \
+            2>/dev/null) || return 0
+    fi
     libs=$( { for f in "$qt"/plugins/platforms/libqxcb.so "$qt"/lib/libQt6XcbQpa.so.6; do
                   [ -e "$f" ] && ldd "$f" 2>/dev/null | awk '/not found/ {print $1}'; done
               ldconfig -p 2>/dev/null | grep -q "libxcb-cursor.so.0" || echo "libxcb-cursor.so.0"; } | sort -u)

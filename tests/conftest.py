@@ -41,6 +41,41 @@ def no_thread_left_running():
     assert not still, f"test left threads running: {still}"
 
 
+@pytest.fixture(autouse=True)
+def no_qt_timer_left_running(request):
+    """Every test that uses Qt stops the QTimers it started (napari's ``dangling_qtimers``): a timer still running
+    when the test ends would fire into the next test or into a half-deleted window. Runs after the test's own
+    fixtures are torn down (qtbot has closed its widgets by then); timers whose owner Qt has deleted are fine."""
+    if "qtbot" not in request.fixturenames:
+        yield
+        return
+    import weakref
+
+    import shiboken6
+    from PySide6.QtCore import QTimer
+
+    started: list[weakref.ref] = []
+    original_start = QTimer.start
+
+    def start(timer, *args):
+        started.append(weakref.ref(timer))
+        return original_start(timer, *args)
+
+    QTimer.start = start
+    try:
+        yield
+    finally:
+        QTimer.start = original_start
+    running = []
+    for ref in started:
+        timer = ref()
+        if timer is not None and shiboken6.isValid(timer) and timer.isActive():
+            parent = timer.parent()
+            running.append(f"{timer.objectName() or 'QTimer'} (owner {type(parent).__name__ if parent else None}, "
+                           f"{timer.interval()} ms)")
+    assert not running, f"test left Qt timers running: {sorted(set(running))}"
+
+
 @pytest.fixture
 def install_fast_sim_lab():
     """``install_fast_sim_lab(config=None, seed=1234, speed=20.0)`` builds a seeded simulated lab running ``speed``×

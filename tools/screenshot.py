@@ -1,6 +1,12 @@
-"""Open the app offscreen on the simulated lab, visit every tab and save docs/screenshots/<tab>.png.
+"""Open the app on the simulated lab, visit every tab and save docs/screenshots/<tab>.png, read back from an X server.
 
-    QT_QPA_PLATFORM=offscreen python tools/screenshot.py [--out docs/screenshots] [--size 1280x800] [--settle-ms 1500]
+    python tools/screenshot.py [--out docs/screenshots] [--size 1280x800] [--settle-ms 1500] [--tabs teach gait …]
+    python tools/screenshot.py --offscreen …     # Qt's offscreen platform and QWidget.grab() instead (no X)
+
+By default the pictures are what an X server shows: the tool starts a private Xvfb (unless ``DISPLAY`` is set and
+``--xvfb`` is not given), runs the app with Qt's xcb platform and reads the window's pixels back with
+``QScreen.grabWindow``. A view that does not repaint on a real display (the Forces plots once did) looks stale here
+too; ``QWidget.grab()`` re-renders on request and would hide it.
 
 Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab. Each tab
 is staged the way a user would use it: Teach captures three keyframes by posing the limp simulated robot and saves
@@ -14,13 +20,48 @@ from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _on_x(argv: list[str]) -> int | None:
+    """Re-run this tool on a private Xvfb with Qt's xcb platform; None when already there (or offscreen)."""
+    if "--offscreen" in argv:
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+        return None
+    if os.environ.get("QT_QPA_PLATFORM") == "xcb" and os.environ.get("DISPLAY") and "--xvfb" not in argv:
+        return None
+    from tests.realdisplay.xserver import XServer, XUnavailable, probe_env
+
+    try:
+        server = XServer.start("1600x1000x24")
+    except XUnavailable as exc:
+        print(f"screenshot: no X server ({exc}); use --offscreen for QWidget.grab() pictures",  # noqa: T201
+              file=sys.stderr)
+        return 1
+    try:
+        args = [a for a in argv if a != "--xvfb"]
+        return subprocess.run([sys.executable, __file__, *args], env=probe_env(server.display), cwd=ROOT).returncode
+    finally:
+        server.stop()
+
+
+def _grab(window):
+    """The window's pixels: from the X server on xcb (what the screen shows), else re-rendered."""
+    from PySide6.QtCore import QPoint
+    from PySide6.QtGui import QGuiApplication
+
+    if QGuiApplication.platformName() != "xcb":
+        return window.grab()
+    top_left = window.mapToGlobal(QPoint(0, 0))
+    return QGuiApplication.primaryScreen().grabWindow(0, top_left.x(), top_left.y(), window.width(), window.height())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,7 +70,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", default="1280x800", help="window size WxH in pixels")
     parser.add_argument("--settle-ms", type=int, default=1500, help="time each tab gets to fill in live data")
     parser.add_argument("--tabs", nargs="*", default=None, help="only these tabs (default: all)")
+    parser.add_argument("--offscreen", action="store_true", help="no X server: Qt offscreen and QWidget.grab()")
+    parser.add_argument("--xvfb", action="store_true", help="start a private Xvfb even when DISPLAY is set")
     args = parser.parse_args(argv)
+    code = _on_x(sys.argv[1:] if argv is None else list(argv))
+    if code is not None:
+        return code
     width, height = (int(v) for v in args.size.lower().split("x"))
 
     from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
@@ -50,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         lab = LabContext(config)
         window = MainWindow(lab, settings=settings)
         window.resize(width, height)
+        window.move(0, 0)
         window.show()
         lab.connect_all()
 
@@ -65,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         _pose_by_hand(config)
         names = args.tabs or [spec.name for spec in TABS]
         for name in names:
-            page = window.show_tab(name)
+            page: Any = window.show_tab(name)  # each tab page has its own widgets, reached by name below
             if name == "teach":
                 _stage_teach(page, pump)
             if name == "gait":
@@ -88,7 +135,11 @@ def main(argv: list[str] | None = None) -> int:
                     page.source_tabs.setCurrentWidget(page.protocol_form)  # the rig panel beside the fit
             pump(args.settle_ms)
             path = out / f"{name}.png"
-            window.grab().save(str(path))
+            window.raise_()
+            pump(200)  # the X server has the last frame
+            if not _grab(window).save(str(path)):
+                print(f"screenshot: cannot write {path}", file=sys.stderr)  # noqa: T201
+                return 1
             print(f"saved {path}")  # noqa: T201 - a command-line script reports what it wrote
         window.close()
         app.processEvents()

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPointF, Qt, QTimer, Signal
+from PySide6.QtGui import QHideEvent
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from models.kinematics import SEGMENT_LENGTH_M, bend_for_point, forward_kinematics, sensor_points
@@ -52,7 +53,8 @@ def _contains(outer: tuple[float, float, float, float], inner: tuple[float, floa
     return outer[0] <= inner[0] and outer[1] >= inner[1] and outer[2] <= inner[2] and outer[3] >= inner[3]
 
 
-def _union(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> tuple[float, ...]:
+def _union(a: tuple[float, float, float, float], b: tuple[float, float, float, float]
+           ) -> tuple[float, float, float, float]:
     return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
 
 
@@ -334,6 +336,14 @@ class BodyView(QWidget):
         slack = 2 * RANGE_HEADROOM * self._length_m * len(self._axes) + 1e-9
         return any(current[v][1] - current[v][0] > snug[v][1] - snug[v][0] + slack
                    or current[v][3] - current[v][2] > snug[v][3] - snug[v][2] + slack for v in VIEWS)
+
+    def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt's name
+        """Hidden (tab switched, window closed): settle a pending shrink now rather than leave its timer running
+        behind a view nobody sees; the range is then already the settled one when the view shows again."""
+        if self.shrink_timer.isActive():
+            self.shrink_timer.stop()
+            self._shrink_ranges()
+        super().hideEvent(event)
 
     def _shrink_ranges(self) -> None:
         """shrink_timer fired: fit the range to what was drawn since it started, if that is much smaller."""

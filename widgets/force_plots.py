@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
@@ -31,6 +32,7 @@ from PySide6.QtWidgets import (
     QGridLayout,
     QHBoxLayout,
     QLabel,
+    QMenu,
     QScrollArea,
     QScrollBar,
     QSizePolicy,
@@ -39,6 +41,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from widgets.image_export import IMAGE_FORMATS, save_widget_image
 from widgets.ring_plot import TraceHistory
 
 try:  # the shell engineer's shared palette; the fallback keeps this view usable on its own
@@ -203,6 +206,7 @@ class _SegmentPlot(QWidget):
     """A collapsible box holding one PlotWidget and its curves."""
 
     collapsed_changed = Signal(bool)
+    image_requested = Signal(str)  # "png" or "svg"
 
     def __init__(self, group: PlotGroup, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -222,8 +226,18 @@ class _SegmentPlot(QWidget):
         self.toggle.toggled.connect(self._on_toggled)
         self.warning = QLabel(self)
         self.warning.setStyleSheet(f"color: {STATUS_COLORS['error']};")
+        self.image_button = QToolButton(self)
+        self.image_button.setText("Image…")
+        self.image_button.setAutoRaise(True)
+        self.image_button.setToolTip(f"Save this plot ({group.title}) as an image: PNG, or SVG (vector)")
+        self.image_button.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
+        image_menu = QMenu(self.image_button)
+        for kind in IMAGE_FORMATS:
+            image_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self.image_requested.emit(k))
+        self.image_button.setMenu(image_menu)
         header.addWidget(self.toggle)
         header.addWidget(self.warning, 1)
+        header.addWidget(self.image_button)
         layout.addLayout(header)
         self.plot_widget = pg.PlotWidget(self, background="w")
         self.plot_widget.setMinimumHeight(PLOT_HEIGHT_PX)
@@ -348,12 +362,14 @@ class ForcePlotGrid(QWidget):
 
     Signals: ``paused_changed(bool)`` when following the newest data stops or resumes (also when the user drags or
     zooms a plot), ``cursor_moved(float)`` with the time (s) under the mouse, ``redrawn()`` after every redraw that
-    drew something (tests and benchmarks count these).
+    drew something (tests and benchmarks count these), ``image_requested(int, str)`` when the user asks to save plot
+    ``index`` as ``png``/``svg`` (the owner picks the file and calls :meth:`export_image`).
     """
 
     paused_changed = Signal(bool)
     cursor_moved = Signal(float)
     redrawn = Signal()
+    image_requested = Signal(int, str)  # plot index, "png" or "svg": the owner asks where and calls export_image
 
     def __init__(self, channel_names: Sequence[str], columns: int = 3, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -392,6 +408,7 @@ class ForcePlotGrid(QWidget):
             grid.addWidget(plot, i // columns, i % columns, Qt.AlignTop)
             self.plots.append(plot)
             plot.collapsed_changed.connect(lambda _c: self.invalidate())
+            plot.image_requested.connect(lambda kind, index=i: self.image_requested.emit(index, kind))
             plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
             for trace in plot.curves:  # a legend click shows/hides a trace: redraw at the next tick
                 trace.visibleChanged.connect(self._forget_drawn)
@@ -420,6 +437,15 @@ class ForcePlotGrid(QWidget):
         self._timer.timeout.connect(self.refresh)
 
     # -- configuration ---------------------------------------------------------------------------------------------
+    def export_image(self, index: int, path: str | Path) -> Path:
+        """Save plot ``index`` as drawn now (traces, both axes with their units, legend) to ``path``: ``.png`` or
+        ``.svg``, titled with the segment and the time shown. ValueError / OSError name the problem."""
+        plot = self.plots[index]
+        self.refresh(force=True)
+        x0, x1 = self.visible_range()
+        title = f"{plot.group.title} · t = {x0:.2f} … {x1:.2f} s (session time)"
+        return save_widget_image(plot.plot_widget, path, title)
+
     def set_history(self, history: TraceHistory | None, units: str | None = None) -> None:
         """Draw ``history`` (channels in the order of ``channel_names``); ``units`` labels the y axes."""
         if history is not None and history.n_channels != len(self.channel_names):

@@ -14,6 +14,7 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QLineEdit,
+    QMenu,
     QPushButton,
     QSpinBox,
     QToolButton,
@@ -39,7 +40,8 @@ DEFAULT_WINDOW_S = 30.0
 QUANTITIES = (("force", "Force (N)"), ("conductance", "Raw conductance (µS)"))
 RECORD_TEXT = "● Record"
 STOP_RECORDING_TEXT = "■ Stop recording"  # not just "Stop": the status bar's STOP halts the robot
-EXPORT_TIP = "Write the recording shown to CSV: time_s, then one column per sensor (forces if estimated)"
+EXPORT_TIP = ("Write the recording shown to CSV, the visible time range or all of it: time_s, each sensor in N (µS "
+              "when it has no force), each joint's present and goal angle (rad) and current (mA)")
 EXPORT_DISABLED_TIP = "Open a recording first (Open recording…): Export writes the recording shown"
 ESTIMATORS = (("sls", "Creep-aware (SLS)"), ("linear", "Linear"))
 
@@ -64,7 +66,8 @@ class ForcesControls(QWidget):
     Signals: ``window_changed(float)`` seconds, ``pause_toggled(bool)``, ``side_toggled(str, bool)``,
     ``quantity_changed(str)`` (``force``/``conductance``), ``estimator_changed(str)`` (``sls``/``linear``),
     ``record_toggled(bool)`` (True = start), ``browse_requested()``, ``load_calibration_requested()``,
-    ``open_requested()``, ``overlay_requested()``, ``export_requested()``, ``live_requested()`` (back to the board).
+    ``open_requested()``, ``overlay_requested()``, ``export_requested(bool)`` (True: only the time range the plots
+    show), ``live_requested()`` (back to the board).
     """
 
     window_changed = Signal(float)
@@ -77,7 +80,7 @@ class ForcesControls(QWidget):
     load_calibration_requested = Signal()
     open_requested = Signal()
     overlay_requested = Signal()
-    export_requested = Signal()
+    export_requested = Signal(bool)
     live_requested = Signal()
 
     def __init__(self, parent: QWidget | None = None) -> None:
@@ -182,7 +185,12 @@ class ForcesControls(QWidget):
         self.overlay.clicked.connect(self.overlay_requested)
         record_row.addWidget(self.overlay)
         self.export = QPushButton("Export CSV…", self)
-        self.export.clicked.connect(self.export_requested)
+        export_menu = QMenu(self.export)
+        self.export_visible_action = export_menu.addAction("Visible time range…")
+        self.export_visible_action.triggered.connect(lambda: self.export_requested.emit(True))
+        self.export_all_action = export_menu.addAction("Whole recording…")
+        self.export_all_action.triggered.connect(lambda: self.export_requested.emit(False))
+        self.export.setMenu(export_menu)
         self.export.setEnabled(False)
         self.export.setToolTip(EXPORT_DISABLED_TIP)
         record_row.addWidget(self.export)

@@ -38,6 +38,7 @@ from PySide6.QtWidgets import (
 
 from widgets import theme
 from widgets.body_view import BodyView
+from widgets.tables import cell_item
 
 JOINT_ROW_PX = 18
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
@@ -346,7 +347,7 @@ class GaitPanel(QWidget):
         for c, values, fmt in ((0, goal_rad, "{:+.3f}"), (1, present_rad, "{:+.3f}"), (2, current_ma, "{:+.0f}")):
             for r in range(self.joint_table.rowCount()):
                 text = "" if values is None else fmt.format(float(values[r]))
-                item = self.joint_table.item(r, c)
+                item = cell_item(self.joint_table, r, c)
                 if item.text() != text:
                     item.setText(text)
 
@@ -375,10 +376,13 @@ class GaitPanel(QWidget):
         mode = self.mode
         self.params.setCurrentIndex({"follow": 0, "keyframes": 1}.get(mode, 2))
         uses_shape = mode in ("follow", "keyframes")
-        for w in (self.shape_combo, self.refresh_button, self.open_button, self._shape_label):
-            w.setVisible(uses_shape)
+        widget: QWidget
+        for widget in (self.shape_combo, self.refresh_button, self.open_button, self._shape_label):
+            widget.setVisible(uses_shape)
         side = mode == "sidewinding"
-        for w in (self._pitch_label, self.pitch_amplitude_spin, self._phase_label, self.phase_spin):
-            w.setVisible(side)
+        for widget in (self._pitch_label, self.pitch_amplitude_spin, self._phase_label, self.phase_spin):
+            widget.setVisible(side)
         self._update_play()
-        self.params.setMaximumHeight(self.params.currentWidget().sizeHint().height() + 8)
+        page = self.params.currentWidget()
+        if page is not None:
+            self.params.setMaximumHeight(page.sizeHint().height() + 8)

@@ -37,13 +37,14 @@ from PySide6.QtWidgets import (
 )
 
 from widgets import theme
+from widgets.tables import cell_item
 
 # Dynamixel X-series baud rates (control table item 8), most common first.
 DXL_BAUDS_BPS: tuple[int, ...] = (1_000_000, 57_600, 115_200, 2_000_000, 3_000_000, 4_000_000, 4_500_000, 9_600)
 TEMPERATURE_WARN_C = 70.0  # XM430 shuts down at 80 °C by default
 VOLTAGE_RANGE_V = (10.0, 14.8)  # XM430-W350 recommended supply range
 ROW_HEIGHT_PX = 26  # twelve servos fit without scrolling at the default window size
-SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 98  # rows + header + the torque buttons above + margins
+SERVO_TABLE_HEIGHT_PX = 12 * ROW_HEIGHT_PX + 64  # rows + header + the group's title and margins
 SMALL_ROW_HEIGHT_PX = 22
 # After a click, the servo's reported state lags the request by a health poll or two; until it agrees (or this
 # long has passed) the button keeps showing what was asked instead of flicking back.
@@ -139,11 +140,18 @@ class HardwarePanel(QWidget):
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
-        layout.addWidget(self._build_connection())
+        connection = self._build_connection()
+        layout.addWidget(connection)
+        servos = self._build_servos()
+        # The all-torque buttons sit at the right of the connection row, not on a row of their own: that height
+        # goes to the scan and link tables (at 1280×800 the scan list showed only four rows).
+        connection_row = connection.layout()
+        assert isinstance(connection_row, QHBoxLayout)
+        connection_row.addLayout(self._servo_bar)
 
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.setChildrenCollapsible(False)
-        splitter.addWidget(self._build_servos())
+        splitter.addWidget(servos)
         tools = QWidget()
         tools_layout = QHBoxLayout(tools)
         tools_layout.setContentsMargins(0, 0, 0, 0)
@@ -200,12 +208,11 @@ class HardwarePanel(QWidget):
         self.all_torque_off_button = QPushButton("All torque off")
         self.all_torque_off_button.setToolTip("The robot goes limp: support it before switching torque off")
         self.all_torque_off_button.clicked.connect(lambda: self.all_torque_requested.emit(False))
-        bar.addWidget(self.all_torque_on_button)
-        bar.addWidget(self.all_torque_off_button)
-        bar.addStretch(1)
         self.servo_summary_label = QLabel("")
         bar.addWidget(self.servo_summary_label)
-        column.addLayout(bar)
+        bar.addWidget(self.all_torque_on_button)
+        bar.addWidget(self.all_torque_off_button)
+        self._servo_bar = bar  # placed in the connection row by __init__
 
         self.servo_table = QTableWidget(0, len(SERVO_COLUMNS))
         self.servo_table.setObjectName("servo_table")
@@ -254,6 +261,7 @@ class HardwarePanel(QWidget):
         self.scan_progress.setRange(0, 1)
         self.scan_progress.setValue(0)
         self.scan_progress.setFormat("idle")
+        self.scan_progress.setVisible(False)  # shown while a scan runs; the status line says how it ended
         column.addWidget(self.scan_progress)
         self.scan_table = QTableWidget(0, len(SCAN_COLUMNS))
         self.scan_table.setObjectName("scan_table")
@@ -266,6 +274,7 @@ class HardwarePanel(QWidget):
         column.addWidget(self.scan_table, 1)
         self.scan_status_label = QLabel("")
         self.scan_status_label.setWordWrap(True)
+        self.scan_status_label.setVisible(False)  # shown when it has something to say
         column.addWidget(self.scan_status_label)
         return box
 
@@ -369,6 +378,7 @@ class HardwarePanel(QWidget):
                 bauds = [self.baud]
             except ValueError as exc:
                 self.scan_status_label.setText(str(exc))
+                self.scan_status_label.setVisible(True)
                 return
         self.scan_requested.emit(list(range(lo, hi + 1)), bauds)
 
@@ -438,13 +448,13 @@ class HardwarePanel(QWidget):
         # Size the columns once, for the widest live values and error names expected, then show the placeholders.
         if self.servo_ids:
             for col, sample in LIVE_SAMPLE_TEXT.items():
-                table.item(0, col).setText(sample)
-            table.item(0, COL_ERR).setText("none")
+                cell_item(table, 0, col).setText(sample)
+            cell_item(table, 0, COL_ERR).setText("none")
             table.resizeColumnsToContents()
             self._column_chars = {col: len(sample) for col, sample in LIVE_SAMPLE_TEXT.items()}
             for col in LIVE_SAMPLE_TEXT:
-                table.item(0, col).setText("—")
-            table.item(0, COL_ERR).setText("")
+                cell_item(table, 0, col).setText("—")
+            cell_item(table, 0, COL_ERR).setText("")
         self.set_connection(self._connected, self.connection_label.text())
 
     def _request(self, servo_id: int, column: int, on: bool) -> None:
@@ -519,7 +529,7 @@ class HardwarePanel(QWidget):
         if self._shown_errors.get(row) == names:
             return
         self._shown_errors[row] = names
-        item = self.servo_table.item(row, COL_ERR)
+        item = cell_item(self.servo_table, row, COL_ERR)
         item.setText(", ".join(names) if names else "none")
         if names:
             item.setForeground(QBrush(theme.qcolor("#FFFFFF")))
@@ -540,7 +550,7 @@ class HardwarePanel(QWidget):
                 return
             del self._pending[(servo_id, col)]
         button = self.servo_table.cellWidget(row, col)
-        if button is not None and button.isChecked() != on:
+        if isinstance(button, QPushButton) and button.isChecked() != on:
             # Reflect the servo's real state without echoing a request back to it.
             button.blockSignals(True)
             button.setChecked(on)
@@ -549,14 +559,17 @@ class HardwarePanel(QWidget):
 
     def errors_text(self, servo_id: int) -> str:
         """The hardware-error cell of ``servo_id`` as shown."""
-        return self.servo_table.item(self._row_of_id[servo_id], COL_ERR).text()
+        return cell_item(self.servo_table, self._row_of_id[servo_id], COL_ERR).text()
 
     def cell_text(self, servo_id: int, column: int) -> str:
-        return self.servo_table.item(self._row_of_id[servo_id], column).text()
+        return cell_item(self.servo_table, self._row_of_id[servo_id], column).text()
 
     def toggle(self, servo_id: int, column: int) -> QPushButton:
         """The torque (COL_TORQUE) or LED (COL_LED) button, or the Reboot button (COL_REBOOT), of a servo."""
-        return self.servo_table.cellWidget(self._row_of_id[servo_id], column)
+        button = self.servo_table.cellWidget(self._row_of_id[servo_id], column)
+        if not isinstance(button, QPushButton):
+            raise LookupError(f"servo {servo_id} has no button in column {column}")
+        return button
 
     # scan
     def set_scan_running(self, n_steps: int, text: str) -> None:
@@ -565,8 +578,10 @@ class HardwarePanel(QWidget):
         self.scan_progress.setRange(0, max(n_steps, 1))
         self.scan_progress.setValue(0)
         self.scan_progress.setFormat(text)
+        self.scan_progress.setVisible(True)
         self.scan_status_label.setText("")
         self.scan_status_label.setStyleSheet("")
+        self.scan_status_label.setVisible(False)
 
     def set_scan_progress(self, done_steps: int, text: str) -> None:
         self.scan_progress.setValue(done_steps)
@@ -587,12 +602,14 @@ class HardwarePanel(QWidget):
         self.scan_button.setEnabled(True)
         self.scan_progress.setValue(self.scan_progress.maximum())
         self.scan_progress.setFormat("done" if ok else "stopped")
+        self.scan_progress.setVisible(False)
         self.scan_status_label.setText(text)
         self.scan_status_label.setStyleSheet(theme.status_style(theme.OK if ok else theme.ERROR))
+        self.scan_status_label.setVisible(bool(text))
 
     @property
     def scan_result_ids(self) -> list[int]:
-        return [int(self.scan_table.item(row, 0).text()) for row in range(self.scan_table.rowCount())]
+        return [int(cell_item(self.scan_table, row, 0).text()) for row in range(self.scan_table.rowCount())]
 
     # link check
     def set_link_check_running(self) -> None:

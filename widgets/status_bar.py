@@ -113,6 +113,10 @@ class LabStatusBar(QStatusBar):
         else:
             self._message_timer.stop()
 
+    def shutdown(self) -> None:
+        """The window is closing: stop the message's fade timer (the text stays)."""
+        self._message_timer.stop()
+
     def clear_message(self) -> None:
         self._message_timer.stop()
         self.message_level = theme.IDLE

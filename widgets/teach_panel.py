@@ -38,6 +38,8 @@ from widgets.body_view import BodyView
 from widgets.joint_sliders import JointSliders
 
 CAPTURE_SHORTCUTS = ("Ctrl+Return", "Ctrl+Enter")  # main and keypad Enter
+UNDO_SHORTCUTS = ("Ctrl+Z",)
+REDO_SHORTCUTS = ("Ctrl+Shift+Z", "Ctrl+Y")
 
 
 class TeachPanel(QWidget):
@@ -252,6 +254,15 @@ class TeachPanel(QWidget):
             shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
             shortcut.activated.connect(self.capture_button.click)
             self.capture_shortcuts.append(shortcut)
+        # Undo / redo of keyframe edits, the same way; a text field with the focus (name, spin box) keeps its own
+        # Ctrl+Z (Qt offers the key to the focused editor first).
+        self.undo_shortcuts = []
+        for keys, button in [(k, self.undo_button) for k in UNDO_SHORTCUTS] + [(k, self.redo_button)
+                                                                               for k in REDO_SHORTCUTS]:
+            shortcut = QShortcut(QKeySequence(keys), self)
+            shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+            shortcut.activated.connect(button.click)
+            self.undo_shortcuts.append(shortcut)
         self._has_keyframes = False
         self.set_keyframe_angles(None)
         self._update_library_buttons()
@@ -339,8 +350,8 @@ class TeachPanel(QWidget):
     def set_undo_state(self, can_undo: bool, can_redo: bool, undo_text: str = "", redo_text: str = "") -> None:
         self.undo_button.setEnabled(can_undo)
         self.redo_button.setEnabled(can_redo)
-        self.undo_button.setToolTip(f"Undo {undo_text}" if undo_text else "")
-        self.redo_button.setToolTip(f"Redo {redo_text}" if redo_text else "")
+        self.undo_button.setToolTip(f"Undo {undo_text} (Ctrl+Z)" if undo_text else "Undo (Ctrl+Z)")
+        self.redo_button.setToolTip(f"Redo {redo_text} (Ctrl+Shift+Z)" if redo_text else "Redo (Ctrl+Shift+Z)")
 
     def set_connected(self, connected: bool) -> None:
         for b in (self.torque_off_selected_button, self.torque_off_all_button, self.hold_button,

@@ -24,6 +24,7 @@ BENCHMARK_PREFIX = "bench_"
 def discover(package: str = BENCHMARK_PACKAGE) -> list[str]:
     """Names of the benchmark modules in ``package`` (found on ``sys.path``, not imported), sorted; [] if absent."""
     loaded = sys.modules.get(package)
+    locations: list[str] | None
     if loaded is not None and hasattr(loaded, "__path__"):
         locations = list(loaded.__path__)  # an imported package's live path (what import_module will search)
     else:

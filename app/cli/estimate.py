@@ -1,5 +1,6 @@
 """``sensnake estimate IN.csv --cal CAL.json [--model linear|sls] --out OUT.csv [--flags FLAGS.csv] [--config FILE]
-[--allow-degenerate]``: conductance → force.
+[--allow-degenerate] [--engine compiled|reference] [--interp hold|linear] [--no-contact] [--float32]``: conductance →
+force.
 
 Every sensor column of IN.csv is converted with its calibration (SPEC §3.2); a single ``conductance_S`` column maps
 to the calibration's only sensor. Physics constants come from the calibration file. Every sample first passes the
@@ -21,6 +22,7 @@ import numpy as np
 
 from app.core import calfiles
 from devices.config import BoardConfig, load_config
+from models import sls
 from models.estimators import LinearEstimator, SLSEstimator
 from models.linear import LinearModel
 from models.sls import SLSParams
@@ -77,6 +79,18 @@ def refuse_degenerate(document: dict, names: list[str], model: str, cal_path: st
             print(f"sensnake estimate: warning: {name}: using a degenerate SLS fit ({why})", file=sys.stderr)
 
 
+def run_estimator(estimator: LinearEstimator | SLSEstimator, conductance_s: np.ndarray, time_s: np.ndarray,
+                  engine: str = "compiled", float32: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Force (N) and status codes of ``estimator`` over a whole record: ``engine`` "compiled" (numba kernels) or
+    "reference" (the numpy paths, same numbers); ``float32`` rounds the readings and the forces to float32."""
+    values = conductance_s.astype(np.float32).astype(np.float64) if float32 else conductance_s
+    with sls.engine("numpy" if engine == "reference" else "auto"):
+        force = estimator.update(time_s, values)
+    if float32:
+        force = force.astype(np.float32).astype(np.float64)
+    return force, estimator.last_status
+
+
 def run(args: argparse.Namespace) -> int:
     document = calfiles.read_calibration(args.cal)
     table = calfiles.read_series_csv(args.input, calfiles.CONDUCTANCE_COLUMN, allow_gaps=True)
@@ -100,13 +114,15 @@ def run(args: argparse.Namespace) -> int:
         phys = calfiles.physics_from_calibration(document, args.cal)
         params = SLSParams.stack([SLSParams.from_dict(entry["sls"]) for entry in entries])
         areas = np.array([float(entry["area_m2"]) for entry in entries])
-        estimator = SLSEstimator(params, areas, phys, n_sensors=len(names), force_range_n=bounds, validation=rule)
-    force = estimator.update(table.time_s, table.values)
-    status = estimator.last_status
+        estimator = SLSEstimator(params, areas, phys, interp=getattr(args, "interp", "hold"),
+                                 with_contact=not getattr(args, "no_contact", False), n_sensors=len(names),
+                                 force_range_n=bounds, validation=rule)
+    force, status = run_estimator(estimator, table.values, table.time_s, getattr(args, "engine", "compiled"),
+                                  getattr(args, "float32", False))
     out_names = output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN)
     for line in summarise(names, force, status, ranges):
         print(f"sensnake estimate: warning: {line}", file=sys.stderr)
-    calfiles.write_series_csv(args.out, table.time_s, out_names, force)
+    calfiles.write_series_csv(args.out, table.time_s, out_names, force, 9 if getattr(args, "float32", False) else 17)
     if getattr(args, "flags", None):
         calfiles.write_series_csv(args.flags, table.time_s, out_names, status.astype(np.float64))
     elif status.any():

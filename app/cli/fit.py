@@ -1,11 +1,12 @@
 """``sensnake fit TRIAL.csv... --sensor NAME --area M2 [--physics FILE.json] [--window 225 300] --out CAL.json
-[--config FILE]``.
+[--config FILE] [--fit-rate HZ] [--solver NAME]``.
 
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
 calibration file (created, or updated with other sensors kept) and prints a per-trial table. Samples at the readout's
 ceiling ``1/R_C`` (``board.r_c_ohm`` of ``--config``, else the default circuit) are saturated and not fitted. Runs
-on the CLI's main thread. ``SENSNAKE_FIT_SOLVER=scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
-Gauss–Newton; scipy is the cross-check).
+on the CLI's main thread. ``--solver`` (or ``SENSNAKE_FIT_SOLVER``) ``scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
+Gauss–Newton; scipy is the cross-check). ``--fit-rate`` (default 10 Hz) block-averages faster trials before the
+fit (models.calibration.decimate_trial): a 1 kHz calibration costs about what a 10 Hz one does.
 """
 
 from __future__ import annotations
@@ -20,7 +21,13 @@ from pathlib import Path
 
 from app.core import calfiles
 from devices.config import BoardConfig, load_config
-from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
+from models.calibration import (
+    DEFAULT_FIT_RATE_HZ,
+    DEFAULT_SOLVER,
+    SensorCalibration,
+    TrialInput,
+    calibrate_sensor,
+)
 from models.physics import PhysicsConstants
 
 # The joint-fit solver; SENSNAKE_FIT_SOLVER picks another (default CasADi Gauss–Newton; scipy is the cross-check).
@@ -139,10 +146,16 @@ def run(args: argparse.Namespace) -> int:
     physics = _physics(args)
     # The readout's ceiling (SPEC §4: counts = 0 reads 1/R_C): such samples are censored, not fitted.
     saturation_s = 1.0 / board.r_c_ohm
-    solver = os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
+    solver = getattr(args, "solver", None) or os.environ.get("SENSNAKE_FIT_SOLVER", DEFAULT_SOLVER)
     if solver not in SOLVERS:
         raise ValueError(f"SENSNAKE_FIT_SOLVER={solver!r} is not one of {', '.join(SOLVERS)}")
-    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver)
+    fit_rate = getattr(args, "fit_rate", None)
+    if fit_rate is None:
+        fit_rate = DEFAULT_FIT_RATE_HZ
+    if not (math.isfinite(fit_rate) and fit_rate >= 0):
+        raise ValueError(f"--fit-rate must be a rate in Hz ≥ 0 (0: every sample), got {fit_rate:g}")
+    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver,
+                           fit_rate_hz=fit_rate or None)
     calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
     print_report(args.sensor, cal, args.out)
     return 0

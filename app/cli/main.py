@@ -52,6 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--window", nargs=2, type=float, default=(225.0, 300.0), metavar=("START", "END"),
                      help="time window in s for the linear model's mean conductance (default 225 300)")
     fit.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
+    fit.add_argument("--solver", choices=("gauss-newton", "scipy", "ipopt", "sqpmethod"), default=None,
+                     help="joint-fit solver (default: CasADi Gauss–Newton; `sensnake bench` compares them)")
+    fit.add_argument("--fit-rate", type=float, default=None, metavar="HZ",
+                     help="block-average faster trials to this rate before fitting (default 10 Hz: a 1 kHz "
+                          "calibration in seconds, ~0.05 %% parameter error measured; 0 fits every sample)")
     fit.add_argument("--config", metavar="FILE",
                      help="lab config: its board's channel names (--sensor must be one) and readout circuit "
                           "(board.r_c_ohm, the saturation level not to fit)")
@@ -89,6 +94,16 @@ def build_parser() -> argparse.ArgumentParser:
                           help="lab config whose readout circuit (board.r_c_ohm) sets the ceiling 1/R_C")
     estimate.add_argument("--allow-degenerate", action="store_true",
                           help="use a calibration that 'sensnake fit' marked degenerate (at a bound/unidentifiable)")
+    # Run time against error: `sensnake bench` (bench_pareto) measures every mode; the defaults are the fastest
+    # within 1 % of the best error.
+    estimate.add_argument("--engine", choices=("compiled", "reference"), default="compiled",
+                          help="sls: compiled recursion (numba, default) or the numpy reference (same numbers, slower)")
+    estimate.add_argument("--interp", choices=("hold", "linear"), default="hold",
+                          help="sls: force held (default, the paper's Eq. 12) or linear between samples")
+    estimate.add_argument("--no-contact", action="store_true",
+                          help="sls: leave out the contact term K/√F (faster; biased on a sensor that has one)")
+    estimate.add_argument("--float32", action="store_true",
+                          help="round readings and forces to float32 and write 9 significant digits (smaller file)")
 
     forward = sub.add_parser("forward", help="force → conductance (the model run forwards)")
     forward.add_argument("input", metavar="IN.csv")

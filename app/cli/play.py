@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             outcome = _play(controller, source, state_log, args, shape)
         finally:
             missed_ticks = controller.stats().missed_ticks - state_log.missed_ticks_before
+            scheduling = controller.scheduling
             controller.close()
             state_log.drain()
     finally:
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         error_ms = np.abs(periods - 1.0 / args.rate) * 1000.0
         print(f"control period at {args.rate:g} Hz over {periods.size} ticks: "
               f"p50 {np.median(periods) * 1000:.2f} ms, p99 error {np.percentile(error_ms, 99):.2f} ms, "
-              f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}")
+              f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}; bus thread: {scheduling}")
     if args.log:
         print(f"wrote {Path(args.log)}")
     return 0 if outcome == "finished" else 1

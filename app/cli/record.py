@@ -73,8 +73,9 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, _raise_stop) for s in STOP_SIGNALS}
     progress = _Progress(out, args.seconds)
     try:
+        started = time.monotonic()  # before the port opens: every frame is recorded, at time_s >= 0
         reader.start()  # PortOpenError (an OSError) ends the command with one line
-        recorder = live.start_recording(out, config.source_text)
+        recorder = live.start_recording(out, config.source_text, t0_monotonic_s=started)
         try:
             outcome = record_timed(live, reader, args.seconds, on_progress=progress.show, on_message=progress.note,
                                    no_frames_timeout_s=NO_FRAMES_TIMEOUT_S)

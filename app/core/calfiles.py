@@ -225,15 +225,17 @@ def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: boo
 
 
 def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],
-                     values: np.ndarray) -> None:
-    """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision."""
+                     values: np.ndarray, digits: int = 17) -> None:
+    """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision
+    (``digits`` significant digits for the values: 17 round-trips float64, 9 float32; time always 17)."""
     time_s = np.asarray(time_s, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64).reshape(time_s.shape[0], -1)
     if values.shape[1] != len(columns):
         raise ValueError(f"{len(columns)} column names for {values.shape[1]} columns")
     table = np.column_stack([time_s, values])
     header = ",".join([TIME_COLUMN, *columns])
-    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
+    fmt = ["%.17g"] + [f"%.{int(digits)}g"] * values.shape[1]
+    _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt=fmt,
                                                         header=header, comments=""))
 
 
@@ -395,8 +397,11 @@ def update_calibration(path: str | os.PathLike, sensor_name: str, entry: dict[st
         document = {"format": CAL_FORMAT, "version": CAL_VERSION}
     document["physics"] = physics.to_dict()
     document.setdefault("sensors", {})[sensor_name] = entry
-    _atomic_write(file, lambda handle: (json.dump(_jsonable(document), handle, indent=2, allow_nan=False),
-                                        handle.write("\n")))
+    def write(handle) -> None:
+        json.dump(_jsonable(document), handle, indent=2, allow_nan=False)
+        handle.write("\n")
+
+    _atomic_write(file, write)
     return document
 
 

@@ -225,16 +225,19 @@ class LiveSession:
     def start_recording(self, path: str | Path, config_text: str, *, with_robot: bool = False,
                         n_joints: int = 12, min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
                         calibration_json: str | None = None, with_forces: bool | None = None,
-                        on_failed: Callable[[str], None] | None = None) -> Recorder:
+                        on_failed: Callable[[str], None] | None = None,
+                        t0_monotonic_s: float | None = None) -> Recorder:
         """Start a recorder fed by this session. Forces are stored when a pipeline estimates them (with the
-        calibration in force, see :meth:`recording_calibration_json`), unless ``with_forces`` is False."""
+        calibration in force, see :meth:`recording_calibration_json`), unless ``with_forces`` is False.
+        ``t0_monotonic_s`` (default: now) is the recording's ``started``; frames that arrived before it are not
+        recorded."""
         if self.recorder is not None and self.recorder.running:
             raise RuntimeError(f"already recording to {self.recorder.path}")
         if calibration_json is None and with_forces is not False:
             calibration_json = self.recording_calibration_json()
         recorder = Recorder(path, config_text, self.channel_names, calibration_json=calibration_json,
                             with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
-                            on_failed=on_failed)
+                            t0_monotonic_s=t0_monotonic_s, on_failed=on_failed)
         recorder.start()
         self.attach_recorder(recorder)
         return recorder

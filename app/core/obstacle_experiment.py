@@ -229,5 +229,6 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, bottom_
         group.attrs["obstacle_friction"] = scene.obstacle_friction
         group.attrs["ground_friction"] = scene.ground_friction
         group.attrs["segment_length_m"] = scene.segment_length_m
+        group.attrs["weight_N"] = lab.physics.world.weight_n  # type: ignore[attr-defined]
         group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
                                "end of segment i; the obstacle's axis lies along y at x = 0 on the ground")

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from app.core.shapes import Shape
 from devices.config import RobotConfig
 from devices.controller import joint_limit_error
@@ -23,11 +25,11 @@ from models.trajectory import FollowTheLeader, Keyframes, PlannedMotion
 def check_shape_limits(shape: Shape, robot: RobotConfig) -> None:
     """JointLimitError (a ValueError) naming joint, value and limit if the shape or a keyframe lies beyond a joint
     limit; nothing is clamped."""
-    error = joint_limit_error(robot, shape.angles_rad, f"shape {shape.name!r}")
+    error = joint_limit_error(robot, np.asarray(shape.angles_rad), f"shape {shape.name!r}")
     if error is not None:
         raise error
     for i, key in enumerate(shape.keyframes):
-        error = joint_limit_error(robot, key.angles_rad, f"shape {shape.name!r}, keyframe {key.name or f'#{i + 1}'}")
+        error = joint_limit_error(robot, np.asarray(key.angles_rad), f"shape {shape.name!r}, keyframe {key.name or f'#{i + 1}'}")
         if error is not None:
             raise error
 

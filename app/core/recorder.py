@@ -17,6 +17,7 @@ Public methods are for one controlling thread (the one that called :meth:`Record
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import queue
 import threading
 import time
@@ -114,6 +115,15 @@ class Recorder:
         """A board :class:`~devices.board.SampleBlock` and, when forces are recorded, its (N×C) forces in N."""
         if not self.is_active:
             return
+        host = getattr(block, "host_time_s", None)
+        if host is not None and len(host) and host[0] < self.t0_monotonic_s:
+            # Frames that arrived before the recording started (the rest of the block the GUI was drawing, or
+            # frames back-dated by their bytes' time on the wire) are not part of it: time_s never goes below 0.
+            first = int(np.searchsorted(host, self.t0_monotonic_s, side="left"))
+            if first >= len(host):
+                return
+            block = _frames_from(block, first)
+            force_n = None if force_n is None else force_n[first:]
         self.n_daq_samples += len(block.seq)
         forces = force_n if self.with_forces else None
         self._queue.put(lambda w: _append_daq(w, block, forces))
@@ -122,7 +132,7 @@ class Recorder:
         """``ChainState`` objects (host_time_s, position_rad, current_ma, and goal_rad when the chain has it)."""
         if not self.is_active or not self.with_robot:
             return
-        states = list(states)
+        states = [s for s in states if s.host_time_s >= self.t0_monotonic_s]  # none from before the start
         if not states:
             return
         self.n_robot_samples += len(states)
@@ -148,7 +158,8 @@ class Recorder:
         try:
             writer = RecordingWriter(self.path, **self._writer_args)  # type: ignore[arg-type]
         except (OSError, ValueError) as exc:
-            self._failed(f"cannot start recording: {exc}")
+            text = str(exc)  # a RecordingError already says "cannot create recording PATH: why"
+            self._failed(text if text.startswith("cannot create") else f"cannot start recording {self.path}: {text}")
             return
         self._writer = writer
         try:
@@ -186,6 +197,14 @@ class Recorder:
             self.stop_time_s = time.monotonic()
         if self._on_failed is not None:
             self._on_failed(message)
+
+
+def _frames_from(block: Any, first: int) -> Any:
+    """``block`` without its first ``first`` frames (a :class:`~devices.board.SampleBlock`)."""
+    def cut(values: Any) -> Any:
+        return None if values is None else values[first:]
+
+    return dataclasses.replace(block, **{f.name: cut(getattr(block, f.name)) for f in dataclasses.fields(block)})
 
 
 def _append_daq(writer: RecordingWriter, block: Any, force_n: np.ndarray | None) -> None:

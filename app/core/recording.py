@@ -58,12 +58,17 @@ class RecordingFormatError(ValueError):
 
 
 class DaqBlock(Protocol):
-    """What :meth:`RecordingWriter.append_daq` needs from a ``devices.board.SampleBlock``."""
+    """What :meth:`RecordingWriter.append_daq` needs from a ``devices.board.SampleBlock`` (read-only, so frozen
+    dataclasses fit)."""
 
-    counts: np.ndarray
-    conductance_s: np.ndarray
-    host_time_s: np.ndarray
-    seq: np.ndarray
+    @property
+    def counts(self) -> np.ndarray: ...
+    @property
+    def conductance_s(self) -> np.ndarray: ...
+    @property
+    def host_time_s(self) -> np.ndarray: ...
+    @property
+    def seq(self) -> np.ndarray: ...
 
 
 # -- writer ------------------------------------------------------------------------------------------------------
@@ -149,6 +154,9 @@ class RecordingWriter:
         try:
             if self.path.is_dir():
                 raise IsADirectoryError(f"{self.path} is a folder")
+            if not self.path.parent.is_dir():
+                what = "is not a folder" if self.path.parent.exists() else "does not exist"
+                raise FileNotFoundError(f"the folder {self.path.parent} {what}")
             f = h5py.File(self._work_path, "w", locking=False)
         except OSError as exc:
             raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
@@ -423,17 +431,20 @@ class RecordingWriter:
 
 
 def _os_reason(exc: BaseException) -> str:
-    """The OS's words for a failure, without HDF5's internals (``flags = 13, o_flags = 242`` …)."""
+    """The OS's words for a failure, without HDF5's internals (``flags = 13, o_flags = 242`` …) or the hidden
+    work file's name: h5py puts its whole report into ``strerror``, so the OS's own message is dug out of it."""
     strerror = getattr(exc, "strerror", None)
-    if strerror:
-        return str(strerror)
-    text = " ".join(str(exc).split())
+    text = " ".join(str(strerror or exc).split())
+    if "error message = '" in text:
+        return text.split("error message = '", 1)[1].split("'", 1)[0]
     for marker in (", errno = ", "errno = "):
         if marker in text:
-            tail = text.split(marker, 1)[1]
-            code = tail.split(",", 1)[0].strip()
+            code = text.split(marker, 1)[1].split(",", 1)[0].strip()
             if code.isdigit():
                 return os.strerror(int(code))
+    errno_code = getattr(exc, "errno", None)
+    if isinstance(errno_code, int) and ("(" in text or "partial" in text):
+        return os.strerror(errno_code)
     return text.split(" (file name")[0][:200]
 
 
@@ -646,12 +657,12 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
                         dataset = group[name]
                         if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
                             continue
-                        rows = _intact_rows(dataset, min(size, claimed))
-                        limits[f"{group_name}/{name}"] = rows
+                        intact_rows = _intact_rows(dataset, min(size, claimed))
+                        limits[f"{group_name}/{name}"] = intact_rows
                         if f"{group_name}/{name}" in OPTIONAL_COLUMNS:
                             continue  # dropped below if shorter than the rest, never a reason to lose rows
                         lengths.append(dataset.shape[0])
-                        intact.append(rows)
+                        intact.append(intact_rows)
                     if lengths:
                         claimed_rows[group_name] = min(lengths)
                         limits[group_name] = min(intact)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from app.gui.thread_bridge import ThreadBridge
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import BoardConfig
 from widgets.ring_plot import TraceHistory, append_with_gaps
@@ -55,7 +56,6 @@ class BoardBridge(QObject):
     block = Signal(object)
     board_status = Signal(object)
     stats_changed = Signal(object)
-    _posted = Signal(object)  # reader/worker thread → GUI thread (queued)
 
     def __init__(self, config: BoardConfig, parent: QObject | None = None, drain_rate_hz: float = DEFAULT_DRAIN_HZ,
                  history_budget_bytes: int = HISTORY_BUDGET_BYTES) -> None:
@@ -70,7 +70,7 @@ class BoardBridge(QObject):
         self._is_connected = False
         self._last_status = BoardStatus("closed", f"board on {config.port} not started", False)
         self._last_stats_s = 0.0
-        self._posted.connect(self._run_posted)
+        self._bridge = ThreadBridge(self)  # reader/worker thread → GUI thread (queued, in order)
         self._drain_timer = QTimer(self)
         self._drain_timer.setInterval(int(round(1000 / min(max(drain_rate_hz, 1.0), MAX_DRAIN_HZ))))
         self._drain_timer.timeout.connect(self.drain)
@@ -172,9 +172,9 @@ class BoardBridge(QObject):
         try:
             reader.start()
         except (OSError, ValueError, RuntimeError) as exc:
-            self._posted.emit(lambda error=exc: self._open_failed(reader, error))
+            self._bridge.post(self._open_failed, reader, exc)
             return
-        self._posted.emit(lambda: self._adopt(reader))
+        self._bridge.post(self._adopt, reader)
 
     def _adopt(self, reader: BoardReader) -> None:
         if self._opener is not None:
@@ -199,10 +199,7 @@ class BoardBridge(QObject):
 
     # -- reader callbacks (reader thread) --------------------------------------------------------------------------
     def _on_reader_status(self, status: BoardStatus) -> None:
-        self._posted.emit(lambda: self._deliver_status(status))
-
-    def _run_posted(self, fn) -> None:
-        fn()
+        self._bridge.post(self._deliver_status, status)
 
     def _deliver_status(self, status: BoardStatus) -> None:
         self._last_status = status

@@ -69,6 +69,7 @@ SHORTCUTS_TEXT = (
     "<table cellspacing=6>"
     "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on)</td></tr>"
     "<tr><td><b>Ctrl+Enter</b></td><td>Teach: capture the present pose as a keyframe</td></tr>"
+    "<tr><td><b>Ctrl+Z / Ctrl+Shift+Z</b></td><td>Teach: undo / redo a keyframe edit (Ctrl+Y also redoes)</td></tr>"
     "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
     "plots</td></tr>"
     "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
@@ -112,12 +113,14 @@ class MainWindow(QMainWindow):
         self.tabs = QTabWidget()
         self.tabs.setDocumentMode(True)
         self._containers: list[QWidget] = []
+        self._container_layouts: list[QVBoxLayout] = []  # the page goes here when the tab is first shown
         for spec in TABS:
             container = QWidget()
             container.setObjectName(f"tab_{spec.name}")
             layout = QVBoxLayout(container)
             layout.setContentsMargins(0, 0, 0, 0)
             self._containers.append(container)
+            self._container_layouts.append(layout)
             self.tabs.addTab(container, spec.title)
             self.tabs.setTabToolTip(len(self._containers) - 1, spec.description)
         self.setCentralWidget(self.tabs)
@@ -161,7 +164,7 @@ class MainWindow(QMainWindow):
             return
         page = self._create_page(spec)
         self._built[spec.name] = page
-        self._containers[index].layout().addWidget(page)
+        self._container_layouts[index].addWidget(page)
 
     def _create_page(self, spec: TabSpec) -> QWidget:
         module_name = f"app.gui.tabs.{spec.name}"
@@ -352,9 +355,9 @@ class MainWindow(QMainWindow):
         geometry = self.settings.value("main_window/geometry")
         if isinstance(geometry, QByteArray) and not geometry.isEmpty():
             self.restoreGeometry(geometry)
-        index = self.settings.value("main_window/tab", 0)
+        stored = self.settings.value("main_window/tab", 0)
         try:
-            index = int(index)
+            index = int(stored)  # type: ignore[call-overload]  # QSettings gives str/int/None; the except handles the rest
         except (TypeError, ValueError):
             index = 0
         if 0 <= index < len(TABS):
@@ -370,5 +373,6 @@ class MainWindow(QMainWindow):
             self._app.removeEventFilter(self)
         self.save_settings()
         self._shutdown_tabs()
+        self.status.shutdown()
         self.lab.close()
         event.accept()

@@ -69,7 +69,9 @@ class RobotBridge(QObject):
     state_block = Signal(object)
     health = Signal(object)
     error = Signal(str)
-    event = Signal(str)
+    # Shadows QObject.event() for Python callers (Qt's own event dispatch still reaches QObject.event); the name is
+    # kept because every subscriber uses it.
+    event = Signal(str)  # type: ignore[assignment]
     motion_changed = Signal(str)
 
     def __init__(self, config: RobotConfig, parent: QObject | None = None) -> None:
@@ -168,8 +170,9 @@ class RobotBridge(QObject):
         if self._closed:
             raise RuntimeError("the robot bridge is closed")
         if self._controller is not None or self.is_connecting:
-            return self._pending_connect if self.is_connecting else _done_future((self._controller,
-                                                                                   self.timing_warnings))
+            if self.is_connecting and self._pending_connect is not None:
+                return self._pending_connect
+            return _done_future((self._controller, self.timing_warnings))
         self._config = replace(self._config, port=(port or self._config.port).strip(),
                                baud=int(baud or self._config.baud))
         config = self._config

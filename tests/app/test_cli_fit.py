@@ -352,3 +352,29 @@ def test_estimate_refuses_a_degenerate_calibration_unless_allowed(lab, tmp_path,
     assert code == 1 and "degenerate SLS fit (E1_Pa at its upper bound)" in err and "--allow-degenerate" in err
     code, _, err = _run([*argv, "--allow-degenerate"], capsys)
     assert code == 0 and "using a degenerate SLS fit" in err
+
+
+def test_estimate_modes_from_the_pareto_table(lab, tmp_path, capsys):
+    """--engine reference gives the compiled numbers; --float32 writes float32-rounded forces; --no-contact runs
+    the model without K/√F (visibly different on this sensor); --interp linear is accepted."""
+    folder, _ = lab
+    cal = str(folder / "cal.json")
+    t = np.arange(0, 120, 1 / 6)
+    force = np.where(t > 5, 2.0, 0.0) + np.where(t > 60, 2.0, 0.0)
+    calfiles.write_series_csv(tmp_path / "force.csv", t, ("S06B",), force[:, None])
+    assert _run(["forward", str(tmp_path / "force.csv"), "--cal", cal, "--out", str(tmp_path / "c.csv")],
+                capsys)[0] == 0
+    results = {}
+    for name, extra in (("default", []), ("reference", ["--engine", "reference"]), ("f32", ["--float32"]),
+                        ("nocontact", ["--no-contact"]), ("linear", ["--interp", "linear"])):
+        out = tmp_path / f"{name}.csv"
+        assert _run(["estimate", str(tmp_path / "c.csv"), "--cal", cal, "--out", str(out), *extra], capsys)[0] == 0
+        results[name] = calfiles.read_series_csv(out, "force_N").values[:, 0]
+        if name == "f32":
+            assert max(len(line.split(",")[1]) for line in out.read_text().splitlines()[1:]) <= 16
+    np.testing.assert_allclose(results["reference"], results["default"], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(results["default"], force, atol=1e-9)
+    np.testing.assert_allclose(results["f32"], force, rtol=1e-6, atol=1e-6)
+    assert not np.allclose(results["f32"], results["default"], rtol=0, atol=0)
+    assert np.max(np.abs(results["nocontact"] - force)[t > 6]) > 0.05
+    np.testing.assert_allclose(results["linear"][t > 6], force[t > 6], rtol=0.05)

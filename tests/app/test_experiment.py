@@ -39,6 +39,7 @@ def test_the_recording_is_a_sensnake_recording_with_forces_robot_and_body(obstac
         assert f["sim/points_m"].shape[1:] == (13, 3)
         assert f["sim/time_s"].shape[0] == f["robot/time_s"].shape[0]
         assert f.attrs["config"].startswith("# sensnake experiment obstacle")
+        assert f["sim"].attrs["weight_N"] == pytest.approx(WEIGHT_N)
 
 
 def test_the_bottom_sensors_carry_the_weight(obstacle_run):
@@ -66,6 +67,10 @@ def test_the_robot_advances_and_the_force_pattern_travels_backward_along_the_bod
     # Fig. 6E: the force pattern travels backward relative to the body (toward the tail, higher segment numbers).
     assert slope > 0.05  # segments per second
     assert np.median(front[-30:]) - np.median(front[:30]) >= 2
+    # The same seen from the sensor pressed hardest (the obstacle's top contact; robust to the head touching down).
+    most = np.argmax(forces[moving], axis=1) + 1
+    assert np.polyfit(recording.time_s[moving], most, 1)[0] > 0.05
+    assert np.median(most[-30:]) - np.median(most[:30]) >= 2
     assert true_bottom.shape[1] == 12
 
 

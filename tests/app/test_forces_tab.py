@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from app.core.recording import open_recording
+from app.core.recording import RobotRecord, open_recording
 from app.gui.lab import LabContext
 from app.gui.tabs.forces import create_tab, onset_time_s
 from devices.config import LabConfig
@@ -138,8 +139,38 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     out = tab.export_viewed_csv(tmp_path / "rec.csv")
     with open(out, newline="") as handle:
         rows = list(csv.reader(handle))
-    assert rows[0] == ["time_s", *LabConfig().board.channel_names]
+    names = LabConfig().board.channel_names
+    # Units in the header: forces in N (the default-parameter estimates were recorded), the robot beside them.
+    assert rows[0][: 1 + len(names)] == ["time_s", *(f"{name}_N" for name in names)]
+    joints = LabConfig().robot.joint_ids
+    assert rows[0][1 + len(names):] == [f"J{j}_{what}" for j in joints
+                                        for what in ("present_rad", "goal_rad", "current_mA")]
     assert len(rows) == recording.n_samples + 1
+    # Only what the plots show: a window inside the recording.
+    t0, t1 = float(recording.time_s[2]), float(recording.time_s[-3])
+    tab.plots.show_range(t0, t1)
+    x0, x1 = tab.plots.visible_range()
+    out = tab.export_viewed_csv(tmp_path / "view.csv", visible_only=True)
+    with open(out, newline="") as handle:
+        times = [float(row[0]) for row in list(csv.reader(handle))[1:]]
+    expected = recording.time_s[(recording.time_s >= x0) & (recording.time_s <= x1)]
+    assert 0 < len(times) < recording.n_samples and np.allclose(times, expected)
+
+    # Replay drives the body map from the recorded joints (not the live robot): give the recording a pose the live
+    # robot never had, first and second half, and move the cursor across it.
+    n_joints = len(LabConfig().robot.joint_ids)
+    t_mid = float(recording.time_s[recording.n_samples // 2])
+    first, second = np.full(n_joints, 0.4), np.linspace(-0.5, 0.5, n_joints)
+    tab.viewed = dataclasses.replace(recording, robot=RobotRecord(
+        time_s=np.array([float(recording.time_s[0]) - 1.0, t_mid]), goal_rad=np.zeros((2, n_joints)),
+        present_rad=np.vstack([first, second]), current_ma=np.zeros((2, n_joints))))
+    tab.plots.hover_at(0, float(recording.time_s[1]))
+    assert np.allclose(tab.body._present, first)
+    tab.plots.hover_at(0, float(recording.time_s[-2]))
+    assert np.allclose(tab.body._present, second)
+    assert tab.recorded_body(t_mid - 1e-3)[0] is not None and np.allclose(tab.recorded_body(t_mid - 1e-3)[0], first)
+    forces = tab.recorded_body(float(recording.time_s[3]))[1]
+    assert forces is not None and np.allclose(forces, np.nan_to_num(recording.forces_n[3]))
     tab.controls.live.click()
     assert tab.viewed is None and not tab.plots.paused
 
@@ -153,6 +184,13 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert shown_index in healthy and spread[shown_index] == max(spread[i] for i in healthy)
     tab.overlay_sensor.setCurrentText("S06B")
     assert len(tab.overlay.curves) == 2
+    # Every plot saves an image: a segment plot and the overlay, PNG and SVG; a bad name is one line, nothing saved.
+    assert tab.export_plot_image(5, tmp_path / "seg6.svg").stat().st_size > 0
+    assert tab.export_plot_image(-1, tmp_path / "overlay.png").stat().st_size > 0
+    svg = tab.export_plot_image(-1, tmp_path / "overlay.svg")
+    assert svg is not None and "S06B" in svg.read_text(encoding="utf-8")  # the title names the sensor
+    assert tab.export_plot_image(-1, tmp_path / "overlay.bmp") is None
+    assert "png or .svg" in tab.controls.message.text() and not (tmp_path / "overlay.bmp").exists()
     x0 = tab.overlay.curves[0].xData
     assert x0[0] <= 0.0 <= x0[-1]  # aligned on the load onset
 

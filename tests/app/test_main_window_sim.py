@@ -90,6 +90,11 @@ def test_hardware_tab_scans_twelve_servos_and_shows_live_state(window, qtbot, si
     qtbot.waitUntil(lambda: panel.scan_button.isEnabled(), timeout=10_000)
     assert panel.scan_result_ids == list(range(1, 13))
     assert "12 servo(s) found" in panel.scan_status_label.text()
+    # At the default window size the scan list shows well over four rows, and the servo table all twelve servos.
+    window.resize(1280, 800)
+    qtbot.waitUntil(lambda: panel.scan_table.viewport().height() // panel.scan_table.rowHeight(0) >= 6)
+    assert panel.servo_table.viewport().height() >= 12 * panel.servo_table.rowHeight(0)
+    assert not panel.scan_progress.isVisible() and panel.scan_status_label.isVisible()
 
     sim_lab_fast.chain.set_limp_position(5, 2048 + 512)  # torque is off at start: pose joint 5 by hand, +45°
     qtbot.waitUntil(lambda: panel.cell_text(5, COL_DEG) == "+45.0", timeout=5000)

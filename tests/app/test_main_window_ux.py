@@ -85,3 +85,22 @@ def test_gait_play_follows_the_connection(window, qtbot):
 ])
 def test_gait_progress_counts_like_a_person(progress, expected):
     assert progress_text(progress) == expected
+
+
+def test_gait_idle_shows_no_goal_and_every_joint_row_whole(window, qtbot):
+    """Idle, nothing is commanded: no goal drawn or listed (a goal preview reads as a command); at the default window
+    size the joint table shows J1 … J12 whole, none clipped."""
+    window.resize(1280, 800)
+    panel = window.show_tab("gait").panel
+    robot = window.lab.robot
+    qtbot.waitUntil(lambda: robot.latest_state is not None and panel.joint_table.item(11, 1) is not None
+                    and panel.joint_table.item(11, 1).text() != "", timeout=CONNECT_TIMEOUT_MS)
+    assert panel.body_view._goal is None
+    assert all(panel.joint_table.item(r, 0) is None or panel.joint_table.item(r, 0).text() == ""
+               for r in range(panel.joint_table.rowCount()))
+    table = panel.joint_table
+    viewport = table.viewport().rect()
+    last = table.visualRect(table.model().index(table.rowCount() - 1, 0))
+    assert table.verticalHeaderItem(11) is None or table.verticalHeaderItem(11).text() == "J12"
+    assert viewport.contains(last), f"J12's row {last} is cut by the table's viewport {viewport}"
+    assert panel.progress_label.text() == "idle"

@@ -186,3 +186,19 @@ def test_ctrl_c_keeps_the_file(tmp_path):
     assert child.returncode == 130
     assert b"interrupted; kept" in err
     assert open_recording(out).n_samples >= 1
+
+
+@pytest.mark.parametrize("where", ["missing folder", "file as folder", "a folder"])
+def test_an_out_path_that_cannot_be_written_is_one_line_naming_it(fast_board, tmp_path, capsys, where):
+    """Issue 15 item 11: no HDF5 internals (``flags = 13, o_flags = 242``), no hidden work file in the message."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    out = {"missing folder": tmp_path / "nope" / "r.h5", "file as folder": blocker / "r.h5",
+           "a folder": tmp_path}[where]
+    code = main(["record", "--daq", "sim", "--seconds", "30", "--out", str(out)])
+    assert code == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert f"cannot create recording {out}:" in line, line
+    for internal in ("errno =", "flags =", "o_flags", ".partial", "Unable to"):
+        assert internal not in line, line
+    assert blocker.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]

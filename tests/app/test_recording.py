@@ -266,3 +266,48 @@ def test_hard_write_failure_raises_recording_error_and_reading_never_hangs(tmp_p
         assert "efbig.h5" in str(exc) and "truncated" in str(exc)
     else:
         assert np.all(rec.counts[:, 0] == (rec.seq // 30) % 4096)  # rows are whole, not torn
+
+
+def test_frames_from_before_the_recording_started_are_not_recorded(tmp_path):
+    """A block can hold frames that arrived before the recorder's t0 (the GUI starts a recording mid-stream; the
+    reader back-dates frames by their bytes' wire time): they are left out, so ``time_s`` never goes below 0 and
+    the forces stay aligned with their frames."""
+    from app.core.recorder import Recorder
+
+    t0 = time.monotonic()
+    recorder = Recorder(tmp_path / "late.h5", "[board]\n", CHANNELS, calibration_json="{}", t0_monotonic_s=t0)
+    recorder.start()
+    block = make_block(0, 30, t0 - 10.5 / 30.0)  # frames 0 … 10 arrived before t0, 11 … 29 after
+    forces = np.arange(30, dtype=float)[:, None] * np.ones(len(CHANNELS))
+    recorder.add_block(block, forces)
+    recorder.add_block(make_block(30, 10, t0 - 10.5 / 30.0), forces[:10] + 30.0)
+    recorder.add_block(make_block(0, 5, t0 - 1.0), forces[:5])  # wholly before t0: nothing
+    recorder.stop()
+    assert recorder.error is None and recorder.n_daq_samples == 29
+    rec = open_recording(tmp_path / "late.h5")
+    np.testing.assert_array_equal(rec.seq, np.arange(11, 40))
+    assert rec.time_s[0] >= 0.0
+    np.testing.assert_allclose(rec.time_s, (np.arange(11, 40) - 10.5) / 30.0, atol=1e-9)
+    np.testing.assert_array_equal(rec.forces_n[:, 0], np.arange(11, 40))
+    np.testing.assert_array_equal(rec.counts, np.concatenate([block.counts[11:], make_block(30, 10, 0).counts]))
+
+
+def test_hdf5_internals_and_the_hidden_work_file_never_reach_a_message(tmp_path):
+    """h5py puts its whole report (``errno = 2, … flags = 13, o_flags = 242`` and the hidden ``.partial`` name)
+    into ``strerror``: the user gets the OS's words and the path they asked for."""
+    import errno
+
+    from app.core.recording import _os_reason
+
+    with pytest.raises(OSError) as raised:
+        h5py.File(tmp_path / "nope" / ".r.h5.123.partial", "w")
+    assert "o_flags" in str(raised.value)  # what h5py says, so this test means something
+    assert _os_reason(raised.value) == os.strerror(errno.ENOENT)
+    for out, words in ((tmp_path / "nope" / "r.h5", f"the folder {tmp_path / 'nope'} does not exist"),
+                       (tmp_path, "is a folder")):
+        with pytest.raises(RecordingError) as failed:
+            RecordingWriter(out, "", CHANNELS)
+        text = str(failed.value)
+        assert f"cannot create recording {out}" in text and words in text, text
+        for internal in ("errno =", "flags =", "o_flags", "partial", "Unable to"):
+            assert internal not in text, text

@@ -96,3 +96,33 @@ def test_repair_of_a_non_hdf5_file_is_one_line(tmp_path, capsys):
     assert main(["repair", str(junk)]) == 1
     err = capsys.readouterr().err
     assert "junk.h5" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.usefixtures("sim_lab_fast")
+def test_the_forces_tab_opens_a_truncated_recording_saying_how_much_was_recovered(good_file, tmp_path, qtbot,
+                                                                                   monkeypatch):
+    """The GUI face of the salvage: Open recording… shows the intact rows, says how much survived, points at
+    ``sensnake repair``; the damaged file is not changed."""
+    from app.gui.lab import LabContext
+    from app.gui.tabs.forces import create_tab
+    from devices.config import LabConfig
+
+    monkeypatch.setenv("SENSNAKE_RECORDINGS_DIR", str(tmp_path / "recordings"))
+    cut = truncate(good_file, tmp_path, 0.9)
+    before = cut.read_bytes()
+    _rec, report = recover_recording(cut)
+    lab = LabContext(LabConfig())
+    tab = create_tab(lab)
+    qtbot.addWidget(tab)
+    try:
+        shown = tab.open_recording_file(cut)
+        assert shown is not None and tab.viewed is shown
+        assert shown.n_samples == report.rows["daq"][0] < 3000
+        np.testing.assert_array_equal(shown.counts, counts_for(shown.seq.astype(np.int64)))
+        message = tab.controls.message.text()
+        assert report.text in message and "sensnake repair" in message, message
+        assert len(tab.plots.history) == shown.n_samples
+    finally:
+        tab.shutdown()
+        lab.close()
+    assert cut.read_bytes() == before

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import gc
+import sys
 
 import numpy as np
 import pytest
@@ -36,7 +38,9 @@ def tab_on(qtbot, install_fast_sim_lab):
         lab_sim.close()
 
 
-def test_the_physics_lab_is_drawn_in_3d_and_the_picture_follows_the_world(qtbot, tab_on):
+def test_the_physics_lab_is_drawn_in_3d_and_the_picture_follows_the_world(qtbot, tab_on, monkeypatch):
+    unraisable = []  # Renderer.__del__ closing an OpenGL context from a thread it is not current in: EGL_BAD_ACCESS
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
     tab, lab_sim = tab_on(PHYSICS)
     tab.show()
     qtbot.waitUntil(lambda: tab.view.frames_shown >= 2 or bool(tab.render_error), timeout=20000)
@@ -54,6 +58,11 @@ def test_the_physics_lab_is_drawn_in_3d_and_the_picture_follows_the_world(qtbot,
     assert np.abs(after.astype(int) - before.astype(int)).mean() > 1.0
     tab.hide()
     assert not tab.rendering  # hidden: the render thread waits instead of drawing
+    # Each thread's renderer is closed by that thread: the tab's by its render thread, the test's at lab close.
+    tab.shutdown()
+    lab_sim.close()
+    gc.collect()
+    assert [str(u.exc_value) for u in unraisable] == []
 
 
 def test_the_scripted_lab_falls_back_to_the_2d_body_drawing(qtbot, tab_on):
@@ -61,3 +70,22 @@ def test_the_scripted_lab_falls_back_to_the_2d_body_drawing(qtbot, tab_on):
     tab.show()
     assert not tab.view.showing_picture
     assert "scripted" in tab.view.reason.text()
+
+
+def test_without_opengl_the_physics_lab_is_drawn_in_2d_with_the_reason(qtbot, tab_on, monkeypatch):
+    from devices.sim.physics import render
+
+    def no_gl(*_args, **_kwargs):
+        raise render.RenderUnavailable("no OpenGL rendering for the 3-D view (EGLError: no display)")
+
+    monkeypatch.setattr(render, "SceneRenderer", no_gl)  # a machine without EGL/OSMesa
+    tab, lab_sim = tab_on(PHYSICS)
+    lab_sim.start_background()
+    tab.lab.robot.connect_robot()
+    tab.show()
+    qtbot.waitUntil(lambda: bool(tab.render_error), timeout=20000)
+    assert not tab.view.showing_picture
+    assert "no OpenGL" in tab.view.reason.text() and "2-D" in tab.view.reason.text()
+    # The 2-D drawing follows the simulated robot's joints (the limp robot drapes over the obstacle).
+    qtbot.waitUntil(lambda: tab.lab.robot.latest_state is not None, timeout=20000)
+    qtbot.waitUntil(lambda: abs(tab.view.body.present_rad[2]) > 0.2, timeout=20000)

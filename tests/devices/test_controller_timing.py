@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 import threading
 
 import pytest
@@ -108,3 +110,52 @@ def test_health_is_read_in_one_go_when_the_tick_has_time_for_it():
     assert all([h.servo_id for h in health] == list(robot.joint_ids) for health in rec.health)
     status_reads = [ids for address, _, ids in chain.sync_reads() if address == ct.HEALTH_BLOCK_ADDRESS]
     assert any(len(ids) == len(robot.joint_ids) for ids in status_reads)
+
+
+def _bus_thread_policy(ctl: RobotController, rec: States) -> int:
+    rec.wait_more(1)  # the thread has set its scheduling before its first tick
+    return os.sched_getscheduler(ctl._thread.native_id)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
+def test_the_bus_thread_gets_real_time_priority_when_permitted_and_says_which_it_got(monkeypatch):
+    ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
+    try:
+        policy = _bus_thread_policy(ctl, rec)
+        if ctl.scheduling.startswith("real-time"):
+            assert policy == os.SCHED_FIFO
+            assert os.sched_getparam(ctl._thread.native_id).sched_priority == controller_module.BUS_THREAD_RT_PRIORITY
+        else:
+            assert policy == os.SCHED_OTHER and "no privilege" in ctl.scheduling
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # only the bus thread: not the caller, not the process
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
+def test_sensnake_realtime_0_keeps_normal_scheduling(monkeypatch):
+    monkeypatch.setenv("SENSNAKE_REALTIME", "0")
+    ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
+    try:
+        assert _bus_thread_policy(ctl, rec) == os.SCHED_OTHER
+        assert ctl.scheduling == "normal scheduling (SENSNAKE_REALTIME=0)"
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+
+
+def test_without_the_privilege_the_loop_runs_with_normal_scheduling_and_says_how_to_allow_it(monkeypatch):
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse, raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
+    try:
+        rec.wait_more(2)  # it ticks anyway
+        assert "normal scheduling (no privilege for real-time priority" in ctl.scheduling
+        assert "rtprio" in ctl.scheduling
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)

@@ -317,7 +317,7 @@ class Bus:
             for i in ids:
                 s = self.answering(i, now)
                 if s is not None:
-                    out.append((s, status_packet(i, s.status_error(), s.mem[0:2] + s.mem[6:7])))
+                    out.append((s, status_packet(i, s.status_error(), bytes(s.mem[0:2] + s.mem[6:7]))))
             return out
         if inst in (INST_SYNC_READ, INST_BULK_READ):
             return self._group_read(inst, params, now)
@@ -448,7 +448,7 @@ class Parser:
 
     def feed(self, data: bytes) -> list[tuple[int, int, bytes]]:
         self.buf += data
-        out = []
+        out: list[tuple[int, int, bytes]] = []
         while True:
             start = self.buf.find(HEADER)
             if start < 0:

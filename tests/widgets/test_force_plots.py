@@ -166,3 +166,47 @@ def test_uncalibrated_sensors_get_their_own_microsiemens_axis_and_readout(grid):
     assert " N" in text.split("S06B:")[1].splitlines()[0]
     grid.set_channel_units(None)
     assert not item.getAxis("right").isVisible()
+
+
+def test_every_plot_saves_png_and_vector_svg_with_its_units(grid, qtbot, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from PySide6.QtGui import QImage
+    from PySide6.QtWidgets import QGraphicsItem
+
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 20.0)
+    grid.refresh(force=True)
+    asked: list[tuple[int, str]] = []
+    grid.image_requested.connect(lambda index, kind: asked.append((index, kind)))
+    actions = grid.plots[4].image_button.menu().actions()
+    assert [a.text() for a in actions] == ["Save as PNG…", "Save as SVG…"]
+    actions[1].trigger()
+    assert asked == [(4, "svg")]
+
+    png = grid.export_image(4, tmp_path / "seg5.png")
+    image = QImage(str(png))
+    plot = grid.plots[4].plot_widget
+    assert image.width() >= plot.width() and image.height() > plot.height()
+    colours = {image.pixelColor(x, y).name() for x in range(0, image.width(), 3) for y in range(0, image.height(), 3)}
+    assert len(colours) > 5, "the PNG is blank"
+
+    svg = grid.export_image(4, tmp_path / "seg5.svg")
+    text = svg.read_text(encoding="utf-8")
+    root = ET.fromstring(text)  # well-formed XML
+    assert root.tag.endswith("svg")
+    texts = [" ".join(e.itertext()).strip() for e in root.iter() if e.tag.endswith("text")]
+    # Vector text, not a picture of it: the title, both axes with their units and the legend are SVG text.
+    assert any(t.startswith("Segment 5") for t in texts)
+    assert "N" in texts and "time before newest sample (s)" in texts
+    assert {"S05L", "S05R", "S05B"} <= set(texts)
+    assert "<path" in text or "<polyline" in text
+    # The pixmap caches are back afterwards (live drawing stays cheap).
+    axis = grid.plots[4].plot_widget.getPlotItem().getAxis("left")
+    assert axis.cacheMode() == QGraphicsItem.CacheMode.DeviceCoordinateCache
+
+    with pytest.raises(ValueError, match="png or .svg"):
+        grid.export_image(4, tmp_path / "seg5.jpg")
+    with pytest.raises(OSError, match="cannot write"):
+        grid.export_image(4, tmp_path / "missing" / "seg5.png")

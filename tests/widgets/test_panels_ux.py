@@ -155,3 +155,29 @@ def test_small_forces_are_labelled_in_newtons_and_not_blown_up(qtbot):
     y0, y1 = grid.plots[0].viewbox.viewRange()[1]
     assert y1 - y0 >= 0.1  # an unloaded sensor's mN wiggle is drawn as the flat line it is, not full scale
     assert y0 <= 0.001 - 0.002 and y1 >= 0.001 + 0.002
+
+
+def test_ctrl_z_and_ctrl_shift_z_undo_and_redo_while_the_teach_panel_is_shown(teach_panel, qtbot):
+    p = teach_panel
+    asked: list[str] = []
+    p.undo_requested.connect(lambda: asked.append("undo"))
+    p.redo_requested.connect(lambda: asked.append("redo"))
+    show_active(qtbot, p)
+    p.set_undo_state(True, True, "capture pose 1", "delete pose 2")
+    assert "Ctrl+Z" in p.undo_button.toolTip() and "Ctrl+Shift+Z" in p.redo_button.toolTip()
+    ctrl, shift = Qt.KeyboardModifier.ControlModifier, Qt.KeyboardModifier.ShiftModifier
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Z, ctrl)
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Z, ctrl | shift)
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Y, ctrl)
+    assert asked == ["undo", "redo", "redo"]
+    p.set_undo_state(False, False)  # nothing to undo: the keys do nothing either
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Z, ctrl)
+    assert asked == ["undo", "redo", "redo"]
+    p.set_undo_state(True, False, "capture pose 1")
+    p.name_edit.setFocus()
+    p.name_edit.setText("bump")
+    qtbot.keyClick(p.name_edit, Qt.Key.Key_Z, ctrl)  # typing a name: Ctrl+Z is the text field's own undo
+    assert asked == ["undo", "redo", "redo"]
+    p.hide()
+    qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Z, ctrl)
+    assert asked == ["undo", "redo", "redo"]  # a hidden tab's shortcut is inert

@@ -17,7 +17,6 @@ GUI thread only, except :meth:`CalibrationTab._fit_worker`.
 
 from __future__ import annotations
 
-import logging
 import multiprocessing
 import threading
 from concurrent.futures import ProcessPoolExecutor
@@ -62,6 +61,7 @@ from app.core.rig_protocol import (
 )
 from app.gui.lab import LabContext
 from app.gui.rig_session import RigSession
+from app.gui.thread_bridge import ThreadBridge
 from devices.config import BoardConfig
 from models.physics import PhysicsConstants
 from widgets import theme
@@ -70,7 +70,6 @@ from widgets.calibration_run import LiveTrialPlot, ProtocolForm, format_duration
 if TYPE_CHECKING:  # pragma: no cover
     from models.calibration import SensorCalibration
 
-log = logging.getLogger(__name__)
 
 DEFAULT_AREA_MM2 = 1400.0  # 1.4e-3 m², the paper's sensor pad
 DESCRIPTION = (
@@ -111,7 +110,6 @@ class CalibrationTab(QWidget):
 
     fit_finished = Signal(object)  # FitResult
     fit_failed = Signal(str)
-    _fit_outcome = Signal(object)  # worker → GUI thread (queued): the tab updates, then the public signal goes out
 
     def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -123,7 +121,7 @@ class CalibrationTab(QWidget):
         self.fit_window_s: tuple[float, float] | None = None  # set by a rig run (window scaled to its hold)
         self.last_fit_window_s: tuple[float, float] | None = None  # the window the latest fit was started with
         self._fit_thread: threading.Thread | None = None
-        self._fit_outcome.connect(self._on_fit_outcome)
+        self._bridge = ThreadBridge(self)  # fit worker → GUI thread: the tab updates, then the public signal goes out
         self.rig_session = RigSession(lab, self)
         self.run_settings: ProtocolSettings | None = None
         self.rig_session.progress.connect(self._show_progress)
@@ -392,12 +390,9 @@ class CalibrationTab(QWidget):
         self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s))
 
     def _deliver(self, outcome: FitResult | str) -> None:
-        """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread."""
-        try:
-            self._fit_outcome.emit(outcome)
-        except RuntimeError:
-            # The tab was closed while the fit ran: nobody is left to show the result.
-            log.info("calibration fit finished after its tab was closed; result dropped")
+        """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread. Dropped by the
+        bridge if the tab was closed while the fit ran: nobody is left to show it."""
+        self._bridge.post(self._on_fit_outcome, outcome)
 
     def _fit_done(self) -> None:
         """The worker's last act is the signal that brought us here: wait for it to exit so ``is_fitting`` is False
@@ -440,7 +435,7 @@ class CalibrationTab(QWidget):
         level = theme.WARN if n_warn else theme.OK
         note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
         self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
-        self.view_tabs.setCurrentWidget(self.view_tabs.widget(0))
+        self.view_tabs.setCurrentIndex(0)
         self._update_buttons()
 
     def _show_failure(self, message: str) -> None:

@@ -35,9 +35,11 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QListWidget,
+    QMenu,
     QPushButton,
     QSplitter,
     QTabWidget,
+    QToolButton,
     QVBoxLayout,
     QWidget,
 )
@@ -45,11 +47,13 @@ from PySide6.QtWidgets import (
 from app.core import user_folders
 from app.core.forces_pipeline import UNCALIBRATED, ForcesPipeline
 from app.core.live_session import LiveSession, LiveUpdate
-from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, export_csv, open_recording
+from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
+from app.core.view_export import export_view_csv
 from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
+from widgets.image_export import save_widget_image
 from widgets.ring_plot import TraceHistory, append_with_gaps
 
 try:
@@ -129,6 +133,7 @@ class ForcesTab(QWidget):
         self._last_stats: Any = None
         self._last_stats_s = time.monotonic()
         self._body_key: tuple | None = None
+        self._replay_cursor_s: float | None = None  # replay time under the cursor
         self._warnings: list[str] = [""] * n_channels
         self.min_free_bytes = DEFAULT_MIN_FREE_BYTES  # a recording stops cleanly before the disk is this full
         self.last_recording_path: Path | None = None  # Open recording… starts here: reopening is one click
@@ -187,6 +192,15 @@ class ForcesTab(QWidget):
         overlay_bar.addWidget(self.overlay_align)
         self.overlay_clear = QPushButton("Clear", overlay_page)
         overlay_bar.addWidget(self.overlay_clear)
+        self.overlay_image = QToolButton(overlay_page)
+        self.overlay_image.setText("Image…")
+        self.overlay_image.setToolTip("Save the trial overlay as an image: PNG, or SVG (vector)")
+        self.overlay_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
+        overlay_menu = QMenu(self.overlay_image)
+        for kind in ("png", "svg"):
+            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(-1, k))
+        self.overlay_image.setMenu(overlay_menu)
+        overlay_bar.addWidget(self.overlay_image)
         overlay_bar.addStretch(1)
         overlay_layout.addLayout(overlay_bar)
         overlay_layout.addWidget(self.overlay, 1)
@@ -223,6 +237,8 @@ class ForcesTab(QWidget):
         c.window_changed.connect(self.plots.set_window_s)
         c.pause_toggled.connect(self.plots.set_paused)
         self.plots.paused_changed.connect(c.set_paused)
+        self.plots.cursor_moved.connect(self._on_cursor_moved)
+        self.plots.image_requested.connect(self._choose_image)
         c.side_toggled.connect(self.plots.set_side_visible)
         c.quantity_changed.connect(self.set_quantity)
         c.estimator_changed.connect(self.set_estimator)
@@ -289,17 +305,22 @@ class ForcesTab(QWidget):
         self.controls.set_message("rest baseline set from the last readings", "ok")
 
     def refresh_body(self) -> None:
-        """Redraw the body map if the shape, the forces or the health changed (timer, ≤ 10 Hz)."""
+        """Redraw the body map if the shape, the forces or the health changed (timer, ≤ 10 Hz). Live it shows the
+        robot and the newest forces; with a recording shown, the recorded joints and forces at the replay time."""
         if self.body is None or not self.isVisible():
             return
-        robot = getattr(self.lab, "robot", None)
-        state = getattr(robot, "latest_state", None) if robot is not None else None
-        angles = None if state is None else np.asarray(state.position_rad, dtype=float)
-        latest = self.force_history.latest() if self.viewed is None else None
-        forces = None
-        if latest is not None and self.quantity == "force":
-            forces = np.where(self.pipeline.estimated, np.nan_to_num(latest[1].astype(float)), 0.0)
-        flags = self.health.flags
+        if self.viewed is not None:
+            angles, forces = self.recorded_body(self.replay_time_s())
+            flags = np.zeros(len(self.channel_names), dtype=np.uint8)  # the live health says nothing about it
+        else:
+            robot = getattr(self.lab, "robot", None)
+            state = getattr(robot, "latest_state", None) if robot is not None else None
+            angles = None if state is None else np.asarray(state.position_rad, dtype=float)
+            latest = self.force_history.latest()
+            forces = None
+            if latest is not None and self.quantity == "force":
+                forces = np.where(self.pipeline.estimated, np.nan_to_num(latest[1].astype(float)), 0.0)
+            flags = self.health.flags
         key = (None if angles is None else np.round(angles, 3).tobytes(),
                None if forces is None else np.round(forces / BODY_FORCE_STEP_N).tobytes(), flags.tobytes())
         if key == self._body_key:
@@ -308,6 +329,37 @@ class ForcesTab(QWidget):
         self.body.set_angles(angles)
         self.body.set_sensor_forces(forces, (flags & np.uint8(BAD_FLAGS)) != 0 if forces is not None else None,
                                     full_scale_n=BODY_FULL_SCALE_N)
+
+    def replay_time_s(self) -> float:
+        """The time of the recording shown that the body map draws: under the cursor while it is over a plot,
+        otherwise the right-hand edge of the plots' view (the newest sample shown)."""
+        if self._replay_cursor_s is not None:
+            return self._replay_cursor_s
+        return self.plots.visible_range()[1]
+
+    def recorded_body(self, t_s: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(joint angles rad, sensor forces N) of the recording shown at ``t_s``: its newest robot sample and board
+        row at or before ``t_s``. Angles None when the recording has no robot (the map is then drawn straight);
+        forces None when it holds no forces or conductance is plotted; a sensor without a force is drawn at 0."""
+        recording = self.viewed
+        if recording is None:
+            return None, None
+        angles = None
+        robot = recording.robot
+        if robot is not None and robot.time_s.size:
+            i = int(np.searchsorted(robot.time_s, t_s, side="right")) - 1
+            angles = np.asarray(robot.present_rad[max(i, 0)], dtype=float)
+        forces = None
+        if self.quantity == "force" and recording.forces_n is not None and recording.n_samples:
+            n = min(recording.forces_n.shape[0], recording.n_samples)
+            i = int(np.searchsorted(recording.time_s[:n], t_s, side="right")) - 1
+            forces = np.nan_to_num(np.asarray(recording.forces_n[max(i, 0)], dtype=float), nan=0.0)
+        return angles, forces
+
+    def _on_cursor_moved(self, t_s: float) -> None:
+        if self.viewed is not None:
+            self._replay_cursor_s = t_s
+            self.refresh_body()
 
     # -- view options ----------------------------------------------------------------------------------------------
     def set_quantity(self, quantity: str) -> None:
@@ -358,6 +410,8 @@ class ForcesTab(QWidget):
     def show_live(self) -> None:
         """Back from a past recording to the live board."""
         self.viewed = None
+        self._replay_cursor_s = None
+        self._body_key = None
         self.controls.set_viewing_file(None)
         self.controls.set_message("")
         self._show_live()
@@ -497,6 +551,8 @@ class ForcesTab(QWidget):
                 "matching config", "error")
             return None
         self.viewed = recording
+        self._replay_cursor_s = None
+        self._body_key = None
         with busy_cursor():
             self._show_recording(recording)
         self.controls.set_viewing_file(Path(path).name)
@@ -530,17 +586,21 @@ class ForcesTab(QWidget):
             return forces, "N"
         return recording.conductance_s * 1e6, "µS"
 
-    def export_viewed_csv(self, out: str | os.PathLike) -> Path | None:
+    def export_viewed_csv(self, out: str | os.PathLike, visible_only: bool = False) -> Path | None:
+        """The recording shown to CSV (app.core.view_export: units in the header, the robot beside the forces), all
+        of it or only the time range the plots show. None and a message when it cannot be written."""
         if self.viewed is None:
             self.controls.set_message("open a recording first, then export it", "warn")
             return None
+        t0, t1 = self.plots.visible_range() if visible_only else (None, None)
         try:
             with busy_cursor():
-                written = export_csv(self.viewed, out)
-        except OSError as exc:
-            self.controls.set_message(str(exc), "error")
+                written, rows = export_view_csv(self.viewed, out, t0, t1, list(self.lab.config.robot.joint_ids))
+        except (OSError, ValueError) as exc:
+            self.controls.set_message(f"not exported: {exc}", "error")
             return None
-        self.controls.set_message(f"exported {written}", "ok")
+        span = f" ({t0:.1f}–{t1:.1f} s)" if visible_only else ""
+        self.controls.set_message(f"exported {rows} rows{span} to {written}", "ok")
         return written
 
     def add_overlay_files(self, paths: list[str | os.PathLike]) -> int:
@@ -628,13 +688,41 @@ class ForcesTab(QWidget):
         if paths:
             self.add_overlay_files(paths)
 
-    def _choose_export(self) -> None:
+    def _choose_export(self, visible_only: bool = False) -> None:
         if self.viewed is None:
             return
-        default = self.viewed.path.with_suffix(".csv")
-        path, _ = QFileDialog.getSaveFileName(self, "Export CSV", str(default), "CSV (*.csv)")
+        stem = self.viewed.path.stem + ("-view" if visible_only else "")
+        default = Path(user_folders.dialog_folder(self.viewed.path.parent)) / f"{stem}.csv"
+        title = "Export the visible time range to CSV" if visible_only else "Export the recording to CSV"
+        path, _ = QFileDialog.getSaveFileName(self, title, str(default), "CSV (*.csv)")
         if path:
-            self.export_viewed_csv(path)
+            self.export_viewed_csv(path, visible_only)
+
+    def export_plot_image(self, index: int, path: str | os.PathLike) -> Path | None:
+        """Save plot ``index`` (-1: the trial overlay) as a PNG or SVG image (by the suffix); None and a message when
+        it cannot be."""
+        try:
+            if index < 0:
+                title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
+                written = save_widget_image(self.overlay.plot_widget, path, title)
+            else:
+                written = self.plots.export_image(index, path)
+        except (OSError, ValueError) as exc:
+            self.controls.set_message(f"image not saved: {exc}", "error")
+            return None
+        self.controls.set_message(f"saved {written}", "ok")
+        return written
+
+    def _choose_image(self, index: int, kind: str) -> None:
+        title = "overlay" if index < 0 else self.plots.groups[index].title
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        default = Path(user_folders.dialog_folder(recordings_dir())) / f"{title}-{stamp}.{kind}"
+        path, _ = QFileDialog.getSaveFileName(self, f"Save {title} as {kind.upper()}", str(default),
+                                              f"{kind.upper()} image (*.{kind})")
+        if path:
+            if not Path(path).suffix:
+                path = f"{path}.{kind}"
+            self.export_plot_image(index, path)
 
     # -- life cycle ------------------------------------------------------------------------------------------------
     def shutdown(self) -> None:

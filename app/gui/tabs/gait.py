@@ -107,7 +107,7 @@ class GaitTab(QWidget):
         except (OSError, ValueError):
             shape = None
         ok = shape is not None and len(shape.angles_rad) == self.config.n_joints
-        self._preview = np.asarray(shape.angles_rad) if ok else None
+        self._preview = np.asarray(shape.angles_rad) if ok and shape is not None else None
         self.refresh()
 
     # -- motion ------------------------------------------------------------------------------------------------------
@@ -204,6 +204,7 @@ class GaitTab(QWidget):
         state = self.robot.latest_state
         present = None if state is None else np.asarray(state.position_rad)
         active = self.robot.motion_state in (MOTION_RUNNING, MOTION_PAUSED)
+        goal: np.ndarray | None
         if active and state is not None and state.goal_rad is not None:
             goal = np.asarray(state.goal_rad)
         else:

@@ -99,6 +99,8 @@ class SceneTab(QWidget):
                 self._stop.wait(period)
         except RuntimeError as exc:  # RenderUnavailable (no EGL/OSMesa here), or the world went away
             self._bridge.post(self._on_render_error, str(exc))
+        finally:
+            self._physics.release_renderer()  # its OpenGL context is current here: only this thread can close it
 
     def _on_render_error(self, message: str) -> None:
         self.render_error = message

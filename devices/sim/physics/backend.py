@@ -51,8 +51,7 @@ class PhysicsBackend:
         self._time0_s = clock.now()  # the world starts at 0 s when the clock reads this
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._renderer: SceneRenderer | None = None
-        self._renderer_key = (0, 0, 0)
+        self._renderers: dict[int, tuple[tuple[int, int], SceneRenderer]] = {}  # per thread: (size, renderer)
 
     # -- joints (the chain) ----------------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
@@ -85,20 +84,29 @@ class PhysicsBackend:
     def body_state(self) -> BodyState:
         return self.world.body_state()
 
-    # -- pictures (one thread: the one that first asks, the GUI's) -------------------------------------------------------
+    # -- pictures (each rendering thread has its own OpenGL context) ------------------------------------------------
     def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
         """A (height, width, 3) uint8 picture of the scene; raises ``RenderUnavailable`` (a RuntimeError) when this
-        machine cannot render offscreen. The renderer (an OpenGL context) is made on the first call in the caller's
-        thread; a call from another thread or at another size makes a new one. One thread at a time."""
+        machine cannot render offscreen. The calling thread's renderer (an OpenGL context current in that thread)
+        is made on its first call, and again when the size changes; the thread must :meth:`release_renderer` before
+        it ends (a context current in another thread cannot be closed: EGL_BAD_ACCESS)."""
         from devices.sim.physics.render import SceneRenderer
 
-        key = (width, height, threading.get_ident())
-        if self._renderer is None or self._renderer_key != key:
-            if self._renderer is not None and self._renderer_key[2] == key[2]:
-                self._renderer.close()  # (another thread's context is left to that thread's end)
-            self._renderer = SceneRenderer(self.world, width, height)
-            self._renderer_key = key
-        return self._renderer.render()
+        thread = threading.get_ident()
+        entry = self._renderers.get(thread)
+        if entry is None or entry[0] != (width, height):
+            if entry is not None:
+                entry[1].close()
+            entry = ((width, height), SceneRenderer(self.world, width, height))
+            self._renderers[thread] = entry
+        return entry[1].render()
+
+    def release_renderer(self) -> None:
+        """Close the calling thread's renderer, if it has one (call it from that thread; :meth:`close` does for
+        the closing thread)."""
+        entry = self._renderers.pop(threading.get_ident(), None)
+        if entry is not None:
+            entry[1].close()
 
     # -- background stepping -------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -110,6 +118,7 @@ class PhysicsBackend:
         self._thread.start()
 
     def close(self) -> None:
+        self.release_renderer()
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)

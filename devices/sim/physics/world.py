@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -87,6 +88,7 @@ class PhysicsWorld:
         self._offset_s = 0.0
         self.lagged_s = 0.0  # simulated time skipped because stepping fell behind the clock
         self.steps = 0
+        self.stepping_s = 0.0  # wall time spent inside step() (any thread): the world's share of the machine
         self._force_buf = np.zeros(6)
         self.place()
 
@@ -152,6 +154,7 @@ class PhysicsWorld:
     def step(self, n: int = 1) -> None:
         """``n`` physics steps of ``scene.timestep_s``, each with one servo-loop update."""
         with self._lock:
+            started = time.perf_counter()
             data, model = self.data, self.model
             qadr, dadr = self._qadr, self._dadr
             for _ in range(n):
@@ -172,6 +175,7 @@ class PhysicsWorld:
                 data.qfrc_applied[dadr] = self._external
                 mujoco.mj_step(model, data)
             self.steps += n
+            self.stepping_s += time.perf_counter() - started
 
     def advance_to(self, t_s: float) -> None:
         """Step until the world's clock reaches ``t_s`` (s); if that is more than ``MAX_CATCH_UP_S`` ahead, skip the

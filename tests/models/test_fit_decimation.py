@@ -1,0 +1,50 @@
+"""1 kHz calibration trials are block-averaged to the fit rate (models.calibration.decimate_trial): saturated blocks
+stay censored, dropped samples do not poison a block, and the error it costs against ground truth is small."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.calibration import TrialInput, calibrate_sensor, decimate_trial
+from models.physics import PhysicsConstants
+from models.synthetic import TYPICAL_TRUTH, paper_protocol
+
+PHYS = PhysicsConstants()
+CEILING_S = 1.0 / 900.0
+
+
+def test_block_average_keeps_time_force_and_conductance_means():
+    t = np.arange(10_005) / 1000.0
+    trial = TrialInput("x", t, 2.0 + t, 1e-4 * (1 + t))
+    out = decimate_trial(trial, 10.0)
+    assert out.time_s.size == 101  # 100 blocks of 100 samples and the 5-sample tail
+    np.testing.assert_allclose(out.time_s[:100], t[:10_000].reshape(100, 100).mean(axis=1))
+    np.testing.assert_allclose(out.force_n[:100], 2.0 + out.time_s[:100])
+    assert out.time_s[-1] == pytest.approx(t[-5:].mean())
+    assert decimate_trial(trial, 2000.0) is trial  # not faster than the rate: untouched
+
+
+def test_saturated_sample_keeps_its_block_censored_and_gaps_are_left_out():
+    t = np.arange(1000) / 1000.0
+    c = np.full(t.size, 5e-4)
+    c[150] = CEILING_S  # one sample at the readout ceiling
+    c[420:430] = np.nan  # ten dropped samples
+    c[500:600] = np.nan  # a whole block dropped
+    out = decimate_trial(TrialInput("x", t, np.ones(t.size), c), 10.0, saturation_s=CEILING_S)
+    assert out.conductance_s[1] == CEILING_S
+    assert out.conductance_s[4] == pytest.approx(5e-4)
+    assert np.isnan(out.conductance_s[5])
+    assert np.all(out.conductance_s[[0, 2, 3, 6, 7, 8, 9]] == pytest.approx(5e-4))
+
+
+def test_1_khz_calibration_costs_little_error_against_the_truth():
+    """4 trials of 370 s at 1 kHz (1.48 M samples), fitted at the default 10 Hz: parameters within 0.2 % of the truth
+    (measured 0.03–0.05 %; the 6 Hz paper protocol's own noise-free error is ~1e-9)."""
+    trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=0, repeats=1, rate_hz=1000.0)
+    cal = calibrate_sensor([TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials],
+                           TYPICAL_TRUTH.area_m2, PHYS, saturation_s=CEILING_S)
+    truth = TYPICAL_TRUTH.params_at(3.0)
+    for name in ("E0_Pa", "E1_Pa", "mu1_Pa_s"):
+        assert float(getattr(cal.sls, name)) == pytest.approx(float(getattr(truth, name)), rel=2e-3)
+    assert not cal.degenerate
