@@ -447,12 +447,13 @@ class ProtocolRunner:
     def _fresh_reading(self) -> float:
         """Median of the sensor's next few board samples taken after now (S)."""
         since = self._clock()
-        deadline = since + self.board_stale_s * self.time_scale
+        # Wall seconds; at least BOARD_STALE_S: a board that was just started may still be opening.
+        deadline = time.monotonic() + max(self.board_stale_s, BOARD_STALE_S)
         while True:
             _, values, _ = self.feed.snapshot(since)
             if values.size >= REFINE_SAMPLES:
                 return float(np.median(values[:REFINE_SAMPLES]))
-            if self._clock() > deadline:
+            if time.monotonic() > deadline:
                 raise BoardStreamError(f"no conductance from the board for sensor {self.settings.sensor} while "
                                        "finding the contact")
             if self._stop.wait(0.01):
