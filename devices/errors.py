@@ -5,6 +5,8 @@ Messages are written for the lab user: they say what happened, to which servo or
 
 from __future__ import annotations
 
+import os
+
 
 class DeviceError(RuntimeError):
     """Base of every hardware error raised by ``devices``."""
@@ -60,3 +62,15 @@ class JointLimitError(DeviceError, ValueError):
 
 class BoardProtocolError(DeviceError, ValueError):
     """The force-sensor board's stream does not match the configuration (e.g. channel count)."""
+
+
+def os_words(exc: BaseException) -> str:
+    """The OS's reason for ``exc`` in plain words: "No such file or directory", not pyserial's echo ("could not
+    open port P: [Errno 2] No such file …: 'P'") or Python's "[Errno 5] …" (termios.error included, which is no
+    OSError)."""
+    code = getattr(exc, "errno", None)
+    if not isinstance(code, int) and len(exc.args) == 2 and isinstance(exc.args[0], int):
+        code = exc.args[0]  # termios.error(5, 'Input/output error')
+    if isinstance(code, int) and code > 0:
+        return os.strerror(code)
+    return " ".join(str(exc).split())

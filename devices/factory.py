@@ -8,12 +8,12 @@ real-time lab with :func:`install_sim_lab`.
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import serial
 
 from devices.config import SIM_PORT, LabConfig
-from devices.errors import PortOpenError
+from devices.errors import PortOpenError, os_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
@@ -21,8 +21,16 @@ if TYPE_CHECKING:  # pragma: no cover
 
 DEVICE_KINDS = ("robot", "board", "rig")
 
+
+class SimPorts(Protocol):
+    """What the factory needs from whatever stands behind the ``sim`` ports: the wire endpoint of a device kind.
+    :class:`devices.sim.lab.SimLab` is the real one; tests and benchmarks install stand-ins with fewer devices."""
+
+    def endpoint(self, device: str) -> Any: ...
+
+
 _lab_lock = threading.Lock()
-_lab: SimLab | None = None
+_lab: SimPorts | None = None
 
 
 def is_sim(port: str) -> bool:
@@ -36,12 +44,15 @@ def sim_lab(config: LabConfig | None = None) -> SimLab:
         if _lab is None:
             from devices.sim.lab import SimLab
 
-            _lab = SimLab(config)
-            _lab.start_background()  # the physics lab keeps stepping between driver events
-        return _lab
+            lab = SimLab(config)
+            lab.start_background()  # the physics lab keeps stepping between driver events
+            _lab = lab
+        # A stand-in installed by a test or benchmark (install_sim_lab) answers only for the devices it simulates.
+        return cast("SimLab", _lab)
 
 
-def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0, seed: int = 0) -> tuple[SimLab, SimLab | None]:
+def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0,
+                  seed: int = 0) -> tuple[SimLab, SimPorts | None]:
     """Create a simulated lab from ``config`` whose clock runs ``speed``× real time, start it and install it behind
     the ``sim`` ports; returns (the new lab, the one it replaced — put it back with :func:`install_sim_lab`)."""
     from devices.sim.lab import SimLab
@@ -51,7 +62,7 @@ def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0, seed: 
     return lab, install_sim_lab(lab)
 
 
-def install_sim_lab(lab: SimLab | None) -> SimLab | None:
+def install_sim_lab(lab: SimPorts | None) -> SimPorts | None:
     """Replace the process-wide simulated lab (``None`` drops it); returns the previous one."""
     global _lab
     with _lab_lock:
@@ -79,6 +90,6 @@ def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0
         return serial.Serial(port=port, baudrate=baud, timeout=timeout_s)
     except (serial.SerialException, OSError) as exc:
         raise PortOpenError(
-            f"cannot open {device} port {port}: {exc}. Check the cable and the port name "
+            f"cannot open {device} port {port}: {os_words(exc)}. Check the cable and the port name "
             "(Linux: /dev/ttyUSB0, Windows: COM3), or use 'sim' for the simulated lab"
         ) from exc

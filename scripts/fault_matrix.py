@@ -6,13 +6,17 @@ Each case runs ``sensnake`` as a user would (a separate process) against the ind
 (``tests/emulators/board_emulator.py``) or servo chain emulator (``tests/emulators/xm430_emulator.py``), both on
 pseudo-terminals and written from SPEC §4 / the XM430 e-manual, and judges the outcome by what a user can see:
 
-- "handled cleanly" = the expected exit code; no Python traceback; a failure is one line on stderr naming the cause;
-  an existing output file is never clobbered by a failed command; every recorded value is exactly what the board
+- "handled cleanly" = the expected exit code; no Python traceback; a failure is one line on stderr naming the cause
+  (the user's path, never HDF5's report — ``errno = …, o_flags = …`` —, a hidden work file or a codec's complaint);
+  an existing output file is never clobbered by a failed command; output files get the user's umask, a replaced
+  file keeps its mode; every recorded value is exactly what the board
   sent (no corrupt frame kept, no good frame lost between the first and the last one recorded); a file left by a
   crash or a signal opens in plain ``h5py.File(path, "r")`` in another process.
 
-Run from the repository root (the emulators are started as ``python -m tests.emulators.…``). Takes about two minutes
-on an idle machine (the recordings run in real time). Linux only (pseudo-terminals).
+The cases cover every item of issue 15 (board, recording, file, output-file and message faults; the servo chain's
+reboots, limits and a killed bus). Run from the repository root (the emulators are started as
+``python -m tests.emulators.…``). Takes about three minutes on an idle machine (the recordings run in real time).
+Linux only (pseudo-terminals).
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ from tests.emulators.board_emulator import EmulatedBoard, expected_counts  # noq
 
 RATE_HZ = 200.0
 N_CHANNELS = 36
+# Words that must never reach a user's error line: HDF5's report, a hidden work file, a codec's complaint.
+INTERNALS = ("errno =", "[Errno", "o_flags", "flags =", "Unable to synchronously", ".partial", ".tmp", "codec can't",
+             "Traceback")
 
 
 @dataclass
@@ -59,9 +66,10 @@ class Run:
                 and ": error:" in line]
 
 
-def sensnake(*args: str, timeout_s: float = 60.0) -> Run:
+def sensnake(*args: str, timeout_s: float = 60.0, umask: int | None = None) -> Run:
     done = subprocess.run([sys.executable, "-m", "app", *args], cwd=REPO, capture_output=True, text=True,
-                          timeout=timeout_s, env={**os.environ, "PYTHONPATH": str(REPO)})
+                          timeout=timeout_s, env={**os.environ, "PYTHONPATH": str(REPO)},
+                          preexec_fn=None if umask is None else (lambda: os.umask(umask)))  # noqa: PLW1509
     return Run(done.returncode, done.stdout, done.stderr)
 
 
@@ -110,6 +118,9 @@ def clean_failure(run: Run, code: int = 1, *words: str) -> tuple[bool, str]:
         return False, f"exit {run.code}, expected {code}: {run.err.strip()[-200:]}"
     if len(lines) != 1:
         return False, f"{len(lines)} error lines"
+    leaked = [w for w in INTERNALS if w in lines[0]]
+    if leaked:
+        return False, f"internals {leaked} in: {lines[0][:120]}"
     missing = [w for w in words if w not in lines[0]]
     if missing:
         return False, f"message lacks {missing}: {lines[0]}"
@@ -246,6 +257,11 @@ def kill_at_random_moments(trials: int) -> Callable[[Path], Outcome]:
     return case
 
 
+def _touch(path: Path) -> Path:
+    path.write_text("x")
+    return path
+
+
 def one_line(args: Callable[[Path], list[str]], code: int = 1, *words: str) -> Callable[[Path], Outcome]:
     def case(folder: Path) -> Outcome:
         return Outcome(*clean_failure(sensnake(*args(folder)), code, *words))
@@ -300,6 +316,156 @@ def export_unwritable(folder: Path) -> Outcome:
     blocker = folder / "file"
     blocker.write_text("x")
     return Outcome(*clean_failure(sensnake("export", str(good), "--csv", str(blocker / "out.csv")), 1, "out.csv"))
+
+
+def record_over_existing_wrong_board(folder: Path) -> Outcome:
+    """A board of another channel count must not cost the user the recording already at ``--out``."""
+    config = folder / "lab.toml"
+    config.write_text(f"[board]\nrate_hz = {RATE_HZ}\n")
+    out = folder / "precious.h5"
+    out.write_bytes(b"an earlier recording" * 1000)
+    before = out.read_bytes()
+    with EmulatedBoard(folder, rate_hz=RATE_HZ, wrong_channels=48) as emu:
+        run = sensnake("record", "--daq", emu.path, "--seconds", "5", "--out", str(out), "--config", str(config))
+    ok, note = clean_failure(run, 1, "48 channels")
+    if ok and out.read_bytes() != before:
+        return Outcome(False, "the existing --out was changed")
+    return Outcome(ok and not _hidden(folder), note)
+
+
+def damaged_recording_export(folder: Path) -> Outcome:
+    """An HDF5 file that says it is a recording but has no board data."""
+    import h5py
+
+    bad = folder / "nodaq.h5"
+    with h5py.File(bad, "w") as f:
+        f.attrs["format"] = "sensnake-recording"
+        f.attrs["version"] = 1
+    return Outcome(*clean_failure(sensnake("export", str(bad), "--csv", str(folder / "x.csv")), 1, "nodaq.h5"))
+
+
+def _hidden(folder: Path) -> list[str]:
+    """Hidden work files left behind (a temporary the user never asked for)."""
+    return [p.name for p in folder.iterdir() if p.name.startswith(".")]
+
+
+# -- output files and messages (issue 15 items 10, 11) -------------------------------------------------------------
+AREA = "1.4e-3"
+BINARY = bytes(range(256)) * 4  # not UTF-8 from byte 128 on
+
+
+def _fitted(folder: Path) -> tuple[list[str], Path]:
+    """Two synthetic calibration trials and ``sensnake fit`` of them (S06B): (trial paths, cal.json)."""
+    from app.core import calfiles
+    from models.physics import PhysicsConstants
+    from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
+
+    trials = paper_protocol(TYPICAL_TRUTH, PhysicsConstants(), seed=5, repeats=1, noise_rel=0.001,
+                            readout=Readout())[:2]
+    paths = []
+    for trial in trials:
+        path = folder / f"{trial.name}.csv"
+        calfiles.write_trial_csv(path, trial.time_s, trial.force_n, trial.conductance_s)
+        paths.append(str(path))
+    cal = folder / "cal.json"
+    run = sensnake("fit", *paths, "--sensor", "S06B", "--area", AREA, "--out", str(cal))
+    if run.code != 0:
+        raise RuntimeError(f"could not fit: {run.err.strip()[-200:]}")
+    return paths, cal
+
+
+def _force_csv(path: Path, force_n: list[float]) -> Path:
+    import numpy as np
+
+    from app.core import calfiles
+
+    values = np.asarray(force_n, dtype=float)
+    calfiles.write_series_csv(path, np.arange(values.size) / 6.0, ("S06B",), values[:, None])
+    return path
+
+
+def output_modes(folder: Path) -> Outcome:
+    """fit, forward and estimate write with the user's umask and keep the mode of a file they replace."""
+    import stat
+
+    paths, cal = _fitted(folder)
+    force = _force_csv(folder / "force.csv", [0.0] * 30 + [2.0] * 60)
+    commands = {
+        "fit": (folder / "fit.json", lambda out: ["fit", paths[0], "--sensor", "S06B", "--area", AREA,
+                                                   "--physics", str(cal), "--out", str(out)]),
+        "forward": (folder / "c.csv", lambda out: ["forward", str(force), "--cal", str(cal), "--out", str(out)]),
+        "estimate": (folder / "f.csv", lambda out: ["estimate", str(folder / "c.csv"), "--cal", str(cal),
+                                                    "--out", str(out)]),
+    }
+    problems = []
+    for mask, expected in ((0o022, 0o644), (0o077, 0o600)):
+        for name, (out, argv) in commands.items():
+            out.unlink(missing_ok=True)
+            run = sensnake(*argv(out), umask=mask)
+            mode = stat.S_IMODE(out.stat().st_mode) if out.exists() else -1
+            if run.code != 0 or mode != expected:
+                problems.append(f"{name} with umask {mask:03o}: exit {run.code}, mode {mode:03o}")
+    for name, (out, argv) in commands.items():
+        os.chmod(out, 0o640)
+        run = sensnake(*argv(out), umask=0o077)
+        mode = stat.S_IMODE(out.stat().st_mode)
+        if run.code != 0 or mode != 0o640:
+            problems.append(f"{name} replacing a 640 file: exit {run.code}, mode {mode:03o}")
+    problems += [f"left behind: {name}" for name in _hidden(folder)]
+    return Outcome(not problems, problems[0] if problems else
+                   "fit/forward/estimate: umask 022 → 644, 077 → 600; a replaced 640 file stays 640")
+
+
+def binary_input(kind: str) -> Callable[[Path], Outcome]:
+    """A binary file given as a shape (play) or as a config (fit): one line naming the file."""
+    def case(folder: Path) -> Outcome:
+        bad = folder / ("walk.json" if kind == "shape" else "lab.toml")
+        bad.write_bytes(BINARY)
+        if kind == "shape":
+            run = sensnake("play", str(bad), "--robot", "sim")
+        else:
+            import numpy as np
+
+            from app.core import calfiles
+
+            trial = folder / "trial.csv"
+            calfiles.write_trial_csv(trial, np.arange(3.0), np.array([0.0, 1.0, 1.0]), np.array([1e-4, 2e-4, 2e-4]))
+            run = sensnake("fit", str(trial), "--sensor", "S06B", "--area", AREA, "--config", str(bad),
+                           "--out", str(folder / "cal.json"))
+        return Outcome(*clean_failure(run, run.code if run.code else 1, str(bad)))
+    return case
+
+
+def write_error_names_users_path(folder: Path) -> Outcome:
+    _paths, cal = _fitted(folder)
+    force = _force_csv(folder / "force.csv", [1.0] * 20)
+    out = folder / "out.csv"
+    out.mkdir()  # the output path is a folder: the final move fails
+    run = sensnake("forward", str(force), "--cal", str(cal), "--out", str(out))
+    ok, note = clean_failure(run, run.code if run.code else 1, str(out))
+    return Outcome(ok and not _hidden(folder), note)
+
+
+def fit_unknown_sensor(folder: Path) -> Outcome:
+    paths, _cal = _fitted(folder)
+    out = folder / "new.json"
+    run = sensnake("fit", paths[0], "--sensor", "S99Z", "--area", AREA, "--out", str(out))
+    ok, note = clean_failure(run, run.code if run.code else 1, "S99Z")
+    return Outcome(ok and not out.exists(), note)
+
+
+def forward_negative_force(folder: Path) -> Outcome:
+    _paths, cal = _fitted(folder)
+    force = _force_csv(folder / "force.csv", [0.0] * 30 + [2.0] * 10 + [-0.25] + [2.0] * 49)
+    out = folder / "c.csv"
+    run = sensnake("forward", str(force), "--cal", str(cal), "--out", str(out))
+    ok, note = clean_failure(run, run.code if run.code else 1, "negative", "-0.25", "--clip-negative")
+    if ok and out.exists():
+        return Outcome(False, "a refused forward wrote its output")
+    clipped = sensnake("forward", str(force), "--cal", str(cal), "--out", str(out), "--clip-negative")
+    if clipped.code != 0 or "read as 0 N" not in clipped.err:
+        return Outcome(False, f"--clip-negative: exit {clipped.code}: {clipped.err.strip()[:100]}")
+    return Outcome(ok, note)
 
 
 # -- servo cases (tests/emulators/xm430_emulator.py) ---------------------------------------------------------------
@@ -394,8 +560,15 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
                                                str(d / "r.h5")], 1, "ttyNOPE"),
     "record: --seconds 0": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "0", "--out",
                                                str(d / "r.h5")], 1, "--seconds"),
+    "board: wrong channel count, existing --out": record_over_existing_wrong_board,
     "record: --out in a missing folder": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out",
-                                                            str(d / "nope" / "r.h5")], 1, "r.h5"),
+                                                            str(d / "nope" / "r.h5")], 1, "nope/r.h5",
+                                                  "does not exist"),
+    "record: --out inside a file": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out",
+                                                      str(_touch(d / "file") / "r.h5")], 1, "file/r.h5",
+                                            "not a folder"),
+    "record: --out is a folder": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out", str(d)],
+                                          1, "is a folder"),
     "record: SIGTERM": record_signal(signal.SIGTERM, 128 + signal.SIGTERM),
     "record: SIGHUP": record_signal(signal.SIGHUP, 128 + signal.SIGHUP),
     "record: Ctrl-C": record_signal(signal.SIGINT, 130),
@@ -406,6 +579,13 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "file: truncated at 50%": truncated(0.5, 0.1),
     "file: not HDF5": not_hdf5_export,
     "file: export to an unwritable path": export_unwritable,
+    "file: a recording without board data": damaged_recording_export,
+    "files: fit/forward/estimate keep the umask and a replaced file's mode": output_modes,
+    "message: a binary shape given to play": binary_input("shape"),
+    "message: a binary config given to fit": binary_input("config"),
+    "message: a write error names the user's path": write_error_names_users_path,
+    "message: fit --sensor S99Z (not on the board)": fit_unknown_sensor,
+    "message: forward with a negative force": forward_negative_force,
     "servo: scan a clean chain": scan_case(),
     "servo: scan with servo 4 silent": scan_case(commands=("silent 4",), expect_ids=11),
     "servo: scan at the wrong baud": scan_case(baud="57600", expect_ids=0),

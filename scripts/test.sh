@@ -19,6 +19,7 @@ python3 -m ruff check .
 echo "== mypy (every package, scripts and tools; [tool.mypy] in pyproject.toml)"
 python3 -m mypy
 echo "== import contracts (lint-imports; [tool.importlinter] in pyproject.toml)"
-lint-imports
+# (through this python3, like ruff and mypy, so a console-script directory missing from PATH does not matter)
+python3 -c 'import sys; from importlinter.cli import lint_imports; sys.exit(lint_imports(no_logo=True))'
 echo "== tests"
 python3 -m pytest -q "$@"

@@ -174,8 +174,13 @@ class TraceHistory:
             raise ValueError(f"need n_channels ≥ 1 and capacity ≥ 16, got {n_channels}, {capacity}")
         self.n_channels = n_channels
         self.dtype = np.dtype(dtype)
-        self._level0 = _Ring(capacity, n_channels, dtype, with_high=False)
-        self._levels = [_Level(max(16, capacity // 4), n_channels, factor, dtype) for _ in range(levels)]
+        self._factor = factor
+        self._allocate(capacity, levels)
+
+    def _allocate(self, capacity: int, levels: int) -> None:
+        self._level0 = _Ring(capacity, self.n_channels, self.dtype, with_high=False)
+        self._levels = [_Level(max(16, capacity // 4), self.n_channels, self._factor, self.dtype)
+                        for _ in range(levels)]
         self.total_samples = 0
 
     @classmethod
@@ -196,8 +201,7 @@ class TraceHistory:
         return self._level0.capacity
 
     def clear(self) -> None:
-        self.__init__(self.n_channels, self._level0.capacity, len(self._levels),
-                      self._levels[0].factor if self._levels else 16, self.dtype)
+        self._allocate(self._level0.capacity, len(self._levels))
 
     def append(self, t_s: np.ndarray, values: np.ndarray) -> None:
         """Append samples: ``t_s`` (N,) non-decreasing seconds, ``values`` (N×C)."""
@@ -254,7 +258,7 @@ class TraceHistory:
         cols = slice(None) if channels is None else channels
         rows_t, rows_lo, rows_hi = [t], [lo], [hi]
         if pending:
-            rows_t.append(np.array([min(lv.pending_t for lv in pending)]))
+            rows_t.append(np.array([min(lv.pending_t for lv in pending if lv.pending_t is not None)]))
             rows_lo.append(np.min([lv.pending_lo[cols] for lv in pending], axis=0)[None])
             rows_hi.append(np.max([lv.pending_hi[cols] for lv in pending], axis=0)[None])
         rows_t.append(np.array([newest[0]]))
@@ -312,7 +316,7 @@ def append_with_gaps(history: TraceHistory, t_s: np.ndarray, values: np.ndarray,
         return
     cuts = np.flatnonzero(gap_before)
     start = 0
-    for cut in cuts:
+    for cut in cuts.tolist():
         if cut > start:
             history.append(t_s[start:cut], values[start:cut])
         gap_t = t_s[cut] if cut == 0 else (t_s[cut - 1] + t_s[cut]) / 2

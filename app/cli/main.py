@@ -53,10 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="time window in s for the linear model's mean conductance (default 225 300)")
     fit.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
     fit.add_argument("--solver", choices=("gauss-newton", "scipy", "ipopt", "sqpmethod"), default=None,
-                     help="joint-fit solver (default: CasADi Gauss–Newton; `sensnake bench` compares them)")
+                     help="joint-fit solver (default scipy; CasADi gauss-newton/ipopt/sqpmethod reach the same "
+                          "parameters, slower: `sensnake bench`)")
     fit.add_argument("--fit-rate", type=float, default=None, metavar="HZ",
-                     help="block-average faster trials to this rate before fitting (default 10 Hz: a 1 kHz "
-                          "calibration in seconds, ~0.05 %% parameter error measured; 0 fits every sample)")
+                     help="block-average faster trials to this rate before fitting (default 5 Hz: a 1 kHz "
+                          "calibration in seconds, ~0.1 %% parameter error measured; 0 fits every sample)")
     fit.add_argument("--config", metavar="FILE",
                      help="lab config: its board's channel names (--sensor must be one) and readout circuit "
                           "(board.r_c_ohm, the saturation level not to fit)")
@@ -200,6 +201,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
+    if isinstance(exc, OSError) and exc.strerror and text.startswith("[Errno"):
+        # "[Errno 21] cannot write out.csv: Is a directory" reads as Python, not as the cause: keep the words.
+        text = str(exc.strerror)
+        if exc.filename is not None and str(exc.filename) not in text:
+            text += f": {exc.filename}"
     return " ".join(text.split())
 
 

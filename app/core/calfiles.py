@@ -16,9 +16,10 @@ import math
 import os
 import secrets
 import stat
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -246,6 +247,12 @@ def write_trial_csv(path: str | os.PathLike, time_s: np.ndarray, force_n: np.nda
     header = ",".join([TIME_COLUMN, FORCE_COLUMN, CONDUCTANCE_COLUMN])
     _atomic_write(Path(path), lambda handle: np.savetxt(handle, table, delimiter=",", fmt="%.17g",
                                                         header=header, comments=""))
+
+
+def write_atomically(path: str | os.PathLike, write: Callable[[TextIO], object]) -> None:
+    """``write(handle)`` into a new text file at ``path``, all or nothing (see :func:`_atomic_write`); for writers
+    outside this module (a recording's CSV export)."""
+    _atomic_write(Path(path), write)
 
 
 def _atomic_write(path: Path, write) -> None:

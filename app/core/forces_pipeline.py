@@ -6,13 +6,15 @@ Per sensor the status is one of:
 - ``default``: no calibration file is loaded, so the models' typical sensor (``models.sls.TYPICAL_SLS``,
   ``TYPICAL_AREA_M2`` and ``models.physics.DEFAULT_PHYSICS``) stands in. Its forces are indicative only and are
   labelled so: the physics constants are placeholders until the lab measures them (SPEC §5);
-- ``uncalibrated``: a calibration file is loaded but does not hold this sensor (or its model): the sensor shows
-  conductance in µS, labelled, never a made-up force.
+- ``uncalibrated``: a calibration file is loaded but does not hold this sensor (or its model), or its SLS fit was
+  marked degenerate by ``sensnake fit`` (at a bound, τ unresolved, no creep resolved; the reason goes to
+  :attr:`ForcesPipeline.problems`): the sensor shows conductance in µS, labelled, never a made-up force.
 
 The estimator (``sls`` creep-aware, or ``linear``) is applied live to new blocks; switching it restarts the estimator
 state (the creep history starts afresh). Time stamps fed to the estimators are the board clock (seconds). Every block
-passes the one sample-validation rule of :mod:`models.validation` inside the estimators (non-finite, negative and
-flat-lined readings are rejected: NaN force, flagged; the board's saturation mask flags READOUT_SATURATED); the
+passes the one sample-validation rule of :mod:`models.validation` inside the estimators (non-finite, negative,
+above-ceiling and flat-lined readings are rejected: NaN force, flagged; the board's saturation mask flags
+READOUT_SATURATED; the ceiling 1/R_C is the board's, set by :meth:`ForcesPipeline.set_readout`); the
 per-sample :class:`models.sls.ForceStatus` codes come back in :attr:`ForcesBlock.status`.
 
 Not thread-safe: the Forces tab calls it from the GUI thread as blocks arrive.
@@ -27,10 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.core import calfiles
-from models.estimators import LinearEstimator, SLSEstimator
+from models.estimators import ESTIMATOR_RULE, LinearEstimator, SLSEstimator
 from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS, PhysicsConstants
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, SLSParams, conductance_from_force
+from models.validation import ValidationRule
 
 CALIBRATED = "calibrated"
 DEFAULT = "default"
@@ -79,7 +82,14 @@ class ForcesPipeline:
         self.last_block_problem: str | None = None  # why the last block got no force, if it did not
         self._default_linear: LinearModel | None = None
         self._t_last_s: float | None = None
+        self._rule = ESTIMATOR_RULE
         self.set_estimator(estimator)
+
+    def set_readout(self, r_c_ohm: float) -> None:
+        """The board's readout resistor (Ω): readings above 1/R_C are rejected (ABOVE_CEILING), at it saturated.
+        The live session calls it with its board's value; the state restarts."""
+        self._rule = ValidationRule.for_readout(r_c_ohm)
+        self._build()
 
     # -- configuration ---------------------------------------------------------------------------------------------
     @property
@@ -193,6 +203,12 @@ class ForcesPipeline:
                 if name in self.calibration.get("sensors", {}):
                     self.problems.append(str(exc))  # present but unusable: worth telling the user why
                 continue
+            if kind == "sls" and self.calibration["sensors"][name].get("degenerate") is True:
+                status.append(UNCALIBRATED)
+                why = "; ".join(self.calibration["sensors"][name].get("degenerate_reasons", [])) or "marked degenerate"
+                self.problems.append(f"{self.calibration_source}: sensor '{name}' has a degenerate SLS fit ({why}): "
+                                     "shown as conductance; recalibrate, or use the linear estimator")
+                continue
             status.append(CALIBRATED)
             if kind == "sls":
                 sls = entry["sls"]
@@ -212,6 +228,6 @@ class ForcesPipeline:
             params = SLSParams(E0_Pa=np.array(e0, dtype=float), E1_Pa=np.array(e1, dtype=float),
                                mu1_Pa_s=np.array(mu1, dtype=float))
             self._estimator = SLSEstimator(params, np.array(area, dtype=float), self.physics,
-                                           n_sensors=int(self._columns.size))
+                                           n_sensors=int(self._columns.size), validation=self._rule)
         else:
-            self._estimator = LinearEstimator(linear_models)
+            self._estimator = LinearEstimator(linear_models, validation=self._rule)

@@ -125,6 +125,8 @@ class LiveSession:
         self.board = board
         self.channel_names = tuple(board.channel_names)
         self.pipeline = pipeline
+        if pipeline is not None:
+            pipeline.set_readout(board.r_c_ohm)  # the one validation rule, with this board's ceiling 1/R_C
         self.health = health
         self.t0_monotonic_s = time.monotonic() if t0_monotonic_s is None else t0_monotonic_s
         self.link = LinkMonitor(board.port)

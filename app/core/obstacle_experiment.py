@@ -120,6 +120,7 @@ def run_obstacle_experiment(out: str | Path, config: LabConfig | None = None, *,
     bottom = np.array([i for i, name in enumerate(names) if name.endswith("B")])
     stream = BoardStream(lab, config)
     pipeline = ForcesPipeline(names)
+    pipeline.set_readout(config.board.r_c_ohm)
     calibration = json.dumps(lab.ground_truth_calibration())
     with tempfile.TemporaryDirectory() as scratch:
         cal_path = Path(scratch) / "board_truth.json"

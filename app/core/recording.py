@@ -27,16 +27,19 @@ import contextlib
 import csv
 import os
 import shutil
+import stat
 import time
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TextIO
 
 import h5py
 import numpy as np
+
+from app.core.calfiles import write_atomically
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -360,6 +363,7 @@ class RecordingWriter:
 
     def _move_into_place(self) -> None:
         try:
+            _keep_mode(self.path, self._work_path)
             os.replace(self._work_path, self.path)
         except OSError as exc:
             self._closed = True
@@ -455,6 +459,12 @@ def _close_after_failure(f: h5py.File) -> None:
         f.id.close()
 
 
+def _keep_mode(path: Path, work: Path) -> None:
+    """A recording that replaces a file keeps that file's permissions (a new one has the umask's, from h5py)."""
+    with contextlib.suppress(FileNotFoundError):
+        os.chmod(work, stat.S_IMODE(path.stat().st_mode))
+
+
 def _fsync(path: Path) -> None:
     """Push the closed file's bytes to the disk, so a power cut keeps what the last flush wrote."""
     try:
@@ -544,8 +554,10 @@ def open_recording(path: str | Path, recover: bool = False) -> Recording:
         if recover and _stored_eof(path) is not None:
             return recover_recording(path)[0]
         hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
-        raise RecordingFormatError(f"{path} is not a readable SenSnake recording (not HDF5, or truncated/corrupt: "
-                                   f"{_h5_reason(exc)}){hint}") from exc
+        reason = _h5_reason(exc)
+        if reason != "not an HDF5 file":
+            reason = f"not HDF5, or truncated/corrupt: {reason}"
+        raise RecordingFormatError(f"{path} is not a readable SenSnake recording ({reason}){hint}") from exc
     try:
         with handle as f:
             return _read(f, path)
@@ -566,9 +578,16 @@ def _open_h5(path: Path) -> h5py.File:
 
 
 def _h5_reason(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    """HDF5's refusal in a user's words (never "Unable to synchronously open file (… errno = …)")."""
+    text = " ".join(str(getattr(exc, "strerror", None) or exc).split())
     if "truncated file" in text:
         return "truncated file"
+    if "file signature not found" in text:
+        return "not an HDF5 file"
+    if "error message = '" in text or "errno = " in text:
+        return _os_reason(exc)
+    if text.startswith("Unable to") and "(" in text:
+        text = text.split("(", 1)[1].rsplit(")", 1)[0]  # the reason HDF5 gives inside its own report
     return text.split(" (file name")[0][:160]
 
 
@@ -749,6 +768,7 @@ def write_recording(recording: Recording, out: str | Path) -> Path:
             events["text"] = np.array([_truncate_utf8(e.text, EVENT_TEXT_BYTES) for e in recording.events],
                                       dtype=f"S{EVENT_TEXT_BYTES}")
         _fsync(work)
+        _keep_mode(out, work)
         os.replace(work, out)
     except OSError as exc:
         with contextlib.suppress(OSError):
@@ -822,11 +842,11 @@ def export_csv(recording: Recording, out: str | Path) -> Path:
         values = recording.forces_n
     n = min(values.shape[0], recording.n_samples)
     table = np.column_stack([recording.time_s[:n], values[:n]])
-    try:
-        with out.open("w", newline="", encoding="utf-8") as handle:
-            csv.writer(handle).writerow(["time_s", *recording.channels])
-            np.savetxt(handle, table, delimiter=",", fmt="%.10g")
-    except OSError as exc:
-        raise OSError(f"cannot write {out}: {exc.strerror or exc}") from exc
+    def write(handle: TextIO) -> None:
+        csv.writer(handle).writerow(["time_s", *recording.channels])
+        np.savetxt(handle, table, delimiter=",", fmt="%.10g")
+
+    # All or nothing: a failure (disk full, a folder at OUT) never leaves half a CSV over an earlier export.
+    write_atomically(out, write)
     return out
 

@@ -94,3 +94,15 @@ def test_teach_captures_the_limp_robot_settled_over_the_obstacle(install_fast_si
     assert angles[[2, 4, 6, 8]] == pytest.approx(np.full(4, wrap), abs=0.1)  # conformed to the obstacle
     assert np.abs(angles[1::2]).max() < 0.05  # yaw joints stay straight
     assert all(lab.chain.register(sid, "Torque Enable") == 1 for sid in config.robot.joint_ids)  # then holds
+
+
+def test_a_short_run_prints_progress_and_a_summary(tmp_path, capsys):
+    out = tmp_path / "short.h5"
+    code = main(["experiment", "obstacle", "--out", str(out), "--seconds", "1", "--settle", "1"])
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("t = ") and "real time" in line and "shift" in line for line in lines)  # progress
+    summary = "\n".join(lines)
+    assert "simulated 2." in summary and "real time" in summary  # 1 s settle + 1 s played
+    assert "median total bottom force" in summary and f"wrote {out}" in summary
+    assert open_recording(out).time_s[-1] == pytest.approx(1.0, abs=0.1)

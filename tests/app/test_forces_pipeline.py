@@ -71,3 +71,37 @@ def test_unusable_entry_is_explained_and_clock_restart_recovers(tmp_path):
     assert np.isnan(backwards_inside.force_n).all() and "backwards" in pipeline.last_block_problem
     with pytest.raises(ValueError, match="estimator"):
         pipeline.set_estimator("magic")
+
+
+def test_degenerate_sls_fit_shows_conductance_and_says_why(tmp_path):
+    """The live view never uses a fit that 'sensnake fit' marked degenerate (estimate refuses it too)."""
+    degenerate = sls_entry() | {"degenerate": True,
+                                "degenerate_reasons": ["no creep is resolved: τ → 0 and τ → ∞ both look elastic"]}
+    pipeline = ForcesPipeline(NAMES)
+    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S01L": degenerate, "S01R": sls_entry()}))
+    assert pipeline.status[NAMES.index("S01L")] == UNCALIBRATED
+    assert pipeline.status[NAMES.index("S01R")] == CALIBRATED
+    assert any("S01L" in p and "degenerate" in p and "no creep is resolved" in p for p in pipeline.problems)
+    out = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3e-4))
+    assert np.isnan(out.force_n[:, NAMES.index("S01L")]).all()
+    assert out.display[0, NAMES.index("S01L")] == pytest.approx(300.0)  # µS, labelled uncalibrated
+
+
+def test_live_glitch_above_the_boards_ceiling_is_rejected_not_fed_to_the_creep_state(tmp_path):
+    from app.core.live_session import LiveSession
+    from devices.config import BoardConfig
+    from models.sls import ForceStatus
+
+    pipeline = ForcesPipeline(NAMES)
+    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S06B": sls_entry()}))
+    LiveSession(BoardConfig(), pipeline=pipeline)  # the session gives the pipeline its board's 1/R_C
+    column = NAMES.index("S06B")
+    t = np.arange(0, 20, 1 / 30)
+    truth = np.asarray(conductance_from_force(t, np.full(t.size, 3.0), TYPICAL_SLS, TYPICAL_AREA_M2,
+                                              DEFAULT_PHYSICS)).ravel()
+    conductance = np.full((t.size, 36), 2e-4)
+    conductance[:, column] = truth
+    conductance[300, column] = 1e300
+    out = pipeline.process(t, conductance)
+    assert out.status[300, column] == ForceStatus.ABOVE_CEILING and np.isnan(out.force_n[300, column])
+    assert np.allclose(out.force_n[301:, column], 3.0, rtol=1e-6)  # the state never saw the glitch

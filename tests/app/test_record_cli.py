@@ -92,6 +92,8 @@ def test_port_that_cannot_be_opened_is_one_line(tmp_path, capsys):
     assert code == 1
     line = one_error_line(capsys.readouterr().err)
     assert "cannot open board port" in line and "ttyNOPE" in line
+    # The OS's words once, not pyserial's echo ("[Errno 2] could not open port …: [Errno 2] No such file …").
+    assert "No such file or directory" in line and "[Errno" not in line and line.count("ttyNOPE") == 1, line
 
 
 def test_channel_count_mismatch_fails_naming_both_counts(fast_board, tmp_path, capsys):
@@ -202,3 +204,33 @@ def test_an_out_path_that_cannot_be_written_is_one_line_naming_it(fast_board, tm
     for internal in ("errno =", "flags =", "o_flags", ".partial", "Unable to"):
         assert internal not in line, line
     assert blocker.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]
+
+
+def test_a_recording_gets_the_umask_or_keeps_the_mode_of_the_file_it_replaces(fast_board, tmp_path, capsys):
+    """Issue 15 item 10 for recordings (record and repair): never a surprise 0600, never a lost 0640."""
+    import os
+    import stat
+
+    def mode(path: Path) -> int:
+        return stat.S_IMODE(path.stat().st_mode)
+
+    previous = os.umask(0o022)
+    try:
+        out = tmp_path / "rec.h5"
+        for mask, expected in ((0o022, 0o644), (0o077, 0o600)):
+            os.umask(mask)
+            out.unlink(missing_ok=True)
+            assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(out)]) == 0
+            assert mode(out) == expected, f"umask {mask:03o}: {mode(out):03o}"
+        os.chmod(out, 0o640)
+        assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(out)]) == 0
+        assert mode(out) == 0o640
+        fixed = tmp_path / "fixed.h5"
+        fixed.write_bytes(b"old")
+        os.chmod(fixed, 0o604)
+        assert main(["repair", str(out), "--out", str(fixed)]) == 0
+        assert mode(fixed) == 0o604 and open_recording(fixed).n_samples == open_recording(out).n_samples
+    finally:
+        os.umask(previous)
+    capsys.readouterr()
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -1,0 +1,74 @@
+"""scripts/fault_matrix.py: its judge can fail a case, it covers every item of issue 15, and one real case runs
+end to end (the whole matrix takes minutes of real-time recordings; the tests it mirrors are in tests/app and
+tests/devices)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux pseudo-terminals")
+
+
+@pytest.fixture(scope="module")
+def matrix():
+    spec = importlib.util.spec_from_file_location("fault_matrix", ROOT / "scripts" / "fault_matrix.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["fault_matrix"] = module  # its dataclasses look their module up
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop("fault_matrix", None)
+
+
+def test_the_judge_fails_tracebacks_extra_lines_wrong_codes_and_leaked_internals(matrix):
+    run = matrix.Run
+    good = run(1, "", "sensnake record: error: cannot create recording /x/r.h5: the folder /x does not exist\n")
+    assert matrix.clean_failure(good, 1, "/x/r.h5") == (True, good.err.strip())
+    hdf5 = ("sensnake record: error: cannot create recording /x/r.h5: Unable to synchronously create file (unable to "
+            "open file: name = '/x/.r.h5.1.partial', errno = 2, error message = 'No such file', flags = 13, "
+            "o_flags = 242)\n")
+    for bad, why in ((run(1, "", hdf5), "internals"),
+                     (run(1, "", "Traceback (most recent call last):\n" + good.err), "traceback"),
+                     (run(1, "", good.err * 2), "2 error lines"),
+                     (run(0, "", good.err), "exit 0"),
+                     (run(1, "", "sensnake fit: error: 'utf-8' codec can't decode byte 0x80\n"), "internals")):
+        ok, note = matrix.clean_failure(bad, 1)
+        assert not ok and why in note, note
+    assert not matrix.clean_failure(good, 1, "S99Z")[0]  # a message that does not name the cause
+
+
+def test_every_item_of_issue_15_has_cases(matrix):
+    names = " | ".join(matrix.CASES)
+    for words in (["re-plugged"],  # 1 a re-plugged board is a new clock segment
+                  ["silent, existing --out", "wrong channel count, existing --out"],  # 2 a failed record
+                  ["kill -9", "SIGTERM", "SIGHUP"],  # 3 signals leave a plain-h5py file
+                  ["truncated at 99.9%"],  # 4 salvage
+                  ["reboots mid-play"],  # 5
+                  ["beyond the joint limits"],  # 6
+                  ["cable pulled for good"],  # 7
+                  ["bus killed mid-play"],  # 8
+                  ["counts > 4095", "48 channels"],  # 9
+                  ["umask"],  # 10
+                  ["binary shape", "binary config", "write error", "S99Z", "negative force",
+                   "--out in a missing folder"],  # 11
+                  ["5% garbage + 5% CRC flips + 2% drops"]):  # issue 14
+        for word in words:
+            assert word in names, word
+
+
+def test_a_case_runs_end_to_end_and_the_figure_is_printed():
+    done = subprocess.run([sys.executable, "scripts/fault_matrix.py", "--only", "--out in a missing folder"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "cases tried / handled cleanly: 1 / 1" in done.stdout
+    assert done.stdout.startswith("ok ") and "cannot create recording" in done.stdout
