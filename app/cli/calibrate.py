@@ -32,6 +32,7 @@ import threading
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from app.cli.fit import _physics, print_report
 from app.core import calfiles, calibration_fit
@@ -56,6 +57,9 @@ from devices.board import BoardReader
 from devices.config import LabConfig, load_config
 from devices.errors import DeviceError
 from devices.rig import CalibrationRig
+
+if TYPE_CHECKING:  # pragma: no cover
+    from devices.factory import SimPorts
 
 EXIT_REFUSED = 1
 EXIT_INTERRUPTED = 130
@@ -87,15 +91,15 @@ def _settings(args: argparse.Namespace, config: LabConfig) -> ProtocolSettings:
     forces = parse_forces(args.forces) if args.forces is not None else PAPER_FORCES_N
     value = {key: getattr(args, key) if getattr(args, key) is not None else default
              for key, default in DEFAULTS.items()}
-    return ProtocolSettings(forces_n=forces, trials_per_force=value["trials"], hold_s=value["hold"],
+    return ProtocolSettings(forces_n=forces, trials_per_force=int(value["trials"]), hold_s=value["hold"],
                             sample_rate_hz=value["rate"], rest_s=value["rest"], baseline_s=value["baseline"],
                             ramp_s=value["ramp"], sensor=(args.sensor or config.rig.sensor).strip(),
                             area_m2=args.area if args.area is not None else config.rig.area_m2)
 
 
-def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[bool, object | None]:
-    """The simulated lab behind ``sim`` ports, from this config, at ``time_scale``. Returns (installed, the lab it
-    replaced, to put back)."""
+def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[Any, SimPorts | None]:
+    """The simulated lab behind ``sim`` ports, from this config, at ``time_scale``. Returns (the lab installed or
+    None with real ports, the lab it replaced, to put back)."""
     uses_sim = factory.is_sim(config.rig.port) or factory.is_sim(config.board.port)
     if time_scale is not None:
         if not (math.isfinite(time_scale) and time_scale > 0):
@@ -103,9 +107,8 @@ def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[bool, obj
         if not (factory.is_sim(config.rig.port) and factory.is_sim(config.board.port)):
             raise ValueError("--time-scale only runs the simulated lab faster: use it with --rig sim --daq sim")
     if not uses_sim:
-        return False, None
-    _lab, previous = factory.start_sim_lab(config, speed=time_scale or 1.0)
-    return True, previous
+        return None, None
+    return factory.start_sim_lab(config, speed=time_scale or 1.0)
 
 
 class _ProgressLine:
@@ -269,10 +272,9 @@ def run(args: argparse.Namespace) -> int:
                       file=sys.stderr)
                 return EXIT_INTERRUPTED if outcome.status == "interrupted" else EXIT_REFUSED
     finally:
-        if installed:
-            lab = factory.install_sim_lab(previous_lab)  # type: ignore[arg-type]
-            if lab is not None:
-                lab.close()
+        if installed is not None:
+            factory.install_sim_lab(previous_lab)
+            installed.close()
     paths = [p for _, p in sorted(finished_trials(folder, settings).items())]
     trials = calibration_fit.read_trials(paths)
     fit = calibration_fit.fit_trials(trials, settings.sensor, settings.area_m2, physics, config.board,
