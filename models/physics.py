@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
 # CODATA 2022 (h and e are exact in the SI since 2019; m_e is CODATA 2022, what scipy.constants 1.15+ carries).
 # Literals, not ``scipy.constants``: importing that pulls in scipy's array-API layer and numpy.f2py (~0.2-0.4 s),
 # the largest single cost of opening the app (the simulated lab's sensor models import this module).
