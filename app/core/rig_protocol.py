@@ -453,8 +453,9 @@ class ProtocolRunner:
                 raise _Stopped
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
         rig.release()
-        host_t, board_c, board_t = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times, period, board_times_on_host_clock(host_t, board_t), board_c)
+        snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
+        conductance = decimate_to(times, period, board_times_on_host_clock(snap_host_t, snap_board_t),
+                                  snap_conductance)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)
