@@ -11,9 +11,10 @@ Fitting (``sensnake fit --fit-rate/--solver``): the paper's 4 forces, 370 s tria
 0.2 % noise, known truth; error = the largest relative error of E0, E1, mu1 (%). Time = process time of
 :func:`models.calibration.calibrate_sensor`.
 
-"Within 1 % of the best error": error ≤ 1.01 × the best (+1e-12 N for estimation). The fitting errors come from one
-noise draw: a mode whose error is lower by chance can win; times are one core on a shared machine: noisy, repeat
-before concluding.
+"Within 1 % of the best error": errors are relative (fitting: % of the true parameter; estimation: RMS error in % of
+the mean applied force), and a mode qualifies when its error is at most the best one + 1 percentage point. Among
+the qualifying modes the fastest wins; times within 5 % of each other are timing noise on this shared machine and
+count as a tie, which the CLI default keeps. Times are one core, process time: noisy, repeat before concluding.
 Run: ``python -m benchmarks.bench_pareto [--quick]``.
 """
 
@@ -46,9 +47,14 @@ class Row:
     default: bool  # the CLI's default mode
 
 
-def _pick(rows: list[Row], tolerance: Callable[[float], float]) -> Row:
-    best = min(r.error for r in rows)
-    return min((r for r in rows if r.error <= tolerance(best)), key=lambda r: r.time)
+def _pick(rows: list[Row], percent: Callable[[float], float]) -> Row:
+    """The fastest row whose error (in % via ``percent``) is within 1 percentage point of the best; a CLI default
+    within 5 % of its time is a tie and is kept."""
+    best = min(percent(r.error) for r in rows)
+    qualifying = [r for r in rows if percent(r.error) <= best + 1.0]
+    fastest = min(qualifying, key=lambda r: r.time)
+    default = next((r for r in qualifying if r.default), None)
+    return default if default is not None and default.time <= 1.05 * fastest.time else fastest
 
 
 def _estimation_table(quick: bool) -> None:
@@ -80,15 +86,18 @@ def _estimation_table(quick: bool) -> None:
                              f"{'float32' if float32 else 'float64'} {interp}")
                     rows.append(Row(label, best_dt / (n * n_sensors) * 1e9, err,
                                     engine == "compiled" and contact and not float32 and interp == "hold"))
-    pick = _pick(rows, lambda best: best * 1.01 + 1e-12)
+    mean_force = float(np.mean(force))
+    pick = _pick(rows, lambda err: 100 * err / mean_force)
     print(f"\nestimation: {n_sensors} sensors at {rate_hz:g} Hz, {seconds:g} s, typical sensor with the contact term, "
           f"{NOISE_REL:.1%} noise")
-    header = f"{'mode (sensnake estimate)':<40} {'ns/sample':>10} {'M samples/s':>12} {'RMS err N':>10}  note"
+    header = (f"{'mode (sensnake estimate)':<40} {'ns/sample':>10} {'M samples/s':>12} {'RMS err N':>10} "
+              f"{'err %':>7}  note")
     print(header)
     print("-" * len(header))
     for r in sorted(rows, key=lambda r: r.time):
         note = ("CLI default" if r.default else "") + ("; fastest within 1 %" if r is pick else "")
-        print(f"{r.label:<40} {r.time:10.1f} {1e3 / r.time:12.2f} {r.error:10.5f}  {note.strip('; ')}")
+        print(f"{r.label:<40} {r.time:10.1f} {1e3 / r.time:12.2f} {r.error:10.5f} {100 * r.error / mean_force:7.3f}"
+              f"  {note.strip('; ')}")
 
 
 def _throughput(quick: bool) -> None:
@@ -115,22 +124,29 @@ def _throughput(quick: bool) -> None:
 def _fitting_table(quick: bool) -> None:
     phys = PhysicsConstants()
     rate_hz = 50.0 if quick else 100.0
-    trials = paper_protocol(TYPICAL_TRUTH, phys, seed=3, repeats=1, noise_rel=0.002, rate_hz=rate_hz)
-    inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
+    seeds = (3,) if quick else (3, 4, 5)
     truth = TYPICAL_TRUTH.params_at(3.0)
-    rows: list[Row] = []
-    for fit_rate in (0.0, 30.0, 10.0, 5.0):
-        for solver in ("gauss-newton", "scipy"):
+    modes = [(fit_rate, solver) for fit_rate in (0.0, 30.0, 10.0, 5.0) for solver in ("gauss-newton", "scipy")]
+    times = {mode: 0.0 for mode in modes}
+    errors: dict[tuple[float, str], list[float]] = {mode: [] for mode in modes}
+    for seed in seeds:
+        trials = paper_protocol(TYPICAL_TRUTH, phys, seed=seed, repeats=1, noise_rel=0.002, rate_hz=rate_hz)
+        inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
+        for fit_rate, solver in modes:
             start = time.process_time()
             cal = calibrate_sensor(inputs, TYPICAL_TRUTH.area_m2, phys, saturation_s=1 / 900, solver=solver,
                                    fit_rate_hz=fit_rate or None)
-            dt = time.process_time() - start
-            err = max(abs(float(getattr(cal.sls, n)) / float(getattr(truth, n)) - 1)
-                      for n in ("E0_Pa", "E1_Pa", "mu1_Pa_s"))
-            label = f"--fit-rate {fit_rate:g} --solver {solver}" if fit_rate else f"every sample, --solver {solver}"
-            rows.append(Row(label, dt, 100 * err, fit_rate == DEFAULT_FIT_RATE_HZ and solver == DEFAULT_SOLVER))
-    pick = _pick(rows, lambda best: best * 1.01)
-    print(f"\nfitting: 4 trials × 370 s at {rate_hz:g} Hz (0.2 % noise), known truth; error = worst of E0, E1, mu1")
+            times[(fit_rate, solver)] += (time.process_time() - start) / len(seeds)
+            errors[(fit_rate, solver)].append(max(abs(float(getattr(cal.sls, n)) / float(getattr(truth, n)) - 1)
+                                                  for n in ("E0_Pa", "E1_Pa", "mu1_Pa_s")))
+    rows: list[Row] = []
+    for fit_rate, solver in modes:
+        label = f"--fit-rate {fit_rate:g} --solver {solver}" if fit_rate else f"every sample, --solver {solver}"
+        rows.append(Row(label, times[(fit_rate, solver)], 100 * float(np.mean(errors[(fit_rate, solver)])),
+                        fit_rate == DEFAULT_FIT_RATE_HZ and solver == DEFAULT_SOLVER))
+    pick = _pick(rows, lambda err: err)  # already in %
+    print(f"\nfitting: 4 trials × 370 s at {rate_hz:g} Hz (0.2 % noise), known truth; error = worst of E0, E1, mu1, "
+          f"mean over {len(seeds)} noise draw(s)")
     header = f"{'mode (sensnake fit)':<40} {'CPU s':>7} {'max param err %':>16}  note"
     print(header)
     print("-" * len(header))
@@ -139,13 +155,18 @@ def _fitting_table(quick: bool) -> None:
         print(f"{r.label:<40} {r.time:7.2f} {r.error:16.3f}  {note.strip('; ')}")
 
 
-def run(quick: bool) -> None:
-    _throughput(quick)
-    _estimation_table(quick)
-    _fitting_table(quick)
+def run(quick: bool, only: str = "") -> None:
+    if only in ("", "throughput"):
+        _throughput(quick)
+    if only in ("", "estimation"):
+        _estimation_table(quick)
+    if only in ("", "fitting"):
+        _fitting_table(quick)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter records")
-    run(parser.parse_args().quick)
+    parser.add_argument("--only", choices=("throughput", "estimation", "fitting"), default="")
+    arguments = parser.parse_args()
+    run(arguments.quick, arguments.only)

@@ -143,13 +143,19 @@ GUI_TABS = ("forces", "gait", "hardware")
 ALL_TABS = ("teach", "gait", "calibration", "forces", "hardware", "scene")
 
 
-def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | None = None) -> None:
+def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | None = None,
+              chain: str = "sim", prebuild: bool = False) -> None:
     """The loop inside the running app: GUI thread, board reader and the simulated devices share the interpreter.
     The Forces tab plots the board's 36 channels live; a wave motion writes goals every tick.
 
     Without ``rotate_s``: one ``seconds`` window per tab in ``tabs``. With it: one window of ``seconds`` per case in
     which the shown tab changes every ``rotate_s`` through ``tabs`` (every tab live in turn); periods are collected
-    in chunks, so the window may be longer than the controller's period history."""
+    in chunks, so the window may be longer than the controller's period history.
+
+    ``chain="pty"``: the robot is the independent emulator of twelve XM430s in its own process on a pty (as real
+    servos are outside the app), the board and the rest of the lab stay simulated in the app. ``prebuild``: show
+    every tab once before the motion starts (a tab is built on its first show; building the 3-D lab takes the
+    interpreter for a while, once per session)."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     from PySide6.QtCore import QEventLoop, QTimer
@@ -162,11 +168,13 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     from devices.sim.lab import SimLab
 
     shown = f"every {rotate_s:g} s through {'/'.join(tabs)}" if rotate_s else "per tab"
-    print(f"(d) control loop in the running app ({os.environ['QT_QPA_PLATFORM']}, sim lab, wave motion, board "
+    where = "robot on the independent pty chain" if chain == "pty" else "sim lab"
+    print(f"(d) control loop in the running app ({os.environ['QT_QPA_PLATFORM']}, {where}, wave motion, board "
           f"streaming 36 channels), {seconds:g} s {shown}. Targets: 50 Hz p99 jitter ≤ 2 ms and no late tick; "
           "100 Hz (return delay 0) p99 jitter ≤ 2 ms")
     print(f"    {'rate Hz':>8} {'RDT µs':>7} {'tab':>9} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} "
-          f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6}   (ms; CPU: the whole process, % of one core)")
+          f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6} {'bursts':>7}   (ms; CPU: the whole process, % of one "
+          "core; bursts: runs of ≥ 5 consecutive periods > 1.25 periods)")
     app = QApplication.instance() or QApplication([])
     loop = QEventLoop()
 
@@ -179,8 +187,15 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     base = load_config(None).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
     for rate, delay in cases:
         config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
+        emulator = None
+        if chain == "pty":
+            from tests.emulators.xm430_emulator import EmulatorProcess
+
+            emulator = EmulatorProcess()
+            config = config.with_ports(robot=emulator.path)
         previous = factory.install_sim_lab(SimLab(config))
         with ServoChain(config.robot) as servos:  # the Hardware tab's Return Delay Time button, before connecting
+            servos.check_models()
             servos.set_return_delay(delay * 2)
         lab = LabContext(config)
         window = MainWindow(lab)
@@ -193,6 +208,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 continue
             lab.robot.set_torque(True)
             spin(0.3)
+            for tab in tabs if prebuild else ():  # each tab is built on its first show (once per session)
+                window.show_tab(tab)
+                spin(0.5)
             lab.robot.run_motion(_Wave(), "bench wave")
             windows = [(tab, seconds) for tab in tabs] if not rotate_s else [("rotating", seconds)]
             for name, length in windows:
@@ -220,6 +238,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             window.close()
             lab.close()
             factory.install_sim_lab(previous)
+            if emulator is not None:
+                emulator.close()
     del app
 
 
@@ -228,8 +248,16 @@ def _print_window(rate: float, delay_us: int, name: str, ticks: int, missed: int
     ms = periods * 1e3
     jitter = np.abs(ms - 1e3 / rate)
     print(f"    {rate:8.0f} {delay_us:7d} {name:>9} {ticks:7d} {missed:7d} {late:6d} {np.median(ms):11.2f} "
-          f"{np.percentile(ms, 99):7.2f} {ms.max():7.2f} {np.percentile(jitter, 99):11.2f} {cpu:6.0f}   {note}",
-          flush=True)
+          f"{np.percentile(ms, 99):7.2f} {ms.max():7.2f} {np.percentile(jitter, 99):11.2f} {cpu:6.0f} "
+          f"{_bursts(periods, rate):7d}   {note}", flush=True)
+
+
+def _bursts(periods_s: np.ndarray, rate_hz: float, run: int = 5) -> int:
+    """Runs of ``run`` or more consecutive periods longer than 1.25 periods: the issue's bursts (~32 ticks of ~28 ms
+    at 50 Hz), as opposed to isolated late ticks."""
+    long_ = np.concatenate(([False], periods_s > 1.25 / rate_hz, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(long_))
+    return int(np.sum(edges[1::2] - edges[::2] >= run))
 
 
 def bench_pty_chain(plays: int = 1) -> None:
@@ -246,7 +274,7 @@ def bench_pty_chain(plays: int = 1) -> None:
     print("(f) sensnake play at 50 Hz on the independent pty chain (12 emulated XM430s, own process, return delay "
           "500 µs): target period p99 ≤ 22 ms, no missed tick")
     print(f"    {'rate Hz':>8} {'RDT µs':>7} {'play':>9} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} "
-          f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6}")
+          f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6} {'bursts':>7}")
     for k in range(plays):
         emulator = EmulatorProcess()
         try:
@@ -348,7 +376,8 @@ CASES = ("cycle", "late", "bare", "rates", "pty", "gui")
 
 
 def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = None, gui_rates: tuple[float, ...] = (),
-        rotate_s: float | None = None, plays: int | None = None) -> None:
+        rotate_s: float | None = None, plays: int | None = None, gui_chain: str = "sim",
+        prebuild: bool = False, tabs: tuple[str, ...] = ()) -> None:
     print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
     if "cycle" in cases:
         bench_cycle(100 if quick else 500)
@@ -365,7 +394,8 @@ def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = Non
         bench_pty_chain(plays or (1 if quick else 3))
     if "gui" in cases:
         gui_cases = tuple(c for c in GUI_CASES if not gui_rates or c[0] in gui_rates)
-        bench_gui(seconds or (4.0 if quick else 15.0), gui_cases, ALL_TABS if rotate_s else GUI_TABS, rotate_s)
+        bench_gui(seconds or (4.0 if quick else 15.0), gui_cases, tabs or (ALL_TABS if rotate_s else GUI_TABS), rotate_s,
+                  gui_chain, prebuild)
     print(f"machine load average (1 min) at the end: {os.getloadavg()[0]:.2f}")
 
 
@@ -381,5 +411,12 @@ if __name__ == "__main__":
     parser.add_argument("--rotate", type=float, metavar="S",
                         help="gui case: one window per rate, the shown tab changing every S s through all six tabs")
     parser.add_argument("--plays", type=int, help="pty case: number of full plays")
+    parser.add_argument("--gui-chain", choices=("sim", "pty"), default="sim",
+                        help="gui case: the robot on the simulated lab (default) or the independent pty emulator")
+    parser.add_argument("--prebuild", action="store_true",
+                        help="gui case: show every tab once before measuring (tabs are built on first show)")
+    parser.add_argument("--tabs", help=f"gui case: comma-separated tabs to show (default: with --rotate all of "
+                        f"{','.join(ALL_TABS)}, else {','.join(GUI_TABS)})")
     args = parser.parse_args()
-    run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays)
+    run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays, args.gui_chain,
+        args.prebuild, tuple(args.tabs.split(",")) if args.tabs else ())

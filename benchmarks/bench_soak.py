@@ -11,6 +11,7 @@ single-minute CPU deviation is printed too: on a shared machine it follows the n
 
 Runs on its own Xvfb with Qt's xcb platform (real paints), like ``bench_forces_gui``; ``--offscreen`` skips X.
     python -m benchmarks.bench_soak [--minutes 30] [--speed 10] [--tab forces]
+``sensnake bench`` runs it as 30 simulated minutes at 6× (``--quick``: 8 at 12×).
 CPU figures are noisy on a shared machine: the load average is printed with them.
 """
 
@@ -150,6 +151,17 @@ def flatness(rows: list[dict]) -> dict:
             "per_sample_ms": float(np.median([r["cpu_ms_per_sample"] for r in later])),
             "per_redraw_ms": float(np.median([r["gui_ms_per_redraw"] for r in later])),
             "load": float(np.median([r["load"] for r in later]))}
+
+
+def run(quick: bool) -> None:
+    """For ``sensnake bench``: the soak in its own process (its own Xvfb, Qt on xcb): 30 simulated minutes at 6×
+    (5 wall minutes), or with ``quick`` 8 simulated minutes at 12× (40 s: too short to judge, shows it runs)."""
+    import subprocess
+
+    minutes, speed = ("8", "12") if quick else ("30", "6")
+    code = subprocess.call([sys.executable, "-m", "benchmarks.bench_soak", "--minutes", minutes, "--speed", speed])
+    if code not in (0, 1):  # 1 = ran, not flat: the table says why
+        raise RuntimeError(f"bench_soak exited with {code}")
 
 
 def main() -> None:

@@ -47,6 +47,7 @@ PARAM_NAMES = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
 MODES = ("joint", "trend", "per_trial")
 LOG_PARAM_BOUND = math.log(1e6)  # log-parameters stay within 10^±6 of the starting scale
 _FD_STEP = 1e-7  # relative step in the log-parameters: ~√eps, the model is smooth
+_COST_CHUNK_SAMPLES = 1_000_000  # model samples (columns × time steps) per batched candidate run in trial_costs
 
 
 @dataclass(frozen=True)
@@ -444,9 +445,17 @@ def trial_costs(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstan
     run (the candidates are extra columns). Used to pick starting values that are not on a plateau."""
     problem = _Problem(trials, area_m2, phys, candidates[0], "joint", saturation_s, min_force_fraction, interp)
     params = np.array([[float(getattr(c, n)) for n in PARAM_NAMES] for c in candidates])
-    stacked = np.broadcast_to(params[None, :, :], (len(problem.trials), len(candidates), 3))
-    blocks = problem.residual_blocks(problem.conductance(np.ascontiguousarray(stacked)))
-    return np.array([[_sumsq(block[:, k]) for block in blocks] for k in range(len(candidates))])
+    # Candidates in chunks of ≤ _COST_CHUNK_SAMPLES model samples per call: the batched run's temporaries scale with
+    # columns × samples (40 candidates × 12 trials × 11 000 samples was ~0.3 GB at once).
+    n_samples = sum(t.time_s.size for t in problem.trials)
+    chunk = max(1, _COST_CHUNK_SAMPLES // max(n_samples, 1))
+    costs = np.empty((len(candidates), len(problem.trials)))
+    for lo in range(0, len(candidates), chunk):
+        part = params[lo:lo + chunk]
+        stacked = np.broadcast_to(part[None, :, :], (len(problem.trials), part.shape[0], 3))
+        blocks = problem.residual_blocks(problem.conductance(np.ascontiguousarray(stacked)))
+        costs[lo:lo + part.shape[0]] = [[_sumsq(block[:, k]) for block in blocks] for k in range(part.shape[0])]
+    return costs
 
 
 def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,

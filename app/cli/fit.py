@@ -4,9 +4,9 @@
 Fits the linear and SLS models of one sensor to its calibration trials (models.calibration), writes them into the
 calibration file (created, or updated with other sensors kept) and prints a per-trial table. Samples at the readout's
 ceiling ``1/R_C`` (``board.r_c_ohm`` of ``--config``, else the default circuit) are saturated and not fitted. Runs
-on the CLI's main thread. ``--solver`` (or ``SENSNAKE_FIT_SOLVER``) ``scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default: CasADi
-Gauss–Newton; scipy is the cross-check). ``--fit-rate`` (default 10 Hz) block-averages faster trials before the
-fit (models.calibration.decimate_trial): a 1 kHz calibration costs about what a 10 Hz one does.
+on the CLI's main thread. ``--solver`` (or ``SENSNAKE_FIT_SOLVER``) ``scipy|gauss-newton|ipopt|sqpmethod`` picks the joint-fit solver (default scipy, the
+fastest at the same error; CasADi is the cross-check). ``--fit-rate`` (default 5 Hz) block-averages faster trials before the
+fit (models.calibration.decimate_trial): a 1 kHz calibration costs about what a 5 Hz one does.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from models.calibration import (
 )
 from models.physics import PhysicsConstants
 
-# The joint-fit solver; SENSNAKE_FIT_SOLVER picks another (default CasADi Gauss–Newton; scipy is the cross-check).
+# The joint-fit solvers; --solver or SENSNAKE_FIT_SOLVER picks one (default models.calibration.DEFAULT_SOLVER).
 SOLVERS = ("scipy", "gauss-newton", "ipopt", "sqpmethod")
 
 

@@ -3,6 +3,10 @@
 With no config the packaged default (every device on the simulated lab) is used; ``--sim`` forces every port to
 ``sim``. The robot (and the board, when its bridge is part of the build) connect at start-up on worker threads.
 
+SIGTERM, SIGHUP (a closed terminal, a logout) and Ctrl-C close the window as its close button does — a recording
+in progress is closed and kept, the devices are released, the settings saved — and the app exits 128 + the signal
+number, like ``sensnake record``.
+
 ``SENSNAKE_QUIT_AFTER_MS=N`` closes the window N ms after start-up and prints the status bar's device lines, so a
 smoke test can run the real start-up offscreen (``QT_QPA_PLATFORM=offscreen``) and check what it reached.
 """
@@ -10,9 +14,13 @@ smoke test can run the real start-up offscreen (``QT_QPA_PLATFORM=offscreen``) a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 QUIT_AFTER_ENV = "SENSNAKE_QUIT_AFTER_MS"
 
@@ -40,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
         window.config_path = Path(args.config)
         window.setWindowTitle(f"{APP_NAME} — {window.config_path.name}")
     window.show()
+    closed_by, restore_signals = close_on_signals(app, window)
     lab.connect_all()
 
     if quit_after_ms is not None:
@@ -53,9 +62,58 @@ def run(args: argparse.Namespace) -> int:
 
         QTimer.singleShot(quit_after_ms, report_and_close)
 
-    exit_code = app.exec()
+    try:
+        exit_code = app.exec()
+    finally:
+        restore_signals()
     window.lab.close()  # the window closes it already; a second call is a no-op, kept for app.quit() paths
+    signum = closed_by()
+    if signum is not None:
+        print(f"sensnake gui: closed by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + signum
     return int(exit_code)
+
+
+STOP_SIGNALS = tuple(s for s in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
+                     if s is not None)
+
+
+def close_on_signals(app: Any, window: Any) -> tuple[Callable[[], int | None], Callable[[], None]]:
+    """Make SIGINT, SIGTERM and SIGHUP close ``window`` from Qt's event loop (main thread only).
+
+    Python runs a signal handler only between bytecodes, which never happen while Qt's loop waits; so the C-level
+    handler's wake-up byte (:func:`signal.set_wakeup_fd`) goes through a pipe that a ``QSocketNotifier`` watches.
+    Returns (the signal that closed the window or None, a function restoring the previous handlers).
+    """
+    from PySide6.QtCore import QSocketNotifier
+
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(read_fd, False)
+    os.set_blocking(write_fd, False)
+    previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    previous = {s: signal.signal(s, lambda *_: None) for s in STOP_SIGNALS}  # the wake-up byte does the work
+    received: list[int] = []
+    notifier = QSocketNotifier(read_fd, QSocketNotifier.Type.Read, app)
+
+    def on_signal() -> None:
+        with contextlib.suppress(BlockingIOError):
+            received.extend(os.read(read_fd, 64))
+        if received and window.isVisible():
+            window.close()
+
+    notifier.activated.connect(on_signal)
+
+    def restore() -> None:
+        notifier.setEnabled(False)
+        notifier.deleteLater()
+        signal.set_wakeup_fd(previous_fd)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for fd in (read_fd, write_fd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    return (lambda: received[0] if received else None), restore
 
 
 def _quit_after_ms() -> int | None:

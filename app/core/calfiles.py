@@ -16,9 +16,10 @@ import math
 import os
 import secrets
 import stat
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -248,6 +249,12 @@ def write_trial_csv(path: str | os.PathLike, time_s: np.ndarray, force_n: np.nda
                                                         header=header, comments=""))
 
 
+def write_atomically(path: str | os.PathLike, write: Callable[[TextIO], object]) -> None:
+    """``write(handle)`` into a new text file at ``path``, all or nothing (see :func:`_atomic_write`); for writers
+    outside this module (a recording's CSV export)."""
+    _atomic_write(Path(path), write)
+
+
 def _atomic_write(path: Path, write) -> None:
     """Write through a temporary file in the same folder so a crash never leaves a half-written file.
 
@@ -256,7 +263,8 @@ def _atomic_write(path: Path, write) -> None:
     """
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
-        raise CalFileError(f"{path}: folder {folder} does not exist")
+        what = f"{folder} is not a folder" if folder.exists() else f"folder {folder} does not exist"
+        raise CalFileError(f"{path}: {what}")
     try:
         fd, temp_name = _create_temporary(folder, path.name)
     except OSError as exc:

@@ -34,10 +34,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TextIO
 
 import h5py
 import numpy as np
+
+from app.core.calfiles import write_atomically
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -840,11 +842,11 @@ def export_csv(recording: Recording, out: str | Path) -> Path:
         values = recording.forces_n
     n = min(values.shape[0], recording.n_samples)
     table = np.column_stack([recording.time_s[:n], values[:n]])
-    try:
-        with out.open("w", newline="", encoding="utf-8") as handle:
-            csv.writer(handle).writerow(["time_s", *recording.channels])
-            np.savetxt(handle, table, delimiter=",", fmt="%.10g")
-    except OSError as exc:
-        raise OSError(f"cannot write {out}: {exc.strerror or exc}") from exc
+    def write(handle: TextIO) -> None:
+        csv.writer(handle).writerow(["time_s", *recording.channels])
+        np.savetxt(handle, table, delimiter=",", fmt="%.10g")
+
+    # All or nothing: a failure (disk full, a folder at OUT) never leaves half a CSV over an earlier export.
+    write_atomically(out, write)
     return out
 

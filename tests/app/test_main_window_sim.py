@@ -214,3 +214,31 @@ def test_link_check_counts_crc_errors_on_a_quiet_bus(window, qtbot, sim_lab_fast
     assert sum(crc_by_id.values()) == 2
     assert "12/12 servos answered" in panel.link_summary_label.text()
     assert "2 CRC errors" in panel.link_summary_label.text()
+
+
+def test_a_scan_from_the_hardware_tab_while_a_motion_plays_is_refused_with_the_reason(window, qtbot, sim_lab_fast):
+    # A scan holds the bus for whole periods: while a motion plays it is refused (with the bus time and the fix),
+    # sends nothing and leaves the motion running; once the motion stops, the same scan works.
+    robot = window.lab.robot
+    chain = sim_lab_fast.chain
+    panel = window.show_tab("hardware").panel
+    robot.set_torque(True).result(timeout=5)
+    robot.run_motion(JointRamp(index=2), "ramp")
+    assert robot.motion_state == MOTION_RUNNING
+    pings = chain.count(wire.PING)
+    panel.scan_id_from.setValue(1)
+    panel.scan_id_to.setValue(12)
+    qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: panel.scan_button.isEnabled(), timeout=10_000)
+    text = panel.scan_status_label.text()
+    assert text.startswith("scan stopped: scan refused while motion 'ramp' plays")
+    assert "stop the motion, then scan" in text
+    assert chain.count(wire.PING) == pings
+    assert robot.motion_state == MOTION_RUNNING
+    before = chain.goal_positions_ticks()[2]
+    qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[2] - before) > 5, timeout=5000)  # still moving
+    robot.stop_motion()
+    qtbot.waitUntil(lambda: robot.motion_state != MOTION_RUNNING, timeout=5000)
+    qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: panel.scan_button.isEnabled(), timeout=10_000)
+    assert panel.scan_result_ids == list(range(1, 13))

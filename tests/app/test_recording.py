@@ -118,6 +118,35 @@ def test_export_csv_writes_conductance_or_forces(tmp_path):
     assert np.all(forces[:, 1:] == 2.5)
 
 
+def test_an_export_that_fails_midway_leaves_the_earlier_csv_whole(tmp_path, monkeypatch, capsys):
+    """The disk fills while the CSV is written: the earlier export at OUT stays as it was, no temporary is left,
+    and the message is one line naming OUT in the OS's words."""
+    import errno
+
+    from app.cli import main
+
+    rec = tmp_path / "r.h5"
+    with RecordingWriter(rec, "", CHANNELS) as writer:
+        writer.append_daq(make_block(0, 50, time.monotonic()))
+    out = tmp_path / "r.csv"
+    out.write_text("an earlier export\n")
+    real_savetxt = np.savetxt
+
+    def disk_fills(handle, table, **kwargs):
+        real_savetxt(handle, table[:10], **kwargs)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("app.core.recording.np.savetxt", disk_fills)
+    assert main(["export", str(rec), "--csv", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"sensnake export: error: cannot write {out}: No space left on device\n", err
+    assert out.read_text() == "an earlier export\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.csv", "r.h5"]
+    monkeypatch.undo()
+    assert main(["export", str(rec), "--csv", str(out / "inside.csv")]) == 1  # OUT's folder is a file
+    assert capsys.readouterr().err == f"sensnake export: error: {out / 'inside.csv'}: {out} is not a folder\n"
+
+
 def test_disk_almost_full_stops_cleanly_and_keeps_what_was_flushed(tmp_path):
     path = tmp_path / "full.h5"
     t0 = time.monotonic()

@@ -39,8 +39,8 @@ def test_saturated_sample_keeps_its_block_censored_and_gaps_are_left_out():
 
 
 def test_1_khz_calibration_costs_little_error_against_the_truth():
-    """4 trials of 370 s at 1 kHz (1.48 M samples), fitted at the default 10 Hz: parameters within 0.2 % of the truth
-    (measured 0.03–0.05 %; the 6 Hz paper protocol's own noise-free error is ~1e-9)."""
+    """4 trials of 370 s at 1 kHz (1.48 M samples), fitted at the default 5 Hz: parameters within 0.2 % of the truth
+    (measured ~0.1 %; the 6 Hz paper protocol's own noise-free error is ~1e-9)."""
     trials = paper_protocol(TYPICAL_TRUTH, PHYS, seed=0, repeats=1, rate_hz=1000.0)
     cal = calibrate_sensor([TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials],
                            TYPICAL_TRUTH.area_m2, PHYS, saturation_s=CEILING_S)
