@@ -137,6 +137,11 @@ def main(argv: list[str] | None = None) -> int:
                 page.controls.record.click()  # recording while the robot moves: REC in the status bar
                 pump(6_000)  # the tab keeps what arrives after it opens: fill the 10 s window
             if name == "hardware":
+                # A scan holds the bus, so it is refused while a motion plays: end the gait first (the picture
+                # shows the scan list, as a user who scans would see it).
+                if lab.robot.motion_state in ("running", "paused"):
+                    lab.robot.stop_motion()
+                    pump(5_000, until=lambda: lab.robot.motion_state not in ("running", "paused"))
                 page.panel.scan_id_to.setValue(20)
                 page.panel.scan_button.click()
                 pump(20_000, until=lambda p=page: p.panel.scan_button.isEnabled())

@@ -11,7 +11,7 @@ import pytest
 
 from app.core.recording import RobotRecord, open_recording
 from app.gui.lab import LabContext
-from app.gui.tabs.forces import create_tab, onset_time_s
+from app.gui.tabs.forces import BODY_MAP, create_tab, onset_time_s
 from devices.config import LabConfig
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
@@ -195,6 +195,8 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert tab.export_plot_image(-1, tmp_path / "overlay.png").stat().st_size > 0
     svg = tab.export_plot_image(-1, tmp_path / "overlay.svg")
     assert svg is not None and "S06B" in svg.read_text(encoding="utf-8")  # the title names the sensor
+    body_svg = tab.export_plot_image(BODY_MAP, tmp_path / "body.svg")
+    assert body_svg is not None and "Body force map" in body_svg.read_text(encoding="utf-8")
     assert tab.export_plot_image(-1, tmp_path / "overlay.bmp") is None
     assert "png or .svg" in tab.controls.message.text() and not (tmp_path / "overlay.bmp").exists()
     x0 = tab.overlay.curves[0].xData

@@ -66,6 +66,7 @@ RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
 STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
+OVERLAY, BODY_MAP = -1, -2  # image export targets besides the segment plots (0 …)
 BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
 BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
@@ -198,7 +199,7 @@ class ForcesTab(QWidget):
         self.overlay_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
         overlay_menu = QMenu(self.overlay_image)
         for kind in ("png", "svg"):
-            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(-1, k))
+            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(OVERLAY, k))
         self.overlay_image.setMenu(overlay_menu)
         overlay_bar.addWidget(self.overlay_image)
         overlay_bar.addStretch(1)
@@ -220,6 +221,17 @@ class ForcesTab(QWidget):
                                         "well below it are flagged as drift, and a resting sensor that goes open "
                                         "as disconnected")
         health_bar.addWidget(self.baseline_button)
+        self.body_image = None
+        if self.body is not None:
+            self.body_image = QToolButton(side)
+            self.body_image.setText("Map image…")
+            self.body_image.setToolTip("Save the body force map as an image: PNG, or SVG (vector)")
+            self.body_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
+            body_menu = QMenu(self.body_image)
+            for kind in ("png", "svg"):
+                body_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(BODY_MAP, k))
+            self.body_image.setMenu(body_menu)
+            health_bar.insertWidget(1, self.body_image)
         side_layout.addLayout(health_bar)
         self.health_list = QListWidget(side)
         self.health_list.setMaximumHeight(140)
@@ -699,10 +711,17 @@ class ForcesTab(QWidget):
             self.export_viewed_csv(path, visible_only)
 
     def export_plot_image(self, index: int, path: str | os.PathLike) -> Path | None:
-        """Save plot ``index`` (-1: the trial overlay) as a PNG or SVG image (by the suffix); None and a message when
-        it cannot be."""
+        """Save plot ``index`` (``OVERLAY``: the trial overlay, ``BODY_MAP``: the body force map) as a PNG or SVG
+        image (by the suffix); None and a message when it cannot be."""
         try:
-            if index < 0:
+            if index == BODY_MAP:
+                if self.body is None:
+                    raise ValueError("this lab has no body map")
+                when = (f"recording {self.viewed.path.name} at t = {self.replay_time_s():.2f} s"
+                        if self.viewed is not None else "live")
+                written = save_widget_image(self.body, path, f"Body force map · {when} · full scale "
+                                                             f"{BODY_FULL_SCALE_N:g} N")
+            elif index < 0:
                 title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
                 written = save_widget_image(self.overlay.plot_widget, path, title)
             else:
@@ -714,7 +733,7 @@ class ForcesTab(QWidget):
         return written
 
     def _choose_image(self, index: int, kind: str) -> None:
-        title = "overlay" if index < 0 else self.plots.groups[index].title
+        title = {BODY_MAP: "body-map", OVERLAY: "overlay"}.get(index) or self.plots.groups[index].title
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         default = Path(user_folders.dialog_folder(recordings_dir())) / f"{title}-{stamp}.{kind}"
         path, _ = QFileDialog.getSaveFileName(self, f"Save {title} as {kind.upper()}", str(default),
