@@ -32,6 +32,7 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -77,6 +78,8 @@ class _PaintCount:
         counts = self.counts = [0] * len(widgets_)
 
         class Filter(QObject):
+            index = 0  # which widget this filter counts for
+
             def eventFilter(self, obj, event, _paint=paint):  # noqa: N802 - Qt override
                 if event.type() == _paint:
                     counts[self.index] += 1
@@ -113,7 +116,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
     try:
         _prefill(tab.force_history, prefill_s, rate_hz)
         _prefill(lab.board.history, prefill_s, rate_hz)
-        tab.controls.window.setCurrentIndex(tab.controls.window.findData(window_s))
+        tab.controls.window_combo.setCurrentIndex(tab.controls.window_combo.findData(window_s))
         board = lab.board
         board.start()
         deadline = time.monotonic() + 10
@@ -122,7 +125,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         latencies: list[float] = []
         tab.plots.redrawn.connect(
             lambda: latencies.append(time.monotonic() - (board.t0_monotonic_s + tab.plots.last_redraw_s)))
-        stalls = {"last": time.monotonic(), "last_cpu": time.thread_time(), "max": 0.0, "max_busy": 0.0, "gaps": []}
+        stalls: dict[str, Any] = {"last": time.monotonic(), "last_cpu": time.thread_time(), "max": 0.0, "max_busy": 0.0, "gaps": []}
         tick_s = 0.005
 
         def tick() -> None:
@@ -143,7 +146,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         QTimer.singleShot(1000, loop.quit)
         loop.exec()
         latencies.clear()
-        viewport = tab.plots.scroll.viewport()
+        viewport = tab.plots.scroll_area.viewport()
         shown = [plot.plot_widget.viewport() for plot in tab.plots.plots if plot.on_screen(viewport)]
         paints = _PaintCount(shown)
         stats0 = board.stats
@@ -228,7 +231,7 @@ def run(quick: bool) -> None:
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance() or QApplication([])
-    platform = app.platformName()
+    platform = QApplication.platformName()
     run_s = 3.0 if quick else 15.0
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"Qt platform: {platform}; load average {load:.1f} on {os.cpu_count()} cores (CPU and rates are noisy "

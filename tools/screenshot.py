@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             if name == "gait":
                 _stage_gait(page, pump)
             if name == "forces":
-                page.controls.window.setCurrentIndex(page.controls.window.findText("10 s"))
+                page.controls.window_combo.setCurrentIndex(page.controls.window_combo.findText("10 s"))
                 pump(4_000)
                 page.controls.record.click()  # recording while the robot moves: REC in the status bar
                 pump(6_000)  # the tab keeps what arrives after it opens: fill the 10 s window

@@ -115,7 +115,7 @@ def test_forces_space_pauses_but_types_in_the_path_field(qtbot):
     qtbot.addWidget(controls)
     show_active(qtbot, controls)
     with qtbot.waitSignal(controls.pause_toggled) as blocker:
-        qtbot.keyClick(controls.window, Qt.Key.Key_Space)
+        qtbot.keyClick(controls.window_combo, Qt.Key.Key_Space)
     assert blocker.args == [True] and controls.pause.text() == "Resume"
     qtbot.keyClick(controls, Qt.Key.Key_Space)
     assert not controls.pause.isChecked()

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from datetime import datetime
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -51,15 +52,11 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
 from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
+from widgets.body_view import BodyView
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
 from widgets.image_export import save_widget_image
 from widgets.ring_plot import TraceHistory, append_with_gaps
-
-try:
-    from widgets.body_view import BodyView
-except ImportError:  # pragma: no cover - only while widgets/body_view.py is absent
-    BodyView = None
 
 FORCE_HISTORY_BUDGET_BYTES = 96_000_000
 RECORDING_VIEW_BUDGET_BYTES = 256_000_000
@@ -145,7 +142,7 @@ class ForcesTab(QWidget):
         self.plots = ForcePlotGrid(self.channel_names, parent=self)
         self.overlay = TrialOverlayPlot(self)
         self.body = None
-        if BodyView is not None and n_channels == 3 * config.robot.n_joints:
+        if n_channels == 3 * config.robot.n_joints:
             self.body = BodyView(config.robot.axes, config.robot.segment_length_m, self)
         self._build_layout()
         self._connect()
@@ -176,7 +173,7 @@ class ForcesTab(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addWidget(self.controls)
-        splitter = QSplitter(Qt.Horizontal, self)
+        splitter = QSplitter(Qt.Orientation.Horizontal, self)
         self.views = QTabWidget(splitter)
         self.views.addTab(self.plots, "Segments")
         overlay_page = QWidget(self.views)
@@ -199,7 +196,7 @@ class ForcesTab(QWidget):
         self.overlay_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
         overlay_menu = QMenu(self.overlay_image)
         for kind in ("png", "svg"):
-            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(OVERLAY, k))
+            overlay_menu.addAction(f"Save as {kind.upper()}…", partial(self._choose_image, OVERLAY, kind))
         self.overlay_image.setMenu(overlay_menu)
         overlay_bar.addWidget(self.overlay_image)
         overlay_bar.addStretch(1)
@@ -229,7 +226,7 @@ class ForcesTab(QWidget):
             self.body_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
             body_menu = QMenu(self.body_image)
             for kind in ("png", "svg"):
-                body_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(BODY_MAP, k))
+                body_menu.addAction(f"Save as {kind.upper()}…", partial(self._choose_image, BODY_MAP, kind))
             self.body_image.setMenu(body_menu)
             health_bar.insertWidget(1, self.body_image)
         side_layout.addLayout(health_bar)
@@ -552,7 +549,7 @@ class ForcesTab(QWidget):
         """Show a recording in the plots (paused, whole length); None and a message if it cannot be read."""
         try:
             with busy_cursor():
-                recording = open_recording(path, recover=True)
+                recording = open_recording(Path(path), recover=True)
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"cannot open recording: {exc}", "error")
             return None
@@ -607,7 +604,7 @@ class ForcesTab(QWidget):
         t0, t1 = self.plots.visible_range() if visible_only else (None, None)
         try:
             with busy_cursor():
-                written, rows = export_view_csv(self.viewed, out, t0, t1, list(self.lab.config.robot.joint_ids))
+                written, rows = export_view_csv(self.viewed, Path(out), t0, t1, list(self.lab.config.robot.joint_ids))
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"not exported: {exc}", "error")
             return None
@@ -615,13 +612,13 @@ class ForcesTab(QWidget):
         self.controls.set_message(f"exported {rows} rows{span} to {written}", "ok")
         return written
 
-    def add_overlay_files(self, paths: list[str | os.PathLike]) -> int:
+    def add_overlay_files(self, paths: Sequence[str | os.PathLike]) -> int:
         """Add recordings to the trial overlay; returns how many were added."""
         added = 0
         for path in paths:
             try:
                 with busy_cursor():
-                    recording = open_recording(path)
+                    recording = open_recording(Path(path))
             except (OSError, ValueError) as exc:
                 self.controls.set_message(f"cannot open {path}: {exc}", "error")
                 continue
@@ -719,13 +716,13 @@ class ForcesTab(QWidget):
                     raise ValueError("this lab has no body map")
                 when = (f"recording {self.viewed.path.name} at t = {self.replay_time_s():.2f} s"
                         if self.viewed is not None else "live")
-                written = save_widget_image(self.body, path, f"Body force map · {when} · full scale "
+                written = save_widget_image(self.body, Path(path), f"Body force map · {when} · full scale "
                                                              f"{BODY_FULL_SCALE_N:g} N")
             elif index < 0:
                 title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
-                written = save_widget_image(self.overlay.plot_widget, path, title)
+                written = save_widget_image(self.overlay.plot_widget, Path(path), title)
             else:
-                written = self.plots.export_image(index, path)
+                written = self.plots.export_image(index, Path(path))
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"image not saved: {exc}", "error")
             return None
