@@ -92,6 +92,8 @@ class RigConfig:
     wheel_radius_m: float = 0.02
     spring_k_n_per_m: float = 246.0
     sensor: str = "S06B"
+    area_m2: float = 1.4e-3  # the sensor's active area under the probe (the large flat probe: the whole sensor)
+    max_force_n: float = 8.0  # the rig never commands more (protects the sensor and the spring)
 
     def __post_init__(self) -> None:
         _validate_rig(self, "")
@@ -105,12 +107,26 @@ class SimLabConfig:
     """What the simulated lab (port ``sim``) simulates. ``physics = "scripted"``: the cheap contact model;
     ``"mujoco"``: the robot, the ground and the paper's half-cylindrical obstacle in MuJoCo (needs the ``mujoco``
     package). The obstacle's height is a fraction of the body length (paper: 0.28; 0 = flat ground); friction
-    coefficients are Coulomb's μ (the paper's obstacle is covered with PTFE)."""
+    coefficients are Coulomb's μ (the paper's obstacle is covered with PTFE).
+
+    The simulated sensors (paper Sec. IV-A): standard linear solid creep (Eq. 2) with ``sensor_E0_Pa``,
+    ``sensor_E1_Pa`` and the retardation time ``sensor_tau_s`` = μ1/E1, each sensor's values drawn around these by
+    ``sensor_spread`` (relative s.d., clipped to ±4 s.d.; seeded), the resistance–strain law with the contact term
+    (Eq. 3, :class:`models.physics.PhysicsConstants`), and the readout's noise ``noise_counts`` (s.d., ADC counts)
+    before 12-bit quantisation. The sensor on the calibration rig (``rig.sensor``) is pressed over
+    ``sensor_area_m2`` (the large flat probe covers the whole sensor) and, while the rig servo holds torque, its
+    segment lies on the rig's beam: the probe alone loads it, not the robot's weight."""
 
     physics: str = "scripted"
     obstacle_height_ratio: float = 0.28
     obstacle_friction: float = 0.1
     ground_friction: float = 0.3
+    sensor_E0_Pa: float = 2.0e6
+    sensor_E1_Pa: float = 4.0e6
+    sensor_tau_s: float = 100.0
+    sensor_area_m2: float = 1.4e-3
+    sensor_spread: float = 0.05
+    noise_counts: float = 0.5
 
     def __post_init__(self) -> None:
         _validate_lab(self, "")
@@ -265,6 +281,9 @@ def _validate_rig(rig: RigConfig, source: str) -> None:
     _require(rig.wheel_radius_m > 0, source, "rig.wheel_radius_m", "must be positive")
     _require(rig.spring_k_n_per_m > 0, source, "rig.spring_k_n_per_m", "must be positive")
     _require(rig.baud > 0, source, "rig.baud", "must be positive")
+    _require(math.isfinite(rig.area_m2) and rig.area_m2 > 0, source, "rig.area_m2", "must be a positive area (m²)")
+    _require(math.isfinite(rig.max_force_n) and rig.max_force_n > 0, source, "rig.max_force_n",
+             "must be a positive force (N)")
 
 
 def _validate_lab(lab: SimLabConfig, source: str) -> None:
@@ -272,3 +291,9 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(0.0 <= lab.obstacle_height_ratio <= 1.0, source, "lab.obstacle_height_ratio", "must be in [0, 1]")
     _require(0.0 <= lab.obstacle_friction <= 2.0, source, "lab.obstacle_friction", "must be in [0, 2]")
     _require(0.0 <= lab.ground_friction <= 2.0, source, "lab.ground_friction", "must be in [0, 2]")
+    for key in ("sensor_E0_Pa", "sensor_E1_Pa", "sensor_tau_s", "sensor_area_m2"):
+        value = getattr(lab, key)
+        _require(math.isfinite(value) and value > 0, source, f"lab.{key}", f"= {value!r} must be a positive number")
+    _require(0.0 <= lab.sensor_spread <= 0.2, source, "lab.sensor_spread", "must be in [0, 0.2]")
+    _require(math.isfinite(lab.noise_counts) and lab.noise_counts >= 0, source, "lab.noise_counts",
+             "must be 0 or more (ADC counts)")

@@ -51,6 +51,17 @@ def sim_lab(config: LabConfig | None = None) -> SimLab:
         return cast("SimLab", _lab)
 
 
+def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0,
+                  seed: int = 0) -> tuple[SimLab, SimPorts | None]:
+    """Create a simulated lab from ``config`` whose clock runs ``speed``× real time, start it and install it behind
+    the ``sim`` ports; returns (the new lab, the one it replaced — put it back with :func:`install_sim_lab`)."""
+    from devices.sim.lab import SimLab
+
+    lab = SimLab(config, seed=seed, speed=speed)
+    lab.start_background()
+    return lab, install_sim_lab(lab)
+
+
 def install_sim_lab(lab: SimPorts | None) -> SimPorts | None:
     """Replace the process-wide simulated lab (``None`` drops it); returns the previous one."""
     global _lab

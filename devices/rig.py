@@ -25,7 +25,7 @@ from devices.config import RigConfig, RobotConfig
 from devices.errors import DeviceError
 from devices.servo_chain import ServoChain
 
-DEFAULT_MAX_FORCE_N = 8.0  # above the paper's largest calibration force (5.25 N), well below the spring's range
+DEFAULT_MAX_FORCE_N = RigConfig().max_force_n  # 8 N: above the paper's 5.25 N, well below the spring's range
 TORQUE_CONSTANT_NM_PER_A = 1.78  # XM430-W350 at 12 V (4.1 N·m stall at 2.3 A): only used to scale thresholds
 ANGLE_LIMIT_RAD = math.pi - 0.01
 SETTLE_TOLERANCE_RAD = 3 * 2 * math.pi / 4096  # three ticks
@@ -44,12 +44,12 @@ class RigInterrupted(DeviceError):
 class CalibrationRig:
     """Drives the calibration rig of ``rig``; see the module docstring."""
 
-    def __init__(self, rig: RigConfig, max_force_n: float = DEFAULT_MAX_FORCE_N, *,
+    def __init__(self, rig: RigConfig, max_force_n: float | None = None, *,
                  search_step_rad: float = 0.02, unwind_rad: float = 0.4, contact_threshold_n: float = 0.5,
                  fit_until_n: float = 2.0, interrupt: Callable[[], bool] | None = None) -> None:
         self.config = rig
         self.interrupt = interrupt
-        self.max_force_n = float(max_force_n)
+        self.max_force_n = float(rig.max_force_n if max_force_n is None else max_force_n)
         self.search_step_rad = search_step_rad
         self.unwind_rad = unwind_rad
         self.contact_threshold_n = contact_threshold_n
@@ -174,6 +174,12 @@ class CalibrationRig:
             raise RigForceError(f"cannot apply {force_n:g} N: the servo would pass its range (at most "
                                 f"{reachable:.2f} N from this contact angle); re-spool the cable")
         return target
+
+    def reachable_force_n(self) -> float:
+        """The largest force the servo's range allows from the contact found (N), or from the most wound contact the
+        spring's travel allows before a contact is known."""
+        contact = self.contact_rad if self.contact_rad is not None else ANGLE_LIMIT_RAD / 2
+        return max(0.0, (ANGLE_LIMIT_RAD - contact) * self.newtons_per_rad)
 
     def applied_force_n(self) -> float:
         """The force now (N) from the present position: ``k·r·(θ − θ_contact)``, 0 while the cable is slack."""

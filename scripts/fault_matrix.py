@@ -315,7 +315,8 @@ def export_unwritable(folder: Path) -> Outcome:
     good = good_recording(folder)
     blocker = folder / "file"
     blocker.write_text("x")
-    return Outcome(*clean_failure(sensnake("export", str(good), "--csv", str(blocker / "out.csv")), 1, "out.csv"))
+    return Outcome(*clean_failure(sensnake("export", str(good), "--csv", str(blocker / "out.csv")), 1, "out.csv",
+                                  "not a folder"))
 
 
 def record_over_existing_wrong_board(folder: Path) -> Outcome:

@@ -62,6 +62,28 @@ def build_parser() -> argparse.ArgumentParser:
                      help="lab config: its board's channel names (--sensor must be one) and readout circuit "
                           "(board.r_c_ohm, the saturation level not to fit)")
 
+    calibrate = sub.add_parser("calibrate", help="run the calibration protocol on the rig, fit and save (unattended)")
+    calibrate.add_argument("--rig", metavar="PORT", help="the rig servo's serial port, or sim (default: the config's)")
+    calibrate.add_argument("--daq", metavar="PORT", help="the force-sensor board's port, or sim (default: the config's)")
+    calibrate.add_argument("--sensor", metavar="NAME", help="the sensor under the probe (default: the config's rig.sensor)")
+    calibrate.add_argument("--forces", metavar="F1,F2,…", help="forces in N (default 1.75,3,4,5.25, the paper's)")
+    calibrate.add_argument("--trials", type=int, metavar="N", help="trials per force (default 3)")
+    calibrate.add_argument("--hold", type=float, metavar="S", help="hold per trial in s (default 370)")
+    calibrate.add_argument("--rest", type=float, metavar="S", help="unloaded rest before each trial in s (default 300)")
+    calibrate.add_argument("--rate", type=float, metavar="HZ", help="sampling rate in Hz (default 6)")
+    calibrate.add_argument("--baseline", type=float, metavar="S", help="unloaded record before the ramp in s (default 3)")
+    calibrate.add_argument("--ramp", type=float, metavar="S", help="loading ramp in s (default 2)")
+    calibrate.add_argument("--area", type=float, metavar="M2", help="sensor area under the probe (default: rig.area_m2)")
+    calibrate.add_argument("--physics", metavar="FILE.json", help="resistance–strain constants (a calibration file works)")
+    calibrate.add_argument("--time-scale", type=float, default=None, metavar="X",
+                           help="run the simulated lab X times faster than real time (only with sim ports)")
+    calibrate.add_argument("--resume", metavar="SESSION_DIR",
+                           help="continue a session cut short: finished trials kept, the interrupted one redone")
+    calibrate.add_argument("--save-anyway", action="store_true",
+                           help="save a fit that is degenerate or non-physical (still named on stderr)")
+    calibrate.add_argument("--config", metavar="FILE", help="lab config (rig, board channel map, readout circuit)")
+    calibrate.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
+
     estimate = sub.add_parser("estimate", help="conductance → force for every sensor column")
     estimate.add_argument("input", metavar="IN.csv")
     estimate.add_argument("--cal", required=True, metavar="CAL.json")

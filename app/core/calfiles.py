@@ -263,7 +263,8 @@ def _atomic_write(path: Path, write) -> None:
     """
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
-        raise CalFileError(f"{path}: folder {folder} does not exist")
+        what = f"{folder} is not a folder" if folder.exists() else f"folder {folder} does not exist"
+        raise CalFileError(f"{path}: {what}")
     try:
         fd, temp_name = _create_temporary(folder, path.name)
     except OSError as exc:

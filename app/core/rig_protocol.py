@@ -25,6 +25,19 @@ discarded, the finished trials stay on disk. :meth:`ProtocolRunner.pause` takes 
 A rig error (pulled cable, no reply, overload) or a board stream that stops ends the run with a message that says
 what happened and what to do; finished trials stay on disk.
 
+Clock: the protocol's times (hold, rest, baseline, ramp, sampling) are the lab's seconds. ``time_scale`` > 1 runs the
+protocol that much faster than the wall clock, for a simulated lab whose clock runs accelerated (``SimLab(speed=X)``):
+give the runner the lab's clock (``clock=lab.clock.now``) and push the board's samples on it
+(:func:`lab_times_from_seq`), since host arrival times are too coarse once a wall millisecond is X lab ones.
+
+Resume: ``done`` (plan index → CSV) lists trials a previous run of the same session folder finished; they are kept
+and skipped, so a run cut short (Ctrl-C, a crash, ``kill -9``) continues with the interrupted trial, which is redone.
+A trial's CSV is written atomically when it completes, so a file in the folder is a finished trial.
+
+Safety: the rig refuses a force above its maximum (``rig.max_force_n``) or past the spring's travel; every sample
+reads the rig servo, so a servo error (overload, …) ends the run; a reading that collapses during a hold (cable snap,
+probe slip: the sensor's conductance falls back most of the way to its unloaded level) aborts the trial with the reason.
+
 Threads: :meth:`ProtocolRunner.run` blocks and owns the rig; call it from one worker thread (``app.gui.rig_session``
 does). The callbacks are called from that thread.
 """
@@ -43,17 +56,38 @@ from typing import Protocol
 import numpy as np
 
 from app.core import calfiles
+from devices.config import BoardConfig, RigConfig
 from devices.errors import DeviceError
-from devices.rig import RigInterrupted
+from devices.rig import ANGLE_LIMIT_RAD, RigInterrupted
+from models.physics import PhysicsConstants, conductance_from_strain
+from models.sls import TYPICAL_SLS, SLSParams
 
 PAPER_FORCES_N = (1.75, 3.0, 4.0, 5.25)
 PAPER_HOLD_S = 370.0
-BOARD_STALE_S = 5.0  # no board sample of the sensor for this long (wall seconds) ends the run
+BOARD_STALE_S = 5.0  # no board sample of the sensor for this long (seconds of the lab clock) ends the run
 PROGRESS_INTERVAL_S = 0.5  # progress callbacks during rests and pauses
 FEED_CAPACITY = 1 << 16  # board samples kept by the feed (≈ 36 min at the board's default 30 Hz)
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
 
+MIN_HOLD_SAMPLES = 10  # samples at full force the fit needs (models.calibration refuses fewer)
+MIN_WINDOW_SAMPLES = 3  # samples in the linear model's averaging window
+# A hold whose reading falls below baseline + this fraction of its rise, for COLLAPSE_ROWS rows in a row, collapsed.
+COLLAPSE_FRACTION = 0.3
+COLLAPSE_ROWS = 3
+COLLAPSE_MIN_RISE = 0.05  # ... judged only when the hold rose by this fraction of its level (a dead sensor is the fit's)
+# The servo's range past the centre (rad): the most winding past a contact near the centre the spring can get.
+MAX_WINDING_RAD = ANGLE_LIMIT_RAD
+REFINE_SPAN_RAD = 0.05  # the contact refinement searches this far either side of the current's estimate
+REFINE_STEP_RAD = 2 * math.pi / 4096  # one encoder tick: k·r × 1.5 mrad ≈ 0.008 N on the paper's rig
+REFINE_RISE_S = 5e-6  # a reading this far above the unloaded level is the probe touching (S)
+REFINE_SAMPLES = 2
+MAX_CLOCK_RATE_ERROR = 1e-3  # board clock vs host clock rate (crystals: ~1e-4)
+READOUT_MARGIN = 0.9
+CREEP_TIME_S = 100.0  # the paper's creep time (~10² s, Fig. 8B)
+REST_CREEP_TIMES = 3.0  # rests shorter than this many creep times are warned about  # a predicted reading above this fraction of the readout's ceiling is reported
+
 COMPLETED, ABORTED, FAILED = "completed", "aborted", "failed"
+SESSION_FILE = "protocol.json"
 
 
 class RigDevice(Protocol):
@@ -68,6 +102,10 @@ class RigDevice(Protocol):
 
 class BoardStreamError(RuntimeError):
     """The sensor's conductance stopped arriving from the board."""
+
+
+class ForceCollapsedError(RuntimeError):
+    """The reading collapsed during a hold: the cable snapped or the probe slipped off the sensor."""
 
 
 @dataclass(frozen=True)
@@ -105,9 +143,20 @@ class ProtocolSettings:
             raise ValueError("name the sensor (e.g. S06B)")
         if self.ramp_s >= self.hold_s:
             raise ValueError(f"the loading ramp ({self.ramp_s:g} s) must be shorter than the hold ({self.hold_s:g} s)")
-        if self.hold_s * self.sample_rate_hz < 10:
-            raise ValueError(f"a {self.hold_s:g} s hold at {self.sample_rate_hz:g} Hz gives fewer than 10 samples; "
-                             "the fit needs at least 10 in the hold")
+        held = (self.hold_s - self.ramp_s) * self.sample_rate_hz
+        if held < MIN_HOLD_SAMPLES:
+            raise ValueError(
+                f"a {self.hold_s:g} s hold with a {self.ramp_s:g} s ramp at {self.sample_rate_hz:g} Hz leaves "
+                f"{max(0, int(held))} samples at full force; the fit needs at least {MIN_HOLD_SAMPLES}: lengthen the "
+                "hold, shorten the ramp or sample faster")
+        lo, hi = self.fit_window_s()
+        if (hi - lo) * self.sample_rate_hz < MIN_WINDOW_SAMPLES:
+            raise ValueError(f"the linear model's averaging window ({lo:g}–{hi:g} s) holds fewer than "
+                             f"{MIN_WINDOW_SAMPLES} samples at {self.sample_rate_hz:g} Hz: lengthen the hold or "
+                             "sample faster")
+        if self.baseline_s * self.sample_rate_hz < 2:
+            raise ValueError(f"a {self.baseline_s:g} s baseline at {self.sample_rate_hz:g} Hz gives fewer than 2 "
+                             "unloaded samples: the fit needs the unloaded level before the ramp")
 
     @property
     def plan(self) -> tuple[tuple[float, int], ...]:
@@ -187,17 +236,19 @@ class ConductanceFeed:
     """Thread-safe store of the sensor's board samples: ``push`` from the thread that drains the board, ``window``
     and ``latest`` from the runner. A fixed ring (no per-sample append); times are host ``time.monotonic()`` (s)."""
 
-    def __init__(self, capacity: int = FEED_CAPACITY) -> None:
+    def __init__(self, capacity: int = FEED_CAPACITY, time_scale: float = 1.0) -> None:
+        self.time_scale = float(time_scale)  # host times are stored × this (the runner's clock; see the module doc)
         self._t = np.full(capacity, -np.inf)
         self._b = np.full(capacity, np.nan)
         self._c = np.full(capacity, np.nan)
         self._n = 0  # samples ever pushed
+        self.last_push_wall_s = -math.inf  # time.monotonic() of the last push (s): is the board still streaming?
         self._lock = threading.Lock()
 
     def push(self, host_time_s: np.ndarray, conductance_s: np.ndarray, board_time_s: np.ndarray | None = None) -> None:
         """Add samples: host times (non-decreasing, s), conductance (S), board-clock times (s; NaN if unknown).
         Any thread."""
-        t = np.asarray(host_time_s, dtype=np.float64).ravel()
+        t = np.asarray(host_time_s, dtype=np.float64).ravel() * self.time_scale
         c = np.asarray(conductance_s, dtype=np.float64).ravel()
         b = (np.full(t.shape, np.nan) if board_time_s is None
              else np.asarray(board_time_s, dtype=np.float64).ravel())
@@ -205,6 +256,7 @@ class ConductanceFeed:
         if t.size > cap:
             t, c, b = t[-cap:], c[-cap:], b[-cap:]
         with self._lock:
+            self.last_push_wall_s = time.monotonic()
             idx = (self._n + np.arange(t.size)) % cap
             self._t[idx] = t
             self._b[idx] = b
@@ -231,18 +283,30 @@ class ConductanceFeed:
 
 
 def board_times_on_host_clock(host_time_s: np.ndarray, board_time_s: np.ndarray) -> np.ndarray:
-    """Each sample's time on the host clock (s), from the board clock: ``host ≈ a + b·board`` with the rate ``b``
-    fitted over the samples and the offset ``a`` from the least-delayed sample (the lower envelope: a frame can reach
-    the host late, never early). The host times themselves when the board clock cannot be used (unknown, not
+    """Each sample's time on the host clock (s), from the board clock: ``host ≈ a + b·board``, both from the lower
+    envelope of ``host − board`` (a frame can reach the host late, never early): ``a`` from the least-delayed
+    sample, the rate ``b`` from the least-delayed samples of the first and last quarters, held within
+    :data:`MAX_CLOCK_RATE_ERROR` of 1 (a board's crystal is far better; a least-squares line would lean on a burst
+    of late deliveries at one end). The host times themselves when the board clock cannot be used (unknown, not
     increasing — a board reset after a pulled cable —, or too few samples)."""
     if (host_time_s.size < 10 or not np.all(np.isfinite(board_time_s))
             or not np.all(np.diff(board_time_s) > 0)):
         return host_time_s
-    rate = float(np.polyfit(board_time_s - board_time_s[0], host_time_s - host_time_s[0], 1)[0])
-    if not rate > 0:
-        return host_time_s
+    lag = host_time_s - board_time_s
+    quarter = max(1, lag.size // 4)
+    first, last = int(np.argmin(lag[:quarter])), lag.size - quarter + int(np.argmin(lag[-quarter:]))
+    span = board_time_s[last] - board_time_s[first]
+    drift = (lag[last] - lag[first]) / span if span > 0 else 0.0
+    rate = 1.0 + float(np.clip(drift, -MAX_CLOCK_RATE_ERROR, MAX_CLOCK_RATE_ERROR))
     offset = float(np.min(host_time_s - rate * board_time_s))
     return offset + rate * board_time_s
+
+
+def lab_times_from_seq(seq: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Sample times (s) on the simulated lab's clock of the simulated board's frames: frame ``k`` is sampled at
+    ``k / rate_hz`` of the lab clock and carries ``seq = k`` (``devices.sim.board``). Exact, however late the frames
+    reach the host — unlike host arrival times, too coarse once a wall millisecond is many lab ones."""
+    return np.asarray(seq, dtype=np.float64) / float(rate_hz)
 
 
 def decimate_to(row_times_s: np.ndarray, period_s: float, board_t_s: np.ndarray,
@@ -270,15 +334,20 @@ class ProtocolRunner:
                  on_progress: Callable[[Progress], None] | None = None,
                  on_sample: Callable[[Sample], None] | None = None,
                  on_trial: Callable[[TrialRecord], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic, board_stale_s: float = BOARD_STALE_S) -> None:
+                 clock: Callable[[], float] | None = None, board_stale_s: float = BOARD_STALE_S,
+                 time_scale: float = 1.0, done: dict[int, Path] | None = None) -> None:
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ValueError(f"time scale must be positive, got {time_scale!r}")
         self.settings = settings
+        self.time_scale = float(time_scale)
+        self.done = dict(done or {})  # plan index → CSV of trials finished by an earlier run of this session
         self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
         self._on_progress = on_progress or (lambda _p: None)
         self._on_sample = on_sample or (lambda _s: None)
         self._on_trial = on_trial or (lambda _t: None)
-        self._clock = clock
+        self._clock = clock or (lambda: time.monotonic() * self.time_scale)
         self.board_stale_s = board_stale_s  # no board sample for this long (s) ends the run
         self._stop = threading.Event()
         self._resume = threading.Event()
@@ -318,12 +387,18 @@ class ProtocolRunner:
         self._started_s = self._clock()
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            (self.folder / "protocol.json").write_text(json.dumps(
-                {"format": "sensnake-calibration-protocol", "version": 1, **asdict(s)}, indent=2), encoding="utf-8")
+            write_session(self.folder, s)
             self._progress("contact", -1, 0.0, 0, 0.0, "finding where the probe touches the sensor…")
             rig.find_contact()
+            self._refine_contact()
+            reachable = getattr(rig, "reachable_force_n", None)
+            if reachable is not None and max(s.forces_n) > reachable():
+                raise DeviceError(f"{max(s.forces_n):g} N is out of reach from the contact found (at most "
+                                  f"{reachable():.2f} N before the servo's range ends): re-spool the cable")
             rig.release()
             for index, (force, repeat) in enumerate(s.plan):
+                if index in self.done:
+                    continue
                 self._rest(index)
                 self._check_stop()
                 self.trials.append(self._trial(index, force, repeat))
@@ -334,14 +409,55 @@ class ProtocolRunner:
             return self._end(ABORTED, self._stop_reason or "aborted", None)
         except DeviceError as exc:
             return self._end(FAILED, f"rig error: {exc}", exc)
-        except BoardStreamError as exc:
+        except (BoardStreamError, ForceCollapsedError) as exc:
             return self._end(FAILED, str(exc), exc)
         except OSError as exc:
             return self._end(FAILED, f"cannot write the trial files in {self.folder}: {exc}", exc)
         self._release_safely()
         n = len(self.trials)
-        self._progress("done", n - 1, 0.0, 0, 0.0, f"{n} trial(s) recorded")
-        return Outcome(COMPLETED, f"all {n} trials recorded in {self.folder}", self.folder, tuple(self.trials))
+        kept = f" ({len(self.done)} kept from before)" if self.done else ""
+        self._progress("done", n - 1, 0.0, 0, 0.0, f"{n} trial(s) recorded{kept}")
+        return Outcome(COMPLETED, f"all {s.n_trials} trials recorded in {self.folder}{kept}", self.folder,
+                       tuple(self.trials))
+
+    def _refine_contact(self) -> None:
+        """Refine the contact the rig found from its servo's current with the sensor itself: from a little before
+        it, wind one encoder tick at a time until the sensor's reading leaves its unloaded level (the contact term
+        makes even a tick's worth of force, ~0.01 N, read tens of µS). The current alone leaves an error of a few
+        hundredths of a newton, which biases every force of the calibration. Skipped for a rig without
+        ``move_to``/``contact_rad`` (test doubles)."""
+        rig = self.rig
+        base = getattr(rig, "contact_rad", None)
+        if base is None or not hasattr(rig, "move_to"):
+            return
+        self._progress("contact", -1, 0.0, 0, 0.0, "refining the contact with the sensor's reading…")
+        start = base - REFINE_SPAN_RAD
+        rig.move_to(start)
+        unloaded = self._fresh_reading()
+        angle, below = start, start
+        while angle < base + REFINE_SPAN_RAD:
+            angle += REFINE_STEP_RAD
+            reached = rig.move_to(angle)
+            if self._fresh_reading() > unloaded + REFINE_RISE_S:
+                rig.contact_rad = 0.5 * (below + reached)  # between the last untouched and the first touching step
+                return
+            below = reached
+        # No rise within the span: keep the current's estimate (the fit will show a sensor that does not respond).
+
+    def _fresh_reading(self) -> float:
+        """Median of the sensor's next few board samples taken after now (S)."""
+        since = self._clock()
+        # Wall seconds; at least BOARD_STALE_S: a board that was just started may still be opening.
+        deadline = time.monotonic() + max(self.board_stale_s, BOARD_STALE_S)
+        while True:
+            _, values, _ = self.feed.snapshot(since)
+            if values.size >= REFINE_SAMPLES:
+                return float(np.median(values[:REFINE_SAMPLES]))
+            if time.monotonic() > deadline:
+                raise BoardStreamError(f"no conductance from the board for sensor {self.settings.sensor} while "
+                                       "finding the contact")
+            if self._stop.wait(0.01):
+                raise _Stopped
 
     def _end(self, status: str, what: str, exc: BaseException | None) -> Outcome:
         released = self._release_safely()
@@ -353,6 +469,9 @@ class ProtocolRunner:
                     "you can fit the kept trials now")
         elif isinstance(exc, BoardStreamError):
             todo = "check the board's cable and that it streams (Forces tab), then run again"
+        elif isinstance(exc, ForceCollapsedError):
+            todo = ("the trial in progress was discarded; check the cable, the spring and that the probe sits on the "
+                    "sensor, then resume the session")
         elif exc is not None:
             todo = "choose a folder you can write to (Save under), then run again"
         else:
@@ -381,19 +500,22 @@ class ProtocolRunner:
             left = deadline_s - self._clock()
             if left <= 0:
                 return
-            if self._stop.wait(left):
+            if self._stop.wait(left / self.time_scale):
                 raise _Stopped
 
     def _time_left(self, index: int, elapsed_in_trial_s: float, rest_left_s: float = 0.0) -> float:
         """Estimated run time left (s) from inside trial ``index`` (or its rest, with ``rest_left_s`` to go)."""
         s = self.settings
-        remaining_trials = s.n_trials - index - 1
+        remaining_trials = sum(1 for k in range(index + 1, s.n_trials) if k not in self.done)
         return (rest_left_s + max(0.0, s.trial_duration_s() - elapsed_in_trial_s)
                 + remaining_trials * (s.trial_duration_s() + s.rest_s))
 
     def _progress(self, phase: str, index: int, force: float, repeat: int, elapsed_s: float, message: str,
                   time_left_s: float | None = None) -> None:
-        left = self.settings.total_duration_s() if time_left_s is None else time_left_s
+        if time_left_s is None:
+            todo = self.settings.n_trials - len(self.done)
+            time_left_s = todo * (self.settings.trial_duration_s() + self.settings.rest_s)
+        left = time_left_s
         self._on_progress(Progress(phase, index, self.settings.n_trials, force, repeat, elapsed_s, left, message))
 
     def _rest(self, index: int) -> None:
@@ -406,7 +528,7 @@ class ProtocolRunner:
                 break
             self._progress("rest", index, force, repeat, 0.0, f"resting unloaded, {left:.0f} s before trial "
                            f"{index + 1}/{s.n_trials}", self._time_left(index, 0.0, left))
-            if self._stop.wait(min(left, PROGRESS_INTERVAL_S)):
+            if self._stop.wait(min(left / self.time_scale, PROGRESS_INTERVAL_S)):
                 raise _Stopped
         while not self._resume.is_set():
             self._progress("paused", index, force, repeat, 0.0, f"paused before trial {index + 1}/{s.n_trials} "
@@ -426,39 +548,176 @@ class ProtocolRunner:
         t0 = self._clock()
         loaded = False
         ramped = False
-        for row in range(n_rows):
-            self._wait_until(t0 + row * period)
+        unloaded: list[float] = []  # the sensor's readings before loading (S)
+        peak = -math.inf
+        collapsed = 0
+        load_from: float | None = None  # when the ramp started, the hold was reached (runner clock, s)
+        hold_from: float | None = None
+        last_judged = -math.inf
+        row = -1
+        for slot in range(n_rows):
+            self._wait_until(t0 + slot * period)
             now = self._clock()
+            if now > t0 + (slot + 1) * period and slot < n_rows - 1:
+                continue  # this slot's moment went by (the thread was held up): no bunched catch-up rows
+            row += 1
             if not ramped and now - t0 >= s.baseline_s:
                 loaded = True
                 share = (now - t0 - s.baseline_s + period) / s.ramp_s if s.ramp_s > 0 else 1.0
                 ramped = share >= 1.0
                 rig.start_force(force * min(share, 1.0))
-            times[row] = now
             forces[row] = rig.applied_force_n()
+            times[row] = now = 0.5 * (now + self._clock())  # the read takes a while; the force is its midpoint's
             board_t, board_c = self.feed.latest()
-            if now - board_t > self.board_stale_s:
+            if time.monotonic() - self.feed.last_push_wall_s > self.board_stale_s:
                 raise BoardStreamError(
                     f"no conductance from the board for sensor {s.sensor} for {self.board_stale_s:g} s during {label}"
                     if math.isfinite(board_t) else f"no conductance from the board for sensor {s.sensor}")
             elapsed = now - t0
             phase = "baseline" if not loaded else ("loading" if forces[row] < 0.95 * force else "hold")
+            # The collapse check judges each board sample by its own time (board data may arrive late).
+            if loaded and load_from is None:
+                load_from = now
+            if phase == "hold" and hold_from is None:
+                hold_from = now
+            if math.isfinite(board_c) and board_t > last_judged:
+                last_judged = board_t
+                if board_t >= t0 and (load_from is None or board_t < load_from):
+                    unloaded.append(board_c)
+                elif hold_from is not None and board_t >= hold_from + period and unloaded:
+                    low = float(np.median(unloaded))
+                    peak = max(peak, board_c)
+                    collapsed = collapsed + 1 if board_c < low + COLLAPSE_FRACTION * (peak - low) else 0
+                    if collapsed >= COLLAPSE_ROWS and peak - low > COLLAPSE_MIN_RISE * abs(peak):
+                        raise ForceCollapsedError(
+                            f"{label}: the reading collapsed during the hold ({peak * 1e6:.1f} → {board_c * 1e6:.1f} µS, "
+                            f"unloaded {low * 1e6:.1f} µS) while the rig held {forces[row]:.2f} N: the cable may have "
+                            "snapped or the probe slipped off the sensor")
             self._on_sample(Sample(index, elapsed, float(forces[row]), board_c))
             if row % max(1, int(round(s.sample_rate_hz * PROGRESS_INTERVAL_S))) == 0:
                 self._progress(phase, index, force, repeat, elapsed, label, self._time_left(index, elapsed))
         # Board samples can arrive after the rig's (the GUI drains the board): wait briefly for the last interval.
         deadline = self._clock() + LATE_DATA_WAIT_S
+        deadline = self._clock() + max(LATE_DATA_WAIT_S, self.board_stale_s) * self.time_scale
         while self.feed.latest()[0] < times[-1] and self._clock() < deadline:
             if self._stop.wait(0.05):
                 raise _Stopped
+        if self.feed.latest()[0] < times[-1] - period:
+            raise BoardStreamError(f"the board's samples of sensor {s.sensor} stopped arriving before the end of "
+                                   f"{label}")
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
         rig.release()
-        host_t, board_c, board_t = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times, period, board_times_on_host_clock(host_t, board_t), board_c)
+        times, forces = times[: row + 1], forces[: row + 1]
+        snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
+        conductance = decimate_to(times, period, board_times_on_host_clock(snap_host_t, snap_board_t),
+                                  snap_conductance)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)
         return TrialRecord(index, path, force, repeat, time_s, forces, conductance)
+
+
+@dataclass(frozen=True)
+class ProtocolCheck:
+    """What :func:`check_protocol` found: ``errors`` (the run must not start) and ``warnings`` (shown; it may)."""
+
+    errors: tuple[str, ...]
+    warnings: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def readout_ceiling_s(board: BoardConfig) -> float:
+    """The largest conductance the readout can report (S): ``1/R_C`` at 0 counts (SPEC §4)."""
+    return 1.0 / board.r_c_ohm
+
+
+def check_protocol(settings: ProtocolSettings, rig: RigConfig, board: BoardConfig,
+                   expected_sls: tuple[SLSParams, float, PhysicsConstants] | None = None) -> ProtocolCheck:
+    """Everything the run and the fit need, checked before the rig moves (the settings' own checks ran when they
+    were made). ``expected_sls``: (SLS parameters, area m², physics) of this sensor from an earlier calibration, to
+    predict the readout's range; without it the models' typical sensor gives a warning only."""
+    errors: list[str] = []
+    warnings: list[str] = []
+    names = board.channel_names
+    if settings.sensor not in names:
+        errors.append(f"sensor {settings.sensor} is not a channel of the board ({names[0]} … {names[-1]}): check "
+                      "the name or the board's channel map")
+    top = max(settings.forces_n)
+    if top > rig.max_force_n:
+        errors.append(f"{top:g} N is above the rig's maximum force {rig.max_force_n:g} N (rig.max_force_n): "
+                      "lower the forces, or raise the maximum only if the sensor and spring allow it")
+    k_r = rig.spring_k_n_per_m * rig.wheel_radius_m
+    winding = top / k_r
+    if winding > MAX_WINDING_RAD:
+        errors.append(f"{top:g} N needs {winding:.2f} rad of winding past the contact; the spring's travel on the "
+                      f"servo's range is {MAX_WINDING_RAD:.2f} rad (at most {MAX_WINDING_RAD * k_r:.2f} N with "
+                      f"k = {rig.spring_k_n_per_m:g} N/m, r = {rig.wheel_radius_m * 1e3:g} mm)")
+    if settings.rest_s < REST_CREEP_TIMES * CREEP_TIME_S and settings.n_trials > 1:
+        warnings.append(f"a {settings.rest_s:g} s rest is short against the sensor's creep (τ ~ {CREEP_TIME_S:g} s): "
+                        "the creep of one trial still fades in the next, which the fit does not model; rest "
+                        f"≥ {REST_CREEP_TIMES * CREEP_TIME_S:g} s")
+    ceiling = readout_ceiling_s(board)
+    params, area, physics = expected_sls if expected_sls is not None else (TYPICAL_SLS, settings.area_m2,
+                                                                           PhysicsConstants())
+    strain = np.array([top / area / float(params.b)])
+    predicted = float(conductance_from_strain(strain, np.array([top]), physics)[0])
+    if predicted >= READOUT_MARGIN * ceiling:
+        source = "this sensor's last calibration" if expected_sls is not None else "a typical sensor"
+        text = (f"at {top:g} N {source} would read {predicted * 1e6:.0f} µS, at or near the readout's ceiling "
+                f"{ceiling * 1e6:.0f} µS (1/R_C, R_C = {board.r_c_ohm:g} Ω): saturated samples only say 'at least'; "
+                "lower the top force or R_C if the first trial saturates")
+        (errors if expected_sls is not None and predicted >= ceiling else warnings).append(text)
+    return ProtocolCheck(tuple(errors), tuple(warnings))
+
+
+def write_session(folder: Path, settings: ProtocolSettings) -> None:
+    """Write (or keep) the session's protocol file; a folder made for another protocol is refused (ValueError)."""
+    path = Path(folder) / SESSION_FILE
+    document = {"format": "sensnake-calibration-protocol", "version": 1, **asdict(settings)}
+    if path.exists():
+        previous = read_session(folder)
+        if previous != settings:
+            raise ValueError(f"{folder} holds a session of another protocol ({path.name} differs); "
+                             "resume it with its own settings or start a new session")
+        return
+    calfiles._atomic_write(path, lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
+
+
+def read_session(folder: str | Path) -> ProtocolSettings:
+    """The protocol a session folder was started with (its ``protocol.json``); ValueError naming the problem."""
+    path = Path(folder) / SESSION_FILE
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{folder} is not a calibration session folder (no {SESSION_FILE})") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read the session's protocol: {exc}") from None
+    if not isinstance(document, dict) or document.get("format") != "sensnake-calibration-protocol":
+        raise ValueError(f"{path}: not a calibration protocol file")
+    if document.get("version") != 1:
+        raise ValueError(f"{path}: protocol version {document.get('version')!r} is not known (expected 1)")
+    known = {f for f in ProtocolSettings.__dataclass_fields__}
+    kwargs = {k: v for k, v in document.items() if k in known}
+    if "forces_n" in kwargs:
+        kwargs["forces_n"] = tuple(kwargs["forces_n"])
+    try:
+        return ProtocolSettings(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int, Path]:
+    """Plan index → CSV of the trials of ``settings`` already in the session folder (complete files only: they are
+    written atomically when a trial ends)."""
+    found = {}
+    for index, (force, repeat) in enumerate(settings.plan):
+        path = Path(folder) / trial_file_name(settings.sensor, index, force, repeat)
+        if path.is_file():
+            found[index] = path
+    return found
 
 
 def trial_file_name(sensor: str, index: int, force_n: float, repeat: int) -> str:

@@ -10,6 +10,10 @@ STOP: the main window's STOP (button or Esc) calls ``lab.emergency_stop()``, whi
 session listens for it and aborts the run, which takes the load off the sensor (the rig's release is not
 interruptible).
 
+Clock: with the rig and the board both on the simulated lab (port ``sim``), the protocol runs on the lab's clock
+(accelerated in tests) and each board sample is placed at its frame's lab time; with hardware, on the host clock
+through the board's own (see :mod:`app.core.rig_protocol`).
+
 Signals (GUI thread): ``progress(Progress)``, ``sample(Sample)`` at the protocol's sampling rate (6 Hz by default),
 ``trial_saved(TrialRecord)``, ``finished(Outcome)``, ``running_changed(bool)``. All public methods: GUI thread.
 """
@@ -31,10 +35,14 @@ from app.core.rig_protocol import (
     Outcome,
     ProtocolRunner,
     ProtocolSettings,
+    finished_trials,
+    lab_times_from_seq,
+    read_session,
     session_folder,
 )
 from app.gui.lab import LabContext
 from app.gui.thread_bridge import ThreadBridge
+from devices import factory
 from devices.errors import DeviceError
 from devices.rig import CalibrationRig
 
@@ -60,6 +68,7 @@ class RigSession(QObject):
         self._thread: threading.Thread | None = None
         self._feed: ConductanceFeed | None = None
         self._channel: int | None = None
+        self._lab_rate_hz: float | None = None  # board frame rate when samples go on the simulated lab's clock
         self._board: Any = None
         self.outcome: Outcome | None = None
         self._bridge = ThreadBridge(self)  # rig thread → GUI thread: public signals are emitted on the GUI thread
@@ -80,9 +89,13 @@ class RigSession(QObject):
         return self._runner.folder if self._runner is not None else None
 
     # -- control ---------------------------------------------------------------------------------------------------
-    def start(self, settings: ProtocolSettings, base_folder: str | Path) -> Path:
-        """Start a run; returns its session folder. Raises ValueError (a run is going, the sensor is not a board
-        channel, no board) with a sentence for the user; everything after this is reported through ``finished``."""
+    def start(self, settings: ProtocolSettings, base_folder: str | Path, *, resume: str | Path | None = None) -> Path:
+        """Start a run; returns its session folder. ``resume``: a session folder of the same protocol whose finished
+        trials are kept (the run continues with the first missing one). Raises ValueError (a run is going, the sensor
+        is not a board channel, no board, a folder of another protocol) with a sentence for the user; everything
+        after this is reported through ``finished``."""
+        if resume is not None and read_session(resume) != settings:
+            raise ValueError(f"{resume} holds a session of another protocol: resume it with its own settings")
         if self.is_running:
             raise ValueError("a calibration run is already going: abort it first")
         board = self.lab.board
@@ -93,17 +106,23 @@ class RigSession(QObject):
             raise ValueError(f"sensor {settings.sensor} is not a channel of the board ({names[0]} … {names[-1]}); "
                              "check the name or the board's channel map")
         self._channel = names.index(settings.sensor)
+        config = self.lab.config
+        clock, time_scale, self._lab_rate_hz = None, 1.0, None
+        if factory.is_sim(config.rig.port) and factory.is_sim(config.board.port):
+            sim_clock = factory.sim_lab().clock
+            clock, time_scale, self._lab_rate_hz = sim_clock.now, sim_clock.speed, config.board.rate_hz
         self._feed = ConductanceFeed()
         self._board = board
         board.block.connect(self._on_block)
         if not board.is_running:
             board.start()
-        folder = session_folder(Path(base_folder), settings.sensor)
+        folder = Path(resume) if resume is not None else session_folder(Path(base_folder), settings.sensor)
+        done = finished_trials(folder, settings) if resume is not None else {}
         runner = ProtocolRunner(settings, self._feed, folder,
                                 on_progress=self._bridge.emitter(self.progress),
                                 on_sample=self._bridge.emitter(self.sample),
                                 on_trial=self._bridge.emitter(self.trial_saved),
-                                board_stale_s=self.board_stale_s)
+                                board_stale_s=self.board_stale_s, clock=clock, time_scale=time_scale, done=done)
         self._runner = runner
         self.outcome = None
         self._thread = threading.Thread(target=self._worker, args=(runner,), name="calibration-rig", daemon=True)
@@ -162,7 +181,11 @@ class RigSession(QObject):
     # -- GUI thread ------------------------------------------------------------------------------------------------
     def _on_block(self, block: Any) -> None:
         if self._feed is not None and self._channel is not None and len(block):
-            self._feed.push(block.host_time_s, block.conductance_s[:, self._channel], block.board_time_s)
+            if self._lab_rate_hz is not None:
+                times = lab_times_from_seq(block.seq, self._lab_rate_hz)
+                self._feed.push(times, block.conductance_s[:, self._channel], times)
+            else:
+                self._feed.push(block.host_time_s, block.conductance_s[:, self._channel], block.board_time_s)
 
     def _on_stop_requested(self) -> None:
         if self.is_running:

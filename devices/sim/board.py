@@ -35,7 +35,9 @@ from models.physics import PhysicsConstants, conductance_from_strain
 from models.sls import SLSParams
 
 BITS_PER_BYTE = 10  # start + 8 data + stop
-CATCH_UP_LIMIT_S = 1.0  # frames older than this that nobody can receive are skipped, not generated
+# Frames older than this (wall seconds: what the OS's serial buffer holds while the host is busy) that nobody can
+# receive are skipped, not generated. On an accelerated clock that is speed × as many simulated seconds.
+CATCH_UP_LIMIT_S = 1.0
 TRUTH_FRAMES = 512
 
 # Sensor physics: the paper's Sec. IV models, with the constants of models.physics (the same code the estimators
@@ -65,15 +67,22 @@ class SensorBank:
     sigma_pa: np.ndarray | None = None  # stress held since t_s
 
     @classmethod
-    def create(cls, n_sensors: int, rng: np.random.Generator,
-               physics: PhysicsConstants | None = None) -> SensorBank:
+    def create(cls, n_sensors: int, rng: np.random.Generator, physics: PhysicsConstants | None = None, *,
+               e0_pa: float = E0_PA, e1_pa: float = E1_PA, tau_s: float = TAU_S, area_m2: float = AREA_M2,
+               spread: float = PARAM_SPREAD) -> SensorBank:
+        """``n_sensors`` sensors whose E0, E1, τ and area are the given values times ``N(1, spread)`` each, clipped
+        to ±4 s.d. (seeded by ``rng``)."""
         def vary(value: float) -> np.ndarray:
-            return value * np.clip(rng.normal(1.0, PARAM_SPREAD, n_sensors), 0.8, 1.2)
+            return value * np.clip(rng.normal(1.0, spread, n_sensors), 1.0 - 4 * spread, 1.0 + 4 * spread)
 
-        e1 = vary(E1_PA)
-        params = SLSParams(E0_Pa=vary(E0_PA), E1_Pa=e1, mu1_Pa_s=e1 * vary(TAU_S))
-        return cls(params=params, area_m2=vary(AREA_M2), physics=physics or PhysicsConstants(),
+        e1 = vary(e1_pa)
+        params = SLSParams(E0_Pa=vary(e0_pa), E1_Pa=e1, mu1_Pa_s=e1 * vary(tau_s))
+        return cls(params=params, area_m2=vary(area_m2), physics=physics or PhysicsConstants(),
                    q=np.zeros(n_sensors))
+
+    def forget_creep(self, index: int) -> None:
+        """Sensor ``index`` has rested long enough to have recovered: its creep strain is zero again."""
+        self.q[index] = 0.0
 
     def step(self, t_s: float, force_n: np.ndarray) -> np.ndarray:
         """Advance to ``t_s`` (force held since the previous call), apply ``force_n`` (S,), return conductance (S,)."""
@@ -121,14 +130,19 @@ class VirtualBoard:
 
     def __init__(self, board: BoardConfig, clock: SimClock, force_source: Callable[[float], np.ndarray] | None = None,
                  seed: int = 0, noise_counts: float = 0.5, truth_frames: int = TRUTH_FRAMES,
-                 board_clock_offset_us: int = 0) -> None:
+                 board_clock_offset_us: int = 0, sensor_nominal: dict[str, float] | None = None) -> None:
         self.board = board
         self.board_clock_offset_us = int(board_clock_offset_us)  # boards power up at any time: t_us wraps
         self.clock = clock
         self.force_source = force_source
         self.noise_counts = float(noise_counts)
         self._rng = np.random.default_rng(seed)
-        self.sensors = SensorBank.create(board.n_channels, self._rng)
+        # sensor_nominal: keyword arguments of SensorBank.create (e0_pa, e1_pa, tau_s, area_m2, spread)
+        nominal = sensor_nominal or {}
+        self.sensors = SensorBank.create(board.n_channels, self._rng, e0_pa=nominal.get("e0_pa", E0_PA),
+                                         e1_pa=nominal.get("e1_pa", E1_PA), tau_s=nominal.get("tau_s", TAU_S),
+                                         area_m2=nominal.get("area_m2", AREA_M2),
+                                         spread=nominal.get("spread", PARAM_SPREAD))
         self._lock = threading.RLock()
         self._period_s = 1.0 / board.rate_hz
         self._next_index = 0  # frame index k, sampled at k·period; seq = k mod 2³²
@@ -292,7 +306,8 @@ class VirtualBoard:
         if last_due < self._next_index:
             return
         receivable_from = self._deliver_after_s - self._frame_airtime_s()
-        skip_to = math.floor((min(sim_now - CATCH_UP_LIMIT_S, receivable_from)) / self._period_s)
+        limit_s = CATCH_UP_LIMIT_S * max(1.0, self.clock.speed)
+        skip_to = math.floor((min(sim_now - limit_s, receivable_from)) / self._period_s)
         if skip_to > self._next_index:
             # Nobody can receive these frames: advance the sensors in one exact step instead of frame by frame.
             self.frames_lost += skip_to - self._next_index

@@ -43,18 +43,41 @@ class SimLab:
         self.rig = VirtualRig(self.config.rig, self.clock, seed=rig_seed)
         names = self.config.board.channel_names
         self._rig_channel = names.index(self.config.rig.sensor) if self.config.rig.sensor in names else None
-        self.board = VirtualBoard(self.config.board, self.clock, force_source=self.forces_n, seed=board_seed)
+        sim = self.config.lab
+        nominal = {"e0_pa": sim.sensor_E0_Pa, "e1_pa": sim.sensor_E1_Pa, "tau_s": sim.sensor_tau_s,
+                   "area_m2": sim.sensor_area_m2, "spread": sim.sensor_spread}
+        self.board = VirtualBoard(self.config.board, self.clock, force_source=self.forces_n, seed=board_seed,
+                                  noise_counts=sim.noise_counts, sensor_nominal=nominal)
+        if self._rig_channel is not None:
+            # The probe covers the whole sensor: the rig's sensor is pressed over the documented area exactly.
+            self.board.sensors.area_m2[self._rig_channel] = sim.sensor_area_m2
+        self._on_beam = False
 
     def forces_n(self, t_s: float) -> np.ndarray:
-        """Force on every board channel from the robot's contacts — except that while the rig's probe presses, the
-        channel of ``rig.sensor`` feels the probe alone: in the lab that segment sits on the calibration beam, not
-        under the robot's weight, so a calibration run reads the rig force through the board as it would there."""
+        """Force on every board channel from the robot's contacts — except the channel of ``rig.sensor`` while the
+        rig's servo holds torque: that segment then lies on the rig's beam (the paper's calibration setup, Sec.
+        IV-C), so the probe alone loads it — 0 N with the probe lifted, ``k·r·(θ − θ_c)`` once it presses — and
+        the robot's weight never does. Moving it onto the beam forgets its creep (it rested before being mounted).
+        With the rig's torque off, a probe turned onto the sensor by hand still sets the force it feels."""
         forces = self.physics.forces_n(t_s) if self.physics is not None else self.contact.forces_n(t_s)
         if self._rig_channel is not None:
-            probe_n = self.rig.applied_force_n()
-            if probe_n > 0.0:
+            probe_n = self.rig.force_at_n(t_s)
+            on_beam = self.rig.holds_torque()
+            if on_beam and not self._on_beam:
+                self.board.sensors.forget_creep(self._rig_channel)
+            self._on_beam = on_beam
+            if on_beam or probe_n > 0.0:
                 forces[self._rig_channel] = probe_n
         return forces
+
+    def rig_sensor_truth(self) -> dict[str, float]:
+        """The simulated parameters of the sensor on the rig (``rig.sensor``): ``E0_Pa``, ``E1_Pa``, ``mu1_Pa_s``,
+        ``tau_s``, ``area_m2`` — what a calibration on the rig should recover."""
+        if self._rig_channel is None:
+            raise ValueError(f"rig.sensor {self.config.rig.sensor} is not a channel of the simulated board")
+        one = self.board.sensors.params.sensor(self._rig_channel)
+        return {"E0_Pa": float(one.E0_Pa), "E1_Pa": float(one.E1_Pa), "mu1_Pa_s": float(one.mu1_Pa_s),
+                "tau_s": float(one.tau_s), "area_m2": float(self.board.sensors.area_m2[self._rig_channel])}
 
     def start_background(self) -> None:
         """Keep the physics world stepping with the clock between driver events (the app's lab); no-op when the

@@ -12,7 +12,9 @@ The sensor under the probe creeps (standard linear solid, the same physics as th
 
 from __future__ import annotations
 
+import bisect
 import threading
+from collections import deque
 
 import numpy as np
 
@@ -22,6 +24,7 @@ from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import VirtualChain
 
 CONTACT_ANGLE_RAD = 0.6  # from the servo's centre position; the seeded rig varies it by ±0.1 rad
+HISTORY = 4096  # (time, force) records kept: the board may sample a past moment after the rig has moved on
 
 
 class _RigChain(VirtualChain):
@@ -52,17 +55,54 @@ class VirtualRig:
         self.chain: VirtualChain = _RigChain(self, ids=(rig.servo_id,), baud=rig.baud, clock=clock,
                                              seed=int(rng.integers(2**31)))
         self.sensor = SensorBank.create(1, rng)
+        self._snapped = False
+        self._history_t: deque[float] = deque(maxlen=HISTORY)
+        self._history_f: deque[float] = deque(maxlen=HISTORY)
+
+    def snap_cable(self, snapped: bool = True) -> None:
+        """Fault: the cable snaps (or the probe slips off the sensor): no force reaches the sensor or the servo
+        from now on, whatever the servo's angle, until ``snap_cable(False)``."""
+        with self._lock:
+            self._snapped = snapped
 
     def applied_force_n(self) -> float:
         """The probe's true force on the sensor now (N): ``k·r·max(0, θ − θ_c)``."""
+        if self._snapped:
+            return 0.0
         theta = float(self.chain.present_positions_rad()[0])
         stretch_m = self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
         return self.config.spring_k_n_per_m * stretch_m
 
+    def holds_torque(self) -> bool:
+        """True while the rig servo's torque is on (a calibration session has the rig)."""
+        return bool(self.chain.register(self.config.servo_id, "Torque Enable"))
+
     def update_load(self) -> None:
-        """Apply the cable tension to the servo as a load torque (N·m). Called before each wire exchange."""
+        """Apply the cable tension to the servo as a load torque (N·m) and remember the force at this moment.
+        Called before each wire exchange."""
         with self._lock:
-            self.chain.set_load(self.config.servo_id, self.applied_force_n() * self.config.wheel_radius_m)
+            force = self.applied_force_n()
+            self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m)
+            now = self.clock.now()
+            if self._history_t and now <= self._history_t[-1]:
+                return
+            self._history_t.append(now)
+            self._history_f.append(force)
+
+    def force_at_n(self, t_s: float) -> float:
+        """The probe's force (N) at simulated time ``t_s``: interpolated between the moments the rig's wire last
+        saw (the servo moves only when driven), the present force after the last of them. The simulated board
+        samples frames lazily, possibly after the rig has moved on; this keeps its readings causal."""
+        with self._lock:
+            times = self._history_t
+            if not times or t_s >= times[-1]:
+                return self.applied_force_n()
+            k = bisect.bisect_right(times, t_s)
+            if k == 0:
+                return self._history_f[0]
+            t0, t1 = times[k - 1], times[k]
+            f0, f1 = self._history_f[k - 1], self._history_f[k]
+            return f0 + (f1 - f0) * (t_s - t0) / (t1 - t0)
 
     def sensor_conductance_s(self, t_s: float | None = None) -> float:
         """The sensor's conductance (S) at simulated time ``t_s`` (default: now).

@@ -110,10 +110,10 @@ def rig_tab(qtbot, fast_sim_lab, tmp_path):
     form = page.protocol_form
     form.forces_edit.setText("1.75, 5.25")
     form.trials_spin.setValue(1)
-    form.hold_spin.setValue(4.0)
-    form.baseline_spin.setValue(1.0)
-    form.ramp_spin.setValue(1.0)
-    form.rest_spin.setValue(0.3)
+    form.hold_spin.setValue(200.0)  # lab seconds: the protocol runs on the 50× lab's clock
+    form.baseline_spin.setValue(50.0)
+    form.ramp_spin.setValue(50.0)
+    form.rest_spin.setValue(15.0)
     form.folder_edit.setText(str(tmp_path))
     yield page
     page.shutdown()
@@ -135,7 +135,7 @@ def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
     qtbot.waitUntil(lambda: not tab.rig_session.is_running and not tab.is_fitting
                     and ("fitted" in tab.status_label.text() or "refused" in tab.status_label.text()),
                     timeout=120_000)
-    assert tab.last_fit_window_s == pytest.approx((1.0 + 225 * 4 / 370, 1.0 + 300 * 4 / 370))
+    assert tab.last_fit_window_s == pytest.approx((50.0 + 225 * 200 / 370, 50.0 + 300 * 200 / 370))
     assert len(tab.trials) == 2 and tab.trial_list.count() == 2
     assert "2/2 trials" in tab.protocol_form.progress_bar.format()
     assert tab.protocol_form.run_button.isEnabled() and not tab.protocol_form.abort_button.isEnabled()
@@ -154,9 +154,9 @@ def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
 
 def test_abort_from_the_tab_keeps_the_finished_trial_in_the_list(rig_tab, qtbot, fast_sim_lab):
     tab = rig_tab
-    tab.protocol_form.hold_spin.setValue(2.0)
-    tab.protocol_form.ramp_spin.setValue(0.3)
-    tab.protocol_form.baseline_spin.setValue(0.5)
+    tab.protocol_form.hold_spin.setValue(100.0)
+    tab.protocol_form.ramp_spin.setValue(15.0)
+    tab.protocol_form.baseline_spin.setValue(25.0)
     tab.start_run()
     qtbot.waitUntil(lambda: len(tab.trials) == 1, timeout=30_000)  # then abort while trial 2 rests or runs
     with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
@@ -197,10 +197,10 @@ def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, f
     tab = window.show_tab("calibration")
     tab.protocol_form.forces_edit.setText("3")
     tab.protocol_form.trials_spin.setValue(1)
-    tab.protocol_form.hold_spin.setValue(60.0)
-    tab.protocol_form.rest_spin.setValue(0.2)
-    tab.protocol_form.baseline_spin.setValue(0.3)
-    tab.protocol_form.ramp_spin.setValue(0.3)
+    tab.protocol_form.hold_spin.setValue(3000.0)
+    tab.protocol_form.rest_spin.setValue(10.0)
+    tab.protocol_form.baseline_spin.setValue(15.0)
+    tab.protocol_form.ramp_spin.setValue(15.0)
     tab.protocol_form.folder_edit.setText(str(tmp_path))
     window.show()
     window.activateWindow()

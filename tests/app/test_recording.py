@@ -142,6 +142,9 @@ def test_an_export_that_fails_midway_leaves_the_earlier_csv_whole(tmp_path, monk
     assert err == f"sensnake export: error: cannot write {out}: No space left on device\n", err
     assert out.read_text() == "an earlier export\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.csv", "r.h5"]
+    monkeypatch.undo()
+    assert main(["export", str(rec), "--csv", str(out / "inside.csv")]) == 1  # OUT's folder is a file
+    assert capsys.readouterr().err == f"sensnake export: error: {out / 'inside.csv'}: {out} is not a folder\n"
 
 
 def test_disk_almost_full_stops_cleanly_and_keeps_what_was_flushed(tmp_path):

@@ -1,0 +1,312 @@
+"""``sensnake calibrate --rig PORT --daq PORT --sensor NAME [--forces 1.75,3,4,5.25] [--trials 3] [--hold 370]
+[--rest S] [--rate 6] [--baseline S] [--ramp S] [--area M2] [--physics FILE] [--time-scale X] [--config FILE]
+[--resume SESSION_DIR] [--save-anyway] --out CAL.json``: the calibration protocol on the rig, unattended.
+
+The protocol is checked before anything moves (:func:`app.core.rig_protocol.check_protocol`). Then the rig finds the
+contact, and every trial (unloaded rest, unloaded baseline, loading ramp, hold) is written as a SPEC §3.1 CSV into a
+session folder beside ``CAL.json`` as soon as it completes (:class:`app.core.rig_protocol.ProtocolRunner`, the same
+runner as the Calibration tab). A progress line on stderr says where the run is and how long is left. At the end
+the trials are fitted with the lab's readout circuit (:mod:`app.core.calibration_fit`) and the sensor is written into
+``CAL.json``, unless the fit is degenerate or non-physical: then nothing is saved, the problems are named and the
+command exits 1 (``--save-anyway`` saves it, still naming them).
+
+Ctrl-C (or SIGTERM/SIGHUP) stops the run: the load comes off, finished trials stay in the session folder, exit 130.
+``--resume SESSION_DIR`` continues a session cut short by Ctrl-C, a crash or ``kill -9``: its protocol comes from the
+folder, finished trials are kept and the interrupted one is redone.
+
+``--time-scale X`` only with simulated devices (``sim`` ports): the simulated lab's clock runs X times faster than the
+wall clock and the protocol follows it, so a 370 s hold takes 370/X s.
+
+Threads: the rig runs on a worker thread (it owns the rig's port); a second drains the board into the runner's
+feed; the main thread prints progress and handles Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import signal
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from app.cli.fit import _physics, print_report
+from app.core import calfiles, calibration_fit
+from app.core.rig_protocol import (
+    ABORTED,
+    COMPLETED,
+    PAPER_FORCES_N,
+    ConductanceFeed,
+    Outcome,
+    Progress,
+    ProtocolRunner,
+    ProtocolSettings,
+    check_protocol,
+    finished_trials,
+    lab_times_from_seq,
+    parse_forces,
+    read_session,
+    session_folder,
+)
+from devices import factory
+from devices.board import BoardReader
+from devices.config import LabConfig, load_config
+from devices.errors import DeviceError
+from devices.rig import CalibrationRig
+
+if TYPE_CHECKING:  # pragma: no cover
+    from devices.factory import SimPorts
+
+EXIT_REFUSED = 1
+EXIT_INTERRUPTED = 130
+PROGRESS_INTERVAL_S = 0.5  # wall seconds between progress lines
+# rest 300 s: the creep (τ ~ 10² s) of one trial must fade before the next starts (a fit assumes a rested sensor)
+DEFAULTS = {"trials": 3, "hold": 370.0, "rest": 300.0, "rate": 6.0, "baseline": 3.0, "ramp": 2.0}
+PROTOCOL_OPTIONS = ("forces", "trials", "hold", "rest", "rate", "baseline", "ramp", "sensor", "area")
+
+
+class _StopSignal(KeyboardInterrupt):
+    pass
+
+
+def _raise_stop(signum: int, _frame: object) -> None:
+    raise _StopSignal(signal.Signals(signum).name)
+
+
+def _config(args: argparse.Namespace) -> LabConfig:
+    config = load_config(args.config) if args.config else load_config(None)
+    return config.with_ports(board=args.daq, rig=args.rig)
+
+
+def _settings(args: argparse.Namespace, config: LabConfig) -> ProtocolSettings:
+    if args.resume:
+        given = [f"--{name}" for name in PROTOCOL_OPTIONS if getattr(args, name) is not None]
+        if given:
+            raise ValueError(f"--resume continues the session's own protocol: drop {', '.join(given)}")
+        return read_session(args.resume)
+    forces = parse_forces(args.forces) if args.forces is not None else PAPER_FORCES_N
+    value = {key: getattr(args, key) if getattr(args, key) is not None else default
+             for key, default in DEFAULTS.items()}
+    return ProtocolSettings(forces_n=forces, trials_per_force=int(value["trials"]), hold_s=value["hold"],
+                            sample_rate_hz=value["rate"], rest_s=value["rest"], baseline_s=value["baseline"],
+                            ramp_s=value["ramp"], sensor=(args.sensor or config.rig.sensor).strip(),
+                            area_m2=args.area if args.area is not None else config.rig.area_m2)
+
+
+def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[Any, SimPorts | None]:
+    """The simulated lab behind ``sim`` ports, from this config, at ``time_scale``. Returns (the lab installed or
+    None with real ports, the lab it replaced, to put back)."""
+    uses_sim = factory.is_sim(config.rig.port) or factory.is_sim(config.board.port)
+    if time_scale is not None:
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ValueError(f"--time-scale must be a positive number, got {time_scale!r}")
+        if not (factory.is_sim(config.rig.port) and factory.is_sim(config.board.port)):
+            raise ValueError("--time-scale only runs the simulated lab faster: use it with --rig sim --daq sim")
+    if not uses_sim:
+        return None, None
+    return factory.start_sim_lab(config, speed=time_scale or 1.0)
+
+
+class _ProgressLine:
+    """One line on stderr, rewritten in place (a terminal) or printed every few seconds (a log file)."""
+
+    def __init__(self, n_trials: int, time_scale: float = 1.0) -> None:
+        self.n_trials = n_trials
+        self.time_scale = time_scale  # the runner's times are the lab's; the user waits wall seconds
+        self._last = 0.0
+        self._tty = sys.stderr.isatty()
+        self._lock = threading.Lock()
+        self._width = 0
+        self._phase: tuple[int, str] | None = None
+
+    def __call__(self, progress: Progress) -> None:
+        now = time.monotonic()
+        interval = PROGRESS_INTERVAL_S if self._tty else 5.0
+        phase = (progress.trial, progress.phase)
+        if progress.phase not in ("done", "contact") and now - self._last < interval and phase == self._phase:
+            return
+        self._last, self._phase = now, phase
+        left = _duration(progress.time_left_s / self.time_scale)
+        if progress.trial >= 0 and progress.phase not in ("done",):
+            text = (f"trial {progress.trial + 1}/{self.n_trials} {progress.force_n:g} N r{progress.repeat}: "
+                    f"{progress.phase} {progress.elapsed_s:5.0f} s — about {left} left")
+        else:
+            text = progress.message
+        with self._lock:
+            if self._tty:
+                pad = max(0, self._width - len(text))
+                sys.stderr.write("\r" + text + " " * pad)
+                self._width = len(text)
+            else:
+                sys.stderr.write(text + "\n")
+            sys.stderr.flush()
+
+    def end(self) -> None:
+        if self._tty and self._width:
+            sys.stderr.write("\n")
+            self._width = 0
+
+
+def _duration(seconds: float) -> str:
+    seconds = max(0.0, seconds)
+    if seconds >= 3600:
+        return f"{seconds / 3600:.1f} h"
+    if seconds >= 120:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds:.0f} s"
+
+
+def _drain(reader: BoardReader, feed: ConductanceFeed, channel: int, stop: threading.Event,
+           lab_rate_hz: float | None) -> None:
+    """Board → feed. On a simulated lab (``lab_rate_hz``, the board's frame rate) the samples go on the lab's clock."""
+    while not stop.is_set():
+        if not reader.wait_for_frames(1, 0.1):
+            continue
+        block = reader.read_block()
+        if block is None or not len(block):
+            continue
+        if lab_rate_hz is not None:
+            times = lab_times_from_seq(block.seq, lab_rate_hz)
+            feed.push(times, block.conductance_s[:, channel], times)
+        else:
+            feed.push(block.host_time_s, block.conductance_s[:, channel], block.board_time_s)
+
+
+def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, time_scale: float,
+                  done: dict[int, Path]) -> Outcome:
+    """Run the protocol on the rig (worker thread) while the board is drained (second thread); Ctrl-C aborts."""
+    channel = config.board.channel_names.index(settings.sensor)
+    sim = factory.is_sim(config.rig.port) and factory.is_sim(config.board.port)
+    lab_clock = factory.sim_lab().clock.now if sim else None
+    feed = ConductanceFeed(time_scale=1.0 if sim else time_scale)
+    line = _ProgressLine(settings.n_trials, time_scale)
+    runner = ProtocolRunner(settings, feed, folder, on_progress=line, time_scale=time_scale, done=done,
+                            clock=lab_clock)
+    reader = BoardReader(config.board)
+    reader.start()  # PortOpenError (an OSError) names the port
+    stop_drain = threading.Event()
+    drain = threading.Thread(target=_drain, args=(reader, feed, channel, stop_drain,
+                                                          config.board.rate_hz if sim else None), name="calibrate-board",
+                             daemon=True)
+    drain.start()
+    result: list[Outcome] = []
+
+    def work() -> None:
+        rig = CalibrationRig(config.rig, interrupt=runner.stop_requested)
+        try:
+            rig.open()
+        except (DeviceError, OSError, ValueError) as exc:
+            result.append(Outcome("failed", f"cannot open the calibration rig on {config.rig.port}: {exc}", folder))
+            return
+        try:
+            result.append(runner.run(rig))
+        finally:
+            with contextlib.suppress(DeviceError, OSError):
+                rig.close()
+
+    worker = threading.Thread(target=work, name="calibrate-rig", daemon=True)
+    previous = {s: signal.signal(s, _raise_stop) for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s}
+    interrupted = ""
+    try:
+        worker.start()
+        while worker.is_alive():
+            try:
+                worker.join(0.2)
+            except KeyboardInterrupt as exc:
+                interrupted = str(exc) or "Ctrl-C"
+                runner.abort(f"interrupted ({interrupted})")
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if interrupted:
+            worker.join()
+        stop_drain.set()
+        drain.join()
+        reader.close()
+        line.end()
+    outcome = result[0] if result else Outcome("failed", "the rig thread ended without an outcome", folder)
+    if interrupted and outcome.status == ABORTED:
+        outcome = replace(outcome, status="interrupted")
+    return outcome
+
+
+def run(args: argparse.Namespace) -> int:
+    config = _config(args)
+    settings = _settings(args, config)
+    if Path(args.out).exists():
+        calfiles.read_calibration(args.out)  # refuse an unknown format/version before the rig moves
+    if not Path(args.out).resolve().parent.is_dir():
+        raise ValueError(f"--out {args.out}: folder {Path(args.out).resolve().parent} does not exist")
+    check = check_protocol(settings, config.rig, config.board)
+    if not check.ok:
+        raise ValueError("protocol refused: " + "; ".join(check.errors))
+    for text in check.warnings:
+        print(f"sensnake calibrate: warning: {text}", file=sys.stderr)
+    physics = _physics(argparse.Namespace(physics=args.physics, out=args.out))
+    if args.resume:
+        folder = Path(args.resume)
+        done = finished_trials(folder, settings)
+        print(f"sensnake calibrate: resuming {folder}: {len(done)} of {settings.n_trials} trial(s) kept",
+              file=sys.stderr)
+    else:
+        folder = session_folder(Path(args.out).resolve().parent, settings.sensor)
+        done = {}
+    time_scale = args.time_scale or 1.0
+    installed, previous_lab = _install_lab(config, args.time_scale)
+    try:
+        if len(done) < settings.n_trials:
+            total = (settings.n_trials - len(done)) * (settings.trial_duration_s() + settings.rest_s) / time_scale
+            print(f"sensnake calibrate: session {folder}: {settings.n_trials - len(done)} trial(s) of "
+                  f"{settings.sensor} at {', '.join(f'{f:g}' for f in settings.forces_n)} N, about "
+                  f"{_duration(total)}", file=sys.stderr)
+            outcome = _run_protocol(config, settings, folder, time_scale, done)
+            if outcome.status != COMPLETED:
+                print(f"sensnake calibrate: {outcome.message}", file=sys.stderr)
+                print(f"sensnake calibrate: continue with: sensnake calibrate --resume {folder} --out {args.out}"
+                      + (f" --config {args.config}" if args.config else "")
+                      + (f" --rig {args.rig}" if args.rig else "") + (f" --daq {args.daq}" if args.daq else ""),
+                      file=sys.stderr)
+                return EXIT_INTERRUPTED if outcome.status == "interrupted" else EXIT_REFUSED
+    finally:
+        if installed is not None:
+            factory.install_sim_lab(previous_lab)
+            installed.close()
+    paths = [p for _, p in sorted(finished_trials(folder, settings).items())]
+    trials = calibration_fit.read_trials(paths)
+    fit = calibration_fit.fit_trials(trials, settings.sensor, settings.area_m2, physics, config.board,
+                                     settings.fit_window_s())
+    _print(fit, folder)
+    if fit.problems and not args.save_anyway:
+        for text in fit.problems:
+            print(f"sensnake calibrate: refused: {text}", file=sys.stderr)
+        print(f"sensnake calibrate: error: the fit of {settings.sensor} is not fit to use and was NOT saved to "
+              f"{args.out}; the trials are in {folder} (sensnake fit them again, or --save-anyway)", file=sys.stderr)
+        return EXIT_REFUSED
+    calibration_fit.save(args.out, fit, physics)
+    for text in fit.problems:
+        print(f"sensnake calibrate: warning: saved although {text}", file=sys.stderr)
+    print(f"wrote {settings.sensor} to {args.out} (trials in {folder})")
+    return 0
+
+
+def _print(fit: calibration_fit.SessionFit, folder: Path) -> None:
+    """The fit's per-trial table (as ``sensnake fit``) without its closing line, plus the means and unloaded level."""
+    import contextlib
+    import io
+
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        print_report(fit.sensor, fit.calibration, str(folder))
+    lines = buffer.getvalue().rstrip("\n").splitlines()
+    if lines and lines[-1].startswith("wrote "):
+        lines = lines[:-1]
+    print("\n".join(lines))
+    means = ", ".join(f"{f:g} N {m * 1e6:.1f} µS" for f, m in zip(fit.forces_n, fit.mean_conductance_s))
+    print(f"  window {fit.window_s[0]:g}–{fit.window_s[1]:g} s means: {means}")
+    if fit.unloaded_conductance_s is not None:
+        print(f"  unloaded level {fit.unloaded_conductance_s * 1e6:.2f} µS; readout ceiling "
+              f"{fit.readout_ceiling_s * 1e6:.0f} µS")

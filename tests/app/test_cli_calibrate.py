@@ -1,0 +1,159 @@
+"""``sensnake calibrate`` on the simulated lab: the rig, the board and the fit, unattended, at 60× real time.
+
+The simulated sensor under the probe has documented parameters (``[lab] sensor_*`` of the lab config, times its
+seeded spread, read back with ``SimLab.rig_sensor_truth``); a calibration on the rig must recover them. The board
+runs at 12 Hz here (the protocol samples at 6 Hz) so that its frames keep up at 60× on a busy test machine.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from app.cli.main import main
+from app.core import calibration_fit
+from app.core.rig_protocol import ProtocolSettings, check_protocol, finished_trials, read_session
+from devices.config import BoardConfig, RigConfig, load_config
+from devices.sim.lab import SimLab
+
+REPO = Path(__file__).resolve().parents[2]
+LAB_TOML = "[board]\nrate_hz = 12.0\n"
+
+
+@pytest.fixture
+def lab_config(tmp_path):
+    path = tmp_path / "lab.toml"
+    path.write_text(LAB_TOML, encoding="utf-8")
+    return path
+
+
+def test_short_protocol_at_60x_recovers_the_simulated_sensor(tmp_path, lab_config, capsys):
+    out = tmp_path / "cal.json"
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
+                 "--forces", "1.75,3,4,5.25", "--trials", "1", "--hold", "370", "--rest", "500",
+                 "--time-scale", "60", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    truth = SimLab(load_config(lab_config), seed=0).rig_sensor_truth()
+    entry = json.loads(out.read_text())["sensors"]["S06B"]
+    for key in ("E0_Pa", "E1_Pa", "mu1_Pa_s"):
+        assert entry["sls"][key] == pytest.approx(truth[key], rel=0.05), (key, entry["sls"], truth)
+    tau = entry["sls"]["mu1_Pa_s"] / entry["sls"]["E1_Pa"]
+    assert tau == pytest.approx(truth["tau_s"], rel=0.05)
+    assert entry["degenerate"] is False and entry["refusal_reasons"] == []
+    # What the rig saw: the window means rise with force, the unloaded level is a small fraction of them.
+    means = [t["mean_conductance_S"] for t in entry["trials"]]
+    forces = [t["force_N"] for t in entry["trials"]]
+    assert forces == sorted(forces) and np.all(np.diff(means) > 0), means
+    assert 0 <= entry["unloaded_conductance_S"] < 0.05 * min(means)
+    assert all(t["unloaded_conductance_S"] is not None for t in entry["trials"])
+    # The trials are SPEC §3.1 CSVs in the session folder beside CAL.json, and the progress line said how long.
+    sessions = [p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_")]
+    assert len(sessions) == 1 and len(finished_trials(sessions[0], read_session(sessions[0]))) == 4
+    assert "left" in captured.err and "wrote S06B" in captured.out
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_path, lab_config):
+    out = tmp_path / "cal.json"
+    command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
+               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "300", "--rest", "400", "--time-scale", "60",
+               "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                               text=True)
+    seen = []
+    try:
+        assert process.stderr is not None
+        for line in process.stderr:  # non-terminal stderr: a line at every phase change
+            seen.append(line)
+            if line.startswith("trial 3/3") and ": hold" in line:
+                break
+        else:
+            pytest.fail("the run ended before trial 3's hold:\n" + "".join(seen))
+        process.send_signal(signal.SIGKILL)
+    finally:
+        process.wait(timeout=60)
+    assert process.returncode == -signal.SIGKILL
+    session = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_"))
+    settings = read_session(session)
+    kept = finished_trials(session, settings)
+    assert sorted(kept) == [0, 1], sorted(kept)  # trial 3 was in progress: not on disk
+    before = {i: _digest(p) for i, p in kept.items()}
+    assert not out.exists()
+
+    resumed = subprocess.run([sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim",
+                              "--daq", "sim", "--time-scale", "60", "--resume", str(session), "--out", str(out)],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "2 of 3 trial(s) kept" in resumed.stderr
+    done = finished_trials(session, settings)
+    assert sorted(done) == [0, 1, 2]
+    assert {i: _digest(done[i]) for i in (0, 1)} == before  # trials 1-2 untouched
+    entry = json.loads(out.read_text())["sensors"]["S06B"]
+    assert [t["file"] for t in entry["trials"]] == [done[i].name for i in (0, 1, 2)]
+
+
+def test_resume_takes_the_protocol_from_the_session(tmp_path, lab_config, capsys):
+    folder = tmp_path / "S06B_x"
+    folder.mkdir()
+    (folder / "protocol.json").write_text(json.dumps({"format": "sensnake-calibration-protocol", "version": 1,
+                                                      **ProtocolSettings().__dict__}), encoding="utf-8")
+    code = main(["calibrate", "--rig", "sim", "--daq", "sim", "--resume", str(folder), "--hold", "10",
+                 "--out", str(tmp_path / "c.json")])
+    err = capsys.readouterr().err
+    assert code == 1 and "--resume continues the session's own protocol: drop --hold" in err
+    code = main(["calibrate", "--rig", "sim", "--daq", "sim", "--resume", str(tmp_path),
+                 "--out", str(tmp_path / "c.json")])
+    assert code == 1 and "is not a calibration session folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--hold", "1.7", "--ramp", "1", "--rate", "6"], "leaves 4 samples at full force; the fit needs at least 10"),
+    (["--forces", "1.75,9"], "above the rig's maximum force 8 N"),
+    (["--sensor", "S99Z"], "sensor S99Z is not a channel of the board"),
+    (["--time-scale", "60", "--rig", "/dev/ttyUSB7"], "--time-scale only runs the simulated lab faster"),
+])
+def test_protocol_refused_before_anything_moves(tmp_path, capsys, argv, message):
+    base = ["calibrate", "--rig", "sim", "--daq", "sim", "--out", str(tmp_path / "c.json")]
+    code = main(base + argv)
+    err = capsys.readouterr().err
+    assert code == 1 and message in err, err
+    assert list(tmp_path.iterdir()) == []  # no session folder, no file
+
+
+def test_protocol_check_names_the_spring_travel_and_the_readout_range():
+    settings = ProtocolSettings(forces_n=(1.75, 20.0), hold_s=30.0)
+    check = check_protocol(settings, RigConfig(max_force_n=50.0), BoardConfig())
+    assert any("spring's travel" in e for e in check.errors), check
+    typical = check_protocol(ProtocolSettings(), RigConfig(), BoardConfig())
+    assert typical.ok and any("readout's ceiling" in w for w in typical.warnings)
+
+
+def _fake_cal(degenerate=(), e0=2e6):
+    sls = SimpleNamespace(E0_Pa=e0, E1_Pa=4e6, mu1_Pa_s=4e8)
+    return SimpleNamespace(degenerate=bool(degenerate), degenerate_reasons=tuple(degenerate), sls=sls)
+
+
+def test_refusal_reasons_name_what_makes_a_fit_unusable():
+    forces = [1.75, 3.0, 4.0, 5.25]
+    rising = [3e-4, 3.6e-4, 4.2e-4, 4.9e-4]
+    assert calibration_fit.refusal_reasons(_fake_cal(), forces, rising, 1e-7) == []
+    reasons = calibration_fit.refusal_reasons(_fake_cal(("τ → 0",)), forces, rising, 1e-7)
+    assert reasons == ["degenerate SLS fit: τ → 0"]
+    assert "non-physical" in calibration_fit.refusal_reasons(_fake_cal(e0=-1.0), forces, rising, 1e-7)[0]
+    falling = [3.2e-4, 2.9e-4, 3.5e-4, 3.6e-4]  # the issue's run: the 1.75 N plateau below the 0 N baseline
+    texts = calibration_fit.refusal_reasons(_fake_cal(), forces, falling, 3.1e-4)
+    assert any("does not rise with force" in t for t in texts) and any("unloaded level" in t for t in texts)
