@@ -144,6 +144,13 @@ class _LongLivedObjects:
             self._users += 1
             gc.freeze()  # cheap (moves the generations' lists); again on every start: the newest objects too
 
+    def refreeze(self) -> None:
+        """A motion starts: what is alive now (tabs built since the loop started, the motion's plan) is long-lived
+        too."""
+        with self._lock:
+            if self._users:
+                gc.freeze()
+
     def release(self) -> None:
         with self._lock:
             self._users -= 1
@@ -376,6 +383,7 @@ class RobotController:
         Returns a Future resolved with ``"finished"`` or ``"stopped"``, or failed with the error that stopped it.
         """
         future: concurrent.futures.Future[str] = concurrent.futures.Future()
+        _long_lived.refreeze()
         self._commands.put((lambda: self._begin_motion(source, name, future), future))
         return future
 
@@ -389,6 +397,7 @@ class RobotController:
         joint, its value and the limit. Otherwise as :meth:`run_motion`.
         """
         future: concurrent.futures.Future[str] = concurrent.futures.Future()
+        _long_lived.refreeze()
         self._commands.put((lambda: self._begin_play(source, name, future, hold_first), future))
         return future
 

@@ -9,13 +9,14 @@ import sys
 import threading
 import weakref
 
+import numpy as np
 import pytest
 
 from devices import control_table as ct
 from devices import controller as controller_module
 from devices import factory
 from devices.config import RobotConfig
-from devices.controller import RobotController
+from devices.controller import HoldPose, RobotController
 from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
@@ -185,6 +186,12 @@ def test_objects_alive_when_the_loop_starts_are_skipped_by_the_collector_until_t
         del young
         gc.collect()
         assert young_ref() is None  # garbage made while the loop runs is collected as usual
+        built_later = _Cycle()  # e.g. a tab built after connecting, alive when a motion starts
+        later_ref = weakref.ref(built_later)
+        first.run_motion(HoldPose(np.zeros(12), duration_s=0.01), "hold").result(WAIT_S)
+        del built_later
+        gc.collect()
+        assert later_ref() is not None
         second = RobotController(ServoChain(RobotConfig()), RobotConfig())
         second.start()
         second.close()
@@ -194,4 +201,4 @@ def test_objects_alive_when_the_loop_starts_are_skipped_by_the_collector_until_t
         factory.install_sim_lab(previous)
     assert gc.get_freeze_count() == 0
     gc.collect()
-    assert old_ref() is None
+    assert old_ref() is None and later_ref() is None
