@@ -27,10 +27,12 @@ depend on how busy the rest of the machine is, unlike fps, which a loaded machin
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -97,7 +99,9 @@ class _PaintCount:
 
 
 def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, window_s: float, run_s: float,
-                   baud: int) -> dict:
+                   baud: int, board_port: str | None = None) -> dict:
+    """One live scenario; ``board_port``: read the board there (a pty of the board emulator in its own process)
+    instead of the in-process simulated board."""
     from PySide6.QtCore import QEventLoop, QTimer
 
     from app.gui.lab import LabContext
@@ -107,7 +111,10 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
     from devices.sim.lab import SimLab
 
     names = default_sensor_names() if n_channels == 36 else tuple(f"C{i:04d}" for i in range(n_channels))
-    config = LabConfig(board=replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud))
+    board_config = replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud)
+    if board_port:
+        board_config = replace(board_config, port=board_port)
+    config = LabConfig(board=board_config)
     previous = factory.install_sim_lab(SimLab(config, seed=7, speed=1.0))
     lab = LabContext(config)
     tab = ForcesTab(lab)
@@ -167,8 +174,10 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         lost = ((stats.overflow_frames - stats0.overflow_frames) + (stats.dropped_frames - stats0.dropped_frames)
                 + (stats.crc_errors - stats0.crc_errors))
         lat = np.array(latencies) if latencies else np.array([np.nan])
+        where = ", board in own process" if board_port else ""
         return {
-            "scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {prefill_s / 60:g} min history, {window_s / 60:g} min window",
+            "scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {prefill_s / 60:g} min history, {window_s / 60:g} min "
+                        f"window{where}",
             "fps": (tab.plots.redraw_count - redraws0) / wall,
             "paints_per_plot": float(np.mean(paints.counts)) / wall if shown else float("nan"),
             "min_paints_per_plot": float(np.min(paints.counts)) / wall if shown else float("nan"),
@@ -213,6 +222,37 @@ def _memory_scenario(n_channels: int, rate_hz: float, hours: float) -> dict:
             "append_us_per_sample": 1e6 * append_s / max(1, seconds * block.shape[0])}
 
 
+@contextlib.contextmanager
+def _board_emulator(n_channels: int, rate_hz: float, baud: int) -> Iterator[str | None]:
+    """The independent board emulator (tests/emulators, SPEC §4 on a pty) in its own process, like a real board:
+    its path, or None where it cannot run (no pty, no tests package)."""
+    import tempfile
+
+    if not hasattr(os, "openpty"):
+        yield None
+        return
+    with tempfile.TemporaryDirectory(prefix="sensnake-bench-board-") as tmp:
+        link = os.path.join(tmp, "board")
+        try:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "tests.emulators.board_emulator", "--link", link, "--channels", str(n_channels),
+                 "--rate-hz", f"{rate_hz:g}", "--baud", str(baud)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        except OSError:
+            yield None
+            return
+        try:
+            ready = process.stdout.readline() if process.stdout is not None else ""
+            yield link if ready.startswith("READY") else None
+        finally:
+            process.terminate()
+            try:
+                process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
 def _app_scenario(seconds: float) -> dict | None:
     """``tests/realdisplay/probe.py forces_cost`` in a subprocess on this display (xcb only)."""
     if os.environ.get("QT_QPA_PLATFORM") != "xcb":
@@ -249,9 +289,18 @@ def run(quick: bool) -> None:
               f"{'proc CPU%':>9} {'lat ms':>7} {'p95 ms':>7} {'frames':>7} {'expected':>8} {'lost':>5} {'stall ms':>8} {'busy ms':>7} {'>100ms':>6}")
     print(header)
     print("-" * len(header))
-    for n_channels, rate_hz, prefill_s, window_s, baud in ((36, 30.0, 600.0, 600.0, 2_000_000),
-                                                           (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000)):
-        r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud)
+    scenarios = [(36, 30.0, 600.0, 600.0, 2_000_000, False),
+                 (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000, False),
+                 (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000, True)]
+    for n_channels, rate_hz, prefill_s, window_s, baud, own_process in scenarios:
+        if own_process:
+            with _board_emulator(n_channels, rate_hz, baud) as port:
+                if port is None:
+                    print("(board emulator in its own process: not available here)")
+                    continue
+                r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud, board_port=port)
+        else:
+            r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud)
         per_frame_ms = 10 * r["gui_cpu_pct"] / r["fps"] if r["fps"] else float("nan")
         print(f"{r['scenario']:<50} {r['plots']:>5} {r['fps']:>6.1f} {r['min_paints_per_plot']:>8.1f} "
               f"{per_frame_ms:>12.1f} {r['gui_cpu_pct']:>9.1f} "
