@@ -36,7 +36,7 @@ from models.fit_output import (
     trial_costs,
 )
 from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit_paper_ls
-from models.fit_profile import profile_tau
+from models.fit_profile import profile_tau, refined_tau_interval
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams, abc_from_sls
@@ -624,7 +624,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                     "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
                     "E1_Pa": "hold longer so the creep settles"}[name]
             sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
-    tau_lo, tau_hi = profile.tau_interval()
+    tau_lo, tau_hi = refined_tau_interval(fit_trials, area_m2, phys, profile, saturation_s=saturation_s)
     if not degenerate_tau_named(sensor_warnings) and not math.isfinite(tau_hi):
         sensor_warnings.append(f"creep time τ not bounded above by these records (95 % profile interval τ ≥ "
                                f"{tau_lo:.3g} s, fitted {float(joint.ref.tau_s):.3g} s): E1 and mu1 are correlated; "
