@@ -719,6 +719,41 @@ def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int,
     return found
 
 
+def unfinished_sessions(base: str | Path) -> list[tuple[Path, ProtocolSettings, int]]:
+    """Session folders under ``base`` whose protocol is not complete: (folder, settings, trials done), newest
+    first — what the app offers to resume after a restart."""
+    found = []
+    try:
+        folders = sorted((p for p in Path(base).iterdir() if (p / SESSION_FILE).is_file()),
+                         key=lambda p: p.stat().st_mtime, reverse=True)
+    except OSError:
+        return found
+    for folder in folders:
+        try:
+            settings = read_session(folder)
+        except ValueError:
+            continue
+        done = len(finished_trials(folder, settings))
+        if done < settings.n_trials:
+            found.append((folder, settings, done))
+    return found
+
+
+def reject_trial(path: str | Path) -> Path:
+    """Move a finished trial's CSV into its session's ``rejected/`` folder (kept, never deleted), so that resuming
+    the session runs that trial again. Returns the new path."""
+    source = Path(path)
+    target_dir = source.parent / "rejected"
+    target_dir.mkdir(exist_ok=True)
+    target = target_dir / source.name
+    k = 1
+    while target.exists():
+        target = target_dir / f"{source.stem}.{k}{source.suffix}"
+        k += 1
+    source.replace(target)
+    return target
+
+
 def trial_file_name(sensor: str, index: int, force_n: float, repeat: int) -> str:
     """``S06B_t03_4.00N_r1.csv``: sortable by run order, readable."""
     return f"{sensor}_t{index + 1:02d}_{force_n:.2f}N_r{repeat}.csv"
