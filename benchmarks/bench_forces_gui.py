@@ -27,11 +27,14 @@ depend on how busy the rest of the machine is, unlike fps, which a loaded machin
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -77,6 +80,8 @@ class _PaintCount:
         counts = self.counts = [0] * len(widgets_)
 
         class Filter(QObject):
+            index = 0  # which widget this filter counts for
+
             def eventFilter(self, obj, event, _paint=paint):  # noqa: N802 - Qt override
                 if event.type() == _paint:
                     counts[self.index] += 1
@@ -94,7 +99,9 @@ class _PaintCount:
 
 
 def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, window_s: float, run_s: float,
-                   baud: int) -> dict:
+                   baud: int, board_port: str | None = None) -> dict:
+    """One live scenario; ``board_port``: read the board there (a pty of the board emulator in its own process)
+    instead of the in-process simulated board."""
     from PySide6.QtCore import QEventLoop, QTimer
 
     from app.gui.lab import LabContext
@@ -104,7 +111,10 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
     from devices.sim.lab import SimLab
 
     names = default_sensor_names() if n_channels == 36 else tuple(f"C{i:04d}" for i in range(n_channels))
-    config = LabConfig(board=replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud))
+    board_config = replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud)
+    if board_port:
+        board_config = replace(board_config, port=board_port)
+    config = LabConfig(board=board_config)
     previous = factory.install_sim_lab(SimLab(config, seed=7, speed=1.0))
     lab = LabContext(config)
     tab = ForcesTab(lab)
@@ -113,7 +123,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
     try:
         _prefill(tab.force_history, prefill_s, rate_hz)
         _prefill(lab.board.history, prefill_s, rate_hz)
-        tab.controls.window.setCurrentIndex(tab.controls.window.findData(window_s))
+        tab.controls.window_combo.setCurrentIndex(tab.controls.window_combo.findData(window_s))
         board = lab.board
         board.start()
         deadline = time.monotonic() + 10
@@ -122,7 +132,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         latencies: list[float] = []
         tab.plots.redrawn.connect(
             lambda: latencies.append(time.monotonic() - (board.t0_monotonic_s + tab.plots.last_redraw_s)))
-        stalls = {"last": time.monotonic(), "last_cpu": time.thread_time(), "max": 0.0, "max_busy": 0.0, "gaps": []}
+        stalls: dict[str, Any] = {"last": time.monotonic(), "last_cpu": time.thread_time(), "max": 0.0, "max_busy": 0.0, "gaps": []}
         tick_s = 0.005
 
         def tick() -> None:
@@ -143,7 +153,7 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         QTimer.singleShot(1000, loop.quit)
         loop.exec()
         latencies.clear()
-        viewport = tab.plots.scroll.viewport()
+        viewport = tab.plots.scroll_area.viewport()
         shown = [plot.plot_widget.viewport() for plot in tab.plots.plots if plot.on_screen(viewport)]
         paints = _PaintCount(shown)
         stats0 = board.stats
@@ -164,8 +174,10 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
         lost = ((stats.overflow_frames - stats0.overflow_frames) + (stats.dropped_frames - stats0.dropped_frames)
                 + (stats.crc_errors - stats0.crc_errors))
         lat = np.array(latencies) if latencies else np.array([np.nan])
+        where = ", board in own process" if board_port else ""
         return {
-            "scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {prefill_s / 60:g} min history, {window_s / 60:g} min window",
+            "scenario": f"{n_channels} ch @ {rate_hz:g} Hz, {prefill_s / 60:g} min history, {window_s / 60:g} min "
+                        f"window{where}",
             "fps": (tab.plots.redraw_count - redraws0) / wall,
             "paints_per_plot": float(np.mean(paints.counts)) / wall if shown else float("nan"),
             "min_paints_per_plot": float(np.min(paints.counts)) / wall if shown else float("nan"),
@@ -210,6 +222,37 @@ def _memory_scenario(n_channels: int, rate_hz: float, hours: float) -> dict:
             "append_us_per_sample": 1e6 * append_s / max(1, seconds * block.shape[0])}
 
 
+@contextlib.contextmanager
+def _board_emulator(n_channels: int, rate_hz: float, baud: int) -> Iterator[str | None]:
+    """The independent board emulator (tests/emulators, SPEC §4 on a pty) in its own process, like a real board:
+    its path, or None where it cannot run (no pty, no tests package)."""
+    import tempfile
+
+    if not hasattr(os, "openpty"):
+        yield None
+        return
+    with tempfile.TemporaryDirectory(prefix="sensnake-bench-board-") as tmp:
+        link = os.path.join(tmp, "board")
+        try:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "tests.emulators.board_emulator", "--link", link, "--channels", str(n_channels),
+                 "--rate-hz", f"{rate_hz:g}", "--baud", str(baud)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        except OSError:
+            yield None
+            return
+        try:
+            ready = process.stdout.readline() if process.stdout is not None else ""
+            yield link if ready.startswith("READY") else None
+        finally:
+            process.terminate()
+            try:
+                process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
 def _app_scenario(seconds: float) -> dict | None:
     """``tests/realdisplay/probe.py forces_cost`` in a subprocess on this display (xcb only)."""
     if os.environ.get("QT_QPA_PLATFORM") != "xcb":
@@ -228,7 +271,7 @@ def run(quick: bool) -> None:
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance() or QApplication([])
-    platform = app.platformName()
+    platform = QApplication.platformName()
     run_s = 3.0 if quick else 15.0
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"Qt platform: {platform}; load average {load:.1f} on {os.cpu_count()} cores (CPU and rates are noisy "
@@ -246,9 +289,18 @@ def run(quick: bool) -> None:
               f"{'proc CPU%':>9} {'lat ms':>7} {'p95 ms':>7} {'frames':>7} {'expected':>8} {'lost':>5} {'stall ms':>8} {'busy ms':>7} {'>100ms':>6}")
     print(header)
     print("-" * len(header))
-    for n_channels, rate_hz, prefill_s, window_s, baud in ((36, 30.0, 600.0, 600.0, 2_000_000),
-                                                           (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000)):
-        r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud)
+    scenarios = [(36, 30.0, 600.0, 600.0, 2_000_000, False),
+                 (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000, False),
+                 (1024, 100.0, 60.0 if quick else 600.0, 30.0, 4_000_000, True)]
+    for n_channels, rate_hz, prefill_s, window_s, baud, own_process in scenarios:
+        if own_process:
+            with _board_emulator(n_channels, rate_hz, baud) as port:
+                if port is None:
+                    print("(board emulator in its own process: not available here)")
+                    continue
+                r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud, board_port=port)
+        else:
+            r = _live_scenario(app, n_channels, rate_hz, prefill_s, window_s, run_s, baud)
         per_frame_ms = 10 * r["gui_cpu_pct"] / r["fps"] if r["fps"] else float("nan")
         print(f"{r['scenario']:<50} {r['plots']:>5} {r['fps']:>6.1f} {r['min_paints_per_plot']:>8.1f} "
               f"{per_frame_ms:>12.1f} {r['gui_cpu_pct']:>9.1f} "

@@ -36,7 +36,7 @@ from models.fit_output import (
     trial_costs,
 )
 from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit_paper_ls
-from models.fit_profile import profile_tau
+from models.fit_profile import profile_tau, refined_tau_interval
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
 from models.sls import SLSParams, abc_from_sls
@@ -69,7 +69,7 @@ JOINT_STARTS = 2
 # Profile over log τ (models.fit_profile): from PROFILE_TAU_LOW × the sample step to TAU_RESOLVABLE_SPANS × the
 # record length, PROFILE_TAU_POINTS values; (E0, E1) follow τ, so its minima are starts in the right basin even where
 # the τ grid above (E0, E1 held) only sees the τ → 0 plateau; its curve gives τ's profile-likelihood interval.
-PROFILE_TAU_LOW, PROFILE_TAU_POINTS = 0.5, 41
+PROFILE_TAU_LOW, PROFILE_TAU_POINTS = 0.5, 81
 PROFILE_STARTS = 2
 # The resolvable creep: τ between the sample step and this multiple of the record length.
 TAU_RESOLVABLE_SPANS = 100.0
@@ -210,6 +210,9 @@ class SensorCalibration:
     # At a search bound, unidentifiable (singular Jacobian), not converged, or τ outside what the records resolve:
     # ``sls`` is then not to be trusted; ``estimate`` refuses it unless --allow-degenerate.
     degenerate_reasons: tuple[str, ...] = field(default_factory=tuple)
+    # 95 % profile-likelihood interval of the creep time τ = mu1/E1 (s) from models.fit_profile (no linearisation;
+    # an end the records do not bound is 0 or inf).
+    tau_ci95: tuple[float, float] = (0.0, math.inf)
 
     @property
     def degenerate(self) -> bool:
@@ -238,6 +241,7 @@ class SensorCalibration:
         entry["warnings"] = list(self.warnings)
         entry["degenerate"] = self.degenerate
         entry["degenerate_reasons"] = list(self.degenerate_reasons)
+        entry["tau_s_ci95"] = [_or_none(self.tau_ci95[0]), _or_none(self.tau_ci95[1])]  # null: not bounded
         return entry
 
 
@@ -433,6 +437,11 @@ def _degenerate_reasons(joint: OutputFit, step_s: float, span_s: float, creep_re
     return reasons
 
 
+def degenerate_tau_named(warnings: Sequence[str]) -> bool:
+    """A warning already names τ as unresolved (so the open profile interval need not be said twice)."""
+    return any("τ" in w and ("resolv" in w or "far from" in w) for w in warnings)
+
+
 def _trial_unresolved(params: SLSParams, ci95: dict[str, tuple[float, float]], step_s: float,
                       span_s: float) -> str | None:
     """Why one trial's own fit is not identified (None when it is): τ outside what a record resolves, or an
@@ -615,6 +624,11 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                     "mu1_Pa_s": "the creep time τ is far from the record length: hold longer or check the sensor",
                     "E1_Pa": "hold longer so the creep settles"}[name]
             sensor_warnings.append(f"{name} poorly identified (95 % interval {lo:.3g} … {hi:.3g}): {hint}")
+    tau_lo, tau_hi = refined_tau_interval(fit_trials, area_m2, phys, profile, saturation_s=saturation_s)
+    if not degenerate_tau_named(sensor_warnings) and not math.isfinite(tau_hi):
+        sensor_warnings.append(f"creep time τ not bounded above by these records (95 % profile interval τ ≥ "
+                               f"{tau_lo:.3g} s, fitted {float(joint.ref.tau_s):.3g} s): E1 and mu1 are correlated; "
+                               "forces within the calibrated range are still right, hold longer to pin τ down")
     degenerate = _degenerate_reasons(joint, step_s, span_s, _creep_resolved(
         joint, _elastic_cost(fit_trials, area_m2, phys, joint.ref, saturation_s)))
     sensor_warnings.extend(f"degenerate SLS fit: {reason}" for reason in degenerate
@@ -649,4 +663,5 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         area_m2=float(area_m2), linear=linear, sls=joint.ref, sls_ci95=joint.ci95,
         sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
         trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
-        solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate))
+        solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate),
+        tau_ci95=(tau_lo, tau_hi))

@@ -184,3 +184,21 @@ def profile_tau(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstan
     return TauProfile(taus, joint[0], joint[1], joint[2], joint[3],
                       np.array([p[0] for p in per]), np.array([p[1] for p in per]), np.array([p[2] for p in per]),
                       np.array([p[3] for p in per]), tuple(used))
+
+
+def refined_tau_interval(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, profile: TauProfile,
+                         *, saturation_s: float | None = None, points: int = 41) -> tuple[float, float]:
+    """:meth:`TauProfile.tau_interval` on a finer grid: the coarse interval's span (each closed end) is profiled
+    again at ``points`` values, so a well-pinned τ gets an interval a few percent wide instead of the coarse grid's
+    ±1 step. An end the coarse profile left open stays open; a fine end at the fine grid's edge keeps the coarse end
+    (conservative)."""
+    lo, hi = profile.tau_interval()
+    start = lo if lo > 0 else float(profile.taus[0])
+    stop = hi if math.isfinite(hi) else float(profile.taus[-1])
+    if not (0 < start < stop):
+        return lo, hi
+    fine = profile_tau(trials, area_m2, phys, np.geomspace(start, stop, points), saturation_s=saturation_s)
+    fine_lo, fine_hi = fine.tau_interval()
+    return (fine_lo if lo > 0 and fine_lo > 0 else lo,
+            fine_hi if math.isfinite(hi) and math.isfinite(fine_hi) else hi)
+

@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy import constants as _const
 
-# CODATA values as shipped by scipy.constants (h and e are exact; m_e is the release scipy carries).
-PLANCK_J_S = _const.h
-ELECTRON_MASS_KG = _const.m_e
-ELECTRON_VOLT_J = _const.e
+# CODATA 2022 (h and e are exact in the SI since 2019; m_e is CODATA 2022, what scipy.constants 1.15+ carries).
+# Literals, not ``scipy.constants``: importing that pulls in scipy's array-API layer and numpy.f2py (~0.2-0.4 s),
+# the largest single cost of opening the app (the simulated lab's sensor models import this module).
+PLANCK_J_S = 6.62607015e-34
+ELECTRON_MASS_KG = 9.1093837139e-31
+ELECTRON_VOLT_J = 1.602176634e-19
 
 PHYSICS_KEYS = ("R0_ohm", "D_m", "phi", "barrier_eV", "K_contact_ohm_sqrtN")
 

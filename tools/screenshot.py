@@ -132,11 +132,16 @@ def main(argv: list[str] | None = None) -> int:
             if name == "gait":
                 _stage_gait(page, pump)
             if name == "forces":
-                page.controls.window.setCurrentIndex(page.controls.window.findText("10 s"))
+                page.controls.window_combo.setCurrentIndex(page.controls.window_combo.findText("10 s"))
                 pump(4_000)
                 page.controls.record.click()  # recording while the robot moves: REC in the status bar
                 pump(6_000)  # the tab keeps what arrives after it opens: fill the 10 s window
             if name == "hardware":
+                # A scan holds the bus, so it is refused while a motion plays: end the gait first (the picture
+                # shows the scan list, as a user who scans would see it).
+                if lab.robot.motion_state in ("running", "paused"):
+                    lab.robot.stop_motion()
+                    pump(5_000, until=lambda: lab.robot.motion_state not in ("running", "paused"))
                 page.panel.scan_id_to.setValue(20)
                 page.panel.scan_button.click()
                 pump(20_000, until=lambda p=page: p.panel.scan_button.isEnabled())

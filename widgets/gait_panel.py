@@ -28,6 +28,7 @@ from PySide6.QtWidgets import (
     QProgressBar,
     QPushButton,
     QScrollArea,
+    QSizePolicy,
     QSpinBox,
     QStackedWidget,
     QTableWidget,
@@ -211,6 +212,9 @@ class GaitPanel(QWidget):
         column.addWidget(self.progress_bar)
         self.progress_label = QLabel("idle")
         self.progress_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
+        # The column's width decides, not the text (a long motion's line would widen the column to the window's
+        # edge); set_progress shortens the line to what fits and the tooltip holds all of it.
+        self.progress_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         column.addWidget(self.progress_label)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
@@ -333,7 +337,21 @@ class GaitPanel(QWidget):
             w.setEnabled(idle)
 
     def set_progress(self, text: str, fraction: float) -> None:
-        self.progress_label.setText(text)
+        """``text``: the progress line (``where   elapsed / total s   time left``). When it does not fit the column,
+        the spacing tightens, then the elapsed / total part goes (the bar shows it); never cut off mid-text."""
+        label = self.progress_label
+        metrics = label.fontMetrics()
+        room = label.contentsRect().width()
+        shown = text
+        if room > 0 and metrics.horizontalAdvance(shown) > room:
+            parts = [p for p in text.split("   ") if p]
+            shown = " ".join(" ".join(p.split()) for p in parts)
+            if metrics.horizontalAdvance(shown) > room and len(parts) >= 3:
+                shown = " ".join(" ".join(p.split()) for p in (parts[:-2] + parts[-1:]))
+        if label.text() != shown:
+            label.setText(shown)
+        if label.toolTip() != text:
+            label.setToolTip(text)
         self.progress_bar.setValue(int(round(min(max(fraction, 0.0), 1.0) * 1000)))
 
     def set_status(self, text: str, level: str = theme.IDLE) -> None:

@@ -89,7 +89,9 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     for key, value in (("E0_Pa", s.E0_Pa), ("E1_Pa", s.E1_Pa), ("mu1_Pa_s", s.mu1_Pa_s)):
         lo, hi = cal.sls_ci95[key]
         print(f"  sls {key:<9} {float(value):12.5e}   95% [{lo:.5e}, {hi:.5e}]")
-    print(f"  sls tau_s     {float(s.tau_s):12.5g}   joint rmse {cal.rmse_s:.3e} S")
+    tau_lo, tau_hi = cal.tau_ci95
+    print(f"  sls tau_s     {float(s.tau_s):12.5g}   95% [{tau_lo:.5g}, {tau_hi:.5g}] (profile)   "
+          f"joint rmse {cal.rmse_s:.3e} S")
     if cal.sls_trend is not None:
         for key, (intercept, slope) in cal.sls_trend.items():
             print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")

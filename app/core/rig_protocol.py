@@ -64,7 +64,7 @@ from models.sls import TYPICAL_SLS, SLSParams
 
 PAPER_FORCES_N = (1.75, 3.0, 4.0, 5.25)
 PAPER_HOLD_S = 370.0
-BOARD_STALE_S = 5.0  # no board sample of the sensor for this long (wall seconds) ends the run
+BOARD_STALE_S = 5.0  # no board sample of the sensor for this long (seconds of the lab clock) ends the run
 PROGRESS_INTERVAL_S = 0.5  # progress callbacks during rests and pauses
 FEED_CAPACITY = 1 << 16  # board samples kept by the feed (≈ 36 min at the board's default 30 Hz)
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
@@ -608,8 +608,9 @@ class ProtocolRunner:
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
         rig.release()
         times, forces = times[: row + 1], forces[: row + 1]
-        host_t, board_c, board_t = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times, period, board_times_on_host_clock(host_t, board_t), board_c)
+        snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
+        conductance = decimate_to(times, period, board_times_on_host_clock(snap_host_t, snap_board_t),
+                                  snap_conductance)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)

@@ -11,7 +11,7 @@ import pytest
 
 from app.core.recording import RobotRecord, open_recording
 from app.gui.lab import LabContext
-from app.gui.tabs.forces import create_tab, onset_time_s
+from app.gui.tabs.forces import BODY_MAP, create_tab, onset_time_s
 from devices.config import LabConfig
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
@@ -158,15 +158,21 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
 
     # Replay drives the body map from the recorded joints (not the live robot): give the recording a pose the live
     # robot never had, first and second half, and move the cursor across it.
+    # The times are taken from the distinct time stamps: rows can share one (the reader clamps arrival times so they
+    # never go backwards; a backlog drained at the start can give dozens of rows one time), and taking rows 1 and
+    # N/2 was this test's intermittent failure (issue 14): row 1's time could equal row N/2's (then the cursor is at
+    # the second pose) or row 0's (then the hover lands a rounding error left of the first sample: no readout).
     n_joints = len(LabConfig().robot.joint_ids)
-    t_mid = float(recording.time_s[recording.n_samples // 2])
+    distinct = np.unique(recording.time_s)
+    assert distinct.size >= 5
+    t_early, t_mid, t_late = float(distinct[1]), float(distinct[distinct.size // 2]), float(distinct[-2])
     first, second = np.full(n_joints, 0.4), np.linspace(-0.5, 0.5, n_joints)
     tab.viewed = dataclasses.replace(recording, robot=RobotRecord(
         time_s=np.array([float(recording.time_s[0]) - 1.0, t_mid]), goal_rad=np.zeros((2, n_joints)),
         present_rad=np.vstack([first, second]), current_ma=np.zeros((2, n_joints))))
-    tab.plots.hover_at(0, float(recording.time_s[1]))
+    tab.plots.hover_at(0, t_early)
     assert np.allclose(tab.body._present, first)
-    tab.plots.hover_at(0, float(recording.time_s[-2]))
+    tab.plots.hover_at(0, t_late)
     assert np.allclose(tab.body._present, second)
     assert tab.recorded_body(t_mid - 1e-3)[0] is not None and np.allclose(tab.recorded_body(t_mid - 1e-3)[0], first)
     t3 = float(recording.time_s[3])
@@ -195,6 +201,8 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     assert tab.export_plot_image(-1, tmp_path / "overlay.png").stat().st_size > 0
     svg = tab.export_plot_image(-1, tmp_path / "overlay.svg")
     assert svg is not None and "S06B" in svg.read_text(encoding="utf-8")  # the title names the sensor
+    body_svg = tab.export_plot_image(BODY_MAP, tmp_path / "body.svg")
+    assert body_svg is not None and "Body force map" in body_svg.read_text(encoding="utf-8")
     assert tab.export_plot_image(-1, tmp_path / "overlay.bmp") is None
     assert "png or .svg" in tab.controls.message.text() and not (tmp_path / "overlay.bmp").exists()
     x0 = tab.overlay.curves[0].xData

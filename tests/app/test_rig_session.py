@@ -31,7 +31,9 @@ def fast_lab(install_fast_sim_lab):
 @pytest.fixture
 def session(qtbot, fast_lab):
     lab = LabContext(BENCH_CONFIG)
-    rig_session = RigSession(lab, board_stale_s=1.0)  # a stopped board stream ends the run after 1 s
+    # A stopped board stream ends the run after 10 s of lab time: 0.2 s of wall time at 50x, well above the gaps a
+    # loaded 2-core machine leaves between board blocks (1 s of lab time was 20 ms of wall time and flaked under load).
+    rig_session = RigSession(lab, board_stale_s=10.0)
     yield rig_session
     rig_session.shutdown()
     lab.close()
@@ -150,11 +152,11 @@ def test_board_cable_pulled_during_a_hold_stops_the_run_and_releases(session, qt
         pass
     fast_lab.board.unplug()
     with qtbot.waitSignal(session.finished, timeout=30_000) as blocker:
-        pass  # no board sample for the session's board_stale_s (1 s)
+        pass  # no board sample for the session's board_stale_s (10 s)
     fast_lab.board.replug()
     outcome = blocker.args[0]
     assert outcome.status == FAILED
-    assert outcome.message.startswith("no conductance from the board for sensor BENCH for 1 s during trial 1/1")
+    assert outcome.message.startswith("no conductance from the board for sensor BENCH for 10 s during trial 1/1")
     assert "load released" in outcome.message and "check the board's cable" in outcome.message
     assert fast_lab.rig.applied_force_n() == 0.0
 

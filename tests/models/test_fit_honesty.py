@@ -67,3 +67,22 @@ def test_mostly_censored_trial_is_refused_for_the_table_and_says_why():
     assert refused["F5.25"] is not None and "saturated" in refused["F5.25"]
     entry = cal.to_dict()["trials"][1]
     assert entry["E1_Pa"] is None and entry["refused"] == refused["F5.25"]
+
+
+@pytest.mark.parametrize("tau_s, side", [(0.01, "shorter than one sample step"), (1e5, "longer than the records")])
+def test_creep_faster_than_a_sample_or_slower_than_the_records_is_degenerate_naming_the_side(tau_s, side):
+    """τ → 0 (0.01 s at 6 Hz) and τ → ∞ (1e5 s under 370 s holds): refused as degenerate with the right reason,
+    never as a flat sensor, and estimate would refuse the file (its 'degenerate' is true)."""
+    truth = SensorTruth.constant(6.0e5, 9.0e5, 9.0e5 * tau_s)
+    trials = paper_protocol(truth, PHYS, seed=1, repeats=1, noise_rel=0.002)
+    cal = calibrate_sensor(_inputs(trials), truth.area_m2, PHYS, saturation_s=CEILING_S)
+    assert cal.degenerate and cal.to_dict()["degenerate"] is True
+    assert any(side in r and "τ → 0 and τ → ∞" in r for r in cal.degenerate_reasons)
+    assert not any("flat" in w for w in cal.warnings)
+
+
+def test_disconnected_sensor_is_refused_by_name():
+    t = np.arange(0.0, 370.0, 1 / 6)
+    dead = TrialInput("dead.csv", t, np.where(t > 5, 3.0, 0.0), np.zeros(t.size))
+    with pytest.raises(FlatSensorError, match=r"dead.csv: conductance is zero throughout: the sensor is disconnected"):
+        calibrate_sensor([dead], TYPICAL_TRUTH.area_m2, PHYS)

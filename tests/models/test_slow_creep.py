@@ -42,6 +42,10 @@ def test_slow_creep_is_recovered_with_honest_intervals(tau_s, noise):
         # (noise-free fits end at rounding level: the interval is then ~1e-15 wide, hence the 1e-9 slack)
         assert lo * (1 - 1e-9) <= float(getattr(truth.params_at(3.0), name)) <= hi * (1 + 1e-9), (name, lo, hi)
     assert tau_s / 2.5 < float(cal.sls.tau_s) < tau_s * 2.5
+    # τ's profile-likelihood interval (no linearisation) holds the truth too, and is written to the file.
+    lo, hi = cal.tau_ci95
+    assert lo <= tau_s <= hi
+    assert cal.to_dict()["tau_s_ci95"] == [lo, hi if np.isfinite(hi) else None]
     if noise == 0.0:
         assert float(cal.sls.tau_s) == pytest.approx(tau_s, rel=1e-6)
     # A held-out two-step record estimated with the fitted parameters: a few mN at most (was 0.11 N RMS).
@@ -71,6 +75,8 @@ def test_noisy_slow_creep_names_what_a_single_trial_cannot_resolve():
         entry = report.to_dict()
         assert entry["E1_Pa"] is None and "does not identify" in entry["refused"]
     assert any("E1_Pa poorly identified" in w for w in cal.warnings)
+    assert not np.isfinite(cal.tau_ci95[1])  # 370 s holds do not bound a 3000 s creep from above at 1 % noise
+    assert any(w.startswith("creep time τ not bounded above") for w in cal.warnings)
 
 
 def test_profile_interval_for_tau_is_bounded_when_the_records_bound_it_and_open_when_not():

@@ -179,7 +179,7 @@ def open_app(tmp: Path, tab: str):
 def scenario_forces(window, page, seconds: float) -> dict:
     pump_until(lambda: len(page.force_history) > 0 and page.force_history.span()[1] > 1.0, what="board data")
     pump(1000)  # the plots settle their y ranges
-    viewport = page.plots.scroll.viewport()
+    viewport = page.plots.scroll_area.viewport()
     views = {f"plot{i}": plot.plot_widget for i, plot in enumerate(page.plots.plots) if plot.on_screen(viewport)}
     if page.body is not None:
         views["body_map"] = page.body
@@ -192,7 +192,7 @@ def scenario_forces_cost(window, page, seconds: float) -> dict:
     """The issue's cost case: 36 channels at 30 Hz, Forces tab visible, robot at rest, nobody reading pixels."""
     pump_until(lambda: len(page.force_history) > 0 and page.force_history.span()[1] > 1.0, what="board data")
     pump(1000)
-    viewport = page.plots.scroll.viewport()
+    viewport = page.plots.scroll_area.viewport()
     views = {f"plot{i}": plot.plot_widget for i, plot in enumerate(page.plots.plots) if plot.on_screen(viewport)}
     if page.body is not None:
         views["body_map"] = page.body

@@ -210,3 +210,21 @@ def test_every_plot_saves_png_and_vector_svg_with_its_units(grid, qtbot, tmp_pat
         grid.export_image(4, tmp_path / "seg5.jpg")
     with pytest.raises(OSError, match="cannot write"):
         grid.export_image(4, tmp_path / "missing" / "seg5.png")
+
+
+def test_trace_bounds_come_from_the_data_drawn(grid):
+    """By design, not a fixed huge rect: each plot's traces are bounded by what they draw (plus the pen), so Qt's
+    update-region arithmetic stays exact on a real display (±1e15 lost every exposed area on xcb)."""
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 20.0)
+    grid.refresh(force=True)
+    for plot in grid.plots:
+        rect = plot.bundle.boundingRect()
+        (x0, x1), (y0, y1) = plot.viewbox.viewRange()
+        xs = np.concatenate([c.xData for c in plot.curves if c.xData is not None])
+        ys = np.concatenate([c.yData for c in plot.curves if c.yData is not None])
+        pad_x, pad_y = 0.05 * (x1 - x0), 0.05 * (y1 - y0)
+        assert rect.left() >= xs.min() - pad_x and rect.right() <= xs.max() + pad_x, (plot.group.title, rect)
+        assert rect.top() >= ys.min() - pad_y and rect.bottom() <= ys.max() + pad_y, (plot.group.title, rect)
+        assert rect.contains(float(xs[len(xs) // 2]), float(ys[len(ys) // 2]))

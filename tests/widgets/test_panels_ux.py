@@ -115,7 +115,7 @@ def test_forces_space_pauses_but_types_in_the_path_field(qtbot):
     qtbot.addWidget(controls)
     show_active(qtbot, controls)
     with qtbot.waitSignal(controls.pause_toggled) as blocker:
-        qtbot.keyClick(controls.window, Qt.Key.Key_Space)
+        qtbot.keyClick(controls.window_combo, Qt.Key.Key_Space)
     assert blocker.args == [True] and controls.pause.text() == "Resume"
     qtbot.keyClick(controls, Qt.Key.Key_Space)
     assert not controls.pause.isChecked()
@@ -181,3 +181,22 @@ def test_ctrl_z_and_ctrl_shift_z_undo_and_redo_while_the_teach_panel_is_shown(te
     p.hide()
     qtbot.keyClick(p.keyframe_table, Qt.Key.Key_Z, ctrl)
     assert asked == ["undo", "redo", "redo"]  # a hidden tab's shortcut is inert
+
+
+def test_gait_progress_line_fits_its_column_and_keeps_the_time_left(qtbot):
+    panel = GaitPanel(ROBOT.axes, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    panel.resize(1280, 800)
+    panel.show()
+    qtbot.waitExposed(panel)
+    label = panel.progress_label
+    short = "cycle 1/3   4.0 / 15.0 s   11.0 s left"
+    panel.set_progress(short, 0.3)
+    assert label.text() == short  # fits: shown as is
+    long = "shift 11/12   move 100%   12345.6 / 23456.7 s   11111.1 s left"
+    panel.set_progress(long, 0.5)
+    metrics = label.fontMetrics()
+    assert metrics.horizontalAdvance(label.text()) <= label.contentsRect().width(), label.text()
+    assert label.text() != long, "the column is narrower than this line: it must be shortened, not widen the column"
+    assert label.text().endswith("11111.1 s left") and label.text().startswith("shift 11/12")
+    assert label.toolTip() == long  # all of it, on hover

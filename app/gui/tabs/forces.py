@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from datetime import datetime
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -51,21 +52,18 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
 from app.gui.recording_session import RecordingSession
 from models.health import BAD_FLAGS, HealthMonitor, describe
+from widgets.body_view import BodyView
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
 from widgets.image_export import save_widget_image
 from widgets.ring_plot import TraceHistory, append_with_gaps
-
-try:
-    from widgets.body_view import BodyView
-except ImportError:  # pragma: no cover - only while widgets/body_view.py is absent
-    BodyView = None
 
 FORCE_HISTORY_BUDGET_BYTES = 96_000_000
 RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
 STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
+OVERLAY, BODY_MAP = -1, -2  # image export targets besides the segment plots (0 …)
 BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
 BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
@@ -147,7 +145,7 @@ class ForcesTab(QWidget):
         self.plots = ForcePlotGrid(self.channel_names, parent=self)
         self.overlay = TrialOverlayPlot(self)
         self.body = None
-        if BodyView is not None and n_channels == 3 * config.robot.n_joints:
+        if n_channels == 3 * config.robot.n_joints:
             self.body = BodyView(config.robot.axes, config.robot.segment_length_m, self)
         self._build_layout()
         self._connect()
@@ -178,7 +176,7 @@ class ForcesTab(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addWidget(self.controls)
-        splitter = QSplitter(Qt.Horizontal, self)
+        splitter = QSplitter(Qt.Orientation.Horizontal, self)
         self.views = QTabWidget(splitter)
         self.views.addTab(self.plots, "Segments")
         overlay_page = QWidget(self.views)
@@ -201,7 +199,7 @@ class ForcesTab(QWidget):
         self.overlay_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
         overlay_menu = QMenu(self.overlay_image)
         for kind in ("png", "svg"):
-            overlay_menu.addAction(f"Save as {kind.upper()}…", lambda k=kind: self._choose_image(-1, k))
+            overlay_menu.addAction(f"Save as {kind.upper()}…", partial(self._choose_image, OVERLAY, kind))
         self.overlay_image.setMenu(overlay_menu)
         overlay_bar.addWidget(self.overlay_image)
         overlay_bar.addStretch(1)
@@ -223,6 +221,17 @@ class ForcesTab(QWidget):
                                         "well below it are flagged as drift, and a resting sensor that goes open "
                                         "as disconnected")
         health_bar.addWidget(self.baseline_button)
+        self.body_image = None
+        if self.body is not None:
+            self.body_image = QToolButton(side)
+            self.body_image.setText("Map image…")
+            self.body_image.setToolTip("Save the body force map as an image: PNG, or SVG (vector)")
+            self.body_image.setPopupMode(QToolButton.ToolButtonPopupMode.InstantPopup)
+            body_menu = QMenu(self.body_image)
+            for kind in ("png", "svg"):
+                body_menu.addAction(f"Save as {kind.upper()}…", partial(self._choose_image, BODY_MAP, kind))
+            self.body_image.setMenu(body_menu)
+            health_bar.insertWidget(1, self.body_image)
         side_layout.addLayout(health_bar)
         self.health_list = QListWidget(side)
         self.health_list.setMaximumHeight(140)
@@ -543,7 +552,7 @@ class ForcesTab(QWidget):
         """Show a recording in the plots (paused, whole length); None and a message if it cannot be read."""
         try:
             with busy_cursor():
-                recording = open_recording(path, recover=True)
+                recording = open_recording(Path(path), recover=True)
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"cannot open recording: {exc}", "error")
             return None
@@ -598,7 +607,7 @@ class ForcesTab(QWidget):
         t0, t1 = self.plots.visible_range() if visible_only else (None, None)
         try:
             with busy_cursor():
-                written, rows = export_view_csv(self.viewed, out, t0, t1, list(self.lab.config.robot.joint_ids))
+                written, rows = export_view_csv(self.viewed, Path(out), t0, t1, list(self.lab.config.robot.joint_ids))
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"not exported: {exc}", "error")
             return None
@@ -606,13 +615,13 @@ class ForcesTab(QWidget):
         self.controls.set_message(f"exported {rows} rows{span} to {written}", "ok")
         return written
 
-    def add_overlay_files(self, paths: list[str | os.PathLike]) -> int:
+    def add_overlay_files(self, paths: Sequence[str | os.PathLike]) -> int:
         """Add recordings to the trial overlay; returns how many were added."""
         added = 0
         for path in paths:
             try:
                 with busy_cursor():
-                    recording = open_recording(path)
+                    recording = open_recording(Path(path))
             except (OSError, ValueError) as exc:
                 self.controls.set_message(f"cannot open {path}: {exc}", "error")
                 continue
@@ -702,14 +711,21 @@ class ForcesTab(QWidget):
             self.export_viewed_csv(path, visible_only)
 
     def export_plot_image(self, index: int, path: str | os.PathLike) -> Path | None:
-        """Save plot ``index`` (-1: the trial overlay) as a PNG or SVG image (by the suffix); None and a message when
-        it cannot be."""
+        """Save plot ``index`` (``OVERLAY``: the trial overlay, ``BODY_MAP``: the body force map) as a PNG or SVG
+        image (by the suffix); None and a message when it cannot be."""
         try:
-            if index < 0:
+            if index == BODY_MAP:
+                if self.body is None:
+                    raise ValueError("this lab has no body map")
+                when = (f"recording {self.viewed.path.name} at t = {self.replay_time_s():.2f} s"
+                        if self.viewed is not None else "live")
+                written = save_widget_image(self.body, Path(path), f"Body force map · {when} · full scale "
+                                                             f"{BODY_FULL_SCALE_N:g} N")
+            elif index < 0:
                 title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
-                written = save_widget_image(self.overlay.plot_widget, path, title)
+                written = save_widget_image(self.overlay.plot_widget, Path(path), title)
             else:
-                written = self.plots.export_image(index, path)
+                written = self.plots.export_image(index, Path(path))
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"image not saved: {exc}", "error")
             return None
@@ -717,7 +733,7 @@ class ForcesTab(QWidget):
         return written
 
     def _choose_image(self, index: int, kind: str) -> None:
-        title = "overlay" if index < 0 else self.plots.groups[index].title
+        title = {BODY_MAP: "body-map", OVERLAY: "overlay"}.get(index) or self.plots.groups[index].title
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         default = Path(user_folders.dialog_folder(recordings_dir())) / f"{title}-{stamp}.{kind}"
         path, _ = QFileDialog.getSaveFileName(self, f"Save {title} as {kind.upper()}", str(default),
