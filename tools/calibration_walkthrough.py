@@ -1,7 +1,7 @@
 """The README's calibration walk-through pictures, taken from a real display: the app on the simulated lab (its clock
-50× real time), the Calibration tab running a short protocol on the simulated rig, then its review views.
+15× real time), the Calibration tab running a short protocol on the simulated rig, then its review views.
 
-    python tools/calibration_walkthrough.py [--out docs/screenshots] [--size 1400x900] [--speed 50]
+    python tools/calibration_walkthrough.py [--out docs/screenshots] [--size 1400x900] [--speed 15]
 
 Starts a private Xvfb (``tools/screenshot.py``'s), runs the app with Qt's xcb platform and reads the window's pixels
 back with ``QScreen.grabWindow``. Writes calibration_1_protocol.png (form and live trace mid-trial),
@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -47,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots")
     parser.add_argument("--size", default="1400x900")
-    parser.add_argument("--speed", type=float, default=50.0, help="the simulated lab's clock × real time")
+    parser.add_argument("--speed", type=float, default=15.0, help="the simulated lab's clock × real time")
     args = parser.parse_args(argv)
     from screenshot import _grab
 
@@ -92,18 +93,18 @@ def main(argv: list[str] | None = None) -> int:
             _grab(window).save(str(out / name))
             print(f"wrote {out / name}")  # noqa: T201
 
-        tab = window.show_tab("calibration")
+        tab: Any = window.show_tab("calibration")  # the CalibrationTab, reached by its widgets below
         form = tab.protocol_form
         form.forces_edit.setText("1.75, 3, 4, 5.25")
         form.trials_spin.setValue(1)
-        form.hold_spin.setValue(370.0)
-        form.rest_spin.setValue(400.0)
+        form.hold_spin.setValue(300.0)
+        form.rest_spin.setValue(300.0)
         form.folder_edit.setText(str(user_folders.calibrations_dir()))
         tab.source_tabs.setCurrentIndex(1)
         assert tab.start_run()
-        pump(120, until=lambda: tab.live_plot.n_samples > 600)
+        pump(300, until=lambda: tab.live_plot.n_samples > 900)
         shot("calibration_1_protocol.png")
-        pump(900, until=lambda: not tab.rig_session.is_running and not tab.is_fitting and tab.result is not None)
+        pump(1200, until=lambda: not tab.rig_session.is_running and not tab.is_fitting and tab.result is not None)
         tab.view_tabs.setCurrentIndex(0)
         shot("calibration_2_fit.png")
         tab.view_tabs.setCurrentWidget(tab.mean_plot)
