@@ -622,12 +622,13 @@ class CalibrationTab(QWidget):
             self.protocol_form.show_progress(1.0 if finished == progress.n_trials else done, bar, progress.message)
             return
         phase = PHASE_WORDS.get(progress.phase, progress.phase)
+        left_s = progress.time_left_s / max(self.rig_session.time_scale, 1e-9)  # wall time (the sim may run fast)
         if progress.trial >= 0 and progress.phase not in ("rest", "paused"):
             detail = (f"trial {progress.trial + 1}/{progress.n_trials} · {progress.force_n:g} N, repeat "
                       f"{progress.repeat} · {phase} {progress.elapsed_s:.0f}/{settings.trial_duration_s():.0f} s · "
-                      f"about {format_duration(progress.time_left_s)} left")
+                      f"about {format_duration(left_s)} left")
         else:
-            detail = f"{progress.message} · about {format_duration(progress.time_left_s)} left"
+            detail = f"{progress.message} · about {format_duration(left_s)} left"
         self.protocol_form.show_progress(done, bar, detail)
 
     def _show_sample(self, sample: Sample) -> None:
