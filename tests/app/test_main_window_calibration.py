@@ -282,3 +282,16 @@ def test_wizard_end_to_end_abort_in_trial_3_restart_resume_and_save(qtbot, fast_
     assert tab.history_table.rowCount() == 1
     tab.shutdown()
     lab.close()
+
+
+def test_the_sensor_is_picked_on_the_body_drawing(qtbot):
+    page = CalibrationTab(LabContext(BENCH_CONFIG))
+    qtbot.addWidget(page)
+    picker = page.sensor_picker
+    assert picker.selected == "BENCH" and picker.buttons["BENCH"].isChecked()  # the rig's sensor from the config
+    picker.buttons["S03L"].click()
+    assert page.sensor_edit.text() == "S03L" and picker.buttons["S03L"].isChecked()
+    assert not picker.buttons["BENCH"].isChecked()
+    page.sensor_edit.setText("S12B")
+    assert picker.selected == "S12B" and picker.buttons["S12B"].isChecked() and not picker.buttons["S03L"].isChecked()
+    page.shutdown()

@@ -72,6 +72,7 @@ from app.gui.thread_bridge import ThreadBridge
 from models.physics import PhysicsConstants
 from widgets import theme
 from widgets.calibration_run import LiveTrialPlot, ProtocolForm, format_duration
+from widgets.sensor_picker import SensorPicker
 
 if TYPE_CHECKING:  # pragma: no cover
     from app.core.calibration_fit import SessionFit
@@ -186,6 +187,13 @@ class CalibrationTab(QWidget):
         self.sensor_edit.setToolTip("The sensor's name in the calibration file; a rig run reads the board channel "
                                     "of this name")
         form.addRow("Name", self.sensor_edit)
+        self.sensor_picker = SensorPicker(self.lab.config.board.channel_names)
+        self.sensor_picker.setToolTip("Click a sensor on the body to calibrate it (the rig presses the sensor named "
+                                      "here)")
+        self.sensor_picker.select(self.sensor_edit.text().strip())
+        self.sensor_picker.picked.connect(self.sensor_edit.setText)
+        self.sensor_edit.textChanged.connect(lambda text: self.sensor_picker.select(text.strip()))
+        form.addRow("On the body", self.sensor_picker)
         self.area_spin = QDoubleSpinBox()
         self.area_spin.setRange(1.0, 100_000.0)
         self.area_spin.setDecimals(1)
@@ -794,6 +802,7 @@ class CalibrationTab(QWidget):
         self.clear_button.setEnabled(has_trials and not busy)
         self.save_button.setEnabled(self.result is not None and not busy)
         self.sensor_edit.setEnabled(not self.rig_session.is_running)
+        self.sensor_picker.setEnabled(not self.rig_session.is_running)
         self.area_spin.setEnabled(not self.rig_session.is_running)
         self.protocol_form.run_button.setEnabled(not busy)
         self.resume_button.setEnabled(not busy)
