@@ -43,7 +43,7 @@ from devices.sim.dxl_chain import ChainLab, VirtualChain
 RATES_HZ = (50.0, 100.0, 200.0)
 
 
-def _install_chain(return_delay_time: int, robot: RobotConfig) -> tuple[VirtualChain, object]:
+def _install_chain(return_delay_time: int, robot: RobotConfig) -> tuple[VirtualChain, factory.SimPorts | None]:
     chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=SimClock(1.0), seed=11,
                          return_delay_time=return_delay_time)
     return chain, factory.install_sim_lab(ChainLab(chain))

@@ -211,11 +211,15 @@ class LiveTrialPlot(QWidget):
         self.title = QLabel("No run yet: the trial in progress is drawn here.")
         self.title.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
         self.force_plot = pg.PlotWidget(background="w")
-        self.force_plot.setLabel("left", "force", units="N")
+        self.force_plot.setLabel("left", "force (N)")
         self.force_plot.showGrid(x=True, y=True, alpha=0.2)
         self.conductance_plot = pg.PlotWidget(background="w")
-        self.conductance_plot.setLabel("left", "conductance", units="µS")
-        self.conductance_plot.setLabel("bottom", "trial time", units="s")
+        # Fixed units: pyqtgraph's automatic SI prefix turned µS into "mµS" around 0.
+        for plot, side in ((self.force_plot, "left"), (self.conductance_plot, "left"),
+                           (self.conductance_plot, "bottom")):
+            plot.getPlotItem().getAxis(side).enableAutoSIPrefix(False)
+        self.conductance_plot.setLabel("left", "conductance (µS)")
+        self.conductance_plot.setLabel("bottom", "trial time (s)")
         self.conductance_plot.showGrid(x=True, y=True, alpha=0.2)
         self.conductance_plot.setXLink(self.force_plot)
         for plot in (self.force_plot, self.conductance_plot):

@@ -134,3 +134,60 @@ def refusal_reasons(cal: SensorCalibration, forces_n: Sequence[float], means_s: 
 def save(path: str | Path, fit: SessionFit, physics: PhysicsConstants) -> dict:
     """Write ``fit`` into the calibration file ``path`` (other sensors kept, SPEC §3.3)."""
     return calfiles.update_calibration(path, fit.sensor, fit.entry(), physics)
+
+
+HISTORY_FILE = "calibration_history.jsonl"
+
+
+def append_history(folder: str | Path, fit: SessionFit, saved_to: str | Path) -> Path:
+    """Append one line (JSON) describing this calibration of the sensor to ``folder/calibration_history.jsonl``:
+    when, where it was saved, its SLS parameters, linear model, unloaded level and refusal reasons. The history of a
+    sensor's calibrations shows its drift (:func:`read_history`)."""
+    import datetime
+    import json
+
+    cal = fit.calibration
+    record = {"sensor": fit.sensor, "saved": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+              "file": str(saved_to), "trials": list(fit.trial_files),
+              "sls": cal.sls.to_dict(), "tau_s": float(cal.sls.tau_s),
+              "linear": cal.linear.model.to_dict() if cal.linear is not None else None,
+              "unloaded_conductance_S": _finite_or_none(fit.unloaded_conductance_s),
+              "force_range_N": list(cal.force_range_n), "refusal_reasons": list(fit.problems)}
+    path = Path(folder) / HISTORY_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a", encoding="utf-8") as handle:
+        handle.write(json.dumps(record) + "\n")
+    return path
+
+
+def read_history(folder: str | Path, sensor: str) -> list[dict]:
+    """The saved calibrations of ``sensor``, oldest first (unreadable lines are skipped)."""
+    import json
+
+    path = Path(folder) / HISTORY_FILE
+    out: list[dict] = []
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        try:
+            record = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(record, dict) and record.get("sensor") == sensor:
+            out.append(record)
+    return out
+
+
+def fit_trials_with_curves(trials: Sequence[TrialInput], sensor: str, area_m2: float, physics: PhysicsConstants,
+                           board: BoardConfig, window_s: tuple[float, float] = DEFAULT_WINDOW_S
+                           ) -> tuple[SessionFit, tuple[np.ndarray, ...]]:
+    """:func:`fit_trials` plus each trial's conductance predicted by the fitted SLS model from its force (S) — for
+    a child process that does all of the fitting's work (the GUI's)."""
+    from models.sls import conductance_from_force
+
+    fit = fit_trials(trials, sensor, area_m2, physics, board, window_s)
+    curves = tuple(np.asarray(conductance_from_force(t.time_s, t.force_n, fit.calibration.sls, area_m2, physics),
+                              dtype=np.float64) for t in trials)
+    return fit, curves

@@ -13,8 +13,8 @@ written as a SPEC §3.1 CSV into the session folder. The contact is found once, 
 
 Conductance comes from the board stream (:class:`ConductanceFeed`: the board's samples of the sensor's channel,
 pushed by whoever drains the board, with their host ``time.monotonic()`` and board-clock times). Each trial row takes
-the mean of the board samples in the sampling interval that ends at its time (a boxcar decimation from the board's
-rate to ``sample_rate_hz``), computed when the trial ends, so a late delivery of board data (a busy GUI) does not
+the mean of the board samples in the sampling interval centred on its time (a boxcar decimation from the board's
+rate to ``sample_rate_hz``; centred, so that it lines up with the force read at that time), computed when the trial ends, so a late delivery of board data (a busy GUI) does not
 misalign force and conductance. The samples are placed on the host clock through the board's own clock
 (:func:`board_times_on_host_clock`): a frame's host time is when the reader got to it, late by however long the
 reader thread waited for the CPU, while the board clock ticks evenly.
@@ -596,10 +596,12 @@ class ProtocolRunner:
             self._on_sample(Sample(index, elapsed, float(forces[row]), board_c))
             if row % max(1, int(round(s.sample_rate_hz * PROGRESS_INTERVAL_S))) == 0:
                 self._progress(phase, index, force, repeat, elapsed, label, self._time_left(index, elapsed))
-        # Board samples can arrive after the rig's (the GUI drains the board): wait briefly for the last interval.
-        deadline = self._clock() + LATE_DATA_WAIT_S
+        times, forces = times[: row + 1], forces[: row + 1]  # the slots the thread kept
+        # Each row's conductance is the board's mean over the sampling interval centred on the row's time (where
+        # its force was read). Board samples can arrive after the rig's (the GUI drains the board): wait for them.
+        end = times[-1] + 0.5 * period
         deadline = self._clock() + max(LATE_DATA_WAIT_S, self.board_stale_s) * self.time_scale
-        while self.feed.latest()[0] < times[-1] and self._clock() < deadline:
+        while self.feed.latest()[0] < end and self._clock() < deadline:
             if self._stop.wait(0.05):
                 raise _Stopped
         if self.feed.latest()[0] < times[-1] - period:
@@ -607,10 +609,9 @@ class ProtocolRunner:
                                    f"{label}")
         self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
         rig.release()
-        times, forces = times[: row + 1], forces[: row + 1]
         snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times, period, board_times_on_host_clock(snap_host_t, snap_board_t),
-                                  snap_conductance)
+        conductance = decimate_to(times + 0.5 * period, period,
+                                  board_times_on_host_clock(snap_host_t, snap_board_t), snap_conductance)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)
@@ -718,6 +719,41 @@ def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int,
         if path.is_file():
             found[index] = path
     return found
+
+
+def unfinished_sessions(base: str | Path) -> list[tuple[Path, ProtocolSettings, int]]:
+    """Session folders under ``base`` whose protocol is not complete: (folder, settings, trials done), newest
+    first — what the app offers to resume after a restart."""
+    found = []
+    try:
+        folders = sorted((p for p in Path(base).iterdir() if (p / SESSION_FILE).is_file()),
+                         key=lambda p: p.stat().st_mtime, reverse=True)
+    except OSError:
+        return found
+    for folder in folders:
+        try:
+            settings = read_session(folder)
+        except ValueError:
+            continue
+        done = len(finished_trials(folder, settings))
+        if done < settings.n_trials:
+            found.append((folder, settings, done))
+    return found
+
+
+def reject_trial(path: str | Path) -> Path:
+    """Move a finished trial's CSV into its session's ``rejected/`` folder (kept, never deleted), so that resuming
+    the session runs that trial again. Returns the new path."""
+    source = Path(path)
+    target_dir = source.parent / "rejected"
+    target_dir.mkdir(exist_ok=True)
+    target = target_dir / source.name
+    k = 1
+    while target.exists():
+        target = target_dir / f"{source.stem}.{k}{source.suffix}"
+        k += 1
+    source.replace(target)
+    return target
 
 
 def trial_file_name(sensor: str, index: int, force_n: float, repeat: int) -> str:

@@ -30,6 +30,7 @@ class LabContext(QObject):
     recording_changed = Signal(object)
     board_created = Signal(object)
     stop_requested = Signal()  # STOP / Esc: every device that can move or load something halts (robot, rig)
+    calibration_saved = Signal(str)  # a calibration file was written (Calibration tab): the Forces tab loads it
 
     def __init__(self, config: LabConfig, parent: QObject | None = None) -> None:
         super().__init__(parent)

@@ -69,6 +69,7 @@ class RigSession(QObject):
         self._feed: ConductanceFeed | None = None
         self._channel: int | None = None
         self._lab_rate_hz: float | None = None  # board frame rate when samples go on the simulated lab's clock
+        self.time_scale = 1.0  # lab seconds per wall second of the run in progress (> 1 on an accelerated sim)
         self._board: Any = None
         self.outcome: Outcome | None = None
         self._bridge = ThreadBridge(self)  # rig thread → GUI thread: public signals are emitted on the GUI thread
@@ -111,6 +112,7 @@ class RigSession(QObject):
         if factory.is_sim(config.rig.port) and factory.is_sim(config.board.port):
             sim_clock = factory.sim_lab().clock
             clock, time_scale, self._lab_rate_hz = sim_clock.now, sim_clock.speed, config.board.rate_hz
+        self.time_scale = time_scale
         self._feed = ConductanceFeed()
         self._board = board
         board.block.connect(self._on_block)

@@ -157,3 +157,49 @@ def test_refusal_reasons_name_what_makes_a_fit_unusable():
     falling = [3.2e-4, 2.9e-4, 3.5e-4, 3.6e-4]  # the run: the 1.75 N plateau below the 0 N baseline
     texts = calibration_fit.refusal_reasons(_fake_cal(), forces, falling, 3.1e-4)
     assert any("does not rise with force" in t for t in texts) and any("unloaded level" in t for t in texts)
+
+
+def test_ctrl_c_keeps_the_finished_trials_and_says_how_to_continue(tmp_path, lab_config):
+    out = tmp_path / "cal.json"
+    command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
+               "--forces", "1.75,3", "--trials", "1", "--hold", "300", "--rest", "300", "--time-scale", "60",
+               "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                               text=True)
+    lines = []
+    assert process.stderr is not None
+    for line in process.stderr:
+        lines.append(line)
+        if line.startswith("trial 2/2") and ": hold" in line:
+            process.send_signal(signal.SIGINT)
+            break
+    rest = process.communicate(timeout=120)[1]
+    err = "".join(lines) + rest
+    assert process.returncode == 130, err
+    assert "interrupted (Ctrl-C)" in err and "load released" in err and "1 finished trial(s) are kept" in err
+    assert "continue with: sensnake calibrate --resume" in err
+    session = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_"))
+    assert sorted(finished_trials(session, read_session(session))) == [0]
+    assert not out.exists()
+
+
+def test_a_rejected_trial_is_kept_aside_and_the_session_is_unfinished_again(tmp_path):
+    from app.core import calfiles
+    from app.core.rig_protocol import reject_trial, trial_file_name, unfinished_sessions, write_session
+
+    settings = ProtocolSettings(forces_n=(1.75, 3.0), trials_per_force=1)
+    folder = tmp_path / "S06B_x"
+    folder.mkdir()
+    write_session(folder, settings)
+    paths = []
+    for index, (force, repeat) in enumerate(settings.plan):
+        path = folder / trial_file_name(settings.sensor, index, force, repeat)
+        calfiles.write_trial_csv(path, np.arange(3.0), np.full(3, force), np.full(3, 1e-4))
+        paths.append(path)
+    assert unfinished_sessions(tmp_path) == []
+    moved = reject_trial(paths[1])
+    assert moved == folder / "rejected" / paths[1].name and moved.is_file() and not paths[1].exists()
+    assert [(f, done) for f, _s, done in unfinished_sessions(tmp_path)] == [(folder, 1)]
+    with pytest.raises(ValueError, match="another protocol"):
+        write_session(folder, ProtocolSettings(forces_n=(2.0,)))

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from app.core import calfiles
+from app.core.rig_protocol import ABORTED
 from app.gui.lab import LabContext
 from app.gui.tabs.calibration import CalibrationTab
 from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, default_sensor_names
@@ -213,3 +216,82 @@ def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, f
     assert fast_sim_lab.rig.applied_force_n() == 0.0
     assert tab.protocol_form.message_label.text().startswith("STOP pressed")
     window.close()
+
+
+@pytest.mark.slow  # three 50× trials, an abort, a restart and a resume, then the fit in a spawned process
+def test_wizard_end_to_end_abort_in_trial_3_restart_resume_and_save(qtbot, fast_sim_lab, tmp_path, monkeypatch):
+    from app.core import user_folders
+    from app.core.rig_protocol import finished_trials, read_session
+
+    monkeypatch.setattr(user_folders, "calibrations_dir", lambda: tmp_path)
+    lab = LabContext(BENCH_CONFIG)
+    saved_paths = []
+    lab.calibration_saved.connect(saved_paths.append)  # what the Forces tab listens to
+    tab = CalibrationTab(lab)
+    qtbot.addWidget(tab)
+    form = tab.protocol_form
+    form.forces_edit.setText("1.75, 3, 5.25")
+    form.trials_spin.setValue(1)
+    form.hold_spin.setValue(200.0)
+    form.baseline_spin.setValue(20.0)
+    form.ramp_spin.setValue(20.0)
+    form.rest_spin.setValue(15.0)
+    form.folder_edit.setText(str(tmp_path))
+    assert tab.start_run()
+    folder = tab.session_folder
+    qtbot.waitUntil(lambda: len(tab.trials) == 2, timeout=90_000)
+    with qtbot.waitSignal(tab.rig_session.progress, timeout=60_000,
+                          check_params_cb=lambda p: p.trial == 2 and p.phase in ("loading", "hold")):
+        pass
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000) as blocker:
+        form.abort_button.click()  # in trial 3
+    assert blocker.args[0].status == ABORTED and fast_sim_lab.rig.applied_force_n() == 0.0
+    kept = {i: p.read_bytes() for i, p in finished_trials(folder, read_session(folder)).items()}
+    assert sorted(kept) == [0, 1]
+
+    # The app restarts: a new tab on the same lab names the unfinished session and resumes it.
+    tab.shutdown()
+    tab.close()
+    tab = CalibrationTab(lab)
+    qtbot.addWidget(tab)
+    tab.protocol_form.folder_edit.setText(str(tmp_path))
+    tab.show_unfinished_sessions()
+    assert folder.name in tab.unfinished_label.text() and "2/3 trials" in tab.unfinished_label.text()
+    assert tab.resume_run(folder)
+    assert tab.trial_list.count() == 2  # the kept trials are listed at once
+    assert tab.protocol_form.hold_spin.value() == 200.0  # the session's own protocol
+    qtbot.waitUntil(lambda: not tab.rig_session.is_running and not tab.is_fitting
+                    and ("fitted" in tab.status_label.text() or "refused" in tab.status_label.text()),
+                    timeout=180_000)
+    done = finished_trials(folder, read_session(folder))
+    assert sorted(done) == [0, 1, 2] and all(done[i].read_bytes() == kept[i] for i in (0, 1))
+    assert tab.result is not None, tab.status_label.text()
+    assert len(tab.result.trials) == 3
+    # Review: Fig. 9ii (means vs force) and Fig. 9iii (parameters vs force) are drawn.
+    assert len(tab.mean_plot.getPlotItem().listDataItems()) >= 1
+    assert len(tab.param_plot.getPlotItem().listDataItems()) >= 3
+    asked = []
+    tab.confirm_save = lambda problems: asked.append(problems) or True
+    out = tmp_path / "cal.json"
+    assert tab.save(out)
+    assert asked == ([] if not tab.result.problems else [tab.result.problems])
+    entry = json.loads(out.read_text())["sensors"]["BENCH"]
+    assert len(entry["trials"]) == 3 and all("mean_conductance_S" in t for t in entry["trials"])
+    assert entry["unloaded_conductance_S"] is not None
+    assert saved_paths == [str(out)]
+    assert tab.history_table.rowCount() == 1
+    tab.shutdown()
+    lab.close()
+
+
+def test_the_sensor_is_picked_on_the_body_drawing(qtbot):
+    page = CalibrationTab(LabContext(BENCH_CONFIG))
+    qtbot.addWidget(page)
+    picker = page.sensor_picker
+    assert picker.selected == "BENCH" and picker.buttons["BENCH"].isChecked()  # the rig's sensor from the config
+    picker.buttons["S03L"].click()
+    assert page.sensor_edit.text() == "S03L" and picker.buttons["S03L"].isChecked()
+    assert not picker.buttons["BENCH"].isChecked()
+    page.sensor_edit.setText("S12B")
+    assert picker.selected == "S12B" and picker.buttons["S12B"].isChecked() and not picker.buttons["S03L"].isChecked()
+    page.shutdown()

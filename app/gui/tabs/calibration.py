@@ -38,6 +38,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QListWidget,
+    QMessageBox,
     QPushButton,
     QSplitter,
     QTableWidget,
@@ -47,7 +48,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.core import calfiles, user_folders
+from app.core import calfiles, calibration_fit, user_folders
 from app.core.rig_protocol import (
     ABORTED,
     COMPLETED,
@@ -56,18 +57,25 @@ from app.core.rig_protocol import (
     ProtocolSettings,
     Sample,
     TrialRecord,
+    check_protocol,
+    finished_trials,
     format_forces,
     parse_forces,
+    read_session,
+    readout_ceiling_s,
+    reject_trial,
+    unfinished_sessions,
 )
 from app.gui.lab import LabContext
 from app.gui.rig_session import RigSession
 from app.gui.thread_bridge import ThreadBridge
-from devices.config import BoardConfig
 from models.physics import PhysicsConstants
 from widgets import theme
 from widgets.calibration_run import LiveTrialPlot, ProtocolForm, format_duration
+from widgets.sensor_picker import SensorPicker
 
 if TYPE_CHECKING:  # pragma: no cover
+    from app.core.calibration_fit import SessionFit
     from models.calibration import SensorCalibration
 
 
@@ -91,6 +99,7 @@ class LoadedTrial:
     time_s: np.ndarray
     force_n: np.ndarray
     conductance_s: np.ndarray
+    path: Path | None = None  # the CSV it came from
 
 
 @dataclass(frozen=True)
@@ -103,6 +112,11 @@ class FitResult:
     trials: tuple[LoadedTrial, ...]
     fitted_s: tuple[np.ndarray, ...]  # SLS-predicted conductance per trial (S)
     window_s: tuple[float, float] | None = None  # the linear model's window (s), None for the paper's default
+    session: SessionFit | None = None  # what the trials showed + refusal reasons (app.core.calibration_fit)
+
+    @property
+    def problems(self) -> tuple[str, ...]:
+        return self.session.problems if self.session is not None else ()
 
 
 class CalibrationTab(QWidget):
@@ -124,6 +138,9 @@ class CalibrationTab(QWidget):
         self._bridge = ThreadBridge(self)  # fit worker → GUI thread: the tab updates, then the public signal goes out
         self.rig_session = RigSession(lab, self)
         self.run_settings: ProtocolSettings | None = None
+        self.session_folder: Path | None = None  # the rig session the trial list comes from (redo, resume)
+        # Asked before saving a fit with refusal reasons; tests replace it. Returns True to save anyway.
+        self.confirm_save = self._ask_save_anyway
         self.rig_session.progress.connect(self._show_progress)
         self.rig_session.sample.connect(self._show_sample)
         self.rig_session.trial_saved.connect(self._trial_saved)
@@ -134,8 +151,11 @@ class CalibrationTab(QWidget):
         rig = lab.config.rig
         rig_note = QLabel(f"Rig: port {rig.port}, servo {rig.servo_id}, wheel radius {rig.wheel_radius_m * 1e3:.0f} "
                           f"mm, spring {rig.spring_k_n_per_m:.0f} N/m (k·r = "
-                          f"{rig.spring_k_n_per_m * rig.wheel_radius_m:.2f} N/rad), presses sensor {rig.sensor}; "
-                          f"board on {lab.config.board.port}.")
+                          f"{rig.spring_k_n_per_m * rig.wheel_radius_m:.2f} N/rad), presses sensor {rig.sensor}, "
+                          f"at most {rig.max_force_n:g} N; board on {lab.config.board.port}, readout "
+                          f"R_C = {lab.config.board.r_c_ohm:g} Ω, V_ref = {lab.config.board.v_ref_v:g} V: "
+                          f"ceiling {readout_ceiling_s(lab.config.board) * 1e6:.0f} µS (saturated samples are not "
+                          "fitted, as in `sensnake fit --config`).")
         rig_note.setWordWrap(True)
         rig_note.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
 
@@ -152,6 +172,7 @@ class CalibrationTab(QWidget):
         layout.addWidget(rig_note)
         layout.addWidget(splitter, 1)
         self._update_buttons()
+        self.show_unfinished_sessions()
 
     # -- construction ----------------------------------------------------------------------------------------------
     def _build_inputs(self) -> QWidget:
@@ -166,11 +187,18 @@ class CalibrationTab(QWidget):
         self.sensor_edit.setToolTip("The sensor's name in the calibration file; a rig run reads the board channel "
                                     "of this name")
         form.addRow("Name", self.sensor_edit)
+        self.sensor_picker = SensorPicker(self.lab.config.board.channel_names)
+        self.sensor_picker.setToolTip("Click a sensor on the body to calibrate it (the rig presses the sensor named "
+                                      "here)")
+        self.sensor_picker.select(self.sensor_edit.text().strip())
+        self.sensor_picker.picked.connect(self.sensor_edit.setText)
+        self.sensor_edit.textChanged.connect(lambda text: self.sensor_picker.select(text.strip()))
+        form.addRow("On the body", self.sensor_picker)
         self.area_spin = QDoubleSpinBox()
         self.area_spin.setRange(1.0, 100_000.0)
         self.area_spin.setDecimals(1)
         self.area_spin.setSuffix(" mm²")
-        self.area_spin.setValue(DEFAULT_AREA_MM2)
+        self.area_spin.setValue(self.lab.config.rig.area_m2 * 1e6 or DEFAULT_AREA_MM2)
         form.addRow("Active area", self.area_spin)
         physics_row = QHBoxLayout()
         self.physics_label = QLabel(self.physics_source)
@@ -193,7 +221,26 @@ class CalibrationTab(QWidget):
         self.protocol_form.run_requested.connect(self.start_run)
         self.protocol_form.pause_toggled.connect(self._pause_toggled)
         self.protocol_form.abort_requested.connect(self.rig_session.abort)
-        self.source_tabs.addTab(self.protocol_form, "Run on the rig")
+        rig_page = QWidget()
+        rig_layout = QVBoxLayout(rig_page)
+        rig_layout.setContentsMargins(0, 0, 0, 0)
+        rig_layout.addWidget(self.protocol_form, 1)
+        resume_row = QHBoxLayout()
+        self.resume_button = QPushButton("Resume a session…")
+        self.resume_button.setToolTip("Continue a run cut short (abort, crash, closed app): its finished trials are "
+                                      "kept and the rest run with its own protocol")
+        self.resume_button.clicked.connect(self._choose_resume)
+        self.redo_button = QPushButton("Redo selected trial")
+        self.redo_button.setToolTip("Reject the selected trial (its CSV moves to the session's rejected/ folder) "
+                                    "and run it again on the rig")
+        self.redo_button.clicked.connect(self._redo_selected)
+        resume_row.addWidget(self.resume_button)
+        resume_row.addWidget(self.redo_button)
+        rig_layout.addLayout(resume_row)
+        self.unfinished_label = QLabel("")
+        self.unfinished_label.setWordWrap(True)
+        rig_layout.addWidget(self.unfinished_label)
+        self.source_tabs.addTab(rig_page, "Run on the rig")
         layout.addWidget(self.source_tabs, 1)
 
         row = QHBoxLayout()
@@ -273,6 +320,21 @@ class CalibrationTab(QWidget):
         self.view_tabs.addTab(fit_page, "Fit")
         self.live_plot = LiveTrialPlot()
         self.view_tabs.addTab(self.live_plot, "Live trial")
+        self.mean_plot = _review_plot("force (N)", "mean conductance (µS)",
+                                      "window mean vs force, linear fit dashed (paper Fig. 9ii)")
+        self.view_tabs.addTab(self.mean_plot, "Mean vs force")
+        self.param_plot = _review_plot("force (N)", "parameter (Pa, Pa·s)",
+                                       "E0, E1, μ1 per trial vs force, trend dashed (paper Fig. 9iii)")
+        self.param_plot.setLogMode(y=True)
+        self.param_plot.addLegend(offset=(-10, 10), labelTextSize="8pt")
+        self.view_tabs.addTab(self.param_plot, "Parameters vs force")
+        headers = ["Saved", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "m (µS/N)", "unloaded (µS)", "Δ E0 vs previous"]
+        self.history_table = QTableWidget(0, len(headers))
+        self.history_table.setHorizontalHeaderLabels(headers)
+        self.history_table.verticalHeader().setVisible(False)
+        self.history_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.history_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.view_tabs.addTab(self.history_table, "History")
         return self.view_tabs
 
     # -- trials and physics ----------------------------------------------------------------------------------------
@@ -287,7 +349,7 @@ class CalibrationTab(QWidget):
                 problems.append(str(exc))
                 continue
             name = Path(path).name
-            self.trials.append(LoadedTrial(name, trial.time_s, trial.force_n, trial.conductance_s))
+            self.trials.append(LoadedTrial(name, trial.time_s, trial.force_n, trial.conductance_s, Path(path)))
             self.trial_list.addItem(f"{name}  ({trial.time_s.size} samples, up to {np.max(trial.force_n):.2f} N)")
             added += 1
         if problems:
@@ -358,36 +420,37 @@ class CalibrationTab(QWidget):
         self._set_status(f"fitting {sensor} to {len(trials)} trial(s)…", theme.WARN)
         self.last_fit_window_s = self.fit_window_s
         self._fit_thread = threading.Thread(target=self._fit_worker,
-                                            args=(sensor, trials, area_m2, self.physics, self.fit_window_s),
+                                            args=(sensor, trials, area_m2, self.physics, self.fit_window_s,
+                                                  self.lab.config.board),
                                             name="calibration-fit", daemon=True)
         self._update_buttons(fitting=True)
         self._fit_thread.start()
 
     def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
-                    physics: PhysicsConstants, window_s: tuple[float, float] | None = None) -> None:
+                    physics: PhysicsConstants, window_s: tuple[float, float] | None = None,
+                    board: Any = None) -> None:
         """Worker thread: the fit (in a child process) and the fitted curves; the outcome goes back through a
-        queued signal. ``window_s``: the linear model's averaging window (s), None for the paper's 225–300 s."""
+        queued signal. ``window_s``: the linear model's averaging window (s), None for the paper's 225–300 s;
+        ``board``: the lab's readout circuit (its ceiling 1/R_C is not fitted), the same as ``sensnake fit
+        --config`` and ``sensnake calibrate`` use, so the tab and the CLI agree on the same files."""
         # Imported here, off the GUI thread: the fitting stack takes seconds to load and the tab opens at once.
-        from models.calibration import TrialInput, calibrate_sensor
-        from models.sls import conductance_from_force
+        from models.calibration import TrialInput
+        from models.linear import DEFAULT_WINDOW_S
 
-        saturation_s = 1.0 / BoardConfig().r_c_ohm  # the default readout's limit (SPEC §4), as `sensnake fit`
+        board = board if board is not None else self.lab.config.board
         inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
         try:
             # A fit is seconds of Python-level work: in this process it would hold the GIL against the robot's
             # control thread (missed ticks, a tripped feedback watchdog). A child process keeps the loop on time.
             with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-                options: dict[str, Any] = {"saturation_s": saturation_s}
-                if window_s is not None:
-                    options["window_s"] = window_s
-                cal = pool.submit(calibrate_sensor, inputs, area_m2, physics, **options).result()
-            fitted = tuple(np.asarray(conductance_from_force(t.time_s, t.force_n, cal.sls, area_m2, physics),
-                                      dtype=np.float64) for t in trials)
+                session, fitted = pool.submit(calibration_fit.fit_trials_with_curves, inputs, sensor, area_m2,
+                                              physics, board, window_s or DEFAULT_WINDOW_S).result()
+            cal = session.calibration
         except (ValueError, ArithmeticError, LookupError, RuntimeError, OSError) as exc:
             # BrokenProcessPool (a RuntimeError) if the child died; the fit's own refusals are ValueErrors.
             self._deliver(f"fit refused: {exc}")
             return
-        self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s))
+        self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s, session))
 
     def _deliver(self, outcome: FitResult | str) -> None:
         """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread. Dropped by the
@@ -434,7 +497,12 @@ class CalibrationTab(QWidget):
         n_warn = len(cal.warnings)
         level = theme.WARN if n_warn else theme.OK
         note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
-        self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
+        if result.problems:
+            self._set_status(f"fitted {result.sensor}, but NOT fit to use: {'; '.join(result.problems)}. Saving "
+                             "asks for confirmation; redo trials or run again.", theme.ERROR)
+        else:
+            self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
+        self._plot_review(result)
         self.view_tabs.setCurrentIndex(0)
         self._update_buttons()
 
@@ -452,27 +520,94 @@ class CalibrationTab(QWidget):
             baseline_s=form.baseline_spin.value(), ramp_s=form.ramp_spin.value(), sensor=self.sensor_edit.text().strip(),
             area_m2=self.area_spin.value() * 1e-6)
 
-    def start_run(self) -> bool:
-        """Start the protocol on the rig (Run button); False, with the reason shown, if it cannot start."""
+    def start_run(self, resume: Path | None = None) -> bool:
+        """Start the protocol on the rig (Run button); False, with the reason shown, if it cannot start. ``resume``:
+        a session folder whose protocol the form already shows (:meth:`resume_run`)."""
         if self.rig_session.is_running or self.is_fitting:
             return False
         try:
             settings = self.protocol_settings()
+            check = check_protocol(settings, self.lab.config.rig, self.lab.config.board)
+            if not check.ok:
+                raise ValueError("protocol refused: " + "; ".join(check.errors))
             folder = self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip()
-                                                 or user_folders.calibrations_dir())
+                                                 or user_folders.calibrations_dir(), resume=resume)
         except ValueError as exc:
             self.protocol_form.set_message(str(exc), theme.ERROR)
             return False
         self.run_settings = settings
+        self.session_folder = folder
         self.clear_trials()
+        if resume is not None:
+            self.add_trial_files([p for _, p in sorted(finished_trials(folder, settings).items())])
         self.fit_window_s = settings.fit_window_s()
         self.protocol_form.set_running(True)
-        self.protocol_form.set_message(f"running; trials go to {folder}", theme.WARN)
+        warnings = "".join(f"; warning: {w}" for w in check.warnings)
+        self.protocol_form.set_message(f"running; trials go to {folder}{warnings}", theme.WARN)
         self.protocol_form.show_progress(0.0, f"0/{settings.n_trials} trials", "opening the rig…")
         self.view_tabs.setCurrentWidget(self.live_plot)
         self._set_status(f"rig run on {settings.sensor}: {settings.n_trials} trial(s)", theme.WARN)
         self._update_buttons()
         return True
+
+    def resume_run(self, folder: str | Path) -> bool:
+        """Continue the session in ``folder`` (after an abort, a crash or an app restart): its protocol goes into the
+        form, its finished trials into the list, and the run continues with the first missing trial."""
+        if self.rig_session.is_running or self.is_fitting:
+            return False
+        try:
+            settings = read_session(folder)
+        except ValueError as exc:
+            self.protocol_form.set_message(str(exc), theme.ERROR)
+            return False
+        form = self.protocol_form
+        form.forces_edit.setText(format_forces(settings.forces_n))
+        form.trials_spin.setValue(settings.trials_per_force)
+        for spin, value in ((form.hold_spin, settings.hold_s), (form.rest_spin, settings.rest_s),
+                            (form.baseline_spin, settings.baseline_s), (form.ramp_spin, settings.ramp_s),
+                            (form.rate_spin, settings.sample_rate_hz)):
+            spin.setValue(value)
+        self.sensor_edit.setText(settings.sensor)
+        self.area_spin.setValue(settings.area_m2 * 1e6)
+        form.folder_edit.setText(str(Path(folder).parent))
+        self.source_tabs.setCurrentIndex(1)
+        return self.start_run(resume=Path(folder))
+
+    def redo_trial(self, row: int) -> bool:
+        """Reject trial ``row`` of the list (its CSV moves to the session's ``rejected/``) and run it again."""
+        folder = self.session_folder
+        path = self.trials[row].path if 0 <= row < len(self.trials) else None
+        if folder is None or path is None:
+            self._set_status("only a trial of a rig session can be redone (run the protocol first)", theme.WARN)
+            return False
+        moved = reject_trial(path)
+        self._set_status(f"rejected {moved.name} (kept in {moved.parent}); running it again", theme.WARN)
+        return self.resume_run(folder)
+
+    def _redo_selected(self) -> None:
+        rows = sorted(self.trial_list.row(item) for item in self.trial_list.selectedItems())
+        if len(rows) == 1:
+            self.redo_trial(rows[0])
+        else:
+            self._set_status("select one trial in the Trial files list to redo", theme.WARN)
+
+    def _choose_resume(self) -> None:
+        folder = QFileDialog.getExistingDirectory(self, "Resume a calibration session",
+                                                  user_folders.dialog_folder(user_folders.calibrations_dir()))
+        if folder:
+            self.resume_run(folder)
+
+    def show_unfinished_sessions(self) -> None:
+        """Name the newest unfinished session under the run folder (offered after an app restart)."""
+        base = self.protocol_form.folder_edit.text().strip() or user_folders.calibrations_dir()
+        found = unfinished_sessions(base)
+        if not found:
+            self.unfinished_label.setText("")
+            return
+        folder, settings, done = found[0]
+        self.unfinished_label.setText(f"Unfinished session {folder.name}: {done}/{settings.n_trials} trials of "
+                                      f"{settings.sensor}; Resume a session… to finish it.")
+        self.unfinished_label.setStyleSheet(theme.status_style(theme.WARN))
 
     def _pause_toggled(self, paused: bool) -> None:
         if paused:
@@ -495,12 +630,13 @@ class CalibrationTab(QWidget):
             self.protocol_form.show_progress(1.0 if finished == progress.n_trials else done, bar, progress.message)
             return
         phase = PHASE_WORDS.get(progress.phase, progress.phase)
+        left_s = progress.time_left_s / max(self.rig_session.time_scale, 1e-9)  # wall time (the sim may run fast)
         if progress.trial >= 0 and progress.phase not in ("rest", "paused"):
             detail = (f"trial {progress.trial + 1}/{progress.n_trials} · {progress.force_n:g} N, repeat "
                       f"{progress.repeat} · {phase} {progress.elapsed_s:.0f}/{settings.trial_duration_s():.0f} s · "
-                      f"about {format_duration(progress.time_left_s)} left")
+                      f"about {format_duration(left_s)} left")
         else:
-            detail = f"{progress.message} · about {format_duration(progress.time_left_s)} left"
+            detail = f"{progress.message} · about {format_duration(left_s)} left"
         self.protocol_form.show_progress(done, bar, detail)
 
     def _show_sample(self, sample: Sample) -> None:
@@ -522,6 +658,7 @@ class CalibrationTab(QWidget):
 
     def _run_finished(self, outcome: Outcome) -> None:
         self.protocol_form.set_running(False)
+        self.show_unfinished_sessions()
         self.live_plot.trial = -1
         level = {COMPLETED: theme.OK, ABORTED: theme.WARN}.get(outcome.status, theme.ERROR)
         self.protocol_form.set_message(outcome.message, level)
@@ -545,13 +682,54 @@ class CalibrationTab(QWidget):
         result = self.result
         if result is None:
             return False
+        if result.problems and not self.confirm_save(result.problems):
+            self._set_status(f"not saved: {result.sensor}'s fit is not fit to use ({'; '.join(result.problems)})",
+                             theme.WARN)
+            return False
         try:
-            calfiles.update_calibration(path, result.sensor, result.calibration.to_dict(), result.physics)
+            if result.session is not None:
+                calibration_fit.save(path, result.session, result.physics)
+            else:
+                calfiles.update_calibration(path, result.sensor, result.calibration.to_dict(), result.physics)
         except (ValueError, OSError) as exc:
             self._set_status(f"not saved: {exc}", theme.ERROR)
             return False
-        self._set_status(f"saved {result.sensor} to {path}", theme.OK)
+        if result.session is not None:
+            try:
+                calibration_fit.append_history(user_folders.calibrations_dir(), result.session, path)
+            except OSError as exc:
+                self._set_status(f"saved {result.sensor} to {path}, but its history was not: {exc}", theme.WARN)
+        self.show_history(result.sensor)
+        note = " (confirmed despite: " + "; ".join(result.problems) + ")" if result.problems else ""
+        self._set_status(f"saved {result.sensor} to {path}; the Forces tab uses it now{note}", theme.OK)
+        self.lab.calibration_saved.emit(str(path))
         return True
+
+    def _ask_save_anyway(self, problems: tuple[str, ...]) -> bool:
+        answer = QMessageBox.warning(
+            self, "Save a calibration that is not fit to use?",
+            "This fit should not be used as it is:\n\n" + "\n".join(f"• {p}" for p in problems)
+            + "\n\nSave it anyway (it is marked in the file)?",
+            QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Cancel)
+        return answer == QMessageBox.StandardButton.Save
+
+    def show_history(self, sensor: str) -> None:
+        """The saved calibrations of ``sensor`` (History view): parameters and the change of E0 between them."""
+        records = calibration_fit.read_history(user_folders.calibrations_dir(), sensor)
+        self.history_table.setRowCount(len(records))
+        previous = None
+        for row, record in enumerate(records):
+            sls = record.get("sls", {})
+            linear = record.get("linear") or {}
+            e0 = sls.get("E0_Pa")
+            drift = (f"{100 * (e0 / previous - 1):+.1f} %" if isinstance(e0, (int, float)) and previous else "—")
+            unloaded = record.get("unloaded_conductance_S")
+            cells = (record.get("saved", "?"), _num(e0), _num(sls.get("E1_Pa")), _num(sls.get("mu1_Pa_s")),
+                     _num(record.get("tau_s")), _num(linear.get("m_S_per_N"), 1e6),
+                     _num(unloaded, 1e6), drift)
+            for col, text in enumerate(cells):
+                self.history_table.setItem(row, col, QTableWidgetItem(text))
+            previous = e0 if isinstance(e0, (int, float)) else previous
 
     def _choose_save(self) -> None:
         start = Path(user_folders.dialog_folder(user_folders.calibrations_dir())) / "calibration.json"
@@ -577,6 +755,38 @@ class CalibrationTab(QWidget):
                 self.plot.plot(t, fitted[index][::step] * 1e6,
                                pen=pg.mkPen(color, width=2, style=Qt.PenStyle.DashLine))
 
+    def _plot_review(self, result: FitResult) -> None:
+        """Fig. 9ii (window mean vs force with the linear fit) and Fig. 9iii (E0, E1, μ1 per trial vs force with
+        the fitted trends)."""
+        self.mean_plot.clear()
+        self.param_plot.clear()
+        session = result.session
+        cal = result.calibration
+        if session is not None:
+            forces = np.array(session.forces_n)
+            means = np.array(session.mean_conductance_s) * 1e6
+            self.mean_plot.plot(forces, means, pen=None, symbol="o", symbolBrush=theme.series_color(0))
+            if cal.linear is not None and forces.size:
+                span = np.array([0.0, float(np.max(forces)) * 1.1])
+                line = (cal.linear.model.m_S_per_N * span + cal.linear.model.d_S) * 1e6
+                self.mean_plot.plot(span, line, pen=pg.mkPen(theme.series_color(1), width=2,
+                                                             style=Qt.PenStyle.DashLine))
+        for k, (key, label, _unit) in enumerate(PARAM_LABELS):
+            rows = [(t.force_n, float(getattr(t.params, key))) for t in cal.trials if t.refused is None]
+            if not rows:
+                continue
+            f, v = np.array(rows).T
+            ok = v > 0
+            color = theme.series_color(k)
+            self.param_plot.plot(f[ok], v[ok], pen=None, symbol="o", symbolBrush=color, name=label)
+            if cal.sls_trend is not None and key in cal.sls_trend:
+                intercept, slope = cal.sls_trend[key]
+                span = np.linspace(float(np.min(f)), float(np.max(f)), 20)
+                trend = intercept + slope * span
+                good = trend > 0
+                self.param_plot.plot(span[good], trend[good], pen=pg.mkPen(color, width=2,
+                                                                            style=Qt.PenStyle.DashLine))
+
     # -- helpers ---------------------------------------------------------------------------------------------------
     def _set_status(self, text: str, level: str) -> None:
         self.status_label.setText(text)
@@ -592,12 +802,29 @@ class CalibrationTab(QWidget):
         self.clear_button.setEnabled(has_trials and not busy)
         self.save_button.setEnabled(self.result is not None and not busy)
         self.sensor_edit.setEnabled(not self.rig_session.is_running)
+        self.sensor_picker.setEnabled(not self.rig_session.is_running)
         self.area_spin.setEnabled(not self.rig_session.is_running)
         self.protocol_form.run_button.setEnabled(not busy)
+        self.resume_button.setEnabled(not busy)
+        self.redo_button.setEnabled(not busy and self.session_folder is not None and has_trials)
 
     def curves(self) -> list[Any]:
         """The plotted curves (measured and fitted), for tests and screenshots."""
         return self.plot.getPlotItem().listDataItems()
+
+
+def _review_plot(x_label: str, y_label: str, title: str) -> pg.PlotWidget:
+    plot = pg.PlotWidget(background="w")
+    for side, label in (("left", y_label), ("bottom", x_label)):
+        plot.getPlotItem().getAxis(side).enableAutoSIPrefix(False)
+        plot.setLabel(side, label)
+    plot.showGrid(x=True, y=True, alpha=0.2)
+    plot.setTitle(title, color="#444", size="10pt")
+    return plot
+
+
+def _num(value: object, scale: float = 1.0) -> str:
+    return f"{float(value) * scale:.4g}" if isinstance(value, (int, float)) else "—"
 
 
 def _interval_tip(ci95: dict[str, tuple[float, float]], column: int) -> str:
@@ -628,6 +855,13 @@ def summary_html(result: FitResult) -> str:
                      + (f" (window {result.window_s[0]:.0f}–{result.window_s[1]:.0f} s)" if result.window_s else ""))
     if cal.sls_trend is not None:
         lines.append("force trend (sls_trend) fitted: the parameters vary with force")
+    if result.problems:
+        color = theme.STATUS_COLORS[theme.ERROR]
+        items = "".join(f"<li>{_escape(w)}</li>" for w in result.problems)
+        lines.append(f"<span style='color:{color}'><b>not fit to use</b></span><ul style='margin:0'>{items}</ul>")
+    if result.session is not None and result.session.unloaded_conductance_s is not None:
+        lines.append(f"unloaded level {result.session.unloaded_conductance_s * 1e6:.2f} µS; readout ceiling "
+                     f"{result.session.readout_ceiling_s * 1e6:.0f} µS")
     if cal.warnings:
         color = theme.STATUS_COLORS[theme.WARN]
         items = "".join(f"<li>{_escape(w)}</li>" for w in cal.warnings)

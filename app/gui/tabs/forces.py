@@ -113,6 +113,9 @@ class ForcesTab(QWidget):
         super().__init__(parent)
         self.lab = lab
         config = lab.config
+        saved = getattr(lab, "calibration_saved", None)
+        if saved is not None:  # a calibration saved by the Calibration tab is used here at once
+            saved.connect(self.load_calibration)
         self.board = lab.board
         self.channel_names = tuple(config.board.channel_names)
         n_channels = len(self.channel_names)

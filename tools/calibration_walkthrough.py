@@ -1,0 +1,125 @@
+"""The README's calibration walk-through pictures, taken from a real display: the app on the simulated lab (its clock
+15× real time), the Calibration tab running a short protocol on the simulated rig, then its review views.
+
+    python tools/calibration_walkthrough.py [--out docs/screenshots] [--size 1400x900] [--speed 15]
+
+Starts a private Xvfb (``tools/screenshot.py``'s), runs the app with Qt's xcb platform and reads the window's pixels
+back with ``QScreen.grabWindow``. Writes calibration_1_protocol.png (form and live trace mid-trial),
+calibration_2_fit.png (conductance vs time with the SLS fit, Fig. 8B), calibration_3_means.png (Fig. 9ii),
+calibration_4_params.png (Fig. 9iii) and calibration_5_history.png (after Save). Nothing of the user's is touched
+(settings and calibrations go to a temporary folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+
+def _on_x(argv: list[str]) -> int | None:
+    """Re-run this tool on a private Xvfb with Qt's xcb platform; None when already there."""
+    import subprocess
+
+    if os.environ.get("QT_QPA_PLATFORM") == "xcb" and os.environ.get("DISPLAY"):
+        return None
+    from tests.realdisplay.xserver import XServer, XUnavailable, probe_env
+
+    try:
+        server = XServer.start("1600x1000x24")
+    except XUnavailable as exc:
+        print(f"calibration_walkthrough: no X server ({exc})", file=sys.stderr)  # noqa: T201
+        return 1
+    try:
+        return subprocess.run([sys.executable, __file__, *argv], env=probe_env(server.display), cwd=ROOT).returncode
+    finally:
+        server.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/screenshots")
+    parser.add_argument("--size", default="1400x900")
+    parser.add_argument("--speed", type=float, default=15.0, help="the simulated lab's clock × real time")
+    args = parser.parse_args(argv)
+    from screenshot import _grab
+
+    code = _on_x(sys.argv[1:] if argv is None else list(argv))
+    if code is not None:
+        return code
+    width, height = (int(v) for v in args.size.lower().split("x"))
+
+    from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
+    from PySide6.QtWidgets import QApplication
+
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="sensnake-cal-") as tmp:
+        os.environ["XDG_DATA_HOME"] = str(Path(tmp) / "data")
+        from app.core import user_folders
+        from app.gui.lab import LabContext
+        from app.gui.main_window import MainWindow
+        from devices import factory
+        from devices.config import SIM_PORT, load_config
+
+        config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+        factory.start_sim_lab(config, speed=args.speed)
+        settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
+        lab = LabContext(config)
+        window = MainWindow(lab, settings=settings)
+        window.resize(width, height)
+        window.move(0, 0)
+        window.show()
+
+        def pump(seconds: float, until=None) -> None:
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline:
+                QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 50)
+                if until is not None and until():
+                    return
+                time.sleep(0.01)  # a script, not a test
+
+        def shot(name: str) -> None:
+            pump(0.8)
+            _grab(window).save(str(out / name))
+            print(f"wrote {out / name}")  # noqa: T201
+
+        tab: Any = window.show_tab("calibration")  # the CalibrationTab, reached by its widgets below
+        form = tab.protocol_form
+        form.forces_edit.setText("1.75, 3, 4, 5.25")
+        form.trials_spin.setValue(1)
+        form.hold_spin.setValue(300.0)
+        form.rest_spin.setValue(300.0)
+        form.folder_edit.setText(str(user_folders.calibrations_dir()))
+        tab.source_tabs.setCurrentIndex(1)
+        assert tab.start_run()
+        pump(300, until=lambda: tab.live_plot.n_samples > 900)
+        shot("calibration_1_protocol.png")
+        pump(1200, until=lambda: not tab.rig_session.is_running and not tab.is_fitting and tab.result is not None)
+        tab.view_tabs.setCurrentIndex(0)
+        shot("calibration_2_fit.png")
+        tab.view_tabs.setCurrentWidget(tab.mean_plot)
+        shot("calibration_3_means.png")
+        tab.view_tabs.setCurrentWidget(tab.param_plot)
+        shot("calibration_4_params.png")
+        tab.confirm_save = lambda _problems: True
+        tab.save(Path(tmp) / "calibration.json")
+        tab.view_tabs.setCurrentWidget(tab.history_table)
+        shot("calibration_5_history.png")
+        window.close()
+        lab.close()
+    del app
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
