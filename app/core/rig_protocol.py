@@ -51,7 +51,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -98,6 +98,16 @@ class RigDevice(Protocol):
     def start_force(self, force_n: float) -> float: ...
     def applied_force_n(self) -> float: ...
     def release(self) -> None: ...
+
+
+@runtime_checkable
+class RefinableRig(RigDevice, Protocol):
+    """A rig that can also be wound to an angle and holds its contact angle (the real and simulated rigs; not the
+    tests' simple doubles): the runner then refines the contact with the sensor's own reading."""
+
+    contact_rad: float | None
+
+    def move_to(self, angle_rad: float) -> float: ...
 
 
 class BoardStreamError(RuntimeError):
@@ -427,9 +437,9 @@ class ProtocolRunner:
         hundredths of a newton, which biases every force of the calibration. Skipped for a rig without
         ``move_to``/``contact_rad`` (test doubles)."""
         rig = self.rig
-        base = getattr(rig, "contact_rad", None)
-        if base is None or not hasattr(rig, "move_to"):
+        if not isinstance(rig, RefinableRig) or rig.contact_rad is None:
             return
+        base = rig.contact_rad
         self._progress("contact", -1, 0.0, 0, 0.0, "refining the contact with the sensor's reading…")
         start = base - REFINE_SPAN_RAD
         rig.move_to(start)
@@ -724,7 +734,7 @@ def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int,
 def unfinished_sessions(base: str | Path) -> list[tuple[Path, ProtocolSettings, int]]:
     """Session folders under ``base`` whose protocol is not complete: (folder, settings, trials done), newest
     first — what the app offers to resume after a restart."""
-    found = []
+    found: list[tuple[Path, ProtocolSettings, int]] = []
     try:
         folders = sorted((p for p in Path(base).iterdir() if (p / SESSION_FILE).is_file()),
                          key=lambda p: p.stat().st_mtime, reverse=True)

@@ -56,6 +56,7 @@ class VirtualRig:
                                              seed=int(rng.integers(2**31)))
         self.sensor = SensorBank.create(1, rng)
         self._snapped = False
+        self._torque_on = False
         self._history_t: deque[float] = deque(maxlen=HISTORY)
         self._history_f: deque[float] = deque(maxlen=HISTORY)
 
@@ -74,8 +75,9 @@ class VirtualRig:
         return self.config.spring_k_n_per_m * stretch_m
 
     def holds_torque(self) -> bool:
-        """True while the rig servo's torque is on (a calibration session has the rig)."""
-        return bool(self.chain.register(self.config.servo_id, "Torque Enable"))
+        """True while the rig servo's torque is on (a calibration session has the rig), as of the rig's last wire
+        exchange — read without the chain's lock, so the board's thread never waits on the rig's bus."""
+        return self._torque_on
 
     def update_load(self) -> None:
         """Apply the cable tension to the servo as a load torque (N·m) and remember the force at this moment.
@@ -83,6 +85,7 @@ class VirtualRig:
         with self._lock:
             force = self.applied_force_n()
             self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m)
+            self._torque_on = bool(self.chain.register(self.config.servo_id, "Torque Enable"))
             now = self.clock.now()
             if self._history_t and now <= self._history_t[-1]:
                 return
@@ -91,12 +94,14 @@ class VirtualRig:
 
     def force_at_n(self, t_s: float) -> float:
         """The probe's force (N) at simulated time ``t_s``: interpolated between the moments the rig's wire last
-        saw (the servo moves only when driven), the present force after the last of them. The simulated board
+        saw (the servo moves only when driven), the last of them after it (the present angle if never driven). The simulated board
         samples frames lazily, possibly after the rig has moved on; this keeps its readings causal."""
         with self._lock:
             times = self._history_t
-            if not times or t_s >= times[-1]:
-                return self.applied_force_n()
+            if not times:
+                return self.applied_force_n()  # never driven over the wire (posed by hand): the present angle
+            if t_s >= times[-1]:
+                return self._history_f[-1]  # the servo moves only when driven; no wait on the rig's bus
             k = bisect.bisect_right(times, t_s)
             if k == 0:
                 return self._history_f[0]

@@ -83,7 +83,17 @@ def test_interrupted_contact_search_is_released_back_to_slack(virtual_rig):
         assert virtual_rig.applied_force_n() == 0.0
 
 
-def test_start_force_returns_at_once_and_the_ramp_can_be_sampled(virtual_rig):
+@pytest.fixture
+def slow_virtual_rig():
+    """The rig at 2x real time: its 4 N ramp then lasts ~0.13 s of wall time (at 20x, 13 ms: a test thread starved for
+    one scheduler slice on a loaded machine first read the force after the ramp had ended)."""
+    rig = VirtualRig(RigConfig(), SimClock(2.0), seed=11)
+    previous = factory.install_sim_lab(RigOnlyLab(rig))
+    yield rig
+    factory.install_sim_lab(previous)
+
+
+def test_start_force_returns_at_once_and_the_ramp_can_be_sampled(slow_virtual_rig):
     with CalibrationRig(RigConfig()) as rig:
         rig.find_contact()
         target = rig.start_force(4.0)

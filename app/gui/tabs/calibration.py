@@ -851,7 +851,7 @@ def summary_html(result: FitResult) -> str:
              + f"; τ = {float(sls.tau_s):.4g} s; RMSE {cal.rmse_s * 1e6:.4g} µS; forces {cal.force_range_n[0]:.3g}–"
              f"{cal.force_range_n[1]:.3g} N"]
     if cal.linear is not None:
-        lines.append(f"linear: m = {cal.linear.model.m_S_per_N:.4e} S/N, d = {cal.linear.model.d_S:.4e} S"
+        lines.append(f"linear: m = {cal.linear.model.m_S_per_N * 1e6:.4g} µS/N, d = {cal.linear.model.d_S * 1e6:.4g} µS"
                      + (f" (window {result.window_s[0]:.0f}–{result.window_s[1]:.0f} s)" if result.window_s else ""))
     if cal.sls_trend is not None:
         lines.append("force trend (sls_trend) fitted: the parameters vary with force")
