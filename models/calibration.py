@@ -603,8 +603,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         typical = float(np.nanmedian(trial.conductance_s[p["hold"]]))
         if (math.isfinite(p["noise"]) and rmse > POOR_FIT_NOISE_RATIO * p["noise"]
                 and rmse > 1e-4 * typical):
-            warnings.append(f"poor fit: rmse {rmse:.3g} S is {rmse / max(p['noise'], 1e-300):.1f}× the noise "
-                            f"({p['noise']:.3g} S): the SLS model does not describe this trial (creased sensor, "
+            warnings.append(f"poor fit: rmse {rmse * 1e6:.3g} µS is {rmse / max(p['noise'], 1e-300):.1f}× the noise "
+                            f"({p['noise'] * 1e6:.3g} µS): the SLS model does not describe this trial (creased sensor, "
                             "slipping probe, drift?)")
         if not p["paper"].ok:
             warnings.extend(p["paper"].warnings)

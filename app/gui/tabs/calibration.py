@@ -312,6 +312,9 @@ class CalibrationTab(QWidget):
         self.trial_table.verticalHeader().setVisible(False)
         self.trial_table.verticalHeader().setDefaultSectionSize(22)
         self.trial_table.setWordWrap(True)  # long warnings wrap in their row instead of being cut
+        # A row of wrapped warnings can be taller than the view: scroll by pixel, so such a row starts at its top and the
+        # next rows stay reachable (per-item scrolling showed one tall row bottom-aligned and nothing else).
+        self.trial_table.setVerticalScrollMode(QAbstractItemView.ScrollMode.ScrollPerPixel)
         self.trial_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         header = self.trial_table.horizontalHeader()
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
@@ -493,6 +496,7 @@ class CalibrationTab(QWidget):
                     item.setForeground(theme.qcolor(theme.STATUS_COLORS[theme.WARN]))
                 self.trial_table.setItem(row, col, item)
         self.trial_table.resizeRowsToContents()
+        self.trial_table.scrollToTop()
         self.summary_label.setText(summary_html(result))
         n_warn = len(cal.warnings)
         level = theme.WARN if n_warn else theme.OK
