@@ -490,8 +490,9 @@ class CalibrationTab(QWidget):
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setToolTip(text if col in (0, len(cells) - 1) else _interval_tip(report.ci95, col))
-                if 0 < col < len(cells) - 1:
-                    item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                # Top-aligned: a row grown by wrapped warnings reads from its first line, not from its middle.
+                horizontal = Qt.AlignmentFlag.AlignRight if 0 < col < len(cells) - 1 else Qt.AlignmentFlag.AlignLeft
+                item.setTextAlignment(horizontal | Qt.AlignmentFlag.AlignTop)
                 if col == len(cells) - 1 and report.warnings:
                     item.setForeground(theme.qcolor(theme.STATUS_COLORS[theme.WARN]))
                 self.trial_table.setItem(row, col, item)
