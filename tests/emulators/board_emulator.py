@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import faulthandler
 import json
 import os
 import random
@@ -88,6 +89,10 @@ class Board:
         self.segments: list[Segment] = []
         self._lock = threading.Lock()
         self._quit = threading.Event()
+        # Set by the signal handler. Not the Event: Event.set() takes the lock Event.wait() holds around its check,
+        # and a handler runs on the main thread inside that wait -- it would wait for itself forever (seen in CI:
+        # SIGTERM ignored for 20 s). A plain attribute is atomic; the loop polls it at least every 50 ms.
+        self.signalled = False
         self._master: int | None = None
         self._slave: int | None = None
         self._plugged_at = 0.0
@@ -136,7 +141,7 @@ class Board:
         unplug_at = None if args.unplug_at is None else start + args.unplug_at
         replug_at = None if args.replug_at is None else start + args.replug_at
         period = 1.0 / args.rate_hz
-        while not self._quit.is_set():
+        while not (self._quit.is_set() or self.signalled):
             now = time.monotonic()
             if unplug_at is not None and now >= unplug_at:
                 unplug_at = None
@@ -274,11 +279,22 @@ class EmulatedBoard:
         if reply.strip() != f"OK {word}":
             raise RuntimeError(f"board emulator answered {reply!r} to {word!r}")
 
-    def stop(self) -> dict:
-        """End the emulator (the pty goes away) and return its log (see the module docstring)."""
+    def stop(self, timeout_s: float = 20.0) -> dict:
+        """End the emulator (the pty goes away) and return its log (see the module docstring). An emulator that
+        does not end within ``timeout_s`` prints its threads' stacks (faulthandler, to the test's stderr), is
+        killed, and this raises: a hung emulator never outlives its test nor hides why it hung."""
+        import subprocess
+
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
-        self.process.communicate(timeout=20)
+        try:
+            self.process.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.process.send_signal(signal.SIGUSR1)  # faulthandler: dump every thread's stack
+            time.sleep(1.0)
+            self.process.kill()
+            self.process.communicate()
+            raise RuntimeError(f"board emulator ignored SIGTERM for {timeout_s:.0f} s (stacks above); killed") from None
         return json.loads(self.log_path.read_text()) if self.log_path.exists() else {"segments": []}
 
     def __enter__(self) -> EmulatedBoard:
@@ -312,9 +328,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # EmulatedBoard.stop asks for stacks if we hang
     board = Board(args)
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        signal.signal(sig, lambda *_: board.quit())
+        signal.signal(sig, lambda *_: setattr(board, "signalled", True))
     board.plug()
     print(f"READY {board.link}", flush=True)
     threading.Thread(target=_commands, args=(board,), name="commands", daemon=True).start()
