@@ -10,7 +10,8 @@ callable: ``RobotController.submit`` (CLI) or ``RobotBridge.run_on_bus`` (GUI). 
 and may be called from any thread; the functions they submit run on the bus thread.
 
 In the simulated lab there is no hand to bend the robot, so :class:`SimHand` poses limp joints of the simulated
-chain directly (``VirtualChain.set_limp_position``); :func:`sim_hand_for` returns one only for a ``sim`` port.
+chain directly (``VirtualChain.set_limp_position``); :func:`sim_hand_for` returns one only for a ``sim`` port. In
+the physics lab the hand keeps holding what it bent until torque goes on or it lets go (:meth:`SimHand.let_go`).
 """
 
 from __future__ import annotations
@@ -154,6 +155,12 @@ class SimHand:
     def set_pose(self, angles_rad: Sequence[float]) -> None:
         for j, angle in enumerate(angles_rad):
             self.set_angle(j, float(angle))
+
+    def let_go(self) -> None:
+        """Let go of every joint bent so far. In the physics lab the hand holds a bent joint against gravity (as a
+        person holds the robot in shape) until its torque goes on or the hand lets go; the scripted lab's limp
+        joints stay where they were put anyway."""
+        self._chain.release_limp_hold()
 
 
 def sim_hand_for(robot: RobotConfig) -> SimHand | None:
