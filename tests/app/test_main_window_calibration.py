@@ -126,7 +126,7 @@ def rig_tab(qtbot, fast_sim_lab, tmp_path):
 @pytest.mark.slow  # a 2-trial run on the 50× sim (~12 s) and the fit in a spawned process
 def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
     tab = rig_tab
-    with qtbot.waitSignal(tab.rig_session.running_changed, timeout=5_000):
+    with qtbot.waitSignal(tab.rig_session.running_changed, timeout=15_000):
         assert tab.start_run()
     assert not tab.fit_button.isEnabled() and not tab.protocol_form.run_button.isEnabled()
     assert tab.protocol_form.abort_button.isEnabled()
