@@ -39,7 +39,7 @@ from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit
 from models.fit_profile import profile_tau, refined_tau_interval
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
-from models.sls import SLSParams, abc_from_sls
+from models.sls import SLSParams, abc_from_sls, conductance_from_force
 
 # The hold starts where the applied force first reaches this fraction of the trial's top force, and ends where it
 # falls below the second fraction.
@@ -54,8 +54,17 @@ DFREE_FORCE_FRACTION = 0.2
 # A trial whose smoothed conductance varies by less than this fraction of its level is flat (sensor not responding).
 FLAT_RELATIVE_SPAN = 5e-3
 FLAT_NOISE_MULTIPLE = 8.0
-# A poor fit: rmse above this multiple of the estimated noise (and above 1e-4 relative, so noise-free fits pass).
+# A poor fit (docs/NUMERICS.md, "Poor fit"): the per-trial misfit is systematic — rmse above this multiple of the
+# estimated conductance noise — AND it matters in force: its force equivalent (rmse / dC/dF of the fitted model at the
+# trial's level) exceeds both POOR_FIT_FORCE_FRACTION of the trial's force (the accuracy a calibration is meant to
+# deliver) and POOR_FIT_REFERENCE_MULTIPLE × the scatter of the applied-force reference over the hold (a model cannot
+# fit the sensor better than the force it is given: a rig's reference moves by whole encoder ticks, 7.5 mN on the
+# default rig).
 POOR_FIT_NOISE_RATIO = 2.0
+POOR_FIT_FORCE_FRACTION = 0.005
+POOR_FIT_REFERENCE_MULTIPLE = 2.0
+# dC/dF is taken from the fitted model run on the trial's force scaled by 1 ± this.
+SENSITIVITY_STEP = 0.01
 # E0's 95 % interval wider than this fraction of E0 is reported as poorly identified.
 WIDE_INTERVAL = 0.5
 # A trial with more than this fraction of its hold saturated is refused for the per-trial table (it only says
@@ -166,6 +175,7 @@ class TrialReport:
     has_ramp: bool
     warnings: tuple[str, ...]
     refused: str | None = None  # why this trial's own parameters are not reported (None: they are)
+    misfit_force_n: float = math.nan  # the hold's misfit as a force (N): its rmse / dC/dF of this trial's fit there
 
     def to_dict(self) -> dict:
         """The SPEC §3.3 ``trials`` entry (plus extra keys that ``estimate`` ignores). A refused trial writes null
@@ -180,7 +190,7 @@ class TrialReport:
             "file": self.name, "force_N": self.force_n,
             "c1": self.exp_fit.c1, "c2": self.exp_fit.c2, "c3": self.exp_fit.c3,
             **values, "refused": self.refused,
-            "rmse_S": self.rmse_s, "warnings": list(self.warnings),
+            "rmse_S": self.rmse_s, "misfit_force_N": _or_none(self.misfit_force_n), "warnings": list(self.warnings),
             "ci95": {k: list(v) for k, v in self.ci95.items()},
             "hold_s": [self.hold_start_s, self.hold_end_s], "noise_S": self.noise_s,
             "saturated_samples": self.n_saturated,
@@ -324,6 +334,61 @@ def _check_not_flat(trial: TrialInput) -> None:
             f"{trial.name}: conductance is flat ({span:.3g} S span at {level:.3g} S, noise {noise:.3g} S) while the "
             f"force goes to {np.nanmax(trial.force_n):.3g} N: the sensor is not responding (flat-lined, loose or "
             "not under the probe); fit refused")
+
+
+def hold_misfit(trial: TrialInput, hold: slice, params: SLSParams, area_m2: float, phys: PhysicsConstants,
+                saturation_s: float | None) -> tuple[float, float]:
+    """The fitted model's misfit over the hold and its sensitivity there: (rmse (S) of measured − model over the
+    hold's unsaturated samples, dC/dF (S/N) at the trial's level — the model run on the trial's own force record
+    scaled by 1 ± :data:`SENSITIVITY_STEP`, the hold's median conductance change over the force change). NaN where
+    the model cannot be run (a strain ≥ 1 is clamped) or no sample is left.
+
+    Over the hold only: during the ramp the conductance changes by tens of µS per sample, so a force reference read a
+    fraction of a sample early or late (a busy rig thread) leaves residuals there that say nothing about the creep
+    model; the hold, at constant force, is where the model's creep is judged."""
+    force = np.nan_to_num(np.asarray(trial.force_n, dtype=np.float64), nan=0.0)
+    step = SENSITIVITY_STEP
+    try:
+        model, up, down = (np.asarray(conductance_from_force(trial.time_s, force * scale, params, area_m2, phys,
+                                                             overstrain="clamp"), dtype=np.float64)[hold]
+                           for scale in (1.0, 1 + step, 1 - step))
+    except ValueError:
+        return math.nan, math.nan
+    measured = np.asarray(trial.conductance_s, dtype=np.float64)[hold]
+    used = np.isfinite(measured) & np.isfinite(model)
+    if saturation_s is not None:
+        used &= measured < saturation_s * (1 - 1e-12)
+    rmse = float(np.sqrt(np.mean(np.square(measured[used] - model[used])))) if used.any() else math.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = (up - down) / (2 * step * force[hold])
+    ratio = ratio[np.isfinite(ratio)]
+    return rmse, (float(np.median(ratio)) if ratio.size else math.nan)
+
+
+def reference_scatter(force_n: np.ndarray) -> float:
+    """Scatter (N, s.d.) of the applied-force reference over a hold, from first differences (a slow trend does not
+    count): a rig's reference moving between encoder ticks gives ~0.8 tick; a perfect reference 0."""
+    f = np.asarray(force_n, dtype=np.float64)
+    d = np.diff(f[np.isfinite(f)])
+    return float(math.sqrt(np.mean(np.square(d)) / 2.0)) if d.size else 0.0
+
+
+def poor_fit_verdict(rmse_s: float, noise_s: float, misfit_n: float, force_n: float, reference_n: float) -> str:
+    """Why a trial's fit is poor ("" when it is not): the misfit is systematic (rmse > :data:`POOR_FIT_NOISE_RATIO` ×
+    the noise) and its force equivalent ``misfit_n`` exceeds both :data:`POOR_FIT_FORCE_FRACTION` of the trial force
+    and :data:`POOR_FIT_REFERENCE_MULTIPLE` × the reference's scatter. Without a usable sensitivity (``misfit_n``
+    NaN: the fitted model does not rise with force) the noise ratio alone decides. No verdict without a noise
+    estimate (NaN: too few unsaturated samples)."""
+    if not (math.isfinite(noise_s) and rmse_s > POOR_FIT_NOISE_RATIO * noise_s and rmse_s > 0):
+        return ""
+    ratio = f"{rmse_s / noise_s:.1f}× the noise ({noise_s * 1e6:.3g} µS)" if noise_s > 0 else "above a zero noise"
+    if not math.isfinite(misfit_n):
+        return f"the hold's rmse {rmse_s * 1e6:.3g} µS is {ratio} and the fitted model does not rise with force"
+    tolerance = max(POOR_FIT_FORCE_FRACTION * force_n, POOR_FIT_REFERENCE_MULTIPLE * reference_n)
+    if misfit_n <= tolerance:
+        return ""
+    return (f"the hold's rmse {rmse_s * 1e6:.3g} µS ({ratio}) is {misfit_n * 1e3:.3g} mN of force, "
+            f"{100 * misfit_n / force_n:.2g} % of the trial's {force_n:.3g} N (tolerated: {tolerance * 1e3:.3g} mN)")
 
 
 def _strain(trial: TrialInput, phys: PhysicsConstants, rows: np.ndarray) -> np.ndarray:
@@ -600,18 +665,19 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")
         rmse = per_trial.rmse_s[i]
-        typical = float(np.nanmedian(trial.conductance_s[p["hold"]]))
-        if (math.isfinite(p["noise"]) and rmse > POOR_FIT_NOISE_RATIO * p["noise"]
-                and rmse > 1e-4 * typical):
-            warnings.append(f"poor fit: rmse {rmse * 1e6:.3g} µS is {rmse / max(p['noise'], 1e-300):.1f}× the noise "
-                            f"({p['noise'] * 1e6:.3g} µS): the SLS model does not describe this trial (creased sensor, "
+        hold_rmse, sensitivity = hold_misfit(trial, p["hold"], trial_params, area_m2, phys, saturation_s)
+        misfit_n = hold_rmse / sensitivity if sensitivity > 0 else math.nan
+        verdict = poor_fit_verdict(hold_rmse if math.isfinite(hold_rmse) else rmse, p["noise"], misfit_n,
+                                   p["hold_n"], reference_scatter(trial.force_n[p["hold"]]))
+        if verdict:
+            warnings.append(f"poor fit: {verdict}: the SLS model does not describe this trial (creased sensor, "
                             "slipping probe, drift?)")
         if not p["paper"].ok:
             warnings.extend(p["paper"].warnings)
         reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["hold"].start]),
                                    float(trial.time_s[p["hold"].stop - 1]), p["exp"], p["paper"],
                                    p["dfree"], per_trial.params[i], per_trial.ci95_per_trial[i], rmse, p["noise"],
-                                   p["sat"], p["ramp"], tuple(warnings), refused))
+                                   p["sat"], p["ramp"], tuple(warnings), refused, misfit_n))
 
     if not distinct:
         sensor_warnings.append("all trials are at one force: no force trend fitted, and forces far from "

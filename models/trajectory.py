@@ -17,6 +17,7 @@ replaced atomically, so any thread (the GUI, a CLI printer) may read it.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -389,8 +390,9 @@ class FollowTheLeader(PlannedMotion):
         _check_speed(speed_rad_s)
         shape = np.array(shape_rad, dtype=float)
         axes = tuple(axes)
-        super().__init__(lambda present: plan_follow_the_leader(present, shape, axes, speed_rad_s, shifts, repeat),
-                         "shift", rate_hz)
+        # A partial, not a lambda: a motion source crosses to the control loop's process by pickling.
+        super().__init__(functools.partial(plan_follow_the_leader, shape_rad=shape, axes=axes, speed_rad_s=speed_rad_s,
+                                           shifts=shifts, repeat=repeat), "shift", rate_hz)
 
 
 class Keyframes(PlannedMotion):
@@ -409,7 +411,7 @@ class Keyframes(PlannedMotion):
             plan_keyframes(poses[0], times, poses, **kwargs)  # validation only: refuse before anything moves
         else:
             raise TrajectoryError("keyframe mode needs at least one keyframe")
-        super().__init__(lambda present: plan_keyframes(present, times, poses, **kwargs), "keyframe", rate_hz)
+        super().__init__(functools.partial(plan_keyframes, times_s=times, poses_rad=poses, **kwargs), "keyframe", rate_hz)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -13,6 +13,10 @@ import pytest
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+# Bus threads at normal priority in tests (and in the processes tests start): run as root, every RobotController
+# would get SCHED_FIFO, and a 20x simulated lab's bus thread at real-time priority takes a core from the emulator
+# processes and other threads a test waits on. The tests of the real-time path ask for it themselves.
+os.environ.setdefault("SENSNAKE_REALTIME", "0")
 
 THREAD_JOIN_GRACE_S = 3.0
 

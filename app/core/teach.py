@@ -5,12 +5,14 @@ capture the pose (rad, SPEC §2 convention), then turn torque back on *holding* 
 the goal registers are first written with the present positions, then torque is enabled, so the servos start out
 already at their goal.
 
-Every bus operation is a function run on the thread that owns the port, through a ``run_on_bus(fn) -> Future``
-callable: ``RobotController.submit`` (CLI) or ``RobotBridge.run_on_bus`` (GUI). Methods here return those futures
-and may be called from any thread; the functions they submit run on the bus thread.
+Every bus operation is a named command (:class:`devices.bus_commands.BusCommand`: a module-level function and its
+arguments, so it can also run in the control loop's own process) run on the thread that owns the port, through a
+``run_on_bus(command) -> Future`` callable: ``RobotController.submit`` (CLI) or ``RobotBridge.run_on_bus`` (GUI).
+Methods here return those futures and may be called from any thread; the commands run on the bus thread.
 
 In the simulated lab there is no hand to bend the robot, so :class:`SimHand` poses limp joints of the simulated
-chain directly (``VirtualChain.set_limp_position``); :func:`sim_hand_for` returns one only for a ``sim`` port.
+chain directly (``VirtualChain.set_limp_position``); :func:`sim_hand_for` returns one only for a ``sim`` port. In
+the physics lab the hand keeps holding what it bent until torque goes on or it lets go (:meth:`SimHand.let_go`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from devices import bus_commands
+from devices.bus_commands import bus_command
 from devices.config import RobotConfig
 from devices.control_table import CENTER_TICKS, RAD_PER_TICK
 from devices.errors import JointLimitError
@@ -71,7 +75,8 @@ class TeachSession:
         from where the hand left the joints)."""
         self._run = run_on_bus
         self.robot = robot
-        self._set_torque = set_torque or (lambda enabled, ids: run_on_bus(lambda c: c.set_torque(enabled, ids)))
+        self._set_torque = set_torque or (
+            lambda enabled, ids: run_on_bus(bus_command(bus_commands.set_torque, enabled, ids)))
 
     def torque_off(self, ids: Sequence[int] | None = None) -> Future:
         """Let the selected joints (servo IDs; default all) go limp so they can be posed by hand."""
@@ -81,7 +86,7 @@ class TeachSession:
 
     def capture(self) -> Future:
         """Read the present pose (one sync read); the future's result is a :class:`CapturedPose`."""
-        return self._run(_read_pose)
+        return self._run(bus_command(_read_pose))
 
     def hold(self, ids: Sequence[int] | None = None) -> Future:
         """Torque on for ``ids`` (default all) holding where the joints are now; result: the goals sent (rad).
@@ -92,7 +97,7 @@ class TeachSession:
         self._check_ids(chosen)
         robot = self.robot
         result: Future = Future()
-        goals_written = self._run(lambda chain: _goals_to_present(chain, robot))
+        goals_written = self._run(bus_command(_goals_to_present, robot))
 
         def then_torque_on(done: Future) -> None:
             # Only once the goals equal the present positions may torque come on (else the servos jump).
@@ -154,6 +159,12 @@ class SimHand:
     def set_pose(self, angles_rad: Sequence[float]) -> None:
         for j, angle in enumerate(angles_rad):
             self.set_angle(j, float(angle))
+
+    def let_go(self) -> None:
+        """Let go of every joint bent so far. In the physics lab the hand holds a bent joint against gravity (as a
+        person holds the robot in shape) until its torque goes on or the hand lets go; the scripted lab's limp
+        joints stay where they were put anyway."""
+        self._chain.release_limp_hold()
 
 
 def sim_hand_for(robot: RobotConfig) -> SimHand | None:

@@ -27,6 +27,8 @@ from typing import Any, TypeVar
 from PySide6.QtCore import QObject, Signal
 
 from app.gui.thread_bridge import Coalescer, ThreadBridge
+from devices import bus_commands
+from devices.bus_commands import bus_command
 from devices.config import RobotConfig
 from devices.errors import DeviceError, LinkLostError
 from devices.factory import is_sim
@@ -256,7 +258,7 @@ class RobotBridge(QObject):
             if report_errors:
                 self.when_done(future, None)
             return future
-        return self.run_on_bus(lambda chain: chain.scan(ids, bauds), report_errors)
+        return self.run_on_bus(bus_command(bus_commands.scan, ids, bauds), report_errors)
 
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> Future:
         """Torque on/off for ``ids`` (default all joints)."""

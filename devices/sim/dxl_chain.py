@@ -139,6 +139,7 @@ class JointPhysics(Protocol):
     def joint_state(self) -> Any: ...
     def set_joint_angle(self, joint: int, angle_rad: float) -> None: ...
     def set_external_torque(self, joint: int, torque_nm: float) -> None: ...
+    def release_hand(self, joint: int | None = None) -> None: ...
 
 
 class VirtualChain:
@@ -273,6 +274,15 @@ class VirtualChain:
             if self._physics is not None:
                 joint = self._servos.index(servo)
                 self._physics.set_joint_angle(joint, (servo.position_ticks - ct.CENTER_TICKS) * ct.RAD_PER_TICK)
+
+    def release_limp_hold(self, servo_id: int | None = None) -> None:
+        """Let go of a joint posed by :meth:`set_limp_position` (default: all). The scripted servos keep a limp joint
+        where it was put anyway; in the physics lab the hand held it against gravity until now."""
+        with self._lock:
+            self._advance(self._clock.now())
+            if self._physics is not None:
+                joint = None if servo_id is None else self._servos.index(self._servo(servo_id))
+                self._physics.release_hand(joint)
 
     def set_load(self, servo_id: int, torque_nm: float) -> None:
         """External load torque on a joint (N·m); the current follows it, and a large one trips the overload."""

@@ -21,7 +21,7 @@ def bridge(qtbot):
 def test_blocks_reach_the_history_and_signal(qtbot, bridge):
     blocks = []
     bridge.block.connect(blocks.append)
-    with qtbot.waitSignal(bridge.connected, timeout=5000) as connected:
+    with qtbot.waitSignal(bridge.connected, timeout=15_000) as connected:
         bridge.start()
     assert connected.args == [True]
     qtbot.waitUntil(lambda: len(bridge.history) >= 60, timeout=10_000)
@@ -37,14 +37,14 @@ def test_blocks_reach_the_history_and_signal(qtbot, bridge):
 def test_cable_pull_is_reported_and_reconnects(qtbot, bridge, sim_lab_fast):
     states = []
     bridge.board_status.connect(lambda status: states.append(status.state))
-    with qtbot.waitSignal(bridge.connected, timeout=5000):
+    with qtbot.waitSignal(bridge.connected, timeout=15_000):
         bridge.start()
     qtbot.waitUntil(lambda: len(bridge.history) > 10, timeout=10_000)
-    with qtbot.waitSignal(bridge.connected, timeout=5000) as lost:
+    with qtbot.waitSignal(bridge.connected, timeout=15_000) as lost:
         sim_lab_fast.board.unplug()
     assert lost.args == [False]
     assert "disconnected" in states
-    with qtbot.waitSignal(bridge.connected, timeout=5000) as back:
+    with qtbot.waitSignal(bridge.connected, timeout=15_000) as back:
         sim_lab_fast.board.replug()
     assert back.args == [True]
     assert "reconnected" in states
@@ -69,6 +69,6 @@ def test_stop_joins_and_restart_works(qtbot, bridge):
     bridge.stop()
     assert not bridge.is_running and not bridge.is_connected
     count = bridge.bridge_stats.samples
-    with qtbot.waitSignal(bridge.connected, timeout=5000):
+    with qtbot.waitSignal(bridge.connected, timeout=15_000):
         bridge.start()
     qtbot.waitUntil(lambda: bridge.bridge_stats.samples > count, timeout=10_000)

@@ -35,7 +35,7 @@ def test_blocks_robot_states_forces_and_events_round_trip(qtbot, tmp_path):
     session.add_robot_states(states)
     session.mark_gap(now + 1.0, "board unplugged")
     session.log_event("S10R: noisy (loose?)", kind="health")
-    with qtbot.waitSignal(session.stopped, timeout=5000) as stopped:
+    with qtbot.waitSignal(session.stopped, timeout=15_000) as stopped:
         session.stop()
     session.stop()  # twice is fine
     assert "saved" in stopped.args[0] and not session.is_active
@@ -52,7 +52,7 @@ def test_a_file_that_cannot_be_created_fails_cleanly(qtbot, tmp_path):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("x")
     session = RecordingSession(blocker / "r.h5", "", CHANNELS)
-    with qtbot.waitSignal(session.failed, timeout=5000) as failed:
+    with qtbot.waitSignal(session.failed, timeout=15_000) as failed:
         session.start()
     assert "cannot" in failed.args[0]
     assert not session.is_active

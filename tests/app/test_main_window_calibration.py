@@ -126,7 +126,7 @@ def rig_tab(qtbot, fast_sim_lab, tmp_path):
 @pytest.mark.slow  # a 2-trial run on the 50× sim (~12 s) and the fit in a spawned process
 def test_protocol_run_records_trials_then_fits_them(rig_tab, qtbot):
     tab = rig_tab
-    with qtbot.waitSignal(tab.rig_session.running_changed, timeout=5_000):
+    with qtbot.waitSignal(tab.rig_session.running_changed, timeout=15_000):
         assert tab.start_run()
     assert not tab.fit_button.isEnabled() and not tab.protocol_form.run_button.isEnabled()
     assert tab.protocol_form.abort_button.isEnabled()
@@ -295,3 +295,43 @@ def test_the_sensor_is_picked_on_the_body_drawing(qtbot):
     page.sensor_edit.setText("S12B")
     assert picker.selected == "S12B" and picker.buttons["S12B"].isChecked() and not picker.buttons["S03L"].isChecked()
     page.shutdown()
+
+
+def test_the_redo_button_rejects_the_selected_trial_and_runs_it_again(rig_tab, qtbot):
+    from PySide6.QtCore import Qt
+
+    from app.core.rig_protocol import finished_trials, read_session
+
+    tab = rig_tab
+    tab.protocol_form.hold_spin.setValue(100.0)
+    tab.protocol_form.ramp_spin.setValue(15.0)
+    tab.protocol_form.baseline_spin.setValue(25.0)
+    tab.show()
+    qtbot.waitExposed(tab)
+    assert tab.start_run()
+    folder = tab.session_folder
+    qtbot.waitUntil(lambda: len(tab.trials) == 1, timeout=60_000)
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
+        tab.protocol_form.abort_button.click()  # trial 1 kept, trial 2 not run
+    settings = read_session(folder)
+    first = finished_trials(folder, settings)[0]
+    original = first.read_bytes()
+    tab.source_tabs.setCurrentIndex(1)  # the rig page, where the button is
+    qtbot.waitUntil(tab.redo_button.isVisible, timeout=10_000)
+    assert not tab.redo_button.isEnabled() or tab.trial_list.selectedItems() == []
+    tab.trial_list.item(0).setSelected(True)
+    qtbot.waitUntil(tab.redo_button.isEnabled, timeout=10_000)
+    qtbot.mouseClick(tab.redo_button, Qt.MouseButton.LeftButton)
+    # The CSV is kept aside, never deleted, and the session runs the trial again.
+    rejected = folder / "rejected" / first.name
+    assert rejected.read_bytes() == original and not first.exists()
+    assert "rejected" in tab.status_label.text()
+    assert tab.rig_session.is_running and tab.trial_list.count() == 0
+    qtbot.waitUntil(lambda: 0 in finished_trials(folder, settings), timeout=60_000)
+    redone = finished_trials(folder, settings)[0]
+    assert redone.name == first.name and redone.read_bytes() != original  # a new recording of the same trial
+    qtbot.waitUntil(lambda: tab.trial_list.count() >= 1, timeout=30_000)
+    assert tab.trials[0].path == redone
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
+        tab.protocol_form.abort_button.click()
+    assert rejected.read_bytes() == original

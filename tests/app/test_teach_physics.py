@@ -98,3 +98,36 @@ def test_the_gait_tab_plays_the_captured_shape_and_the_simulated_robot_advances(
     finally:
         lab.close()
         sim.close()
+
+
+def test_a_joint_bent_in_the_teach_tab_stays_bent_until_torque_off_lets_it_go(qtbot, tmp_path, install_fast_sim_lab):
+    """The simulated hand holds what it bent against gravity (as a person holds the robot in shape), so the tab
+    captures the pose it was given; "Torque off" again lets go and gravity brings the joint down."""
+    flat = dataclasses.replace(PHYSICS, lab=SimLabConfig(physics="mujoco", obstacle_height_ratio=0.0))
+    sim = install_fast_sim_lab(flat, speed=3.0)
+    sim.start_background()
+    world = sim.physics.world
+    lab = LabContext(flat)
+    try:
+        with qtbot.waitSignal(lab.robot.connected, timeout=WAIT_MS):
+            lab.robot.connect_robot()
+        tab = TeachTab(lab, ShapeLibrary(tmp_path / "shapes"))
+        qtbot.addWidget(tab)
+        tab.resize(1280, 760)
+        tab.show()
+        qtbot.mouseClick(tab.panel.torque_off_all_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: all(tab.limp), timeout=WAIT_MS)
+        tab.pose_joint(2, 0.5)  # joint 3 (pitch) bent up: lifts the body behind it off the ground
+        posed_s = world.time_s
+        qtbot.waitUntil(lambda: world.time_s > posed_s + 2.0, timeout=WAIT_MS)
+        assert world.joint_state().position_rad[2] == pytest.approx(0.5, abs=0.005)  # still where the hand put it
+        qtbot.mouseClick(tab.panel.capture_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: len(tab.keyframes) == 1, timeout=WAIT_MS)
+        assert tab.keyframes[0].angles_rad[2] == pytest.approx(0.5, abs=0.01)  # through the wire
+        qtbot.mouseClick(tab.panel.torque_off_all_button, Qt.MouseButton.LeftButton)  # let go
+        qtbot.waitUntil(lambda: not world.held.any(), timeout=WAIT_MS)
+        qtbot.waitUntil(lambda: lab.robot.latest_state is not None
+                        and lab.robot.latest_state.position_rad[2] < 0.3, timeout=WAIT_MS)  # gravity takes over
+    finally:
+        lab.close()
+        sim.close()

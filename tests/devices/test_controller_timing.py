@@ -122,6 +122,7 @@ def _bus_thread_policy(ctl: RobotController, rec: States) -> int:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
 def test_the_bus_thread_gets_real_time_priority_when_permitted_and_says_which_it_got(monkeypatch):
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")  # tests/conftest.py turns it off for the rest of the suite
     ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
     try:
         policy = _bus_thread_policy(ctl, rec)
@@ -152,6 +153,7 @@ def test_without_the_privilege_the_loop_runs_with_normal_scheduling_and_says_how
     def refuse(*_args):
         raise PermissionError(1, "Operation not permitted")
 
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")
     monkeypatch.setattr(os, "sched_setscheduler", refuse, raising=False)
     monkeypatch.setattr(sys, "platform", "linux")
     ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)

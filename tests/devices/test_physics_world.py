@@ -81,3 +81,92 @@ def test_the_limp_robot_drapes_over_the_obstacle_and_conforms_to_it():
     assert bottom[4:7].min() > 1.0  # the middle lies on the top of the obstacle
     points = world.body_state().points_m
     assert points[:, 2].min() < 0.05 and points[:, 2].max() > scene.obstacle_height_m  # from the ground over the top
+
+
+def _limp_on_flat_ground() -> PhysicsWorld:
+    world = PhysicsWorld(FLAT)
+    world.command(np.zeros(world.n_joints, dtype=bool), np.zeros(world.n_joints))
+    world.step(250)
+    return world
+
+
+def test_a_joint_posed_by_hand_stays_while_held_and_falls_back_when_let_go():
+    world = _limp_on_flat_ground()
+    world.set_joint_angle(2, 0.5)  # joint 3 (pitch) bent up: lifts the segments behind it off the ground
+    world.step(1000)  # 2 s
+    assert world.joint_state().position_rad[2] == pytest.approx(0.5, abs=0.005)
+    assert world.held[2] and world.held.sum() == 1
+    world.release_hand()
+    world.step(500)  # 1 s: the passive joint (damping, friction loss) does not hold it up
+    assert world.joint_state().position_rad[2] < 0.3
+    assert not world.held.any()
+
+
+def test_torque_on_takes_the_posed_joint_over_from_the_hand():
+    world = _limp_on_flat_ground()
+    world.set_joint_angle(4, 0.5)
+    world.step(250)
+    on = np.zeros(world.n_joints, dtype=bool)
+    on[4] = True
+    world.command(on, world.joint_state().position_rad)  # the firmware: goal = present on torque-on
+    assert not world.held[4]
+    world.step(1000)
+    assert world.joint_state().position_rad[4] == pytest.approx(0.5, abs=0.03)  # the servo holds it now
+
+
+def test_the_limp_robot_still_drapes_over_the_obstacle_after_the_hand_let_go():
+    scene = SceneParams()
+    world = PhysicsWorld(scene)
+    world.set_joint_angle(2, 0.0)
+    world.step(500)
+    assert world.joint_state().position_rad[2] == pytest.approx(0.0, abs=0.005)  # held straight over the edge
+    world.release_hand()
+    world.step(int(6.0 / scene.timestep_s))
+    wrap = -2 * scene.segment_length_m / (scene.obstacle_height_m + scene.segment_radius_m)
+    assert world.joint_state().position_rad[2] == pytest.approx(wrap, abs=0.1)
+
+
+def _run_to(world: PhysicsWorld, t_s: float) -> None:
+    """Advance the world's clock to ``t_s`` in 0.1 s calls (one call further than MAX_CATCH_UP_S ahead skips)."""
+    while world.time_s < t_s - 1e-9:
+        world.advance_to(min(t_s, world.time_s + 0.1))
+
+
+def test_a_still_world_rests_and_wakes_on_a_command():
+    world = PhysicsWorld(SceneParams())
+    world.rest_enabled = True
+    n = world.n_joints
+    world.command(np.zeros(n, dtype=bool), np.zeros(n))
+    _run_to(world, 15.0)  # drapes over the obstacle, then lies still
+    assert world.resting
+    state, loads, steps = world.joint_state(), world.segment_loads_n(), world.steps
+    _run_to(world, 25.0)
+    assert world.steps == steps and world.rested_s > 9.9  # 10 s more on the clock, none of it stepped
+    assert world.time_s == pytest.approx(25.0, abs=0.01)
+    assert np.array_equal(world.joint_state().position_rad, state.position_rad)
+    assert np.array_equal(world.segment_loads_n(), loads)
+    assert loads[0].sum() > 0.5 * world.weight_n
+    goal = world.joint_state().position_rad.copy()
+    goal[10] += 0.3
+    world.command(np.ones(n, dtype=bool), goal, np.full(n, 1.0))
+    assert not world.resting
+    _run_to(world, 27.0)
+    assert world.steps > steps
+    assert world.joint_state().position_rad[10] == pytest.approx(goal[10], abs=0.05)
+
+
+def test_a_world_does_not_rest_while_a_servo_still_has_work_or_strains():
+    scene = SceneParams(obstacle_height_m=0.0, wall_offset_m=0.045)
+    world = PhysicsWorld(scene)
+    world.rest_enabled = True
+    n = world.n_joints
+    goal = np.zeros(n)
+    goal[11] = 1.0  # into the wall: stalls, strains, and must go on straining until the overload trips
+    world.command(np.ones(n, dtype=bool), goal, np.full(n, 0.5))
+    rested, saturated = [], []
+    while world.time_s < 6.0:
+        world.advance_to(world.time_s + 0.05)
+        rested.append(world.resting)
+        saturated.append(world.joint_state().saturated_s[11])
+    assert not any(rested)
+    assert max(saturated) > 0.2  # what trips the overload goes on accumulating

@@ -285,16 +285,26 @@ class EmulatedBoard:
         killed, and this raises: a hung emulator never outlives its test nor hides why it hung."""
         import subprocess
 
+        if self.process.stdin is not None:
+            with contextlib.suppress(OSError):
+                self.process.stdin.close()  # end of stdin: a second way to say quit
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
         try:
-            self.process.communicate(timeout=timeout_s)
+            # wait(), not communicate(): the end of the process, not the end of its stdout (a pipe another process
+            # may share by inheritance), is what is waited for.
+            self.process.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             self.process.send_signal(signal.SIGUSR1)  # faulthandler: dump every thread's stack
             time.sleep(1.0)
             self.process.kill()
-            self.process.communicate()
+            self.process.wait()
             raise RuntimeError(f"board emulator ignored SIGTERM for {timeout_s:.0f} s (stacks above); killed") from None
+        finally:
+            for stream in (self.process.stdin, self.process.stdout):
+                if stream is not None:
+                    with contextlib.suppress(OSError):
+                        stream.close()
         return json.loads(self.log_path.read_text()) if self.log_path.exists() else {"segments": []}
 
     def __enter__(self) -> EmulatedBoard:

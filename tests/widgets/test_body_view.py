@@ -85,7 +85,7 @@ def test_drag_turns_the_nearest_yaw_joint_in_top_view(view, qtbot):
     view.joint_dragged.connect(lambda j, a: got.append((j, a)))
     start = view.view_point_to_scene("top", *pts[6])  # end of segment 6 → yaw joint 6 (index 5)
     end = view.view_point_to_scene("top", pts[6][0], pts[6][1] + 0.06)
-    with qtbot.waitSignal(view.drag_finished, timeout=2000):
+    with qtbot.waitSignal(view.drag_finished, timeout=10_000):
         _drag(view, start, end)
     assert got, "no joint_dragged signal"
     joint, angle = got[-1]
@@ -176,7 +176,7 @@ def test_range_goes_back_to_the_straight_body_after_the_delay(view, qtbot):
     assert RANGE_SHRINK_AFTER_S >= 1.0
     view.shrink_timer.setInterval(20)  # the test does not wait the full delay
     view.shrink_timer.start()
-    qtbot.waitUntil(lambda: view.view_ranges() == straight, timeout=2000)
+    qtbot.waitUntil(lambda: view.view_ranges() == straight, timeout=10_000)
 
 
 def test_sensor_noise_at_a_colour_step_does_not_redraw_but_a_real_change_does(view):

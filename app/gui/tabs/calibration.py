@@ -586,8 +586,13 @@ class CalibrationTab(QWidget):
             self._set_status("only a trial of a rig session can be redone (run the protocol first)", theme.WARN)
             return False
         moved = reject_trial(path)
+        if not self.resume_run(folder):
+            self._set_status(f"rejected {moved.name} (kept in {moved.parent}); resume the session to run it again",
+                             theme.WARN)
+            return False
+        # After start_run's own status line, which would hide what happened to the trial.
         self._set_status(f"rejected {moved.name} (kept in {moved.parent}); running it again", theme.WARN)
-        return self.resume_run(folder)
+        return True
 
     def _redo_selected(self) -> None:
         rows = sorted(self.trial_list.row(item) for item in self.trial_list.selectedItems())

@@ -7,6 +7,7 @@ pings every servo a few times on the bus thread and times each round trip there.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -17,42 +18,12 @@ from PySide6.QtWidgets import QMessageBox, QVBoxLayout, QWidget
 
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
-from devices.errors import CorruptPacketError, DeviceError, NoReplyError
+from devices import bus_commands
+from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
 from widgets.hardware_panel import HardwarePanel, LinkCheckRow
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
 LOOP_STATS_EVERY = 5  # refreshes between control-loop statistics updates (2 Hz; they sort 4096 periods)
-LINK_CHECK_ROUNDS = 5
-
-
-def link_check(chain: Any, servo_ids: Sequence[int], rounds: int = LINK_CHECK_ROUNDS) -> list[LinkCheckRow]:
-    """Ping each servo ``rounds`` times; round-trip times in ms. Runs on the bus thread (``run_on_bus``)."""
-    rows = []
-    for servo_id in servo_ids:
-        rtts_ms: list[float] = []
-        no_reply = crc = 0
-        others: list[str] = []
-        for _ in range(rounds):
-            start = time.perf_counter()
-            try:
-                chain.ping(servo_id)
-            except NoReplyError:
-                no_reply += 1
-                continue
-            except CorruptPacketError:
-                crc += 1
-                continue
-            except DeviceError as exc:
-                others.append(str(exc))
-                continue
-            rtts_ms.append((time.perf_counter() - start) * 1000.0)
-        rows.append(LinkCheckRow(
-            servo_id=int(servo_id),
-            rtt_mean_ms=sum(rtts_ms) / len(rtts_ms) if rtts_ms else None,
-            rtt_max_ms=max(rtts_ms) if rtts_ms else None,
-            no_reply=no_reply, crc_errors=crc, other_errors=tuple(dict.fromkeys(others)),
-        ))
-    return rows
 
 
 class HardwareTab(QWidget):
@@ -199,22 +170,17 @@ class HardwareTab(QWidget):
     def start_link_check(self) -> None:
         ids = list(self.robot.config.joint_ids)
         self.panel.set_link_check_running()
-        future = self.robot.run_on_bus(lambda chain: link_check(chain, ids), report_errors=False)
-        self.robot.when_done(future, lambda rows: self.panel.set_link_report(rows, LINK_CHECK_ROUNDS),
+        future = self.robot.run_on_bus(bus_command(bus_commands.link_check, ids), report_errors=False)
+        self.robot.when_done(future, lambda rows: self.panel.set_link_report(
+                                 [LinkCheckRow(**dataclasses.asdict(row)) for row in rows], LINK_CHECK_ROUNDS),
                              lambda exc: self.panel.set_link_check_failed(f"link check failed: {describe_error(exc)}"))
 
     def start_timing_check(self) -> None:
-        self._check_timing(lambda chain: list(chain.timing_warnings()))
+        self._check_timing(bus_command(bus_commands.timing_warnings))
 
     def fix_return_delay(self) -> None:
         """Return Delay Time → 0 on every joint (EEPROM: refused while torque is on), then re-check timing."""
-        ids = list(self.robot.config.joint_ids)
-
-        def fix(chain: Any) -> list[str]:
-            chain.set_return_delay(0, ids)
-            return list(chain.timing_warnings())
-
-        self._check_timing(fix)
+        self._check_timing(bus_command(bus_commands.fix_return_delay, list(self.robot.config.joint_ids)))
 
     def _check_timing(self, fn: Any) -> None:
         future = self.robot.run_on_bus(fn, report_errors=False)

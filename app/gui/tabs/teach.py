@@ -151,6 +151,8 @@ class TeachTab(QWidget):
             self._error(str(exc))
             return
         chosen = set(self.config.joint_ids if ids is None else ids)
+        if self._hand is not None:  # "torque off" again is also how the simulated hand lets go: gravity takes over
+            self._hand.let_go()
 
         def done(_result: Any) -> None:
             self.limp = [sid in chosen or limp for sid, limp in zip(self.config.joint_ids, self.limp)]

@@ -26,7 +26,8 @@ from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, chann
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.physics.render import SceneRenderer
 
-STEP_INTERVAL_S = 0.004  # the background thread catches up every 4 ms of wall time
+STEP_INTERVAL_S = 0.02  # the background thread catches up every 20 ms of wall time (the 3-D view draws <= 10/s;
+# the chain and the board step the world to their own events anyway)
 
 
 def scene_from_config(config: LabConfig) -> SceneParams:
@@ -70,6 +71,10 @@ class PhysicsBackend:
     def set_external_torque(self, joint: int, torque_nm: float) -> None:
         self.world.set_external_torque(joint, torque_nm)
 
+    def release_hand(self, joint: int | None = None) -> None:
+        """The teach hand lets go of ``joint`` (default: every joint it holds)."""
+        self.world.release_hand(None if joint is None else [joint])
+
     # -- forces (the board) --------------------------------------------------------------------------------------------
     def forces_n(self, t_s: float) -> np.ndarray:
         """Normal force (N) on each channel of ``config.board`` at the clock's time ``t_s``: the contact force on
@@ -110,9 +115,11 @@ class PhysicsBackend:
 
     # -- background stepping -------------------------------------------------------------------------------------------
     def start(self) -> None:
-        """Keep the world at the clock in a daemon thread until :meth:`close`."""
+        """Keep the world at the clock in a daemon thread until :meth:`close`. The world may then rest when nothing
+        moves (``PhysicsWorld.rest_enabled``): the app's lab is mostly a robot lying still."""
         if self._thread is not None:
             return
+        self.world.rest_enabled = True
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="physics-lab", daemon=True)
         self._thread.start()

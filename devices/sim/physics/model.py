@@ -68,6 +68,7 @@ class SceneParams:
 HEAD_RADIUS_M = 0.028  # thinner than a segment: the nose does not touch flat ground when the body is straight
 HEAD_LENGTH_M = 0.03
 SEGMENT_GAP_M = 0.002  # between neighbouring cylinders, so their end faces never overlap when straight
+HAND_SOLREF_S = 0.01  # the hand's grip: a stiff constraint (10 ms time constant), stiffer than the soft contacts
 
 
 def segment_name(index: int) -> str:
@@ -77,6 +78,11 @@ def segment_name(index: int) -> str:
 
 def joint_name(index: int) -> str:
     return f"j{index + 1:02d}"
+
+
+def hand_name(index: int) -> str:
+    """The equality constraint with which the teach hand holds joint ``index`` at an angle."""
+    return f"hand{index + 1:02d}"
 
 
 def build_mjcf(scene: SceneParams) -> str:
@@ -124,6 +130,12 @@ def build_mjcf(scene: SceneParams) -> str:
         f'{servo.stall_torque_nm}" ctrllimited="true"/>'
         for i in range(scene.n_segments)
     )
+    # The teach "hand" (world.PhysicsWorld.hold): one joint equality per joint, off until a person holds that joint.
+    hands = "".join(
+        f'<joint name="{hand_name(i)}" joint1="{joint_name(i)}" polycoef="0 0 0 0 0" active="false" '
+        f'solref="{HAND_SOLREF_S} 1"/>'
+        for i in range(scene.n_segments)
+    )
     head_z = radius
     return f"""<mujoco model="sensnake_v2">
   <compiler angle="degree" autolimits="true"/>
@@ -151,6 +163,7 @@ def build_mjcf(scene: SceneParams) -> str:
       {body}
     </body>
   </worldbody>
+  <equality>{hands}</equality>
   <actuator>{actuators}</actuator>
 </mujoco>
 """

@@ -11,6 +11,21 @@ Sensor forces: every contact between a segment and the terrain is classified by 
 circumference (in the segment's frame: left = +y, bottom = −z, right = −y, each sheet ``SHEET_HALF_ARC_DEG`` either
 side; the top carries no sheet) and its normal force (``mj_contactForce``) is added to that sensor.
 
+The teach "hand": posing a limp joint (:meth:`set_joint_angle`) also *holds* it there with a stiff joint
+constraint, as a person's hand holds the robot in shape while the pose is captured, until the servo takes over
+(torque on) or the hand lets go (:meth:`release_hand`). Without it gravity pulls a posed pitch joint back down: a
+limp XM430's gearbox does not hold the segments lifted behind a joint (the static friction identified on
+comparable Dynamixels, MX-64/MX-106, is about 0.1 N·m plus 0.2 × the load, and lifting joint 5 of the robot
+lying on the ground takes a few tenths of a N·m; the published XM430 friction loss used here is 0.03 N·m).
+
+Rest (:attr:`rest_enabled`, the app's lab): once every velocity has stayed below ``REST_SPEED`` for ``REST_AFTER_S``
+of simulated time with nothing commanded still to do (no servo slewing toward its goal, none straining near its
+stall torque, where the overload may yet trip), the world
+stops stepping and its clock moves on with the body frozen (counted in ``rested_s``); any change of command, a hand
+or an external torque wakes it. Besides saving the machine, this removes the slow creep of MuJoCo's soft contacts
+(a limp robot draped on PTFE creeps at ~2e-3 rad/s forever; with no-slip iterations it stops, i.e. it is an artefact,
+not a slide).
+
 Threads: every public method takes the world's lock, so the chain (the robot port's thread), the board (its port's
 thread) and a stepping thread may all call; :meth:`advance_to` steps until the world's clock reaches a time.
 """
@@ -26,11 +41,14 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from devices.sim.physics.model import SceneParams, build_mjcf, joint_name, segment_name
+from devices.sim.physics.model import SceneParams, build_mjcf, hand_name, joint_name, segment_name
 
 SHEET_HALF_ARC_DEG = 45.0
 MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
 SIDES = ("B", "L", "R")  # row order of segment_loads_n (the scripted ContactModel's order too)
+REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body counts as still
+STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
+REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
 
 
 @dataclass(frozen=True)
@@ -90,6 +108,13 @@ class PhysicsWorld:
         self.steps = 0
         self.stepping_s = 0.0  # wall time spent inside step() (any thread): the world's share of the machine
         self._force_buf = np.zeros(6)
+        self._hand_eq = np.array([self.model.equality(hand_name(i)).id for i in range(n)])
+        self._held = np.zeros(n, dtype=bool)
+        self.rest_enabled = False  # the app's lab turns it on (PhysicsBackend.start); batch runs step every step
+        self._resting = False
+        self._still_s = 0.0
+        self.rested_s = 0.0  # simulated time the world spent resting (not stepped, body frozen)
+        self._loads_at_rest: np.ndarray | None = None
         self.place()
 
     # -- set-up ------------------------------------------------------------------------------------------------------
@@ -114,6 +139,9 @@ class PhysicsWorld:
             self._setpoint[:] = angles
             self._goal[:] = angles
             self._saturated_s[:] = 0.0
+            self._held[:] = False
+            self.data.eq_active[self._hand_eq] = False
+            self._wake()
             mujoco.mj_forward(self.model, self.data)
 
     # -- commands (any thread) ---------------------------------------------------------------------------------------
@@ -122,27 +150,80 @@ class PhysicsWorld:
         turned on holds where it is and then moves toward its goal (the firmware's goal = present on torque-on)."""
         with self._lock:
             on = np.asarray(torque_on, dtype=bool)
+            goal = np.asarray(goal_rad, dtype=float)
+            speed = None if speed_rad_s is None else np.clip(speed_rad_s, 0.0, self._w0)
+            if self._resting and (np.any(on != self._torque_on) or np.any(goal != self._goal)
+                                  or (speed is not None and np.any(speed != self._speed))):
+                self._wake()
+            if np.any(on & self._held):  # the servo takes over from the hand
+                self._release(on & self._held)
             newly_on = on & ~self._torque_on
             if newly_on.any():
                 self._setpoint[newly_on] = self.data.qpos[self._qadr][newly_on]
             self._torque_on[:] = on
-            self._goal[:] = goal_rad
-            if speed_rad_s is not None:
-                self._speed[:] = np.clip(speed_rad_s, 0.0, self._w0)
+            self._goal[:] = goal
+            if speed is not None:
+                self._speed[:] = speed
             self._saturated_s[~on] = 0.0
 
     def set_joint_angle(self, joint: int, angle_rad: float) -> None:
-        """Pose a joint by hand (the teach "hand"): sets its angle and stops it."""
+        """Pose a limp joint by hand (the teach "hand"): sets its angle, stops it and holds it there until the
+        servo takes over (torque on) or :meth:`release_hand`."""
         with self._lock:
             self.data.qpos[self._qadr[joint]] = angle_rad
             self.data.qvel[self._dadr[joint]] = 0.0
             self._setpoint[joint] = angle_rad
+            self.model.eq_data[self._hand_eq[joint], 0] = angle_rad
+            self.data.eq_active[self._hand_eq[joint]] = not self._torque_on[joint]
+            self._held[joint] = not self._torque_on[joint]
+            self._wake()
             mujoco.mj_forward(self.model, self.data)
+
+    def release_hand(self, joints: Sequence[int] | None = None) -> None:
+        """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
+        with self._lock:
+            mask = np.zeros(self.n_joints, dtype=bool)
+            mask[list(range(self.n_joints)) if joints is None else list(joints)] = True
+            self._release(mask & self._held)
+
+    @property
+    def held(self) -> np.ndarray:
+        """Which joints the hand holds (bool per joint)."""
+        with self._lock:
+            return self._held.copy()
+
+    def _release(self, mask: np.ndarray) -> None:
+        if mask.any():
+            self._held[mask] = False
+            self.data.eq_active[self._hand_eq[mask]] = False
+            self._wake()
 
     def set_external_torque(self, joint: int, torque_nm: float) -> None:
         """An extra torque on a joint (N·m), e.g. a hand pushing on the body."""
         with self._lock:
+            if self._external[joint] != torque_nm:
+                self._wake()
             self._external[joint] = torque_nm
+
+    # -- rest ------------------------------------------------------------------------------------------------------------
+    @property
+    def resting(self) -> bool:
+        """True while the world rests (see the module docstring): not stepped, its body frozen."""
+        with self._lock:
+            return self._resting
+
+    def _wake(self) -> None:
+        self._resting = False
+        self._still_s = 0.0
+        self._loads_at_rest = None
+
+    def _note_stillness(self, stepped_s: float) -> None:
+        still = (float(np.max(np.abs(self.data.qvel))) < REST_SPEED
+                 and not np.any(self._torque_on & (self._setpoint != self._goal))
+                 and not np.any(np.abs(self._demand) > STRAIN_FRACTION * self._stall))
+        self._still_s = self._still_s + stepped_s if still else 0.0
+        if self._still_s >= REST_AFTER_S:
+            self._resting = True
 
     # -- time ------------------------------------------------------------------------------------------------------------
     @property
@@ -175,6 +256,8 @@ class PhysicsWorld:
                 data.qfrc_applied[dadr] = self._external
                 mujoco.mj_step(model, data)
             self.steps += n
+            if self.rest_enabled:
+                self._note_stillness(n * self._dt)
             self.stepping_s += time.perf_counter() - started
 
     def advance_to(self, t_s: float) -> None:
@@ -182,6 +265,11 @@ class PhysicsWorld:
         excess (the robot freezes for it, counted in ``lagged_s``) so a slow machine never blocks a caller long."""
         with self._lock:
             behind = t_s - self.time_s
+            if self._resting:  # nothing moves: the clock moves on without stepping
+                if behind > 0.0:
+                    self._offset_s += behind
+                    self.rested_s += behind
+                return
             if behind > MAX_CATCH_UP_S:
                 skip = behind - MAX_CATCH_UP_S
                 self._offset_s += skip
@@ -205,6 +293,8 @@ class PhysicsWorld:
     def segment_loads_n(self) -> np.ndarray:
         """(3, n) normal force (N) on the bottom, left and right sheet of every segment (rows in ``SIDES`` order)."""
         with self._lock:
+            if self._resting and self._loads_at_rest is not None:
+                return self._loads_at_rest.copy()
             loads = np.zeros((3, self.n_joints))
             data, model = self.data, self.model
             buf = self._force_buf
@@ -235,6 +325,8 @@ class PhysicsWorld:
                     loads[2, segment] += normal_n
                 elif lz < 0.0:  # between two sheets (exactly on a sheet's edge): the nearer one
                     loads[0 if -lz >= abs(ly) else (1 if ly > 0 else 2), segment] += normal_n
+            if self._resting:
+                self._loads_at_rest = loads.copy()
             return loads
 
     def total_contact_normal_n(self) -> float:
