@@ -386,7 +386,8 @@ class _SegmentPlot(QWidget):
         self.plot_widget.setVisible(expanded and self.in_view)
 
     def header_height(self) -> int:
-        header = self.layout().itemAt(0)
+        layout = self.layout()
+        header = layout.itemAt(0) if layout is not None else None
         return header.sizeHint().height() if header is not None else 0
 
     def set_labels(self, labels: Sequence[str]) -> None:
@@ -550,7 +551,7 @@ class ForcePlotGrid(QWidget):
         inner = self.scroll_area.widget()
         if inner is None:
             return
-        inner.layout().activate()  # the plots' places as they will be shown, not as they were
+        self._grid.activate()  # the plots' places as they will be shown, not as they were
         view = self.scroll_area.viewport().rect().translated(-inner.pos())
         changed = False
         for plot in self.plots:
@@ -799,7 +800,7 @@ class ForcePlotGrid(QWidget):
                 ys[1::2] = highs
             else:
                 ys = lows
-            finite = np.isfinite(ys).all(axis=0)
+            finite: np.ndarray = np.asarray(np.isfinite(ys).all(axis=0))
             column_lo = np.fmin.reduce(lows, axis=0)  # NaN (a gap) ignored; NaN only for a column of gaps
             column_hi = np.fmax.reduce(highs, axis=0)
             per_channel_units = self._channel_units
