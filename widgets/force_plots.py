@@ -38,6 +38,7 @@ from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
 from PySide6.QtGui import QPainterPath, QPolygonF
 from PySide6.QtWidgets import (
     QGraphicsItem,
+    QGraphicsWidget,
     QGridLayout,
     QHBoxLayout,
     QLabel,
@@ -119,6 +120,18 @@ def trace_color(name: str, position: int) -> str:
 def side_of(name: str) -> str:
     side = name[-1:].upper()
     return side if side in SIDE_COLORS else ""
+
+
+def native_geometry(item: QGraphicsWidget) -> None:
+    """Let Qt take ``item``'s boundingRect and shape from C++ (its geometry), not from pyqtgraph's Python overrides.
+
+    Qt asks every item in a repainted area for its bounds on every paint; pyqtgraph's GraphicsWidget answers in
+    Python (the same rect, from its geometry), about 12 calls per plot per frame in the live grid. A bound C++ method
+    set on the instance is found by PySide's virtual-call lookup and is not a Python method, so Qt calls C++ directly.
+    Only for items whose pyqtgraph override returns exactly the C++ rect (plain GraphicsWidgets: the plot item, the
+    legend, its samples and labels; not axes or view boxes, which pad theirs)."""
+    item.boundingRect = QGraphicsWidget.boundingRect.__get__(item)  # type: ignore[method-assign]
+    item.shape = QGraphicsWidget.shape.__get__(item)  # type: ignore[method-assign]
 
 
 def cache_subtree(item: QGraphicsItem) -> None:
@@ -295,6 +308,8 @@ class _SegmentPlot(QWidget):
             trace = _Trace(pg.mkPen(trace_color(name, position), width=1), name)
             self.legend.addItem(trace, name)
             self.curves.append(trace)
+        for plain in [item, self.legend, item.titleLabel] + [part for entry in self.legend.items for part in entry]:
+            native_geometry(plain)
         # The view box draws nothing itself (no border): Qt need not call its Python paint() every frame.
         item.getViewBox().setFlag(QGraphicsItem.GraphicsItemFlag.ItemHasNoContents, True)
         # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
