@@ -66,6 +66,7 @@ PLOT_HEIGHT_PX = 170  # a plot's height when the grid scrolls (the rows do not a
 FIT_MIN_PLOT_HEIGHT_PX = 120  # the rows are fitted to the view (no scrolling) only if each plot gets this much
 MIN_PLOT_WIDTH_PX = 200  # columns: as many as fit at this width, up to MAX_COLUMNS
 MAX_COLUMNS = 4
+SCROLL_MAX_COLUMNS = 3  # when the plots do not all fit and the grid scrolls
 LIVE_TIME_LABEL = "time before newest"  # + " (s)": fits under a 200-px plot (the longer "… sample (s)" was cut off)
 # Smallest y range shown, per unit: an unloaded sensor's sub-mN wiggle drawn across a whole plot reads as a load
 # (seen in the lab walkthrough: "0.0005 N" full scale). 0.1 N is the body map's step; conductance keeps a tiny floor.
@@ -468,6 +469,7 @@ class ForcePlotGrid(QWidget):
         self.redraw_count = 0
         self.last_redraw_s = 0.0
         self._last_refresh_s = 0.0
+        self._refresh_posted = False
         self._fixed_columns = columns
         self.columns = 0  # set by _fit_layout
         self.plot_height = PLOT_HEIGHT_PX
@@ -544,12 +546,15 @@ class ForcePlotGrid(QWidget):
         usable = viewport.width() - margins.left() - margins.right() + spacing
         columns = self._fixed_columns or max(1, min(MAX_COLUMNS, len(self.plots),
                                                     usable // (MIN_PLOT_WIDTH_PX + spacing)))
-        if columns != self.columns:
-            self._place(columns)
         rows = -(-len(self.plots) // columns)
         room = viewport.height() - margins.top() - margins.bottom() - (rows - 1) * grid.verticalSpacing()
         fitted = room // rows - self.plots[0].header_height() - 1
         self.fits_view = fitted >= FIT_MIN_PLOT_HEIGHT_PX
+        if not self.fits_view and not self._fixed_columns:
+            # Scrolling anyway: fewer, wider plots (more time resolution; fewer on screen to draw per frame).
+            columns = min(columns, SCROLL_MAX_COLUMNS)
+        if columns != self.columns:
+            self._place(columns)
         height = fitted if self.fits_view else PLOT_HEIGHT_PX
         if height != self.plot_height:
             self.plot_height = height
@@ -740,9 +745,17 @@ class ForcePlotGrid(QWidget):
         is under one redraw period old — then the timer's next tick draws them. Drawing on arrival, not only on a
         free-running timer, keeps the plots in step with the data: a timer at the data's own rate beats against it
         (a tick with nothing new, then one with two samples) and paints were lost."""
-        if not self._timer.isActive():
+        if not self._timer.isActive() or self._refresh_posted:
             return
         if time.monotonic() - self._last_refresh_s >= 0.75 * self._timer.interval() / 1000.0:
+            # Posted, not run here: the caller (the board drain, the force estimation) and the redraw are then two
+            # short turns of the event loop instead of one long one (1024 channels: ~6 + ~5 ms, up to ~40 ms).
+            self._refresh_posted = True
+            QTimer.singleShot(0, self, self._posted_refresh)
+
+    def _posted_refresh(self) -> None:
+        self._refresh_posted = False
+        if self._timer.isActive():
             self.refresh()
 
     @property
