@@ -10,6 +10,12 @@ legends are painted from pixmap caches; live, the x axis is "seconds before the 
 regenerated per frame. Collapsed plots, hidden traces and plots scrolled out of view are not redrawn at all.
 Benchmark: ``benchmarks/bench_forces_gui.py``.
 
+Layout: the plots fill the grid's view. When every row fits at a readable height (the 12 segments at the default
+window size, 4 columns by 3 rows), all of them are on screen at once and grow with the window; when they do not
+(a 1024-channel board's 64 plots, a small window) each plot keeps a fixed height and the grid scrolls, and a plot
+scrolled out of view is really hidden (``isVisible()`` false: nothing paints it, nothing counts it as on screen) until it
+is scrolled back in, when it is shown and drawn at once.
+
 Interaction: the plots follow the newest data (live) until the user pauses, drags, zooms or scrolls back with the
 scroll bar; the readout under the mouse shows every trace's value at the cursor and keeps updating while streaming.
 
@@ -18,7 +24,9 @@ GUI thread only.
 
 from __future__ import annotations
 
+import math
 import re
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -26,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QPoint, QPointF, QRect, QRectF, Qt, QTimer, Signal
+from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
 from PySide6.QtGui import QPainterPath, QPolygonF
 from PySide6.QtWidgets import (
     QGraphicsItem,
@@ -53,7 +61,11 @@ except ImportError:  # pragma: no cover - only while widgets/theme.py is absent
 
 MAX_REDRAW_HZ = 60.0
 DEFAULT_REDRAW_HZ = 30.0
-PLOT_HEIGHT_PX = 170
+PLOT_HEIGHT_PX = 170  # a plot's height when the grid scrolls (the rows do not all fit)
+FIT_MIN_PLOT_HEIGHT_PX = 120  # the rows are fitted to the view (no scrolling) only if each plot gets this much
+MIN_PLOT_WIDTH_PX = 200  # columns: as many as fit at this width, up to MAX_COLUMNS
+MAX_COLUMNS = 4
+LIVE_TIME_LABEL = "time before newest"  # + " (s)": fits under a 200-px plot (the longer "… sample (s)" was cut off)
 # Smallest y range shown, per unit: an unloaded sensor's sub-mN wiggle drawn across a whole plot reads as a load
 # (seen in the lab walkthrough: "0.0005 N" full scale). 0.1 N is the body map's step; conductance keeps a tiny floor.
 MIN_Y_SPAN = {"N": 0.1}
@@ -152,21 +164,30 @@ class _TraceBundle(pg.GraphicsObject):
         super().__init__()
         self._lines: list[tuple[object, QPolygonF | QPainterPath]] = []
         self._bounds = QRectF()
+        self._polygons: dict[int, tuple[QPolygonF, np.ndarray]] = {}  # per trace position: reused buffers
 
-    def set_traces(self, traces: Sequence[tuple[object, np.ndarray, np.ndarray]],
+    def set_traces(self, traces: Sequence[tuple[object, np.ndarray, np.ndarray] | tuple[object, np.ndarray,
+                                                                                            np.ndarray, bool]],
                    pad: tuple[float, float] = (0.0, 0.0)) -> None:
-        """``(pen, x, y)`` per trace to draw (view coordinates); NaN breaks a line (a gap in the data). ``pad``
-        (view units, x and y) widens the bounds by the pen's reach: about 2 pixels."""
+        """``(pen, x, y)`` or ``(pen, x, y, finite)`` per trace to draw (view coordinates); NaN breaks a line (a gap
+        in the data; ``finite``: the caller already knows there is none). ``pad`` (view units, x and y) widens the
+        bounds by the pen's reach: about 2 pixels."""
         lines: list[tuple[object, QPolygonF | QPainterPath]] = []
         bounds = QRectF()
-        for pen, x, y in traces:
+        polygons = self._polygons
+        for position, trace in enumerate(traces):
+            pen, x, y = trace[0], trace[1], trace[2]
             if not x.size:
                 continue
-            if np.isfinite(y).all():
-                # A polyline straight from the arrays: half the cost of a QPainterPath (no element copy), and
-                # its bounds come from C++.
-                line = pg.functions.create_qpolygonf(x.size)
-                points = pg.functions.ndarray_from_qpolygonf(line)
+            if trace[3] if len(trace) > 3 else np.isfinite(y).all():
+                # A polyline straight from the arrays: half the cost of a QPainterPath (no element copy), and its
+                # bounds come from C++. Its buffer is reused while the point count stays (most frames).
+                held = polygons.get(position)
+                if held is None or held[1].shape[0] != x.size:
+                    line = pg.functions.create_qpolygonf(x.size)
+                    held = (line, pg.functions.ndarray_from_qpolygonf(line))
+                    polygons[position] = held
+                line, points = held
                 points[:, 0] = x
                 points[:, 1] = y
             else:
@@ -241,9 +262,14 @@ class _SegmentPlot(QWidget):
         header.addWidget(self.image_button)
         layout.addLayout(header)
         self.plot_widget = pg.PlotWidget(self, background="w")
-        self.plot_widget.setMinimumHeight(PLOT_HEIGHT_PX)
-        self.plot_widget.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+        policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+        policy.setRetainSizeWhenHidden(True)  # scrolled out of view: hidden, its place in the grid kept
+        self.plot_widget.setSizePolicy(policy)
         self.plot_widget.setFixedHeight(PLOT_HEIGHT_PX)
+        # Shown only once the grid has placed it inside its view (ForcePlotGrid._update_in_view): a 64-plot grid
+        # must not show (polish, lay out, paint) every plot at first.
+        self.in_view = False
+        self.plot_widget.hide()
         layout.addWidget(self.plot_widget)
         item = self.plot_widget.getPlotItem()
         # Clip-to-view and peak downsampling happen in TraceHistory.window() (once per plot, for the exact view
@@ -269,6 +295,8 @@ class _SegmentPlot(QWidget):
             trace = _Trace(pg.mkPen(trace_color(name, position), width=1), name)
             self.legend.addItem(trace, name)
             self.curves.append(trace)
+        # The view box draws nothing itself (no border): Qt need not call its Python paint() every frame.
+        item.getViewBox().setFlag(QGraphicsItem.GraphicsItemFlag.ItemHasNoContents, True)
         # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
         # pixmap instead of re-rendering them each frame: -20 % frame time measured on 12 plots.
         for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
@@ -337,8 +365,30 @@ class _SegmentPlot(QWidget):
 
     def _on_toggled(self, expanded: bool) -> None:
         self.toggle.setArrowType(Qt.ArrowType.DownArrow if expanded else Qt.ArrowType.RightArrow)
-        self.plot_widget.setVisible(expanded)
+        self._apply_shown()
         self.collapsed_changed.emit(not expanded)
+
+    def set_in_view(self, in_view: bool) -> bool:
+        """The grid says whether this plot's place is inside its view; returns True when that changed."""
+        if in_view == self.in_view:
+            return False
+        self.in_view = in_view
+        self._apply_shown()
+        return True
+
+    def _apply_shown(self) -> None:
+        """Shown when expanded and in view. Collapsed: its room is freed; scrolled out: its room is kept."""
+        expanded = self.toggle.isChecked()
+        policy = self.plot_widget.sizePolicy()
+        if policy.retainSizeWhenHidden() != expanded:
+            policy.setRetainSizeWhenHidden(expanded)
+            self.plot_widget.setSizePolicy(policy)
+        self.plot_widget.setVisible(expanded and self.in_view)
+
+    def header_height(self) -> int:
+        layout = self.layout()
+        header = layout.itemAt(0) if layout is not None else None
+        return header.sizeHint().height() if header is not None else 0
 
     def set_labels(self, labels: Sequence[str]) -> None:
         if list(labels) == self._labels:
@@ -349,13 +399,21 @@ class _SegmentPlot(QWidget):
             if sample_label is not None:
                 sample_label.setText(label)
 
-    def on_screen(self, viewport: QWidget) -> bool:
-        """True when the plot is expanded and at least partly inside the scroll area's ``viewport``."""
-        if self.collapsed or not self.plot_widget.isVisible():
-            return False
-        # Geometry, not visibleRegion(): the latter stays empty on the offscreen platform until a paint.
-        top_left = self.plot_widget.mapTo(viewport, QPoint(0, 0))
-        return QRect(top_left, self.plot_widget.size()).intersects(viewport.rect())
+    def on_screen(self, viewport: QWidget | None = None) -> bool:
+        """True when the plot is expanded, inside the grid's view and shown (``viewport``: unused, kept for
+        callers of the older signature)."""
+        return not self.collapsed and self.in_view and self.plot_widget.isVisible()
+
+
+class _PlotScrollArea(QScrollArea):
+    """A scroll area that says when its viewport changes size (the window resized, a scroll bar came or went)."""
+
+    viewport_resized = Signal()
+
+    def viewportEvent(self, event: QEvent) -> bool:  # noqa: N802 - Qt override
+        if event.type() == QEvent.Type.Resize:
+            self.viewport_resized.emit()
+        return super().viewportEvent(event)
 
 
 class ForcePlotGrid(QWidget):
@@ -372,7 +430,9 @@ class ForcePlotGrid(QWidget):
     redrawn = Signal()
     image_requested = Signal(int, str)  # plot index, "png" or "svg": the owner asks where and calls export_image
 
-    def __init__(self, channel_names: Sequence[str], columns: int = 3, parent: QWidget | None = None) -> None:
+    def __init__(self, channel_names: Sequence[str], columns: int | None = None,
+                 parent: QWidget | None = None) -> None:
+        """``columns``: a fixed number of columns; None (default) chooses them from the view's width."""
         super().__init__(parent)
         self.channel_names = tuple(channel_names)
         self.groups = groups_from_names(self.channel_names)
@@ -392,23 +452,27 @@ class ForcePlotGrid(QWidget):
         self._setting_range = False
         self.redraw_count = 0
         self.last_redraw_s = 0.0
+        self._last_refresh_s = 0.0
+        self._fixed_columns = columns
+        self.columns = 0  # set by _fit_layout
+        self.plot_height = PLOT_HEIGHT_PX
+        self.fits_view = False  # every plot on screen at once (no scrolling)
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        self.scroll_area = QScrollArea(self)
+        self.scroll_area = _PlotScrollArea(self)
         self.scroll_area.setWidgetResizable(True)
         self.scroll_area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         inner = QWidget(self.scroll_area)
-        grid = QGridLayout(inner)
-        grid.setContentsMargins(4, 4, 4, 4)
-        grid.setHorizontalSpacing(6)
-        grid.setVerticalSpacing(2)
+        self._grid = QGridLayout(inner)
+        self._grid.setContentsMargins(4, 4, 4, 4)
+        self._grid.setHorizontalSpacing(6)
+        self._grid.setVerticalSpacing(2)
         self.plots: list[_SegmentPlot] = []
         for i, group in enumerate(self.groups):
             plot = _SegmentPlot(group, inner)
-            grid.addWidget(plot, i // columns, i % columns, Qt.AlignmentFlag.AlignTop)
             self.plots.append(plot)
-            plot.collapsed_changed.connect(lambda _c: self.invalidate())
+            plot.collapsed_changed.connect(self._on_collapsed_changed)
             plot.image_requested.connect(lambda kind, index=i: self.image_requested.emit(index, kind))
             plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
             for trace in plot.curves:  # a legend click shows/hides a trace: redraw at the next tick
@@ -416,10 +480,11 @@ class ForcePlotGrid(QWidget):
             plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
             if i:
                 plot.plot_widget.setXLink(self.plots[0].plot_widget)
-        grid.setRowStretch(len(self.groups) // columns + 1, 1)
+        self._place(columns or 3)
         self.scroll_area.setWidget(inner)
-        # Plots scrolled into view may hold stale data (off-screen plots are not redrawn): draw them now.
-        self.scroll_area.verticalScrollBar().valueChanged.connect(lambda _v: self.invalidate())
+        # Plots scrolled into view are shown and drawn now (hidden ones are not redrawn); a resized view refits.
+        self.scroll_area.verticalScrollBar().valueChanged.connect(lambda _v: self._update_in_view())
+        self.scroll_area.viewport_resized.connect(self._fit_layout)
         layout.addWidget(self.scroll_area, 1)
         self.time_bar = QScrollBar(Qt.Orientation.Horizontal, self)
         self.time_bar.setRange(0, SCROLL_STEPS)
@@ -430,19 +495,85 @@ class ForcePlotGrid(QWidget):
         # Every plot's time axis is labelled with its unit: a plot seen on its own (the grid scrolled, one plot
         # exported) must say what its x is. Live the axis does not move, so the cached label costs nothing per frame.
         for plot in self.plots:
-            plot.plot_widget.setLabel("bottom", "time before newest sample", units="s")
+            plot.plot_widget.setLabel("bottom", LIVE_TIME_LABEL, units="s")
         self.set_units("N")
 
         self._timer = QTimer(self)
         self._timer.setInterval(int(1000 / DEFAULT_REDRAW_HZ))
         self._timer.timeout.connect(self.refresh)
 
+    # -- layout ----------------------------------------------------------------------------------------------------
+    def _place(self, columns: int) -> None:
+        """Put the plots in ``columns`` columns (row by row), the spare height below them."""
+        grid = self._grid
+        for row in range(grid.rowCount()):
+            grid.setRowStretch(row, 0)
+        for plot in self.plots:
+            grid.removeWidget(plot)
+        for i, plot in enumerate(self.plots):
+            grid.addWidget(plot, i // columns, i % columns, Qt.AlignmentFlag.AlignTop)
+        for column in range(grid.columnCount()):
+            grid.setColumnStretch(column, 1 if column < columns else 0)
+        grid.setRowStretch(-(-len(self.plots) // columns), 1)
+        self.columns = columns
+
+    def _fit_layout(self) -> None:
+        """Choose the columns from the view's width and the plots' height: every row in view at once when each plot
+        gets at least FIT_MIN_PLOT_HEIGHT_PX, else PLOT_HEIGHT_PX each and the grid scrolls."""
+        if not self.plots:
+            return
+        viewport = self.scroll_area.viewport()
+        grid = self._grid
+        margins = grid.contentsMargins()
+        spacing = grid.horizontalSpacing()
+        usable = viewport.width() - margins.left() - margins.right() + spacing
+        columns = self._fixed_columns or max(1, min(MAX_COLUMNS, len(self.plots),
+                                                    usable // (MIN_PLOT_WIDTH_PX + spacing)))
+        if columns != self.columns:
+            self._place(columns)
+        rows = -(-len(self.plots) // columns)
+        room = viewport.height() - margins.top() - margins.bottom() - (rows - 1) * grid.verticalSpacing()
+        fitted = room // rows - self.plots[0].header_height() - 1
+        self.fits_view = fitted >= FIT_MIN_PLOT_HEIGHT_PX
+        height = fitted if self.fits_view else PLOT_HEIGHT_PX
+        if height != self.plot_height:
+            self.plot_height = height
+            for plot in self.plots:
+                plot.plot_widget.setFixedHeight(height)
+        self._update_in_view()
+
+    def _on_collapsed_changed(self, _collapsed: bool) -> None:
+        self._update_in_view()  # the plots below it moved
+        self.invalidate()  # an expanded plot is drawn at once
+
+    def _update_in_view(self) -> None:
+        """Show the plots whose place is inside the scroll area's view, hide the others; draw the newly shown."""
+        inner = self.scroll_area.widget()
+        if inner is None:
+            return
+        self._grid.activate()  # the plots' places as they will be shown, not as they were
+        view = self.scroll_area.viewport().rect().translated(-inner.pos())
+        changed = False
+        for plot in self.plots:
+            changed |= plot.set_in_view(plot.geometry().intersects(view))
+        if changed:
+            self.invalidate()
+
+    def shown_plots(self) -> list[int]:
+        """Indices of the plots on screen now (expanded, in view, shown)."""
+        return [i for i, plot in enumerate(self.plots) if plot.on_screen()]
+
+    def scroll_to_plot(self, index: int) -> None:
+        """Scroll the grid so plot ``index`` is in view (it is then shown and drawn)."""
+        self.scroll_area.ensureWidgetVisible(self.plots[index], 0, 0)
+        self._update_in_view()
+
     # -- configuration ---------------------------------------------------------------------------------------------
     def export_image(self, index: int, path: str | Path) -> Path:
         """Save plot ``index`` as drawn now (traces, both axes with their units, legend) to ``path``: ``.png`` or
         ``.svg``, titled with the segment and the time shown. ValueError / OSError name the problem."""
         plot = self.plots[index]
-        self.refresh(force=True)
+        self.refresh(force=True, include=index)
         x0, x1 = self.visible_range()
         title = f"{plot.group.title} · t = {x0:.2f} … {x1:.2f} s (session time)"
         return save_widget_image(plot.plot_widget, path, title)
@@ -518,7 +649,7 @@ class ForcePlotGrid(QWidget):
             for plot in self.plots:
                 plot.auto_y = True
             self._live_range_s = None
-            self._set_time_label("time before newest sample", "s")
+            self._set_time_label(LIVE_TIME_LABEL, "s")
         self._paused = paused
         self.paused_changed.emit(paused)
         self.refresh(force=True)
@@ -589,6 +720,16 @@ class ForcePlotGrid(QWidget):
     def stop(self) -> None:
         self._timer.stop()
 
+    def data_arrived(self) -> None:
+        """New samples are in the history (the owner calls this as they arrive): redraw now, unless the last redraw
+        is under one redraw period old — then the timer's next tick draws them. Drawing on arrival, not only on a
+        free-running timer, keeps the plots in step with the data: a timer at the data's own rate beats against it
+        (a tick with nothing new, then one with two samples) and paints were lost."""
+        if not self._timer.isActive():
+            return
+        if time.monotonic() - self._last_refresh_s >= 0.75 * self._timer.interval() / 1000.0:
+            self.refresh()
+
     @property
     def running(self) -> bool:
         return self._timer.isActive()
@@ -608,13 +749,15 @@ class ForcePlotGrid(QWidget):
         self._drawn_key = None
         self.refresh()
 
-    def refresh(self, force: bool = False) -> None:
-        """Redraw the visible plots from the history (the timer calls this; ``force`` redraws even if hidden)."""
+    def refresh(self, force: bool = False, include: int | None = None) -> None:
+        """Redraw the plots on screen from the history (the timer calls this). ``force``: even if nothing changed,
+        and every expanded plot when the grid itself is hidden; ``include``: that plot too, even if not shown."""
         history = self._history
         if history is None or len(history) == 0 or not self.plots:
             return
         if not force and not self.isVisible():
             return
+        self._last_refresh_s = time.monotonic()
         # Nothing new and the same view: the picture would not change (paused, or the board is quiet).
         key = (id(history), history.total_samples, self.visible_range(), self._paused, self._window_s)
         if not force and key == self._drawn_key:
@@ -630,10 +773,10 @@ class ForcePlotGrid(QWidget):
                 self._live_range_s = self._window_s
                 self._set_view_x(-self._window_s, 0.0)
         offset = self._x_offset_s
-        viewport = self.scroll_area.viewport()
+        every_plot = force and not self.isVisible()
         jobs = []  # (plot, indices of its visible curves)
-        for plot in self.plots:
-            if plot.collapsed or (not force and not plot.on_screen(viewport)):
+        for index, plot in enumerate(self.plots):
+            if plot.collapsed or not (every_plot or index == include or plot.plot_widget.isVisible()):
                 continue
             visible = [k for k, curve in enumerate(plot.curves) if curve.isVisible()]
             if visible:
@@ -647,23 +790,39 @@ class ForcePlotGrid(QWidget):
             x = window.t_s - offset if offset else window.t_s
             if window.level:
                 x = np.repeat(x, 2)
+            # Every column at once (numpy over the whole window), then only per-plot bookkeeping in Python: the y
+            # of each trace (its bucket lows and highs interleaved), whether it has gaps, and each column's extremes
+            # for the y ranges.
+            lows, highs = window.low, window.high
+            if window.level:
+                ys = np.empty((x.size, lows.shape[1]), dtype=np.result_type(lows.dtype, np.float64))
+                ys[0::2] = lows
+                ys[1::2] = highs
+            else:
+                ys = lows
+            finite: np.ndarray = np.asarray(np.isfinite(ys).all(axis=0))
+            column_lo = np.fmin.reduce(lows, axis=0)  # NaN (a gap) ignored; NaN only for a column of gaps
+            column_hi = np.fmax.reduce(highs, axis=0)
+            per_channel_units = self._channel_units
             column = 0
             for plot, visible in jobs:
                 # Channels in the plots' units on the left axis; others (µS of uncalibrated sensors) on the right.
                 by_units: dict[str, tuple[list, list[int]]] = {}
                 for k in visible:
-                    _x, y = window.peak_interleaved(column)
+                    y = ys[:, column]
                     trace = plot.curves[k]
                     trace._x, trace._y = x, y
-                    traces, columns = by_units.setdefault(self.channel_unit(int(plot.channels[k])), ([], []))
-                    traces.append((trace.opts["pen"], x, y))
+                    units = self._units if per_channel_units is None else per_channel_units[plot.channels[k]]
+                    traces, columns = by_units.setdefault(units, ([], []))
+                    traces.append((trace.opts["pen"], x, y, bool(finite[column])))
                     columns.append(column)
                     column += 1
                 for units, (traces, columns) in by_units.items():
                     box, bundle = (plot.viewbox, plot.bundle) if units == self._units else plot.other_axis(units)
                     bundle.set_traces(traces, _pen_pad(box))
                     if plot.auto_y or box is not plot.viewbox:
-                        self._fit_y(box, window.low[:, columns], window.high[:, columns],
+                        self._fit_y(box, float(np.fmin.reduce(column_lo[columns])),
+                                    float(np.fmax.reduce(column_hi[columns])),
                                     MIN_Y_SPAN.get(units, DEFAULT_MIN_Y_SPAN))
                 if self._units not in by_units:
                     plot.bundle.set_traces([])
@@ -678,16 +837,11 @@ class ForcePlotGrid(QWidget):
             self.redrawn.emit()
 
     @staticmethod
-    def _fit_y(box: pg.ViewBox, low: np.ndarray, high: np.ndarray, min_span: float = 1e-3) -> None:
-        """Keep the data (``low``/``high`` M×k) in view, but change the y range only when the data leaves it or
-        uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame.
+    def _fit_y(box: pg.ViewBox, lo: float, hi: float, min_span: float = 1e-3) -> None:
+        """Keep the data (``lo`` … ``hi``, NaN when there is none) in view, but change the y range only when the data
+        leaves it or uses under 40 % of it: a y range that moves every frame would regenerate the y axis every frame.
         ``min_span`` (data units) is the smallest range shown, so an unloaded sensor's noise stays a flat line."""
-        if low.size == 0:
-            return
-        with np.errstate(all="ignore"):
-            lo = float(np.nanmin(low)) if np.isfinite(low).any() else np.nan
-            hi = float(np.nanmax(high)) if np.isfinite(high).any() else np.nan
-        if not (np.isfinite(lo) and np.isfinite(hi)):
+        if not (math.isfinite(lo) and math.isfinite(hi)):
             return
         # A nearly flat trace still gets a sensible range, so sensor noise does not rescale it every frame.
         span = max(hi - lo, min_span, 0.05 * max(abs(lo), abs(hi)))

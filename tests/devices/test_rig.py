@@ -85,9 +85,9 @@ def test_interrupted_contact_search_is_released_back_to_slack(virtual_rig):
 
 @pytest.fixture
 def slow_virtual_rig():
-    """The rig at 2x real time: its 4 N ramp then lasts ~0.13 s of wall time (at 20x, 13 ms: a test thread starved for
-    one scheduler slice on a loaded machine first read the force after the ramp had ended)."""
-    rig = VirtualRig(RigConfig(), SimClock(2.0), seed=11)
+    """The rig at real time: its 4 N ramp then lasts ~0.26 s of wall time (at 20x, 13 ms: a test thread starved for
+    one scheduler slice on a loaded machine first read the force after the ramp had ended; at 2x it still could)."""
+    rig = VirtualRig(RigConfig(), SimClock(1.0), seed=11)
     previous = factory.install_sim_lab(RigOnlyLab(rig))
     yield rig
     factory.install_sim_lab(previous)

@@ -199,7 +199,7 @@ def test_every_plot_saves_png_and_vector_svg_with_its_units(grid, qtbot, tmp_pat
     texts = [" ".join(e.itertext()).strip() for e in root.iter() if e.tag.endswith("text")]
     # Vector text, not a picture of it: the title, both axes with their units and the legend are SVG text.
     assert any(t.startswith("Segment 5") for t in texts)
-    assert "N" in texts and "time before newest sample (s)" in texts
+    assert "N" in texts and "time before newest (s)" in texts
     assert {"S05L", "S05R", "S05B"} <= set(texts)
     assert "<path" in text or "<polyline" in text
     # The pixmap caches are back afterwards (live drawing stays cheap).
@@ -228,3 +228,115 @@ def test_trace_bounds_come_from_the_data_drawn(grid):
         assert rect.left() >= xs.min() - pad_x and rect.right() <= xs.max() + pad_x, (plot.group.title, rect)
         assert rect.top() >= ys.min() - pad_y and rect.bottom() <= ys.max() + pad_y, (plot.group.title, rect)
         assert rect.contains(float(xs[len(xs) // 2]), float(ys[len(ys) // 2]))
+
+
+class _Paints:
+    """Paint events reaching each plot's viewport (what a real screen is sent)."""
+
+    def __init__(self, grid: ForcePlotGrid) -> None:
+        from PySide6.QtCore import QEvent, QObject
+
+        counts = self.counts = [0] * len(grid.plots)
+
+        class Filter(QObject):
+            def __init__(self, index: int) -> None:
+                super().__init__()
+                self.index = index
+
+            def eventFilter(self, obj, event):  # noqa: N802 - Qt override
+                if event.type() == QEvent.Type.Paint:
+                    counts[self.index] += 1
+                return False
+
+        self._filters = [Filter(i) for i in range(len(grid.plots))]
+        for plot, f in zip(grid.plots, self._filters):
+            plot.plot_widget.viewport().installEventFilter(f)
+
+
+def test_the_twelve_segments_are_all_on_screen_at_the_default_window_size(qtbot):
+    """The Forces tab's plot area at the default 1280×800 window (~880×590): every segment at once, 4 columns by 3
+    rows, each a readable size; no scrolling, so nothing is out of view."""
+    grid = ForcePlotGrid(NAMES)
+    qtbot.addWidget(grid)
+    grid.resize(880, 590)
+    grid.show()
+    qtbot.waitExposed(grid)
+    qtbot.waitUntil(lambda: grid.shown_plots() == list(range(12)), timeout=10_000)
+    assert grid.fits_view and grid.columns == 4
+    for plot in grid.plots:
+        assert plot.plot_widget.isVisible()
+        assert plot.plot_widget.width() >= 180 and plot.plot_widget.height() >= 120, plot.plot_widget.size()
+    qtbot.waitUntil(lambda: not grid.scroll_area.verticalScrollBar().isVisible(), timeout=10_000)
+    grid.resize(1400, 1000)  # a bigger window: bigger plots, still all of them
+    qtbot.waitUntil(lambda: grid.plots[0].plot_widget.height() > 200, timeout=10_000)
+    assert grid.shown_plots() == list(range(12))
+
+
+def test_plots_scrolled_out_of_view_are_hidden_not_painted_and_shown_when_scrolled_in(qtbot):
+    grid = ForcePlotGrid(NAMES)
+    qtbot.addWidget(grid)
+    grid.resize(900, 380)  # too low for 3 rows of readable plots: fixed-height plots in a scrolling grid
+    grid.show()
+    qtbot.waitExposed(grid)
+    qtbot.waitUntil(lambda: 0 < len(grid.shown_plots()) < 12, timeout=10_000)
+    assert not grid.fits_view
+    shown = grid.shown_plots()
+    assert 0 in shown and 11 not in shown
+    hidden = [i for i in range(12) if i not in shown]
+    assert all(not grid.plots[i].plot_widget.isVisible() for i in hidden)  # really hidden, not merely covered
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    grid.start(30.0)
+    paints = _Paints(grid)
+    t0 = 0.0
+    for _ in range(5):
+        fill(history, 1.0, t0=t0)
+        t0 += 1.0
+        redraws = grid.redraw_count
+        qtbot.waitUntil(lambda before=redraws: grid.redraw_count > before, timeout=10_000)
+    qtbot.waitUntil(lambda: all(paints.counts[i] >= 3 for i in shown), timeout=10_000)
+    assert all(paints.counts[i] == 0 for i in hidden), paints.counts
+    stale = grid.plots[11].curves[0].xData
+    assert stale is None  # never drawn while out of view
+
+    grid.scroll_area.verticalScrollBar().setValue(grid.scroll_area.verticalScrollBar().maximum())
+    qtbot.waitUntil(lambda: 11 in grid.shown_plots(), timeout=10_000)
+    assert grid.plots[11].plot_widget.isVisible() and not grid.plots[0].plot_widget.isVisible()
+    # Drawn at once with the newest data, and painted.
+    assert grid.plots[11].curves[0].xData is not None and len(grid.plots[11].curves[0].xData) > 10
+    qtbot.waitUntil(lambda: paints.counts[11] > 0, timeout=10_000)
+    grid.stop()
+
+
+def test_a_wide_board_shows_only_the_plots_in_view(qtbot):
+    """1024 channels make 64 plots: only the few in view are shown (and so polished, laid out and painted)."""
+    names = [f"C{i:04d}" for i in range(1024)]
+    grid = ForcePlotGrid(names)
+    qtbot.addWidget(grid)
+    grid.resize(1200, 700)
+    grid.show()
+    qtbot.waitExposed(grid)
+    qtbot.waitUntil(lambda: len(grid.shown_plots()) > 0, timeout=10_000)
+    assert len(grid.plots) == 64 and not grid.fits_view
+    assert 4 <= len(grid.shown_plots()) <= 16
+    assert sum(p.plot_widget.isVisible() for p in grid.plots) == len(grid.shown_plots())
+    grid.scroll_to_plot(63)
+    qtbot.waitUntil(lambda: 63 in grid.shown_plots(), timeout=10_000)
+    assert 0 not in grid.shown_plots()
+
+
+def test_collapsing_a_plot_frees_its_room_and_the_next_row_moves_up(qtbot):
+    grid = ForcePlotGrid(NAMES, columns=1)
+    qtbot.addWidget(grid)
+    grid.resize(600, 500)
+    grid.show()
+    qtbot.waitExposed(grid)
+    qtbot.waitUntil(lambda: len(grid.shown_plots()) > 0, timeout=10_000)
+    before = grid.shown_plots()
+    top_of_second = grid.plots[1].y()
+    grid.set_collapsed(0, True)
+    qtbot.waitUntil(lambda: grid.plots[1].y() < top_of_second, timeout=10_000)
+    assert not grid.plots[0].plot_widget.isVisible()
+    qtbot.waitUntil(lambda: len(grid.shown_plots()) >= len(before), timeout=10_000)  # one more row came into view
+    grid.set_collapsed(0, False)
+    qtbot.waitUntil(lambda: grid.plots[0].plot_widget.isVisible(), timeout=10_000)

@@ -289,6 +289,8 @@ class ForcesTab(QWidget):
         if update.forces is not None:
             append_with_gaps(self.force_history, self.live.session_time_s(block.host_time_s), update.forces.display,
                              block.gap_before)
+        if self.viewed is None:
+            self.plots.data_arrived()  # drawn as it arrives (conductance too: the board's history has it already)
         if update.health_changed.size:
             self._apply_health(update.health_changed)
 
