@@ -14,6 +14,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
+    QCheckBox,
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
@@ -32,6 +33,7 @@ from widgets import theme
 
 FORCE_COLOR = "#1f77b4"
 CONDUCTANCE_COLOR = "#d62728"
+CONDITION_LOAD_S = 10.0  # a conditioning cycle's load and unload times (s): ProtocolSettings' defaults
 INITIAL_CAPACITY = 4096  # samples per trial before the arrays double (370 s at 6 Hz is 2220)
 
 
@@ -88,6 +90,25 @@ class ProtocolForm(QWidget):
         self.rate_spin.setSuffix(" Hz")
         self.rate_spin.setValue(sample_rate_hz)
         form.addRow("Sample rate", self.rate_spin)
+        condition_row = QHBoxLayout()
+        self.condition_check = QCheckBox("Condition first:")
+        self.condition_check.setToolTip("Load and unload the sensor a few times before the protocol (piezo-resistive "
+                                        "sheets are conditioned before calibration); not recorded as trials, logged "
+                                        "in the session's conditioning.json; a resumed session does not repeat it")
+        self.condition_cycles_spin = QSpinBox()
+        self.condition_cycles_spin.setRange(1, 100)
+        self.condition_cycles_spin.setValue(5)
+        self.condition_cycles_spin.setSuffix(" cycles")
+        self.condition_force_spin = QDoubleSpinBox()
+        self.condition_force_spin.setRange(0.0, 100.0)
+        self.condition_force_spin.setDecimals(2)
+        self.condition_force_spin.setSuffix(" N")
+        self.condition_force_spin.setSpecialValueText("top force")  # 0: the protocol's top force
+        self.condition_force_spin.setToolTip("The conditioning force; 'top force' = the largest protocol force")
+        for widget in (self.condition_check, self.condition_cycles_spin, self.condition_force_spin):
+            condition_row.addWidget(widget)
+        self.condition_check.toggled.connect(self._condition_toggled)
+        form.addRow("Conditioning", condition_row)
         folder_row = QHBoxLayout()
         self.folder_edit = QLineEdit(folder)
         self.folder_edit.setToolTip("Each run writes its trial CSVs and protocol.json into a new folder here")
@@ -138,7 +159,8 @@ class ProtocolForm(QWidget):
         layout.addWidget(self.progress_label)
         layout.addWidget(self.message_label)
         layout.addStretch(1)
-        for spin in (self.hold_spin, self.rest_spin, self.baseline_spin, self.rate_spin, self.trials_spin):
+        for spin in (self.hold_spin, self.rest_spin, self.baseline_spin, self.rate_spin, self.trials_spin,
+                     self.condition_cycles_spin):
             spin.valueChanged.connect(self._update_duration)
         self.forces_edit.textChanged.connect(self._update_duration)
         self.set_running(False)
@@ -149,15 +171,31 @@ class ProtocolForm(QWidget):
         return len([p for p in self.forces_edit.text().replace(";", ",").split(",") if p.strip()])
 
     def estimated_duration_s(self) -> float:
-        """Run time (s) of the fields as they stand, without the contact search: each trial and its rest."""
+        """Run time (s) of the fields as they stand, without the contact search: the conditioning (each cycle's ramp,
+        load and unload, :data:`CONDITION_LOAD_S` each), each trial and its rest."""
         n = self.forces_count() * self.trials_spin.value()
-        return n * (self.baseline_spin.value() + self.hold_spin.value() + self.rest_spin.value())
+        cycles = self.condition_cycles()
+        return (cycles * (self.ramp_spin.value() + 2 * CONDITION_LOAD_S)
+                + n * (self.baseline_spin.value() + self.hold_spin.value() + self.rest_spin.value()))
+
+    def condition_cycles(self) -> int:
+        """Conditioning cycles asked for (0: off)."""
+        return self.condition_cycles_spin.value() if self.condition_check.isChecked() else 0
+
+    def set_conditioning(self, cycles: int, force_n: float) -> None:
+        """Show a protocol's conditioning (0 cycles: off; force 0: the top force)."""
+        self.condition_check.setChecked(cycles > 0)
+        if cycles > 0:
+            self.condition_cycles_spin.setValue(cycles)
+        self.condition_force_spin.setValue(force_n)
 
     # -- state shown -----------------------------------------------------------------------------------------------
     def set_running(self, running: bool) -> None:
         for field in (self.forces_edit, self.trials_spin, self.hold_spin, self.rest_spin, self.baseline_spin,
-                      self.ramp_spin, self.rate_spin, self.folder_edit):
+                      self.ramp_spin, self.rate_spin, self.folder_edit, self.condition_check):
             field.setEnabled(not running)
+        for field in (self.condition_cycles_spin, self.condition_force_spin):
+            field.setEnabled(not running and self.condition_check.isChecked())
         self.run_button.setEnabled(not running)
         self.pause_button.setEnabled(running)
         self.abort_button.setEnabled(running)
@@ -181,6 +219,11 @@ class ProtocolForm(QWidget):
     def _pause_toggled(self, paused: bool) -> None:
         self.pause_button.setText("Resume" if paused else "Pause")
         self.pause_toggled.emit(paused)
+
+    def _condition_toggled(self, on: bool) -> None:
+        for field in (self.condition_cycles_spin, self.condition_force_spin):
+            field.setEnabled(on and self.run_button.isEnabled())
+        self._update_duration()
 
     def _update_duration(self, *_args: object) -> None:
         n = self.forces_count() * self.trials_spin.value()

@@ -1,9 +1,12 @@
 """``sensnake calibrate --rig PORT --daq PORT --sensor NAME [--forces 1.75,3,4,5.25] [--trials 3] [--hold 370]
-[--rest S] [--rate 6] [--baseline S] [--ramp S] [--area M2] [--physics FILE] [--time-scale X] [--config FILE]
-[--resume SESSION_DIR] [--save-anyway] --out CAL.json``: the calibration protocol on the rig, unattended.
+[--rest S] [--rate 6] [--baseline S] [--ramp S] [--area M2] [--condition N[@FORCE]] [--physics FILE]
+[--time-scale X] [--config FILE] [--resume SESSION_DIR] [--save-anyway] --out CAL.json``: the calibration protocol
+on the rig, unattended.
 
 The protocol is checked before anything moves (:func:`app.core.rig_protocol.check_protocol`). Then the rig finds the
-contact, and every trial (unloaded rest, unloaded baseline, loading ramp, hold) is written as a SPEC §3.1 CSV into a
+contact, runs the optional conditioning (``--condition N[@FORCE]``: N load/unload cycles at FORCE, default the top
+force; not recorded as trials, logged in the session's ``conditioning.json``; a resumed session does not repeat a
+conditioning that finished), and every trial (unloaded rest, unloaded baseline, loading ramp, hold) is written as a SPEC §3.1 CSV into a
 session folder beside ``CAL.json`` as soon as it completes (:class:`app.core.rig_protocol.ProtocolRunner`, the same
 runner as the Calibration tab). A progress line on stderr says where the run is and how long is left. At the end
 the trials are fitted with the lab's readout circuit (:mod:`app.core.calibration_fit`) and the sensor is written into
@@ -49,6 +52,7 @@ from app.core.rig_protocol import (
     finished_trials,
     lab_times_from_seq,
     parse_forces,
+    read_conditioning,
     read_session,
     session_folder,
 )
@@ -66,7 +70,7 @@ EXIT_INTERRUPTED = 130
 PROGRESS_INTERVAL_S = 0.5  # wall seconds between progress lines
 # rest 300 s: the creep (τ ~ 10² s) of one trial must fade before the next starts (a fit assumes a rested sensor)
 DEFAULTS = {"trials": 3, "hold": 370.0, "rest": 300.0, "rate": 6.0, "baseline": 3.0, "ramp": 2.0}
-PROTOCOL_OPTIONS = ("forces", "trials", "hold", "rest", "rate", "baseline", "ramp", "sensor", "area")
+PROTOCOL_OPTIONS = ("forces", "trials", "hold", "rest", "rate", "baseline", "ramp", "sensor", "area", "condition")
 
 
 class _StopSignal(KeyboardInterrupt):
@@ -91,10 +95,32 @@ def _settings(args: argparse.Namespace, config: LabConfig) -> ProtocolSettings:
     forces = parse_forces(args.forces) if args.forces is not None else PAPER_FORCES_N
     value = {key: getattr(args, key) if getattr(args, key) is not None else default
              for key, default in DEFAULTS.items()}
+    cycles, condition_force = parse_condition(args.condition) if args.condition is not None else (0, 0.0)
     return ProtocolSettings(forces_n=forces, trials_per_force=int(value["trials"]), hold_s=value["hold"],
                             sample_rate_hz=value["rate"], rest_s=value["rest"], baseline_s=value["baseline"],
                             ramp_s=value["ramp"], sensor=(args.sensor or config.rig.sensor).strip(),
-                            area_m2=args.area if args.area is not None else config.rig.area_m2)
+                            area_m2=args.area if args.area is not None else config.rig.area_m2,
+                            condition_cycles=cycles, condition_force_n=condition_force)
+
+
+def parse_condition(text: str) -> tuple[int, float]:
+    """``--condition N[@FORCE]`` → (cycles, force N; 0.0: the protocol's top force); ValueError naming the problem."""
+    count, _, force = text.strip().partition("@")
+    try:
+        cycles = int(count)
+    except ValueError:
+        raise ValueError(f"--condition {text!r}: the number of cycles must be a whole number (e.g. 5 or 5@6)") from None
+    if cycles < 0:
+        raise ValueError(f"--condition {text!r}: the number of cycles must be 0 (off) or more")
+    if not force.strip():
+        return cycles, 0.0
+    try:
+        value = float(force.strip().removesuffix("N").strip())
+    except ValueError:
+        raise ValueError(f"--condition {text!r}: {force!r} is not a force in N (e.g. 5@6)") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"--condition {text!r}: the conditioning force must be positive")
+    return cycles, value
 
 
 def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[Any, SimPorts | None]:
@@ -127,7 +153,8 @@ class _ProgressLine:
         now = time.monotonic()
         interval = PROGRESS_INTERVAL_S if self._tty else 5.0
         phase = (progress.trial, progress.phase)
-        if progress.phase not in ("done", "contact") and now - self._last < interval and phase == self._phase:
+        if (progress.phase not in ("done", "contact", "conditioning") and now - self._last < interval
+                and phase == self._phase):
             return
         self._last, self._phase = now, phase
         left = _duration(progress.time_left_s / self.time_scale)
@@ -259,8 +286,13 @@ def run(args: argparse.Namespace) -> int:
     installed, previous_lab = _install_lab(config, args.time_scale)
     try:
         if len(done) < settings.n_trials:
-            total = (settings.n_trials - len(done)) * (settings.trial_duration_s() + settings.rest_s) / time_scale
-            print(f"sensnake calibrate: session {folder}: {settings.n_trials - len(done)} trial(s) of "
+            conditioning = (settings.condition_cycles and not done
+                            and not (read_conditioning(folder) or {}).get("finished"))
+            total = ((settings.n_trials - len(done)) * (settings.trial_duration_s() + settings.rest_s)
+                     + (settings.conditioning_duration_s() if conditioning else 0.0)) / time_scale
+            first = (f"{settings.condition_cycles} conditioning cycle(s) at {settings.conditioning_force_n:g} N, then "
+                     if conditioning else "")
+            print(f"sensnake calibrate: session {folder}: {first}{settings.n_trials - len(done)} trial(s) of "
                   f"{settings.sensor} at {', '.join(f'{f:g}' for f in settings.forces_n)} N, about "
                   f"{_duration(total)}", file=sys.stderr)
             outcome = _run_protocol(config, settings, folder, time_scale, done)

@@ -74,6 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--baseline", type=float, metavar="S", help="unloaded record before the ramp in s (default 3)")
     calibrate.add_argument("--ramp", type=float, metavar="S", help="loading ramp in s (default 2)")
     calibrate.add_argument("--area", type=float, metavar="M2", help="sensor area under the probe (default: rig.area_m2)")
+    calibrate.add_argument("--condition", metavar="N[@FORCE]",
+                           help="condition the sensor first: N load/unload cycles at FORCE N (default: the top force), "
+                                "not recorded as trials, logged in the session (default: off)")
     calibrate.add_argument("--physics", metavar="FILE.json", help="resistance–strain constants (a calibration file works)")
     calibrate.add_argument("--time-scale", type=float, default=None, metavar="X",
                            help="run the simulated lab X times faster than real time (only with sim ports)")

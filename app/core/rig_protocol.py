@@ -11,6 +11,12 @@ see the ramp, and too fast for the fit to identify E0) and the trial samples
 sensor's conductance at ``sample_rate_hz`` for ``hold_s`` from the command; then the load comes off and the trial is
 written as a SPEC §3.1 CSV into the session folder. The contact is found once, at the start.
 
+Conditioning (optional, ``condition_cycles`` > 0): after the contact search and before the first trial's rest, the
+rig loads the sensor to ``conditioning_force_n`` over the protocol's ramp, holds it ``condition_load_s``, unloads it
+for ``condition_unload_s``, N times (piezo-resistive sheets are conditioned before calibration). Nothing of it is a
+trial; each cycle is logged in the session's ``conditioning.json``. A resumed session skips a conditioning the log
+says finished, and one begun after trials were recorded; an interrupted conditioning starts over.
+
 Conductance comes from the board stream (:class:`ConductanceFeed`: the board's samples of the sensor's channel,
 pushed by whoever drains the board, with their host ``time.monotonic()`` and board-clock times). Each trial row takes
 the mean of the board samples in the sampling interval centred on its time (a boxcar decimation from the board's
@@ -88,6 +94,7 @@ REST_CREEP_TIMES = 3.0  # rests shorter than this many creep times are warned ab
 
 COMPLETED, ABORTED, FAILED = "completed", "aborted", "failed"
 SESSION_FILE = "protocol.json"
+CONDITIONING_FILE = "conditioning.json"  # the conditioning cycles' log (ProtocolRunner._condition)
 
 
 class RigDevice(Protocol):
@@ -132,6 +139,13 @@ class ProtocolSettings:
     ramp_s: float = 2.0
     sensor: str = "S06B"
     area_m2: float = 1.4e-3
+    # Conditioning before the protocol (off with 0 cycles): load/unload cycles at condition_force_n (0: the top
+    # force of the protocol), each loaded for condition_load_s and unloaded for condition_unload_s (lab s); not
+    # recorded as trials, logged in the session's conditioning.json.
+    condition_cycles: int = 0
+    condition_force_n: float = 0.0
+    condition_load_s: float = 10.0
+    condition_unload_s: float = 10.0
 
     def __post_init__(self) -> None:
         forces = tuple(float(f) for f in self.forces_n)
@@ -151,6 +165,15 @@ class ProtocolSettings:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         if not self.sensor.strip():
             raise ValueError("name the sensor (e.g. S06B)")
+        if not (isinstance(self.condition_cycles, int) and self.condition_cycles >= 0):
+            raise ValueError(f"conditioning cycles must be 0 (off) or more, got {self.condition_cycles!r}")
+        if not (math.isfinite(self.condition_force_n) and self.condition_force_n >= 0):
+            raise ValueError(f"conditioning force must be a positive force (N) or 0 for the top force, got "
+                             f"{self.condition_force_n!r}")
+        for name, value in (("conditioning load time", self.condition_load_s),
+                            ("conditioning unload time", self.condition_unload_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
         if self.ramp_s >= self.hold_s:
             raise ValueError(f"the loading ramp ({self.ramp_s:g} s) must be shorter than the hold ({self.hold_s:g} s)")
         held = (self.hold_s - self.ramp_s) * self.sample_rate_hz
@@ -181,9 +204,19 @@ class ProtocolSettings:
         """Recorded length of one trial (s): baseline + hold."""
         return self.baseline_s + self.hold_s
 
+    @property
+    def conditioning_force_n(self) -> float:
+        """The conditioning cycles' force (N): ``condition_force_n``, or the protocol's top force when 0."""
+        return self.condition_force_n or max(self.forces_n)
+
+    def conditioning_duration_s(self) -> float:
+        """Expected length of the conditioning (s): every cycle's ramp, load and unload; 0 when off."""
+        return self.condition_cycles * (self.ramp_s + self.condition_load_s + self.condition_unload_s)
+
     def total_duration_s(self) -> float:
-        """Expected run time (s) without contact search and settling: every trial and the rest before each."""
-        return self.n_trials * (self.trial_duration_s() + self.rest_s)
+        """Expected run time (s) without contact search and settling: the conditioning, every trial and the rest
+        before each."""
+        return self.conditioning_duration_s() + self.n_trials * (self.trial_duration_s() + self.rest_s)
 
     def fit_window_s(self) -> tuple[float, float]:
         """The linear model's averaging window (s of trial time): the paper's 225–300 s of a 370 s hold, scaled to
@@ -207,7 +240,8 @@ class TrialRecord:
 
 @dataclass(frozen=True)
 class Progress:
-    """Where the run is: ``phase`` one of contact / baseline / loading / hold / release / rest / paused / done;
+    """Where the run is: ``phase`` one of contact / conditioning / baseline / loading / hold / release / rest / paused
+    / done;
     ``trial`` 0-based (−1 before the first), ``elapsed_s`` in the phase's trial (s), ``time_left_s`` for the whole
     run (estimate, s)."""
 
@@ -402,10 +436,12 @@ class ProtocolRunner:
             rig.find_contact()
             self._refine_contact()
             reachable = getattr(rig, "reachable_force_n", None)
-            if reachable is not None and max(s.forces_n) > reachable():
-                raise DeviceError(f"{max(s.forces_n):g} N is out of reach from the contact found (at most "
+            top = max(max(s.forces_n), s.conditioning_force_n if s.condition_cycles else 0.0)
+            if reachable is not None and top > reachable():
+                raise DeviceError(f"{top:g} N is out of reach from the contact found (at most "
                                   f"{reachable():.2f} N before the servo's range ends): re-spool the cable")
             rig.release()
+            self._condition()
             for index, (force, repeat) in enumerate(s.plan):
                 if index in self.done:
                     continue
@@ -429,6 +465,63 @@ class ProtocolRunner:
         self._progress("done", n - 1, 0.0, 0, 0.0, f"{n} trial(s) recorded{kept}")
         return Outcome(COMPLETED, f"all {s.n_trials} trials recorded in {self.folder}{kept}", self.folder,
                        tuple(self.trials))
+
+    def _condition(self) -> None:
+        """The conditioning cycles (``settings.condition_cycles``, 0: none): each ramps the load up to the
+        conditioning force over the protocol's ramp, holds it ``condition_load_s`` (reading the servo every sample
+        period, so a servo error ends the run), takes it off and waits ``condition_unload_s``. Nothing is recorded
+        as a trial; each cycle is logged in the session's ``conditioning.json`` (force and the sensor's reading at
+        the end of its load). Skipped when the log says the conditioning finished (a resumed session) or when
+        trials were already recorded (conditioning again would change the sensor between trials)."""
+        s = self.settings
+        if not s.condition_cycles:
+            return
+        log = read_conditioning(self.folder)
+        if log is not None and log.get("finished"):
+            self._progress("conditioning", -1, s.conditioning_force_n, 0, 0.0,
+                           f"conditioning finished earlier ({log.get('cycles_done')} cycle(s) at "
+                           f"{log.get('force_N'):g} N): not repeated")
+            return
+        if self.done:
+            self._progress("conditioning", -1, s.conditioning_force_n, 0, 0.0,
+                           "trials already recorded in this session: conditioning skipped")
+            return
+        rig = self.rig
+        assert rig is not None
+        force = s.conditioning_force_n
+        period = 1.0 / s.sample_rate_hz
+        document: dict = {"format": "sensnake-conditioning", "version": 1, "cycles": s.condition_cycles,
+                          "force_N": force, "load_s": s.condition_load_s, "unload_s": s.condition_unload_s,
+                          "cycles_done": 0, "finished": False, "cycle_log": []}
+        if log is not None:
+            document["restarted_after"] = int(log.get("cycles_done", 0))  # an interrupted conditioning starts over
+        write_conditioning(self.folder, document)
+        for cycle in range(s.condition_cycles):
+            label = f"conditioning cycle {cycle + 1}/{s.condition_cycles} at {force:g} N"
+            left_cycles = s.condition_cycles - cycle
+            total_left = (left_cycles * (s.ramp_s + s.condition_load_s + s.condition_unload_s)
+                          + (s.n_trials - len(self.done)) * (s.trial_duration_s() + s.rest_s))
+            self._progress("conditioning", -1, force, 0, 0.0, f"{label}: loading", total_left)
+            t0 = self._clock()
+            steps = max(1, int(math.ceil(s.ramp_s / period)))
+            for step in range(1, steps + 1):  # the protocol's ramp, one goal per sample period
+                rig.start_force(force * step / steps)
+                self._wait_until(t0 + step * period)
+            end = t0 + s.ramp_s + s.condition_load_s
+            while self._clock() < end:
+                applied = rig.applied_force_n()  # reads the servo: an overload or a lost servo ends the run
+                self._wait_until(min(end, self._clock() + period))
+            applied = rig.applied_force_n()
+            reading = self.feed.latest()[1]
+            self._progress("conditioning", -1, force, 0, 0.0, f"{label}: unloading", total_left - s.ramp_s
+                           - s.condition_load_s)
+            rig.release()
+            self._wait_until(self._clock() + s.condition_unload_s)
+            document["cycle_log"].append({"cycle": cycle + 1, "force_N": applied,
+                                          "conductance_S": reading if math.isfinite(reading) else None})
+            document["cycles_done"] = cycle + 1
+            document["finished"] = cycle + 1 == s.condition_cycles
+            write_conditioning(self.folder, document)
 
     def _refine_contact(self) -> None:
         """Refine the contact the rig found from its servo's current with the sensor itself: from a little before
@@ -657,8 +750,15 @@ def check_protocol(settings: ProtocolSettings, rig: RigConfig, board: BoardConfi
         errors.append(f"sensor {settings.sensor} is not a channel of the board ({names[0]} … {names[-1]}): check "
                       "the name or the board's channel map")
     top = max(settings.forces_n)
-    if top > rig.max_force_n:
-        errors.append(f"{top:g} N is above the rig's maximum force {rig.max_force_n:g} N (rig.max_force_n): "
+    if settings.condition_cycles:
+        condition = settings.conditioning_force_n
+        if condition > rig.max_force_n:
+            errors.append(f"conditioning at {condition:g} N is above the rig's maximum force {rig.max_force_n:g} N "
+                          "(rig.max_force_n): condition at a lower force")
+        top = max(top, condition)
+    if max(settings.forces_n) > rig.max_force_n:
+        errors.append(f"{max(settings.forces_n):g} N is above the rig's maximum force {rig.max_force_n:g} N "
+                      "(rig.max_force_n): "
                       "lower the forces, or raise the maximum only if the sensor and spring allow it")
     k_r = rig.spring_k_n_per_m * rig.wheel_radius_m
     winding = top / k_r
@@ -673,6 +773,7 @@ def check_protocol(settings: ProtocolSettings, rig: RigConfig, board: BoardConfi
     ceiling = readout_ceiling_s(board)
     params, area, physics = expected_sls if expected_sls is not None else (TYPICAL_SLS, settings.area_m2,
                                                                            PhysicsConstants())
+    top = max(settings.forces_n)  # the readout matters for the recorded trials only, not for the conditioning
     strain = np.array([top / area / float(params.b)])
     predicted = float(conductance_from_strain(strain, np.array([top]), physics)[0])
     if predicted >= READOUT_MARGIN * ceiling:
@@ -718,6 +819,22 @@ def read_session(folder: str | Path) -> ProtocolSettings:
         return ProtocolSettings(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: {exc}") from None
+
+
+def read_conditioning(folder: str | Path) -> dict | None:
+    """The session's conditioning log (``conditioning.json``), or None when there is none (or it is unreadable: the
+    conditioning then runs again)."""
+    try:
+        document = json.loads((Path(folder) / CONDITIONING_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return document if isinstance(document, dict) and document.get("format") == "sensnake-conditioning" else None
+
+
+def write_conditioning(folder: str | Path, document: dict) -> None:
+    """Write the session's conditioning log atomically (a crash leaves the previous version)."""
+    calfiles._atomic_write(Path(folder) / CONDITIONING_FILE,
+                           lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
 
 
 def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int, Path]:

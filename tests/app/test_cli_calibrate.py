@@ -129,6 +129,10 @@ def test_resume_takes_the_protocol_from_the_session(tmp_path, lab_config, capsys
     (["--forces", "1.75,9"], "above the rig's maximum force 8 N"),
     (["--sensor", "S99Z"], "sensor S99Z is not a channel of the board"),
     (["--time-scale", "60", "--rig", "/dev/ttyUSB7"], "--time-scale only runs the simulated lab faster"),
+    (["--condition", "3@9"], "conditioning at 9 N is above the rig's maximum force 8 N"),
+    (["--condition", "three"], "--condition 'three': the number of cycles must be a whole number"),
+    (["--condition", "3@x"], "'x' is not a force in N"),
+    (["--condition", "-1"], "must be 0 (off) or more"),
 ])
 def test_protocol_refused_before_anything_moves(tmp_path, capsys, argv, message):
     base = ["calibrate", "--rig", "sim", "--daq", "sim", "--out", str(tmp_path / "c.json")]
@@ -207,3 +211,38 @@ def test_a_rejected_trial_is_kept_aside_and_the_session_is_unfinished_again(tmp_
     assert [(f, done) for f, _s, done in unfinished_sessions(tmp_path)] == [(folder, 1)]
     with pytest.raises(ValueError, match="another protocol"):
         write_session(folder, ProtocolSettings(forces_n=(2.0,)))
+
+
+def test_conditioning_runs_before_the_trials_is_logged_and_not_repeated_on_resume(tmp_path, lab_config, capsys):
+    from app.core.rig_protocol import reject_trial
+
+    out = tmp_path / "cal.json"
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--forces", "1.75,5.25",
+                 "--trials", "1", "--hold", "120", "--rest", "60", "--condition", "2@4", "--time-scale", "60",
+                 "--save-anyway", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "2 conditioning cycle(s) at 4 N, then 2 trial(s) of S06B" in err
+    assert "conditioning cycle 1/2 at 4 N" in err and "conditioning cycle 2/2 at 4 N" in err
+    assert err.index("conditioning cycle 2/2") < err.index("trial 1/2")
+    session = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_"))
+    settings = read_session(session)
+    assert settings.condition_cycles == 2 and settings.condition_force_n == 4.0  # in protocol.json
+    assert sorted(p.name for p in session.glob("*.csv")) == [p.name for p in finished_trials(session, settings).values()]
+    log_bytes = (session / "conditioning.json").read_bytes()
+    log = json.loads(log_bytes)
+    assert log["finished"] is True and [c["cycle"] for c in log["cycle_log"]] == [1, 2]
+    assert all(abs(c["force_N"] - 4.0) < 0.25 for c in log["cycle_log"])
+    assert len(json.loads(out.read_text())["sensors"]["S06B"]["trials"]) == 2  # conditioning is not a trial
+
+    reject_trial(finished_trials(session, settings)[1])
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--time-scale", "60",
+                 "--resume", str(session), "--save-anyway", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "conditioning finished earlier (2 cycle(s) at 4 N): not repeated" in err
+    assert "conditioning cycle" not in err
+    assert (session / "conditioning.json").read_bytes() == log_bytes
+    code = main(["calibrate", "--rig", "sim", "--daq", "sim", "--resume", str(session), "--condition", "2",
+                 "--out", str(out)])
+    assert code == 1 and "drop --condition" in capsys.readouterr().err

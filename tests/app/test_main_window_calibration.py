@@ -335,3 +335,32 @@ def test_the_redo_button_rejects_the_selected_trial_and_runs_it_again(rig_tab, q
     with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
         tab.protocol_form.abort_button.click()
     assert rejected.read_bytes() == original
+
+
+def test_the_conditioning_fields_go_into_the_protocol_and_come_back_on_resume(rig_tab, tmp_path):
+    from app.core.rig_protocol import read_session, write_session
+
+    tab = rig_tab
+    form = tab.protocol_form
+    assert tab.protocol_settings().condition_cycles == 0  # off unless asked for
+    assert not form.condition_cycles_spin.isEnabled()
+    before = form.estimated_duration_s()
+    form.condition_check.setChecked(True)
+    form.condition_cycles_spin.setValue(3)
+    form.condition_force_spin.setValue(4.0)
+    assert form.condition_cycles_spin.isEnabled()
+    settings = tab.protocol_settings()
+    assert (settings.condition_cycles, settings.condition_force_n) == (3, 4.0)
+    assert form.estimated_duration_s() == pytest.approx(before + 3 * (form.ramp_spin.value() + 20.0))
+    # A session's own conditioning comes back into the form when it is resumed.
+    folder = tmp_path / "BENCH_x"
+    folder.mkdir()
+    write_session(folder, settings)
+    form.condition_check.setChecked(False)
+    form.condition_force_spin.setValue(0.0)
+    started = []
+    tab.start_run = lambda resume=None: started.append(resume) or True
+    assert tab.resume_run(folder)
+    assert started == [folder] and form.condition_check.isChecked()
+    assert form.condition_cycles_spin.value() == 3 and form.condition_force_spin.value() == 4.0
+    assert tab.protocol_settings() == read_session(folder)

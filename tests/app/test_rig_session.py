@@ -188,3 +188,99 @@ def test_a_servo_error_during_a_hold_stops_the_run(session, qtbot, tmp_path, fas
     outcome = blocker.args[0]
     assert outcome.status == FAILED and outcome.message.startswith("rig error:")
     assert "overload" in outcome.message.lower(), outcome.message
+
+
+CONDITIONED = dict(SHORT, condition_cycles=2, condition_force_n=4.0, condition_load_s=30.0, condition_unload_s=20.0)
+
+
+def _conditioning_messages(progress: list) -> list[str]:
+    return [p.message for p in progress if p.phase == "conditioning"]
+
+
+def test_conditioning_cycles_run_before_the_protocol_are_logged_and_not_recorded(session, qtbot, tmp_path, fast_lab):
+    import json
+
+    settings = ProtocolSettings(forces_n=(1.75,), sensor="BENCH", **CONDITIONED)
+    progress, samples = [], []
+    session.progress.connect(progress.append)
+    session.sample.connect(samples.append)
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        folder = session.start(settings, tmp_path)
+    outcome = blocker.args[0]
+    assert outcome.status == COMPLETED, outcome.message
+    messages = _conditioning_messages(progress)
+    assert any("conditioning cycle 1/2 at 4 N" in m for m in messages)
+    assert any("conditioning cycle 2/2 at 4 N" in m for m in messages)
+    # Before the first trial, and not recorded: one CSV (the trial), no sample of the trial above its 1.75 N.
+    phases = [p.phase for p in progress]
+    assert phases.index("conditioning") < phases.index("baseline")
+    assert sorted(p.name for p in folder.glob("*.csv")) == [outcome.trials[0].path.name]
+    assert max(s.force_n for s in samples) < 1.75 + FORCE_TOLERANCE_N
+    log = json.loads((folder / "conditioning.json").read_text())
+    assert log["finished"] is True and log["cycles_done"] == 2 and log["force_N"] == 4.0
+    for cycle in log["cycle_log"]:  # each cycle really loaded the sensor
+        assert cycle["force_N"] == pytest.approx(4.0, abs=FORCE_TOLERANCE_N)
+        assert cycle["conductance_S"] > 0
+    assert fast_lab.rig.applied_force_n() == 0.0
+
+
+def test_resume_does_not_repeat_a_finished_conditioning_but_restarts_an_interrupted_one(session, qtbot, tmp_path,
+                                                                                       fast_lab):
+    import json
+
+    from app.core.rig_protocol import reject_trial
+
+    settings = ProtocolSettings(forces_n=(1.75,), sensor="BENCH", **CONDITIONED)
+    progress = []
+    session.progress.connect(progress.append)
+    folder = session.start(settings, tmp_path)
+    with qtbot.waitSignal(session.progress, timeout=60_000,
+                          check_params_cb=lambda p: "conditioning cycle 2/2" in p.message):
+        pass
+    with qtbot.waitSignal(session.finished, timeout=30_000) as blocker:
+        session.abort()  # in cycle 2
+    assert blocker.args[0].status == ABORTED and fast_lab.rig.applied_force_n() == 0.0
+    log = json.loads((folder / "conditioning.json").read_text())
+    assert log["cycles_done"] == 1 and log["finished"] is False
+
+    # Resumed: the interrupted conditioning runs again in full, then the trial.
+    progress.clear()
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        session.start(settings, tmp_path, resume=folder)
+    assert blocker.args[0].status == COMPLETED, blocker.args[0].message
+    assert any("conditioning cycle 1/2" in m for m in _conditioning_messages(progress))
+    log_bytes = (folder / "conditioning.json").read_bytes()
+    log = json.loads(log_bytes)
+    assert log["finished"] is True and log["cycles_done"] == 2 and log["restarted_after"] == 1
+
+    # The trial redone (rejected, resumed): the finished conditioning is not repeated.
+    reject_trial(blocker.args[0].trials[0].path)
+    progress.clear()
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        session.start(settings, tmp_path, resume=folder)
+    assert blocker.args[0].status == COMPLETED, blocker.args[0].message
+    messages = _conditioning_messages(progress)
+    assert messages and all("conditioning cycle" not in m for m in messages)
+    assert "conditioning finished earlier (2 cycle(s) at 4 N): not repeated" in messages
+    assert (folder / "conditioning.json").read_bytes() == log_bytes
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"condition_cycles": -1}, "conditioning cycles must be 0"),
+    ({"condition_cycles": 2, "condition_force_n": -3.0}, "conditioning force must be a positive force"),
+    ({"condition_cycles": 2, "condition_load_s": 0.0}, "conditioning load time must be a positive"),
+])
+def test_conditioning_settings_are_checked(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ProtocolSettings(**kwargs)
+
+
+def test_conditioning_above_the_rig_maximum_is_refused_before_anything_moves():
+    from app.core.rig_protocol import check_protocol
+
+    settings = ProtocolSettings(forces_n=(1.75, 3.0), condition_cycles=3, condition_force_n=9.0)
+    check = check_protocol(settings, RigConfig(max_force_n=8.0), BoardConfig())
+    assert any("conditioning at 9 N is above the rig's maximum force 8 N" in e for e in check.errors)
+    assert settings.total_duration_s() == pytest.approx(3 * (2 + 10 + 10) + 2 * 3 * (3 + 370 + 60))
+    off = ProtocolSettings(forces_n=(1.75, 3.0))
+    assert off.condition_cycles == 0 and check_protocol(off, RigConfig(max_force_n=8.0), BoardConfig()).ok

@@ -87,7 +87,7 @@ DESCRIPTION = (
 )
 PLOT_MAX_POINTS = 4000  # per curve: trials are minutes at a few Hz; decimate anything longer for drawing
 PARAM_LABELS = (("E0_Pa", "E0", "Pa"), ("E1_Pa", "E1", "Pa"), ("mu1_Pa_s", "μ1", "Pa·s"))
-PHASE_WORDS = {"contact": "finding the contact", "baseline": "baseline", "loading": "loading", "hold": "holding",
+PHASE_WORDS = {"contact": "finding the contact", "conditioning": "conditioning", "baseline": "baseline", "loading": "loading", "hold": "holding",
                "release": "releasing", "rest": "resting", "paused": "paused", "done": "done"}
 
 
@@ -523,7 +523,8 @@ class CalibrationTab(QWidget):
             forces_n=parse_forces(form.forces_edit.text()), trials_per_force=form.trials_spin.value(),
             hold_s=form.hold_spin.value(), sample_rate_hz=form.rate_spin.value(), rest_s=form.rest_spin.value(),
             baseline_s=form.baseline_spin.value(), ramp_s=form.ramp_spin.value(), sensor=self.sensor_edit.text().strip(),
-            area_m2=self.area_spin.value() * 1e-6)
+            area_m2=self.area_spin.value() * 1e-6, condition_cycles=form.condition_cycles(),
+            condition_force_n=form.condition_force_spin.value() if form.condition_cycles() else 0.0)
 
     def start_run(self, resume: Path | None = None) -> bool:
         """Start the protocol on the rig (Run button); False, with the reason shown, if it cannot start. ``resume``:
@@ -572,6 +573,7 @@ class CalibrationTab(QWidget):
                             (form.baseline_spin, settings.baseline_s), (form.ramp_spin, settings.ramp_s),
                             (form.rate_spin, settings.sample_rate_hz)):
             spin.setValue(value)
+        form.set_conditioning(settings.condition_cycles, settings.condition_force_n)
         self.sensor_edit.setText(settings.sensor)
         self.area_spin.setValue(settings.area_m2 * 1e6)
         form.folder_edit.setText(str(Path(folder).parent))
