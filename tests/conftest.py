@@ -81,6 +81,26 @@ def no_qt_timer_left_running(request):
     assert not running, f"test left Qt timers running: {sorted(set(running))}"
 
 
+@pytest.fixture(autouse=True)
+def garbage_collected_on_the_gui_thread(request):
+    """A Qt test runs as the app does (app/gui/gui_gc.py): no automatic garbage collection, which could free a Qt
+    object on a worker thread and deadlock it against the GUI thread (seen: a Calibration-tab test frozen for
+    minutes), but a collector on the GUI thread; when the test's widgets are gone, one last collection here."""
+    if "qtbot" not in request.fixturenames:
+        yield
+        return
+    from app.gui.gui_gc import GuiThreadCollector
+
+    request.getfixturevalue("qapp")  # the timer needs the application's event loop
+    collector = GuiThreadCollector()
+    collector.start()
+    try:
+        yield
+    finally:
+        collector.stop()
+        collector.deleteLater()
+
+
 def scripted_config(config=None):
     """``config`` (default: the built-in one) with the scripted simulated lab. The app's default is the physics lab
     (MuJoCo), which keeps real time but not 20-50× real time on a loaded machine: tests that run the lab's clock
