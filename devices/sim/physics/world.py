@@ -177,7 +177,8 @@ class PhysicsWorld:
             self.data.eq_active[self._hand_eq[joint]] = not self._torque_on[joint]
             self._held[joint] = not self._torque_on[joint]
             self._wake()
-            mujoco.mj_forward(self.model, self.data)
+            mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
+            # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
 
     def release_hand(self, joints: Sequence[int] | None = None) -> None:
         """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
@@ -238,7 +239,18 @@ class PhysicsWorld:
             started = time.perf_counter()
             data, model = self.data, self.model
             qadr, dadr = self._qadr, self._dadr
-            for _ in range(n):
+            if not self._torque_on.any():  # all limp (Teach, the app at power-up): no servo loop to run
+                self._applied[:] = 0.0
+                self._demand[:] = 0.0
+                self._saturated_s[:] = 0.0
+                data.ctrl[:] = 0.0
+                data.qfrc_applied[dadr] = self._external
+                for _ in range(n):
+                    mujoco.mj_step(model, data)
+                n_loop = 0
+            else:
+                n_loop = n
+            for _ in range(n_loop):
                 q = data.qpos[qadr]
                 qd = data.qvel[dadr]
                 slew = self._speed * self._dt
