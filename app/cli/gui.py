@@ -29,7 +29,6 @@ def run(args: argparse.Namespace) -> int:
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
-    from app.gui.gui_gc import GuiThreadCollector
     from app.gui.lab import LabContext
     from app.gui.main_window import APP_NAME, ORGANIZATION, MainWindow
     from devices.config import SIM_PORT, load_config
@@ -42,8 +41,6 @@ def run(args: argparse.Namespace) -> int:
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setOrganizationName(ORGANIZATION)
     app.setApplicationName(APP_NAME)
-    collector = GuiThreadCollector(app)  # garbage collection on this thread only (see app/gui/gui_gc.py)
-    collector.start()
 
     lab = LabContext(config)
     window = MainWindow(lab)
@@ -70,7 +67,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         restore_signals()
     window.lab.close()  # the window closes it already; a second call is a no-op, kept for app.quit() paths
-    collector.stop()  # worker threads are gone: automatic collection is safe again
     signum = closed_by()
     if signum is not None:
         print(f"sensnake gui: closed by {signal.Signals(signum).name}", file=sys.stderr)
