@@ -115,6 +115,7 @@ class PhysicsWorld:
         self._still_s = 0.0
         self.rested_s = 0.0  # simulated time the world spent resting (not stepped, body frozen)
         self._loads_at_rest: np.ndarray | None = None
+        self._state_at_rest: JointState | None = None
         self.place()
 
     # -- set-up ------------------------------------------------------------------------------------------------------
@@ -217,6 +218,7 @@ class PhysicsWorld:
         self._resting = False
         self._still_s = 0.0
         self._loads_at_rest = None
+        self._state_at_rest = None
 
     def _note_stillness(self, stepped_s: float) -> None:
         still = (float(np.max(np.abs(self.data.qvel))) < REST_SPEED
@@ -293,6 +295,16 @@ class PhysicsWorld:
 
     # -- readings (any thread) -------------------------------------------------------------------------------------------
     def joint_state(self) -> JointState:
+        """The joints now. While the world rests this is the same object on every call (its arrays are shared: do
+        not modify them), so a reader can tell that nothing changed."""
+        with self._lock:
+            if self._resting:
+                if self._state_at_rest is None:
+                    self._state_at_rest = self._joint_state()
+                return self._state_at_rest
+            return self._joint_state()
+
+    def _joint_state(self) -> JointState:
         with self._lock:
             return JointState(
                 position_rad=self.data.qpos[self._qadr].copy(),
