@@ -142,6 +142,38 @@ def cache_subtree(item: QGraphicsItem) -> None:
         cache_subtree(child)
 
 
+class _ElidedLabel(QLabel):
+    """A one-line label that never widens its column: text that does not fit is replaced by its ``short`` form (e.g.
+    only the sensor names), and that ends in "…" if it does not fit either; the whole text is in the tooltip (a plot
+    header's sensor warning; the Forces tab's health list shows it in full too). ``text()`` is the whole text."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._full = ""
+        self._short = ""
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+
+    def setText(self, text: str, short: str = "") -> None:  # noqa: N802 - Qt override
+        self._full = text
+        self._short = short or text
+        self.setToolTip(text)
+        self._elide()
+
+    def text(self) -> str:
+        return self._full
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().resizeEvent(event)
+        self._elide()
+
+    def _elide(self) -> None:
+        metrics, width = self.fontMetrics(), max(0, self.width())
+        text = self._full if metrics.horizontalAdvance(self._full) <= width else self._short
+        shown = metrics.elidedText(text, Qt.TextElideMode.ElideRight, width)
+        if shown != super().text():
+            super().setText(shown)
+
+
 class _Trace(pg.PlotDataItem):
     """One trace's legend entry, pen and visibility (the legend toggles it). It is never added to the plot: the
     plot's :class:`_TraceBundle` draws every trace. ``xData``/``yData`` are what was drawn last (view x)."""
@@ -260,7 +292,7 @@ class _SegmentPlot(QWidget):
         self.toggle.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
         self.toggle.setAutoRaise(True)
         self.toggle.toggled.connect(self._on_toggled)
-        self.warning = QLabel(self)
+        self.warning = _ElidedLabel(self)
         self.warning.setStyleSheet(f"color: {STATUS_COLORS['error']};")
         self.image_button = QToolButton(self)
         self.image_button.setText("Image…")
@@ -719,8 +751,9 @@ class ForcePlotGrid(QWidget):
                      if warnings[i]]
             text = "; ".join(parts)
             if plot.warning.text() != text:
-                plot.warning.setText(text)
-                plot.warning.setToolTip(text)
+                short = "⚠ " + ", ".join(plot.group.names[k] for k, i in enumerate(plot.group.channels)
+                                         if warnings[i]) if parts else ""
+                plot.warning.setText(text, short)
                 for k, i in enumerate(plot.group.channels):
                     style = Qt.PenStyle.DotLine if warnings[i] else Qt.PenStyle.SolidLine
                     color = trace_color(plot.group.names[k], k)
