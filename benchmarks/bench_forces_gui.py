@@ -107,14 +107,14 @@ def _live_scenario(app, n_channels: int, rate_hz: float, prefill_s: float, windo
     from app.gui.lab import LabContext
     from app.gui.tabs.forces import ForcesTab
     from devices import factory
-    from devices.config import BoardConfig, LabConfig, default_sensor_names
+    from devices.config import BoardConfig, LabConfig, SimLabConfig, default_sensor_names
     from devices.sim.lab import SimLab
 
     names = default_sensor_names() if n_channels == 36 else tuple(f"C{i:04d}" for i in range(n_channels))
     board_config = replace(BoardConfig(), channel_names=names, rate_hz=rate_hz, baud=baud)
     if board_port:
         board_config = replace(board_config, port=board_port)
-    config = LabConfig(board=board_config)
+    config = LabConfig(board=board_config, lab=SimLabConfig(physics="scripted"))  # the plots' cost, not the lab's
     previous = factory.install_sim_lab(SimLab(config, seed=7, speed=1.0))
     lab = LabContext(config)
     tab = ForcesTab(lab)

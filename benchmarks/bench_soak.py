@@ -22,6 +22,7 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 if "--offscreen" in sys.argv:
@@ -55,6 +56,8 @@ def soak(minutes: float, speed: float, tab: str) -> list[dict]:
     with tempfile.TemporaryDirectory(prefix="sensnake-soak-") as tmp:
         os.environ["XDG_DATA_HOME"] = str(Path(tmp) / "data")
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+        # The scripted lab: its clock runs faster than real time here, which the physics lab does not keep up with.
+        config = replace(config, lab=replace(config.lab, physics="scripted"))
         previous = factory.install_sim_lab(SimLab(config, seed=11, speed=speed))
         lab = LabContext(config)
         window = MainWindow(lab, settings=QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat))

@@ -104,9 +104,9 @@ PHYSICS_KINDS = ("scripted", "mujoco")
 
 @dataclass(frozen=True)
 class SimLabConfig:
-    """What the simulated lab (port ``sim``) simulates. ``physics = "scripted"``: the cheap contact model;
-    ``"mujoco"``: the robot, the ground and the paper's half-cylindrical obstacle in MuJoCo (needs the ``mujoco``
-    package). The obstacle's height is a fraction of the body length (paper: 0.28; 0 = flat ground); friction
+    """What the simulated lab (port ``sim``) simulates. ``physics = "mujoco"`` (the default): the robot, the ground
+    and the paper's half-cylindrical obstacle in MuJoCo (needs the ``mujoco`` package; without it the lab falls back
+    to the scripted one and says why, ``SimLab.physics_note``); ``"scripted"``: the cheap contact model. The obstacle's height is a fraction of the body length (paper: 0.28; 0 = flat ground); friction
     coefficients are Coulomb's μ (the paper's obstacle is covered with PTFE).
 
     The simulated sensors (paper Sec. IV-A): standard linear solid creep (Eq. 2) with ``sensor_E0_Pa``,
@@ -117,7 +117,7 @@ class SimLabConfig:
     ``sensor_area_m2`` (the large flat probe covers the whole sensor) and, while the rig servo holds torque, its
     segment lies on the rig's beam: the probe alone loads it, not the robot's weight."""
 
-    physics: str = "scripted"
+    physics: str = "mujoco"
     obstacle_height_ratio: float = 0.28
     obstacle_friction: float = 0.1
     ground_friction: float = 0.3

@@ -19,6 +19,7 @@ os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 os.environ.setdefault("SENSNAKE_REALTIME", "0")
 
 THREAD_JOIN_GRACE_S = 3.0
+MAX_PHYSICS_TEST_SPEED = 4.0  # the physics lab keeps up with this on a loaded 2-core machine (not with 20-50x)
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -80,16 +81,65 @@ def no_qt_timer_left_running(request):
     assert not running, f"test left Qt timers running: {sorted(set(running))}"
 
 
+@pytest.fixture(autouse=True)
+def garbage_collected_on_the_gui_thread(request):
+    """A Qt test runs as the app does (app/gui/gui_gc.py): no automatic garbage collection, which could free a Qt
+    object on a worker thread and deadlock it against the GUI thread (seen: a Calibration-tab test frozen for
+    minutes), but a collector on the GUI thread; when the test's widgets are gone, one last collection here."""
+    if "qtbot" not in request.fixturenames:
+        yield
+        return
+    from app.gui.gui_gc import GuiThreadCollector
+
+    request.getfixturevalue("qapp")  # the timer needs the application's event loop
+    collector = GuiThreadCollector()
+    collector.start()
+    try:
+        yield
+    finally:
+        collector.stop()
+        collector.deleteLater()
+
+
+def scripted_config(config=None):
+    """``config`` (default: the built-in one) with the scripted simulated lab. The app's default is the physics lab
+    (MuJoCo), which keeps real time but not 20-50× real time on a loaded machine: tests that run the lab's clock
+    fast pin the scripted lab; physics tests pass a config that says ``physics = "mujoco"`` at a modest speed."""
+    import dataclasses
+
+    from devices.config import LabConfig
+
+    config = config or LabConfig()
+    return dataclasses.replace(config, lab=dataclasses.replace(config.lab, physics="scripted"))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def scripted_process_wide_sim_lab():
+    """The process-wide simulated lab (what a ``sim`` port reaches when a test installed none) is the scripted one,
+    made up front: the physics lab's stepping thread would outlive the test that first opened a ``sim`` port."""
+    from devices import factory
+    from devices.sim.lab import SimLab
+
+    previous = factory.install_sim_lab(SimLab(scripted_config()))
+    yield
+    factory.install_sim_lab(previous)
+
+
 @pytest.fixture
 def install_fast_sim_lab():
     """``install_fast_sim_lab(config=None, seed=1234, speed=20.0)`` builds a seeded simulated lab running ``speed``×
-    faster than real time, installs it behind the factory's ``sim`` ports and returns it; removed after the test."""
+    faster than real time, installs it behind the factory's ``sim`` ports and returns it; removed after the test.
+    Without ``config`` it is the scripted lab (:func:`scripted_config`); a physics test passes its own config."""
     from devices import factory
     from devices.sim.lab import SimLab
 
     previous: list[object] = []
 
     def install(config=None, *, seed: int = 1234, speed: float = 20.0):
+        config = config or scripted_config()
+        if config.lab.physics != "scripted" and speed > MAX_PHYSICS_TEST_SPEED:
+            raise ValueError(f"a physics lab at {speed}x real time lags on a loaded machine: run it at <= "
+                             f"{MAX_PHYSICS_TEST_SPEED}x, or pin the scripted lab (scripted_config(config))")
         lab = SimLab(config, seed=seed, speed=speed)
         replaced = factory.install_sim_lab(lab)
         if not previous:

@@ -96,10 +96,10 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["SENSNAKE_RECORDINGS_DIR"] = str(Path(tmp) / "recordings")  # the Forces picture records
         settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
-        if args.physics:
-            from dataclasses import replace
+        from dataclasses import replace
 
-            config = replace(config, lab=replace(config.lab, physics="mujoco"))
+        # The README's pictures are of the scripted lab, posed by hand; --physics for the 3-D lab's picture.
+        config = replace(config, lab=replace(config.lab, physics="mujoco" if args.physics else "scripted"))
         lab = LabContext(config)
         window = MainWindow(lab, settings=settings)
         window.resize(width, height)

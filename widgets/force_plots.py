@@ -38,6 +38,7 @@ from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
 from PySide6.QtGui import QPainterPath, QPolygonF
 from PySide6.QtWidgets import (
     QGraphicsItem,
+    QGraphicsWidget,
     QGridLayout,
     QHBoxLayout,
     QLabel,
@@ -65,6 +66,7 @@ PLOT_HEIGHT_PX = 170  # a plot's height when the grid scrolls (the rows do not a
 FIT_MIN_PLOT_HEIGHT_PX = 120  # the rows are fitted to the view (no scrolling) only if each plot gets this much
 MIN_PLOT_WIDTH_PX = 200  # columns: as many as fit at this width, up to MAX_COLUMNS
 MAX_COLUMNS = 4
+SCROLL_MAX_COLUMNS = 3  # when the plots do not all fit and the grid scrolls
 LIVE_TIME_LABEL = "time before newest"  # + " (s)": fits under a 200-px plot (the longer "… sample (s)" was cut off)
 # Smallest y range shown, per unit: an unloaded sensor's sub-mN wiggle drawn across a whole plot reads as a load
 # (seen in the lab walkthrough: "0.0005 N" full scale). 0.1 N is the body map's step; conductance keeps a tiny floor.
@@ -121,11 +123,55 @@ def side_of(name: str) -> str:
     return side if side in SIDE_COLORS else ""
 
 
+def native_geometry(item: QGraphicsWidget) -> None:
+    """Let Qt take ``item``'s boundingRect and shape from C++ (its geometry), not from pyqtgraph's Python overrides.
+
+    Qt asks every item in a repainted area for its bounds on every paint; pyqtgraph's GraphicsWidget answers in
+    Python (the same rect, from its geometry), about 12 calls per plot per frame in the live grid. A bound C++ method
+    set on the instance is found by PySide's virtual-call lookup and is not a Python method, so Qt calls C++ directly.
+    Only for items whose pyqtgraph override returns exactly the C++ rect (plain GraphicsWidgets: the plot item, the
+    legend, its samples and labels; not axes or view boxes, which pad theirs)."""
+    item.boundingRect = QGraphicsWidget.boundingRect.__get__(item)  # type: ignore[method-assign]
+    item.shape = QGraphicsWidget.shape.__get__(item)  # type: ignore[method-assign]
+
+
 def cache_subtree(item: QGraphicsItem) -> None:
     """Paint ``item`` and its children from a device pixmap (GUI thread): axes repaint only when they change."""
     item.setCacheMode(QGraphicsItem.CacheMode.DeviceCoordinateCache)
     for child in item.childItems():
         cache_subtree(child)
+
+
+class _ElidedLabel(QLabel):
+    """A one-line label that never widens its column: text that does not fit is replaced by its ``short`` form (e.g.
+    only the sensor names), and that ends in "…" if it does not fit either; the whole text is in the tooltip (a plot
+    header's sensor warning; the Forces tab's health list shows it in full too). ``text()`` is the whole text."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._full = ""
+        self._short = ""
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+
+    def setText(self, text: str, short: str = "") -> None:  # noqa: N802 - Qt override
+        self._full = text
+        self._short = short or text
+        self.setToolTip(text)
+        self._elide()
+
+    def text(self) -> str:
+        return self._full
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().resizeEvent(event)
+        self._elide()
+
+    def _elide(self) -> None:
+        metrics, width = self.fontMetrics(), max(0, self.width())
+        text = self._full if metrics.horizontalAdvance(self._full) <= width else self._short
+        shown = metrics.elidedText(text, Qt.TextElideMode.ElideRight, width)
+        if shown != super().text():
+            super().setText(shown)
 
 
 class _Trace(pg.PlotDataItem):
@@ -246,7 +292,7 @@ class _SegmentPlot(QWidget):
         self.toggle.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
         self.toggle.setAutoRaise(True)
         self.toggle.toggled.connect(self._on_toggled)
-        self.warning = QLabel(self)
+        self.warning = _ElidedLabel(self)
         self.warning.setStyleSheet(f"color: {STATUS_COLORS['error']};")
         self.image_button = QToolButton(self)
         self.image_button.setText("Image…")
@@ -295,6 +341,8 @@ class _SegmentPlot(QWidget):
             trace = _Trace(pg.mkPen(trace_color(name, position), width=1), name)
             self.legend.addItem(trace, name)
             self.curves.append(trace)
+        for plain in [item, self.legend, item.titleLabel] + [part for entry in self.legend.items for part in entry]:
+            native_geometry(plain)
         # The view box draws nothing itself (no border): Qt need not call its Python paint() every frame.
         item.getViewBox().setFlag(QGraphicsItem.GraphicsItemFlag.ItemHasNoContents, True)
         # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
@@ -453,6 +501,7 @@ class ForcePlotGrid(QWidget):
         self.redraw_count = 0
         self.last_redraw_s = 0.0
         self._last_refresh_s = 0.0
+        self._refresh_posted = False
         self._fixed_columns = columns
         self.columns = 0  # set by _fit_layout
         self.plot_height = PLOT_HEIGHT_PX
@@ -529,12 +578,15 @@ class ForcePlotGrid(QWidget):
         usable = viewport.width() - margins.left() - margins.right() + spacing
         columns = self._fixed_columns or max(1, min(MAX_COLUMNS, len(self.plots),
                                                     usable // (MIN_PLOT_WIDTH_PX + spacing)))
-        if columns != self.columns:
-            self._place(columns)
         rows = -(-len(self.plots) // columns)
         room = viewport.height() - margins.top() - margins.bottom() - (rows - 1) * grid.verticalSpacing()
         fitted = room // rows - self.plots[0].header_height() - 1
         self.fits_view = fitted >= FIT_MIN_PLOT_HEIGHT_PX
+        if not self.fits_view and not self._fixed_columns:
+            # Scrolling anyway: fewer, wider plots (more time resolution; fewer on screen to draw per frame).
+            columns = min(columns, SCROLL_MAX_COLUMNS)
+        if columns != self.columns:
+            self._place(columns)
         height = fitted if self.fits_view else PLOT_HEIGHT_PX
         if height != self.plot_height:
             self.plot_height = height
@@ -699,8 +751,9 @@ class ForcePlotGrid(QWidget):
                      if warnings[i]]
             text = "; ".join(parts)
             if plot.warning.text() != text:
-                plot.warning.setText(text)
-                plot.warning.setToolTip(text)
+                short = "⚠ " + ", ".join(plot.group.names[k] for k, i in enumerate(plot.group.channels)
+                                         if warnings[i]) if parts else ""
+                plot.warning.setText(text, short)
                 for k, i in enumerate(plot.group.channels):
                     style = Qt.PenStyle.DotLine if warnings[i] else Qt.PenStyle.SolidLine
                     color = trace_color(plot.group.names[k], k)
@@ -725,9 +778,17 @@ class ForcePlotGrid(QWidget):
         is under one redraw period old — then the timer's next tick draws them. Drawing on arrival, not only on a
         free-running timer, keeps the plots in step with the data: a timer at the data's own rate beats against it
         (a tick with nothing new, then one with two samples) and paints were lost."""
-        if not self._timer.isActive():
+        if not self._timer.isActive() or self._refresh_posted:
             return
         if time.monotonic() - self._last_refresh_s >= 0.75 * self._timer.interval() / 1000.0:
+            # Posted, not run here: the caller (the board drain, the force estimation) and the redraw are then two
+            # short turns of the event loop instead of one long one (1024 channels: ~6 + ~5 ms, up to ~40 ms).
+            self._refresh_posted = True
+            QTimer.singleShot(0, self, self._posted_refresh)
+
+    def _posted_refresh(self) -> None:
+        self._refresh_posted = False
+        if self._timer.isActive():
             self.refresh()
 
     @property

@@ -28,6 +28,7 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import user_folders
+from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
 from devices.config import ConfigError, load_config
@@ -101,6 +102,9 @@ class MainWindow(QMainWindow):
     def __init__(self, lab: LabContext, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lab = lab
+        # Garbage collection on this (the GUI) thread only while the window is open: see app/gui/gui_gc.py.
+        self._collector = GuiThreadCollector(self)
+        self._collector.start()
         self.settings = settings if settings is not None else user_settings()
         self.config_path: Path | None = None
         self._last_error_s = -1e9
@@ -396,4 +400,5 @@ class MainWindow(QMainWindow):
         self._shutdown_tabs()
         self.status.shutdown()
         self.lab.close()
+        self._collector.stop()  # the lab's threads are gone: automatic collection is safe again
         event.accept()

@@ -158,6 +158,7 @@ class VirtualChain:
             raise ValueError(f"servo IDs must be distinct and within 0…{ct.MAX_ID}, got {list(ids)}")
         self._clock = clock
         self._physics = physics
+        self._physics_state: Any = None  # the last JointState copied into the servos
         self._rng = np.random.default_rng(seed)
         self._position_noise: list[int] = []  # ticks, −1…1, drawn NOISE_BATCH at a time
         self._current_noise: list[int] = []  # LSB, −2…2
@@ -700,6 +701,9 @@ class VirtualChain:
         self._physics.command(on, goal, speed)
         self._physics.advance_to(sim_s)
         state = self._physics.joint_state()
+        if state is self._physics_state:  # the world rests: the same state as last time, nothing to copy
+            return
+        self._physics_state = state
         for j, servo in enumerate(self._servos):
             servo.position_ticks = min(max(ct.CENTER_TICKS + float(state.position_rad[j]) / ct.RAD_PER_TICK, 0.0),
                                        4095.0)

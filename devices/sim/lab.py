@@ -31,11 +31,17 @@ class SimLab:
         rng = np.random.default_rng(seed)
         robot = self.config.robot
         # [lab] physics = "mujoco": the robot is a body in a physics world that the chain drives and the board feels.
+        # Without the mujoco package it is the scripted lab, and ``physics_note`` says why (the 3-D tab shows it).
         self.physics: PhysicsBackend | None = None
+        self.physics_note = ""
         if self.config.lab.physics == "mujoco":
-            from devices.sim.physics.backend import PhysicsBackend
-
-            self.physics = PhysicsBackend(self.config, self.clock)
+            try:
+                from devices.sim.physics.backend import PhysicsBackend
+            except (ImportError, OSError) as exc:
+                self.physics_note = (f"the scripted lab stands in for the physics lab ([lab] physics = \"mujoco\"): "
+                                     f"mujoco cannot be loaded ({exc}); install it with: pip install mujoco")
+            else:
+                self.physics = PhysicsBackend(self.config, self.clock)
         self.chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=self.clock,
                                   seed=int(rng.integers(2**31)), physics=self.physics)
         self.contact = ContactModel(self.config, self.chain, seed=int(rng.integers(2**31)))

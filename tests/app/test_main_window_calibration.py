@@ -12,14 +12,14 @@ from app.core import calfiles
 from app.core.rig_protocol import ABORTED
 from app.gui.lab import LabContext
 from app.gui.tabs.calibration import PROTOCOL, REVIEW, RIG_CHECK, SAVE, SETUP, CalibrationTab
-from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, default_sensor_names
+from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, SimLabConfig, default_sensor_names
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, paper_protocol
 
 NO_PORT_CONFIG = LabConfig(robot=RobotConfig(port="/dev/sensnake-test-no-such-port"))
 # The rig's sensor on a spare board channel, away from the lying robot's weight (see tests/app/test_rig_session.py).
 BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
-                         rig=RigConfig(sensor="BENCH"))
+                         rig=RigConfig(sensor="BENCH"), lab=SimLabConfig(physics="scripted"))
 
 
 @pytest.fixture

@@ -13,13 +13,13 @@ from app.core import calfiles
 from app.core.rig_protocol import ABORTED, COMPLETED, FAILED, ProtocolSettings
 from app.gui.lab import LabContext
 from app.gui.rig_session import RigSession
-from devices.config import BoardConfig, LabConfig, RigConfig, default_sensor_names
+from devices.config import BoardConfig, LabConfig, RigConfig, SimLabConfig, default_sensor_names
 
 FORCE_TOLERANCE_N = 0.25  # contact found from a noisy current (±0.15 N) plus the servo's tick resolution
 # The rig's sensor on a spare board channel: the robot's own sensors carry its (varying) weight in the simulated lab,
 # as a sensor mounted on a lying robot would; a bench sensor under the probe carries only the probe's force.
 BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
-                         rig=RigConfig(sensor="BENCH"))
+                         rig=RigConfig(sensor="BENCH"), lab=SimLabConfig(physics="scripted"))
 SHORT = dict(trials_per_force=1, hold_s=125.0, baseline_s=35.0, ramp_s=25.0, rest_s=10.0, sample_rate_hz=6.0)
 
 

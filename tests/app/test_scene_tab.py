@@ -66,10 +66,22 @@ def test_the_physics_lab_is_drawn_in_3d_and_the_picture_follows_the_world(qtbot,
 
 
 def test_the_scripted_lab_falls_back_to_the_2d_body_drawing(qtbot, tab_on):
-    tab, _ = tab_on(LabConfig())
+    tab, _ = tab_on(dataclasses.replace(LabConfig(), lab=SimLabConfig(physics="scripted")))
     tab.show()
     assert not tab.view.showing_picture
     assert "scripted" in tab.view.reason.text()
+
+
+def test_without_mujoco_the_default_lab_is_scripted_and_the_tab_says_why(qtbot, tab_on, monkeypatch):
+    for name in [m for m in sys.modules if m == "mujoco" or m.startswith(("mujoco.", "devices.sim.physics."))]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "mujoco", None)  # "import mujoco" raises ImportError: a machine without it
+    tab, lab_sim = tab_on(LabConfig())  # the default: [lab] physics = "mujoco"
+    assert lab_sim.physics is None
+    assert "mujoco cannot be loaded" in lab_sim.physics_note and "pip install mujoco" in lab_sim.physics_note
+    tab.show()
+    assert not tab.view.showing_picture
+    assert "pip install mujoco" in tab.view.reason.text()
 
 
 def test_without_opengl_the_physics_lab_is_drawn_in_2d_with_the_reason(qtbot, tab_on, monkeypatch):
@@ -89,3 +101,23 @@ def test_without_opengl_the_physics_lab_is_drawn_in_2d_with_the_reason(qtbot, ta
     # The 2-D drawing follows the simulated robot's joints (the limp robot drapes over the obstacle).
     qtbot.waitUntil(lambda: tab.lab.robot.latest_state is not None, timeout=20000)
     qtbot.waitUntil(lambda: abs(tab.view.body.present_rad[2]) > 0.2, timeout=20000)
+
+
+def test_the_app_with_no_config_runs_on_the_physics_lab(qtbot):
+    """``sensnake gui`` / scripts/run.sh with no config: the packaged config's simulated lab is the physics lab,
+    stepping in its own thread and allowed to rest (the scripted fallback without mujoco is tested above)."""
+    from devices import factory
+    from devices.config import load_config
+
+    previous = factory.install_sim_lab(None)  # as in a fresh process: no simulated lab yet
+    try:
+        lab = LabContext(load_config())
+        sim = factory.sim_lab()
+        try:
+            assert sim.physics is not None and sim.physics_note == ""
+            assert sim.physics.world.rest_enabled
+        finally:
+            lab.close()
+            sim.close()
+    finally:
+        factory.install_sim_lab(previous)

@@ -28,6 +28,7 @@ def test_default_config_is_the_simulated_lab():
     assert config.board.n_channels == 36
     assert config.rig.spring_k_n_per_m == 246.0
     assert "[robot]" in config.source_text
+    assert config.lab.physics == "mujoco" and LabConfig().lab.physics == "mujoco"  # the physics lab by default
 
 
 def test_sensor_names_follow_the_channel_rule():

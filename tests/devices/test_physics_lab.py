@@ -26,6 +26,20 @@ FLAT = dataclasses.replace(LabConfig(), lab=SimLabConfig(physics="mujoco", obsta
 STALL_CURRENT_MA = 4.1 / (4.1 / 2.3) * 1000.0
 
 
+def test_the_default_config_gives_the_physics_lab():
+    """With mujoco importable (this module skips otherwise), the packaged config's simulated lab is the physics lab;
+    tests/app/test_scene_tab.py checks the scripted fallback, and its reason, without it."""
+    from devices.config import load_config
+    from devices.sim.lab import SimLab
+
+    lab = SimLab(load_config())
+    try:
+        assert isinstance(lab.physics, PhysicsBackend) and lab.physics_note == ""
+        assert lab.chain.present_positions_rad().shape == (12,)  # the chain reads the world
+    finally:
+        lab.close()
+
+
 def _frames(reader: BoardReader, n: int):
     assert reader.wait_for_frames(n, timeout_s=30.0), "the board sent no frames"
     block = reader.read_block()

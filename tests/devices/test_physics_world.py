@@ -144,12 +144,15 @@ def test_a_still_world_rests_and_wakes_on_a_command():
     assert world.steps == steps and world.rested_s > 9.9  # 10 s more on the clock, none of it stepped
     assert world.time_s == pytest.approx(25.0, abs=0.01)
     assert np.array_equal(world.joint_state().position_rad, state.position_rad)
+    assert world.joint_state() is world.joint_state()  # one state while resting: readers can skip copying it
     assert np.array_equal(world.segment_loads_n(), loads)
     assert loads[0].sum() > 0.5 * world.weight_n
     goal = world.joint_state().position_rad.copy()
     goal[10] += 0.3
+    resting_state = world.joint_state()
     world.command(np.ones(n, dtype=bool), goal, np.full(n, 1.0))
     assert not world.resting
+    assert world.joint_state() is not resting_state
     _run_to(world, 27.0)
     assert world.steps > steps
     assert world.joint_state().position_rad[10] == pytest.approx(goal[10], abs=0.05)

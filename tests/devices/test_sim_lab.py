@@ -1,14 +1,16 @@
-"""The simulated lab wires its devices together: the rig's probe is felt by the board channel of rig.sensor."""
+"""The simulated lab wires its devices together: the rig's probe is felt by the board channel of rig.sensor (the
+scripted lab, at 50× real time)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from devices.sim.lab import SimLab
+from tests.conftest import scripted_config
 
 
 def test_rig_probe_force_replaces_the_contact_force_on_its_board_channel():
-    lab = SimLab(seed=3, speed=50.0)
+    lab = SimLab(scripted_config(), seed=3, speed=50.0)
     channel = lab.config.board.channel_names.index(lab.config.rig.sensor)
     t = lab.clock.now()
     before = lab.forces_n(t)
@@ -25,7 +27,7 @@ def test_rig_probe_force_replaces_the_contact_force_on_its_board_channel():
 
 
 def test_resting_robot_stays_below_the_readout_saturation_and_walls_level_off():
-    lab = SimLab(seed=2, speed=50.0)
+    lab = SimLab(scripted_config(), seed=2, speed=50.0)
     peak = max(float(lab.contact.forces_n(t).max()) for t in np.arange(0.0, 120.0, 0.5))
     assert 1.0 < peak < 4.5  # weight share + travelling bump, below ~5 N where the typical sensor saturates
     # A hard yaw bend by hand pushes the body far past the virtual walls: the press levels off, it does not explode.

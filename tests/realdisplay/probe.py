@@ -159,10 +159,11 @@ def open_app(tmp: Path, tab: str):
     from devices.config import SIM_PORT, load_config
 
     config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
-    if tab == "scene":  # the 3-D view draws the physics lab
-        from dataclasses import replace
+    from dataclasses import replace
 
-        config = replace(config, lab=replace(config.lab, physics="mujoco"))
+    # The 3-D view draws the physics lab (the default). The other views are measured on the scripted lab, whose data
+    # keeps changing: the physics lab's robot lies still or hangs in the air, so several sensors read constant.
+    config = replace(config, lab=replace(config.lab, physics="mujoco" if tab == "scene" else "scripted"))
     lab = LabContext(config)
     window = MainWindow(lab, settings=QSettings(str(tmp / "settings.ini"), QSettings.Format.IniFormat))
     window.resize(*WINDOW_SIZE)
@@ -207,9 +208,18 @@ def scenario_teach(window, page, seconds: float) -> dict:
     pump(500)
     moving = measure({"body_view": page.panel.body_view, "sliders": page.panel.sliders}, counter, seconds)
     wiggle.stop()
+    pump_until(_lab_at_rest, what="the simulated robot to come to rest")  # the physics lab: held by the hand
     pump(800)  # the robot comes to rest
     idle = measure({"panel": page.panel}, counter, seconds)
     return {**moving, "idle": idle}
+
+
+def _lab_at_rest() -> bool:
+    """The simulated lab's robot lies still: always with the scripted lab; the physics lab once its world rests."""
+    from devices.factory import sim_lab
+
+    physics = getattr(sim_lab(), "physics", None)
+    return physics is None or physics.world.resting
 
 
 def scenario_gait(window, page, seconds: float) -> dict:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PySide6.QtWidgets import QLabel
 
 from devices.config import default_sensor_names
 from widgets.force_plots import ForcePlotGrid, groups_from_names
@@ -340,3 +341,21 @@ def test_collapsing_a_plot_frees_its_room_and_the_next_row_moves_up(qtbot):
     qtbot.waitUntil(lambda: len(grid.shown_plots()) >= len(before), timeout=10_000)  # one more row came into view
     grid.set_collapsed(0, False)
     qtbot.waitUntil(lambda: grid.plots[0].plot_widget.isVisible(), timeout=10_000)
+
+
+def test_a_long_warning_does_not_widen_its_column_and_is_kept_whole_in_the_tooltip(qtbot):
+    grid = ForcePlotGrid(NAMES)
+    qtbot.addWidget(grid)
+    grid.resize(880, 590)
+    grid.show()
+    qtbot.waitExposed(grid)
+    qtbot.waitUntil(lambda: grid.shown_plots() == list(range(12)), timeout=10_000)
+    warnings = [""] * 36
+    warnings[35] = "flat-lined, saturated, noisy (loose?), drifting below its rest level"
+    grid.set_channel_warnings(warnings)
+    qtbot.waitUntil(lambda: grid.plots[11].warning.width() > 0, timeout=10_000)
+    widths = [plot.plot_widget.width() for plot in grid.plots]
+    assert max(widths) - min(widths) <= 4, widths  # seen: the warning's column 335 px, the others 190
+    label = grid.plots[11].warning
+    assert label.text() == label.toolTip() == f"S12B: {warnings[35]}"
+    assert label.fontMetrics().horizontalAdvance(QLabel.text(label)) <= label.width()  # what is shown fits

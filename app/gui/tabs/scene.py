@@ -23,13 +23,15 @@ FRAME_SIZE = (640, 480)
 BODY_RATE_MS = 100
 
 
-def _physics_of(lab: Any) -> Any:
-    """The simulated lab's physics backend, or None (a real robot, or the scripted simulated lab)."""
+def _physics_of(lab: Any) -> tuple[Any, str]:
+    """The simulated lab's physics backend, or None (a real robot, or the scripted simulated lab), and why the
+    simulated lab is scripted when physics was asked for ("" otherwise)."""
     if not lab.robot.is_sim:
-        return None
+        return None, ""
     from devices.factory import sim_lab
 
-    return getattr(sim_lab(), "physics", None)
+    sim = sim_lab()
+    return getattr(sim, "physics", None), getattr(sim, "physics_note", "")
 
 
 class SceneTab(QWidget):
@@ -43,7 +45,7 @@ class SceneTab(QWidget):
         layout = QVBoxLayout(self)
         layout.addWidget(self.view)
         self._bridge = ThreadBridge(self)
-        self._physics = _physics_of(lab)
+        self._physics, note = _physics_of(lab)
         self._visible = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -52,8 +54,9 @@ class SceneTab(QWidget):
         self._body_timer.setInterval(BODY_RATE_MS)
         self._body_timer.timeout.connect(self._draw_body)
         if self._physics is None:
-            self.view.show_fallback("No physics lab: this is a real robot or the scripted simulated lab "
-                                    "([lab] physics = \"scripted\"). The 2-D drawing shows the present joint angles.")
+            why = (f"No physics lab: {note}." if note else "No physics lab: this is a real robot or the scripted "
+                   "simulated lab ([lab] physics = \"scripted\").")
+            self.view.show_fallback(f"{why} The 2-D drawing shows the present joint angles.")
 
     @property
     def rendering(self) -> bool:

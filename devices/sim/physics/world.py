@@ -115,6 +115,7 @@ class PhysicsWorld:
         self._still_s = 0.0
         self.rested_s = 0.0  # simulated time the world spent resting (not stepped, body frozen)
         self._loads_at_rest: np.ndarray | None = None
+        self._state_at_rest: JointState | None = None
         self.place()
 
     # -- set-up ------------------------------------------------------------------------------------------------------
@@ -177,7 +178,8 @@ class PhysicsWorld:
             self.data.eq_active[self._hand_eq[joint]] = not self._torque_on[joint]
             self._held[joint] = not self._torque_on[joint]
             self._wake()
-            mujoco.mj_forward(self.model, self.data)
+            mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
+            # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
 
     def release_hand(self, joints: Sequence[int] | None = None) -> None:
         """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
@@ -216,6 +218,7 @@ class PhysicsWorld:
         self._resting = False
         self._still_s = 0.0
         self._loads_at_rest = None
+        self._state_at_rest = None
 
     def _note_stillness(self, stepped_s: float) -> None:
         still = (float(np.max(np.abs(self.data.qvel))) < REST_SPEED
@@ -238,7 +241,18 @@ class PhysicsWorld:
             started = time.perf_counter()
             data, model = self.data, self.model
             qadr, dadr = self._qadr, self._dadr
-            for _ in range(n):
+            if not self._torque_on.any():  # all limp (Teach, the app at power-up): no servo loop to run
+                self._applied[:] = 0.0
+                self._demand[:] = 0.0
+                self._saturated_s[:] = 0.0
+                data.ctrl[:] = 0.0
+                data.qfrc_applied[dadr] = self._external
+                for _ in range(n):
+                    mujoco.mj_step(model, data)
+                n_loop = 0
+            else:
+                n_loop = n
+            for _ in range(n_loop):
                 q = data.qpos[qadr]
                 qd = data.qvel[dadr]
                 slew = self._speed * self._dt
@@ -281,6 +295,16 @@ class PhysicsWorld:
 
     # -- readings (any thread) -------------------------------------------------------------------------------------------
     def joint_state(self) -> JointState:
+        """The joints now. While the world rests this is the same object on every call (its arrays are shared: do
+        not modify them), so a reader can tell that nothing changed."""
+        with self._lock:
+            if self._resting:
+                if self._state_at_rest is None:
+                    self._state_at_rest = self._joint_state()
+                return self._state_at_rest
+            return self._joint_state()
+
+    def _joint_state(self) -> JointState:
         with self._lock:
             return JointState(
                 position_rad=self.data.qpos[self._qadr].copy(),
