@@ -76,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
         from devices.config import SIM_PORT, load_config
 
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+        from dataclasses import replace
+
+        # The scripted lab, as tools/screenshot.py's pictures: the physics lab is not meant to run at 15×.
+        config = replace(config, lab=replace(config.lab, physics="scripted"))
         factory.start_sim_lab(config, speed=args.speed)
         settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
         lab = LabContext(config)
