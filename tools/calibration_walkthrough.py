@@ -5,8 +5,9 @@
 
 Starts a private Xvfb (``tools/screenshot.py``'s), runs the app with Qt's xcb platform and reads the window's pixels
 back with ``QScreen.grabWindow``. Walks the tab's wizard and writes calibration_0_setup.png (the sensor on the body
-drawing, the readout), calibration_0_check.png (the rig check, every line passed), calibration_1_protocol.png (form
-and live trace mid-trial), calibration_2_fit.png (conductance vs time with the SLS fit, Fig. 8B),
+drawing, the readout), calibration_0_check.png (the rig check, every line passed), calibration_0_contact.png (the contact
+found, the conditioning fields), calibration_1_protocol.png (form,
+live trace mid-trial 2 and the fit of trial 1), calibration_2_fit.png (conductance vs time with the SLS fit, Fig. 8B),
 calibration_3_means.png (Fig. 9ii), calibration_4_params.png (Fig. 9iii) and calibration_5_history.png (after Save).
 Nothing of the user's is touched (settings and calibrations go to a temporary folder).
 
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             lab.close()
             return 1
 
-        from app.gui.tabs.calibration import PROTOCOL, RIG_CHECK
+        from app.gui.tabs.calibration import CONTACT, PROTOCOL, RIG_CHECK
 
         tab.sensor_picker.buttons[config.rig.sensor].click()
         shot("calibration_0_setup.png")
@@ -121,6 +122,15 @@ def main(argv: list[str] | None = None) -> int:
         if checked != [True]:
             return fail(f"the rig check did not pass: {tab.check_lines()}")
         shot("calibration_0_check.png")
+        tab.go_to_step(CONTACT)
+        tab.protocol_form.condition_check.setChecked(True)  # shown ticked; cleared before the run (time)
+        if not tab.find_contact():
+            return fail(f"the contact search did not start: {tab.contact_label.text()}")
+        pump(120, until=lambda: not tab.rig_session.is_running)
+        if not tab.contact_label.text().startswith("contact found"):
+            return fail(f"no contact: {tab.contact_label.text()}")
+        shot("calibration_0_contact.png")
+        tab.protocol_form.condition_check.setChecked(False)
         form = tab.protocol_form
         form.forces_edit.setText("1.75, 3, 4, 5.25")
         form.trials_spin.setValue(1)
@@ -130,7 +140,9 @@ def main(argv: list[str] | None = None) -> int:
         tab.go_to_step(PROTOCOL)
         if not tab.start_run():
             return fail(f"the run did not start: {form.message_label.text()}")
-        pump(300, until=lambda: tab.live_plot.n_samples > 900 or not tab.rig_session.is_running)
+        # In trial 2, once the fit of trial 1 ("fit so far") is on the protocol page and the trace has some length.
+        pump(600, until=lambda: (tab.live_fits_shown >= 1 and tab.live_plot.trial == 1
+                                 and tab.live_plot.n_samples > 600) or not tab.rig_session.is_running)
         if not tab.rig_session.is_running:
             return fail(f"the run ended early: {form.message_label.text()}")
         shot("calibration_1_protocol.png")

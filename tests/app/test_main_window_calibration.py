@@ -371,7 +371,7 @@ def test_the_conditioning_fields_go_into_the_protocol_and_come_back_on_resume(ri
     assert tab.protocol_settings() == read_session(folder)
 
 
-def test_the_wizard_steps_and_next_waits_for_a_passing_rig_check(rig_tab, qtbot, fast_sim_lab):
+def test_the_wizard_steps_and_next_waits_for_a_passing_rig_check(rig_tab, qtbot, fast_sim_lab, tmp_path):
     tab = rig_tab
     tab.show()
     qtbot.waitExposed(tab)
@@ -413,8 +413,16 @@ def test_the_wizard_steps_and_next_waits_for_a_passing_rig_check(rig_tab, qtbot,
     tab.sensor_picker.buttons["BENCH"].click()
     assert tab.next_button.isEnabled()
     qtbot.mouseClick(tab.next_button, Qt.MouseButton.LeftButton)
-    # Find contact and the optional conditioning, then the protocol with the live view.
+    # Find contact (the rig finds it, releases; nothing is recorded) and the optional conditioning.
     assert tab.steps.currentIndex() == RIG_CHECK + 1 and tab.protocol_form.condition_check.isVisible()
+    assert not tab.next_button.isEnabled() and "find the contact first" in tab.step_hint.text()
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=60_000):
+        qtbot.mouseClick(tab.contact_button, Qt.MouseButton.LeftButton)
+    found = tab.contact_label.text()
+    assert found.startswith("contact found: θ_contact = ") and "refined with the sensor" in found, found
+    assert "load released" in found and fast_sim_lab.rig.applied_force_n() == 0.0
+    assert list(tmp_path.iterdir()) == [] and tab.trial_list.count() == 0  # no session, no trial
+    assert tab.next_button.isEnabled()
     qtbot.mouseClick(tab.next_button, Qt.MouseButton.LeftButton)
     assert tab.steps.currentIndex() == PROTOCOL and tab.protocol_form.run_button.isVisible()
     assert tab.view_tabs.currentWidget() is tab.live_plot
@@ -429,3 +437,24 @@ def test_the_wizard_steps_and_next_waits_for_a_passing_rig_check(rig_tab, qtbot,
     assert lines[1][0] == "✔ pass" and lines[2][0] == "✘ FAIL" and "overload" in lines[2][2].lower(), lines
     tab.go_to_step(RIG_CHECK)
     assert not tab.next_button.isEnabled()
+
+
+@pytest.mark.slow  # a trial on the 50x sim, then a fit in a spawned process while the run waits
+def test_the_fit_of_the_trials_so_far_updates_during_the_run(rig_tab, qtbot, monkeypatch):
+    tab = rig_tab
+    monkeypatch.setattr(CalibrationTab, "LIVE_FIT_MIN_WALL_S", 0.0)  # the 50x trials take seconds, not minutes
+    assert tab.start_run()
+    # Pause during trial 1: the run then waits, unloaded, before trial 2 — time for the fit of trial 1.
+    qtbot.waitUntil(lambda: tab.live_plot.trial == 0 or not tab.rig_session.is_running, timeout=60_000)
+    assert tab.rig_session.is_running, tab.protocol_form.message_label.text()
+    tab.protocol_form.pause_button.click()
+    qtbot.waitUntil(lambda: tab.live_fits_shown >= 1 or not tab.rig_session.is_running, timeout=120_000)
+    assert tab.rig_session.is_running, tab.protocol_form.message_label.text()
+    assert len(tab.trials) == 1
+    assert tab.live_fit_label.text().startswith("fit so far"), tab.live_fit_label.text()
+    assert "τ =" in tab.live_fit_label.text() and tab.trial_table.rowCount() == 1
+    assert "so far" in tab.summary_label.text() and len(tab.curves()) == 2  # measured + its fit
+    assert tab.result is None and not tab.save_button.isEnabled()  # nothing to save from a run in progress
+    assert tab.steps.currentIndex() == PROTOCOL  # the run's page stays
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
+        tab.protocol_form.abort_button.click()

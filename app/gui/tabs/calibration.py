@@ -132,6 +132,8 @@ class CalibrationTab(QWidget):
     fit_finished = Signal(object)  # FitResult
     fit_failed = Signal(str)
     rig_check_finished = Signal(bool)  # every line passed
+    # A fit of the trials so far runs after a trial when the next one takes at least this long (wall s).
+    LIVE_FIT_MIN_WALL_S = 30.0
 
     def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -179,6 +181,11 @@ class CalibrationTab(QWidget):
         self._check_rig_lines: list[Any] | None = None
         self._check_board_line: tuple[bool, str] | None = None
         self._check_running = False
+        self._contact_run = False  # the rig session is finding the contact only (the wizard's step)
+        self._contact_found_for: str | None = None  # the sensor whose contact was found
+        self._live_fit_thread: threading.Thread | None = None
+        self._live_fit_again = False
+        self.live_fits_shown = 0  # fits of the trials so far shown during runs
         self._check_board: Any = None
         self._check_channel = 0
         self._check_sensor = ""
@@ -313,13 +320,21 @@ class CalibrationTab(QWidget):
         layout.setContentsMargins(0, 0, 0, 0)
         contact = QGroupBox("Find contact")
         contact_layout = QVBoxLayout(contact)
-        text = QLabel("The run starts by finding where the probe touches the sensor: the servo winds in small steps "
-                      "from a slack cable while its current is averaged at rest (the current rises with the cable's "
-                      "tension), then, from a little before that angle, one encoder tick at a time until the "
-                      "sensor's own reading rises. The live view shows it as “finding the contact”. Make sure the "
-                      "probe sits over the sensor and the cable is slack.")
+        text = QLabel("Where the probe touches the sensor: the servo winds in small steps from a slack cable while "
+                      "its current is averaged at rest (the current rises with the cable's tension), then, from a "
+                      "little before that angle, one encoder tick at a time until the sensor's own reading rises; "
+                      "then the load comes off. Make sure the probe sits over the sensor and the cable is slack. "
+                      "The run finds it again at its start (the cable may move in between).")
         text.setWordWrap(True)
         contact_layout.addWidget(text)
+        self.contact_button = QPushButton("Find contact")
+        self.contact_button.setObjectName("find_contact_button")
+        self.contact_button.clicked.connect(self.find_contact)
+        contact_layout.addWidget(self.contact_button)
+        self.contact_label = QLabel("")
+        self.contact_label.setWordWrap(True)
+        self.contact_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        contact_layout.addWidget(self.contact_label)
         layout.addWidget(contact)
         conditioning = QGroupBox("Conditioning (optional)")
         conditioning_layout = QVBoxLayout(conditioning)
@@ -339,6 +354,10 @@ class CalibrationTab(QWidget):
         rig_layout = QVBoxLayout(rig_page)
         rig_layout.setContentsMargins(0, 0, 0, 0)
         rig_layout.addWidget(self.protocol_form, 1)
+        self.live_fit_label = QLabel("")
+        self.live_fit_label.setWordWrap(True)
+        self.live_fit_label.setToolTip("The trials recorded so far, fitted after each trial (the Fit view shows it)")
+        rig_layout.addWidget(self.live_fit_label)
         resume_row = QHBoxLayout()
         self.resume_button = QPushButton("Resume a session…")
         self.resume_button.setToolTip("Continue a run cut short (abort, crash, closed app): its finished trials are "
@@ -561,11 +580,13 @@ class CalibrationTab(QWidget):
 
     def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
                     physics: PhysicsConstants, window_s: tuple[float, float] | None = None,
-                    board: Any = None) -> None:
+                    board: Any = None, live: bool = False) -> None:
         """Worker thread: the fit (in a child process) and the fitted curves; the outcome goes back through a
         queued signal. ``window_s``: the linear model's averaging window (s), None for the paper's 225–300 s;
         ``board``: the lab's readout circuit (its ceiling 1/R_C is not fitted), the same as ``sensnake fit
-        --config`` and ``sensnake calibrate`` use, so the tab and the CLI agree on the same files."""
+        --config`` and ``sensnake calibrate`` use, so the tab and the CLI agree on the same files. ``live``: a fit of
+        the trials so far during a run (shown, never saved: :meth:`_on_live_fit`)."""
+        deliver = (lambda outcome: self._bridge.post(self._on_live_fit, outcome)) if live else self._deliver
         # Imported here, off the GUI thread: the fitting stack takes seconds to load and the tab opens at once.
         from models.calibration import TrialInput
         from models.linear import DEFAULT_WINDOW_S
@@ -581,9 +602,9 @@ class CalibrationTab(QWidget):
             cal = session.calibration
         except (ValueError, ArithmeticError, LookupError, RuntimeError, OSError) as exc:
             # BrokenProcessPool (a RuntimeError) if the child died; the fit's own refusals are ValueErrors.
-            self._deliver(f"fit refused: {exc}")
+            deliver(f"fit refused: {exc}")
             return
-        self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s, session))
+        deliver(FitResult(sensor, cal, physics, trials, fitted, window_s, session))
 
     def _deliver(self, outcome: FitResult | str) -> None:
         """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread. Dropped by the
@@ -611,6 +632,22 @@ class CalibrationTab(QWidget):
         self.result = result
         cal = result.calibration
         self._plot(result.trials, result.fitted_s)
+        self._fill_table(cal)
+        self.summary_label.setText(summary_html(result))
+        n_warn = len(cal.warnings)
+        level = theme.WARN if n_warn else theme.OK
+        note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
+        if result.problems:
+            self._set_status(f"fitted {result.sensor}, but NOT fit to use: {'; '.join(result.problems)}. Saving "
+                             "asks for confirmation; redo trials or run again.", theme.ERROR)
+        else:
+            self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
+        self._plot_review(result)
+        self.go_to_step(REVIEW)
+        self.view_tabs.setCurrentIndex(0)
+        self._update_buttons()
+
+    def _fill_table(self, cal: SensorCalibration) -> None:
         self.trial_table.setRowCount(len(cal.trials))
         for row, report in enumerate(cal.trials):
             params = report.params
@@ -628,19 +665,53 @@ class CalibrationTab(QWidget):
                 self.trial_table.setItem(row, col, item)
         self.trial_table.resizeRowsToContents()
         self.trial_table.scrollToTop()
-        self.summary_label.setText(summary_html(result))
-        n_warn = len(cal.warnings)
-        level = theme.WARN if n_warn else theme.OK
-        note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
-        if result.problems:
-            self._set_status(f"fitted {result.sensor}, but NOT fit to use: {'; '.join(result.problems)}. Saving "
-                             "asks for confirmation; redo trials or run again.", theme.ERROR)
+
+    # -- the fit of the trials so far, during a run ----------------------------------------------------------------
+    def _maybe_live_fit(self) -> None:
+        """After a trial of a run: fit the trials so far in the background (Fit view, table, summary and the protocol
+        page's line update; nothing can be saved from it). Only when the next trial takes at least
+        :attr:`LIVE_FIT_MIN_WALL_S` of wall time — on the paper's protocol ~12 min, on an accelerated sim seconds,
+        where a fit per trial would only compete with the rig's thread — and not for the last trial (the run's own
+        fit follows it). A trial that ends while a live fit runs asks for another one after it."""
+        settings = self.run_settings
+        if settings is None or not self.rig_session.is_running or len(self.trials) >= settings.n_trials:
+            return
+        next_trial_wall_s = (settings.trial_duration_s() + settings.rest_s) / max(self.rig_session.time_scale, 1e-9)
+        if next_trial_wall_s < self.LIVE_FIT_MIN_WALL_S:
+            return
+        if self._live_fit_thread is not None and self._live_fit_thread.is_alive():
+            self._live_fit_again = True
+            return
+        self._live_fit_again = False
+        self._live_fit_thread = threading.Thread(
+            target=self._fit_worker, args=(settings.sensor, tuple(self.trials), settings.area_m2, self.physics,
+                                           self.fit_window_s, self.lab.config.board, True),
+            name="calibration-live-fit", daemon=True)
+        self._live_fit_thread.start()
+
+    def _on_live_fit(self, outcome: FitResult | str) -> None:
+        """GUI thread: show the fit of the trials so far, if the run is still going (else the run's own fit, or its
+        abort, has the last word)."""
+        thread, self._live_fit_thread = self._live_fit_thread, None
+        if thread is not None:
+            thread.join()
+        if not self.rig_session.is_running:
+            return
+        if isinstance(outcome, FitResult):
+            cal = outcome.calibration
+            self._plot(outcome.trials, outcome.fitted_s)
+            self._fill_table(cal)
+            self.summary_label.setText(f"<i>Fit of the {len(cal.trials)} trial(s) so far — it updates after each "
+                                       "trial; the run's own fit follows its last trial.</i><br>"
+                                       + summary_html(outcome))
+            line = (f"fit so far ({len(cal.trials)} trial(s)): τ = {float(cal.sls.tau_s):.4g} s, E0 = "
+                    f"{float(cal.sls.E0_Pa):.4g} Pa, RMSE {cal.rmse_s * 1e6:.3g} µS")
         else:
-            self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
-        self._plot_review(result)
-        self.go_to_step(REVIEW)
-        self.view_tabs.setCurrentIndex(0)
-        self._update_buttons()
+            line = f"fit so far: {outcome}"
+        self.live_fit_label.setText(line)
+        self.live_fits_shown += 1
+        if self._live_fit_again:
+            self._maybe_live_fit()
 
     def _show_failure(self, message: str) -> None:
         self._set_status(message, theme.ERROR)
@@ -674,6 +745,7 @@ class CalibrationTab(QWidget):
             return False
         self.run_settings = settings
         self.session_folder = folder
+        self.live_fit_label.setText("")
         self.clear_trials()
         if resume is not None:
             self.add_trial_files([p for _, p in sorted(finished_trials(folder, settings).items())])
@@ -763,6 +835,10 @@ class CalibrationTab(QWidget):
             self.protocol_form.set_message("resumed", theme.WARN)
 
     def _show_progress(self, progress: Progress) -> None:
+        if self._contact_run:
+            if progress.phase != "done":
+                self._show_contact(progress.message, theme.WARN)
+            return
         settings = self.run_settings
         if settings is None:
             return
@@ -799,8 +875,12 @@ class CalibrationTab(QWidget):
         settings = self.run_settings
         total = settings.n_trials if settings is not None else "?"
         self._set_status(f"trial {record.index + 1}/{total} saved: {record.path.name}", theme.WARN)
+        self._maybe_live_fit()
 
     def _run_finished(self, outcome: Outcome) -> None:
+        if self._contact_run:
+            self._contact_finished(outcome)
+            return
         self.protocol_form.set_running(False)
         self.show_unfinished_sessions()
         self.live_plot.trial = -1
@@ -953,6 +1033,7 @@ class CalibrationTab(QWidget):
         self.resume_button.setEnabled(not busy)
         self.redo_button.setEnabled(not busy and self.session_folder is not None and has_trials)
         self.check_button.setEnabled(not self.rig_session.is_running and not self._check_running)
+        self.contact_button.setEnabled(not busy)
         self._update_nav()
 
     # -- the wizard's steps ----------------------------------------------------------------------------------------
@@ -976,6 +1057,8 @@ class CalibrationTab(QWidget):
             return f"pick a sensor on the body ({sensor or 'none'} is not a channel of the board)"
         if step == RIG_CHECK and self._rig_check_ok_for != sensor:
             return "run the rig check: Next needs every line to pass"
+        if step == CONTACT and (self._contact_run or self._contact_found_for != sensor):
+            return "finding the contact…" if self._contact_run else "find the contact first"
         if step == PROTOCOL and (self.rig_session.is_running or not self.trials):
             return "the run is going" if self.rig_session.is_running else "run the protocol (or resume a session)"
         if step == REVIEW and (self.result is None or self.is_fitting):
@@ -1027,6 +1110,39 @@ class CalibrationTab(QWidget):
         self._update_buttons()
         self._finish_check_if_done()
         return True
+
+    def find_contact(self) -> bool:
+        """The wizard's "Find contact" step: the rig finds where the probe touches the sensor (current, then the
+        sensor's reading) and releases; nothing is recorded. The outcome shows under the button; Next follows it."""
+        if self.rig_session.is_running or self.is_fitting:
+            return False
+        try:
+            settings = self.protocol_settings()
+            self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip()
+                                   or user_folders.calibrations_dir(), contact_only=True)
+        except ValueError as exc:
+            self._show_contact(str(exc), theme.ERROR)
+            return False
+        self._contact_run = True
+        self._contact_found_for = None
+        self._show_contact("finding where the probe touches the sensor…", theme.WARN)
+        self._update_buttons()
+        return True
+
+    def _show_contact(self, text: str, level: str) -> None:
+        self.contact_label.setText(text)
+        self.contact_label.setStyleSheet(theme.status_style(level))
+
+    def _contact_finished(self, outcome: Outcome) -> None:
+        self._contact_run = False
+        if outcome.status == COMPLETED:
+            self._contact_found_for = self.sensor_edit.text().strip()
+            self._show_contact(outcome.message, theme.OK)
+            self._set_status("contact found: Next", theme.OK)
+        else:
+            self._show_contact(f"contact not found: {outcome.message}", theme.ERROR)
+            self._set_status("contact not found — see the step's message", theme.ERROR)
+        self._update_buttons()
 
     def _rig_check_worker(self) -> None:
         """Worker thread: the rig's own check (devices.rig.CalibrationRig.check)."""
