@@ -6,13 +6,15 @@
 (c) the control loop at 50, 100 and 200 Hz holding a pose;
 (d) the same loop inside the running app (``MainWindow`` on the simulated lab, a wave motion playing, the board's 36
     channels streaming; the Forces, Gait and Hardware tabs shown in turn) at 50 Hz (factory 500 µs Return Delay
-    Time) and 100 Hz (Return Delay Time 0); QT_QPA_PLATFORM=xcb under Xvfb paints for real;
+    Time) and 100 Hz (Return Delay Time 0); QT_QPA_PLATFORM=xcb under Xvfb paints for real; with
+    ``--gui-chain pty --gui-loop both`` the loop in the app's process and in its own process, back to back, and
+    ``--kills N`` how fast the app notices its loop process killed;
 (e) one late reply and what it costs the reads after it (the cause of the in-app bursts), on the simulated chain
     and on the independent emulator;
 (f) ``sensnake play`` at 50 Hz on the independent emulator (tests/emulators) of twelve XM430s on a pty.
 
     python -m benchmarks.bench_servo_bus [--quick] [--case bare|gui|pty|…] [--seconds S] [--gui-rate 50]
-        [--rotate S] [--plays N]
+        [--rotate S] [--plays N] [--gui-chain sim|pty] [--gui-loop auto|app|process|both] [--kills N]
 
 Columns: ``missed`` are tick slots that passed without a tick (skipped, never caught up in a burst); ``late`` are
 ticks that started more than a quarter period after their slot (an overrunning tick is followed at once by the next,
@@ -32,6 +34,7 @@ import time
 
 import numpy as np
 
+from benchmarks.sources import Wave
 from devices import dxl_wire as wire
 from devices import factory
 from devices.config import SIM_PORT, RobotConfig
@@ -88,7 +91,7 @@ def _run_loop(rate_hz: float, seconds: float, return_delay_time: int = 0, wave: 
         controller.start()
         try:
             controller.set_torque(True).result(5)
-            source = _Wave() if wave else HoldPose(np.zeros(robot.n_joints), duration_s=seconds)
+            source = Wave() if wave else HoldPose(np.zeros(robot.n_joints), duration_s=seconds)
             s0 = controller.stats()
             future = controller.run_motion(source, "bench")
             future.add_done_callback(lambda _: done.set())
@@ -131,20 +134,13 @@ def bench_rates(seconds: float) -> None:
         _print_stats(rate, stats, writes)
 
 
-class _Wave:
-    """Every joint follows a travelling sine wave (0.4 rad, 0.3 Hz): goals change every tick."""
-
-    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray:
-        return 0.4 * np.sin(2 * np.pi * 0.3 * t_s + 0.6 * np.arange(present_rad.size))
-
-
 GUI_CASES = ((50.0, 250), (100.0, 0))  # (rate Hz, Return Delay Time register): the issue's two in-app targets
 GUI_TABS = ("forces", "gait", "hardware")
 ALL_TABS = ("teach", "gait", "calibration", "forces", "hardware", "scene")
 
 
 def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | None = None,
-              chain: str = "sim", prebuild: bool = False) -> None:
+              chain: str = "sim", prebuild: bool = False, loops: tuple[str, ...] = ("auto",), kills: int = 0) -> None:
     """The loop inside the running app: GUI thread, board reader and the simulated devices share the interpreter.
     The Forces tab plots the board's 36 channels live; a wave motion writes goals every tick.
 
@@ -155,7 +151,12 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     ``chain="pty"``: the robot is the independent emulator of twelve XM430s in its own process on a pty (as real
     servos are outside the app), the board and the rest of the lab stay simulated in the app. ``prebuild``: show
     every tab once before the motion starts (a tab is built on its first show; building the 3-D lab takes the
-    interpreter for a while, once per session)."""
+    interpreter for a while, once per session).
+
+    ``loops``: where the control loop runs, one run each: ``app`` (the app's process, SENSNAKE_LOOP_PROCESS=0),
+    ``process`` (its own process: the app's default on a real port, so only with ``chain="pty"``), ``auto`` (the
+    app's choice). ``kills``: after the windows, kill the loop process this many times and print how long until the
+    app noticed (the watcher thread) and said so (the error on the GUI thread); the app reconnects after each."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     from PySide6.QtCore import QEventLoop, QTimer
@@ -174,7 +175,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
           "100 Hz (return delay 0) p99 jitter ≤ 2 ms")
     print(f"    {'rate Hz':>8} {'RDT µs':>7} {'tab':>9} {'ticks':>7} {'missed':>7} {'late':>6} {'period p50':>11} "
           f"{'p99':>7} {'max':>7} {'jitter p99':>11} {'CPU %':>6} {'bursts':>7}   (ms; CPU: the whole process, % of one "
-          "core; bursts: runs of ≥ 5 consecutive periods > 1.25 periods)")
+          "core, the loop's own process not included; bursts: runs of ≥ 5 consecutive periods > 1.25 periods)")
     app = QApplication.instance() or QApplication([])
     loop = QEventLoop()
 
@@ -185,7 +186,14 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             loop.exec()
 
     base = load_config(None).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
-    for rate, delay in cases:
+    runs = [(rate, delay, where) for rate, delay in cases for where in loops]
+    for rate, delay, where in runs:
+        if where == "process" and chain != "pty":
+            print(f"    {rate:8.0f}  loop 'process' needs --gui-chain pty (with port sim the loop stays in the app)")
+            continue
+        saved_switch = os.environ.get("SENSNAKE_LOOP_PROCESS")
+        if where != "auto":
+            os.environ["SENSNAKE_LOOP_PROCESS"] = "1" if where == "process" else "0"
         config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
         emulator = None
         if chain == "pty":
@@ -211,7 +219,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             for tab in tabs if prebuild else ():  # each tab is built on its first show (once per session)
                 window.show_tab(tab)
                 spin(0.5)
-            lab.robot.run_motion(_Wave(), "bench wave")
+            lab.robot.run_motion(Wave(), "bench wave")
             windows = [(tab, seconds) for tab in tabs] if not rotate_s else [("rotating", seconds)]
             for name, length in windows:
                 window.show_tab(name if not rotate_s else tabs[0])
@@ -233,14 +241,68 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
                 _print_window(rate, delay * 2, name, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,
                               s1.late_ticks - s0.late_ticks, np.concatenate(chunks), cpu,
-                              f"load {load0:.2f}->{os.getloadavg()[0]:.2f}")
+                              f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}")
+            if kills and lab.robot.is_connected and where != "app":
+                _kill_loop_process(lab, spin, kills)
         finally:
+            if saved_switch is None:
+                os.environ.pop("SENSNAKE_LOOP_PROCESS", None)
+            else:
+                os.environ["SENSNAKE_LOOP_PROCESS"] = saved_switch
             window.close()
             lab.close()
             factory.install_sim_lab(previous)
             if emulator is not None:
                 emulator.close()
     del app
+
+
+def _kill_loop_process(lab, spin, kills: int) -> None:
+    """Kill the loop process ``kills`` times while the wave plays and the GUI is busy; how long until the app noticed
+    (its watcher thread read the end of file) and said so (the error arrived on the GUI thread). Target: 100 ms."""
+    import signal
+
+    from devices.loop_process import ControllerProcess
+
+    noticed, said = [], []
+    for _ in range(kills):
+        robot = lab.robot
+        controller = robot.controller
+        if not isinstance(controller, ControllerProcess) or controller.pid is None:
+            print(f"    kill: the loop runs in {robot.loop_where}, not in its own process")
+            return
+        heard: list[float] = []
+
+        def on_error(text: str, heard=heard) -> None:
+            if "control loop process" in text:
+                heard.append(time.monotonic())
+
+        robot.error.connect(on_error)
+        spin(1.0)
+        killed_at = time.monotonic()
+        os.kill(controller.pid, signal.SIGKILL)
+        spin(10.0, lambda heard=heard: bool(heard))
+        robot.error.disconnect(on_error)
+        if not heard or controller.died_at_s is None:
+            print("    kill: the app did not say so within 10 s")
+            return
+        noticed.append((controller.died_at_s - killed_at) * 1e3)
+        said.append((heard[0] - killed_at) * 1e3)
+        robot.connect()
+        spin(30.0, lambda robot=robot: robot.is_connected)
+        if not robot.is_connected:
+            print("    kill: the robot did not reconnect within 30 s")
+            return
+        robot.set_torque(True)
+        spin(0.3)
+        robot.run_motion(Wave(), "bench wave")
+    print(f"    loop process killed {len(noticed)}×: noticed (watcher) after {_ms_list(noticed)} ms, said on the GUI "
+          f"thread after {_ms_list(said)} ms (target: dead loop noticed within 100 ms); load "
+          f"{os.getloadavg()[0]:.2f}", flush=True)
+
+
+def _ms_list(values: list[float]) -> str:
+    return "/".join(f"{v:.1f}" for v in values)
 
 
 def _print_window(rate: float, delay_us: int, name: str, ticks: int, missed: int, late: int, periods: np.ndarray,
@@ -388,7 +450,8 @@ CASES = ("cycle", "late", "bare", "rates", "pty", "gui")
 
 def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = None, gui_rates: tuple[float, ...] = (),
         rotate_s: float | None = None, plays: int | None = None, gui_chain: str = "sim",
-        prebuild: bool = False, tabs: tuple[str, ...] = ()) -> None:
+        prebuild: bool = False, tabs: tuple[str, ...] = (), loops: tuple[str, ...] = ("auto",),
+        kills: int = 0) -> None:
     print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
     if "cycle" in cases:
         bench_cycle(100 if quick else 500)
@@ -406,7 +469,7 @@ def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = Non
     if "gui" in cases:
         gui_cases = tuple(c for c in GUI_CASES if not gui_rates or c[0] in gui_rates)
         bench_gui(seconds or (4.0 if quick else 15.0), gui_cases, tabs or (ALL_TABS if rotate_s else GUI_TABS), rotate_s,
-                  gui_chain, prebuild)
+                  gui_chain, prebuild, loops, kills)
     print(f"machine load average (1 min) at the end: {os.getloadavg()[0]:.2f}")
 
 
@@ -428,6 +491,13 @@ if __name__ == "__main__":
                         help="gui case: show every tab once before measuring (tabs are built on first show)")
     parser.add_argument("--tabs", help=f"gui case: comma-separated tabs to show (default: with --rotate all of "
                         f"{','.join(ALL_TABS)}, else {','.join(GUI_TABS)})")
+    parser.add_argument("--gui-loop", choices=("auto", "app", "process", "both"), default="auto",
+                        help="gui case: where the control loop runs: the app's choice (default), the app's process, "
+                             "its own process (needs --gui-chain pty), or both in turn")
+    parser.add_argument("--kills", type=int, default=0,
+                        help="gui case with the loop in its own process: kill it N times, print how fast the app "
+                             "noticed")
     args = parser.parse_args()
     run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays, args.gui_chain,
-        args.prebuild, tuple(args.tabs.split(",")) if args.tabs else ())
+        args.prebuild, tuple(args.tabs.split(",")) if args.tabs else (),
+        ("app", "process") if args.gui_loop == "both" else (args.gui_loop,), args.kills)

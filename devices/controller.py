@@ -247,7 +247,10 @@ class RobotController:
     def __init__(self, chain: ServoChain, robot: RobotConfig, on_state: Callable[[ChainState], None] | None = None,
                  on_health: Callable[[list[ServoHealth]], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
-                 on_error: Callable[[BaseException], None] | None = None) -> None:
+                 on_error: Callable[[BaseException], None] | None = None,
+                 on_tick: Callable[[], None] | None = None) -> None:
+        """``on_tick()`` (optional) is called on the bus thread at the end of every tick, after that tick's
+        ``on_state``: the control loop's heartbeat (``devices.loop_process`` sends the tick's states from it)."""
         self.chain = chain
         self.robot = robot
         self.period_s = 1.0 / robot.control_rate_hz
@@ -256,6 +259,7 @@ class RobotController:
         self._on_health = on_health
         self._on_event = on_event
         self._on_error = on_error
+        self._on_tick = on_tick
         # (command, its Future or None): run on the bus thread between ticks; cancelled on close.
         self._commands: queue.SimpleQueue[tuple[Callable[[], None], concurrent.futures.Future | None]] = \
             queue.SimpleQueue()
@@ -343,6 +347,12 @@ class RobotController:
     def motion_name(self) -> str | None:
         motion = self._motion
         return motion.name if motion is not None else None
+
+    @property
+    def motion_source(self) -> MotionSource | None:
+        """The running motion's source (its ``progress`` is what the GUI shows), or None."""
+        motion = self._motion
+        return motion.source if motion is not None else None
 
     @property
     def paused(self) -> bool:
@@ -485,6 +495,11 @@ class RobotController:
                     self._missed += missed
             # A tick that overran into the next slot runs at once, late (counted in late_ticks and the periods).
             self._watch_timing(now, missed)
+            if self._on_tick is not None:
+                try:
+                    self._on_tick()
+                except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the loop
+                    log.exception("robot controller tick callback failed")
             self._stop.wait(max(0.0, deadline - time.monotonic()))
 
     def _watch_timing(self, now: float, missed: int) -> None:

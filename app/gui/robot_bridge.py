@@ -32,6 +32,7 @@ from devices.bus_commands import bus_command
 from devices.config import RobotConfig
 from devices.errors import DeviceError, LinkLostError
 from devices.factory import is_sim
+from devices.loop_process import ControllerProcess, LoopDiedError, LoopProcessUnavailable, loop_process_wanted
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -97,6 +98,8 @@ class RobotBridge(QObject):
         self._last_reported: BaseException | None = None
         self.connection_text = "not connected"
         self.connected_at_s: float | None = None
+        # Where the control loop runs, in words ("its own process (pid …)" / "the app's process (why)").
+        self.loop_where = "not connected"
 
     # -- properties (GUI thread; latest_state from any thread) ------------------------------------------------------
     @property
@@ -374,6 +377,19 @@ class RobotBridge(QObject):
         from devices.controller import RobotController
         from devices.servo_chain import ServoChain
 
+        wanted, why_not = loop_process_wanted(config.port)
+        if wanted:
+            process = ControllerProcess(config, on_state=self._on_state, on_health=self._on_health,
+                                        on_event=self._on_event, on_error=self._on_error)
+            try:
+                process.start()  # a device error (port, models, rate) is raised as itself, as below
+            except LoopProcessUnavailable as exc:
+                why_not = str(exc)
+                log.warning("control loop runs in the app's process: %s", exc)
+            else:
+                self.loop_where = f"its own process (pid {process.pid})"
+                return process, process.timing_warnings
+        self.loop_where = f"the app's process ({why_not})"
         chain = ServoChain(config, device="robot")
         chain.open()
         try:
@@ -403,7 +419,8 @@ class RobotBridge(QObject):
         self.connected.emit(True)
         n_warnings = len(self.timing_warnings)
         timing = f"; {n_warnings} timing warning(s), see the Hardware tab" if n_warnings else ""
-        self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}")
+        self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}; "
+                        f"control loop in {self.loop_where}")
 
     def _connected_text(self) -> str:
         return f"{self.n_servos} servos on {self.port} ({'simulated' if self.is_sim else 'real'})"
@@ -418,6 +435,7 @@ class RobotBridge(QObject):
         self.connected.emit(False)
 
     def _after_disconnect(self) -> None:
+        self.loop_where = "not connected"
         self._set_connection("not connected")
         self.connected.emit(False)
         self.event.emit("robot disconnected")
@@ -442,10 +460,34 @@ class RobotBridge(QObject):
         self.health.emit(health)
 
     def _device_error(self, exc: BaseException, at_s: float) -> None:
+        if isinstance(exc, LoopDiedError):
+            self._loop_died(exc)
+            return
         if isinstance(exc, LinkLostError) and self._controller is not None:
             self._link_lost_at_s = at_s
             self._set_connection(f"link lost on {self.port}: reconnecting…")
         self._report_once(exc)
+
+    def _loop_died(self, exc: LoopDiedError) -> None:
+        """The control loop's process ended by itself: say so (what happened, what to do), keep everything received
+        (states already delivered stay with their subscribers, e.g. a recording), and show the robot disconnected;
+        the app stays up and Connect starts a new loop."""
+        controller = self._controller
+        if controller is None or getattr(controller, "died", None) is not exc:
+            self._report_once(exc)
+            return
+        self._controller = None
+        self._states.flush()
+        self._states.stop()
+        self._link_lost_at_s = None
+        self.loop_where = "not connected"
+        self._report_once(exc)
+        self._motion_token += 1
+        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED):
+            self._set_motion(MOTION_FAULT, self._motion_name)
+        self._set_connection(f"control loop stopped on {self.port}: reconnect (Hardware tab → Connect)")
+        self.connected.emit(False)
+        self._executor.submit(controller.close)  # reaps the dead process on the worker thread
 
     def _report_once(self, exc: BaseException) -> None:
         # The controller both fails the motion's future and calls on_error with the same exception object.

@@ -1,0 +1,675 @@
+"""The robot's control loop in its own process, for a robot on a real port (a serial device or a pty).
+
+Why: in the app the GUI thread holds the Python interpreter lock for long stretches (pyqtgraph paints, the 3-D lab,
+a tab's first show); a bus thread in the same process waits for it, however high its scheduling priority, and ticks
+come late. A separate interpreter has its own lock. :class:`ControllerProcess` has the methods and callbacks of
+:class:`devices.controller.RobotController` (the GUI's :class:`app.gui.robot_bridge.RobotBridge` uses either), and
+runs a real ``RobotController`` in a child process:
+
+- the child is a fresh interpreter (``python -m devices.loop_process``, what multiprocessing's "spawn" does, without
+  re-importing the app's ``__main__``; never a fork of a process with Qt and threads), its own session, so a Ctrl-C
+  in the terminal reaches the app, which closes it. It opens the port, checks the servo models and the rate, reads
+  the timing warnings, and starts the loop; until then nothing is written;
+- calls cross one socket pair as pickled messages: motion sources as data (their plans), bus commands as named
+  commands (:mod:`devices.bus_commands`; a closure cannot cross and is refused with that reason), and
+  pause/resume/stop/STOP as messages the child's main thread hands to its controller at once (STOP still acts on
+  the next tick);
+- back come, from a sender thread in the child (so a slow GUI never blocks a tick): once per tick the tick's states,
+  the motion's name and progress (copied onto the caller's source object, where the Gait tab reads it) and whether
+  the bus is connected; health polls, events, errors and the results of commands as they happen. An exception
+  arrives as the same class with the same one-line message, and one exception object sent twice (the failed
+  motion's Future and ``on_error``) is one object in this process too;
+- a watcher thread here waits on the socket: a child that dies closes its end, so its death is seen at once (the
+  end of file), not after a timeout; then every pending Future fails and ``on_error`` gets :class:`LoopDiedError`
+  (what happened, what the servos are doing, what to do). A child alive but silent for ``STALL_REPORT_S`` is
+  reported as an event (once until it ticks again).
+
+With port ``sim`` the loop stays in the app's process: the simulated lab (the board senses the simulated robot's
+pose) lives there. Anything that keeps the child from starting (no interpreter, an import error, a timeout) raises
+:class:`LoopProcessUnavailable`; the caller then runs the loop in-process and says why. Device errors (port, models,
+rate) are raised as themselves, as an in-process start would.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import concurrent.futures
+import contextlib
+import functools
+import importlib
+import itertools
+import logging
+import math
+import os
+import pickle
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from devices.config import RobotConfig
+from devices.controller import ControllerStats, MotionSource, RobotController
+from devices.errors import DeviceError, LinkLostError
+from devices.servo_chain import ChainState, ServoChain, ServoHealth
+
+log = logging.getLogger(__name__)
+
+READY_TIMEOUT_S = 60.0  # a fresh interpreter imports numpy and pyserial; a loaded 2-core machine can take seconds
+CLOSE_TIMEOUT_S = 10.0
+QUERY_TIMEOUT_S = 1.0  # stats() / recent_periods_s(): answered between two receives of the child's main thread
+STALL_REPORT_S = 1.0  # a live child that has not ticked for this long is reported (an event, once)
+EXCEPTIONS_KEPT = 64
+CHILD_METHODS = frozenset({"run_motion", "play", "pause", "resume", "stop_motion", "emergency_stop", "submit",
+                           "set_torque", "set_led", "reboot", "scan", "stats", "recent_periods_s"})
+ENV_SWITCH = "SENSNAKE_LOOP_PROCESS"  # "0" keeps the loop in the app's process on every port
+
+
+class LoopProcessUnavailable(RuntimeError):
+    """The child process could not be started (not a device problem): run the loop in-process instead."""
+
+
+class LoopDiedError(DeviceError):
+    """The control loop's process ended without being asked to (killed, crashed). Names the process and the fix."""
+
+
+def loop_process_wanted(port: str) -> tuple[bool, str]:
+    """Whether a robot on ``port`` gets its loop in a child process, and if not, why (one line)."""
+    from devices.factory import is_sim
+
+    if is_sim(port):
+        return False, "port sim: the simulated lab lives in the app's process"
+    if os.environ.get(ENV_SWITCH, "1").strip().lower() in ("0", "no", "off", "false"):
+        return False, f"{ENV_SWITCH}=0"
+    return True, ""
+
+
+# -- exceptions across the socket --------------------------------------------------------------------------------------
+def _exception_payload(exc: BaseException) -> tuple:
+    state = {}
+    for key, value in vars(exc).items():
+        try:
+            pickle.dumps(value)
+        except Exception:  # noqa: BLE001 - an attribute that cannot cross is left behind; the message crosses
+            continue
+        state[key] = value
+    try:
+        pickle.dumps(exc.args)
+        args = exc.args
+    except Exception:  # noqa: BLE001
+        args = (str(exc),)
+    return id(exc), type(exc).__module__, type(exc).__qualname__, args, state
+
+
+def _rebuild_exception(payload: tuple) -> BaseException:
+    _key, module, qualname, args, state = payload
+    try:
+        cls: Any = importlib.import_module(module)
+        for part in qualname.split("."):
+            cls = getattr(cls, part)
+        if not (isinstance(cls, type) and issubclass(cls, BaseException)):
+            raise TypeError(qualname)
+        # Not cls(*args): an __init__ may take other arguments (ServoLostError(servo_id, what)); the message is in
+        # args and the attributes in state. OSError's own __new__ for the classes that mix it in.
+        exc = (OSError if issubclass(cls, OSError) else BaseException).__new__(cls)
+        exc.args = tuple(args)
+        exc.__dict__.update(state)
+        return exc
+    except Exception:  # noqa: BLE001 - an exception class this process cannot import: keep the message
+        return DeviceError(" ".join(str(a) for a in args) or qualname)
+
+
+# -- the parent's side -------------------------------------------------------------------------------------------------
+class ControllerProcess:
+    """A :class:`RobotController` running in a child process; same methods, callbacks on a watcher thread here."""
+
+    def __init__(self, robot: RobotConfig, on_state: Callable[[ChainState], None] | None = None,
+                 on_health: Callable[[list[ServoHealth]], None] | None = None,
+                 on_event: Callable[[str], None] | None = None,
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
+        self.robot = robot
+        self.period_s = 1.0 / robot.control_rate_hz
+        self._on_state, self._on_health, self._on_event, self._on_error = on_state, on_health, on_event, on_error
+        self._process: subprocess.Popen | None = None
+        self._conn: Connection | None = None
+        self._send_lock = threading.Lock()
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._pending: dict[int, concurrent.futures.Future] = {}
+        self._sources: dict[int, Any] = {}  # request id of a motion -> the caller's source object (progress)
+        self._exceptions: collections.OrderedDict[int, BaseException] = collections.OrderedDict()
+        self._watcher: threading.Thread | None = None
+        self._closing = False
+        self.died: LoopDiedError | None = None
+        self.died_at_s: float | None = None
+        self.timing_warnings: list[str] = []
+        self.scheduling = "not started"
+        self._connected = False
+        self._motion_name: str | None = None
+        self._paused = False
+        self._latest_state: ChainState | None = None
+        self._last_stats: ControllerStats | None = None
+        self._last_tick_s = 0.0
+        self._stall_reported = False
+        self.ticks_seen = 0
+
+    # -- lifecycle -------------------------------------------------------------------------------------------------
+    @property
+    def pid(self) -> int | None:
+        return None if self._process is None else self._process.pid
+
+    def start(self) -> None:
+        """Start the child and wait until its loop runs. Raises the device error that stopped it (as an in-process
+        start would) or :class:`LoopProcessUnavailable` (the child itself could not run)."""
+        if self._process is not None:
+            raise RuntimeError("the robot controller is already running")
+        ours, theirs = socket.socketpair()
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parents[1])  # the checkout this package comes from
+        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", "devices.loop_process", "--fd", str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), env=env, cwd=root, stdin=subprocess.DEVNULL, start_new_session=True)
+        except OSError as exc:
+            ours.close()
+            raise LoopProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        try:
+            self._conn.send(("config", self.robot))
+            reply = self._wait_ready()
+        except BaseException:
+            self._kill()
+            raise
+        self.timing_warnings = list(reply[1])
+        self.scheduling = reply[2]
+        self._connected = True
+        self._last_tick_s = time.monotonic()
+        self._watcher = threading.Thread(target=self._watch, name=f"loop-process-watcher[{self.pid}]", daemon=True)
+        self._watcher.start()
+
+    def _wait_ready(self) -> tuple:
+        conn, process = self._conn, self._process
+        assert conn is not None and process is not None
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise LoopProcessUnavailable(f"the loop process did not start within {READY_TIMEOUT_S:g} s")
+            try:
+                if not conn.poll(min(left, 0.5)):
+                    if process.poll() is not None:
+                        raise LoopProcessUnavailable(f"the loop process exited at start ({_exit_words(process)})")
+                    continue
+                reply = conn.recv()
+            except (EOFError, OSError) as exc:
+                process.wait(timeout=5)
+                raise LoopProcessUnavailable(f"the loop process exited at start ({_exit_words(process)})") from exc
+            if reply[0] == "ready":
+                return reply
+            if reply[0] == "failed":
+                raise _rebuild_exception(reply[1])
+            if reply[0] == "broken":
+                raise LoopProcessUnavailable(reply[1])
+
+    def close(self) -> None:
+        """End any motion ("stopped"), stop the loop, close the port, end the child. Idempotent."""
+        process, conn = self._process, self._conn
+        if process is None or self._closing:
+            return
+        self._closing = True
+        if self.died is None:
+            with contextlib.suppress(OSError, ValueError):
+                self._send(("close",))
+        try:
+            process.wait(timeout=CLOSE_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log.warning("the loop process %d did not end in %g s: killing it", process.pid, CLOSE_TIMEOUT_S)
+            self._kill()
+        watcher = self._watcher
+        if watcher is not None and watcher is not threading.current_thread():
+            watcher.join(timeout=CLOSE_TIMEOUT_S)
+        if conn is not None:
+            conn.close()
+        self._connected = False
+        self._fail_pending(None)
+
+    def _kill(self) -> None:
+        process = self._process
+        if process is None:
+            return
+        if process.poll() is None:
+            process.kill()
+        try:
+            process.wait(timeout=CLOSE_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log.error("the loop process %d did not exit after SIGKILL", process.pid)
+        if self._conn is not None:
+            self._conn.close()
+
+    def __enter__(self) -> ControllerProcess:
+        self.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- properties ------------------------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self._process is not None and self.died is None and not self._closing
+
+    @property
+    def connected(self) -> bool:
+        return self._connected and self.running
+
+    @property
+    def motion_name(self) -> str | None:
+        return self._motion_name
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    @property
+    def latest_state(self) -> ChainState | None:
+        return self._latest_state
+
+    def stats(self) -> ControllerStats:
+        """The child loop's statistics (asked for; the last ones received if it does not answer in time)."""
+        stats = self._query("stats")
+        if stats is not None:
+            self._last_stats = stats
+            return stats
+        if self._last_stats is not None:
+            return self._last_stats
+        nan = math.nan
+        return ControllerStats(0, 0, nan, nan, nan, nan, nan, 0, 0, 0)
+
+    def recent_periods_s(self, n: int) -> np.ndarray:
+        periods = self._query("recent_periods_s", n)
+        return np.asarray(periods if periods is not None else [], dtype=float)
+
+    def _query(self, method: str, *args: Any) -> Any:
+        if not self.running:
+            return None
+        try:
+            return self._request(method, *args).result(QUERY_TIMEOUT_S)
+        except Exception:  # noqa: BLE001 - a dead or busy child: the caller gets the last figures
+            return None
+
+    # -- commands --------------------------------------------------------------------------------------------------
+    def run_motion(self, source: MotionSource, name: str) -> concurrent.futures.Future[str]:
+        return self._start_motion("run_motion", source, name)
+
+    def play(self, source: MotionSource, name: str, *, hold_first: bool = True) -> concurrent.futures.Future[str]:
+        return self._start_motion("play", source, name, hold_first=hold_first)
+
+    def _start_motion(self, method: str, source: MotionSource, name: str, **kwargs: Any) -> concurrent.futures.Future:
+        future = self._request(method, source, name, **kwargs)
+        request_id = getattr(future, "request_id", None)
+        if request_id is not None:
+            with self._lock:
+                self._sources[request_id] = source
+        return future
+
+    def pause(self) -> None:
+        self._message("pause")
+
+    def resume(self) -> None:
+        self._message("resume")
+
+    def stop_motion(self) -> None:
+        self._message("stop_motion")
+
+    def emergency_stop(self) -> None:
+        self._message("emergency_stop")
+
+    def submit(self, fn: Callable[[Any], Any]) -> concurrent.futures.Future:
+        """Run a named bus command (:mod:`devices.bus_commands`) on the child's bus thread."""
+        return self._request("submit", fn)
+
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> concurrent.futures.Future[None]:
+        return self._request("set_torque", enabled, None if ids is None else list(ids))
+
+    def set_led(self, servo_id: int, on: bool) -> concurrent.futures.Future[None]:
+        return self._request("set_led", servo_id, on)
+
+    def reboot(self, servo_id: int) -> concurrent.futures.Future[None]:
+        return self._request("reboot", servo_id)
+
+    def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future:
+        return self._request("scan", list(ids), None if bauds is None else list(bauds))
+
+    # -- plumbing ----------------------------------------------------------------------------------------------------
+    def _request(self, method: str, *args: Any, **kwargs: Any) -> concurrent.futures.Future:
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        if self.died is not None:
+            future.set_exception(self.died)
+            return future
+        request_id = next(self._ids)
+        future.request_id = request_id  # type: ignore[attr-defined]
+        try:
+            message = pickle.dumps(("call", request_id, method, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:  # noqa: BLE001 - e.g. a lambda submitted as a bus command
+            future.set_exception(TypeError(
+                f"{method}: cannot be sent to the control loop's process ({' '.join(str(exc).split())}); use a named "
+                "bus command (devices.bus_commands) or a motion source without lambdas"))
+            return future
+        with self._lock:
+            self._pending[request_id] = future
+        try:
+            self._send_bytes(message)
+        except (OSError, ValueError) as exc:
+            with self._lock:
+                self._pending.pop(request_id, None)
+            if not future.done():
+                future.set_exception(self.died or LinkLostError(f"the control loop's process is gone: {exc}"))
+        return future
+
+    def _message(self, method: str) -> None:
+        if self.died is not None or self._closing:
+            return
+        try:
+            self._send(("call", None, method, (), {}))
+        except (OSError, ValueError):
+            log.debug("%s not sent: the loop process is gone", method)
+
+    def _send(self, message: tuple) -> None:
+        self._send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _send_bytes(self, data: bytes) -> None:
+        conn = self._conn
+        if conn is None:
+            raise ValueError("not started")
+        with self._send_lock:
+            conn.send_bytes(data)
+
+    def _exception(self, payload: tuple) -> BaseException:
+        key = payload[0]
+        with self._lock:
+            exc = self._exceptions.get(key)
+            if exc is None:
+                exc = _rebuild_exception(payload)
+                self._exceptions[key] = exc
+                while len(self._exceptions) > EXCEPTIONS_KEPT:
+                    self._exceptions.popitem(last=False)
+        return exc
+
+    def _watch(self) -> None:
+        """Watcher thread: deliver the child's messages; notice its death (end of file) or a stall."""
+        conn = self._conn
+        assert conn is not None
+        while True:
+            try:
+                if not conn.poll(0.05):
+                    self._check_stall()
+                    continue
+                message = conn.recv()
+            except (EOFError, OSError):
+                break
+            if message[0] == "bye":
+                break
+            try:
+                self._handle(message)
+            except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the watcher
+                log.exception("loop process message %r failed", message[0])
+        if not self._closing:
+            self._loop_died()
+
+    def _check_stall(self) -> None:
+        silent_s = time.monotonic() - self._last_tick_s
+        if silent_s > STALL_REPORT_S and not self._stall_reported and not self._closing:
+            self._stall_reported = True
+            self._emit(self._on_event, f"control loop process (pid {self.pid}) has not ticked for {silent_s:.1f} s")
+
+    def _handle(self, message: tuple) -> None:
+        kind = message[0]
+        if kind == "tick":
+            _, states, connected, motion_name, paused, motion_request, progress, scheduling = message
+            self._last_tick_s = time.monotonic()
+            self.ticks_seen += 1
+            if self._stall_reported:
+                self._stall_reported = False
+                self._emit(self._on_event, f"control loop process (pid {self.pid}) ticks again")
+            self._connected, self._motion_name, self._paused, self.scheduling = (connected, motion_name, paused,
+                                                                                 scheduling)
+            if progress is not None and motion_request is not None:
+                source = self._sources.get(motion_request)
+                if source is not None:
+                    with contextlib.suppress(AttributeError):
+                        source.progress = progress
+            for state in states:
+                self._latest_state = state
+                self._emit(self._on_state, state)
+        elif kind == "result":
+            _, request_id, ok, value = message
+            with self._lock:
+                future = self._pending.pop(request_id, None)
+                self._sources.pop(request_id, None)  # a motion's result comes when it ends
+            if future is None or future.done():
+                return
+            if ok:
+                future.set_result(value)
+            else:
+                future.set_exception(self._exception(value))
+        elif kind == "health":
+            self._emit(self._on_health, message[1])
+        elif kind == "event":
+            self._emit(self._on_event, message[1])
+        elif kind == "error":
+            self._emit(self._on_error, self._exception(message[1]))
+
+    def _loop_died(self) -> None:
+        self.died_at_s = time.monotonic()  # when the end of file was read (bench_servo_bus measures it)
+        process = self._process
+        assert process is not None
+        try:
+            process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:  # closed its socket but lives on: end it, it no longer hears us
+            process.kill()
+            process.wait(timeout=CLOSE_TIMEOUT_S)
+        motion = f"; motion {self._motion_name!r} stopped" if self._motion_name else ""
+        error = LoopDiedError(
+            f"the control loop process (pid {process.pid}) ended unexpectedly ({_exit_words(process)}){motion}: "
+            "the servos hold their last goal with torque on; what was recorded is kept. Reconnect the robot "
+            "(Hardware tab → Connect) to control it again")
+        self.died = error
+        self._connected = False
+        self._motion_name = None
+        self._fail_pending(error)
+        self._emit(self._on_error, error)
+
+    def _fail_pending(self, error: BaseException | None) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, {}
+            self._sources.clear()
+        for future in pending.values():
+            if future.done():
+                continue
+            if error is None:
+                future.cancel()
+            else:
+                future.set_exception(error)
+
+    def _emit(self, callback: Callable | None, value: Any) -> None:
+        if callback is None:
+            return
+        try:
+            callback(value)
+        except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the watcher
+            log.exception("robot controller callback %r failed", callback)
+
+
+def _exit_words(process: subprocess.Popen) -> str:
+    code = process.poll()
+    if code is None:
+        return "still running"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
+
+
+# -- the child's side --------------------------------------------------------------------------------------------------
+class _Child:
+    """The child process: a RobotController whose callbacks queue messages, a sender thread, a receiver (main)."""
+
+    def __init__(self, conn: Connection) -> None:
+        self.conn = conn
+        self.out: queue.SimpleQueue[tuple | None] = queue.SimpleQueue()
+        self.states: list[ChainState] = []
+        self.controller: RobotController | None = None
+        self.motion_requests: dict[int, int] = {}  # id(source) -> request id (to send the progress with)
+        self.recent_exceptions: collections.deque[BaseException] = collections.deque(maxlen=EXCEPTIONS_KEPT)
+
+    def run(self) -> int:
+        sender = threading.Thread(target=self._send_loop, name="loop-process-sender", daemon=True)
+        sender.start()
+        try:
+            kind, robot = self.conn.recv()
+            assert kind == "config"
+            self.controller = self._open(robot)
+        except Exception as exc:  # noqa: BLE001 - a device error reaches the parent as itself, raised there
+            self.out.put(("failed", self._payload(exc)))
+            self.out.put(None)
+            sender.join(timeout=5)
+            return 1
+        try:
+            self._receive()
+        finally:
+            self.controller.close()
+            self.out.put(("bye",))
+            self.out.put(None)
+            sender.join(timeout=5)
+        return 0
+
+    def _open(self, robot: RobotConfig) -> RobotController:
+        chain = ServoChain(robot, device="robot")
+        chain.open()
+        try:
+            chain.check_models()
+            chain.check_rate(robot.control_rate_hz)  # RateError (with the fix) before the loop starts
+            warnings = list(chain.timing_warnings())
+            controller = RobotController(chain, robot, on_state=self.states.append, on_health=self._health,
+                                         on_event=self._event, on_error=self._error, on_tick=self._tick)
+        except BaseException:
+            chain.close()
+            raise
+        controller.start()
+        deadline = time.monotonic() + 5.0
+        while controller.scheduling == "not started" and time.monotonic() < deadline:
+            time.sleep(0.001)
+        self.out.put(("ready", warnings, controller.scheduling))
+        return controller
+
+    def _receive(self) -> None:
+        controller = self.controller
+        assert controller is not None
+        while True:
+            try:
+                message = self.conn.recv()
+            except (EOFError, OSError):
+                return  # the app is gone (closed or killed): stop the loop, close the port
+            if message[0] == "close":
+                return
+            _, request_id, method, args, kwargs = message
+            if method not in CHILD_METHODS:
+                if request_id is not None:
+                    self.out.put(("result", request_id, False, self._payload(ValueError(f"no such command {method!r}"))))
+                continue
+            try:
+                result = getattr(controller, method)(*args, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - handed back through the request's Future
+                if request_id is not None:
+                    self.out.put(("result", request_id, False, self._payload(exc)))
+                continue
+            if request_id is None:
+                continue
+            if isinstance(result, concurrent.futures.Future):
+                if method in ("play", "run_motion"):
+                    self.motion_requests[id(args[0])] = request_id
+                result.add_done_callback(functools.partial(self._done, request_id))
+            else:
+                self.out.put(("result", request_id, True, result))
+
+    def _done(self, request_id: int, future: concurrent.futures.Future) -> None:
+        for key in [k for k, rid in self.motion_requests.items() if rid == request_id]:
+            del self.motion_requests[key]
+        if future.cancelled():
+            self.out.put(("result", request_id, False, self._payload(
+                concurrent.futures.CancelledError("the control loop stopped before the command ran"))))
+            return
+        exc = future.exception()
+        if exc is not None:
+            self.out.put(("result", request_id, False, self._payload(exc)))
+        else:
+            self.out.put(("result", request_id, True, future.result()))
+
+    # -- controller callbacks (bus thread) ----------------------------------------------------------------------------
+    def _tick(self) -> None:
+        controller = self.controller
+        if controller is None:
+            return
+        states, self.states[:] = list(self.states), []
+        source = controller.motion_source
+        request = self.motion_requests.get(id(source)) if source is not None else None
+        progress = getattr(source, "progress", None) if source is not None else None
+        self.out.put(("tick", states, controller.connected, controller.motion_name, controller.paused, request,
+                      progress, controller.scheduling))
+
+    def _health(self, health: list[ServoHealth]) -> None:
+        self.out.put(("health", list(health)))
+
+    def _event(self, text: str) -> None:
+        self.out.put(("event", str(text)))
+
+    def _error(self, exc: BaseException) -> None:
+        self.out.put(("error", self._payload(exc)))
+
+    def _payload(self, exc: BaseException) -> tuple:
+        self.recent_exceptions.append(exc)  # its id stays unique while the parent may still see it twice
+        return _exception_payload(exc)
+
+    def _send_loop(self) -> None:
+        while True:
+            message = self.out.get()
+            if message is None:
+                return
+            try:
+                self.conn.send(message)
+            except (OSError, ValueError):
+                return  # the app is gone; the receiver sees it too and stops the loop
+            except Exception as exc:  # noqa: BLE001 - a value that does not pickle: say so instead of hanging
+                log.exception("loop process message %r not sent", message[0])
+                if message[0] == "result":
+                    self.conn.send(("result", message[1], False, _exception_payload(
+                        TypeError(f"the result could not be sent back: {exc}"))))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m devices.loop_process",
+                                     description="The robot control loop's process (started by the app).")
+    parser.add_argument("--fd", type=int, required=True, help="the socket to the app (inherited)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="loop process: %(levelname)s %(name)s: %(message)s")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the app closes us; a terminal's Ctrl-C is for the app
+    conn = Connection(args.fd)
+    return _Child(conn).run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
