@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,6 +32,19 @@ ANGLE_LIMIT_RAD = math.pi - 0.01
 SETTLE_TOLERANCE_RAD = 3 * 2 * math.pi / 4096  # three ticks
 SETTLE_TIMEOUT_S = 5.0
 CURRENT_SAMPLES = 12  # reads averaged per step; the current's last bits are noisy (±2 LSB ≈ ±0.5 N here)
+# The rig check: at rest the servo's current is the cable's tension × r / the torque constant (≈ 11 mA per newton on
+# the default rig). Above this multiple of the current the rig's maximum force would draw, something other than the
+# spring holds the wheel (a jammed probe, a caught cable).
+CHECK_CURRENT_MARGIN = 2.0
+
+
+@dataclass(frozen=True)
+class RigCheckLine:
+    """One line of the rig check: what was checked, passed or not, and what was seen (or why it failed)."""
+
+    name: str
+    ok: bool
+    detail: str
 
 
 class RigForceError(DeviceError, ValueError):
@@ -80,6 +94,62 @@ class CalibrationRig:
     def close(self) -> None:
         """Close the port (the servo keeps holding its position)."""
         self._chain.close()
+
+    def check(self) -> list[RigCheckLine]:
+        """The rig check before a run, one line per step, each with what was seen or why it failed: the port opens,
+        the rig servo answers and is an XM430-W350, its torque can be enabled, its position is inside its range with
+        no hardware error and its current at rest is no more than :data:`CHECK_CURRENT_MARGIN` × what the spring
+        draws at the rig's maximum force. A step that fails
+        stops the check; the steps after it read "not tried". Leaves the port closed (torque on: the servo holds).
+        Never raises for the rig's own faults."""
+        sid = self.config.servo_id
+        names = ("port opens", f"rig servo {sid} answers (XM430-W350)", "torque can be enabled",
+                 "position and current sane")
+        lines: list[RigCheckLine] = []
+
+        def fail(exc: BaseException) -> list[RigCheckLine]:
+            lines.append(RigCheckLine(names[len(lines)], False, str(exc) or type(exc).__name__))
+            lines.extend(RigCheckLine(n, False, "not tried: an earlier step failed") for n in names[len(lines):])
+            return lines
+
+        try:
+            self._chain.open()
+        except (DeviceError, OSError, ValueError) as exc:
+            return fail(exc)
+        try:
+            lines.append(RigCheckLine(names[0], True, f"{self.config.port} at {self.config.baud} baud"))
+            try:
+                info = self._chain.ping(sid)
+                self._chain.check_models()
+            except (DeviceError, OSError, ValueError) as exc:
+                return fail(exc)
+            lines.append(RigCheckLine(names[1], True, f"{info.model_name}, firmware {info.firmware}"))
+            try:
+                self._chain.set_torque(True)
+            except (DeviceError, OSError, ValueError) as exc:
+                return fail(exc)
+            lines.append(RigCheckLine(names[2], True, "torque on: the servo holds its position"))
+            try:
+                currents = [float(self._chain.read_state().current_ma[0]) for _ in range(CURRENT_SAMPLES)]
+                position = self.position_rad()
+            except (DeviceError, OSError, ValueError) as exc:
+                return fail(exc)
+            current = float(np.median(currents))
+            limit_ma = (CHECK_CURRENT_MARGIN * self.max_force_n * self.config.wheel_radius_m
+                        / TORQUE_CONSTANT_NM_PER_A * 1000.0)
+            seen = f"at {position:+.3f} rad, {current:.0f} mA at rest"
+            if not abs(position) <= ANGLE_LIMIT_RAD:
+                lines.append(RigCheckLine(names[3], False, f"{seen}: outside the servo's range (±{ANGLE_LIMIT_RAD:.2f} "
+                                                           "rad): re-spool the cable or check the servo's zero"))
+            elif abs(current) > limit_ma:
+                lines.append(RigCheckLine(names[3], False, f"{seen}: above {limit_ma:.0f} mA (twice what the spring "
+                                                           f"pulls at {self.max_force_n:g} N), something holds the "
+                                                           "wheel (a jammed probe, a caught cable): free it"))
+            else:
+                lines.append(RigCheckLine(names[3], True, seen))
+            return lines
+        finally:
+            self._chain.close()
 
     def __enter__(self) -> CalibrationRig:
         self.open()

@@ -4,10 +4,15 @@
     python tools/calibration_walkthrough.py [--out docs/screenshots] [--size 1400x900] [--speed 15]
 
 Starts a private Xvfb (``tools/screenshot.py``'s), runs the app with Qt's xcb platform and reads the window's pixels
-back with ``QScreen.grabWindow``. Writes calibration_1_protocol.png (form and live trace mid-trial),
-calibration_2_fit.png (conductance vs time with the SLS fit, Fig. 8B), calibration_3_means.png (Fig. 9ii),
-calibration_4_params.png (Fig. 9iii) and calibration_5_history.png (after Save). Nothing of the user's is touched
-(settings and calibrations go to a temporary folder).
+back with ``QScreen.grabWindow``. Walks the tab's wizard and writes calibration_0_setup.png (the sensor on the body
+drawing, the readout), calibration_0_check.png (the rig check, every line passed), calibration_0_contact.png (the contact
+found, the conditioning fields), calibration_1_protocol.png (form,
+live trace mid-trial 2 and the fit of trial 1), calibration_2_fit.png (conductance vs time with the SLS fit, Fig. 8B),
+calibration_3_means.png (Fig. 9ii), calibration_4_params.png (Fig. 9iii) and calibration_5_history.png (after Save).
+Nothing of the user's is touched (settings and calibrations go to a temporary folder).
+
+Exits 1 naming the reason when a step does not happen (the rig check fails, the run ends without trials, the fit is
+refused) instead of waiting for it until its time limit.
 """
 
 from __future__ import annotations
@@ -72,6 +77,10 @@ def main(argv: list[str] | None = None) -> int:
         from devices.config import SIM_PORT, load_config
 
         config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+        from dataclasses import replace
+
+        # The scripted lab, as tools/screenshot.py's pictures: the physics lab is not meant to run at 15×.
+        config = replace(config, lab=replace(config.lab, physics="scripted"))
         factory.start_sim_lab(config, speed=args.speed)
         settings = QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat)
         lab = LabContext(config)
@@ -94,17 +103,58 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {out / name}")  # noqa: T201
 
         tab: Any = window.show_tab("calibration")  # the CalibrationTab, reached by its widgets below
+
+        def fail(what: str) -> int:
+            print(f"calibration_walkthrough: {what}", file=sys.stderr)  # noqa: T201
+            window.close()
+            lab.close()
+            return 1
+
+        from app.gui.tabs.calibration import CONTACT, PROTOCOL, RIG_CHECK
+
+        tab.sensor_picker.buttons[config.rig.sensor].click()
+        shot("calibration_0_setup.png")
+        tab.go_to_step(RIG_CHECK)
+        checked: list[bool] = []
+        tab.rig_check_finished.connect(checked.append)
+        tab.start_rig_check()
+        pump(60, until=lambda: bool(checked))
+        if checked != [True]:
+            return fail(f"the rig check did not pass: {tab.check_lines()}")
+        shot("calibration_0_check.png")
+        tab.go_to_step(CONTACT)
+        tab.protocol_form.condition_check.setChecked(True)  # shown ticked; cleared before the run (time)
+        if not tab.find_contact():
+            return fail(f"the contact search did not start: {tab.contact_label.text()}")
+        pump(120, until=lambda: not tab.rig_session.is_running)
+        if not tab.contact_label.text().startswith("contact found"):
+            return fail(f"no contact: {tab.contact_label.text()}")
+        shot("calibration_0_contact.png")
+        tab.protocol_form.condition_check.setChecked(False)
         form = tab.protocol_form
         form.forces_edit.setText("1.75, 3, 4, 5.25")
         form.trials_spin.setValue(1)
         form.hold_spin.setValue(300.0)
         form.rest_spin.setValue(300.0)
         form.folder_edit.setText(str(user_folders.calibrations_dir()))
-        tab.source_tabs.setCurrentIndex(1)
-        assert tab.start_run()
-        pump(300, until=lambda: tab.live_plot.n_samples > 900)
+        tab.go_to_step(PROTOCOL)
+        if not tab.start_run():
+            return fail(f"the run did not start: {form.message_label.text()}")
+        # In trial 2, once the fit of trial 1 ("fit so far") is on the protocol page and the trace has some length.
+        pump(600, until=lambda: (tab.live_fits_shown >= 1 and tab.live_plot.trial == 1
+                                 and tab.live_plot.n_samples > 600) or not tab.rig_session.is_running)
+        if not tab.rig_session.is_running:
+            return fail(f"the run ended early: {form.message_label.text()}")
         shot("calibration_1_protocol.png")
-        pump(1200, until=lambda: not tab.rig_session.is_running and not tab.is_fitting and tab.result is not None)
+        # Until the run has ended and its fit too — or the run ended without a fit (failed, aborted, fit refused):
+        # say why instead of waiting out the limit (what made earlier runs of this tool time out).
+        pump(1200, until=lambda: not tab.rig_session.is_running and not tab.is_fitting
+             and (tab.result is not None or tab.rig_session.outcome is not None
+                  and (tab.rig_session.outcome.status != "completed" or "refused" in tab.status_label.text())))
+        if tab.result is None:
+            outcome = tab.rig_session.outcome
+            return fail(f"no fit to show: run {outcome.status if outcome else 'still going'}: "
+                        f"{outcome.message if outcome else ''}; status: {tab.status_label.text()}")
         tab.view_tabs.setCurrentIndex(0)
         shot("calibration_2_fit.png")
         tab.view_tabs.setCurrentWidget(tab.mean_plot)
@@ -112,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         tab.view_tabs.setCurrentWidget(tab.param_plot)
         shot("calibration_4_params.png")
         tab.confirm_save = lambda _problems: True
+        tab.next_button.click()  # Review → Save
         tab.save(Path(tmp) / "calibration.json")
         tab.view_tabs.setCurrentWidget(tab.history_table)
         shot("calibration_5_history.png")

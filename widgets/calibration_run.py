@@ -59,7 +59,8 @@ class ProtocolForm(QWidget):
     abort_requested = Signal()
 
     def __init__(self, forces_text: str, trials_per_force: int, hold_s: float, rest_s: float, baseline_s: float,
-                 ramp_s: float, sample_rate_hz: float, folder: str, parent: QWidget | None = None) -> None:
+                 ramp_s: float, sample_rate_hz: float, folder: str, parent: QWidget | None = None, *,
+                 conditioning_in_form: bool = True) -> None:
         super().__init__(parent)
         form = QFormLayout()
         form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
@@ -90,7 +91,10 @@ class ProtocolForm(QWidget):
         self.rate_spin.setSuffix(" Hz")
         self.rate_spin.setValue(sample_rate_hz)
         form.addRow("Sample rate", self.rate_spin)
-        condition_row = QHBoxLayout()
+        # The conditioning fields: a row of this form, or (conditioning_in_form=False) a widget the owner places.
+        self.conditioning_box = QWidget()
+        condition_row = QHBoxLayout(self.conditioning_box)
+        condition_row.setContentsMargins(0, 0, 0, 0)
         self.condition_check = QCheckBox("Condition first:")
         self.condition_check.setToolTip("Load and unload the sensor a few times before the protocol (piezo-resistive "
                                         "sheets are conditioned before calibration); not recorded as trials, logged "
@@ -108,7 +112,8 @@ class ProtocolForm(QWidget):
         for widget in (self.condition_check, self.condition_cycles_spin, self.condition_force_spin):
             condition_row.addWidget(widget)
         self.condition_check.toggled.connect(self._condition_toggled)
-        form.addRow("Conditioning", condition_row)
+        if conditioning_in_form:
+            form.addRow("Conditioning", self.conditioning_box)
         folder_row = QHBoxLayout()
         self.folder_edit = QLineEdit(folder)
         self.folder_edit.setToolTip("Each run writes its trial CSVs and protocol.json into a new folder here")

@@ -379,12 +379,15 @@ class ProtocolRunner:
                  on_sample: Callable[[Sample], None] | None = None,
                  on_trial: Callable[[TrialRecord], None] | None = None,
                  clock: Callable[[], float] | None = None, board_stale_s: float = BOARD_STALE_S,
-                 time_scale: float = 1.0, done: dict[int, Path] | None = None) -> None:
+                 time_scale: float = 1.0, done: dict[int, Path] | None = None, contact_only: bool = False) -> None:
         if not (math.isfinite(time_scale) and time_scale > 0):
             raise ValueError(f"time scale must be positive, got {time_scale!r}")
         self.settings = settings
         self.time_scale = float(time_scale)
         self.done = dict(done or {})  # plan index → CSV of trials finished by an earlier run of this session
+        # Only find the contact and release (the wizard's "Find contact" step): no session folder, no trial.
+        self.contact_only = contact_only
+        self.contact_note = ""  # what the contact search found (set by run)
         self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
@@ -430,8 +433,9 @@ class ProtocolRunner:
         self.rig = rig
         self._started_s = self._clock()
         try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            write_session(self.folder, s)
+            if not self.contact_only:
+                self.folder.mkdir(parents=True, exist_ok=True)
+                write_session(self.folder, s)
             self._progress("contact", -1, 0.0, 0, 0.0, "finding where the probe touches the sensor…")
             rig.find_contact()
             self._refine_contact()
@@ -441,6 +445,13 @@ class ProtocolRunner:
                 raise DeviceError(f"{top:g} N is out of reach from the contact found (at most "
                                   f"{reachable():.2f} N before the servo's range ends): re-spool the cable")
             rig.release()
+            if self.contact_only:
+                contact = getattr(rig, "contact_rad", None)
+                where = f"θ_contact = {contact:.4f} rad" if isinstance(contact, float) else "the contact"
+                room = f"; up to {reachable():.2f} N reachable from it" if reachable is not None else ""
+                self.contact_note = f"contact found: {where}{room}{self.contact_note}; load released"
+                self._progress("done", -1, 0.0, 0, 0.0, self.contact_note)
+                return Outcome(COMPLETED, self.contact_note, self.folder, ())
             self._condition()
             for index, (force, repeat) in enumerate(s.plan):
                 if index in self.done:
@@ -541,11 +552,16 @@ class ProtocolRunner:
         while angle < base + REFINE_SPAN_RAD:
             angle += REFINE_STEP_RAD
             reached = rig.move_to(angle)
-            if self._fresh_reading() > unloaded + REFINE_RISE_S:
+            touched = self._fresh_reading()
+            if touched > unloaded + REFINE_RISE_S:
                 rig.contact_rad = 0.5 * (below + reached)  # between the last untouched and the first touching step
+                self.contact_note = (f" (refined with the sensor: it read {unloaded * 1e6:.2f} µS lifted, "
+                                     f"{touched * 1e6:.1f} µS one encoder tick into contact)")
                 return
             below = reached
         # No rise within the span: keep the current's estimate (the fit will show a sensor that does not respond).
+        self.contact_note = (" (from the servo's current only: the sensor's reading did not rise within "
+                             f"±{REFINE_SPAN_RAD:g} rad of it — is the probe over the sensor?)")
 
     def _fresh_reading(self) -> float:
         """Median of the sensor's next few board samples taken after now (S)."""

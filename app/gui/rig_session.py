@@ -90,11 +90,13 @@ class RigSession(QObject):
         return self._runner.folder if self._runner is not None else None
 
     # -- control ---------------------------------------------------------------------------------------------------
-    def start(self, settings: ProtocolSettings, base_folder: str | Path, *, resume: str | Path | None = None) -> Path:
+    def start(self, settings: ProtocolSettings, base_folder: str | Path, *, resume: str | Path | None = None,
+              contact_only: bool = False) -> Path:
         """Start a run; returns its session folder. ``resume``: a session folder of the same protocol whose finished
-        trials are kept (the run continues with the first missing one). Raises ValueError (a run is going, the sensor
-        is not a board channel, no board, a folder of another protocol) with a sentence for the user; everything
-        after this is reported through ``finished``."""
+        trials are kept (the run continues with the first missing one). ``contact_only``: only find the contact and
+        release (nothing is written; the outcome's message says where the contact is). Raises ValueError (a run is
+        going, the sensor is not a board channel, no board, a folder of another protocol) with a sentence for the
+        user; everything after this is reported through ``finished``."""
         if resume is not None and read_session(resume) != settings:
             raise ValueError(f"{resume} holds a session of another protocol: resume it with its own settings")
         if self.is_running:
@@ -124,7 +126,8 @@ class RigSession(QObject):
                                 on_progress=self._bridge.emitter(self.progress),
                                 on_sample=self._bridge.emitter(self.sample),
                                 on_trial=self._bridge.emitter(self.trial_saved),
-                                board_stale_s=self.board_stale_s, clock=clock, time_scale=time_scale, done=done)
+                                board_stale_s=self.board_stale_s, clock=clock, time_scale=time_scale, done=done,
+                                contact_only=contact_only)
         self._runner = runner
         self.outcome = None
         self._thread = threading.Thread(target=self._worker, args=(runner,), name="calibration-rig", daemon=True)

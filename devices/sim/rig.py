@@ -57,8 +57,15 @@ class VirtualRig:
         self.sensor = SensorBank.create(1, rng)
         self._snapped = False
         self._torque_on = False
+        self._jam_nm = 0.0  # extra load torque of a jam fault (N·m)
         self._history_t: deque[float] = deque(maxlen=HISTORY)
         self._history_f: deque[float] = deque(maxlen=HISTORY)
+
+    def jam(self, torque_nm: float = 0.5) -> None:
+        """Fault: something holds the wheel (a jammed probe, a cable caught): an extra load torque (N·m) on the
+        servo until ``jam(0)``."""
+        with self._lock:
+            self._jam_nm = float(torque_nm)
 
     def snap_cable(self, snapped: bool = True) -> None:
         """Fault: the cable snaps (or the probe slips off the sensor): no force reaches the sensor or the servo
@@ -84,7 +91,7 @@ class VirtualRig:
         Called before each wire exchange."""
         with self._lock:
             force = self.applied_force_n()
-            self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m)
+            self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m + self._jam_nm)
             self._torque_on = bool(self.chain.register(self.config.servo_id, "Torque Enable"))
             now = self.clock.now()
             if self._history_t and now <= self._history_t[-1]:

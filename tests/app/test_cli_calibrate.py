@@ -26,7 +26,8 @@ from devices.config import BoardConfig, RigConfig, load_config
 from devices.sim.lab import SimLab
 
 REPO = Path(__file__).resolve().parents[2]
-LAB_TOML = "[board]\nrate_hz = 12.0\n"
+# The scripted simulated lab (the app's default is the physics lab; tests pin the scripted one, tests/conftest.py).
+LAB_TOML = "[board]\nrate_hz = 12.0\n[lab]\nphysics = \"scripted\"\n"
 
 
 @pytest.fixture

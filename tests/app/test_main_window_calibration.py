@@ -6,11 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from PySide6.QtCore import Qt
 
 from app.core import calfiles
 from app.core.rig_protocol import ABORTED
 from app.gui.lab import LabContext
-from app.gui.tabs.calibration import CalibrationTab
+from app.gui.tabs.calibration import PROTOCOL, REVIEW, RIG_CHECK, SAVE, SETUP, CalibrationTab
 from devices.config import BoardConfig, LabConfig, RigConfig, RobotConfig, SimLabConfig, default_sensor_names
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, paper_protocol
@@ -238,6 +239,7 @@ def test_wizard_end_to_end_abort_in_trial_3_restart_resume_and_save(qtbot, fast_
     form.rest_spin.setValue(15.0)
     form.folder_edit.setText(str(tmp_path))
     assert tab.start_run()
+    assert tab.steps.currentIndex() == PROTOCOL and tab.view_tabs.currentWidget() is tab.live_plot
     folder = tab.session_folder
     qtbot.waitUntil(lambda: len(tab.trials) == 2, timeout=90_000)
     with qtbot.waitSignal(tab.rig_session.progress, timeout=60_000,
@@ -267,9 +269,12 @@ def test_wizard_end_to_end_abort_in_trial_3_restart_resume_and_save(qtbot, fast_
     assert sorted(done) == [0, 1, 2] and all(done[i].read_bytes() == kept[i] for i in (0, 1))
     assert tab.result is not None, tab.status_label.text()
     assert len(tab.result.trials) == 3
-    # Review: Fig. 9ii (means vs force) and Fig. 9iii (parameters vs force) are drawn.
+    # Review: Fig. 9ii (means vs force) and Fig. 9iii (parameters vs force) are drawn; Next goes to Save.
+    assert tab.steps.currentIndex() == REVIEW and tab.next_button.isEnabled()
     assert len(tab.mean_plot.getPlotItem().listDataItems()) >= 1
     assert len(tab.param_plot.getPlotItem().listDataItems()) >= 3
+    tab.next_button.click()
+    assert tab.steps.currentIndex() == SAVE and tab.save_button.isEnabled()
     asked = []
     tab.confirm_save = lambda problems: asked.append(problems) or True
     out = tmp_path / "cal.json"
@@ -316,7 +321,7 @@ def test_the_redo_button_rejects_the_selected_trial_and_runs_it_again(rig_tab, q
     settings = read_session(folder)
     first = finished_trials(folder, settings)[0]
     original = first.read_bytes()
-    tab.source_tabs.setCurrentIndex(1)  # the rig page, where the button is
+    tab.go_to_step(REVIEW)  # the review page, where the button is
     qtbot.waitUntil(tab.redo_button.isVisible, timeout=10_000)
     assert not tab.redo_button.isEnabled() or tab.trial_list.selectedItems() == []
     tab.trial_list.item(0).setSelected(True)
@@ -364,3 +369,92 @@ def test_the_conditioning_fields_go_into_the_protocol_and_come_back_on_resume(ri
     assert started == [folder] and form.condition_check.isChecked()
     assert form.condition_cycles_spin.value() == 3 and form.condition_force_spin.value() == 4.0
     assert tab.protocol_settings() == read_session(folder)
+
+
+def test_the_wizard_steps_and_next_waits_for_a_passing_rig_check(rig_tab, qtbot, fast_sim_lab, tmp_path):
+    tab = rig_tab
+    tab.show()
+    qtbot.waitExposed(tab)
+    assert tab.steps.currentIndex() == SETUP and tab.step_label.text().startswith("Step 1 of 6")
+    assert tab.rig_note.isVisible() and "R_C = 900 Ω" in tab.rig_note.text()  # the readout, on the setup page
+    assert tab.next_button.isEnabled() and not tab.back_button.isEnabled()
+    tab.sensor_edit.setText("S99Z")
+    assert not tab.next_button.isEnabled() and "S99Z is not a channel of the board" in tab.step_hint.text()
+    tab.sensor_picker.buttons["BENCH"].click()
+    qtbot.mouseClick(tab.next_button, Qt.MouseButton.LeftButton)
+    assert tab.steps.currentIndex() == RIG_CHECK and not tab.next_button.isEnabled()
+
+    # A rig servo that does not answer: that line fails with the reason, the ones after it are not tried, no Next.
+    servo = tab.lab.config.rig.servo_id
+    fast_sim_lab.rig.chain.set_no_reply(servo)
+    with qtbot.waitSignal(tab.rig_check_finished, timeout=30_000) as blocker:
+        qtbot.mouseClick(tab.check_button, Qt.MouseButton.LeftButton)
+    assert blocker.args == [False]
+    lines = tab.check_lines()
+    assert lines[0][0] == "✔ pass" and lines[1][0] == "✘ FAIL" and "no reply from servo 1" in lines[1][2]
+    assert lines[2][2].startswith("not tried") and lines[-1][1] == "board streams BENCH"
+    assert lines[-1][0] == "✔ pass"  # the board part is judged on its own
+    assert not tab.next_button.isEnabled() and "FAILED" in tab.status_label.text()
+
+    # A healthy rig: every line passes with what was seen, and Next goes on.
+    fast_sim_lab.rig.chain.set_no_reply(servo, False)
+    with qtbot.waitSignal(tab.rig_check_finished, timeout=30_000) as blocker:
+        tab.start_rig_check()
+    assert blocker.args == [True], tab.check_lines()
+    lines = tab.check_lines()
+    assert [mark for mark, _, _ in lines] == ["✔ pass"] * 5
+    assert "XM430-W350" in lines[1][2] and "mA at rest" in lines[3][2] and "µS" in lines[4][2]
+    assert tab.next_button.isEnabled()
+    # The check holds for the sensor it was run for: another sensor needs its own.
+    tab.go_to_step(SETUP)
+    tab.sensor_picker.buttons["S03L"].click()
+    tab.go_to_step(RIG_CHECK)
+    assert not tab.next_button.isEnabled()
+    tab.sensor_picker.buttons["BENCH"].click()
+    assert tab.next_button.isEnabled()
+    qtbot.mouseClick(tab.next_button, Qt.MouseButton.LeftButton)
+    # Find contact (the rig finds it, releases; nothing is recorded) and the optional conditioning.
+    assert tab.steps.currentIndex() == RIG_CHECK + 1 and tab.protocol_form.condition_check.isVisible()
+    assert not tab.next_button.isEnabled() and "find the contact first" in tab.step_hint.text()
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=60_000):
+        qtbot.mouseClick(tab.contact_button, Qt.MouseButton.LeftButton)
+    found = tab.contact_label.text()
+    assert found.startswith("contact found: θ_contact = ") and "refined with the sensor" in found, found
+    assert "load released" in found and fast_sim_lab.rig.applied_force_n() == 0.0
+    assert list(tmp_path.iterdir()) == [] and tab.trial_list.count() == 0  # no session, no trial
+    assert tab.next_button.isEnabled()
+    qtbot.mouseClick(tab.next_button, Qt.MouseButton.LeftButton)
+    assert tab.steps.currentIndex() == PROTOCOL and tab.protocol_form.run_button.isVisible()
+    assert tab.view_tabs.currentWidget() is tab.live_plot
+    assert not tab.next_button.isEnabled() and "run the protocol" in tab.step_hint.text()
+
+    # An overloaded servo: torque cannot be enabled.
+    fast_sim_lab.rig.chain.inject_overload(servo)
+    with qtbot.waitSignal(tab.rig_check_finished, timeout=30_000) as blocker:
+        tab.start_rig_check()
+    assert blocker.args == [False]
+    lines = tab.check_lines()
+    assert lines[1][0] == "✔ pass" and lines[2][0] == "✘ FAIL" and "overload" in lines[2][2].lower(), lines
+    tab.go_to_step(RIG_CHECK)
+    assert not tab.next_button.isEnabled()
+
+
+@pytest.mark.slow  # a trial on the 50x sim, then a fit in a spawned process while the run waits
+def test_the_fit_of_the_trials_so_far_updates_during_the_run(rig_tab, qtbot, monkeypatch):
+    tab = rig_tab
+    monkeypatch.setattr(CalibrationTab, "LIVE_FIT_MIN_WALL_S", 0.0)  # the 50x trials take seconds, not minutes
+    assert tab.start_run()
+    # Pause during trial 1: the run then waits, unloaded, before trial 2 — time for the fit of trial 1.
+    qtbot.waitUntil(lambda: tab.live_plot.trial == 0 or not tab.rig_session.is_running, timeout=60_000)
+    assert tab.rig_session.is_running, tab.protocol_form.message_label.text()
+    tab.protocol_form.pause_button.click()
+    qtbot.waitUntil(lambda: tab.live_fits_shown >= 1 or not tab.rig_session.is_running, timeout=120_000)
+    assert tab.rig_session.is_running, tab.protocol_form.message_label.text()
+    assert len(tab.trials) == 1
+    assert tab.live_fit_label.text().startswith("fit so far"), tab.live_fit_label.text()
+    assert "τ =" in tab.live_fit_label.text() and tab.trial_table.rowCount() == 1
+    assert "so far" in tab.summary_label.text() and len(tab.curves()) == 2  # measured + its fit
+    assert tab.result is None and not tab.save_button.isEnabled()  # nothing to save from a run in progress
+    assert tab.steps.currentIndex() == PROTOCOL  # the run's page stays
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
+        tab.protocol_form.abort_button.click()

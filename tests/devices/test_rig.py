@@ -105,3 +105,24 @@ def test_start_force_returns_at_once_and_the_ramp_can_be_sampled(slow_virtual_ri
         assert any(0.5 < f < 3.5 for f in ramp)
         with pytest.raises(ValueError, match="safe maximum"):
             rig.start_force(50.0)
+
+
+def test_the_rig_check_says_what_it_saw_and_why_a_step_failed(virtual_rig):
+    lines = CalibrationRig(RigConfig()).check()
+    assert [line.ok for line in lines] == [True] * 4, lines
+    assert "XM430-W350" in lines[1].detail and "mA at rest" in lines[3].detail
+    # Wound to a load the spring can give (5 N): still sane, the current is the cable's tension.
+    with CalibrationRig(RigConfig()) as rig:
+        rig.find_contact()
+        rig.command_force(5.0)
+    assert CalibrationRig(RigConfig()).check()[3].ok
+    # Something holds the wheel: a current no spring force explains.
+    virtual_rig.jam(0.5)
+    jammed = CalibrationRig(RigConfig()).check()[3]
+    assert not jammed.ok and "something holds the wheel" in jammed.detail and "above 180 mA" in jammed.detail
+    virtual_rig.jam(0.0)
+    # A servo that does not answer: named, and the steps after it are not tried.
+    virtual_rig.chain.set_no_reply(RigConfig().servo_id)
+    lines = CalibrationRig(RigConfig()).check()
+    assert lines[0].ok and not lines[1].ok and "no reply from servo 1" in lines[1].detail
+    assert all(not line.ok and line.detail.startswith("not tried") for line in lines[2:])

@@ -17,6 +17,7 @@ GUI thread only, except :meth:`CalibrationTab._fit_worker`.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import threading
 from concurrent.futures import ProcessPoolExecutor
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QDoubleSpinBox,
@@ -41,6 +42,7 @@ from PySide6.QtWidgets import (
     QMessageBox,
     QPushButton,
     QSplitter,
+    QStackedWidget,
     QTableWidget,
     QTableWidgetItem,
     QTabWidget,
@@ -87,6 +89,11 @@ DESCRIPTION = (
 )
 PLOT_MAX_POINTS = 4000  # per curve: trials are minutes at a few Hz; decimate anything longer for drawing
 PARAM_LABELS = (("E0_Pa", "E0", "Pa"), ("E1_Pa", "E1", "Pa"), ("mu1_Pa_s", "μ1", "Pa·s"))
+# The wizard's steps (pages of CalibrationTab.steps), in order.
+SETUP, RIG_CHECK, CONTACT, PROTOCOL, REVIEW, SAVE = range(6)
+STEP_TITLES = ("Setup: the sensor, its area, the readout", "Rig check", "Find contact · conditioning",
+               "Protocol run", "Review", "Save")
+BOARD_CHECK_S = 5.0  # the rig check waits this long (wall s) for a sample of the sensor from the board
 PHASE_WORDS = {"contact": "finding the contact", "conditioning": "conditioning", "baseline": "baseline", "loading": "loading", "hold": "holding",
                "release": "releasing", "rest": "resting", "paused": "paused", "done": "done"}
 
@@ -124,6 +131,9 @@ class CalibrationTab(QWidget):
 
     fit_finished = Signal(object)  # FitResult
     fit_failed = Signal(str)
+    rig_check_finished = Signal(bool)  # every line passed
+    # A fit of the trials so far runs after a trial when the next one takes at least this long (wall s).
+    LIVE_FIT_MIN_WALL_S = 30.0
 
     def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -158,29 +168,81 @@ class CalibrationTab(QWidget):
                           "fitted, as in `sensnake fit --config`).")
         rig_note.setWordWrap(True)
         rig_note.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
+        self.rig_note = rig_note
+        defaults = ProtocolSettings()
+        self.protocol_form = ProtocolForm(format_forces(defaults.forces_n), defaults.trials_per_force,
+                                          defaults.hold_s, defaults.rest_s, defaults.baseline_s, defaults.ramp_s,
+                                          defaults.sample_rate_hz, str(user_folders.calibrations_dir()),
+                                          conditioning_in_form=False)
+        self.protocol_form.run_requested.connect(self.start_run)
+        self.protocol_form.pause_toggled.connect(self._pause_toggled)
+        self.protocol_form.abort_requested.connect(self.rig_session.abort)
+        self._rig_check_ok_for: str | None = None  # the sensor whose rig check passed (None: not passed)
+        self._check_rig_lines: list[Any] | None = None
+        self._check_board_line: tuple[bool, str] | None = None
+        self._check_running = False
+        self._contact_run = False  # the rig session is finding the contact only (the wizard's step)
+        self._contact_found_for: str | None = None  # the sensor whose contact was found
+        self._live_fit_thread: threading.Thread | None = None
+        self._live_fit_again = False
+        self.live_fits_shown = 0  # fits of the trials so far shown during runs
+        self._check_board: Any = None
+        self._check_channel = 0
+        self._check_sensor = ""
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
         splitter.addWidget(self._build_inputs())
         splitter.addWidget(self._build_results())
         splitter.setStretchFactor(0, 0)
         splitter.setStretchFactor(1, 1)
-        splitter.setSizes([380, 900])
+        splitter.setSizes([440, 900])
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
         layout.addWidget(intro)
-        layout.addWidget(rig_note)
         layout.addWidget(splitter, 1)
         self._update_buttons()
         self.show_unfinished_sessions()
+        self.go_to_step(SETUP)
 
     # -- construction ----------------------------------------------------------------------------------------------
     def _build_inputs(self) -> QWidget:
+        """The wizard's column: the step's title, its page (a QStackedWidget), Back / Next and the status line."""
         column = QWidget()
         column.setMinimumWidth(340)
         layout = QVBoxLayout(column)
         layout.setContentsMargins(0, 0, 0, 0)
+        self.step_label = QLabel()
+        self.step_label.setStyleSheet("font-weight: bold;")
+        layout.addWidget(self.step_label)
+        self.steps = QStackedWidget()
+        for build in (self._build_setup_page, self._build_check_page, self._build_contact_page,
+                      self._build_protocol_page, self._build_review_page, self._build_save_page):
+            self.steps.addWidget(build())
+        layout.addWidget(self.steps, 1)
+        self.step_hint = QLabel("")
+        self.step_hint.setWordWrap(True)
+        layout.addWidget(self.step_hint)
+        nav = QHBoxLayout()
+        self.back_button = QPushButton("◀ Back")
+        self.back_button.clicked.connect(lambda: self.go_to_step(self.steps.currentIndex() - 1))
+        self.next_button = QPushButton("Next ▶")
+        self.next_button.setObjectName("wizard_next_button")
+        self.next_button.clicked.connect(lambda: self.go_to_step(self.steps.currentIndex() + 1))
+        nav.addWidget(self.back_button)
+        nav.addStretch(1)
+        nav.addWidget(self.next_button)
+        layout.addLayout(nav)
+        self.status_label = QLabel("Pick the sensor, check the rig, run the protocol — or fit trial CSVs you have.")
+        self.status_label.setWordWrap(True)
+        self.status_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        layout.addWidget(self.status_label)
+        return column
 
+    def _build_setup_page(self) -> QWidget:
+        page = QWidget()
+        layout = QVBoxLayout(page)
+        layout.setContentsMargins(0, 0, 0, 0)
         sensor_box = QGroupBox("Sensor")
         form = QFormLayout(sensor_box)
         self.sensor_edit = QLineEdit(self.lab.config.rig.sensor)
@@ -193,13 +255,15 @@ class CalibrationTab(QWidget):
         self.sensor_picker.select(self.sensor_edit.text().strip())
         self.sensor_picker.picked.connect(self.sensor_edit.setText)
         self.sensor_edit.textChanged.connect(lambda text: self.sensor_picker.select(text.strip()))
+        self.sensor_edit.textChanged.connect(self._sensor_changed)
         form.addRow("On the body", self.sensor_picker)
         self.area_spin = QDoubleSpinBox()
         self.area_spin.setRange(1.0, 100_000.0)
         self.area_spin.setDecimals(1)
         self.area_spin.setSuffix(" mm²")
         self.area_spin.setValue(self.lab.config.rig.area_m2 * 1e6 or DEFAULT_AREA_MM2)
-        form.addRow("Active area", self.area_spin)
+        self.area_spin.setToolTip("The sensor's active area under the probe (the large flat probe covers it all)")
+        form.addRow("Area under the probe", self.area_spin)
         physics_row = QHBoxLayout()
         self.physics_label = QLabel(self.physics_source)
         self.physics_label.setToolTip("The paper's resistance–strain constants; K_contact is a placeholder until the "
@@ -211,53 +275,138 @@ class CalibrationTab(QWidget):
         physics_row.addWidget(self.physics_button)
         form.addRow("Physics", physics_row)
         layout.addWidget(sensor_box)
+        layout.addWidget(self._rig_note_box())
+        self.files_route_button = QPushButton("Fit trial CSVs you already have instead…")
+        self.files_route_button.setToolTip("Skip the rig: go to Review, add trial CSVs and fit them")
+        self.files_route_button.clicked.connect(lambda: self.go_to_step(REVIEW))
+        layout.addWidget(self.files_route_button)
+        layout.addStretch(1)
+        return page
 
-        self.source_tabs = QTabWidget()
-        self.source_tabs.addTab(self._build_trial_files(), "Trial files")
-        defaults = ProtocolSettings()
-        self.protocol_form = ProtocolForm(format_forces(defaults.forces_n), defaults.trials_per_force,
-                                          defaults.hold_s, defaults.rest_s, defaults.baseline_s, defaults.ramp_s,
-                                          defaults.sample_rate_hz, str(user_folders.calibrations_dir()))
-        self.protocol_form.run_requested.connect(self.start_run)
-        self.protocol_form.pause_toggled.connect(self._pause_toggled)
-        self.protocol_form.abort_requested.connect(self.rig_session.abort)
+    def _rig_note_box(self) -> QWidget:
+        box = QGroupBox("Rig and readout")
+        box_layout = QVBoxLayout(box)
+        box_layout.addWidget(self.rig_note)
+        return box
+
+    def _build_check_page(self) -> QWidget:
+        page = QWidget()
+        layout = QVBoxLayout(page)
+        layout.setContentsMargins(0, 0, 0, 0)
+        note = QLabel("Before anything moves: the rig servo answers and is an XM430-W350, its torque can be enabled, "
+                      "its position and current at rest are sane, and the board streams the chosen sensor. Next "
+                      "stays off until every line passes.")
+        note.setWordWrap(True)
+        layout.addWidget(note)
+        self.check_button = QPushButton("Check the rig")
+        self.check_button.setObjectName("rig_check_button")
+        self.check_button.clicked.connect(self.start_rig_check)
+        layout.addWidget(self.check_button)
+        self.check_table = QTableWidget(0, 3)
+        self.check_table.setHorizontalHeaderLabels(["", "Check", "Seen / reason"])
+        self.check_table.verticalHeader().setVisible(False)
+        self.check_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.check_table.setWordWrap(True)
+        header = self.check_table.horizontalHeader()
+        header.setSectionResizeMode(0, QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(1, QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(2, QHeaderView.ResizeMode.Stretch)
+        layout.addWidget(self.check_table, 1)
+        return page
+
+    def _build_contact_page(self) -> QWidget:
+        page = QWidget()
+        layout = QVBoxLayout(page)
+        layout.setContentsMargins(0, 0, 0, 0)
+        contact = QGroupBox("Find contact")
+        contact_layout = QVBoxLayout(contact)
+        text = QLabel("Where the probe touches the sensor: the servo winds in small steps from a slack cable while "
+                      "its current is averaged at rest (the current rises with the cable's tension), then, from a "
+                      "little before that angle, one encoder tick at a time until the sensor's own reading rises; "
+                      "then the load comes off. Make sure the probe sits over the sensor and the cable is slack. "
+                      "The run finds it again at its start (the cable may move in between).")
+        text.setWordWrap(True)
+        contact_layout.addWidget(text)
+        self.contact_button = QPushButton("Find contact")
+        self.contact_button.setObjectName("find_contact_button")
+        self.contact_button.clicked.connect(self.find_contact)
+        contact_layout.addWidget(self.contact_button)
+        self.contact_label = QLabel("")
+        self.contact_label.setWordWrap(True)
+        self.contact_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        contact_layout.addWidget(self.contact_label)
+        layout.addWidget(contact)
+        conditioning = QGroupBox("Conditioning (optional)")
+        conditioning_layout = QVBoxLayout(conditioning)
+        text = QLabel("Piezo-resistive sheets are conditioned before calibration: N load/unload cycles at a chosen "
+                      "force after the contact search, before the first trial. They are not recorded as trials; "
+                      "each cycle is logged in the session's conditioning.json, and resuming a session does not "
+                      "repeat a conditioning that finished.")
+        text.setWordWrap(True)
+        conditioning_layout.addWidget(text)
+        conditioning_layout.addWidget(self.protocol_form.conditioning_box)
+        layout.addWidget(conditioning)
+        layout.addStretch(1)
+        return page
+
+    def _build_protocol_page(self) -> QWidget:
         rig_page = QWidget()
         rig_layout = QVBoxLayout(rig_page)
         rig_layout.setContentsMargins(0, 0, 0, 0)
         rig_layout.addWidget(self.protocol_form, 1)
+        self.live_fit_label = QLabel("")
+        self.live_fit_label.setWordWrap(True)
+        self.live_fit_label.setToolTip("The trials recorded so far, fitted after each trial (the Fit view shows it)")
+        rig_layout.addWidget(self.live_fit_label)
         resume_row = QHBoxLayout()
         self.resume_button = QPushButton("Resume a session…")
         self.resume_button.setToolTip("Continue a run cut short (abort, crash, closed app): its finished trials are "
                                       "kept and the rest run with its own protocol")
         self.resume_button.clicked.connect(self._choose_resume)
-        self.redo_button = QPushButton("Redo selected trial")
-        self.redo_button.setToolTip("Reject the selected trial (its CSV moves to the session's rejected/ folder) "
-                                    "and run it again on the rig")
-        self.redo_button.clicked.connect(self._redo_selected)
         resume_row.addWidget(self.resume_button)
-        resume_row.addWidget(self.redo_button)
         rig_layout.addLayout(resume_row)
         self.unfinished_label = QLabel("")
         self.unfinished_label.setWordWrap(True)
         rig_layout.addWidget(self.unfinished_label)
-        self.source_tabs.addTab(rig_page, "Run on the rig")
-        layout.addWidget(self.source_tabs, 1)
+        return rig_page
 
+    def _build_review_page(self) -> QWidget:
+        page = QWidget()
+        layout = QVBoxLayout(page)
+        layout.setContentsMargins(0, 0, 0, 0)
+        note = QLabel("The fit starts by itself when a run completes. Views on the right: Fit (Fig. 8B), Mean vs "
+                      "force (Fig. 9ii), Parameters vs force (Fig. 9iii). Redo a trial that went wrong.")
+        note.setWordWrap(True)
+        layout.addWidget(note)
+        layout.addWidget(self._build_trial_files(), 1)
         row = QHBoxLayout()
         self.fit_button = QPushButton("Fit")
         self.fit_button.setObjectName("fit_button")
         self.fit_button.clicked.connect(self.start_fit)
+        self.redo_button = QPushButton("Redo selected trial")
+        self.redo_button.setToolTip("Reject the selected trial (its CSV moves to the session's rejected/ folder) "
+                                    "and run it again on the rig")
+        self.redo_button.clicked.connect(self._redo_selected)
+        row.addWidget(self.fit_button)
+        row.addWidget(self.redo_button)
+        layout.addLayout(row)
+        return page
+
+    def _build_save_page(self) -> QWidget:
+        page = QWidget()
+        layout = QVBoxLayout(page)
+        layout.setContentsMargins(0, 0, 0, 0)
+        note = QLabel("Save writes the sensor into a calibration file (its other sensors are kept); the Forces tab "
+                      "uses it at once, and the sensor's History view gets a row (drift of E0 between "
+                      "calibrations). A fit that is not fit to use asks for confirmation first.")
+        note.setWordWrap(True)
+        layout.addWidget(note)
         self.save_button = QPushButton("Save to calibration file…")
         self.save_button.setToolTip("Write this sensor into a calibration file; other sensors in it are kept")
         self.save_button.clicked.connect(self._choose_save)
-        row.addWidget(self.fit_button)
-        row.addWidget(self.save_button)
-        layout.addLayout(row)
-        self.status_label = QLabel("Add trial CSVs, or run the protocol on the rig, then Fit.")
-        self.status_label.setWordWrap(True)
-        self.status_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-        layout.addWidget(self.status_label)
-        return column
+        layout.addWidget(self.save_button)
+        layout.addStretch(1)
+        return page
 
     def _build_trial_files(self) -> QWidget:
         page = QWidget()
@@ -431,11 +580,13 @@ class CalibrationTab(QWidget):
 
     def _fit_worker(self, sensor: str, trials: tuple[LoadedTrial, ...], area_m2: float,
                     physics: PhysicsConstants, window_s: tuple[float, float] | None = None,
-                    board: Any = None) -> None:
+                    board: Any = None, live: bool = False) -> None:
         """Worker thread: the fit (in a child process) and the fitted curves; the outcome goes back through a
         queued signal. ``window_s``: the linear model's averaging window (s), None for the paper's 225–300 s;
         ``board``: the lab's readout circuit (its ceiling 1/R_C is not fitted), the same as ``sensnake fit
-        --config`` and ``sensnake calibrate`` use, so the tab and the CLI agree on the same files."""
+        --config`` and ``sensnake calibrate`` use, so the tab and the CLI agree on the same files. ``live``: a fit of
+        the trials so far during a run (shown, never saved: :meth:`_on_live_fit`)."""
+        deliver = (lambda outcome: self._bridge.post(self._on_live_fit, outcome)) if live else self._deliver
         # Imported here, off the GUI thread: the fitting stack takes seconds to load and the tab opens at once.
         from models.calibration import TrialInput
         from models.linear import DEFAULT_WINDOW_S
@@ -451,9 +602,9 @@ class CalibrationTab(QWidget):
             cal = session.calibration
         except (ValueError, ArithmeticError, LookupError, RuntimeError, OSError) as exc:
             # BrokenProcessPool (a RuntimeError) if the child died; the fit's own refusals are ValueErrors.
-            self._deliver(f"fit refused: {exc}")
+            deliver(f"fit refused: {exc}")
             return
-        self._deliver(FitResult(sensor, cal, physics, trials, fitted, window_s, session))
+        deliver(FitResult(sensor, cal, physics, trials, fitted, window_s, session))
 
     def _deliver(self, outcome: FitResult | str) -> None:
         """Worker thread: hand the outcome (a result, or the refusal's message) to the GUI thread. Dropped by the
@@ -481,6 +632,22 @@ class CalibrationTab(QWidget):
         self.result = result
         cal = result.calibration
         self._plot(result.trials, result.fitted_s)
+        self._fill_table(cal)
+        self.summary_label.setText(summary_html(result))
+        n_warn = len(cal.warnings)
+        level = theme.WARN if n_warn else theme.OK
+        note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
+        if result.problems:
+            self._set_status(f"fitted {result.sensor}, but NOT fit to use: {'; '.join(result.problems)}. Saving "
+                             "asks for confirmation; redo trials or run again.", theme.ERROR)
+        else:
+            self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
+        self._plot_review(result)
+        self.go_to_step(REVIEW)
+        self.view_tabs.setCurrentIndex(0)
+        self._update_buttons()
+
+    def _fill_table(self, cal: SensorCalibration) -> None:
         self.trial_table.setRowCount(len(cal.trials))
         for row, report in enumerate(cal.trials):
             params = report.params
@@ -498,18 +665,53 @@ class CalibrationTab(QWidget):
                 self.trial_table.setItem(row, col, item)
         self.trial_table.resizeRowsToContents()
         self.trial_table.scrollToTop()
-        self.summary_label.setText(summary_html(result))
-        n_warn = len(cal.warnings)
-        level = theme.WARN if n_warn else theme.OK
-        note = f" with {n_warn} warning(s) — read them before saving" if n_warn else ""
-        if result.problems:
-            self._set_status(f"fitted {result.sensor}, but NOT fit to use: {'; '.join(result.problems)}. Saving "
-                             "asks for confirmation; redo trials or run again.", theme.ERROR)
+
+    # -- the fit of the trials so far, during a run ----------------------------------------------------------------
+    def _maybe_live_fit(self) -> None:
+        """After a trial of a run: fit the trials so far in the background (Fit view, table, summary and the protocol
+        page's line update; nothing can be saved from it). Only when the next trial takes at least
+        :attr:`LIVE_FIT_MIN_WALL_S` of wall time — on the paper's protocol ~12 min, on an accelerated sim seconds,
+        where a fit per trial would only compete with the rig's thread — and not for the last trial (the run's own
+        fit follows it). A trial that ends while a live fit runs asks for another one after it."""
+        settings = self.run_settings
+        if settings is None or not self.rig_session.is_running or len(self.trials) >= settings.n_trials:
+            return
+        next_trial_wall_s = (settings.trial_duration_s() + settings.rest_s) / max(self.rig_session.time_scale, 1e-9)
+        if next_trial_wall_s < self.LIVE_FIT_MIN_WALL_S:
+            return
+        if self._live_fit_thread is not None and self._live_fit_thread.is_alive():
+            self._live_fit_again = True
+            return
+        self._live_fit_again = False
+        self._live_fit_thread = threading.Thread(
+            target=self._fit_worker, args=(settings.sensor, tuple(self.trials), settings.area_m2, self.physics,
+                                           self.fit_window_s, self.lab.config.board, True),
+            name="calibration-live-fit", daemon=True)
+        self._live_fit_thread.start()
+
+    def _on_live_fit(self, outcome: FitResult | str) -> None:
+        """GUI thread: show the fit of the trials so far, if the run is still going (else the run's own fit, or its
+        abort, has the last word)."""
+        thread, self._live_fit_thread = self._live_fit_thread, None
+        if thread is not None:
+            thread.join()
+        if not self.rig_session.is_running:
+            return
+        if isinstance(outcome, FitResult):
+            cal = outcome.calibration
+            self._plot(outcome.trials, outcome.fitted_s)
+            self._fill_table(cal)
+            self.summary_label.setText(f"<i>Fit of the {len(cal.trials)} trial(s) so far — it updates after each "
+                                       "trial; the run's own fit follows its last trial.</i><br>"
+                                       + summary_html(outcome))
+            line = (f"fit so far ({len(cal.trials)} trial(s)): τ = {float(cal.sls.tau_s):.4g} s, E0 = "
+                    f"{float(cal.sls.E0_Pa):.4g} Pa, RMSE {cal.rmse_s * 1e6:.3g} µS")
         else:
-            self._set_status(f"fitted {result.sensor} to {len(cal.trials)} trial(s){note}; Save to keep it.", level)
-        self._plot_review(result)
-        self.view_tabs.setCurrentIndex(0)
-        self._update_buttons()
+            line = f"fit so far: {outcome}"
+        self.live_fit_label.setText(line)
+        self.live_fits_shown += 1
+        if self._live_fit_again:
+            self._maybe_live_fit()
 
     def _show_failure(self, message: str) -> None:
         self._set_status(message, theme.ERROR)
@@ -543,6 +745,7 @@ class CalibrationTab(QWidget):
             return False
         self.run_settings = settings
         self.session_folder = folder
+        self.live_fit_label.setText("")
         self.clear_trials()
         if resume is not None:
             self.add_trial_files([p for _, p in sorted(finished_trials(folder, settings).items())])
@@ -551,6 +754,7 @@ class CalibrationTab(QWidget):
         warnings = "".join(f"; warning: {w}" for w in check.warnings)
         self.protocol_form.set_message(f"running; trials go to {folder}{warnings}", theme.WARN)
         self.protocol_form.show_progress(0.0, f"0/{settings.n_trials} trials", "opening the rig…")
+        self.go_to_step(PROTOCOL)
         self.view_tabs.setCurrentWidget(self.live_plot)
         self._set_status(f"rig run on {settings.sensor}: {settings.n_trials} trial(s)", theme.WARN)
         self._update_buttons()
@@ -577,7 +781,7 @@ class CalibrationTab(QWidget):
         self.sensor_edit.setText(settings.sensor)
         self.area_spin.setValue(settings.area_m2 * 1e6)
         form.folder_edit.setText(str(Path(folder).parent))
-        self.source_tabs.setCurrentIndex(1)
+        self.go_to_step(PROTOCOL)
         return self.start_run(resume=Path(folder))
 
     def redo_trial(self, row: int) -> bool:
@@ -631,6 +835,10 @@ class CalibrationTab(QWidget):
             self.protocol_form.set_message("resumed", theme.WARN)
 
     def _show_progress(self, progress: Progress) -> None:
+        if self._contact_run:
+            if progress.phase != "done":
+                self._show_contact(progress.message, theme.WARN)
+            return
         settings = self.run_settings
         if settings is None:
             return
@@ -667,8 +875,12 @@ class CalibrationTab(QWidget):
         settings = self.run_settings
         total = settings.n_trials if settings is not None else "?"
         self._set_status(f"trial {record.index + 1}/{total} saved: {record.path.name}", theme.WARN)
+        self._maybe_live_fit()
 
     def _run_finished(self, outcome: Outcome) -> None:
+        if self._contact_run:
+            self._contact_finished(outcome)
+            return
         self.protocol_form.set_running(False)
         self.show_unfinished_sessions()
         self.live_plot.trial = -1
@@ -686,6 +898,7 @@ class CalibrationTab(QWidget):
 
     def shutdown(self) -> None:
         """The window is closing: abort a run and wait until the rig has released the load and closed."""
+        self._stop_board_check()
         self.rig_session.shutdown()
 
     # -- saving ----------------------------------------------------------------------------------------------------
@@ -819,6 +1032,191 @@ class CalibrationTab(QWidget):
         self.protocol_form.run_button.setEnabled(not busy)
         self.resume_button.setEnabled(not busy)
         self.redo_button.setEnabled(not busy and self.session_folder is not None and has_trials)
+        self.check_button.setEnabled(not self.rig_session.is_running and not self._check_running)
+        self.contact_button.setEnabled(not busy)
+        self._update_nav()
+
+    # -- the wizard's steps ----------------------------------------------------------------------------------------
+    def go_to_step(self, step: int) -> None:
+        """Show step ``step`` (SETUP … SAVE) and the view that goes with it."""
+        step = max(SETUP, min(SAVE, step))
+        self.steps.setCurrentIndex(step)
+        self.step_label.setText(f"Step {step + 1} of {len(STEP_TITLES)} · {STEP_TITLES[step]}")
+        view = {PROTOCOL: self.live_plot, REVIEW: self.view_tabs.widget(0), SAVE: self.history_table}.get(step)
+        if view is not None:
+            self.view_tabs.setCurrentWidget(view)
+        if step == SAVE and self.result is not None:
+            self.show_history(self.result.sensor)
+        self._update_nav()
+
+    def next_blocked(self) -> str:
+        """Why Next is off on the current step ("" when it is on)."""
+        step = self.steps.currentIndex()
+        sensor = self.sensor_edit.text().strip()
+        if step == SETUP and sensor not in self.lab.config.board.channel_names:
+            return f"pick a sensor on the body ({sensor or 'none'} is not a channel of the board)"
+        if step == RIG_CHECK and self._rig_check_ok_for != sensor:
+            return "run the rig check: Next needs every line to pass"
+        if step == CONTACT and (self._contact_run or self._contact_found_for != sensor):
+            return "finding the contact…" if self._contact_run else "find the contact first"
+        if step == PROTOCOL and (self.rig_session.is_running or not self.trials):
+            return "the run is going" if self.rig_session.is_running else "run the protocol (or resume a session)"
+        if step == REVIEW and (self.result is None or self.is_fitting):
+            return "fitting…" if self.is_fitting else "fit the trials first"
+        if step == SAVE:
+            return "the last step"
+        return ""
+
+    def _update_nav(self) -> None:
+        if not hasattr(self, "next_button"):
+            return  # still being built
+        blocked = self.next_blocked()
+        self.next_button.setEnabled(not blocked)
+        self.back_button.setEnabled(self.steps.currentIndex() > SETUP)
+        step = self.steps.currentIndex()
+        self.step_hint.setText("" if not blocked or step == SAVE else f"Next: {blocked}")
+        self.step_hint.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
+
+    def _sensor_changed(self, _text: str) -> None:
+        self._update_nav()
+
+    def start_rig_check(self) -> bool:
+        """Check the rig (on a worker thread: its port is opened, checked, closed) and that the board streams the
+        chosen sensor (its next samples); the lines show as they are known, Next follows the verdict."""
+        if self.rig_session.is_running or self._check_running:
+            return False
+        sensor = self.sensor_edit.text().strip()
+        self._rig_check_ok_for = None
+        self._check_rig_lines, self._check_board_line = None, None
+        self._check_running = True
+        self._check_sensor = sensor
+        self.check_table.setRowCount(0)
+        self._set_status(f"checking the rig on {self.lab.config.rig.port} and the board's {sensor}…", theme.WARN)
+        threading.Thread(target=self._rig_check_worker, name="calibration-rig-check", daemon=True).start()
+        board = self.lab.board
+        names = self.lab.config.board.channel_names
+        if board is None:
+            self._check_board_line = (False, f"no force-sensor board: {self.lab.board_unavailable_reason}")
+        elif sensor not in names:
+            self._check_board_line = (False, f"{sensor or 'no sensor'} is not a channel of the board "
+                                             f"({names[0]} … {names[-1]})")
+        else:
+            self._check_channel = names.index(sensor)
+            self._check_board = board
+            board.block.connect(self._check_block)
+            if not board.is_running:
+                board.start()
+            QTimer.singleShot(int(BOARD_CHECK_S * 1000), self._board_check_timeout)
+        self._update_buttons()
+        self._finish_check_if_done()
+        return True
+
+    def find_contact(self) -> bool:
+        """The wizard's "Find contact" step: the rig finds where the probe touches the sensor (current, then the
+        sensor's reading) and releases; nothing is recorded. The outcome shows under the button; Next follows it."""
+        if self.rig_session.is_running or self.is_fitting:
+            return False
+        try:
+            settings = self.protocol_settings()
+            self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip()
+                                   or user_folders.calibrations_dir(), contact_only=True)
+        except ValueError as exc:
+            self._show_contact(str(exc), theme.ERROR)
+            return False
+        self._contact_run = True
+        self._contact_found_for = None
+        self._show_contact("finding where the probe touches the sensor…", theme.WARN)
+        self._update_buttons()
+        return True
+
+    def _show_contact(self, text: str, level: str) -> None:
+        self.contact_label.setText(text)
+        self.contact_label.setStyleSheet(theme.status_style(level))
+
+    def _contact_finished(self, outcome: Outcome) -> None:
+        self._contact_run = False
+        if outcome.status == COMPLETED:
+            self._contact_found_for = self.sensor_edit.text().strip()
+            self._show_contact(outcome.message, theme.OK)
+            self._set_status("contact found: Next", theme.OK)
+        else:
+            self._show_contact(f"contact not found: {outcome.message}", theme.ERROR)
+            self._set_status("contact not found — see the step's message", theme.ERROR)
+        self._update_buttons()
+
+    def _rig_check_worker(self) -> None:
+        """Worker thread: the rig's own check (devices.rig.CalibrationRig.check)."""
+        from devices.rig import CalibrationRig, RigCheckLine
+
+        try:
+            lines = CalibrationRig(self.lab.config.rig).check()
+        except Exception as exc:  # noqa: BLE001 - the check must answer whatever the rig does
+            lines = [RigCheckLine("rig", False, f"{type(exc).__name__}: {exc}")]
+        self._bridge.post(self._on_rig_checked, lines)
+
+    def _on_rig_checked(self, lines: list[Any]) -> None:
+        self._check_rig_lines = lines
+        self._finish_check_if_done()
+
+    def _check_block(self, block: Any) -> None:
+        if self._check_board_line is not None or not len(block):
+            return
+        column = np.asarray(block.conductance_s)[:, self._check_channel]
+        finite = column[np.isfinite(column)]
+        if finite.size:
+            self._check_board_line = (True, f"{finite.size} sample(s) of {self._check_sensor}, now "
+                                            f"{float(finite[-1]) * 1e6:.1f} µS")
+            self._stop_board_check()
+            self._finish_check_if_done()
+
+    def _board_check_timeout(self) -> None:
+        if self._check_board_line is None and self._check_running:
+            self._check_board_line = (False, f"no sample of {self._check_sensor} from the board in "
+                                             f"{BOARD_CHECK_S:g} s: check the board's cable and that it streams "
+                                             "(Forces tab)")
+            self._stop_board_check()
+            self._finish_check_if_done()
+
+    def _stop_board_check(self) -> None:
+        board, self._check_board = self._check_board, None
+        if board is not None:
+            with contextlib.suppress(RuntimeError, TypeError):
+                board.block.disconnect(self._check_block)
+
+    def _finish_check_if_done(self) -> None:
+        if self._check_rig_lines is None or self._check_board_line is None:
+            return
+        lines = [(line.ok, line.name, line.detail) for line in self._check_rig_lines]
+        ok, detail = self._check_board_line
+        lines.append((ok, f"board streams {self._check_sensor}", detail))
+        self.check_table.setRowCount(len(lines))
+        for row, (passed, name, seen) in enumerate(lines):
+            mark = QTableWidgetItem("✔ pass" if passed else "✘ FAIL")
+            mark.setForeground(theme.qcolor(theme.STATUS_COLORS[theme.OK if passed else theme.ERROR]))
+            self.check_table.setItem(row, 0, mark)
+            self.check_table.setItem(row, 1, QTableWidgetItem(name))
+            item = QTableWidgetItem(seen)
+            item.setToolTip(seen)
+            self.check_table.setItem(row, 2, item)
+        self.check_table.resizeRowsToContents()
+        self._check_running = False
+        passed = all(p for p, _, _ in lines)
+        if passed:
+            self._rig_check_ok_for = self._check_sensor
+            self._set_status("rig check passed: Next", theme.OK)
+        else:
+            failed = [f"{name}: {seen}" for p, name, seen in lines if not p]
+            self._set_status("rig check FAILED — " + failed[0], theme.ERROR)
+        self.rig_check_finished.emit(passed)
+        self._update_buttons()
+
+    def check_lines(self) -> list[tuple[str, str, str]]:
+        """The rig check's table as text (mark, check, seen/reason), for tests and screenshots."""
+        def text(row: int, col: int) -> str:
+            item = self.check_table.item(row, col)
+            return item.text() if item is not None else ""
+
+        return [(text(r, 0), text(r, 1), text(r, 2)) for r in range(self.check_table.rowCount())]
 
     def curves(self) -> list[Any]:
         """The plotted curves (measured and fitted), for tests and screenshots."""
