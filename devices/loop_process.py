@@ -58,7 +58,13 @@ from typing import Any
 import numpy as np
 
 from devices.config import RobotConfig
-from devices.controller import ControllerStats, MotionSource, RobotController
+from devices.controller import (
+    ControllerStats,
+    MotionSource,
+    RobotController,
+    _lower_switch_interval,
+    _raise_thread_priority,
+)
 from devices.errors import DeviceError, LinkLostError
 from devices.servo_chain import ChainState, ServoChain, ServoHealth
 
@@ -151,6 +157,7 @@ class ControllerProcess:
         self._closing = False
         self.died: LoopDiedError | None = None
         self.died_at_s: float | None = None
+        self.watcher_scheduling = "not started"
         self.timing_warnings: list[str] = []
         self.scheduling = "not started"
         self._connected = False
@@ -408,7 +415,11 @@ class ControllerProcess:
         return exc
 
     def _watch(self) -> None:
-        """Watcher thread: deliver the child's messages; notice its death (end of file) or a stall."""
+        """Watcher thread: deliver the child's messages; notice its death (end of file) or a stall. It asks for the
+        bus thread's real-time priority and the 1 ms interpreter switch interval (devices.controller), so a busy
+        machine or the GUI thread delays the news of a death less (it still needs the interpreter lock)."""
+        _lower_switch_interval()
+        self.watcher_scheduling = _raise_thread_priority()
         conn = self._conn
         assert conn is not None
         while True:
@@ -537,6 +548,7 @@ class _Child:
         self.recent_exceptions: collections.deque[BaseException] = collections.deque(maxlen=EXCEPTIONS_KEPT)
 
     def run(self) -> int:
+        _raise_thread_priority()  # this (receiver) thread too: see _send_loop
         sender = threading.Thread(target=self._send_loop, name="loop-process-sender", daemon=True)
         sender.start()
         try:
@@ -645,6 +657,9 @@ class _Child:
         return _exception_payload(exc)
 
     def _send_loop(self) -> None:
+        # Every thread of this process asks for the bus thread's priority: one preempted while it holds the
+        # interpreter lock (pickling a tick's message) would make the bus thread wait behind the machine's load.
+        _raise_thread_priority()
         while True:
             message = self.out.get()
             if message is None:
