@@ -94,6 +94,8 @@ def loop_process_wanted(port: str) -> tuple[bool, str]:
 
     if is_sim(port):
         return False, "port sim: the simulated lab lives in the app's process"
+    if os.name != "posix":
+        return False, "the loop's own process needs Linux or macOS (it inherits a socket)"
     if os.environ.get(ENV_SWITCH, "1").strip().lower() in ("0", "no", "off", "false"):
         return False, f"{ENV_SWITCH}=0"
     return True, ""
@@ -187,7 +189,7 @@ class ControllerProcess:
             self._process = subprocess.Popen(
                 [sys.executable, "-m", "devices.loop_process", "--fd", str(theirs.fileno())],
                 pass_fds=(theirs.fileno(),), env=env, cwd=root, stdin=subprocess.DEVNULL, start_new_session=True)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: pass_fds/start_new_session where unsupported
             ours.close()
             raise LoopProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
         finally:
