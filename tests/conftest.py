@@ -20,6 +20,16 @@ os.environ.setdefault("SENSNAKE_REALTIME", "0")
 
 THREAD_JOIN_GRACE_S = 3.0
 MAX_PHYSICS_TEST_SPEED = 4.0  # the physics lab keeps up with this on a loaded 2-core machine (not with 20-50x)
+# pytest-qt waits 5 s when a test gives no timeout; on a loaded 2-core machine a Qt timer, a worker thread or the
+# window manager can take longer. Those waits get 30 s instead (only a wait that fails takes that long).
+QT_DEFAULT_WAIT_MS = 30_000
+
+
+def pytest_configure(config):
+    from pytestqt.qtbot import QtBot
+
+    for name in ("waitUntil", "waitSignal", "waitSignals", "waitExposed", "waitActive", "waitCallback"):
+        getattr(QtBot, name).__kwdefaults__["timeout"] = QT_DEFAULT_WAIT_MS
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -18,7 +18,10 @@ from models.synthetic import TYPICAL_TRUTH, paper_protocol
 
 NO_PORT_CONFIG = LabConfig(robot=RobotConfig(port="/dev/sensnake-test-no-such-port"))
 # The rig's sensor on a spare board channel, away from the lying robot's weight (see tests/app/test_rig_session.py).
-BENCH_CONFIG = LabConfig(board=BoardConfig(channel_names=(*default_sensor_names(), "BENCH")),
+# The board at 12 Hz (the protocol samples at 6 Hz): at 30 Hz the 50x simulated board makes 1500 frames per wall
+# second (~18 % of a core, each frame runs the lying robot's contact model), and on a busy machine (load 8-10) its
+# thread fell behind the lab clock by more than the runner's 5 s board-stale limit: "no conductance from the board".
+BENCH_CONFIG = LabConfig(board=BoardConfig(rate_hz=12.0, channel_names=(*default_sensor_names(), "BENCH")),
                          rig=RigConfig(sensor="BENCH"), lab=SimLabConfig(physics="scripted"))
 
 
@@ -190,11 +193,14 @@ def test_bad_protocol_fields_are_refused_before_anything_moves(rig_tab):
     assert not tab.rig_session.is_running
 
 
-def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, fast_sim_lab, tmp_path):
+def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, install_fast_sim_lab, tmp_path):
     from PySide6.QtCore import QSettings, Qt
 
     from app.gui.main_window import MainWindow
 
+    # 20x, not 50x: the whole window's GUI thread moves the board's blocks to the run, and at 50x (600 frames per wall
+    # second) a busy machine (load 8-12) starved it past the run's 5 s board-stale limit ("no conductance ... for 5 s").
+    fast_sim_lab = install_fast_sim_lab(BENCH_CONFIG, seed=5, speed=20.0)
     window = MainWindow(LabContext(BENCH_CONFIG), settings=QSettings(str(tmp_path / "s.ini"),
                                                                     QSettings.Format.IniFormat))
     qtbot.addWidget(window)

@@ -40,7 +40,7 @@ def window(qtbot, sim_lab_fast, tmp_path):
 def moving_then_stop(qtbot, window, sim_lab_fast, press_stop) -> None:
     robot = window.lab.robot
     chain = sim_lab_fast.chain
-    robot.set_torque(True).result(timeout=5)
+    robot.set_torque(True).result(timeout=30)
     robot.run_motion(JointRamp(index=2), "ramp")
     assert robot.motion_state == MOTION_RUNNING
     before = chain.goal_positions_ticks()[2]
@@ -125,7 +125,7 @@ def test_overload_names_the_servo_in_status_and_table_and_reboot_clears_it(windo
     questions: list[str] = []
     answer = {"yes": False}
     tab.confirm = lambda question: questions.append(question) or answer["yes"]  # the modal question, answered
-    window.lab.robot.set_torque(True).result(timeout=5)
+    window.lab.robot.set_torque(True).result(timeout=30)
     sim_lab_fast.chain.inject_overload(7)
     qtbot.waitUntil(lambda: "servo 7" in window.status.message, timeout=15_000)
     assert "overload" in window.status.message.lower()
@@ -191,11 +191,11 @@ def test_timing_warning_and_its_fix_from_the_tab(window, qtbot, sim_lab_fast):
     panel = window.show_tab("hardware").panel
     chain = sim_lab_fast.chain
     assert "Return Delay Time" in panel.timing_text.toPlainText()  # the sim servos ship with 500 µs, as real ones
-    window.lab.robot.set_torque(True, [2]).result(timeout=5)
+    window.lab.robot.set_torque(True, [2]).result(timeout=30)
     qtbot.mouseClick(panel.fix_return_delay_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: "could not do that" in panel.timing_text.toPlainText(), timeout=15_000)
     assert "servo 2" in panel.timing_text.toPlainText()  # EEPROM write refused with torque on, naming the servo
-    window.lab.robot.set_torque(False).result(timeout=5)
+    window.lab.robot.set_torque(False).result(timeout=30)
     qtbot.mouseClick(panel.fix_return_delay_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: "Return Delay" not in panel.timing_text.toPlainText(), timeout=15_000)
     assert all(chain.register(sid, "Return Delay Time") == 0 for sid in range(1, 13))
@@ -222,7 +222,7 @@ def test_a_scan_from_the_hardware_tab_while_a_motion_plays_is_refused_with_the_r
     robot = window.lab.robot
     chain = sim_lab_fast.chain
     panel = window.show_tab("hardware").panel
-    robot.set_torque(True).result(timeout=5)
+    robot.set_torque(True).result(timeout=30)
     robot.run_motion(JointRamp(index=2), "ramp")
     assert robot.motion_state == MOTION_RUNNING
     pings = chain.count(wire.PING)
