@@ -33,6 +33,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -73,12 +74,43 @@ DEFAULTS = {"trials": 3, "hold": 370.0, "rest": 300.0, "rate": 6.0, "baseline": 
 PROTOCOL_OPTIONS = ("forces", "trials", "hold", "rest", "rate", "baseline", "ramp", "sensor", "area", "condition")
 
 
-class _StopSignal(KeyboardInterrupt):
-    pass
+STOP_SIGNALS = tuple(s for s in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
+                     if s)
 
 
-def _raise_stop(signum: int, _frame: object) -> None:
-    raise _StopSignal(signal.Signals(signum).name)
+def run_until_done(work: Callable[[], Outcome], abort: Callable[[str], None], name: str) -> tuple[Outcome | None, str]:
+    """Run ``work`` on a thread called ``name`` and wait for its outcome; Ctrl-C, SIGTERM and SIGHUP (unless ignored,
+    e.g. under nohup) call ``abort("interrupted (WHY)")`` and the outcome is still waited for (the load comes off
+    first). Returns (the outcome, or None if ``work`` raised; WHY: "Ctrl-C", "SIGTERM", "SIGHUP" or "" if none came).
+
+    The signals set a flag instead of raising KeyboardInterrupt in the waiting thread: on Python 3.11 a
+    KeyboardInterrupt that lands inside ``Thread.join(timeout)`` marks the still-running thread as ended
+    (CPython's bpo-45274 handler releases the thread's own lock), so the next ``join()`` returned at once and a run
+    stopped on a busy machine reported "the rig thread ended without an outcome" while the rig was still releasing."""
+    result: list[Outcome] = []
+    finished = threading.Event()
+    why: list[str] = []
+
+    def target() -> None:
+        try:
+            result.append(work())
+        finally:
+            finished.set()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        why.append("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
+        abort(f"interrupted ({why[0]})")
+
+    worker = threading.Thread(target=target, name=name, daemon=True)
+    previous = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        worker.start()
+        while not finished.wait(0.2):
+            pass
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return (result[0] if result else None), (why[0] if why else "")
 
 
 def _config(args: argparse.Namespace) -> LabConfig:
@@ -220,42 +252,27 @@ def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, t
                                                           config.board.rate_hz if sim else None), name="calibrate-board",
                              daemon=True)
     drain.start()
-    result: list[Outcome] = []
 
-    def work() -> None:
+    def work() -> Outcome:
         rig = CalibrationRig(config.rig, interrupt=runner.stop_requested)
         try:
             rig.open()
         except (DeviceError, OSError, ValueError) as exc:
-            result.append(Outcome("failed", f"cannot open the calibration rig on {config.rig.port}: {exc}", folder))
-            return
+            return Outcome("failed", f"cannot open the calibration rig on {config.rig.port}: {exc}", folder)
         try:
-            result.append(runner.run(rig))
+            return runner.run(rig)
         finally:
             with contextlib.suppress(DeviceError, OSError):
                 rig.close()
 
-    worker = threading.Thread(target=work, name="calibrate-rig", daemon=True)
-    previous = {s: signal.signal(s, _raise_stop) for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s}
-    interrupted = ""
     try:
-        worker.start()
-        while worker.is_alive():
-            try:
-                worker.join(0.2)
-            except KeyboardInterrupt as exc:
-                interrupted = str(exc) or "Ctrl-C"
-                runner.abort(f"interrupted ({interrupted})")
+        result, interrupted = run_until_done(work, runner.abort, "calibrate-rig")
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        if interrupted:
-            worker.join()
         stop_drain.set()
         drain.join()
         reader.close()
         line.end()
-    outcome = result[0] if result else Outcome("failed", "the rig thread ended without an outcome", folder)
+    outcome = result or Outcome("failed", "the rig thread ended without an outcome", folder)
     if interrupted and outcome.status == ABORTED:
         outcome = replace(outcome, status="interrupted")
     return outcome

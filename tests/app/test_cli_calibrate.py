@@ -13,6 +13,8 @@ import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -191,6 +193,33 @@ def test_ctrl_c_keeps_the_finished_trials_and_says_how_to_continue(tmp_path, lab
     session = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_"))
     assert sorted(finished_trials(session, read_session(session))) == [0]
     assert not out.exists()
+
+
+def test_ctrl_c_while_the_rig_is_still_releasing_waits_for_its_outcome(tmp_path):
+    """Ctrl-C lands in the main thread while the rig thread runs and the load takes a while to come off (a busy
+    machine). Before: on Python 3.11 the KeyboardInterrupt inside ``Thread.join(0.2)`` marked the rig thread as
+    ended, the outcome was not waited for and the run ended "without an outcome" (exit 1, not 130)."""
+    from app.cli.calibrate import run_until_done
+    from app.core.rig_protocol import ABORTED, Outcome
+
+    stopped = threading.Event()
+    reasons: list[str] = []
+
+    def abort(reason: str) -> None:
+        reasons.append(reason)
+        stopped.set()
+
+    def work() -> Outcome:
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)  # the user's Ctrl-C, to the main thread
+        assert stopped.wait(30), "Ctrl-C did not abort the run"
+        time.sleep(1.0)  # the rig releasing the load on a slow machine: the main thread must wait for it
+        return Outcome(ABORTED, reasons[0], tmp_path)
+
+    before = signal.getsignal(signal.SIGINT)
+    outcome, why = run_until_done(work, abort, "test-rig")
+    assert why == "Ctrl-C" and reasons == ["interrupted (Ctrl-C)"]
+    assert outcome is not None and outcome.status == ABORTED and outcome.message == "interrupted (Ctrl-C)"
+    assert signal.getsignal(signal.SIGINT) is before  # the handlers are put back
 
 
 def test_a_rejected_trial_is_kept_aside_and_the_session_is_unfinished_again(tmp_path):

@@ -210,8 +210,10 @@ def test_escape_in_the_main_window_stops_the_run_and_releases_the_force(qtbot, f
     window.activateWindow()
     qtbot.waitUntil(window.isActiveWindow)
     tab.start_run()
-    qtbot.waitUntil(lambda: tab.live_plot.n_samples > 0 and fast_sim_lab.rig.applied_force_n() > 2.5,
-                    timeout=30_000)
+    # Wait for the load (or the run's end, to name why it ended instead of timing out).
+    qtbot.waitUntil(lambda: (tab.live_plot.n_samples > 0 and fast_sim_lab.rig.applied_force_n() > 2.5)
+                    or not tab.rig_session.is_running, timeout=60_000)
+    assert tab.rig_session.is_running, f"the run ended before the load: {tab.rig_session.outcome}"
     with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
         qtbot.keyClick(tab.live_plot, Qt.Key.Key_Escape)
     assert fast_sim_lab.rig.applied_force_n() == 0.0
