@@ -71,7 +71,7 @@ RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the perio
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
 DEFAULT_BAUD_BPS = 1_000_000
-PTY_EXTRA_TIMEOUT_MS = 60.0
+PTY_EXTRA_TIMEOUT_MS = 250.0  # a pty (an emulator in a process) crosses the kernel's tty work queue: under load >100 ms
 LATENCY_TIMER_DIR = Path("/sys/bus/usb-serial/devices")
 
 

@@ -120,8 +120,14 @@ def _start_play(emulator: EmulatorProcess, shape: Path) -> subprocess.Popen:
                              "--speed", "0.05"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
-def _wait_for_goals(emulator: EmulatorProcess, n_writes: int) -> None:
-    assert wait_until(lambda: emulator.counts()["sync_write"] >= n_writes, 30.0), "play never wrote goals"
+def _wait_for_goals(emulator: EmulatorProcess, n_writes: int, proc: subprocess.Popen) -> None:
+    """Until play has written ``n_writes`` goal frames; a play that ended first fails with what it said. 90 s: a
+    fresh `sensnake play` process starts in ~2 s on a quiet machine, several times that on a loaded one."""
+    written = wait_until(lambda: emulator.counts()["sync_write"] >= n_writes or proc.poll() is not None, 90.0)
+    if proc.poll() is not None:
+        _, err = proc.communicate()
+        raise AssertionError(f"play ended (exit {proc.returncode}) before {n_writes} goal writes: {err}")
+    assert written, "play never wrote goals"
 
 
 def test_a_shape_beyond_the_joint_limits_is_refused_before_any_goal(emulator, tmp_path, capsys):
@@ -160,7 +166,7 @@ def test_a_servo_that_reboots_mid_play_stops_it_naming_the_servo(emulator, tmp_p
     # dropped its torque (caught by the next status poll, 5 Hz).
     proc = _start_play(emulator, _write_shape(tmp_path / "slow.json", [0.5 * (-1) ** i for i in range(12)]))
     try:
-        _wait_for_goals(emulator, 15)
+        _wait_for_goals(emulator, 15, proc)
         assert emulator.command(f"reboot 5 0.05 {jump_ticks}").startswith("ok")
         out, err = proc.communicate(timeout=30)
     finally:
@@ -178,7 +184,7 @@ def test_killing_the_bus_mid_play_is_one_line_never_a_traceback(tmp_path):
         emulator = EmulatorProcess()
         proc = _start_play(emulator, _write_shape(tmp_path / "slow.json", [0.5 * (-1) ** i for i in range(12)]))
         try:
-            _wait_for_goals(emulator, 10 + 7 * attempt)
+            _wait_for_goals(emulator, 10 + 7 * attempt, proc)
             assert emulator.command("kill") == "ok killed"
             out, err = proc.communicate(timeout=30)
         finally:
