@@ -25,7 +25,10 @@ class RigOnlyLab:
 
 @pytest.fixture
 def virtual_rig(request):
-    rig = VirtualRig(RigConfig(), SimClock(20.0), seed=getattr(request, "param", 11))
+    # A seed given by the test: the contact-accuracy test, run at 5x: the search's estimate depends on how often the
+    # rig is polled in lab time, and a starved test thread at 20x polled seldom enough to miss by > 0.04 rad.
+    seeded = hasattr(request, "param")
+    rig = VirtualRig(RigConfig(), SimClock(5.0 if seeded else 20.0), seed=request.param if seeded else 11)
     previous = factory.install_sim_lab(RigOnlyLab(rig))
     yield rig
     factory.install_sim_lab(previous)
