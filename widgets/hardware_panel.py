@@ -9,8 +9,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
@@ -64,20 +63,24 @@ SCAN_COLUMNS: tuple[str, ...] = ("ID", "Model", "Firmware", "Baud")
 LINK_COLUMNS: tuple[str, ...] = ("ID", "RTT mean (ms)", "RTT max (ms)", "No reply", "CRC err", "Result")
 
 
-@dataclass(frozen=True)
-class LinkCheckRow:
-    """One servo's link-check result: round-trip times of the pings that answered, and the failures."""
-
-    servo_id: int
-    rtt_mean_ms: float | None
-    rtt_max_ms: float | None
-    no_reply: int
-    crc_errors: int
-    other_errors: tuple[str, ...] = ()
+class LinkCheckRow(Protocol):
+    """One servo's link-check result as the panel shows it: round-trip times of the pings that answered, and the
+    failures (``devices.bus_commands.LinkCheckRow`` is one; widgets do not import devices)."""
 
     @property
-    def ok(self) -> bool:
-        return self.no_reply == 0 and self.crc_errors == 0 and not self.other_errors
+    def servo_id(self) -> int: ...
+    @property
+    def rtt_mean_ms(self) -> float | None: ...
+    @property
+    def rtt_max_ms(self) -> float | None: ...
+    @property
+    def no_reply(self) -> int: ...
+    @property
+    def crc_errors(self) -> int: ...
+    @property
+    def other_errors(self) -> tuple[str, ...]: ...
+    @property
+    def ok(self) -> bool: ...
 
 
 def _item(text: str, align_right: bool = True) -> QTableWidgetItem:

@@ -9,6 +9,7 @@ import pytest
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QHeaderView
 
+from devices.bus_commands import LinkCheckRow
 from devices.servo_chain import ServoHealth, ServoInfo
 from widgets import theme
 from widgets.hardware_panel import (
@@ -23,7 +24,6 @@ from widgets.hardware_panel import (
     DXL_BAUDS_BPS,
     LIVE_SAMPLE_TEXT,
     HardwarePanel,
-    LinkCheckRow,
 )
 
 IDS = tuple(range(1, 13))

@@ -7,7 +7,6 @@ pings every servo a few times on the bus thread and times each round trip there.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -20,7 +19,7 @@ from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from devices import bus_commands
 from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
-from widgets.hardware_panel import HardwarePanel, LinkCheckRow
+from widgets.hardware_panel import HardwarePanel
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
 LOOP_STATS_EVERY = 5  # refreshes between control-loop statistics updates (2 Hz; they sort 4096 periods)
@@ -171,8 +170,7 @@ class HardwareTab(QWidget):
         ids = list(self.robot.config.joint_ids)
         self.panel.set_link_check_running()
         future = self.robot.run_on_bus(bus_command(bus_commands.link_check, ids), report_errors=False)
-        self.robot.when_done(future, lambda rows: self.panel.set_link_report(
-                                 [LinkCheckRow(**dataclasses.asdict(row)) for row in rows], LINK_CHECK_ROUNDS),
+        self.robot.when_done(future, lambda rows: self.panel.set_link_report(rows, LINK_CHECK_ROUNDS),
                              lambda exc: self.panel.set_link_check_failed(f"link check failed: {describe_error(exc)}"))
 
     def start_timing_check(self) -> None:
