@@ -205,3 +205,16 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "hardware" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.fixture
+def emulator():
+    """The independent XM430 chain (tests/emulators/xm430_emulator.py) in its own process on a pty; it must end
+    cleanly when the test is done."""
+    from tests.emulators.xm430_emulator import EmulatorProcess
+
+    process = EmulatorProcess()
+    try:
+        yield process
+    finally:
+        assert process.close() == 0

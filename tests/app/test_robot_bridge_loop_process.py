@@ -16,20 +16,10 @@ from app.gui.robot_bridge import MOTION_FAULT, MOTION_FINISHED, RobotBridge
 from devices.config import LabConfig
 from devices.loop_process import ControllerProcess
 from models.trajectory import FollowTheLeader
-from tests.emulators.xm430_emulator import EmulatorProcess
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the emulator needs a pty (Linux)")
 
 TIMEOUT_MS = 30_000  # subprocesses on a loaded 2-core machine
-
-
-@pytest.fixture
-def emulator():
-    process = EmulatorProcess()
-    try:
-        yield process
-    finally:
-        assert process.close() == 0
 
 
 @pytest.fixture

@@ -34,15 +34,6 @@ WAIT_S = 30.0  # subprocesses on a loaded 2-core machine
 DEATH_NOTICED_BOUND_S = 5.0  # generous: the watcher reads the end of file at once (bench: a few ms)
 
 
-@pytest.fixture
-def emulator():
-    process = EmulatorProcess()
-    try:
-        yield process
-    finally:
-        assert process.close() == 0
-
-
 class Recorder:
     """The callbacks, recorded (called from the watcher thread)."""
 

@@ -30,15 +30,6 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith(("linux", "darwin"))
                                 reason="the emulator needs os.openpty (Linux or macOS)")
 
 
-@pytest.fixture
-def emulator():
-    process = EmulatorProcess()
-    try:
-        yield process
-    finally:
-        assert process.close() == 0
-
-
 def robot_on(path: str, **changes) -> RobotConfig:
     return dataclasses.replace(RobotConfig(), port=path, **changes)
 
