@@ -7,6 +7,7 @@ real-time lab with :func:`install_sim_lab`.
 
 from __future__ import annotations
 
+import atexit
 import threading
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
@@ -46,6 +47,9 @@ def sim_lab(config: LabConfig | None = None) -> SimLab:
 
             lab = SimLab(config)
             lab.start_background()  # the physics lab keeps stepping between driver events
+            # Stop that thread before the interpreter shuts down: a daemon thread still inside MuJoCo while Python
+            # finalizes crashed `sensnake record --daq sim` with SIGSEGV after its own error message.
+            atexit.register(lab.close)
             _lab = lab
         # A stand-in installed by a test or benchmark (install_sim_lab) answers only for the devices it simulates.
         return cast("SimLab", _lab)

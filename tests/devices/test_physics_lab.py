@@ -93,3 +93,26 @@ def test_a_joint_stalled_against_a_wall_draws_current_then_trips_overload(instal
     assert max(currents) > 0.85 * STALL_CURRENT_MA  # rising toward the limit before the trip
     assert chain_sim.register(12, "Hardware Error Status") & (1 << ct.OVERLOAD_BIT)
     assert chain_sim.register(12, "Torque Enable") == 0  # the firmware let go
+
+
+def test_the_process_wide_physics_lab_stops_its_thread_before_the_interpreter_exits():
+    """`sensnake record --daq sim` that failed at once crashed with SIGSEGV (2 of 15 runs) after its error message:
+    the physics lab's daemon thread was still stepping MuJoCo while Python shut down. The lab made on first use of
+    a `sim` port now stops that thread at exit; a handler registered before it runs after it and looks."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = (
+        "import atexit, threading\n"
+        "def look():\n"
+        "    alive = any(t.name == 'physics-lab' and t.is_alive() for t in threading.enumerate())\n"
+        "    print('alive at exit' if alive else 'stopped at exit', flush=True)\n"
+        "atexit.register(look)\n"
+        "from devices import factory\n"
+        "factory.sim_lab()\n"
+        "print('running' if any(t.name == 'physics-lab' for t in threading.enumerate()) else 'no thread')\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["running", "stopped at exit"], done.stdout
