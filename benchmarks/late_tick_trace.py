@@ -76,7 +76,6 @@ def start_probes(tracing: Tracing, seconds: float) -> None:
         tracing.probes.append(subprocess.Popen(
             [sys.executable, "-m", "benchmarks.machine_probe", "--cpu", str(cpu), "--seconds", f"{seconds:g}",
              "--out", str(tracing.probe(cpu))]))
-    return tracing
 
 
 def stop(tracing: Tracing) -> None:
