@@ -118,80 +118,118 @@ def report(tracing: Tracing, t0: float, t1: float) -> None:
 
 
 def _explain(record: dict, emulator: list, probes: list, t0: float) -> tuple[str, str]:
+    """(cause, one line) for one late tick: did the tick before it run past the slot (and which phase), or did the
+    bus thread wake late from its wait for the slot (and was the machine holding the probes off meanwhile)?"""
     marks = record["marks"]
     bus = [m for m in marks if m[1].startswith("RobotController")]
     others = [m for m in marks if not m[1].startswith("RobotController")]
-    start = record["start"]
-    # The bus thread's marks up to the late tick's start; the longest stretch between two of them.
-    before = [m for m in bus if m[0] <= start]
-    gaps = [(b[0] - a[0], a, b) for a, b in zip(before, before[1:])]
-    if not gaps:
-        return "unexplained", f"+{start - t0:8.2f} s late {record['late_ms']:.1f} ms: no marks before it"
-    length, a, b = max(gaps, key=lambda g: g[0])
-    ta, tb = a[0], b[0]
-    head = (f"+{start - t0:8.2f} s late {record['late_ms']:5.1f} ms; longest stretch {a[2]}→{b[2]} "
-            f"{length * 1e3:5.1f} ms")
-    notes = []
-    # What the machine did meanwhile.
+    start, slot = record["start"], record["slot"]
+    head = f"+{start - t0:8.2f} s late {record['late_ms']:5.1f} ms"
+    waits = [m for m in bus if m[2] == "wait" and m[0] < start]
+    if not waits:
+        return "unexplained", f"{head}: no marks before it"
+    wait = waits[-1]
+    ticks = [m for m in bus if m[2] == "tick" and m[0] < wait[0]]
+    previous = [m for m in bus if (ticks[-1][0] if ticks else 0.0) <= m[0] <= wait[0]]
+    notes: list[str] = []
+    if wait[0] > slot - 0.0005:  # the tick before ran up to (or past) this tick's slot: where did its time go?
+        # Each transaction of that tick (instruction written → the next phase mark), less what the wire needed
+        # (the emulator's planned time of its last reply): the one with the most time beyond the wire.
+        ends = ("tx", "read<", "goal<", "health<", "wait")
+        worst = (0.0, None, 0.0, 0.0)
+        for i, m in enumerate(previous):
+            if m[2] != "tx":
+                continue
+            end = next((n[0] for n in previous[i + 1:] if n[2] in ends), wait[0])
+            rows = [r for r in emulator if r[1] == m[3][0] and m[3][2] - 0.0005 <= r[0] <= m[3][2] + 0.2]
+            wire = (rows[0][3][-1][0] - rows[0][0]) if rows and rows[0][3] else 0.0  # from when it was read there
+            if end - m[0] - wire > worst[0]:
+                worst = (end - m[0] - wire, m, m[0], end)
+        excess, sent, ta, tb = worst
+        kind = {SYNC_WRITE: "goal write", 3: "write (a command)"}.get(sent[3][0], "") if sent else ""
+        if sent and sent[3][0] == SYNC_READ:
+            kind = "feedback read" if sent[3][1] == 26 else "health read"
+        where = (f"the tick before ran {(wait[0] - slot) * 1e3:+.1f} ms past the slot; its {kind or 'work'} took "
+                 f"{excess * 1e3:.1f} ms beyond the wire")
+        calls = [m[3] for m in others if m[2] == "call" and m[3] not in ("stats", "recent_periods_s")
+                 and (ticks[-1][0] if ticks else 0.0) - 0.1 <= m[0] <= wait[0]]
+        writes = [m for m in previous if m[2] == "tx" and m[3][0] == 3]
+        pty = _pty_notes(sent, tb, bus, emulator) if sent else None
+        if pty is not None:
+            notes.append(pty[1])
+        knock_on = bool(ticks) and ticks[-1][0] - ticks[-1][3] > 0.25 * record["period_ms"] / 1e3
+        if knock_on:
+            cause = "knock-on (the tick before started late itself)"
+        elif writes or calls:
+            cause = f"command ({', '.join(map(str, calls)) or 'bus writes'})"
+        elif pty is not None and pty[0]:
+            cause = f"{pty[0]} in a {kind}"
+        else:
+            cause = _held(probes, ta, tb, excess, notes) or _gil(others + bus, ta, tb, notes) or "unexplained"
+    else:  # the work ended in time; the wake-up for the slot came late
+        late_s = start - slot
+        where = f"woke {late_s * 1e3:.1f} ms after the slot (the tick before ended {(slot - wait[0]) * 1e3:.1f} ms early)"
+        cause = _held(probes, slot, start, late_s, notes) or _gil(others + bus, slot, start, notes) or "wake-up"
+    return cause.split(" (")[0] if cause.startswith(("command", "knock-on")) else cause, \
+        f"{head}: {where}: {cause}" + (f" [{'; '.join(notes)}]" if notes else "")
+
+
+def _pty_notes(sent: list, end: float, bus: list, emulator: list) -> tuple[str, str] | None:
+    """The emulator's side of the instruction ``sent`` (a tx mark; its transaction ended at ``end``): (cause or "",
+    one note)."""
+    inst, _n, t_tx = sent[3]
+    rows = [r for r in emulator if r[1] == inst and t_tx - 0.0005 <= r[0] <= t_tx + 0.2]
+    if not rows:
+        return None
+    t_read, _inst, _len, written = rows[0]
+    into = t_read - t_tx
+    note = f"emulator read the instruction {into * 1e3:.1f} ms after the host wrote it"
+    if into > PTY_SLOW_S:
+        return "pty → emulator (kernel)", note
+    if not written:
+        return "", note
+    late = max(actual - due for due, actual in written)
+    last_written = written[-1][1]
+    rx_all = [m for m in bus if m[2] == "rx" and sent[0] <= m[0] <= end]  # the last: when it had them all
+    out = rx_all[-1][0] - last_written if rx_all else None
+    note += f", wrote its replies {late * 1e3:+.1f} ms vs the wire"
+    if out is not None:
+        note += f", the host had the last bytes {out * 1e3:.1f} ms after they were written"
+    if late > EMULATOR_SLOW_S:
+        return "emulator late", note
+    if out is not None and out > PTY_SLOW_S:
+        return "emulator → pty (kernel)", note
+    return "", note
+
+
+def _held(probes: list, ta: float, tb: float, excess_s: float, notes: list[str]) -> str:
     held = []
     for probe in probes:
         for g_start, g_ms, _steal in probe["gaps"]:
-            g_end = g_start + 0.001 + g_ms / 1e3
-            overlap = min(g_end, tb) - max(g_start, ta)
+            overlap = min(g_start + 0.001 + g_ms / 1e3, tb) - max(g_start, ta)
             if overlap > 0:
                 held.append((overlap, probe["cpu"], g_ms))
     if held:
-        notes.append("probe held off " + ", ".join(f"cpu{cpu} {g_ms:.1f} ms" for _o, cpu, g_ms in held))
-    # The emulator's side of the instruction in flight.
-    tx = [m for m in bus if m[2] == "tx" and m[0] <= tb]
-    emu_in = emu_late = emu_out = None
-    if tx and a[2] in ("tx", "select", "sleep", "selected", "slept", "rx"):
-        sent = tx[-1]
-        inst, _n, t_tx = sent[3]
-        rows = [r for r in emulator if r[1] == inst and t_tx - 0.0005 <= r[0] <= t_tx + 0.2]
-        if rows:
-            t_read, _inst, _len, written = rows[0]
-            emu_in = t_read - t_tx
-            notes.append(f"emulator read it {emu_in * 1e3:.1f} ms after it was written")
-            if written:
-                emu_late = max(actual - due for due, actual in written)
-                last_written = written[-1][1]
-                rx_after = [m for m in bus if m[2] == "rx" and m[0] >= last_written - 0.0005]
-                if rx_after:
-                    emu_out = rx_after[0][0] - last_written
-                notes.append(f"replies written {emu_late * 1e3:+.1f} ms vs the wire"
-                             + (f", host had the last bytes {emu_out * 1e3:.1f} ms later" if emu_out is not None
-                                else ""))
-    # The loop process's other threads and the collector in the stretch.
-    gc_ms = _spans(others + bus, "gc>", "gc<", ta, tb)
-    send_ms = _spans(others, "send", "sent", ta, tb)
-    calls = [m[3] for m in others if m[2] == "call" and ta <= m[0] <= tb]
+        notes.append("machine probes held off: " + ", ".join(f"cpu{cpu} {g_ms:.1f} ms" for _o, cpu, g_ms in held))
+        cpus = {cpu for _o, cpu, _g in held}
+        if max(o for o, _c, _g in held) >= 0.5 * max(excess_s, 0.002):
+            return f"machine ({'all CPUs' if len(cpus) == len(probes) else 'cpu' + '/'.join(map(str, sorted(cpus)))} " \
+                   "held off a real-time probe too)"
+    return ""
+
+
+def _gil(marks: list, ta: float, tb: float, notes: list[str]) -> str:
+    gc_ms = _spans(marks, "gc>", "gc<", ta, tb)
+    send_ms = _spans(marks, "send", "sent", ta, tb)
     if gc_ms:
         notes.append(f"gc {gc_ms * 1e3:.1f} ms")
     if send_ms:
-        notes.append(f"sender sending {send_ms * 1e3:.1f} ms")
-    if calls:
-        notes.append("commands " + ",".join(map(str, calls)))
-    excess = length - 0.012  # more than a normal read's wait (~10 ms at the factory return delay)
-    if held and max(o for o, _c, _g in held) >= 0.5 * max(excess, 0.002):
-        cause = "machine"
-    elif emu_in is not None and emu_in > PTY_SLOW_S:
-        cause = "pty → emulator"
-    elif emu_late is not None and emu_late > EMULATOR_SLOW_S:
-        cause = "emulator"
-    elif emu_out is not None and emu_out > PTY_SLOW_S:
-        cause = "emulator → pty"
-    elif gc_ms > 0.5 * max(excess, 0.002):
-        cause = "gc"
-    elif send_ms > 0.5 * max(excess, 0.002):
-        cause = "sender"
-    elif calls:
-        cause = "command"
-    elif a[2] == "wait":
-        cause = "wake-up"
-    else:
-        cause = "unexplained"
-    return cause, f"{head}: {cause}" + (f" ({'; '.join(notes)})" if notes else "")
+        notes.append(f"sender {send_ms * 1e3:.1f} ms")
+    if gc_ms > 0.002:
+        return "gc"
+    if send_ms > 0.002:
+        return "sender"
+    return ""
 
 
 def _spans(marks: list, open_label: str, close_label: str, ta: float, tb: float) -> float:

@@ -68,7 +68,7 @@ from devices.errors import (
     PortOpenError,
     ServoHardwareError,
 )
-from devices.servo_chain import ChainState, ServoChain, ServoHealth, ServoInfo
+from devices.servo_chain import ChainState, DeadlinePassedError, ServoChain, ServoHealth, ServoInfo
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,7 @@ LATE_FRACTION = 0.25  # a tick starting this fraction of a period after its slot
 GIL_SWITCH_INTERVAL_S = 0.001  # see _lower_switch_interval
 BUS_THREAD_RT_PRIORITY = 20  # SCHED_FIFO priority of the bus thread when permitted (see _raise_thread_priority)
 HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this long before the next deadline
+HEALTH_DEADLINE_MARGIN_S = 0.0005  # a health read in the slack is given up this long before the next slot
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
 TIMING_WARN_FRACTION = 0.05
 
@@ -302,6 +303,7 @@ class RobotController:
         self._late = 0
         self._writes = 0
         self._failed_reads = 0
+        self._health_reads_given_up = 0  # health reads in the slack given up at the next slot (replies late)
         self._latest_state: ChainState | None = None
         self.scheduling = "not started"  # the bus thread's scheduling, in words (set when it starts)
 
@@ -697,12 +699,28 @@ class RobotController:
         n = len(self._health_pending)
         while n > 0 and self._health_read_estimate_s(n) > budget_s:
             n -= 1
+        overdue = start - self._health_due_s >= HEALTH_OVERDUE_S
         if n < 1:
-            if start - self._health_due_s < HEALTH_OVERDUE_S:
+            if not overdue:
                 return
             n = 1
         chunk, self._health_pending = self._health_pending[:n], self._health_pending[n:]
-        health = self._read_health(chunk, supply=self._health_supply)
+        # A chunk read in the slack is given up at the next slot if its replies are late (a USB adapter's or the
+        # kernel's delay: on a pty, bytes were measured crossing ~40 ms after they were written), and read again
+        # later: the tick keeps its slot. Once the poll is overdue it is read without a deadline, as before (a
+        # silent servo then fails the poll instead of being retried forever).
+        deadline = None if overdue else next_deadline - HEALTH_DEADLINE_MARGIN_S
+        try:
+            health = self._read_health(chunk, supply=self._health_supply, deadline_s=deadline)
+        except DeadlinePassedError:
+            self._health_pending = chunk + self._health_pending
+            with self._lock:
+                self._health_reads_given_up += 1
+            trace = tick_trace.TRACE
+            if trace is not None:
+                trace.mark("health-given-up", len(chunk))
+            log.debug("health read of servos %s given up at the next slot (late replies); read again later", chunk)
+            return
         if health is None:
             self._health_pending = []  # a failed poll is not retried servo by servo; the next one is due soon
             return
@@ -736,9 +754,9 @@ class RobotController:
         self._check_health(health, newly_alerted)
         self._emit(self._on_health, health)
 
-    def _read_health(self, ids: list[int], supply: bool) -> list[ServoHealth] | None:
+    def _read_health(self, ids: list[int], supply: bool, deadline_s: float | None = None) -> list[ServoHealth] | None:
         try:
-            return self.chain.read_health(ids, supply=supply)
+            return self.chain.read_health(ids, supply=supply, deadline_s=deadline_s)
         except (NoReplyError, CorruptPacketError) as exc:
             log.debug("health poll failed: %s", exc)
             return None

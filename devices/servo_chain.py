@@ -66,6 +66,10 @@ BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping win
 REBOOT_TIMEOUT_S = 2.0
 READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
 MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a port without a descriptor, s
+# Protocol 2.0 status packet layout (as dynamixel-sdk indexes it): the length field counts instruction, error,
+# parameters and CRC.
+_PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
+_STATUS_OVERHEAD = 4
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
@@ -95,6 +99,11 @@ class ServoCommandError(DeviceError, ValueError):
 
 class RateError(DeviceError, ValueError):
     """A control rate this bus cannot keep (the message says why and how to fix it)."""
+
+
+class DeadlinePassedError(DeviceError):
+    """A read given up at the caller's deadline (the next control tick's slot) before all replies came: not a fault
+    of the servos; their late replies are skipped when they arrive (see :class:`_TrackingSyncRead`)."""
 
 
 @dataclass(frozen=True)
@@ -163,6 +172,7 @@ class _FactoryPortHandler(PortHandler):
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
         self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
+        self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -280,8 +290,16 @@ class _FactoryPortHandler(PortHandler):
             self._rx += self.ser.read(1)
 
     def _time_left_s(self) -> float:
-        """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time())."""
-        return (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+        """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time()) or ``deadline_s``."""
+        left_s = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+        if self.deadline_s is not None:
+            left_s = min(left_s, self.deadline_s - time.monotonic())
+        return left_s
+
+    def isPacketTimeout(self):  # noqa: N802 - dynamixel-sdk's name
+        if self.deadline_s is not None and time.monotonic() >= self.deadline_s:
+            return True
+        return super().isPacketTimeout()
 
     def _sleep(self, seconds: float) -> None:
         self.wakeups += 1
@@ -307,12 +325,17 @@ class _TrackingSyncRead(GroupSyncRead):
     """GroupSyncRead that keeps each servo's status error byte and names the servo that failed.
 
     The SDK's ``rxPacket`` drops the error byte (so the alert bit would be lost) and does not say which ID timed out.
+    Its ``readRx`` also takes the first status packet of the right ID whatever its length: a late reply to an
+    earlier read that was given up (a health read at the tick's deadline, a timeout) would be read as this one's
+    data, short or wrong. Here a packet of another ID (skipped by the SDK too) or whose parameter count is not this
+    read's data length is skipped, and counted in ``stale_packets``.
     """
 
     def __init__(self, port, ph, start_address, data_length) -> None:
         super().__init__(port, ph, start_address, data_length)
         self.errors: dict[int, int] = {}
         self.failed_id: int | None = None
+        self.stale_packets = 0
 
     def rxPacket(self):  # noqa: N802 - dynamixel-sdk's name
         self.last_result = False
@@ -323,7 +346,7 @@ class _TrackingSyncRead(GroupSyncRead):
         n = len(self.data_dict)
         self.port.wait_for_replies(tuple(self.data_dict), n * (MIN_STATUS_BYTES + self.data_length))
         for dxl_id in self.data_dict:
-            data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
+            data, result, error = self._read_reply(dxl_id)
             if result != COMM_SUCCESS:
                 self.failed_id = dxl_id
                 return result
@@ -331,6 +354,18 @@ class _TrackingSyncRead(GroupSyncRead):
             self.errors[dxl_id] = error
         self.last_result = True
         return result
+
+    def _read_reply(self, dxl_id: int) -> tuple[list[int], int, int]:
+        """The SDK's readRx, skipping status packets of another ID or another length (see the class docstring)."""
+        while True:
+            packet, result = self.ph.rxPacket(self.port, False)
+            if result != COMM_SUCCESS:
+                return [], result, 0
+            n_params = (packet[_PKT_LENGTH_L] | packet[_PKT_LENGTH_H] << 8) - _STATUS_OVERHEAD
+            if packet[_PKT_ID] != dxl_id or n_params != self.data_length:
+                self.stale_packets += 1
+                continue
+            return list(packet[_PKT_PARAMETER0 + 1:_PKT_PARAMETER0 + 1 + n_params]), result, packet[_PKT_ERROR]
 
 
 class ServoChain:
@@ -682,15 +717,19 @@ class ServoChain:
             alert_ids=alerts,
         )
 
-    def read_health(self, ids: Sequence[int] | None = None, *, supply: bool = True) -> list[ServoHealth]:
+    def read_health(self, ids: Sequence[int] | None = None, *, supply: bool = True,
+                    deadline_s: float | None = None) -> list[ServoHealth]:
         """Hardware error, torque and LED (one sync read of 64…70) and, with ``supply``, input voltage (V) and
         temperature (°C) (a second sync read of 144…146). Without ``supply`` the last values read are reported
         (NaN before the first), which halves the cost of a frequent poll: temperature and voltage change slowly.
+        ``deadline_s`` (time.monotonic()): replies not in by then are not waited for (:class:`DeadlinePassedError`),
+        so a read fitted into a control tick's slack never holds the next tick however late its replies come.
         """
         ids = self._ids_or_all(ids)
-        status = self._sync_read_blocks(ids, ct.HEALTH_BLOCK_ADDRESS, ct.HEALTH_BLOCK_SIZE)
+        status = self._sync_read_blocks(ids, ct.HEALTH_BLOCK_ADDRESS, ct.HEALTH_BLOCK_SIZE, deadline_s)
         if supply:
-            for sid, block in self._sync_read_blocks(ids, ct.SUPPLY_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_SIZE).items():
+            for sid, block in self._sync_read_blocks(ids, ct.SUPPLY_BLOCK_ADDRESS, ct.SUPPLY_BLOCK_SIZE,
+                                                     deadline_s).items():
                 self._supply_cache[sid] = (int.from_bytes(block[0:2], "little") * ct.VOLTAGE_V_PER_LSB,
                                            float(block[2]))
         health = []
@@ -709,11 +748,20 @@ class ServoChain:
             ))
         return health
 
-    def _sync_read_blocks(self, ids: list[int], address: int, size: int) -> dict[int, bytes]:
-        reader = _TrackingSyncRead(self._require_port(), self._ph, address, size)
+    def _sync_read_blocks(self, ids: list[int], address: int, size: int,
+                          deadline_s: float | None = None) -> dict[int, bytes]:
+        port = self._require_port()
+        reader = _TrackingSyncRead(port, self._ph, address, size)
         for sid in ids:
             reader.addParam(sid)
-        result = self._io(reader.txRxPacket)
+        port.deadline_s = deadline_s
+        try:
+            result = self._io(reader.txRxPacket)
+        finally:
+            port.deadline_s = None
+        if result != COMM_SUCCESS and deadline_s is not None and time.monotonic() >= deadline_s:
+            raise DeadlinePassedError(f"sync read of hardware status of servos {_id_list(ids)} given up at the "
+                                      "next control tick's slot")
         if result != COMM_SUCCESS:
             sid = reader.failed_id if reader.failed_id is not None else ids[0]
             self._check_comm(result, sid, "sync read of hardware status")

@@ -20,7 +20,7 @@ from app.cli import main
 from devices.config import RobotConfig
 from devices.controller import BusBusyError, RobotController
 from devices.errors import JointLimitError, ServoHardwareError
-from devices.servo_chain import ServoChain
+from devices.servo_chain import DeadlinePassedError, ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators import xm430_emulator as emu_module
 from tests.emulators.xm430_emulator import EmulatorProcess
@@ -255,3 +255,26 @@ def test_with_return_delay_0_the_same_rate_plays(tmp_path, capsys):
         assert "finished" in captured.out and "warning" not in captured.err
     finally:
         assert emulator.close() == 0
+
+
+def test_a_health_read_given_up_at_its_deadline_never_feeds_its_late_replies_to_the_next_read(emulator):
+    """The control loop gives a health read in a tick's slack a deadline (the next slot), so late replies (measured:
+    bytes crossing the pty ~40 ms late) never hold a tick. The replies still come, later, in the middle of the next
+    read: they are skipped (another length), never read as its data."""
+    emulator.command("push 3 250")  # a joint away from the others, to recognise its value
+    expected = np.array([(emulator.state(sid)["position"] - 2048) * 2 * np.pi / 4096 for sid in range(1, 13)])
+    with ServoChain(robot_on(emulator.path)) as chain:
+        chain.read_state()
+        skipped = 0
+        for _attempt in range(5):  # the late replies must arrive after the next instruction: a starved test may miss
+            assert emulator.command("stall 0.015").startswith("ok")
+            with pytest.raises(DeadlinePassedError, match=r"servos 1, 2, .*, 12 given up at the next control tick.s slot"):
+                chain.read_health(supply=False, deadline_s=time.monotonic() + 0.003)
+            state = chain.read_state()  # the 12 late health replies cross while this read waits for its own
+            np.testing.assert_allclose(state.position_rad, expected, atol=0.02)
+            skipped = chain._state_reader.stale_packets
+            if skipped:
+                break
+        assert skipped == 12
+        health = chain.read_health(supply=False)  # and health reads go on
+        assert [h.servo_id for h in health] == list(range(1, 13)) and all(h.hardware_error == 0 for h in health)
