@@ -123,13 +123,17 @@ def _explain(record: dict, emulator: list, probes: list, t0: float) -> tuple[str
     marks = record["marks"]
     bus = [m for m in marks if m[1].startswith("RobotController")]
     others = [m for m in marks if not m[1].startswith("RobotController")]
-    start, slot = record["start"], record["slot"]
-    head = f"+{start - t0:8.2f} s late {record['late_ms']:5.1f} ms"
+    start = record["start"]
     waits = [m for m in bus if m[2] == "wait" and m[0] < start]
     if not waits:
-        return "unexplained", f"{head}: no marks before it"
+        return "unexplained", f"+{start - t0:8.2f} s: no marks before it"
     wait = waits[-1]
     ticks = [m for m in bus if m[2] == "tick" and m[0] < wait[0]]
+    # This tick's own slot: the tick before's slot + one period (skipped slots move the loop's deadline past it).
+    slot = ticks[-1][3] + record["period_ms"] / 1e3 if ticks else record["slot"]
+    skipped = round((record["slot"] - slot) * 1e3 / record["period_ms"])
+    head = f"+{start - t0:8.2f} s {(start - slot) * 1e3:5.1f} ms after its slot" + \
+        (f" ({skipped} slot{'s' if skipped > 1 else ''} skipped)" if skipped > 0 else "")
     previous = [m for m in bus if (ticks[-1][0] if ticks else 0.0) <= m[0] <= wait[0]]
     notes: list[str] = []
     if wait[0] > slot - 0.0005:  # the tick before ran up to (or past) this tick's slot: where did its time go?

@@ -492,10 +492,11 @@ class RobotController:
             start = time.monotonic()
             late = start - deadline > LATE_FRACTION * self.period_s
             self._record_period(start, last_start, late=late)
-            last_start = start
             trace = tick_trace.TRACE  # None unless SENSNAKE_TICK_TRACE (diagnosis of late ticks)
-            if trace is not None:
-                trace.tick_start(start, deadline, self.period_s, late)
+            if trace is not None:  # a late tick, or one after skipped slots (its period is long, it is not late)
+                long_period = last_start is not None and start - last_start > (1 + LATE_FRACTION) * self.period_s
+                trace.tick_start(start, deadline, self.period_s, late or long_period)
+            last_start = start
             try:
                 self._tick(start, deadline + self.period_s)
             except Exception as exc:  # noqa: BLE001 - thread boundary: a bug must not kill the bus thread silently
