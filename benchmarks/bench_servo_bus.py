@@ -221,6 +221,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             if not lab.robot.is_connected:
                 print(f"    {rate:8.0f}  the robot did not connect within 10 s")
                 continue
+            robot_errors: list[str] = []
+            lab.robot.error.connect(robot_errors.append)
             lab.robot.set_torque(True)
             spin(0.3)
             for tab in tabs if prebuild else ():  # each tab is built on its first show (once per session)
@@ -239,14 +241,20 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 chunks, taken, k = [], s0.ticks, 0
                 while time.monotonic() - t0 < length:
                     spin(min(rotate_s or length, length - (time.monotonic() - t0)))
+                    if lab.robot.controller is None:  # the loop died (said on robot.error): the window ends here
+                        break
                     s = lab.robot.loop_stats()
                     chunks.append(lab.robot.controller.recent_periods_s(s.ticks - taken))
                     taken = s.ticks
                     if rotate_s:
                         k += 1
                         window.show_tab(tabs[k % len(tabs)])
-                s1 = lab.robot.loop_stats()
                 traced.append((t0, time.monotonic()))
+                if lab.robot.controller is None:
+                    print(f"    {rate:8.0f}  the window ended after {time.monotonic() - t0:.0f} s: "
+                          f"{' / '.join(robot_errors) or 'the robot disconnected'}", flush=True)
+                    break
+                s1 = lab.robot.loop_stats()
                 chunks.append(lab.robot.controller.recent_periods_s(s1.ticks - taken))
                 cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
                 _print_window(rate, delay * 2, name, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,

@@ -188,6 +188,7 @@ class ControllerProcess:
         self._started_s = 0.0
         self._stall_reported_s: float | None = None  # the child's last tick time when a stall was reported
         self._hung: str | None = None  # why the watcher ended the child (it did not tick)
+        self._message_tick_s = 0.0  # the child's time of the newest tick whose message arrived
         self.stall_limit_s = max(STALL_PERIODS * self.period_s, STALL_REPORT_MIN_S)
         self.hung_after_s = HUNG_KILL_S
         self.ticks_seen = 0
@@ -505,15 +506,20 @@ class ControllerProcess:
     def _check_heartbeat(self) -> None:
         if self._closing or self.died is not None or self._hung is not None:
             return
-        _ticks, tick_s, command_s = self.heartbeat()
+        ticks, tick_s, command_s = self.heartbeat()
         now = time.monotonic()
-        last_s = max(tick_s, self._started_s)  # before its first tick: since it said it was ready
+        # The child's own time of its newest tick, from the heartbeat and from the newest tick message (two channels:
+        # a backlog on the socket or a broken shared page alone is no stall); before its first tick, since ready.
+        last_s = max(tick_s, self._message_tick_s, self._started_s)
         if command_s:
             if now - command_s > COMMAND_HUNG_S:
                 self._end_hung(f"a bus command did not return for {now - command_s:.0f} s")
             return  # ticks wait for the command: no stall while it runs
         silent_s = now - last_s
         if silent_s >= self.hung_after_s:
+            log.error("loop process %s: heartbeat (ticks %d, last tick %.3f, command %.3f), last tick message %.3f, "
+                      "ready at %.3f, now %.3f", self.pid, ticks, tick_s, command_s, self._message_tick_s,
+                      self._started_s, now)
             self._end_hung(f"did not tick for {silent_s:.1f} s")
         elif silent_s >= self.stall_limit_s and self._stall_reported_s is None:
             self._stall_reported_s = last_s
@@ -539,8 +545,9 @@ class ControllerProcess:
     def _handle(self, message: tuple) -> None:
         kind = message[0]
         if kind == "tick":
-            _, states, connected, motion_name, paused, motion_request, progress, scheduling = message
+            _, states, connected, motion_name, paused, motion_request, progress, scheduling, tick_s = message
             self.ticks_seen += 1
+            self._message_tick_s = max(self._message_tick_s, tick_s)
             self._connected, self._motion_name, self._paused, self.scheduling = (connected, motion_name, paused,
                                                                                  scheduling)
             if progress is not None and motion_request is not None:
@@ -632,6 +639,7 @@ class _Child:
         self.conn = conn
         self.heartbeat = heartbeat
         self.ticks = 0
+        self.last_tick_s = 0.0
         self.command_since_s = 0.0
         self.out: queue.SimpleQueue[tuple | None] = queue.SimpleQueue()
         self.states: list[ChainState] = []
@@ -728,14 +736,16 @@ class _Child:
     # -- controller callbacks (bus thread) ----------------------------------------------------------------------------
     def _beat(self) -> None:
         if self.heartbeat is not None:
-            HEARTBEAT.pack_into(self.heartbeat, 0, self.ticks, time.monotonic(), self.command_since_s)
+            HEARTBEAT.pack_into(self.heartbeat, 0, self.ticks, self.last_tick_s, self.command_since_s)
 
     def _command(self, started_s: float | None) -> None:
         self.command_since_s = started_s or 0.0
+        self.last_tick_s = time.monotonic()  # ticks wait for the command from now (or start again from now)
         self._beat()
 
     def _tick(self) -> None:
         self.ticks += 1
+        self.last_tick_s = time.monotonic()
         self._beat()
         controller = self.controller
         if controller is None:
@@ -745,7 +755,7 @@ class _Child:
         request = self.motion_requests.get(id(source)) if source is not None else None
         progress = getattr(source, "progress", None) if source is not None else None
         self.out.put(("tick", states, controller.connected, controller.motion_name, controller.paused, request,
-                      progress, controller.scheduling))
+                      progress, controller.scheduling, self.last_tick_s))
 
     def _health(self, health: list[ServoHealth]) -> None:
         self.out.put(("health", list(health)))
