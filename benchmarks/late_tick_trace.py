@@ -192,8 +192,15 @@ def _pty_notes(sent: list, end: float, bus: list, emulator: list) -> tuple[str, 
         return "pty → emulator (kernel)", note
     if not written:
         return "", note
-    late = max(actual - due for due, actual in written)
+    late = max(w[1] - w[0] for w in written)
     last_written = written[-1][1]
+    worst = max(written, key=lambda w: w[1] - w[0])
+    if late > EMULATOR_SLOW_S and len(worst) > 2:  # woke late from its sleep, or its write() blocked in the kernel
+        woke_late, blocked = worst[2] - worst[0], worst[1] - worst[2]
+        note += f", the emulator woke {woke_late * 1e3:.1f} ms late and its write took {blocked * 1e3:.1f} ms"
+        if blocked > woke_late:
+            return "emulator's write to the pty blocked (kernel)", note + (
+                f", wrote its replies {late * 1e3:+.1f} ms vs the wire")
     rx_all = [m for m in bus if m[2] == "rx" and sent[0] <= m[0] <= end]  # the last: when it had them all
     out = rx_all[-1][0] - last_written if rx_all else None
     note += f", wrote its replies {late * 1e3:+.1f} ms vs the wire"

@@ -546,9 +546,10 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                             start = wire_free_s + servo.get("return_delay_time") * 2e-6
                             wire_free_s = start + len(reply) * bus.byte_s
                             _sleep_until(wire_free_s)
+                            woke = time.monotonic()
                             os.write(master_fd, reply)
-                            if trace is not None:
-                                written.append((round(wire_free_s, 6), round(time.monotonic(), 6)))
+                            if trace is not None:  # due on the wire, woke from the sleep for it, write returned
+                                written.append((round(wire_free_s, 6), round(time.monotonic(), 6), round(woke, 6)))
                         if trace is not None:
                             trace.append((round(now, 6), inst, len(data), written))
                     bus.crc_errors = parser.crc_errors
