@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from benchmarks import late_tick_trace
 from benchmarks.sources import Wave
 from devices import dxl_wire as wire
 from devices import factory
@@ -140,7 +141,8 @@ ALL_TABS = ("teach", "gait", "calibration", "forces", "hardware", "scene")
 
 
 def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | None = None,
-              chain: str = "sim", prebuild: bool = False, loops: tuple[str, ...] = ("auto",), kills: int = 0) -> None:
+              chain: str = "sim", prebuild: bool = False, loops: tuple[str, ...] = ("auto",), kills: int = 0,
+              trace_dir: str | None = None) -> None:
     """The loop inside the running app: GUI thread, board reader and the simulated devices share the interpreter.
     The Forces tab plots the board's 36 channels live; a wave motion writes goals every tick.
 
@@ -156,7 +158,10 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     ``loops``: where the control loop runs, one run each: ``app`` (the app's process, SENSNAKE_LOOP_PROCESS=0),
     ``process`` (its own process: the app's default on a real port, so only with ``chain="pty"``), ``auto`` (the
     app's choice). ``kills``: after the windows, kill the loop process this many times and print how long until the
-    app noticed (the watcher thread) and said so (the error on the GUI thread); the app reconnects after each."""
+    app noticed (the watcher thread) and said so (the error on the GUI thread); the app reconnects after each.
+
+    ``trace_dir`` (robot on the pty chain): trace every late tick in the loop's process, the emulator's instruction
+    times and the machine's own wake-up gaps, and print why each late tick was late (benchmarks/late_tick_trace)."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     from PySide6.QtCore import QEventLoop, QTimer
@@ -196,6 +201,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             os.environ["SENSNAKE_LOOP_PROCESS"] = "1" if where == "process" else "0"
         config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
         emulator = None
+        tracing = late_tick_trace.start(trace_dir) if trace_dir and chain == "pty" else None
+        traced: list[tuple[float, float]] = []
         if chain == "pty":
             from tests.emulators.xm430_emulator import EmulatorProcess
 
@@ -225,6 +232,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 window.show_tab(name if not rotate_s else tabs[0])
                 spin(0.5)
                 load0 = os.getloadavg()[0]
+                if tracing is not None:
+                    late_tick_trace.start_probes(tracing, length + 2.0)
                 s0 = lab.robot.loop_stats()
                 t0, cpu0 = time.monotonic(), time.process_time()
                 chunks, taken, k = [], s0.ticks, 0
@@ -237,6 +246,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                         k += 1
                         window.show_tab(tabs[k % len(tabs)])
                 s1 = lab.robot.loop_stats()
+                traced.append((t0, time.monotonic()))
                 chunks.append(lab.robot.controller.recent_periods_s(s1.ticks - taken))
                 cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
                 _print_window(rate, delay * 2, name, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,
@@ -254,6 +264,10 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             factory.install_sim_lab(previous)
             if emulator is not None:
                 emulator.close()
+            if tracing is not None:
+                late_tick_trace.stop(tracing)
+                for w0, w1 in traced:
+                    late_tick_trace.report(tracing, w0, w1)
     del app
 
 
@@ -452,7 +466,7 @@ CASES = ("cycle", "late", "bare", "rates", "pty", "gui")
 def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = None, gui_rates: tuple[float, ...] = (),
         rotate_s: float | None = None, plays: int | None = None, gui_chain: str = "sim",
         prebuild: bool = False, tabs: tuple[str, ...] = (), loops: tuple[str, ...] = ("auto",),
-        kills: int = 0) -> None:
+        kills: int = 0, trace_dir: str | None = None) -> None:
     print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
     if "cycle" in cases:
         bench_cycle(100 if quick else 500)
@@ -470,7 +484,7 @@ def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = Non
     if "gui" in cases:
         gui_cases = tuple(c for c in GUI_CASES if not gui_rates or c[0] in gui_rates)
         bench_gui(seconds or (4.0 if quick else 15.0), gui_cases, tabs or (ALL_TABS if rotate_s else GUI_TABS), rotate_s,
-                  gui_chain, prebuild, loops, kills)
+                  gui_chain, prebuild, loops, kills, trace_dir)
     print(f"machine load average (1 min) at the end: {os.getloadavg()[0]:.2f}")
 
 
@@ -498,7 +512,10 @@ if __name__ == "__main__":
     parser.add_argument("--kills", type=int, default=0,
                         help="gui case with the loop in its own process: kill it N times, print how fast the app "
                              "noticed")
+    parser.add_argument("--trace", metavar="DIR",
+                        help="gui case on the pty chain: trace every late tick (loop process, emulator, machine "
+                             "probes) into DIR and print why each was late")
     args = parser.parse_args()
     run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays, args.gui_chain,
         args.prebuild, tuple(args.tabs.split(",")) if args.tabs else (),
-        ("app", "process") if args.gui_loop == "both" else (args.gui_loop,), args.kills)
+        ("app", "process") if args.gui_loop == "both" else (args.gui_loop,), args.kills, args.trace)

@@ -57,6 +57,7 @@ from typing import Protocol, TypeVar
 import numpy as np
 
 from devices import control_table as ct
+from devices import tick_trace
 from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
@@ -248,9 +249,13 @@ class RobotController:
                  on_health: Callable[[list[ServoHealth]], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None,
-                 on_tick: Callable[[], None] | None = None) -> None:
+                 on_tick: Callable[[], None] | None = None,
+                 on_command: Callable[[float | None], None] | None = None) -> None:
         """``on_tick()`` (optional) is called on the bus thread at the end of every tick, after that tick's
-        ``on_state``: the control loop's heartbeat (``devices.loop_process`` sends the tick's states from it)."""
+        ``on_state``: the control loop's heartbeat (``devices.loop_process`` sends the tick's states from it).
+        ``on_command(started_s)`` (optional) is called on the bus thread with ``time.monotonic()`` just before a
+        command (``submit``, a motion's start) runs between ticks, and with ``None`` after it: ticks legitimately
+        wait for it (``devices.loop_process`` tells a long command from a hung loop by it)."""
         self.chain = chain
         self.robot = robot
         self.period_s = 1.0 / robot.control_rate_hz
@@ -260,6 +265,8 @@ class RobotController:
         self._on_event = on_event
         self._on_error = on_error
         self._on_tick = on_tick
+        self._on_command = on_command
+        self._thread_started = threading.Event()  # set once the bus thread has its scheduling (see wait_started)
         # (command, its Future or None): run on the bus thread between ticks; cancelled on close.
         self._commands: queue.SimpleQueue[tuple[Callable[[], None], concurrent.futures.Future | None]] = \
             queue.SimpleQueue()
@@ -315,6 +322,10 @@ class RobotController:
                                         daemon=True)
         _long_lived.acquire()
         self._thread.start()
+
+    def wait_started(self, timeout_s: float) -> bool:
+        """Wait until the bus thread runs and ``scheduling`` says what it got; False if not within ``timeout_s``."""
+        return self._thread_started.wait(timeout_s)
 
     def close(self) -> None:
         """Stop the thread (ending any motion as "stopped") and close the port. Idempotent."""
@@ -478,13 +489,18 @@ class RobotController:
     def _run(self) -> None:
         _lower_switch_interval()
         self.scheduling = _raise_thread_priority()
+        self._thread_started.set()
         log.info("robot bus thread: %s", self.scheduling)
         deadline = time.monotonic()  # the slot of the tick about to run
         last_start: float | None = None
         while not self._stop.is_set():
             start = time.monotonic()
-            self._record_period(start, last_start, late=start - deadline > LATE_FRACTION * self.period_s)
+            late = start - deadline > LATE_FRACTION * self.period_s
+            self._record_period(start, last_start, late=late)
             last_start = start
+            trace = tick_trace.TRACE  # None unless SENSNAKE_TICK_TRACE (diagnosis of late ticks)
+            if trace is not None:
+                trace.tick_start(start, deadline, self.period_s, late)
             try:
                 self._tick(start, deadline + self.period_s)
             except Exception as exc:  # noqa: BLE001 - thread boundary: a bug must not kill the bus thread silently
@@ -507,7 +523,12 @@ class RobotController:
                     self._on_tick()
                 except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the loop
                     log.exception("robot controller tick callback failed")
+            if trace is not None:
+                trace.mark("wait", deadline)
+                trace.tick_end()
             self._stop.wait(max(0.0, deadline - time.monotonic()))
+            if trace is not None:
+                trace.mark("woke")
 
     def _watch_timing(self, now: float, missed: int) -> None:
         """Warn (on_event, at most once per window) when the bus cannot keep the control rate."""
@@ -546,16 +567,23 @@ class RobotController:
         if not self._connected:
             self._start_plays(fresh=False)
             return
+        trace = tick_trace.TRACE
         try:
             # Read first: a hardware error seen in this read stops the motion before anything is written.
             fresh = self._read_feedback(now)
+            if trace is not None:
+                trace.mark("read<")
             self._start_plays(fresh)
             if self._estop.is_set():
                 self._estop.clear()
                 self._freeze_at_present()
             elif self._motion is not None and self._motion.paused_at_s is None:
                 self._send_motion_goal(now)
+            if trace is not None:
+                trace.mark("goal<")
             self._health_in_slack(now, next_deadline)
+            if trace is not None:
+                trace.mark("health<")
         except LinkLostError as exc:
             self._link_lost(exc)
 
@@ -904,7 +932,14 @@ class RobotController:
             except queue.Empty:
                 return
             if not cancel:
-                command()
+                if self._on_command is None:
+                    command()
+                    continue
+                self._emit(self._on_command, time.monotonic())
+                try:
+                    command()
+                finally:
+                    self._emit(self._on_command, None)
             elif future is not None:
                 future.cancel()
 

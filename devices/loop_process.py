@@ -21,8 +21,15 @@ runs a real ``RobotController`` in a child process:
   motion's Future and ``on_error``) is one object in this process too;
 - a watcher thread here waits on the socket: a child that dies closes its end, so its death is seen at once (the
   end of file), not after a timeout; then every pending Future fails and ``on_error`` gets :class:`LoopDiedError`
-  (what happened, what the servos are doing, what to do). A child alive but silent for ``STALL_REPORT_S`` is
-  reported as an event (once until it ticks again).
+  (what happened, what the servos are doing, what to do);
+- a child alive but hung (stopped, deadlocked, stuck in a system call) is seen by its heartbeat: the bus thread
+  writes its tick count and tick time into a page of memory shared with this process (not through the socket,
+  so a busy sender thread there or a starved watcher here is never taken for a hung loop: the watcher judges by
+  the child's own last tick time, whenever it runs). ``STALL_PERIODS`` periods without a tick → an event ("has not
+  ticked for …"; "ticks again" when it does); ``HUNG_KILL_S`` → the child is killed and reported as
+  :class:`LoopDiedError` naming the reason, so the user can reconnect. A command running on the bus thread (a scan,
+  a reboot, a link check, a motion's start) is announced in the heartbeat: ticks wait for it, so it is judged
+  against ``COMMAND_HUNG_S`` instead.
 
 With port ``sim`` the loop stays in the app's process: the simulated lab (the board senses the simulated robot's
 pose) lives there. Anything that keeps the child from starting (no interpreter, an import error, a timeout) raises
@@ -41,13 +48,16 @@ import importlib
 import itertools
 import logging
 import math
+import mmap
 import os
 import pickle
 import queue
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -57,6 +67,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import tick_trace
 from devices.config import RobotConfig
 from devices.controller import (
     ControllerStats,
@@ -73,7 +84,12 @@ log = logging.getLogger(__name__)
 READY_TIMEOUT_S = 60.0  # a fresh interpreter imports numpy and pyserial; a loaded 2-core machine can take seconds
 CLOSE_TIMEOUT_S = 10.0
 QUERY_TIMEOUT_S = 1.0  # stats() / recent_periods_s(): answered between two receives of the child's main thread
-STALL_REPORT_S = 1.0  # a live child that has not ticked for this long is reported (an event, once)
+STALL_PERIODS = 5  # a child that has not ticked for this many of its periods is reported (an event, once) ...
+STALL_REPORT_MIN_S = 0.05  # ... but not before this (at 200 Hz five periods are only 25 ms)
+HUNG_KILL_S = 5.0  # a child silent this long is ended and reported as dead (LoopDiedError): the user reconnects
+COMMAND_HUNG_S = 60.0  # a bus command (scan, reboot, checks) running this long is a hung child too
+HEARTBEAT_CHECK_S = 0.02  # how often the watcher looks at the heartbeat
+HEARTBEAT = struct.Struct("<Qdd")  # tick count, time.monotonic() of the last tick, start of the running command or 0
 EXCEPTIONS_KEPT = 64
 CHILD_METHODS = frozenset({"run_motion", "play", "pause", "resume", "stop_motion", "emergency_stop", "submit",
                            "set_torque", "set_led", "reboot", "scan", "stats", "recent_periods_s"})
@@ -167,8 +183,13 @@ class ControllerProcess:
         self._paused = False
         self._latest_state: ChainState | None = None
         self._last_stats: ControllerStats | None = None
-        self._last_tick_s = 0.0
-        self._stall_reported = False
+        self._heartbeat_fd: int | None = None
+        self._heartbeat: mmap.mmap | None = None
+        self._started_s = 0.0
+        self._stall_reported_s: float | None = None  # the child's last tick time when a stall was reported
+        self._hung: str | None = None  # why the watcher ended the child (it did not tick)
+        self.stall_limit_s = max(STALL_PERIODS * self.period_s, STALL_REPORT_MIN_S)
+        self.hung_after_s = HUNG_KILL_S
         self.ticks_seen = 0
 
     # -- lifecycle -------------------------------------------------------------------------------------------------
@@ -182,15 +203,23 @@ class ControllerProcess:
         if self._process is not None:
             raise RuntimeError("the robot controller is already running")
         ours, theirs = socket.socketpair()
+        beat_fd, beat_path = tempfile.mkstemp(prefix="sensnake-heartbeat-")
+        os.unlink(beat_path)  # the open descriptors keep it; gone with both processes
+        self._heartbeat_fd = beat_fd
+        os.ftruncate(beat_fd, mmap.PAGESIZE)
+        self._heartbeat = mmap.mmap(beat_fd, mmap.PAGESIZE)
         env = dict(os.environ)
         root = str(Path(__file__).resolve().parents[1])  # the checkout this package comes from
         env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
         try:
             self._process = subprocess.Popen(
-                [sys.executable, "-m", "devices.loop_process", "--fd", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), env=env, cwd=root, stdin=subprocess.DEVNULL, start_new_session=True)
+                [sys.executable, "-m", "devices.loop_process", "--fd", str(theirs.fileno()), "--heartbeat-fd",
+                 str(beat_fd)],
+                pass_fds=(theirs.fileno(), beat_fd), env=env, cwd=root, stdin=subprocess.DEVNULL,
+                start_new_session=True)
         except (OSError, ValueError) as exc:  # ValueError: pass_fds/start_new_session where unsupported
             ours.close()
+            self._close_heartbeat()
             raise LoopProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
         finally:
             theirs.close()
@@ -200,11 +229,12 @@ class ControllerProcess:
             reply = self._wait_ready()
         except BaseException:
             self._kill()
+            self._close_heartbeat()
             raise
         self.timing_warnings = list(reply[1])
         self.scheduling = reply[2]
         self._connected = True
-        self._last_tick_s = time.monotonic()
+        self._started_s = time.monotonic()
         self._watcher = threading.Thread(target=self._watch, name=f"loop-process-watcher[{self.pid}]", daemon=True)
         self._watcher.start()
 
@@ -253,6 +283,17 @@ class ControllerProcess:
             conn.close()
         self._connected = False
         self._fail_pending(None)
+        self._close_heartbeat()
+
+    def _close_heartbeat(self) -> None:
+        if self._heartbeat is not None:
+            beat, self._heartbeat = self._heartbeat, None
+            with contextlib.suppress(BufferError, ValueError):
+                beat.close()
+        if self._heartbeat_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._heartbeat_fd)
+            self._heartbeat_fd = None
 
     def _kill(self) -> None:
         process = self._process
@@ -424,10 +465,16 @@ class ControllerProcess:
         self.watcher_scheduling = _raise_thread_priority()
         conn = self._conn
         assert conn is not None
+        check_every_s = min(HEARTBEAT_CHECK_S, self.period_s)
+        next_check_s = time.monotonic()
         while True:
             try:
-                if not conn.poll(0.05):
-                    self._check_stall()
+                # Judged on a clock, not only when the socket is quiet: answers to queries keep it busy even while
+                # the bus thread hangs.
+                if time.monotonic() >= next_check_s:
+                    self._check_heartbeat()
+                    next_check_s = time.monotonic() + check_every_s
+                if not conn.poll(check_every_s):
                     continue
                 message = conn.recv()
             except (EOFError, OSError):
@@ -441,21 +488,59 @@ class ControllerProcess:
         if not self._closing:
             self._loop_died()
 
-    def _check_stall(self) -> None:
-        silent_s = time.monotonic() - self._last_tick_s
-        if silent_s > STALL_REPORT_S and not self._stall_reported and not self._closing:
-            self._stall_reported = True
-            self._emit(self._on_event, f"control loop process (pid {self.pid}) has not ticked for {silent_s:.1f} s")
+    def heartbeat(self) -> tuple[int, float, float]:
+        """The child's (tick count, time.monotonic() of its last tick or 0.0, start of its running command or 0.0),
+        read from the shared page (the bus thread writes it; a read that raced a write is read again)."""
+        beat = self._heartbeat
+        if beat is None:
+            return 0, 0.0, 0.0
+        first = HEARTBEAT.unpack_from(beat)
+        for _ in range(8):
+            second = HEARTBEAT.unpack_from(beat)
+            if second == first:
+                break
+            first = second
+        return first
+
+    def _check_heartbeat(self) -> None:
+        if self._closing or self.died is not None or self._hung is not None:
+            return
+        _ticks, tick_s, command_s = self.heartbeat()
+        now = time.monotonic()
+        last_s = max(tick_s, self._started_s)  # before its first tick: since it said it was ready
+        if command_s:
+            if now - command_s > COMMAND_HUNG_S:
+                self._end_hung(f"a bus command did not return for {now - command_s:.0f} s")
+            return  # ticks wait for the command: no stall while it runs
+        silent_s = now - last_s
+        if silent_s >= self.hung_after_s:
+            self._end_hung(f"did not tick for {silent_s:.1f} s")
+        elif silent_s >= self.stall_limit_s and self._stall_reported_s is None:
+            self._stall_reported_s = last_s
+            self._emit(self._on_event, (
+                f"control loop process (pid {self.pid}) has not ticked for {silent_s * 1e3:.0f} ms "
+                f"({silent_s / self.period_s:.0f} periods at {self.robot.control_rate_hz:g} Hz); it is ended if "
+                f"it stays silent for {self.hung_after_s:g} s"))
+        elif self._stall_reported_s is not None and last_s > self._stall_reported_s:
+            self._emit(self._on_event, (f"control loop process (pid {self.pid}) ticks again after "
+                                        f"{(last_s - self._stall_reported_s) * 1e3:.0f} ms"))
+            self._stall_reported_s = None
+
+    def _end_hung(self, why: str) -> None:
+        """The child is alive but does not run its loop: kill it; the end of file then reports it (LoopDiedError
+        with ``why``)."""
+        process = self._process
+        self._hung = why
+        log.error("the loop process %s %s: killing it", self.pid, why)
+        if process is not None and process.poll() is None:
+            with contextlib.suppress(OSError):
+                process.kill()
 
     def _handle(self, message: tuple) -> None:
         kind = message[0]
         if kind == "tick":
             _, states, connected, motion_name, paused, motion_request, progress, scheduling = message
-            self._last_tick_s = time.monotonic()
             self.ticks_seen += 1
-            if self._stall_reported:
-                self._stall_reported = False
-                self._emit(self._on_event, f"control loop process (pid {self.pid}) ticks again")
             self._connected, self._motion_name, self._paused, self.scheduling = (connected, motion_name, paused,
                                                                                  scheduling)
             if progress is not None and motion_request is not None:
@@ -494,8 +579,10 @@ class ControllerProcess:
             process.kill()
             process.wait(timeout=CLOSE_TIMEOUT_S)
         motion = f"; motion {self._motion_name!r} stopped" if self._motion_name else ""
+        what = (f"{self._hung}; ended it" if self._hung is not None
+                else f"ended unexpectedly ({_exit_words(process)})")
         error = LoopDiedError(
-            f"the control loop process (pid {process.pid}) ended unexpectedly ({_exit_words(process)}){motion}: "
+            f"the control loop process (pid {process.pid}) {what}{motion}: "
             "the servos hold their last goal with torque on; what was recorded is kept. Reconnect the robot "
             "(Hardware tab → Connect) to control it again")
         self.died = error
@@ -541,8 +628,11 @@ def _exit_words(process: subprocess.Popen) -> str:
 class _Child:
     """The child process: a RobotController whose callbacks queue messages, a sender thread, a receiver (main)."""
 
-    def __init__(self, conn: Connection) -> None:
+    def __init__(self, conn: Connection, heartbeat: mmap.mmap | None = None) -> None:
         self.conn = conn
+        self.heartbeat = heartbeat
+        self.ticks = 0
+        self.command_since_s = 0.0
         self.out: queue.SimpleQueue[tuple | None] = queue.SimpleQueue()
         self.states: list[ChainState] = []
         self.controller: RobotController | None = None
@@ -579,14 +669,13 @@ class _Child:
             chain.check_rate(robot.control_rate_hz)  # RateError (with the fix) before the loop starts
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, robot, on_state=self.states.append, on_health=self._health,
-                                         on_event=self._event, on_error=self._error, on_tick=self._tick)
+                                         on_event=self._event, on_error=self._error, on_tick=self._tick,
+                                         on_command=self._command)
         except BaseException:
             chain.close()
             raise
         controller.start()
-        deadline = time.monotonic() + 5.0
-        while controller.scheduling == "not started" and time.monotonic() < deadline:
-            time.sleep(0.001)
+        controller.wait_started(5.0)  # its scheduling is part of the answer
         self.out.put(("ready", warnings, controller.scheduling))
         return controller
 
@@ -601,6 +690,9 @@ class _Child:
             if message[0] == "close":
                 return
             _, request_id, method, args, kwargs = message
+            trace = tick_trace.TRACE
+            if trace is not None:
+                trace.mark("call", method)
             if method not in CHILD_METHODS:
                 if request_id is not None:
                     self.out.put(("result", request_id, False, self._payload(ValueError(f"no such command {method!r}"))))
@@ -634,7 +726,17 @@ class _Child:
             self.out.put(("result", request_id, True, future.result()))
 
     # -- controller callbacks (bus thread) ----------------------------------------------------------------------------
+    def _beat(self) -> None:
+        if self.heartbeat is not None:
+            HEARTBEAT.pack_into(self.heartbeat, 0, self.ticks, time.monotonic(), self.command_since_s)
+
+    def _command(self, started_s: float | None) -> None:
+        self.command_since_s = started_s or 0.0
+        self._beat()
+
     def _tick(self) -> None:
+        self.ticks += 1
+        self._beat()
         controller = self.controller
         if controller is None:
             return
@@ -666,8 +768,13 @@ class _Child:
             message = self.out.get()
             if message is None:
                 return
+            trace = tick_trace.TRACE
+            if trace is not None:
+                trace.mark("send", message[0])
             try:
                 self.conn.send(message)
+                if trace is not None:
+                    trace.mark("sent")
             except (OSError, ValueError):
                 return  # the app is gone; the receiver sees it too and stops the loop
             except Exception as exc:  # noqa: BLE001 - a value that does not pickle: say so instead of hanging
@@ -681,11 +788,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m devices.loop_process",
                                      description="The robot control loop's process (started by the app).")
     parser.add_argument("--fd", type=int, required=True, help="the socket to the app (inherited)")
+    parser.add_argument("--heartbeat-fd", type=int, help="a file shared with the app: the loop's heartbeat")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="loop process: %(levelname)s %(name)s: %(message)s")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the app closes us; a terminal's Ctrl-C is for the app
+    tick_trace.enable_from_env()  # a diagnosis of late ticks, when asked for (bench_servo_bus --trace)
     conn = Connection(args.fd)
-    return _Child(conn).run()
+    heartbeat = mmap.mmap(args.heartbeat_fd, mmap.PAGESIZE) if args.heartbeat_fd is not None else None
+    return _Child(conn, heartbeat).run()
 
 
 if __name__ == "__main__":

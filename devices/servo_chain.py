@@ -43,6 +43,7 @@ from dynamixel_sdk import (
 )
 
 from devices import control_table as ct
+from devices import tick_trace
 from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
@@ -193,6 +194,9 @@ class _FactoryPortHandler(PortHandler):
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
         self._tx_start_s = time.monotonic()
         written = self.ser.write(packet)
+        trace = tick_trace.TRACE
+        if trace is not None:
+            trace.mark("tx", (packet[7] if len(packet) > 7 else None, len(packet), round(self._tx_start_s, 6)))
         # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
         self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
@@ -254,6 +258,9 @@ class _FactoryPortHandler(PortHandler):
         waiting = self.ser.in_waiting
         if waiting:
             self._rx += self.ser.read(waiting)
+            trace = tick_trace.TRACE
+            if trace is not None:
+                trace.mark("rx", len(self._rx))
 
     def _can_select(self) -> bool:
         return isinstance(getattr(self.ser, "fd", None), int)  # a real port or pty; the simulator's has none
@@ -261,7 +268,12 @@ class _FactoryPortHandler(PortHandler):
     def _select(self, timeout_s: float) -> None:
         """Block until the port has bytes (it has none buffered: they were all taken) or ``timeout_s`` passes."""
         self.wakeups += 1
+        trace = tick_trace.TRACE
+        if trace is not None:
+            trace.mark("select", round(timeout_s, 6))
         readable, _, _ = select.select([self.ser.fd], [], [], timeout_s)
+        if trace is not None:
+            trace.mark("selected", bool(readable))
         if readable and not self.ser.in_waiting:
             # Readable with nothing to read: the far end hung up. pyserial's read says so (SerialException, a
             # lost link), where looking again would spin until the deadline.
@@ -273,7 +285,12 @@ class _FactoryPortHandler(PortHandler):
 
     def _sleep(self, seconds: float) -> None:
         self.wakeups += 1
+        trace = tick_trace.TRACE
+        if trace is not None:
+            trace.mark("sleep", round(seconds, 6))
         time.sleep(max(seconds, READ_POLL_S))
+        if trace is not None:
+            trace.mark("slept")
 
     def closePort(self):  # noqa: N802 - dynamixel-sdk's name
         self._rx.clear()

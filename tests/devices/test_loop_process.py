@@ -5,6 +5,7 @@ measured in benchmarks/bench_servo_bus)."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import re
@@ -22,7 +23,13 @@ from devices.bus_commands import bus_command
 from devices.config import RobotConfig
 from devices.controller import RobotController, ServoLostError
 from devices.errors import LinkLostError
-from devices.loop_process import ControllerProcess, LoopDiedError, LoopProcessUnavailable, loop_process_wanted
+from devices.loop_process import (
+    HUNG_KILL_S,
+    ControllerProcess,
+    LoopDiedError,
+    LoopProcessUnavailable,
+    loop_process_wanted,
+)
 from devices.servo_chain import RateError, ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators.xm430_emulator import EmulatorProcess
@@ -237,3 +244,93 @@ def test_errors_from_the_child_are_the_in_process_one_line_messages(fault):
     assert shape[0] == shape[1] and "\n" not in str(remote)
     if isinstance(remote, ServoLostError):
         assert remote.servo_id == 5 and str(remote).startswith("servo 5 ")
+
+
+def test_a_hung_loop_process_is_reported_then_ended_and_said_so(child, emulator):
+    """A child alive but not ticking (SIGSTOP: as hung as a process gets) is reported after a few of its periods,
+    then killed after HUNG_KILL_S and reported as dead with the reason, so the user can reconnect."""
+    process, recorder, robot = child
+    pid = process.pid
+    playing = process.play(wave(robot, 0.5, 0.05), "slow")
+    assert wait_until(lambda: process.motion_name == "slow", WAIT_S)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        assert wait_until(lambda: any("has not ticked" in e for e in list(recorder.events)), WAIT_S)
+        stall = next(e for e in recorder.events if "has not ticked" in e)
+        assert f"pid {pid}" in stall and "periods at 50 Hz" in stall and "ended if it stays silent" in stall
+        with pytest.raises(LoopDiedError) as caught:
+            playing.result(WAIT_S + HUNG_KILL_S)
+        assert wait_until(lambda: recorder.errors, WAIT_S)
+        error = recorder.errors[-1][1]
+        assert error is caught.value
+        message = str(error)
+        assert "\n" not in message and f"pid {pid}" in message
+        assert re.search(r"did not tick for \d+\.\d s; ended it", message), message
+        assert "motion 'slow' stopped" in message and "servos hold their last goal" in message
+        assert "Reconnect the robot" in message
+        assert process._process.poll() is not None  # ended, not left stopped
+        assert not process.running and not process.connected
+        assert not any("ticks again" in e for e in recorder.events)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGCONT)
+
+
+def test_a_stall_that_ends_is_said_so_and_the_loop_goes_on(child, emulator):
+    process, recorder, _robot = child
+    pid = process.pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        assert wait_until(lambda: any("has not ticked" in e for e in list(recorder.events)), WAIT_S)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    assert wait_until(lambda: any("ticks again" in e for e in list(recorder.events)), WAIT_S)
+    ticks = process.ticks_seen
+    assert wait_until(lambda: process.ticks_seen > ticks + 10, WAIT_S)
+    assert process.running and process.died is None and not recorder.errors
+
+
+def test_bus_commands_that_hold_the_ticks_are_not_taken_for_a_hung_loop(child, emulator):
+    """A scan of the whole bus (a broadcast ping waits its ~0.8 s window) and a reboot (waits for the servo to
+    answer) hold the ticks far longer than the stall limit: announced in the heartbeat, they are not a stall."""
+    process, recorder, _robot = child
+    infos = process.scan().result(WAIT_S)  # every ID: one broadcast ping
+    assert [i.servo_id for i in infos] == list(range(1, 13))
+    process.reboot(5).result(WAIT_S)
+    process.submit(bus_command(bus_commands.timing_warnings)).result(WAIT_S)
+    ticks = process.ticks_seen
+    assert wait_until(lambda: process.ticks_seen > ticks + 25, WAIT_S)
+    # Each command makes one long period; if no other period reached the stall limit (a loaded machine can hold a
+    # normal-priority loop that long by itself), there must have been no stall report.
+    others = np.sort(process.recent_periods_s(4096))[:-3]
+    assert others.size > 10
+    if others.max() < process.stall_limit_s:
+        assert not any("has not ticked" in e for e in recorder.events), recorder.events
+    assert process.running and not recorder.errors
+
+
+def test_a_watcher_held_up_here_is_not_taken_for_a_stalled_loop(emulator):
+    """The app's side judges by the child's own tick times (the shared heartbeat), not by when its watcher ran: a
+    subscriber that holds the watcher for 1 s is no stall of the loop."""
+    recorder = Recorder()
+    held = threading.Event()
+
+    def slow_subscriber(state) -> None:
+        if not held.is_set():
+            held.set()
+            time.sleep(1.0)  # the watcher thread does nothing else meanwhile
+        recorder._state(state)
+
+    callbacks = {**recorder.callbacks(), "on_state": slow_subscriber}
+    process = ControllerProcess(robot_on(emulator.path), **callbacks)
+    process.start()
+    try:
+        assert wait_until(held.is_set, WAIT_S)
+        ticks = process.ticks_seen
+        assert wait_until(lambda: process.ticks_seen > ticks + 60, WAIT_S)
+        periods = process.recent_periods_s(4096)
+        if periods.size and periods.max() < process.stall_limit_s:  # the child itself ticked throughout
+            assert not any("has not ticked" in e for e in recorder.events), recorder.events
+        assert process.running and not recorder.errors
+    finally:
+        process.close()

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import select
 import sys
@@ -516,6 +517,10 @@ def serve(bus: Bus, out=sys.stdout) -> int:
     stdin_fd = sys.stdin.fileno()
     stdin_buf = b""
     wire_free_s = 0.0
+    # XM430_TRACE=file: every instruction's times (read off the pty; each reply's planned and actual write), written
+    # as JSON lines at exit, for bench_servo_bus --trace (a diagnosis of late ticks; same monotonic clock as the host).
+    trace_path = os.environ.get("XM430_TRACE", "").strip()
+    trace: list[tuple] | None = [] if trace_path else None
     try:
         while True:
             readable, _, _ = select.select([master_fd, stdin_fd], [], [], 0.5)
@@ -536,11 +541,16 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                         if replies and bus.stall_s:
                             wire_free_s += bus.stall_s
                             bus.stall_s = 0.0
+                        written: list[tuple[float, float]] = []
                         for servo, reply in replies:
                             start = wire_free_s + servo.get("return_delay_time") * 2e-6
                             wire_free_s = start + len(reply) * bus.byte_s
                             _sleep_until(wire_free_s)
                             os.write(master_fd, reply)
+                            if trace is not None:
+                                written.append((round(wire_free_s, 6), round(time.monotonic(), 6)))
+                        if trace is not None:
+                            trace.append((round(now, 6), inst, len(data), written))
                     bus.crc_errors = parser.crc_errors
             if stdin_fd in readable:
                 chunk = os.read(stdin_fd, 4096)
@@ -559,6 +569,10 @@ def serve(bus: Bus, out=sys.stdout) -> int:
     finally:
         os.close(master_fd)
         os.close(slave_fd)
+        if trace_path and trace:
+            with open(trace_path, "w", encoding="utf-8") as file:
+                for row in trace:
+                    file.write(json.dumps(row) + "\n")
 
 
 def _parse_ids(text: str) -> list[int]:
