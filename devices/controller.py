@@ -277,6 +277,9 @@ class RobotController:
         self._lock = threading.Lock()
         # Bus-thread state.
         self._motion: _Motion | None = None
+        # Play commands wait here from the start of a tick to just after its read (bus thread only): they start
+        # from the pose just read instead of reading it again, and send their first goal in that tick.
+        self._plays_after_read: list[tuple[Callable[[bool], None], concurrent.futures.Future]] = []
         self._last_state: ChainState | None = None
         self._connected = False
         self._last_good_read_s = 0.0
@@ -335,6 +338,9 @@ class RobotController:
         if thread is not None and thread is not threading.current_thread():
             thread.join()
         self._drain_commands(cancel=True)
+        plays, self._plays_after_read = self._plays_after_read, []
+        for _, future in plays:
+            future.cancel()
         if self._motion is not None:
             self._end_motion(MOTION_STOPPED)
         self.chain.close()
@@ -421,7 +427,8 @@ class RobotController:
         """
         future: concurrent.futures.Future[str] = concurrent.futures.Future()
         _long_lived.refreeze()
-        self._commands.put((lambda: self._begin_play(source, name, future, hold_first), future))
+        self._commands.put((lambda: self._plays_after_read.append(
+            (lambda fresh: self._begin_play(source, name, future, hold_first, fresh), future)), future))
         return future
 
     def pause(self) -> None:
@@ -557,16 +564,19 @@ class RobotController:
             self._try_reconnect(now)
             if not self._connected:
                 self._drain_commands(cancel=False)
+                self._start_plays(fresh=False)  # each refuses: not connected
                 return
         self._drain_commands(cancel=False)
         if not self._connected:
+            self._start_plays(fresh=False)
             return
         trace = tick_trace.TRACE
         try:
             # Read first: a hardware error seen in this read stops the motion before anything is written.
-            self._read_feedback(now)
+            fresh = self._read_feedback(now)
             if trace is not None:
                 trace.mark("read<")
+            self._start_plays(fresh)
             if self._estop.is_set():
                 self._estop.clear()
                 self._freeze_at_present()
@@ -630,7 +640,14 @@ class RobotController:
         with self._lock:
             self._writes += 1
 
-    def _read_feedback(self, now: float) -> None:
+    def _start_plays(self, fresh: bool) -> None:
+        """Bus thread: the play commands of this tick, from the pose just read (``fresh``; else each reads it)."""
+        plays, self._plays_after_read = self._plays_after_read, []
+        for begin, _ in plays:
+            begin(fresh)
+
+    def _read_feedback(self, now: float) -> bool:
+        """Read the servos' state; True if it was read (False: no valid reply this tick)."""
         try:
             state = self.chain.read_state(raise_on_alert=False)
         except (NoReplyError, CorruptPacketError) as exc:
@@ -645,7 +662,7 @@ class RobotController:
                 error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s; motion stopped")
                 self._stop_motion_with(error)
                 self._emit(self._on_error, error)
-            return
+            return False
         self._last_good_read_s = time.monotonic()
         self._consecutive_failed_reads = 0
         self._stale_reported = False
@@ -665,6 +682,7 @@ class RobotController:
                 self._poll_alerted(new)
         self._check_tracking(state)
         self._emit(self._on_state, state)
+        return True
 
     def _check_tracking(self, state: ChainState) -> None:
         """A motion whose servo is far from the goal it was sent (it rebooted and sagged, lost power, was forced
@@ -839,8 +857,11 @@ class RobotController:
         self._emit(self._on_event, f"motion {name!r} started")
 
     def _begin_play(self, source: MotionSource, name: str, future: concurrent.futures.Future,
-                    hold_first: bool) -> None:
-        """Bus thread: see :meth:`play`. Nothing is written before every check has passed."""
+                    hold_first: bool, fresh: bool) -> None:
+        """Bus thread, right after the tick's read (``fresh``: it succeeded): see :meth:`play`. Nothing is
+        written before every check has passed. Starts from the pose just read and turns torque on in two sync
+        writes, so the play command fits in the tick's slack: read twice and torque on servo by servo (12
+        acknowledged writes) it took ~30 ms at the factory Return Delay Time and cost every play a missed tick."""
         if not future.set_running_or_notify_cancel():
             return
         try:
@@ -849,7 +870,8 @@ class RobotController:
             if self._servos_in_error:
                 sid, names = next(iter(self._servos_in_error.items()))
                 raise ServoHardwareError(sid, names)
-            present = self.chain.read_state().position_rad
+            state = self._last_state if fresh else None
+            present = (state if state is not None else self.chain.read_state()).position_rad
             error = joint_limit_error(self.robot, present, "cannot hold the present pose")
             if hold_first and error is not None:
                 raise error
@@ -857,8 +879,9 @@ class RobotController:
             if self._motion is not None:
                 self._end_motion(MOTION_STOPPED)
             if hold_first:
-                self._write_unconditionally(present)
-                self.chain.set_torque(True)
+                self.chain.torque_on_holding(present)
+                with self._lock:
+                    self._writes += 1
         except Exception as exc:  # noqa: BLE001 - handed to the caller through the Future (and on_error)
             future.set_exception(exc)
             self._emit(self._on_error, exc)
@@ -893,11 +916,6 @@ class RobotController:
                 raise JointLimitError(
                     f"{name}: joint {self.robot.joint_ids[j]} would move at {speeds[m, j]:.2f} rad/s, above the "
                     f"robot's max_joint_speed_rad_s = {self.robot.max_joint_speed_rad_s:g} rad/s: nothing was sent")
-
-    def _write_unconditionally(self, goal: np.ndarray) -> None:
-        self.chain.write_goals(goal)
-        with self._lock:
-            self._writes += 1
 
     def _pause(self) -> None:
         motion = self._motion

@@ -586,6 +586,24 @@ class ServoChain:
             if enabled:
                 self._torque_commanded.add(sid)
 
+    def torque_on_holding(self, present_rad: np.ndarray) -> None:
+        """Every servo holds ``present_rad`` with torque on, in TWO sync writes and no reply: Goal Position :=
+        ``present_rad``, then Torque Enable := 1 on all. For the control loop's play command, which has just read
+        the present pose and each servo's status (a servo in hardware error is refused before this): twelve
+        acknowledged writes cost 12 status packets (~12 ms at the factory Return Delay Time, one USB latency
+        timer each on an adapter), more than a 50 Hz tick has left. A servo that did not take it shows up in the
+        next health poll as one whose torque is off while commanded on.
+        """
+        self.write_goals(present_rad)
+        writer = GroupSyncWrite(self._require_port(), self._ph, ct.ADDR_TORQUE_ENABLE, 1)
+        for sid in self.ids:
+            writer.addParam(sid, [1])
+        result = self._io(writer.txPacket)
+        if result != COMM_SUCCESS:
+            raise DeviceError(f"sync write of torque enable failed on {self.robot.port}: "
+                              f"{self._ph.getTxRxResult(result)}")
+        self._torque_commanded.update(self.ids)
+
     def _goals_to_present(self, ids: list[int]) -> None:
         """Goal Position := Present Position on ``ids`` (one sync read, one sync write), so torque coming on
         holds each joint where it is: after an overload and reboot, or posing by hand, the goal register may still

@@ -151,6 +151,34 @@ def test_a_plan_beyond_a_joint_limit_is_refused_on_the_bus_thread_before_any_goa
     assert emulator.state(1)["torque"] == 0  # refused before the hold: the servos were not even torqued
 
 
+def test_play_turns_torque_on_holding_the_pose_it_just_read_in_sync_writes(emulator):
+    # The play command fits in a tick's slack: it starts from the pose the tick just read and turns torque on with
+    # two sync writes (goal := present, torque enable), not twelve acknowledged writes after a second read (which
+    # took ~30 ms at the factory Return Delay Time: every `sensnake play` missed a tick there).
+    emulator.command("push 4 300")  # a limp joint bent by hand: it must be held there, not jump back
+    robot = robot_on(emulator.path)
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        controller = RobotController(chain, robot)
+        controller.start()
+        try:
+            assert wait_until(lambda: controller.stats().ticks >= 3, 15.0)
+            before = emulator.counts()
+            source = FollowTheLeader([0.1] * 12, robot.axes, 0.02, 1, rate_hz=robot.control_rate_hz)
+            playing = controller.play(source, "slow")
+            assert wait_until(lambda: controller.motion_name == "slow" or playing.done(), 15.0)
+            assert not playing.done() or playing.exception() is None
+            held = [emulator.state(sid) for sid in range(1, 13)]
+            after = emulator.counts()
+            controller.stop_motion()
+        finally:
+            controller.close()
+    assert after["write"] == before["write"]  # no acknowledged write: no status packet to wait for
+    assert all(state["torque"] == 1 for state in held)
+    assert abs(held[3]["goal"] - (2048 + 300)) <= 3  # held where the hand left it (+ at most a step of the motion)
+    assert abs(held[3]["position"] - (2048 + 300)) <= 3
+
+
 @pytest.mark.parametrize("jump_ticks", [700, 0])
 def test_a_servo_that_reboots_mid_play_stops_it_naming_the_servo(emulator, tmp_path, jump_ticks):
     # 700 ticks: the limp joint sagged 1.07 rad (caught at the next tick by the tracking error); 0: it only
