@@ -541,7 +541,7 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                         if replies and bus.stall_s:
                             wire_free_s += bus.stall_s
                             bus.stall_s = 0.0
-                        written: list[tuple[float, float]] = []
+                        written: list[tuple[float, float, float]] = []
                         for servo, reply in replies:
                             start = wire_free_s + servo.get("return_delay_time") * 2e-6
                             wire_free_s = start + len(reply) * bus.byte_s
