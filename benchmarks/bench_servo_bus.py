@@ -37,7 +37,7 @@ import numpy as np
 from benchmarks import late_tick_trace
 from benchmarks.sources import Wave
 from devices import dxl_wire as wire
-from devices import factory
+from devices import factory, tick_trace
 from devices.config import SIM_PORT, RobotConfig
 from devices.controller import HoldPose, RobotController
 from devices.servo_chain import ServoChain
@@ -160,8 +160,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     app's choice). ``kills``: after the windows, kill the loop process this many times and print how long until the
     app noticed (the watcher thread) and said so (the error on the GUI thread); the app reconnects after each.
 
-    ``trace_dir`` (robot on the pty chain): trace every late tick in the loop's process, the emulator's instruction
-    times and the machine's own wake-up gaps, and print why each late tick was late (benchmarks/late_tick_trace)."""
+    ``trace_dir``: trace every late tick in the loop's process (the app's own when the loop runs there), the
+    emulator's instruction times (robot on the pty chain) and the machine's own wake-up gaps, and print why each late
+    tick was late (benchmarks/late_tick_trace)."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     from PySide6.QtCore import QEventLoop, QTimer
@@ -201,7 +202,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             os.environ["SENSNAKE_LOOP_PROCESS"] = "1" if where == "process" else "0"
         config = dataclasses.replace(base, robot=dataclasses.replace(base.robot, control_rate_hz=rate))
         emulator = None
-        tracing = late_tick_trace.start(trace_dir) if trace_dir and chain == "pty" else None
+        tracing = late_tick_trace.start(trace_dir) if trace_dir else None
+        if tracing is not None and (chain != "pty" or where == "app"):
+            tick_trace.enable_from_env()  # the loop runs in this process: trace it here
         traced: list[tuple[float, float]] = []
         if chain == "pty":
             from tests.emulators.xm430_emulator import EmulatorProcess
@@ -273,6 +276,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             if emulator is not None:
                 emulator.close()
             if tracing is not None:
+                tick_trace.disable()
                 late_tick_trace.stop(tracing)
                 for w0, w1 in traced:
                     late_tick_trace.report(tracing, w0, w1)
@@ -521,7 +525,7 @@ if __name__ == "__main__":
                         help="gui case with the loop in its own process: kill it N times, print how fast the app "
                              "noticed")
     parser.add_argument("--trace", metavar="DIR",
-                        help="gui case on the pty chain: trace every late tick (loop process, emulator, machine "
+                        help="gui case: trace every late tick (the loop's process, the emulator on the pty chain, machine "
                              "probes) into DIR and print why each was late")
     args = parser.parse_args()
     run(args.quick, tuple(args.case or CASES), args.seconds, tuple(args.gui_rate or ()), args.rotate, args.plays, args.gui_chain,

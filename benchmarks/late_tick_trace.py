@@ -24,6 +24,10 @@ ticks before it (where the time went) and says what else happened in that stretc
   held the loop process's interpreter through the stretch;
 - ``wake-up``: the bus thread's wait for its slot ended late with nothing else seen;
 - ``unexplained``: none of these.
+
+With the loop in the app's process (port ``sim``, or ``--gui-loop app``) the trace is taken there and there is no
+emulator log: a ``wake-up`` or ``unexplained`` late tick with no probe held off is then most likely the bus thread
+waiting for the interpreter lock while the GUI thread held it (painting), which no mark can show directly.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """A diagnostic trace of the control loop's ticks, kept only for the ticks that come late (off unless asked for).
 
 ``SENSNAKE_TICK_TRACE=/path/file.jsonl`` in the environment of the loop's process (``devices.loop_process``; the
-benchmark ``bench_servo_bus --trace`` sets it) turns it on: the bus thread marks each phase of a tick (the wake-up,
+benchmark ``bench_servo_bus --trace`` sets it, and turns it on in the app's own process when the loop runs there)
+turns it on: the bus thread marks each phase of a tick (the wake-up,
 the feedback read's instruction, every wait for status bytes and the bytes it got, the goal write, the health poll,
 the tick callback), the sender thread marks each message it pickles and sends, and ``gc.callbacks`` marks every
 collection, all in one in-memory ring with ``time.monotonic()`` times and the thread. When a tick starts late (more
@@ -87,5 +88,14 @@ def enable_from_env() -> TickTrace | None:
     if not path:
         return None
     TRACE = TickTrace(path)
-    gc.callbacks.append(_gc_callback)
+    if _gc_callback not in gc.callbacks:
+        gc.callbacks.append(_gc_callback)
     return TRACE
+
+
+def disable() -> None:
+    """Turn the trace off (a benchmark that traced a loop in its own process, the app's)."""
+    global TRACE
+    TRACE = None
+    if _gc_callback in gc.callbacks:
+        gc.callbacks.remove(_gc_callback)
