@@ -239,10 +239,20 @@ class CalibrationTab(QWidget):
         layout.addWidget(self.status_label)
         return column
 
-    def _build_setup_page(self) -> QWidget:
+    @staticmethod
+    def _wizard_page(note_text: str = "") -> tuple[QWidget, QVBoxLayout]:
+        """A wizard page (no margins: the step frame has them), optionally opening with a wrapped note."""
         page = QWidget()
         layout = QVBoxLayout(page)
         layout.setContentsMargins(0, 0, 0, 0)
+        if note_text:
+            note = QLabel(note_text)
+            note.setWordWrap(True)
+            layout.addWidget(note)
+        return page, layout
+
+    def _build_setup_page(self) -> QWidget:
+        page, layout = self._wizard_page()
         sensor_box = QGroupBox("Sensor")
         form = QFormLayout(sensor_box)
         self.sensor_edit = QLineEdit(self.lab.config.rig.sensor)
@@ -290,14 +300,10 @@ class CalibrationTab(QWidget):
         return box
 
     def _build_check_page(self) -> QWidget:
-        page = QWidget()
-        layout = QVBoxLayout(page)
-        layout.setContentsMargins(0, 0, 0, 0)
-        note = QLabel("Before anything moves: the rig servo answers and is an XM430-W350, its torque can be enabled, "
-                      "its position and current at rest are sane, and the board streams the chosen sensor. Next "
-                      "stays off until every line passes.")
-        note.setWordWrap(True)
-        layout.addWidget(note)
+        page, layout = self._wizard_page(
+            "Before anything moves: the rig servo answers and is an XM430-W350, its torque can be enabled, its "
+            "position and current at rest are sane, and the board streams the chosen sensor. Next stays off until "
+            "every line passes.")
         self.check_button = QPushButton("Check the rig")
         self.check_button.setObjectName("rig_check_button")
         self.check_button.clicked.connect(self.start_rig_check)
@@ -315,9 +321,7 @@ class CalibrationTab(QWidget):
         return page
 
     def _build_contact_page(self) -> QWidget:
-        page = QWidget()
-        layout = QVBoxLayout(page)
-        layout.setContentsMargins(0, 0, 0, 0)
+        page, layout = self._wizard_page()
         contact = QGroupBox("Find contact")
         contact_layout = QVBoxLayout(contact)
         text = QLabel("Where the probe touches the sensor: the servo winds in small steps from a slack cable while "
@@ -371,13 +375,9 @@ class CalibrationTab(QWidget):
         return rig_page
 
     def _build_review_page(self) -> QWidget:
-        page = QWidget()
-        layout = QVBoxLayout(page)
-        layout.setContentsMargins(0, 0, 0, 0)
-        note = QLabel("The fit starts by itself when a run completes. Views on the right: Fit (Fig. 8B), Mean vs "
-                      "force (Fig. 9ii), Parameters vs force (Fig. 9iii). Redo a trial that went wrong.")
-        note.setWordWrap(True)
-        layout.addWidget(note)
+        page, layout = self._wizard_page(
+            "The fit starts by itself when a run completes. Views on the right: Fit (Fig. 8B), Mean vs force "
+            "(Fig. 9ii), Parameters vs force (Fig. 9iii). Redo a trial that went wrong.")
         layout.addWidget(self._build_trial_files(), 1)
         row = QHBoxLayout()
         self.fit_button = QPushButton("Fit")
@@ -393,14 +393,10 @@ class CalibrationTab(QWidget):
         return page
 
     def _build_save_page(self) -> QWidget:
-        page = QWidget()
-        layout = QVBoxLayout(page)
-        layout.setContentsMargins(0, 0, 0, 0)
-        note = QLabel("Save writes the sensor into a calibration file (its other sensors are kept); the Forces tab "
-                      "uses it at once, and the sensor's History view gets a row (drift of E0 between "
-                      "calibrations). A fit that is not fit to use asks for confirmation first.")
-        note.setWordWrap(True)
-        layout.addWidget(note)
+        page, layout = self._wizard_page(
+            "Save writes the sensor into a calibration file (its other sensors are kept); the Forces tab uses it at "
+            "once, and the sensor's History view gets a row (drift of E0 between calibrations). A fit that is not "
+            "fit to use asks for confirmation first.")
         self.save_button = QPushButton("Save to calibration file…")
         self.save_button.setToolTip("Write this sensor into a calibration file; other sensors in it are kept")
         self.save_button.clicked.connect(self._choose_save)
