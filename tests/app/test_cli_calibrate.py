@@ -76,7 +76,7 @@ def _digest(path: Path) -> str:
 def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_path, lab_config):
     out = tmp_path / "cal.json"
     command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
-               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "300", "--rest", "400", "--time-scale", "60",
+               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "150", "--rest", "200", "--time-scale", "60",
                "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
