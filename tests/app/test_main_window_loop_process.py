@@ -10,15 +10,13 @@ import signal
 import sys
 
 import pytest
-from PySide6.QtCore import QSettings
 
 from app.core.recording import open_recording
-from app.gui.lab import LabContext
-from app.gui.main_window import MainWindow
 from app.gui.robot_bridge import MOTION_FAULT
 from devices.config import SIM_PORT, load_config
 from devices.loop_process import ControllerProcess
 from models.trajectory import FollowTheLeader
+from tests.app.windows import open_connected_window
 
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the emulator needs a pty (Linux)"),
               pytest.mark.usefixtures("sim_lab_fast")]
@@ -30,15 +28,9 @@ TIMEOUT_MS = 30_000  # subprocesses on a loaded 2-core machine
 def window(qtbot, emulator, tmp_path, monkeypatch):
     monkeypatch.setenv("SENSNAKE_RECORDINGS_DIR", str(tmp_path / "recordings"))
     config = load_config().with_ports(robot=emulator.path, board=SIM_PORT, rig=SIM_PORT)
-    lab = LabContext(config)
-    win = MainWindow(lab, settings=QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat))
-    qtbot.addWidget(win)
-    win.show()
-    with qtbot.waitSignal(lab.robot.connected, timeout=TIMEOUT_MS) as blocker:
-        lab.robot.connect_robot()
-    assert blocker.args == [True]
-    with qtbot.waitSignal(lab.board.connected, timeout=TIMEOUT_MS):
-        lab.board.start()
+    win = open_connected_window(qtbot, config, tmp_path, TIMEOUT_MS)
+    with qtbot.waitSignal(win.lab.board.connected, timeout=TIMEOUT_MS):
+        win.lab.board.start()
     yield win
     win.close()
 

@@ -9,13 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QSettings, Qt
+from PySide6.QtCore import Qt
 
-from app.gui.lab import LabContext
-from app.gui.main_window import MainWindow
 from app.gui.robot_bridge import MOTION_RUNNING, MOTION_STOPPED
 from devices import dxl_wire as wire
 from devices.config import SIM_PORT, load_config
+from tests.app.windows import open_connected_window
 from tests.motion_sources import JointRamp
 from widgets.hardware_panel import COL_DEG, COL_RAD, COL_REBOOT, COL_TEMP, COL_TORQUE
 
@@ -26,13 +25,7 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture
 def window(qtbot, sim_lab_fast, tmp_path):
     config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
-    lab = LabContext(config)
-    win = MainWindow(lab, settings=QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat))
-    qtbot.addWidget(win)
-    win.show()
-    with qtbot.waitSignal(lab.robot.connected, timeout=CONNECT_TIMEOUT_MS) as blocker:
-        lab.robot.connect_robot()
-    assert blocker.args == [True]
+    win = open_connected_window(qtbot, config, tmp_path, CONNECT_TIMEOUT_MS)
     yield win
     win.close()  # closes the lab: the autouse fixture then fails the test if any device thread survived
 

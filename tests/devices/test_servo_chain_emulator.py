@@ -5,12 +5,14 @@ process on a pseudo-terminal, written from the Protocol 2.0 spec and the XM430-W
 from __future__ import annotations
 
 import ast
+import contextlib
 import dataclasses
 import json
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +34,19 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith(("linux", "darwin"))
 
 def robot_on(path: str, **changes) -> RobotConfig:
     return dataclasses.replace(RobotConfig(), port=path, **changes)
+
+
+@contextlib.contextmanager
+def running_controller(robot: RobotConfig) -> Iterator[RobotController]:
+    """A started control loop on the chain at ``robot.port`` (servo models checked), closed afterwards."""
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        controller = RobotController(chain, robot)
+        controller.start()
+        try:
+            yield controller
+        finally:
+            controller.close()
 
 
 def test_the_emulator_shares_no_code_with_the_driver_or_the_simulator():
@@ -137,16 +152,10 @@ def test_a_plan_beyond_a_joint_limit_is_refused_on_the_bus_thread_before_any_goa
     limits = [1.57] * 12
     limits[2] = 0.5
     robot = robot_on(emulator.path, joint_max_rad=tuple(limits))
-    with ServoChain(robot) as chain:
-        chain.check_models()
-        controller = RobotController(chain, robot)
-        controller.start()
-        try:
-            source = FollowTheLeader([1.0] + [0.0] * 11, robot.axes, 1.0, 1, rate_hz=robot.control_rate_hz)
-            with pytest.raises(JointLimitError, match=r"target \d+ of \d+: joint 3 \(index 2\) = 1\.000 rad"):
-                controller.play(source, "too far down").result(10)
-        finally:
-            controller.close()
+    with running_controller(robot) as controller:
+        source = FollowTheLeader([1.0] + [0.0] * 11, robot.axes, 1.0, 1, rate_hz=robot.control_rate_hz)
+        with pytest.raises(JointLimitError, match=r"target \d+ of \d+: joint 3 \(index 2\) = 1\.000 rad"):
+            controller.play(source, "too far down").result(10)
     assert emulator.counts()["sync_write"] == 0
     assert emulator.state(1)["torque"] == 0  # refused before the hold: the servos were not even torqued
 
@@ -157,22 +166,16 @@ def test_play_turns_torque_on_holding_the_pose_it_just_read_in_sync_writes(emula
     # took ~30 ms at the factory Return Delay Time: every `sensnake play` missed a tick there).
     emulator.command("push 4 300")  # a limp joint bent by hand: it must be held there, not jump back
     robot = robot_on(emulator.path)
-    with ServoChain(robot) as chain:
-        chain.check_models()
-        controller = RobotController(chain, robot)
-        controller.start()
-        try:
-            assert wait_until(lambda: controller.stats().ticks >= 3, 15.0)
-            before = emulator.counts()
-            source = FollowTheLeader([0.1] * 12, robot.axes, 0.02, 1, rate_hz=robot.control_rate_hz)
-            playing = controller.play(source, "slow")
-            assert wait_until(lambda: controller.motion_name == "slow" or playing.done(), 15.0)
-            assert not playing.done() or playing.exception() is None
-            held = [emulator.state(sid) for sid in range(1, 13)]
-            after = emulator.counts()
-            controller.stop_motion()
-        finally:
-            controller.close()
+    with running_controller(robot) as controller:
+        assert wait_until(lambda: controller.stats().ticks >= 3, 15.0)
+        before = emulator.counts()
+        source = FollowTheLeader([0.1] * 12, robot.axes, 0.02, 1, rate_hz=robot.control_rate_hz)
+        playing = controller.play(source, "slow")
+        assert wait_until(lambda: controller.motion_name == "slow" or playing.done(), 15.0)
+        assert not playing.done() or playing.exception() is None
+        held = [emulator.state(sid) for sid in range(1, 13)]
+        after = emulator.counts()
+        controller.stop_motion()
     assert after["write"] == before["write"]  # no acknowledged write: no status packet to wait for
     assert all(state["torque"] == 1 for state in held)
     assert abs(held[3]["goal"] - (2048 + 300)) <= 3  # held where the hand left it (+ at most a step of the motion)
@@ -238,23 +241,17 @@ def test_torque_on_after_an_overload_and_reboot_holds_the_present_position(emula
 
 def test_a_scan_while_a_motion_plays_is_refused_with_the_reason(emulator):
     robot = robot_on(emulator.path)
-    with ServoChain(robot) as chain:
-        chain.check_models()
-        controller = RobotController(chain, robot)
-        controller.start()
-        try:
-            source = FollowTheLeader([0.5] * 12, robot.axes, 0.05, 1, rate_hz=robot.control_rate_hz)
-            playing = controller.play(source, "slow")
-            assert wait_until(lambda: controller.motion_name == "slow")
-            pings = emulator.counts()["ping"]
-            with pytest.raises(BusBusyError, match=r"scan refused while motion 'slow' plays: .*~0\.8 s \(40 control"):
-                controller.scan().result(10)
-            assert emulator.counts()["ping"] == pings
-            controller.stop_motion()
-            assert playing.result(10) == "stopped"
-            assert [i.servo_id for i in controller.scan(ids=range(1, 13)).result(10)] == list(range(1, 13))
-        finally:
-            controller.close()
+    with running_controller(robot) as controller:
+        source = FollowTheLeader([0.5] * 12, robot.axes, 0.05, 1, rate_hz=robot.control_rate_hz)
+        playing = controller.play(source, "slow")
+        assert wait_until(lambda: controller.motion_name == "slow")
+        pings = emulator.counts()["ping"]
+        with pytest.raises(BusBusyError, match=r"scan refused while motion 'slow' plays: .*~0\.8 s \(40 control"):
+            controller.scan().result(10)
+        assert emulator.counts()["ping"] == pings
+        controller.stop_motion()
+        assert playing.result(10) == "stopped"
+        assert [i.servo_id for i in controller.scan(ids=range(1, 13)).result(10)] == list(range(1, 13))
 
 
 def test_a_rate_the_bus_cannot_keep_is_refused_with_the_fix_before_it_starts(emulator, tmp_path, capsys):
