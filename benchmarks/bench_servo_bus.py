@@ -8,13 +8,15 @@
     channels streaming; the Forces, Gait and Hardware tabs shown in turn) at 50 Hz (factory 500 µs Return Delay
     Time) and 100 Hz (Return Delay Time 0); QT_QPA_PLATFORM=xcb under Xvfb paints for real; with
     ``--gui-chain pty --gui-loop both`` the loop in the app's process and in its own process, back to back, and
-    ``--kills N`` how fast the app notices its loop process killed;
+    ``--kills N`` how fast the app notices its loop process killed; ``--trace DIR`` says why each late tick was
+    late (benchmarks/late_tick_trace: the loop's marks, the emulator's log, real-time probes of the machine);
 (e) one late reply and what it costs the reads after it (the cause of the in-app bursts), on the simulated chain
     and on the independent emulator;
 (f) ``sensnake play`` at 50 Hz on the independent emulator (tests/emulators) of twelve XM430s on a pty.
 
     python -m benchmarks.bench_servo_bus [--quick] [--case bare|gui|pty|…] [--seconds S] [--gui-rate 50]
         [--rotate S] [--plays N] [--gui-chain sim|pty] [--gui-loop auto|app|process|both] [--kills N]
+        [--trace DIR]
 
 Columns: ``missed`` are tick slots that passed without a tick (skipped, never caught up in a burst); ``late`` are
 ticks that started more than a quarter period after their slot (an overrunning tick is followed at once by the next,
