@@ -419,8 +419,10 @@ class RobotBridge(QObject):
         self.connected.emit(True)
         n_warnings = len(self.timing_warnings)
         timing = f"; {n_warnings} timing warning(s), see the Hardware tab" if n_warnings else ""
+        scheduling = getattr(controller, "scheduling", "")
+        how = f" ({scheduling})" if not self.is_sim and scheduling and scheduling != "not started" else ""
         self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}; "
-                        f"control loop in {self.loop_where}")
+                        f"control loop in {self.loop_where}{how}")
 
     def _connected_text(self) -> str:
         return f"{self.n_servos} servos on {self.port} ({'simulated' if self.is_sim else 'real'})"

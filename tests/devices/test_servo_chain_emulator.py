@@ -9,6 +9,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import struct
 import subprocess
 import sys
 import time
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
+from devices import controller as controller_module
 from devices.config import RobotConfig
 from devices.controller import BusBusyError, RobotController
 from devices.errors import JointLimitError, ServoHardwareError
@@ -303,3 +305,42 @@ def test_a_health_read_given_up_at_its_deadline_never_feeds_its_late_replies_to_
         assert skipped == 12
         health = chain.read_health(supply=False)  # and health reads go on
         assert [h.servo_id for h in health] == list(range(1, 13)) and all(h.hardware_error == 0 for h in health)
+
+
+def _open_on(path: Path) -> int:
+    """How many of this process's open files are ``path``."""
+    fds = Path("/proc/self/fd")
+    return sum(1 for fd in fds.iterdir() if os.path.realpath(fd) == str(path.resolve()))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PM QoS (/dev/cpu_dma_latency) is Linux's")
+def test_on_a_real_port_the_loop_holds_the_cpus_wakeup_latency_at_0_while_it_runs(emulator, monkeypatch, tmp_path):
+    device = tmp_path / "cpu_dma_latency"  # stands in for the kernel's device: what is written, and while open
+    device.write_bytes(b"")
+    monkeypatch.setattr(controller_module, "CPU_LATENCY_DEVICE", str(device))
+    monkeypatch.setattr(controller_module, "_raise_thread_priority", lambda: "normal scheduling (test)")
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")
+    monkeypatch.delenv("SENSNAKE_CPU_LATENCY", raising=False)
+    with running_controller(robot_on(emulator.path)) as controller:
+        assert controller.wait_started(10.0)
+        assert device.read_bytes() == struct.pack("i", 0)
+        assert controller.scheduling == "normal scheduling (test); CPU idle states held shallow"
+        assert _open_on(device) == 1
+    assert _open_on(device) == 0  # the request ends with the loop
+
+    device.write_bytes(b"")
+    monkeypatch.setenv("SENSNAKE_CPU_LATENCY", "0")
+    with running_controller(robot_on(emulator.path)) as controller:
+        assert controller.wait_started(10.0)
+        assert "CPU idle states not held (SENSNAKE_CPU_LATENCY=0)" in controller.scheduling
+    assert device.read_bytes() == b""
+
+    monkeypatch.delenv("SENSNAKE_CPU_LATENCY")
+    monkeypatch.setattr(controller_module, "CPU_LATENCY_DEVICE", str(tmp_path / "missing"))
+    with running_controller(robot_on(emulator.path)) as controller:
+        assert controller.wait_started(10.0)
+        rec_ticks = controller.stats().ticks
+        assert wait_until(lambda: controller.stats().ticks > rec_ticks + 2, 10.0)  # it ticks anyway
+        assert f"cannot open {tmp_path / 'missing'}" in controller.scheduling
+    # The simulated lab never asks (an idle CPU that polls costs power, and sim needs no timing).
+    assert controller_module._hold_cpu_wakeup_latency("sim") == (None, "")
