@@ -111,13 +111,18 @@ def _lower_switch_interval() -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 
 
+def _switched_off(variable: str) -> bool:
+    """An on/off environment switch (on unless set to 0, no, off or false)."""
+    return os.environ.get(variable, "1").strip().lower() in ("0", "no", "off", "false")
+
+
 def _raise_thread_priority() -> str:
     """Ask for real-time scheduling (SCHED_FIFO, priority ``BUS_THREAD_RT_PRIORITY``) for the calling thread only
     (Linux: scheduling is per thread), as a control loop on a PC should have: then another program busy on the
     machine cannot delay a tick's wake-up. Needs the privilege (root, CAP_SYS_NICE or an ``rtprio`` limit, e.g.
     ``@dialout - rtprio 20`` in /etc/security/limits.conf); without it the thread keeps normal scheduling. The
     environment variable ``SENSNAKE_REALTIME=0`` turns it off. Returns what was obtained, in words."""
-    if os.environ.get("SENSNAKE_REALTIME", "1").strip() in ("0", "no", "off", "false"):
+    if _switched_off("SENSNAKE_REALTIME"):
         return "normal scheduling (SENSNAKE_REALTIME=0)"
     if not sys.platform.startswith("linux") or not hasattr(os, "sched_setscheduler"):
         return "normal scheduling (real-time priority is only asked for on Linux)"
@@ -147,7 +152,7 @@ def _hold_cpu_wakeup_latency(port: str) -> tuple[int | None, str]:
     if is_sim(port):
         return None, ""
     for switch in ("SENSNAKE_REALTIME", "SENSNAKE_CPU_LATENCY"):
-        if os.environ.get(switch, "1").strip() in ("0", "no", "off", "false"):
+        if _switched_off(switch):
             return None, f"CPU idle states not held ({switch}=0)"
     if not sys.platform.startswith("linux"):
         return None, ""

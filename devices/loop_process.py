@@ -75,6 +75,7 @@ from devices.controller import (
     RobotController,
     _lower_switch_interval,
     _raise_thread_priority,
+    _switched_off,
 )
 from devices.errors import DeviceError, LinkLostError
 from devices.servo_chain import ChainState, ServoChain, ServoHealth
@@ -112,7 +113,7 @@ def loop_process_wanted(port: str) -> tuple[bool, str]:
         return False, "port sim: the simulated lab lives in the app's process"
     if os.name != "posix":
         return False, "the loop's own process needs Linux or macOS (it inherits a socket)"
-    if os.environ.get(ENV_SWITCH, "1").strip().lower() in ("0", "no", "off", "false"):
+    if _switched_off(ENV_SWITCH):
         return False, f"{ENV_SWITCH}=0"
     return True, ""
 

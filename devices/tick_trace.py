@@ -2,8 +2,7 @@
 
 ``SENSNAKE_TICK_TRACE=/path/file.jsonl`` in the environment of the loop's process (``devices.loop_process``; the
 benchmark ``bench_servo_bus --trace`` sets it, and turns it on in the app's own process when the loop runs there)
-turns it on: the bus thread marks each phase of a tick (the wake-up,
-the feedback read's instruction, every wait for status bytes and the bytes it got, the goal write, the health poll,
+turns it on: the bus thread marks each phase of a tick (the wake-up, the feedback read's instruction, every wait for status bytes and the bytes it got, the goal write, the health poll,
 the tick callback), the sender thread marks each message it pickles and sends, and ``gc.callbacks`` marks every
 collection, all in one in-memory ring with ``time.monotonic()`` times and the thread. When a tick starts late (more
 than ``LATE_FRACTION`` of a period after its slot), the marks since two ticks before it are appended to the file as
