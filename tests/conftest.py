@@ -7,6 +7,7 @@ stops it, or this fixture fails it (napari's rule). Hardware tests are skipped u
 from __future__ import annotations
 
 import os
+import signal
 import threading
 
 import pytest
@@ -17,6 +18,12 @@ os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 # would get SCHED_FIFO, and a 20x simulated lab's bus thread at real-time priority takes a core from the emulator
 # processes and other threads a test waits on. The tests of the real-time path ask for it themselves.
 os.environ.setdefault("SENSNAKE_REALTIME", "0")
+
+# The Ctrl-C tests need SIGINT delivered. A shell without job control that starts the run in the background
+# (`pytest … &`) leaves SIGINT ignored in it and in every process it starts: put Python's handler back, so the run and
+# the CLI processes the tests start (which get the default disposition at exec) take Ctrl-C as a terminal would.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 THREAD_JOIN_GRACE_S = 3.0
 MAX_PHYSICS_TEST_SPEED = 4.0  # the physics lab keeps up with this on a loaded 2-core machine (not with 20-50x)

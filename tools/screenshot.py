@@ -11,8 +11,8 @@ too; ``QWidget.grab()`` re-renders on request and would hide it.
 Waits for the robot to connect (and for live values) before grabbing, so the pictures show a working lab. Each tab
 is staged the way a user would use it: Teach captures three keyframes by posing the limp simulated robot and saves
 them as a shape; Gait plays that shape follow-the-leader and is grabbed mid-motion (the motion keeps running for the
-Forces and Hardware pictures, so they show a moving robot); Forces shows the last 10 s of live forces while
-recording; Hardware scans and checks the link. The user's saved window geometry, shape library and recordings are
+Forces and Hardware pictures, so they show a moving robot); Forces loads the simulated sensors' own models as its
+calibration (without one it shows µS) and shows the last 10 s of live forces while recording; Hardware scans and checks the link. The user's saved window geometry, shape library and recordings are
 not touched (settings, shapes and the recording go to a temporary folder).
 """
 
@@ -132,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             if name == "gait":
                 _stage_gait(page, pump)
             if name == "forces":
+                _load_simulated_sensors_calibration(page, Path(tmp))
                 page.controls.window_combo.setCurrentIndex(page.controls.window_combo.findText("10 s"))
                 pump(4_000)
                 page.controls.record.click()  # recording while the robot moves: REC in the status bar
@@ -225,6 +226,19 @@ def _stage_gait(page, pump) -> None:
     panel.speed_spin.setValue(0.1)
     panel.play_button.click()
     pump(20_000, until=lambda: page.source is not None and page.source.progress.fraction > 0.3)
+
+
+def _load_simulated_sensors_calibration(page: Any, folder: Path) -> None:
+    """Without a calibration file the Forces tab shows conductance (µS), never forces. For the picture it loads the
+    simulated board's own sensor models (what a calibration of all 36 sensors would give) so it shows newtons."""
+    import json
+
+    from devices import factory
+
+    path = folder / "simulated-sensors.json"
+    path.write_text(json.dumps(factory.sim_lab().board.ground_truth_calibration()), encoding="utf-8")
+    if not page.load_calibration(path):
+        raise SystemExit(f"screenshot: the simulated sensors' calibration did not load: {page.controls.message.text()}")
 
 
 def _load_demo_trials(page, folder: Path) -> None:

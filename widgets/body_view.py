@@ -4,7 +4,8 @@ Shared by the Teach, Gait and Forces tabs. A passive view: it takes numpy arrays
 
 * :meth:`BodyView.set_angles` draws the present pose, and optionally a goal pose overlaid (dashed grey);
 * :meth:`BodyView.set_sensor_forces` colours the 36 sensors (``forces_n`` (36,) in SPEC §2 channel order S01L, S01R,
-  S01B, …) on a grey → red ramp; sensors with a non-zero health flag are drawn hollow in the error colour.
+  S01B, …) on a grey → red ramp; sensors with a non-zero health flag are drawn hollow in the error colour, sensors
+  without a force (NaN: uncalibrated, or a rejected sample) hollow in their side's colour — never as 0 N.
   The side view shows the bottom sensors, the top view the left and right ones (each where it can be seen);
 * with :meth:`BodyView.set_drag_enabled`, dragging a point of the body turns the nearest joint in front of it that
   bends in that view (pitch in the side view, yaw in the top view) and emits ``joint_dragged(index, angle_rad)``:
@@ -47,6 +48,7 @@ VIEWS = ("side", "top")
 # at 36 ch).
 FORCE_LEVELS = 20
 LEVEL_HYSTERESIS = 1.0
+NO_ESTIMATE_LEVEL = -1.0  # the level of a sensor without a force (NaN): drawn hollow
 
 
 def _contains(outer: tuple[float, float, float, float], inner: tuple[float, float, float, float]) -> bool:
@@ -209,7 +211,8 @@ class BodyView(QWidget):
     def set_sensor_forces(self, forces_n: Sequence[float] | np.ndarray | None,
                           health_flags: Sequence[int] | np.ndarray | None = None,
                           full_scale_n: float | None = None) -> None:
-        """Colour the sensors by force (N, (3·n_joints,) channel order); ``None`` clears them.
+        """Colour the sensors by force (N, (3·n_joints,) channel order); ``None`` clears them. A NaN force (no
+        estimate: the sensor is uncalibrated, or its sample was rejected) is drawn hollow, not as 0 N.
 
         ``health_flags`` (same length): 0/False = healthy, anything else = a problem (drawn hollow, error colour).
         ``full_scale_n`` sets the force drawn darkest red (default 10 N). Only what visibly changes is redrawn: the
@@ -234,12 +237,14 @@ class BodyView(QWidget):
             flags = None if health_flags is None else np.asarray(health_flags).astype(bool)
             if flags is not None and flags.shape != (n_sensors,):
                 raise ValueError(f"{flags.size} health flags for {n_sensors} sensors")
-            raw = np.clip(np.nan_to_num(forces) / self._full_scale_n, 0.0, 1.0) * FORCE_LEVELS
+            raw = np.clip(forces / self._full_scale_n, 0.0, 1.0) * FORCE_LEVELS  # NaN stays NaN
             previous = self._levels
-            if previous is None:
-                levels = np.round(raw)
-            else:
-                levels = np.where(np.abs(raw - previous) < LEVEL_HYSTERESIS, previous, np.round(raw))
+            with np.errstate(invalid="ignore"):
+                if previous is None:
+                    levels = np.round(raw)
+                else:
+                    levels = np.where(np.abs(raw - previous) < LEVEL_HYSTERESIS, previous, np.round(raw))
+            levels = np.where(np.isnan(raw), NO_ESTIMATE_LEVEL, levels)
             same_health = (flags is None and self._health is None) or (
                 flags is not None and self._health is not None and np.array_equal(flags, self._health))
             self._forces_n = forces.copy()
@@ -432,6 +437,9 @@ class BodyView(QWidget):
             elif self._health is not None and self._health[k]:
                 brushes.append(self._brush("#FFFFFF00"))
                 pens.append(self._pen(theme.STATUS_COLORS[theme.ERROR], 2.0))
+            elif self._levels is not None and self._levels[k] == NO_ESTIMATE_LEVEL:
+                brushes.append(self._brush("#FFFFFF00"))
+                pens.append(self._pen(theme.SIDE_COLORS[side], 1.5))
             else:
                 level = float(self._levels[k]) if self._levels is not None else 0.0
                 brushes.append(self._brush(theme.force_color(level / FORCE_LEVELS * self._full_scale_n,

@@ -643,6 +643,11 @@ class ForcePlotGrid(QWidget):
     def history(self) -> TraceHistory | None:
         return self._history
 
+    @property
+    def units(self) -> str:
+        """The plots' y-axis units (see :meth:`set_units`)."""
+        return self._units
+
     def set_units(self, units: str) -> None:
         """Y-axis units, e.g. ``"N"`` or ``"µS"`` (every channel; see :meth:`set_channel_units`)."""
         self._units = units

@@ -3,12 +3,12 @@
 Per sensor the status is one of:
 
 - ``calibrated``: the loaded calibration JSON (SPEC §3.3, read by :mod:`app.core.calfiles`) has this sensor's model;
-- ``default``: no calibration file is loaded, so the models' typical sensor (``models.sls.TYPICAL_SLS``,
-  ``TYPICAL_AREA_M2`` and ``models.physics.DEFAULT_PHYSICS``) stands in. Its forces are indicative only and are
-  labelled so: the physics constants are placeholders until the lab measures them (SPEC §5);
-- ``uncalibrated``: a calibration file is loaded but does not hold this sensor (or its model), or its SLS fit was
-  marked degenerate by ``sensnake fit`` (at a bound, τ unresolved, no creep resolved; the reason goes to
-  :attr:`ForcesPipeline.problems`): the sensor shows conductance in µS, labelled, never a made-up force.
+- ``uncalibrated``: no calibration file is loaded, or the loaded one does not hold this sensor (or its model), or
+  its SLS fit was marked degenerate by ``sensnake fit`` (at a bound, τ unresolved, no creep resolved; the reason
+  goes to :attr:`ForcesPipeline.problems`): the sensor shows conductance in µS, labelled, never a made-up force.
+  (Before, with no file at all a "typical sensor" stood in and its forces were shown in N: an uncalibrated sensor
+  shown as newtons, with the physics constants from a hidden default — SPEC §5 says never. A sensor is shown in N
+  only from its own calibration.)
 
 The estimator (``sls`` creep-aware, or ``linear``) is applied live to new blocks; switching it restarts the estimator
 state (the creep history starts afresh). Time stamps fed to the estimators are the board clock (seconds). Every block
@@ -32,13 +32,14 @@ from app.core import calfiles
 from models.estimators import ESTIMATOR_RULE, LinearEstimator, SLSEstimator
 from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS, PhysicsConstants
-from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, SLSParams, conductance_from_force
+from models.sls import SLSParams
 from models.validation import ValidationRule
 
 CALIBRATED = "calibrated"
-DEFAULT = "default"
 UNCALIBRATED = "uncalibrated"
 ESTIMATORS = ("sls", "linear")
+NO_CALIBRATION_TEXT = ("no calibration file: conductance in µS, no forces — calibrate on the Calibration tab or "
+                       "load a file with Calibration…")
 US_PER_S = 1e6
 
 
@@ -51,19 +52,6 @@ class ForcesBlock:
     display: np.ndarray
     force_n: np.ndarray
     status: np.ndarray | None = None
-
-
-def _typical_linear_model() -> LinearModel:
-    """A straight line through the typical sensor's settled conductance at two forces (for the default status)."""
-    t_s = np.linspace(0.0, 300.0, 301)
-    settled = []
-    forces_n = (1.75, 5.25)
-    for force_n in forces_n:
-        conductance = conductance_from_force(t_s, np.full(t_s.size, force_n), TYPICAL_SLS, TYPICAL_AREA_M2,
-                                             DEFAULT_PHYSICS)
-        settled.append(float(np.asarray(conductance).ravel()[-1]))
-    slope = (settled[1] - settled[0]) / (forces_n[1] - forces_n[0])
-    return LinearModel(m_S_per_N=slope, d_S=settled[0] - slope * forces_n[0])
 
 
 class ForcesPipeline:
@@ -80,7 +68,6 @@ class ForcesPipeline:
         self.status: tuple[str, ...] = ()
         self.problems: list[str] = []
         self.last_block_problem: str | None = None  # why the last block got no force, if it did not
-        self._default_linear: LinearModel | None = None
         self._t_last_s: float | None = None
         self._rule = ESTIMATOR_RULE
         self.set_estimator(estimator)
@@ -131,18 +118,18 @@ class ForcesPipeline:
         self._build()
 
     def label(self, index: int) -> str:
-        """Legend text for channel ``index``: ``S06B`` when it gets a force (calibrated, or the typical-sensor
-        default that the calibration label announces), ``S06B (µS, uncal.)`` when it shows conductance."""
+        """Legend text for channel ``index``: ``S06B`` when it gets a force (from its calibration), ``S06B (µS,
+        uncal.)`` when it shows conductance."""
         name = self.channel_names[index]
         if self.status[index] == UNCALIBRATED:
             return f"{name} (µS, uncal.)"
         return name
 
     def summary(self) -> tuple[str, str]:
-        """(text, level) for the calibration label: how many sensors are calibrated / default / conductance."""
-        counts = {key: self.status.count(key) for key in (CALIBRATED, DEFAULT, UNCALIBRATED)}
+        """(text, level) for the calibration label: how many sensors are calibrated / shown as conductance."""
+        counts = {key: self.status.count(key) for key in (CALIBRATED, UNCALIBRATED)}
         if self.calibration is None:
-            return (f"no calibration file: typical-sensor defaults ({self._estimator_kind})", "warn")
+            return (NO_CALIBRATION_TEXT, "warn")
         name = os.path.basename(self.calibration_source)
         if counts[UNCALIBRATED]:
             return (f"{name}: {counts[CALIBRATED]} calibrated, {counts[UNCALIBRATED]} shown as conductance", "warn")
@@ -186,15 +173,7 @@ class ForcesPipeline:
         e0, e1, mu1, area, linear_models = [], [], [], [], []
         for name in self.channel_names:
             if self.calibration is None:
-                status.append(DEFAULT)
-                e0.append(TYPICAL_SLS.E0_Pa)
-                e1.append(TYPICAL_SLS.E1_Pa)
-                mu1.append(TYPICAL_SLS.mu1_Pa_s)
-                area.append(TYPICAL_AREA_M2)
-                if kind == "linear":
-                    if self._default_linear is None:
-                        self._default_linear = _typical_linear_model()
-                    linear_models.append(self._default_linear)
+                status.append(UNCALIBRATED)
                 continue
             try:
                 entry = calfiles.sensor_entry(self.calibration, name, kind, self.calibration_source)

@@ -22,7 +22,6 @@ Thread use: everything here runs on one controlling thread, except :meth:`LiveSe
 
 from __future__ import annotations
 
-import json
 import queue
 import time
 from collections.abc import Callable, Sequence
@@ -277,25 +276,12 @@ class LiveSession:
             recorder.add_robot_states(states)
 
     def recording_calibration_json(self) -> str | None:
-        """Forces are stored when they are estimated: with the loaded calibration, or a document describing the
-        typical-sensor defaults in force (so a reader knows those forces are indicative)."""
+        """The calibration in force, stored with a recording's forces; None when no sensor gets a force (no file
+        loaded: the recording keeps conductance only)."""
         pipeline = self.pipeline
-        if pipeline is None:
+        if pipeline is None or not pipeline.estimated.any():
             return None
-        if pipeline.calibration_json is not None:
-            return pipeline.calibration_json
-        if not pipeline.estimated.any():
-            return None
-        from models.physics import DEFAULT_PHYSICS
-        from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
-
-        entry = {"area_m2": TYPICAL_AREA_M2,
-                 "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
-                         "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)},
-                 "note": "typical-sensor default, not a calibration of this sensor"}
-        return json.dumps({"format": "sensnake-calibration", "version": 1, "physics": DEFAULT_PHYSICS.to_dict(),
-                           "sensors": {name: entry for name in self.channel_names},
-                           "estimator": pipeline.estimator_kind, "defaults": True})
+        return pipeline.calibration_json
 
 
 # -- a timed recording (sensnake record) ---------------------------------------------------------------------------

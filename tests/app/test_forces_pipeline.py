@@ -2,34 +2,22 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
-from app.core.forces_pipeline import CALIBRATED, DEFAULT, UNCALIBRATED, ForcesPipeline
+from app.core.forces_pipeline import CALIBRATED, UNCALIBRATED, ForcesPipeline
 from devices.config import default_sensor_names
 from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, conductance_from_force
+from tests.calibration_files import typical_sensor_entry, write_calibration
 
 NAMES = default_sensor_names()
 
 
-def write_cal(path, sensors):
-    path.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
-                                "physics": DEFAULT_PHYSICS.to_dict(), "sensors": sensors}))
-    return path
-
-
-def sls_entry():
-    return {"area_m2": TYPICAL_AREA_M2, "sls": {"E0_Pa": float(TYPICAL_SLS.E0_Pa), "E1_Pa": float(TYPICAL_SLS.E1_Pa),
-                                                "mu1_Pa_s": float(TYPICAL_SLS.mu1_Pa_s)}}
-
-
 def test_sls_recovers_a_constant_force_from_the_models_forward_conductance(tmp_path):
     pipeline = ForcesPipeline(NAMES)
-    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S06B": sls_entry()}))
+    pipeline.load_calibration(write_calibration(tmp_path / "cal.json", {"S06B": typical_sensor_entry()}))
     assert pipeline.status[NAMES.index("S06B")] == CALIBRATED
     assert pipeline.status.count(UNCALIBRATED) == 35
     t = np.arange(0, 60, 1 / 30)
@@ -45,23 +33,34 @@ def test_sls_recovers_a_constant_force_from_the_models_forward_conductance(tmp_p
     assert display[0, 0] == pytest.approx(200.0)  # uncalibrated sensors plot conductance in µS
 
 
-def test_linear_uses_the_file_and_default_without_a_file(tmp_path):
-    pipeline = ForcesPipeline(NAMES, estimator="linear")
-    assert set(pipeline.status) == {DEFAULT}
-    entry = sls_entry() | {"linear": {"m_S_per_N": 1e-4, "d_S": 5e-5}}
-    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S01L": entry}))
+def test_without_a_calibration_file_no_sensor_is_shown_as_newtons(tmp_path):
+    """An uncalibrated sensor is never shown as newtons: with no file at all every sensor plots its conductance in
+    µS (no typical-sensor stand-in, no hidden physics constants), whichever estimator; loading a file gives forces to
+    the sensors it holds, clearing it takes them away again."""
+    for kind in ("sls", "linear"):
+        pipeline = ForcesPipeline(NAMES, estimator=kind)
+        assert set(pipeline.status) == {UNCALIBRATED} and not pipeline.estimated.any()
+        text, level = pipeline.summary()
+        assert level == "warn" and "no calibration file" in text and "µS" in text and "Calibration tab" in text
+        out = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3.5e-4))
+        assert np.isnan(out.force_n).all() and out.display == pytest.approx(np.full((2, 36), 350.0))
+        assert pipeline.label(0) == "S01L (µS, uncal.)"
+    entry = typical_sensor_entry() | {"linear": {"m_S_per_N": 1e-4, "d_S": 5e-5}}
+    pipeline.load_calibration(write_calibration(tmp_path / "cal.json", {"S01L": entry}))
     out = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3.5e-4))
     model = LinearModel(m_S_per_N=1e-4, d_S=5e-5)
     assert out.force_n[0, 0] == pytest.approx(float(model.force_from_conductance(np.array([3.5e-4]))[0]))
+    assert np.isnan(out.force_n[:, 1:]).all() and pipeline.label(0) == "S01L"
     pipeline.clear_calibration()
-    assert set(pipeline.status) == {DEFAULT} and "typical-sensor" in pipeline.summary()[0]
+    assert set(pipeline.status) == {UNCALIBRATED} and "no calibration file" in pipeline.summary()[0]
+    assert np.isnan(pipeline.process(np.array([0.2]), np.full((1, 36), 3.5e-4)).force_n).all()
 
 
 def test_unusable_entry_is_explained_and_clock_restart_recovers(tmp_path):
     pipeline = ForcesPipeline(NAMES)
-    bad = sls_entry()
+    bad = typical_sensor_entry()
     bad["sls"]["E0_Pa"] = "soft"
-    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S02R": bad, "S03B": sls_entry()}))
+    pipeline.load_calibration(write_calibration(tmp_path / "cal.json", {"S02R": bad, "S03B": typical_sensor_entry()}))
     assert pipeline.status[NAMES.index("S02R")] == UNCALIBRATED
     assert any("S02R" in problem and "E0_Pa" in problem for problem in pipeline.problems)
     pipeline.process(np.array([10.0, 10.1]), np.full((2, 36), 3e-4))
@@ -75,10 +74,10 @@ def test_unusable_entry_is_explained_and_clock_restart_recovers(tmp_path):
 
 def test_degenerate_sls_fit_shows_conductance_and_says_why(tmp_path):
     """The live view never uses a fit that 'sensnake fit' marked degenerate (estimate refuses it too)."""
-    degenerate = sls_entry() | {"degenerate": True,
+    degenerate = typical_sensor_entry() | {"degenerate": True,
                                 "degenerate_reasons": ["no creep is resolved: τ → 0 and τ → ∞ both look elastic"]}
     pipeline = ForcesPipeline(NAMES)
-    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S01L": degenerate, "S01R": sls_entry()}))
+    pipeline.load_calibration(write_calibration(tmp_path / "cal.json", {"S01L": degenerate, "S01R": typical_sensor_entry()}))
     assert pipeline.status[NAMES.index("S01L")] == UNCALIBRATED
     assert pipeline.status[NAMES.index("S01R")] == CALIBRATED
     assert any("S01L" in p and "degenerate" in p and "no creep is resolved" in p for p in pipeline.problems)
@@ -93,7 +92,7 @@ def test_live_glitch_above_the_boards_ceiling_is_rejected_not_fed_to_the_creep_s
     from models.sls import ForceStatus
 
     pipeline = ForcesPipeline(NAMES)
-    pipeline.load_calibration(write_cal(tmp_path / "cal.json", {"S06B": sls_entry()}))
+    pipeline.load_calibration(write_calibration(tmp_path / "cal.json", {"S06B": typical_sensor_entry()}))
     LiveSession(BoardConfig(), pipeline=pipeline)  # the session gives the pipeline its board's 1/R_C
     column = NAMES.index("S06B")
     t = np.arange(0, 20, 1 / 30)

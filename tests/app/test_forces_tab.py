@@ -15,6 +15,7 @@ from app.gui.tabs.forces import BODY_MAP, create_tab, onset_time_s
 from devices.config import LabConfig
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS
+from tests.calibration_files import write_typical_calibration
 
 pytestmark = pytest.mark.usefixtures("sim_lab_fast")
 
@@ -46,9 +47,14 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     lab.board.start()
     qtbot.waitUntil(lambda: len(curves_with_data(tab)) == 36, timeout=15_000)
     assert len(tab.plots.plots) == 12
+    # No calibration file: every sensor is conductance in µS, said so, and the body map draws no force at all.
     legend = tab.plots.plots[5].legend.getLabel(tab.plots.plots[5].curves[2]).text
-    assert legend == "S06B"
-    assert "typical-sensor defaults" in tab.controls.calibration_label.text()  # no calibration file: said so
+    assert legend == "S06B (µS, uncal.)"
+    assert "no calibration file: conductance in µS" in tab.controls.calibration_label.text()
+    assert tab.plots.units == "µS" and tab.plots.channel_unit(17) == "µS"
+    assert not tab.pipeline.estimated.any() and np.isnan(tab.force_history.latest()[1]).sum() == 0  # µS plotted
+    tab.refresh_body()
+    assert {brush.color().alpha() for brush in tab.body.sensor_brushes("side")} == {0}  # hollow: no estimate
 
     tab.controls.pause.click()
     assert tab.plots.paused
@@ -84,6 +90,7 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     assert tab.pipeline.estimated.sum() == 1
     labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
     assert "S06B" in labels and "S06L (µS, uncal.)" in labels
+    assert tab.plots.units == "N" and tab.plots.channel_unit(17) == "N" and tab.plots.channel_unit(15) == "µS"
     assert "35 shown as conductance" in tab.controls.calibration_label.text()
     assert "S06B: calibrated (sls)" in tab.plots.plots[5].toggle.toolTip()
     assert "S06L: uncalibrated" in tab.plots.plots[5].toggle.toolTip()
@@ -104,6 +111,7 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
 
 
 def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, tmp_path):
+    assert tab.load_calibration(write_typical_calibration(tmp_path / "typical.json", lab.config.board.channel_names))
     with qtbot.waitSignal(lab.robot.connected, timeout=15_000):
         lab.robot.connect_robot()
     with qtbot.waitSignal(lab.board.connected, timeout=15_000):

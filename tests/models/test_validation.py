@@ -12,6 +12,7 @@ from models.linear import LinearModel
 from models.physics import DEFAULT_PHYSICS
 from models.sls import TYPICAL_AREA_M2, TYPICAL_SLS, ForceStatus, conductance_from_force
 from models.validation import SampleValidator, ValidationRule, summarise
+from tests.calibration_files import write_typical_calibration
 
 RATE_HZ = 20.0
 CEILING_S = 1.0 / 900.0
@@ -134,9 +135,10 @@ def test_linear_estimator_uses_the_same_rule():
     assert est.last_status[4, 0] == ForceStatus.NAN_INPUT and np.isnan(force[4])
 
 
-def test_live_pipeline_reports_validation_codes(record):
+def test_live_pipeline_reports_validation_codes(record, tmp_path):
     t, _, cond = record
     pipeline = ForcesPipeline(["S01", "S02"])
+    pipeline.load_calibration(write_typical_calibration(tmp_path / "cal.json", ["S01", "S02"]))
     both = np.column_stack([cond, cond])
     both[100, 1] = -1.0
     saturated = np.zeros(both.shape, dtype=bool)

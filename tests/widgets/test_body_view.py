@@ -61,6 +61,23 @@ def test_sensor_forces_colour_and_health(view):
         view.set_sensor_forces(np.zeros(35))
 
 
+def test_a_sensor_without_a_force_is_drawn_hollow_never_as_0_n(view):
+    """NaN (uncalibrated sensor, or a rejected sample) is "no estimate": hollow in the side's colour, and it fills
+    again, at its level, once a force comes."""
+    forces = np.full(36, np.nan)
+    forces[3 * 5 + 2] = 10.0
+    view.set_sensor_forces(forces, full_scale_n=10.0)
+    side = view.sensor_brushes("side")
+    assert side[5].color().name().upper() == theme.FORCE_FULL_COLOR.upper()
+    assert [b.color().alpha() for i, b in enumerate(side) if i != 5] == [0] * 11
+    forces[:] = 0.0
+    view.set_sensor_forces(forces)
+    assert {b.color().name().upper() for b in view.sensor_brushes("side")} == {theme.FORCE_ZERO_COLOR.upper()}
+    forces[3 * 0 + 2] = np.nan
+    view.set_sensor_forces(forces)
+    assert view.sensor_brushes("side")[0].color().alpha() == 0
+
+
 def _drag(widget, start, end, steps=6):
     viewport = widget.canvas.viewport()
     gv = widget.canvas

@@ -333,7 +333,9 @@ class ForcesTab(QWidget):
             latest = self.force_history.latest()
             forces = None
             if latest is not None and self.quantity == "force":
-                forces = np.where(self.pipeline.estimated, np.nan_to_num(latest[1].astype(float)), 0.0)
+                # A sensor without a force (uncalibrated, or a rejected sample) is NaN: drawn "no estimate", never
+                # as 0 N.
+                forces = np.where(self.pipeline.estimated, latest[1].astype(float), np.nan)
             flags = self.health.flags
         key = (None if angles is None else np.round(angles, 3).tobytes(),
                None if forces is None else np.round(forces / BODY_FORCE_STEP_N).tobytes(), flags.tobytes())
@@ -408,15 +410,20 @@ class ForcesTab(QWidget):
                                       for status in self.pipeline.status])
         if self.quantity == "force" and self.viewed is None:
             self.plots.set_channel_labels([self.pipeline.label(i) for i in range(len(self.channel_names))])
-            # An uncalibrated sensor's µS go on each plot's own right-hand axis, never on the axis labelled N.
-            self.plots.set_channel_units(["µS" if status == UNCALIBRATED else "N" for status in self.pipeline.status])
+            # An uncalibrated sensor's µS go on each plot's own right-hand axis, never on the axis labelled N; with
+            # no sensor calibrated there is no N axis at all.
+            units = ["µS" if status == UNCALIBRATED else "N" for status in self.pipeline.status]
+            plot_units = "N" if "N" in units else "µS"
+            if self.plots.units != plot_units:
+                self.plots.set_units(plot_units)
+            self.plots.set_channel_units(units if plot_units == "N" else None)
         else:
             self.plots.set_channel_labels(list(self.channel_names))
             self.plots.set_channel_units(None)
 
     def _show_live(self) -> None:
         if self.quantity == "force":
-            self.plots.set_history(self.force_history, "N")
+            self.plots.set_history(self.force_history)  # N, or µS with no sensor calibrated: set just below
         else:
             self.plots.set_history(self.board.history if self.board is not None else None, "µS")
         self._apply_calibration_labels()
