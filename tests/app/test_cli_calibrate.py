@@ -173,7 +173,7 @@ def test_refusal_reasons_name_what_makes_a_fit_unusable():
 def test_ctrl_c_keeps_the_finished_trials_and_says_how_to_continue(tmp_path, lab_config):
     out = tmp_path / "cal.json"
     command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
-               "--forces", "1.75,3", "--trials", "1", "--hold", "300", "--rest", "300", "--time-scale", "60",
+               "--forces", "1.75,3", "--trials", "1", "--hold", "60", "--rest", "60", "--time-scale", "60",
                "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
