@@ -75,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--physics", action="store_true",
                         help="run on the physics lab ([lab] physics = \"mujoco\"); the 3-D lab tab needs it: "
                              "--physics --tabs scene")
+    parser.add_argument("--no-calibration", action="store_true",
+                        help="Forces as the app opens, with no calibration file: conductance in µS")
     args = parser.parse_args(argv)
     code = _on_x(sys.argv[1:] if argv is None else list(argv))
     if code is not None:
@@ -132,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
             if name == "gait":
                 _stage_gait(page, pump)
             if name == "forces":
-                _load_simulated_sensors_calibration(page, Path(tmp))
+                if not args.no_calibration:
+                    _load_simulated_sensors_calibration(page, Path(tmp))
                 page.controls.window_combo.setCurrentIndex(page.controls.window_combo.findText("10 s"))
                 pump(4_000)
                 page.controls.record.click()  # recording while the robot moves: REC in the status bar

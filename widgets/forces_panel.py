@@ -253,9 +253,10 @@ class ForcesControls(QWidget):
     def set_message(self, text: str, level: str = "warn") -> None:
         _show(self.message, text, status_style(level) if text else "")
 
-    def set_calibration(self, text: str, level: str) -> None:
+    def set_calibration(self, text: str, level: str, hint: str = "") -> None:
+        """The calibration label; its tooltip is ``hint`` (what to do about it) after the text."""
         _show(self.calibration_label, text, status_style(level))
-        self.calibration_label.setToolTip(text)
+        self.calibration_label.setToolTip(f"{text}\n{hint}" if hint else text)
 
     def set_viewing_file(self, name: str | None) -> None:
         """Showing a past recording (``name``) instead of the live board, or live (None)."""

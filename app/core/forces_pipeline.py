@@ -38,8 +38,9 @@ from models.validation import ValidationRule
 CALIBRATED = "calibrated"
 UNCALIBRATED = "uncalibrated"
 ESTIMATORS = ("sls", "linear")
-NO_CALIBRATION_TEXT = ("no calibration file: conductance in µS, no forces — calibrate on the Calibration tab or "
-                       "load a file with Calibration…")
+NO_CALIBRATION_TEXT = "no calibration file: all sensors in µS, not N"
+NO_CALIBRATION_HINT = ("No sensor has a calibration, so none is shown in newtons. Calibrate sensors on the Calibration "
+                       "tab (the saved file is used here at once), or load a calibration file with Calibration…")
 US_PER_S = 1e6
 
 

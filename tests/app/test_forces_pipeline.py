@@ -41,7 +41,7 @@ def test_without_a_calibration_file_no_sensor_is_shown_as_newtons(tmp_path):
         pipeline = ForcesPipeline(NAMES, estimator=kind)
         assert set(pipeline.status) == {UNCALIBRATED} and not pipeline.estimated.any()
         text, level = pipeline.summary()
-        assert level == "warn" and "no calibration file" in text and "µS" in text and "Calibration tab" in text
+        assert level == "warn" and "no calibration file" in text and "µS, not N" in text
         out = pipeline.process(np.array([0.0, 0.1]), np.full((2, 36), 3.5e-4))
         assert np.isnan(out.force_n).all() and out.display == pytest.approx(np.full((2, 36), 350.0))
         assert pipeline.label(0) == "S01L (µS, uncal.)"

@@ -50,7 +50,8 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     # No calibration file: every sensor is conductance in µS, said so, and the body map draws no force at all.
     legend = tab.plots.plots[5].legend.getLabel(tab.plots.plots[5].curves[2]).text
     assert legend == "S06B (µS, uncal.)"
-    assert "no calibration file: conductance in µS" in tab.controls.calibration_label.text()
+    assert "no calibration file: all sensors in µS" in tab.controls.calibration_label.text()
+    assert "Calibration tab" in tab.controls.calibration_label.toolTip()  # what to do about it
     assert tab.plots.units == "µS" and tab.plots.channel_unit(17) == "µS"
     assert not tab.pipeline.estimated.any() and np.isnan(tab.force_history.latest()[1]).sum() == 0  # µS plotted
     tab.refresh_body()

@@ -46,7 +46,7 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import user_folders
-from app.core.forces_pipeline import UNCALIBRATED, ForcesPipeline
+from app.core.forces_pipeline import NO_CALIBRATION_HINT, UNCALIBRATED, ForcesPipeline
 from app.core.live_session import LiveSession, LiveUpdate
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
@@ -404,7 +404,7 @@ class ForcesTab(QWidget):
 
     def _apply_calibration_labels(self) -> None:
         text, level = self.pipeline.summary()
-        self.controls.set_calibration(text, level)
+        self.controls.set_calibration(text, level, NO_CALIBRATION_HINT if self.pipeline.calibration is None else "")
         self.plots.set_channel_notes([f"{status} ({self.pipeline.estimator_kind})" if status != "uncalibrated"
                                       else "uncalibrated: shown as conductance (µS)"
                                       for status in self.pipeline.status])
