@@ -213,7 +213,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
 
             emulator = EmulatorProcess()
             config = config.with_ports(robot=emulator.path)
-        previous = factory.install_sim_lab(SimLab(config))
+        sim = SimLab(config)
+        previous = factory.install_sim_lab(sim)
+        world = sim.physics.world if chain == "sim" and sim.physics is not None else None
         with ServoChain(config.robot) as servos:  # the Hardware tab's Return Delay Time button, before connecting
             servos.check_models()
             servos.set_return_delay(delay * 2)
@@ -243,6 +245,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                     late_tick_trace.start_probes(tracing, length + 2.0)
                 s0 = lab.robot.loop_stats()
                 t0, cpu0 = time.monotonic(), time.process_time()
+                physics0 = (world.stepping_s, world.lagged_s) if world is not None else None
                 chunks, taken, k = [], s0.ticks, 0
                 while time.monotonic() - t0 < length:
                     spin(min(rotate_s or length, length - (time.monotonic() - t0)))
@@ -261,10 +264,16 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                     break
                 s1 = lab.robot.loop_stats()
                 chunks.append(lab.robot.controller.recent_periods_s(s1.ticks - taken))
-                cpu = (time.process_time() - cpu0) / (time.monotonic() - t0) * 100
+                wall = time.monotonic() - t0
+                cpu = (time.process_time() - cpu0) / wall * 100
+                note = f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}"
+                if world is not None and physics0 is not None:
+                    # The simulated servos answer from the physics world: when stepping it cannot keep up with
+                    # the clock, replies wait for it (the simulator's limit, not the loop's) -- said here.
+                    note += (f"; physics lab stepping {100 * (world.stepping_s - physics0[0]) / wall:.0f} % of the "
+                             f"wall time, {world.lagged_s - physics0[1]:.1f} s of simulated time skipped (behind)")
                 _print_window(rate, delay * 2, name, s1.ticks - s0.ticks, s1.missed_ticks - s0.missed_ticks,
-                              s1.late_ticks - s0.late_ticks, np.concatenate(chunks), cpu,
-                              f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}")
+                              s1.late_ticks - s0.late_ticks, np.concatenate(chunks), cpu, note)
             if kills and lab.robot.is_connected and where != "app":
                 _kill_loop_process(lab, spin, kills)
         finally:

@@ -342,5 +342,42 @@ def test_on_a_real_port_the_loop_holds_the_cpus_wakeup_latency_at_0_while_it_run
         rec_ticks = controller.stats().ticks
         assert wait_until(lambda: controller.stats().ticks > rec_ticks + 2, 10.0)  # it ticks anyway
         assert f"cannot open {tmp_path / 'missing'}" in controller.scheduling
-    # The simulated lab never asks (an idle CPU that polls costs power, and sim needs no timing).
-    assert controller_module._hold_cpu_wakeup_latency("sim") == (None, "")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PM QoS (/dev/cpu_dma_latency) is Linux's")
+def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkeypatch, tmp_path):
+    """The simulated lab runs whenever the app is open: idle CPUs that poll all that time would cost power for
+    nothing, so on ``sim`` the request is held while a motion plays (when the loop's beat shows) and let go after."""
+    from devices import factory
+    from devices.sim.clock import SimClock
+    from devices.sim.dxl_chain import ChainLab, VirtualChain
+
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    monkeypatch.setattr(controller_module, "CPU_LATENCY_DEVICE", str(device))
+    monkeypatch.setattr(controller_module, "_raise_thread_priority", lambda: "normal scheduling (test)")
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")
+    monkeypatch.delenv("SENSNAKE_CPU_LATENCY", raising=False)
+    robot = robot_on("sim")
+    chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=SimClock(1.0), seed=3, return_delay_time=0)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    try:
+        with running_controller(robot) as controller:
+            assert controller.wait_started(10.0)
+            assert controller.scheduling == ("normal scheduling (test); CPU idle states held shallow while a motion "
+                                             "plays")
+            ticks = controller.stats().ticks
+            assert wait_until(lambda: controller.stats().ticks > ticks + 5, 10.0)
+            assert _open_on(device) == 0  # connected, nothing playing: not held
+            controller.set_torque(True).result(10)
+            source = FollowTheLeader([0.3] * 12, robot.axes, 0.2, 1, rate_hz=robot.control_rate_hz)
+            playing = controller.play(source, "wave")
+            assert wait_until(lambda: _open_on(device) == 1 or playing.done(), 10.0)
+            assert _open_on(device) == 1 and device.read_bytes() == struct.pack("i", 0)
+            controller.stop_motion()
+            assert playing.result(10) == "stopped"
+            assert wait_until(lambda: _open_on(device) == 0, 10.0)  # let go when the motion ends
+            assert controller.stats().ticks > 0
+    finally:
+        factory.install_sim_lab(previous)
+    assert _open_on(device) == 0
