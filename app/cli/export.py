@@ -14,6 +14,9 @@ from app.core.recording import export_csv, open_recording
 def run(args: argparse.Namespace) -> int:
     recording = open_recording(args.recording)
     out = export_csv(recording, args.csv)
-    what = "forces (N)" if recording.forces_n is not None else "conductance (S)"
+    what = "forces (N)" if recording.forces_n is not None and not recording.forces_from_defaults else "conductance (S)"
     print(f"wrote {recording.n_samples} rows × {len(recording.channels)} channels of {what} to {out}")
+    if recording.forces_from_defaults:
+        print("note: this recording's forces were estimated without a calibration (typical-sensor defaults of an "
+              "older version): conductance exported instead")
     return 0

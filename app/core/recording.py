@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import json
 import os
 import shutil
 import stat
@@ -532,6 +533,32 @@ class Recording:
         return tuple(e for e in self.events if e.kind == "gap")
 
     @property
+    def forces_from_defaults(self) -> bool:
+        """The stored forces came from no calibration: versions before 2026-11-27 estimated them with a typical
+        sensor when no calibration file was loaded (their calibration document says ``"defaults": true``). They are
+        not shown or exported as newtons; the conductance is."""
+        if self.forces_n is None or not self.calibration_json:
+            return False
+        try:
+            document = json.loads(self.calibration_json)
+        except ValueError:
+            return False
+        return isinstance(document, dict) and document.get("defaults") is True
+
+    @property
+    def force_channels(self) -> np.ndarray:
+        """(C,) bool: the channels shown and exported in newtons -- a stored force with at least one value (the
+        sensor was calibrated when recorded); the others as conductance. None with :attr:`forces_from_defaults`."""
+        mask = np.zeros(len(self.channels), dtype=bool)
+        forces = self.forces_n
+        if forces is None or self.forces_from_defaults:
+            return mask
+        n = min(forces.shape[0], self.n_samples)
+        columns = min(forces.shape[1], mask.size) if forces.ndim == 2 else 0
+        mask[:columns] = np.isfinite(forces[:n, :columns]).any(axis=0)
+        return mask
+
+    @property
     def duration_s(self) -> float:
         ends = [self.time_s[-1]] if self.n_samples else []
         if self.robot is not None and self.robot.time_s.size:
@@ -835,10 +862,11 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
 
 # -- export ------------------------------------------------------------------------------------------------------
 def export_csv(recording: Recording, out: str | Path) -> Path:
-    """Write ``time_s`` then one column per channel: forces (N) if stored, else conductance (S). Returns ``out``."""
+    """Write ``time_s`` then one column per channel: forces (N) if stored from a calibration, else conductance (S).
+    Returns ``out``."""
     out = Path(out)
     values = recording.conductance_s
-    if recording.forces_n is not None:
+    if recording.forces_n is not None and not recording.forces_from_defaults:
         values = recording.forces_n
     n = min(values.shape[0], recording.n_samples)
     table = np.column_stack([recording.time_s[:n], values[:n]])

@@ -49,17 +49,14 @@ def export_view_csv(recording: Recording, out: str | Path, t0_s: float | None = 
     header = ["time_s"]
     columns: list[np.ndarray] = [time_s[rows]]
     forces = recording.forces_n
+    in_newtons = recording.force_channels
     for c, name in enumerate(recording.channels):
-        force = None
-        if forces is not None and c < forces.shape[1]:
+        if forces is not None and in_newtons[c]:
             column = np.full(n_rows, np.nan)
             n = min(forces.shape[0], n_rows)
             column[:n] = forces[:n, c]
-            if np.isfinite(column).any():
-                force = column
-        if force is not None:
             header.append(f"{name}_N")
-            columns.append(force[rows])
+            columns.append(column[rows])
         else:
             header.append(f"{name}_uS")
             columns.append(np.asarray(recording.conductance_s[:, c], dtype=float)[rows] * MICRO)

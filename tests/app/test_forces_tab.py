@@ -269,3 +269,45 @@ def test_timed_recording_stops_by_itself(qtbot, lab, tab):
     assert session.n_daq_samples > 0
     assert tab.controls.record.text() == RECORD_TEXT and "saved" in tab.controls.message.text()
     assert tab.controls.duration.isEnabled() and tab.last_recording_path == session.path
+
+
+def test_a_recording_shows_newtons_only_for_the_sensors_that_had_a_calibration(qtbot, tab, tmp_path):
+    """Reopened, a recording keeps the live view's rule: a sensor without stored forces is µS on its plot's right
+    axis (labelled), a rejected sample of a calibrated sensor is a gap (not its conductance on the N axis), and the
+    typical-sensor forces older versions stored without a calibration are not shown as newtons."""
+    from app.core.recording import RecordingWriter
+    from devices.board import SampleBlock, conductance_from_counts
+    from devices.config import BoardConfig
+
+    names = LabConfig().board.channel_names
+    n = 40
+    counts = np.full((n, len(names)), 3000, dtype=np.uint16)
+    seq = np.arange(n, dtype=np.uint32)
+    block = SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, BoardConfig()),
+                        board_time_s=seq / 30.0, host_time_s=seq / 30.0, seq=seq, saturated=counts == 0)
+    forces = np.full((n, len(names)), np.nan)
+    s06b = names.index("S06B")
+    forces[:, s06b] = 2.0
+    forces[10, s06b] = np.nan  # rejected sample
+    paths = {}
+    for name, document in (("partial", '{"format": "sensnake-calibration"}'),
+                           ("old", '{"format": "sensnake-calibration", "defaults": true}')):
+        paths[name] = tmp_path / f"{name}.h5"
+        with RecordingWriter(paths[name], "", names, calibration_json=document, t0_monotonic_s=0.0) as writer:
+            writer.append_daq(block)
+            writer.append_forces(forces if name == "partial" else np.full((n, len(names)), 2.0))
+
+    assert tab.open_recording_file(paths["partial"]) is not None
+    assert tab.plots.units == "N" and tab.plots.channel_unit(s06b) == "N" and tab.plots.channel_unit(0) == "µS"
+    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
+    assert labels == {"S06B", "S06L (µS, uncal.)", "S06R (µS, uncal.)"}
+    values, units = tab._recording_values(tab.viewed)
+    assert np.isnan(values[10, s06b]) and values[11, s06b] == 2.0 and units[s06b] == "N"
+    assert np.allclose(values[:, 0], block.conductance_s[:, 0] * 1e6)
+    _angles, body = tab.recorded_body(float(block.host_time_s[20]))
+    assert body is not None and body[s06b] == 2.0 and np.isnan(body[0])  # no force: drawn hollow
+
+    assert tab.open_recording_file(paths["old"]) is not None
+    assert tab.plots.units == "µS" and "without a calibration" in tab.controls.message.text()
+    values, units = tab._recording_values(tab.viewed)
+    assert set(units) == {"µS"} and np.allclose(values, block.conductance_s * 1e6)

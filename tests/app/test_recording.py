@@ -118,6 +118,35 @@ def test_export_csv_writes_conductance_or_forces(tmp_path):
     assert np.all(forces[:, 1:] == 2.5)
 
 
+def test_forces_an_older_version_estimated_without_a_calibration_are_not_newtons(tmp_path):
+    """Before 2026-11-27 the app stored typical-sensor forces when no calibration file was loaded (their calibration
+    document says "defaults": true). Such forces are not a calibration: read back, no channel is in newtons and the
+    CSV export writes conductance. A real calibration's NaN channels (uncalibrated sensors) are not in newtons
+    either; a rejected sample of a calibrated channel stays a gap."""
+    t0 = time.monotonic()
+    block = make_block(0, 12, t0)
+    old, partial = tmp_path / "old.h5", tmp_path / "partial.h5"
+    with RecordingWriter(old, "", CHANNELS, calibration_json='{"format": "sensnake-calibration", "defaults": true}',
+                         t0_monotonic_s=t0) as writer:
+        writer.append_daq(block)
+        writer.append_forces(np.full((12, 36), 2.5))
+    forces = np.full((12, 36), np.nan)
+    forces[:, 17] = 1.5
+    forces[4, 17] = np.nan  # a rejected sample
+    with RecordingWriter(partial, "", CHANNELS, calibration_json='{"format": "sensnake-calibration"}',
+                         t0_monotonic_s=t0) as writer:
+        writer.append_daq(block)
+        writer.append_forces(forces)
+    recording = open_recording(old)
+    assert recording.forces_n is not None and recording.forces_from_defaults  # kept in the file, not shown as N
+    assert not recording.force_channels.any()
+    table = np.loadtxt(export_csv(recording, tmp_path / "old.csv"), delimiter=",", skiprows=1)
+    assert np.allclose(table[:, 1:], block.conductance_s, rtol=1e-9, atol=1e-15)
+    recording = open_recording(partial)
+    assert not recording.forces_from_defaults
+    assert np.flatnonzero(recording.force_channels).tolist() == [17]
+
+
 def test_an_export_that_fails_midway_leaves_the_earlier_csv_whole(tmp_path, monkeypatch, capsys):
     """The disk fills while the CSV is written: the earlier export at OUT stays as it was, no temporary is left,
     and the message is one line naming OUT in the OS's words."""

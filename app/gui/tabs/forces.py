@@ -366,10 +366,15 @@ class ForcesTab(QWidget):
             i = int(np.searchsorted(robot.time_s, t_s, side="right")) - 1
             angles = np.asarray(robot.present_rad[max(i, 0)], dtype=float)
         forces = None
-        if self.quantity == "force" and recording.forces_n is not None and recording.n_samples:
+        in_newtons = recording.force_channels
+        if self.quantity == "force" and recording.forces_n is not None and in_newtons.any() and recording.n_samples:
             n = min(recording.forces_n.shape[0], recording.n_samples)
             i = int(np.searchsorted(recording.time_s[:n], t_s, side="right")) - 1
-            forces = np.nan_to_num(np.asarray(recording.forces_n[max(i, 0)], dtype=float), nan=0.0)
+            # A channel without a force (uncalibrated when recorded, a rejected sample) is NaN: drawn hollow.
+            forces = np.full(len(self.channel_names), np.nan)
+            row = np.asarray(recording.forces_n[max(i, 0)], dtype=float)
+            columns = min(row.size, forces.size)
+            forces[:columns] = np.where(in_newtons[:columns], row[:columns], np.nan)
         return angles, forces
 
     def _on_cursor_moved(self, t_s: float) -> None:
@@ -581,6 +586,9 @@ class ForcesTab(QWidget):
         if recording.recovery:
             self.controls.set_message(f"{recording.recovery} — showing what survives; 'sensnake repair' writes a "
                                       "clean copy", "warn")
+        elif recording.forces_from_defaults:
+            self.controls.set_message(f"{Path(path).name}: its forces were estimated without a calibration "
+                                      "(typical-sensor defaults of an older version): shown as conductance (µS)", "warn")
         elif gaps:
             self.controls.set_message(f"showing {Path(path).name}: {gaps} gap(s) marked", "warn")
         return recording
@@ -594,18 +602,27 @@ class ForcesTab(QWidget):
             history = TraceHistory.for_budget(n_channels, RECORDING_VIEW_BUDGET_BYTES)
         if recording.n_samples:
             history.append(recording.time_s, values)
-        self.plots.set_history(history, units)
-        self.plots.set_channel_labels(list(self.channel_names))
+        self.plots.set_history(history, "N" if "N" in units else "µS")
+        # As live: a channel without forces (uncalibrated when recorded) is µS on each plot's right-hand axis,
+        # labelled, never on the axis labelled N.
+        self.plots.set_channel_units(units if "N" in units else None)
+        self.plots.set_channel_labels([name if unit == "N" or "N" not in units else f"{name} (µS, uncal.)"
+                                       for name, unit in zip(self.channel_names, units)])
         if recording.n_samples:
             self.plots.show_range(float(recording.time_s[0]), float(recording.time_s[-1]))
 
-    def _recording_values(self, recording: Recording) -> tuple[np.ndarray, str]:
-        if self.quantity == "force" and recording.forces_n is not None:
-            n = min(recording.forces_n.shape[0], recording.n_samples)
-            forces = np.array(recording.conductance_s * 1e6)
-            forces[:n] = np.where(np.isfinite(recording.forces_n[:n]), recording.forces_n[:n], forces[:n])
-            return forces, "N"
-        return recording.conductance_s * 1e6, "µS"
+    def _recording_values(self, recording: Recording) -> tuple[np.ndarray, list[str]]:
+        """The values shown for ``recording`` and each channel's unit: with Force (N), the stored forces of the
+        channels that have them (a rejected sample stays a gap, NaN), conductance (µS) for the others."""
+        conductance_us = np.asarray(recording.conductance_s, dtype=float) * 1e6
+        in_newtons = recording.force_channels if self.quantity == "force" else np.zeros(len(recording.channels), bool)
+        if recording.forces_n is None or not in_newtons.any():
+            return conductance_us, ["µS"] * len(self.channel_names)
+        n = min(recording.forces_n.shape[0], recording.n_samples)
+        values = np.array(conductance_us)
+        values[:, in_newtons] = np.nan
+        values[:n, in_newtons] = np.asarray(recording.forces_n[:n], dtype=float)[:, in_newtons]
+        return values, ["N" if in_newtons[c] else "µS" for c in range(len(self.channel_names))]
 
     def export_viewed_csv(self, out: str | os.PathLike, visible_only: bool = False) -> Path | None:
         """The recording shown to CSV (app.core.view_export: units in the header, the robot beside the forces), all
@@ -668,17 +685,22 @@ class ForcesTab(QWidget):
     def redraw_overlay(self) -> None:
         name = self.overlay_sensor.currentText()
         align = self.overlay_align.currentData()
-        trials = []
-        units = "N"
+        picked = []
         for recording in self.overlay_recordings:
             if name not in recording.channels or recording.n_samples == 0:
                 continue
             index = recording.channels.index(name)
             values, units = self._recording_values(recording)
-            trace = values[:, index]
+            picked.append((recording, index, values[:, index], units[index]))
+        # One axis, one unit: newtons only when every trial has this sensor's forces, else all in µS.
+        unit = "N" if picked and all(u == "N" for *_rest, u in picked) else "µS"
+        trials = []
+        for recording, index, trace, trace_unit in picked:
+            if trace_unit != unit:
+                trace = np.asarray(recording.conductance_s[:, index], dtype=float) * 1e6
             zero = onset_time_s(recording.time_s, trace) if align == "onset" else float(recording.time_s[0])
             trials.append((recording.path.stem, recording.time_s - zero, trace))
-        self.overlay.set_trials(trials, units)
+        self.overlay.set_trials(trials, unit)
 
     # -- dialogs ---------------------------------------------------------------------------------------------------
     def _browse_recording_path(self) -> None:
