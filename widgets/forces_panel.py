@@ -37,7 +37,7 @@ WINDOW_CHOICES_S: tuple[tuple[str, float], ...] = (
     ("10 min", 600.0),
 )
 DEFAULT_WINDOW_S = 30.0
-QUANTITIES = (("force", "Force (N)"), ("conductance", "Raw conductance (µS)"))
+QUANTITIES = (("force", "Force (N if calibrated)"), ("conductance", "Raw conductance (µS)"))
 RECORD_TEXT = "● Record"
 STOP_RECORDING_TEXT = "■ Stop recording"  # not just "Stop": the status bar's STOP halts the robot
 EXPORT_TIP = ("Write the recording shown to CSV, the visible time range or all of it: time_s, each sensor in N (µS "
@@ -94,8 +94,8 @@ class ForcesControls(QWidget):
         self.quantity = QComboBox(self)
         for key, text in QUANTITIES:
             self.quantity.addItem(text, key)
-        self.quantity.setToolTip("Force estimated from each sensor's calibration, or the raw conductance the board "
-                                 "measures")
+        self.quantity.setToolTip("Force estimated from each sensor's calibration (a sensor without one stays in µS, "
+                                 "labelled), or the raw conductance the board measures")
         self.quantity.currentIndexChanged.connect(lambda _i: self.quantity_changed.emit(self.quantity.currentData()))
         view_row.addWidget(self.quantity)
         view_row.addWidget(QLabel("Estimator"))
