@@ -34,6 +34,7 @@ import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Protocol, TextIO
 
@@ -532,7 +533,7 @@ class Recording:
     def gaps(self) -> tuple[RecordingEvent, ...]:
         return tuple(e for e in self.events if e.kind == "gap")
 
-    @property
+    @cached_property
     def forces_from_defaults(self) -> bool:
         """The stored forces came from no calibration: versions before 2026-11-27 estimated them with a typical
         sensor when no calibration file was loaded (their calibration document says ``"defaults": true``). They are
@@ -545,10 +546,11 @@ class Recording:
             return False
         return isinstance(document, dict) and document.get("defaults") is True
 
-    @property
+    @cached_property
     def force_channels(self) -> np.ndarray:
         """(C,) bool: the channels shown and exported in newtons -- a stored force with at least one value (the
-        sensor was calibrated when recorded); the others as conductance. None with :attr:`forces_from_defaults`."""
+        sensor was calibrated when recorded); the others as conductance. None with :attr:`forces_from_defaults`.
+        Computed once (a long, wide recording's forces are read at every replayed cursor move); do not modify."""
         mask = np.zeros(len(self.channels), dtype=bool)
         forces = self.forces_n
         if forces is None or self.forces_from_defaults:
