@@ -372,8 +372,10 @@ def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkey
             controller.set_torque(True).result(10)
             source = FollowTheLeader([0.3] * 12, robot.axes, 0.2, 1, rate_hz=robot.control_rate_hz)
             playing = controller.play(source, "wave")
-            assert wait_until(lambda: _open_on(device) == 1 or playing.done(), 10.0)
-            assert _open_on(device) == 1 and device.read_bytes() == struct.pack("i", 0)
+            # (the bus thread opens the device, then writes the 0: wait for both)
+            held = wait_until(lambda: (_open_on(device) == 1 and device.read_bytes() == struct.pack("i", 0))
+                              or playing.done(), 10.0)
+            assert held and not playing.done(), (_open_on(device), device.read_bytes())
             controller.stop_motion()
             assert playing.result(10) == "stopped"
             assert wait_until(lambda: _open_on(device) == 0, 10.0)  # let go when the motion ends
