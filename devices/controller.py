@@ -146,11 +146,11 @@ class _WakeupLatencyHold:
     development VM (KVM, haltpoll idle driver), the loop in its own process on the pty emulator, 10 minutes at 50 Hz
     with the app on every tab: 1415 missed / 6702 late ticks and jitter p99 9.6 ms without this request (652 / 3352 /
     7.0 ms in a second run), against the figures in the README with it; on the simulated lab in the app's process at
-    100 Hz, 2 minutes: jitter p99 1.47-2.19 ms (3.4 ms traced) without it, 0.50-1.51 ms in 7 of 8 runs with it. It is what cyclictest
-    does, and needs the same privilege as real-time priority (root, or write access to the device); an idle CPU then
-    polls instead of sleeping (more power), so on ``sim`` it is held only while a motion plays (the simulated lab runs
-    whenever the app is open), and ``SENSNAKE_CPU_LATENCY=0`` or ``SENSNAKE_REALTIME=0`` turns it off. The request
-    lasts while the file is open. Used by the bus thread only."""
+    100 Hz, 2 minutes: jitter p99 1.47-2.19 ms (3.4 ms traced) without it, 0.40-1.53 ms in 15 of 16 runs with it.
+    It is what cyclictest does, and needs the same privilege as real-time priority (root, or write access to the
+    device); an idle CPU then polls instead of sleeping (more power), so on ``sim`` it is held only while a motion
+    plays (the simulated lab runs whenever the app is open), and ``SENSNAKE_CPU_LATENCY=0`` or ``SENSNAKE_REALTIME=0``
+    turns it off. The request lasts while the file is open. Used by the bus thread only."""
 
     def __init__(self, port: str) -> None:
         self.only_while_moving = is_sim(port)
