@@ -3,8 +3,9 @@
 Past the angle ``θ_contact`` where the cable goes taut the probe presses the sensor with ``F = k·r·(θ − θ_contact)``,
 so a force is commanded by a position: ``θ = θ_contact + F/(k·r)``. :meth:`CalibrationRig.find_contact` finds
 ``θ_contact`` from the servo's present current, which rises with the cable tension: it winds in small steps from a
-slack position, averages the current at rest after each step, and fits a line to the loaded steps; where that line
-meets the unloaded current is the contact.
+slack position, averages the current once the wheel reports rest after each step, and fits a hinge (flat, then a
+line) to all the steps; the knee is the contact. The knee's standard error comes with it, and a contact the current
+cannot place to ``CONTACT_MAX_UNCERTAINTY_N`` of probe force is refused, not guessed.
 
 Threads: like :class:`devices.servo_chain.ServoChain`, a rig is NOT thread-safe; one thread owns it. Every call
 blocks until the servo has settled (a few tens of ms per step on the bench), except :meth:`CalibrationRig.start_force`
@@ -31,7 +32,14 @@ TORQUE_CONSTANT_NM_PER_A = 1.78  # XM430-W350 at 12 V (4.1 N·m stall at 2.3 A):
 ANGLE_LIMIT_RAD = math.pi - 0.01
 SETTLE_TOLERANCE_RAD = 3 * 2 * math.pi / 4096  # three ticks
 SETTLE_TIMEOUT_S = 5.0
-CURRENT_SAMPLES = 12  # reads averaged per step; the current's last bits are noisy (±2 LSB ≈ ±0.5 N here)
+CURRENT_SAMPLES = 16  # reads averaged per step; the current's last bits are noisy (±2 LSB ≈ ±0.5 N here)
+# A read while the wheel still moves carries the acceleration's torque (tens of mA: several newtons); the current is
+# only read once the servo reports zero velocity this many reads in a row, and moving reads are dropped.
+REST_READS = 2
+REST_READ_LIMIT = 200  # reads waited for rest at most (~0.2 s at 1 Mbps) before the step is taken as it is
+# The contact is refused (not guessed) when the current's noise leaves it this uncertain (one standard error, in
+# newtons of probe force: k·r × the angle's error).
+CONTACT_MAX_UNCERTAINTY_N = 0.15
 # The rig check: at rest the servo's current is the cable's tension × r / the torque constant (≈ 11 mA per newton on
 # the default rig). Above this multiple of the current the rig's maximum force would draw, something other than the
 # spring holds the wheel (a jammed probe, a caught cable).
@@ -60,7 +68,7 @@ class CalibrationRig:
 
     def __init__(self, rig: RigConfig, max_force_n: float | None = None, *,
                  search_step_rad: float = 0.02, unwind_rad: float = 0.4, contact_threshold_n: float = 0.5,
-                 fit_until_n: float = 2.0, interrupt: Callable[[], bool] | None = None) -> None:
+                 fit_until_n: float = 3.0, interrupt: Callable[[], bool] | None = None) -> None:
         self.config = rig
         self.interrupt = interrupt
         self.max_force_n = float(rig.max_force_n if max_force_n is None else max_force_n)
@@ -181,11 +189,28 @@ class CalibrationRig:
                 raise DeviceError(f"rig servo {self.config.servo_id} did not reach {sent:.3f} rad within "
                                   f"{timeout_s:g} s (at {position:.3f} rad): check the cable is not jammed")
 
-    def _mean_current_ma(self) -> float:
-        """Present current at rest (mA): a trimmed mean, so the spike of the last acceleration step drops out."""
-        samples = np.sort([self._chain.read_state().current_ma[0] for _ in range(CURRENT_SAMPLES)])
-        trim = CURRENT_SAMPLES // 4
-        return float(samples[trim:CURRENT_SAMPLES - trim].mean())
+    def _current_at_rest_ma(self) -> float:
+        """Present current at rest (mA): read once the servo reports zero velocity ``REST_READS`` times in a row,
+        reads that still move dropped, then a trimmed mean. It depends on how many reads are made, not on when they
+        are made: a starved thread or a slow bus reads the same quantity."""
+        still = 0
+        for _ in range(REST_READ_LIMIT):
+            still = still + 1 if self._chain.read_state().velocity_rad_s[0] == 0.0 else 0
+            if still >= REST_READS:
+                break
+        samples: list[float] = []
+        for _ in range(2 * CURRENT_SAMPLES):
+            state = self._chain.read_state()
+            if state.velocity_rad_s[0] == 0.0:
+                samples.append(float(state.current_ma[0]))
+                if len(samples) == CURRENT_SAMPLES:
+                    break
+        if len(samples) < CURRENT_SAMPLES // 2:
+            raise DeviceError(f"rig servo {self.config.servo_id} does not come to rest at its goal (its velocity "
+                              "keeps reading non-zero): check that the wheel turns freely and the cable is not caught")
+        ordered = np.sort(samples)
+        trim = len(ordered) // 4
+        return float(ordered[trim:len(ordered) - trim].mean())
 
     def find_contact(self) -> float:
         """Find ``θ_contact`` (rad), store it, leave the probe just touching (zero force) and return it."""
@@ -193,7 +218,7 @@ class CalibrationRig:
         start = max(-ANGLE_LIMIT_RAD, self.position_rad() - self.unwind_rad)
         self._slack_rad = start
         self.move_to(start)
-        baseline_ma = self._mean_current_ma()
+        baseline_ma = self._current_at_rest_ma()
         angles: list[float] = []
         excess_n: list[float] = []
         angle = start
@@ -204,17 +229,26 @@ class CalibrationRig:
                 raise DeviceError(f"rig servo {self.config.servo_id}: no contact found up to {ANGLE_LIMIT_RAD:.2f} rad; "
                                   "check that the cable is attached and the probe sits on the sensor")
             position = self.move_to(angle)
-            force_n = (self._mean_current_ma() - baseline_ma) / ma_per_n
+            force_n = (self._current_at_rest_ma() - baseline_ma) / ma_per_n
             angles.append(position)
             excess_n.append(force_n)
             # Two steps in a row: one noisy reading must not end the search.
             if len(excess_n) >= 2 and min(excess_n[-2:]) >= self.fit_until_n:
                 break
-        self.contact_rad = _hinge_fit_contact(np.array(angles), np.array(excess_n))
-        if self.contact_rad is None:
+        fit = _hinge_fit_contact(np.array(angles), np.array(excess_n))
+        if fit is None:
             self.move_to(start)
             raise DeviceError(f"rig servo {self.config.servo_id}: the current did not rise with winding; check "
                               "the spring and the cable")
+        contact, error_rad = fit
+        if error_rad * self.newtons_per_rad > CONTACT_MAX_UNCERTAINTY_N:
+            self.move_to(start)
+            raise DeviceError(
+                f"rig servo {self.config.servo_id}: the contact is too uncertain to calibrate on (±{error_rad:.3f} "
+                f"rad = ±{error_rad * self.newtons_per_rad:.2f} N of probe force; at most "
+                f"±{CONTACT_MAX_UNCERTAINTY_N:g} N): the servo's current is too noisy or does not rise in a line. "
+                "Check that the cable runs freely over the spring and nothing rubs on the wheel, then search again")
+        self.contact_rad = contact
         self.move_to(self.contact_rad)
         return self.contact_rad
 
@@ -266,13 +300,16 @@ class CalibrationRig:
             self.move_to(self._slack_rad, interruptible=False)
 
 
-def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> float | None:
-    """The knee of ``F = b + s·max(0, θ − θ_c)`` fitted by least squares (grid over θ_c, linear in b and s).
+def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> tuple[float, float] | None:
+    """The knee of ``F = b + s·max(0, θ − θ_c)`` fitted by least squares (grid over θ_c, linear in b and s), and its
+    standard error (rad).
 
     Fitting the flat part and the loaded part together uses every step, so one noisy step cannot drag the contact
-    the way a line through "loaded" steps picked by a threshold would. ``None`` if the load does not rise.
+    the way a line through "loaded" steps picked by a threshold would. The error is the x-intercept's of the loaded
+    line against the flat level: ``σ/s · √(1/n_flat + 1/n_loaded + (θ̄_loaded − θ_c)²/Sxx_loaded)``. ``None`` if the
+    load does not rise over at least three steps.
     """
-    best_sse, best_knee = math.inf, None
+    best_sse, best = math.inf, None
     for knee in np.linspace(angles_rad[0], angles_rad[-1], 4 * len(angles_rad)):
         design = np.column_stack([np.ones_like(angles_rad), np.maximum(0.0, angles_rad - knee)])
         coef, *_ = np.linalg.lstsq(design, excess_n, rcond=None)
@@ -280,5 +317,15 @@ def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> float | 
             continue
         sse = float(np.sum((design @ coef - excess_n) ** 2))
         if sse < best_sse:
-            best_sse, best_knee = sse, float(knee)
-    return best_knee
+            best_sse, best = sse, (float(knee), float(coef[1]))
+    if best is None:
+        return None
+    knee, slope = best
+    loaded = angles_rad[angles_rad > knee]
+    n_loaded, n_flat = len(loaded), len(angles_rad) - len(loaded)
+    if n_loaded < 3 or n_flat < 1 or len(angles_rad) < 4:
+        return None
+    sigma = math.sqrt(best_sse / (len(angles_rad) - 3))
+    sxx = float(np.sum((loaded - loaded.mean()) ** 2))
+    se = sigma / slope * math.sqrt(1.0 / n_flat + 1.0 / n_loaded + (float(loaded.mean()) - knee) ** 2 / sxx)
+    return knee, se
