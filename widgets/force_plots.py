@@ -5,9 +5,9 @@ boards or recordings. Drawing follows pyqtgraph's rules for dense live data, mea
 one QTimer (≤ 60 Hz) redraws, and only when new data arrived or the view changed; clipping to the view and peak
 (min/max) downsampling happen once per redraw in ``TraceHistory.window()`` for all drawn channels, at one bucket per
 pixel column, so drawing cost does not grow with the session length; antialiasing off; each plot's traces are drawn
-by one fixed-bounds item (:class:`_TraceBundle`) instead of one PlotCurveItem each (5× cheaper per frame); axes and
-legends are painted from pixmap caches; live, the x axis is "seconds before the newest sample" so no axis is
-regenerated per frame. Collapsed plots, hidden traces and plots scrolled out of view are not redrawn at all.
+by one fixed-bounds item (:class:`_TraceBundle`) instead of one PlotCurveItem each (5× cheaper per frame); axes are
+painted from pixmap caches and legends are plain labels over the plot, not scene items; live, the x axis is "seconds
+before the newest sample" so no axis is regenerated per frame. Collapsed plots, hidden traces and plots scrolled out of view are not redrawn at all.
 Benchmark: ``benchmarks/bench_forces_gui.py``.
 
 Layout: the plots fill the grid's view. When every row fits at a readable height (the 12 segments at the default
@@ -24,6 +24,7 @@ GUI thread only.
 
 from __future__ import annotations
 
+import html
 import math
 import re
 import time
@@ -35,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
-from PySide6.QtGui import QPainterPath, QPolygonF
+from PySide6.QtGui import QColor, QFont, QPainter, QPainterPath, QPixmap, QPolygonF, QTextDocument
 from PySide6.QtWidgets import (
     QGraphicsItem,
     QGraphicsWidget,
@@ -192,6 +193,100 @@ class _Trace(pg.PlotDataItem):
         return self._y
 
 
+class _Legend(QLabel):
+    """A plot's legend: a label over the top-left corner of its data area, one line per trace (a line in the trace's
+    colour and style, then its label). A click on an entry shows or hides that trace; a hidden one is greyed.
+
+    Not pyqtgraph's LegendItem: its ten or so scene items per plot sat over the data, so every frame Qt walked them
+    and asked each (Python-wrapped) for its bounds: 3-5 % of a core for the 12 live plots on a real X display. Nor a
+    rich-text label: that lays out and draws its text on every repaint of the traces under it (+1.3 ms per frame).
+    The entries are drawn once into a translucent pixmap, redrawn only when they change; each frame only blits it.
+    For an image export, :meth:`set_vector` shows the same text as text (an SVG keeps it as text)."""
+
+    HIDDEN_COLOR = "#AAAAAA"
+
+    def __init__(self, view: QWidget, traces: Sequence[_Trace], labels: Sequence[str]) -> None:
+        super().__init__(view)
+        self._traces = list(traces)
+        self._labels = list(labels)
+        self.html = ""
+        self._vector = False
+        self.setCursor(Qt.CursorShape.PointingHandCursor)
+        self.setToolTip("Click a name to show or hide its trace")
+        for trace in self._traces:
+            trace.visibleChanged.connect(self.render_entries)
+        self.render_entries()
+
+    def labels(self) -> list[str]:
+        return list(self._labels)
+
+    def set_labels(self, labels: Sequence[str]) -> None:
+        self._labels = list(labels)
+        self.render_entries()
+
+    def toggle(self, index: int) -> None:
+        """Show or hide trace ``index`` (what a click on its entry does)."""
+        trace = self._traces[index]
+        trace.setVisible(not trace.isVisible())
+
+    def mousePressEvent(self, event) -> None:  # noqa: N802 - Qt override
+        if event.button() == Qt.MouseButton.LeftButton and self._traces and self.height() > 0:
+            row = int(event.position().y() * len(self._traces) / self.height())
+            self.toggle(min(max(row, 0), len(self._traces) - 1))
+            event.accept()
+            return
+        super().mousePressEvent(event)
+
+    def _document(self) -> QTextDocument:
+        document = QTextDocument()
+        font = QFont(self.font())
+        font.setPointSizeF(8.0)
+        document.setDefaultFont(font)
+        document.setDocumentMargin(2.0)
+        document.setHtml(self.html)
+        return document
+
+    def set_vector(self, vector: bool) -> None:
+        """Show the entries as rich text (``True``, for an export: text stays text) or as the cached pixmap."""
+        self._vector = vector
+        self._show()
+
+    def render_entries(self) -> None:
+        """Redraw the entries from the traces' pens, visibility and the labels (call after a pen changes)."""
+        lines = []
+        for trace, label in zip(self._traces, self._labels):
+            pen = trace.opts["pen"]
+            shown = trace.isVisible()
+            color = pen.color().name() if shown else self.HIDDEN_COLOR
+            glyph = "━━" if pen.style() == Qt.PenStyle.SolidLine else "┅┅"
+            text_color = AXIS_COLOR if shown else self.HIDDEN_COLOR
+            lines.append(f'<span style="color: {color};">{glyph}</span>'
+                         f'<span style="color: {text_color};">&nbsp;{html.escape(label)}</span>')
+        entries = "<br>".join(lines)
+        if entries != self.html:
+            self.html = entries
+            self._show()
+
+    def _show(self) -> None:
+        if self._vector:
+            self.setStyleSheet("background: rgba(255,255,255,170); font-size: 8pt; padding: 2px;")
+            self.setText(self.html)
+            self.adjustSize()
+            return
+        self.setStyleSheet("")
+        document = self._document()
+        size = document.size().toSize()
+        ratio = self.devicePixelRatioF()
+        pixmap = QPixmap(size * ratio)
+        pixmap.setDevicePixelRatio(ratio)
+        pixmap.fill(QColor(255, 255, 255, 170))
+        painter = QPainter(pixmap)
+        document.drawContents(painter)
+        painter.end()
+        self.setPixmap(pixmap)
+        self.resize(size)
+
+
 class _TraceBundle(pg.GraphicsObject):
     """Draws all of one plot's traces in a single item whose bounding rect is the drawn data's (plus the pen).
 
@@ -330,24 +425,22 @@ class _SegmentPlot(QWidget):
             axis.setPen(pg.mkPen(AXIS_COLOR))
             axis.setTextPen(pg.mkPen(AXIS_COLOR))
         item.getAxis("left").setWidth(48)
-        # Top left: in a live view the newest (right-hand) data must stay uncovered.
-        self.legend = item.addLegend(offset=(4, 2), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 170),
-                                     labelTextColor=AXIS_COLOR, verSpacing=-6)
 
         self.bundle = _TraceBundle()
         item.addItem(self.bundle)
         self.curves: list[_Trace] = []
         for position, name in enumerate(group.names):
-            trace = _Trace(pg.mkPen(trace_color(name, position), width=1), name)
-            self.legend.addItem(trace, name)
-            self.curves.append(trace)
-        for plain in [item, self.legend, item.titleLabel] + [part for entry in self.legend.items for part in entry]:
+            self.curves.append(_Trace(pg.mkPen(trace_color(name, position), width=1), name))
+        # Top left of the data area: in a live view the newest (right-hand) data must stay uncovered.
+        self.legend = _Legend(self.plot_widget, self.curves, group.names)
+        item.getViewBox().sigResized.connect(self._place_legend)
+        for plain in (item, item.titleLabel):
             native_geometry(plain)
         # The view box draws nothing itself (no border): Qt need not call its Python paint() every frame.
         item.getViewBox().setFlag(QGraphicsItem.GraphicsItemFlag.ItemHasNoContents, True)
-        # Axes and legend rarely change in live mode: paint them (text included, hence every child item) from a
-        # pixmap instead of re-rendering them each frame: -20 % frame time measured on 12 plots.
-        for cached in (self.legend, item.getAxis("left"), item.getAxis("bottom")):
+        # Axes rarely change in live mode: paint them (text included, hence every child item) from a pixmap instead
+        # of re-rendering them each frame: -20 % frame time measured on 12 plots.
+        for cached in (item.getAxis("left"), item.getAxis("bottom")):
             cache_subtree(cached)
         self.cursor_line = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888888", style=Qt.PenStyle.DashLine))
         self.cursor_line.setZValue(10)
@@ -365,6 +458,10 @@ class _SegmentPlot(QWidget):
     @property
     def viewbox(self) -> pg.ViewBox:
         return self.plot_widget.getPlotItem().getViewBox()
+
+    def _place_legend(self) -> None:
+        corner = self.plot_widget.mapFromScene(self.viewbox.sceneBoundingRect().topLeft())
+        self.legend.move(corner.x() + 4, corner.y() + 2)
 
     def other_axis(self, units: str) -> tuple[pg.ViewBox, _TraceBundle]:
         """The right-hand axis (its own view box and trace bundle, same time axis) for the channels of this plot that
@@ -442,10 +539,7 @@ class _SegmentPlot(QWidget):
         if list(labels) == self._labels:
             return
         self._labels = list(labels)
-        for curve, label in zip(self.curves, labels):
-            sample_label = self.legend.getLabel(curve)
-            if sample_label is not None:
-                sample_label.setText(label)
+        self.legend.set_labels(labels)
 
     def on_screen(self, viewport: QWidget | None = None) -> bool:
         """True when the plot is expanded, inside the grid's view and shown (``viewport``: unused, kept for
@@ -628,7 +722,11 @@ class ForcePlotGrid(QWidget):
         self.refresh(force=True, include=index)
         x0, x1 = self.visible_range()
         title = f"{plot.group.title} · t = {x0:.2f} … {x1:.2f} s (session time)"
-        return save_widget_image(plot.plot_widget, path, title)
+        plot.legend.set_vector(True)  # its text as text, not the on-screen pixmap
+        try:
+            return save_widget_image(plot.plot_widget, path, title)
+        finally:
+            plot.legend.set_vector(False)
 
     def set_history(self, history: TraceHistory | None, units: str | None = None) -> None:
         """Draw ``history`` (channels in the order of ``channel_names``); ``units`` labels the y axes."""
@@ -763,6 +861,7 @@ class ForcePlotGrid(QWidget):
                     style = Qt.PenStyle.DotLine if warnings[i] else Qt.PenStyle.SolidLine
                     color = trace_color(plot.group.names[k], k)
                     plot.curves[k].setPen(pg.mkPen(color, width=1, style=style))
+                plot.legend.render_entries()
                 self._drawn_key = None
 
     def set_collapsed(self, index: int, collapsed: bool) -> None:

@@ -48,7 +48,7 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     qtbot.waitUntil(lambda: len(curves_with_data(tab)) == 36, timeout=15_000)
     assert len(tab.plots.plots) == 12
     # No calibration file: every sensor is conductance in µS, said so, and the body map draws no force at all.
-    legend = tab.plots.plots[5].legend.getLabel(tab.plots.plots[5].curves[2]).text
+    legend = tab.plots.plots[5].legend.labels()[2]
     assert legend == "S06B (µS, uncal.)"
     assert "no calibration file: all sensors in µS" in tab.controls.calibration_label.text()
     assert "Calibration tab" in tab.controls.calibration_label.toolTip()  # what to do about it
@@ -89,7 +89,7 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
                                "physics": DEFAULT_PHYSICS.to_dict(), "sensors": {"S06B": entry}}))
     assert tab.load_calibration(cal)
     assert tab.pipeline.estimated.sum() == 1
-    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
+    labels = set(tab.plots.plots[5].legend.labels())
     assert "S06B" in labels and "S06L (µS, uncal.)" in labels
     assert tab.plots.units == "N" and tab.plots.channel_unit(17) == "N" and tab.plots.channel_unit(15) == "µS"
     assert "35 shown as conductance" in tab.controls.calibration_label.text()
@@ -299,7 +299,7 @@ def test_a_recording_shows_newtons_only_for_the_sensors_that_had_a_calibration(q
 
     assert tab.open_recording_file(paths["partial"]) is not None
     assert tab.plots.units == "N" and tab.plots.channel_unit(s06b) == "N" and tab.plots.channel_unit(0) == "µS"
-    labels = {tab.plots.plots[5].legend.getLabel(c).text for c in tab.plots.plots[5].curves}
+    labels = set(tab.plots.plots[5].legend.labels())
     assert labels == {"S06B", "S06L (µS, uncal.)", "S06R (µS, uncal.)"}
     values, units = tab._recording_values(tab.viewed)
     assert np.isnan(values[10, s06b]) and values[11, s06b] == 2.0 and units[s06b] == "N"

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PySide6.QtCore import QPoint, Qt
 from PySide6.QtWidgets import QLabel
 
 from devices.config import default_sensor_names
-from widgets.force_plots import ForcePlotGrid, groups_from_names
+from widgets.force_plots import ForcePlotGrid, _Legend, groups_from_names
 from widgets.ring_plot import TraceHistory, append_with_gaps
 
 NAMES = default_sensor_names()
@@ -127,17 +128,43 @@ def test_nothing_new_means_no_redraw_but_expanding_redraws(grid):
     assert len(grid.plots[4].curves[0].yData) != len(stale) or not np.array_equal(grid.plots[4].curves[0].yData, stale)
 
 
-def test_legend_click_hides_a_trace_at_the_next_redraw(grid):
+def test_legend_click_hides_a_trace_at_the_next_redraw(grid, qtbot):
     history = TraceHistory.for_budget(36, 4_000_000)
     grid.set_history(history, "N")
     fill(history, 5.0)
     grid.refresh()
     plot = grid.plots[2]
     assert len(plot.bundle._lines) == 3
-    plot.curves[1].setVisible(False)  # what pyqtgraph's legend sample does on a click
+    assert "S03R" in plot.legend.html and plot.legend.isVisible() and not plot.legend.pixmap().isNull()
+    qtbot.mouseClick(plot.legend, Qt.MouseButton.LeftButton, pos=QPoint(20, plot.legend.height() // 2))  # S03R
+    assert not plot.curves[1].isVisible()
+    assert _Legend.HIDDEN_COLOR in plot.legend.html.split("<br>")[1]  # its entry is greyed
     grid.refresh()  # no new data, yet the picture changed: it redraws
     assert len(plot.bundle._lines) == 2
     assert [pen for pen, _ in plot.bundle._lines] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
+    plot.legend.toggle(1)  # clicked again: back
+    grid.refresh()
+    assert len(plot.bundle._lines) == 3 and _Legend.HIDDEN_COLOR not in plot.legend.html
+
+
+def test_the_legend_sits_over_the_data_area_and_follows_labels_and_warnings(grid):
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    fill(history, 5.0)
+    grid.refresh()
+    plot = grid.plots[0]
+    box = plot.viewbox.sceneBoundingRect()
+    corner = plot.plot_widget.mapFromScene(box.topLeft())
+    geometry = plot.legend.geometry()
+    assert corner.x() <= geometry.left() <= corner.x() + 10 and corner.y() <= geometry.top() <= corner.y() + 10
+    assert geometry.right() < plot.plot_widget.mapFromScene(box.center()).x()  # the newest data stays uncovered
+    grid.set_channel_labels([f"{name} (µS, uncal.)" for name in grid.channel_names])
+    assert plot.legend.labels()[0] == "S01L (µS, uncal.)" and "S01L (µS, uncal.)" in plot.legend.html
+    warnings = [""] * 36
+    warnings[1] = "saturated"
+    grid.set_channel_warnings(warnings)
+    entries = plot.legend.html.split("<br>")
+    assert "┅┅" in entries[1] and "━━" in entries[0]  # the warned trace's line is dotted, in the legend too
 
 
 def test_uncalibrated_sensors_get_their_own_microsiemens_axis_and_readout(grid):
