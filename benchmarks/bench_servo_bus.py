@@ -244,6 +244,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 if tracing is not None:
                     late_tick_trace.start_probes(tracing, length + 2.0)
                 s0 = lab.robot.loop_stats()
+                chain0 = getattr(lab.robot.controller, "chain", None)
+                wakeups0 = chain0.reply_wakeups if chain0 is not None else 0
                 t0, cpu0 = time.monotonic(), time.process_time()
                 physics0 = (world.stepping_s, world.lagged_s) if world is not None else None
                 chunks, taken, k = [], s0.ticks, 0
@@ -267,6 +269,12 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 wall = time.monotonic() - t0
                 cpu = (time.process_time() - cpu0) / wall * 100
                 note = f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}"
+                note += f"; {s1.failed_reads - s0.failed_reads} failed feedback reads"
+                in_app = getattr(lab.robot.controller, "chain", None)  # None when the loop has its own process
+                if in_app is not None:
+                    # A read waiting out the SDK's packet timeout (~37 ms here) shows as ticks of ~39 ms.
+                    note += (f", {(in_app.reply_wakeups - wakeups0) / max(1, s1.ticks - s0.ticks):.1f} reply "
+                             f"wake-ups per tick, replies paced {'by the device' if in_app.replies_paced_by_device else 'by the wire'}")
                 if world is not None and physics0 is not None:
                     # The simulated servos answer from the physics world: when stepping it cannot keep up with
                     # the clock, replies wait for it (the simulator's limit, not the loop's) -- said here.

@@ -418,6 +418,12 @@ class ServoChain:
         return self._port.wakeups if self._port is not None else 0
 
     @property
+    def replies_paced_by_device(self) -> bool:
+        """True once the port has seen replies arrive faster than the wire allows (an accelerated simulator): its
+        reads then wait at the pace observed, not at the baud rate and Return Delay Time. A diagnostic."""
+        return self._port is not None and self._port.faster_than_wire
+
+    @property
     def return_delays_s(self) -> dict[int, float]:
         """Each servo's Return Delay Time (s) as last read from or written to its control table (a copy; servos not
         read yet are missing). The reads wait for replies on this, never on timings learned from earlier replies."""
