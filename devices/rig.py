@@ -40,6 +40,10 @@ REST_READ_LIMIT = 200  # reads waited for rest at most (~0.2 s at 1 Mbps) before
 # The contact is refused (not guessed) when the current's noise leaves it this uncertain (one standard error, in
 # newtons of probe force: k·r × the angle's error).
 CONTACT_MAX_UNCERTAINTY_N = 0.15
+CONTACT_MIN_LOADED_STEPS = 5
+# The loaded steps' current, in newtons of cable tension (nominal torque constant), against the spring's k·r: gear
+# friction can hold part of the load (a lower rate); nothing makes the rate several times what the spring pulls.
+CONTACT_SLOPE_RANGE = (0.2, 3.0)
 # The rig check: at rest the servo's current is the cable's tension × r / the torque constant (≈ 11 mA per newton on
 # the default rig). Above this multiple of the current the rig's maximum force would draw, something other than the
 # spring holds the wheel (a jammed probe, a caught cable).
@@ -241,16 +245,33 @@ class CalibrationRig:
             raise DeviceError(f"rig servo {self.config.servo_id}: the current did not rise with winding; check "
                               "the spring and the cable")
         contact, error_rad = fit
-        if error_rad * self.newtons_per_rad > CONTACT_MAX_UNCERTAINTY_N:
+        reason = self._contact_doubt(np.array(angles), np.array(excess_n), contact, error_rad)
+        if reason:
             self.move_to(start)
             raise DeviceError(
-                f"rig servo {self.config.servo_id}: the contact is too uncertain to calibrate on (±{error_rad:.3f} "
-                f"rad = ±{error_rad * self.newtons_per_rad:.2f} N of probe force; at most "
-                f"±{CONTACT_MAX_UNCERTAINTY_N:g} N): the servo's current is too noisy or does not rise in a line. "
-                "Check that the cable runs freely over the spring and nothing rubs on the wheel, then search again")
+                f"rig servo {self.config.servo_id}: the contact is too uncertain to calibrate on ({reason}): the "
+                "servo's current is too noisy or does not rise in a line. Check that the cable runs freely over the "
+                "spring and nothing rubs on the wheel, then search again")
         self.contact_rad = contact
         self.move_to(self.contact_rad)
         return self.contact_rad
+
+    def _contact_doubt(self, angles: np.ndarray, excess_n: np.ndarray, contact: float, error_rad: float) -> str:
+        """Why the fitted contact cannot be trusted ("" if it can): its error, too few loaded steps, or a current
+        rising at a rate the spring cannot explain (noise that ended the search, not the cable)."""
+        newtons_per_rad = self.newtons_per_rad
+        if error_rad * newtons_per_rad > CONTACT_MAX_UNCERTAINTY_N:
+            return (f"±{error_rad:.3f} rad = ±{error_rad * newtons_per_rad:.2f} N of probe force; at most "
+                    f"±{CONTACT_MAX_UNCERTAINTY_N:g} N")
+        loaded = angles > contact
+        if int(loaded.sum()) < CONTACT_MIN_LOADED_STEPS:
+            return f"{int(loaded.sum())} loaded steps; at least {CONTACT_MIN_LOADED_STEPS}"
+        slope = float(np.polyfit(angles[loaded], excess_n[loaded], 1)[0])
+        ratio = slope / newtons_per_rad
+        if not CONTACT_SLOPE_RANGE[0] <= ratio <= CONTACT_SLOPE_RANGE[1]:
+            return (f"the current rose {ratio:.1f}× as fast per radian as the spring's {newtons_per_rad:.2f} N/rad "
+                    f"explains; {CONTACT_SLOPE_RANGE[0]:g}-{CONTACT_SLOPE_RANGE[1]:g}× is plausible")
+        return ""
 
     def command_force(self, force_n: float) -> float:
         """Apply ``force_n`` (N): move to ``θ_contact + F/(k·r)`` and wait there. Returns the angle (rad).
