@@ -244,30 +244,28 @@ class CalibrationRig:
             self.move_to(start)
             raise DeviceError(f"rig servo {self.config.servo_id}: the current did not rise with winding; check "
                               "the spring and the cable")
-        contact, error_rad = fit
-        reason = self._contact_doubt(np.array(angles), np.array(excess_n), contact, error_rad)
+        reason = self._contact_doubt(fit)
         if reason:
             self.move_to(start)
             raise DeviceError(
                 f"rig servo {self.config.servo_id}: the contact is too uncertain to calibrate on ({reason}): the "
                 "servo's current is too noisy or does not rise in a line. Check that the cable runs freely over the "
                 "spring and nothing rubs on the wheel, then search again")
+        contact = fit.contact_rad
         self.contact_rad = contact
         self.move_to(self.contact_rad)
         return self.contact_rad
 
-    def _contact_doubt(self, angles: np.ndarray, excess_n: np.ndarray, contact: float, error_rad: float) -> str:
+    def _contact_doubt(self, fit: _HingeFit) -> str:
         """Why the fitted contact cannot be trusted ("" if it can): its error, too few loaded steps, or a current
         rising at a rate the spring cannot explain (noise that ended the search, not the cable)."""
         newtons_per_rad = self.newtons_per_rad
-        if error_rad * newtons_per_rad > CONTACT_MAX_UNCERTAINTY_N:
-            return (f"±{error_rad:.3f} rad = ±{error_rad * newtons_per_rad:.2f} N of probe force; at most "
+        if fit.error_rad * newtons_per_rad > CONTACT_MAX_UNCERTAINTY_N:
+            return (f"±{fit.error_rad:.3f} rad = ±{fit.error_rad * newtons_per_rad:.2f} N of probe force; at most "
                     f"±{CONTACT_MAX_UNCERTAINTY_N:g} N")
-        loaded = angles > contact
-        if int(loaded.sum()) < CONTACT_MIN_LOADED_STEPS:
-            return f"{int(loaded.sum())} loaded steps; at least {CONTACT_MIN_LOADED_STEPS}"
-        slope = float(np.polyfit(angles[loaded], excess_n[loaded], 1)[0])
-        ratio = slope / newtons_per_rad
+        if fit.n_loaded < CONTACT_MIN_LOADED_STEPS:
+            return f"{fit.n_loaded} loaded steps; at least {CONTACT_MIN_LOADED_STEPS}"
+        ratio = fit.slope_n_per_rad / newtons_per_rad
         if not CONTACT_SLOPE_RANGE[0] <= ratio <= CONTACT_SLOPE_RANGE[1]:
             return (f"the current rose {ratio:.1f}× as fast per radian as the spring's {newtons_per_rad:.2f} N/rad "
                     f"explains; {CONTACT_SLOPE_RANGE[0]:g}-{CONTACT_SLOPE_RANGE[1]:g}× is plausible")
@@ -321,14 +319,22 @@ class CalibrationRig:
             self.move_to(self._slack_rad, interruptible=False)
 
 
-def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> tuple[float, float] | None:
-    """The knee of ``F = b + s·max(0, θ − θ_c)`` fitted by least squares (grid over θ_c, linear in b and s), and its
-    standard error (rad).
+@dataclass(frozen=True)
+class _HingeFit:
+    contact_rad: float  # the knee
+    error_rad: float  # its standard error
+    slope_n_per_rad: float  # the loaded line's rate
+    n_loaded: int  # steps past the knee
+
+
+def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> _HingeFit | None:
+    """The knee of ``F = b + s·max(0, θ − θ_c)`` fitted by least squares (grid over θ_c, linear in b and s), with
+    its standard error, the rate ``s`` and how many steps lie past the knee.
 
     Fitting the flat part and the loaded part together uses every step, so one noisy step cannot drag the contact
     the way a line through "loaded" steps picked by a threshold would. The error is the x-intercept's of the loaded
     line against the flat level: ``σ/s · √(1/n_flat + 1/n_loaded + (θ̄_loaded − θ_c)²/Sxx_loaded)``. ``None`` if the
-    load does not rise over at least three steps.
+    load does not rise (no rising knee with two steps past it and one before).
     """
     best_sse, best = math.inf, None
     for knee in np.linspace(angles_rad[0], angles_rad[-1], 4 * len(angles_rad)):
@@ -344,9 +350,9 @@ def _hinge_fit_contact(angles_rad: np.ndarray, excess_n: np.ndarray) -> tuple[fl
     knee, slope = best
     loaded = angles_rad[angles_rad > knee]
     n_loaded, n_flat = len(loaded), len(angles_rad) - len(loaded)
-    if n_loaded < 3 or n_flat < 1 or len(angles_rad) < 4:
+    if n_loaded < 2 or n_flat < 1 or len(angles_rad) < 4:
         return None
     sigma = math.sqrt(best_sse / (len(angles_rad) - 3))
     sxx = float(np.sum((loaded - loaded.mean()) ** 2))
     se = sigma / slope * math.sqrt(1.0 / n_flat + 1.0 / n_loaded + (float(loaded.mean()) - knee) ** 2 / sxx)
-    return knee, se
+    return _HingeFit(knee, se, slope, n_loaded)

@@ -114,7 +114,7 @@ def test_the_contact_fit_reports_an_honest_error_on_cases_it_was_not_tuned_on():
             load = slope * np.maximum(0.0, angles - knee) + rng.normal(0.0, noise, len(angles))
             fit = _hinge_fit_contact(angles, load)
             assert fit is not None
-            z.append((fit[0] - knee) / fit[1])
+            z.append((fit.contact_rad - knee) / fit.error_rad)
     z_rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.7 < z_rms < 1.4, z_rms
     # A load that never rises is no contact.
