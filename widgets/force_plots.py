@@ -7,7 +7,8 @@ one QTimer (≤ 60 Hz) redraws, and only when new data arrived or the view chang
 pixel column, so drawing cost does not grow with the session length; antialiasing off; each plot's traces are drawn
 by one fixed-bounds item (:class:`_TraceBundle`) instead of one PlotCurveItem each (5× cheaper per frame); axes are
 painted from pixmap caches and legends are plain labels over the plot, not scene items; live, the x axis is "seconds
-before the newest sample" so no axis is regenerated per frame. Collapsed plots, hidden traces and plots scrolled out of view are not redrawn at all.
+before the newest sample" so no axis is regenerated per frame. Collapsed plots, hidden traces and plots scrolled out
+of view are not redrawn at all.
 Benchmark: ``benchmarks/bench_forces_gui.py``.
 
 Layout: the plots fill the grid's view. When every row fits at a readable height (the 12 segments at the default
