@@ -25,6 +25,7 @@ import select
 import sys
 import termios
 import time
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,6 +73,14 @@ _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8,
 _STATUS_OVERHEAD = 4
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
+# A sync read's replies judged paced by the device (an accelerated simulator) or by the wire: complete in under
+# FAST_FRACTION of the wire's lower bound = fast, in over SLOW_FRACTION of it = slow. Device pacing is taken up after
+# PACE_FAST_VOTES fast verdicts among the last PACE_WINDOW, dropped after PACE_SLOW_VOTES slow verdicts in a row.
+FAST_FRACTION = 0.5
+SLOW_FRACTION = 0.8
+PACE_WINDOW = 4
+PACE_FAST_VOTES = 2
+PACE_SLOW_VOTES = 3
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
@@ -168,6 +177,11 @@ class _FactoryPortHandler(PortHandler):
         self.return_delays_s: dict[int, float] = {}  # servo ID -> Return Delay Time (s) read from its table
         self.wakeups = 0  # sleeps and waits for bytes (a cost figure for tests and benchmarks)
         self.faster_than_wire = False  # the device answers faster than the wire allows (an accelerated simulator)
+        self._pace_verdicts: deque[bool] = deque(maxlen=PACE_WINDOW)  # True: a transaction faster than the wire
+        self._slow_run = 0  # slow verdicts in a row
+        self._abandoned = False  # a read was given up with bytes missing since the last write (they may still come)
+        self._stale_possible = False  # ... before the transaction in flight: bytes seen in it may be those
+        self._judged = False  # the transaction in flight has had its early look at the pace
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
@@ -210,6 +224,7 @@ class _FactoryPortHandler(PortHandler):
         # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
         self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
+        self._stale_possible, self._abandoned, self._judged = self._abandoned, False, False
         return written
 
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
@@ -228,29 +243,56 @@ class _FactoryPortHandler(PortHandler):
         self._take_waiting()
         if len(self._rx) < n_bytes:
             self._wait_for_bytes(n_bytes, tuple(reply_ids))
+        if len(self._rx) >= n_bytes and not self._judged and not self._stale_possible:
+            # The whole reply is in: how long it took against the least the wire needs for it.
+            self._judged = True
+            wire_s = (self._wire_free_s - self._tx_start_s + n_bytes * self.byte_s
+                      + sum(self.return_delays_s.get(sid, 0.0) for sid in reply_ids))
+            took_s = time.monotonic() - self._tx_start_s
+            if took_s < FAST_FRACTION * wire_s:
+                self._pace_verdict(True)
+            elif took_s > SLOW_FRACTION * wire_s:
+                self._pace_verdict(False)
+
+    def _pace_verdict(self, fast: bool) -> None:
+        """One transaction's pace. A device faster than the wire (the simulator on an accelerated clock) has its
+        replies awaited at the pace observed since the instruction was written, not at the baud rate and Return
+        Delay Time. Taken up on repeated evidence only and dropped again: replies of a read given up earlier that
+        cross after the next instruction look faster than the wire (they are not judged), and a device wrongly
+        judged fast made every read wait out the SDK's timeout (~39 ms ticks at 100 Hz on the simulated lab)."""
+        self._pace_verdicts.append(fast)
+        self._slow_run = 0 if fast else self._slow_run + 1
+        if not self.faster_than_wire and sum(self._pace_verdicts) >= PACE_FAST_VOTES:
+            self.faster_than_wire = True
+        elif self.faster_than_wire and self._slow_run >= PACE_SLOW_VOTES:
+            self.faster_than_wire = False
+            self._pace_verdicts.clear()
 
     def _wait_for_bytes(self, n_bytes: int, reply_ids: tuple[int, ...]) -> None:
         reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
-        # A device faster than the wire (the simulator on an accelerated clock) has bytes there before they could
-        # have crossed it. That is a fact about the device, kept for the port's life: its replies are then awaited
-        # at the pace observed since the instruction was written, never at the baud rate and Return Delay Time.
-        if self._rx and now < self._wire_free_s:
-            self.faster_than_wire = True
+        if self._rx and now < self._wire_free_s and not self._judged and not self._stale_possible:
+            # Early look: bytes there before our instruction could have left the wire came from a device faster than
+            # the wire -- or from a read given up before, whose replies cross now (those are not judged).
+            self._judged = True
+            self._pace_verdict(True)
         due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
+                self._abandoned = True
                 return
             missing = n_bytes - len(self._rx)
+            replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
+            delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
+            earliest_s = max(now, self._wire_free_s) if not self._rx else now
+            wire_wait_s = earliest_s - now + missing * self.byte_s + delay_s  # the wire's least time for the rest
             if self.faster_than_wire:
                 elapsed_s = now - self._tx_start_s
-                wait_s = missing * elapsed_s / len(self._rx) if self._rx else READ_POLL_S
+                # Never past the wire's own bound: a device that is not faster after all costs wake-ups, not time.
+                wait_s = min(missing * elapsed_s / len(self._rx), wire_wait_s) if self._rx else READ_POLL_S
             else:
-                replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
-                delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
-                earliest_s = max(now, self._wire_free_s) if not self._rx else now
-                wait_s = earliest_s - now + missing * self.byte_s + delay_s
+                wait_s = wire_wait_s
                 if due_s is None:
                     due_s = now + wait_s
                 elif now > due_s:

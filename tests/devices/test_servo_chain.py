@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from devices.errors import (
     PortOpenError,
     ServoHardwareError,
 )
-from devices.servo_chain import ServoChain, ServoCommandError
+from devices.servo_chain import DeadlinePassedError, ServoChain, ServoCommandError
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
 
@@ -235,3 +236,49 @@ def test_health_without_supply_reuses_the_last_voltage_and_temperature(servos, s
     assert servos.read_health([1], supply=False)[0].voltage_v == pytest.approx(12.0)
     assert sim_chain.count(wire.SYNC_READ) == reads + 1
     assert servos.read_health([1])[0].voltage_v == pytest.approx(11.0)
+
+
+def _chain_at(speed: float):
+    """A simulated chain on a clock ``speed`` times real time, installed as the ``sim`` port."""
+    return VirtualChain(ids=ROBOT.joint_ids, baud=ROBOT.baud, clock=SimClock(speed), seed=3)
+
+
+def test_late_replies_of_a_given_up_read_never_make_a_real_time_device_look_faster_than_the_wire():
+    """At real time the replies of a health read given up at its deadline cross right after the next instruction,
+    before it could have left the wire. Taken as a device faster than the wire (as before), every later read was
+    awaited at an extrapolated pace that waited out the SDK's timeout: the ~39 ms ticks on ``sim`` at 100 Hz."""
+    previous = factory.install_sim_lab(ChainLab(_chain_at(1.0)))
+    try:
+        with ServoChain(ROBOT) as chain:
+            chain.read_state()
+            for _ in range(10):
+                with pytest.raises(DeadlinePassedError):
+                    chain.read_health(supply=False, deadline_s=time.monotonic() + 0.0005)
+                chain.read_state()
+                assert not chain.replies_paced_by_device
+    finally:
+        factory.install_sim_lab(previous)
+
+
+def test_a_device_wrongly_taken_as_faster_than_the_wire_is_found_out_and_waited_for_at_wire_pace():
+    previous = factory.install_sim_lab(ChainLab(_chain_at(1.0)))
+    try:
+        with ServoChain(ROBOT) as chain:
+            chain._port.faster_than_wire = True
+            for _ in range(3):
+                chain.read_state()
+            assert not chain.replies_paced_by_device
+    finally:
+        factory.install_sim_lab(previous)
+
+
+@pytest.mark.parametrize("speed", [5.0, 20.0])
+def test_an_accelerated_simulator_is_found_to_pace_its_own_replies(speed):
+    previous = factory.install_sim_lab(ChainLab(_chain_at(speed)))
+    try:
+        with ServoChain(ROBOT) as chain:
+            for _ in range(10):
+                chain.read_state()
+            assert chain.replies_paced_by_device
+    finally:
+        factory.install_sim_lab(previous)
