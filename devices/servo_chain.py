@@ -159,8 +159,10 @@ class _FactoryPortHandler(PortHandler):
     have not all arrived by then, waits for the missing bytes themselves (``select`` on the port, or a sleep of the
     missing bytes' wire time where the port has no file descriptor), until the SDK's packet deadline.
 
-    Nothing is learned from the timing of earlier transactions: one reply that is late (the far end descheduled, or
-    this thread's time stamp of its instruction delayed) costs that transaction only. The previous design learned a
+    Nothing is learned from the timing of earlier transactions but one fact, on repeated evidence: whether the device
+    answers faster than the wire (the simulator on an accelerated clock; :meth:`_pace_verdict`), whose replies are
+    then awaited at their observed pace, never past the wire's bound. One reply that is late (the far end
+    descheduled, or this thread's time stamp of its instruction delayed) costs that transaction only. The previous design learned a
     per-reply gap from arrival times, capped at 2 ms and halved only every 32 transactions, so one late reply made
     the next ~32 sync reads sleep 12 × 2 ms (the ~1 s bursts of ~28 ms ticks measured in the app; see
     ``benchmarks/bench_servo_bus.py`` (e)).

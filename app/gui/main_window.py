@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt
+from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt, QTimer
 from PySide6.QtGui import QAction, QCloseEvent, QKeyEvent, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QApplication,
@@ -151,7 +151,7 @@ class MainWindow(QMainWindow):
         self._attach_lab()
         self._restore_settings()
         self.tabs.currentChanged.connect(self._ensure_tab)
-        self._ensure_tab(self.tabs.currentIndex())
+        self._ensure_tab(self.tabs.currentIndex())  # (settles the collector once the window is up)
 
     # -- tabs ------------------------------------------------------------------------------------------------------
     def tab_widget(self, name: str) -> QWidget | None:
@@ -174,6 +174,9 @@ class MainWindow(QMainWindow):
         page = self._create_page(spec)
         self._built[spec.name] = page
         self._container_layouts[index].addWidget(page)
+        # Once the page is up (the next turn of the event loop), its objects live as long as the window: later
+        # garbage collections skip them (app/gui/gui_gc.py).
+        QTimer.singleShot(0, self._collector, self._collector.settle)
 
     def _create_page(self, spec: TabSpec) -> QWidget:
         module_name = f"app.gui.tabs.{spec.name}"
