@@ -81,6 +81,12 @@ SLOW_FRACTION = 0.8
 PACE_WINDOW = 4
 PACE_FAST_VOTES = 2
 PACE_SLOW_VOTES = 3
+# While replies are awaited at wire pace, the first PACE_PROBE_FIRST reads of a port and every PACE_PROBE_EVERY-th
+# after look once early (at PACE_PROBE_FRACTION of the wire's time): a faster device is only seen before its
+# replies are all in. One extra wake-up in 64 reads on a real bus.
+PACE_PROBE_FIRST = 8
+PACE_PROBE_EVERY = 64
+PACE_PROBE_FRACTION = 0.25
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
@@ -183,7 +189,9 @@ class _FactoryPortHandler(PortHandler):
         self._slow_run = 0  # slow verdicts in a row
         self._abandoned = False  # a read was given up with bytes missing since the last write (they may still come)
         self._stale_possible = False  # ... before the transaction in flight: bytes seen in it may be those
-        self._judged = False  # the transaction in flight has had its early look at the pace
+        self._judged = False  # the transaction in flight has had its verdict on the pace
+        self._transactions = 0  # instructions written
+        self._rx_since_tx = 0  # bytes taken off the port since the last instruction was written
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
         self._tx_start_s = -math.inf  # when the last instruction was handed to the port
@@ -227,6 +235,8 @@ class _FactoryPortHandler(PortHandler):
         self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
         self._stale_possible, self._abandoned, self._judged = self._abandoned, False, False
+        self._transactions += 1
+        self._rx_since_tx = 0
         return written
 
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
@@ -273,11 +283,9 @@ class _FactoryPortHandler(PortHandler):
     def _wait_for_bytes(self, n_bytes: int, reply_ids: tuple[int, ...]) -> None:
         reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
-        if self._rx and now < self._wire_free_s and not self._judged and not self._stale_possible:
-            # Early look: bytes there before our instruction could have left the wire came from a device faster than
-            # the wire -- or from a read given up before, whose replies cross now (those are not judged).
-            self._judged = True
-            self._pace_verdict(True)
+        self._judge_early(now)
+        probe = (not self.faster_than_wire and not self._judged and not self._stale_possible
+                 and (self._transactions <= PACE_PROBE_FIRST or self._transactions % PACE_PROBE_EVERY == 0))
         due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
@@ -297,6 +305,8 @@ class _FactoryPortHandler(PortHandler):
                 wait_s = wire_wait_s
                 if due_s is None:
                     due_s = now + wait_s
+                    if probe:  # one early look: a device faster than the wire has most of its bytes there by then
+                        wait_s *= PACE_PROBE_FRACTION
                 elif now > due_s:
                     # Overdue (a silent servo, a slow far end): back off as it grows late, so waiting out the
                     # SDK's timeout costs a few dozen wake-ups, not hundreds. Only where nothing wakes us on bytes.
@@ -307,11 +317,24 @@ class _FactoryPortHandler(PortHandler):
                 self._select(time_left_s)
             self._take_waiting()
             now = time.monotonic()
+            self._judge_early(now)
+
+    def _judge_early(self, now: float) -> None:
+        """Before the replies are all in: more bytes than the wire could have carried since our instruction left it
+        came from a device faster than the wire -- or from a read given up before, whose replies cross now (those
+        are not judged)."""
+        if self._judged or self._stale_possible or not self._rx_since_tx:
+            return
+        capacity = max(0.0, now - self._wire_free_s) / self.byte_s  # bytes the wire could have carried since
+        if self._rx_since_tx > 2.0 * capacity + 4:
+            self._judged = True
+            self._pace_verdict(True)
 
     def _take_waiting(self) -> None:
         waiting = self.ser.in_waiting
         if waiting:
             self._rx += self.ser.read(waiting)
+            self._rx_since_tx += waiting
             trace = tick_trace.TRACE
             if trace is not None:
                 trace.mark("rx", len(self._rx))
