@@ -83,10 +83,11 @@ PACE_FAST_VOTES = 2
 PACE_SLOW_VOTES = 3
 # While replies are awaited at wire pace, the first PACE_PROBE_FIRST reads of a port and every PACE_PROBE_EVERY-th
 # after look once early (at PACE_PROBE_FRACTION of the wire's time): a faster device is only seen before its
-# replies are all in. One extra wake-up in 64 reads on a real bus.
+# replies are all in. One extra wake-up in 16 reads on a real bus.
 PACE_PROBE_FIRST = 8
-PACE_PROBE_EVERY = 64
+PACE_PROBE_EVERY = 16
 PACE_PROBE_FRACTION = 0.25
+STALE_SLACK_S = 0.05  # how late the replies of a given-up read may still cross (a stalled far end, a USB latency timer)
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
@@ -187,8 +188,8 @@ class _FactoryPortHandler(PortHandler):
         self.faster_than_wire = False  # the device answers faster than the wire allows (an accelerated simulator)
         self._pace_verdicts: deque[bool] = deque(maxlen=PACE_WINDOW)  # True: a transaction faster than the wire
         self._slow_run = 0  # slow verdicts in a row
-        self._abandoned = False  # a read was given up with bytes missing since the last write (they may still come)
-        self._stale_possible = False  # ... before the transaction in flight: bytes seen in it may be those
+        self._stale_until_s = -math.inf  # until when replies of a read given up may still arrive
+        self._stale_possible = False  # the transaction in flight began before then: bytes seen in it may be those
         self._judged = False  # the transaction in flight has had its verdict on the pace
         self._transactions = 0  # instructions written
         self._rx_since_tx = 0  # bytes taken off the port since the last instruction was written
@@ -234,7 +235,8 @@ class _FactoryPortHandler(PortHandler):
         # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
         self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
-        self._stale_possible, self._abandoned, self._judged = self._abandoned, False, False
+        self._stale_possible = self._tx_start_s < self._stale_until_s
+        self._judged = False
         self._transactions += 1
         self._rx_since_tx = 0
         return written
@@ -290,7 +292,12 @@ class _FactoryPortHandler(PortHandler):
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
-                self._abandoned = True
+                # Given up with bytes missing: they may still come, after our next instructions (a write-only one
+                # first, in the control loop). No transaction begun before they could all have arrived -- at the
+                # wire's pace, after STALE_SLACK_S of lateness -- is judged for pace.
+                missing_s = (n_bytes - len(self._rx)) * self.byte_s + sum(
+                    self.return_delays_s.get(sid, 0.0) for sid in reply_ids)
+                self._stale_until_s = max(self._stale_until_s, now + missing_s + STALE_SLACK_S)
                 return
             missing = n_bytes - len(self._rx)
             replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()

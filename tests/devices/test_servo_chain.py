@@ -251,9 +251,11 @@ def test_late_replies_of_a_given_up_read_never_make_a_real_time_device_look_fast
     try:
         with ServoChain(ROBOT) as chain:
             chain.read_state()
+            goals = chain.read_state().position_rad
             for _ in range(10):
                 with pytest.raises(DeadlinePassedError):
                     chain.read_health(supply=False, deadline_s=time.monotonic() + 0.0005)
+                chain.write_goals(goals)  # the loop's order: the next tick writes its goals, then reads
                 chain.read_state()
                 assert not chain.replies_paced_by_device
     finally:
@@ -277,7 +279,8 @@ def test_an_accelerated_simulator_is_found_to_pace_its_own_replies(speed):
     previous = factory.install_sim_lab(ChainLab(_chain_at(speed)))
     try:
         with ServoChain(ROBOT) as chain:
-            for _ in range(200):  # a starved test may need a few of the port's early looks (every 64th read)
+            chain.read_return_delays()  # as the app and the CLI do when they connect (the rate check)
+            for _ in range(400):  # a starved test may need a few of the port's early looks (every 16th read)
                 chain.read_state()
                 if chain.replies_paced_by_device:
                     break
