@@ -169,8 +169,8 @@ class _FactoryPortHandler(PortHandler):
     Nothing is learned from the timing of earlier transactions but one fact, on repeated evidence: whether the device
     answers faster than the wire (the simulator on an accelerated clock; :meth:`_pace_verdict`), whose replies are
     then awaited at their observed pace, never past the wire's bound. One reply that is late (the far end
-    descheduled, or this thread's time stamp of its instruction delayed) costs that transaction only. The previous design learned a
-    per-reply gap from arrival times, capped at 2 ms and halved only every 32 transactions, so one late reply made
+    descheduled, or this thread's time stamp of its instruction delayed) costs that transaction only. The previous
+    design learned a per-reply gap from arrival times, capped at 2 ms and halved only every 32 transactions, so one late reply made
     the next ~32 sync reads sleep 12 × 2 ms (the ~1 s bursts of ~28 ms ticks measured in the app; see
     ``benchmarks/bench_servo_bus.py`` (e)).
 
@@ -260,8 +260,7 @@ class _FactoryPortHandler(PortHandler):
         if len(self._rx) >= n_bytes and not self._judged and not self._stale_possible:
             # The whole reply is in: how long it took against the least the wire needs for it.
             self._judged = True
-            wire_s = (self._wire_free_s - self._tx_start_s + n_bytes * self.byte_s
-                      + sum(self.return_delays_s.get(sid, 0.0) for sid in reply_ids))
+            wire_s = self._wire_free_s - self._tx_start_s + n_bytes * self.byte_s + self._delays_s(reply_ids)
             took_s = time.monotonic() - self._tx_start_s
             if took_s < FAST_FRACTION * wire_s:
                 self._pace_verdict(True)
@@ -295,13 +294,12 @@ class _FactoryPortHandler(PortHandler):
                 # Given up with bytes missing: they may still come, after our next instructions (a write-only one
                 # first, in the control loop). No transaction begun before they could all have arrived -- at the
                 # wire's pace, after STALE_SLACK_S of lateness -- is judged for pace.
-                missing_s = (n_bytes - len(self._rx)) * self.byte_s + sum(
-                    self.return_delays_s.get(sid, 0.0) for sid in reply_ids)
+                missing_s = (n_bytes - len(self._rx)) * self.byte_s + self._delays_s(reply_ids)
                 self._stale_until_s = max(self._stale_until_s, now + missing_s + STALE_SLACK_S)
                 return
             missing = n_bytes - len(self._rx)
             replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
-            delay_s = sum(self.return_delays_s.get(sid, 0.0) for sid in replies_left)
+            delay_s = self._delays_s(replies_left)
             earliest_s = max(now, self._wire_free_s) if not self._rx else now
             wire_wait_s = earliest_s - now + missing * self.byte_s + delay_s  # the wire's least time for the rest
             if self.faster_than_wire:
@@ -325,6 +323,10 @@ class _FactoryPortHandler(PortHandler):
             self._take_waiting()
             now = time.monotonic()
             self._judge_early(now)
+
+    def _delays_s(self, servo_ids: Sequence[int]) -> float:
+        """The known Return Delay Times of ``servo_ids`` together (0 for a servo whose delay is not known), s."""
+        return sum(self.return_delays_s.get(sid, 0.0) for sid in servo_ids)
 
     def _judge_early(self, now: float) -> None:
         """Before the replies are all in: more bytes than the wire could have carried since our instruction left it
