@@ -70,6 +70,13 @@ from devices.errors import (
     ServoHardwareError,
 )
 from devices.factory import is_sim
+from devices.realtime import (  # noqa: F401 - GIL_SWITCH_INTERVAL_S, BUS_THREAD_RT_PRIORITY: part of this module's face
+    BUS_THREAD_RT_PRIORITY,
+    GIL_SWITCH_INTERVAL_S,
+    _lower_switch_interval,
+    _raise_thread_priority,
+    _switched_off,
+)
 from devices.servo_chain import ChainState, DeadlinePassedError, ServoChain, ServoHealth, ServoInfo
 
 log = logging.getLogger(__name__)
@@ -83,8 +90,6 @@ PERIOD_HISTORY = 4096
 TIMING_WINDOW_S = 5.0
 SUPPLY_EVERY_N_POLLS = 5  # voltage and temperature change slowly: read them on every 5th health poll
 LATE_FRACTION = 0.25  # a tick starting this fraction of a period after its slot counts as late
-GIL_SWITCH_INTERVAL_S = 0.001  # see _lower_switch_interval
-BUS_THREAD_RT_PRIORITY = 20  # SCHED_FIFO priority of the bus thread when permitted (see _raise_thread_priority)
 HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this long before the next deadline
 HEALTH_DEADLINE_MARGIN_S = 0.0005  # a health read in the slack is given up this long before the next slot
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
@@ -98,40 +103,6 @@ SPEED_TOLERANCE = 1.001  # plans are built at exactly the speed limit: allow rou
 
 MOTION_FINISHED = "finished"
 MOTION_STOPPED = "stopped"
-
-
-def _lower_switch_interval() -> None:
-    """Hand the GIL over within 1 ms instead of CPython's default 5 ms (process-wide; never raised back).
-
-    The bus thread sleeps through every reply and wakes at every deadline; each wake-up waits for the GIL while
-    another thread (the GUI, a simulated device) runs Python. With the default interval one tick can wait 5 ms at
-    each of its two or three wake-ups, a quarter of a 50 Hz period.
-    """
-    if sys.getswitchinterval() > GIL_SWITCH_INTERVAL_S:
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-
-
-def _switched_off(variable: str) -> bool:
-    """An on/off environment switch (on unless set to 0, no, off or false)."""
-    return os.environ.get(variable, "1").strip().lower() in ("0", "no", "off", "false")
-
-
-def _raise_thread_priority() -> str:
-    """Ask for real-time scheduling (SCHED_FIFO, priority ``BUS_THREAD_RT_PRIORITY``) for the calling thread only
-    (Linux: scheduling is per thread), as a control loop on a PC should have: then another program busy on the
-    machine cannot delay a tick's wake-up. Needs the privilege (root, CAP_SYS_NICE or an ``rtprio`` limit, e.g.
-    ``@dialout - rtprio 20`` in /etc/security/limits.conf); without it the thread keeps normal scheduling. The
-    environment variable ``SENSNAKE_REALTIME=0`` turns it off. Returns what was obtained, in words."""
-    if _switched_off("SENSNAKE_REALTIME"):
-        return "normal scheduling (SENSNAKE_REALTIME=0)"
-    if not sys.platform.startswith("linux") or not hasattr(os, "sched_setscheduler"):
-        return "normal scheduling (real-time priority is only asked for on Linux)"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BUS_THREAD_RT_PRIORITY))
-    except OSError:
-        return ("normal scheduling (no privilege for real-time priority: a busy machine may delay ticks; allow "
-                "it with an rtprio limit, see the README)")
-    return f"real-time scheduling (SCHED_FIFO {BUS_THREAD_RT_PRIORITY})"
 
 
 CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"  # Linux PM QoS: the largest wake-up latency the CPUs may take (µs)
@@ -152,8 +123,8 @@ class _WakeupLatencyHold:
     plays (the simulated lab runs whenever the app is open), and ``SENSNAKE_CPU_LATENCY=0`` or ``SENSNAKE_REALTIME=0``
     turns it off. The request lasts while the file is open. Used by the bus thread only."""
 
-    def __init__(self, port: str) -> None:
-        self.only_while_moving = is_sim(port)
+    def __init__(self, port: str, simulated: bool = False) -> None:
+        self.only_while_moving = simulated or is_sim(port)
         self._fd: int | None = None
         self._refused: str | None = None  # why it cannot be held (asked once: a failed open is not retried)
         for switch in ("SENSNAKE_REALTIME", "SENSNAKE_CPU_LATENCY"):
@@ -330,8 +301,10 @@ class RobotController:
                  on_event: Callable[[str], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None,
                  on_tick: Callable[[], None] | None = None,
-                 on_command: Callable[[float | None], None] | None = None) -> None:
-        """``on_tick()`` (optional) is called on the bus thread at the end of every tick, after that tick's
+                 on_command: Callable[[float | None], None] | None = None, *, simulated: bool = False) -> None:
+        """``simulated``: the port is a simulated robot's even if not named ``sim`` (the simulated lab's own
+        process serves it on a pty): CPU idle states are then held shallow only while a motion plays.
+        ``on_tick()`` (optional) is called on the bus thread at the end of every tick, after that tick's
         ``on_state``: the control loop's heartbeat (``devices.loop_process`` sends the tick's states from it).
         ``on_command(started_s)`` (optional) is called on the bus thread with ``time.monotonic()`` just before a
         command (``submit``, a motion's start) runs between ticks, and with ``None`` after it: ticks legitimately
@@ -356,7 +329,7 @@ class RobotController:
         self._lock = threading.Lock()
         # Bus-thread state.
         self._motion: _Motion | None = None
-        self._wakeup_latency = _WakeupLatencyHold(robot.port)  # held from the bus thread (see _run)
+        self._wakeup_latency = _WakeupLatencyHold(robot.port, simulated)  # held from the bus thread (see _run)
         # Play commands wait here from the start of a tick to just after its read (bus thread only): they start
         # from the pose just read instead of reading it again, and send their first goal in that tick.
         self._plays_after_read: list[tuple[Callable[[bool], None], concurrent.futures.Future]] = []

@@ -74,3 +74,8 @@ def os_words(exc: BaseException) -> str:
     if isinstance(code, int) and code > 0:
         return os.strerror(code)
     return " ".join(str(exc).split())
+
+
+class LabProcessUnavailable(RuntimeError):
+    """The simulated lab's own process could not be started (not a device problem): the lab then runs in the
+    app's process (:func:`devices.factory.start_lab_process`)."""

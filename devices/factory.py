@@ -8,6 +8,7 @@ real-time lab with :func:`install_sim_lab`.
 from __future__ import annotations
 
 import atexit
+import os
 import threading
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
@@ -18,6 +19,7 @@ from devices.errors import PortOpenError, os_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
+    from devices.sim.lab_process import LabProcess
     from devices.sim.physics.headless import HeadlessPhysicsLab
 
 DEVICE_KINDS = ("robot", "board", "rig")
@@ -66,6 +68,43 @@ def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0,
     return lab, install_sim_lab(lab)
 
 
+LAB_PROCESS_SWITCH = "SENSNAKE_LAB_PROCESS"  # "0" keeps the simulated lab in the app's process
+
+
+def lab_process_wanted() -> tuple[bool, str]:
+    """Whether the app's simulated lab gets its own process, and if not, why (one line)."""
+    if os.name != "posix" or not hasattr(os, "openpty"):
+        return False, "the simulated lab's own process needs Linux or macOS (pseudo-terminals)"
+    if os.environ.get(LAB_PROCESS_SWITCH, "1").strip().lower() in ("0", "no", "off", "false"):
+        return False, f"{LAB_PROCESS_SWITCH}=0"
+    return True, ""
+
+
+def start_lab_process(config: LabConfig | None = None) -> LabProcess:
+    """Start the simulated lab in its own process (:mod:`devices.sim.lab_process`: its devices on ptys, the robot's
+    control loop then in a process of its own too) and install it behind the ``sim`` ports. Raises
+    :class:`devices.errors.LabProcessUnavailable` when the child cannot run; the caller then uses :func:`sim_lab`."""
+    from devices.sim.lab_process import LabProcess
+
+    lab = LabProcess(config).start()
+    atexit.register(lab.close)
+    install_sim_lab(lab)
+    return lab
+
+
+def sim_serial_path(device: str) -> str | None:
+    """The pty behind the ``sim`` port of ``device`` when the simulated lab runs in its own process, else None
+    (the lab is in this process, or none is made yet)."""
+    path = getattr(installed_sim_lab(), "serial_path", None)
+    return path(device) if callable(path) else None
+
+
+def installed_sim_lab() -> SimPorts | None:
+    """The simulated lab behind the ``sim`` ports, without making one (None if none is made yet)."""
+    with _lab_lock:
+        return _lab
+
+
 def install_sim_lab(lab: SimPorts | None) -> SimPorts | None:
     """Replace the process-wide simulated lab (``None`` drops it); returns the previous one."""
     global _lab
@@ -87,9 +126,13 @@ def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0
     if device not in DEVICE_KINDS:
         raise ValueError(f"unknown device kind {device!r}; expected one of {DEVICE_KINDS}")
     if is_sim(port):
-        from devices.sim.transport import SimSerial
+        path = sim_serial_path(device)
+        if path is not None:
+            port = path  # the lab's own process: its device is a pty, opened as any serial port
+        else:
+            from devices.sim.transport import SimSerial
 
-        return SimSerial(sim_lab().endpoint(device), port=SIM_PORT, baudrate=baud, timeout=timeout_s)
+            return SimSerial(sim_lab().endpoint(device), port=SIM_PORT, baudrate=baud, timeout=timeout_s)
     try:
         return serial.Serial(port=port, baudrate=baud, timeout=timeout_s)
     except (serial.SerialException, OSError) as exc:

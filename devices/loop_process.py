@@ -31,8 +31,9 @@ runs a real ``RobotController`` in a child process:
   a reboot, a link check, a motion's start) is announced in the heartbeat: ticks wait for it, so it is judged
   against ``COMMAND_HUNG_S`` instead.
 
-With port ``sim`` the loop stays in the app's process: the simulated lab (the board senses the simulated robot's
-pose) lives there. Anything that keeps the child from starting (no interpreter, an import error, a timeout) raises
+With port ``sim`` the loop runs in its own process when the simulated lab does (:mod:`devices.sim.lab_process`,
+the app's default: the child opens the lab's robot pty), and stays in the app's process when the lab lives there
+(tests, ``SENSNAKE_LAB_PROCESS=0``). Anything that keeps the child from starting (no interpreter, an import error, a timeout) raises
 :class:`LoopProcessUnavailable`; the caller then runs the loop in-process and says why. Device errors (port, models,
 rate) are raised as themselves, as an in-process start would.
 """
@@ -107,9 +108,9 @@ class LoopDiedError(DeviceError):
 
 def loop_process_wanted(port: str) -> tuple[bool, str]:
     """Whether a robot on ``port`` gets its loop in a child process, and if not, why (one line)."""
-    from devices.factory import is_sim
+    from devices.factory import is_sim, sim_serial_path
 
-    if is_sim(port):
+    if is_sim(port) and sim_serial_path("robot") is None:
         return False, "port sim: the simulated lab lives in the app's process"
     if os.name != "posix":
         return False, "the loop's own process needs Linux or macOS (it inherits a socket)"
@@ -160,8 +161,9 @@ class ControllerProcess:
     def __init__(self, robot: RobotConfig, on_state: Callable[[ChainState], None] | None = None,
                  on_health: Callable[[list[ServoHealth]], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
-                 on_error: Callable[[BaseException], None] | None = None) -> None:
+                 on_error: Callable[[BaseException], None] | None = None, *, simulated: bool = False) -> None:
         self.robot = robot
+        self.simulated = simulated  # a simulated robot on a pty (devices.sim.lab_process): see RobotController
         self.period_s = 1.0 / robot.control_rate_hz
         self._on_state, self._on_health, self._on_event, self._on_error = on_state, on_health, on_event, on_error
         self._process: subprocess.Popen | None = None
@@ -227,7 +229,7 @@ class ControllerProcess:
             theirs.close()
         self._conn = Connection(ours.detach())
         try:
-            self._conn.send(("config", self.robot))
+            self._conn.send(("config", self.robot, self.simulated))
             reply = self._wait_ready()
         except BaseException:
             self._kill()
@@ -653,9 +655,9 @@ class _Child:
         sender = threading.Thread(target=self._send_loop, name="loop-process-sender", daemon=True)
         sender.start()
         try:
-            kind, robot = self.conn.recv()
+            kind, robot, simulated = self.conn.recv()
             assert kind == "config"
-            self.controller = self._open(robot)
+            self.controller = self._open(robot, simulated)
         except Exception as exc:  # noqa: BLE001 - a device error reaches the parent as itself, raised there
             self.out.put(("failed", self._payload(exc)))
             self.out.put(None)
@@ -670,7 +672,7 @@ class _Child:
             sender.join(timeout=5)
         return 0
 
-    def _open(self, robot: RobotConfig) -> RobotController:
+    def _open(self, robot: RobotConfig, simulated: bool) -> RobotController:
         chain = ServoChain(robot, device="robot")
         chain.open()
         try:
@@ -679,7 +681,7 @@ class _Child:
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, robot, on_state=self.states.append, on_health=self._health,
                                          on_event=self._event, on_error=self._error, on_tick=self._tick,
-                                         on_command=self._command)
+                                         on_command=self._command, simulated=simulated)
         except BaseException:
             chain.close()
             raise

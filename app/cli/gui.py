@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     app.setOrganizationName(ORGANIZATION)
     app.setApplicationName(APP_NAME)
 
-    lab = LabContext(config)
+    lab = LabContext(config, lab_process=True)  # a simulated lab in its own process (devices.sim.lab_process)
     window = MainWindow(lab)
     if args.config:
         window.config_path = Path(args.config)

@@ -8,15 +8,42 @@ GUI thread only.
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
 from app.gui.robot_bridge import RobotBridge
 from devices.config import LabConfig
+from devices.errors import LabProcessUnavailable
 from devices.factory import is_sim
 
 BOARD_BRIDGE_MODULE = "app.gui.board_bridge"
+log = logging.getLogger(__name__)
+
+
+def _make_sim_lab(config: LabConfig, in_own_process: bool) -> str:
+    """Make the process-wide simulated lab if there is none yet (it then follows this config: ``[lab] physics``, the
+    channel list) — in its own process when asked and possible (``sensnake gui``: the GUI then delays neither the
+    simulated devices nor the control loop); returns where it runs, in words."""
+    from devices import factory
+
+    if factory.sim_serial_path("robot") is not None:
+        return "its own process"
+    if in_own_process and factory.installed_sim_lab() is None:
+        wanted, why_not = factory.lab_process_wanted()
+        if wanted:
+            try:
+                lab = factory.start_lab_process(config)
+            except LabProcessUnavailable as exc:
+                why_not = str(exc)
+                log.warning("the simulated lab runs in the app's process: %s", exc)
+            else:
+                return f"its own process (pid {lab.pid})"
+        factory.sim_lab(config)
+        return f"the app's process ({why_not})"
+    factory.sim_lab(config)
+    return "the app's process"
 
 
 class LabContext(QObject):
@@ -32,9 +59,11 @@ class LabContext(QObject):
     stop_requested = Signal()  # STOP / Esc: every device that can move or load something halts (robot, rig)
     calibration_saved = Signal(str)  # a calibration file was written (Calibration tab): the Forces tab loads it
 
-    def __init__(self, config: LabConfig, parent: QObject | None = None) -> None:
+    def __init__(self, config: LabConfig, parent: QObject | None = None, *, lab_process: bool = False) -> None:
         super().__init__(parent)
         self.config = config
+        self.lab_process = lab_process
+        self.lab_where = ""  # where the simulated lab runs, in words ("" without one)
         self.robot = RobotBridge(config.robot, self)
         self._board: Any = None
         self._board_loaded = False
@@ -42,9 +71,7 @@ class LabContext(QObject):
         self._recording: Any = None
         self._closed = False
         if any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port)):
-            from devices.factory import sim_lab
-
-            sim_lab(config)  # a simulated lab made now follows this config ([lab] physics, the channel list)
+            self.lab_where = _make_sim_lab(config, lab_process)
 
     # -- board (created lazily so the app starts even before the board bridge exists) ------------------------------
     @property

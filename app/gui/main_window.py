@@ -262,7 +262,7 @@ class MainWindow(QMainWindow):
             QMessageBox.warning(self, "Configuration not loaded", str(exc))
             return False
         self.config_path = Path(path)
-        self.replace_lab(LabContext(config))
+        self.replace_lab(LabContext(config, lab_process=getattr(self.lab, "lab_process", False)))
         self.lab.connect_all()
         return True
 

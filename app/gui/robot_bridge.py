@@ -31,7 +31,7 @@ from devices import bus_commands
 from devices.bus_commands import bus_command
 from devices.config import RobotConfig
 from devices.errors import DeviceError, LinkLostError
-from devices.factory import is_sim
+from devices.factory import is_sim, sim_serial_path
 from devices.loop_process import ControllerProcess, LoopDiedError, LoopProcessUnavailable, loop_process_wanted
 
 T = TypeVar("T")
@@ -379,8 +379,10 @@ class RobotBridge(QObject):
 
         wanted, why_not = loop_process_wanted(config.port)
         if wanted:
-            process = ControllerProcess(config, on_state=self._on_state, on_health=self._on_health,
-                                        on_event=self._on_event, on_error=self._on_error)
+            path = sim_serial_path("robot") if is_sim(config.port) else None
+            child_config = replace(config, port=path) if path is not None else config  # the lab's own process: a pty
+            process = ControllerProcess(child_config, on_state=self._on_state, on_health=self._on_health,
+                                        on_event=self._on_event, on_error=self._on_error, simulated=path is not None)
             try:
                 process.start()  # a device error (port, models, rate) is raised as itself, as below
             except LoopProcessUnavailable as exc:

@@ -1,0 +1,480 @@
+"""The simulated lab in its own process, its devices on pseudo-terminals: what the app runs on port ``sim``.
+
+Why: in the app's process the simulated servos, board and physics world share the Python interpreter lock with the
+GUI thread, and so does the control loop that talks to them (it cannot move to its own process while the servos it
+talks to live in the app's). With the lab in a child process the app treats the simulated robot as it treats a real
+one: the control loop runs in its own process (:mod:`devices.loop_process`) on the robot's pty, the board reader
+and the calibration rig open their ptys as serial ports, and the GUI's work delays neither.
+
+:class:`LabProcess` (the app's side) starts ``python -m devices.sim.lab_process`` (a fresh interpreter, its own
+session, as the loop's process), hands it the :class:`devices.config.LabConfig` over a socket pair and waits until
+the child has built a :class:`devices.sim.lab.SimLab` and opened one pty per device (robot, board, rig). It then
+stands behind the ``sim`` ports (:func:`devices.factory.start_lab_process`):
+
+- :meth:`LabProcess.serial_path` names a device's pty; :func:`devices.factory.open_serial` opens it as a serial port;
+- ``clock`` is the lab's clock (same start, same speed: ``time.monotonic`` is one clock for every process);
+- ``chain`` poses limp joints as a person would (the Teach tab's simulated hand) and :meth:`LabProcess.call` reaches
+  any other method of the lab (fault injection in tests: ``call("board.unplug")``);
+- ``physics`` draws the physics lab: the child publishes the world's joint positions (``qpos``) in a page of memory
+  shared with the app ``QPOS_RATE_HZ`` times a second and :class:`MirrorPhysics` renders a copy of the same MuJoCo
+  model posed from them (rendering in the lab's process would hold *its* interpreter lock ~15 ms a frame with a
+  software OpenGL, and the servos would answer late).
+
+The child serves the three ptys from one thread (select, woken when the next status packet is due, the board's
+bytes forwarded every ``BOARD_POLL_S``), asks for real-time scheduling as the loop does (the servos it stands in for
+never wait for a PC), and ends when the app closes the socket — or dies, which closes it too. A board pty that
+nobody reads does not fill up: more than ``BOARD_BACKLOG_S`` of unread frames are discarded, as a USB adapter does
+for a closed port, so a reader that opens it late starts on fresh frames.
+
+Linux and macOS (``os.openpty``): :func:`devices.factory.lab_process_wanted` says where it can run and why not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import fcntl
+import itertools
+import logging
+import mmap
+import os
+import select
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import termios
+import threading
+import time
+import tty
+from collections.abc import Sequence
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from devices.config import LabConfig
+from devices.errors import LabProcessUnavailable
+from devices.sim.clock import SimClock
+
+log = logging.getLogger(__name__)
+
+READY_TIMEOUT_S = 60.0  # a fresh interpreter imports numpy and MuJoCo and builds the world
+CALL_TIMEOUT_S = 5.0
+CLOSE_TIMEOUT_S = 5.0
+BOARD_POLL_S = 0.004  # the board's bytes reach its pty at least this often (a USB adapter's 1-16 ms latency)
+BOARD_BACKLOG_S = 0.25  # unread board bytes older than this are discarded (nobody is reading the port)
+IDLE_WAIT_S = 0.05
+READ_CHUNK = 4096
+QPOS_RATE_HZ = 30.0
+QPOS_HEADER = struct.Struct("<Qd")  # sequence (odd while being written), the world's time (s)
+DEVICES = ("robot", "board", "rig")
+
+
+# == the app's side ====================================================================================================
+class _HandProxy:
+    """The lab's servo chain as the Teach tab's simulated hand uses it (and any other chain method, by name)."""
+
+    def __init__(self, lab: LabProcess, name: str) -> None:
+        self._lab = lab
+        self._name = name
+
+    def __getattr__(self, method: str) -> Any:
+        if method.startswith("_"):
+            raise AttributeError(method)
+        return lambda *args, **kwargs: self._lab.call(f"{self._name}.{method}", *args, **kwargs)
+
+
+class LabProcess:
+    """A :class:`devices.sim.lab.SimLab` in a child process; see the module docstring. ``start()`` first."""
+
+    def __init__(self, config: LabConfig | None = None, *, seed: int = 0, speed: float = 1.0) -> None:
+        self.config = config or LabConfig()
+        self.seed = int(seed)
+        self.speed = float(speed)
+        self.clock = SimClock(speed)  # replaced by the child's clock at start (same start time)
+        self.chain = _HandProxy(self, "chain")
+        self.rig_chain = _HandProxy(self, "rig.chain")
+        self.physics: MirrorPhysics | None = None
+        self.physics_note = ""
+        self.paths: dict[str, str] = {}
+        self._process: subprocess.Popen | None = None
+        self._conn: Connection | None = None
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._qpos_fd: int | None = None
+        self._qpos: mmap.mmap | None = None
+        self._closed = False
+
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid if self._process is not None else None
+
+    @property
+    def alive(self) -> bool:
+        return self._process is not None and self._process.poll() is None
+
+    def serial_path(self, device: str) -> str:
+        """The pty a host opens for ``device`` (robot, board, rig)."""
+        if device not in self.paths:
+            raise ValueError(f"the simulated lab has no device {device!r}")
+        return self.paths[device]
+
+    def endpoint(self, device: str) -> Any:
+        raise RuntimeError(f"the simulated lab runs in its own process: open its {device} at {self.paths.get(device)}")
+
+    def start(self) -> LabProcess:
+        if self._process is not None:
+            raise RuntimeError("the lab process is already running")
+        ours, theirs = socket.socketpair()
+        fd, path = tempfile.mkstemp(prefix="sensnake-qpos-")
+        os.unlink(path)
+        os.ftruncate(fd, mmap.PAGESIZE * 4)
+        self._qpos_fd, self._qpos = fd, mmap.mmap(fd, mmap.PAGESIZE * 4)
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parents[2])
+        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", "devices.sim.lab_process", "--fd", str(theirs.fileno()), "--qpos-fd", str(fd)],
+                pass_fds=(theirs.fileno(), fd), env=env, cwd=root, stdin=subprocess.DEVNULL, start_new_session=True)
+        except (OSError, ValueError) as exc:
+            ours.close()
+            self._close_qpos()
+            raise LabProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        try:
+            self._conn.send(("config", self.config, self.seed, self.speed))
+            ready = self._wait_ready()
+        except BaseException:
+            self.close()
+            raise
+        _, self.paths, wall0, physics, self.physics_note = ready
+        self.clock = SimClock(self.speed)
+        self.clock._wall0 = float(wall0)  # one monotonic clock for every process: the same simulated time
+        if physics is not None:
+            self.physics = MirrorPhysics(self.config, self._qpos, int(physics))
+        return self
+
+    def _wait_ready(self) -> tuple:
+        conn, process = self._conn, self._process
+        assert conn is not None and process is not None
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while time.monotonic() < deadline:
+            try:
+                if not conn.poll(0.2):
+                    if process.poll() is not None:
+                        raise LabProcessUnavailable(f"the simulated lab's process exited at start "
+                                                    f"(exit code {process.returncode})")
+                    continue
+                reply = conn.recv()
+            except (EOFError, OSError) as exc:
+                raise LabProcessUnavailable("the simulated lab's process exited at start") from exc
+            if reply[0] == "ready":
+                return reply
+            raise LabProcessUnavailable(f"the simulated lab did not start: {reply[1]}")
+        raise LabProcessUnavailable(f"the simulated lab's process did not start within {READY_TIMEOUT_S:g} s")
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        """Call ``name`` (a dotted path on the lab: ``chain.set_limp_position``, ``board.unplug``) in the child and
+        return its result; its exception is raised here (same type when it is a builtin, else RuntimeError)."""
+        with self._lock:
+            if self._conn is None or self._closed:
+                raise RuntimeError("the simulated lab's process is closed")
+            request = next(self._ids)
+            try:
+                self._conn.send(("call", request, name, args, kwargs))
+                if not self._conn.poll(CALL_TIMEOUT_S):
+                    raise RuntimeError(f"the simulated lab did not answer {name} within {CALL_TIMEOUT_S:g} s")
+                reply = self._conn.recv()
+            except (EOFError, OSError) as exc:
+                raise RuntimeError(f"the simulated lab's process is gone ({name} not done)") from exc
+        _, answered, ok, value = reply
+        assert answered == request
+        if ok:
+            return value
+        kind, message = value
+        error = {"ValueError": ValueError, "KeyError": KeyError, "TypeError": TypeError,
+                 "AttributeError": AttributeError}.get(kind, RuntimeError)
+        raise error(message)
+
+    def rig_sensor_truth(self) -> dict[str, float]:
+        return dict(self.call("rig_sensor_truth"))
+
+    def close(self) -> None:
+        """End the child (closing the socket asks it to; killed if it does not within ``CLOSE_TIMEOUT_S``)."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._lock:
+            if self._conn is not None:
+                with contextlib.suppress(OSError):
+                    self._conn.close()
+                self._conn = None
+        process = self._process
+        if process is not None:
+            try:
+                process.wait(timeout=CLOSE_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=CLOSE_TIMEOUT_S)
+        if self.physics is not None:
+            self.physics.close()
+        self._close_qpos()
+
+    def _close_qpos(self) -> None:
+        if self._qpos is not None:
+            with contextlib.suppress(BufferError):  # a view still held elsewhere: the mapping goes with it
+                self._qpos.close()
+            self._qpos = None
+        if self._qpos_fd is not None:
+            os.close(self._qpos_fd)
+            self._qpos_fd = None
+
+
+def read_qpos(page: mmap.mmap, nq: int) -> tuple[float, np.ndarray] | None:
+    """The newest joint positions in ``page`` (the world's time, qpos), or None before the first."""
+    view = np.frombuffer(page, dtype=np.float64, count=nq, offset=QPOS_HEADER.size)
+    for _ in range(100):
+        seq0, t_s = QPOS_HEADER.unpack_from(page, 0)
+        if seq0 == 0:
+            return None
+        if seq0 % 2:
+            time.sleep(0.0001)
+            continue
+        qpos = view.copy()
+        if QPOS_HEADER.unpack_from(page, 0)[0] == seq0:
+            return t_s, qpos
+    return None
+
+
+class _PosedWorld:
+    """What a :class:`devices.sim.physics.render.SceneRenderer` reads of a world (``model``, ``update_scene``), for
+    a copy of the lab's world posed from the newest published ``qpos`` before each picture."""
+
+    def __init__(self, world: Any, page: mmap.mmap, nq: int) -> None:
+        self.world = world
+        self.model = world.model
+        self._page = page
+        self._nq = nq
+        self.shown_time_s: float | None = None
+
+    def update_scene(self, renderer: Any, camera: Any) -> None:
+        import mujoco
+
+        newest = read_qpos(self._page, self._nq)
+        if newest is not None:
+            self.shown_time_s, qpos = newest
+            self.world.data.qpos[:] = qpos
+            mujoco.mj_kinematics(self.world.model, self.world.data)
+        self.world.update_scene(renderer, camera)
+
+
+class MirrorPhysics:
+    """Pictures of the lab's physics world, drawn here: the same MuJoCo model, posed from the child's ``qpos``.
+
+    Has the drawing half of :class:`devices.sim.physics.backend.PhysicsBackend` (``render_rgb``,
+    ``release_renderer``), which is what the 3-D tab uses; one renderer per calling thread."""
+
+    def __init__(self, config: LabConfig, page: mmap.mmap, nq: int) -> None:
+        from devices.sim.physics.backend import scene_from_config
+        from devices.sim.physics.world import PhysicsWorld
+
+        world = PhysicsWorld(scene_from_config(config))
+        if world.model.nq != nq:
+            raise LabProcessUnavailable(f"the lab's world has {nq} positions, its copy here {world.model.nq}")
+        self.posed = _PosedWorld(world, page, nq)
+        self._renderers: dict[int, tuple[tuple[int, int], Any]] = {}
+
+    @property
+    def shown_time_s(self) -> float | None:
+        """The lab world's time of the pose drawn last (None before the first)."""
+        return self.posed.shown_time_s
+
+    def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
+        from devices.sim.physics.render import SceneRenderer
+
+        thread = threading.get_ident()
+        entry = self._renderers.get(thread)
+        if entry is None or entry[0] != (width, height):
+            if entry is not None:
+                entry[1].close()
+            entry = ((width, height), SceneRenderer(self.posed, width, height))  # type: ignore[arg-type]
+            self._renderers[thread] = entry
+        return entry[1].render()
+
+    def release_renderer(self) -> None:
+        entry = self._renderers.pop(threading.get_ident(), None)
+        if entry is not None:
+            entry[1].close()
+
+    def close(self) -> None:
+        self.release_renderer()
+
+
+# == the child ========================================================================================================
+class _Pty:
+    def __init__(self, endpoint: Any, baud: int) -> None:
+        self.endpoint = endpoint
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.master)
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.baud = baud
+        endpoint.host_opened(baud)
+
+    def host_baud(self) -> int:
+        from devices.sim.pty_server import host_baud
+
+        return host_baud(self.slave, self.baud)
+
+    def unread_bytes(self) -> int:
+        buf = fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0")
+        return int(struct.unpack("i", buf)[0])
+
+    def forward(self, now_s: float) -> None:
+        """Hand the host's bytes to the device and the device's due bytes to the host."""
+        while True:
+            try:
+                data = os.read(self.master, READ_CHUNK)
+            except (BlockingIOError, OSError):
+                break
+            if not data:
+                break
+            rate = self.host_baud()
+            if rate != self.baud:
+                self.baud = rate
+                self.endpoint.host_opened(rate)
+            self.endpoint.host_write(data, now_s)
+        reply = self.endpoint.host_read(time.monotonic())
+        if reply:
+            with contextlib.suppress(BlockingIOError, OSError):  # full: nobody reads (the board), dropped
+                os.write(self.master, reply)
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
+    from devices.realtime import _raise_thread_priority
+
+    _raise_thread_priority()  # the emulated servos answer on time, as the real ones do
+    board = ptys["board"]
+    config = lab.config.board
+    frame_bytes = 16 + 2 * config.n_channels
+    backlog_limit = max(4 * frame_bytes, int(BOARD_BACKLOG_S * config.rate_hz * frame_bytes))
+    chains = [ptys["robot"], ptys["rig"]]
+    fds = [p.master for p in ptys.values()]
+    next_board = time.monotonic()
+    while not stop.is_set():
+        now = time.monotonic()
+        dues = [due for due in (p.endpoint.next_delivery_wall_s() for p in chains) if due is not None]
+        wake = min([next_board, *dues])
+        readable, _, _ = select.select(fds, [], [], max(0.0, min(wake - now, IDLE_WAIT_S)))
+        now = time.monotonic()
+        due_board = now >= next_board
+        if due_board:
+            next_board = now + BOARD_POLL_S
+        for pty in ptys.values():
+            if pty is board and not due_board and board.master not in readable:
+                continue
+            try:
+                pty.forward(now)
+            except Exception as exc:  # noqa: BLE001 - a simulated unplug raises: the host hears nothing meanwhile
+                log.debug("%s: %s", pty.path, exc)
+        if due_board and board.unread_bytes() > backlog_limit:
+            termios.tcflush(board.slave, termios.TCIFLUSH)  # nobody reads: a late reader starts on fresh frames
+
+
+def _publish_qpos(lab: Any, page: mmap.mmap, stop: threading.Event) -> None:
+    world = lab.physics.world
+    view = np.frombuffer(page, dtype=np.float64, count=world.model.nq, offset=QPOS_HEADER.size)
+    seq = 0
+    while not stop.wait(1.0 / QPOS_RATE_HZ):
+        with world._lock:
+            qpos = world.data.qpos.copy()
+            t_s = float(world.data.time)
+        QPOS_HEADER.pack_into(page, 0, seq + 1, t_s)
+        view[:] = qpos
+        seq += 2
+        QPOS_HEADER.pack_into(page, 0, seq, t_s)
+
+
+def _resolve(lab: Any, name: str) -> Any:
+    target = lab
+    for part in name.split("."):
+        if not part or part.startswith("_"):
+            raise AttributeError(f"{name!r} is not a public name of the simulated lab")
+        target = getattr(target, part)
+    return target
+
+
+def child_main(conn: Connection, page: mmap.mmap | None) -> int:
+    from devices.sim.lab import SimLab
+
+    kind, config, seed, speed = conn.recv()
+    assert kind == "config"
+    try:
+        lab = SimLab(config, seed=seed, speed=speed)
+        lab.start_background()
+        ptys = {"robot": _Pty(lab.chain, config.robot.baud), "board": _Pty(lab.board, config.board.baud),
+                "rig": _Pty(lab.rig.chain, config.rig.baud)}
+    except Exception as exc:  # noqa: BLE001 - said to the app, which keeps the lab in its own process
+        conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+        return 1
+    stop = threading.Event()
+    threads = [threading.Thread(target=_serve, args=(lab, ptys, stop), name="lab-ptys", daemon=True)]
+    nq = None
+    if lab.physics is not None and page is not None:
+        nq = int(lab.physics.world.model.nq)
+        threads.append(threading.Thread(target=_publish_qpos, args=(lab, page, stop), name="lab-qpos", daemon=True))
+    for thread in threads:
+        thread.start()
+    conn.send(("ready", {name: p.path for name, p in ptys.items()}, lab.clock._wall0, nq, lab.physics_note))
+    try:
+        while True:
+            try:
+                message = conn.recv()
+            except (EOFError, OSError):
+                return 0  # the app closed the socket (or died)
+            _, request, name, args, kwargs = message
+            try:
+                target = _resolve(lab, name)
+                value = target(*args, **kwargs) if callable(target) else target  # a property: its value
+                conn.send(("result", request, True, value))
+            except Exception as exc:  # noqa: BLE001 - handed back to the caller
+                conn.send(("result", request, False, (type(exc).__name__, str(exc))))
+    finally:
+        stop.set()
+        for thread in threads:
+            thread.join(timeout=2.0)
+        lab.close()
+        for pty in ptys.values():
+            pty.close()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m devices.sim.lab_process",
+                                     description="The simulated lab's process (started by the app).")
+    parser.add_argument("--fd", type=int, required=True, help="the socket to the app (inherited)")
+    parser.add_argument("--qpos-fd", type=int, help="a file shared with the app: the world's joint positions")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="lab process: %(levelname)s %(name)s: %(message)s")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the app closes us; a terminal's Ctrl-C is for the app
+    from devices.realtime import _lower_switch_interval
+
+    _lower_switch_interval()  # the pty thread waits at most this for the physics thread's lock
+    page = mmap.mmap(args.qpos_fd, mmap.PAGESIZE * 4) if args.qpos_fd is not None else None
+    return child_main(Connection(args.fd), page)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

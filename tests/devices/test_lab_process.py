@@ -1,0 +1,168 @@
+"""The simulated lab in its own process (devices.sim.lab_process): its robot, board and rig answer on ptys through
+the same drivers as any serial port, the Teach hand and fault injection reach it, the 3-D view's copy of the world
+follows it, and it ends with its app."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from devices import factory
+from devices.board import BoardReader
+from devices.config import LabConfig
+from devices.rig import CalibrationRig
+from devices.servo_chain import ServoChain
+from devices.sim.lab_process import LabProcess, read_qpos
+from tests.conftest import scripted_config
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ptys (Linux)")
+
+
+@pytest.fixture
+def lab_process():
+    """A :class:`LabProcess` (physics lab unless the test says otherwise) installed behind the ``sim`` ports."""
+    made: list[LabProcess] = []
+    previous: list[object] = []
+
+    def start(config: LabConfig | None = None) -> LabProcess:
+        lab = LabProcess(config or LabConfig()).start()
+        made.append(lab)
+        previous.append(factory.install_sim_lab(lab))
+        return lab
+
+    yield start
+    if previous:
+        factory.install_sim_lab(previous[0])
+    for lab in made:
+        lab.close()
+
+
+def test_the_robot_board_and_rig_answer_on_their_ptys_through_the_usual_drivers(lab_process):
+    config = scripted_config()
+    lab = lab_process(config)
+    assert factory.sim_serial_path("robot") == lab.paths["robot"] and os.path.realpath(lab.paths["robot"]).startswith(
+        "/dev/pts/")
+    assert len(set(lab.paths.values())) == 3
+
+    chain = ServoChain(config.robot, device="robot")  # port "sim": the factory opens the lab's robot pty
+    chain.open()
+    try:
+        assert chain._port is not None and chain._port.ser.port == lab.paths["robot"]
+        chain.check_models()
+        state = chain.read_state()
+        assert len(state.position_rad) == 12 and np.all(np.isfinite(state.position_rad))
+    finally:
+        chain.close()
+
+    reader = BoardReader(config.board)
+    reader.start()
+    try:
+        assert reader.wait_for_frames(10, timeout_s=10.0)
+        block = reader.read_block()
+        assert block is not None and block.counts.shape[1] == config.board.n_channels
+        seq = block.seq.astype(np.int64)
+        assert np.all(np.diff(seq) == 1)  # every frame whole and in order
+        assert reader.stats.crc_errors == 0
+    finally:
+        reader.close()
+
+    rig = CalibrationRig(config.rig)
+    rig.open()
+    try:
+        assert np.isfinite(rig.position_rad())
+    finally:
+        rig.close()
+
+
+def test_the_teach_hand_and_fault_injection_reach_the_lab_and_its_errors_come_back(lab_process):
+    config = scripted_config()
+    lab = lab_process(config)
+    assert lab.call("chain.servo_ids") == tuple(config.robot.joint_ids)
+    chain = ServoChain(config.robot, device="robot")
+    chain.open()
+    try:
+        chain.set_torque(False)
+        lab.chain.set_limp_position(3, 2048 + 300)  # what SimHand does
+        deadline = time.monotonic() + 5.0
+        while True:
+            ticks = chain.ticks_from_angles(chain.read_state().position_rad)
+            if abs(ticks[2] - 2348) <= 2 or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        assert abs(ticks[2] - 2348) <= 2
+        with pytest.raises(ValueError):  # a joint holding torque cannot be bent: the lab's own error, here
+            chain.set_torque(True, ids=[4])
+            lab.chain.set_limp_position(4, 2500)
+    finally:
+        chain.close()
+    with pytest.raises(AttributeError):
+        lab.call("chain._lock")  # only the lab's public names
+
+
+def test_the_3d_views_copy_of_the_world_follows_the_lab(lab_process):
+    lab = lab_process(LabConfig())  # the physics lab
+    if lab.physics is None:
+        pytest.skip(f"no physics lab here: {lab.physics_note}")
+    config = lab.config
+    page, nq = lab.physics.posed._page, lab.physics.posed._nq
+    deadline = time.monotonic() + 10.0
+    while read_qpos(page, nq) is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    first = read_qpos(page, nq)
+    assert first is not None
+    chain = ServoChain(config.robot, device="robot")
+    chain.open()
+    try:
+        chain.set_torque(True)
+        goal = np.zeros(12)
+        goal[:2] = (0.6, 0.5)  # lift the head and turn it
+        chain.write_goals(goal)
+        qadr = lab.physics.posed.world._qadr  # each joint's place in qpos
+        deadline = time.monotonic() + 15.0
+        while True:
+            time.sleep(0.1)
+            state = chain.read_state()
+            newest = read_qpos(page, nq)
+            assert newest is not None
+            shown = newest[1][qadr]
+            if np.all(np.abs(state.position_rad[:2] - goal[:2]) < 0.03) and np.all(
+                    np.abs(shown - state.position_rad) < 0.03):
+                break
+            assert time.monotonic() < deadline, f"the copy shows {shown[:2]}, the servos read {state.position_rad[:2]}"
+        assert newest[0] > first[0]  # the world's time went on
+    finally:
+        chain.close()
+    try:
+        frame = lab.physics.render_rgb(160, 120)
+    except RuntimeError as exc:  # no OpenGL here
+        pytest.skip(str(exc))
+    finally:
+        lab.physics.release_renderer()
+    assert frame.shape == (120, 160, 3) and frame.std() > 1.0
+    assert lab.physics.shown_time_s is not None
+
+
+def test_closing_ends_the_lab_process_and_its_ptys(lab_process):
+    lab = lab_process(scripted_config())
+    path = lab.paths["robot"]
+    assert lab.alive
+    lab.close()
+    assert not lab.alive
+    assert not os.path.exists(path) or not _answers(path)
+    with pytest.raises(RuntimeError, match="closed"):
+        lab.call("chain.servo_ids")
+
+
+def _answers(path: str) -> bool:
+    import serial
+
+    try:
+        with serial.Serial(path, 1_000_000, timeout=0.2) as port:
+            port.write(bytes([0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E]))  # ping servo 1
+            return bool(port.read(14))
+    except (serial.SerialException, OSError):
+        return False
