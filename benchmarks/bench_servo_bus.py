@@ -15,7 +15,7 @@
 (f) ``sensnake play`` at 50 Hz on the independent emulator (tests/emulators) of twelve XM430s on a pty.
 
     python -m benchmarks.bench_servo_bus [--quick] [--case bare|gui|pty|…] [--seconds S] [--gui-rate 50]
-        [--rotate S] [--plays N] [--gui-chain sim|pty] [--gui-loop auto|app|process|both] [--kills N]
+        [--rotate S] [--plays N] [--gui-chain lab|sim|pty] [--gui-loop auto|app|process|both] [--kills N]
         [--trace DIR]
 
 Columns: ``missed`` are tick slots that passed without a tick (skipped, never caught up in a burst); ``late`` are
@@ -152,6 +152,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     which the shown tab changes every ``rotate_s`` through ``tabs`` (every tab live in turn); periods are collected
     in chunks, so the window may be longer than the controller's period history.
 
+    ``chain="lab"`` (``sensnake gui``'s default): the simulated lab in its own process, its devices on ptys, the
+    loop in a process of its own. ``chain="sim"``: the simulated lab in the app's process (and with it the loop).
     ``chain="pty"``: the robot is the independent emulator of twelve XM430s in its own process on a pty (as real
     servos are outside the app), the board and the rest of the lab stay simulated in the app. ``prebuild``: show
     every tab once before the motion starts (a tab is built on its first show; building the 3-D lab takes the
@@ -175,9 +177,11 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     from app.gui.main_window import MainWindow
     from devices.config import load_config
     from devices.sim.lab import SimLab
+    from devices.sim.lab_process import LabProcess
 
     shown = f"every {rotate_s:g} s through {'/'.join(tabs)}" if rotate_s else "per tab"
-    where = "robot on the independent pty chain" if chain == "pty" else "sim lab"
+    where = {"pty": "robot on the independent pty chain", "lab": "simulated lab in its own process (the app's default)",
+             "sim": "simulated lab in the app's process"}[chain]
     print(f"(d) control loop in the running app ({os.environ['QT_QPA_PLATFORM']}, {where}, wave motion, board "
           f"streaming 36 channels), {seconds:g} s {shown}. Targets: 50 Hz p99 jitter ≤ 2 ms and no late tick; "
           "100 Hz (return delay 0) p99 jitter ≤ 2 ms")
@@ -196,8 +200,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
     base = load_config(None).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
     runs = [(rate, delay, where) for rate, delay in cases for where in loops]
     for rate, delay, where in runs:
-        if where == "process" and chain != "pty":
-            print(f"    {rate:8.0f}  loop 'process' needs --gui-chain pty (with port sim the loop stays in the app)")
+        if where == "process" and chain == "sim":
+            print(f"    {rate:8.0f}  loop 'process' needs --gui-chain pty or lab (with the lab in the app's process the "
+                  "loop stays there)")
             continue
         saved_switch = os.environ.get("SENSNAKE_LOOP_PROCESS")
         if where != "auto":
@@ -213,9 +218,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
 
             emulator = EmulatorProcess()
             config = config.with_ports(robot=emulator.path)
-        sim = SimLab(config)
+        sim = LabProcess(config).start() if chain == "lab" else SimLab(config)
         previous = factory.install_sim_lab(sim)
-        world = sim.physics.world if chain == "sim" and sim.physics is not None else None
+        world = sim.physics.world if isinstance(sim, SimLab) and chain == "sim" and sim.physics is not None else None
         with ServoChain(config.robot) as servos:  # the Hardware tab's Return Delay Time button, before connecting
             servos.check_models()
             servos.set_return_delay(delay * 2)
@@ -292,6 +297,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             window.close()
             lab.close()
             factory.install_sim_lab(previous)
+            if isinstance(sim, LabProcess):
+                sim.close()
             if emulator is not None:
                 emulator.close()
             if tracing is not None:
@@ -495,7 +502,7 @@ CASES = ("cycle", "late", "bare", "rates", "pty", "gui")
 
 
 def run(quick: bool, cases: tuple[str, ...] = CASES, seconds: float | None = None, gui_rates: tuple[float, ...] = (),
-        rotate_s: float | None = None, plays: int | None = None, gui_chain: str = "sim",
+        rotate_s: float | None = None, plays: int | None = None, gui_chain: str = "lab",
         prebuild: bool = False, tabs: tuple[str, ...] = (), loops: tuple[str, ...] = ("auto",),
         kills: int = 0, trace_dir: str | None = None) -> None:
     print(f"machine load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
@@ -531,8 +538,9 @@ if __name__ == "__main__":
     parser.add_argument("--rotate", type=float, metavar="S",
                         help="gui case: one window per rate, the shown tab changing every S s through all six tabs")
     parser.add_argument("--plays", type=int, help="pty case: number of full plays")
-    parser.add_argument("--gui-chain", choices=("sim", "pty"), default="sim",
-                        help="gui case: the robot on the simulated lab (default) or the independent pty emulator")
+    parser.add_argument("--gui-chain", choices=("lab", "sim", "pty"), default="lab",
+                        help="gui case: the simulated lab in its own process (default, as `sensnake gui` runs it), "
+                             "the simulated lab in the app's process, or the robot on the independent pty emulator")
     parser.add_argument("--prebuild", action="store_true",
                         help="gui case: show every tab once before measuring (tabs are built on first show)")
     parser.add_argument("--tabs", help=f"gui case: comma-separated tabs to show (default: with --rotate all of "

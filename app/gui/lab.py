@@ -14,6 +14,7 @@ from typing import Any
 from PySide6.QtCore import QObject, Signal
 
 from app.gui.robot_bridge import RobotBridge
+from app.gui.thread_bridge import ThreadBridge
 from devices.config import LabConfig
 from devices.errors import LabProcessUnavailable
 from devices.factory import is_sim
@@ -58,12 +59,16 @@ class LabContext(QObject):
     board_created = Signal(object)
     stop_requested = Signal()  # STOP / Esc: every device that can move or load something halts (robot, rig)
     calibration_saved = Signal(str)  # a calibration file was written (Calibration tab): the Forces tab loads it
+    sim_lab_died = Signal(str)  # the simulated lab's own process ended unasked (the text says what and what to do)
 
     def __init__(self, config: LabConfig, parent: QObject | None = None, *, lab_process: bool = False) -> None:
         super().__init__(parent)
         self.config = config
         self.lab_process = lab_process
         self.lab_where = ""  # where the simulated lab runs, in words ("" without one)
+        self.sim_lab_gone = ""  # set (GUI thread) when the simulated lab's own process has ended unasked
+        self._bridge = ThreadBridge(self)
+        self._watched: Any = None
         self.robot = RobotBridge(config.robot, self)
         self._board: Any = None
         self._board_loaded = False
@@ -72,6 +77,20 @@ class LabContext(QObject):
         self._closed = False
         if any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port)):
             self.lab_where = _make_sim_lab(config, lab_process)
+            from devices.factory import installed_sim_lab
+
+            watched = installed_sim_lab()
+            listen = getattr(watched, "add_died_listener", None)  # the lab's own process (LabProcess)
+            if listen is not None:
+                self._watched = watched
+                listen(self._sim_lab_died_elsewhere)
+
+    def _sim_lab_died_elsewhere(self, text: str) -> None:  # the lab process's watcher thread
+        self._bridge.post(self._on_sim_lab_died, text)
+
+    def _on_sim_lab_died(self, text: str) -> None:
+        self.sim_lab_gone = text
+        self.sim_lab_died.emit(text)
 
     # -- board (created lazily so the app starts even before the board bridge exists) ------------------------------
     @property
@@ -129,6 +148,9 @@ class LabContext(QObject):
         if self._closed:
             return
         self._closed = True
+        if self._watched is not None:
+            self._watched.remove_died_listener(self._sim_lab_died_elsewhere)
+        self._bridge.close()
         recording = self._recording
         if recording is not None and hasattr(recording, "stop"):
             recording.stop()

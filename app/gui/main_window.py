@@ -285,6 +285,7 @@ class MainWindow(QMainWindow):
         robot.motion_changed.connect(self._update_robot_status)
         robot.error.connect(self.show_error)
         robot.event.connect(self.show_event)
+        lab.sim_lab_died.connect(self.show_error)
         lab.recording_changed.connect(self._update_recording_status)
         self._update_robot_status()
         self._update_recording_status(lab.recording)
@@ -338,8 +339,12 @@ class MainWindow(QMainWindow):
         self.status.set_recording_state(f"● REC {name}", True)
 
     def show_error(self, text: str) -> None:
-        """Show a device error in the message area (stays until replaced)."""
+        """Show a device error in the message area (stays until replaced). Once the simulated lab's own process has
+        ended, every later device error (its robot's link, its board) says that cause first."""
         self._last_error_s = time.monotonic()
+        gone = getattr(self.lab, "sim_lab_gone", "")
+        if gone and text != gone:
+            text = f"{gone}. Then: {text}"
         self.status.show_message(text, theme.ERROR)
 
     def show_event(self, text: str) -> None:

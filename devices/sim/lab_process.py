@@ -49,7 +49,7 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -108,6 +108,8 @@ class LabProcess:
         self._qpos_fd: int | None = None
         self._qpos: mmap.mmap | None = None
         self._closed = False
+        self.died = ""  # why the child ended without being asked to ("" while it runs or after close())
+        self._died_listeners: list[Callable[[str], None]] = []
 
     @property
     def pid(self) -> int | None:
@@ -159,7 +161,38 @@ class LabProcess:
         self.clock._wall0 = float(wall0)  # one monotonic clock for every process: the same simulated time
         if physics is not None:
             self.physics = MirrorPhysics(self.config, self._qpos, int(physics))
+        threading.Thread(target=self._watch, name="lab-process-watcher", daemon=True).start()
         return self
+
+    def add_died_listener(self, listener: Callable[[str], None]) -> None:
+        """``listener(text)`` is called (on a watcher thread) if the child ends without being asked to; at once if
+        it already has."""
+        with self._lock:
+            self._died_listeners.append(listener)
+            died = self.died
+        if died:
+            listener(died)
+
+    def remove_died_listener(self, listener: Callable[[str], None]) -> None:
+        with self._lock, contextlib.suppress(ValueError):
+            self._died_listeners.remove(listener)
+
+    def _watch(self) -> None:
+        process = self._process
+        assert process is not None
+        code = process.wait()
+        if self._closed:
+            return
+        how = f"killed by {signal.Signals(-code).name}" if code < 0 and -code in signal.valid_signals() else \
+            f"exit status {code}"
+        text = (f"the simulated lab's process (pid {process.pid}) ended ({how}): the simulated robot, board and rig "
+                "are gone. What was recorded is kept; restart the app to get the simulated lab back")
+        log.error("%s", text)
+        with self._lock:
+            self.died = text
+            listeners = list(self._died_listeners)
+        for listener in listeners:
+            listener(text)
 
     def _wait_ready(self) -> tuple:
         conn, process = self._conn, self._process

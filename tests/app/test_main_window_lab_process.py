@@ -85,3 +85,28 @@ def test_the_app_runs_on_a_simulated_lab_in_its_own_process_and_every_device_wor
     assert sim.alive  # the lab is the process's (as the in-process one): closed at exit, not with a window
     sim.close()
     assert not sim.alive
+
+
+def test_a_simulated_lab_process_that_dies_is_said_first_in_every_later_device_error(qtbot, tmp_path, no_lab_yet):
+    import os
+    import signal
+
+    lab = LabContext(FLAT, lab_process=True)
+    sim = factory.installed_sim_lab()
+    assert isinstance(sim, LabProcess)
+    win = MainWindow(lab, settings=QSettings(str(tmp_path / "s.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(win)
+    win.show()
+    try:
+        with qtbot.waitSignal(lab.robot.connected, timeout=WAIT_MS):
+            lab.robot.connect_robot()
+        with qtbot.waitSignal(lab.sim_lab_died, timeout=WAIT_MS):
+            os.kill(sim.pid, signal.SIGKILL)
+        assert "simulated lab's process" in win.status.message and "killed by SIGKILL" in win.status.message
+        # The robot's loop then loses its pty: its error comes after the cause, not instead of it.
+        qtbot.waitUntil(lambda: not lab.robot.is_connected or "Then:" in win.status.message, timeout=WAIT_MS)
+        win.show_error("robot: link lost")
+        assert win.status.message.startswith("the simulated lab's process") and "Then: robot: link lost" in \
+            win.status.message
+    finally:
+        win.close()

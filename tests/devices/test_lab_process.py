@@ -166,3 +166,26 @@ def _answers(path: str) -> bool:
             return bool(port.read(14))
     except (serial.SerialException, OSError):
         return False
+
+
+def test_a_lab_process_that_dies_is_told_to_its_listeners_with_the_cause(lab_process):
+    import signal as signal_module
+    import threading
+
+    lab = lab_process(scripted_config())
+    told: list[str] = []
+    arrived = threading.Event()
+
+    def listen(text: str) -> None:
+        told.append(text)
+        arrived.set()
+
+    lab.add_died_listener(listen)
+    os.kill(lab.pid, signal_module.SIGKILL)
+    assert arrived.wait(10.0)
+    assert f"pid {lab.pid}" in told[0] and "killed by SIGKILL" in told[0] and "restart the app" in told[0]
+    late: list[str] = []
+    lab.add_died_listener(late.append)  # a listener added after the death hears it at once
+    assert late == told
+    with pytest.raises(RuntimeError, match="gone|closed"):
+        lab.call("chain.servo_ids")
