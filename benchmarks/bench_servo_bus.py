@@ -33,6 +33,7 @@ import dataclasses
 import os
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -252,6 +253,8 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 chain0 = getattr(lab.robot.controller, "chain", None)
                 wakeups0 = chain0.reply_wakeups if chain0 is not None else 0
                 t0, cpu0 = time.monotonic(), time.process_time()
+                others = {"lab": getattr(sim, "pid", None), "loop": getattr(lab.robot.controller, "pid", None)}
+                others0 = {name_: _process_cpu_s(pid) for name_, pid in others.items()}
                 physics0 = (world.stepping_s, world.lagged_s) if world is not None else None
                 chunks, taken, k = [], s0.ticks, 0
                 while time.monotonic() - t0 < length:
@@ -275,6 +278,10 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 cpu = (time.process_time() - cpu0) / wall * 100
                 note = f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}"
                 note += f"; {s1.failed_reads - s0.failed_reads} failed feedback reads"
+                for name_, pid in others.items():
+                    used0, used1 = others0[name_], _process_cpu_s(pid)
+                    if used0 is not None and used1 is not None:
+                        note += f"; {name_} process CPU {(used1 - used0) / wall * 100:.0f} %"
                 in_app = getattr(lab.robot.controller, "chain", None)  # None when the loop has its own process
                 if in_app is not None:
                     # A read waiting out the SDK's packet timeout (~37 ms here) shows as ticks of ~39 ms.
@@ -355,6 +362,17 @@ def _kill_loop_process(lab, spin, kills: int) -> None:
 
 def _ms_list(values: list[float]) -> str:
     return "/".join(f"{v:.1f}" for v in values)
+
+
+def _process_cpu_s(pid: int | None) -> float | None:
+    """CPU seconds (user + system) used so far by process ``pid`` (Linux /proc), None if unknown."""
+    if pid is None:
+        return None
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _print_window(rate: float, delay_us: int, name: str, ticks: int, missed: int, late: int, periods: np.ndarray,

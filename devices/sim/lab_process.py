@@ -13,8 +13,9 @@ stands behind the ``sim`` ports (:func:`devices.factory.start_lab_process`):
 
 - :meth:`LabProcess.serial_path` names a device's pty; :func:`devices.factory.open_serial` opens it as a serial port;
 - ``clock`` is the lab's clock (same start, same speed: ``time.monotonic`` is one clock for every process);
-- ``chain`` poses limp joints as a person would (the Teach tab's simulated hand) and :meth:`LabProcess.call` reaches
-  any other method of the lab (fault injection in tests: ``call("board.unplug")``);
+- ``chain``, ``board`` and ``rig`` call the lab's methods there: the Teach tab's simulated hand poses limp joints
+  (``chain.set_limp_position``), faults are injected as on the in-process lab (``board.unplug()``,
+  ``chain.inject_overload(3)``); :meth:`LabProcess.call` reaches any public method or value by its dotted name;
 - ``physics`` draws the physics lab: the child publishes the world's joint positions (``qpos``) in a page of memory
   shared with the app ``QPOS_RATE_HZ`` times a second and :class:`MirrorPhysics` renders a copy of the same MuJoCo
   model posed from them (rendering in the lab's process would hold *its* interpreter lock ~15 ms a frame with a
@@ -75,17 +76,22 @@ DEVICES = ("robot", "board", "rig")
 
 
 # == the app's side ====================================================================================================
-class _HandProxy:
-    """The lab's servo chain as the Teach tab's simulated hand uses it (and any other chain method, by name)."""
+class _Remote:
+    """A dotted name on the child's :class:`devices.sim.lab.SimLab`: calling it calls that method there
+    (``lab.board.unplug()``, ``lab.chain.set_limp_position(3, 2348)``); its attributes are longer names
+    (``lab.rig.chain.inject_overload(1)``). A plain value is read with :meth:`LabProcess.call`."""
 
     def __init__(self, lab: LabProcess, name: str) -> None:
         self._lab = lab
         self._name = name
 
-    def __getattr__(self, method: str) -> Any:
-        if method.startswith("_"):
-            raise AttributeError(method)
-        return lambda *args, **kwargs: self._lab.call(f"{self._name}.{method}", *args, **kwargs)
+    def __getattr__(self, part: str) -> _Remote:
+        if part.startswith("_"):
+            raise AttributeError(part)
+        return _Remote(self._lab, f"{self._name}.{part}")
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self._lab.call(self._name, *args, **kwargs)
 
 
 class LabProcess:
@@ -96,8 +102,9 @@ class LabProcess:
         self.seed = int(seed)
         self.speed = float(speed)
         self.clock = SimClock(speed)  # replaced by the child's clock at start (same start time)
-        self.chain = _HandProxy(self, "chain")
-        self.rig_chain = _HandProxy(self, "rig.chain")
+        self.chain = _Remote(self, "chain")  # the Teach tab's SimHand: set_limp_position, release_limp_hold
+        self.board = _Remote(self, "board")  # fault injection, as on the in-process lab: board.unplug() …
+        self.rig = _Remote(self, "rig")
         self.physics: MirrorPhysics | None = None
         self.physics_note = ""
         self.paths: dict[str, str] = {}
@@ -360,6 +367,7 @@ class _Pty:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
         self.baud = baud
+        self.pending = bytearray()  # device bytes the pty could not take yet (written on the next pass)
         endpoint.host_opened(baud)
 
     def host_baud(self) -> int:
@@ -385,10 +393,18 @@ class _Pty:
                 self.baud = rate
                 self.endpoint.host_opened(rate)
             self.endpoint.host_write(data, now_s)
-        reply = self.endpoint.host_read(time.monotonic())
-        if reply:
-            with contextlib.suppress(BlockingIOError, OSError):  # full: nobody reads (the board), dropped
-                os.write(self.master, reply)
+        self.pending += self.endpoint.host_read(time.monotonic())
+        if self.pending:
+            try:
+                written = os.write(self.master, self.pending)
+            except (BlockingIOError, OSError):  # full: the host is not reading; kept for the next pass
+                written = 0
+            del self.pending[:written]
+
+    def discard_unread(self) -> None:
+        """Drop what the host has not read and what waits to be written (nobody is reading)."""
+        termios.tcflush(self.slave, termios.TCIFLUSH)
+        self.pending.clear()
 
     def close(self) -> None:
         for fd in (self.master, self.slave):
@@ -410,6 +426,8 @@ def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
     while not stop.is_set():
         now = time.monotonic()
         dues = [due for due in (p.endpoint.next_delivery_wall_s() for p in chains) if due is not None]
+        if any(p.pending for p in chains):
+            dues.append(now + 0.001)  # a reply the pty could not take at once
         wake = min([next_board, *dues])
         readable, _, _ = select.select(fds, [], [], max(0.0, min(wake - now, IDLE_WAIT_S)))
         now = time.monotonic()
@@ -423,8 +441,8 @@ def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
                 pty.forward(now)
             except Exception as exc:  # noqa: BLE001 - a simulated unplug raises: the host hears nothing meanwhile
                 log.debug("%s: %s", pty.path, exc)
-        if due_board and board.unread_bytes() > backlog_limit:
-            termios.tcflush(board.slave, termios.TCIFLUSH)  # nobody reads: a late reader starts on fresh frames
+        if due_board and board.unread_bytes() + len(board.pending) > backlog_limit:
+            board.discard_unread()  # nobody reads: a reader that opens the port late starts on fresh frames
 
 
 def _publish_qpos(lab: Any, page: mmap.mmap, stop: threading.Event) -> None:

@@ -101,6 +101,12 @@ def test_the_teach_hand_and_fault_injection_reach_the_lab_and_its_errors_come_ba
         chain.close()
     with pytest.raises(AttributeError):
         lab.call("chain._lock")  # only the lab's public names
+    # Faults are injected as on the in-process lab, by the same names.
+    assert lab.call("board.unplugged") is False
+    lab.board.unplug()
+    assert lab.call("board.unplugged") is True
+    lab.board.replug()
+    assert lab.call("board.unplugged") is False
 
 
 def test_the_3d_views_copy_of_the_world_follows_the_lab(lab_process):
@@ -189,3 +195,25 @@ def test_a_lab_process_that_dies_is_told_to_its_listeners_with_the_cause(lab_pro
     assert late == told
     with pytest.raises(RuntimeError, match="gone|closed"):
         lab.call("chain.servo_ids")
+
+
+def test_a_board_port_nobody_reads_holds_no_more_than_a_quarter_second_of_old_frames(lab_process):
+    """Nobody reading the board's pty: its frames are discarded beyond BOARD_BACKLOG_S (as a USB adapter's buffer),
+    so the lab's process neither blocks on a full pty nor piles them up in memory."""
+    import fcntl
+    import struct
+    import termios
+
+    from devices.sim.lab_process import BOARD_BACKLOG_S
+
+    config = scripted_config()
+    lab = lab_process(config)
+    time.sleep(1.5)  # 45 frames go out with nobody reading
+    frame_bytes = 16 + 2 * config.board.n_channels
+    fd = os.open(lab.paths["board"], os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)  # no flush on open (pyserial does)
+    try:
+        waiting = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+    finally:
+        os.close(fd)
+    assert BOARD_BACKLOG_S <= 0.25
+    assert 0 < waiting <= 0.5 * config.board.rate_hz * frame_bytes  # at most half a second; 1.5 s would be ~4 kB
