@@ -297,6 +297,18 @@ class VirtualBoard:
                 raise KeyError("ground truth for these frames is no longer kept")
             return table[slots].copy()
 
+    def next_delivery_wall_s(self) -> float:
+        """Wall time (``time.monotonic()``) at which the bytes on the wire now, or else the next frame, will have
+        fully arrived: a server forwarding the board onto a real port (the lab's own process) sleeps until then.
+        A time already past means bytes wait (or nobody is listening): such a server polls at its own pace."""
+        with self._lock:
+            if self._segments:
+                start, payload = self._segments[0]
+                end_s = start + len(payload) * self._byte_time_s()
+            else:
+                end_s = self._next_index * self._period_s + self._frame_airtime_s()
+            return self.clock.wall_from_sim(end_s)
+
     # -- emission --------------------------------------------------------------------------------------------
     def _byte_time_s(self) -> float:
         return BITS_PER_BYTE / self.board.baud  # the board's UART sets the pace, whatever the host expects

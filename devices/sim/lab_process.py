@@ -21,8 +21,8 @@ stands behind the ``sim`` ports (:func:`devices.factory.start_lab_process`):
   model posed from them (rendering in the lab's process would hold *its* interpreter lock ~15 ms a frame with a
   software OpenGL, and the servos would answer late).
 
-The child serves the three ptys from one thread (select, woken when the next status packet is due, the board's
-bytes forwarded every ``BOARD_POLL_S``), asks for real-time scheduling as the loop does (the servos it stands in for
+The child serves the three ptys from one thread (select, woken when the next status packet or board frame is due,
+the board looked at no more often than every ``BOARD_POLL_S``), asks for real-time scheduling as the loop does (the servos it stands in for
 never wait for a PC), and ends when the app closes the socket — or dies, which closes it too. A board pty that
 nobody reads does not fill up: more than ``BOARD_BACKLOG_S`` of unread frames are discarded, as a USB adapter does
 for a closed port, so a reader that opens it late starts on fresh frames.
@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 READY_TIMEOUT_S = 60.0  # a fresh interpreter imports numpy and MuJoCo and builds the world
 CALL_TIMEOUT_S = 5.0
 CLOSE_TIMEOUT_S = 5.0
-BOARD_POLL_S = 0.004  # the board's bytes reach its pty at least this often (a USB adapter's 1-16 ms latency)
+BOARD_POLL_S = 0.004  # the board's pty is looked at no more often than this (a USB adapter's 1-16 ms latency)
 BOARD_BACKLOG_S = 0.25  # unread board bytes older than this are discarded (nobody is reading the port)
 IDLE_WAIT_S = 0.05
 READ_CHUNK = 4096
@@ -433,7 +433,9 @@ def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
         now = time.monotonic()
         due_board = now >= next_board
         if due_board:
-            next_board = now + BOARD_POLL_S
+            # Woken when the board's next bytes are in (a frame at 30 Hz), polled every BOARD_POLL_S while bytes
+            # wait or nobody listens.
+            next_board = max(board.endpoint.next_delivery_wall_s(), now + BOARD_POLL_S)
         for pty in ptys.values():
             if pty is board and not due_board and board.master not in readable:
                 continue
