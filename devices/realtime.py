@@ -26,6 +26,18 @@ def _switched_off(variable: str) -> bool:
     return os.environ.get(variable, "1").strip().lower() in ("0", "no", "off", "false")
 
 
+def raise_thread_priority_of(native_id: int) -> bool:
+    """Real-time scheduling for another thread of this process (Linux: its ``native_id`` is its TID), as
+    :func:`_raise_thread_priority` asks it for the calling one; False when not permitted or switched off."""
+    if _switched_off("SENSNAKE_REALTIME") or not sys.platform.startswith("linux"):
+        return False
+    try:
+        os.sched_setscheduler(native_id, os.SCHED_FIFO, os.sched_param(BUS_THREAD_RT_PRIORITY))
+    except OSError:
+        return False
+    return True
+
+
 def _raise_thread_priority() -> str:
     """Ask for real-time scheduling (SCHED_FIFO, priority ``BUS_THREAD_RT_PRIORITY``) for the calling thread only
     (Linux: scheduling is per thread), as a control loop on a PC should have: then another program busy on the

@@ -56,7 +56,7 @@ from devices.errors import (
     ServoHardwareError,
     os_words,
 )
-from devices.factory import is_sim, open_serial
+from devices.factory import is_sim, open_serial, sim_serial_path
 
 log = logging.getLogger(__name__)
 
@@ -527,7 +527,7 @@ class ServoChain:
         if self.is_open:
             return
         # A pty's far end is a process that may wait for the scheduler; give its replies more time than USB's.
-        extra_ms = PTY_EXTRA_TIMEOUT_MS if _is_pty(self.robot.port) else 0.0
+        extra_ms = PTY_EXTRA_TIMEOUT_MS if _is_pty(self.robot.port, self.device) else 0.0
         port = _FactoryPortHandler(self.robot.port, self.device, extra_ms)
         port.baudrate = self._baud
         try:
@@ -1051,9 +1051,13 @@ def _id_list(ids: Sequence[int]) -> str:
     return ", ".join(str(i) for i in ids)
 
 
-def _is_pty(port: str) -> bool:
-    """A pseudo-terminal (Linux /dev/pts/N, macOS /dev/ttysNNN), e.g. ``devices.sim.pty_server``."""
+def _is_pty(port: str, device: str = "robot") -> bool:
+    """A pseudo-terminal (Linux /dev/pts/N, macOS /dev/ttysNNN), e.g. ``devices.sim.pty_server`` — or port ``sim``
+    when the simulated lab serves ``device`` on one (its own process, ``devices.sim.lab_process``)."""
     if is_sim(port):
-        return False
+        path = sim_serial_path(device)
+        if path is None:
+            return False
+        port = path
     real = os.path.realpath(port)
     return real.startswith("/dev/pts/") or (real.startswith("/dev/ttys") and real[9:].isdigit())

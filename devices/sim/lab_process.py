@@ -491,6 +491,16 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
         threads.append(threading.Thread(target=_publish_qpos, args=(lab, page, stop), name="lab-qpos", daemon=True))
     for thread in threads:
         thread.start()
+    # This (the calls') thread and the qpos publisher get the servos' priority too (when permitted): one preempted
+    # while it holds the interpreter lock would make the servos answer late. Not the physics world's stepping
+    # thread: when it cannot keep up it steps without sleeping, and at real-time priority it would take a core from
+    # the app.
+    from devices.realtime import _raise_thread_priority, raise_thread_priority_of
+
+    _raise_thread_priority()
+    for thread in threads:
+        if thread.native_id is not None:
+            raise_thread_priority_of(thread.native_id)
     conn.send(("ready", {name: p.path for name, p in ptys.items()}, lab.clock._wall0, nq, lab.physics_note))
     try:
         while True:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 
+import numpy as np
 import pytest
 from PySide6.QtCore import QSettings, Qt
 
@@ -102,11 +103,43 @@ def test_a_simulated_lab_process_that_dies_is_said_first_in_every_later_device_e
             lab.robot.connect_robot()
         with qtbot.waitSignal(lab.sim_lab_died, timeout=WAIT_MS):
             os.kill(sim.pid, signal.SIGKILL)
-        assert "simulated lab's process" in win.status.message and "killed by SIGKILL" in win.status.message
-        # The robot's loop then loses its pty: its error comes after the cause, not instead of it.
-        qtbot.waitUntil(lambda: not lab.robot.is_connected or "Then:" in win.status.message, timeout=WAIT_MS)
-        win.show_error("robot: link lost")
-        assert win.status.message.startswith("the simulated lab's process") and "Then: robot: link lost" in \
-            win.status.message
+        gone = lab.sim_lab_gone
+        assert "simulated lab's process" in gone and "killed by SIGKILL" in gone and "restart the app" in gone
+        assert win.status.message.startswith(gone)
+        # The robot's loop loses its pty too. Whichever reaches the window first, the cause stays in front.
+        qtbot.waitUntil(lambda: lab.robot.is_link_lost or not lab.robot.is_connected, timeout=WAIT_MS)
+        qtbot.wait(200)
+        assert win.status.message.startswith(gone)
+        win.show_error("robot: link lost")  # any later device error
+        assert win.status.message == f"{gone}. Then: robot: link lost"
     finally:
         win.close()
+
+
+def test_a_calibration_run_on_the_rig_of_a_lab_in_its_own_process_follows_the_command(qtbot, tmp_path, no_lab_yet):
+    """The rig's servo and the board on their ptys, the protocol on the lab's clock read across processes (the same
+    start, 10× real time here): the held force is the commanded one."""
+    from app.core import calfiles
+    from app.core.rig_protocol import COMPLETED, ProtocolSettings
+    from app.gui.rig_session import RigSession
+    from tests.app.test_rig_session import BENCH_CONFIG, FORCE_TOLERANCE_N, _hold_rows
+
+    sim = LabProcess(BENCH_CONFIG, seed=7, speed=10.0).start()
+    factory.install_sim_lab(sim)  # no_lab_yet closes it after the test
+    lab = LabContext(BENCH_CONFIG)
+    session = RigSession(lab, board_stale_s=10.0)
+    try:
+        settings = ProtocolSettings(forces_n=(3.0,), sensor="BENCH", trials_per_force=1, hold_s=40.0, baseline_s=15.0,
+                                    ramp_s=10.0, rest_s=5.0, sample_rate_hz=6.0)
+        with qtbot.waitSignal(session.finished, timeout=120_000) as blocker:
+            session.start(settings, tmp_path)
+        outcome = blocker.args[0]
+        assert outcome.status == COMPLETED, outcome.message
+        (record,) = outcome.trials
+        trial = calfiles.read_trial_csv(record.path)
+        hold = _hold_rows(trial.force_n)
+        assert hold.sum() >= 10
+        assert float(np.median(trial.force_n[hold])) == pytest.approx(3.0, abs=FORCE_TOLERANCE_N)
+    finally:
+        session.shutdown()
+        lab.close()

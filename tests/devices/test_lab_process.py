@@ -47,6 +47,10 @@ def test_the_robot_board_and_rig_answer_on_their_ptys_through_the_usual_drivers(
     assert factory.sim_serial_path("robot") == lab.paths["robot"] and os.path.realpath(lab.paths["robot"]).startswith(
         "/dev/pts/")
     assert len(set(lab.paths.values())) == 3
+    # A host on port sim waits for the lab's replies as for any pty's (a process the scheduler may delay).
+    from devices.servo_chain import _is_pty
+
+    assert _is_pty("sim", "robot") and _is_pty("sim", "rig")
 
     chain = ServoChain(config.robot, device="robot")  # port "sim": the factory opens the lab's robot pty
     chain.open()
@@ -153,12 +157,16 @@ def test_the_3d_views_copy_of_the_world_follows_the_lab(lab_process):
 
 
 def test_closing_ends_the_lab_process_and_its_ptys(lab_process):
+    from devices.servo_chain import _is_pty
+
     lab = lab_process(scripted_config())
     path = lab.paths["robot"]
     assert lab.alive
     lab.close()
     assert not lab.alive
     assert not os.path.exists(path) or not _answers(path)
+    factory.install_sim_lab(None)
+    assert not _is_pty("sim", "rig")  # no lab process behind sim: the in-process lab's port is no pty
     with pytest.raises(RuntimeError, match="closed"):
         lab.call("chain.servo_ids")
 
