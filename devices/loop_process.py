@@ -40,7 +40,6 @@ rate) are raised as themselves, as an in-process start would.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import concurrent.futures
 import contextlib
@@ -54,21 +53,19 @@ import os
 import pickle
 import queue
 import signal
-import socket
 import struct
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from devices import tick_trace
+from devices.child import child_setup, release_shared, spawn
 from devices.config import RobotConfig
 from devices.controller import (
     ControllerStats,
@@ -206,28 +203,12 @@ class ControllerProcess:
         start would) or :class:`LoopProcessUnavailable` (the child itself could not run)."""
         if self._process is not None:
             raise RuntimeError("the robot controller is already running")
-        ours, theirs = socket.socketpair()
-        beat_fd, beat_path = tempfile.mkstemp(prefix="sensnake-heartbeat-")
-        os.unlink(beat_path)  # the open descriptors keep it; gone with both processes
-        self._heartbeat_fd = beat_fd
-        os.ftruncate(beat_fd, mmap.PAGESIZE)
-        self._heartbeat = mmap.mmap(beat_fd, mmap.PAGESIZE)
-        env = dict(os.environ)
-        root = str(Path(__file__).resolve().parents[1])  # the checkout this package comes from
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
         try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-m", "devices.loop_process", "--fd", str(theirs.fileno()), "--heartbeat-fd",
-                 str(beat_fd)],
-                pass_fds=(theirs.fileno(), beat_fd), env=env, cwd=root, stdin=subprocess.DEVNULL,
-                start_new_session=True)
+            child = spawn("devices.loop_process", 1, "sensnake-heartbeat-")
         except (OSError, ValueError) as exc:  # ValueError: pass_fds/start_new_session where unsupported
-            ours.close()
-            self._close_heartbeat()
             raise LoopProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
+        self._process, self._conn = child.process, child.conn
+        self._heartbeat_fd, self._heartbeat = child.shared_fd, child.shared
         try:
             self._conn.send(("config", self.robot, self.simulated))
             reply = self._wait_ready()
@@ -290,14 +271,9 @@ class ControllerProcess:
         self._close_heartbeat()
 
     def _close_heartbeat(self) -> None:
-        if self._heartbeat is not None:
-            beat, self._heartbeat = self._heartbeat, None
-            with contextlib.suppress(BufferError, ValueError):
-                beat.close()
-        if self._heartbeat_fd is not None:
-            with contextlib.suppress(OSError):
-                os.close(self._heartbeat_fd)
-            self._heartbeat_fd = None
+        fd, beat = self._heartbeat_fd, self._heartbeat
+        self._heartbeat_fd, self._heartbeat = None, None
+        release_shared(fd, beat)
 
     def _kill(self) -> None:
         process = self._process
@@ -798,16 +774,10 @@ class _Child:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m devices.loop_process",
-                                     description="The robot control loop's process (started by the app).")
-    parser.add_argument("--fd", type=int, required=True, help="the socket to the app (inherited)")
-    parser.add_argument("--heartbeat-fd", type=int, help="a file shared with the app: the loop's heartbeat")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="loop process: %(levelname)s %(name)s: %(message)s")
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the app closes us; a terminal's Ctrl-C is for the app
+    conn, heartbeat = child_setup(argv, "python -m devices.loop_process",
+                                  "The robot control loop's process (started by the app).",
+                                  "a file shared with the app: the loop's heartbeat", "loop process")
     tick_trace.enable_from_env()  # a diagnosis of late ticks, when asked for (bench_servo_bus --trace)
-    conn = Connection(args.fd)
-    heartbeat = mmap.mmap(args.heartbeat_fd, mmap.PAGESIZE) if args.heartbeat_fd is not None else None
     return _Child(conn, heartbeat).run()
 
 

@@ -32,7 +32,6 @@ Linux and macOS (``os.openpty``): :func:`devices.factory.lab_process_wanted` say
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import fcntl
 import itertools
@@ -41,22 +40,20 @@ import mmap
 import os
 import select
 import signal
-import socket
 import struct
 import subprocess
 import sys
-import tempfile
 import termios
 import threading
 import time
 import tty
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from devices.child import child_setup, release_shared, spawn
 from devices.config import LabConfig
 from devices.errors import LabProcessUnavailable
 from devices.sim.clock import SimClock
@@ -138,25 +135,12 @@ class LabProcess:
     def start(self) -> LabProcess:
         if self._process is not None:
             raise RuntimeError("the lab process is already running")
-        ours, theirs = socket.socketpair()
-        fd, path = tempfile.mkstemp(prefix="sensnake-qpos-")
-        os.unlink(path)
-        os.ftruncate(fd, mmap.PAGESIZE * 4)
-        self._qpos_fd, self._qpos = fd, mmap.mmap(fd, mmap.PAGESIZE * 4)
-        env = dict(os.environ)
-        root = str(Path(__file__).resolve().parents[2])
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
         try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-m", "devices.sim.lab_process", "--fd", str(theirs.fileno()), "--qpos-fd", str(fd)],
-                pass_fds=(theirs.fileno(), fd), env=env, cwd=root, stdin=subprocess.DEVNULL, start_new_session=True)
+            child = spawn("devices.sim.lab_process", 4, "sensnake-qpos-")
         except (OSError, ValueError) as exc:
-            ours.close()
-            self._close_qpos()
             raise LabProcessUnavailable(f"cannot start {sys.executable}: {exc}") from exc
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
+        self._process, self._conn = child.process, child.conn
+        self._qpos_fd, self._qpos = child.shared_fd, child.shared
         try:
             self._conn.send(("config", self.config, self.seed, self.speed))
             ready = self._wait_ready()
@@ -268,13 +252,8 @@ class LabProcess:
         self._close_qpos()
 
     def _close_qpos(self) -> None:
-        if self._qpos is not None:
-            with contextlib.suppress(BufferError):  # a view still held elsewhere: the mapping goes with it
-                self._qpos.close()
-            self._qpos = None
-        if self._qpos_fd is not None:
-            os.close(self._qpos_fd)
-            self._qpos_fd = None
+        release_shared(self._qpos_fd, self._qpos)
+        self._qpos_fd, self._qpos = None, None
 
 
 def read_qpos(page: mmap.mmap, nq: int) -> tuple[float, np.ndarray] | None:
@@ -525,18 +504,13 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m devices.sim.lab_process",
-                                     description="The simulated lab's process (started by the app).")
-    parser.add_argument("--fd", type=int, required=True, help="the socket to the app (inherited)")
-    parser.add_argument("--qpos-fd", type=int, help="a file shared with the app: the world's joint positions")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="lab process: %(levelname)s %(name)s: %(message)s")
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the app closes us; a terminal's Ctrl-C is for the app
+    conn, page = child_setup(argv, "python -m devices.sim.lab_process",
+                             "The simulated lab's process (started by the app).",
+                             "a file shared with the app: the world's joint positions", "lab process")
     from devices.realtime import _lower_switch_interval
 
     _lower_switch_interval()  # the pty thread waits at most this for the physics thread's lock
-    page = mmap.mmap(args.qpos_fd, mmap.PAGESIZE * 4) if args.qpos_fd is not None else None
-    return child_main(Connection(args.fd), page)
+    return child_main(conn, page)
 
 
 if __name__ == "__main__":
