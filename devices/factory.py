@@ -16,6 +16,7 @@ import serial
 
 from devices.config import SIM_PORT, LabConfig
 from devices.errors import PortOpenError, os_words
+from devices.realtime import _switched_off
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.lab import SimLab
@@ -75,7 +76,7 @@ def lab_process_wanted() -> tuple[bool, str]:
     """Whether the app's simulated lab gets its own process, and if not, why (one line)."""
     if os.name != "posix" or not hasattr(os, "openpty"):
         return False, "the simulated lab's own process needs Linux or macOS (pseudo-terminals)"
-    if os.environ.get(LAB_PROCESS_SWITCH, "1").strip().lower() in ("0", "no", "off", "false"):
+    if _switched_off(LAB_PROCESS_SWITCH):
         return False, f"{LAB_PROCESS_SWITCH}=0"
     return True, ""
 

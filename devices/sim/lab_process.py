@@ -227,9 +227,6 @@ class LabProcess:
                  "AttributeError": AttributeError}.get(kind, RuntimeError)
         raise error(message)
 
-    def rig_sensor_truth(self) -> dict[str, float]:
-        return dict(self.call("rig_sensor_truth"))
-
     def close(self) -> None:
         """End the child (closing the socket asks it to; killed if it does not within ``CLOSE_TIMEOUT_S``)."""
         if self._closed:
@@ -308,7 +305,7 @@ class MirrorPhysics:
         if world.model.nq != nq:
             raise LabProcessUnavailable(f"the lab's world has {nq} positions, its copy here {world.model.nq}")
         self.posed = _PosedWorld(world, page, nq)
-        self._renderers: dict[int, tuple[tuple[int, int], Any]] = {}
+        self._renderers: Any = None  # devices.sim.physics.render.ThreadRenderers, made on the first picture
 
     @property
     def shown_time_s(self) -> float | None:
@@ -316,21 +313,15 @@ class MirrorPhysics:
         return self.posed.shown_time_s
 
     def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
-        from devices.sim.physics.render import SceneRenderer
+        from devices.sim.physics.render import ThreadRenderers
 
-        thread = threading.get_ident()
-        entry = self._renderers.get(thread)
-        if entry is None or entry[0] != (width, height):
-            if entry is not None:
-                entry[1].close()
-            entry = ((width, height), SceneRenderer(self.posed, width, height))  # type: ignore[arg-type]
-            self._renderers[thread] = entry
-        return entry[1].render()
+        if self._renderers is None:
+            self._renderers = ThreadRenderers(self.posed)  # type: ignore[arg-type]
+        return self._renderers.render(width, height)
 
     def release_renderer(self) -> None:
-        entry = self._renderers.pop(threading.get_ident(), None)
-        if entry is not None:
-            entry[1].close()
+        if self._renderers is not None:
+            self._renderers.release()
 
     def close(self) -> None:
         self.release_renderer()
@@ -431,9 +422,7 @@ def _publish_qpos(lab: Any, page: mmap.mmap, stop: threading.Event) -> None:
     view = np.frombuffer(page, dtype=np.float64, count=world.model.nq, offset=QPOS_HEADER.size)
     seq = 0
     while not stop.wait(1.0 / QPOS_RATE_HZ):
-        with world._lock:
-            qpos = world.data.qpos.copy()
-            t_s = float(world.data.time)
+        t_s, qpos = world.pose_snapshot()
         QPOS_HEADER.pack_into(page, 0, seq + 1, t_s)
         view[:] = qpos
         seq += 2
@@ -459,7 +448,7 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
         lab.start_background()
         ptys = {"robot": _Pty(lab.chain, config.robot.baud), "board": _Pty(lab.board, config.board.baud),
                 "rig": _Pty(lab.rig.chain, config.rig.baud)}
-    except Exception as exc:  # noqa: BLE001 - said to the app, which keeps the lab in its own process
+    except Exception as exc:  # noqa: BLE001 - said to the app, which then keeps the lab in the app's process
         conn.send(("failed", f"{type(exc).__name__}: {exc}"))
         return 1
     stop = threading.Event()

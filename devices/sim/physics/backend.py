@@ -24,7 +24,7 @@ from devices.sim.physics.model import SceneParams
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
 
 if TYPE_CHECKING:  # pragma: no cover
-    from devices.sim.physics.render import SceneRenderer
+    from devices.sim.physics.render import ThreadRenderers
 
 STEP_INTERVAL_S = 0.02  # the background thread catches up every 20 ms of wall time (the 3-D view draws <= 10/s;
 # the chain and the board step the world to their own events anyway)
@@ -52,7 +52,7 @@ class PhysicsBackend:
         self._time0_s = clock.now()  # the world starts at 0 s when the clock reads this
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._renderers: dict[int, tuple[tuple[int, int], SceneRenderer]] = {}  # per thread: (size, renderer)
+        self._renderers: ThreadRenderers | None = None  # one per rendering thread, made on first use
 
     # -- joints (the chain) ----------------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
@@ -95,23 +95,17 @@ class PhysicsBackend:
         machine cannot render offscreen. The calling thread's renderer (an OpenGL context current in that thread)
         is made on its first call, and again when the size changes; the thread must :meth:`release_renderer` before
         it ends (a context current in another thread cannot be closed: EGL_BAD_ACCESS)."""
-        from devices.sim.physics.render import SceneRenderer
+        from devices.sim.physics.render import ThreadRenderers
 
-        thread = threading.get_ident()
-        entry = self._renderers.get(thread)
-        if entry is None or entry[0] != (width, height):
-            if entry is not None:
-                entry[1].close()
-            entry = ((width, height), SceneRenderer(self.world, width, height))
-            self._renderers[thread] = entry
-        return entry[1].render()
+        if self._renderers is None:
+            self._renderers = ThreadRenderers(self.world)
+        return self._renderers.render(width, height)
 
     def release_renderer(self) -> None:
         """Close the calling thread's renderer, if it has one (call it from that thread; :meth:`close` does for
         the closing thread)."""
-        entry = self._renderers.pop(threading.get_ident(), None)
-        if entry is not None:
-            entry[1].close()
+        if self._renderers is not None:
+            self._renderers.release()
 
     # -- background stepping -------------------------------------------------------------------------------------------
     def start(self) -> None:

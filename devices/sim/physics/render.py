@@ -7,6 +7,8 @@ outside it, so the physics thread is held up only for the scene update.
 
 from __future__ import annotations
 
+import threading
+
 import mujoco
 import numpy as np
 
@@ -46,3 +48,28 @@ class SceneRenderer:
 
     def close(self) -> None:
         self._renderer.close()
+
+
+class ThreadRenderers:
+    """One :class:`SceneRenderer` of ``world`` per calling thread (an OpenGL context is current in the thread that
+    made it), made on a thread's first :meth:`render` and again when the size changes."""
+
+    def __init__(self, world: PhysicsWorld) -> None:
+        self.world = world
+        self._renderers: dict[int, tuple[tuple[int, int], SceneRenderer]] = {}
+
+    def render(self, width: int, height: int) -> np.ndarray:
+        thread = threading.get_ident()
+        entry = self._renderers.get(thread)
+        if entry is None or entry[0] != (width, height):
+            if entry is not None:
+                entry[1].close()
+            entry = ((width, height), SceneRenderer(self.world, width, height))
+            self._renderers[thread] = entry
+        return entry[1].render()
+
+    def release(self) -> None:
+        """Close the calling thread's renderer, if it has one (only that thread can: EGL_BAD_ACCESS otherwise)."""
+        entry = self._renderers.pop(threading.get_ident(), None)
+        if entry is not None:
+            entry[1].close()

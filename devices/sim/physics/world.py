@@ -235,6 +235,12 @@ class PhysicsWorld:
         with self._lock:
             return float(self.data.time) + self._offset_s
 
+    def pose_snapshot(self) -> tuple[float, np.ndarray]:
+        """(the world's clock as :attr:`time_s`, a copy of ``qpos``) read together: what a copy of the world needs to
+        be drawn in the same pose (the app's 3-D view of the lab's own process)."""
+        with self._lock:
+            return float(self.data.time) + self._offset_s, self.data.qpos.copy()
+
     def step(self, n: int = 1) -> None:
         """``n`` physics steps of ``scene.timestep_s``, each with one servo-loop update."""
         with self._lock:
