@@ -52,6 +52,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
+import serial
 
 from devices.child import child_setup, release_shared, spawn
 from devices.config import LabConfig
@@ -411,8 +412,10 @@ def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
                 continue
             try:
                 pty.forward(now)
-            except Exception as exc:  # noqa: BLE001 - a simulated unplug raises: the host hears nothing meanwhile
+            except serial.SerialException as exc:  # a simulated unplug: the host hears nothing meanwhile
                 log.debug("%s: %s", pty.path, exc)
+            except Exception:  # noqa: BLE001 - the thread that serves every device must not end: say it, go on
+                log.exception("the simulated lab's %s device failed a pass", pty.path)
         if due_board and board.unread_bytes() + len(board.pending) > backlog_limit:
             board.discard_unread()  # nobody reads: a reader that opens the port late starts on fresh frames
 
