@@ -152,7 +152,7 @@ class LabProcess:
         self.clock = SimClock(self.speed)
         self.clock._wall0 = float(wall0)  # one monotonic clock for every process: the same simulated time
         if physics is not None:
-            self.physics = MirrorPhysics(self.config, self._qpos, int(physics))
+            self.physics = MirrorPhysics(self.config, self._qpos, int(physics), gone=lambda: self.died)
         threading.Thread(target=self._watch, name="lab-process-watcher", daemon=True).start()
         return self
 
@@ -177,8 +177,9 @@ class LabProcess:
             return
         how = f"killed by {signal.Signals(-code).name}" if code < 0 and -code in signal.valid_signals() else \
             f"exit status {code}"
-        text = (f"the simulated lab's process (pid {process.pid}) ended ({how}): the simulated robot, board and rig "
-                "are gone. What was recorded is kept; restart the app to get the simulated lab back")
+        # What to do first: the status bar shows the start of a long message.
+        text = (f"simulated lab stopped: restart the app (what was recorded is kept) — the simulated lab's process "
+                f"(pid {process.pid}) ended ({how}), taking the simulated robot, board and rig with it")
         log.error("%s", text)
         with self._lock:
             self.died = text
@@ -296,9 +297,10 @@ class MirrorPhysics:
     """Pictures of the lab's physics world, drawn here: the same MuJoCo model, posed from the child's ``qpos``.
 
     Has the drawing half of :class:`devices.sim.physics.backend.PhysicsBackend` (``render_rgb``,
-    ``release_renderer``), which is what the 3-D tab uses; one renderer per calling thread."""
+    ``release_renderer``), which is what the 3-D tab uses; one renderer per calling thread. Once the lab's process
+    has ended (``gone()`` says why) it refuses to draw the last pose as if it were live: RuntimeError."""
 
-    def __init__(self, config: LabConfig, page: mmap.mmap, nq: int) -> None:
+    def __init__(self, config: LabConfig, page: mmap.mmap, nq: int, gone: Callable[[], str] = str) -> None:
         from devices.sim.physics.backend import scene_from_config
         from devices.sim.physics.world import PhysicsWorld
 
@@ -306,6 +308,7 @@ class MirrorPhysics:
         if world.model.nq != nq:
             raise LabProcessUnavailable(f"the lab's world has {nq} positions, its copy here {world.model.nq}")
         self.posed = _PosedWorld(world, page, nq)
+        self._gone = gone  # why the lab's process has ended ("" while it runs): no picture of a stale pose then
         self._renderers: Any = None  # devices.sim.physics.render.ThreadRenderers, made on the first picture
 
     @property
@@ -316,6 +319,9 @@ class MirrorPhysics:
     def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
         from devices.sim.physics.render import ThreadRenderers
 
+        why = self._gone()
+        if why:
+            raise RuntimeError(why)  # the 3-D tab says it and draws the 2-D body instead
         if self._renderers is None:
             self._renderers = ThreadRenderers(self.posed)  # type: ignore[arg-type]
         return self._renderers.render(width, height)
