@@ -118,6 +118,9 @@ class SimLabConfig:
     segment lies on the rig's beam: the probe alone loads it, not the robot's weight."""
 
     physics: str = "mujoco"
+    # A scene file (SPEC §6; a path, relative to the config file's folder, or a built-in scene's name such as
+    # "step"); "" = the paper's half cylinder built from obstacle_height_ratio/obstacle_friction/ground_friction.
+    scene: str = ""
     obstacle_height_ratio: float = 0.28
     obstacle_friction: float = 0.1
     ground_friction: float = 0.3
@@ -165,7 +168,7 @@ def load_config(path: str | Path | None = None) -> LabConfig:
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a lab configuration: byte {exc.start} is not UTF-8 text (a binary file?); "
                           "the config is a TOML text file like resources/default_lab.toml") from None
-    return parse_config(text, source=str(path))
+    return resolve_relative_scene(parse_config(text, source=str(path)), path)
 
 
 def parse_config(text: str, source: str = "<config>") -> LabConfig:
@@ -182,6 +185,15 @@ def parse_config(text: str, source: str = "<config>") -> LabConfig:
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
     lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
     return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text)
+
+
+def resolve_relative_scene(config: LabConfig, config_path: str | Path) -> LabConfig:
+    """``[lab] scene`` given relative to the config file's folder, made absolute (a built-in name is kept)."""
+    scene = config.lab.scene
+    if not scene or Path(scene).is_absolute():
+        return config
+    beside = Path(config_path).resolve().parent / scene
+    return replace(config, lab=replace(config.lab, scene=str(beside))) if beside.exists() else config
 
 
 def _build(cls: type, table: Any, section: str, source: str) -> Any:

@@ -1,7 +1,8 @@
-"""``sensnake experiment obstacle --out REC.h5 [--seconds S] [--height-ratio R] [--speed RAD_S] [--settle S]
-[--config FILE] [--seed N]``: the paper's Sec. III-C obstacle experiment in the physics lab (MuJoCo), headless and
-faster than real time (:mod:`app.core.obstacle_experiment`). Prints a progress line about once a second and a
-summary at the end. Runs on the main thread.
+"""``sensnake experiment run --scene SCENE.toml [--shape SHAPE.json] [--mode follow|keyframes|serpenoid|sidewinding]
+[--speed RAD_S] [--seconds S] [--settle S] [--seed K] [--config FILE] --out REC.h5`` (any scene, any motion) and
+``sensnake experiment obstacle --out REC.h5 [--height-ratio R] …`` (the paper's Sec. III-C experiment): the physics lab
+(MuJoCo) headless and faster than real time (:mod:`app.core.experiment`). Prints a progress line about once a second
+and a summary at the end. Runs on the main thread.
 """
 
 from __future__ import annotations
@@ -9,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from app.core.obstacle_experiment import run_obstacle_experiment
+from app.core.experiment import run_experiment, run_obstacle_experiment
+from app.core.shapes import read_shape
 from devices.config import LabConfig, load_config
 
 
@@ -20,22 +22,34 @@ def _progress(line: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.name != "obstacle":  # argparse's choices already refuse others; kept for a direct call
-        raise ValueError(f"unknown experiment {args.name!r}; known: obstacle")
+    if args.name not in ("run", "obstacle"):  # argparse's choices already refuse others; kept for a direct call
+        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle")
     try:
         import mujoco  # noqa: F401 - a clear message instead of an ImportError deep inside the lab
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
     config = load_config(args.config) if args.config else LabConfig()
-    result = run_obstacle_experiment(args.out, config, seconds=args.seconds, height_ratio=args.height_ratio,
-                                     speed_rad_s=args.speed, settle_s=args.settle, seed=args.seed,
-                                     progress=_progress)
+    if args.name == "obstacle":
+        for option in ("scene", "shape"):
+            if getattr(args, option):
+                raise ValueError(f"--{option} is for 'sensnake experiment run' (obstacle is the paper's scene)")
+        result = run_obstacle_experiment(args.out, config, seconds=args.seconds, height_ratio=args.height_ratio,
+                                         speed_rad_s=args.speed, settle_s=args.settle, seed=args.seed,
+                                         progress=_progress)
+    else:
+        shape = read_shape(args.shape) if args.shape else None
+        result = run_experiment(args.out, config, scene=args.scene, shape=shape, mode=args.mode,
+                                seconds=args.seconds, speed_rad_s=args.speed, settle_s=args.settle, seed=args.seed,
+                                progress=_progress)
     if sys.stdout.isatty():
         print()
-    print(f"simulated {result.simulated_s:.1f} s in {result.wall_s:.1f} s ({result.real_time_factor:.1f}× real "
-          f"time; machine load changes this)")
-    print(f"body advanced {result.advance_m * 100:+.1f} cm; median total bottom force {result.median_bottom_force_n:.1f}"
-          f" N (robot weight {result.weight_n:.1f} N)")
+    print(f"scene {result.scene_name}: simulated {result.simulated_s:.1f} s in {result.wall_s:.1f} s "
+          f"({result.real_time_factor:.1f}× real time; machine load changes this)")
+    print(f"body advanced {result.advance_m * 100:+.1f} cm"
+          + (f"; traversed: {'yes' if result.traversed else 'no'}" if result.scene_name else ""))
+    print(f"median total bottom force {result.median_bottom_force_n:.1f} N (normal forces: more than the weight "
+          f"where the body lies on a curve); their vertical part {result.median_vertical_support_n:.1f} N "
+          f"(robot weight {result.weight_n:.1f} N)")
     for line in result.overloads:
         print(line)
     print(f"wrote {result.path}")

@@ -159,18 +159,26 @@ def build_parser() -> argparse.ArgumentParser:
     repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
 
     experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
-    experiment.add_argument("name", choices=("obstacle",), help="obstacle: the paper's Sec. III-C experiment")
+    experiment.add_argument("name", choices=("run", "obstacle"),
+                            help="run: any scene and motion; obstacle: the paper's Sec. III-C experiment")
     experiment.add_argument("--out", required=True, metavar="REC.h5")
+    experiment.add_argument("--scene", metavar="SCENE.toml",
+                            help="run: a scene file or a built-in scene (paper_obstacle, flat, step, wedge, "
+                                 "two_obstacles); default: the config's [lab] scene, else the paper's obstacle")
+    experiment.add_argument("--shape", metavar="SHAPE.json",
+                            help="run: the shape to play (default: the settled pose, captured as the paper does)")
+    experiment.add_argument("--mode", choices=("follow", "keyframes", "serpenoid", "sidewinding"), default="follow",
+                            help="run: how to play it (default follow-the-leader)")
     experiment.add_argument("--seconds", type=float, default=None, metavar="S",
-                            help="stop playing after S simulated seconds (default: the whole follow-the-leader)")
+                            help="stop playing after S simulated seconds (default: the whole motion)")
     experiment.add_argument("--height-ratio", type=float, default=0.28, metavar="R",
-                            help="obstacle height × body length (default 0.28, the paper's)")
+                            help="obstacle: its height × body length (default 0.28, the paper's)")
     experiment.add_argument("--speed", type=float, default=0.034, metavar="RAD_S",
                             help="follow-the-leader speed (default 0.034 rad/s, the paper's)")
     experiment.add_argument("--settle", type=float, default=6.0, metavar="S",
-                            help="seconds the limp robot settles over the obstacle before the capture")
+                            help="seconds the robot settles on the scene before the capture")
     experiment.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors' spread and noise")
-    experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] frictions)")
+    experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] scene and frictions)")
 
     bench = sub.add_parser("bench", help="print the benchmark tables")
     bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")

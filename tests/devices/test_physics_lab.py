@@ -73,14 +73,14 @@ def test_drivers_move_the_simulated_body_and_the_board_feels_it(install_fast_sim
     assert lifted[middle] > 0.0
 
 
-def test_a_joint_stalled_against_a_wall_draws_current_then_trips_overload(install_sim_device):
+def test_a_joint_stalled_by_a_load_it_cannot_move_draws_current_then_trips_overload(install_sim_device):
     clock = SimClock(4.0)
-    backend = PhysicsBackend(FLAT, clock, scene=SceneParams(obstacle_height_m=0.0, wall_offset_m=0.045))
+    backend = PhysicsBackend(FLAT, clock, scene=SceneParams(obstacle_height_m=0.0))
     robot = FLAT.robot
     chain_sim = VirtualChain(robot.joint_ids, robot.baud, clock, seed=3, physics=backend)
     install_sim_device("robot", ChainLab(chain_sim).chain)
     goal = np.zeros(12)
-    goal[11] = 1.0  # joint 12 (yaw) swings the tail right, into the wall
+    backend.set_external_torque(11, -6.0)  # a push on joint 12 stronger than its servo's 4.1 N·m stall
     currents = []
     with ServoChain(robot) as chain:
         chain.set_torque(True)

@@ -46,25 +46,32 @@ def test_lifting_the_tail_unloads_its_sensors_and_the_rest_take_the_weight():
     assert after.sum() == pytest.approx(world.weight_n, rel=0.05)
 
 
-def test_a_joint_pushed_against_a_wall_draws_torque_up_to_the_stall_limit():
-    scene = SceneParams(obstacle_height_m=0.0, wall_offset_m=0.045)
-    world = _held_straight(scene, seconds=0.5)
-    goal = np.zeros(world.n_joints)
-    goal[11] = 1.0  # joint 12 (yaw): swing the tail segment right, into the wall
-    world.command(np.ones(world.n_joints, dtype=bool), goal, np.full(world.n_joints, 0.5))
+def test_a_joint_held_against_a_load_it_cannot_move_draws_torque_up_to_the_stall_limit():
+    world = _held_straight(seconds=0.5)
+    world.command(np.ones(world.n_joints, dtype=bool), np.zeros(world.n_joints), np.full(world.n_joints, 0.5))
+    world.set_external_torque(11, -6.0)  # a push on the tail's yaw joint stronger than the servo's 4.1 N·m stall
     torques, saturated = [], []
     for _ in range(60):
         world.step(25)
         torques.append(world.joint_state().torque_nm[11])
         saturated.append(world.joint_state().saturated_s[11])
-    state = world.joint_state()
-    stall = scene.servo.stall_torque_nm
-    assert abs(torques[0]) < 0.5 * stall  # free at first …
-    assert max(abs(t) for t in torques[-10:]) > 0.9 * stall  # … then stalled against the wall
-    assert state.position_rad[11] < 0.9  # the wall stops it short of the goal
+    stall = world.scene.servo.stall_torque_nm
+    assert max(abs(t) for t in torques[-10:]) > 0.9 * stall  # the servo gives all it has …
+    assert world.joint_state().position_rad[11] < -0.2  # … and is pushed back all the same
     assert max(saturated) > 0.2  # the demand stays above the stall torque (what trips the overload)
-    _, _, right = world.segment_loads_n()
-    assert right[11] > 1.0  # the right sheet of the tail segment feels the wall
+
+
+def test_a_segment_pushed_against_a_wall_loads_the_sheet_on_that_side():
+    scene = SceneParams(obstacle_height_m=0.0, wall_offset_m=0.040)
+    world = _held_straight(scene, seconds=0.5)
+    goal = np.zeros(world.n_joints)
+    goal[11] = 1.0  # joint 12 (yaw): swing the tail segment right, into the wall
+    world.command(np.ones(world.n_joints, dtype=bool), goal, np.full(world.n_joints, 0.5))
+    world.step(1500)
+    _, left, right = world.segment_loads_n()
+    assert right[11] > 1.0  # the right sheet of the tail segment feels the wall …
+    assert left[11] < 0.1  # … its left sheet does not
+    assert world.joint_state().position_rad[11] < 0.99  # the wall (and the body wedged against it) stops it short
 
 
 def test_the_limp_robot_drapes_over_the_obstacle_and_conforms_to_it():
@@ -159,13 +166,11 @@ def test_a_still_world_rests_and_wakes_on_a_command():
 
 
 def test_a_world_does_not_rest_while_a_servo_still_has_work_or_strains():
-    scene = SceneParams(obstacle_height_m=0.0, wall_offset_m=0.045)
-    world = PhysicsWorld(scene)
+    world = PhysicsWorld(FLAT)
     world.rest_enabled = True
     n = world.n_joints
-    goal = np.zeros(n)
-    goal[11] = 1.0  # into the wall: stalls, strains, and must go on straining until the overload trips
-    world.command(np.ones(n, dtype=bool), goal, np.full(n, 0.5))
+    world.command(np.ones(n, dtype=bool), np.zeros(n), np.full(n, 0.5))
+    world.set_external_torque(11, -6.0)  # stalls, strains, and must go on straining until the overload trips
     rested, saturated = [], []
     while world.time_s < 6.0:
         world.advance_to(world.time_s + 0.05)

@@ -3,7 +3,8 @@
 The picture is rendered in a worker thread of this tab (an OpenGL context belongs to the thread that made it), at
 most ``FRAME_RATE_HZ`` and only while the tab is visible; frames reach the GUI thread through the app's one
 :class:`app.gui.thread_bridge.ThreadBridge`. Without a physics lab (a real robot, ``[lab] physics = "scripted"``) or
-without OpenGL it shows the 2-D body drawing of the robot's present joint angles and says why.
+without OpenGL it shows the 2-D body drawing of the robot's present joint angles and says why. A line above the
+picture names the scene (``[lab] scene``) and its obstacles.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QTimer
-from PySide6.QtWidgets import QVBoxLayout, QWidget
+from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
 from app.gui.thread_bridge import ThreadBridge
+from devices.scene import SceneError, half_cylinder_scene, load_scene
 from widgets.scene_view import SceneView
 
 FRAME_RATE_HZ = 10.0
@@ -34,6 +36,27 @@ def _physics_of(lab: Any) -> tuple[Any, str]:
     return getattr(sim, "physics", None), getattr(sim, "physics_note", "")
 
 
+def scene_description(config: Any) -> str:
+    """One line for the tab's header: the scene's name and its obstacles (or why it could not be read)."""
+    lab = config.lab
+    try:
+        if lab.scene:
+            scene = load_scene(lab.scene)
+        else:
+            height = lab.obstacle_height_ratio * config.robot.n_joints * config.robot.segment_length_m
+            scene = half_cylinder_scene(height, lab.obstacle_friction, lab.ground_friction,
+                                        name="the paper's obstacle ([lab] keys)" if height > 0 else "flat ground")
+    except SceneError as exc:
+        return f"Scene: {exc}"
+    parts = []
+    for o in scene.obstacles:
+        size = (f"r {o.radius_m:.2f} m" if o.shape == "half_cylinder"
+                else f"{o.length_m:.2f} m long, {o.height_m:.2f} m high")
+        parts.append(f"{o.shape.replace('_', ' ')} at x {o.x_m:+.2f} m ({size}, μ {o.friction:g})")
+    terrain = "; ".join(parts) if parts else "no obstacle"
+    return f"Scene: {scene.name} — ground μ {scene.ground_friction:g}; {terrain}"
+
+
 class SceneTab(QWidget):
     """See the module docstring. ``shutdown()`` stops the render thread (the main window calls it)."""
 
@@ -43,6 +66,9 @@ class SceneTab(QWidget):
         robot = lab.config.robot
         self.view = SceneView(robot.axes, robot.segment_length_m)
         layout = QVBoxLayout(self)
+        self.scene_label = QLabel(scene_description(lab.config))
+        self.scene_label.setWordWrap(True)
+        layout.addWidget(self.scene_label)
         layout.addWidget(self.view)
         self._bridge = ThreadBridge(self)
         self._physics, note = _physics_of(lab)

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from devices.config import LabConfig
+from devices.scene import load_scene
 from devices.sim.clock import SimClock
 from devices.sim.physics.model import SceneParams
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
@@ -31,12 +32,14 @@ STEP_INTERVAL_S = 0.02  # the background thread catches up every 20 ms of wall t
 
 
 def scene_from_config(config: LabConfig) -> SceneParams:
+    """The robot from ``[robot]`` on the terrain of ``[lab] scene`` (a scene file; raises ``SceneError`` naming the
+    file, the key and the problem) or, without one, the half cylinder of the ``[lab]`` legacy keys."""
     robot, lab = config.robot, config.lab
     body_length_m = robot.n_joints * robot.segment_length_m
     return SceneParams(
         n_segments=robot.n_joints, axes=tuple(robot.axes), segment_length_m=robot.segment_length_m,
         obstacle_height_m=lab.obstacle_height_ratio * body_length_m, obstacle_friction=lab.obstacle_friction,
-        ground_friction=lab.ground_friction,
+        ground_friction=lab.ground_friction, terrain_scene=load_scene(lab.scene) if lab.scene else None,
     )
 
 

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from devices.scene import Obstacle, Scene, half_cylinder_scene
+
 GRAVITY_M_S2 = 9.81
 
 
@@ -38,6 +40,23 @@ class ServoParams:
 
 
 @dataclass(frozen=True)
+class ShellParams:
+    """The compliant hollow TPU shell over each segment's three sheets (paper, Sec. III-A, Fig. 5D-E), modelled as a
+    light body on two slide joints (sideways y, up-down z in the segment's frame) sprung against the servo's housing,
+    free to travel ``travel_m`` before it bottoms out on the housing.
+    Every contact force on the segment passes through these springs: that is what spreads a load over the robot's
+    length (a rigid body on rigid contacts rests on any 3 of its 24 contact points and rocks between them) and what
+    the sheet under the shell feels. Assumed values, not measured (docs/PHYSICS_LAB.md): ~1 mm of shell deflection
+    under one segment's share of the weight (2 N), near-critical damping of a segment bouncing on it, and the TPU
+    shell with its sheets, rubber covers and holders as 60 g of the segment's 196 g (an XM430 alone is 82 g)."""
+
+    stiffness_n_per_m: float = 2000.0
+    damping_n_s_per_m: float = 30.0
+    mass_kg: float = 0.06
+    travel_m: float = 0.003  # then the shell bottoms out on the housing (a joint limit): a stall force is borne
+
+
+@dataclass(frozen=True)
 class SceneParams:
     """Robot and terrain. ``obstacle_height_m`` 0 means flat ground only. Lengths in m, masses in kg."""
 
@@ -46,15 +65,26 @@ class SceneParams:
     segment_length_m: float = 0.08
     segment_radius_m: float = 0.036
     robot_mass_kg: float = 2.4
-    head_mass_kg: float = 0.05
+    head_mass_kg: float = 0.01  # the collision nose: the real robot has none, so it weighs as little as MuJoCo allows well
     obstacle_height_m: float = 0.28 * 0.96
-    obstacle_width_m: float = 0.8
+    obstacle_width_m: float = 4.0  # "spans the whole width": far wider than any path the robot takes
     obstacle_friction: float = 0.1  # PTFE sheet on the obstacle
     ground_friction: float = 0.3
     timestep_s: float = 0.002
     # Optional walls either side of the robot (y = ±wall_offset_m, a corridor), for pushing a joint against them.
     wall_offset_m: float | None = None
     servo: ServoParams = ServoParams()
+    shell: ShellParams = ShellParams()
+    # A scene file's terrain (devices.sim.physics.scene); None: the one half cylinder of obstacle_height_m at x = 0
+    # with obstacle_friction, on ground_friction (the lab config's legacy keys, the paper's obstacle by default).
+    terrain_scene: Scene | None = None
+
+    @property
+    def terrain(self) -> Scene:
+        """The terrain in force: the scene file's, or the legacy half cylinder."""
+        if self.terrain_scene is not None:
+            return self.terrain_scene
+        return half_cylinder_scene(self.obstacle_height_m, self.obstacle_friction, self.ground_friction)
 
     @property
     def body_length_m(self) -> float:
@@ -85,45 +115,83 @@ def hand_name(index: int) -> str:
     return f"hand{index + 1:02d}"
 
 
+def shell_joint_names(index: int) -> tuple[str, str]:
+    """The two slide joints (sideways y, up-down z) of segment ``index``'s compliant shell."""
+    return f"{segment_name(index)}_sy", f"{segment_name(index)}_sz"
+
+
+def _obstacle_geom(index: int, obstacle: Obstacle, width_m: float) -> tuple[str, str]:
+    """(geom XML, asset XML) of one obstacle. Friction: the obstacle's own (the robot's geoms carry 0, and MuJoCo
+    takes the larger of a pair's two coefficients, so the pair's coefficient is the terrain's)."""
+    name = f"obstacle{index + 1}"
+    common = (f'friction="{obstacle.friction} 0.005 0.0001" contype="0" conaffinity="1" '
+              f'rgba="0.85 0.88 0.95 0.45"')
+    if obstacle.shape == "half_cylinder":
+        # A capsule of the radius lying across the path with its axis on the ground: what shows above the ground
+        # is the half cylinder (capsule-capsule collisions are analytic in MuJoCo).
+        return (f'<geom name="{name}" type="capsule" size="{obstacle.radius_m:.6f} {width_m / 2:.6f}" '
+                f'pos="{obstacle.x_m:.6f} 0 0" euler="90 0 0" {common}/>'), ""
+    if obstacle.shape == "box":
+        return (f'<geom name="{name}" type="box" size="{obstacle.length_m / 2:.6f} {width_m / 2:.6f} '
+                f'{obstacle.height_m / 2:.6f}" pos="{obstacle.x_m:.6f} 0 {obstacle.height_m / 2:.6f}" {common}/>'), ""
+    # wedge: a triangular prism (a convex mesh), 0 high at its back edge, height_m at its front edge, then a
+    # vertical face down to the ground.
+    lo, hi = obstacle.x_range_m
+    h, w = obstacle.height_m, width_m / 2
+    vertices = [(lo, -w, 0.0), (hi, -w, 0.0), (hi, -w, h), (lo, w, 0.0), (hi, w, 0.0), (hi, w, h)]
+    text = " ".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices)
+    return f'<geom name="{name}" type="mesh" mesh="{name}_mesh" {common}/>', f'<mesh name="{name}_mesh" vertex="{text}"/>'
+
+
 def build_mjcf(scene: SceneParams) -> str:
     """The scene as an MJCF XML string."""
     length, radius = scene.segment_length_m, scene.segment_radius_m
-    servo = scene.servo
+    servo, shell = scene.servo, scene.shell
+    terrain = scene.terrain
     # Capsules: MuJoCo collides capsules with planes and capsules analytically (a cylinder against the big obstacle
     # cylinder goes through the general convex solver, which lets a small body sink deep and then push thousands of
     # newtons). The rounded ends stand for the robot's rounded shells between the joints.
     half = max(length / 2.0 - radius - SEGMENT_GAP_M / 2.0, 0.001)
-    # Segments collide with the terrain only (contype 1 / conaffinity 0 vs the terrain's 0 / 1): neighbours share a
-    # joint and never touch in the real robot's joint range.
-    robot_geom = 'contype="1" conaffinity="0" condim="3"'
+    # Shells collide with the terrain only (contype 1 / conaffinity 0 vs the terrain's 0 / 1): neighbours share a
+    # joint and never touch in the real robot's joint range. Friction 0 here: the pair takes the terrain's.
+    robot_geom = 'contype="1" conaffinity="0" condim="3" friction="0 0.005 0.0001"'
+    shell_joint = (f'type="slide" stiffness="{shell.stiffness_n_per_m}" damping="{shell.damping_n_s_per_m}" '
+                   f'armature="0" frictionloss="0" limited="true" range="{-shell.travel_m} {shell.travel_m}" solreflimit="0.01 1"')
+    core_mass = scene.segment_mass_kg - shell.mass_kg
     body = ""
     for i in reversed(range(scene.n_segments)):
         axis = "0 1 0" if scene.axes[i] == "pitch" else "0 0 1"
         pos = "0 0 0" if i == 0 else f"{-length:.6f} 0 0"
         rgba = "0.95 0.75 0.2 1" if i % 2 == 0 else "0.85 0.6 0.15 1"
+        sy, sz = shell_joint_names(i)
         body = (
             f'<body name="{segment_name(i)}" pos="{pos}">'
             f'<joint name="{joint_name(i)}" type="hinge" axis="{axis}" range="-3.0 3.0" limited="false"/>'
-            f'<geom name="{segment_name(i)}" type="capsule" size="{radius} {half:.6f}" '
-            f'pos="{-length / 2:.6f} 0 0" euler="0 90 0" mass="{scene.segment_mass_kg:.6f}" rgba="{rgba}" '
-            f'{robot_geom}/>'
+            # the servo and its housing: the segment's mass, inside the shell (never touches anything)
+            f'<geom name="{segment_name(i)}_core" type="capsule" size="{radius * 0.8:.6f} {half:.6f}" '
+            f'pos="{-length / 2:.6f} 0 0" euler="0 90 0" mass="{core_mass:.6f}" rgba="0.2 0.2 0.2 1" '
+            f'contype="0" conaffinity="0"/>'
             f'<site name="{segment_name(i)}_mid" pos="{-length / 2:.6f} 0 0"/>'
+            f'<body name="{segment_name(i)}_shell">'
+            f'<joint name="{sy}" axis="0 1 0" {shell_joint}/><joint name="{sz}" axis="0 0 1" {shell_joint}/>'
+            f'<geom name="{segment_name(i)}" type="capsule" size="{radius} {half:.6f}" '
+            f'pos="{-length / 2:.6f} 0 0" euler="0 90 0" mass="{shell.mass_kg:.6f}" rgba="{rgba}" '
+            f'{robot_geom}/>'
+            f"</body>"
             f"{body}</body>"
         )
-    obstacle = ""
-    if scene.obstacle_height_m > 0:
-        obstacle = (
-            f'<geom name="obstacle" type="capsule" size="{scene.obstacle_height_m:.6f} {scene.obstacle_width_m / 2:.6f}" '
-            f'pos="0 0 0" euler="90 0 0" friction="{scene.obstacle_friction} 0.005 0.0001" '
-            f'contype="0" conaffinity="1" rgba="0.85 0.88 0.95 0.45"/>'
-        )
+    obstacles, assets = "", ""
+    for k, obstacle in enumerate(terrain.obstacles):
+        geom, asset = _obstacle_geom(k, obstacle, scene.obstacle_width_m)
+        obstacles += geom
+        assets += asset
     walls = ""
     if scene.wall_offset_m is not None:
         for side, name in ((-1, "wall_right"), (1, "wall_left")):
             walls += (
                 f'<geom name="{name}" type="box" size="{scene.body_length_m:.4f} 0.1 0.1" '
-                f'pos="0 {side * (scene.wall_offset_m + 0.1):.6f} 0.1" '
-                f'contype="0" conaffinity="1" rgba="0.6 0.6 0.7 0.5"/>'
+                f'pos="0 {side * (scene.wall_offset_m + 0.1):.6f} 0.1" friction="{terrain.ground_friction} 0.005 '
+                f'0.0001" contype="0" conaffinity="1" rgba="0.6 0.6 0.7 0.5"/>'
             )
     actuators = "".join(
         f'<motor name="m{i + 1:02d}" joint="{joint_name(i)}" ctrlrange="{-servo.stall_torque_nm} '
@@ -139,23 +207,25 @@ def build_mjcf(scene: SceneParams) -> str:
     head_z = radius
     return f"""<mujoco model="sensnake_v2">
   <compiler angle="degree" autolimits="true"/>
-  <option timestep="{scene.timestep_s}" integrator="implicitfast" cone="pyramidal" gravity="0 0 {-GRAVITY_M_S2}"/>
+  <option timestep="{scene.timestep_s}" integrator="implicitfast" cone="elliptic" gravity="0 0 {-GRAVITY_M_S2}"/>
   <default>
     <joint damping="{servo.damping_nm_s_per_rad}" armature="{servo.armature_kg_m2}"
            frictionloss="{servo.friction_loss_nm}"/>
-    <!-- Soft contacts (40 ms time constant) stand for the compliant TPU shell: two neighbouring segments on the
-         obstacle's top share the load instead of rocking between rigid contacts (which chatters the sensors). -->
-    <geom friction="{scene.ground_friction} 0.005 0.0001" solref="0.04 1"/>
+    <!-- Contacts are near rigid (MuJoCo's default 20 ms, critically damped): the compliance that spreads a load
+         is the shell's springs (ShellParams), a physical N/m, not a mass-scaled contact softness. -->
+    <geom solref="0.01 1"/>
   </default>
   <visual><global offwidth="640" offheight="480"/><quality shadowsize="0"/></visual>
   <asset>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.35 0.4 0.45" rgb2="0.3 0.35 0.4" width="256" height="256"/>
     <material name="grid" texture="grid" texrepeat="8 8"/>
+    {assets}
   </asset>
   <worldbody>
     <light pos="0 -1 2" dir="0 0.5 -1" castshadow="false"/>
-    <geom name="ground" type="plane" size="5 5 0.1" material="grid" contype="0" conaffinity="1"/>
-    {obstacle}{walls}
+    <geom name="ground" type="plane" size="5 5 0.1" material="grid" contype="0" conaffinity="1"
+          friction="{terrain.ground_friction} 0.005 0.0001"/>
+    {obstacles}{walls}
     <body name="head" pos="0 0 {head_z}">
       <freejoint name="base"/>
       <geom name="head" type="cylinder" size="{HEAD_RADIUS_M} {HEAD_LENGTH_M / 2}" pos="{HEAD_LENGTH_M / 2} 0 0"

@@ -7,9 +7,14 @@ leaves only the joint's passive damping and friction (the limp robot). A joint w
 the stall torque is *saturated*; :attr:`JointState.saturated_s` says for how long, so the simulated chain trips the
 overload error from physics, as the servo firmware does.
 
-Sensor forces: every contact between a segment and the terrain is classified by where it touches the segment's
-circumference (in the segment's frame: left = +y, bottom = −z, right = −y, each sheet ``SHEET_HALF_ARC_DEG`` either
-side; the top carries no sheet) and its normal force (``mj_contactForce``) is added to that sensor.
+Sensor forces: every contact is on a segment's compliant shell (``model.ShellParams``: the shell rides on springs
+over the servo's housing, so the load a contact puts on the body builds up and falls off smoothly as the shell
+deflects). Its normal force (``mj_contactForce``) goes to the sheets by where it touches the circumference, in the
+segment's frame (angle from the bottom, −z, toward the left, +y): a sheet 3.5 cm wide on a 3.6 cm radius covers
+``SHEET_HALF_ARC_DEG`` either side of its centre (bottom 0°, left +90°, right −90°) and takes all of a contact there;
+a contact between two sheets is shared between them in proportion to how near it is to each (the shell spreads it),
+and one on the rigid PLA top (beyond ``TOP_FADE_DEG``) reaches no sheet. The weights are continuous in the angle,
+so a segment rolling a little never flips a load from one sheet to another.
 
 The teach "hand": posing a limp joint (:meth:`set_joint_angle`) also *holds* it there with a stiff joint
 constraint, as a person's hand holds the robot in shape while the pose is captured, until the servo takes over
@@ -41,11 +46,19 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from devices.sim.physics.model import SceneParams, build_mjcf, hand_name, joint_name, segment_name
+from devices.scene import SIDES, channel_map  # noqa: F401 - channel_map: callers import it from here too
+from devices.sim.physics.model import (
+    SceneParams,
+    build_mjcf,
+    hand_name,
+    joint_name,
+    segment_name,
+    shell_joint_names,
+)
 
-SHEET_HALF_ARC_DEG = 45.0
+SHEET_HALF_ARC_DEG = 28.0  # a 3.5 cm wide sheet on the 3.6 cm radius shell (paper, Sec. III-A): 55.7° of arc
+TOP_FADE_DEG = 152.0  # from the side sheets' edge (118°) the share fades to 0 here: the PLA top carries the rest
 MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
-SIDES = ("B", "L", "R")  # row order of segment_loads_n (the scripted ContactModel's order too)
 REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body counts as still
 STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
 REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
@@ -90,6 +103,9 @@ class PhysicsWorld:
         self._seg_geom = np.array([self.model.geom(segment_name(i)).id for i in range(n)])
         self._segment_of_geom = np.full(self.model.ngeom, -1)
         self._segment_of_geom[self._seg_geom] = np.arange(n)
+        self._head_geom = self.model.geom("head").id
+        shell = [self.model.joint(name) for i in range(n) for name in shell_joint_names(i)]
+        self._shell_qadr = np.array([int(j.qposadr[0]) for j in shell]).reshape(n, 2)
         servo = self.scene.servo
         self._kp = servo.position_gain_nm_per_rad
         self._stall = servo.stall_torque_nm
@@ -121,18 +137,21 @@ class PhysicsWorld:
     # -- set-up ------------------------------------------------------------------------------------------------------
     def place(self, head_x_m: float | None = None, height_m: float | None = None,
               angles_rad: Sequence[float] | None = None) -> None:
-        """Put the robot at rest with its head tip at ``head_x_m`` (default: segment 6 over the obstacle's top, the
-        paper's start) and its axis ``height_m`` above the ground (default: resting on the ground, or on the
-        obstacle's top when there is one), joints at ``angles_rad`` (default straight)."""
+        """Put the robot at rest with its head tip at ``head_x_m`` (default: the scene's ``head_x_m``, else segment 6
+        over the x = 0 (the paper's start over its obstacle), else the body centred on x = 0 on flat ground) and its
+        axis ``height_m`` above the ground (default: just above the highest terrain under the body), joints at
+        ``angles_rad`` (default straight)."""
         with self._lock:
             scene = self.scene
+            terrain = scene.terrain
             mujoco.mj_resetData(self.model, self.data)
             if head_x_m is None:
-                head_x_m = 5.5 * scene.segment_length_m if scene.obstacle_height_m > 0 else 0.5 * scene.body_length_m
+                head_x_m = terrain.head_x_m
+            if head_x_m is None:
+                head_x_m = 5.5 * scene.segment_length_m if terrain.obstacles else 0.5 * scene.body_length_m
             if height_m is None:
-                height_m = scene.segment_radius_m + 0.002
-                if scene.obstacle_height_m > 0 and head_x_m - scene.body_length_m < 0 < head_x_m:
-                    height_m += scene.obstacle_height_m
+                under = terrain.max_height_between(head_x_m - scene.body_length_m, head_x_m)
+                height_m = under + scene.segment_radius_m + 0.002
             self.data.qpos[0:3] = (head_x_m, 0.0, height_m)
             self.data.qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
             angles = np.zeros(self.n_joints) if angles_rad is None else np.asarray(angles_rad, dtype=float)
@@ -328,7 +347,6 @@ class PhysicsWorld:
             loads = np.zeros((3, self.n_joints))
             data, model = self.data, self.model
             buf = self._force_buf
-            cos_half = math.cos(math.radians(SHEET_HALF_ARC_DEG))
             for i in range(data.ncon):
                 contact = data.contact[i]
                 segment = self._segment_of_geom[contact.geom1]
@@ -343,18 +361,10 @@ class PhysicsWorld:
                 rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
                 local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
                 ly, lz = float(local[1]), float(local[2])
-                radial = math.hypot(ly, lz)
-                if radial < 1e-9:
+                if math.hypot(ly, lz) < 1e-9:
                     continue
-                ly, lz = ly / radial, lz / radial
-                if -lz >= cos_half:
-                    loads[0, segment] += normal_n
-                elif ly >= cos_half:
-                    loads[1, segment] += normal_n
-                elif -ly >= cos_half:
-                    loads[2, segment] += normal_n
-                elif lz < 0.0:  # between two sheets (exactly on a sheet's edge): the nearer one
-                    loads[0 if -lz >= abs(ly) else (1 if ly > 0 else 2), segment] += normal_n
+                weights = sheet_weights(math.degrees(math.atan2(ly, -lz)))
+                loads[:, segment] += normal_n * weights
             if self._resting:
                 self._loads_at_rest = loads.copy()
             return loads
@@ -365,7 +375,7 @@ class PhysicsWorld:
             total = 0.0
             for i in range(self.data.ncon):
                 contact = self.data.contact[i]
-                head = self.model.geom("head").id
+                head = self._head_geom
                 robot = self._segment_of_geom[contact.geom1] >= 0 or self._segment_of_geom[contact.geom2] >= 0 \
                     or head in (contact.geom1, contact.geom2)
                 if robot:
@@ -392,17 +402,21 @@ class PhysicsWorld:
         return self.scene.robot_mass_kg * abs(float(self.model.opt.gravity[2]))
 
 
-def channel_map(channel_names: Sequence[str], n_segments: int) -> tuple[np.ndarray, np.ndarray]:
-    """For SPEC §2 names (``S06B``): per channel the row in ``SIDES`` and the segment index (−1, −1: not a sensor
-    the robot carries, which then reads no force)."""
-    import re
-
-    pattern = re.compile(r"^S(\d+)([LRB])$")
-    rows = np.full(len(channel_names), -1)
-    segments = np.full(len(channel_names), -1)
-    for channel, name in enumerate(channel_names):
-        match = pattern.match(name)
-        if match and 1 <= int(match.group(1)) <= n_segments:
-            rows[channel] = SIDES.index(match.group(2))
-            segments[channel] = int(match.group(1)) - 1
-    return rows, segments
+def sheet_weights(angle_deg: float) -> np.ndarray:
+    """How a contact at ``angle_deg`` around a segment (0 = the bottom sheet's centre, +90 the left's, −90 the
+    right's) is shared by the (bottom, left, right) sheets: 1 on a sheet, linear across the gaps between sheets,
+    fading to 0 toward the top. Continuous in the angle; the weights sum to 1 except toward the top."""
+    a = abs(angle_deg)
+    side = 1 if angle_deg > 0 else 2
+    weights = np.zeros(3)
+    edge_b, edge_s0, edge_s1 = SHEET_HALF_ARC_DEG, 90.0 - SHEET_HALF_ARC_DEG, 90.0 + SHEET_HALF_ARC_DEG
+    if a <= edge_b:
+        weights[0] = 1.0
+    elif a < edge_s0:
+        f = (a - edge_b) / (edge_s0 - edge_b)
+        weights[0], weights[side] = 1.0 - f, f
+    elif a <= edge_s1:
+        weights[side] = 1.0
+    elif a < TOP_FADE_DEG:
+        weights[side] = 1.0 - (a - edge_s1) / (TOP_FADE_DEG - edge_s1)
+    return weights

@@ -1,0 +1,340 @@
+"""Experiments in the physics lab, headless and faster than real time: any scene, any motion (``sensnake experiment``).
+
+A run is a plan of four steps, executed by :func:`run_experiment`:
+
+1. **Start**: the robot is placed on the scene (``[robot] head_x_m``) and, for ``start = "settle"``, dropped limp and
+   left to settle under gravity (the paper's Sec. III-C drape over its obstacle); for ``start = "flat"`` it lies
+   straight with the servos holding it straight.
+2. **Shape**: the shape file given (``--shape``), else the settled pose captured (as Teach captures a pose pushed by
+   hand in the paper).
+3. **Play** it: ``follow`` (follow-the-leader, SPEC §5, :class:`models.trajectory.FollowTheLeader`, the motion source
+   ``sensnake play`` uses), ``keyframes`` (the shape file's keyframes), ``serpenoid`` or ``sidewinding`` (the
+   parametric gaits, default parameters), goals written at the robot's control rate.
+4. **Record** (SPEC §3.5) from the moment of capture: the board's frames (``/daq``), forces estimated live by the
+   app's :class:`app.core.forces_pipeline.ForcesPipeline` with the simulated board's own calibration
+   (``/forces``), the robot's goals, present angles and currents (``/robot``), and the simulated body (``/sim``:
+   ``time_s``, ``points_m`` T×(n+1)×3 head tip then each segment's back end, ``sheet_true_N`` T×C the true normal
+   force on each sheet in the board's channel order, ``bottom_true_N`` T×n the bottom sheets' columns of it), with
+   the scene file's text (attribute ``scene``) and the robot's weight (``weight_N``).
+
+The robot and the board are reached through their wire protocol on a manual clock (``devices.factory.
+headless_physics_lab``), so the run takes as long as the machine needs, not as long as the motion. Servo errors
+(overload from physics) are logged as recording events and the run goes on with that servo limp, as on the robot.
+
+The weight check: on flat ground the bottom sheets' normal forces add up to the weight; on a curved obstacle they
+add up to more (a normal 60° from vertical carries half its force upward), and what equals the weight is their
+*vertical* part — each sheet's force along the direction its segment's pose gives it (:func:`vertical_support_n`).
+Both are reported.
+
+Called from one thread (the CLI's main thread).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from app.core.forces_pipeline import ForcesPipeline
+from app.core.recording import RecordingWriter
+from devices import factory
+from devices.board import FrameParser, conductance_from_counts
+from devices.config import LabConfig
+from devices.scene import channel_map, load_scene
+from models.trajectory import FollowTheLeader, Keyframes, serpenoid, sidewinding
+
+SETTLE_S = 6.0
+PAPER_HEIGHT_RATIO = 0.28
+
+
+@dataclass(frozen=True)
+class DaqRows:
+    """Board samples in the shape :meth:`RecordingWriter.append_daq` takes."""
+
+    counts: np.ndarray
+    conductance_s: np.ndarray
+    host_time_s: np.ndarray
+    board_time_s: np.ndarray
+    seq: np.ndarray
+
+
+class BoardStream:
+    """The board's bytes → verified frames (the host's own parser) → samples with the board clock unwrapped."""
+
+    def __init__(self, lab: object, config: LabConfig) -> None:
+        self._lab = lab
+        self._board = config.board
+        self._parser = FrameParser()
+        self._t_us_last: int | None = None
+        self._wraps = 0
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(counts N×C, conductance N×C in S, board time N in s, seq N) of the frames that arrived."""
+        frames = self._parser.feed(self._lab.read_board_bytes())  # type: ignore[attr-defined]
+        n = self._board.n_channels
+        if not frames:
+            return np.zeros((0, n), np.uint16), np.zeros((0, n)), np.zeros(0), np.zeros(0, np.uint32)
+        counts = np.vstack([f.counts for f in frames]).astype(np.uint16)
+        board_time = np.empty(len(frames))
+        for i, frame in enumerate(frames):
+            if self._t_us_last is not None and frame.t_us < self._t_us_last:
+                self._wraps += 1
+            self._t_us_last = frame.t_us
+            board_time[i] = (frame.t_us + self._wraps * 2**32) * 1e-6
+        seq = np.array([f.seq for f in frames], dtype=np.uint32)
+        return counts, conductance_from_counts(counts, self._board), board_time, seq
+
+
+MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
+
+
+@dataclass(frozen=True)
+class ExperimentResult:
+    path: Path
+    shape_rad: np.ndarray
+    simulated_s: float
+    wall_s: float
+    advance_m: float  # how far the body's centroid moved forward (+x) while playing
+    median_bottom_force_n: float  # median over board samples of the estimated bottom-sheet forces' sum
+    median_vertical_support_n: float  # median over ticks of the estimated forces' vertical part (see the docstring)
+    weight_n: float
+    overloads: tuple[str, ...]
+    scene_name: str = ""
+    traversed: bool = False  # the tail point passed the far edge of the last obstacle (False on flat ground)
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.simulated_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+ObstacleResult = ExperimentResult  # the name of the paper's experiment's result, kept for callers
+
+
+def experiment_config(config: LabConfig, height_ratio: float) -> LabConfig:
+    """``config`` with its simulated lab set to the physics lab and the obstacle at ``height_ratio`` × body length."""
+    if not (math.isfinite(height_ratio) and 0.0 <= height_ratio <= 1.0):
+        raise ValueError(f"--height-ratio must be in [0, 1] (× body length; the paper's is 0.28), got {height_ratio}")
+    return replace(config, lab=replace(config.lab, physics="mujoco", obstacle_height_ratio=float(height_ratio),
+                                       scene=""))
+
+
+def vertical_support_n(sheet_n: np.ndarray, frames: np.ndarray, rows: np.ndarray, segments: np.ndarray) -> float:
+    """The upward part (N) of sheet normal forces ``sheet_n`` (C,) on a body posed as ``frames`` (n, 3, 3) (columns:
+    each segment's forward, left, up axes in the world): a bottom sheet pushes the segment along its up axis, the
+    left sheet along −left, the right along +left (contacts taken at the sheets' centres). ``rows`` (C,) is each
+    channel's sheet (0 bottom, 1 left, 2 right, −1 none), ``segments`` (C,) its segment."""
+    known = rows >= 0
+    up_z = frames[segments[known], 2, 2]
+    left_z = frames[segments[known], 2, 1]
+    direction = np.where(rows[known] == 0, up_z, np.where(rows[known] == 1, -left_z, left_z))
+    return float(np.nansum(sheet_n[known] * direction))
+
+
+def run_obstacle_experiment(out: str | Path, config: LabConfig | None = None, *, seconds: float | None = None,
+                            height_ratio: float = PAPER_HEIGHT_RATIO, speed_rad_s: float = 0.034,
+                            settle_s: float = SETTLE_S, seed: int = 0,
+                            progress: Callable[[str], None] | None = None) -> ExperimentResult:
+    """The paper's Sec. III-C experiment: :func:`run_experiment` on its half cylinder of ``height_ratio`` × body
+    length (the lab config's legacy keys), the settled drape played follow-the-leader."""
+    config = experiment_config(config or LabConfig(), height_ratio)
+    return run_experiment(out, config, seconds=seconds, speed_rad_s=speed_rad_s, settle_s=settle_s, seed=seed,
+                          progress=progress, header=f"# sensnake experiment obstacle: height_ratio = {height_ratio}")
+
+
+def _motion(mode: str, shape: np.ndarray, keyframes: Any, config: LabConfig, speed_rad_s: float) -> Any:
+    robot = config.robot
+    if mode == "follow":
+        return FollowTheLeader(shape, robot.axes, speed_rad_s, rate_hz=robot.control_rate_hz)
+    if mode == "keyframes":
+        if keyframes is None or len(keyframes) == 0:
+            raise ValueError("--mode keyframes needs a --shape file with keyframes")
+        return Keyframes([k.t_s for k in keyframes], [k.angles_rad for k in keyframes],
+                         approach_speed_rad_s=speed_rad_s, velocity_limit_rad_s=robot.max_joint_speed_rad_s,
+                         rate_hz=robot.control_rate_hz)
+    if mode == "serpenoid":
+        return serpenoid(robot.axes)
+    if mode == "sidewinding":
+        return sidewinding(robot.axes)
+    raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+
+
+def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: str | None = None,
+                   shape: Any = None, mode: str = "follow", seconds: float | None = None,
+                   speed_rad_s: float = 0.034, settle_s: float = SETTLE_S, seed: int = 0,
+                   progress: Callable[[str], None] | None = None, header: str = "") -> ExperimentResult:
+    """Run a plan (see the module docstring) and write its recording to ``out``. ``scene``: a scene file or a
+    built-in scene's name (default: the config's ``[lab] scene``, else its legacy half cylinder); ``shape``: an
+    :class:`app.core.shapes.Shape` (default: the settled pose); ``seconds`` caps the played part (default: the whole
+    motion). ``progress`` gets a one-line status about once a wall second."""
+    config = config or LabConfig()
+    config = replace(config, lab=replace(config.lab, physics="mujoco", scene=scene if scene else config.lab.scene))
+    terrain = load_scene(config.lab.scene) if config.lab.scene else None
+    if mode not in MODES:
+        raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"--seconds must be positive, got {seconds}")
+    if not (math.isfinite(settle_s) and settle_s >= 0):
+        raise ValueError(f"--settle must be 0 s or more, got {settle_s}")
+    if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= config.robot.max_joint_speed_rad_s):
+        raise ValueError(f"--speed must be in (0, {config.robot.max_joint_speed_rad_s}] rad/s, got {speed_rad_s}")
+    robot = config.robot
+    if shape is not None and len(shape.angles_rad) != robot.n_joints:
+        raise ValueError(f"the shape has {len(shape.angles_rad)} joint angles; the robot has {robot.n_joints}")
+    lab = factory.headless_physics_lab(config, seed=seed)
+    world = lab.physics.world
+    names = config.board.channel_names
+    rows, segments = channel_map(names, robot.n_joints)
+    bottom = np.flatnonzero(rows == 0)
+    stream = BoardStream(lab, config)
+    pipeline = ForcesPipeline(names)
+    pipeline.set_readout(config.board.r_c_ohm)
+    calibration = json.dumps(lab.ground_truth_calibration())
+    with tempfile.TemporaryDirectory() as scratch:
+        cal_path = Path(scratch) / "board_truth.json"
+        cal_path.write_text(calibration, encoding="utf-8")
+        pipeline.load_calibration(cal_path)
+    period_s = 1.0 / robot.control_rate_hz
+    wall0 = time.perf_counter()
+    start = world.scene.terrain.start
+
+    # 1. Start: settle limp (or lie straight, held); the pipeline follows the sensors from the start so its creep
+    # state is right at capture.
+    if start == "flat":
+        lab.write_goals(np.zeros(robot.n_joints))
+        lab.set_torque(True)
+    else:
+        lab.set_torque(False)
+    tick = 0
+    while tick * period_s < settle_s:
+        tick += 1
+        lab.advance_to(tick * period_s)
+        _, conductance, board_time, seq = stream.read()
+        if seq.size:
+            pipeline.process(board_time, conductance)
+    # 2. Shape.
+    present = lab.read_robot().position_rad
+    if not np.all(np.isfinite(present)):
+        raise RuntimeError("the simulated robot did not answer the capture read")
+    taught = present if shape is None else np.asarray(shape.angles_rad, dtype=float)
+    source = _motion(mode, taught, None if shape is None else shape.keyframes, config, speed_rad_s)
+    # 3. Play, and 4. record from here on.
+    lab.write_goals(present)
+    lab.set_torque(True)
+    t_capture = lab.time_s
+    host0 = time.monotonic()  # recording time = simulated time since capture; host stamps are host0 + that
+    config_text = (header or f"# sensnake experiment run: scene {world.scene.terrain.name}, mode {mode}") + "\n"
+    writer = RecordingWriter(out, config_text + (config.source_text or ""), names, calibration_json=calibration,
+                             with_robot=True, n_joints=robot.n_joints, t0_monotonic_s=host0,
+                             flush_interval_s=math.inf)
+    sim_times: list[float] = []
+    sim_points: list[np.ndarray] = []
+    sim_sheets: list[np.ndarray] = []
+    bottom_totals: list[np.ndarray] = []
+    vertical: list[float] = []
+    overloads: list[str] = []
+    limp: set[int] = set()
+    start_centroid = float(lab.body_state().points_m[:, 0].mean())
+    last_forces: np.ndarray | None = None
+    last_report = -math.inf
+    try:
+        what = "the settled shape" if shape is None else f"shape {shape.name!r}"
+        writer.log_event(f"scene {world.scene.terrain.name}: {what} after {settle_s:g} s ({start}); playing {mode} "
+                         f"at {speed_rad_s:g} rad/s", host0)
+        k = 0
+        while True:
+            t = k * period_s
+            reading = lab.read_robot()
+            goal = source.goal_at(t, reading.position_rad)
+            if goal is None or (seconds is not None and t > seconds):
+                break
+            lab.write_goals(goal)
+            for servo_id in reading.alert_ids:
+                if servo_id not in limp:
+                    limp.add(servo_id)
+                    text = f"servo {servo_id} overload (hardware error): torque off, it goes limp"
+                    overloads.append(f"t={t:.2f} s: {text}")
+                    writer.log_event(text, host0 + t, kind="servo")
+            writer.append_robot(host0 + t, goal, reading.position_rad, reading.current_ma)
+            body = lab.body_state()
+            sim_times.append(t)
+            sim_points.append(body.points_m)
+            loads = lab.segment_loads_n()
+            sheet = np.zeros(len(names))
+            known = rows >= 0
+            sheet[known] = loads[rows[known], segments[known]]
+            sim_sheets.append(sheet)
+            k += 1
+            lab.advance_to(t_capture + k * period_s)
+            counts, conductance, board_time, seq = stream.read()
+            if seq.size:
+                forces = pipeline.process(board_time, conductance).force_n
+                writer.append_daq(DaqRows(counts, conductance, host0 + (board_time - t_capture), board_time, seq))
+                writer.append_forces(forces)
+                bottom_totals.append(np.nansum(forces[:, bottom], axis=1))
+                last_forces = forces[-1]
+            if last_forces is not None:
+                vertical.append(vertical_support_n(last_forces, body.frames, rows, segments))
+            now = time.perf_counter()
+            if progress is not None and now - last_report >= 1.0:
+                last_report = now
+                total = source.progress.total_s if seconds is None else min(seconds, source.progress.total_s)
+                rate = (settle_s + t) / (now - wall0)
+                left_s = max(total - t, 0.0) / rate if rate > 0 else math.inf
+                progress(f"t = {t:6.1f} / {total:.1f} s simulated  ({rate:4.1f}× real time, about {left_s:.0f} s "
+                         f"left)  {source.progress.describe()}")
+        writer.flush()
+    finally:
+        writer.close()
+    final = lab.body_state().points_m
+    end_centroid = float(final[:, 0].mean())
+    _append_body(out, np.array(sim_times), np.array(sim_points), np.array(sim_sheets), bottom, lab,
+                 terrain_text=terrain.text if terrain is not None else "")
+    totals = np.concatenate(bottom_totals) if bottom_totals else np.array([np.nan])
+    wall_s = time.perf_counter() - wall0
+    simulated_s = settle_s + (sim_times[-1] if sim_times else 0.0)
+    scene_terrain = world.scene.terrain
+    traversed = bool(scene_terrain.obstacles) and float(final[-1, 0]) > scene_terrain.far_edge_m
+    return ExperimentResult(Path(out), taught, simulated_s, wall_s, end_centroid - start_centroid,
+                            float(np.nanmedian(totals)), float(np.median(vertical)) if vertical else math.nan,
+                            world.weight_n, tuple(overloads), scene_terrain.name, traversed)
+
+
+def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_n: np.ndarray, bottom: np.ndarray,
+                 lab: Any, terrain_text: str) -> None:
+    """The simulated body as the extra ``/sim`` group (after the recording is closed: readers ignore it)."""
+    world = lab.physics.world
+    scene = world.scene
+    terrain = scene.terrain
+    with h5py.File(out, "a") as f:
+        group = f.create_group("sim")
+        group.create_dataset("time_s", data=times)
+        group.create_dataset("points_m", data=points)
+        group.create_dataset("sheet_true_N", data=sheets_n.reshape(len(times), -1))
+        group.create_dataset("bottom_true_N", data=sheets_n.reshape(len(times), -1)[:, bottom])
+        group.attrs["scene"] = terrain_text or _legacy_scene_text(terrain)
+        group.attrs["scene_name"] = terrain.name
+        group.attrs["obstacle_height_m"] = max((o.top_m for o in terrain.obstacles), default=0.0)
+        group.attrs["obstacle_friction"] = terrain.obstacles[0].friction if terrain.obstacles else math.nan
+        group.attrs["ground_friction"] = terrain.ground_friction
+        group.attrs["segment_length_m"] = scene.segment_length_m
+        group.attrs["weight_N"] = world.weight_n
+        group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
+                               "end of segment i; sheet_true_N the normal force on each sheet (board channel "
+                               "order); the obstacles span y, the robot heads toward +x")
+
+
+def _legacy_scene_text(terrain: Any) -> str:
+    """The scene file that describes a terrain built from the lab config's legacy keys."""
+    lines = ["[ground]", f"friction = {terrain.ground_friction}"]
+    for o in terrain.obstacles:
+        lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m}", f"radius_m = {o.radius_m}",
+                  f"friction = {o.friction}"]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,218 @@
+"""Scene files: the physics lab's terrain as data (SPEC §6), read from TOML and checked key by key.
+
+A scene is the ground's friction, any number of obstacles that span the whole width (y) — ``half_cylinder``,
+``box`` (a step) and ``wedge`` (a ramp rising toward +x) — and where and how the robot starts. The robot heads toward
++x. Every length is in metres, every friction a Coulomb coefficient of the pair (robot sleeve, that surface).
+
+:func:`load_scene` refuses a bad file with one :class:`SceneError` line naming the file, the key and the problem
+(unknown keys included). :func:`Scene.height_at` is the terrain's height profile, used to place the robot above it.
+
+Pure Python (no MuJoCo): any thread.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomllib
+
+SIDES = ("B", "L", "R")  # a segment's sheets: row order of the physics lab's loads (the scripted ContactModel's too)
+SHAPES = ("half_cylinder", "box", "wedge")
+STARTS = ("settle", "flat")
+SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
+PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the file, the key and the problem."""
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One obstacle across the whole width. ``x_m`` is its centre along x; ``radius_m`` for a half cylinder,
+    ``length_m`` (along x) and ``height_m`` for a box or a wedge."""
+
+    shape: str
+    x_m: float
+    friction: float
+    radius_m: float = 0.0
+    length_m: float = 0.0
+    height_m: float = 0.0
+
+    @property
+    def x_range_m(self) -> tuple[float, float]:
+        """Where along x the obstacle stands on the ground (its footprint)."""
+        half = self.radius_m if self.shape == "half_cylinder" else self.length_m / 2.0
+        return self.x_m - half, self.x_m + half
+
+    @property
+    def top_m(self) -> float:
+        return self.radius_m if self.shape == "half_cylinder" else self.height_m
+
+    def height_at(self, x_m: float) -> float:
+        """The obstacle's surface height (m) above the ground at ``x_m`` (0 off its footprint)."""
+        lo, hi = self.x_range_m
+        if not lo <= x_m <= hi:
+            return 0.0
+        if self.shape == "half_cylinder":
+            return math.sqrt(max(self.radius_m**2 - (x_m - self.x_m) ** 2, 0.0))
+        if self.shape == "box":
+            return self.height_m
+        return self.height_m * (x_m - lo) / self.length_m  # wedge: 0 at its back edge, height_m at its front
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The terrain and the robot's start. ``name`` is the file's stem; ``text`` its TOML (stored in recordings)."""
+
+    ground_friction: float = 0.3
+    obstacles: tuple[Obstacle, ...] = ()
+    head_x_m: float | None = None  # None: the default start (see PhysicsWorld.place)
+    start: str = "settle"
+    name: str = "flat"
+    text: str = field(default="", repr=False, compare=False)
+
+    def height_at(self, x_m: float) -> float:
+        """The terrain's height (m) at ``x_m``: the highest obstacle surface there, 0 on bare ground."""
+        return max((o.height_at(x_m) for o in self.obstacles), default=0.0)
+
+    def max_height_between(self, x0_m: float, x1_m: float, step_m: float = 0.005) -> float:
+        lo, hi = min(x0_m, x1_m), max(x0_m, x1_m)
+        n = max(2, int(math.ceil((hi - lo) / step_m)) + 1)
+        return max(self.height_at(lo + (hi - lo) * k / (n - 1)) for k in range(n))
+
+    @property
+    def far_edge_m(self) -> float:
+        """The x of the far (+x) edge of the last obstacle (what a traversal must pass); −inf on flat ground."""
+        return max((o.x_range_m[1] for o in self.obstacles), default=-math.inf)
+
+
+def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float, name: str = "") -> Scene:
+    """The paper's terrain (one half cylinder at x = 0) from the lab config's legacy keys; flat if ``radius_m`` is 0."""
+    obstacles = (Obstacle("half_cylinder", 0.0, friction, radius_m=radius_m),) if radius_m > 0 else ()
+    return Scene(ground_friction=ground_friction, obstacles=obstacles,
+                 name=name or (f"half cylinder r = {radius_m:.3f} m" if obstacles else "flat ground"))
+
+
+# -- reading a file ----------------------------------------------------------------------------------------------------
+_OBSTACLE_KEYS = {"half_cylinder": {"shape", "x_m", "radius_m", "friction"},
+                  "box": {"shape", "x_m", "length_m", "height_m", "friction"},
+                  "wedge": {"shape", "x_m", "length_m", "height_m", "friction"}}
+
+
+def _number(where: str, table: dict[str, Any], key: str, *, low: float, high: float, default: float | None = None,
+            low_open: bool = False) -> float:
+    if key not in table:
+        if default is None:
+            raise SceneError(f"{where}: missing key '{key}'")
+        return default
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SceneError(f"{where}: '{key}' must be a number, got {value!r}")
+    value = float(value)
+    bad_low = value <= low if low_open else value < low
+    if not math.isfinite(value) or bad_low or value > high:
+        bracket = "(" if low_open else "["
+        raise SceneError(f"{where}: '{key}' = {value:g} is outside {bracket}{low:g}, {high:g}]")
+    return value
+
+
+def _only(where: str, table: dict[str, Any], allowed: set[str]) -> None:
+    for key in table:
+        if key not in allowed:
+            raise SceneError(f"{where}: unknown key '{key}' (known: {', '.join(sorted(allowed))})")
+
+
+def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scene:
+    """A :class:`Scene` from TOML ``text``; ``source`` names the file in every error."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+    _only(source, data, {"ground", "obstacle", "robot"})
+    ground = data.get("ground", {})
+    if not isinstance(ground, dict):
+        raise SceneError(f"{source}: [ground] must be a table")
+    _only(f"{source} [ground]", ground, {"friction"})
+    ground_friction = _number(f"{source} [ground]", ground, "friction", low=0.0, high=5.0, default=0.3)
+    raw = data.get("obstacle", [])
+    if not isinstance(raw, list):
+        raise SceneError(f"{source}: obstacles are written [[obstacle]] (an array of tables)")
+    obstacles = []
+    for k, table in enumerate(raw, start=1):
+        where = f"{source} [[obstacle]] #{k}"
+        if not isinstance(table, dict):
+            raise SceneError(f"{where}: must be a table")
+        shape = table.get("shape")
+        if shape not in SHAPES:
+            raise SceneError(f"{where}: 'shape' must be one of {', '.join(SHAPES)}, got {shape!r}")
+        _only(where, table, _OBSTACLE_KEYS[shape])
+        x_m = _number(where, table, "x_m", low=-50.0, high=50.0)
+        friction = _number(where, table, "friction", low=0.0, high=5.0, default=ground_friction)
+        if shape == "half_cylinder":
+            radius = _number(where, table, "radius_m", low=0.0, high=5.0, low_open=True)
+            obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius))
+        else:
+            length = _number(where, table, "length_m", low=0.0, high=50.0, low_open=True)
+            height = _number(where, table, "height_m", low=0.0, high=5.0, low_open=True)
+            obstacles.append(Obstacle(shape, x_m, friction, length_m=length, height_m=height))
+    robot = data.get("robot", {})
+    if not isinstance(robot, dict):
+        raise SceneError(f"{source}: [robot] must be a table")
+    _only(f"{source} [robot]", robot, {"head_x_m", "start"})
+    head_x = _number(f"{source} [robot]", robot, "head_x_m", low=-50.0, high=50.0) if "head_x_m" in robot else None
+    start = robot.get("start", "settle")
+    if start not in STARTS:
+        raise SceneError(f"{source} [robot]: 'start' must be one of {', '.join(STARTS)}, got {start!r}")
+    return Scene(ground_friction=ground_friction, obstacles=tuple(obstacles), head_x_m=head_x, start=start,
+                 name=name, text=text)
+
+
+def resolve_scene_path(value: str | Path) -> Path:
+    """A scene given as a path, or as the name of a built-in scene (``paper_obstacle``, ``step``, …)."""
+    path = Path(value).expanduser()
+    if not path.exists() and path.suffix == "" and (SCENES_DIR / f"{path.name}.toml").exists():
+        return SCENES_DIR / f"{path.name}.toml"
+    return path
+
+
+def load_scene(value: str | Path) -> Scene:
+    """Read a scene file (a path or a built-in scene's name); :class:`SceneError` names what is wrong."""
+    path = resolve_scene_path(value)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        builtin = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
+        raise SceneError(f"{path}: scene file not found (built-in scenes: {builtin})") from None
+    except IsADirectoryError:
+        raise SceneError(f"{path}: is a folder, not a scene file") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > 1_000_000:
+        raise SceneError(f"{path}: {len(raw)} bytes is too large for a scene file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a UTF-8 text file") from None
+    return parse_scene(text, str(path), name=path.stem)
+
+
+def channel_map(channel_names: Sequence[str], n_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """For SPEC §2 names (``S06B``): per channel the row in ``SIDES`` and the segment index (−1, −1: not a sensor
+    the robot carries, which then reads no force)."""
+    pattern = re.compile(r"^S(\d+)([LRB])$")
+    rows = np.full(len(channel_names), -1)
+    segments = np.full(len(channel_names), -1)
+    for channel, name in enumerate(channel_names):
+        match = pattern.match(name)
+        if match and 1 <= int(match.group(1)) <= n_segments:
+            rows[channel] = SIDES.index(match.group(2))
+            segments[channel] = int(match.group(1)) - 1
+    return rows, segments
