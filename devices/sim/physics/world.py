@@ -61,6 +61,7 @@ TOP_FADE_DEG = 152.0  # from the side sheets' edge (118°) the share fades to 0 
 MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
 REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body counts as still
 STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
+CONTACT_MEMORY_S = 0.05  # a shell off the ground for less than this still shares its load as its last contacts did
 REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
 
 
@@ -106,6 +107,11 @@ class PhysicsWorld:
         self._head_geom = self.model.geom("head").id
         shell = [self.model.joint(name) for i in range(n) for name in shell_joint_names(i)]
         self._shell_qadr = np.array([int(j.qposadr[0]) for j in shell]).reshape(n, 2)
+        self._shell_dadr = np.array([int(j.dofadr[0]) for j in shell]).reshape(n, 2)
+        self._shell_joint_ids = np.array([j.id for j in shell])
+        self._sheet_share = np.zeros((n, 3))  # last contacts' sheet loads per newton of their resultant
+        self._share_time = np.full(n, -math.inf)
+        self._last_push = np.zeros((n, 2))
         servo = self.scene.servo
         self._kp = servo.position_gain_nm_per_rad
         self._stall = servo.stall_torque_nm
@@ -161,6 +167,7 @@ class PhysicsWorld:
             self._saturated_s[:] = 0.0
             self._held[:] = False
             self.data.eq_active[self._hand_eq] = False
+            self._share_time[:] = -math.inf
             self._wake()
             mujoco.mj_forward(self.model, self.data)
 
@@ -340,34 +347,91 @@ class PhysicsWorld:
             )
 
     def segment_loads_n(self) -> np.ndarray:
-        """(3, n) normal force (N) on the bottom, left and right sheet of every segment (rows in ``SIDES`` order)."""
+        """(3, n) normal force (N) on the bottom, left and right sheet of every segment (rows in ``SIDES`` order).
+
+        What a sheet feels is the load through the compliant shell, not the contact's instantaneous impulse: per
+        segment, the force the shell's springs, dampers and travel stops pass to the housing, plus the shell's own
+        weight (the sheets sit outside the shell, under the rubber cover), i.e. the contact force without the light
+        shell's rattle. It is shared among the sheets as the present contacts are (:func:`sheet_weights` of each
+        contact's angle, weighted by its normal force), or as the last contacts were when the shell has just hopped
+        off for a step (``CONTACT_MEMORY_S``)."""
         with self._lock:
             if self._resting and self._loads_at_rest is not None:
                 return self._loads_at_rest.copy()
+            sheets, push = self._contact_sheets()
+            transmitted = self._shell_force()  # (n, 2): y (left), z (up) in each segment's frame, N
+            now = float(self.data.time)
             loads = np.zeros((3, self.n_joints))
-            data, model = self.data, self.model
-            buf = self._force_buf
-            for i in range(data.ncon):
-                contact = data.contact[i]
-                segment = self._segment_of_geom[contact.geom1]
-                if segment < 0:
-                    segment = self._segment_of_geom[contact.geom2]
-                if segment < 0:
+            for segment in range(self.n_joints):
+                resultant = math.hypot(*push[segment])
+                if resultant > 1e-6:
+                    self._sheet_share[segment] = sheets[:, segment] / resultant
+                    self._share_time[segment] = now
+                    direction = push[segment] / resultant
+                elif now - self._share_time[segment] <= CONTACT_MEMORY_S:
+                    direction = self._last_push[segment]
+                else:
                     continue
-                mujoco.mj_contactForce(model, data, i, buf)
-                normal_n = float(buf[0])
-                if normal_n <= 0.0:
-                    continue
-                rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
-                local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
-                ly, lz = float(local[1]), float(local[2])
-                if math.hypot(ly, lz) < 1e-9:
-                    continue
-                weights = sheet_weights(math.degrees(math.atan2(ly, -lz)))
-                loads[:, segment] += normal_n * weights
+                self._last_push[segment] = direction
+                # the shell's load along the direction the contacts push it (never negative: a sheet only presses)
+                along = float(transmitted[segment] @ direction)
+                if along > 0.0:
+                    loads[:, segment] = self._sheet_share[segment] * along
             if self._resting:
                 self._loads_at_rest = loads.copy()
             return loads
+
+    def _contact_sheets(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per segment, the part of its contact forces normal to its sheets — the radial part (y, z in the segment's
+        frame) of each contact's whole force, normal and friction, as a sheet only feels pressure — shared among its
+        sheets (3, n) by where each contact is, and their resultant (n, 2), from MuJoCo's contacts this step."""
+        sheets = np.zeros((3, self.n_joints))
+        push = np.zeros((self.n_joints, 2))
+        data, model = self.data, self.model
+        buf = self._force_buf
+        for i in range(data.ncon):
+            contact = data.contact[i]
+            segment = self._segment_of_geom[contact.geom1]
+            if segment < 0:
+                segment = self._segment_of_geom[contact.geom2]
+            if segment < 0:
+                continue
+            mujoco.mj_contactForce(model, data, i, buf)
+            if buf[0] <= 0.0:
+                continue
+            rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
+            local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
+            ly, lz = float(local[1]), float(local[2])
+            if math.hypot(ly, lz) < 1e-9:
+                continue
+            # the contact's whole force on geom2, from its frame (rows: normal, tangents) to the world, on the segment
+            force = contact.frame.reshape(3, 3).T @ buf[:3]
+            if self._segment_of_geom[contact.geom2] != segment:
+                force = -force
+            radial = (rotation.T @ force)[1:3]  # its axial part goes to the housing through the shell's rigid x
+            pressing = float(math.hypot(*radial))
+            sheets[:, segment] += pressing * sheet_weights(math.degrees(math.atan2(ly, -lz)))
+            push[segment] += radial
+        return sheets, push
+
+    def _shell_force(self) -> np.ndarray:
+        """(n, 2) the force (N) each shell passes to its segment's housing (y, z in the segment's frame) through its
+        springs, dampers and travel stops, plus the shell's weight: the load on the sheets, quasi-statically."""
+        data, model = self.data, self.model
+        shell = self.scene.shell
+        qadr, dadr = self._shell_qadr, self._shell_dadr
+        elastic = shell.stiffness_n_per_m * data.qpos[qadr] + shell.damping_n_s_per_m * data.qvel[dadr]
+        limit_rows = (data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & np.isin(data.efc_id,
+                                                                                          self._shell_joint_ids)
+        if limit_rows.any():
+            forces = np.where(limit_rows, data.efc_force, 0.0)
+            generalized = np.zeros(model.nv)
+            mujoco.mj_mulJacTVec(model, data, generalized, forces)
+            elastic = elastic - generalized[dadr]  # a stop pushing the shell back pushes the housing forward
+        gravity = model.opt.gravity
+        rotations = data.xmat[self._seg_body].reshape(-1, 3, 3)
+        weight_local = shell.mass_kg * np.einsum("nij,i->nj", rotations, gravity)[:, 1:3]  # (n, 2) y, z
+        return elastic - weight_local
 
     def total_contact_normal_n(self) -> float:
         """Sum of the normal forces of every robot contact, sensed or not (N): the weight check's reference."""
@@ -381,6 +445,23 @@ class PhysicsWorld:
                 if robot:
                     mujoco.mj_contactForce(self.model, self.data, i, self._force_buf)
                     total += float(self._force_buf[0])
+            return total
+
+    def vertical_contact_force_n(self) -> float:
+        """The upward part (N) of every contact force on the robot (normal and friction): the weight when nothing
+        accelerates, whatever the terrain's shape."""
+        with self._lock:
+            total = 0.0
+            for i in range(self.data.ncon):
+                contact = self.data.contact[i]
+                robot_first = self._segment_of_geom[contact.geom1] >= 0 or contact.geom1 == self._head_geom
+                robot_second = self._segment_of_geom[contact.geom2] >= 0 or contact.geom2 == self._head_geom
+                if not (robot_first or robot_second):
+                    continue
+                mujoco.mj_contactForce(self.model, self.data, i, self._force_buf)
+                # the force in the contact frame acts on geom2 from geom1; rows of frame are the frame's axes
+                world_force = contact.frame.reshape(3, 3).T @ self._force_buf[:3]
+                total += float(world_force[2]) * (1.0 if robot_second else -1.0)
             return total
 
     def body_state(self) -> BodyState:

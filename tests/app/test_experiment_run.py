@@ -1,0 +1,69 @@
+"""`sensnake experiment run`: any scene file, any motion; the recording's /sim group (SPEC §3.5) carries the true
+sheet forces and the scene's text."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from app.cli.main import main  # noqa: E402
+from devices.scene import load_scene  # noqa: E402
+
+
+def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_scene(tmp_path, capsys):
+    scene = tmp_path / "ramp.toml"
+    scene.write_text('[ground]\nfriction = 0.4\n[[obstacle]]\nshape = "wedge"\nx_m = 0.3\nlength_m = 0.5\n'
+                     'height_m = 0.06\nfriction = 0.2\n[robot]\nhead_x_m = 0.2\nstart = "flat"\n', encoding="utf-8")
+    shape = tmp_path / "s.json"
+    angles = [0.0, 0.3, 0.0, -0.3, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    shape.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": "wave",
+                                 "axes": ["pitch", "yaw"] * 6, "angles_rad": angles}), encoding="utf-8")
+    out = tmp_path / "run.h5"
+    code = main(["experiment", "run", "--scene", str(scene), "--shape", str(shape), "--speed", "0.3",
+                 "--seconds", "3", "--settle", "1", "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "scene ramp" in printed and "vertical part" in printed
+    with h5py.File(out) as f:
+        sim = f["sim"]
+        sheets = sim["sheet_true_N"][:]
+        assert sheets.shape == (sim["time_s"].shape[0], 36)
+        assert sim.attrs["scene"] == scene.read_text(encoding="utf-8")
+        assert np.allclose(sim["bottom_true_N"][:], sheets[:, 2::3])
+        weight = sim.attrs["weight_N"]
+        goals = f["robot/goal_rad"][:]
+    assert np.abs(goals[-1, [1, 3]]).max() > 0.1  # the shape's yaw bends were played
+    bottom = sheets[:, 2::3].sum(axis=1)
+    assert np.median(bottom) == pytest.approx(weight, rel=0.1)  # a gentle ramp: normals nearly vertical
+    jumps = np.abs(np.diff(sheets[::2], axis=0)).max(axis=1)  # 25 Hz
+    assert np.mean(jumps > 1.0) < 0.02 and jumps.max() < 2.0  # continuous (a shell crossing the wedge's edge)
+
+
+def test_the_paper_scene_file_is_the_legacy_obstacle_and_serpenoid_runs_on_flat_ground(tmp_path):
+    out = tmp_path / "flat.h5"
+    assert main(["experiment", "run", "--scene", "flat", "--mode", "serpenoid", "--seconds", "2", "--settle", "0.5",
+                 "--out", str(out)]) == 0
+    with h5py.File(out) as f:
+        assert "[ground]" in f["sim"].attrs["scene"]
+        assert np.isfinite(f["sim/sheet_true_N"][:]).all()
+    assert load_scene("paper_obstacle").obstacles[0].radius_m == pytest.approx(0.2688)
+
+
+@pytest.mark.parametrize(("args", "words"), [
+    (["--scene", "no_such_scene"], ["no_such_scene", "scene file not found"]),
+    (["--mode", "keyframes"], ["keyframes needs a --shape file with keyframes"]),
+    (["--speed", "5"], ["--speed must be in"]),
+])
+def test_a_run_that_cannot_start_says_why_in_one_line(tmp_path, capsys, args, words):
+    code = main(["experiment", "run", "--out", str(tmp_path / "x.h5"), "--settle", "0.2", *args])
+    assert code != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    for word in words:
+        assert word in err
+    assert not (tmp_path / "x.h5").exists()

@@ -1,0 +1,97 @@
+"""The physics lab's contact forces against cases with a known answer (issue 23).
+
+A straight body on flat ground carries its weight segment by segment; the contact forces' vertical part equals the
+weight when nothing accelerates, on any terrain; a shape played follow-the-leader moves load smoothly from sheet to
+sheet (a real shell deflects: no sheet jumps by newtons between two 30 Hz frames). Each test steps a world directly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("devices.sim.physics.world")
+
+from devices.scene import load_scene  # noqa: E402
+from devices.sim.physics.model import GRAVITY_M_S2, SceneParams  # noqa: E402
+from devices.sim.physics.world import PhysicsWorld, sheet_weights  # noqa: E402
+from models.trajectory import plan_follow_the_leader  # noqa: E402
+
+FLAT = SceneParams(obstacle_height_m=0.0)
+FRAME_S = 1.0 / 30.0  # the board's frame period
+
+
+def test_a_straight_robot_on_flat_ground_carries_each_segments_weight_on_its_bottom_sheet():
+    world = PhysicsWorld(FLAT)
+    world.command(np.ones(12, dtype=bool), np.zeros(12))
+    world.step(1500)
+    bottom, left, right = world.segment_loads_n()
+    share = np.full(12, FLAT.segment_mass_kg * GRAVITY_M_S2)
+    share[0] += FLAT.head_mass_kg * GRAVITY_M_S2  # segment 1 also carries the nose in front of it
+    assert bottom == pytest.approx(share, rel=0.05)
+    assert left.sum() + right.sum() < 0.01
+    assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)
+
+
+def _play(scene: SceneParams, shape: np.ndarray, speed_rad_s: float, seconds: float) -> tuple[np.ndarray, float]:
+    """Sheet loads (frames × 3 × 12) every board frame while ``shape`` plays follow-the-leader from straight."""
+    world = PhysicsWorld(scene)
+    world.command(np.ones(12, dtype=bool), np.zeros(12))
+    world.step(500)
+    plan = plan_follow_the_leader(world.joint_state().position_rad, shape, scene.axes, speed_rad_s)
+    frames, t, next_frame = [], 0.0, 0.0
+    while t < min(seconds, plan.total_s):
+        world.command(np.ones(12, dtype=bool), plan.goal_at(t), np.full(12, 1.0))
+        world.step(10)
+        t += 0.02
+        if t >= next_frame:
+            next_frame += FRAME_S
+            frames.append(world.segment_loads_n())
+    return np.array(frames), world.weight_n
+
+
+@pytest.mark.parametrize("speed_rad_s", [0.034, 0.3])
+def test_a_bent_shape_played_on_flat_ground_moves_its_load_smoothly_and_the_sheets_carry_the_weight(speed_rad_s):
+    shape = np.zeros(12)
+    shape[[1, 2, 3, 4, 5]] = [0.45, 0.2, -0.55, -0.2, 0.45]  # yaw and pitch bends (not a shape anything was tuned on)
+    loads, weight = _play(FLAT, shape, speed_rad_s, seconds=8.0)
+    bottom_sum = loads[:, 0].sum(axis=1)
+    assert np.mean(np.abs(bottom_sum - weight) < 0.1 * weight) >= 0.95
+    jumps = np.abs(np.diff(loads, axis=0)).reshape(len(loads) - 1, -1).max(axis=1)
+    assert np.mean(jumps > 1.0) < 0.01
+
+
+def test_the_sheet_share_of_a_contact_is_continuous_around_the_segment():
+    angles = np.linspace(-180.0, 180.0, 7201)
+    weights = np.array([sheet_weights(a) for a in angles])
+    assert np.abs(np.diff(weights, axis=0)).max() < 0.01  # 0.05° apart: no step anywhere
+    assert weights.sum(axis=1).max() == pytest.approx(1.0)
+    assert np.all(weights.sum(axis=1) <= 1.0 + 1e-12)
+    assert tuple(sheet_weights(0.0)) == (1.0, 0.0, 0.0)
+    assert tuple(sheet_weights(90.0)) == (0.0, 1.0, 0.0) and tuple(sheet_weights(-90.0)) == (0.0, 0.0, 1.0)
+    assert sheet_weights(180.0).sum() == 0.0  # the rigid top has no sheet
+
+
+@pytest.mark.parametrize("name", ["paper_obstacle", "step", "wedge", "two_obstacles"])
+def test_on_every_built_in_scene_the_settled_robot_is_held_up_by_its_weight(name):
+    world = PhysicsWorld(SceneParams(terrain_scene=load_scene(name)))
+    world.step(2500)  # 5 s limp
+    assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=0.02)
+    bottom = world.segment_loads_n()[0]
+    # the sheets feel most of it (a rounded end resting on an edge passes an axial part that no sheet feels; normals
+    # on a slope or a curve add up to more than the weight)
+    assert 0.9 * world.weight_n <= bottom.sum() <= 1.3 * world.weight_n
+    points = world.body_state().points_m
+    assert points[:, 2].min() > -0.005  # nothing sank into the ground
+
+
+def test_on_the_paper_obstacle_the_normal_forces_exceed_the_weight_by_the_curve_alone():
+    world = PhysicsWorld(SceneParams())
+    world.step(3000)
+    bottom = world.segment_loads_n()[0]
+    frames = world.body_state().frames
+    vertical = float(np.sum(bottom * frames[:, 2, 2]))  # each bottom sheet pushes along its segment's up axis
+    # the sheets feel pressure, not shear: the PTFE's friction (μ 0.1) holds up the few per cent they miss
+    assert 0.9 * world.weight_n < vertical < world.weight_n
+    assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)
+    assert bottom.sum() > 1.1 * world.weight_n
