@@ -9,7 +9,15 @@
 (c) The app's lab: the physics lab stepping in its own thread at real time (speed 1), first alone, then with the
     Forces tab's plots running offscreen on the same process; reported as the world's real-time factor (1.0 = it kept
     up; below 1 the world skipped time, see ``PhysicsWorld.lagged_s``) and the plots' redraw rate.
-Target (issue 13): the simulation at least at real time on 2 cores while the GUI plots.
+(d) How true the forces are (app.core.physics_check on recordings of ``sensnake experiment run``): on flat ground (a
+    bent shape, not one anything was tuned on) and on the paper's obstacle (the settled drape), played
+    follow-the-leader at 0.034 and 0.3 rad/s: the bottom sheets' sum against the weight (and its vertical part), the
+    share of 30 Hz frames with a > 1 N change on some sheet (true and estimated; "reversals" are the chattering
+    ones), and the estimated forces' error against the true ones (RMS and 99th percentile per loaded sheet).
+(e) The paper's experiment (``sensnake experiment obstacle``) at 20, 30 and 76 s: the median total bottom force and
+    its vertical part against the weight.
+Targets (issues 13, 23): the simulation at least at real time on 2 cores while the GUI plots; forces summing to the
+weight within ±10 % in ≥ 95 % of frames, < 1 % of frames with a > 1 N jump, median per-sheet RMS ≤ 0.3 N.
 
 Wall-clock figures depend on the machine's load (the lab's 2 cores are shared): compare rows of one run.
 ``run(quick)``; ``python -m benchmarks.bench_physics [--quick]``.
@@ -116,12 +124,14 @@ def _app_rows(quick: bool) -> list[dict]:
             loop.exec()
             world = sim.physics.world
             steps0, lag0, wall0, cpu0 = world.steps, world.lagged_s, time.monotonic(), time.process_time()
+            rested0 = world.rested_s
             stepping0 = world.stepping_s
             redraws0 = tab.plots.redraw_count if tab is not None else 0
             QTimer.singleShot(int(run_s * 1000), loop.quit)
             loop.exec()
             wall = time.monotonic() - wall0
-            simulated = (world.steps - steps0) * world.scene.timestep_s
+            # stepped, or resting (nothing moved: the clock moves on without stepping) — both keep up with time
+            simulated = (world.steps - steps0) * world.scene.timestep_s + (world.rested_s - rested0)
             rows.append({"scenario": "physics thread + Forces tab plots" if with_plots else "physics thread alone",
                          "rtf": simulated / wall, "lagged_s": world.lagged_s - lag0,
                          "busy": (world.stepping_s - stepping0) / wall,
@@ -136,6 +146,47 @@ def _app_rows(quick: bool) -> list[dict]:
             sim.close()
             factory.install_sim_lab(previous)
             app.processEvents()
+    return rows
+
+
+def _truth_rows(quick: bool) -> list[dict]:
+    import tempfile
+    from pathlib import Path
+
+    from app.core.experiment import run_experiment
+    from app.core.physics_check import check_recording
+    from app.core.shapes import Shape
+
+    bent = np.zeros(12)
+    bent[[1, 2, 3, 4, 5]] = [0.45, 0.2, -0.55, -0.2, 0.45]
+    shape = Shape("bent", tuple("pitch" if i % 2 == 0 else "yaw" for i in range(12)), tuple(bent))
+    rows = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for scene, taught in (("flat", shape), ("paper_obstacle", None)):
+            for speed in (0.034, 0.3):
+                seconds = (20.0 if quick else 60.0) if speed < 0.1 else (10.0 if quick else 30.0)
+                out = Path(scratch) / f"{scene}_{speed}.h5"
+                t0 = time.perf_counter()
+                result = run_experiment(out, scene=scene, shape=taught, speed_rad_s=speed, seconds=seconds,
+                                        settle_s=3.0 if scene == "flat" else 6.0)
+                wall = time.perf_counter() - t0
+                rows.append({"scene": scene, "speed": speed, "seconds": seconds, "wall": wall,
+                             "check": check_recording(out), "rtf": result.real_time_factor})
+    return rows
+
+
+def _paper_rows(quick: bool) -> list[dict]:
+    import tempfile
+    from pathlib import Path
+
+    from app.core.experiment import run_obstacle_experiment
+
+    rows = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for seconds in ((20.0,) if quick else (20.0, 30.0, 76.0)):
+            result = run_obstacle_experiment(Path(scratch) / f"paper_{seconds}.h5", seconds=seconds)
+            rows.append({"seconds": seconds, "bottom": result.median_bottom_force_n,
+                         "vertical": result.median_vertical_support_n, "weight": result.weight_n})
     return rows
 
 
@@ -158,6 +209,26 @@ def run(quick: bool) -> None:
         print(f"{row['scenario']:<36} {row['rtf']:9.2f} {row['lagged_s']:10.2f} {100 * row['busy']:8.1f}% "
               f"{headroom:8.1f}× {row['cpu_pct']:11.0f}% {row['fps']:9.1f}")
     print("(machine load changes every wall-clock figure; the lab's 2 cores are shared)")
+    print("\n(d) how true the forces are: recordings of `sensnake experiment run`, checked by app.core.physics_check")
+    print("    targets: sum within ±10 % of the weight in ≥ 95 % of frames; < 1 % of 30 Hz frames with a > 1 N jump; "
+          "median per-sheet RMS ≤ 0.3 N")
+    print(f"{'scene':<15} {'rad/s':>6} {'sim s':>6} {'RTF':>5} {'Σbottom±10%':>12} {'vertical±10%':>13} "
+          f"{'jumps true':>11} {'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8} "
+          f"{'p99 med':>8} {'p99 max':>8}")
+    for row in _truth_rows(quick):
+        c = row["check"]
+        print(f"{row['scene']:<15} {row['speed']:6.3f} {row['seconds']:6.0f} {row['rtf']:5.1f} "
+              f"{100 * c.bottom_within_10pct:11.1f}% {100 * c.vertical_within_10pct:12.1f}% "
+              f"{100 * c.true_jump_frames:10.2f}% {100 * c.true_reversal_frames:8.2f}% "
+              f"{100 * c.estimated_jump_frames:9.2f}% {100 * c.estimated_reversal_frames:8.2f}% "
+              f"{c.median_rms_n:8.3f} {c.worst_rms_n:8.3f} {c.median_p99_n:8.3f} {c.worst_p99_n:8.3f}")
+    print("    (on the obstacle the normals sum to more than the weight: a curve; their vertical part is the check)")
+    print("\n(e) the paper's experiment (`sensnake experiment obstacle --seconds S`): estimated forces, median over the "
+          "run")
+    print(f"{'S':>4} {'Σ bottom N':>11} {'vertical N':>11} {'weight N':>9} {'vertical − weight':>18}")
+    for row in _paper_rows(quick):
+        print(f"{row['seconds']:4.0f} {row['bottom']:11.2f} {row['vertical']:11.2f} {row['weight']:9.2f} "
+              f"{100 * (row['vertical'] / row['weight'] - 1):17.1f}%")
 
 
 def main() -> None:

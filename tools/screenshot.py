@@ -75,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--physics", action="store_true",
                         help="run on the physics lab ([lab] physics = \"mujoco\"); the 3-D lab tab needs it: "
                              "--physics --tabs scene")
+    parser.add_argument("--scene", default=None, metavar="SCENE",
+                        help="the physics lab's scene ([lab] scene: a file or a built-in name); the 3-D picture "
+                             "is then saved as scene-<name>.png")
     parser.add_argument("--no-calibration", action="store_true",
                         help="Forces as the app opens, with no calibration file: conductance in µS")
     args = parser.parse_args(argv)
@@ -101,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         from dataclasses import replace
 
         # The README's pictures are of the scripted lab, posed by hand; --physics for the 3-D lab's picture.
-        config = replace(config, lab=replace(config.lab, physics="mujoco" if args.physics else "scripted"))
+        config = replace(config, lab=replace(config.lab, physics="mujoco" if args.physics else "scripted",
+                                             scene=args.scene or config.lab.scene))
         lab = LabContext(config)
         window = MainWindow(lab, settings=settings)
         window.resize(width, height)
@@ -157,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                 if hasattr(page, "source_tabs"):
                     page.source_tabs.setCurrentWidget(page.protocol_form)  # the rig panel beside the fit
             pump(args.settle_ms)
-            path = out / f"{name}.png"
+            path = out / (f"scene-{Path(args.scene).stem}.png" if name == "scene" and args.scene else f"{name}.png")
             window.raise_()
             pump(200)  # the X server has the last frame
             if not _grab(window).save(str(path)):

@@ -121,3 +121,19 @@ def test_the_app_with_no_config_runs_on_the_physics_lab(qtbot):
             sim.close()
     finally:
         factory.install_sim_lab(previous)
+
+
+def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_be_read(tmp_path):
+    from dataclasses import replace
+
+    from app.gui.tabs.scene import scene_description
+    from devices.config import LabConfig
+
+    config = LabConfig()
+    assert "paper's obstacle" in scene_description(config) and "half cylinder" in scene_description(config)
+    stepped = replace(config, lab=replace(config.lab, scene="step"))
+    assert scene_description(stepped).startswith("Scene: step") and "box at x +0.15 m" in scene_description(stepped)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[ground]\nfrction = 0.3\n", encoding="utf-8")
+    broken = replace(config, lab=replace(config.lab, scene=str(bad)))
+    assert "unknown key 'frction'" in scene_description(broken)

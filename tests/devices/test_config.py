@@ -104,3 +104,14 @@ def test_a_file_error_still_names_the_file_and_the_key(tmp_path):
     path.write_text('[board]\nport = ""\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: board\.port "):
         load_config(path)
+
+
+def test_a_scene_named_relative_to_the_config_file_is_found_beside_it(tmp_path):
+    from devices.config import load_config
+
+    (tmp_path / "my_scene.toml").write_text("[ground]\nfriction = 0.5\n", encoding="utf-8")
+    (tmp_path / "lab.toml").write_text('[lab]\nscene = "my_scene.toml"\n', encoding="utf-8")
+    config = load_config(tmp_path / "lab.toml")
+    assert config.lab.scene == str(tmp_path / "my_scene.toml")
+    (tmp_path / "lab2.toml").write_text('[lab]\nscene = "step"\n', encoding="utf-8")
+    assert load_config(tmp_path / "lab2.toml").lab.scene == "step"  # a built-in scene's name is kept

@@ -125,7 +125,7 @@ def _obstacle_geom(index: int, obstacle: Obstacle, width_m: float) -> tuple[str,
     takes the larger of a pair's two coefficients, so the pair's coefficient is the terrain's)."""
     name = f"obstacle{index + 1}"
     common = (f'friction="{obstacle.friction} 0.005 0.0001" contype="0" conaffinity="1" '
-              f'rgba="0.85 0.88 0.95 0.45"')
+              f'rgba="0.8 0.84 0.92 0.8"')
     if obstacle.shape == "half_cylinder":
         # A capsule of the radius lying across the path with its axis on the ground: what shows above the ground
         # is the half cylinder (capsule-capsule collisions are analytic in MuJoCo).

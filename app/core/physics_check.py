@@ -1,0 +1,107 @@
+"""How true a physics-lab run's forces are, read from its recording alone (``/sim``, ``/daq``, ``/forces``).
+
+:func:`check_recording` answers, for one recording of ``sensnake experiment run``:
+
+- **weight**: the bottom sheets' true normal forces summed, against the robot's weight, frame by frame (on flat ground
+  they must match; on a curve the normals add up to more, see :mod:`app.core.experiment`), and the same with each
+  sheet's force taken along its segment's up axis (what must match the weight on any terrain, less what friction
+  holds up, which no sheet feels);
+- **jumps**: how often a sheet's force changes by more than ``jump_n`` between two board frames (30 Hz), in the
+  true forces and in the app's estimated ones, and how many of those are *reversals* (a jump followed at once by
+  one the other way: chatter, as opposed to a load moving fast);
+- **accuracy** of the whole sensing chain on moving contact: the estimated forces (board → sensor model →
+  estimator, what the Forces tab shows) against the true ones at the board's sample times, RMS and 99th
+  percentile per sheet, over the sheets that were loaded at some time.
+
+Pure numpy and h5py; any thread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from devices.scene import channel_map
+
+BOARD_PERIOD_S = 1.0 / 30.0
+
+
+@dataclass(frozen=True)
+class PhysicsCheck:
+    frames: int
+    weight_n: float
+    bottom_within_10pct: float  # fraction of ticks with the bottom sheets' sum within ±10 % of the weight
+    vertical_within_10pct: float  # … the same for their force along each segment's up axis
+    median_bottom_n: float
+    median_vertical_n: float
+    true_jump_frames: float  # fraction of 30 Hz frames with a > jump_n change on some sheet (true forces)
+    true_reversal_frames: float  # … of which followed at once by a jump the other way (chatter)
+    estimated_jump_frames: float
+    estimated_reversal_frames: float
+    median_rms_n: float  # median over loaded sheets of the estimated force's RMS error
+    worst_rms_n: float
+    median_p99_n: float
+    worst_p99_n: float
+
+
+def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
+    """(fraction of steps with a > jump_n change on some channel, fraction that reverse at the next step)."""
+    if len(series) < 3:
+        return 0.0, 0.0
+    steps = np.diff(series, axis=0)
+    big = np.abs(steps) > jump_n
+    reversal = big[:-1] & big[1:] & (np.sign(steps[:-1]) != np.sign(steps[1:]))
+    return float(np.mean(big.any(axis=1))), float(np.mean(reversal.any(axis=1)))
+
+
+def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
+    """See the module docstring. Raises ``KeyError`` naming what a recording without ``/sim`` lacks."""
+    with h5py.File(path, "r") as f:
+        if "sim" not in f or "sheet_true_N" not in f["sim"]:
+            raise KeyError(f"{path}: no /sim/sheet_true_N (not a recording of sensnake experiment run)")
+        sim_t = f["sim/time_s"][:]
+        true = f["sim/sheet_true_N"][:]
+        points = f["sim/points_m"][:]
+        weight = float(f["sim"].attrs["weight_N"])
+        robot_t = f["robot/time_s"][:]
+        channels = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
+        daq_t = f["daq/time_s"][:]
+        estimated = f["forces/force_N"][:] if "forces" in f else None
+    rows, segments = channel_map(channels, points.shape[1] - 1)
+    bottom = rows == 0
+    bottom_sum = true[:, bottom].sum(axis=1)
+    # each segment's up axis from the recorded points: perpendicular to its axis, in the vertical plane through it
+    axis = points[:, 1:] - points[:, :-1]
+    axis /= np.linalg.norm(axis, axis=2, keepdims=True)
+    up_z = np.sqrt(np.clip(1.0 - axis[:, :, 2] ** 2, 0.0, 1.0))  # cos of the segment's pitch from horizontal
+    vertical = (true[:, bottom] * up_z[:, segments[bottom]]).sum(axis=1)
+    # the recording's clock: robot ticks are sim ticks (same count), board samples on the same clock
+    offset = robot_t[0] - sim_t[0]
+    frames_at = np.arange(sim_t[0], sim_t[-1], BOARD_PERIOD_S)
+    true_frames = np.column_stack([np.interp(frames_at, sim_t, true[:, c]) for c in range(true.shape[1])])
+    true_jump, true_reversal = _jumps(true_frames, jump_n)
+    est_jump = est_reversal = float("nan")
+    rms = p99 = np.array([np.nan])
+    if estimated is not None:
+        t = daq_t - offset
+        inside = (t >= sim_t[0]) & (t <= sim_t[-1])
+        est = estimated[inside]
+        est_jump, est_reversal = _jumps(np.nan_to_num(est), jump_n)
+        truth = np.column_stack([np.interp(t[inside], sim_t, true[:, c]) for c in range(true.shape[1])])
+        loaded = (truth > 0.05).any(axis=0) & (rows >= 0)
+        error = est[:, loaded] - truth[:, loaded]
+        rms = np.sqrt(np.nanmean(error**2, axis=0))
+        p99 = np.nanpercentile(np.abs(error), 99, axis=0)
+    return PhysicsCheck(
+        frames=len(true), weight_n=weight,
+        bottom_within_10pct=float(np.mean(np.abs(bottom_sum - weight) <= 0.1 * weight)),
+        vertical_within_10pct=float(np.mean(np.abs(vertical - weight) <= 0.1 * weight)),
+        median_bottom_n=float(np.median(bottom_sum)), median_vertical_n=float(np.median(vertical)),
+        true_jump_frames=true_jump, true_reversal_frames=true_reversal,
+        estimated_jump_frames=est_jump, estimated_reversal_frames=est_reversal,
+        median_rms_n=float(np.nanmedian(rms)), worst_rms_n=float(np.nanmax(rms)),
+        median_p99_n=float(np.nanmedian(p99)), worst_p99_n=float(np.nanmax(p99)),
+    )
