@@ -94,6 +94,22 @@ class Scene:
         return max((o.x_range_m[1] for o in self.obstacles), default=-math.inf)
 
 
+def scene_to_toml(scene: Scene) -> str:
+    """The scene file that reads back as ``scene`` (SPEC §6)."""
+    lines = ["[ground]", f"friction = {scene.ground_friction!r}"]
+    for o in scene.obstacles:
+        lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m!r}"]
+        if o.shape == "half_cylinder":
+            lines.append(f"radius_m = {o.radius_m!r}")
+        else:
+            lines += [f"length_m = {o.length_m!r}", f"height_m = {o.height_m!r}"]
+        lines.append(f"friction = {o.friction!r}")
+    lines += ["", "[robot]", f'start = "{scene.start}"']
+    if scene.head_x_m is not None:
+        lines.append(f"head_x_m = {scene.head_x_m!r}")
+    return "\n".join(lines) + "\n"
+
+
 def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float, name: str = "") -> Scene:
     """The paper's terrain (one half cylinder at x = 0) from the lab config's legacy keys; flat if ``radius_m`` is 0."""
     obstacles = (Obstacle("half_cylinder", 0.0, friction, radius_m=radius_m),) if radius_m > 0 else ()

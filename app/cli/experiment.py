@@ -10,8 +10,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from app.core.experiment import run_experiment, run_obstacle_experiment
+from app.core.experiment import read_gains, run_experiment, run_obstacle_experiment
 from app.core.shapes import read_shape
+from app.core.sweep import read_sweep, run_sweep, summary_table
 from devices.config import LabConfig, load_config
 
 
@@ -21,16 +22,42 @@ def _progress(line: str) -> None:
     print(line, end=end, flush=True)
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    if not args.plan:
+        raise ValueError("usage: sensnake experiment sweep SWEEP.toml --out DIR")
+    if args.jobs is not None and args.jobs < 1:
+        raise ValueError(f"--jobs must be 1 or more, got {args.jobs}")
+    plan = read_sweep(args.plan)
+    rows = run_sweep(plan, args.out, jobs=args.jobs, progress=_progress)
+    if sys.stdout.isatty():
+        print()
+    failed = [r for r in rows if str(r["file"]).startswith("failed")]
+    print(f"{'scene':<18} {'controller':<16} {'tail N':>6} {'runs':>4} {'traversed':>9} {'advance m':>9} "
+          f"{'overloads':>9}")
+    for entry in summary_table(rows):
+        print(f"{entry['scene']:<18} {entry['controller']:<16} {entry['tail_load_N']:6g} {entry['runs']:4d} "
+              f"{100 * entry['success']:8.0f}% {entry['median_advance_m']:9.3f} {entry['overloads']:9d}")
+    for row in failed:
+        print(f"run {row['run']} ({row['scene']}, {row['controller']}, {row['tail_load_N']} N, seed {row['seed']}) "
+              f"{row['file']}")
+    print(f"wrote {len(rows)} runs, summary.csv and summary.svg in {args.out}")
+    return 1 if failed else 0
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.name not in ("run", "obstacle"):  # argparse's choices already refuse others; kept for a direct call
-        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle")
+    if args.name not in ("run", "obstacle", "sweep"):  # argparse's choices refuse others; kept for a direct call
+        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle, sweep")
     try:
         import mujoco  # noqa: F401 - a clear message instead of an ImportError deep inside the lab
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
+    if args.name == "sweep":
+        return _sweep(args)
+    if args.plan:
+        raise ValueError(f"a sweep file ({args.plan}) is for 'sensnake experiment sweep'")
     config = load_config(args.config) if args.config else LabConfig()
     if args.name == "obstacle":
-        for option in ("scene", "shape"):
+        for option in ("scene", "shape", "gains"):
             if getattr(args, option):
                 raise ValueError(f"--{option} is for 'sensnake experiment run' (obstacle is the paper's scene)")
         result = run_obstacle_experiment(args.out, config, seconds=args.seconds, height_ratio=args.height_ratio,
@@ -38,15 +65,20 @@ def run(args: argparse.Namespace) -> int:
                                          progress=_progress)
     else:
         shape = read_shape(args.shape) if args.shape else None
+        gains = read_gains(args.gains) if args.gains else None
+        if gains is not None and args.controller != "feedback":
+            raise ValueError("--gains is for --controller feedback")
         result = run_experiment(args.out, config, scene=args.scene, shape=shape, mode=args.mode,
                                 seconds=args.seconds, speed_rad_s=args.speed, settle_s=args.settle, seed=args.seed,
+                                controller=args.controller, gains=gains, tail_load_n=args.tail_load,
                                 progress=_progress)
     if sys.stdout.isatty():
         print()
     print(f"scene {result.scene_name}: simulated {result.simulated_s:.1f} s in {result.wall_s:.1f} s "
           f"({result.real_time_factor:.1f}× real time; machine load changes this)")
-    print(f"body advanced {result.advance_m * 100:+.1f} cm"
-          + (f"; traversed: {'yes' if result.traversed else 'no'}" if result.scene_name else ""))
+    traversed = (f"yes, at {result.traverse_s:.1f} s" if result.traversed else "no")
+    print(f"{result.controller}, tail load {result.tail_load_n:g} N: body advanced {result.advance_m * 100:+.1f} cm; "
+          f"traversed: {traversed}; {len(result.overloads)} overload(s); peak current {result.peak_current_ma:.0f} mA")
     print(f"median total bottom force {result.median_bottom_force_n:.1f} N (normal forces: more than the weight "
           f"where the body lies on a curve); their vertical part {result.median_vertical_support_n:.1f} N "
           f"(robot weight {result.weight_n:.1f} N)")

@@ -159,9 +159,14 @@ def build_parser() -> argparse.ArgumentParser:
     repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
 
     experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
-    experiment.add_argument("name", choices=("run", "obstacle"),
-                            help="run: any scene and motion; obstacle: the paper's Sec. III-C experiment")
-    experiment.add_argument("--out", required=True, metavar="REC.h5")
+    experiment.add_argument("name", choices=("run", "obstacle", "sweep"),
+                            help="run: any scene and motion; obstacle: the paper's Sec. III-C experiment; sweep: "
+                                 "scenes × controllers × gains × tail loads × seeds from a sweep file")
+    experiment.add_argument("plan", nargs="?", metavar="SWEEP.toml", help="sweep: the sweep file")
+    experiment.add_argument("--out", required=True, metavar="REC.h5|DIR", help="the recording (run, obstacle) or "
+                                                                               "a new folder (sweep)")
+    experiment.add_argument("--jobs", type=int, default=None, metavar="N",
+                            help="sweep: runs at a time (default: the machine's cores)")
     experiment.add_argument("--scene", metavar="SCENE.toml",
                             help="run: a scene file or a built-in scene (paper_obstacle, flat, step, wedge, "
                                  "two_obstacles); default: the config's [lab] scene, else the paper's obstacle")
@@ -169,6 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
                             help="run: the shape to play (default: the settled pose, captured as the paper does)")
     experiment.add_argument("--mode", choices=("follow", "keyframes", "serpenoid", "sidewinding"), default="follow",
                             help="run: how to play it (default follow-the-leader)")
+    experiment.add_argument("--controller", choices=("feedforward", "feedback"), default="feedforward",
+                            help="run: feedforward (the motion as planned) or feedback (force-feedback body bending)")
+    experiment.add_argument("--gains", metavar="FILE.toml", help="run: the feedback controller's gains")
+    experiment.add_argument("--tail-load", type=float, default=0.0, metavar="N",
+                            help="run: a constant backward force on the tail (N), from the capture on")
     experiment.add_argument("--seconds", type=float, default=None, metavar="S",
                             help="stop playing after S simulated seconds (default: the whole motion)")
     experiment.add_argument("--height-ratio", type=float, default=0.28, metavar="R",

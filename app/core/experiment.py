@@ -36,19 +36,22 @@ import math
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
+from app.core.force_control import ForceFeedbackMotion
 from app.core.forces_pipeline import ForcesPipeline
 from app.core.recording import RecordingWriter
 from devices import factory
 from devices.board import FrameParser, conductance_from_counts
 from devices.config import LabConfig
-from devices.scene import channel_map, load_scene
+from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
+from models.force_feedback import FeedbackGains
+from models.health import HealthMonitor
 from models.trajectory import FollowTheLeader, Keyframes, serpenoid, sidewinding
 
 SETTLE_S = 6.0
@@ -94,6 +97,9 @@ class BoardStream:
 
 
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
+CONTROLLERS = ("feedforward", "feedback")
+SEED_SPREAD = {"start_m": 0.01, "friction": 0.05}
+MAX_TAIL_LOAD_N = 30.0
 
 
 @dataclass(frozen=True)
@@ -109,6 +115,11 @@ class ExperimentResult:
     overloads: tuple[str, ...]
     scene_name: str = ""
     traversed: bool = False  # the tail point passed the far edge of the last obstacle (False on flat ground)
+    controller: str = "feedforward"
+    tail_load_n: float = 0.0
+    traverse_s: float = math.nan  # when the tail passed the far edge (NaN: it did not)
+    peak_current_ma: float = math.nan
+    front_face_cv: float = math.nan
 
     @property
     def real_time_factor(self) -> float:
@@ -166,25 +177,94 @@ def _motion(mode: str, shape: np.ndarray, keyframes: Any, config: LabConfig, spe
     raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
 
 
+class _LatestForces:
+    """The force page of a headless run: what the last board frames estimated, read by the controller's next tick
+    (the in-process stand-in for :class:`app.core.force_control.ForcePage`)."""
+
+    def __init__(self, n_channels: int) -> None:
+        self.arrival_s = -math.inf
+        self.force_n = np.full(n_channels, np.nan)
+        self.trusted = np.zeros(n_channels, bool)
+
+    def publish(self, arrival_s: float, force_n: np.ndarray, trusted: np.ndarray) -> None:
+        self.arrival_s, self.force_n, self.trusted = arrival_s, force_n.copy(), trusted.copy()
+
+    def read(self) -> tuple[float, np.ndarray, np.ndarray]:
+        return self.arrival_s, self.force_n, self.trusted
+
+
 def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: str | None = None,
                    shape: Any = None, mode: str = "follow", seconds: float | None = None,
                    speed_rad_s: float = 0.034, settle_s: float = SETTLE_S, seed: int = 0,
+                   controller: str = "feedforward", gains: FeedbackGains | None = None, tail_load_n: float = 0.0,
                    progress: Callable[[str], None] | None = None, header: str = "") -> ExperimentResult:
     """Run a plan (see the module docstring) and write its recording to ``out``. ``scene``: a scene file or a
     built-in scene's name (default: the config's ``[lab] scene``, else its legacy half cylinder); ``shape``: an
     :class:`app.core.shapes.Shape` (default: the settled pose); ``seconds`` caps the played part (default: the whole
-    motion). ``progress`` gets a one-line status about once a wall second."""
+    motion); ``controller``: ``feedforward`` (the motion as planned) or ``feedback``
+    (:class:`app.core.force_control.ForceFeedbackMotion` with ``gains`` on the live estimated forces);
+    ``tail_load_n``: a constant backward force on the tail from the capture on. ``progress`` gets a one-line status
+    about once a wall second."""
     config = config or LabConfig()
     config = replace(config, lab=replace(config.lab, physics="mujoco", scene=scene if scene else config.lab.scene))
     terrain = load_scene(config.lab.scene) if config.lab.scene else None
+    scratch_scene: tempfile.TemporaryDirectory | None = None
+    if seed > 0:  # a seed other than 0 also varies the start and the frictions (SEED_SPREAD), not only the sensors
+        base = terrain or _legacy_terrain(config)
+        terrain = jittered_scene(base, seed)
+        scratch_scene = tempfile.TemporaryDirectory()
+        path = Path(scratch_scene.name) / f"{base.name}-seed{seed}.toml"
+        path.write_text(terrain.text, encoding="utf-8")
+        config = replace(config, lab=replace(config.lab, scene=str(path)))
+    try:
+        return _run(out, config, terrain, shape=shape, mode=mode, seconds=seconds, speed_rad_s=speed_rad_s,
+                    settle_s=settle_s, seed=seed, controller=controller, gains=gains, tail_load_n=tail_load_n,
+                    progress=progress, header=header)
+    finally:
+        if scratch_scene is not None:
+            scratch_scene.cleanup()
+
+
+def _legacy_terrain(config: LabConfig) -> Scene:
+    lab = config.lab
+    return half_cylinder_scene(lab.obstacle_height_ratio * config.robot.n_joints * config.robot.segment_length_m,
+                               lab.obstacle_friction, lab.ground_friction)
+
+
+def jittered_scene(scene: Scene, seed: int) -> Scene:
+    """``scene`` with its start moved by N(0, 1 cm) along x (from its ``head_x_m``, or the default start) and every
+    friction coefficient scaled by N(1, 5 %), clipped to ±2 s.d. (seeded): the run-to-run spread of placing a real
+    robot and of a surface's friction, so that seeds differ in more than sensor noise."""
+    rng = np.random.default_rng(seed)
+    spread = SEED_SPREAD
+
+    def vary(mu: float) -> float:
+        return float(mu * np.clip(rng.normal(1.0, spread["friction"]), 1 - 2 * spread["friction"],
+                                  1 + 2 * spread["friction"]))
+
+    head = scene.head_x_m if scene.head_x_m is not None else (5.5 * 0.08 if scene.obstacles else 0.48)
+    moved = replace(scene, ground_friction=vary(scene.ground_friction),
+                    obstacles=tuple(replace(o, friction=vary(o.friction)) for o in scene.obstacles),
+                    head_x_m=head + float(np.clip(rng.normal(0.0, spread["start_m"]), -0.02, 0.02)),
+                    name=f"{scene.name} (seed {seed})")
+    return replace(moved, text=scene_to_toml(moved))
+
+
+def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: Any, mode: str, seconds: float | None,
+         speed_rad_s: float, settle_s: float, seed: int, controller: str, gains: FeedbackGains | None,
+         tail_load_n: float, progress: Callable[[str], None] | None, header: str) -> ExperimentResult:
     if mode not in MODES:
         raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if controller not in CONTROLLERS:
+        raise ValueError(f"--controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"--seconds must be positive, got {seconds}")
     if not (math.isfinite(settle_s) and settle_s >= 0):
         raise ValueError(f"--settle must be 0 s or more, got {settle_s}")
     if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= config.robot.max_joint_speed_rad_s):
         raise ValueError(f"--speed must be in (0, {config.robot.max_joint_speed_rad_s}] rad/s, got {speed_rad_s}")
+    if not (math.isfinite(tail_load_n) and 0.0 <= tail_load_n <= MAX_TAIL_LOAD_N):
+        raise ValueError(f"--tail-load must be in [0, {MAX_TAIL_LOAD_N:g}] N, got {tail_load_n}")
     robot = config.robot
     if shape is not None and len(shape.angles_rad) != robot.n_joints:
         raise ValueError(f"the shape has {len(shape.angles_rad)} joint angles; the robot has {robot.n_joints}")
@@ -196,6 +276,7 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     stream = BoardStream(lab, config)
     pipeline = ForcesPipeline(names)
     pipeline.set_readout(config.board.r_c_ohm)
+    health = HealthMonitor(len(names), config.board.rate_hz)
     calibration = json.dumps(lab.ground_truth_calibration())
     with tempfile.TemporaryDirectory() as scratch:
         cal_path = Path(scratch) / "board_truth.json"
@@ -204,6 +285,17 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     period_s = 1.0 / robot.control_rate_hz
     wall0 = time.perf_counter()
     start = world.scene.terrain.start
+    page = _LatestForces(len(names))
+
+    def read_board() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The frames that arrived, their forces estimated and published for the controller (as the app does)."""
+        counts, conductance, board_time, seq = stream.read()
+        if not seq.size:
+            return counts, conductance, board_time, seq, None
+        forces = pipeline.process(board_time, conductance).force_n
+        health.update(board_time, conductance, counts == 0)
+        page.publish(lab.time_s, forces[-1], health.flags == 0)
+        return counts, conductance, board_time, seq, forces
 
     # 1. Start: settle limp (or lie straight, held); the pipeline follows the sensors from the start so its creep
     # state is right at capture.
@@ -216,27 +308,33 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     while tick * period_s < settle_s:
         tick += 1
         lab.advance_to(tick * period_s)
-        _, conductance, board_time, seq = stream.read()
-        if seq.size:
-            pipeline.process(board_time, conductance)
+        read_board()
     # 2. Shape.
     present = lab.read_robot().position_rad
     if not np.all(np.isfinite(present)):
         raise RuntimeError("the simulated robot did not answer the capture read")
     taught = present if shape is None else np.asarray(shape.angles_rad, dtype=float)
     source = _motion(mode, taught, None if shape is None else shape.keyframes, config, speed_rad_s)
+    feedback: ForceFeedbackMotion | None = None
+    if controller == "feedback":
+        feedback = ForceFeedbackMotion(source, tuple(robot.axes), tuple(names), gains or FeedbackGains(),
+                                       rate_hz=robot.control_rate_hz, page=page, clock=lambda: lab.time_s)
     # 3. Play, and 4. record from here on.
     lab.write_goals(present)
     lab.set_torque(True)
+    lab.set_tail_load(tail_load_n)
     t_capture = lab.time_s
     host0 = time.monotonic()  # recording time = simulated time since capture; host stamps are host0 + that
-    config_text = (header or f"# sensnake experiment run: scene {world.scene.terrain.name}, mode {mode}") + "\n"
+    config_text = (header or f"# sensnake experiment run: scene {world.scene.terrain.name}, mode {mode}, "
+                             f"controller {controller}, tail load {tail_load_n:g} N") + "\n"
     writer = RecordingWriter(out, config_text + (config.source_text or ""), names, calibration_json=calibration,
                              with_robot=True, n_joints=robot.n_joints, t0_monotonic_s=host0,
                              flush_interval_s=math.inf)
     sim_times: list[float] = []
     sim_points: list[np.ndarray] = []
     sim_sheets: list[np.ndarray] = []
+    corrections: list[np.ndarray] = []
+    currents: list[np.ndarray] = []
     bottom_totals: list[np.ndarray] = []
     vertical: list[float] = []
     overloads: list[str] = []
@@ -244,15 +342,18 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     start_centroid = float(lab.body_state().points_m[:, 0].mean())
     last_forces: np.ndarray | None = None
     last_report = -math.inf
+    far_edge = world.scene.terrain.far_edge_m
+    traverse_s = math.nan
+    motion = feedback if feedback is not None else source
     try:
         what = "the settled shape" if shape is None else f"shape {shape.name!r}"
         writer.log_event(f"scene {world.scene.terrain.name}: {what} after {settle_s:g} s ({start}); playing {mode} "
-                         f"at {speed_rad_s:g} rad/s", host0)
+                         f"at {speed_rad_s:g} rad/s, {controller}, tail load {tail_load_n:g} N", host0)
         k = 0
         while True:
             t = k * period_s
             reading = lab.read_robot()
-            goal = source.goal_at(t, reading.position_rad)
+            goal = motion.goal_at(t, reading.position_rad)
             if goal is None or (seconds is not None and t > seconds):
                 break
             lab.write_goals(goal)
@@ -263,9 +364,13 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
                     overloads.append(f"t={t:.2f} s: {text}")
                     writer.log_event(text, host0 + t, kind="servo")
             writer.append_robot(host0 + t, goal, reading.position_rad, reading.current_ma)
+            currents.append(reading.current_ma)
+            corrections.append(feedback.law.correction() if feedback is not None else np.zeros(robot.n_joints))
             body = lab.body_state()
             sim_times.append(t)
             sim_points.append(body.points_m)
+            if math.isnan(traverse_s) and float(body.points_m[-1, 0]) > far_edge:
+                traverse_s = t
             loads = lab.segment_loads_n()
             sheet = np.zeros(len(names))
             known = rows >= 0
@@ -273,9 +378,8 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
             sim_sheets.append(sheet)
             k += 1
             lab.advance_to(t_capture + k * period_s)
-            counts, conductance, board_time, seq = stream.read()
-            if seq.size:
-                forces = pipeline.process(board_time, conductance).force_n
+            counts, conductance, board_time, seq, forces = read_board()
+            if forces is not None:
                 writer.append_daq(DaqRows(counts, conductance, host0 + (board_time - t_capture), board_time, seq))
                 writer.append_forces(forces)
                 bottom_totals.append(np.nansum(forces[:, bottom], axis=1))
@@ -295,16 +399,70 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
         writer.close()
     final = lab.body_state().points_m
     end_centroid = float(final[:, 0].mean())
-    _append_body(out, np.array(sim_times), np.array(sim_points), np.array(sim_sheets), bottom, lab,
-                 terrain_text=terrain.text if terrain is not None else "")
+    times, points, sheets = np.array(sim_times), np.array(sim_points), np.array(sim_sheets)
+    _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain.text if terrain is not None else "")
+    if controller != "feedforward":  # SPEC §3.5: /control when a controller other than feedforward ran
+        _append_control(out, times, np.array(corrections), controller, gains or FeedbackGains(), tail_load_n)
     totals = np.concatenate(bottom_totals) if bottom_totals else np.array([np.nan])
     wall_s = time.perf_counter() - wall0
     simulated_s = settle_s + (sim_times[-1] if sim_times else 0.0)
     scene_terrain = world.scene.terrain
-    traversed = bool(scene_terrain.obstacles) and float(final[-1, 0]) > scene_terrain.far_edge_m
+    traversed = bool(scene_terrain.obstacles) and not math.isnan(traverse_s)
+    peak_ma = float(np.nanmax(np.abs(np.array(currents)))) if currents else math.nan
     return ExperimentResult(Path(out), taught, simulated_s, wall_s, end_centroid - start_centroid,
                             float(np.nanmedian(totals)), float(np.median(vertical)) if vertical else math.nan,
-                            world.weight_n, tuple(overloads), scene_terrain.name, traversed)
+                            world.weight_n, tuple(overloads), scene_terrain.name, traversed,
+                            controller=controller, tail_load_n=tail_load_n, traverse_s=traverse_s,
+                            peak_current_ma=peak_ma,
+                            front_face_cv=front_face_cv(times, points, sheets[:, bottom] if len(sheets) else sheets,
+                                                        scene_terrain))
+
+
+def read_gains(path: str | Path) -> FeedbackGains:
+    """A gains file: TOML with the keys of :class:`FeedbackGains` at the top level (or in a ``[feedback]`` table);
+    unknown keys and values outside the safe ranges refused, naming the file and the key."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{path}: gains file not found") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a TOML gains file ({exc})") from None
+    table = data.get("feedback", data)
+    if not isinstance(table, dict):
+        raise ValueError(f"{path}: [feedback] must be a table")
+    return FeedbackGains.from_mapping(table, str(path))
+
+
+def front_face_cv(times: np.ndarray, points: np.ndarray, bottom_n: np.ndarray, terrain: Any) -> float:
+    """Coefficient of variation (s.d. / mean over ticks) of the summed bottom forces of the segments on the first
+    obstacle's face toward the robot's tail (x between its back edge and its top): how steadily the body pushes on
+    the face that propels it forward. NaN without an obstacle or without contact there."""
+    if not terrain.obstacles or len(times) == 0:
+        return math.nan
+    first = min(terrain.obstacles, key=lambda o: o.x_m)
+    lo = first.x_range_m[0]
+    top = first.x_m if first.shape == "half_cylinder" else first.x_range_m[0] + 0.02
+    mid_x = 0.5 * (points[:, :-1, 0] + points[:, 1:, 0])
+    on_face = (mid_x >= lo - 0.02) & (mid_x <= top)
+    total = np.where(on_face, bottom_n, 0.0).sum(axis=1)
+    pressing = total[total > 0.1]
+    if pressing.size < 10:
+        return math.nan
+    return float(np.std(pressing) / np.mean(pressing))
+
+
+def _append_control(out: str | Path, times: np.ndarray, corrections: np.ndarray, controller: str,
+                    gains: FeedbackGains, tail_load_n: float) -> None:
+    """``/control`` (SPEC §3.5): what the controller added to each goal, with its name and gains."""
+    with h5py.File(out, "a") as f:
+        group = f.create_group("control")
+        group.create_dataset("time_s", data=times)
+        group.create_dataset("correction_rad", data=corrections.reshape(len(times), -1))
+        group.attrs["controller"] = controller
+        group.attrs["gains"] = json.dumps(asdict(gains))
+        group.attrs["tail_load_N"] = tail_load_n
 
 
 def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_n: np.ndarray, bottom: np.ndarray,

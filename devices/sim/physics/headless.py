@@ -151,6 +151,10 @@ class HeadlessPhysicsLab:
     def body_state(self) -> BodyState:
         return self.physics.body_state()
 
+    def set_tail_load(self, force_n: float) -> None:
+        """A constant backward force (N) on the tail segment (see ``PhysicsWorld.set_tail_load``)."""
+        self.physics.world.set_tail_load(force_n)
+
     def segment_loads_n(self) -> np.ndarray:
         """(3, n) true normal force per sheet (bottom, left, right rows), N."""
         return self.physics.world.segment_loads_n()

@@ -233,6 +233,16 @@ class PhysicsWorld:
                 self._wake()
             self._external[joint] = torque_nm
 
+    def set_tail_load(self, force_n: float) -> None:
+        """A constant backward force (N, along −x in the world) on the tail segment: the load a robot drags, the
+        published perturbation of a body pushing against terrain (Fu & Li 2023). 0 removes it."""
+        with self._lock:
+            body = self._seg_body[-1]
+            if self.data.xfrc_applied[body, 0] != -force_n:
+                self._wake()
+            self.data.xfrc_applied[body, :] = 0.0
+            self.data.xfrc_applied[body, 0] = -float(force_n)
+
     # -- rest ------------------------------------------------------------------------------------------------------------
     @property
     def resting(self) -> bool:

@@ -1,0 +1,202 @@
+"""Force feedback at run time: the latest estimated forces in a shared page, and a motion source that corrects the
+feedforward goals with :class:`models.force_feedback.ForceFeedbackLaw`.
+
+The data path: board frame → estimated forces (the app's :class:`app.core.forces_pipeline.ForcesPipeline`, 30 Hz) →
+:meth:`ForcePage.publish` (the frame's arrival time, every channel's force, whether each may be trusted) → the control
+loop's tick (50 Hz, in the loop's own process or the app's) reads the page in :meth:`ForceFeedbackMotion.goal_at` →
+feedforward goal + correction → the controller's joint-limit clamp and speed limit → the servos. So the latency from a
+board frame to the goal it changes is at most one board period (the frame waits for its estimate and publication)
+plus one control tick (the page waits for the next tick); :attr:`FeedbackProgress.force_age_s` says, each tick, how
+old the forces it used were.
+
+Stale forces never drive a correction: a page older than ``stale_s`` (100 ms: three board frames), a sensor the
+health monitor flags, an uncalibrated sensor (no force) — that segment's node falls back to the feedforward, and
+:attr:`FeedbackProgress.fallback` says which and why.
+
+:class:`ForcePage` is a small file in shared memory (``/dev/shm`` where it exists) with a sequence lock, so a reader in
+another process never sees half a write; a :class:`ForceFeedbackMotion` crosses to the loop's process by pickling and
+opens the page there by its path. Qt-free; the writer is one thread, the reader the control loop's thread.
+"""
+
+from __future__ import annotations
+
+import math
+import mmap
+import os
+import struct
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from devices.scene import channel_map
+from models.force_feedback import FeedbackGains, ForceFeedbackLaw
+from models.trajectory import Progress
+
+STALE_S = 0.1
+_HEADER = struct.Struct("<QdI")  # sequence (odd while writing), arrival time (monotonic s), channel count
+
+
+class ForcePage:
+    """The latest estimated force of every channel, shared between processes. ``create`` makes one (the writer's
+    side, which removes it on :meth:`close`); ``ForcePage(path)`` opens it (a reader)."""
+
+    def __init__(self, path: str | os.PathLike, n_channels: int | None = None, *, owner: bool = False) -> None:
+        self.path = Path(path)
+        self._owner = owner
+        if n_channels is None:
+            with open(self.path, "rb") as f:
+                n_channels = _HEADER.unpack(f.read(_HEADER.size))[2]
+        self.n_channels = int(n_channels)
+        self._size = _HEADER.size + 9 * self.n_channels
+        with open(self.path, "r+b") as f:
+            self._map = mmap.mmap(f.fileno(), self._size)
+
+    @classmethod
+    def create(cls, n_channels: int, folder: str | os.PathLike | None = None) -> ForcePage:
+        base = folder or ("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir())
+        fd, name = tempfile.mkstemp(prefix="sensnake-forces-", suffix=".page", dir=base)
+        with os.fdopen(fd, "wb") as f:
+            f.write(_HEADER.pack(0, -math.inf, n_channels) + bytes(9 * n_channels))
+        return cls(name, n_channels, owner=True)
+
+    def publish(self, arrival_s: float, force_n: np.ndarray, trusted: np.ndarray) -> None:
+        """The forces estimated from the board frame that reached the host at ``arrival_s`` (``time.monotonic``),
+        NaN where there is no estimate, and which channels may drive a correction."""
+        forces = np.asarray(force_n, dtype="<f8")
+        ok = np.asarray(trusted, dtype=np.uint8)
+        seq = struct.unpack_from("<Q", self._map, 0)[0]
+        struct.pack_into("<Q", self._map, 0, seq + 1)  # odd: a write is under way
+        struct.pack_into("<dI", self._map, 8, float(arrival_s), self.n_channels)
+        self._map[_HEADER.size:_HEADER.size + 8 * self.n_channels] = forces.tobytes()
+        self._map[_HEADER.size + 8 * self.n_channels:self._size] = ok.tobytes()
+        struct.pack_into("<Q", self._map, 0, seq + 2)
+
+    def read(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """(arrival time, forces, trusted) of the latest publication; (−inf, NaN…, False…) before the first."""
+        for _ in range(1000):
+            seq = struct.unpack_from("<Q", self._map, 0)[0]
+            if seq % 2:
+                continue
+            arrival = struct.unpack_from("<d", self._map, 8)[0]
+            forces = np.frombuffer(self._map, dtype="<f8", count=self.n_channels, offset=_HEADER.size).copy()
+            trusted = np.frombuffer(self._map, dtype=np.uint8, count=self.n_channels,
+                                    offset=_HEADER.size + 8 * self.n_channels).astype(bool)
+            if struct.unpack_from("<Q", self._map, 0)[0] == seq:
+                if seq == 0:
+                    return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
+                return arrival, forces, trusted
+        raise RuntimeError(f"{self.path}: the force page is being written without end")
+
+    def close(self) -> None:
+        self._map.close()
+        if self._owner:
+            self.path.unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class FeedbackProgress(Progress):
+    """The motion's :class:`Progress` plus what the controller did this tick (the Gait tab shows it, the recording
+    stores it): ``correction_rad`` per joint, ``node_joints`` and their ``node_load_n`` (NaN: not sensed) against
+    ``target_n``, ``fallback`` (node joint → why it is on feedforward), ``force_age_s`` (how old the forces were),
+    ``tick_s`` (the motion's time of this tick)."""
+
+    correction_rad: tuple[float, ...] = ()
+    node_joints: tuple[int, ...] = ()
+    node_load_n: tuple[float, ...] = ()
+    target_n: float = 0.0
+    fallback: tuple[tuple[int, str], ...] = ()
+    force_age_s: float = math.inf
+    tick_s: float = 0.0
+
+
+def bottom_channels(channel_names: Sequence[str], n_segments: int) -> np.ndarray:
+    """Per segment, the board channel of its bottom sheet (−1: none)."""
+    rows, segments = channel_map(channel_names, n_segments)
+    out = np.full(n_segments, -1)
+    for channel in np.flatnonzero(rows == 0):
+        out[segments[channel]] = channel
+    return out
+
+
+@dataclass
+class ForceFeedbackMotion:
+    """A motion source: ``source``'s goals plus the law's correction from the forces on ``page_path`` (or ``page``,
+    an object with ``read()``, for a caller that feeds it in-process). ``clock`` gives the time the page's arrival
+    times are in (``time.monotonic`` by default; the headless lab passes its simulated clock)."""
+
+    source: Any
+    axes: tuple[str, ...]
+    channel_names: tuple[str, ...]
+    gains: FeedbackGains = field(default_factory=FeedbackGains)
+    page_path: str | None = None
+    rate_hz: float = 50.0
+    stale_s: float = STALE_S
+    page: Any = None
+    clock: Any = None
+
+    def __post_init__(self) -> None:
+        self.law = ForceFeedbackLaw(self.axes, self.gains)
+        self._bottom = bottom_channels(self.channel_names, len(self.axes))
+        self._last_t: float | None = None
+        self.progress: Progress = getattr(self.source, "progress", Progress("shift", 0, 1, 0.0, 0.0, 0.0, 0.0))
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if self.page_path is not None:
+            state["page"] = None  # the mmap stays here; the other process opens the page by its path
+        return state
+
+    def set_gains(self, gains: FeedbackGains) -> None:
+        """Live adjustment (checked against the safe ranges first)."""
+        self.law.set_gains(gains)
+        self.gains = gains
+
+    def _read(self) -> tuple[float, np.ndarray, np.ndarray]:
+        if self.page is None and self.page_path is not None:
+            self.page = ForcePage(self.page_path)
+        if self.page is None:
+            return -math.inf, np.full(len(self.channel_names), np.nan), np.zeros(len(self.channel_names), bool)
+        return self.page.read()  # type: ignore[no-any-return]
+
+    def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
+        goal = self.source.goal_at(t_s, present_rad)
+        if goal is None:
+            self.progress = getattr(self.source, "progress", self.progress)
+            return None
+        dt = 1.0 / self.rate_hz if self._last_t is None else max(t_s - self._last_t, 0.0)
+        self._last_t = t_s
+        arrival, forces, trusted = self._read()
+        now = (self.clock or time.monotonic)()
+        age = now - arrival
+        n = len(self.axes)
+        bottom = np.full(n, np.nan)
+        valid = np.zeros(n, bool)
+        why = [""] * n
+        for segment, channel in enumerate(self._bottom):
+            name = self.channel_names[channel] if channel >= 0 else f"segment {segment + 1}"
+            if channel < 0:
+                why[segment] = f"{name}: no bottom sensor"
+            elif not age <= self.stale_s:
+                why[segment] = (f"{name}: no force estimate for {age * 1000:.0f} ms" if math.isfinite(age)
+                                else f"{name}: no force estimate yet")
+            elif not np.isfinite(forces[channel]):
+                why[segment] = f"{name}: uncalibrated"
+            elif not trusted[channel]:
+                why[segment] = f"{name}: flagged by the health monitor"
+            else:
+                bottom[segment], valid[segment] = forces[channel], True
+        correction = self.law.step(dt, bottom, valid, why, feedforward_rad=np.asarray(goal, dtype=float))
+        base = getattr(self.source, "progress", None)
+        if isinstance(base, Progress):
+            self.progress = FeedbackProgress(
+                base.kind, base.index, base.count, base.move_fraction, base.fraction, base.elapsed_s, base.total_s,
+                base.done, correction_rad=tuple(float(c) for c in correction),
+                node_joints=tuple(int(j) for j in self.law.nodes),
+                node_load_n=tuple(float(v) for v in self.law.node_load_n), target_n=self.law.gains.target_n,
+                fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age), tick_s=float(t_s))
+        return np.asarray(goal, dtype=float) + correction

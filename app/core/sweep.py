@@ -1,0 +1,258 @@
+"""Experiment sweeps: scenes × controllers × gains × tail loads × seeds, each a run of :func:`app.core.experiment.
+run_experiment` in its own process, one recording per run, a ``summary.csv`` and a figure (``sensnake experiment
+sweep SWEEP.toml --out DIR``).
+
+A sweep file (TOML; unknown keys refused, naming the key)::
+
+    scenes = ["paper_obstacle", "step"]          # scene files or built-in names
+    controllers = ["feedforward", "feedback"]
+    tail_loads_n = [0.0, 2.0, 4.0]
+    seeds = [0, 1, 2]                              # seed 0: the scene as written; others vary start and friction
+    seconds = 60.0                                 # time limit of the play
+    speed_rad_s = 0.1
+    settle_s = 6.0
+    mode = "follow"
+    [[gains]]                                      # feedback gain sets (default: one, the law's defaults)
+    push_gain = 0.1
+    [[gains]]
+    push_gain = 0.3
+
+Each row of ``summary.csv``: scene, controller, gains (the set's index and its JSON), tail load, seed, traversed
+(the tail point passed the far edge of the last obstacle within the limit), time to traverse, advance of the body's
+centroid, overload events, peak current, coefficient of variation of the bottom forces on the obstacle's front face
+(:func:`app.core.experiment.front_face_cv`), wall time, the recording's file name. The analysis reads only the
+recordings' results, so any run can be re-analysed later. The figure (``summary.svg``): success rate and median
+advance against tail load, one line per scene × controller.
+
+Qt-free; the runs are processes (``concurrent.futures.ProcessPoolExecutor``), the caller's thread waits.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import csv
+import itertools
+import json
+import math
+import os
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.force_feedback import FeedbackGains, GainsError
+
+SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains"}
+SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
+                   "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file")
+
+
+class SweepError(ValueError):
+    """A sweep file that cannot be run; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    scenes: tuple[str, ...]
+    controllers: tuple[str, ...] = ("feedforward", "feedback")
+    tail_loads_n: tuple[float, ...] = (0.0,)
+    seeds: tuple[int, ...] = (0,)
+    seconds: float = 60.0
+    speed_rad_s: float = 0.1
+    settle_s: float = 6.0
+    mode: str = "follow"
+    gains: tuple[FeedbackGains, ...] = field(default_factory=lambda: (FeedbackGains(),))
+
+    def runs(self) -> list[dict[str, Any]]:
+        """One dict of arguments per run (feedforward runs once per load and seed, not once per gain set)."""
+        out = []
+        for scene, controller, load, seed in itertools.product(self.scenes, self.controllers, self.tail_loads_n,
+                                                               self.seeds):
+            gain_sets = list(enumerate(self.gains)) if controller == "feedback" else [(-1, None)]
+            for index, gains in gain_sets:
+                out.append({"scene": scene, "controller": controller, "gains_index": index, "gains": gains,
+                            "tail_load_n": float(load), "seed": int(seed)})
+        return out
+
+
+def read_sweep(path: str | Path) -> SweepPlan:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SweepError(f"{path}: sweep file not found") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SweepError(f"{path}: not a TOML sweep file ({exc})") from None
+    for key in data:
+        if key not in SWEEP_KEYS:
+            raise SweepError(f"{path}: unknown key '{key}' (known: {', '.join(sorted(SWEEP_KEYS))})")
+    if "scenes" not in data or not isinstance(data["scenes"], list) or not data["scenes"]:
+        raise SweepError(f"{path}: 'scenes' must be a non-empty list of scene files or names")
+
+    def numbers(key: str, default: tuple, kind: type) -> tuple:
+        value = data.get(key, list(default))
+        if not isinstance(value, list) or not value or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+            raise SweepError(f"{path}: '{key}' must be a non-empty list of numbers")
+        return tuple(kind(v) for v in value)
+
+    controllers = data.get("controllers", ["feedforward", "feedback"])
+    if not isinstance(controllers, list) or not controllers or any(
+            c not in ("feedforward", "feedback") for c in controllers):
+        raise SweepError(f"{path}: 'controllers' must list feedforward and/or feedback, got {controllers!r}")
+    gains_tables = data.get("gains", [{}])
+    if not isinstance(gains_tables, list) or not all(isinstance(g, dict) for g in gains_tables):
+        raise SweepError(f"{path}: gain sets are written [[gains]] (an array of tables)")
+    try:
+        gains = tuple(FeedbackGains.from_mapping(g, f"{path} [[gains]] #{k + 1}") for k, g in enumerate(gains_tables))
+    except GainsError as exc:
+        raise SweepError(str(exc)) from None
+    scalars = {}
+    for key, default in (("seconds", 60.0), ("speed_rad_s", 0.1), ("settle_s", 6.0)):
+        value = data.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+            raise SweepError(f"{path}: '{key}' must be a number ≥ 0, got {value!r}")
+        scalars[key] = float(value)
+    seeds = numbers("seeds", (0,), int)
+    if any(s < 0 for s in seeds):
+        raise SweepError(f"{path}: 'seeds' must be 0 or more")
+    return SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers),
+                     tail_loads_n=numbers("tail_loads_n", (0.0,), float), seeds=seeds,
+                     mode=str(data.get("mode", "follow")), gains=gains, **scalars)
+
+
+def _one(args: dict[str, Any]) -> dict[str, Any]:
+    """One run (in a worker process): the recording written, its summary row returned."""
+    from app.core.experiment import run_experiment
+
+    started = time.perf_counter()
+    result = run_experiment(args["out"], scene=args["scene"], mode=args["mode"], seconds=args["seconds"],
+                            speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
+                            controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"])
+    return {"run": args["run"], "scene": args["scene"], "controller": args["controller"],
+            "gains_index": args["gains_index"],
+            "gains": json.dumps(asdict(args["gains"])) if args["gains"] is not None else "",
+            "tail_load_N": args["tail_load_n"], "seed": args["seed"], "traversed": int(result.traversed),
+            "traverse_s": result.traverse_s, "advance_m": result.advance_m, "overloads": len(result.overloads),
+            "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
+            "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name}
+
+
+def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
+              progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Run every run of ``plan`` into ``out_dir`` (created; an existing ``summary.csv`` there is refused, never
+    overwritten), ``jobs`` at a time (default: the machine's cores). Returns the summary rows in run order."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / "summary.csv").exists():
+        raise SweepError(f"{out}: holds a sweep already (summary.csv); choose another --out folder")
+    runs = plan.runs()
+    tasks = []
+    for k, run in enumerate(runs):
+        name = f"{k:03d}_{Path(run['scene']).stem}_{run['controller']}"
+        name += f"_g{run['gains_index']}" if run["gains_index"] >= 0 else ""
+        name += f"_load{run['tail_load_n']:g}_seed{run['seed']}.h5"
+        tasks.append({**run, "run": k, "out": str(out / name), "mode": plan.mode, "seconds": plan.seconds,
+                      "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s})
+    rows: dict[int, dict[str, Any]] = {}
+    started = time.monotonic()
+    jobs = max(1, jobs or os.cpu_count() or 1)
+    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs) as pool:
+        pending = {pool.submit(_one, task): task for task in tasks}
+        for future in concurrent.futures.as_completed(pending):
+            task = pending[future]
+            try:
+                rows[task["run"]] = future.result()
+            except Exception as exc:  # noqa: BLE001 - one failed run is a row that says why, not a lost sweep
+                rows[task["run"]] = {"run": task["run"], "scene": task["scene"], "controller": task["controller"],
+                                     "gains_index": task["gains_index"], "gains": "", "tail_load_N": task["tail_load_n"],
+                                     "seed": task["seed"], "traversed": "", "traverse_s": "", "advance_m": "",
+                                     "overloads": "", "peak_current_mA": "", "front_face_cv": "", "wall_s": "",
+                                     "file": f"failed: {exc}"}
+            if progress is not None:
+                done = len(rows)
+                elapsed = time.monotonic() - started
+                left = elapsed / done * (len(tasks) - done)
+                bar = "#" * int(30 * done / len(tasks))
+                progress(f"[{bar:<30}] {done}/{len(tasks)} runs, {elapsed:.0f} s, about {left:.0f} s left")
+    ordered = [rows[k] for k in sorted(rows)]
+    with open(out / "summary.csv", "x", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
+        writer.writeheader()
+        writer.writerows(ordered)
+    (out / "summary.svg").write_text(summary_svg(ordered), encoding="utf-8")
+    return ordered
+
+
+def read_summary(path: str | Path) -> list[dict[str, Any]]:
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, list[dict[str, Any]]]]:
+    groups: dict[tuple[str, str], dict[float, list[dict[str, Any]]]] = {}
+    for row in rows:
+        if row.get("traversed", "") == "":
+            continue
+        label = row["controller"] + (f" g{row['gains_index']}" if int(row["gains_index"]) >= 0 else "")
+        key = (Path(str(row["scene"])).stem, label)
+        groups.setdefault(key, {}).setdefault(float(row["tail_load_N"]), []).append(row)
+    return groups
+
+
+def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per scene × controller (× gain set) × tail load: runs, success rate, median advance (m), overload events."""
+    table = []
+    for (scene, label), by_load in sorted(_groups(rows).items()):
+        for load, group in sorted(by_load.items()):
+            table.append({"scene": scene, "controller": label, "tail_load_N": load, "runs": len(group),
+                          "success": float(np.mean([int(r["traversed"]) for r in group])),
+                          "median_advance_m": float(np.median([float(r["advance_m"]) for r in group])),
+                          "overloads": int(sum(int(r["overloads"]) for r in group))})
+    return table
+
+
+def summary_svg(rows: list[dict[str, Any]], width: int = 900, height: int = 380) -> str:
+    """Two panels (success rate, median advance) against tail load, one polyline per scene × controller."""
+    table = summary_table(rows)
+    series: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for entry in table:
+        series.setdefault((entry["scene"], entry["controller"]), []).append(entry)
+    loads = sorted({e["tail_load_N"] for e in table}) or [0.0]
+    x_max = max(loads[-1], 1.0)
+    adv_max = max([e["median_advance_m"] for e in table] + [0.1])
+    adv_min = min([e["median_advance_m"] for e in table] + [0.0])
+    colours = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
+    panel_w, top, bottom, left = (width - 120) / 2, 40, height - 50, 60
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
+             f'font-size="12"><rect width="100%" height="100%" fill="white"/>']
+    for panel, (title, key, lo, hi) in enumerate((("traversed (fraction of runs)", "success", 0.0, 1.0),
+                                                   ("median advance of the centroid (m)", "median_advance_m",
+                                                    adv_min, adv_max))):
+        x0 = left + panel * (panel_w + 60)
+        parts.append(f'<text x="{x0 + panel_w / 2}" y="20" text-anchor="middle">{title}</text>')
+        parts.append(f'<line x1="{x0}" y1="{bottom}" x2="{x0 + panel_w}" y2="{bottom}" stroke="black"/>')
+        parts.append(f'<line x1="{x0}" y1="{top}" x2="{x0}" y2="{bottom}" stroke="black"/>')
+        for tick in loads:
+            x = x0 + panel_w * tick / x_max
+            parts.append(f'<text x="{x}" y="{bottom + 15}" text-anchor="middle">{tick:g}</text>')
+        parts.append(f'<text x="{x0 + panel_w / 2}" y="{bottom + 32}" text-anchor="middle">tail load (N)</text>')
+        for frac in (0.0, 0.5, 1.0):
+            value = lo + frac * (hi - lo)
+            y = bottom - frac * (bottom - top)
+            parts.append(f'<text x="{x0 - 6}" y="{y + 4}" text-anchor="end">{value:.2g}</text>')
+        for k, ((scene, label), entries) in enumerate(sorted(series.items())):
+            colour = colours[k % len(colours)]
+            dash = "" if label.startswith("feedforward") else ' stroke-dasharray="6 3"'
+            points = " ".join(f"{x0 + panel_w * e['tail_load_N'] / x_max:.1f},"
+                              f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top):.1f}" for e in entries)
+            parts.append(f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="2"{dash}/>')
+            if panel == 1:
+                parts.append(f'<text x="{width - 10}" y="{top + 14 * k}" text-anchor="end" fill="{colour}">'
+                             f'{scene}: {label}</text>')
+    parts.append("</svg>")
+    return "\n".join(parts)

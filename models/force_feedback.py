@@ -1,0 +1,190 @@
+"""Force-feedback body bending: corrections to the pitch goals of a propagated shape from the bottom-sheet forces.
+
+The paper's next step (Sec. V): adjust body bending from the estimated contact forces "to better conform to and push
+against complex 3-D terrain". Feedforward follow-the-leader (SPEC §5) propagates a fixed vertical-bending shape; it
+pushes well while the shape matches the terrain and loses propulsion (or overloads its motors) when contact is lost
+or the terrain differs (Fu & Li 2023, Bioinspir. Biomim. 18:056002). This law adds to the feedforward pitch goals a
+correction that regulates the load at each *node* of the body.
+
+Nodes. A pitch joint ``p`` (0-based, not the first and not the last pitch joint) is a node: the point of the body
+where segment ``p − 1`` ends and segment ``p`` begins. Its load is the sum of the bottom-sheet forces of those two
+segments (N). A correction ``δ_p`` (rad, positive = press the node down) is applied as a local dent of the pitch
+angles, the discrete second difference of a bump::
+
+    Δθ_{p−2} −= δ_p,   Δθ_p += 2 δ_p,   Δθ_{p+2} −= δ_p
+
+(positive pitch lifts what is behind a joint; with segment length L, for small angles this lowers the node by
+``2 L δ_p`` and leaves the pose of every segment beyond the two pitch joints on either side unchanged, so a node is
+pressed without lifting the rest of the body off its contacts). Kano & Ishiguro's decentralised tactile control
+acts locally in the same way; here the locality is exact in the kinematics, not only in the sensing.
+
+Which nodes push. Only where the feedforward bends the body *down around* the node (its pitch goal below
+``−wrap_rad``: the taught shape wrapped the terrain there) does the law press or reach for contact; elsewhere (the
+straight parts the propagation lifts off on purpose, or lays on flat ground) it only yields to an overload. Without
+that, reaching for every lost contact fights the propagation itself (measured: the head's node reached for the top
+it was leaving and the body advanced 6 cm instead of 48) — Fu & Li's "excessive conforming interrupts propagation".
+
+Law, per node and control tick of ``dt`` seconds, with the node's load ``F`` against ``target_n`` (the load a node
+should push with), ``contact_n`` (below: no contact) and ``overload_n`` (above: too much)::
+
+    overloaded (F > overload_n)              δ̇ = −conform_gain · (F − overload_n) / target_n   (yield: conform)
+    pushing node, lost contact (F <         δ̇ = +conform_gain                                  (reach down: conform)
+        contact_n), in contact within memory_s
+    pushing node in contact, F < target_n    δ̇ = +push_gain · (target_n − F) / target_n       (press: push)
+    otherwise (at target, or no sensing)     δ̇ = −δ / relax_s                                  (back to feedforward)
+
+``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad``; the summed correction of each joint is clipped to
+``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
+(stale, flagged by the health monitor, uncalibrated) never drives a correction: its δ relaxes to 0 (the feedforward)
+and :attr:`ForceFeedbackLaw.fallback` says which nodes and why. Liljebäck's jam resolution (measured contact forces
+decide where to adjust the shape) and Fu & Li's contact feedback (regain lost contact; one gain trading conforming
+against pushing) are the ideas taken; the node dent is ours.
+
+Pure numpy: arrays in, corrections out, units in the names, no clock, no I/O. One thread (the control loop's).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+
+class GainsError(ValueError):
+    """Gains out of their safe ranges; the message names the gain."""
+
+
+@dataclass(frozen=True)
+class FeedbackGains:
+    """The law's parameters (see the module docstring); forces in N, angles in rad, times in s."""
+
+    conform_gain: float = 0.15  # rad/s: how fast a node reaches for lost contact, and yields per unit of overload
+    push_gain: float = 0.10  # rad/s per unit of relative force deficit
+    target_n: float = 5.0  # the load a node in contact should push with (two segments weigh ~3.9 N)
+    contact_n: float = 0.5  # below this a node has no contact
+    overload_n: float = 20.0  # above this a node is overloaded (its servos near their stall torque)
+    memory_s: float = 3.0  # a node that had contact this recently and lost it reaches for it again
+    relax_s: float = 1.0  # time constant back to the feedforward
+    wrap_rad: float = 0.1  # a node pushes only where the feedforward bends the body down around it by more than this
+    max_rate_rad_s: float = 0.2
+    max_node_rad: float = 0.35
+    max_correction_rad: float = 0.5
+
+    def __post_init__(self) -> None:
+        check_gains(self)
+
+    @classmethod
+    def from_mapping(cls, values: dict, source: str = "gains") -> FeedbackGains:
+        known = {f.name for f in fields(cls)}
+        for key in values:
+            if key not in known:
+                raise GainsError(f"{source}: unknown gain '{key}' (known: {', '.join(sorted(known))})")
+        for key, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise GainsError(f"{source}: '{key}' must be a number, got {value!r}")
+        try:
+            return cls(**{k: float(v) for k, v in values.items()})
+        except GainsError as exc:
+            raise GainsError(f"{source}: {exc}") from None
+
+
+# The safe range of every gain: what the GUI's live adjustment and a gains file may set.
+GAIN_RANGES: dict[str, tuple[float, float]] = {
+    "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
+    "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
+    "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "wrap_rad": (0.0, 1.5),
+}
+
+
+def check_gains(gains: FeedbackGains) -> None:
+    for name, (low, high) in GAIN_RANGES.items():
+        value = getattr(gains, name)
+        if not (math.isfinite(value) and low <= value <= high):
+            raise GainsError(f"'{name}' = {value:g} is outside its safe range [{low:g}, {high:g}]")
+    if not gains.contact_n < gains.target_n < gains.overload_n:
+        raise GainsError(f"need contact_n < target_n < overload_n, got {gains.contact_n:g}, {gains.target_n:g}, "
+                         f"{gains.overload_n:g} N")
+
+
+def node_joints(axes: Sequence[str]) -> np.ndarray:
+    """The pitch joints that are nodes: every pitch joint with a pitch joint before and after it."""
+    pitch = [j for j, axis in enumerate(axes) if axis == "pitch"]
+    return np.array(pitch[1:-1], dtype=int)
+
+
+class ForceFeedbackLaw:
+    """The law with its state (each node's δ and when it last had contact). ``step`` once per control tick."""
+
+    def __init__(self, axes: Sequence[str], gains: FeedbackGains | None = None) -> None:
+        self.axes = tuple(axes)
+        self.gains = gains or FeedbackGains()
+        pitch = [j for j, axis in enumerate(self.axes) if axis == "pitch"]
+        self.nodes = node_joints(self.axes)
+        # the pitch joints before and after each node, and the two segments meeting at it
+        self._before = np.array([pitch[pitch.index(p) - 1] for p in self.nodes], dtype=int)
+        self._after = np.array([pitch[pitch.index(p) + 1] for p in self.nodes], dtype=int)
+        self._segments = np.stack([self.nodes - 1, self.nodes], axis=1)
+        self.delta_rad = np.zeros(len(self.nodes))
+        self._last_contact_s = np.full(len(self.nodes), -math.inf)
+        self._t_s = 0.0
+        self.fallback: dict[int, str] = {}  # node joint → why it is on feedforward now
+        self.node_load_n = np.full(len(self.nodes), np.nan)
+        self.pushing = np.zeros(len(self.nodes), bool)  # the nodes the feedforward bends down around (may push)
+
+    def set_gains(self, gains: FeedbackGains) -> None:
+        """New gains from the next tick on (live adjustment); the state carries over."""
+        check_gains(gains)
+        self.gains = gains
+
+    def reset(self) -> None:
+        self.delta_rad[:] = 0.0
+        self._last_contact_s[:] = -math.inf
+        self._t_s = 0.0
+        self.fallback = {}
+
+    def node_loads(self, bottom_n: np.ndarray) -> np.ndarray:
+        """Each node's load (N): the bottom forces of the two segments meeting at it."""
+        return np.asarray(bottom_n, dtype=float)[self._segments].sum(axis=1)
+
+    def step(self, dt_s: float, bottom_n: np.ndarray, valid: np.ndarray, why_invalid: Sequence[str] = (),
+             feedforward_rad: np.ndarray | None = None) -> np.ndarray:
+        """One tick: ``bottom_n`` (n segments) the estimated bottom-sheet forces, ``valid`` (n) which may drive a
+        correction (``why_invalid[s]`` says why not, for :attr:`fallback`), ``feedforward_rad`` (n joints) this
+        tick's feedforward goals (None: every node may push). Returns the correction (n joints, rad) to add to
+        the feedforward goals."""
+        g = self.gains
+        self._t_s += dt_s
+        bottom = np.asarray(bottom_n, dtype=float)
+        ok = np.asarray(valid, dtype=bool)[self._segments].all(axis=1) & np.isfinite(bottom[self._segments]).all(axis=1)
+        load = np.where(ok, np.nan_to_num(bottom)[self._segments].sum(axis=1), np.nan)
+        self.node_load_n = load
+        rate = -self.delta_rad / g.relax_s
+        in_contact = ok & (load >= g.contact_n)
+        self._last_contact_s[in_contact] = self._t_s
+        over = ok & (load > g.overload_n)
+        wraps = (np.ones(len(self.nodes), bool) if feedforward_rad is None
+                 else np.asarray(feedforward_rad, dtype=float)[self.nodes] < -g.wrap_rad)
+        self.pushing = wraps
+        lost = ok & wraps & ~in_contact & (self._t_s - self._last_contact_s <= g.memory_s)
+        under = wraps & in_contact & (load < g.target_n)
+        rate = np.where(over, -g.conform_gain * (np.nan_to_num(load) - g.overload_n) / g.target_n, rate)
+        rate = np.where(lost, g.conform_gain, rate)
+        rate = np.where(under, g.push_gain * (g.target_n - np.nan_to_num(load)) / g.target_n, rate)
+        rate = np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s)
+        self.delta_rad = np.clip(self.delta_rad + rate * dt_s, -g.max_node_rad, g.max_node_rad)
+        self.fallback = {}
+        for k in np.flatnonzero(~ok):
+            reasons = [why_invalid[s] for s in self._segments[k] if s < len(why_invalid) and why_invalid[s]]
+            self.fallback[int(self.nodes[k])] = "; ".join(reasons) or "no force estimate"
+        return self.correction()
+
+    def correction(self) -> np.ndarray:
+        """The present correction per joint (rad): each node's dent, summed and clipped."""
+        out = np.zeros(len(self.axes))
+        np.add.at(out, self._before, -self.delta_rad)
+        np.add.at(out, self.nodes, 2.0 * self.delta_rad)
+        np.add.at(out, self._after, -self.delta_rad)
+        limit = self.gains.max_correction_rad
+        return np.clip(out, -limit, limit)

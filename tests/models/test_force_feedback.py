@@ -1,0 +1,107 @@
+"""The force-feedback law (models/force_feedback.py), pure: arrays in, corrections out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.force_feedback import FeedbackGains, ForceFeedbackLaw, GainsError, node_joints
+from models.kinematics import forward_kinematics
+
+AXES = tuple("pitch" if i % 2 == 0 else "yaw" for i in range(12))
+DT = 0.02
+
+
+def _law(**gains) -> ForceFeedbackLaw:
+    return ForceFeedbackLaw(AXES, FeedbackGains(**gains))
+
+
+def _loads(node_loads: dict[int, float]) -> np.ndarray:
+    """Bottom forces per segment putting ``load`` on node ``p`` (half on each of its two segments)."""
+    bottom = np.full(12, 1.0)  # 2 N on every node: under the default 5 N target unless set
+    for p, load in node_loads.items():
+        bottom[p - 1] = bottom[p] = load / 2
+    return bottom
+
+
+def test_the_nodes_are_the_inner_pitch_joints():
+    assert list(node_joints(AXES)) == [2, 4, 6, 8]
+
+
+def test_the_dent_presses_one_node_down_and_leaves_the_rest_of_the_body_where_it_was():
+    law = _law()
+    law.delta_rad[:] = [0.0, 0.02, 0.0, 0.0]  # node at joint 4
+    correction = law.correction()
+    assert correction[[2, 4, 6]] == pytest.approx([-0.02, 0.04, -0.02])
+    assert np.count_nonzero(correction) == 3
+    base = np.zeros(12)
+    before = forward_kinematics(base, AXES, 0.08).points_m
+    after = forward_kinematics(base + correction, AXES, 0.08).points_m
+    drop = before[:, 2] - after[:, 2]
+    assert drop[4] == pytest.approx(2 * 0.08 * 0.02, rel=0.01)  # the node (front of segment 5) goes down 2Lδ
+    assert np.abs(drop[:3]).max() < 1e-12  # in front: untouched
+    assert np.abs(after[6:] - before[6:]).max() < 2e-4  # behind the next pitch joint but one: back in place
+
+
+def test_a_node_that_lost_contact_reaches_down_for_it_at_the_conform_rate_then_relaxes():
+    law = _law(conform_gain=0.1)
+    law.step(DT, _loads({6: 4.0}), np.ones(12, bool))  # in contact
+    for _ in range(25):  # 0.5 s without contact
+        law.step(DT, _loads({6: 0.0}), np.ones(12, bool))
+    k = list(law.nodes).index(6)
+    assert law.delta_rad[k] == pytest.approx(0.1 * 0.5, rel=0.05)
+    for _ in range(500):  # 10 s: past memory_s (3 s) it stops reaching and relaxes back to the feedforward
+        law.step(DT, _loads({6: 0.0}), np.ones(12, bool))
+    assert abs(law.delta_rad[k]) < 0.01
+
+
+def test_under_target_it_pushes_overloaded_it_yields_at_target_it_relaxes():
+    law = _law()
+    for _ in range(10):
+        law.step(DT, _loads({2: 2.5, 4: 20.0, 6: 8.0, 8: 8.0}), np.ones(12, bool))
+    delta = dict(zip(law.nodes, law.delta_rad))
+    assert delta[2] > 0  # 2.5 N < 5 N target: press
+    assert delta[4] < 0  # 20 N > 12 N: yield
+    assert delta[6] == 0  # between target and overload: nothing to do
+    pushed = delta[2]
+    for _ in range(400):
+        law.step(DT, _loads({2: 6.0, 4: 8.0, 6: 8.0, 8: 8.0}), np.ones(12, bool))
+    assert abs(law.delta_rad).max() < 0.02 * pushed + 1e-6  # back to the feedforward
+
+
+def test_stale_or_flagged_sensors_never_drive_a_correction_and_say_why():
+    law = _law()
+    valid = np.ones(12, bool)
+    valid[5] = False
+    why = [""] * 12
+    why[5] = "S06B: no estimate for 0.15 s"
+    for _ in range(50):
+        law.step(DT, _loads({6: 0.0, 4: 2.5}), valid, why)
+    delta = dict(zip(law.nodes, law.delta_rad))
+    assert delta[6] == 0.0  # node 6 = segments 5 and 6: segment 5 invalid
+    assert law.fallback == {6: "S06B: no estimate for 0.15 s"}
+    assert np.isnan(law.node_load_n[list(law.nodes).index(6)])
+    assert delta[4] > 0  # node 4 (segments 3, 4) still feeds back
+
+
+def test_rates_and_sizes_are_limited():
+    law = _law(push_gain=0.5, max_rate_rad_s=0.05, max_node_rad=0.1, max_correction_rad=0.15)
+    loads = _loads({2: 8.0, 4: 0.6, 6: 8.0, 8: 8.0})  # only node 4 under its target
+    law.step(1.0, loads, np.ones(12, bool))
+    assert law.delta_rad.max() == pytest.approx(0.05)
+    for _ in range(100):
+        law.step(DT * 10, loads, np.ones(12, bool))
+    assert law.delta_rad.max() == pytest.approx(0.1)
+    assert np.abs(law.correction()).max() == pytest.approx(0.15)  # 2δ = 0.2 at joint 4, clipped
+
+
+@pytest.mark.parametrize(("values", "words"), [
+    ({"push_gain": 2.0}, "'push_gain' = 2 is outside its safe range"),
+    ({"target_n": 0.2, "contact_n": 0.5}, "'target_n' = 0.2 is outside"),
+    ({"contact_n": 3.0, "target_n": 2.0}, "need contact_n < target_n < overload_n"),
+    ({"pushgain": 0.1}, "unknown gain 'pushgain'"),
+    ({"push_gain": "high"}, "'push_gain' must be a number"),
+])
+def test_gains_outside_their_safe_ranges_are_refused_by_name(values, words):
+    with pytest.raises(GainsError, match=words.replace("(", r"\(").replace("[", r"\[")):
+        FeedbackGains.from_mapping(values, "g.toml")
