@@ -733,6 +733,13 @@ class RobotController:
         last_goal = self.chain.last_goal_rad
         if last_goal is not None:
             state = dataclasses.replace(state, goal_rad=last_goal)
+            motion = self._motion
+            progress = getattr(motion.source, "progress", None) if motion is not None else None
+            correction = getattr(progress, "correction_rad", None)
+            if correction is not None and len(correction) == len(last_goal):  # a feedback motion's, duck-typed
+                state = dataclasses.replace(state, correction_rad=np.asarray(correction, dtype=float),
+                                            controller=str(getattr(progress, "controller", "feedback")),
+                                            controller_gains=str(getattr(progress, "gains_json", "")))
         self._last_state = state
         with self._lock:
             self._latest_state = state

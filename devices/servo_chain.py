@@ -141,6 +141,11 @@ class ChainState:
     current_ma: np.ndarray
     alert_ids: tuple[int, ...] = ()  # servos whose status packet carried the alert bit (hardware error)
     goal_rad: np.ndarray | None = None  # the last goals sent (filled in by RobotController), joint order
+    # what a controller other than feedforward added to those goals (rad, joint order; filled in by RobotController
+    # from the running motion's progress), its name and its gains as JSON
+    correction_rad: np.ndarray | None = None
+    controller: str = ""
+    controller_gains: str = ""
 
 
 @dataclass(frozen=True)

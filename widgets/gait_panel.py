@@ -69,6 +69,8 @@ class GaitRequest:
     cycles: float
     pitch_amplitude_rad: float
     phase_rad: float
+    controller: str = "feedforward"  # or "feedback": force-feedback body bending (follow and keyframes)
+    gains: dict[str, float] | None = None  # the feedback gains shown in the panel (conform, push, target)
 
 
 def _spin(lo: float, hi: float, value: float, step: float, decimals: int, suffix: str) -> QDoubleSpinBox:
@@ -81,8 +83,20 @@ def _spin(lo: float, hi: float, value: float, step: float, decimals: int, suffix
     return spin
 
 
+# The feedback gains the panel lets a user adjust, live, within these ranges (the law's safe ranges may be wider).
+FEEDBACK_SPINS = (
+    ("conform_gain", "conform", 0.0, 0.5, 0.15, 0.01, 2, " rad/s",
+     "How fast a node the shape wraps reaches for contact it lost, and yields per unit of overload"),
+    ("push_gain", "push", 0.0, 0.5, 0.10, 0.01, 2, " rad/s",
+     "How fast a node in contact presses down when it carries less than the target force"),
+    ("target_n", "target", 0.5, 20.0, 5.0, 0.5, 1, " N",
+     "The load a node (two segments' bottom sheets) should push with"),
+)
+
+
 class GaitPanel(QWidget):
     play_requested = Signal(object)  # GaitRequest
+    gains_changed = Signal(object)  # dict of the feedback gains, while a feedback motion may be running
     pause_requested = Signal()
     resume_requested = Signal()
     stop_requested = Signal()
@@ -193,6 +207,34 @@ class GaitPanel(QWidget):
         QVBoxLayout(params_box).addWidget(self.params)
         column.addWidget(params_box)
 
+        self.controller_box = QGroupBox("Controller")
+        controller_form = QFormLayout(self.controller_box)
+        self.controller_combo = QComboBox()
+        self.controller_combo.addItem("feedforward (the shape as taught)", "feedforward")
+        self.controller_combo.addItem("feedback (bending from the bottom forces)", "feedback")
+        self.controller_combo.setToolTip(
+            "Feedback corrects the pitch goals from the estimated bottom forces: where the shape wraps the "
+            "terrain it presses nodes that carry less than the target and reaches for lost contact; anywhere it "
+            "yields to an overload. Needs calibrated bottom sensors (Forces tab); a stale, flagged or "
+            "uncalibrated sensor leaves its node on feedforward.")
+        controller_form.addRow("mode", self.controller_combo)
+        self.gain_spins: dict[str, QDoubleSpinBox] = {}
+        for key, label, lo, hi, value, step, decimals, suffix, tip in FEEDBACK_SPINS:
+            spin = _spin(lo, hi, value, step, decimals, suffix)
+            spin.setToolTip(tip + " (adjustable while playing)")
+            spin.valueChanged.connect(lambda _v: self.gains_changed.emit(self.gains()))
+            self.gain_spins[key] = spin
+            controller_form.addRow(label, spin)
+        self.feedback_label = QLabel("")
+        self.feedback_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
+        self.feedback_label.setWordWrap(True)
+        self.feedback_label.setToolTip("Per node (the pitch joint between two segments): the force it should push "
+                                       "with, the force measured on its two bottom sheets, and the correction "
+                                       "applied to that joint; 'ff' where it is on feedforward, and why")
+        controller_form.addRow(self.feedback_label)
+        self.controller_combo.currentIndexChanged.connect(lambda _i: self._controller_changed())
+        column.addWidget(self.controller_box)
+
         transport = QHBoxLayout()
         self.play_button = QPushButton("▶ Play")
         self.play_button.setStyleSheet("font-weight: bold;")
@@ -293,7 +335,26 @@ class GaitPanel(QWidget):
             amplitude_rad=self.amplitude_spin.value(), spatial_rad=self.spatial_spin.value(),
             frequency_hz=self.frequency_spin.value(), offset_rad=self.offset_spin.value(),
             cycles=self.cycles_spin.value(), pitch_amplitude_rad=self.pitch_amplitude_spin.value(),
-            phase_rad=self.phase_spin.value())
+            phase_rad=self.phase_spin.value(), controller=self.controller, gains=self.gains())
+
+    @property
+    def controller(self) -> str:
+        return str(self.controller_combo.currentData()) if self.mode in ("follow", "keyframes") else "feedforward"
+
+    def gains(self) -> dict[str, float]:
+        """The feedback gains set in the panel."""
+        return {key: spin.value() for key, spin in self.gain_spins.items()}
+
+    def set_feedback_readout(self, rows: Sequence[tuple[str, float, float, float, str]]) -> None:
+        """Per node: (name, target N, measured N or NaN, correction rad, why it is on feedforward or '')."""
+        lines = []
+        for name, target, measured, correction, why in rows:
+            load = f"{measured:5.1f}" if math.isfinite(measured) else "  —  "
+            lines.append(f"{name}: target {target:4.1f} N  measured {load} N  corr {correction:+.3f} rad"
+                         + (f"  ff: {why}" if why else ""))
+        text = "\n".join(lines)
+        if self.feedback_label.text() != text:
+            self.feedback_label.setText(text)
 
     def set_shapes(self, names: Sequence[str], current: str = "") -> None:
         keep = current or self.shape_combo.currentText()
@@ -333,7 +394,7 @@ class GaitPanel(QWidget):
         self.stop_button.setEnabled(running or paused)
         idle = not running and not paused
         for w in (self.mode_combo, self.params, self.shape_combo, self.rate_spin, self.repeat_spin,
-                  self.refresh_button, self.open_button):
+                  self.refresh_button, self.open_button, self.controller_combo):
             w.setEnabled(idle)
 
     def set_progress(self, text: str, fraction: float) -> None:
@@ -375,6 +436,12 @@ class GaitPanel(QWidget):
         self.rate_spin.setValue(rate_hz)
 
     # -- internals ---------------------------------------------------------------------------------------------------
+    def _controller_changed(self) -> None:
+        feedback = self.controller == "feedback"
+        for spin in self.gain_spins.values():
+            spin.setEnabled(feedback)
+        self.feedback_label.setVisible(feedback)
+
     def _play_blocker(self) -> str:
         """Why Play cannot work now ('' if it can)."""
         if self._state in ("running", "paused"):
@@ -397,6 +464,8 @@ class GaitPanel(QWidget):
         widget: QWidget
         for widget in (self.shape_combo, self.refresh_button, self.open_button, self._shape_label):
             widget.setVisible(uses_shape)
+        self.controller_box.setVisible(uses_shape)  # feedback corrects a shape's pitch bending
+        self._controller_changed()
         side = mode == "sidewinding"
         for widget in (self._pitch_label, self.pitch_amplitude_spin, self._phase_label, self.phase_spin):
             widget.setVisible(side)

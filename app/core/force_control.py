@@ -20,6 +20,7 @@ opens the page there by its path. Qt-free; the writer is one thread, the reader 
 
 from __future__ import annotations
 
+import json
 import math
 import mmap
 import os
@@ -27,7 +28,7 @@ import struct
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, astuple, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,8 @@ from models.trajectory import Progress
 
 STALE_S = 0.1
 _HEADER = struct.Struct("<QdI")  # sequence (odd while writing), arrival time (monotonic s), channel count
+_GAIN_NAMES = tuple(f.name for f in fields(FeedbackGains))
+_GAINS = struct.Struct(f"<Q{len(_GAIN_NAMES)}d")  # version (odd while writing; 0: none set), the gains in field order
 
 
 class ForcePage:
@@ -52,7 +55,8 @@ class ForcePage:
             with open(self.path, "rb") as f:
                 n_channels = _HEADER.unpack(f.read(_HEADER.size))[2]
         self.n_channels = int(n_channels)
-        self._size = _HEADER.size + 9 * self.n_channels
+        self._gains_at = _HEADER.size + 9 * self.n_channels
+        self._size = self._gains_at + _GAINS.size
         with open(self.path, "r+b") as f:
             self._map = mmap.mmap(f.fileno(), self._size)
 
@@ -61,23 +65,28 @@ class ForcePage:
         base = folder or ("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir())
         fd, name = tempfile.mkstemp(prefix="sensnake-forces-", suffix=".page", dir=base)
         with os.fdopen(fd, "wb") as f:
-            f.write(_HEADER.pack(0, -math.inf, n_channels) + bytes(9 * n_channels))
+            f.write(_HEADER.pack(0, -math.inf, n_channels) + bytes(9 * n_channels + _GAINS.size))
         return cls(name, n_channels, owner=True)
 
     def publish(self, arrival_s: float, force_n: np.ndarray, trusted: np.ndarray) -> None:
         """The forces estimated from the board frame that reached the host at ``arrival_s`` (``time.monotonic``),
         NaN where there is no estimate, and which channels may drive a correction."""
+        if self._map.closed:
+            return  # closed with the app: a last block on its way is dropped
         forces = np.asarray(force_n, dtype="<f8")
         ok = np.asarray(trusted, dtype=np.uint8)
         seq = struct.unpack_from("<Q", self._map, 0)[0]
         struct.pack_into("<Q", self._map, 0, seq + 1)  # odd: a write is under way
         struct.pack_into("<dI", self._map, 8, float(arrival_s), self.n_channels)
         self._map[_HEADER.size:_HEADER.size + 8 * self.n_channels] = forces.tobytes()
-        self._map[_HEADER.size + 8 * self.n_channels:self._size] = ok.tobytes()
+        self._map[_HEADER.size + 8 * self.n_channels:self._gains_at] = ok.tobytes()
         struct.pack_into("<Q", self._map, 0, seq + 2)
 
     def read(self) -> tuple[float, np.ndarray, np.ndarray]:
-        """(arrival time, forces, trusted) of the latest publication; (−inf, NaN…, False…) before the first."""
+        """(arrival time, forces, trusted) of the latest publication; (−inf, NaN…, False…) before the first (and
+        once the page is closed)."""
+        if self._map.closed:
+            return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
         for _ in range(1000):
             seq = struct.unpack_from("<Q", self._map, 0)[0]
             if seq % 2:
@@ -91,6 +100,28 @@ class ForcePage:
                     return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
                 return arrival, forces, trusted
         raise RuntimeError(f"{self.path}: the force page is being written without end")
+
+    def set_gains(self, gains: FeedbackGains) -> None:
+        """New gains for a running feedback motion (any process reading this page takes them at its next tick)."""
+        if self._map.closed:
+            return
+        version = struct.unpack_from("<Q", self._map, self._gains_at)[0]
+        struct.pack_into("<Q", self._map, self._gains_at, version + 1)
+        struct.pack_into(f"<{len(_GAIN_NAMES)}d", self._map, self._gains_at + 8, *astuple(gains))
+        struct.pack_into("<Q", self._map, self._gains_at, version + 2)
+
+    def gains(self) -> tuple[int, FeedbackGains | None]:
+        """(version, gains) last set with :meth:`set_gains`; (0, None) before."""
+        if self._map.closed:
+            return 0, None
+        for _ in range(1000):
+            version = struct.unpack_from("<Q", self._map, self._gains_at)[0]
+            if version % 2:
+                continue
+            values = struct.unpack_from(f"<{len(_GAIN_NAMES)}d", self._map, self._gains_at + 8)
+            if struct.unpack_from("<Q", self._map, self._gains_at)[0] == version:
+                return (0, None) if version == 0 else (version, FeedbackGains(*values))
+        raise RuntimeError(f"{self.path}: the gains are being written without end")
 
     def close(self) -> None:
         self._map.close()
@@ -112,6 +143,8 @@ class FeedbackProgress(Progress):
     fallback: tuple[tuple[int, str], ...] = ()
     force_age_s: float = math.inf
     tick_s: float = 0.0
+    controller: str = "feedback"
+    gains_json: str = ""
 
 
 def bottom_channels(channel_names: Sequence[str], n_segments: int) -> np.ndarray:
@@ -138,11 +171,14 @@ class ForceFeedbackMotion:
     stale_s: float = STALE_S
     page: Any = None
     clock: Any = None
+    joint_min_rad: tuple[float, ...] | None = None
+    joint_max_rad: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         self.law = ForceFeedbackLaw(self.axes, self.gains)
         self._bottom = bottom_channels(self.channel_names, len(self.axes))
         self._last_t: float | None = None
+        self._gains_version = 0
         self.progress: Progress = getattr(self.source, "progress", Progress("shift", 0, 1, 0.0, 0.0, 0.0, 0.0))
 
     def __getstate__(self) -> dict:
@@ -171,6 +207,11 @@ class ForceFeedbackMotion:
         dt = 1.0 / self.rate_hz if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
         arrival, forces, trusted = self._read()
+        if self.page is not None and hasattr(self.page, "gains"):
+            version, gains = self.page.gains()
+            if version != self._gains_version and gains is not None:
+                self._gains_version = version
+                self.set_gains(gains)  # live adjustment from the app (checked against the safe ranges)
         now = (self.clock or time.monotonic)()
         age = now - arrival
         n = len(self.axes)
@@ -198,5 +239,11 @@ class ForceFeedbackMotion:
                 base.done, correction_rad=tuple(float(c) for c in correction),
                 node_joints=tuple(int(j) for j in self.law.nodes),
                 node_load_n=tuple(float(v) for v in self.law.node_load_n), target_n=self.law.gains.target_n,
-                fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age), tick_s=float(t_s))
-        return np.asarray(goal, dtype=float) + correction
+                fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age), tick_s=float(t_s),
+                gains_json=json.dumps(asdict(self.law.gains)))
+        goal = np.asarray(goal, dtype=float)
+        if self.joint_min_rad is not None and self.joint_max_rad is not None:
+            # the correction never takes a goal past a joint limit (the controller refuses such a goal outright)
+            corrected = np.clip(goal + correction, self.joint_min_rad, self.joint_max_rad)
+            return np.where((goal >= self.joint_min_rad) & (goal <= self.joint_max_rad), corrected, goal + correction)
+        return goal + correction

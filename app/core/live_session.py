@@ -37,7 +37,7 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import BoardConfig
 from devices.errors import BoardProtocolError
-from models.health import HealthMonitor, describe
+from models.health import BAD_FLAGS, HealthMonitor, describe
 
 CRC_WARN_FRACTION = 0.05  # of the frames seen in the window: above this the link is bad, say so loudly
 CRC_WARN_MIN = 10  # a handful of CRC errors (e.g. on plugging in) is not a storm
@@ -120,7 +120,8 @@ class LiveSession:
     """The board's live data path; see the module docstring. ``LiveSession(config.board, pipeline, health)``."""
 
     def __init__(self, board: BoardConfig, pipeline: ForcesPipeline | None = None,
-                 health: HealthMonitor | None = None, t0_monotonic_s: float | None = None) -> None:
+                 health: HealthMonitor | None = None, t0_monotonic_s: float | None = None,
+                 force_page: Any = None) -> None:
         self.board = board
         self.channel_names = tuple(board.channel_names)
         self.pipeline = pipeline
@@ -135,6 +136,8 @@ class LiveSession:
         self._statuses: queue.SimpleQueue[BoardStatus] = queue.SimpleQueue()
         self.last_status: BoardStatus | None = None
         self.samples = 0
+        # where each block's latest forces go for a feedback controller (app.core.force_control.ForcePage)
+        self.force_page = force_page
 
     # -- subscribers -----------------------------------------------------------------------------------------------
     def subscribe(self, callback: Callable[[LiveUpdate], None]) -> None:
@@ -162,6 +165,13 @@ class LiveSession:
             if report is not None and report.changed.size:
                 changed = np.asarray(report.changed, dtype=np.intp)
         self.samples += len(block)
+        if self.force_page is not None and forces is not None and len(block):
+            # the latest frame's forces, stamped with when it reached the host; a channel the health monitor flags
+            # (any flag that means the reading cannot be trusted) may not drive a correction
+            trusted = np.isfinite(forces.force_n[-1])
+            if self.health is not None:
+                trusted &= (self.health.flags.astype(int) & int(BAD_FLAGS)) == 0
+            self.force_page.publish(float(block.host_time_s[-1]), forces.force_n[-1], trusted)
         recorder = self.recorder
         if recorder is not None and recorder.is_active:
             recorder.add_block(block, forces.force_n if (forces is not None and recorder.with_forces) else None)

@@ -220,3 +220,9 @@ def _append_robot(writer: RecordingWriter, states: list[Any]) -> None:
     current = np.array([s.current_ma for s in states], dtype=float)
     times = np.array([s.host_time_s for s in states], dtype=float)
     writer.append_robot(times, goal, present, current)
+    control = [s for s in states if getattr(s, "correction_rad", None) is not None]
+    if control:  # a controller other than feedforward ran (SPEC §3.5 /control)
+        writer.append_control(np.array([s.host_time_s for s in control], dtype=float),
+                              np.array([s.correction_rad for s in control], dtype=float),
+                              str(getattr(control[0], "controller", "feedback")),
+                              str(getattr(control[0], "controller_gains", "{}")))

@@ -81,16 +81,28 @@ class _Table:
     """Columns of one group appended together; rows buffered in memory until the next flush, when they are written
     through the file opened for that flush (the writer keeps no HDF5 handle between flushes)."""
 
-    def __init__(self, group: h5py.Group, columns: dict[str, tuple[Any, tuple[int, ...]]]) -> None:
-        self.group_name = group.name
+    def __init__(self, group: h5py.Group | str, columns: dict[str, tuple[Any, tuple[int, ...]]],
+                 attrs: dict[str, Any] | None = None) -> None:
+        """``group``: the group to make the datasets in now, or the name of one made at the first flush that has
+        rows for it (with ``attrs``): a group only some recordings hold (``/control``) appears only in those."""
         self.columns = dict(columns)
-        for name, (dtype, row_shape) in columns.items():
+        self._attrs = dict(attrs or {})
+        if isinstance(group, str):
+            self.group_name = group
+        else:
+            self.group_name = group.name
+            self._create(group)
+        self.pending: dict[str, list[np.ndarray]] = {name: [] for name in columns}
+        self.rows = 0  # rows on disk
+
+    def _create(self, group: h5py.Group) -> None:
+        for name, (dtype, row_shape) in self.columns.items():
             row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
             chunk_rows = max(16, CHUNK_BYTES // row_bytes)
             group.create_dataset(name, shape=(0, *row_shape), maxshape=(None, *row_shape),
                                  chunks=(chunk_rows, *row_shape), dtype=dtype)
-        self.pending: dict[str, list[np.ndarray]] = {name: [] for name in columns}
-        self.rows = 0  # rows on disk
+        for key, value in self._attrs.items():
+            group.attrs[key] = value
 
     def append(self, **columns: np.ndarray) -> None:
         for name, values in columns.items():
@@ -111,6 +123,8 @@ class _Table:
         n_new = self.pending_rows
         if n_new == 0:
             return
+        if self.group_name not in f:
+            self._create(f.create_group(self.group_name))
         group = f[self.group_name]
         handles.append(group)
         for name, chunks in self.pending.items():
@@ -196,6 +210,8 @@ class RecordingWriter:
             with contextlib.suppress(OSError):
                 self._work_path.unlink()
             raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
+        self._control: _Table | None = None
+        self._n_joints = n_joints
         self._last_flush = time.monotonic()
         self._last_time_s = 0.0
         self._last_flushed_time_s = 0.0
@@ -205,7 +221,7 @@ class RecordingWriter:
 
     @property
     def _tables(self) -> tuple[_Table, ...]:
-        return tuple(t for t in (self._daq, self._robot, self._forces, self._events) if t is not None)
+        return tuple(t for t in (self._daq, self._robot, self._forces, self._events, self._control) if t is not None)
 
     # -- appending ---------------------------------------------------------------------------------------------
     def time_s(self, host_monotonic_s: float | np.ndarray) -> float | np.ndarray:
@@ -257,6 +273,21 @@ class RecordingWriter:
         self._robot.append(time_s=times, goal_rad=rows(goal_rad), present_rad=rows(present_rad),
                            current_mA=rows(current_ma))
         self._last_time_s = max(self._last_time_s, float(times[-1]))
+        self._maybe_flush()
+
+    def append_control(self, time_s: float | np.ndarray, correction_rad: np.ndarray, controller: str,
+                       gains_json: str) -> None:
+        """Append what a controller other than feedforward added to the goals (SPEC §3.5 ``/control``): host
+        monotonic ``time_s``, ``correction_rad`` (J,) or (N, J). The group, with ``controller`` and ``gains`` as
+        attributes (those of the first rows), appears at the first flush after the first rows."""
+        self._check()
+        times = np.atleast_1d(self.time_s(time_s))
+        if self._control is None:
+            self._control = _Table("/control", {"time_s": (np.float64, ()),
+                                                "correction_rad": (np.float64, (self._n_joints,))},
+                                   attrs={"controller": controller, "gains": gains_json})
+        self._control.append(time_s=times, correction_rad=np.asarray(correction_rad, dtype=np.float64).reshape(
+            len(times), self._n_joints))
         self._maybe_flush()
 
     def append_forces(self, force_n: np.ndarray) -> None:

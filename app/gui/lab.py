@@ -74,6 +74,7 @@ class LabContext(QObject):
         self._board_loaded = False
         self.board_unavailable_reason = ""
         self._recording: Any = None
+        self._force_page: Any = None
         self._closed = False
         if any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port)):
             self.lab_where = _make_sim_lab(config, lab_process)
@@ -113,6 +114,18 @@ class LabContext(QObject):
     def board_if_created(self) -> Any:
         """The board bridge if something already asked for it, without creating it."""
         return self._board
+
+    # -- forces for the controller --------------------------------------------------------------------------------
+    @property
+    def force_page(self) -> Any:
+        """The shared page (:class:`app.core.force_control.ForcePage`) where the Forces tab publishes every board
+        block's estimated forces, read by a feedback motion on the control loop's thread (in its own process or
+        this one). Made on first use; removed on :meth:`close`."""
+        if self._force_page is None and not self._closed:
+            from app.core.force_control import ForcePage
+
+            self._force_page = ForcePage.create(len(self.config.board.channel_names))
+        return self._force_page
 
     # -- recording -------------------------------------------------------------------------------------------------
     @property
@@ -155,6 +168,8 @@ class LabContext(QObject):
         if recording is not None and hasattr(recording, "stop"):
             recording.stop()
         self.robot.close()
+        if self._force_page is not None:
+            self._force_page.close()
         if self._board is not None:
             self._board.stop()
             close = getattr(self._board, "close", None)

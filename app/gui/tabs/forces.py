@@ -125,7 +125,8 @@ class ForcesTab(QWidget):
         # The data path (pipeline → health → recording) is the core's, the same one ``sensnake record`` runs; this
         # tab subscribes to it and draws.
         self.live = LiveSession(config.board, pipeline=self.pipeline, health=self.health,
-                                t0_monotonic_s=self.board.t0_monotonic_s if self.board is not None else None)
+                                t0_monotonic_s=self.board.t0_monotonic_s if self.board is not None else None,
+                                force_page=getattr(lab, "force_page", None))
         self.live.subscribe(self._draw_update)
         self.quantity = "force"
         self.session: RecordingSession | None = None

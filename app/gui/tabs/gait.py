@@ -1,5 +1,10 @@
 """The Gait tab: replay a shape follow-the-leader or as keyframes, or run a parametric gait, on ``lab.robot``.
 
+A shape can be played with force feedback (:class:`app.core.force_control.ForceFeedbackMotion`): its pitch goals are
+corrected from the bottom forces the Forces tab estimates and publishes on ``lab.force_page``; the gains are
+adjustable while it plays (through the same page), and the panel shows per node the target and measured force and
+the correction.
+
 Wires :class:`widgets.gait_panel.GaitPanel` to the robot bridge. Motions are the MotionSources of
 :mod:`models.trajectory`, built by :func:`app.core.play.build_source` — the code ``sensnake play`` runs — and
 sampled at the controller's rate (``robot.control_rate_hz``). Progress (shift / keyframe / cycle index and fraction)
@@ -20,6 +25,7 @@ from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QFileDialog, QVBoxLayout, QWidget
 
 from app.core import user_folders
+from app.core.force_control import FeedbackProgress, ForceFeedbackMotion
 from app.core.play import build_source
 from app.core.shapes import Shape, ShapeLibrary, read_shape
 from app.core.teach import TeachSession
@@ -32,6 +38,7 @@ from app.gui.robot_bridge import (
     MOTION_STOPPED,
     describe_error,
 )
+from models.force_feedback import FeedbackGains, GainsError
 from models.trajectory import SerpenoidParams, SidewindingParams, TrajectoryError, serpenoid, sidewinding
 from widgets import theme
 from widgets.gait_panel import GaitPanel, GaitRequest
@@ -64,6 +71,7 @@ class GaitTab(QWidget):
         p.refresh_shapes_requested.connect(self.refresh_shapes)
         p.open_file_requested.connect(self._open_file)
         p.shape_selected.connect(self._preview_shape)
+        p.gains_changed.connect(self._gains_changed)
         self.robot.motion_changed.connect(self._motion_changed)
         self.robot.error.connect(self._robot_error)
         self.robot.connected.connect(p.set_connected)
@@ -123,6 +131,8 @@ class GaitTab(QWidget):
             sampled = replace(robot, control_rate_hz=request.rate_hz)
             source = build_source(shape, sampled, request.mode, request.speed_rad_s, request.time_scale,
                                   request.shifts, request.repeat)
+            if request.controller == "feedback":
+                return self._with_feedback(source, request), f"{request.mode} {request.shape_name} (feedback)"
             return source, f"{request.mode} {request.shape_name}"
         wave = SerpenoidParams(amplitude_rad=request.amplitude_rad, spatial_rad=request.spatial_rad,
                                frequency_hz=request.frequency_hz, offset_rad=request.offset_rad,
@@ -143,6 +153,29 @@ class GaitTab(QWidget):
         params = SidewindingParams(yaw=wave, pitch_amplitude_rad=request.pitch_amplitude_rad,
                                    pitch_spatial_rad=request.spatial_rad, phase_rad=request.phase_rad)
         return sidewinding(robot.axes, params), "sidewinding"
+
+    def _with_feedback(self, source: Any, request: GaitRequest) -> ForceFeedbackMotion:
+        """``source`` corrected from the bottom forces the Forces tab publishes (the page crosses to the control
+        loop's process by its path); the panel's gains go onto the page first, so the loop starts with them."""
+        robot = self.config
+        gains = replace(FeedbackGains(), **(request.gains or {}))
+        page = self.lab.force_page
+        page.set_gains(gains)
+        return ForceFeedbackMotion(source, tuple(robot.axes), tuple(self.lab.config.board.channel_names), gains,
+                                   page_path=str(page.path), rate_hz=robot.control_rate_hz,
+                                   joint_min_rad=tuple(robot.joint_min_rad), joint_max_rad=tuple(robot.joint_max_rad))
+
+    def _gains_changed(self, values: dict) -> None:
+        """Live adjustment: the running feedback motion reads the page's gains at its next tick."""
+        if not isinstance(self.source, ForceFeedbackMotion):
+            return
+        try:
+            gains = replace(self.source.gains, **values)
+        except GainsError as exc:
+            self.panel.set_status(f"gains not changed: {exc}", theme.ERROR)
+            return
+        self.source.gains = gains
+        self.lab.force_page.set_gains(gains)
 
     def play(self, request: GaitRequest) -> None:
         if not self.robot.is_connected:
@@ -216,6 +249,11 @@ class GaitTab(QWidget):
         if source is not None and hasattr(source, "progress"):
             p = source.progress
             self.panel.set_progress(progress_text(p), p.fraction)
+            if isinstance(p, FeedbackProgress) and p.node_joints:
+                why = dict(p.fallback)
+                self.panel.set_feedback_readout([
+                    (f"J{j + 1}", p.target_n, load, p.correction_rad[j], why.get(j, ""))
+                    for j, load in zip(p.node_joints, p.node_load_n)])
 
 
 def progress_text(p: Any) -> str:
