@@ -18,11 +18,13 @@ angles, the discrete second difference of a bump::
 pressed without lifting the rest of the body off its contacts). Kano & Ishiguro's decentralised tactile control
 acts locally in the same way; here the locality is exact in the kinematics, not only in the sensing.
 
-Which nodes push. Only where the feedforward bends the body *down around* the node (its pitch goal below
-``−wrap_rad``: the taught shape wrapped the terrain there) does the law press or reach for contact; elsewhere (the
-straight parts the propagation lifts off on purpose, or lays on flat ground) it only yields to an overload. Without
-that, reaching for every lost contact fights the propagation itself (measured: the head's node reached for the top
-it was leaving and the body advanced 6 cm instead of 48) — Fu & Li's "excessive conforming interrupts propagation".
+Which nodes push. A bottom contact pushes the body along the terrain's normal there: forward where the body lies
+on a slope going down toward the head (the far face of a bump), backward on a slope rising toward it. Only nodes
+whose normal leans forward by more than ``slope_min`` (:meth:`ForceFeedbackLaw.node_lean`, from the joint angles
+alone, taking the chord from head to tail as level) press or reach for contact; elsewhere the law only yields to an
+overload. Measured without that rule: reaching for every lost contact fights the propagation itself (the head's
+node reached for the top it was leaving and the body advanced 6 cm instead of 48) — Fu & Li's "excessive conforming
+interrupts propagation"; and pressing nodes on the near face pushes the body back.
 
 Law, per node and control tick of ``dt`` seconds, with the node's load ``F`` against ``target_n`` (the load a node
 should push with), ``contact_n`` (below: no contact) and ``overload_n`` (above: too much)::
@@ -51,6 +53,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from models.kinematics import forward_kinematics
+
 
 class GainsError(ValueError):
     """Gains out of their safe ranges; the message names the gain."""
@@ -67,7 +71,7 @@ class FeedbackGains:
     overload_n: float = 20.0  # above this a node is overloaded (its servos near their stall torque)
     memory_s: float = 3.0  # a node that had contact this recently and lost it reaches for it again
     relax_s: float = 1.0  # time constant back to the feedforward
-    wrap_rad: float = 0.1  # a node pushes only where the feedforward bends the body down around it by more than this
+    slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -94,7 +98,7 @@ class FeedbackGains:
 GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
-    "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "wrap_rad": (0.0, 1.5),
+    "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0),
 }
 
 
@@ -148,12 +152,27 @@ class ForceFeedbackLaw:
         """Each node's load (N): the bottom forces of the two segments meeting at it."""
         return np.asarray(bottom_n, dtype=float)[self._segments].sum(axis=1)
 
+    def node_lean(self, angles_rad: np.ndarray, segment_length_m: float = 0.08) -> np.ndarray:
+        """Per node, the forward lean (sine) of the body's outward bottom normal there, in the frame where the chord
+        from the head tip to the tail end is level: > 0 where the node lies on a slope going down toward the head
+        (pressing there pushes the body forward), < 0 on a slope rising toward the head (pressing there pushes it
+        back). From the joint angles alone (forward kinematics); assumes head and tail rest at one height."""
+        pose = forward_kinematics(np.asarray(angles_rad, dtype=float), self.axes, segment_length_m)
+        chord = pose.points_m[-1] - pose.points_m[0]  # points backward along the body
+        level = math.atan2(chord[2], -chord[0])  # how far the chord dips below the head frame's −x
+        up = pose.frames[:, :, 2]  # each segment's up axis (its bottom sheet's inward normal)
+        normal = 0.5 * (up[self.nodes - 1] + up[self.nodes])
+        # rotate about y by the chord's dip so that the chord is level; x of the rotated normal = its forward lean
+        c, s = math.cos(level), math.sin(level)
+        lean = c * normal[:, 0] - s * normal[:, 2]
+        return lean / np.maximum(np.linalg.norm(normal, axis=1), 1e-9)
+
     def step(self, dt_s: float, bottom_n: np.ndarray, valid: np.ndarray, why_invalid: Sequence[str] = (),
-             feedforward_rad: np.ndarray | None = None) -> np.ndarray:
+             present_rad: np.ndarray | None = None) -> np.ndarray:
         """One tick: ``bottom_n`` (n segments) the estimated bottom-sheet forces, ``valid`` (n) which may drive a
-        correction (``why_invalid[s]`` says why not, for :attr:`fallback`), ``feedforward_rad`` (n joints) this
-        tick's feedforward goals (None: every node may push). Returns the correction (n joints, rad) to add to
-        the feedforward goals."""
+        correction (``why_invalid[s]`` says why not, for :attr:`fallback`), ``present_rad`` (n joints) the present
+        joint angles (for :meth:`node_lean`; None: every node may push). Returns the correction (n joints, rad) to
+        add to the feedforward goals."""
         g = self.gains
         self._t_s += dt_s
         bottom = np.asarray(bottom_n, dtype=float)
@@ -164,8 +183,8 @@ class ForceFeedbackLaw:
         in_contact = ok & (load >= g.contact_n)
         self._last_contact_s[in_contact] = self._t_s
         over = ok & (load > g.overload_n)
-        wraps = (np.ones(len(self.nodes), bool) if feedforward_rad is None
-                 else np.asarray(feedforward_rad, dtype=float)[self.nodes] < -g.wrap_rad)
+        wraps = (np.ones(len(self.nodes), bool) if present_rad is None
+                 else self.node_lean(present_rad) > g.slope_min)
         self.pushing = wraps
         lost = ok & wraps & ~in_contact & (self._t_s - self._last_contact_s <= g.memory_s)
         under = wraps & in_contact & (load < g.target_n)

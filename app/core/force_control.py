@@ -231,7 +231,7 @@ class ForceFeedbackMotion:
                 why[segment] = f"{name}: flagged by the health monitor"
             else:
                 bottom[segment], valid[segment] = forces[channel], True
-        correction = self.law.step(dt, bottom, valid, why, feedforward_rad=np.asarray(goal, dtype=float))
+        correction = self.law.step(dt, bottom, valid, why, present_rad=np.asarray(present_rad, dtype=float))
         base = getattr(self.source, "progress", None)
         if isinstance(base, Progress):
             self.progress = FeedbackProgress(
