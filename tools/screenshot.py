@@ -78,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene", default=None, metavar="SCENE",
                         help="the physics lab's scene ([lab] scene: a file or a built-in name); the 3-D picture "
                              "is then saved as scene-<name>.png")
+    parser.add_argument("--feedback", action="store_true",
+                        help="the Gait picture plays with force feedback (the Forces tab gets the simulated "
+                             "sensors' calibration first); saved as gait-feedback.png")
     parser.add_argument("--no-calibration", action="store_true",
                         help="Forces as the app opens, with no calibration file: conductance in µS")
     args = parser.parse_args(argv)
@@ -125,6 +128,14 @@ def main(argv: list[str] | None = None) -> int:
         if not args.physics:
             _pose_by_hand(config)  # (the physics lab's limp robot drapes over the obstacle by itself)
         names = args.tabs or [spec.name for spec in TABS]
+        if args.feedback:  # the feedback controller needs forces: the Forces tab estimates them from the start
+            _load_simulated_sensors_calibration(window.show_tab("forces"), Path(tmp))
+            from app.core.shapes import Shape, ShapeLibrary
+
+            wrap = [0.0] * len(config.robot.axes)
+            for joint in (2, 4, 6, 8):
+                wrap[joint] = -0.3  # the obstacle's drape, roughly: what the feedback picture plays
+            ShapeLibrary().save(Shape(FEEDBACK_SHAPE, tuple(config.robot.axes), tuple(wrap)))
         for name in names:
             if name == "scene" and not args.physics:
                 print("skipped scene: the 3-D lab shows the physics lab; run with --physics --tabs scene")  # noqa: T201
@@ -136,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             if name == "teach":
                 _stage_teach(page, pump)
             if name == "gait":
-                _stage_gait(page, pump)
+                _stage_gait(page, pump, feedback=args.feedback)
             if name == "forces":
                 if not args.no_calibration:
                     _load_simulated_sensors_calibration(page, Path(tmp))
@@ -161,7 +172,8 @@ def main(argv: list[str] | None = None) -> int:
                 if hasattr(page, "source_tabs"):
                     page.source_tabs.setCurrentWidget(page.protocol_form)  # the rig panel beside the fit
             pump(args.settle_ms)
-            path = out / (f"scene-{Path(args.scene).stem}.png" if name == "scene" and args.scene else f"{name}.png")
+            path = out / (f"scene-{Path(args.scene).stem}.png" if name == "scene" and args.scene
+                          else "gait-feedback.png" if name == "gait" and args.feedback else f"{name}.png")
             window.raise_()
             pump(200)  # the X server has the last frame
             if not _grab(window).save(str(path)):
@@ -222,11 +234,18 @@ def _stage_teach(page, pump) -> None:
     pump(300)
 
 
-def _stage_gait(page, pump) -> None:
-    """Play the taught shape follow-the-leader at 0.1 rad/s and wait until it is well under way."""
+FEEDBACK_SHAPE = "obstacle-wrap"
+
+
+def _stage_gait(page, pump, feedback: bool = False) -> None:
+    """Play the taught shape follow-the-leader at 0.1 rad/s (with force feedback if asked) and wait until it is well
+    under way."""
     panel = page.panel
     panel.set_mode("follow")
-    index = panel.shape_combo.findText(DEMO_SHAPE)
+    if feedback:
+        panel.controller_combo.setCurrentIndex(panel.controller_combo.findData("feedback"))
+        page.refresh_shapes()
+    index = panel.shape_combo.findText(FEEDBACK_SHAPE if feedback else DEMO_SHAPE)
     if index < 0:
         return  # the Teach picture was not taken: nothing to play
     panel.shape_combo.setCurrentIndex(index)

@@ -347,11 +347,10 @@ class GaitPanel(QWidget):
 
     def set_feedback_readout(self, rows: Sequence[tuple[str, float, float, float, str]]) -> None:
         """Per node: (name, target N, measured N or NaN, correction rad, why it is on feedforward or '')."""
-        lines = []
+        lines = ["node target  measured  correction"] if rows else []
         for name, target, measured, correction, why in rows:
-            load = f"{measured:5.1f}" if math.isfinite(measured) else "  —  "
-            lines.append(f"{name}: target {target:4.1f} N  measured {load} N  corr {correction:+.3f} rad"
-                         + (f"  ff: {why}" if why else ""))
+            load = f"{measured:5.1f} N" if math.isfinite(measured) else "   —   "
+            lines.append(f"{name:<4} {target:4.1f} N  {load}  {correction:+.3f} rad" + (f"\n     ff: {why}" if why else ""))
         text = "\n".join(lines)
         if self.feedback_label.text() != text:
             self.feedback_label.setText(text)

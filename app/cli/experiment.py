@@ -12,7 +12,7 @@ import sys
 
 from app.core.experiment import read_gains, run_experiment, run_obstacle_experiment
 from app.core.shapes import read_shape
-from app.core.sweep import read_sweep, run_sweep, summary_table
+from app.core.sweep import compare, read_sweep, run_sweep, summary_table
 from devices.config import LabConfig, load_config
 
 
@@ -37,6 +37,15 @@ def _sweep(args: argparse.Namespace) -> int:
     for entry in summary_table(rows):
         print(f"{entry['scene']:<18} {entry['controller']:<16} {entry['tail_load_N']:6g} {entry['runs']:4d} "
               f"{100 * entry['success']:8.0f}% {entry['median_advance_m']:9.3f} {entry['overloads']:9d}")
+    indices = sorted({int(r["gains_index"]) for r in rows if r["controller"] == "feedback" and r["traversed"] != ""})
+    if "feedforward" in plan.controllers:
+        for index in indices:
+            c = compare(rows, index)
+            print(f"feedback g{index} against feedforward over {c.pairs} paired runs: where feedforward fails "
+                  f"({c.ff_fail_cases} scene × load cases) it traverses {100 * c.fb_success_in_those:.0f}% against "
+                  f"{100 * c.ff_success_in_those:.0f}%; median advance ratio {c.median_advance_ratio:.2f}; overloads "
+                  f"{c.fb_overloads} against {c.ff_overloads}; where both traverse, {100 * c.slower_where_ff_succeeds:+.0f}% "
+                  f"time to traverse")
     for row in failed:
         print(f"run {row['run']} ({row['scene']}, {row['controller']}, {row['tail_load_N']} N, seed {row['seed']}) "
               f"{row['file']}")

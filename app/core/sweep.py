@@ -216,43 +216,95 @@ def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return table
 
 
-def summary_svg(rows: list[dict[str, Any]], width: int = 900, height: int = 380) -> str:
-    """Two panels (success rate, median advance) against tail load, one polyline per scene × controller."""
+@dataclass(frozen=True)
+class Comparison:
+    """Feedback against feedforward over paired runs (same scene, tail load and seed)."""
+
+    candidate: str
+    pairs: int
+    ff_fail_cases: int  # scene × load cases where feedforward traversed in fewer than all of its runs
+    ff_success_in_those: float
+    fb_success_in_those: float
+    median_advance_ratio: float  # median over pairs of feedback's advance / feedforward's (positive advances)
+    ff_overloads: int
+    fb_overloads: int
+    slower_where_ff_succeeds: float  # median of (feedback's time to traverse / feedforward's − 1), both traversed
+
+
+def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
+    """The issue's yardsticks for feedback gain set ``candidate_gains`` against feedforward."""
+    done = [r for r in rows if r.get("traversed", "") != ""]
+    ff = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
+          if r["controller"] == "feedforward"}
+    fb = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
+          if r["controller"] == "feedback" and int(r["gains_index"]) == candidate_gains}
+    keys = sorted(set(ff) & set(fb))
+    cases: dict[tuple[str, float], list[tuple[str, float, int]]] = {}
+    for key in keys:
+        cases.setdefault(key[:2], []).append(key)
+    failing = [c for c, ks in cases.items() if np.mean([int(ff[k]["traversed"]) for k in ks]) < 1.0]
+    in_failing = [k for c in failing for k in cases[c]]
+    ratios = [float(fb[k]["advance_m"]) / float(ff[k]["advance_m"]) for k in keys if float(ff[k]["advance_m"]) > 0.01]
+    slower = [float(fb[k]["traverse_s"]) / float(ff[k]["traverse_s"]) - 1 for k in keys
+              if int(ff[k]["traversed"]) and int(fb[k]["traversed"])]
+    return Comparison(
+        candidate=f"feedback g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
+        ff_success_in_those=float(np.mean([int(ff[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
+        fb_success_in_those=float(np.mean([int(fb[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
+        median_advance_ratio=float(np.median(ratios)) if ratios else math.nan,
+        ff_overloads=int(sum(int(ff[k]["overloads"]) for k in keys)),
+        fb_overloads=int(sum(int(fb[k]["overloads"]) for k in keys)),
+        slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan)
+
+
+def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380) -> str:
+    """Two panels (success rate, median advance) against tail load; one colour per scene, solid for feedforward and
+    dashed for feedback (a shade per gain set); the legend on the right."""
     table = summary_table(rows)
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for entry in table:
         series.setdefault((entry["scene"], entry["controller"]), []).append(entry)
     loads = sorted({e["tail_load_N"] for e in table}) or [0.0]
-    x_max = max(loads[-1], 1.0)
+    x_lo, x_hi = loads[0], max(loads[-1], loads[0] + 1e-9)
     adv_max = max([e["median_advance_m"] for e in table] + [0.1])
     adv_min = min([e["median_advance_m"] for e in table] + [0.0])
     colours = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
-    panel_w, top, bottom, left = (width - 120) / 2, 40, height - 50, 60
+    scenes = sorted({scene for scene, _ in series})
+    panel_w, top, bottom, left, gap = 330.0, 40, height - 50, 60, 70
     parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
              f'font-size="12"><rect width="100%" height="100%" fill="white"/>']
     for panel, (title, key, lo, hi) in enumerate((("traversed (fraction of runs)", "success", 0.0, 1.0),
                                                    ("median advance of the centroid (m)", "median_advance_m",
                                                     adv_min, adv_max))):
-        x0 = left + panel * (panel_w + 60)
+        x0 = left + panel * (panel_w + gap)
         parts.append(f'<text x="{x0 + panel_w / 2}" y="20" text-anchor="middle">{title}</text>')
         parts.append(f'<line x1="{x0}" y1="{bottom}" x2="{x0 + panel_w}" y2="{bottom}" stroke="black"/>')
         parts.append(f'<line x1="{x0}" y1="{top}" x2="{x0}" y2="{bottom}" stroke="black"/>')
+
+        def x_of(load: float, x0: float = x0) -> float:
+            return x0 + 10 + (panel_w - 20) * (load - x_lo) / (x_hi - x_lo)
+
         for tick in loads:
-            x = x0 + panel_w * tick / x_max
-            parts.append(f'<text x="{x}" y="{bottom + 15}" text-anchor="middle">{tick:g}</text>')
+            parts.append(f'<text x="{x_of(tick):.1f}" y="{bottom + 15}" text-anchor="middle">{tick:g}</text>')
         parts.append(f'<text x="{x0 + panel_w / 2}" y="{bottom + 32}" text-anchor="middle">tail load (N)</text>')
-        for frac in (0.0, 0.5, 1.0):
+        for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
             value = lo + frac * (hi - lo)
             y = bottom - frac * (bottom - top)
-            parts.append(f'<text x="{x0 - 6}" y="{y + 4}" text-anchor="end">{value:.2g}</text>')
-        for k, ((scene, label), entries) in enumerate(sorted(series.items())):
-            colour = colours[k % len(colours)]
-            dash = "" if label.startswith("feedforward") else ' stroke-dasharray="6 3"'
-            points = " ".join(f"{x0 + panel_w * e['tail_load_N'] / x_max:.1f},"
+            parts.append(f'<text x="{x0 - 6}" y="{y + 4}" text-anchor="end">{value:.2f}</text>')
+            parts.append(f'<line x1="{x0}" y1="{y}" x2="{x0 + panel_w}" y2="{y}" stroke="#dddddd"/>')
+        for (scene, label), entries in sorted(series.items()):
+            colour = colours[scenes.index(scene) % len(colours)]
+            dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
+            points = " ".join(f"{x_of(e['tail_load_N']):.1f},"
                               f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top):.1f}" for e in entries)
             parts.append(f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="2"{dash}/>')
-            if panel == 1:
-                parts.append(f'<text x="{width - 10}" y="{top + 14 * k}" text-anchor="end" fill="{colour}">'
-                             f'{scene}: {label}</text>')
+    legend_x = left + 2 * panel_w + gap + 30
+    for k, (scene, label) in enumerate(sorted(series)):
+        colour = colours[scenes.index(scene) % len(colours)]
+        dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
+        y = top + 16 * k
+        parts.append(f'<line x1="{legend_x}" y1="{y - 4}" x2="{legend_x + 26}" y2="{y - 4}" stroke="{colour}" '
+                     f'stroke-width="2"{dash}/>')
+        parts.append(f'<text x="{legend_x + 32}" y="{y}" fill="{colour}">{scene}: {label}</text>')
     parts.append("</svg>")
     return "\n".join(parts)

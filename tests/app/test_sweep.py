@@ -1,0 +1,63 @@
+"""`sensnake experiment sweep`: the sweep file, runs in processes, summary.csv and the figure, the comparison."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+pytest.importorskip("mujoco")
+
+from app.cli.main import main  # noqa: E402
+from app.core.sweep import SweepError, compare, read_sweep  # noqa: E402
+
+
+def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_path, capsys):
+    plan = tmp_path / "sweep.toml"
+    plan.write_text('scenes = ["paper_obstacle"]\ncontrollers = ["feedforward", "feedback"]\ntail_loads_n = [0.5]\n'
+                    'seeds = [0, 1]\nseconds = 1.5\nsettle_s = 0.5\nspeed_rad_s = 0.2\n[[gains]]\npush_gain = 0.2\n',
+                    encoding="utf-8")
+    out = tmp_path / "out"
+    assert main(["experiment", "sweep", str(plan), "--out", str(out), "--jobs", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "feedback g0 against feedforward over 2 paired runs" in printed
+    with open(out / "summary.csv", newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4  # 2 controllers × 2 seeds (one gain set)
+    assert {r["controller"] for r in rows} == {"feedforward", "feedback"}
+    assert all((out / r["file"]).exists() for r in rows)
+    assert {r["tail_load_N"] for r in rows} == {"0.5"}
+    assert (out / "summary.svg").read_text(encoding="utf-8").startswith("<svg")
+    # a second sweep into the same folder is refused: nothing a user does is overwritten
+    assert main(["experiment", "sweep", str(plan), "--out", str(out)]) != 0
+    assert "holds a sweep already" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ("scenes = []\n", "'scenes' must be a non-empty list"),
+    ('scenes = ["flat"]\ncolour = 1\n', "unknown key 'colour'"),
+    ('scenes = ["flat"]\ncontrollers = ["pid"]\n', "'controllers' must list"),
+    ('scenes = ["flat"]\n[[gains]]\npush_gain = 9\n', "'push_gain' = 9 is outside"),
+    ('scenes = ["flat"]\nseeds = [-1]\n', "'seeds' must be 0 or more"),
+])
+def test_a_bad_sweep_file_is_refused_naming_the_key(tmp_path, text, words):
+    path = tmp_path / "bad.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(SweepError, match=words.replace("(", r"\(")):
+        read_sweep(path)
+
+
+def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
+    def row(controller, load, seed, traversed, advance, t=float("nan")):
+        return {"scene": "s", "controller": controller, "gains_index": -1 if controller == "feedforward" else 0,
+                "tail_load_N": load, "seed": seed, "traversed": traversed, "advance_m": advance,
+                "overloads": 0, "traverse_s": t}
+
+    rows = [row("feedforward", 0, 0, 1, 1.0, 20.0), row("feedback", 0, 0, 1, 1.1, 22.0),
+            row("feedforward", 1, 0, 0, 0.4), row("feedback", 1, 0, 1, 0.8, 30.0),
+            row("feedforward", 1, 1, 0, 0.2), row("feedback", 1, 1, 0, 0.3)]
+    c = compare(rows)
+    assert c.pairs == 3 and c.ff_fail_cases == 1
+    assert (c.ff_success_in_those, c.fb_success_in_those) == (0.0, 0.5)
+    assert c.median_advance_ratio == pytest.approx(1.5)  # ratios 1.1, 2.0, 1.5
+    assert c.slower_where_ff_succeeds == pytest.approx(0.1)
