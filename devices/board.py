@@ -78,6 +78,7 @@ class FrameParser:
     match), ``bad_headers`` (sync found but version or ``n`` impossible), ``resyncs`` (times the parser had to search
     for the next sync instead of finding it where the previous frame ended), ``seq_gaps`` (a delivered frame whose
     ``seq`` is not the previous + 1, modulo 2³²), ``dropped_frames`` (frames missing inside those gaps),
+    ``duplicate_frames`` (a CRC-valid frame repeating the previous one's ``seq``: dropped, not a gap),
     ``bytes_discarded`` (bytes skipped while searching), ``out_of_range_frames`` (a CRC-valid frame with a count
     above ``max_count``: impossible for the ADC, so corrupt; dropped whole). Invariant:
     ``bytes_received == bytes_in_frames + bytes_discarded + bytes_pending``.
@@ -95,6 +96,7 @@ class FrameParser:
         self.resyncs = 0
         self.seq_gaps = 0
         self.dropped_frames = 0
+        self.duplicate_frames = 0
         self.bytes_discarded = 0
         self.out_of_range_frames = 0
         self.bytes_received = 0
@@ -161,6 +163,13 @@ class FrameParser:
                 # A 12-bit ADC cannot read this: the frame is corrupt despite its CRC. Skip it whole (its bytes
                 # were a frame, so the stream is still in step); its seq shows up as a gap.
                 self.out_of_range_frames += 1
+                self.bytes_in_frames += frame_end - pos
+                pos = frame_end
+                continue
+            if self._last_seq is not None and seq == self._last_seq:
+                # The same frame again (a board or adapter repeating itself): one sample, once. Counted, dropped,
+                # and not a gap: the next frame follows it by one.
+                self.duplicate_frames += 1
                 self.bytes_in_frames += frame_end - pos
                 pos = frame_end
                 continue
@@ -259,6 +268,7 @@ class BoardStats:
     resyncs: int = 0
     seq_gaps: int = 0
     dropped_frames: int = 0
+    duplicate_frames: int = 0  # frames repeating the previous seq (dropped: each sample is stored once)
     bytes_discarded: int = 0
     bad_headers: int = 0
     reconnects: int = 0
@@ -358,7 +368,8 @@ class BoardReader:
         lost_at = self._lost_at_s
         missing = self._missing_s + (time.monotonic() - lost_at if lost_at is not None else 0.0)
         return BoardStats(frames=p.frames, crc_errors=p.crc_errors, resyncs=p.resyncs, seq_gaps=p.seq_gaps,
-                          dropped_frames=p.dropped_frames, bytes_discarded=p.bytes_discarded,
+                          dropped_frames=p.dropped_frames, duplicate_frames=p.duplicate_frames,
+                          bytes_discarded=p.bytes_discarded,
                           bad_headers=p.bad_headers, reconnects=self._reconnects,
                           channel_mismatches=self._channel_mismatches, overflow_frames=self._overflow,
                           out_of_range_frames=p.out_of_range_frames, clock_segments=self._segment + 1,

@@ -72,6 +72,7 @@ class FeedbackGains:
     memory_s: float = 3.0  # a node that had contact this recently and lost it reaches for it again
     relax_s: float = 1.0  # time constant back to the feedforward
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
+    relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -98,7 +99,7 @@ class FeedbackGains:
 GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
-    "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0),
+    "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
 }
 
 
@@ -183,14 +184,18 @@ class ForceFeedbackLaw:
         in_contact = ok & (load >= g.contact_n)
         self._last_contact_s[in_contact] = self._t_s
         over = ok & (load > g.overload_n)
-        wraps = (np.ones(len(self.nodes), bool) if present_rad is None
-                 else self.node_lean(present_rad) > g.slope_min)
+        lean = np.zeros(len(self.nodes)) if present_rad is None else self.node_lean(present_rad)
+        wraps = np.ones(len(self.nodes), bool) if present_rad is None else lean > g.slope_min
+        braking = np.zeros(len(self.nodes), bool) if present_rad is None else lean < -g.slope_min
         self.pushing = wraps
         lost = ok & wraps & ~in_contact & (self._t_s - self._last_contact_s <= g.memory_s)
         under = wraps & in_contact & (load < g.target_n)
         rate = np.where(over, -g.conform_gain * (np.nan_to_num(load) - g.overload_n) / g.target_n, rate)
         rate = np.where(lost, g.conform_gain, rate)
         rate = np.where(under, g.push_gain * (g.target_n - np.nan_to_num(load)) / g.target_n, rate)
+        # a node on the near face pushes the body back: lift it off in proportion to its load (relieve_gain 0: off)
+        relieve = braking & in_contact & ~over
+        rate = np.where(relieve, -g.relieve_gain * np.nan_to_num(load) / g.target_n, rate)
         rate = np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s)
         self.delta_rad = np.clip(self.delta_rad + rate * dt_s, -g.max_node_rad, g.max_node_rad)
         self.fallback = {}

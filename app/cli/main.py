@@ -25,6 +25,51 @@ EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
 
+MAX_BAUD = 12_000_000  # the fastest any USB-serial adapter here runs (the U2D2 tops out at 6 Mbps)
+
+# Per command: the arguments that name files it reads, and those that name files it writes. A write onto a file the
+# command is reading destroys the input before it has been read (issue 25): refused before anything runs.
+INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "estimate": (("input", "cal", "config"), ("out", "flags")),
+    "forward": (("input", "cal"), ("out",)),
+    "fit": (("trials",), ("out",)),  # --physics may be the calibration it updates (--out): reading it first is fine
+    "export": (("recording",), ("csv",)),
+    "repair": (("recording",), ("out",)),
+    "experiment": (("scene", "shape", "gains", "config", "plan"), ("out",)),
+    "calibrate": (("config",), ("out",)),
+    "record": (("config",), ("out",)),
+    "teach": (("config",), ("out",)),
+}
+
+
+def baud_rate(text: str) -> int:
+    """An argparse type: a baud rate a serial port can be opened at (one line on a bad value, never a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--baud must be a whole number of bits per second, got {text!r}") from None
+    if not 1 <= value <= MAX_BAUD:
+        raise argparse.ArgumentTypeError(f"--baud must be between 1 and {MAX_BAUD}, got {value}")
+    return value
+
+
+def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
+    """Raise ValueError naming the file when an output of ``command`` is (or resolves to) one of its inputs."""
+    inputs_, outputs = INPUTS_AND_OUTPUTS.get(command, ((), ()))
+    read: dict[str, str] = {}
+    for name in inputs_:
+        values = getattr(args, name, None)
+        for value in values if isinstance(values, list) else [values]:
+            if value:
+                read[os.path.realpath(value)] = f"--{name} {value}" if name not in ("input", "trials", "recording",
+                                                                                    "plan") else str(value)
+    for name in outputs:
+        value = getattr(args, name, None)
+        if value and os.path.realpath(value) in read:
+            raise ValueError(f"--{name} {value} is also an input ({read[os.path.realpath(value)]}): choose another "
+                             f"file to write, the input would be destroyed before it is read")
+
+
 class _OneLineErrorParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line on stderr (SPEC §1) that points to ``--help`` instead of printing
     the whole usage block first. Subparsers inherit the class. Exit code stays argparse's 2."""
@@ -120,12 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
     scan = sub.add_parser("scan", help="list the servos on a bus")
     scan.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
     bauds = scan.add_mutually_exclusive_group()
-    bauds.add_argument("--baud", type=int, default=None, metavar="B")
+    bauds.add_argument("--baud", type=baud_rate, default=None, metavar="B")
     bauds.add_argument("--all-bauds", action="store_true", help="try every Dynamixel baud rate")
 
     teach = sub.add_parser("teach", help="pose the robot by hand and capture the shape")
     teach.add_argument("--robot", required=True, metavar="PORT")
-    teach.add_argument("--baud", type=int, default=None, metavar="B")
+    teach.add_argument("--baud", type=baud_rate, default=None, metavar="B")
     teach.add_argument("--after", type=float, default=None, metavar="SECONDS",
                        help="capture after this many seconds instead of waiting for Enter")
     teach.add_argument("--out", required=True, metavar="SHAPE.json")
@@ -134,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     play = sub.add_parser("play", help="play a taught shape on the robot")
     play.add_argument("shape", metavar="SHAPE.json")
     play.add_argument("--robot", required=True, metavar="PORT")
-    play.add_argument("--baud", type=int, default=None, metavar="B")
+    play.add_argument("--baud", type=baud_rate, default=None, metavar="B")
     play.add_argument("--mode", choices=("follow", "keyframes"), default="follow")
     play.add_argument("--speed", type=float, default=0.034, metavar="RAD_S")
     play.add_argument("--time-scale", type=float, default=1.0, metavar="X")
@@ -145,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     record = sub.add_parser("record", help="record the force-sensor board to HDF5")
     record.add_argument("--daq", required=True, metavar="PORT")
-    record.add_argument("--baud", type=int, default=None, metavar="B")
+    record.add_argument("--baud", type=baud_rate, default=None, metavar="B")
     record.add_argument("--seconds", required=True, type=float, metavar="S")
     record.add_argument("--out", required=True, metavar="REC.h5")
     record.add_argument("--config", metavar="FILE", help="lab config (channel map, readout circuit)")
@@ -207,8 +252,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv = ["gui", *argv]
     args = parser.parse_args(argv)
     command = args.command or "gui"
-    module = importlib.import_module(f"app.cli.{command}")
     try:
+        refuse_outputs_onto_inputs(command, args)
+        module = importlib.import_module(f"app.cli.{command}")
         return int(module.run(args) or EXIT_OK)
     except KeyboardInterrupt:
         print(f"sensnake {command}: interrupted", file=sys.stderr)

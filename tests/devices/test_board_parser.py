@@ -160,6 +160,16 @@ def _specs(frames) -> list:
     return [(f.seq, f.t_us, f.counts.tolist()) for f in frames]
 
 
+def _without_repeats(specs) -> list:
+    """What the parser delivers of these frames: a frame repeating the previous delivered one's seq is dropped
+    (counted in duplicate_frames: a board sending a frame twice must not store its sample twice)."""
+    out: list = []
+    for spec in specs:
+        if not out or spec[0] != out[-1][0]:
+            out.append(spec)
+    return out
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.tuples(clean_garbage, frame_strategy), min_size=1, max_size=8), clean_garbage,
        st.lists(st.integers(0, 10_000), max_size=8))
@@ -167,7 +177,7 @@ def test_every_valid_frame_between_garbage_is_delivered_in_order(pieces, tail, c
     stream = b"".join(garbage + _encode(spec) for garbage, spec in pieces) + tail
     parser = FrameParser()
     got = _feed_in_chunks(parser, stream, cuts)
-    assert _specs(got) == [spec for _, spec in pieces]
+    assert _specs(got) == _without_repeats([spec for _, spec in pieces])
     assert parser.crc_errors == 0
     assert parser.bytes_discarded == sum(len(g) for g, _ in pieces) + len(tail) - parser.bytes_pending
     _assert_counters_add_up(parser)
@@ -183,7 +193,7 @@ def test_bit_flips_are_counted_and_never_delivered(specs, data):
     frames[victim][position] ^= 1 << data.draw(st.integers(0, 7))
     parser = FrameParser()
     got = parser.feed(b"".join(bytes(f) for f in frames)) + parser.feed(FLUSH)
-    assert _specs(got) == [spec for i, spec in enumerate(specs) if i != victim]
+    assert _specs(got) == _without_repeats([spec for i, spec in enumerate(specs) if i != victim])
     if position == 2:
         assert parser.bad_headers >= 1  # the version byte
     else:
@@ -193,8 +203,9 @@ def test_bit_flips_are_counted_and_never_delivered(specs, data):
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.lists(frame_strategy, min_size=1, max_size=5), st.integers(1, 200))
+@given(st.lists(frame_strategy, min_size=1, max_size=5, unique_by=lambda spec: spec[0]), st.integers(1, 200))
 def test_truncated_frame_is_never_delivered_and_the_frames_after_it_are(specs, cut):
+    # (distinct seqs: a repeated seq is a duplicate frame, dropped, which its own test covers)
     first = _encode(specs[0])
     truncated = first[:max(1, len(first) - cut)]
     rest = b"".join(_encode(s) for s in specs[1:])
@@ -215,3 +226,17 @@ def test_truncated_frame_is_never_delivered_and_the_frames_after_it_are(specs, c
         if len(specs) > 1 and len(truncated) >= HEADER_SIZE:
             assert parser.crc_errors + parser.bad_headers >= 1
     _assert_counters_add_up(parser)
+
+
+def test_a_repeated_frame_is_stored_once_counted_and_not_taken_for_a_gap():
+    """A board (or an adapter) that sends every frame twice: each sample once, duplicate_frames counts the repeats,
+    no seq gap and no dropped frame is invented (issue 25)."""
+    from devices.board import FrameParser
+    from devices.board_wire import encode_frame
+
+    parser = FrameParser()
+    stream = b"".join(encode_frame(seq, seq * 33_333, np.full(36, 100 + seq, np.uint16)) * 2 for seq in range(10))
+    frames = parser.feed(stream)
+    assert [f.seq for f in frames] == list(range(10))
+    assert parser.duplicate_frames == 10
+    assert parser.seq_gaps == 0 and parser.dropped_frames == 0

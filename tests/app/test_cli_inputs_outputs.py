@@ -1,0 +1,42 @@
+"""Nothing a user types loses data (issue 25): an output onto one of the command's inputs is refused before
+anything runs (the input untouched), and a baud rate no port can take is one usage line, never a traceback."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.cli.main import main
+
+
+@pytest.mark.parametrize("command", [
+    ["estimate", "{input}", "--cal", "{cal}", "--out", "{input}"],
+    ["estimate", "{input}", "--cal", "{cal}", "--out", "{link}"],  # a symlink to the input is the input
+    ["estimate", "{input}", "--cal", "{cal}", "--out", "{other}", "--flags", "{input}"],
+    ["estimate", "{input}", "--cal", "{cal}", "--out", "{cal}"],
+    ["forward", "{input}", "--cal", "{cal}", "--out", "{input}"],
+    ["fit", "{input}", "{other}", "--sensor", "S06B", "--area", "0.0014", "--out", "{other}"],
+    ["export", "{input}", "--csv", "{input}"],
+    ["repair", "{input}", "--out", "{input}"],
+])
+def test_an_output_onto_an_input_is_refused_and_the_input_is_untouched(tmp_path, capsys, command):
+    files = {name: tmp_path / f"{name}.dat" for name in ("input", "cal", "other")}
+    for name, path in files.items():
+        path.write_text(f"the {name} file\n", encoding="utf-8")
+    link = tmp_path / "link.dat"
+    link.symlink_to(files["input"])
+    argv = [part.format(**{k: str(v) for k, v in files.items()}, link=str(link)) for part in command]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "is also an input" in err and "Traceback" not in err
+    for name, path in files.items():
+        assert path.read_text(encoding="utf-8") == f"the {name} file\n"
+
+
+@pytest.mark.parametrize("baud", ["99999999999", "0", "-5", "fast"])
+def test_a_baud_rate_no_port_can_take_is_one_usage_line(capsys, baud, tmp_path):
+    with pytest.raises(SystemExit) as ended:
+        main(["record", "--daq", "sim", "--baud", baud, "--seconds", "1", "--out", str(tmp_path / "r.h5")])
+    assert ended.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--baud must be" in err
+    assert not (tmp_path / "r.h5").exists()
