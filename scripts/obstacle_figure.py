@@ -143,4 +143,13 @@ def main(recording_path: str, png_path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2])
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recording", metavar="REC.h5", help="a recording of sensnake experiment obstacle (or run)")
+    parser.add_argument("png", metavar="OUT.png", help="the figure to write")
+    args = parser.parse_args()
+    try:
+        main(args.recording, args.png)
+    except (OSError, KeyError, ValueError) as exc:
+        sys.exit(f"obstacle_figure: {args.recording}: {exc}")

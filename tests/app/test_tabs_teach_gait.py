@@ -211,3 +211,25 @@ def test_gait_panel_request_reflects_the_form(qtbot):
     assert not panel.play_button.isEnabled() and panel.pause_button.isEnabled()
     panel.set_motion_state("paused")
     assert panel.resume_button.isEnabled() and panel.stop_button.isEnabled()
+
+
+def test_a_refused_gait_clears_the_previous_runs_progress(qtbot, lab, library, sim_lab_fast):
+    _save_bump(library)
+    tab = GaitTab(lab, library)
+    qtbot.addWidget(tab)
+    tab.show()
+    panel = tab.panel
+    panel.set_mode("follow")
+    panel.speed_spin.setValue(0.3)
+    panel.shifts_spin.setValue(1)
+    qtbot.mouseClick(panel.play_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: lab.robot.motion_state == MOTION_FINISHED, timeout=WAIT_MS)
+    tab.refresh()
+    assert panel.progress_bar.value() == 1000
+    panel.set_mode("serpenoid")
+    panel.amplitude_spin.setValue(1.5)
+    panel.frequency_spin.setValue(2.0)  # 18.85 rad/s: refused
+    qtbot.mouseClick(panel.play_button, Qt.MouseButton.LeftButton)
+    assert "exceeds" in panel.status_label.text()
+    tab.refresh()
+    assert panel.progress_bar.value() == 0 and panel.progress_label.text() == "idle"

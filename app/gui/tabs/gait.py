@@ -186,6 +186,10 @@ class GaitTab(QWidget):
             source, name = self.build(request)
         except (OSError, ValueError) as exc:
             self.panel.set_status(str(exc), theme.ERROR)
+            if self.robot.motion_state not in (MOTION_RUNNING, MOTION_PAUSED):
+                self.source = None  # the previous run's progress is not this (refused) one's
+                self.panel.set_progress("idle", 0.0)
+                self.panel.set_feedback_readout([])
             return
         self.source = source
         self.panel.set_status(f"torque on, then playing {name}", theme.OK)
