@@ -1,0 +1,39 @@
+"""The README is a user's page (≤ 250 lines) and every link or picture in it and in docs/ resolves (issue 27)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+
+
+def test_the_readme_is_short():
+    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 250
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_relative_link_and_picture_resolves(page):
+    text = page.read_text(encoding="utf-8")
+    missing = []
+    for target in LINK.findall(text):
+        if re.match(r"^[a-z]+://", target) or target.startswith("mailto:"):
+            continue
+        if target.startswith("../shared/"):  # the contracts, beside the repository (not part of it)
+            continue
+        if not (page.parent / target).resolve().exists():
+            missing.append(target)
+    assert not missing, f"{page.name}: links that do not resolve: {missing}"
+
+
+def test_every_command_in_the_readme_is_one_the_parser_knows():
+    from app.cli.main import build_parser
+
+    known = set(build_parser()._subparsers._group_actions[0].choices)  # noqa: SLF001 - argparse keeps them here
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    used = set(re.findall(r"`sensnake (\w+)", text))
+    assert used and used <= known, f"the README names commands the CLI does not have: {used - known}"
