@@ -102,6 +102,9 @@ class RigConfig:
 PHYSICS_KINDS = ("scripted", "mujoco")
 
 
+MAX_BAUD = 12_000_000  # no USB-serial adapter here runs faster (the U2D2 tops out at 6 Mbps)
+
+
 @dataclass(frozen=True)
 class SimLabConfig:
     """What the simulated lab (port ``sim``) simulates. ``physics = "mujoco"`` (the default): the robot, the ground

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from devices.config import LabConfig, RobotConfig, load_config
+from devices.config import MAX_BAUD, LabConfig, RobotConfig, load_config
 
 if TYPE_CHECKING:
     from devices.controller import RobotController
@@ -28,6 +28,8 @@ def robot_config(args: argparse.Namespace) -> RobotConfig:
     if args.baud is not None:
         if args.baud <= 0:
             raise ValueError(f"--baud must be a positive rate in bps, got {args.baud}")
+        if args.baud > MAX_BAUD:
+            raise ValueError(f"--baud {args.baud} is faster than any serial port here (at most {MAX_BAUD} bps)")
         robot = replace(robot, baud=int(args.baud))
     return robot
 

@@ -34,7 +34,7 @@ from app.core.live_session import (
 )
 from devices import factory
 from devices.board import BoardReader, BoardStats
-from devices.config import load_config
+from devices.config import MAX_BAUD, load_config
 from devices.errors import BoardProtocolError
 from models.health import HealthMonitor
 
@@ -64,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
     if args.baud is not None:
         if args.baud <= 0:
             raise ValueError(f"--baud must be a positive rate in bps, got {args.baud}")
+        if args.baud > MAX_BAUD:
+            raise ValueError(f"--baud {args.baud} is faster than any serial port here (at most {MAX_BAUD} bps)")
         board = replace(board, baud=int(args.baud))
     if factory.is_sim(board.port):
         factory.sim_lab(replace(config, board=board))  # the simulated board follows the config's channel list

@@ -1,4 +1,4 @@
-"""The main window: five tabs, the menu, and the status bar with STOP.
+"""The main window: six tabs (Teach, Gait, Calibration, Forces, Hardware, 3-D lab), the menu, and the status bar with STOP.
 
 Tabs are built from ``app/gui/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will

@@ -137,7 +137,6 @@ def test_a_stale_page_falls_back_to_feedforward_within_100_ms():
     motion.goal_at(0.4, np.zeros(12))
     assert set(motion.law.fallback) == {2, 4, 6, 8}
     assert "no force estimate for 200 ms" in motion.law.fallback[4]
-    time.sleep(0)  # (no waiting here: the clock is the test's)
 
 
 def test_a_feedback_motion_crosses_to_the_loop_process_by_pickling_and_opens_the_page_there(tmp_path):
