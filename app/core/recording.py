@@ -27,6 +27,7 @@ import contextlib
 import csv
 import json
 import os
+import secrets
 import shutil
 import stat
 import time
@@ -168,7 +169,10 @@ class RecordingWriter:
         self._failed: RecordingError | None = None
         self._closed = False
         self.kept = False  # True once the file holds data at ``path``
-        self._work_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
+        # An unpredictable hidden name, created here and nowhere else (O_EXCL, not through a symlink): in a shared
+        # folder nobody can make a recording write into (or truncate) someone else's file (issue 25).
+        self._work_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
+        self._lock_fd: int | None = None
         n = len(self.channel_names)
         try:
             if self.path.is_dir():
@@ -176,8 +180,14 @@ class RecordingWriter:
             if not self.path.parent.is_dir():
                 what = "is not a folder" if self.path.parent.exists() else "does not exist"
                 raise FileNotFoundError(f"the folder {self.path.parent} {what}")
+            self._lock_fd = _lock_for_writing(self.path)
+            os.close(os.open(self._work_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))
             f = h5py.File(self._work_path, "w", locking=False)
+        except RecordingError:
+            self._release_lock()
+            raise
         except OSError as exc:
+            self._release_lock()
             raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
         try:
             with f:
@@ -438,6 +448,14 @@ class RecordingWriter:
         finally:
             self._closed = True
             self._discard_if_empty()
+            self._release_lock()
+
+    def _release_lock(self) -> None:
+        if self._lock_fd is not None:
+            with contextlib.suppress(OSError):
+                _lock_path(self.path).unlink()
+                os.close(self._lock_fd)
+            self._lock_fd = None
 
     def _discard_if_empty(self) -> None:
         if not self.kept:
@@ -464,7 +482,37 @@ class RecordingWriter:
             f"recording {self.path} stopped: cannot write ({_os_reason(exc)}); is the disk full? "
             f"The file keeps what was saved up to the last flush")
         self._discard_if_empty()
+        self._release_lock()
         raise self._failed from exc
+
+
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+
+
+def _lock_path(path: Path) -> Path:
+    return path.with_name(f".{path.name}.lock")
+
+
+def _lock_for_writing(path: Path) -> int | None:
+    """Hold an exclusive lock on ``path`` for this writer (a lock file beside it, the writer's pid inside): a second
+    recording to the same file, from any process, is refused at once naming the first. None where the platform has
+    no ``fcntl`` (Windows), which then relies on the writer's unique hidden file."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        return None
+    lock = _lock_path(path)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | _NOFOLLOW, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 32).decode("ascii", "replace").strip() or "?"
+        os.close(fd)
+        raise RecordingError(f"{path} is being recorded by another process (pid {holder}): choose another file, or "
+                             f"stop that recording first") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode("ascii"))
+    return fd
 
 
 def _os_reason(exc: BaseException) -> str:
@@ -788,8 +836,9 @@ def repair_recording(path: str | Path, out: str | Path) -> RecoveryReport:
 def write_recording(recording: Recording, out: str | Path) -> Path:
     """Write a whole :class:`Recording` (read or salvaged) as a SPEC §3.5 file at ``out`` (atomically)."""
     out = Path(out)
-    work = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
     try:
+        os.close(os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))  # ours alone (see above)
         with h5py.File(work, "w", locking=False) as f:
             f.attrs["format"] = FORMAT
             f.attrs["version"] = VERSION

@@ -41,3 +41,35 @@ def test_a_baud_rate_no_port_can_take_is_one_line_never_a_traceback(capsys, comm
     assert err.splitlines() == [f"sensnake {command}: error: --baud 99999999999 is faster than any serial port here "
                                 "(at most 12000000 bps)"]
     assert not (tmp_path / "r.h5").exists()
+
+
+def test_one_writer_per_recording_file_the_second_is_refused_naming_the_first(tmp_path):
+    import os
+
+    from app.core.recording import RecordingError, RecordingWriter
+
+    path = tmp_path / "same.h5"
+    first = RecordingWriter(path, "", ["S01B"])
+    try:
+        with pytest.raises(RecordingError, match=rf"same.h5 is being recorded by another process \(pid {os.getpid()}\)"):
+            RecordingWriter(path, "", ["S01B"])
+    finally:
+        first.close()
+    again = RecordingWriter(path, "", ["S01B"])  # the lock went with the first writer
+    again.close()
+    leftovers = [p.name for p in tmp_path.iterdir()]
+    assert leftovers == []  # no data: nothing written, no lock file, no hidden temporary left
+
+
+def test_the_hidden_temporary_is_never_opened_through_a_planted_symlink(tmp_path):
+    from app.core.recording import RecordingWriter
+
+    victim = tmp_path / "someone_elses.txt"
+    victim.write_text("precious\n", encoding="utf-8")
+    # a guess at the old predictable name (pid only) pointing at someone else's file
+    import os
+
+    (tmp_path / f".rec.h5.{os.getpid()}.partial").symlink_to(victim)
+    writer = RecordingWriter(tmp_path / "rec.h5", "", ["S01B"])
+    writer.close()
+    assert victim.read_text(encoding="utf-8") == "precious\n"
