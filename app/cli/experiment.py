@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         result = run_experiment(args.out, config, scene=args.scene, shape=shape, mode=args.mode,
                                 seconds=args.seconds, speed_rad_s=args.speed, settle_s=args.settle, seed=args.seed,
                                 controller=args.controller, gains=gains, tail_load_n=args.tail_load,
-                                progress=_progress)
+                                repeat=args.repeat, progress=_progress)
     if sys.stdout.isatty():
         print()
     print(f"scene {result.scene_name}: simulated {result.simulated_s:.1f} s in {result.wall_s:.1f} s "

@@ -209,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--controller", choices=("feedforward", "feedback"), default="feedforward",
                             help="run: feedforward (the motion as planned) or feedback (force-feedback body bending)")
     experiment.add_argument("--gains", metavar="FILE.toml", help="run: the feedback controller's gains")
+    experiment.add_argument("--repeat", type=int, default=1, metavar="K",
+                            help="run: play a follow-the-leader shape K times (each re-forms it at the head)")
     experiment.add_argument("--tail-load", type=float, default=0.0, metavar="N",
                             help="run: a constant backward force on the tail (N), from the capture on")
     experiment.add_argument("--seconds", type=float, default=None, metavar="S",

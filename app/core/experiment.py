@@ -160,10 +160,11 @@ def run_obstacle_experiment(out: str | Path, config: LabConfig | None = None, *,
                           progress=progress, header=f"# sensnake experiment obstacle: height_ratio = {height_ratio}")
 
 
-def _motion(mode: str, shape: np.ndarray, keyframes: Any, config: LabConfig, speed_rad_s: float) -> Any:
+def _motion(mode: str, shape: np.ndarray, keyframes: Any, config: LabConfig, speed_rad_s: float,
+            repeat: int = 1) -> Any:
     robot = config.robot
     if mode == "follow":
-        return FollowTheLeader(shape, robot.axes, speed_rad_s, rate_hz=robot.control_rate_hz)
+        return FollowTheLeader(shape, robot.axes, speed_rad_s, repeat=repeat, rate_hz=robot.control_rate_hz)
     if mode == "keyframes":
         if keyframes is None or len(keyframes) == 0:
             raise ValueError("--mode keyframes needs a --shape file with keyframes")
@@ -197,14 +198,16 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
                    shape: Any = None, mode: str = "follow", seconds: float | None = None,
                    speed_rad_s: float = 0.034, settle_s: float = SETTLE_S, seed: int = 0,
                    controller: str = "feedforward", gains: FeedbackGains | None = None, tail_load_n: float = 0.0,
-                   progress: Callable[[str], None] | None = None, header: str = "") -> ExperimentResult:
+                   repeat: int = 1, progress: Callable[[str], None] | None = None,
+                   header: str = "") -> ExperimentResult:
     """Run a plan (see the module docstring) and write its recording to ``out``. ``scene``: a scene file or a
     built-in scene's name (default: the config's ``[lab] scene``, else its legacy half cylinder); ``shape``: an
     :class:`app.core.shapes.Shape` (default: the settled pose); ``seconds`` caps the played part (default: the whole
     motion); ``controller``: ``feedforward`` (the motion as planned) or ``feedback``
     (:class:`app.core.force_control.ForceFeedbackMotion` with ``gains`` on the live estimated forces);
-    ``tail_load_n``: a constant backward force on the tail from the capture on. ``progress`` gets a one-line status
-    about once a wall second."""
+    ``tail_load_n``: a constant backward force on the tail from the capture on; ``repeat``: how many times a
+    follow-the-leader play runs (each re-forms the shape at the head and propagates it again, as ``play --repeat``).
+    ``progress`` gets a one-line status about once a wall second."""
     config = config or LabConfig()
     config = replace(config, lab=replace(config.lab, physics="mujoco", scene=scene if scene else config.lab.scene))
     terrain = load_scene(config.lab.scene) if config.lab.scene else None
@@ -219,7 +222,7 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     try:
         return _run(out, config, terrain, shape=shape, mode=mode, seconds=seconds, speed_rad_s=speed_rad_s,
                     settle_s=settle_s, seed=seed, controller=controller, gains=gains, tail_load_n=tail_load_n,
-                    progress=progress, header=header)
+                    repeat=repeat, progress=progress, header=header)
     finally:
         if scratch_scene is not None:
             scratch_scene.cleanup()
@@ -252,7 +255,7 @@ def jittered_scene(scene: Scene, seed: int) -> Scene:
 
 def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: Any, mode: str, seconds: float | None,
          speed_rad_s: float, settle_s: float, seed: int, controller: str, gains: FeedbackGains | None,
-         tail_load_n: float, progress: Callable[[str], None] | None, header: str) -> ExperimentResult:
+         tail_load_n: float, repeat: int, progress: Callable[[str], None] | None, header: str) -> ExperimentResult:
     if mode not in MODES:
         raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
     if controller not in CONTROLLERS:
@@ -263,6 +266,8 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
         raise ValueError(f"--settle must be 0 s or more, got {settle_s}")
     if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= config.robot.max_joint_speed_rad_s):
         raise ValueError(f"--speed must be in (0, {config.robot.max_joint_speed_rad_s}] rad/s, got {speed_rad_s}")
+    if not 1 <= repeat <= 100:
+        raise ValueError(f"--repeat must be 1 … 100, got {repeat}")
     if not (math.isfinite(tail_load_n) and 0.0 <= tail_load_n <= MAX_TAIL_LOAD_N):
         raise ValueError(f"--tail-load must be in [0, {MAX_TAIL_LOAD_N:g}] N, got {tail_load_n}")
     robot = config.robot
@@ -314,7 +319,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     if not np.all(np.isfinite(present)):
         raise RuntimeError("the simulated robot did not answer the capture read")
     taught = present if shape is None else np.asarray(shape.angles_rad, dtype=float)
-    source = _motion(mode, taught, None if shape is None else shape.keyframes, config, speed_rad_s)
+    source = _motion(mode, taught, None if shape is None else shape.keyframes, config, speed_rad_s, repeat)
     feedback: ForceFeedbackMotion | None = None
     if controller == "feedback":
         feedback = ForceFeedbackMotion(source, tuple(robot.axes), tuple(names), gains or FeedbackGains(),

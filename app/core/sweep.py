@@ -46,7 +46,8 @@ import tomllib
 
 from models.force_feedback import FeedbackGains, GainsError
 
-SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains"}
+SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains",
+              "repeat"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file")
 
@@ -65,6 +66,7 @@ class SweepPlan:
     speed_rad_s: float = 0.1
     settle_s: float = 6.0
     mode: str = "follow"
+    repeat: int = 1
     gains: tuple[FeedbackGains, ...] = field(default_factory=lambda: (FeedbackGains(),))
 
     def runs(self) -> list[dict[str, Any]]:
@@ -120,7 +122,10 @@ def read_sweep(path: str | Path) -> SweepPlan:
     seeds = numbers("seeds", (0,), int)
     if any(s < 0 for s in seeds):
         raise SweepError(f"{path}: 'seeds' must be 0 or more")
-    return SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers),
+    repeat = data.get("repeat", 1)
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= 100:
+        raise SweepError(f"{path}: 'repeat' must be a whole number 1 … 100, got {repeat!r}")
+    return SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers), repeat=repeat,
                      tail_loads_n=numbers("tail_loads_n", (0.0,), float), seeds=seeds,
                      mode=str(data.get("mode", "follow")), gains=gains, **scalars)
 
@@ -132,7 +137,8 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
     started = time.perf_counter()
     result = run_experiment(args["out"], scene=args["scene"], mode=args["mode"], seconds=args["seconds"],
                             speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
-                            controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"])
+                            controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"],
+                            repeat=args.get("repeat", 1))
     return {"run": args["run"], "scene": args["scene"], "controller": args["controller"],
             "gains_index": args["gains_index"],
             "gains": json.dumps(asdict(args["gains"])) if args["gains"] is not None else "",
@@ -157,7 +163,7 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
         name += f"_g{run['gains_index']}" if run["gains_index"] >= 0 else ""
         name += f"_load{run['tail_load_n']:g}_seed{run['seed']}.h5"
         tasks.append({**run, "run": k, "out": str(out / name), "mode": plan.mode, "seconds": plan.seconds,
-                      "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s})
+                      "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s, "repeat": plan.repeat})
     rows: dict[int, dict[str, Any]] = {}
     started = time.monotonic()
     jobs = max(1, jobs or os.cpu_count() or 1)

@@ -58,6 +58,9 @@ def test_the_paper_scene_file_is_the_legacy_obstacle_and_serpenoid_runs_on_flat_
     (["--scene", "no_such_scene"], ["no_such_scene", "scene file not found"]),
     (["--mode", "keyframes"], ["keyframes needs a --shape file with keyframes"]),
     (["--speed", "5"], ["--speed must be in"]),
+    (["--repeat", "0"], ["--repeat must be 1"]),
+    (["--tail-load", "100"], ["--tail-load must be in"]),
+    (["--controller", "feedback", "--gains", "/no/such/gains.toml"], ["gains file not found"]),
 ])
 def test_a_run_that_cannot_start_says_why_in_one_line(tmp_path, capsys, args, words):
     code = main(["experiment", "run", "--out", str(tmp_path / "x.h5"), "--settle", "0.2", *args])
