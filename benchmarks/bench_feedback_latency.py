@@ -12,82 +12,41 @@ drains the board every 33 ms (``board_bridge.DEFAULT_DRAIN_HZ``), which the late
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
-
-os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
-os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 
 
 def run(seconds: float) -> dict[str, float]:
     from dataclasses import replace
 
-    from PySide6.QtCore import QCoreApplication, QEventLoop
-    from PySide6.QtWidgets import QApplication
-
-    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
     from app.core.force_control import FeedbackProgress
-    from app.core.shapes import Shape, ShapeLibrary
-    from app.gui.lab import LabContext
-    from app.gui.tabs.forces import ForcesTab
-    from app.gui.tabs.gait import GaitTab
-    from devices import factory
+    from app.core.shapes import Shape
+    from benchmarks.app_session import app_session
     from devices.config import LabConfig, SimLabConfig
 
-    app = QApplication.instance() or QApplication([])
     config = replace(LabConfig(), lab=SimLabConfig(physics="mujoco"))
-
-    def pump(ms: float, until=None) -> None:
-        deadline = time.monotonic() + ms / 1000
+    angles = [0.0] * 12
+    for joint in (2, 4, 6, 8):
+        angles[joint] = -0.3
+    ages: list[float] = []
+    with app_session("bench_feedback_latency", config, Shape("wave", tuple(config.robot.axes), tuple(angles))) as (
+            _lab, _forces, gait, pump):
+        gait.panel.set_mode("follow")
+        gait.panel.speed_spin.setValue(0.1)
+        gait.panel.controller_combo.setCurrentIndex(gait.panel.controller_combo.findData("feedback"))
+        gait.panel.play_button.click()
+        pump(20_000, until=lambda: isinstance(getattr(gait.source, "progress", None), FeedbackProgress))
+        last = None
+        deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
-            QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 20)
-            if until is not None and until():
-                return
-            time.sleep(0.005)  # a benchmark's own loop, not a test
-
-    with tempfile.TemporaryDirectory() as tmp:
-        lab = LabContext(config, lab_process=True)
-        try:
-            lab.robot.connect_robot()
-            lab.board.start()
-            pump(30_000, until=lambda: lab.robot.is_connected and lab.robot.latest_state is not None)
-            library = ShapeLibrary(Path(tmp) / "shapes")
-            angles = [0.0] * 12
-            for joint in (2, 4, 6, 8):
-                angles[joint] = -0.3
-            library.save(Shape("wave", tuple(config.robot.axes), tuple(angles)))
-            forces, gait = ForcesTab(lab), GaitTab(lab, library)
-            cal = Path(tmp) / "sim.json"
-            # the simulated board's own sensor models (the lab's process answers by name)
-            cal.write_text(json.dumps(factory.sim_lab().board.ground_truth_calibration()), encoding="utf-8")
-            if not forces.load_calibration(cal):
-                raise SystemExit("bench_feedback_latency: the simulated sensors' calibration did not load")
-            gait.panel.set_mode("follow")
-            gait.panel.speed_spin.setValue(0.1)
-            gait.panel.controller_combo.setCurrentIndex(gait.panel.controller_combo.findData("feedback"))
-            gait.panel.play_button.click()
-            pump(20_000, until=lambda: isinstance(getattr(gait.source, "progress", None), FeedbackProgress))
-            ages: list[float] = []
-            last = None
-            deadline = time.monotonic() + seconds
-            while time.monotonic() < deadline:
-                pump(5)
-                progress = getattr(gait.source, "progress", None)
-                if isinstance(progress, FeedbackProgress) and progress is not last:
-                    last = progress
-                    if math.isfinite(progress.force_age_s):
-                        ages.append(progress.force_age_s)
-            lab.robot.stop_motion()
-            pump(2000)
-        finally:
-            lab.close()
-            app.processEvents()
+            pump(5)
+            progress = getattr(gait.source, "progress", None)
+            if isinstance(progress, FeedbackProgress) and progress is not last:
+                last = progress
+                if math.isfinite(progress.force_age_s):
+                    ages.append(progress.force_age_s)
     values = np.array(ages) * 1000
     return {"ticks": float(len(values)), "p50_ms": float(np.percentile(values, 50)) if len(values) else math.nan,
             "p95_ms": float(np.percentile(values, 95)) if len(values) else math.nan,

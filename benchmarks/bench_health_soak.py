@@ -10,82 +10,42 @@ the lab's processes are real). ``--pitch`` adds pitch bends (J3, J5) to the shap
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import tempfile
 import time
-from pathlib import Path
-
-os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
-os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 
 
 def run(seconds: float, speed_rad_s: float, scene: str = "flat", pitch: bool = False) -> list[tuple[float, str, str]]:
     from dataclasses import replace
 
-    from PySide6.QtCore import QCoreApplication, QEventLoop
-    from PySide6.QtWidgets import QApplication
-
-    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
-    from app.core.shapes import Shape, ShapeLibrary
-    from app.gui.lab import LabContext
+    from app.core.shapes import Shape
     from app.gui.robot_bridge import MOTION_RUNNING
-    from app.gui.tabs.forces import ForcesTab
-    from app.gui.tabs.gait import GaitTab
-    from devices import factory
+    from benchmarks.app_session import app_session
     from devices.config import LabConfig, SimLabConfig
     from models.health import describe
 
-    app = QApplication.instance() or QApplication([])
     config = replace(LabConfig(), lab=SimLabConfig(physics="mujoco", scene=scene))
-
-    def pump(ms: float, until=None) -> None:
-        deadline = time.monotonic() + ms / 1000
-        while time.monotonic() < deadline:
-            QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 20)
-            if until is not None and until():
-                return
-            time.sleep(0.005)  # a benchmark's own loop, not a test
-
+    angles = [0.0] * 12
+    angles[1], angles[3], angles[5] = 0.5, -0.6, 0.5  # J2, J4, J6: yaw
+    if pitch:
+        angles[2], angles[4] = -0.3, -0.3  # J3, J5
     alarms: list[tuple[float, str, str]] = []
-    with tempfile.TemporaryDirectory() as tmp:
-        lab = LabContext(config, lab_process=True)
-        try:
-            lab.robot.connect_robot()
-            lab.board.start()
-            pump(30_000, until=lambda: lab.robot.is_connected and lab.robot.latest_state is not None)
-            pump(6_000)  # the limp robot drapes over the obstacle
-            library = ShapeLibrary(Path(tmp) / "shapes")
-            angles = [0.0] * 12
-            angles[1], angles[3], angles[5] = 0.5, -0.6, 0.5  # J2, J4, J6: yaw
-            if pitch:
-                angles[2], angles[4] = -0.3, -0.3  # J3, J5
-            library.save(Shape("bent", tuple(config.robot.axes), tuple(angles)))
-            forces, gait = ForcesTab(lab), GaitTab(lab, library)
-            cal = Path(tmp) / "sim.json"
-            cal.write_text(json.dumps(factory.sim_lab().board.ground_truth_calibration()), encoding="utf-8")
-            if not forces.load_calibration(cal):
-                raise SystemExit("bench_health_soak: the simulated sensors' calibration did not load")
-            gait.panel.set_mode("follow")
-            gait.panel.speed_spin.setValue(speed_rad_s)
-            gait.panel.repeat_spin.setValue(1000)  # played over and over until the time is up
-            gait.panel.play_button.click()
-            pump(20_000, until=lambda: lab.robot.motion_state == MOTION_RUNNING)
-            started = time.monotonic()
-            names = config.board.channel_names
-            previous = forces.health.flags.copy()
-            while time.monotonic() - started < seconds:
-                pump(250)
-                flags = forces.health.flags
-                for i in range(len(names)):
-                    if flags[i] != previous[i] and flags[i]:
-                        alarms.append((time.monotonic() - started, names[i], describe(int(flags[i]))))
-                previous = flags.copy()
-            lab.robot.stop_motion()
-            pump(2_000)
-        finally:
-            lab.close()
-            app.processEvents()
+    with app_session("bench_health_soak", config, Shape("bent", tuple(config.robot.axes), tuple(angles))) as (
+            lab, forces, gait, pump):
+        pump(6_000)  # the limp robot settles on the scene
+        gait.panel.set_mode("follow")
+        gait.panel.speed_spin.setValue(speed_rad_s)
+        gait.panel.repeat_spin.setValue(1000)  # played over and over until the time is up
+        gait.panel.play_button.click()
+        pump(20_000, until=lambda: lab.robot.motion_state == MOTION_RUNNING)
+        started = time.monotonic()
+        names = config.board.channel_names
+        previous = forces.health.flags.copy()
+        while time.monotonic() - started < seconds:
+            pump(250)
+            flags = forces.health.flags
+            for i in range(len(names)):
+                if flags[i] != previous[i] and flags[i]:
+                    alarms.append((time.monotonic() - started, names[i], describe(int(flags[i]))))
+            previous = flags.copy()
     return alarms
 
 
