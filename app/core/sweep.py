@@ -12,6 +12,7 @@ A sweep file (TOML; unknown keys refused, naming the key)::
     speed_rad_s = 0.1
     settle_s = 6.0
     mode = "follow"
+    repeat = 1                                     # follow-the-leader passes per run
     [[gains]]                                      # feedback gain sets (default: one, the law's defaults)
     push_gain = 0.1
     [[gains]]
