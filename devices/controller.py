@@ -140,7 +140,16 @@ class _WakeupLatencyHold:
     def start(self) -> str:
         """At the bus thread's start; returns what was obtained, in words ("" when there is nothing to say)."""
         if self.only_while_moving:
-            return "" if self._refused is not None else "CPU idle states to be held shallow while a motion plays"
+            if self._refused is not None:
+                return ""
+            # Say now whether it will be obtained (issue 27): the device is opened once to see, then let go.
+            try:
+                os.close(os.open(CPU_LATENCY_DEVICE, os.O_WRONLY))
+            except OSError as exc:
+                self._refused = f"CPU idle states not held (cannot open {CPU_LATENCY_DEVICE}: {exc.strerror})"
+                return self._refused
+            return (f"CPU idle states to be held shallow while a motion plays (write access to {CPU_LATENCY_DEVICE} "
+                    "checked)")
         return self._hold()
 
     def follow(self, moving: bool) -> None:

@@ -303,3 +303,23 @@ def test_resumed_and_new_motions_start_from_the_present_pose_not_an_old_goal(con
     assert np.all(first <= 0.3 + 0.01) and np.all(first >= 0.3 - step_rad - 0.01)  # from 0.3, not from -0.4
     ctl.stop_motion()
     assert again.result(WAIT_S) == "stopped"
+
+
+def test_on_sim_the_start_message_says_whether_idle_states_will_be_held(tmp_path, monkeypatch):
+    """Issue 27: 'CPU idle states to be held shallow' said nothing about whether they would be; now the device is
+    tried at start and the message says which."""
+    import sys
+
+    from devices import controller as controller_module
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("Linux's PM QoS device")
+    monkeypatch.delenv("SENSNAKE_CPU_LATENCY", raising=False)
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")
+    writable = tmp_path / "cpu_dma_latency"
+    writable.write_bytes(b"")
+    monkeypatch.setattr(controller_module, "CPU_LATENCY_DEVICE", str(writable))
+    assert "checked" in controller_module._WakeupLatencyHold("sim").start()  # noqa: SLF001 - the class under test
+    monkeypatch.setattr(controller_module, "CPU_LATENCY_DEVICE", str(tmp_path / "missing"))
+    said = controller_module._WakeupLatencyHold("sim").start()  # noqa: SLF001
+    assert said.startswith("CPU idle states not held (cannot open") and "missing" in said

@@ -365,7 +365,7 @@ def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkey
         with running_controller(robot) as controller:
             assert controller.wait_started(10.0)
             assert controller.scheduling == ("normal scheduling (test); CPU idle states to be held shallow while a "
-                                             "motion plays")
+                                             f"motion plays (write access to {device} checked)")
             ticks = controller.stats().ticks
             assert wait_until(lambda: controller.stats().ticks > ticks + 5, 10.0)
             assert _open_on(device) == 0  # connected, nothing playing: not held
