@@ -310,6 +310,8 @@ def _load_json(path: str | os.PathLike) -> tuple[Path, Any]:
         raise CalFileError(f"{file}:{exc.lineno}: not valid JSON ({exc.msg})") from exc
     except UnicodeDecodeError as exc:
         raise CalFileError(f"{file}: not a UTF-8 JSON file ({exc.reason})") from exc
+    except RecursionError:
+        raise CalFileError(f"{file}: nested too deeply to be a calibration file") from None
 
 
 def _check_format(file: Path, document: Any) -> None:
@@ -379,6 +381,8 @@ def sensor_entry(document: dict[str, Any], name: str, model: str, source: str) -
         value = section.get(key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise CalFileError(f"{source}: sensor '{name}' {model}.{key} is {value!r}, expected a finite number")
+        if model == "sls" and not value > 0:  # a stiffness or a viscosity: the model has no meaning at or below 0
+            raise CalFileError(f"{source}: sensor '{name}' {model}.{key} is {value!r}, expected a positive number")
     if model == "sls":
         area = entry.get("area_m2")
         if isinstance(area, bool) or not isinstance(area, (int, float)) or not (area > 0 and math.isfinite(area)):

@@ -73,3 +73,36 @@ def test_the_hidden_temporary_is_never_opened_through_a_planted_symlink(tmp_path
     writer = RecordingWriter(tmp_path / "rec.h5", "", ["S01B"])
     writer.close()
     assert victim.read_text(encoding="utf-8") == "precious\n"
+
+
+def _calibration_of(tmp_path):
+    import dataclasses
+    import json
+
+    from devices.config import LabConfig, SimLabConfig
+    from devices.sim.lab import SimLab
+
+    lab = SimLab(dataclasses.replace(LabConfig(), lab=SimLabConfig(physics="scripted")), seed=2)
+    try:
+        return json.loads(json.dumps(lab.board.ground_truth_calibration()))
+    finally:
+        lab.close()
+
+
+def test_messages_about_a_bad_calibration_name_the_file_the_sensor_and_the_key(tmp_path, capsys):
+    import json
+
+    document = _calibration_of(tmp_path)
+    document["sensors"]["S06B"]["sls"]["mu1_Pa_s"] = -5.0
+    cal = tmp_path / "bad-cal.json"
+    cal.write_text(json.dumps(document), encoding="utf-8")
+    data = tmp_path / "in.csv"
+    data.write_text("time_s,S06B\n0,0.0001\n0.1,0.0001\n", encoding="utf-8")
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "out.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"sensnake estimate: error: {cal}: sensor 'S06B' sls.mu1_Pa_s is -5.0, expected a positive number"
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000, encoding="utf-8")
+    assert main(["estimate", str(data), "--cal", str(deep), "--out", str(tmp_path / "out.csv")]) == 1
+    assert capsys.readouterr().err.strip() == (f"sensnake estimate: error: {deep}: nested too deeply to be a "
+                                               "calibration file")
