@@ -69,6 +69,11 @@ def _read_header(path: Path) -> list[str]:
         with path.open(newline="", encoding="utf-8-sig") as handle:
             for row in csv.reader(handle):
                 if row and any(cell.strip() for cell in row):
+                    for other in (";", "\t"):
+                        if len(row) == 1 and other in row[0]:
+                            name = "semicolons" if other == ";" else "tabs"
+                            raise CalFileError(f"{path}:1: the columns are separated by {name}; this reads "
+                                               "comma-separated files (SPEC §3.1): save it as CSV with commas")
                     return [cell.strip() for cell in row]
     except UnicodeDecodeError as exc:
         raise CalFileError(f"{path}: not a text CSV file ({exc.reason})") from exc

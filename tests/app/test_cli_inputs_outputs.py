@@ -106,3 +106,15 @@ def test_messages_about_a_bad_calibration_name_the_file_the_sensor_and_the_key(t
     assert main(["estimate", str(data), "--cal", str(deep), "--out", str(tmp_path / "out.csv")]) == 1
     assert capsys.readouterr().err.strip() == (f"sensnake estimate: error: {deep}: nested too deeply to be a "
                                                "calibration file")
+
+
+def test_a_semicolon_separated_file_is_named_for_what_it_is(tmp_path, capsys):
+    data = tmp_path / "excel.csv"
+    data.write_text("time_s;S06B\n0;0.0001\n", encoding="utf-8")
+    import json
+
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(_calibration_of(tmp_path)), encoding="utf-8")
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "o.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"sensnake estimate: error: {data}:1: the columns are separated by semicolons")
