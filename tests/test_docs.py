@@ -37,3 +37,23 @@ def test_every_command_in_the_readme_is_one_the_parser_knows():
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     used = set(re.findall(r"`sensnake (\w+)", text))
     assert used and used <= known, f"the README names commands the CLI does not have: {used - known}"
+
+
+def test_the_config_page_is_what_the_code_says():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "config_doc.py"), "--check"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_every_environment_switch_the_code_reads_is_in_the_config_page():
+    names: set[str] = set()
+    for folder in ("app", "devices", "models", "widgets", "scripts", "tools", "benchmarks"):
+        for path in (ROOT / folder).rglob("*.py"):
+            names |= set(re.findall(r"SENSNAKE_[A-Z_]+", path.read_text(encoding="utf-8")))
+    for path in (ROOT / "scripts").glob("*.sh"):
+        names |= set(re.findall(r"SENSNAKE_[A-Z_]+", path.read_text(encoding="utf-8")))
+    documented = set(re.findall(r"`(SENSNAKE_[A-Z_]+)`", (ROOT / "docs" / "CONFIG.md").read_text(encoding="utf-8")))
+    assert names <= documented, f"switches the code reads that docs/CONFIG.md does not explain: {names - documented}"
