@@ -62,6 +62,12 @@ _FLAG_WORDS = {
 BAD_FLAGS = SensorHealth.DISCONNECTED | SensorHealth.DROPOUT | SensorHealth.NOISY | SensorHealth.FLAT
 
 
+def trusted(flags: np.ndarray) -> np.ndarray:
+    """Per sensor, whether its reading may be trusted (no flag of ``BAD_FLAGS``: a saturated or below-baseline
+    sensor still reads, a disconnected, dropping-out, noisy or flat-lined one does not)."""
+    return (np.asarray(flags).astype(int) & int(BAD_FLAGS)) == 0
+
+
 def describe(flags: int) -> str:
     """Human words for a flag value, e.g. ``"noisy (loose?), saturated"``; ``"ok"`` for none."""
     words = [word for flag, word in _FLAG_WORDS.items() if flags & flag]

@@ -51,7 +51,8 @@ from devices.board import FrameParser, conductance_from_counts
 from devices.config import LabConfig
 from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
 from models.force_feedback import FeedbackGains
-from models.health import BAD_FLAGS, HealthMonitor
+from models.health import HealthMonitor
+from models.health import trusted as health_trusted
 from models.trajectory import FollowTheLeader, Keyframes, serpenoid, sidewinding
 
 SETTLE_S = 6.0
@@ -299,7 +300,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             return counts, conductance, board_time, seq, None
         forces = pipeline.process(board_time, conductance).force_n
         health.update(board_time, conductance, counts == 0)
-        page.publish(lab.time_s, forces[-1], np.isfinite(forces[-1]) & ((health.flags.astype(int) & int(BAD_FLAGS)) == 0))
+        page.publish(lab.time_s, forces[-1], np.isfinite(forces[-1]) & health_trusted(health.flags))
         return counts, conductance, board_time, seq, forces
 
     # 1. Start: settle limp (or lie straight, held); the pipeline follows the sensors from the start so its creep

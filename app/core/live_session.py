@@ -37,7 +37,8 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.config import BoardConfig
 from devices.errors import BoardProtocolError
-from models.health import BAD_FLAGS, HealthMonitor, describe
+from models.health import HealthMonitor, describe
+from models.health import trusted as health_trusted
 
 CRC_WARN_FRACTION = 0.05  # of the frames seen in the window: above this the link is bad, say so loudly
 CRC_WARN_MIN = 10  # a handful of CRC errors (e.g. on plugging in) is not a storm
@@ -170,7 +171,7 @@ class LiveSession:
             # (any flag that means the reading cannot be trusted) may not drive a correction
             trusted = np.isfinite(forces.force_n[-1])
             if self.health is not None:
-                trusted &= (self.health.flags.astype(int) & int(BAD_FLAGS)) == 0
+                trusted &= health_trusted(self.health.flags)
             self.force_page.publish(float(block.host_time_s[-1]), forces.force_n[-1], trusted)
         recorder = self.recorder
         if recorder is not None and recorder.is_active:

@@ -123,12 +123,17 @@ def _save_bump(library):
     library.save(Shape("bump", AXES, angles, frames))
 
 
-def test_gait_tab_plays_follow_with_progress_and_pause_resume(qtbot, lab, library, sim_lab_fast):
+def _bump_tab(qtbot, lab, library):
+    """A shown Gait tab with the 'bump' shape in its library: (tab, panel)."""
     _save_bump(library)
     tab = GaitTab(lab, library)
     qtbot.addWidget(tab)
     tab.show()
-    panel = tab.panel
+    return tab, tab.panel
+
+
+def test_gait_tab_plays_follow_with_progress_and_pause_resume(qtbot, lab, library, sim_lab_fast):
+    tab, panel = _bump_tab(qtbot, lab, library)
     assert panel.shape_combo.currentText() == "bump"
     assert panel.body_view.goal_rad is not None  # the chosen shape is previewed over the body
     panel.set_mode("follow")
@@ -156,11 +161,7 @@ def test_gait_tab_plays_follow_with_progress_and_pause_resume(qtbot, lab, librar
 
 
 def test_gait_tab_overload_message_names_servo_and_stop(qtbot, lab, library, sim_lab_fast):
-    _save_bump(library)
-    tab = GaitTab(lab, library)
-    qtbot.addWidget(tab)
-    tab.show()
-    panel = tab.panel
+    tab, panel = _bump_tab(qtbot, lab, library)
     panel.set_mode("keyframes")
     panel.time_scale_spin.setValue(20.0)
     panel.approach_spin.setValue(0.2)
@@ -214,11 +215,7 @@ def test_gait_panel_request_reflects_the_form(qtbot):
 
 
 def test_a_refused_gait_clears_the_previous_runs_progress(qtbot, lab, library, sim_lab_fast):
-    _save_bump(library)
-    tab = GaitTab(lab, library)
-    qtbot.addWidget(tab)
-    tab.show()
-    panel = tab.panel
+    tab, panel = _bump_tab(qtbot, lab, library)
     panel.set_mode("follow")
     panel.speed_spin.setValue(0.3)
     panel.shifts_spin.setValue(1)
