@@ -8,6 +8,12 @@
 #   machine may lack; Qt then aborts with a core dump. They are checked first: installed with apt-get when root,
 #   otherwise the one command that installs them is printed and the app is not started.
 set -euo pipefail
+case "${1:-}" in -h|--help)
+    echo "usage: scripts/run.sh [COMMAND ARGS...]"
+    echo "Install SenSnake Studio if needed, then open the app (no arguments: on the built-in simulated lab) or run"
+    echo "one sensnake command, e.g. scripts/run.sh record --help. 'sensnake --help' lists the commands."
+    exit 0 ;;
+esac
 cd "$(dirname "$0")/.."
 here=$(pwd -P)
 stamp=.sensnake-install-stamp

@@ -5,6 +5,12 @@
 # it with the xcb platform (repaint bugs show only on a real display). Xvfb and the xcb libraries are installed here
 # when root with apt; otherwise those tests are skipped and this script says so.
 set -euo pipefail
+case "${1:-}" in -h|--help)
+    echo "usage: scripts/test.sh [PYTEST ARGS...]"
+    echo "Install the test dependencies, run ruff, mypy and the import contracts, then pytest (with PYTEST ARGS,"
+    echo "e.g. tests/widgets -k legend). Real-display tests need Xvfb (installed here when root with apt)."
+    exit 0 ;;
+esac
 cd "$(dirname "$0")/.."
 python3 -m pip install --quiet --disable-pip-version-check -e ".[test]"
 # shellcheck source=scripts/xcb_deps.sh

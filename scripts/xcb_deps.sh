@@ -46,3 +46,16 @@ ensure_x_packages() {
     echo "Install them with:  sudo apt-get install $want"
     return 1
 }
+
+# Run directly (not sourced): say what is missing, or --help.
+if [ "${BASH_SOURCE[0]}" = "$0" ]; then
+    case "${1:-}" in
+        "") missing=$(xcb_missing_packages | xargs)
+            if [ -n "$missing" ]; then echo "missing: $missing"; exit 1; fi
+            echo "Qt's xcb platform has every system library it needs"; exit 0 ;;
+        -h|--help) echo "usage: scripts/xcb_deps.sh"
+            echo "Print the Debian packages Qt's xcb platform (a real X display) still needs; run.sh and test.sh"
+            echo "source it and install them when root."; exit 0 ;;
+        *) echo "usage: scripts/xcb_deps.sh [--help]" >&2; exit 2 ;;
+    esac
+fi

@@ -6,7 +6,7 @@ one QTimer (≤ 60 Hz) redraws, and only when new data arrived or the view chang
 (min/max) downsampling happen once per redraw in ``TraceHistory.window()`` for all drawn channels, at one bucket per
 pixel column, so drawing cost does not grow with the session length; antialiasing off; each plot's traces are drawn
 by one fixed-bounds item (:class:`_TraceBundle`) instead of one PlotCurveItem each (5× cheaper per frame); axes are
-painted from pixmap caches and legends are plain labels over the plot, not scene items; live, the x axis is "seconds
+painted from pixmap caches and legends are strips of text in each plot's header, outside the data; live, the x axis is "seconds
 before the newest sample" so no axis is regenerated per frame. Collapsed plots, hidden traces and plots scrolled out
 of view are not redrawn at all.
 Benchmark: ``benchmarks/bench_forces_gui.py``.
@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QPainter, QPainterPath, QPixmap, QPolygonF, QTextDocument
+from PySide6.QtGui import QFont, QPainterPath, QPolygonF, QTextDocument
 from PySide6.QtWidgets import (
     QGraphicsItem,
     QGraphicsWidget,
@@ -195,25 +195,34 @@ class _Trace(pg.PlotDataItem):
 
 
 class _Legend(QLabel):
-    """A plot's legend: a label over the top-left corner of its data area, one line per trace (a line in the trace's
-    colour and style, then its label). A click on an entry shows or hides that trace; a hidden one is greyed.
+    """A plot's legend: a strip in the plot's header, one entry per trace (a line in the trace's colour and style,
+    then its label) side by side — never over the data. A click on an entry shows or hides that trace; a hidden one
+    is greyed. When the labels do not fit the strip's width, each entry is shortened to the trace's name (and its
+    unit when it is on the right-hand axis); the full labels are in the tooltip.
 
-    Not pyqtgraph's LegendItem: its ten or so scene items per plot sat over the data, so every frame Qt walked them
-    and asked each (Python-wrapped) for its bounds: 3-5 % of a core for the 12 live plots on a real X display. Nor a
-    rich-text label: that lays out and draws its text on every repaint of the traces under it (+1.3 ms per frame).
-    The entries are drawn once into a translucent pixmap, redrawn only when they change; each frame only blits it.
-    For an image export, :meth:`set_vector` shows the same text as text (an SVG keeps it as text)."""
+    It sits in the header, outside the plot, so a repaint of the traces never repaints it: plain rich text is enough
+    (it was a translucent pixmap when it lay over the data). For an image export, :meth:`overlay_html` gives the
+    same entries one per line, drawn over the plot's top-left corner in the exported picture."""
 
     HIDDEN_COLOR = "#AAAAAA"
 
-    def __init__(self, view: QWidget, traces: Sequence[_Trace], labels: Sequence[str]) -> None:
-        super().__init__(view)
+    def __init__(self, parent: QWidget, traces: Sequence[_Trace], labels: Sequence[str],
+                 names: Sequence[str] | None = None) -> None:
+        super().__init__(parent)
         self._traces = list(traces)
         self._labels = list(labels)
+        self._names = list(names) if names is not None else list(labels)
+        self._short_units: list[str] = [""] * len(self._traces)  # a unit shown beside a shortened entry
         self.html = ""
-        self._vector = False
+        self.short = False
+        self._font = QFont(self.font())
+        self._font.setPointSizeF(8.0)
+        self.setFont(self._font)
+        self.setTextFormat(Qt.TextFormat.RichText)
         self.setCursor(Qt.CursorShape.PointingHandCursor)
-        self.setToolTip("Click a name to show or hide its trace")
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
+        self.setMinimumWidth(0)
+        self.linkActivated.connect(lambda href: self.toggle(int(href)))
         for trace in self._traces:
             trace.visibleChanged.connect(self.render_entries)
         self.render_entries()
@@ -225,67 +234,61 @@ class _Legend(QLabel):
         self._labels = list(labels)
         self.render_entries()
 
+    def set_short_units(self, units: Sequence[str]) -> None:
+        """Per trace, a unit to name in a shortened entry (``""``: the plot's own unit, none shown)."""
+        if list(units) != self._short_units:
+            self._short_units = list(units)
+            self.render_entries()
+
     def toggle(self, index: int) -> None:
         """Show or hide trace ``index`` (what a click on its entry does)."""
         trace = self._traces[index]
         trace.setVisible(not trace.isVisible())
 
-    def mousePressEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if event.button() == Qt.MouseButton.LeftButton and self._traces and self.height() > 0:
-            row = int(event.position().y() * len(self._traces) / self.height())
-            self.toggle(min(max(row, 0), len(self._traces) - 1))
-            event.accept()
-            return
-        super().mousePressEvent(event)
-
-    def _document(self) -> QTextDocument:
-        document = QTextDocument()
-        font = QFont(self.font())
-        font.setPointSizeF(8.0)
-        document.setDefaultFont(font)
-        document.setDocumentMargin(2.0)
-        document.setHtml(self.html)
-        return document
-
-    def set_vector(self, vector: bool) -> None:
-        """Show the entries as rich text (``True``, for an export: text stays text) or as the cached pixmap."""
-        self._vector = vector
-        self._show()
-
-    def render_entries(self) -> None:
-        """Redraw the entries from the traces' pens, visibility and the labels (call after a pen changes)."""
-        lines = []
-        for trace, label in zip(self._traces, self._labels):
+    def _entries(self, texts: Sequence[str], links: bool) -> list[str]:
+        entries = []
+        for index, (trace, text) in enumerate(zip(self._traces, texts)):
             pen = trace.opts["pen"]
             shown = trace.isVisible()
             color = pen.color().name() if shown else self.HIDDEN_COLOR
             glyph = "━━" if pen.style() == Qt.PenStyle.SolidLine else "┅┅"
             text_color = AXIS_COLOR if shown else self.HIDDEN_COLOR
-            lines.append(f'<span style="color: {color};">{glyph}</span>'
-                         f'<span style="color: {text_color};">&nbsp;{html.escape(label)}</span>')
-        entries = "<br>".join(lines)
-        if entries != self.html:
-            self.html = entries
-            self._show()
+            body = (f'<span style="color: {color};">{glyph}</span>'
+                    f'<span style="color: {text_color};">&nbsp;{html.escape(text)}</span>')
+            if links:
+                body = f'<a href="{index}" style="text-decoration: none;">{body}</a>'
+            entries.append(body)
+        return entries
 
-    def _show(self) -> None:
-        if self._vector:
-            self.setStyleSheet("background: rgba(255,255,255,170); font-size: 8pt; padding: 2px;")
-            self.setText(self.html)
-            self.adjustSize()
-            return
-        self.setStyleSheet("")
-        document = self._document()
-        size = document.size().toSize()
-        ratio = self.devicePixelRatioF()
-        pixmap = QPixmap(size * ratio)
-        pixmap.setDevicePixelRatio(ratio)
-        pixmap.fill(QColor(255, 255, 255, 170))
-        painter = QPainter(pixmap)
-        document.drawContents(painter)
-        painter.end()
-        self.setPixmap(pixmap)
-        self.resize(size)
+    def _short_texts(self) -> list[str]:
+        return [f"{name} {unit}" if unit else name for name, unit in zip(self._names, self._short_units)]
+
+    def _fits(self, markup: str) -> bool:
+        document = QTextDocument()
+        document.setDefaultFont(self._font)
+        document.setDocumentMargin(0.0)
+        document.setHtml(markup)
+        return document.idealWidth() <= max(1, self.width())
+
+    def overlay_html(self) -> str:
+        """The entries one per line (full labels), for a legend drawn over an exported picture."""
+        return "<br>".join(self._entries(self._labels, links=False))
+
+    def render_entries(self) -> None:
+        """Redraw the entries from the traces' pens, visibility and the labels (call after a pen changes)."""
+        spacer = "&nbsp;&nbsp; "
+        full = spacer.join(self._entries(self._labels, links=True))
+        self.short = not self._fits(full)
+        markup = spacer.join(self._entries(self._short_texts(), links=True)) if self.short else full
+        self.setToolTip("Click a name to show or hide its trace"
+                        + ("<br>" + "<br>".join(html.escape(label) for label in self._labels) if self.short else ""))
+        if markup != self.html:
+            self.html = markup
+            self.setText(markup)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().resizeEvent(event)
+        self.render_entries()
 
 
 class _TraceBundle(pg.GraphicsObject):
@@ -403,6 +406,14 @@ class _SegmentPlot(QWidget):
         header.addWidget(self.warning, 1)
         header.addWidget(self.image_button)
         layout.addLayout(header)
+        self.curves: list[_Trace] = []
+        for position, name in enumerate(group.names):
+            self.curves.append(_Trace(pg.mkPen(trace_color(name, position), width=1), name))
+        # The legend: a strip under the header, outside the data (a legend over the traces hid the newest data
+        # or the largest values, whichever corner it took).
+        self.legend = _Legend(self, self.curves, group.names, group.names)
+        self.legend.setContentsMargins(6, 0, 4, 1)
+        layout.addWidget(self.legend)
         self.plot_widget = pg.PlotWidget(self, background="w")
         policy = QSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
         policy.setRetainSizeWhenHidden(True)  # scrolled out of view: hidden, its place in the grid kept
@@ -429,12 +440,6 @@ class _SegmentPlot(QWidget):
 
         self.bundle = _TraceBundle()
         item.addItem(self.bundle)
-        self.curves: list[_Trace] = []
-        for position, name in enumerate(group.names):
-            self.curves.append(_Trace(pg.mkPen(trace_color(name, position), width=1), name))
-        # Top left of the data area: in a live view the newest (right-hand) data must stay uncovered.
-        self.legend = _Legend(self.plot_widget, self.curves, group.names)
-        item.getViewBox().sigResized.connect(self._place_legend)
         for plain in (item, item.titleLabel):
             native_geometry(plain)
         # The view box draws nothing itself (no border): Qt need not call its Python paint() every frame.
@@ -453,16 +458,13 @@ class _SegmentPlot(QWidget):
                                    "font-size: 8pt; padding: 1px 3px;")
         self.readout.hide()
         self._labels = list(group.names)
+        self.units = ""  # the left axis's unit (set_units)
         self.alt: tuple[pg.ViewBox, _TraceBundle] | None = None  # right-hand axis for channels in other units
         self.auto_y = True  # off once the user zooms this plot; back on when the view resumes following
 
     @property
     def viewbox(self) -> pg.ViewBox:
         return self.plot_widget.getPlotItem().getViewBox()
-
-    def _place_legend(self) -> None:
-        corner = self.plot_widget.mapFromScene(self.viewbox.sceneBoundingRect().topLeft())
-        self.legend.move(corner.x() + 4, corner.y() + 2)
 
     def other_axis(self, units: str) -> tuple[pg.ViewBox, _TraceBundle]:
         """The right-hand axis (its own view box and trace bundle, same time axis) for the channels of this plot that
@@ -505,6 +507,12 @@ class _SegmentPlot(QWidget):
             self.alt[0].hide()
             self.plot_widget.getPlotItem().hideAxis("right")
 
+    def set_units(self, units: str) -> None:
+        """The left axis's unit: the grid's, or this plot's channels' own when none of them is in the grid's."""
+        if units != self.units:
+            self.units = units
+            self.plot_widget.setLabel("left", units)
+
     @property
     def collapsed(self) -> bool:
         return not self.toggle.isChecked()
@@ -534,7 +542,8 @@ class _SegmentPlot(QWidget):
     def header_height(self) -> int:
         layout = self.layout()
         header = layout.itemAt(0) if layout is not None else None
-        return header.sizeHint().height() if header is not None else 0
+        height = header.sizeHint().height() if header is not None else 0
+        return height + self.legend.sizeHint().height()  # and the legend strip under it
 
     def set_labels(self, labels: Sequence[str]) -> None:
         if list(labels) == self._labels:
@@ -723,11 +732,21 @@ class ForcePlotGrid(QWidget):
         self.refresh(force=True, include=index)
         x0, x1 = self.visible_range()
         title = f"{plot.group.title} · t = {x0:.2f} … {x1:.2f} s (session time)"
-        plot.legend.set_vector(True)  # its text as text, not the on-screen pixmap
+        # The picture stands alone: its legend is drawn over the data area's top-left corner, as text (an SVG
+        # keeps it as text), one entry per line with the full labels.
+        overlay = QLabel(plot.plot_widget)
+        overlay.setTextFormat(Qt.TextFormat.RichText)
+        overlay.setStyleSheet("background: rgba(255,255,255,170); font-size: 8pt; padding: 2px;")
+        overlay.setText(plot.legend.overlay_html())
+        overlay.adjustSize()
+        corner = plot.plot_widget.mapFromScene(plot.viewbox.sceneBoundingRect().topLeft())
+        overlay.move(corner.x() + 4, corner.y() + 2)
+        overlay.show()
         try:
             return save_widget_image(plot.plot_widget, path, title)
         finally:
-            plot.legend.set_vector(False)
+            overlay.deleteLater()
+            overlay.hide()
 
     def set_history(self, history: TraceHistory | None, units: str | None = None) -> None:
         """Draw ``history`` (channels in the order of ``channel_names``); ``units`` labels the y axes."""
@@ -753,11 +772,11 @@ class ForcePlotGrid(QWidget):
         self._channel_units = None
         for plot in self.plots:
             plot.hide_other_axis()
-        for plot in self.plots:
             # No automatic SI prefix: it labelled small ranges "N (x0.001)", and neighbouring plots in different
             # scales are misread; every plot stays in the units named here.
             plot.plot_widget.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
-            plot.plot_widget.setLabel("left", units)
+            plot.set_units(units)
+            plot.legend.set_short_units([""] * len(plot.curves))
 
     def set_channel_units(self, units: Sequence[str] | None) -> None:
         """Units per channel (``channel_names`` order), or None for all in the plots' units. Channels whose unit
@@ -771,8 +790,14 @@ class ForcePlotGrid(QWidget):
         self._channel_units = units
         self._drawn_key = None
         for plot in self.plots:
-            if units is None or all(units[i] == self._units for i in plot.group.channels):
+            mine = [self._units if units is None else units[i] for i in plot.group.channels]
+            # A plot's left axis is in the grid's units when one of its channels is; otherwise (every sensor of
+            # the segment uncalibrated, say) in its channels' own unit, with no empty axis beside it.
+            primary = self._units if self._units in mine or not mine else mine[0]
+            plot.set_units(primary)
+            if all(unit == primary for unit in mine):
                 plot.hide_other_axis()
+            plot.legend.set_short_units(["" if unit == primary else unit for unit in mine])
         self.refresh(force=True)
 
     def channel_unit(self, index: int) -> str:
@@ -984,15 +1009,15 @@ class ForcePlotGrid(QWidget):
                     columns.append(column)
                     column += 1
                 for units, (traces, columns) in by_units.items():
-                    box, bundle = (plot.viewbox, plot.bundle) if units == self._units else plot.other_axis(units)
+                    box, bundle = (plot.viewbox, plot.bundle) if units == plot.units else plot.other_axis(units)
                     bundle.set_traces(traces, _pen_pad(box))
                     if plot.auto_y or box is not plot.viewbox:
                         self._fit_y(box, float(np.fmin.reduce(column_lo[columns])),
                                     float(np.fmax.reduce(column_hi[columns])),
                                     MIN_Y_SPAN.get(units, DEFAULT_MIN_Y_SPAN))
-                if self._units not in by_units:
+                if plot.units not in by_units:
                     plot.bundle.set_traces([])
-                if plot.alt is not None and len(by_units) == 1 and self._units in by_units:
+                if plot.alt is not None and len(by_units) == 1 and plot.units in by_units:
                     plot.alt[1].set_traces([])
         self._update_time_bar(oldest, newest, t1)
         self._update_readout()
@@ -1082,7 +1107,15 @@ class ForcePlotGrid(QWidget):
             lines.append(f"{name}: {('{:.3f}' if units == 'N' else '{:.4g}').format(value)} {units}")
         plot.readout.setText("\n".join(lines))
         plot.readout.adjustSize()
-        plot.readout.move(plot.plot_widget.width() - plot.readout.width() - 6, 4)
+        # Inside the data area, never over an axis: in its top corner away from the cursor (the cursor's own
+        # point stays visible).
+        area = plot.plot_widget.mapFromScene(plot.viewbox.sceneBoundingRect()).boundingRect()
+        cursor_x = plot.plot_widget.mapFromScene(self._hover[1]).x()
+        if cursor_x > area.center().x():
+            x = area.left() + 4
+        else:
+            x = area.right() - plot.readout.width() - 3
+        plot.readout.move(max(area.left() + 1, x), area.top() + 2)
         plot.readout.show()
         plot.readout.raise_()
         for other in self.plots:

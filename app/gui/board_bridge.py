@@ -7,6 +7,8 @@ The reader owns the port on its own thread and buffers frames in its ring. This 
 - drains ``read_block()`` from one QTimer at ≤ 60 Hz into a preallocated, bounded history of conductance in µS
   (:class:`widgets.ring_plot.TraceHistory`, times in seconds since :attr:`BoardBridge.t0_monotonic_s`) and emits
   every drained block — acquisition never waits for the GUI: if the GUI stalls, the reader's ring keeps filling;
+- keeps the blocks of the last ``RECENT_S`` seconds (references, no copy) so a view opened later (the Forces tab is
+  built when first shown) starts with the recent past, estimated as it would have been live (:meth:`recent_blocks`);
 - turns the reader's status callbacks (called on the reader thread) into signals on the GUI thread.
 
 Signals: ``status(str)`` a sentence for the user, ``connected(bool)``, ``block(object)`` each drained
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +38,7 @@ DEFAULT_DRAIN_HZ = 30.0
 RETRY_OPEN_S = 2.0
 STATS_INTERVAL_S = 1.0
 HISTORY_BUDGET_BYTES = 96_000_000
+RECENT_S = 60.0  # what a view opened later starts with (twice the Forces tab's default 30 s window)
 
 
 @dataclass
@@ -63,6 +67,9 @@ class BoardBridge(QObject):
         self.config = config
         self.t0_monotonic_s = time.monotonic()
         self.history = TraceHistory.for_budget(config.n_channels, history_budget_bytes)
+        self._recent: deque[SampleBlock] = deque()
+        self._recent_samples = 0
+        self.recent_max_samples = max(1, int(RECENT_S * config.rate_hz))
         self.bridge_stats = BridgeStats()
         self._reader: BoardReader | None = None
         self._opener: threading.Thread | None = None
@@ -155,6 +162,7 @@ class BoardBridge(QObject):
             return None
         t_s = self.to_session_time(block.host_time_s)
         append_with_gaps(self.history, t_s, block.conductance_s * 1e6, block.gap_before)
+        self._keep_recent(block)
         lag_s = time.monotonic() - float(block.host_time_s[-1])
         stats = self.bridge_stats
         stats.blocks += 1
@@ -163,6 +171,16 @@ class BoardBridge(QObject):
         stats.max_delivery_lag_s = max(stats.max_delivery_lag_s, lag_s)
         self.block.emit(block)
         return block
+
+    def _keep_recent(self, block: SampleBlock) -> None:
+        self._recent.append(block)
+        self._recent_samples += len(block)
+        while len(self._recent) > 1 and self._recent_samples - len(self._recent[0]) >= self.recent_max_samples:
+            self._recent_samples -= len(self._recent.popleft())
+
+    def recent_blocks(self) -> list[SampleBlock]:
+        """The blocks drained in the last ``RECENT_S`` seconds (at the board's rate), oldest first."""
+        return list(self._recent)
 
     # -- opening (worker thread) -----------------------------------------------------------------------------------
     def _open_async(self) -> None:

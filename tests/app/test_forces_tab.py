@@ -311,3 +311,42 @@ def test_a_recording_shows_newtons_only_for_the_sensors_that_had_a_calibration(q
     assert tab.plots.units == "µS" and "without a calibration" in tab.controls.message.text()
     values, units = tab._recording_values(tab.viewed)
     assert set(units) == {"µS"} and np.allclose(values, block.conductance_s * 1e6)
+
+
+def test_the_tab_opens_with_the_recent_past_the_board_already_sent(qtbot, lab):
+    """The tab is built when first shown; the board has streamed since start-up. Its plots start with that past
+    (estimated as live), bounded to the bridge's recent window, not empty."""
+    lab.board.start()
+    qtbot.waitUntil(lambda: len(lab.board.history) >= 90, timeout=15_000)  # ≥ 3 s at 30 Hz before the tab exists
+    before = len(lab.board.history)
+    kept = sum(len(block) for block in lab.board.recent_blocks())
+    assert 0 < kept <= lab.board.recent_max_samples + max(len(b) for b in lab.board.recent_blocks())
+    tab = create_tab(lab)
+    qtbot.addWidget(tab)
+    try:
+        assert len(tab.force_history) >= min(before, kept) - 2  # the past is there before any new block
+        oldest, newest = tab.force_history.span()
+        b_oldest, b_newest = lab.board.history.span()
+        assert newest >= b_newest - 0.2 and oldest <= b_oldest + 0.2  # the same times as the µS history
+        assert tab.health.report is not None  # and the health monitor has seen it
+    finally:
+        tab.shutdown()
+
+
+def test_a_new_calibration_reestimates_the_history_so_no_microsiemens_sit_on_a_newton_axis(qtbot, lab, tab,
+                                                                                          tmp_path):
+    lab.board.start()
+    qtbot.waitUntil(lambda: len(tab.force_history) >= 60, timeout=15_000)
+    t_mid = float(np.mean(tab.force_history.span()))
+    _t, before = tab.force_history.value_at(t_mid)
+    _t, micro = lab.board.history.value_at(t_mid)
+    assert before[17] == pytest.approx(micro[17])  # uncalibrated: the history holds S06B's µS
+    cal = tmp_path / "s06b.json"
+    from tests.calibration_files import typical_sensor_entry, write_calibration
+
+    write_calibration(cal, {"S06B": typical_sensor_entry()})
+    assert tab.load_calibration(cal)
+    assert tab.plots.channel_unit(17) == "N"
+    _t, after = tab.force_history.value_at(t_mid)  # the same past, estimated with the calibration
+    assert after[17] != pytest.approx(micro[17]) and np.isfinite(after[17])
+    assert after[5] == pytest.approx(micro[5])  # S02R is still uncalibrated: still µS

@@ -267,8 +267,89 @@ def scenario_scene(window, page, seconds: float) -> dict:
     return measure({"scene": page.view.picture}, PaintCounter(), seconds)
 
 
-SCENARIOS = {"forces": scenario_forces, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait,
+def _global_rect(widget: QWidget, rect=None) -> list[int]:
+    """``rect`` (in ``widget``'s coordinates; default its whole area) on the screen: [left, top, right, bottom]."""
+    from PySide6.QtCore import QRect
+
+    rect = QRect(rect) if rect is not None else widget.rect()
+    top_left = widget.mapToGlobal(rect.topLeft())
+    return [top_left.x(), top_left.y(), top_left.x() + rect.width() - 1, top_left.y() + rect.height() - 1]
+
+
+def _data_area(plot) -> list[int]:
+    widget = plot.plot_widget
+    return _global_rect(widget, widget.mapFromScene(plot.viewbox.sceneBoundingRect()).boundingRect())
+
+
+def _save(image: QImage, name: str) -> str:
+    folder = os.environ.get("PROBE_PICTURES")
+    if not folder:
+        return ""
+    path = Path(folder) / f"{name}.png"
+    image.save(str(path))
+    return str(path)
+
+
+def scenario_forces_layout(window, page, seconds: float) -> dict:
+    """The Forces tab opened after the board has streamed for a while (it is built when first shown), then one
+    sensor calibrated and the cursor over a plot: where each piece lands on the X screen, with the grabs saved
+    (``PROBE_PICTURES``)."""
+    lab = window.lab
+    pump_until(lambda: len(lab.board.history) > 0 and lab.board.history.span()[1] > 3.0, what="3 s of board data")
+    streamed = lab.board.history.span()
+    forces = window.show_tab("forces")
+    result: dict = {"streamed_s": list(streamed), "history_on_open_s": list(forces.force_history.span())
+                    if len(forces.force_history) else None}
+    pump(300)
+    result["open_picture"] = _save(grab(window), "forces-on-open")
+    from tests.calibration_files import typical_sensor_entry, write_calibration
+
+    cal = write_calibration(Path(tempfile.mkdtemp()) / "one.json", {"S06B": typical_sensor_entry()})
+    forces.load_calibration(cal)
+    pump(1500)
+    plots = []
+    for plot in forces.plots.plots:
+        if not plot.on_screen():
+            continue
+        item = plot.plot_widget.getPlotItem()
+        plots.append({"title": plot.group.title, "legend": _global_rect(plot.legend), "data": _data_area(plot),
+                      "left_label": item.getAxis("left").labelText,
+                      "right_visible": item.getAxis("right").isVisible(),
+                      "right_label": item.getAxis("right").labelText})
+    result["plots"] = plots
+    result["calibrated_picture"] = _save(grab(window), "forces-one-calibrated")
+    t_newest = forces.force_history.span()[1]
+    forces.plots.set_paused(True)  # the cursor stays over the same samples while the grabs are taken
+    from PySide6.QtGui import QCursor
+
+    QCursor.setPos(WINDOW_SIZE[0] + 100, WINDOW_SIZE[1] + 100)  # the X pointer off the window: only hover_at moves it
+    pump(100)
+    readouts = []
+    for fraction in (0.25, 0.9):
+        lo, hi = forces.force_history.span()  # over data (the 30-s view is wider than the history yet)
+        forces.plots.hover_at(5, lo + fraction * (hi - lo))
+        pump(200)
+        plot = forces.plots.plots[5]
+        item = plot.plot_widget.getPlotItem()
+        axis_rects = []
+        for name in ("left", "right", "bottom"):
+            axis = item.getAxis(name)
+            if axis.isVisible():
+                rect = plot.plot_widget.mapFromScene(axis.sceneBoundingRect()).boundingRect()
+                axis_rects.append(_global_rect(plot.plot_widget, rect))
+        readouts.append({"readout": _global_rect(plot.readout), "visible": plot.readout.isVisible(),
+                         "data": _data_area(plot), "axes": axis_rects, "text": plot.readout.text(),
+                         "picture": _save(grab(window), f"forces-readout-{int(100 * fraction)}")})
+    result["readouts"] = readouts
+    result["newest_s"] = t_newest
+    return result
+
+
+SCENARIOS = {"forces": scenario_forces, "forces_layout": scenario_forces_layout, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait,
              "calibration": scenario_calibration, "hardware": scenario_hardware, "scene": scenario_scene}
+
+
+OPENS_ON = {"forces_layout": "teach"}  # the tab shown first, when it is not the scenario's own
 
 
 def main(argv: list[str]) -> int:
@@ -279,7 +360,7 @@ def main(argv: list[str]) -> int:
     app = QApplication.instance() or QApplication([sys.argv[0]])
     QTimer.singleShot(int(1000 * (WAIT_S * 3 + seconds * 3)), lambda: fail("probe timed out"))
     with tempfile.TemporaryDirectory(prefix="sensnake-xprobe-") as tmp:
-        window, page = open_app(Path(tmp), name)
+        window, page = open_app(Path(tmp), OPENS_ON.get(name, name))
         if os.environ.get("PROBE_PROFILE"):  # cProfile of the GUI thread over the scenario, to that file
             import cProfile
 

@@ -65,3 +65,42 @@ def test_the_3d_lab_repaints_on_x_while_the_simulated_body_moves(x_display):
     result = run_probe(x_display, "scene")
     # Rendered at most 10 Hz (offscreen GL, ~0.1 s a frame under load here): floors well under that.
     _check_live(result, "scene", min_frames_per_s=2.0, min_changed=0.3)
+
+
+def _overlap(a: list[int], b: list[int]) -> bool:
+    return not (a[2] < b[0] or b[2] < a[0] or a[3] < b[1] or b[3] < a[1])
+
+
+def test_forces_layout_on_x_history_legends_axes_and_readout(x_display, tmp_path, monkeypatch):
+    """The Forces tab as a new user meets it, on X (pictures saved in the test's tmp folder, named in failures):
+    it opens with the past the board already sent; legends never cover the data; with one sensor calibrated only
+    that sensor's plot has two axes and the others keep their µS on the left; the cursor readout covers no axis."""
+    monkeypatch.setenv("PROBE_PICTURES", str(tmp_path))
+    result = run_probe(x_display, "forces_layout")
+    pictures = f"(pictures in {tmp_path})"
+    streamed, on_open = result["streamed_s"], result["history_on_open_s"]
+    assert on_open is not None and on_open[1] - on_open[0] >= 0.8 * (streamed[1] - streamed[0]), (
+        f"the tab opened with {on_open} of the {streamed} s the board had sent {pictures}")
+    plots = result["plots"]
+    assert len(plots) == 12, pictures
+    for plot in plots:
+        assert not _overlap(plot["legend"], plot["data"]), f"{plot['title']}: legend over the data {pictures}"
+        assert plot["legend"][3] < plot["data"][1], plot
+    segment6 = next(p for p in plots if p["title"] == "Segment 6")
+    assert segment6["left_label"] == "N" and segment6["right_visible"] and "µS" in segment6["right_label"], segment6
+    for plot in plots:
+        if plot["title"] != "Segment 6":
+            assert plot["left_label"] == "µS" and not plot["right_visible"], f"{plot} {pictures}"
+    for readout in result["readouts"]:
+        assert readout["visible"] and "S06B" in readout["text"], readout
+        # Inside the data area (the axes, their labels and numbers, are all outside it; their bounding boxes
+        # reach a few pixels in with the tick marks).
+        box, data = readout["readout"], readout["data"]
+        assert data[0] <= box[0] and box[2] <= data[2] + 1 and data[1] <= box[1], (
+            f"the readout is not inside the data area, so it covers an axis: {readout} {pictures}")
+        for axis in readout["axes"]:
+            outside = [max(axis[0], data[2] + 2), axis[1], axis[2], axis[3]] if axis[0] > data[0] else (
+                [axis[0], axis[1], min(axis[2], data[0] - 2), axis[3]])
+            if axis[1] > data[3] - 20:  # the bottom axis: its part below the data
+                outside = [axis[0], max(axis[1], data[3] + 2), axis[2], axis[3]]
+            assert not _overlap(box, outside), f"the readout covers an axis: {readout} {pictures}"

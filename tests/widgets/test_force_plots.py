@@ -128,6 +128,20 @@ def test_nothing_new_means_no_redraw_but_expanding_redraws(grid):
     assert len(grid.plots[4].curves[0].yData) != len(stale) or not np.array_equal(grid.plots[4].curves[0].yData, stale)
 
 
+def _entry_x(legend: _Legend, index: int) -> int:
+    """The x (in the legend) of the middle of entry ``index``'s name, from the same text as drawn."""
+    from PySide6.QtGui import QTextDocument
+
+    entries = legend.html.split("&nbsp;&nbsp; ")
+    document = QTextDocument()
+    document.setDefaultFont(legend.font())
+    document.setDocumentMargin(0.0)
+    document.setHtml("&nbsp;&nbsp; ".join(entries[:index]) + ("&nbsp;&nbsp; " if index else ""))
+    before = document.idealWidth() if index else 0.0
+    document.setHtml(entries[index])
+    return int(legend.contentsMargins().left() + before + 0.6 * document.idealWidth())
+
+
 def test_legend_click_hides_a_trace_at_the_next_redraw(grid, qtbot):
     history = TraceHistory.for_budget(36, 4_000_000)
     grid.set_history(history, "N")
@@ -135,10 +149,11 @@ def test_legend_click_hides_a_trace_at_the_next_redraw(grid, qtbot):
     grid.refresh()
     plot = grid.plots[2]
     assert len(plot.bundle._lines) == 3
-    assert "S03R" in plot.legend.html and plot.legend.isVisible() and not plot.legend.pixmap().isNull()
-    qtbot.mouseClick(plot.legend, Qt.MouseButton.LeftButton, pos=QPoint(20, plot.legend.height() // 2))  # S03R
-    assert not plot.curves[1].isVisible()
-    assert _Legend.HIDDEN_COLOR in plot.legend.html.split("<br>")[1]  # its entry is greyed
+    assert "S03R" in plot.legend.html and plot.legend.isVisible()
+    qtbot.mouseClick(plot.legend, Qt.MouseButton.LeftButton,
+                     pos=QPoint(_entry_x(plot.legend, 1), plot.legend.height() // 2))  # S03R
+    assert not plot.curves[1].isVisible() and plot.curves[0].isVisible() and plot.curves[2].isVisible()
+    assert _Legend.HIDDEN_COLOR in plot.legend.html.split("&nbsp;&nbsp; ")[1]  # its entry is greyed
     grid.refresh()  # no new data, yet the picture changed: it redraws
     assert len(plot.bundle._lines) == 2
     assert [pen for pen, _ in plot.bundle._lines] == [plot.curves[0].opts["pen"], plot.curves[2].opts["pen"]]
@@ -147,23 +162,27 @@ def test_legend_click_hides_a_trace_at_the_next_redraw(grid, qtbot):
     assert len(plot.bundle._lines) == 3 and _Legend.HIDDEN_COLOR not in plot.legend.html
 
 
-def test_the_legend_sits_over_the_data_area_and_follows_labels_and_warnings(grid):
+def test_the_legend_is_a_strip_outside_the_data_and_follows_labels_and_warnings(grid):
     history = TraceHistory.for_budget(36, 4_000_000)
     grid.set_history(history, "N")
     fill(history, 5.0)
     grid.refresh()
+    for plot in grid.plots:
+        # Outside the plot widget (above it), so no trace is ever under it.
+        legend = plot.legend.geometry()
+        assert legend.bottom() < plot.plot_widget.geometry().top() and legend.height() < 30
+        assert not plot.plot_widget.geometry().intersects(legend)
     plot = grid.plots[0]
-    box = plot.viewbox.sceneBoundingRect()
-    corner = plot.plot_widget.mapFromScene(box.topLeft())
-    geometry = plot.legend.geometry()
-    assert corner.x() <= geometry.left() <= corner.x() + 10 and corner.y() <= geometry.top() <= corner.y() + 10
-    assert geometry.right() < plot.plot_widget.mapFromScene(box.center()).x()  # the newest data stays uncovered
+    assert not plot.legend.short and "S01L" in plot.legend.html and "S01B" in plot.legend.html
     grid.set_channel_labels([f"{name} (µS, uncal.)" for name in grid.channel_names])
-    assert plot.legend.labels()[0] == "S01L (µS, uncal.)" and "S01L (µS, uncal.)" in plot.legend.html
+    assert plot.legend.labels()[0] == "S01L (µS, uncal.)"
+    # Too long for the strip at this width: the names, full labels in the tooltip.
+    assert plot.legend.short and "S01L (µS, uncal.)" in plot.legend.toolTip()
+    assert "S01L (µS, uncal.)" in plot.legend.overlay_html()  # the exported picture keeps the full labels
     warnings = [""] * 36
     warnings[1] = "saturated"
     grid.set_channel_warnings(warnings)
-    entries = plot.legend.html.split("<br>")
+    entries = plot.legend.html.split("&nbsp;&nbsp; ")
     assert "┅┅" in entries[1] and "━━" in entries[0]  # the warned trace's line is dotted, in the legend too
 
 
@@ -192,8 +211,25 @@ def test_uncalibrated_sensors_get_their_own_microsiemens_axis_and_readout(grid):
     text = plot.readout.text()
     assert "S06L:" in text and "µS" in text.split("S06L:")[1].splitlines()[0]
     assert " N" in text.split("S06B:")[1].splitlines()[0]
+    # The readout sits inside the data area, over no axis (here the cursor is left of centre: top right).
+    area = plot.plot_widget.mapFromScene(plot.viewbox.sceneBoundingRect()).boundingRect()
+    box = plot.readout.geometry()
+    assert area.left() <= box.left() and box.right() <= area.right() + 1 and box.top() >= area.top()
+    assert box.right() < plot.plot_widget.width() - item.getAxis("right").width()
+    grid.hover_at(5, float(t[-10]))  # cursor right of centre: the readout moves to the left, still off the axes
+    box = plot.readout.geometry()
+    assert area.left() <= box.left() and box.right() < area.center().x() + 1
+    # A segment with no calibrated sensor: its left axis is in µS, with no empty N axis beside it.
+    other = grid.plots[0]
+    other_item = other.plot_widget.getPlotItem()
+    assert other.units == "µS" and other_item.getAxis("left").labelText == "µS"
+    assert not other_item.getAxis("right").isVisible() and len(other.bundle._lines) == 3
+    (_x0, _x1), (o0, o1) = other.viewbox.viewRange()
+    assert o0 < 299 and o1 > 301
+    assert "S06L µS" in plot.legend.html or not plot.legend.short  # a shortened entry names its other unit
     grid.set_channel_units(None)
     assert not item.getAxis("right").isVisible()
+    assert other.units == "N" and other_item.getAxis("left").labelText == "N"
 
 
 def test_every_plot_saves_png_and_vector_svg_with_its_units(grid, qtbot, tmp_path):

@@ -128,6 +128,7 @@ class ForcesTab(QWidget):
                                 t0_monotonic_s=self.board.t0_monotonic_s if self.board is not None else None,
                                 force_page=getattr(lab, "force_page", None))
         self.live.subscribe(self._draw_update)
+        self._backfill()
         self.quantity = "force"
         self.session: RecordingSession | None = None
         self.viewed: Recording | None = None
@@ -153,6 +154,8 @@ class ForcesTab(QWidget):
         self._apply_calibration_labels()
         self.controls.path.setText(str(default_recording_path()))
         self._show_live()
+        if self.health.report is not None:  # what the backfilled past already showed about the sensors
+            self._apply_health(np.arange(n_channels))
 
         self._body_timer = QTimer(self)
         self._body_timer.setInterval(int(1000 / BODY_REFRESH_HZ))
@@ -278,6 +281,20 @@ class ForcesTab(QWidget):
             robot.state_block.connect(self._on_robot_states)
 
     # -- live data -------------------------------------------------------------------------------------------------
+    def _backfill(self, health: bool = True) -> None:
+        """Start with the recent past: the blocks the board delivered before this tab was built (it is built when
+        first shown) go through the same estimator (and, with ``health``, health monitor) as live ones, so the plots
+        open full, not empty. Nothing is recorded or sent to the controller from them: they are history."""
+        recent = getattr(self.board, "recent_blocks", None)
+        for block in recent() if recent is not None else ():
+            forces = self.pipeline.process(block.board_time_s, block.conductance_s, block.saturated)
+            if health:
+                self.health.update(self.live.session_time_s(block.host_time_s), block.conductance_s,
+                                   block.saturated)
+            if forces is not None:
+                append_with_gaps(self.force_history, self.live.session_time_s(block.host_time_s), forces.display,
+                                 block.gap_before)
+
     def on_block(self, block: Any) -> None:
         """A board block (GUI thread, ≤ 60 Hz): through the core's live session (estimate, classify, record)."""
         self.live.process_block(block)
@@ -395,7 +412,16 @@ class ForcesTab(QWidget):
 
     def set_estimator(self, kind: str) -> None:
         self.pipeline.set_estimator(kind)
+        self._reestimate_history()
         self._apply_calibration_labels()
+
+    def _reestimate_history(self) -> None:
+        """A new calibration or estimator: the force history so far was in the old units (a sensor's µS before
+        it was calibrated would be drawn on its new N axis) — it is estimated again from the board's recent
+        blocks with the new one, and what lies further back is dropped."""
+        self.force_history.clear()
+        self.pipeline.reset()
+        self._backfill(health=False)
 
     def load_calibration(self, path: str | os.PathLike) -> bool:
         """Load a calibration JSON; a bad file leaves the current one and says why. Returns success."""
@@ -404,6 +430,7 @@ class ForcesTab(QWidget):
         except (OSError, ValueError) as exc:
             self.controls.set_message(f"calibration not loaded: {exc}", "error")
             return False
+        self._reestimate_history()
         self._apply_calibration_labels()
         self.controls.set_message("; ".join(self.pipeline.problems), "warn")
         return True
