@@ -285,6 +285,9 @@ class ControllerStats:
     sync_writes: int
     failed_reads: int
     late_ticks: int = 0  # ticks that started more than LATE_FRACTION of a period after their slot
+    # Slots skipped while a command held the bus on purpose (a scan, a reboot, a link check: submit(holds_bus=True));
+    # counted apart from missed_ticks, kept out of the periods and of the timing warning: not the control rate's fault
+    held_ticks: int = 0
 
 
 @dataclass
@@ -365,6 +368,8 @@ class RobotController:
         self._n_periods = 0
         self._ticks = 0
         self._missed = 0
+        self._held = 0  # slots skipped while a command held the bus on purpose (ControllerStats.held_ticks)
+        self._holding_bus = False  # set by such a command during the tick that runs it
         self._late = 0
         self._writes = 0
         self._failed_reads = 0
@@ -450,14 +455,14 @@ class RobotController:
             n = min(self._n_periods, PERIOD_HISTORY)
             periods = self._periods[:n].copy()
             ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
-            late = self._late
+            late, held = self._late, self._held
         if n == 0:
             nan = math.nan
-            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late)
+            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late, held)
         p50, p99 = np.percentile(periods, [50, 99])
         j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
-                               writes, failed, late)
+                               writes, failed, late, held)
 
     def recent_periods_s(self, n: int) -> np.ndarray:
         """The last ``n`` tick periods (s, start to start, oldest first; at most the history kept). Any thread."""
@@ -507,13 +512,18 @@ class RobotController:
         """Within one tick: motion ended and goals frozen at the present positions; torque stays on."""
         self._estop.set()
 
-    def submit(self, fn: Callable[[ServoChain], T]) -> concurrent.futures.Future[T]:
-        """Run ``fn(chain)`` on the bus thread between ticks; the Future carries its result or exception."""
+    def submit(self, fn: Callable[[ServoChain], T], holds_bus: bool = False) -> concurrent.futures.Future[T]:
+        """Run ``fn(chain)`` on the bus thread between ticks; the Future carries its result or exception.
+        ``holds_bus``: ``fn`` holds the bus for whole periods on purpose (a scan, a reboot, a link check, a read of
+        every setting): the slots it skips are counted in ``held_ticks``, not ``missed_ticks``, and never blamed on
+        the control rate."""
         future: concurrent.futures.Future[T] = concurrent.futures.Future()
 
         def call() -> None:
             if not future.set_running_or_notify_cancel():
                 return
+            if holds_bus:
+                self._holding_bus = True
             try:
                 future.set_result(fn(self.chain))
             except Exception as exc:  # noqa: BLE001 - thread boundary: handed to the caller through the Future
@@ -533,7 +543,7 @@ class RobotController:
             chain.reboot(servo_id)
             self._next_health_s = 0.0  # re-read health now so the cleared error shows at once
             self._health_pending = []
-        return self.submit(reboot)
+        return self.submit(reboot, holds_bus=True)  # a reboot waits for the servo to come back
 
     def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future[list[ServoInfo]]:
         """Scan on the bus thread between ticks; refused (:class:`BusBusyError`) while a motion plays: a scan holds
@@ -547,7 +557,7 @@ class RobotController:
                     f"~{chain.scan_time_s(ids, bauds):.1f} s ({chain.scan_time_s(ids, bauds) / self.period_s:.0f} "
                     f"control ticks at {self.robot.control_rate_hz:g} Hz); stop the motion, then scan")
             return chain.scan(ids, bauds)
-        return self.submit(scan)
+        return self.submit(scan, holds_bus=True)
 
     # -- the bus thread ----------------------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -566,10 +576,12 @@ class RobotController:
     def _loop(self) -> None:
         deadline = time.monotonic()  # the slot of the tick about to run
         last_start: float | None = None
+        held = False  # the last tick ran a command that held the bus on purpose
         while not self._stop.is_set():
             start = time.monotonic()
             late = start - deadline > LATE_FRACTION * self.period_s
-            self._record_period(start, last_start, late=late)
+            # The period that carried a deliberate hold says nothing of the loop's timing: not kept.
+            self._record_period(start, None if held else last_start, late=late and not held)
             trace = tick_trace.TRACE  # None unless SENSNAKE_TICK_TRACE (diagnosis of late ticks)
             if trace is not None:  # a late tick, or one after skipped slots (its period is long, it is not late)
                 long_period = last_start is not None and start - last_start > (1 + LATE_FRACTION) * self.period_s
@@ -582,17 +594,22 @@ class RobotController:
                 self._stop_motion_with(exc)
                 self._emit(self._on_error, exc)
             self._wakeup_latency.follow(self._motion is not None)
+            held, self._holding_bus = self._holding_bus, False
             deadline += self.period_s
             now = time.monotonic()
             missed = 0
             if now >= deadline + self.period_s:
-                # Whole slots went by without a tick: skip them (no burst of catch-up ticks) and count them.
+                # Whole slots went by without a tick: skip them (no burst of catch-up ticks) and count them, apart
+                # when a command held the bus on purpose.
                 missed = int((now - deadline) / self.period_s)
                 deadline += missed * self.period_s
                 with self._lock:
-                    self._missed += missed
+                    if held:
+                        self._held += missed
+                    else:
+                        self._missed += missed
             # A tick that overran into the next slot runs at once, late (counted in late_ticks and the periods).
-            self._watch_timing(now, missed)
+            self._watch_timing(now, 0 if held else missed)
             if self._on_tick is not None:
                 try:
                     self._on_tick()
@@ -618,8 +635,8 @@ class RobotController:
         if lost > TIMING_WARN_FRACTION * (ticks + lost):
             self._emit(self._on_event, (
                 f"timing: {lost} of {ticks + lost} ticks missed at {self.robot.control_rate_hz:g} Hz in the last "
-                f"{TIMING_WINDOW_S:g} s: lower robot.control_rate_hz, or see the Hardware tab's timing checks "
-                "(Return Delay Time 0, USB latency timer 1 ms)"))
+                f"{TIMING_WINDOW_S:g} s: see the Hardware tab's Timing box (Return Delay Time 0, USB latency "
+                "timer 1 ms); if those are fine, lower robot.control_rate_hz in the lab config"))
 
     def _record_period(self, start: float, last_start: float | None, late: bool) -> None:
         with self._lock:

@@ -366,9 +366,10 @@ class ControllerProcess:
     def emergency_stop(self) -> None:
         self._message("emergency_stop")
 
-    def submit(self, fn: Callable[[Any], Any]) -> concurrent.futures.Future:
-        """Run a named bus command (:mod:`devices.bus_commands`) on the child's bus thread."""
-        return self._request("submit", fn)
+    def submit(self, fn: Callable[[Any], Any], holds_bus: bool = False) -> concurrent.futures.Future:
+        """Run a named bus command (:mod:`devices.bus_commands`) on the child's bus thread (``holds_bus``: as
+        :meth:`RobotController.submit`)."""
+        return self._request("submit", fn, holds_bus=holds_bus)
 
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> concurrent.futures.Future[None]:
         return self._request("set_torque", enabled, None if ids is None else list(ids))

@@ -935,7 +935,8 @@ class ServoChain:
             worst = max(delays[sid] for sid in slow)
             warnings.append(
                 f"Return Delay Time is up to {worst} µs on servo(s) {_id_list(slow)}: every sync read waits that "
-                "long per servo. Fix: with torque off set it to 0 (Hardware tab, or ServoChain.set_return_delay(0))"
+                "long per servo. Fix: set it to 0 — turn torque off (Hardware tab, All torque off), then press \"Set "
+                "return delay to 0 µs\" in the Timing box"
             )
         rate_hz = control_rate_hz or self.robot.control_rate_hz
         problem = self.rate_problem(rate_hz)

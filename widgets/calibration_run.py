@@ -216,6 +216,10 @@ class ProtocolForm(QWidget):
         self.progress_bar.setFormat(bar_text)
         self.progress_label.setText(detail)
 
+    def clear_progress(self) -> None:
+        """No run's progress shown (a new run was refused, or is starting): nothing of the last one stays."""
+        self.show_progress(0.0, "no run", "")
+
     def set_message(self, text: str, level: str) -> None:
         self.message_label.setText(text)
         self.message_label.setStyleSheet(theme.status_style(level))
@@ -302,6 +306,15 @@ class LiveTrialPlot(QWidget):
         self.command_line.setVisible(True)
         self.force_plot.setXRange(0.0, max(duration_s, 1.0), padding=0.02)
         self.force_plot.setYRange(0.0, max(commanded_n * 1.15, 0.5), padding=0.0)
+        self.force_curve.setData([], [])
+        self.conductance_curve.setData([], [])
+
+    def clear(self, title: str = "") -> None:
+        """Nothing drawn (a new run starts: the last run's trial must not look like this one's)."""
+        self.trial = -1
+        self._n = 0
+        self.title.setText(title)
+        self.command_line.setVisible(False)
         self.force_curve.setData([], [])
         self.conductance_curve.setData([], [])
 

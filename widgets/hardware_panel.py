@@ -654,16 +654,22 @@ class HardwarePanel(QWidget):
 
     # timing
     def set_loop_stats(self, rate_hz: float, ticks: int, missed_ticks: int, period_p50_s: float,
-                       period_p99_s: float) -> None:
-        """The control loop's timing since connect (periods in s)."""
+                       period_p99_s: float, held_ticks: int = 0) -> None:
+        """The control loop's timing since connect (periods in s). ``held_ticks``: slots skipped while the app held
+        the bus on purpose (scan, reboot, link check): said apart, and not counted against the loop."""
         if ticks == 0:
             self.loop_label.setText("")
             return
         missed_fraction = missed_ticks / max(ticks + missed_ticks, 1)
         level = theme.OK if missed_fraction < 0.01 else theme.WARN if missed_fraction < 0.1 else theme.ERROR
+        held = f"; {held_ticks} held on purpose" if held_ticks else ""
         _set_label(self.loop_label, f"Control loop {rate_hz:g} Hz: period p50 {period_p50_s * 1e3:.1f} ms, "
-                   f"p99 {period_p99_s * 1e3:.1f} ms; {missed_ticks} of {ticks + missed_ticks} ticks missed",
+                   f"p99 {period_p99_s * 1e3:.1f} ms; {missed_ticks} of {ticks + missed_ticks} ticks missed{held}",
                    theme.status_style(level))
+        self.loop_label.setToolTip(
+            f"{held_ticks} control ticks were skipped while the app held the bus on purpose (a scan, a reboot, a "
+            "link check); they are not counted as missed and say nothing about the control rate" if held_ticks
+            else "Missed: control periods that went by without a tick (the bus or the computer too slow)")
 
     def clear_loop_stats(self) -> None:
         self.loop_label.setText("")

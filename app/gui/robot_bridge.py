@@ -232,13 +232,14 @@ class RobotBridge(QObject):
         self._set_connection("not connected")
 
     # -- bus operations (each returns a Future; errors are reported via ``error``) ----------------------------------
-    def run_on_bus(self, fn: Callable[[Any], T], report_errors: bool = True) -> Future:
+    def run_on_bus(self, fn: Callable[[Any], T], report_errors: bool = True, holds_bus: bool = False) -> Future:
         """Run ``fn(chain)`` on the thread owning the bus: the controller thread when connected, else the worker
-        thread on a temporary connection (opened and closed around the call)."""
+        thread on a temporary connection (opened and closed around the call). ``holds_bus``: ``fn`` holds the bus
+        for whole control periods on purpose (the ticks it skips are not blamed on the control rate)."""
         if self._closed:
             return _failed_future(RuntimeError("the robot bridge is closed"))
         if self._controller is not None:
-            future = self._controller.submit(fn)
+            future = self._controller.submit(fn, holds_bus=holds_bus)
         else:
             future = self._executor.submit(_with_temporary_chain, replace(self._config), fn)
         if report_errors:

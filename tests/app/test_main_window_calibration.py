@@ -173,6 +173,18 @@ def test_abort_from_the_tab_keeps_the_finished_trial_in_the_list(rig_tab, qtbot,
     assert "kept" in tab.status_label.text()
     assert fast_sim_lab.rig.applied_force_n() == 0.0
     assert not tab.is_fitting  # an aborted run is not fitted without asking
+    # Nothing of this run stays on screen as if it were the next one's: a refused start clears the progress…
+    assert "trials" in tab.protocol_form.progress_bar.format() and tab.live_plot.n_samples > 0
+    tab.protocol_form.forces_edit.setText("1.75, three")
+    assert not tab.start_run()
+    assert tab.protocol_form.progress_bar.value() == 0 and tab.protocol_form.progress_label.text() == ""
+    assert "trials" not in tab.protocol_form.progress_bar.format()
+    # …and a start clears the live trace until the new run's first sample.
+    tab.protocol_form.forces_edit.setText("1.75")
+    assert tab.start_run()
+    assert tab.live_plot.n_samples == 0 and "waiting" in tab.live_plot.title.text()
+    with qtbot.waitSignal(tab.rig_session.finished, timeout=20_000):
+        tab.protocol_form.abort_button.click()
 
 
 def test_a_rig_that_does_not_answer_is_reported_on_the_form(rig_tab, qtbot, fast_sim_lab):

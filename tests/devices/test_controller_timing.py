@@ -83,6 +83,29 @@ def test_an_overrun_runs_the_next_tick_late_and_only_whole_slots_count_as_missed
         factory.install_sim_lab(previous)
 
 
+def test_slots_skipped_while_a_command_holds_the_bus_on_purpose_are_counted_apart_and_not_warned_about():
+    """A scan, a reboot or a link check holds the bus for whole periods on purpose: those slots go into held_ticks,
+    not missed_ticks, and their long period is not kept (the timing warning counts missed_ticks only)."""
+    robot = dataclasses.replace(RobotConfig(), control_rate_hz=5.0)
+    ctl, rec, _, previous = _run_controller(robot, 20.0, 0)
+    try:
+        rec.wait_more(2)
+        before = ctl.stats()
+        ctl.submit(lambda chain: threading.Event().wait(0.9), holds_bus=True).result(WAIT_S)  # ~4 slots held
+        rec.wait_more(2)
+        after = ctl.stats()
+        assert after.missed_ticks == before.missed_ticks
+        assert after.held_ticks >= before.held_ticks + 3
+        assert after.period_max_s < 0.5, "the held period was kept in the loop's periods"
+        # The same stall without the flag is the loop's own: missed, kept.
+        ctl.submit(lambda chain: threading.Event().wait(0.5)).result(WAIT_S)
+        rec.wait_more(2)
+        assert ctl.stats().missed_ticks >= after.missed_ticks + 1 and ctl.stats().held_ticks == after.held_ticks
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+
+
 def test_health_is_read_one_servo_per_tick_when_the_sync_cycle_leaves_no_slack(monkeypatch):
     monkeypatch.setattr(controller_module, "HEALTH_OVERDUE_S", 0.05)
     # Real-time wire with the factory 500 µs Return Delay Time: the state sync read alone takes ~9.5 ms of each

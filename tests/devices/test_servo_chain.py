@@ -164,6 +164,7 @@ def test_timing_warnings_name_the_fix(servos):
     warnings = servos.timing_warnings()
     assert len(warnings) == 1 and "Return Delay Time is up to 500 µs" in warnings[0]
     assert "set it to 0" in warnings[0]
+    assert "ServoChain" not in warnings[0] and "Set return delay to 0 µs" in warnings[0]  # what to do in the app
     servos.set_return_delay(0)
     assert servos.timing_warnings() == []  # sim: no USB latency timer to check
     assert servos.latency_timer_ms() is None

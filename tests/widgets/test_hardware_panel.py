@@ -156,6 +156,10 @@ def test_loop_stats_warn_when_ticks_are_missed(panel):
     assert theme.STATUS_COLORS[theme.OK] in panel.loop_label.styleSheet()
     panel.set_loop_stats(50.0, ticks=800, missed_ticks=200, period_p50_s=0.020, period_p99_s=0.080)
     assert theme.STATUS_COLORS[theme.ERROR] in panel.loop_label.styleSheet()
+    # Ticks skipped while the app held the bus on purpose (a scan): said apart, not a warning.
+    panel.set_loop_stats(50.0, ticks=1000, missed_ticks=0, period_p50_s=0.020, period_p99_s=0.0231, held_ticks=40)
+    assert panel.loop_label.text().endswith("0 of 1000 ticks missed; 40 held on purpose")
+    assert theme.STATUS_COLORS[theme.OK] in panel.loop_label.styleSheet() and "scan" in panel.loop_label.toolTip()
     panel.set_connection(False, "not connected")
     assert panel.loop_label.text() == ""
 

@@ -738,9 +738,11 @@ class CalibrationTab(QWidget):
                                                  or user_folders.calibrations_dir(), resume=resume)
         except ValueError as exc:
             self.protocol_form.set_message(str(exc), theme.ERROR)
+            self.protocol_form.clear_progress()  # the last run's progress would read as this one's
             return False
         self.run_settings = settings
         self.session_folder = folder
+        self.live_plot.clear(f"{settings.sensor}: waiting for the first trial…")
         self.live_fit_label.setText("")
         self.clear_trials()
         if resume is not None:

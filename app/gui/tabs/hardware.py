@@ -96,7 +96,7 @@ class HardwareTab(QWidget):
             stats = self.robot.loop_stats()
             if stats is not None:
                 self.panel.set_loop_stats(self.robot.config.control_rate_hz, stats.ticks, stats.missed_ticks,
-                                          stats.period_p50_s, stats.period_p99_s)
+                                          stats.period_p50_s, stats.period_p99_s, stats.held_ticks)
 
     # -- connection ------------------------------------------------------------------------------------------------
     def _connect(self, port: str, baud: int) -> None:
@@ -169,7 +169,8 @@ class HardwareTab(QWidget):
     def start_link_check(self) -> None:
         ids = list(self.robot.config.joint_ids)
         self.panel.set_link_check_running()
-        future = self.robot.run_on_bus(bus_command(bus_commands.link_check, ids), report_errors=False)
+        future = self.robot.run_on_bus(bus_command(bus_commands.link_check, ids), report_errors=False,
+                                       holds_bus=True)
         self.robot.when_done(future, lambda rows: self.panel.set_link_report(rows, LINK_CHECK_ROUNDS),
                              lambda exc: self.panel.set_link_check_failed(f"link check failed: {describe_error(exc)}"))
 
