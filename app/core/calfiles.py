@@ -176,10 +176,48 @@ def _check_time(path: Path, time_s: np.ndarray, header_line_offset: int = 2) -> 
         )
 
 
+MAX_LINE_BYTES = 1 << 20  # a row of 1024 sensors at full precision is ~25 kB; a longer line is not a data row
+_SCAN_CHUNK_BYTES = 8 << 20
+
+
+def _check_text(path: Path) -> None:
+    """Refuse, before anything is parsed, a file no CSV reader should hold in memory: one with a NUL byte (binary,
+    or a sparse/padded file: ``truncate -s 2G``) or a line longer than :data:`MAX_LINE_BYTES`. Reads the file once
+    in fixed chunks: memory stays bounded whatever the file's size or padding."""
+    run = 0  # bytes since the last newline
+    line = 1
+    offset = 0
+    try:
+        with path.open("rb") as handle:
+            while chunk := handle.read(_SCAN_CHUNK_BYTES):
+                nul = chunk.find(b"\0")
+                if nul >= 0:
+                    at_line = line + chunk.count(b"\n", 0, nul)
+                    raise CalFileError(f"{path}: not a text CSV file: a NUL byte at byte {offset + nul} (line "
+                                       f"{at_line}); binary or padded files are refused")
+                newlines = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+                if newlines.size == 0:
+                    run += len(chunk)
+                else:
+                    longest = max(run + int(newlines[0]), int(np.diff(newlines).max(initial=0)))
+                    if longest > MAX_LINE_BYTES:
+                        raise CalFileError(f"{path}: a line near line {line} is longer than "
+                                           f"{MAX_LINE_BYTES // (1 << 20)} MB: not a CSV data row")
+                    run = len(chunk) - 1 - int(newlines[-1])
+                    line += int(newlines.size)
+                if run > MAX_LINE_BYTES:
+                    raise CalFileError(f"{path}: line {line} is longer than {MAX_LINE_BYTES // (1 << 20)} MB: not a "
+                                       "CSV data row")
+                offset += len(chunk)
+    except OSError as exc:
+        raise CalFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+
+
 def _open_path(path: str | os.PathLike) -> Path:
     resolved = Path(path)
     if not resolved.is_file():
         raise CalFileError(f"{resolved}: no such file")
+    _check_text(resolved)
     return resolved
 
 

@@ -118,3 +118,57 @@ def test_a_semicolon_separated_file_is_named_for_what_it_is(tmp_path, capsys):
     assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "o.csv")]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"sensnake estimate: error: {data}:1: the columns are separated by semicolons")
+
+
+def _peak_rss_and_time(argv: list[str]) -> tuple[int, float, str, float]:
+    """Run ``python -m app ARGV`` in a child; its exit code, its own peak RSS (MB, from wait4), stderr and wall
+    time (s)."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    with tempfile.TemporaryFile("w+") as err:
+        start = time.monotonic()
+        child = subprocess.Popen([sys.executable, "-m", "app", *argv], stdout=subprocess.DEVNULL, stderr=err)
+        _pid, status, usage = os.wait4(child.pid, 0)
+        seconds = time.monotonic() - start
+        child.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        return child.returncode, usage.ru_maxrss / 1024, err.read(), seconds  # Linux: ru_maxrss in kB
+
+
+def test_a_2_gb_sparse_csv_is_refused_in_bounded_memory_and_time(tmp_path):
+    """`truncate -s 2G` after a header (issue 25: estimate grew to 24 GB and was killed): refused as not text, peak
+    RSS ≤ 500 MB, ≤ 10 s, one line naming the file."""
+    from tests.calibration_files import write_typical_calibration
+
+    big = tmp_path / "big.csv"
+    big.write_text("time_s,S06B\n", encoding="utf-8")
+    with big.open("r+b") as handle:
+        handle.truncate(2 << 30)
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B"])
+    for argv in (["estimate", str(big), "--cal", str(cal), "--out", str(tmp_path / "f.csv")],
+                 ["fit", str(big), "--sensor", "S06B", "--area", "0.0014", "--out", str(tmp_path / "c.json")]):
+        code, peak_mb, err, seconds = _peak_rss_and_time(argv)
+        assert code == 1 and "Traceback" not in err, err[-2000:]
+        assert len(err.strip().splitlines()) == 1 and str(big) in err and "not a text CSV" in err, err
+        assert peak_mb <= 500 and seconds <= 10, (peak_mb, seconds)
+    assert not (tmp_path / "f.csv").exists() and not (tmp_path / "c.json").exists()
+
+
+def test_a_line_too_long_to_be_a_row_and_a_nul_in_the_middle_are_one_line_each(tmp_path, capsys):
+    from tests.calibration_files import write_typical_calibration
+
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B"])
+    long_line = tmp_path / "long.csv"
+    long_line.write_text("time_s,S06B\n0,1e-4\n" + "1," + "9" * (3 << 20) + "\n2,1e-4\n", encoding="utf-8")
+    nul = tmp_path / "nul.csv"
+    nul.write_bytes(b"time_s,S06B\n0,1e-4\n1,1e-4\n\x002,1e-4\n")
+    for path, words in ((long_line, "longer than 1 MB"), (nul, "NUL byte")):
+        assert main(["estimate", str(path), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and str(path) in err and words in err, err
+    assert main(["estimate", str(nul), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
+    assert "(line 4)" in capsys.readouterr().err
