@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from typing import NoReturn
 
@@ -234,6 +236,14 @@ def _add_gui_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim", action="store_true", help="use the simulated lab for every device")
 
 
+def _write_errors_not_signals() -> None:
+    """A write past the process's file-size limit (``ulimit -f``) fails with EFBIG, which the writers handle (one
+    line, the file kept as last flushed), instead of SIGXFSZ killing the process mid-write with a core dump."""
+    xfsz = getattr(signal, "SIGXFSZ", None)
+    if xfsz is not None and threading.current_thread() is threading.main_thread():
+        signal.signal(xfsz, signal.SIG_IGN)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -241,6 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv = ["gui", *argv]
     args = parser.parse_args(argv)
     command = args.command or "gui"
+    _write_errors_not_signals()
     try:
         refuse_outputs_onto_inputs(command, args)
         module = importlib.import_module(f"app.cli.{command}")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import json
 import os
 import secrets
@@ -50,6 +51,7 @@ DEFAULT_FLUSH_INTERVAL_S = 0.5
 CHUNK_BYTES = 1 << 14
 DEFAULT_MIN_FREE_BYTES = 16_000_000  # stop before the disk is full: HDF5 cannot recover from a failed write
 METADATA_RESERVE_BYTES = 1_000_000
+FLUSH_METADATA_RESERVE_BYTES = 256_000  # room reserved for the metadata one flush may add (it adds a few kB)
 EVENT_TEXT_BYTES = 256
 EVENT_KIND_BYTES = 16
 STAT_KEYS = ("crc_errors", "dropped_frames", "resyncs")  # SPEC §3.5's /daq attributes
@@ -369,6 +371,7 @@ class RecordingWriter:
         if not any(t.pending_rows for t in self._tables) and self._stats == self._stats_written:
             return
         self._check_free_space()
+        self._reserve_room()
         # No file locking: a reader holding the file open (HDFView, a second SenSnake) must not stop the
         # recording; between flushes the file is complete, so such a reader sees a consistent file.
         try:
@@ -415,6 +418,33 @@ class RecordingWriter:
             raise self._failed from exc
         self._work_path = self.path
         self.kept = True
+
+    def _reserve_room(self) -> None:
+        """Make the room this flush will write into before HDF5 touches the file: the file is extended (really
+        allocated, ``posix_fallocate``) past its end by twice the buffered bytes, a chunk per dataset and the
+        metadata reserve. HDF5 then writes inside the file (its end of allocation is below the file's end) and
+        cuts the spare off when it closes the file. A disk that is full, a quota or a file-size limit (ENOSPC,
+        EDQUOT, EFBIG) fails here, where nothing of the file has changed: the reservation is cut back and the
+        recording stops with the file exactly as the last flush left it — it opens, holding all of that. (HDF5
+        cannot recover from a write that fails half-way through its metadata; the file would no longer open.)"""
+        try:
+            fd = os.open(self._work_path, os.O_WRONLY | _NOFOLLOW)
+        except FileNotFoundError:
+            return  # not created yet (the first flush creates it)
+        except OSError as exc:
+            self._fail(exc)
+        try:
+            size = os.fstat(fd).st_size
+            n_datasets = sum(len(table.columns) for table in self._tables)
+            room = 2 * self._pending_bytes() + n_datasets * CHUNK_BYTES + FLUSH_METADATA_RESERVE_BYTES
+            try:
+                os.posix_fallocate(fd, size, room)
+            except OSError as exc:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, size)  # back to the last good file (shrinking needs no room)
+                self._fail(exc)
+        finally:
+            os.close(fd)
 
     def _pending_bytes(self) -> int:
         return sum(int(a.nbytes) for table in self._tables for chunks in table.pending.values() for a in chunks)
@@ -479,8 +509,8 @@ class RecordingWriter:
         for table in self._tables:
             table.clear_pending()
         self._failed = RecordingError(
-            f"recording {self.path} stopped: cannot write ({_os_reason(exc)}); is the disk full? "
-            f"The file keeps what was saved up to the last flush")
+            f"recording {self.path} stopped: cannot write ({_os_reason(exc)}){_write_advice(exc)}. The file keeps "
+            f"what was saved up to the last flush ({self._last_flushed_time_s:.1f} s) and opens as it is")
         self._discard_if_empty()
         self._release_lock()
         raise self._failed from exc
@@ -513,6 +543,16 @@ def _lock_for_writing(path: Path) -> int | None:
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode("ascii"))
     return fd
+
+
+def _write_advice(exc: BaseException) -> str:
+    """What a failed write's errno means for the user, or ``""``."""
+    code = getattr(exc, "errno", None)
+    return {errno.ENOSPC: ": the disk is full; free some space",
+            errno.EDQUOT: ": your disk quota is used up",
+            errno.EFBIG: ": the file reached the largest size allowed here (the shell's `ulimit -f`, or the disk's "
+                         "own limit); record to several shorter files",
+            errno.EIO: ": the disk reported an I/O error; check the disk or the network share"}.get(code, "")
 
 
 def _os_reason(exc: BaseException) -> str:

@@ -172,3 +172,29 @@ def test_a_line_too_long_to_be_a_row_and_a_nul_in_the_middle_are_one_line_each(t
         assert len(err.splitlines()) == 1 and str(path) in err and words in err, err
     assert main(["estimate", str(nul), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
     assert "(line 4)" in capsys.readouterr().err
+
+
+def test_record_under_a_file_size_limit_stops_with_one_line_and_a_file_that_opens(tmp_path):
+    """`ulimit -f` standing in for a quota, a full network disk or an I/O error (issue 25: exit 139 after four h5py
+    tracebacks, and a file that no longer opened): exit 1, one error line naming the cause, no traceback, and the
+    file opens with plain h5py holding what was flushed."""
+    import resource
+    import subprocess
+    import sys
+
+    import h5py
+
+    out = tmp_path / "limited.h5"
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000))
+
+    done = subprocess.run([sys.executable, "-m", "app", "record", "--daq", "sim", "--seconds", "60", "--out",
+                           str(out)], preexec_fn=limit, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stderr[-2000:]
+    errors = [line for line in done.stderr.splitlines() if line.startswith("sensnake record: error")]
+    assert len(errors) == 1 and "File too large" in errors[0] and str(out) in errors[0], done.stderr[-2000:]
+    assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr
+    with h5py.File(out, "r") as f:
+        assert f["daq/seq"].shape[0] > 0 and f.attrs["format"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary or lock left behind
