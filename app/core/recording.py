@@ -548,6 +548,8 @@ def _lock_for_writing(path: Path) -> int | None:
 def _write_advice(exc: BaseException) -> str:
     """What a failed write's errno means for the user, or ``""``."""
     code = getattr(exc, "errno", None)
+    if not isinstance(code, int):
+        return ""
     return {errno.ENOSPC: ": the disk is full; free some space",
             errno.EDQUOT: ": your disk quota is used up",
             errno.EFBIG: ": the file reached the largest size allowed here (the shell's `ulimit -f`, or the disk's "
