@@ -55,6 +55,8 @@ ADC_MAX_COUNTS = 4095  # SPEC §4: 12-bit readings; a CRC-valid frame above this
 RECONNECT_INTERVAL_S = 0.5
 READ_TIMEOUT_S = 0.02
 IDLE_POLL_S = 0.004
+STALL_S = 1.0  # a frame read this long after its board time: the host stalled (a stall event)
+MAX_CLOCK_DRIFT = 5e-4  # s/s: the board's and the host's clocks differ by less (crystals: ~50 ppm)
 MAX_READ_BYTES = 1 << 16
 DEFAULT_RING_SECONDS = 20.0
 MIN_RING_FRAMES = 256
@@ -80,7 +82,8 @@ class FrameParser:
     ``seq`` is not the previous + 1, modulo 2³²), ``dropped_frames`` (frames missing inside those gaps),
     ``duplicate_frames`` (a CRC-valid frame repeating the previous one's ``seq``: dropped, not a gap),
     ``bytes_discarded`` (bytes skipped while searching), ``out_of_range_frames`` (a CRC-valid frame with a count
-    above ``max_count``: impossible for the ADC, so corrupt; dropped whole). Invariant:
+    above ``max_count``: impossible for the ADC, so corrupt; dropped whole), ``version_mismatches`` (a CRC-valid
+    frame in another protocol version, ``other_version``: the board speaks it; dropped). Invariant:
     ``bytes_received == bytes_in_frames + bytes_discarded + bytes_pending``.
     """
 
@@ -99,6 +102,8 @@ class FrameParser:
         self.duplicate_frames = 0
         self.bytes_discarded = 0
         self.out_of_range_frames = 0
+        self.version_mismatches = 0  # CRC-valid frames in another protocol version (dropped)
+        self.other_version: int | None = None  # the last such version
         self.bytes_received = 0
         self.bytes_in_frames = 0
 
@@ -136,6 +141,18 @@ class FrameParser:
             if end - pos < HEADER_SIZE:
                 break
             version, flags, seq, t_us, n = _HEADER.unpack_from(buf, pos + 2)
+            if version != PROTOCOL_VERSION and 1 <= n <= self.max_channels:
+                # A whole frame with a valid CRC in another protocol version is a board that speaks it, not noise.
+                other_end = pos + HEADER_SIZE + 2 * n + CRC_SIZE
+                if other_end > end:
+                    break  # wait for the rest: it may prove the version
+                (crc_other,) = _CRC.unpack_from(buf, other_end - CRC_SIZE)
+                if crc16_ccitt_false(memoryview(buf)[pos + 2:other_end - CRC_SIZE]) == crc_other:
+                    self.version_mismatches += 1
+                    self.other_version = version
+                    self._discard(other_end - pos)
+                    pos = other_end
+                    continue
             if version != PROTOCOL_VERSION or not 1 <= n <= self.max_channels:
                 self.bad_headers += 1
                 self._discard(1)
@@ -276,6 +293,10 @@ class BoardStats:
     overflow_frames: int = 0  # frames lost because nobody drained the ring in time
     out_of_range_frames: int = 0  # CRC-valid frames with a count above the ADC's maximum (rejected)
     clock_segments: int = 1  # the board's clock restarted clock_segments − 1 times (re-plug, power cycle)
+    clock_backsteps: int = 0  # the board's clock stepped back while seq went on (a clock glitch: no gap marked)
+    host_stalls: int = 0  # times the host did not read for STALL_S or more (frames then timed by the board clock)
+    version_mismatches: int = 0  # CRC-valid frames in another protocol version (the board speaks other_version)
+    other_version: int | None = None
     missing_s: float = 0.0  # total time the port was gone (including now, if it is gone)
     disconnected_since_s: float | None = None  # host monotonic time the port went away, None while connected
     connected: bool = False
@@ -319,6 +340,11 @@ class BoardReader:
         self._last_t_us: int | None = None
         self._last_seq_stored: int | None = None
         self._last_host_time_s = -np.inf
+        self._host_offset_s: float | None = None  # host time − board time of a promptly read frame (s)
+        self._last_offset_board_s: float | None = None
+        self._stalled = False
+        self._stalls = 0
+        self._clock_backsteps = 0
         self._board_time_base_s = 0.0
         self._segment = 0
         self._segment_pending = False
@@ -373,6 +399,8 @@ class BoardReader:
                           bad_headers=p.bad_headers, reconnects=self._reconnects,
                           channel_mismatches=self._channel_mismatches, overflow_frames=self._overflow,
                           out_of_range_frames=p.out_of_range_frames, clock_segments=self._segment + 1,
+                          clock_backsteps=self._clock_backsteps, host_stalls=self._stalls,
+                          version_mismatches=p.version_mismatches, other_version=p.other_version,
                           missing_s=missing, disconnected_since_s=lost_at, connected=self._status.connected)
 
     @property
@@ -480,7 +508,12 @@ class BoardReader:
 
     def _ingest(self, data: bytes, host_time_s: float) -> None:
         expected = self.board.n_channels
+        other_versions = self._parser.version_mismatches
         frames = self._parser.feed(data)
+        if self._parser.version_mismatches > other_versions and self._status.state != "mismatch":
+            self._set_status("mismatch", f"board on {self.board.port} speaks protocol version "
+                             f"{self._parser.other_version}; this app reads version {PROTOCOL_VERSION} (SPEC §4): "
+                             "update the board's firmware or SenSnake Studio so they match", True)
         # Frames read together arrived one after another: date each by when its last byte came off the wire
         # (bytes behind it × byte time before the read), so their host times keep the board's spacing.
         byte_time_s = BITS_PER_BYTE / self.board.baud
@@ -489,9 +522,6 @@ class BoardReader:
         for k in range(len(frames) - 1, -1, -1):
             arrival[k] = host_time_s - behind * byte_time_s
             behind += HEADER_SIZE + 2 * frames[k].counts.size + CRC_SIZE
-        np.maximum(arrival, self._last_host_time_s, out=arrival)
-        if len(frames):
-            self._last_host_time_s = float(arrival[-1])
         for frame, frame_host_time_s in zip(frames, arrival):
             if frame.counts.size != expected:
                 self._channel_mismatches += 1
@@ -513,15 +543,23 @@ class BoardReader:
             t_step = (frame.t_us - last_t_us) % T_US_MODULUS
             seq_step = (frame.seq - last_seq) % SEQ_MODULUS
             # Backwards by less than half the modulus is a restart (power cycle without a reconnect), not a wrap:
-            # a real 2³² µs wrap moves forward by one frame period and seq by one.
-            restarted = t_step >= T_US_MODULUS // 2 or seq_step >= SEQ_MODULUS // 2
+            # a real 2³² µs wrap moves forward by one frame period and seq by one. A clock that steps back while
+            # seq goes on by one is the board's clock glitching, not a restart: no gap, no new segment; that frame
+            # is taken to be one nominal period after the last (the board time never runs backwards).
+            clock_back = t_step >= T_US_MODULUS // 2
+            restarted = seq_step >= SEQ_MODULUS // 2 or (clock_back and seq_step != 1)
             if self._segment_pending or restarted:
                 self._segment += 1
                 self._gap_pending = True
+                self._host_offset_s = None  # a new board clock: its offset to the host's is learnt again
                 last_host = self._last_store_host_s if self._last_store_host_s is not None else host_time_s
                 self._board_time_base_s += max(host_time_s - last_host, 0.0)
+            elif clock_back:
+                self._clock_backsteps += 1
+                self._board_time_base_s += 1.0 / self.board.rate_hz
             else:
                 self._board_time_base_s += t_step * 1e-6
+        host_time_s = self._host_time_for(self._board_time_base_s, host_time_s)
         self._segment_pending = False
         self._last_t_us = frame.t_us
         self._last_store_host_s = host_time_s
@@ -544,6 +582,40 @@ class BoardReader:
                 self._overflow_since_read += lost
                 self._read_total = self._write_total - self._capacity
             self._data_ready.notify_all()
+
+    def _host_time_for(self, board_time_s: float, wire_time_s: float) -> float:
+        """The host time of a frame: when its last byte came off the wire (``wire_time_s``, an upper bound: the
+        read time less the wire time of the bytes behind it) or, when that is later, when the board's clock says it
+        came — the frames that waited in the port's buffer while this process did not read (stopped with SIGSTOP,
+        the machine suspended, a long pause) keep the board's spacing instead of all landing at the read. The board
+        clock's offset to the host's is the lower envelope of (wire time − board time), allowed to rise by the
+        clocks' worst drift. A frame read more than ``STALL_S`` after its board time marks a stall (one status
+        per stall, ``state`` ``stall``: a recording logs it as an event). Never before the previous frame's."""
+        offset = self._host_offset_s
+        candidate = wire_time_s - board_time_s
+        if offset is None or candidate < offset:
+            offset = candidate
+        elif self._last_offset_board_s is not None:
+            offset = min(candidate, offset + MAX_CLOCK_DRIFT * max(board_time_s - self._last_offset_board_s, 0.0))
+        self._host_offset_s, self._last_offset_board_s = offset, board_time_s
+        predicted = board_time_s + offset
+        late_s = wire_time_s - predicted
+        if late_s > STALL_S and not self._stalled:
+            self._stalled = True
+            self._stalls += 1
+            self._notify("stall", f"the board was not read for {late_s:.1f} s (this process was stopped, or the "
+                         "computer suspended or overloaded); the frames that waited are timed by the board's clock, "
+                         "not stamped all at once", predicted)
+        elif late_s < STALL_S / 2:
+            self._stalled = False
+        host_time_s = max(min(wire_time_s, predicted), self._last_host_time_s)
+        self._last_host_time_s = host_time_s
+        return host_time_s
+
+    def _notify(self, state: str, message: str, host_time_s: float) -> None:
+        """Tell ``on_status`` of an event that does not change the reader's state (a stall)."""
+        if self._on_status is not None:
+            self._on_status(BoardStatus(state, message, True, host_time_s))
 
     def _set_status(self, state: str, message: str, connected: bool) -> None:
         status = BoardStatus(state, message, connected)

@@ -35,6 +35,7 @@ from app.core.forces_pipeline import ForcesBlock, ForcesPipeline
 from app.core.recorder import Recorder
 from app.core.recording import DEFAULT_MIN_FREE_BYTES
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
+from devices.board_wire import PROTOCOL_VERSION
 from devices.config import BoardConfig
 from devices.errors import BoardProtocolError
 from models.health import HealthMonitor, describe
@@ -212,6 +213,10 @@ class LiveSession:
             if active:
                 assert recorder is not None
                 recorder.mark_gap(status.host_time_s, status.message)
+        elif status.state == "stall":
+            if active:
+                assert recorder is not None
+                recorder.log_event(status.message, status.host_time_s, kind="stall")
         elif status.state == "reconnected":
             if self.health is not None:
                 self.health.reset()
@@ -376,9 +381,14 @@ def record_timed(live: LiveSession, reader: BoardReader, seconds: float,
         if recorder is not None and recorder.error:
             break
         if board_start is None:
-            if mismatch_since is not None and stats.channel_mismatches:
+            if mismatch_since is not None and (stats.channel_mismatches or stats.version_mismatches):
                 raise BoardProtocolError(f"{live.last_status.message if live.last_status else 'channel mismatch'}")
             if stats.connected and now - wall_start > no_frames_timeout_s:
+                if stats.version_mismatches:  # whole frames of another protocol: not a baud rate problem
+                    raise BoardProtocolError(
+                        f"board on {reader.board.port} speaks protocol version {stats.other_version}; this app "
+                        f"reads version {PROTOCOL_VERSION} (SPEC §4): update the board's firmware or SenSnake "
+                        "Studio so they match")
                 noise = stats.bytes_discarded - bytes_at_start
                 heard = f"only {noise} bytes of noise" if noise else "nothing"
                 raise BoardSilentError(

@@ -31,7 +31,8 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
 
 FLUSH_INTERVAL_S = 0.5
 _STOP = object()
-LINK_STAT_FIELDS = ("out_of_range_frames", "channel_mismatches", "reconnects", "bad_headers", "duplicate_frames")
+LINK_STAT_FIELDS = ("out_of_range_frames", "channel_mismatches", "reconnects", "bad_headers", "duplicate_frames",
+                    "clock_backsteps", "host_stalls")
 
 
 class Recorder:

@@ -226,6 +226,10 @@ class BoardBridge(QObject):
         self._bridge.post(self._deliver_status, status)
 
     def _deliver_status(self, status: BoardStatus) -> None:
+        if status.state == "stall":  # an event (the host did not read for a while), not a change of state
+            self.board_status.emit(status)
+            self.status.emit(status.message)
+            return
         self._last_status = status
         self.board_status.emit(status)
         self.status.emit(status.message)

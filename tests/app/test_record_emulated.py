@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import h5py
@@ -245,3 +246,63 @@ def test_kill_9_leaves_a_file_plain_h5py_opens(tmp_path, config_file):
     rec = open_recording(out)
     assert rec.n_samples == rows
     assert_exact_and_complete(rec, log)
+
+
+# -- issue 25: a board in another protocol version, a board clock stepping back, a stopped recorder -----------------
+def test_a_board_in_another_protocol_version_is_named_for_it(tmp_path, config_file, capsys):
+    out = tmp_path / "v2.h5"
+    with EmulatedBoard(tmp_path, rate_hz=RATE_HZ, version=2) as emu:
+        code = record(emu, out, 2.0, config_file)
+    assert code == 1
+    lines = error_lines(capsys.readouterr().err)
+    assert len(lines) == 1 and "protocol version 2" in lines[0] and "reads version 1" in lines[0], lines
+    assert "--baud" not in lines[0]  # was: "only 26488 bytes of noise … check --baud"
+    assert not out.exists()
+
+
+def test_a_board_clock_stepping_back_is_no_gap_and_no_new_segment(tmp_path, config_file, capsys):
+    out = tmp_path / "clockback.h5"
+    with EmulatedBoard(tmp_path, rate_hz=RATE_HZ, clock_back_at=0.8, clock_back_us=500_000) as emu:
+        assert record(emu, out, 2.0, config_file) == 0
+        log = emu.stop()
+    capsys.readouterr()
+    rec = open_recording(out)
+    assert set(rec_segments(rec).tolist()) == {0}  # not a restart
+    assert not rec.gaps, [e.text for e in rec.gaps]  # was a false "frames missing" gap
+    assert rec.board_time_s is not None and np.all(np.diff(rec.board_time_s) > 0)  # never backwards
+    assert_exact_and_complete(rec, log)
+    with h5py.File(out, "r") as f:
+        assert int(f["daq"].attrs["clock_backsteps"]) == 1
+
+
+def test_a_stopped_recorder_times_the_waiting_frames_by_the_board_clock_and_logs_the_stall(tmp_path):
+    """SIGSTOP for 2 s then SIGCONT (issue 25: the frames buffered meanwhile all got the same time_s, a hole then a
+    vertical burst, and nothing marked the stall)."""
+    config = tmp_path / "lab30.toml"
+    config.write_text("[board]\nrate_hz = 30.0\n")  # 2 s of frames fit the pty's buffer: none is lost
+    out = tmp_path / "stalled.h5"
+    with EmulatedBoard(tmp_path, rate_hz=30.0) as emu:
+        child = start_recorder(emu, out, config)
+        try:
+            wait_for_frames(child, 30)
+            os.kill(child.pid, signal.SIGSTOP)
+            # Deliberate: time passes with nobody reading (the recorder is stopped); nothing to wait on instead.
+            threading.Event().wait(2.0)
+            os.kill(child.pid, signal.SIGCONT)
+            wait_for_frames(child, 30 + 60 + 30)
+            child.send_signal(signal.SIGTERM)
+            child.communicate(timeout=30)
+        finally:
+            child.kill()
+            child.wait(timeout=10)
+        log = emu.stop()
+    rec = open_recording(out)
+    seqs = assert_exact_and_complete(rec, log)  # every frame, none lost or doubled
+    assert np.all(np.diff(seqs) == 1)
+    steps = np.diff(rec.time_s)
+    assert steps.max() < 0.25, f"a {steps.max():.2f} s hole in time_s: the waiting frames were not re-timed"
+    assert np.percentile(steps, 5) > 0.5 / 30, "a burst of frames stamped at once"
+    stalls = [e for e in rec.events if e.kind == "stall"]
+    assert len(stalls) == 1 and "not read for" in stalls[0].text, [(e.kind, e.text) for e in rec.events]
+    with h5py.File(out, "r") as f:
+        assert int(f["daq"].attrs["host_stalls"]) == 1

@@ -5,6 +5,7 @@ Run it as its own process::
     python -m tests.emulators.board_emulator --link DIR/board [--channels 36] [--rate-hz 30] [--baud 2000000]
         [--garbage P] [--crc-flip P] [--drop P] [--over-range P] [--wrong-channels N --wrong-from-s T]
         [--unplug-at S] [--replug-at S] [--silent] [--t-us-start US] [--seed K] [--log FILE.json]
+        [--version V] [--clock-back-at S [--clock-back-us US]]
 
 It makes a pty, points the symlink ``--link`` at its slave (a host opens that path like ``/dev/ttyUSB0``) and prints
 ``READY <link>`` on stdout. Frames go out at the board's rate, each written as one burst the way a USB-serial adapter
@@ -14,7 +15,8 @@ test can check every recorded value exactly.
 Faults, drawn per frame from a seeded generator: ``--garbage P`` random bytes (1…40) before the frame; ``--crc-flip
 P`` one bit flipped in the frame after the sync bytes (the host must reject it); ``--drop P`` the frame is never sent
 (``seq`` still advances); ``--over-range P`` a count above 4095 with a *valid* CRC (impossible for a 12-bit ADC);
-``--wrong-channels N`` sends N channels instead (from ``--wrong-from-s`` on). ``--silent`` opens the pty and sends
+``--wrong-channels N`` sends N channels instead (from ``--wrong-from-s`` on); ``--version V`` sends protocol
+version V (valid CRC); ``--clock-back-at S`` steps ``t_us`` back by ``--clock-back-us`` once, seq going on. ``--silent`` opens the pty and sends
 nothing. Unplug closes the pty and removes the link (the host sees EIO); re-plug makes a new pty behind the same link
 and the board restarts: ``seq`` and ``t_us`` from 0 (a new clock segment). Commands on stdin (one per line):
 ``unplug``, ``replug``, ``quit``; or ``--unplug-at``/``--replug-at`` seconds after start.
@@ -64,9 +66,9 @@ def expected_counts(seq: int, n_channels: int, segment: int = 0) -> list[int]:
     return [1 + (seq * 37 + k * 101 + segment * 997) % ADC_MAX for k in range(n_channels)]
 
 
-def encode(seq: int, t_us: int, counts: list[int], flags: int = 0) -> bytes:
+def encode(seq: int, t_us: int, counts: list[int], flags: int = 0, version: int = VERSION) -> bytes:
     """One SPEC §4 frame (little-endian; CRC over version … last reading)."""
-    body = struct.pack("<BBIIH", VERSION, flags, seq & 0xFFFFFFFF, t_us & 0xFFFFFFFF, len(counts))
+    body = struct.pack("<BBIIH", version, flags, seq & 0xFFFFFFFF, t_us & 0xFFFFFFFF, len(counts))
     body += struct.pack(f"<{len(counts)}H", *counts)
     return SYNC + body + struct.pack("<H", crc16_ccitt_false(body))
 
@@ -171,6 +173,8 @@ class Board:
             segment = self.segments[-1]
             t_us = args.t_us_start + round(seq * 1e6 / args.rate_hz) if segment_no == 0 else \
                 round(seq * 1e6 / args.rate_hz)
+            if args.clock_back_at is not None and elapsed_s >= args.clock_back_at:
+                t_us -= args.clock_back_us  # the board's clock steps back once; seq goes on
         n = args.channels
         if args.wrong_channels and elapsed_s >= args.wrong_from_s:
             n = args.wrong_channels
@@ -187,7 +191,7 @@ class Board:
                 counts = list(counts)
                 counts[rng.randrange(n)] = rng.randint(ADC_MAX + 1, 0xFFFF)
                 kind = "corrupt"
-            frame = encode(seq, t_us, counts)
+            frame = encode(seq, t_us, counts, version=args.version)
             if rng.random() < args.crc_flip:
                 flipped = bytearray(frame)
                 at = rng.randrange(2, len(flipped))
@@ -328,6 +332,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wrong-channels", type=int, default=0)
     p.add_argument("--wrong-from-s", type=float, default=0.0)
     p.add_argument("--unplug-at", type=float, default=None)
+    p.add_argument("--version", type=int, default=VERSION, help="protocol version byte to send (SPEC §4 is 1)")
+    p.add_argument("--clock-back-at", type=float, default=None,
+                   help="from this many seconds on, t_us is --clock-back-us lower (seq goes on)")
+    p.add_argument("--clock-back-us", type=int, default=500_000)
     p.add_argument("--replug-at", type=float, default=None)
     p.add_argument("--silent", action="store_true")
     p.add_argument("--t-us-start", type=int, default=0, help="board clock at the first frame (test the 2³² wrap)")

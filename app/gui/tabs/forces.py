@@ -550,6 +550,9 @@ class ForcesTab(QWidget):
 
     def _on_board_status(self, status: Any) -> None:
         self.live.handle_status(status)  # gaps, reconnects and segments go into the recording there
+        if status.state == "stall":  # an event: the board goes on; said once, and logged in a recording
+            self.controls.set_message(status.message, "warn")
+            return
         level = {"connected": "ok", "reconnected": "ok", "closed": "idle"}.get(status.state, "error")
         self.controls.set_board_status(status.message, level)
         if status.state in ("disconnected", "mismatch", "error"):
