@@ -39,6 +39,20 @@ class CorruptPacketError(DeviceError):
         super().__init__(f"corrupt packet from {who}{extra}: check the bus wiring and termination")
 
 
+class DuplicateIdError(DeviceError):
+    """Two servos answer to one ID (their status packets collide): nothing may play until each has its own ID."""
+
+    def __init__(self, collided: list[int], missing: list[int]) -> None:
+        self.collided, self.missing = list(collided), list(missing)
+        ids = ", ".join(str(i) for i in collided)
+        also = (f"; configured ID(s) {', '.join(str(i) for i in missing)} do not answer (likely the servo that was "
+                "set to the other's ID)") if missing else ""
+        super().__init__(
+            f"servo ID {ids}: every reply arrives garbled while other servos answer cleanly — two servos are set to "
+            f"the same ID{also}. Fix: ID inspection — power one servo at a time and scan it, then give each its own "
+            "ID (Dynamixel Wizard's ID change); nothing plays until then")
+
+
 class ServoHardwareError(DeviceError):
     """A servo reported a hardware error (overload, overheating, voltage, encoder, shock)."""
 

@@ -49,6 +49,7 @@ from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
     DeviceError,
+    DuplicateIdError,
     LinkLostError,
     ModelMismatchError,
     NoReplyError,
@@ -72,6 +73,7 @@ MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
 _STATUS_OVERHEAD = 4
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
+COLLISION_TRIES = 2  # garbled replies in a row, after the first, that make an ID "collided" (two servos on it)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 # A sync read's replies judged paced by the device (an accelerated simulator) or by the wire: complete in under
 # FAST_FRACTION of the wire's lower bound = fast, in over SLOW_FRACTION of it = slow. Device pacing is taken up after
@@ -129,6 +131,7 @@ class ServoInfo:
     model_name: str
     firmware: int
     baud: int
+    collided: bool = False  # its replies arrive garbled every time: two servos answer to this ID (model unknown)
 
 
 @dataclass(frozen=True)
@@ -628,9 +631,29 @@ class ServoChain:
         for sid in ids:
             try:
                 infos.append(self._ping_at(sid, baud))
-            except (NoReplyError, CorruptPacketError):
+            except NoReplyError:
                 continue
+            except CorruptPacketError:
+                if self._collides(sid):
+                    infos.append(ServoInfo(sid, 0, "garbled replies: two servos on this ID?", 0, baud, True))
         return infos
+
+    def _collides(self, servo_id: int, tries: int = COLLISION_TRIES) -> bool:
+        """True when ``servo_id``'s replies arrive garbled ``tries`` times running (one garbled reply is noise; two
+        servos set to one ID garble every reply, their packets colliding on the wire)."""
+        for _ in range(tries):
+            try:
+                self._ping_at(servo_id, self._port_baud())
+            except CorruptPacketError:
+                continue
+            except NoReplyError:
+                return False
+            return False
+        return True
+
+    def _port_baud(self) -> int:
+        port = self._require_port()
+        return int(getattr(port, "baudrate", self._baud) or self._baud)
 
     def ping(self, servo_id: int) -> ServoInfo:
         """Model and firmware of one servo (raises :class:`NoReplyError` naming it)."""
@@ -645,10 +668,28 @@ class ServoChain:
         return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud)
 
     def check_models(self) -> None:
-        """Every configured joint answers and is an XM430-W350 (raises ModelMismatchError / NoReplyError); their
-        Return Delay Times are read too (the reads' waits and the rate checks need them)."""
+        """Every configured joint answers, once, and is an XM430-W350 (raises DuplicateIdError when two servos
+        answer to one ID, ModelMismatchError / NoReplyError); their Return Delay Times are read too (the reads'
+        waits and the rate checks need them)."""
+        infos: dict[int, ServoInfo] = {}
+        collided: list[int] = []
+        missing: list[int] = []
         for sid in self.ids:
-            info = self.ping(sid)
+            try:
+                infos[sid] = self.ping(sid)
+            except NoReplyError:
+                missing.append(sid)
+            except CorruptPacketError:
+                if not self._collides(sid):
+                    raise
+                collided.append(sid)
+        if collided and infos:  # others answer cleanly: not the wiring, a shared ID
+            raise DuplicateIdError(collided, missing)
+        if collided:
+            raise CorruptPacketError(collided[0], "no servo answers cleanly")
+        if missing:
+            raise NoReplyError(missing[0], "ping")
+        for sid, info in infos.items():
             if info.model_number != ct.MODEL_NUMBER_XM430_W350:
                 raise ModelMismatchError(
                     f"servo {sid} is a {info.model_name} (model {info.model_number}), but this driver is written "
@@ -1051,6 +1092,22 @@ class ServoChain:
         status, result, _ = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_HARDWARE_ERROR_STATUS)
         self._check_comm(result, servo_id, "reading Hardware Error Status")
         return ServoHardwareError(servo_id, ct.hardware_error_names(status) or ("hardware error",))
+
+
+def scan_problems(found: Sequence[ServoInfo], expected: Iterable[int], scanned: Iterable[int]) -> list[str]:
+    """What a scan's result says is wrong with the IDs, one sentence each: an ID two servos answer to (its replies
+    collide), and configured joints (``expected``) among the ``scanned`` IDs that did not answer."""
+    scanned = set(scanned)
+    collided = sorted({info.servo_id for info in found if info.collided})
+    heard = {info.servo_id for info in found if not info.collided}
+    missing = [i for i in expected if i in scanned and i not in heard and i not in collided]
+    problems = []
+    if collided:
+        problems.append(str(DuplicateIdError(collided, missing)))
+    elif missing:
+        problems.append(f"configured joint ID(s) {_id_list(missing)} did not answer: check their cables and power, "
+                        "or whether one was set to another ID")
+    return problems
 
 
 def _id_list(ids: Sequence[int]) -> str:

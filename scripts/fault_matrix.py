@@ -14,7 +14,10 @@ pseudo-terminals and written from SPEC §4 / the XM430 e-manual, and judges the 
   crash or a signal opens in plain ``h5py.File(path, "r")`` in another process.
 
 The cases cover every item of issue 15 (board, recording, file, output-file and message faults; the servo chain's
-reboots, limits and a killed bus). Run from the repository root (the emulators are started as
+reboots, limits and a killed bus) and of issue 25 (an output onto an input, two writers on one file, a file-size limit
+mid-recording, a 2 GB sparse CSV, NUL bytes and endless lines, a symlink-loop ``--out``, a board repeating frames,
+its clock stepping back, another protocol version, a stopped recorder, two servos on one ID, messages naming the
+file, sensor and key). Run from the repository root (the emulators are started as
 ``python -m tests.emulators.…``). Takes about three minutes on an idle machine (the recordings run in real time).
 Linux only (pseudo-terminals).
 """
@@ -539,6 +542,215 @@ def teach_silent_servo(folder: Path) -> Outcome:
     return Outcome(ok and not (folder / "t.json").exists(), note)
 
 
+# -- issue 25: nothing a user does loses, mixes or invents data ------------------------------------------------------
+def _calibration(folder: Path) -> Path:
+    from tests.calibration_files import write_typical_calibration
+
+    return write_typical_calibration(folder / "cal.json", ["S06B"])
+
+
+def _series(folder: Path) -> Path:
+    path = folder / "in.csv"
+    path.write_text("time_s,S06B\n" + "".join(f"{k / 30:.6f},{1e-4 * (1 + k % 7)}\n" for k in range(300)))
+    return path
+
+
+def output_onto_input(folder: Path) -> Outcome:
+    data = _series(folder)
+    before = data.read_bytes()
+    run = sensnake("estimate", str(data), "--cal", str(_calibration(folder)), "--out", str(data))
+    ok, note = clean_failure(run, 1, "in.csv", "also an input")
+    if ok and data.read_bytes() != before:
+        return Outcome(False, "the input was changed")
+    return Outcome(ok, note)
+
+
+def two_writers_one_file(folder: Path) -> Outcome:
+    out = folder / "same.h5"
+    first = subprocess.Popen([sys.executable, "-m", "app", "record", "--daq", "sim", "--seconds", "4", "--out",
+                              str(out)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert first.stderr is not None
+        seen = ""
+        while "frames" not in seen:  # the first writer holds the file
+            chunk = first.stderr.read(16)
+            if not chunk:
+                break
+            seen += chunk
+        second = sensnake("record", "--daq", "sim", "--seconds", "1", "--out", str(out))
+        first.communicate(timeout=60)
+    finally:
+        first.kill()
+        first.wait()
+    ok, note = clean_failure(second, 1, "same.h5", str(first.pid))
+    if not ok:
+        return Outcome(False, f"second writer: {note}")
+    opened, rows = plain_h5py(out)
+    return Outcome(first.returncode == 0 and opened, f"refused naming pid {first.pid}; the first kept {rows} rows")
+
+
+def file_size_limit(folder: Path) -> Outcome:
+    import resource
+
+    out = folder / "limited.h5"
+    done = subprocess.run([sys.executable, "-m", "app", "record", "--daq", "sim", "--seconds", "60", "--out",
+                           str(out)], cwd=REPO, capture_output=True, text=True, timeout=120,
+                          preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000)))  # noqa: PLW1509
+    run = Run(done.returncode, done.stdout, done.stderr)
+    ok, note = clean_failure(run, 1, "limited.h5", "File too large")
+    if not ok:
+        return Outcome(False, note)
+    opened, rows = plain_h5py(out)
+    leftovers = _hidden(folder)
+    if not opened or leftovers:
+        return Outcome(False, f"plain h5py: {rows}; left behind: {leftovers}")
+    return Outcome(True, f"one line; plain h5py opens it ({rows} rows)")
+
+
+def sparse_csv(folder: Path) -> Outcome:
+    big = folder / "big.csv"
+    big.write_text("time_s,S06B\n")
+    with big.open("r+b") as handle:
+        handle.truncate(2 << 30)
+    # Measured from a small fresh python: a child forked from this process would report this process's RSS too.
+    measure = ("import os, subprocess, sys, time\nstart = time.monotonic()\n"
+               "child = subprocess.Popen([sys.executable, '-m', 'app', *sys.argv[1:]], stdout=subprocess.DEVNULL)\n"
+               "_pid, status, usage = os.wait4(child.pid, 0)\n"
+               "print(os.waitstatus_to_exitcode(status), usage.ru_maxrss, time.monotonic() - start)")
+    done = subprocess.run([sys.executable, "-c", measure, "estimate", str(big), "--cal", str(_calibration(folder)),
+                           "--out", str(folder / "f.csv")], cwd=REPO, capture_output=True, text=True, timeout=120)
+    code, peak_kb, wall = done.stdout.split()
+    run = Run(int(code), "", done.stderr)
+    seconds = float(wall)
+    ok, note = clean_failure(run, 1, "big.csv", "not a text CSV")
+    peak_mb = int(peak_kb) / 1024
+    return Outcome(ok and peak_mb <= 500 and seconds <= 10, f"{note[:60]}; peak {peak_mb:.0f} MB, {seconds:.1f} s")
+
+
+def csv_nul_and_long_line(folder: Path) -> Outcome:
+    cal = _calibration(folder)
+    nul = folder / "nul.csv"
+    nul.write_bytes(b"time_s,S06B\n0,1e-4\n\x001,1e-4\n")
+    long_line = folder / "long.csv"
+    long_line.write_text("time_s,S06B\n0," + "9" * (2 << 20) + "\n")
+    notes = []
+    for path, words in ((nul, ("nul.csv", "NUL byte")), (long_line, ("long.csv", "longer than"))):
+        ok, note = clean_failure(sensnake("estimate", str(path), "--cal", str(cal), "--out", str(folder / "o.csv")),
+                                 1, *words)
+        if not ok:
+            return Outcome(False, note)
+        notes.append(note[:50])
+    return Outcome(True, " | ".join(notes))
+
+
+def board_case_exact(**faults: object) -> Callable[[Path], Outcome]:
+    """Record from the emulator with ``faults``: exit 0, every frame once and exact, no gap marked."""
+    def case(folder: Path) -> Outcome:
+        import h5py
+
+        config = folder / "lab.toml"
+        config.write_text(f"[board]\nrate_hz = {RATE_HZ}\n")
+        out = folder / "rec.h5"
+        with EmulatedBoard(folder, rate_hz=RATE_HZ, **faults) as emu:
+            run = sensnake("record", "--daq", emu.path, "--seconds", "2", "--out", str(out), "--config", str(config))
+            log = emu.stop()
+        if run.code != 0 or run.traceback:
+            return Outcome(False, f"exit {run.code}: {run.err.strip()[-160:]}")
+        exact, note = check_exact(out, log)
+        with h5py.File(out, "r") as f:
+            kinds = [k.decode() for k in f["events/kind"][:]]
+            attrs = {k: int(v) for k, v in f["daq"].attrs.items() if k in ("duplicate_frames", "clock_backsteps")}
+        if "gap" in kinds:
+            return Outcome(False, f"a false gap was marked ({note})")
+        return Outcome(exact, f"{note}; {attrs}")
+    return case
+
+
+def protocol_version_2(folder: Path) -> Outcome:
+    config = folder / "lab.toml"
+    config.write_text(f"[board]\nrate_hz = {RATE_HZ}\n")
+    with EmulatedBoard(folder, rate_hz=RATE_HZ, version=2) as emu:
+        run = sensnake("record", "--daq", emu.path, "--seconds", "2", "--out", str(folder / "r.h5"), "--config",
+                       str(config))
+    return Outcome(*clean_failure(run, 1, "protocol version 2", "version 1"))
+
+
+def stopped_recorder(folder: Path) -> Outcome:
+    import h5py
+    import numpy as np
+
+    config = folder / "lab.toml"
+    config.write_text("[board]\nrate_hz = 30.0\n")
+    out = folder / "stalled.h5"
+    with EmulatedBoard(folder, rate_hz=30.0) as emu:
+        child = subprocess.Popen([sys.executable, "-m", "app", "record", "--daq", emu.path, "--seconds", "60",
+                                  "--out", str(out), "--config", str(config)], cwd=REPO, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True)
+        _drive(child, emu, [("30", "noop")])
+        os.kill(child.pid, signal.SIGSTOP)
+        time.sleep(2.0)  # the recorder stopped: nobody reads the board meanwhile
+        os.kill(child.pid, signal.SIGCONT)
+        time.sleep(1.5)  # it catches up and records on
+        child.send_signal(signal.SIGTERM)
+        child.communicate(timeout=30)
+        emu.stop()
+    with h5py.File(out, "r") as f:
+        steps = np.diff(f["daq/time_s"][:])
+        kinds = [k.decode() for k in f["events/kind"][:]]
+    ok = steps.max() < 0.25 and "stall" in kinds
+    return Outcome(ok, f"largest time step {steps.max() * 1e3:.0f} ms; events {sorted(set(kinds))}")
+
+
+def duplicate_servo_id(folder: Path) -> Outcome:
+    emu = _servo_emulator("--ids", "1,1,3-12")
+    shape = _shape(folder / "shape.json", [0.1 * (-1) ** i for i in range(12)])
+    try:
+        scan = sensnake("scan", "--robot", emu.path)
+        play = sensnake("play", str(shape), "--robot", emu.path, "--speed", "1", "--shifts", "1")
+    finally:
+        emu.close()
+    ok, note = clean_failure(scan, 1, "servo ID 1", "same ID", "2")
+    if not ok:
+        return Outcome(False, f"scan: {note}")
+    ok, note = clean_failure(play, 1, "same ID")
+    if not ok or "wiring" in play.err:
+        return Outcome(False, f"play: {note}")
+    return Outcome(True, "scan and play name ID 1 shared and ID 2 missing")
+
+
+def calibration_messages(folder: Path) -> Outcome:
+    from tests.calibration_files import typical_sensor_entry, write_calibration
+
+    entry = typical_sensor_entry()
+    entry["sls"]["mu1_Pa_s"] = -1.0
+    bad = write_calibration(folder / "bad.json", {"S06B": entry})
+    deep = folder / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    semi = folder / "semi.csv"
+    semi.write_text("time_s;S06B\n0;1e-4\n")
+    good_cal = _calibration(folder)
+    data = _series(folder)
+    checks = [(sensnake("estimate", str(data), "--cal", str(bad), "--out", str(folder / "o.csv")),
+               ("bad.json", "S06B", "mu1_Pa_s")),
+              (sensnake("estimate", str(data), "--cal", str(deep), "--out", str(folder / "o.csv")), ("deep.json",)),
+              (sensnake("estimate", str(semi), "--cal", str(good_cal), "--out", str(folder / "o.csv")),
+               ("semi.csv", "semicolons"))]
+    for run, words in checks:
+        ok, note = clean_failure(run, 1, *words)
+        if not ok:
+            return Outcome(False, note)
+    return Outcome(True, "each names the file (and sensor, key)")
+
+
+def symlink_loop_out(folder: Path) -> Outcome:
+    (folder / "a.h5").symlink_to(folder / "b.h5")
+    (folder / "b.h5").symlink_to(folder / "a.h5")
+    run = sensnake("record", "--daq", "sim", "--seconds", "1", "--out", str(folder / "a.h5"))
+    ok, note = clean_failure(run, 1, "a.h5")
+    leftovers = _hidden(folder)
+    return Outcome(ok and not leftovers, note if not leftovers else f"left behind: {leftovers}")
+
+
 CASES: dict[str, Callable[[Path], Outcome]] = {
     "board: clean stream": record_case(),
     "board: 5% garbage": record_case(garbage=0.05),
@@ -601,6 +813,21 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "servo: servo 3 overload mid-play": play_case("overload 3", [0.5 * (-1) ** i for i in range(12)],
                                                   ("servo 3",)),
     "servo: bus killed mid-play": play_case("kill", [0.5 * (-1) ** i for i in range(12)], ("servo bus",)),
+    # issue 25
+    "data: estimate --out onto its input": output_onto_input,
+    "data: two recorders on one --out": two_writers_one_file,
+    "data: a file-size limit mid-recording (ulimit -f)": file_size_limit,
+    "data: a 2 GB sparse CSV to estimate": sparse_csv,
+    "data: a CSV with a NUL byte / a 2 MB line": csv_nul_and_long_line,
+    "data: --out is a symlink loop": symlink_loop_out,
+    "board: every frame sent twice (same seq)": board_case_exact(repeat=1.0),
+    "board: its clock steps back 0.5 s (seq goes on)": board_case_exact(clock_back_at=0.8),
+    "board: speaks protocol version 2": protocol_version_2,
+    "record: SIGSTOP 2 s, then SIGCONT": stopped_recorder,
+    "servo: two servos on ID 1 (none on 2)": duplicate_servo_id,
+    "record: --baud 99999999999": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out",
+                                                      str(d / "r.h5"), "--baud", "99999999999"], 1, "--baud"),
+    "message: a calibration with mu1 < 0, a 100 000-deep JSON, a ;-CSV": calibration_messages,
 }
 
 

@@ -65,6 +65,15 @@ def test_every_item_of_issue_15_has_cases(matrix):
             assert word in names, word
 
 
+def test_every_item_of_issue_25_has_cases(matrix):
+    names = " | ".join(matrix.CASES)
+    for word in ("onto its input", "two recorders on one --out", "ulimit -f", "2 GB sparse CSV", "NUL byte",
+                 "symlink loop", "sent twice (same seq)", "clock steps back", "protocol version 2", "SIGSTOP",
+                 "two servos on ID 1", "--baud 99999999999", "mu1 < 0"):
+        assert word in names, word
+    assert len(matrix.CASES) >= 46 + 13  # issue 15's 46 kept
+
+
 def test_a_case_runs_end_to_end_and_the_figure_is_printed():
     done = subprocess.run([sys.executable, "scripts/fault_matrix.py", "--only", "--out in a missing folder"],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,

@@ -1,7 +1,8 @@
 """``sensnake scan --robot PORT [--baud B | --all-bauds]`` (SPEC §1): list the servos answering on a bus.
 
 One line per servo on stdout: ID, model name and number, firmware, baud rate. Exits 1 with one line on stderr when
-nothing answers. ``--all-bauds`` tries every Dynamixel baud rate (about 12 s in all: a broadcast ping waits its full
+nothing answers, or when two servos answer to one ID (their replies collide; the line names the ID, the configured
+IDs that did not answer and the fix); a configured joint that does not answer is a warning line. ``--all-bauds`` tries every Dynamixel baud rate (about 12 s in all: a broadcast ping waits its full
 window at each rate) and reports progress on stderr. Runs on the main thread, which owns the port here.
 """
 
@@ -13,11 +14,12 @@ import sys
 from app.cli._robot import robot_config
 
 EXIT_NOTHING_FOUND = 1
+EXIT_ID_CONFLICT = 1  # two servos answer to one ID
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.control_table import BAUD_RATES_BPS
-    from devices.servo_chain import ServoChain
+    from devices.control_table import BAUD_RATES_BPS, MAX_ID
+    from devices.servo_chain import ServoChain, scan_problems
 
     robot = robot_config(args)
     # Fastest rates first: they are the likely ones and their broadcast window is the shortest.
@@ -35,6 +37,12 @@ def run(args: argparse.Namespace) -> int:
               f"cable{hint}", file=sys.stderr)
         return EXIT_NOTHING_FOUND
     for info in found:
+        if info.collided:
+            print(f"ID {info.servo_id:3d}  ?  garbled replies (two servos on this ID?)  {info.baud} bps")
+            continue
         print(f"ID {info.servo_id:3d}  {info.model_name} (model {info.model_number})  firmware {info.firmware}  "
               f"{info.baud} bps")
-    return 0
+    problems = scan_problems(found, robot.joint_ids, range(MAX_ID + 1))
+    for problem in problems:
+        print(f"sensnake scan: {'error' if 'same ID' in problem else 'warning'}: {problem}", file=sys.stderr)
+    return EXIT_ID_CONFLICT if any(info.collided for info in found) else 0

@@ -179,6 +179,15 @@ class RecordingWriter:
         try:
             if self.path.is_dir():
                 raise IsADirectoryError(f"{self.path} is a folder")
+            if os.path.islink(self.path):
+                try:
+                    os.stat(self.path)
+                except FileNotFoundError:
+                    pass  # a dangling link: the recording takes its place
+                except OSError as exc:  # ELOOP: the link leads back to itself; nothing could ever be moved there
+                    raise OSError(exc.errno, f"{self.path} is a symbolic link that leads nowhere "
+                                             f"({os.strerror(exc.errno or 0)}): remove it or choose another name"
+                                  ) from None
             if not self.path.parent.is_dir():
                 what = "is not a folder" if self.path.parent.exists() else "does not exist"
                 raise FileNotFoundError(f"the folder {self.path.parent} {what}")
@@ -415,6 +424,7 @@ class RecordingWriter:
             self._closed = True
             self._failed = RecordingError(f"recording stopped: cannot move the new recording onto {self.path} "
                                           f"({_os_reason(exc)}); it is kept as {self._work_path}")
+            self._release_lock()
             raise self._failed from exc
         self._work_path = self.path
         self.kept = True

@@ -120,23 +120,25 @@ def test_a_semicolon_separated_file_is_named_for_what_it_is(tmp_path, capsys):
     assert err.startswith(f"sensnake estimate: error: {data}:1: the columns are separated by semicolons")
 
 
+# Runs `python -m app ARGV` as a child of a small, fresh python and prints its exit code, peak RSS (kB) and wall
+# time: a child forked from this test process would start with (and report) the test process's own RSS.
+_MEASURE = """
+import os, subprocess, sys, time
+start = time.monotonic()
+child = subprocess.Popen([sys.executable, "-m", "app", *sys.argv[1:]], stdout=subprocess.DEVNULL)
+_pid, status, usage = os.wait4(child.pid, 0)
+print(os.waitstatus_to_exitcode(status), usage.ru_maxrss, time.monotonic() - start, file=sys.stdout)
+"""
+
+
 def _peak_rss_and_time(argv: list[str]) -> tuple[int, float, str, float]:
-    """Run ``python -m app ARGV`` in a child; its exit code, its own peak RSS (MB, from wait4), stderr and wall
-    time (s)."""
-    import os
+    """Run ``python -m app ARGV``; its exit code, its own peak RSS (MB), its stderr and wall time (s)."""
     import subprocess
     import sys
-    import tempfile
-    import time
 
-    with tempfile.TemporaryFile("w+") as err:
-        start = time.monotonic()
-        child = subprocess.Popen([sys.executable, "-m", "app", *argv], stdout=subprocess.DEVNULL, stderr=err)
-        _pid, status, usage = os.wait4(child.pid, 0)
-        seconds = time.monotonic() - start
-        child.returncode = os.waitstatus_to_exitcode(status)
-        err.seek(0)
-        return child.returncode, usage.ru_maxrss / 1024, err.read(), seconds  # Linux: ru_maxrss in kB
+    done = subprocess.run([sys.executable, "-c", _MEASURE, *argv], capture_output=True, text=True, timeout=120)
+    code, peak_kb, seconds = done.stdout.split()
+    return int(code), int(peak_kb) / 1024, done.stderr, float(seconds)  # Linux: ru_maxrss in kB
 
 
 def test_a_2_gb_sparse_csv_is_refused_in_bounded_memory_and_time(tmp_path):
@@ -198,3 +200,12 @@ def test_record_under_a_file_size_limit_stops_with_one_line_and_a_file_that_open
     with h5py.File(out, "r") as f:
         assert f["daq/seq"].shape[0] > 0 and f.attrs["format"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary or lock left behind
+
+
+def test_an_out_that_is_a_symlink_loop_is_refused_before_recording_leaving_nothing(tmp_path, capsys):
+    (tmp_path / "a.h5").symlink_to(tmp_path / "b.h5")
+    (tmp_path / "b.h5").symlink_to(tmp_path / "a.h5")
+    assert main(["record", "--daq", "sim", "--seconds", "5", "--out", str(tmp_path / "a.h5")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len([line for line in err if "error" in line]) == 1 and "a.h5" in err[-1] and "symbolic links" in err[-1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]  # no hidden temporary, no lock left

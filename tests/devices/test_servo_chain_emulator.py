@@ -383,3 +383,45 @@ def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkey
     finally:
         factory.install_sim_lab(previous)
     assert _open_on(device) == 0
+
+
+def test_two_servos_on_one_id_are_named_by_scan_and_refused_at_connect_and_play(tmp_path, capsys):
+    """The emulator's second servo set to ID 1 (issue 25: scan exited 0 listing 11 servos, silent about it; play
+    blamed "corrupt packet … check the bus wiring"). Its replies and its twin's collide on the wire."""
+    from devices.errors import DuplicateIdError
+
+    emulator = EmulatorProcess("--ids", "1,1,3-12")
+    try:
+        assert main(["scan", "--robot", emulator.path]) == 1
+        captured = capsys.readouterr()
+        assert "ID   1  ?  garbled replies" in captured.out and "ID   3  XM430" in captured.out
+        error = [line for line in captured.err.splitlines() if line.startswith("sensnake scan: error")]
+        assert len(error) == 1 and "servo ID 1" in error[0] and "same ID" in error[0], captured.err
+        assert "ID(s) 2 do not answer" in error[0] and "power one servo at a time" in error[0]
+        with ServoChain(robot_on(emulator.path)) as chain, pytest.raises(DuplicateIdError) as caught:
+            chain.check_models()
+        assert caught.value.collided == [1] and caught.value.missing == [2]
+        shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
+        assert main(["play", str(shape), "--robot", emulator.path, "--speed", "1", "--shifts", "1"]) == 1
+        err = capsys.readouterr().err
+        assert "two servos are set to the same ID" in err and "wiring" not in err and "Traceback" not in err
+    finally:
+        assert emulator.close() == 0
+
+
+def test_a_missing_configured_id_is_a_scan_warning_and_a_clean_bus_says_nothing(capsys):
+    emulator = EmulatorProcess("--ids", "1-4,6-12")
+    try:
+        assert main(["scan", "--robot", emulator.path]) == 0
+        captured = capsys.readouterr()
+        assert captured.out.count("XM430") == 11
+        assert "warning" in captured.err and "joint ID(s) 5 did not answer" in captured.err
+    finally:
+        assert emulator.close() == 0
+    emulator = EmulatorProcess()
+    try:
+        assert main(["scan", "--robot", emulator.path]) == 0
+        err = capsys.readouterr().err
+        assert "warning" not in err and "error" not in err
+    finally:
+        assert emulator.close() == 0

@@ -16,7 +16,7 @@ Faults, drawn per frame from a seeded generator: ``--garbage P`` random bytes (1
 P`` one bit flipped in the frame after the sync bytes (the host must reject it); ``--drop P`` the frame is never sent
 (``seq`` still advances); ``--over-range P`` a count above 4095 with a *valid* CRC (impossible for a 12-bit ADC);
 ``--wrong-channels N`` sends N channels instead (from ``--wrong-from-s`` on); ``--version V`` sends protocol
-version V (valid CRC); ``--clock-back-at S`` steps ``t_us`` back by ``--clock-back-us`` once, seq going on. ``--silent`` opens the pty and sends
+version V (valid CRC); ``--repeat P`` sends a frame twice (same seq); ``--clock-back-at S`` steps ``t_us`` back by ``--clock-back-us`` once, seq going on. ``--silent`` opens the pty and sends
 nothing. Unplug closes the pty and removes the link (the host sees EIO); re-plug makes a new pty behind the same link
 and the board restarts: ``seq`` and ``t_us`` from 0 (a new clock segment). Commands on stdin (one per line):
 ``unplug``, ``replug``, ``quit``; or ``--unplug-at``/``--replug-at`` seconds after start.
@@ -199,6 +199,8 @@ class Board:
                 frame = bytes(flipped)
                 kind = "corrupt"
         data += frame
+        if frame and args.repeat and rng.random() < args.repeat:
+            data += frame  # the same frame (same seq) twice: a firmware that repeats itself
         written = self._write(data)
         if not frame:
             return
@@ -332,6 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wrong-channels", type=int, default=0)
     p.add_argument("--wrong-from-s", type=float, default=0.0)
     p.add_argument("--unplug-at", type=float, default=None)
+    p.add_argument("--repeat", type=float, default=0.0, help="probability a frame is sent twice (same seq)")
     p.add_argument("--version", type=int, default=VERSION, help="protocol version byte to send (SPEC §4 is 1)")
     p.add_argument("--clock-back-at", type=float, default=None,
                    help="from this many seconds on, t_us is --clock-back-us lower (seq goes on)")

@@ -7,6 +7,8 @@ test that passes between the driver and this emulator says something about both.
 
     python -m tests.emulators.xm430_emulator [--ids 1-12] [--baud 1000000] [--return-delay 250]
 
+(``--ids 1,1,3-12``: two servos set to ID 1, none to 2; their status packets collide on the wire, see ``collide``.)
+
 The first line on stdout is the slave path to open (e.g. ``/dev/pts/7``). Then one command per line on stdin, one
 answer line on stdout (``ok …`` or ``error …``); the process ends when stdin closes. Commands (the fault side
 channel):
@@ -287,11 +289,52 @@ class Servo:
         return 0
 
 
+TWIN_SKEW_BITS = 3  # how far (bit times) a duplicate ID's status packet lags its twin's: a few µs at 1 Mbps
+
+
+def _bits(data: bytes) -> list[int]:
+    """A UART line's levels for ``data``: start bit 0, 8 data bits LSB first, stop bit 1, per byte."""
+    levels: list[int] = []
+    for byte in data:
+        levels += [0, *((byte >> k) & 1 for k in range(8)), 1]
+    return levels
+
+
+def collide(first: bytes, second: bytes, skew_bits: int) -> bytes:
+    """What a UART receives when two transmitters drive the half-duplex line at once, ``second`` starting
+    ``skew_bits`` bit times after ``first``. Assumed (not measured): the line reads low when either drives it low
+    (a low driver wins over a high one — TTL outputs fighting, the low side stronger), idle high. The receiver waits
+    for a start bit, samples 8 data bits and the stop bit, and hands over the byte even on a framing error, as a
+    USB adapter's UART does."""
+    a = _bits(first)
+    b = [1] * skew_bits + _bits(second)
+    n = max(len(a), len(b))
+    a += [1] * (n - len(a))
+    b += [1] * (n - len(b))
+    line = [x & y for x, y in zip(a, b)]
+    out = bytearray()
+    k = 0
+    while k < n:
+        if line[k] == 1:  # idle
+            k += 1
+            continue
+        bits = line[k + 1:k + 9] + [1] * max(0, k + 9 - n)
+        out.append(sum(bit << i for i, bit in enumerate(bits)))
+        k += 10
+    return bytes(out)
+
+
 class Bus:
     """The servos on one bus; turns instruction packets into timed status packets."""
 
     def __init__(self, ids: list[int], baud_index: int, return_delay: int) -> None:
         self.servos = {i: Servo(i, baud_index, return_delay) for i in ids}
+        # A second servo set to an ID already on the bus (``--ids 1,1,3-12``): it answers with its twin, and the two
+        # status packets collide on the wire (see collide()).
+        self.twins: dict[int, Servo] = {}
+        for i in ids:
+            if ids.count(i) > 1:
+                self.twins[i] = Servo(i, baud_index, return_delay)
         self.baud_index = baud_index
         self.counts = dict.fromkeys(COUNTED.values(), 0)
         self.crc_errors = 0
@@ -308,7 +351,25 @@ class Bus:
         return servo
 
     def handle(self, dev_id: int, inst: int, params: bytes, now: float) -> list[tuple[Servo, bytes]]:
-        """The status packets (with the servo sending each, in wire order) that answer one instruction."""
+        """The status packets (with the servo sending each, in wire order) that answer one instruction; where two
+        servos share an ID, the bytes the host receives from their colliding packets."""
+        replies = self._handle(dev_id, inst, params, now)
+        if not self.twins:
+            return replies
+        out = []
+        for servo, reply in replies:
+            twin = self.twins.get(servo.dev_id)
+            if twin is not None and reply[4] == servo.dev_id:
+                twin.update(now)
+                twin_reply = bytearray(reply)
+                # The twin's own state (a different position, say) would differ; even the same bytes collide
+                # out of step: it starts TWIN_SKEW_BITS bit times later (its own clock and return delay).
+                out.append((servo, collide(bytes(reply), bytes(twin_reply), TWIN_SKEW_BITS)))
+            else:
+                out.append((servo, reply))
+        return out
+
+    def _handle(self, dev_id: int, inst: int, params: bytes, now: float) -> list[tuple[Servo, bytes]]:
         if inst in COUNTED:
             self.counts[COUNTED[inst]] += 1
         for servo in self.servos.values():
@@ -637,7 +698,9 @@ class EmulatorProcess:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.emulators.xm430_emulator",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("--ids", default="1-12", help="servo IDs, e.g. 1-12 or 1,2,5 (default 1-12)")
+    parser.add_argument("--ids", default="1-12", help="servo IDs, e.g. 1-12 or 1,2,5 (default 1-12); an ID given "
+                        "twice is two servos set to it, whose replies collide (1,1,3-12: the second servo's ID was "
+                        "changed to 1)")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate in bps (default 1000000)")
     parser.add_argument("--return-delay", type=int, default=250,
                         help="Return Delay Time register, 2 µs units (default 250 = 500 µs, the factory value)")

@@ -19,6 +19,7 @@ from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from devices import bus_commands
 from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
+from devices.servo_chain import scan_problems
 from widgets.hardware_panel import HardwarePanel
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
@@ -137,6 +138,7 @@ class HardwareTab(QWidget):
         self._scan_queue = list(bauds)
         self._scan_steps = len(self._scan_queue)
         self._scan_found = 0
+        self._scan_infos: list = []
         self._scan_started_s = time.monotonic()
         self.panel.set_scan_running(self._scan_steps, f"scanning IDs {ids[0]}–{ids[-1]}…")
         self._scan_next()
@@ -145,6 +147,10 @@ class HardwareTab(QWidget):
         if not self._scan_queue:
             elapsed_s = time.monotonic() - self._scan_started_s
             found = self._scan_found
+            problems = scan_problems(self._scan_infos, self.robot.config.joint_ids, self._scan_ids)
+            if problems:
+                self.panel.set_scan_finished(f"{found} servo(s) found; " + " ".join(problems), ok=False)
+                return
             self.panel.set_scan_finished(
                 f"{found} servo(s) found in {elapsed_s:.1f} s" if found else
                 "no servo answered: check power, cable, port and baud rate (try 'all baud rates')", ok=found > 0)
@@ -158,6 +164,7 @@ class HardwareTab(QWidget):
 
     def _scan_step_done(self, infos: list) -> None:
         self._scan_found += len(infos)
+        self._scan_infos += list(infos)
         self.panel.add_scan_results(infos)
         self._scan_next()
 
