@@ -306,3 +306,16 @@ def test_a_stopped_recorder_times_the_waiting_frames_by_the_board_clock_and_logs
     assert len(stalls) == 1 and "not read for" in stalls[0].text, [(e.kind, e.text) for e in rec.events]
     with h5py.File(out, "r") as f:
         assert int(f["daq"].attrs["host_stalls"]) == 1
+
+
+def test_a_board_repeating_every_frame_is_recorded_once_per_frame_without_false_gaps(tmp_path, config_file, capsys):
+    out = tmp_path / "repeat.h5"
+    with EmulatedBoard(tmp_path, rate_hz=RATE_HZ, repeat=1.0) as emu:
+        assert record(emu, out, 1.5, config_file) == 0
+        log = emu.stop()
+    capsys.readouterr()
+    rec = open_recording(out)
+    seqs = assert_exact_and_complete(rec, log)  # each frame once, exact
+    assert np.all(np.diff(seqs) == 1) and not rec.gaps
+    with h5py.File(out, "r") as f:
+        assert int(f["daq"].attrs["duplicate_frames"]) >= seqs.size - 2
