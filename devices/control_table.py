@@ -47,6 +47,7 @@ RAD_S2_PER_ACCELERATION_LSB = ACCELERATION_RPM2_PER_LSB * 2.0 * math.pi / 3600.0
 CURRENT_MA_PER_LSB = 2.69
 VOLTAGE_V_PER_LSB = 0.1
 RETURN_DELAY_S_PER_LSB = 2e-6
+MAX_RETURN_DELAY_S = 254 * RETURN_DELAY_S_PER_LSB  # Return Delay Time's largest value (254 units)
 
 EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
 

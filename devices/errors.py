@@ -48,8 +48,8 @@ class DuplicateIdError(DeviceError):
         also = (f"; configured ID(s) {', '.join(str(i) for i in missing)} do not answer (likely the servo that was "
                 "set to the other's ID)") if missing else ""
         super().__init__(
-            f"servo ID {ids}: every reply arrives garbled while other servos answer cleanly — two servos are set to "
-            f"the same ID{also}. Fix: ID inspection — power one servo at a time and scan it, then give each its own "
+            f"servo ID {ids}: its replies arrive garbled or twice while other servos answer cleanly — two servos are "
+            f"set to the same ID{also}. Fix: ID inspection — power one servo at a time and scan it, then give each its own "
             "ID (Dynamixel Wizard's ID change); nothing plays until then")
 
 

@@ -73,6 +73,8 @@ MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
 _STATUS_OVERHEAD = 4
 LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
+PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruction, error, model 2, firmware, CRC 2
+SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
 COLLISION_TRIES = 2  # garbled replies in a row, after the first, that make an ID "collided" (two servos on it)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 # A sync read's replies judged paced by the device (an accelerated simulator) or by the wire: complete in under
@@ -131,7 +133,7 @@ class ServoInfo:
     model_name: str
     firmware: int
     baud: int
-    collided: bool = False  # its replies arrive garbled every time: two servos answer to this ID (model unknown)
+    collided: bool = False  # its replies arrive garbled or twice, every time: two servos answer to this ID
 
 
 @dataclass(frozen=True)
@@ -616,10 +618,14 @@ class ServoChain:
             return self._ping_each(wanted, baud)
         data, result = self._io(self._ph.broadcastPing, self._require_port())
         infos = self._infos(data, wanted, baud)
+        if infos:
+            # A broadcast reply per ID hides a second servo on the same ID: ask each one found on its own (a few ms
+            # each), which also checks for a second reply.
+            infos = self._ping_each([info.servo_id for info in infos], baud)
         if result == COMM_RX_CORRUPT:
             # The last reply was garbled: someone else may be there; ask every other ID on its own.
             infos += self._ping_each([i for i in wanted if i not in data], baud)
-        return infos
+        return sorted(infos, key=lambda info: info.servo_id)
 
     @staticmethod
     def _infos(seen: dict[int, tuple[int, int]], wanted: list[int], baud: int) -> list[ServoInfo]:
@@ -635,7 +641,7 @@ class ServoChain:
                 continue
             except CorruptPacketError:
                 if self._collides(sid):
-                    infos.append(ServoInfo(sid, 0, "garbled replies: two servos on this ID?", 0, baud, True))
+                    infos.append(ServoInfo(sid, 0, "two servos answer (garbled replies)", 0, baud, True))
         return infos
 
     def _collides(self, servo_id: int, tries: int = COLLISION_TRIES) -> bool:
@@ -663,9 +669,26 @@ class ServoChain:
         port = self._require_port()
         model, result, error = self._io(self._ph.ping, port, servo_id)
         self._check_comm(result, servo_id, "ping")
+        twice = self._second_reply(port) and self._io(self._ph.ping, port, servo_id)[1] == COMM_SUCCESS \
+            and self._second_reply(port)
         firmware, result, error = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_FIRMWARE_VERSION)
         self._check_comm(result, servo_id, "reading the firmware version")
-        return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud)
+        return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud, collided=twice)
+
+    def _second_reply(self, port: _FactoryPortHandler) -> bool:
+        """After a ping's reply: did a second one follow (two servos on one ID, the second answering after its own
+        Return Delay Time instead of colliding with the first)? Waits the longest Return Delay Time and a ping
+        reply's wire time (plus slack for a pty), then discards whatever came."""
+        window_s = ct.MAX_RETURN_DELAY_S + PING_REPLY_BYTES * port.byte_s + SECOND_REPLY_SLACK_S
+        deadline = time.monotonic() + window_s
+        while time.monotonic() < deadline:
+            if self._io(port.getBytesAvailable):
+                break
+            time.sleep(min(0.0005, max(0.0, deadline - time.monotonic())))
+        extra = self._io(port.getBytesAvailable) > 0
+        if extra:
+            self._io(port.clearPort)
+        return extra
 
     def check_models(self) -> None:
         """Every configured joint answers, once, and is an XM430-W350 (raises DuplicateIdError when two servos
@@ -679,10 +702,15 @@ class ServoChain:
                 infos[sid] = self.ping(sid)
             except NoReplyError:
                 missing.append(sid)
+                continue
             except CorruptPacketError:
                 if not self._collides(sid):
                     raise
                 collided.append(sid)
+                continue
+            if infos[sid].collided:  # a clean reply, and a second one after it: two servos on this ID
+                collided.append(sid)
+                del infos[sid]
         if collided and infos:  # others answer cleanly: not the wiring, a shared ID
             raise DuplicateIdError(collided, missing)
         if collided:
@@ -780,6 +808,17 @@ class ServoChain:
         if item.address == ct.ADDR_RETURN_DELAY_TIME:
             port.return_delays_s[servo_id] = raw * ct.RETURN_DELAY_S_PER_LSB
         return ct.to_signed(raw, item.size) if item.signed else raw
+
+    def read_block(self, servo_id: int, address: int, length: int) -> bytes:
+        """``length`` raw bytes of the control table from ``address`` in ONE read (the whole table: 0, 148)."""
+        if address < 0 or length <= 0 or address + length > ct.CONTROL_TABLE_SIZE:
+            raise ValueError(f"bytes {address}…{address + length - 1} are outside the control table "
+                             f"(0…{ct.CONTROL_TABLE_SIZE - 1})")
+        port = self._require_port()
+        data, result, error = self._io(self._ph.readTxRx, port, servo_id, address, length)
+        self._check_comm(result, servo_id, f"reading {length} bytes of its control table")
+        self._check_error(error, servo_id, "reading its control table")
+        return bytes(data)
 
     def write_item(self, servo_id: int, name: str, value: int, *, hardware_error_fails: bool = False) -> None:
         """Write one control-table item (acknowledged); raises :class:`ServoCommandError` if the servo refuses."""

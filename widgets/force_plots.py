@@ -1145,7 +1145,8 @@ class TrialOverlayPlot(QWidget):
         item.setDownsampling(auto=True, mode="peak")
         item.showGrid(x=True, y=True, alpha=0.2)
         item.setLabel("bottom", "time from zero", units="s")
-        self.legend = item.addLegend(offset=(-4, 4), labelTextSize="8pt")
+        # Bottom right: overlaid trials rise to a plateau, so the top right is where the traces are.
+        self.legend = item.addLegend(offset=(-4, -4), labelTextSize="8pt")
         layout.addWidget(self.plot_widget)
         self.curves: list[pg.PlotDataItem] = []
 

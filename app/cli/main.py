@@ -39,6 +39,7 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "calibrate": (("config",), ("out",)),
     "record": (("config",), ("out",)),
     "teach": (("config",), ("out",)),
+    "servo": (("config", "settings"), ("out",)),
 }
 
 
@@ -187,6 +188,30 @@ def build_parser() -> argparse.ArgumentParser:
     export = sub.add_parser("export", help="recording → CSV")
     export.add_argument("recording", metavar="REC.h5")
     export.add_argument("--csv", required=True, metavar="OUT.csv")
+
+    servo = sub.add_parser("servo", help="read, write, back up and restore the servos' control tables",
+                           description="The servos' control tables without Dynamixel Wizard: every item of a servo "
+                           "(get), one item checked and confirmed (set; EEPROM items with torque off), all of them "
+                           "to a file (dump) and back (restore: only the differences are written).")
+    servo_sub = servo.add_subparsers(dest="servo_command", metavar="ACTION", required=True)
+    servo_get = servo_sub.add_parser("get", help="every item of one servo, or one item")
+    servo_get.add_argument("item", nargs="?", metavar="ITEM", help='e.g. "Position P Gain" (default: all)')
+    servo_set = servo_sub.add_parser("set", help="write one item (range-checked, read back)")
+    servo_set.add_argument("item", metavar="ITEM")
+    servo_set.add_argument("value", type=int, metavar="VALUE", help="raw control-table units (see 'get')")
+    servo_dump = servo_sub.add_parser("dump", help="every item of every servo to a settings file")
+    servo_dump.add_argument("--out", required=True, metavar="SERVOS.json")
+    servo_restore = servo_sub.add_parser("restore", help="write a settings file's items back where they differ")
+    servo_restore.add_argument("settings", metavar="SERVOS.json")
+    servo_zero = servo_sub.add_parser("zero", help="lay the robot straight: its present pose becomes every joint's 0 "
+                                      "(zero offsets written into --config, the old file kept as a backup)")
+    servo_zero.add_argument("--dry-run", action="store_true", help="show the angles before and after; write nothing")
+    for action in (servo_get, servo_set, servo_dump, servo_restore, servo_zero):
+        action.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
+        action.add_argument("--baud", type=int, default=None, metavar="B")
+        action.add_argument("--config", metavar="FILE", help="lab config (joint IDs)")
+        action.add_argument("--id", type=int, action="append", dest="ids", metavar="N",
+                            help="a servo ID (repeatable; default: every configured joint; get and set need one)")
 
     repair = sub.add_parser("repair", help="salvage a truncated recording into a clean file")
     repair.add_argument("recording", metavar="REC.h5")

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_NOTHING_FOUND
     for info in found:
         if info.collided:
-            print(f"ID {info.servo_id:3d}  ?  garbled replies (two servos on this ID?)  {info.baud} bps")
+            print(f"ID {info.servo_id:3d}  ?  two servos answer (garbled or double replies)  {info.baud} bps")
             continue
         print(f"ID {info.servo_id:3d}  {info.model_name} (model {info.model_number})  firmware {info.firmware}  "
               f"{info.baud} bps")

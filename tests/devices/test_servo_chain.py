@@ -53,8 +53,9 @@ def test_scan_all_ids_uses_one_broadcast_ping_per_baud(servos, sim_chain):
     servos.write_item(12, "Baud Rate", 1)  # servo 12 now listens at 57600 bps
     found = servos.scan(bauds=[1_000_000, 57_600])
     assert [(i.servo_id, i.baud) for i in found] == [(12, 57_600)] + [(i, 1_000_000) for i in range(1, 12)]
-    # One broadcast per baud, then one firmware-free ID check: no per-ID pings were needed.
-    assert sim_chain.count(wire.PING) == 2
+    # One broadcast per baud, then each servo found pinged on its own once (a broadcast reply per ID cannot show two
+    # servos on one ID; a ping followed by a second reply can): no search of the silent IDs.
+    assert sim_chain.count(wire.PING) == 2 + 12
     assert servos.baud == 1_000_000  # the port is back at the configured rate
     assert servos.ping(1).servo_id == 1
 
@@ -196,7 +197,7 @@ def test_scan_repeats_a_broadcast_ping_whose_reply_was_corrupt(servos, sim_chain
     sim_chain.corrupt_next_replies(1, servo_id=6)
     found = servos.scan()
     assert [info.servo_id for info in found] == list(ROBOT.joint_ids)
-    assert sim_chain.count(wire.PING) == 2
+    assert sim_chain.count(wire.PING) == 2 + 11  # two broadcasts, and the 11 found first each checked on its own
 
 
 def test_latency_timer_above_1_ms_is_flagged_with_the_fix(tmp_path, monkeypatch):

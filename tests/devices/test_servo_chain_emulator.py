@@ -385,16 +385,18 @@ def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkey
     assert _open_on(device) == 0
 
 
-def test_two_servos_on_one_id_are_named_by_scan_and_refused_at_connect_and_play(tmp_path, capsys):
+@pytest.mark.parametrize("skew_bits", ["3", "400"], ids=["colliding", "one-after-the-other"])
+def test_two_servos_on_one_id_are_named_by_scan_and_refused_at_connect_and_play(tmp_path, capsys, skew_bits):
     """The emulator's second servo set to ID 1 (issue 25: scan exited 0 listing 11 servos, silent about it; play
-    blamed "corrupt packet … check the bus wiring"). Its replies and its twin's collide on the wire."""
+    blamed "corrupt packet … check the bus wiring"). Its replies and its twin's collide on the wire (3 bits apart),
+    or arrive whole one after the other (400 bits apart: the twin's Return Delay Time is longer)."""
     from devices.errors import DuplicateIdError
 
-    emulator = EmulatorProcess("--ids", "1,1,3-12")
+    emulator = EmulatorProcess("--ids", "1,1,3-12", "--twin-skew-bits", skew_bits)
     try:
         assert main(["scan", "--robot", emulator.path]) == 1
         captured = capsys.readouterr()
-        assert "ID   1  ?  garbled replies" in captured.out and "ID   3  XM430" in captured.out
+        assert "ID   1  ?  two servos answer" in captured.out and "ID   3  XM430" in captured.out
         error = [line for line in captured.err.splitlines() if line.startswith("sensnake scan: error")]
         assert len(error) == 1 and "servo ID 1" in error[0] and "same ID" in error[0], captured.err
         assert "ID(s) 2 do not answer" in error[0] and "power one servo at a time" in error[0]

@@ -332,6 +332,7 @@ class Bus:
         # A second servo set to an ID already on the bus (``--ids 1,1,3-12``): it answers with its twin, and the two
         # status packets collide on the wire (see collide()).
         self.twins: dict[int, Servo] = {}
+        self.twin_skew_bits = TWIN_SKEW_BITS
         for i in ids:
             if ids.count(i) > 1:
                 self.twins[i] = Servo(i, baud_index, return_delay)
@@ -364,7 +365,7 @@ class Bus:
                 twin_reply = bytearray(reply)
                 # The twin's own state (a different position, say) would differ; even the same bytes collide
                 # out of step: it starts TWIN_SKEW_BITS bit times later (its own clock and return delay).
-                out.append((servo, collide(bytes(reply), bytes(twin_reply), TWIN_SKEW_BITS)))
+                out.append((servo, collide(bytes(reply), bytes(twin_reply), self.twin_skew_bits)))
             else:
                 out.append((servo, reply))
         return out
@@ -410,7 +411,15 @@ class Bus:
                 err = ERR_DATA_LENGTH
             else:
                 err = s.write(int.from_bytes(params[0:2], "little"), params[2:])
-            return [(s, status_packet(s.dev_id, s.status_error(err)))] if level >= 2 else []
+            reply = [(s, status_packet(s.dev_id, s.status_error(err)))] if level >= 2 else []
+            if s.get("id") != s.dev_id:  # a new ID: answered under the old one, from now on the new one
+                self.servos.pop(s.dev_id, None)
+                s.dev_id = s.get("id")
+                if s.dev_id in self.servos:
+                    self.twins[s.dev_id] = s  # set to an ID already taken: the two now collide
+                else:
+                    self.servos[s.dev_id] = s
+            return reply
         if inst == INST_REBOOT:
             reply = [(s, status_packet(s.dev_id, s.status_error()))] if level >= 2 else []
             s.silent_until_s = now + 0.05
@@ -702,6 +711,9 @@ def main(argv: list[str] | None = None) -> int:
                         "twice is two servos set to it, whose replies collide (1,1,3-12: the second servo's ID was "
                         "changed to 1)")
     parser.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate in bps (default 1000000)")
+    parser.add_argument("--twin-skew-bits", type=int, default=TWIN_SKEW_BITS,
+                        help="bit times a duplicate ID's reply lags its twin's (default 3: they collide; past the "
+                        "packet's length, e.g. 400, the two replies arrive whole one after the other)")
     parser.add_argument("--return-delay", type=int, default=250,
                         help="Return Delay Time register, 2 µs units (default 250 = 500 µs, the factory value)")
     parser.add_argument("--no-realtime", action="store_true",
@@ -716,7 +728,9 @@ def main(argv: list[str] | None = None) -> int:
     scheduling = "normal scheduling" if args.no_realtime else _run_like_hardware()
     print(f"xm430 emulator: {args.ids} at {args.baud} bps, Return Delay Time {args.return_delay}, {scheduling}",
           file=sys.stderr)
-    return serve(Bus(_parse_ids(args.ids), index, args.return_delay))
+    bus = Bus(_parse_ids(args.ids), index, args.return_delay)
+    bus.twin_skew_bits = args.twin_skew_bits
+    return serve(bus)
 
 
 if __name__ == "__main__":

@@ -441,8 +441,9 @@ class CalibrationTab(QWidget):
         self.plot.setLabel("bottom", "time (s)")
         self.plot.showGrid(x=True, y=True, alpha=0.2)
         self.plot.setTitle("measured (solid) and SLS fit (dashed)", color="#444", size="10pt")
-        # Small text, two columns once there are many trials (_plot): a 12-trial legend ran off the plot.
-        self.legend = self.plot.addLegend(offset=(-10, 10), labelTextSize="8pt", verSpacing=-6,
+        # Small text, two columns once there are many trials (_plot): a 12-trial legend ran off the plot. Bottom
+        # right: trials rise from the baseline to a plateau, so the top right is where the traces are.
+        self.legend = self.plot.addLegend(offset=(-10, -10), labelTextSize="8pt", verSpacing=-6,
                                           brush=pg.mkBrush(255, 255, 255, 200))
         layout.addWidget(self.plot, 3)
 

@@ -1,0 +1,137 @@
+"""``sensnake servo get|set|dump|restore`` against the independent XM430 emulator (a separate process on a pty,
+written from the e-manual; tests/emulators/xm430_emulator.py): one read per servo, read before write, torque off
+around an EEPROM write and back on, range checks, read-back, and a settings file that restores only what differs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+
+import pytest
+
+from app.cli.main import main
+from devices.config import RobotConfig
+from devices.servo_chain import ServoChain
+from tests.emulators.xm430_emulator import EmulatorProcess
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith(("linux", "darwin")), reason="needs os.openpty")
+
+
+@pytest.fixture
+def emulator():
+    process = EmulatorProcess()
+    yield process
+    assert process.close() == 0
+
+
+def test_get_reads_every_item_of_a_servo_in_one_request(emulator, capsys):
+    before = emulator.counts()["read"]
+    assert main(["servo", "get", "--robot", emulator.path, "--id", "3"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert emulator.counts()["read"] == before + 1  # the whole table in one read
+    rows = {line[18:42].strip(): line for line in out}
+    assert len(rows) == 53 and "Position P Gain" in rows and "Present Temperature" in rows
+    assert rows["Return Delay Time"].split()[-6:] == ["250", "2", "µs", "0", "…", "254"], rows["Return Delay Time"]
+    assert "EEPROM" in rows["Return Delay Time"] and "RAM" in rows["Position P Gain"]
+    assert main(["servo", "get", "--robot", emulator.path, "--id", "3", "position p gain"]) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    assert "Position P Gain" in line and " 800 " in line and "0 … 16383" in line
+
+
+def test_set_an_eeprom_item_with_torque_on_turns_it_off_for_the_write_and_back_on(emulator, capsys):
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        chain.set_torque(True, [5])
+    assert emulator.state(5)["torque"] == 1
+    capsys.readouterr()
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "5", "Return Delay Time", "0"]) == 0
+    assert "Return Delay Time 250 → 0 (read back)" in capsys.readouterr().out
+    state = emulator.state(5)
+    assert state["rdt"] == 0 and state["torque"] == 1  # written with torque off, torque restored
+
+
+def test_set_reads_before_writing_and_refuses_bad_values_in_one_line(emulator, capsys):
+    writes = emulator.counts()["write"]
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "2", "Position P Gain", "800"]) == 0
+    assert "already 800: not written" in capsys.readouterr().out
+    assert emulator.counts()["write"] == writes  # nothing written: it already held the value
+    for argv, words in ((["Position P Gain", "20000"], "out of its range 0 … 16383"),
+                        (["Present Temperature", "20"], "read-only"),
+                        (["Position Gain", "1"], "did you mean"),):
+        assert main(["servo", "set", "--robot", emulator.path, "--id", "2", *argv]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+    assert emulator.counts()["write"] == writes
+    assert main(["servo", "set", "--robot", emulator.path, "Position P Gain", "10"]) == 1  # which servo?
+    assert "needs one --id" in capsys.readouterr().err
+
+
+def test_dump_then_restore_writes_back_only_what_changed(emulator, capsys, tmp_path):
+    out = tmp_path / "servos.json"
+    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(out)]) == 0
+    document = json.loads(out.read_text())
+    assert document["format"] == "sensnake-servos" and set(document["servos"]) == {str(i) for i in range(1, 13)}
+    assert document["servos"]["7"]["items"]["Position P Gain"] == 800
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "7", "Position P Gain", "300"]) == 0
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "9", "Temperature Limit", "70"]) == 0
+    capsys.readouterr()
+    writes = emulator.counts()["write"]
+    assert main(["servo", "restore", str(out), "--robot", emulator.path]) == 0
+    captured = capsys.readouterr()
+    assert "servo 7: Position P Gain 300 → 800" in captured.out and "servo 9: Temperature Limit 70 → 80" in captured.out
+    assert "2 item(s) written" in captured.err
+    # Two items written (EEPROM: torque was off here, so no torque writes).
+    assert emulator.counts()["write"] == writes + 2
+    assert emulator.state(7)["goal"] == 2048  # goals and torque are the moment's state: never restored
+
+
+def test_a_bad_settings_file_is_one_line_naming_it(emulator, capsys, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "sensnake-servos", "version": 1,
+                               "servos": {"3": {"items": {"Position P Gain": 99999}}}}))
+    assert main(["servo", "restore", str(bad), "--robot", emulator.path]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.json" in err[0] and "servo 3" in err[0] and "out of its range" in err[0]
+    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(bad)]) == 0  # an output may replace a file
+    assert main(["servo", "restore", str(bad), "--robot", emulator.path]) == 0  # and is then a good one
+
+
+def test_zero_makes_the_present_pose_read_zero_and_keeps_the_old_config(emulator, capsys, tmp_path):
+    from pathlib import Path
+
+    from devices.config import load_config
+
+    config = tmp_path / "lab.toml"
+    original = (Path(__file__).resolve().parents[2] / "resources" / "default_lab.toml").read_text()
+    config.write_text(original.replace('port = "sim"                 # U2D2', f'port = "{emulator.path}"  # U2D2', 1))
+    emulator.command("push 3 200")  # the robot laid "straight" by hand, joint 3 off by 200 ticks (0.307 rad)
+    emulator.command("push 8 -100")
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(config), "--dry-run"]) == 0
+    assert capsys.readouterr().out.count("\n") == 13 and config.read_text() == original.replace(
+        'port = "sim"                 # U2D2', f'port = "{emulator.path}"  # U2D2', 1)  # a dry run writes nothing
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(config)]) == 0
+    err = capsys.readouterr().err
+    backup = tmp_path / "lab.toml.bak-1"
+    assert backup.exists() and "kept as" in err and str(backup) in err
+    robot = load_config(config).robot
+    assert robot.zero_offsets_rad[2] == pytest.approx(-200 * 2 * 3.141592653589793 / 4096, abs=2e-3)
+    assert robot.zero_offsets_rad[7] == pytest.approx(100 * 2 * 3.141592653589793 / 4096, abs=2e-3)
+    assert "# U2D2" in config.read_text() and "# head first" in config.read_text()  # the other lines kept
+    with ServoChain(robot) as chain:  # the pose now reads 0 on every joint
+        assert max(abs(a) for a in chain.read_state().position_rad) < 2e-3
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(config)]) == 0
+    assert (tmp_path / "lab.toml.bak-2").exists() and backup.exists()  # a second backup, never over the first
+    assert main(["servo", "zero", "--robot", emulator.path]) == 1
+    assert "needs --config" in capsys.readouterr().err
+
+
+def test_an_id_change_refuses_an_id_already_on_the_bus_and_moves_the_servo_otherwise(emulator, capsys):
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "12", "ID", "11"]) == 1
+    assert "ID 11 is already on the bus" in capsys.readouterr().err
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "12", "ID", "20"]) == 0
+    assert "ID 12 → 20 (read back)" in capsys.readouterr().out
+    assert main(["scan", "--robot", emulator.path]) == 0
+    out = capsys.readouterr()
+    assert "ID  20" in out.out and "ID(s) 12 did not answer" in out.err
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "20", "Baud Rate", "1"]) == 1
+    assert "not changed from here yet" in capsys.readouterr().err
