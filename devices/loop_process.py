@@ -44,7 +44,6 @@ import collections
 import concurrent.futures
 import contextlib
 import functools
-import importlib
 import itertools
 import logging
 import math
@@ -64,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import process_messages as messages
 from devices import tick_trace
 from devices.child import child_setup, release_shared, spawn
 from devices.config import RobotConfig
@@ -116,39 +116,7 @@ def loop_process_wanted(port: str) -> tuple[bool, str]:
     return True, ""
 
 
-# -- exceptions across the socket --------------------------------------------------------------------------------------
-def _exception_payload(exc: BaseException) -> tuple:
-    state = {}
-    for key, value in vars(exc).items():
-        try:
-            pickle.dumps(value)
-        except Exception:  # noqa: BLE001 - an attribute that cannot cross is left behind; the message crosses
-            continue
-        state[key] = value
-    try:
-        pickle.dumps(exc.args)
-        args = exc.args
-    except Exception:  # noqa: BLE001
-        args = (str(exc),)
-    return id(exc), type(exc).__module__, type(exc).__qualname__, args, state
-
-
-def _rebuild_exception(payload: tuple) -> BaseException:
-    _key, module, qualname, args, state = payload
-    try:
-        cls: Any = importlib.import_module(module)
-        for part in qualname.split("."):
-            cls = getattr(cls, part)
-        if not (isinstance(cls, type) and issubclass(cls, BaseException)):
-            raise TypeError(qualname)
-        # Not cls(*args): an __init__ may take other arguments (ServoLostError(servo_id, what)); the message is in
-        # args and the attributes in state. OSError's own __new__ for the classes that mix it in.
-        exc = (OSError if issubclass(cls, OSError) else BaseException).__new__(cls)
-        exc.args = tuple(args)
-        exc.__dict__.update(state)
-        return exc
-    except Exception:  # noqa: BLE001 - an exception class this process cannot import: keep the message
-        return DeviceError(" ".join(str(a) for a in args) or qualname)
+# -- exceptions across the socket: devices.process_messages.ErrorPayload ----------------------------------------------
 
 
 # -- the parent's side -------------------------------------------------------------------------------------------------
@@ -210,20 +178,20 @@ class ControllerProcess:
         self._process, self._conn = child.process, child.conn
         self._heartbeat_fd, self._heartbeat = child.shared_fd, child.shared
         try:
-            self._conn.send(("config", self.robot, self.simulated))
+            self._conn.send(messages.LoopStart(self.robot, self.simulated))
             reply = self._wait_ready()
         except BaseException:
             self._kill()
             self._close_heartbeat()
             raise
-        self.timing_warnings = list(reply[1])
-        self.scheduling = reply[2]
+        self.timing_warnings = list(reply.timing_warnings)
+        self.scheduling = reply.scheduling
         self._connected = True
         self._started_s = time.monotonic()
         self._watcher = threading.Thread(target=self._watch, name=f"loop-process-watcher[{self.pid}]", daemon=True)
         self._watcher.start()
 
-    def _wait_ready(self) -> tuple:
+    def _wait_ready(self) -> messages.LoopReady:
         conn, process = self._conn, self._process
         assert conn is not None and process is not None
         deadline = time.monotonic() + READY_TIMEOUT_S
@@ -240,12 +208,13 @@ class ControllerProcess:
             except (EOFError, OSError) as exc:
                 process.wait(timeout=5)
                 raise LoopProcessUnavailable(f"the loop process exited at start ({_exit_words(process)})") from exc
-            if reply[0] == "ready":
+            reply = messages.expect(reply, messages.LoopReady, messages.Failed, messages.Broken)
+            if isinstance(reply, messages.LoopReady):
                 return reply
-            if reply[0] == "failed":
-                raise _rebuild_exception(reply[1])
-            if reply[0] == "broken":
-                raise LoopProcessUnavailable(reply[1])
+            if isinstance(reply, messages.Failed):
+                raise reply.error.rebuild()
+            assert isinstance(reply, messages.Broken)
+            raise LoopProcessUnavailable(reply.reason)
 
     def close(self) -> None:
         """End any motion ("stopped"), stop the loop, close the port, end the child. Idempotent."""
@@ -255,7 +224,7 @@ class ControllerProcess:
         self._closing = True
         if self.died is None:
             with contextlib.suppress(OSError, ValueError):
-                self._send(("close",))
+                self._send(messages.Close())
         try:
             process.wait(timeout=CLOSE_TIMEOUT_S)
         except subprocess.TimeoutExpired:
@@ -392,7 +361,8 @@ class ControllerProcess:
         request_id = next(self._ids)
         future.request_id = request_id  # type: ignore[attr-defined]
         try:
-            message = pickle.dumps(("call", request_id, method, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL)
+            message = pickle.dumps(messages.Call(request_id, method, tuple(args), dict(kwargs)),
+                                   protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as exc:  # noqa: BLE001 - e.g. a lambda submitted as a bus command
             future.set_exception(TypeError(
                 f"{method}: cannot be sent to the control loop's process ({' '.join(str(exc).split())}); use a named "
@@ -413,11 +383,11 @@ class ControllerProcess:
         if self.died is not None or self._closing:
             return
         try:
-            self._send(("call", None, method, (), {}))
+            self._send(messages.Call(None, method))
         except (OSError, ValueError):
             log.debug("%s not sent: the loop process is gone", method)
 
-    def _send(self, message: tuple) -> None:
+    def _send(self, message: messages.Message) -> None:
         self._send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
 
     def _send_bytes(self, data: bytes) -> None:
@@ -427,12 +397,12 @@ class ControllerProcess:
         with self._send_lock:
             conn.send_bytes(data)
 
-    def _exception(self, payload: tuple) -> BaseException:
-        key = payload[0]
+    def _exception(self, payload: messages.ErrorPayload) -> BaseException:
+        key = payload.key
         with self._lock:
             exc = self._exceptions.get(key)
             if exc is None:
-                exc = _rebuild_exception(payload)
+                exc = payload.rebuild()
                 self._exceptions[key] = exc
                 while len(self._exceptions) > EXCEPTIONS_KEPT:
                     self._exceptions.popitem(last=False)
@@ -460,12 +430,12 @@ class ControllerProcess:
                 message = conn.recv()
             except (EOFError, OSError):
                 break
-            if message[0] == "bye":
+            if isinstance(message, messages.Bye):
                 break
             try:
                 self._handle(message)
             except Exception:  # noqa: BLE001 - thread boundary: a broken subscriber must not stop the watcher
-                log.exception("loop process message %r failed", message[0])
+                log.exception("loop process message %s failed", type(message).__name__)
         if not self._closing:
             self._loop_died()
 
@@ -522,39 +492,38 @@ class ControllerProcess:
             with contextlib.suppress(OSError):
                 process.kill()
 
-    def _handle(self, message: tuple) -> None:
-        kind = message[0]
-        if kind == "tick":
-            _, states, connected, motion_name, paused, motion_request, progress, scheduling, tick_s = message
+    def _handle(self, message: object) -> None:
+        message = messages.expect(message, messages.Tick, messages.Result, messages.Health, messages.Event,
+                                  messages.ErrorReport)
+        if isinstance(message, messages.Tick):
             self.ticks_seen += 1
-            self._message_tick_s = max(self._message_tick_s, tick_s)
-            self._connected, self._motion_name, self._paused, self.scheduling = (connected, motion_name, paused,
-                                                                                 scheduling)
-            if progress is not None and motion_request is not None:
-                source = self._sources.get(motion_request)
+            self._message_tick_s = max(self._message_tick_s, message.tick_s)
+            self._connected, self._motion_name, self._paused, self.scheduling = (
+                message.connected, message.motion_name, message.paused, message.scheduling)
+            if message.progress is not None and message.motion_request is not None:
+                source = self._sources.get(message.motion_request)
                 if source is not None:
                     with contextlib.suppress(AttributeError):
-                        source.progress = progress
-            for state in states:
+                        source.progress = message.progress
+            for state in message.states:
                 self._latest_state = state
                 self._emit(self._on_state, state)
-        elif kind == "result":
-            _, request_id, ok, value = message
+        elif isinstance(message, messages.Result):
             with self._lock:
-                future = self._pending.pop(request_id, None)
-                self._sources.pop(request_id, None)  # a motion's result comes when it ends
+                future = self._pending.pop(message.request_id, None)
+                self._sources.pop(message.request_id, None)  # a motion's result comes when it ends
             if future is None or future.done():
-                return
-            if ok:
-                future.set_result(value)
+                return  # a request already given up (a query that timed out), or one this side never made
+            if message.error is None:
+                future.set_result(message.value)
             else:
-                future.set_exception(self._exception(value))
-        elif kind == "health":
-            self._emit(self._on_health, message[1])
-        elif kind == "event":
-            self._emit(self._on_event, message[1])
-        elif kind == "error":
-            self._emit(self._on_error, self._exception(message[1]))
+                future.set_exception(self._exception(message.error))
+        elif isinstance(message, messages.Health):
+            self._emit(self._on_health, list(message.health))
+        elif isinstance(message, messages.Event):
+            self._emit(self._on_event, message.text)
+        elif isinstance(message, messages.ErrorReport):
+            self._emit(self._on_error, self._exception(message.error))
 
     def _loop_died(self) -> None:
         self.died_at_s = time.monotonic()  # when the end of file was read (bench_servo_bus measures it)
@@ -621,7 +590,7 @@ class _Child:
         self.ticks = 0
         self.last_tick_s = 0.0
         self.command_since_s = 0.0
-        self.out: queue.SimpleQueue[tuple | None] = queue.SimpleQueue()
+        self.out: queue.SimpleQueue[messages.Message | None] = queue.SimpleQueue()
         self.states: list[ChainState] = []
         self.controller: RobotController | None = None
         self.motion_requests: dict[int, int] = {}  # id(source) -> request id (to send the progress with)
@@ -632,11 +601,10 @@ class _Child:
         sender = threading.Thread(target=self._send_loop, name="loop-process-sender", daemon=True)
         sender.start()
         try:
-            kind, robot, simulated = self.conn.recv()
-            assert kind == "config"
-            self.controller = self._open(robot, simulated)
+            start = messages.expect(self.conn.recv(), messages.LoopStart)
+            self.controller = self._open(start.robot, start.simulated)
         except Exception as exc:  # noqa: BLE001 - a device error reaches the parent as itself, raised there
-            self.out.put(("failed", self._payload(exc)))
+            self.out.put(messages.Failed(self._payload(exc)))
             self.out.put(None)
             sender.join(timeout=5)
             return 1
@@ -644,7 +612,7 @@ class _Child:
             self._receive()
         finally:
             self.controller.close()
-            self.out.put(("bye",))
+            self.out.put(messages.Bye())
             self.out.put(None)
             sender.join(timeout=5)
         return 0
@@ -664,7 +632,7 @@ class _Child:
             raise
         controller.start()
         controller.wait_started(5.0)  # its scheduling is part of the answer
-        self.out.put(("ready", warnings, controller.scheduling))
+        self.out.put(messages.LoopReady(tuple(warnings), controller.scheduling))
         return controller
 
     def _receive(self) -> None:
@@ -675,21 +643,23 @@ class _Child:
                 message = self.conn.recv()
             except (EOFError, OSError):
                 return  # the app is gone (closed or killed): stop the loop, close the port
-            if message[0] == "close":
+            if isinstance(message, messages.Close):
                 return
-            _, request_id, method, args, kwargs = message
+            call = messages.expect(message, messages.Call)
+            request_id, method, args, kwargs = call.request_id, call.name, call.args, call.kwargs
             trace = tick_trace.TRACE
             if trace is not None:
                 trace.mark("call", method)
             if method not in CHILD_METHODS:
                 if request_id is not None:
-                    self.out.put(("result", request_id, False, self._payload(ValueError(f"no such command {method!r}"))))
+                    self.out.put(messages.Result(request_id, error=self._payload(
+                        ValueError(f"no such command {method!r}"))))
                 continue
             try:
                 result = getattr(controller, method)(*args, **kwargs)
             except Exception as exc:  # noqa: BLE001 - handed back through the request's Future
                 if request_id is not None:
-                    self.out.put(("result", request_id, False, self._payload(exc)))
+                    self.out.put(messages.Result(request_id, error=self._payload(exc)))
                 continue
             if request_id is None:
                 continue
@@ -698,20 +668,20 @@ class _Child:
                     self.motion_requests[id(args[0])] = request_id
                 result.add_done_callback(functools.partial(self._done, request_id))
             else:
-                self.out.put(("result", request_id, True, result))
+                self.out.put(messages.Result(request_id, result))
 
     def _done(self, request_id: int, future: concurrent.futures.Future) -> None:
         for key in [k for k, rid in self.motion_requests.items() if rid == request_id]:
             del self.motion_requests[key]
         if future.cancelled():
-            self.out.put(("result", request_id, False, self._payload(
+            self.out.put(messages.Result(request_id, error=self._payload(
                 concurrent.futures.CancelledError("the control loop stopped before the command ran"))))
             return
         exc = future.exception()
         if exc is not None:
-            self.out.put(("result", request_id, False, self._payload(exc)))
+            self.out.put(messages.Result(request_id, error=self._payload(exc)))
         else:
-            self.out.put(("result", request_id, True, future.result()))
+            self.out.put(messages.Result(request_id, future.result()))
 
     # -- controller callbacks (bus thread) ----------------------------------------------------------------------------
     def _beat(self) -> None:
@@ -734,21 +704,21 @@ class _Child:
         source = controller.motion_source
         request = self.motion_requests.get(id(source)) if source is not None else None
         progress = getattr(source, "progress", None) if source is not None else None
-        self.out.put(("tick", states, controller.connected, controller.motion_name, controller.paused, request,
-                      progress, controller.scheduling, self.last_tick_s))
+        self.out.put(messages.Tick(tuple(states), controller.connected, controller.motion_name, controller.paused,
+                                   request, progress, controller.scheduling, self.last_tick_s))
 
     def _health(self, health: list[ServoHealth]) -> None:
-        self.out.put(("health", list(health)))
+        self.out.put(messages.Health(tuple(health)))
 
     def _event(self, text: str) -> None:
-        self.out.put(("event", str(text)))
+        self.out.put(messages.Event(str(text)))
 
     def _error(self, exc: BaseException) -> None:
-        self.out.put(("error", self._payload(exc)))
+        self.out.put(messages.ErrorReport(self._payload(exc)))
 
-    def _payload(self, exc: BaseException) -> tuple:
+    def _payload(self, exc: BaseException) -> messages.ErrorPayload:
         self.recent_exceptions.append(exc)  # its id stays unique while the parent may still see it twice
-        return _exception_payload(exc)
+        return messages.ErrorPayload.of(exc, "robot")
 
     def _send_loop(self) -> None:
         # Every thread of this process asks for the bus thread's priority: one preempted while it holds the
@@ -760,7 +730,7 @@ class _Child:
                 return
             trace = tick_trace.TRACE
             if trace is not None:
-                trace.mark("send", message[0])
+                trace.mark("send", type(message).__name__.lower())
             try:
                 self.conn.send(message)
                 if trace is not None:
@@ -768,10 +738,10 @@ class _Child:
             except (OSError, ValueError):
                 return  # the app is gone; the receiver sees it too and stops the loop
             except Exception as exc:  # noqa: BLE001 - a value that does not pickle: say so instead of hanging
-                log.exception("loop process message %r not sent", message[0])
-                if message[0] == "result":
-                    self.conn.send(("result", message[1], False, _exception_payload(
-                        TypeError(f"the result could not be sent back: {exc}"))))
+                log.exception("loop process message %s not sent", type(message).__name__)
+                if isinstance(message, messages.Result):
+                    self.conn.send(messages.Result(message.request_id, error=messages.ErrorPayload.of(
+                        TypeError(f"the result could not be sent back: {exc}"), "robot")))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

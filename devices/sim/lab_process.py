@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 import serial
 
+from devices import process_messages as messages
 from devices.child import child_setup, release_shared, spawn
 from devices.config import LabConfig
 from devices.errors import LabProcessUnavailable
@@ -143,16 +144,16 @@ class LabProcess:
         self._process, self._conn = child.process, child.conn
         self._qpos_fd, self._qpos = child.shared_fd, child.shared
         try:
-            self._conn.send(("config", self.config, self.seed, self.speed))
+            self._conn.send(messages.LabStart(self.config, self.seed, self.speed))
             ready = self._wait_ready()
         except BaseException:
             self.close()
             raise
-        _, self.paths, wall0, physics, self.physics_note = ready
+        self.paths, self.physics_note = dict(ready.paths), ready.physics_note
         self.clock = SimClock(self.speed)
-        self.clock._wall0 = float(wall0)  # one monotonic clock for every process: the same simulated time
-        if physics is not None:
-            self.physics = MirrorPhysics(self.config, self._qpos, int(physics), gone=lambda: self.died)
+        self.clock._wall0 = float(ready.wall0)  # one monotonic clock for every process: the same simulated time
+        if ready.nq is not None:
+            self.physics = MirrorPhysics(self.config, self._qpos, int(ready.nq), gone=lambda: self.died)
         threading.Thread(target=self._watch, name="lab-process-watcher", daemon=True).start()
         return self
 
@@ -187,7 +188,7 @@ class LabProcess:
         for listener in listeners:
             listener(text)
 
-    def _wait_ready(self) -> tuple:
+    def _wait_ready(self) -> messages.LabReady:
         conn, process = self._conn, self._process
         assert conn is not None and process is not None
         deadline = time.monotonic() + READY_TIMEOUT_S
@@ -201,33 +202,31 @@ class LabProcess:
                 reply = conn.recv()
             except (EOFError, OSError) as exc:
                 raise LabProcessUnavailable("the simulated lab's process exited at start") from exc
-            if reply[0] == "ready":
+            reply = messages.expect(reply, messages.LabReady, messages.Failed)
+            if isinstance(reply, messages.LabReady):
                 return reply
-            raise LabProcessUnavailable(f"the simulated lab did not start: {reply[1]}")
+            assert isinstance(reply, messages.Failed)
+            raise LabProcessUnavailable(f"the simulated lab did not start: {reply.error.qualname}: "
+                                        f"{reply.error.message}")
         raise LabProcessUnavailable(f"the simulated lab's process did not start within {READY_TIMEOUT_S:g} s")
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
         """Call ``name`` (a dotted path on the lab: ``chain.set_limp_position``, ``board.unplug``) in the child and
-        return its result; its exception is raised here (same type when it is a builtin, else RuntimeError)."""
+        return its result; its exception is raised here as the same class (a builtin or the project's own)."""
         with self._lock:
             if self._conn is None or self._closed:
                 raise RuntimeError("the simulated lab's process is closed")
             request = next(self._ids)
             try:
-                self._conn.send(("call", request, name, args, kwargs))
+                self._conn.send(messages.Call(request, name, tuple(args), dict(kwargs)))
                 if not self._conn.poll(CALL_TIMEOUT_S):
                     raise RuntimeError(f"the simulated lab did not answer {name} within {CALL_TIMEOUT_S:g} s")
-                reply = self._conn.recv()
+                reply = messages.reply_for(self._conn.recv(), request)
             except (EOFError, OSError) as exc:
                 raise RuntimeError(f"the simulated lab's process is gone ({name} not done)") from exc
-        _, answered, ok, value = reply
-        assert answered == request
-        if ok:
-            return value
-        kind, message = value
-        error = {"ValueError": ValueError, "KeyError": KeyError, "TypeError": TypeError,
-                 "AttributeError": AttributeError}.get(kind, RuntimeError)
-        raise error(message)
+        if reply.error is not None:
+            raise reply.error.rebuild()
+        return reply.value
 
     def close(self) -> None:
         """End the child (closing the socket asks it to; killed if it does not within ``CLOSE_TIMEOUT_S``)."""
@@ -450,15 +449,15 @@ def _resolve(lab: Any, name: str) -> Any:
 def child_main(conn: Connection, page: mmap.mmap | None) -> int:
     from devices.sim.lab import SimLab
 
-    kind, config, seed, speed = conn.recv()
-    assert kind == "config"
+    start = messages.expect(conn.recv(), messages.LabStart)
+    config = start.config
     try:
-        lab = SimLab(config, seed=seed, speed=speed)
+        lab = SimLab(config, seed=start.seed, speed=start.speed)
         lab.start_background()
         ptys = {"robot": _Pty(lab.chain, config.robot.baud), "board": _Pty(lab.board, config.board.baud),
                 "rig": _Pty(lab.rig.chain, config.rig.baud)}
     except Exception as exc:  # noqa: BLE001 - said to the app, which then keeps the lab in the app's process
-        conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+        conn.send(messages.Failed(messages.ErrorPayload.of(exc, "lab")))
         return 1
     stop = threading.Event()
     threads = [threading.Thread(target=_serve, args=(lab, ptys, stop), name="lab-ptys", daemon=True)]
@@ -478,20 +477,22 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
     for thread in threads:
         if thread.native_id is not None:
             raise_thread_priority_of(thread.native_id)
-    conn.send(("ready", {name: p.path for name, p in ptys.items()}, lab.clock._wall0, nq, lab.physics_note))
+    conn.send(messages.LabReady({name: p.path for name, p in ptys.items()}, lab.clock._wall0, nq, lab.physics_note))
     try:
         while True:
             try:
                 message = conn.recv()
             except (EOFError, OSError):
                 return 0  # the app closed the socket (or died)
-            _, request, name, args, kwargs = message
+            call = messages.expect(message, messages.Call)
             try:
-                target = _resolve(lab, name)
-                value = target(*args, **kwargs) if callable(target) else target  # a property: its value
-                conn.send(("result", request, True, value))
-            except Exception as exc:  # noqa: BLE001 - handed back to the caller
-                conn.send(("result", request, False, (type(exc).__name__, str(exc))))
+                target = _resolve(lab, call.name)
+                value = target(*call.args, **call.kwargs) if callable(target) else target  # a property: its value
+                answer = messages.Result(call.request_id or 0, value)
+            except Exception as exc:  # noqa: BLE001 - handed back to the caller, raised there as itself
+                answer = messages.Result(call.request_id or 0, error=messages.ErrorPayload.of(exc, "lab"))
+            if call.request_id is not None:
+                conn.send(answer)
     finally:
         stop.set()
         for thread in threads:
