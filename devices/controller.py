@@ -51,9 +51,9 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -417,7 +417,7 @@ class RobotController:
         self.start()
         return self
 
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     # -- properties (any thread) -----------------------------------------------------------------------------------
@@ -545,7 +545,8 @@ class RobotController:
             self._health_pending = []
         return self.submit(reboot, holds_bus=True)  # a reboot waits for the servo to come back
 
-    def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future[list[ServoInfo]]:
+    def scan(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None
+             ) -> concurrent.futures.Future[list[ServoInfo]]:
         """Scan on the bus thread between ticks; refused (:class:`BusBusyError`) while a motion plays: a scan holds
         the bus for whole periods (a broadcast ping waits its full ~0.8 s window, a silent ID ~35 ms), which no tick
         slack can carry, and a motion starved of ticks is a motion that stalls mid-gait."""
@@ -1058,7 +1059,7 @@ class RobotController:
             elif future is not None:
                 future.cancel()
 
-    def _emit(self, callback: Callable | None, value) -> None:
+    def _emit(self, callback: Callable | None, value: Any) -> None:
         if callback is None:
             return
         try:

@@ -57,7 +57,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -261,7 +261,7 @@ class ControllerProcess:
         self.start()
         return self
 
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     # -- properties ------------------------------------------------------------------------------------------------
@@ -349,7 +349,8 @@ class ControllerProcess:
     def reboot(self, servo_id: int) -> concurrent.futures.Future[None]:
         return self._request("reboot", servo_id)
 
-    def scan(self, ids=range(0, 253), bauds: Sequence[int] | None = None) -> concurrent.futures.Future:
+    def scan(self, ids: Iterable[int] = range(0, 253), bauds: Sequence[int] | None = None
+             ) -> concurrent.futures.Future:
         return self._request("scan", list(ids), None if bauds is None else list(bauds))
 
     # -- plumbing ----------------------------------------------------------------------------------------------------

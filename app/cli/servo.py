@@ -14,8 +14,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from app.cli._robot import robot_config
+
+if TYPE_CHECKING:
+    from devices.config import RobotConfig
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _zero(args: argparse.Namespace, robot) -> int:  # noqa: ANN001 - a RobotConfig
+def _zero(args: argparse.Namespace, robot: RobotConfig) -> int:
     """The present pose becomes every joint's 0: reads the angles, shows them before and after, and writes the new
     ``zero_offsets_rad`` into ``--config`` (the old file kept as ``<name>.bak-N``), then checks the file loads."""
     from app.core import servo_settings as ss

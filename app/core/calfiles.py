@@ -298,7 +298,7 @@ def write_atomically(path: str | os.PathLike, write: Callable[[TextIO], object])
     _atomic_write(Path(path), write)
 
 
-def _atomic_write(path: Path, write) -> None:
+def _atomic_write(path: Path, write: Callable[[TextIO], object]) -> None:
     """Write through a temporary file in the same folder so a crash never leaves a half-written file.
 
     The file gets the permissions any new file of the user gets (0666 less the umask), or keeps those of the file
@@ -452,7 +452,7 @@ def update_calibration(path: str | os.PathLike, sensor_name: str, entry: dict[st
         document = {"format": CAL_FORMAT, "version": CAL_VERSION}
     document["physics"] = physics.to_dict()
     document.setdefault("sensors", {})[sensor_name] = entry
-    def write(handle) -> None:
+    def write(handle: TextIO) -> None:
         json.dump(_jsonable(document), handle, indent=2, allow_nan=False)
         handle.write("\n")
 

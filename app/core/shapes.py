@@ -13,7 +13,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -161,7 +161,7 @@ def write_shape(shape: Shape, path: str | Path) -> Path:
 # ----------------------------------------------------------------------------------------------------------------
 # Transforms (each returns a new Shape; keyframes are transformed alike)
 # ----------------------------------------------------------------------------------------------------------------
-def _map_poses(shape: Shape, fn) -> Shape:
+def _map_poses(shape: Shape, fn: Callable[[Sequence[float]], Sequence[float]]) -> Shape:
     return replace(shape, angles_rad=tuple(fn(shape.angles_rad)),
                    keyframes=tuple(replace(k, angles_rad=tuple(fn(k.angles_rad))) for k in shape.keyframes))
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QTimer
+from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
 from app.gui.thread_bridge import ThreadBridge
@@ -90,7 +91,7 @@ class SceneTab(QWidget):
         return self._thread is not None and self._visible.is_set() and not self._stop.is_set()
 
     # -- visibility drives the work ----------------------------------------------------------------------------------
-    def showEvent(self, event) -> None:  # noqa: N802 - Qt's name
+    def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt's name
         super().showEvent(event)
         if self._physics is not None and not self.render_error:
             self._visible.set()
@@ -101,7 +102,7 @@ class SceneTab(QWidget):
         else:
             self._body_timer.start()
 
-    def hideEvent(self, event) -> None:  # noqa: N802 - Qt's name
+    def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt's name
         super().hideEvent(event)
         self._visible.clear()
         self._body_timer.stop()
