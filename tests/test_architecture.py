@@ -131,3 +131,17 @@ def _strongly_connected(graph) -> list[list[str]]:
                         break
                 components.append(component)
     return components
+
+
+def test_tests_sleep_only_where_a_comment_says_time_must_pass_on_purpose():
+    """Tests wait on conditions (tests/waiting.py); a sleep is only there when the passing of time is the test, and
+    the line above says so ("Deliberate")."""
+    offenders = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        if "emulators" in path.parts:  # the emulators are devices keeping their own pace, not tests
+            continue
+        lines = path.read_text(encoding="utf-8").splitlines()
+        for number, line in enumerate(lines):
+            if "time.sleep(" in line and "real_sleep" not in line and "Deliberate" not in lines[number - 1]:
+                offenders.append(f"{path.relative_to(ROOT)}:{number + 1}")
+    assert not offenders, f"sleeps in tests without a 'Deliberate' comment above: {offenders}"

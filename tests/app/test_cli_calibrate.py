@@ -212,7 +212,8 @@ def test_ctrl_c_while_the_rig_is_still_releasing_waits_for_its_outcome(tmp_path)
     def work() -> Outcome:
         signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)  # the user's Ctrl-C, to the main thread
         assert stopped.wait(30), "Ctrl-C did not abort the run"
-        time.sleep(1.0)  # the rig releasing the load on a slow machine: the main thread must wait for it
+        # Deliberate: the rig releasing the load on a slow machine, the main thread waiting for it.
+        time.sleep(1.0)
         return Outcome(ABORTED, reasons[0], tmp_path)
 
     before = signal.getsignal(signal.SIGINT)

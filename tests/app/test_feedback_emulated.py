@@ -76,7 +76,8 @@ def test_feedback_on_emulated_ports_reads_fresh_forces_every_tick_and_stops_on_s
                     if isinstance(progress, FeedbackProgress) and progress.tick_s > 0.5:
                         ages.append(progress.force_age_s)
                         sensed += any(math.isfinite(v) for v in progress.node_load_n)
-                    time.sleep(1 / 60)  # the GUI's drain rate: this test plays the GUI thread
+                    # Deliberate: the GUI's drain rate (this test plays the GUI thread).
+                    time.sleep(1 / 60)
                 assert len(ages) >= 50, "the feedback motion did not run"
                 # fresh forces reach the loop: at most a board period, a drain and a tick old
                 assert np.median(ages) < 1 / 30 + 1 / 60 + 1 / 50
@@ -87,7 +88,8 @@ def test_feedback_on_emulated_ports_reads_fresh_forces_every_tick_and_stops_on_s
                 done = future.result(timeout=5.0)
                 assert done == "stopped"
                 frozen = controller.latest_state.goal_rad.copy()
-                time.sleep(0.2)  # time passes with the loop running: the goals must stay frozen
+                # Deliberate: time passes with the loop running; the goals must stay frozen.
+                time.sleep(0.2)
                 assert np.allclose(controller.latest_state.goal_rad, frozen)
             finally:
                 controller.close()

@@ -54,6 +54,7 @@ def test_feedback_on_the_robot_small_gains_flat_ground(tmp_path):
                     live.process_block(block)
                 if isinstance(motion.progress, FeedbackProgress) and math.isfinite(motion.progress.force_age_s):
                     ages.append(motion.progress.force_age_s)
+                # Deliberate: the GUI's drain rate (this test plays the GUI thread).
                 time.sleep(1 / 60)
             controller.emergency_stop()
             assert future.result(timeout=5.0) in ("stopped", "finished")

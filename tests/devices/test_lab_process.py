@@ -18,6 +18,7 @@ from devices.rig import CalibrationRig
 from devices.servo_chain import ServoChain
 from devices.sim.lab_process import LabProcess, read_qpos
 from tests.conftest import scripted_config
+from tests.waiting import wait_until
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ptys (Linux)")
 
@@ -91,13 +92,8 @@ def test_the_teach_hand_and_fault_injection_reach_the_lab_and_its_errors_come_ba
     try:
         chain.set_torque(False)
         lab.chain.set_limp_position(3, 2048 + 300)  # what SimHand does
-        deadline = time.monotonic() + 5.0
-        while True:
-            ticks = chain.ticks_from_angles(chain.read_state().position_rad)
-            if abs(ticks[2] - 2348) <= 2 or time.monotonic() > deadline:
-                break
-            time.sleep(0.05)
-        assert abs(ticks[2] - 2348) <= 2
+        assert wait_until(lambda: abs(chain.ticks_from_angles(chain.read_state().position_rad)[2] - 2348) <= 2,
+                          5.0), "joint 3 did not follow the hand"
         with pytest.raises(ValueError):  # a joint holding torque cannot be bent: the lab's own error, here
             chain.set_torque(True, ids=[4])
             lab.chain.set_limp_position(4, 2500)
@@ -119,9 +115,7 @@ def test_the_3d_views_copy_of_the_world_follows_the_lab(lab_process):
         pytest.skip(f"no physics lab here: {lab.physics_note}")
     config = lab.config
     page, nq = lab.physics.posed._page, lab.physics.posed._nq
-    deadline = time.monotonic() + 10.0
-    while read_qpos(page, nq) is None and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_until(lambda: read_qpos(page, nq) is not None, 10.0)
     first = read_qpos(page, nq)
     assert first is not None
     chain = ServoChain(config.robot, device="robot")
@@ -134,6 +128,7 @@ def test_the_3d_views_copy_of_the_world_follows_the_lab(lab_process):
         qadr = lab.physics.posed.world._qadr  # each joint's place in qpos
         deadline = time.monotonic() + 15.0
         while True:
+            # Deliberate: the world moves on between two looks (nothing announces a step to wait on).
             time.sleep(0.1)
             state = chain.read_state()
             newest = read_qpos(page, nq)
@@ -216,7 +211,8 @@ def test_a_board_port_nobody_reads_holds_no_more_than_a_quarter_second_of_old_fr
 
     config = scripted_config()
     lab = lab_process(config)
-    time.sleep(1.5)  # 45 frames go out with nobody reading
+    # Deliberate: time passes with nobody reading (45 frames go out); that is what is tested.
+    time.sleep(1.5)
     frame_bytes = 16 + 2 * config.board.n_channels
     fd = os.open(lab.paths["board"], os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)  # no flush on open (pyserial does)
     try:

@@ -318,7 +318,8 @@ def test_a_watcher_held_up_here_is_not_taken_for_a_stalled_loop(emulator):
     def slow_subscriber(state) -> None:
         if not held.is_set():
             held.set()
-            time.sleep(1.0)  # the watcher thread does nothing else meanwhile
+            # Deliberate: a subscriber that holds the watcher thread for a second (nothing else to wait on).
+            time.sleep(1.0)
         recorder._state(state)
 
     callbacks = {**recorder.callbacks(), "on_state": slow_subscriber}
