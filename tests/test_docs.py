@@ -97,3 +97,11 @@ def test_every_readme_picture_of_a_tab_is_newer_than_the_code_that_draws_it():
             stale.append(picture)
     assert not stale, (f"README pictures older than their tab's code: {stale}; retake them on an X display "
                        "(python tools/screenshot.py --xvfb; see its --help for the 3-D and feedback ones)")
+
+
+def test_the_docs_name_the_fit_solver_the_code_defaults_to():
+    from models.calibration import DEFAULT_SOLVER
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert DEFAULT_SOLVER == "scipy" and "scipy `least_squares` by default" in readme
+    assert "CasADi Gauss–Newton by default" not in readme
