@@ -25,7 +25,6 @@ import select
 import sys
 import termios
 import time
-from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +57,7 @@ from devices.errors import (
     os_words,
 )
 from devices.factory import is_sim, open_serial, sim_serial_path
+from devices.reply_pacing import READ_POLL_S, ReplyPacing
 
 log = logging.getLogger(__name__)
 
@@ -66,32 +66,15 @@ PROTOCOL_VERSION = 2.0
 PER_ID_PING_COST_S = 0.035
 BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
 REBOOT_TIMEOUT_S = 2.0
-READ_POLL_S = 0.0001  # shortest sleep while waiting for reply bytes, s
-MAX_LATE_POLL_S = 0.002  # longest sleep between looks for an overdue reply on a port without a descriptor, s
 # Protocol 2.0 status packet layout (as dynamixel-sdk indexes it): the length field counts instruction, error,
 # parameters and CRC.
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
 _STATUS_OVERHEAD = 4
-LATE_POLL_FRACTION = 0.25  # an overdue reply is looked for every quarter of its lateness (≤ MAX_LATE_POLL_S)
 PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruction, error, model 2, firmware, CRC 2
 SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
 COLLISION_TRIES = 2  # garbled replies in a row, after the first, that make an ID "collided" (two servos on it)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
-# A sync read's replies judged paced by the device (an accelerated simulator) or by the wire: complete in under
-# FAST_FRACTION of the wire's lower bound = fast, in over SLOW_FRACTION of it = slow. Device pacing is taken up after
-# PACE_FAST_VOTES fast verdicts among the last PACE_WINDOW, dropped after PACE_SLOW_VOTES slow verdicts in a row.
-FAST_FRACTION = 0.5
-SLOW_FRACTION = 0.8
-PACE_WINDOW = 4
-PACE_FAST_VOTES = 2
-PACE_SLOW_VOTES = 3
-# While replies are awaited at wire pace, the first PACE_PROBE_FIRST reads of a port and every PACE_PROBE_EVERY-th
-# after look once early (at PACE_PROBE_FRACTION of the wire's time): a faster device is only seen before its
-# replies are all in. One extra wake-up in 16 reads on a real bus.
-PACE_PROBE_FIRST = 8
-PACE_PROBE_EVERY = 16
-PACE_PROBE_FRACTION = 0.25
-STALE_SLACK_S = 0.05  # how late the replies of a given-up read may still cross (a stalled far end, a USB latency timer)
+# The wait rule for replies (the pacing constants with it): devices/reply_pacing.py.
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
 MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, length 2, instruction, error, CRC 2
@@ -177,7 +160,7 @@ class _FactoryPortHandler(PortHandler):
     missing bytes' wire time where the port has no file descriptor), until the SDK's packet deadline.
 
     Nothing is learned from the timing of earlier transactions but one fact, on repeated evidence: whether the device
-    answers faster than the wire (the simulator on an accelerated clock; :meth:`_pace_verdict`), whose replies are
+    answers faster than the wire (the simulator on an accelerated clock; :class:`devices.reply_pacing.ReplyPacing`), whose replies are
     then awaited at their observed pace, never past the wire's bound. One reply that is late (the far end
     descheduled, or this thread's time stamp of its instruction delayed) costs that transaction only. The previous
     design learned a per-reply gap from arrival times, capped at 2 ms and halved only every 32 transactions, so one late reply made
@@ -195,17 +178,8 @@ class _FactoryPortHandler(PortHandler):
         self.byte_s = 10.0 / DEFAULT_BAUD_BPS  # one byte on the wire (start + 8 data + stop bits), s
         self.return_delays_s: dict[int, float] = {}  # servo ID -> Return Delay Time (s) read from its table
         self.wakeups = 0  # sleeps and waits for bytes (a cost figure for tests and benchmarks)
-        self.faster_than_wire = False  # the device answers faster than the wire allows (an accelerated simulator)
-        self._pace_verdicts: deque[bool] = deque(maxlen=PACE_WINDOW)  # True: a transaction faster than the wire
-        self._slow_run = 0  # slow verdicts in a row
-        self._stale_until_s = -math.inf  # until when replies of a read given up may still arrive
-        self._stale_possible = False  # the transaction in flight began before then: bytes seen in it may be those
-        self._judged = False  # the transaction in flight has had its verdict on the pace
-        self._transactions = 0  # instructions written
-        self._rx_since_tx = 0  # bytes taken off the port since the last instruction was written
+        self.pacing = ReplyPacing(self.byte_s)  # the wait rule (devices/reply_pacing.py); this class does the I/O
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
-        self._wire_free_s = -math.inf  # when the bytes we wrote have left the wire
-        self._tx_start_s = -math.inf  # when the last instruction was handed to the port
         self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
         self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
 
@@ -223,6 +197,7 @@ class _FactoryPortHandler(PortHandler):
         self.clearPort()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
         self.byte_s = 10.0 / self.baudrate
+        self.pacing.byte_s = self.byte_s
         return True
 
     def clearPort(self):  # noqa: N802 - dynamixel-sdk's name
@@ -236,19 +211,24 @@ class _FactoryPortHandler(PortHandler):
     def getBytesAvailable(self):  # noqa: N802 - dynamixel-sdk's name
         return len(self._rx) + self.ser.in_waiting
 
+    @property
+    def faster_than_wire(self) -> bool:
+        """The device answers faster than the wire allows (an accelerated simulator): see ReplyPacing."""
+        return self.pacing.faster_than_wire
+
+    @faster_than_wire.setter
+    def faster_than_wire(self, value: bool) -> None:
+        self.pacing.faster_than_wire = value
+
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
-        self._tx_start_s = time.monotonic()
+        tx_start_s = time.monotonic()
         written = self.ser.write(packet)
         trace = tick_trace.TRACE
         if trace is not None:
-            trace.mark("tx", (packet[7] if len(packet) > 7 else None, len(packet), round(self._tx_start_s, 6)))
+            trace.mark("tx", (packet[7] if len(packet) > 7 else None, len(packet), round(tx_start_s, 6)))
         # The bytes start leaving when handed over (write returns later: a simulated device answers inside it).
-        self._wire_free_s = max(self._tx_start_s, self._wire_free_s) + len(packet) * self.byte_s
+        self.pacing.sent(tx_start_s, len(packet))
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
-        self._stale_possible = self._tx_start_s < self._stale_until_s
-        self._judged = False
-        self._transactions += 1
-        self._rx_since_tx = 0
         return written
 
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
@@ -267,93 +247,43 @@ class _FactoryPortHandler(PortHandler):
         self._take_waiting()
         if len(self._rx) < n_bytes:
             self._wait_for_bytes(n_bytes, tuple(reply_ids))
-        if len(self._rx) >= n_bytes and not self._judged and not self._stale_possible:
-            # The whole reply is in: how long it took against the least the wire needs for it.
-            self._judged = True
-            wire_s = self._wire_free_s - self._tx_start_s + n_bytes * self.byte_s + self._delays_s(reply_ids)
-            took_s = time.monotonic() - self._tx_start_s
-            if took_s < FAST_FRACTION * wire_s:
-                self._pace_verdict(True)
-            elif took_s > SLOW_FRACTION * wire_s:
-                self._pace_verdict(False)
-
-    def _pace_verdict(self, fast: bool) -> None:
-        """One transaction's pace. A device faster than the wire (the simulator on an accelerated clock) has its
-        replies awaited at the pace observed since the instruction was written, not at the baud rate and Return
-        Delay Time. Taken up on repeated evidence only and dropped again: replies of a read given up earlier that
-        cross after the next instruction look faster than the wire (they are not judged), and a device wrongly
-        judged fast made every read wait out the SDK's timeout (~39 ms ticks at 100 Hz on the simulated lab)."""
-        self._pace_verdicts.append(fast)
-        self._slow_run = 0 if fast else self._slow_run + 1
-        if not self.faster_than_wire and sum(self._pace_verdicts) >= PACE_FAST_VOTES:
-            self.faster_than_wire = True
-        elif self.faster_than_wire and self._slow_run >= PACE_SLOW_VOTES:
-            self.faster_than_wire = False
-            self._pace_verdicts.clear()
+        if len(self._rx) >= n_bytes:
+            self.pacing.complete(time.monotonic(), n_bytes, self._delays_s(reply_ids))
 
     def _wait_for_bytes(self, n_bytes: int, reply_ids: tuple[int, ...]) -> None:
+        """Wait (sleep, or select on the port) as ReplyPacing says until ``n_bytes`` are in or the deadline."""
+        pacing = self.pacing
         reply_bytes = n_bytes / max(len(reply_ids), 1)
         now = time.monotonic()
-        self._judge_early(now)
-        probe = (not self.faster_than_wire and not self._judged and not self._stale_possible
-                 and (self._transactions <= PACE_PROBE_FIRST or self._transactions % PACE_PROBE_EVERY == 0))
+        pacing.judge_early(now)
+        probe = pacing.probes()
         due_s: float | None = None  # when the bytes were first due (a lower bound passed without them)
         while len(self._rx) < n_bytes:
             time_left_s = self._time_left_s()
             if time_left_s <= 0.0:
-                # Given up with bytes missing: they may still come, after our next instructions (a write-only one
-                # first, in the control loop). No transaction begun before they could all have arrived -- at the
-                # wire's pace, after STALE_SLACK_S of lateness -- is judged for pace.
-                missing_s = (n_bytes - len(self._rx)) * self.byte_s + self._delays_s(reply_ids)
-                self._stale_until_s = max(self._stale_until_s, now + missing_s + STALE_SLACK_S)
+                # Given up with bytes missing: they may still come, after our next instructions.
+                pacing.gave_up(now, n_bytes - len(self._rx), self._delays_s(reply_ids))
                 return
-            missing = n_bytes - len(self._rx)
             replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
-            delay_s = self._delays_s(replies_left)
-            earliest_s = max(now, self._wire_free_s) if not self._rx else now
-            wire_wait_s = earliest_s - now + missing * self.byte_s + delay_s  # the wire's least time for the rest
-            if self.faster_than_wire:
-                elapsed_s = now - self._tx_start_s
-                # Never past the wire's own bound: a device that is not faster after all costs wake-ups, not time.
-                wait_s = min(missing * elapsed_s / len(self._rx), wire_wait_s) if self._rx else READ_POLL_S
-            else:
-                wait_s = wire_wait_s
-                if due_s is None:
-                    due_s = now + wait_s
-                    if probe:  # one early look: a device faster than the wire has most of its bytes there by then
-                        wait_s *= PACE_PROBE_FRACTION
-                elif now > due_s:
-                    # Overdue (a silent servo, a slow far end): back off as it grows late, so waiting out the
-                    # SDK's timeout costs a few dozen wake-ups, not hundreds. Only where nothing wakes us on bytes.
-                    wait_s = max(wait_s, min(MAX_LATE_POLL_S, LATE_POLL_FRACTION * (now - due_s)))
+            wait_s, due_s = pacing.wait_s(now, len(self._rx), n_bytes - len(self._rx), self._delays_s(replies_left),
+                                          due_s, probe)
             if wait_s > SELECT_SLACK_S or not self._can_select():
                 self._sleep(min(max(wait_s, READ_POLL_S), time_left_s))
             else:
                 self._select(time_left_s)
             self._take_waiting()
             now = time.monotonic()
-            self._judge_early(now)
+            pacing.judge_early(now)
 
     def _delays_s(self, servo_ids: Sequence[int]) -> float:
         """The known Return Delay Times of ``servo_ids`` together (0 for a servo whose delay is not known), s."""
         return sum(self.return_delays_s.get(sid, 0.0) for sid in servo_ids)
 
-    def _judge_early(self, now: float) -> None:
-        """Before the replies are all in: more bytes than the wire could have carried since our instruction left it
-        came from a device faster than the wire -- or from a read given up before, whose replies cross now (those
-        are not judged)."""
-        if self._judged or self._stale_possible or not self._rx_since_tx:
-            return
-        capacity = max(0.0, now - self._wire_free_s) / self.byte_s  # bytes the wire could have carried since
-        if self._rx_since_tx > 2.0 * capacity + 4:
-            self._judged = True
-            self._pace_verdict(True)
-
     def _take_waiting(self) -> None:
         waiting = self.ser.in_waiting
         if waiting:
             self._rx += self.ser.read(waiting)
-            self._rx_since_tx += waiting
+            self.pacing.received(waiting)
             trace = tick_trace.TRACE
             if trace is not None:
                 trace.mark("rx", len(self._rx))
