@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import serial
@@ -264,13 +265,16 @@ class SampleBlock:
         return int(self.counts.shape[1])
 
 
+BoardState = Literal["connected", "disconnected", "reconnected", "mismatch", "error", "closed", "stall"]
+
+
 @dataclass(frozen=True)
 class BoardStatus:
     """A change in the reader's state. ``state`` is one of ``connected``, ``disconnected``, ``reconnected``,
     ``mismatch`` (channel count differs from the config), ``error`` (unexpected failure; the reader stopped),
     ``closed``. ``message`` is a sentence for the user."""
 
-    state: str
+    state: BoardState
     message: str
     connected: bool
     host_time_s: float = field(default_factory=time.monotonic)
@@ -612,12 +616,12 @@ class BoardReader:
         self._last_host_time_s = host_time_s
         return host_time_s
 
-    def _notify(self, state: str, message: str, host_time_s: float) -> None:
+    def _notify(self, state: BoardState, message: str, host_time_s: float) -> None:
         """Tell ``on_status`` of an event that does not change the reader's state (a stall)."""
         if self._on_status is not None:
             self._on_status(BoardStatus(state, message, True, host_time_s))
 
-    def _set_status(self, state: str, message: str, connected: bool) -> None:
+    def _set_status(self, state: BoardState, message: str, connected: bool) -> None:
         status = BoardStatus(state, message, connected)
         self._status = status
         if self._on_status is not None:

@@ -53,6 +53,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
@@ -101,8 +102,15 @@ LIMIT_TOLERANCE_RAD = ct.RAD_PER_TICK  # one tick of slack: a goal on its limit 
 TRACKING_ERROR_BOUND_RAD = 0.5
 SPEED_TOLERANCE = 1.001  # plans are built at exactly the speed limit: allow rounding
 
-MOTION_FINISHED = "finished"
-MOTION_STOPPED = "stopped"
+class MotionEnd(StrEnum):
+    """How a motion's Future resolves (equal to its plain string: ``MotionEnd.FINISHED == "finished"``)."""
+
+    FINISHED = "finished"
+    STOPPED = "stopped"
+
+
+MOTION_FINISHED = MotionEnd.FINISHED
+MOTION_STOPPED = MotionEnd.STOPPED
 
 
 CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"  # Linux PM QoS: the largest wake-up latency the CPUs may take (µs)

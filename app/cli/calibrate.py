@@ -49,6 +49,7 @@ from app.core.rig_protocol import (
     Progress,
     ProtocolRunner,
     ProtocolSettings,
+    RunOutcome,
     check_protocol,
     finished_trials,
     lab_times_from_seq,
@@ -258,7 +259,7 @@ def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, t
         try:
             rig.open()
         except (DeviceError, OSError, ValueError) as exc:
-            return Outcome("failed", f"cannot open the calibration rig on {config.rig.port}: {exc}", folder)
+            return Outcome(RunOutcome.FAILED, f"cannot open the calibration rig on {config.rig.port}: {exc}", folder)
         try:
             return runner.run(rig)
         finally:
@@ -272,9 +273,9 @@ def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, t
         drain.join()
         reader.close()
         line.end()
-    outcome = result or Outcome("failed", "the rig thread ended without an outcome", folder)
+    outcome = result or Outcome(RunOutcome.FAILED, "the rig thread ended without an outcome", folder)
     if interrupted and outcome.status == ABORTED:
-        outcome = replace(outcome, status="interrupted")
+        outcome = replace(outcome, status=RunOutcome.INTERRUPTED)
     return outcome
 
 

@@ -56,6 +56,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -92,7 +93,16 @@ READOUT_MARGIN = 0.9
 CREEP_TIME_S = 100.0  # the paper's creep time (~10² s, Fig. 8B)
 REST_CREEP_TIMES = 3.0  # rests shorter than this many creep times are warned about  # a predicted reading above this fraction of the readout's ceiling is reported
 
-COMPLETED, ABORTED, FAILED = "completed", "aborted", "failed"
+class RunOutcome(StrEnum):
+    """How a rig run ended (equal to its plain string)."""
+
+    COMPLETED = "completed"
+    ABORTED = "aborted"
+    FAILED = "failed"
+    INTERRUPTED = "interrupted"  # aborted by a signal to `sensnake calibrate` (Ctrl-C, SIGTERM)
+
+
+COMPLETED, ABORTED, FAILED = RunOutcome.COMPLETED, RunOutcome.ABORTED, RunOutcome.FAILED
 SESSION_FILE = "protocol.json"
 CONDITIONING_FILE = "conditioning.json"  # the conditioning cycles' log (ProtocolRunner._condition)
 
@@ -270,7 +280,7 @@ class Outcome:
     """How a run ended: ``status`` completed / aborted / failed, a message for the user, the session folder and
     the trials written."""
 
-    status: str
+    status: RunOutcome
     message: str
     folder: Path
     trials: tuple[TrialRecord, ...] = field(default_factory=tuple)
@@ -578,7 +588,7 @@ class ProtocolRunner:
             if self._stop.wait(0.01):
                 raise _Stopped
 
-    def _end(self, status: str, what: str, exc: BaseException | None) -> Outcome:
+    def _end(self, status: RunOutcome, what: str, exc: BaseException | None) -> Outcome:
         released = self._release_safely()
         n = len(self.trials)
         kept = (f"the {n} finished trial(s) are kept in {self.folder}" if n else

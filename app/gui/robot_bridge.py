@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
+from enum import StrEnum
 from typing import Any, TypeVar
 
 from PySide6.QtCore import QObject, Signal
@@ -40,12 +41,19 @@ log = logging.getLogger(__name__)
 STATE_DELIVERY_INTERVAL_MS = 16  # ≤ 60 Hz to the GUI, whatever the control rate
 STATE_BACKLOG_MAX = 4096  # states kept for ``state_block`` if the GUI stalls (≈ 20 s at 200 Hz)
 
-MOTION_IDLE = "idle"
-MOTION_RUNNING = "running"
-MOTION_PAUSED = "paused"
-MOTION_FINISHED = "finished"
-MOTION_STOPPED = "stopped"  # stopped by the user (Stop or STOP/Esc)
-MOTION_FAULT = "fault"  # stopped by the controller: hardware error, watchdog, lost link
+class MotionState(StrEnum):
+    """The robot's motion as the GUI shows it (equal to its plain string: ``MotionState.IDLE == "idle"``)."""
+
+    IDLE = "idle"
+    RUNNING = "running"
+    PAUSED = "paused"
+    FINISHED = "finished"
+    STOPPED = "stopped"  # stopped by the user (Stop or STOP/Esc)
+    FAULT = "fault"  # stopped by the controller: hardware error, watchdog, lost link
+
+
+MOTION_IDLE, MOTION_RUNNING, MOTION_PAUSED = MotionState.IDLE, MotionState.RUNNING, MotionState.PAUSED
+MOTION_FINISHED, MOTION_STOPPED, MOTION_FAULT = MotionState.FINISHED, MotionState.STOPPED, MotionState.FAULT
 
 # Errors a user can cause and fix; anything else reaching a thread boundary is a bug, reported and logged.
 EXPECTED_DEVICE_ERRORS: tuple[type[BaseException], ...] = (DeviceError, OSError, ValueError, LookupError,
@@ -510,10 +518,10 @@ class RobotBridge(QObject):
         if token != self._motion_token:
             return
         self._motion_token += 1
-        state = outcome if outcome in (MOTION_FINISHED, MOTION_STOPPED, MOTION_FAULT) else MOTION_STOPPED
+        state = MotionState(outcome) if outcome in (MOTION_FINISHED, MOTION_STOPPED, MOTION_FAULT) else MOTION_STOPPED
         self._set_motion(state, self._motion_name)
 
-    def _set_motion(self, state: str, name: str) -> None:
+    def _set_motion(self, state: MotionState, name: str) -> None:
         self._motion_state, self._motion_name = state, name
         self.motion_changed.emit(state)
 
