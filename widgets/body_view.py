@@ -80,10 +80,10 @@ class _BodyViewBox(pg.ViewBox):
         ev.accept()
         position = self.mapSceneToView(ev.scenePos())
         if ev.isStart():
-            self._owner._begin_drag(self._view, self.mapSceneToView(ev.buttonDownScenePos()), self)
-        self._owner._drag_to(self._view, position)
+            self._owner.begin_drag(self._view, self.mapSceneToView(ev.buttonDownScenePos()), self)
+        self._owner.drag_to(self._view, position)
         if ev.isFinish():
-            self._owner._end_drag()
+            self._owner.end_drag()
 
 
 class BodyView(QWidget):
@@ -486,7 +486,7 @@ class BodyView(QWidget):
             item.setData(pos=sensors[index][:, cols], brush=brushes, pen=pens)
 
     # -- dragging --------------------------------------------------------------------------------------------------
-    def _begin_drag(self, view: str, press: QPointF, box: pg.ViewBox) -> None:
+    def begin_drag(self, view: str, press: QPointF, box: pg.ViewBox) -> None:
         pts = self.body_points(view)
         press_scene = box.mapViewToScene(press)
         distances = [
@@ -501,7 +501,7 @@ class BodyView(QWidget):
         candidates = [j for j in range(point) if self._axes[j] == bending]
         self._drag = (candidates[-1], point) if candidates else None
 
-    def _drag_to(self, view: str, position: QPointF) -> None:
+    def drag_to(self, view: str, position: QPointF) -> None:
         if self._drag is None:
             return
         joint, point = self._drag
@@ -509,7 +509,7 @@ class BodyView(QWidget):
                                self._length_m, point_index=point)
         self.joint_dragged.emit(joint, angle)
 
-    def _end_drag(self) -> None:
+    def end_drag(self) -> None:
         if self._drag is not None:
             self._drag = None
             self.drag_finished.emit()

@@ -182,16 +182,16 @@ class _Trace(pg.PlotDataItem):
 
     def __init__(self, pen, name: str) -> None:
         super().__init__(pen=pen, name=name)
-        self._x: np.ndarray | None = None
-        self._y: np.ndarray | None = None
+        self.drawn_x: np.ndarray | None = None  # what the plot drew last (the bundle draws it; set by the grid)
+        self.drawn_y: np.ndarray | None = None
 
     @property
     def xData(self) -> np.ndarray | None:  # noqa: N802 - pyqtgraph's attribute name
-        return self._x
+        return self.drawn_x
 
     @property
     def yData(self) -> np.ndarray | None:  # noqa: N802 - pyqtgraph's attribute name
-        return self._y
+        return self.drawn_y
 
 
 class _Legend(QLabel):
@@ -1002,7 +1002,7 @@ class ForcePlotGrid(QWidget):
                 for k in visible:
                     y = ys[:, column]
                     trace = plot.curves[k]
-                    trace._x, trace._y = x, y
+                    trace.drawn_x, trace.drawn_y = x, y
                     units = self._units if per_channel_units is None else per_channel_units[plot.channels[k]]
                     traces, columns = by_units.setdefault(units, ([], []))
                     traces.append((trace.opts["pen"], x, y, bool(finite[column])))

@@ -821,7 +821,7 @@ def write_session(folder: Path, settings: ProtocolSettings) -> None:
             raise ValueError(f"{folder} holds a session of another protocol ({path.name} differs); "
                              "resume it with its own settings or start a new session")
         return
-    calfiles._atomic_write(path, lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
+    calfiles.write_atomically(path, lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
 
 
 def read_session(folder: str | Path) -> ProtocolSettings:
@@ -859,8 +859,8 @@ def read_conditioning(folder: str | Path) -> dict | None:
 
 def write_conditioning(folder: str | Path, document: dict) -> None:
     """Write the session's conditioning log atomically (a crash leaves the previous version)."""
-    calfiles._atomic_write(Path(folder) / CONDITIONING_FILE,
-                           lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
+    calfiles.write_atomically(Path(folder) / CONDITIONING_FILE,
+                              lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
 
 
 def finished_trials(folder: str | Path, settings: ProtocolSettings) -> dict[int, Path]:

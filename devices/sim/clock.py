@@ -12,11 +12,18 @@ class SimClock:
     by ``speed`` too, so a test at ``speed=20`` sees the same packets twenty times sooner. Thread-safe (read-only).
     """
 
-    def __init__(self, speed: float = 1.0) -> None:
+    def __init__(self, speed: float = 1.0, wall0: float | None = None) -> None:
+        """``wall0``: the ``time.monotonic()`` reading that is simulated time 0 (default: now); another process's
+        clock passes its own, so both run on the same simulated time."""
         if not speed > 0:
             raise ValueError(f"clock speed must be positive, got {speed}")
         self.speed = float(speed)
-        self._wall0 = time.monotonic()
+        self._wall0 = time.monotonic() if wall0 is None else float(wall0)
+
+    @property
+    def wall0(self) -> float:
+        """The ``time.monotonic()`` reading of simulated time 0."""
+        return self._wall0
 
     def now(self) -> float:
         """Simulated seconds since the clock was created."""

@@ -758,20 +758,6 @@ def _u16(data: bytes, offset: int) -> int:
     return data[offset] | (data[offset + 1] << 8)
 
 
-_HANDLERS = {
-    wire.PING: VirtualChain._on_ping,
-    wire.READ: VirtualChain._on_read,
-    wire.WRITE: VirtualChain._on_write,
-    wire.REG_WRITE: VirtualChain._on_reg_write,
-    wire.ACTION: VirtualChain._on_action,
-    wire.REBOOT: VirtualChain._on_reboot,
-    wire.FACTORY_RESET: VirtualChain._on_factory_reset,
-    wire.CLEAR: VirtualChain._on_clear,
-    wire.SYNC_READ: VirtualChain._on_sync_read,
-    wire.SYNC_WRITE: VirtualChain._on_sync_write,
-    wire.BULK_READ: VirtualChain._on_bulk_read,
-    wire.BULK_WRITE: VirtualChain._on_bulk_write,
-}
 
 
 class ChainLab:
@@ -788,3 +774,20 @@ class ChainLab:
         if device in ("robot", "rig"):
             return self.chain
         raise ValueError(f"this simulated lab only has a servo chain, not a {device!r}")
+
+
+# The class's own dispatch table, defined beside it: its handlers are private to it and to this module.
+_HANDLERS = {
+    wire.PING: VirtualChain._on_ping,  # noqa: SLF001
+    wire.READ: VirtualChain._on_read,  # noqa: SLF001
+    wire.WRITE: VirtualChain._on_write,  # noqa: SLF001
+    wire.REG_WRITE: VirtualChain._on_reg_write,  # noqa: SLF001
+    wire.ACTION: VirtualChain._on_action,  # noqa: SLF001
+    wire.REBOOT: VirtualChain._on_reboot,  # noqa: SLF001
+    wire.FACTORY_RESET: VirtualChain._on_factory_reset,  # noqa: SLF001
+    wire.CLEAR: VirtualChain._on_clear,  # noqa: SLF001
+    wire.SYNC_READ: VirtualChain._on_sync_read,  # noqa: SLF001
+    wire.SYNC_WRITE: VirtualChain._on_sync_write,  # noqa: SLF001
+    wire.BULK_READ: VirtualChain._on_bulk_read,  # noqa: SLF001
+    wire.BULK_WRITE: VirtualChain._on_bulk_write,  # noqa: SLF001
+}

@@ -150,8 +150,8 @@ class LabProcess:
             self.close()
             raise
         self.paths, self.physics_note = dict(ready.paths), ready.physics_note
-        self.clock = SimClock(self.speed)
-        self.clock._wall0 = float(ready.wall0)  # one monotonic clock for every process: the same simulated time
+        # One monotonic clock for every process: the same simulated time.
+        self.clock = SimClock(self.speed, wall0=ready.wall0)
         if ready.nq is not None:
             self.physics = MirrorPhysics(self.config, self._qpos, int(ready.nq), gone=lambda: self.died)
         threading.Thread(target=self._watch, name="lab-process-watcher", daemon=True).start()
@@ -477,7 +477,7 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
     for thread in threads:
         if thread.native_id is not None:
             raise_thread_priority_of(thread.native_id)
-    conn.send(messages.LabReady({name: p.path for name, p in ptys.items()}, lab.clock._wall0, nq, lab.physics_note))
+    conn.send(messages.LabReady({name: p.path for name, p in ptys.items()}, lab.clock.wall0, nq, lab.physics_note))
     try:
         while True:
             try:

@@ -41,10 +41,10 @@ class _ListEdit(QUndoCommand):
         self._select_after = select_after
 
     def redo(self) -> None:
-        self._tab._apply(self._after, self._select_after)
+        self._tab.apply_frames(self._after, self._select_after)
 
     def undo(self) -> None:
-        self._tab._apply(self._before, self._select_before)
+        self._tab.apply_frames(self._before, self._select_before)
 
 
 class TeachTab(QWidget):
@@ -206,7 +206,7 @@ class TeachTab(QWidget):
             self._error(str(exc))
 
     # -- keyframe list (undoable) --------------------------------------------------------------------------------------
-    def _apply(self, frames: list[Keyframe], select: int) -> None:
+    def apply_frames(self, frames: list[Keyframe], select: int) -> None:
         self.keyframes = list(frames)
         self.current_index = select if 0 <= select < len(frames) else (len(frames) - 1 if frames else -1)
         self.panel.set_keyframes([(k.name, k.t_s) for k in self.keyframes], self.current_index)
@@ -252,7 +252,7 @@ class TeachTab(QWidget):
             return
         if not name:
             self._error("a keyframe needs a name")
-            self._apply(self.keyframes, row)
+            self.apply_frames(self.keyframes, row)
             return
         frames = list(self.keyframes)
         frames[row] = Keyframe(frames[row].t_s, frames[row].angles_rad, name)
@@ -263,7 +263,7 @@ class TeachTab(QWidget):
             return
         if not (math.isfinite(t_s) and t_s >= 0):
             self._error(f"keyframe {row + 1}: time must be 0 s or more")
-            self._apply(self.keyframes, row)
+            self.apply_frames(self.keyframes, row)
             return
         frames = list(self.keyframes)
         frames[row] = Keyframe(float(t_s), frames[row].angles_rad, frames[row].name)
@@ -276,7 +276,7 @@ class TeachTab(QWidget):
         if not (math.isfinite(angle_rad) and lo <= angle_rad <= hi):
             self._error(f"J{self.config.joint_ids[joint_index]}: angle must be within [{lo:.3f}, {hi:.3f}] rad "
                         "(the joint limits in the lab config); the keyframe is unchanged")
-            self._apply(self.keyframes, row)
+            self.apply_frames(self.keyframes, row)
             return
         frames = list(self.keyframes)
         angles = list(frames[row].angles_rad)
