@@ -53,6 +53,34 @@ class DuplicateIdError(DeviceError):
             "ID (Dynamixel Wizard's ID change); nothing plays until then")
 
 
+# What each bit of a servo's Hardware Error Status means and what to do (XM430-W350 e-manual, "Hardware Error
+# Status" and "Shutdown"): the servo turns its torque off on the bits set in Shutdown (factory: overheating,
+# electrical shock, overload) and keeps the error until it is rebooted; a reboot keeps its position (the encoder is
+# absolute) and brings it back with torque off. Names as devices.control_table.HARDWARE_ERROR_BITS gives them.
+HARDWARE_ERROR_ADVICE: dict[str, tuple[str, str]] = {
+    "input voltage error": ("its supply voltage is outside Min/Max Voltage Limit",
+                            "check the power supply (12 V; the servo takes 9.5–14.8 V) and its cable"),
+    "overheating": ("its temperature passed Temperature Limit",
+                    "let it cool and give it less work (a lower speed, a lighter load)"),
+    "motor encoder error": ("its position sensor malfunctions",
+                            "if the error comes back after the reboot, the servo needs repair"),
+    "electrical shock": ("an electrical shock on its circuit, or too little power to drive its motor",
+                         "check the power supply and the cables"),
+    "overload": ("a load above its maximum output lasted",
+                 "remove the load (a joint pressed against something, a shape it cannot hold)"),
+}
+REBOOT_ADVICE = "then reboot it (Hardware tab → Reboot: it keeps its position, its torque comes back off)"
+
+
+def hardware_error_advice(error_names: tuple[str, ...] | list[str]) -> str:
+    """One sentence: what each error means and what to do, then how to clear it."""
+    parts = []
+    for name in error_names:
+        meaning, action = HARDWARE_ERROR_ADVICE.get(name, ("an error this app does not know", "see the e-manual"))
+        parts.append(f"{name}: {meaning} — {action}")
+    return "; ".join(parts) + ("; " if parts else "") + REBOOT_ADVICE
+
+
 class ServoHardwareError(DeviceError):
     """A servo reported a hardware error (overload, overheating, voltage, encoder, shock)."""
 
@@ -60,8 +88,10 @@ class ServoHardwareError(DeviceError):
         self.servo_id = servo_id
         self.error_names = error_names
         what = ", ".join(error_names) or "hardware error"
+        first = error_names[0] if error_names else ""
+        action = HARDWARE_ERROR_ADVICE.get(first, ("", "find the cause"))[1]
         super().__init__(
-            f"servo {servo_id} {what}: motion stopped; remove the load, then reboot servo {servo_id} "
+            f"servo {servo_id} {what}: motion stopped; {action}, then reboot servo {servo_id} "
             "(Hardware tab → Reboot) to clear it"
         )
 

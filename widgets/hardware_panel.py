@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -139,6 +139,8 @@ class HardwarePanel(QWidget):
         self._shown_text: dict[tuple[int, int], str] = {}  # (row, column) → text
         self._shown_warn: dict[tuple[int, int], bool] = {}  # (row, column) → drawn in the warning colour
         self._shown_errors: dict[int, tuple[str, ...]] = {}  # row → hardware error names
+        self._errors_by_id: dict[int, tuple[str, ...]] = {}  # servo ID → hardware error names, as last reported
+        self._error_advice: Callable[[tuple[str, ...]], str] | None = None
         self._column_chars: dict[int, int] = {}  # column → the longest text (characters) it was sized for
 
         layout = QVBoxLayout(self)
@@ -519,14 +521,27 @@ class HardwarePanel(QWidget):
             self._set_cell(row, COL_TEMP, f"{temperature_c:.0f}", warn=temperature_c >= TEMPERATURE_WARN_C)
             self._set_cell(row, COL_VOLT, f"{voltage_v:.1f}", warn=not low <= voltage_v <= high)
             self._set_errors(row, tuple(item.error_names))
+            self._errors_by_id[int(item.servo_id)] = tuple(item.error_names)
             n_errors += bool(item.error_names)
             self._set_toggle(int(item.servo_id), row, COL_TORQUE, bool(item.torque_on))
             self._set_toggle(int(item.servo_id), row, COL_LED, bool(item.led_on))
         if n_errors:
-            _set_label(self.servo_summary_label, f"{n_errors} servo(s) report a hardware error: remove the load, "
-                       "then Reboot the servo", theme.status_style(theme.ERROR))
+            first = next(((sid, names) for sid, names in self._errors_by_id.items() if names), None)
+            detail = ""
+            if first is not None and self._error_advice is not None:
+                detail = f" — servo {first[0]}: {self._error_advice(first[1])}"
+            _set_label(self.servo_summary_label, f"{n_errors} servo(s) report a hardware error{detail}",
+                       theme.status_style(theme.ERROR))
+            self.servo_summary_label.setToolTip("\n".join(
+                f"servo {sid}: {self._error_advice(names) if self._error_advice else ', '.join(names)}"
+                for sid, names in self._errors_by_id.items() if names))
         else:
             _set_label(self.servo_summary_label, "", "")
+
+    def set_error_advice(self, advice: Callable[[tuple[str, ...]], str]) -> None:
+        """``advice(error names)`` → one sentence saying what they mean and what to do (the owner knows the
+        e-manual's table; this view does not)."""
+        self._error_advice = advice
 
     def _set_errors(self, row: int, names: tuple[str, ...]) -> None:
         if self._shown_errors.get(row) == names:
@@ -534,6 +549,7 @@ class HardwarePanel(QWidget):
         self._shown_errors[row] = names
         item = cell_item(self.servo_table, row, COL_ERR)
         item.setText(", ".join(names) if names else "none")
+        item.setToolTip(self._error_advice(names) if names and self._error_advice is not None else "")
         if names:
             item.setForeground(QBrush(theme.qcolor("#FFFFFF")))
             item.setBackground(QBrush(theme.qcolor(theme.STATUS_COLORS[theme.ERROR])))

@@ -227,3 +227,30 @@ def test_values_come_back_after_a_disconnect_cleared_them(panel):
     panel.set_state(angles, np.zeros(12), np.zeros(12))  # the same values as before the disconnect
     panel.set_health([health(i) for i in IDS])
     assert panel.cell_text(1, COL_RAD) == "+0.500" and panel.cell_text(1, COL_TEMP) == "31"
+
+
+def test_a_hardware_error_is_explained_with_what_to_do(panel):
+    """What each bit means and what to do (the e-manual's table, devices.errors), in the cell's tooltip and on the
+    summary line; an input-voltage error is not told to "remove the load"."""
+    from devices.errors import hardware_error_advice
+
+    panel.set_error_advice(hardware_error_advice)
+    panel.set_health([health(i) for i in IDS if i != 4] + [health(4, errors=("input voltage error",))])
+    summary = panel.servo_summary_label.text()
+    assert "servo 4: input voltage error" in summary and "power supply" in summary and "remove the load" not in summary
+    assert "keeps its position" in summary and "torque comes back off" in summary
+    tooltip = panel.servo_table.item(3, 8).toolTip()
+    assert "Min/Max Voltage Limit" in tooltip
+    panel.set_health([health(i) for i in IDS if i != 4] + [health(4, errors=("overload", "overheating"))])
+    tooltip = panel.servo_table.item(3, 8).toolTip()
+    assert "remove the load" in tooltip and "let it cool" in tooltip
+    panel.set_health([health(i) for i in IDS])
+    assert panel.servo_table.item(3, 8).toolTip() == "" and panel.servo_summary_label.text() == ""
+
+
+def test_the_error_a_motion_stops_on_names_the_fix_for_its_kind():
+    from devices.errors import ServoHardwareError
+
+    assert "remove the load" in str(ServoHardwareError(3, ("overload",)))
+    voltage = str(ServoHardwareError(3, ("input voltage error",)))
+    assert "power supply" in voltage and "remove the load" not in voltage and "reboot servo 3" in voltage

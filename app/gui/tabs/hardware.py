@@ -19,6 +19,7 @@ from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from devices import bus_commands
 from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
+from devices.errors import hardware_error_advice
 from devices.servo_chain import scan_problems
 from widgets.hardware_panel import HardwarePanel
 
@@ -34,6 +35,7 @@ class HardwareTab(QWidget):
         self.lab = lab
         self.robot = lab.robot
         self.panel = HardwarePanel()
+        self.panel.set_error_advice(hardware_error_advice)  # the e-manual's meaning of each error bit, and the fix
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.panel)
