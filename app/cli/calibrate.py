@@ -336,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"sensnake calibrate: error: the fit of {settings.sensor} is not fit to use and was NOT saved to "
               f"{args.out}; the trials are in {folder} (sensnake fit them again, or --save-anyway)", file=sys.stderr)
         return EXIT_REFUSED
-    calibration_fit.save(args.out, fit, physics)
+    calibration_fit.save(args.out, fit, physics, config.board)
     for text in fit.problems:
         print(f"sensnake calibrate: warning: saved although {text}", file=sys.stderr)
     print(f"wrote {settings.sensor} to {args.out} (trials in {folder})")

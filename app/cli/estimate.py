@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 
 import numpy as np
 
@@ -97,7 +98,19 @@ def run(args: argparse.Namespace) -> int:
     names = resolve_columns(table, document, calfiles.CONDUCTANCE_COLUMN, args.cal)
     entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
     refuse_degenerate(document, names, args.model, args.cal, getattr(args, "allow_degenerate", False))
-    board = load_config(args.config).board if getattr(args, "config", None) else BoardConfig()
+    stored = calfiles.sensor_readout(document, names, args.cal)
+    if getattr(args, "config", None):
+        board = load_config(args.config).board
+        source = f"from {args.config}"
+    elif stored is not None:
+        board = replace(BoardConfig(), r_c_ohm=float(stored["r_c_ohm"]), v_ref_v=float(stored["v_ref_v"]),
+                        v_supply_v=float(stored["v_supply_v"]))
+        source = "as stored with the calibration"
+    else:
+        board = BoardConfig()
+        source = "the default: the calibration does not say which readout it was fitted on (give --config)"
+    print(f"sensnake estimate: note: readout R_C {board.r_c_ohm:g} Ω, V_ref {board.v_ref_v:g} V ({source})",
+          file=sys.stderr)
     rule = ValidationRule.for_readout(board.r_c_ohm)
     ranges = _force_ranges(document, names)
     bounds = _range_arrays(ranges)
@@ -120,6 +133,9 @@ def run(args: argparse.Namespace) -> int:
     force, status = run_estimator(estimator, table.values, table.time_s, getattr(args, "engine", "compiled"),
                                   getattr(args, "float32", False))
     out_names = output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN)
+    for name, (count, line_no, text) in table.bad_cells.items():
+        print(f"sensnake estimate: warning: {name}: {count} non-numeric cell(s) read as gaps (first at line {line_no}: "
+              f"'{text}')", file=sys.stderr)
     for line in summarise(names, force, status, ranges):
         print(f"sensnake estimate: warning: {line}", file=sys.stderr)
     calfiles.write_series_csv(args.out, table.time_s, out_names, force, 9 if getattr(args, "float32", False) else 17)

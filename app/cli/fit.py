@@ -158,6 +158,6 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fit-rate must be a rate in Hz ≥ 0 (0: every sample), got {fit_rate:g}")
     cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver,
                            fit_rate_hz=fit_rate or None)
-    calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics)
+    calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics, calfiles.readout_of(board))
     print_report(args.sensor, cal, args.out)
     return 0

@@ -16,8 +16,8 @@ import math
 import os
 import secrets
 import stat
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -59,6 +59,8 @@ class SeriesTable:
     time_s: np.ndarray
     columns: tuple[str, ...]
     values: np.ndarray
+    # Non-numeric cells read as gaps (``allow_gaps``): column name → (how many, first line, its text).
+    bad_cells: dict[str, tuple[int, int, str]] = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------------------------------------------------- CSV
@@ -135,7 +137,51 @@ def _gap_cell(cell: str) -> float:
     return float(cell) if cell.strip() else math.nan
 
 
-def _read_columns(path: Path, header: list[str], indices: list[int], gaps_from: int | None = None) -> np.ndarray:
+def _read_with_bad_cells(path: Path, header: list[str], indices: list[int], gaps_from: int,
+                         bad_cells: dict[str, tuple[int, int, str]] | None) -> np.ndarray:
+    """The slowest path, for a file with text in a data column (``ERR``, ``--``): each such cell is a gap (NaN),
+    counted per column in ``bad_cells``; a column with no number at all, text where the time is, or a short row is
+    refused (CalFileError naming file, line and column)."""
+    rows: list[list[float]] = []
+    counts: dict[int, list] = {}
+    with path.open(newline="", encoding="utf-8-sig") as handle:
+        reader = csv.reader(handle)
+        seen_header = False
+        for row in reader:
+            if not row or not any(cell.strip() for cell in row):
+                continue
+            if not seen_header:
+                seen_header = True
+                continue
+            line = reader.line_num
+            values = []
+            for position, index in enumerate(indices):
+                if index >= len(row):
+                    raise CalFileError(f"{path}:{line}: row has {len(row)} cells, expected {len(header)}")
+                cell = row[index].strip()
+                try:
+                    values.append(float(cell) if cell else math.nan)
+                except ValueError:
+                    if position < gaps_from:
+                        raise CalFileError(f"{path}:{line}: column '{header[index]}' holds '{cell}', not a number")\
+                            from None
+                    values.append(math.nan)
+                    entry = counts.setdefault(index, [0, line, cell])
+                    entry[0] += 1
+            rows.append(values)
+    data = np.array(rows, dtype=np.float64).reshape(len(rows), len(indices))
+    for position, index in enumerate(indices[gaps_from:], start=gaps_from):
+        if index in counts and not np.isfinite(data[:, position]).any():
+            raise CalFileError(f"{path}: column '{header[index]}' holds no number at all (first cell "
+                               f"'{counts[index][2]}' at line {counts[index][1]}): drop the column or fix the export")
+    if bad_cells is not None:
+        for index, (count, line, text) in counts.items():
+            bad_cells[header[index]] = (count, line, text[:20])
+    return data
+
+
+def _read_columns(path: Path, header: list[str], indices: list[int], gaps_from: int | None = None,
+                  bad_cells: dict[str, tuple[int, int, str]] | None = None) -> np.ndarray:
     """Return the numeric columns ``indices`` as (N, len(indices)) float64; every cell must be finite, except that
     columns at positions ≥ ``gaps_from`` may hold empty or non-finite cells (read as NaN/±inf: the caller's sample
     validation treats them as gaps)."""
@@ -155,7 +201,7 @@ def _read_columns(path: Path, header: list[str], indices: list[int], gaps_from: 
             data = np.loadtxt(lines[1:], delimiter=",", usecols=indices, ndmin=2, dtype=np.float64, comments=None,
                               converters=_gap_cell)
         except ValueError:
-            raise _locate_bad_cell(path, header, indices, gaps_from) from None
+            data = _read_with_bad_cells(path, header, indices, gaps_from, bad_cells)
     if data.shape[0] == 0:
         raise CalFileError(f"{path}: no data rows after the header")
     checked = data if gaps_from is None else data[:, :gaps_from]
@@ -243,8 +289,9 @@ def read_trial_csv(path: str | os.PathLike) -> Trial:
 def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: bool = False) -> SeriesTable:
     """Read an estimate/forward input CSV (SPEC §3.2): ``time_s`` then one column per sensor.
 
-    ``allow_gaps`` (estimate): a data cell may be empty or NaN/inf — a dropped sample the caller's validation turns
-    into a gap — instead of refusing the file; time must always be finite.
+    ``allow_gaps`` (estimate): a data cell may be empty, NaN/inf or text (``ERR``) — a dropped or bad sample the
+    caller's validation turns into a gap; text cells are counted per column in ``bad_cells`` — instead of refusing
+    the file; a column with no number at all is refused; time must always be a finite number.
 
     ``single_column`` is the generic name (``conductance_S`` for estimate, ``force_N`` for forward) that a file with
     exactly one data column may use instead of a sensor name; the caller maps it to the calibration's only sensor.
@@ -261,11 +308,12 @@ def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: boo
     if len(set(names)) != len(names):
         duplicate = next(name for name in names if names.count(name) > 1)
         raise CalFileError(f"{file}:1: column '{duplicate}' appears twice")
+    bad_cells: dict[str, tuple[int, int, str]] = {}
     data = _read_columns(file, header, [time_index] + [header.index(name) for name in names],
-                         gaps_from=1 if allow_gaps else None)
+                         gaps_from=1 if allow_gaps else None, bad_cells=bad_cells)
     _check_time(file, data[:, 0])
     return SeriesTable(file=str(file), time_s=data[:, 0].copy(), columns=tuple(names),
-                       values=np.ascontiguousarray(data[:, 1:]))
+                       values=np.ascontiguousarray(data[:, 1:]), bad_cells=bad_cells)
 
 
 def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],
@@ -433,10 +481,41 @@ def sensor_entry(document: dict[str, Any], name: str, model: str, source: str) -
     return entry
 
 
+READOUT_KEYS = ("r_c_ohm", "v_ref_v", "v_supply_v")
+
+
+def readout_of(board: Any) -> dict[str, float]:
+    """The readout circuit of a :class:`devices.config.BoardConfig` as stored with a sensor's calibration."""
+    return {key: float(getattr(board, key)) for key in READOUT_KEYS}
+
+
+def sensor_readout(document: dict[str, Any], names: Sequence[str], path: str | os.PathLike = "") -> dict | None:
+    """The readout circuit ``names`` were calibrated with (their entries' ``readout``), None when none of them says;
+    CalFileError when they say different ones (the file mixes readouts: pass --config)."""
+    found = {name: document["sensors"][name].get("readout") for name in names if name in document["sensors"]}
+    said = {name: r for name, r in found.items() if isinstance(r, dict)}
+    if not said:
+        return None
+    distinct = {tuple(sorted(r.items())) for r in said.values()}
+    if len(distinct) > 1:
+        which = ", ".join(f"{name}: R_C {readout.get('r_c_ohm')} Ω" for name, readout in said.items())
+        raise CalFileError(f"{path}: its sensors were calibrated with different readout circuits ({which}): "
+                           "estimate them separately, or give --config for one readout")
+    readout = next(iter(said.values()))
+    for key in READOUT_KEYS:
+        value = readout.get(key)
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
+            raise CalFileError(f"{path}: readout.{key} = {value!r} must be a positive number")
+    return readout
+
+
 def update_calibration(path: str | os.PathLike, sensor_name: str, entry: dict[str, Any],
-                       physics: PhysicsConstants) -> dict[str, Any]:
-    """Create ``path`` or update it in place: set ``sensors[sensor_name] = entry`` and ``physics``; other sensors
-    and unknown keys are kept. An existing file of another format/version is refused, never overwritten."""
+                       physics: PhysicsConstants, readout: dict[str, float] | None = None) -> dict[str, Any]:
+    """Create ``path`` or update it in place: set ``sensors[sensor_name] = entry`` (with ``readout``, the circuit
+    the sensor was calibrated on, when given) and ``physics``; other sensors and unknown keys are kept. An existing
+    file of another format/version is refused, never overwritten."""
+    if readout is not None:
+        entry = {**entry, "readout": dict(readout)}
     file = Path(path)
     if file.exists():
         document = read_calibration(file)

@@ -22,6 +22,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,9 +132,11 @@ def refusal_reasons(cal: SensorCalibration, forces_n: Sequence[float], means_s: 
     return problems
 
 
-def save(path: str | Path, fit: SessionFit, physics: PhysicsConstants) -> dict:
-    """Write ``fit`` into the calibration file ``path`` (other sensors kept, SPEC §3.3)."""
-    return calfiles.update_calibration(path, fit.sensor, fit.entry(), physics)
+def save(path: str | Path, fit: SessionFit, physics: PhysicsConstants, board: Any = None) -> dict:
+    """Write ``fit`` into the calibration file ``path`` (other sensors kept, SPEC §3.3), with the readout circuit of
+    ``board`` (a BoardConfig) it was fitted on."""
+    readout = calfiles.readout_of(board) if board is not None else None
+    return calfiles.update_calibration(path, fit.sensor, fit.entry(), physics, readout)
 
 
 HISTORY_FILE = "calibration_history.jsonl"

@@ -411,3 +411,39 @@ def test_slow_creep_sensor_fits_and_estimates_right_end_to_end(tmp_path, capsys)
     back = calfiles.read_series_csv(tmp_path / "f.csv", "force_N").values[:, 0]
     loaded = force > 0
     assert float(np.sqrt(np.mean((back[loaded] - force[loaded]) ** 2))) < 0.005
+
+
+def test_the_readout_travels_with_the_calibration_and_estimate_says_which_it_used(lab, tmp_path, capsys):
+    """Issue 29: `estimate` without --config used the default 900 Ω ceiling and rejected most samples of a sensor
+    calibrated on a 500 Ω readout. Now `fit --config` stores the readout with the sensor, and `estimate` uses it
+    unless --config overrides, saying which."""
+    folder, paths = lab
+    config = tmp_path / "lab.toml"
+    config.write_text("[board]\nr_c_ohm = 500.0\n")
+    cal = tmp_path / "cal500.json"
+    code, _, err = _run(["fit", *paths, "--sensor", "S06B", "--area", AREA, "--physics", str(folder / "cal.json"),
+                         "--config", str(config), "--out", str(cal)], capsys)
+    assert code == 0, err
+    assert json.loads(cal.read_text())["sensors"]["S06B"]["readout"]["r_c_ohm"] == 500.0
+    t = np.arange(0, 60, 1 / 6)
+    reading = 1.3e-3 + 2e-5 * np.sin(t)  # above the 900 Ω ceiling (1.11 mS), below the 500 Ω one (2 mS)
+    calfiles.write_series_csv(tmp_path / "c.csv", t, ("S06B",), reading[:, None])
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(cal), "--out", str(tmp_path / "f.csv")],
+                        capsys)
+    assert code == 0 and "R_C 500 Ω" in err and "as stored with the calibration" in err, err
+    forces = calfiles.read_series_csv(tmp_path / "f.csv", "force_N", allow_gaps=True).values[:, 0]
+    assert np.isfinite(forces).all()  # not one sample taken for the 900 Ω ceiling
+    override = tmp_path / "lab900.toml"
+    override.write_text("[board]\nr_c_ohm = 900.0\n")
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(cal), "--config", str(override),
+                         "--out", str(tmp_path / "f2.csv")], capsys)
+    assert code == 0 and "R_C 900 Ω" in err and f"from {override}" in err
+    at_900 = calfiles.read_series_csv(tmp_path / "f2.csv", "force_N", allow_gaps=True).values[:, 0]
+    assert not np.isfinite(at_900).any()  # the trap the stored readout avoids: every sample at the wrong ceiling
+    document = json.loads(cal.read_text())
+    del document["sensors"]["S06B"]["readout"]  # a calibration written before the readout was stored
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(document))
+    code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(old), "--out", str(tmp_path / "f3.csv")],
+                        capsys)
+    assert "the default" in err and "does not say which readout" in err

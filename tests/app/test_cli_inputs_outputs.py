@@ -209,3 +209,35 @@ def test_an_out_that_is_a_symlink_loop_is_refused_before_recording_leaving_nothi
     err = capsys.readouterr().err.strip().splitlines()
     assert len([line for line in err if "error" in line]) == 1 and "a.h5" in err[-1] and "symbolic links" in err[-1]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]  # no hidden temporary, no lock left
+
+
+def test_a_non_numeric_cell_is_a_flagged_gap_not_a_refused_file(tmp_path, capsys):
+    """Issue 29: one `ERR` cell refused the whole estimate file (a NaN in its place was handled per sample)."""
+    import csv
+
+    from tests.calibration_files import write_typical_calibration
+
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B", "S07B"])
+    rows = [f"{k / 30:.6f},{1e-4 * (1 + k % 5)},{2e-4}" for k in range(60)]
+    rows[10] = rows[10].rsplit(",", 2)[0] + ",ERR," + "2e-4"
+    rows[20] = rows[20].rsplit(",", 2)[0] + ",--," + "2e-4"
+    data = tmp_path / "in.csv"
+    data.write_text("time_s,S06B,S07B\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "f.csv"
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    warned = [line for line in err.splitlines() if "non-numeric" in line]
+    assert len(warned) == 1 and "S06B: 2 non-numeric cell(s) read as gaps (first at line 12: 'ERR')" in warned[0]
+    with out.open() as handle:
+        table = list(csv.reader(handle))
+    assert table[11][1] in ("", "nan") and table[21][1] in ("", "nan") and table[12][1] not in ("", "nan")
+    assert all(row[2] not in ("", "nan") for row in table[1:])  # the other sensor untouched
+    # A column with no number at all is refused (one line), and text where the time is too.
+    text_column = tmp_path / "text.csv"
+    text_column.write_text("time_s,S06B\n0,ERR\n0.1,ERR\n")
+    assert main(["estimate", str(text_column), "--cal", str(cal), "--out", str(out)]) == 1
+    assert "holds no number at all" in capsys.readouterr().err
+    text_time = tmp_path / "time.csv"
+    text_time.write_text("time_s,S06B\n0,1e-4\nsoon,1e-4\n")
+    assert main(["estimate", str(text_time), "--cal", str(cal), "--out", str(out)]) == 1
+    assert "time.csv:3: column 'time_s' holds 'soon'" in capsys.readouterr().err

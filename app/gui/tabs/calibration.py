@@ -912,9 +912,10 @@ class CalibrationTab(QWidget):
             return False
         try:
             if result.session is not None:
-                calibration_fit.save(path, result.session, result.physics)
+                calibration_fit.save(path, result.session, result.physics, self.lab.config.board)
             else:
-                calfiles.update_calibration(path, result.sensor, result.calibration.to_dict(), result.physics)
+                calfiles.update_calibration(path, result.sensor, result.calibration.to_dict(), result.physics,
+                                            calfiles.readout_of(self.lab.config.board))
         except (ValueError, OSError) as exc:
             self._set_status(f"not saved: {exc}", theme.ERROR)
             return False
