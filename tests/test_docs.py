@@ -59,44 +59,43 @@ def test_every_environment_switch_the_code_reads_is_in_the_config_page():
     assert names <= documented, f"switches the code reads that docs/CONFIG.md does not explain: {names - documented}"
 
 
-# Each README picture and the code that draws what it shows: a change to that code after the picture was taken makes
-# the picture stale. Retake them all with `python tools/screenshot.py --xvfb` (and --physics/--scene/--feedback for the
-# 3-D and feedback ones: tools/screenshot.py --help).
-PICTURE_SOURCES = {
-    "teach.png": ["app/gui/tabs/teach.py", "widgets/teach_panel.py", "widgets/joint_sliders.py",
-                  "widgets/body_view.py"],
-    "gait.png": ["app/gui/tabs/gait.py", "widgets/gait_panel.py", "widgets/body_view.py"],
-    "gait-feedback.png": ["app/gui/tabs/gait.py", "widgets/gait_panel.py", "widgets/body_view.py"],
-    "calibration.png": ["app/gui/tabs/calibration.py", "widgets/calibration_run.py", "widgets/sensor_picker.py"],
-    "forces.png": ["app/gui/tabs/forces.py", "widgets/force_plots.py", "widgets/forces_panel.py",
-                   "widgets/body_view.py"],
-    "hardware.png": ["app/gui/tabs/hardware.py", "widgets/hardware_panel.py"],
-    "scene.png": ["app/gui/tabs/scene.py", "widgets/scene_view.py"],
-}
+def _sources_hash(files: list[str]) -> str:
+    """As tools/screenshot.py computes it (kept in step by the test below on one picture)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for name in files:
+        digest.update(name.encode())
+        digest.update((ROOT / name).read_bytes())
+    return digest.hexdigest()[:16]
 
 
-def _last_commit_time(*paths: str) -> int | None:
-    import subprocess
+def test_every_readme_picture_of_a_tab_was_taken_from_the_code_as_it_is_now():
+    """Each README picture of a tab was taken (tools/screenshot.py records the hash of the code it drew in
+    docs/screenshots/manifest.json) from the code as it is now: a change to a tab's code makes its picture stale
+    until it is retaken, even when the new picture is byte for byte the old one."""
+    import json
 
-    done = subprocess.run(["git", "log", "-1", "--format=%ct", "--", *paths], cwd=ROOT, capture_output=True,
-                          text=True, timeout=30)
-    return int(done.stdout.strip()) if done.returncode == 0 and done.stdout.strip() else None
-
-
-def test_every_readme_picture_of_a_tab_is_newer_than_the_code_that_draws_it():
+    shots = ROOT / "docs" / "screenshots"
+    sources = json.loads((shots / "sources.json").read_text(encoding="utf-8"))["pictures"]
+    manifest = json.loads((shots / "manifest.json").read_text(encoding="utf-8"))
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     shown = set(re.findall(r"docs/screenshots/([\w.-]+\.png)", readme))
-    assert set(PICTURE_SOURCES) <= shown, f"pictures mapped here but not in the README: {set(PICTURE_SOURCES) - shown}"
-    if _last_commit_time("README.md") is None:
-        pytest.skip("not a git checkout with history: the pictures' age cannot be read")
-    stale = []
-    for picture, sources in PICTURE_SOURCES.items():
-        taken = _last_commit_time(f"docs/screenshots/{picture}")
-        changed = _last_commit_time(*sources)
-        if taken is not None and changed is not None and taken < changed:
-            stale.append(picture)
+    assert set(sources) <= shown, f"pictures mapped but not in the README: {set(sources) - shown}"
+    stale = [picture for picture, files in sources.items() if manifest.get(picture) != _sources_hash(files)]
     assert not stale, (f"README pictures older than their tab's code: {stale}; retake them on an X display "
                        "(python tools/screenshot.py --xvfb; see its --help for the 3-D and feedback ones)")
+
+
+def test_the_screenshot_tool_hashes_the_sources_as_this_test_does():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("screenshot_tool", ROOT / "tools" / "screenshot.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    files = ["app/gui/tabs/hardware.py", "widgets/hardware_panel.py"]
+    assert tool.sources_hash(files) == _sources_hash(files)
 
 
 def test_the_docs_name_the_fit_solver_the_code_defaults_to():

@@ -180,9 +180,39 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"screenshot: cannot write {path}", file=sys.stderr)  # noqa: T201
                 return 1
             print(f"saved {path}")  # noqa: T201 - a command-line script reports what it wrote
+            if out.resolve() == SCREENSHOTS.resolve():
+                record_sources(path.name)
         window.close()
         app.processEvents()
     return 0
+
+
+SCREENSHOTS = ROOT / "docs" / "screenshots"
+
+
+def sources_hash(files: list[str]) -> str:
+    """A hash of the contents of ``files`` (repository paths): what a picture of them was taken from."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for name in files:
+        digest.update(name.encode())
+        digest.update((ROOT / name).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def record_sources(picture: str) -> None:
+    """Note in docs/screenshots/manifest.json the hash of the code ``picture`` was just taken from (pictures not
+    listed in sources.json are not tracked)."""
+    import json
+
+    sources = json.loads((SCREENSHOTS / "sources.json").read_text(encoding="utf-8"))["pictures"]
+    if picture not in sources:
+        return
+    manifest_path = SCREENSHOTS / "manifest.json"
+    manifest = json.loads(manifest_path.read_text(encoding="utf-8")) if manifest_path.exists() else {}
+    manifest[picture] = sources_hash(sources[picture])
+    manifest_path.write_text(json.dumps(dict(sorted(manifest.items())), indent=1) + "\n", encoding="utf-8")
 
 
 def _pose_by_hand(config) -> None:
