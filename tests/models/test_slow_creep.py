@@ -88,3 +88,23 @@ def test_profile_interval_for_tau_is_bounded_when_the_records_bound_it_and_open_
         lo, hi = profile_tau(fit_trials, 1.4e-3, PHYS, taus).tau_interval()
         assert lo <= truth_tau <= hi
         assert np.isfinite(hi) == closed
+
+
+@pytest.mark.parametrize("seed", [3, 7, 11])
+def test_a_tau_interval_always_holds_its_own_estimate_and_a_disagreement_is_said(seed):
+    """Issue 29: with a baseline drift of +0.2 µS/s the fit printed τ 321.89 s with a 95 % interval [305.92, 316.03]
+    — the estimate outside its own interval, silently. Now the interval always holds the estimate, and when the
+    profile put it elsewhere the fit says so."""
+    truth = _truth(100.0)
+    for drift, expect_said in ((0.2e-6, True), (0.0, False)):
+        trials = paper_protocol(truth, PHYS, seed=seed, noise_rel=0.002, drift_s_per_s=drift)
+        cal = calibrate_sensor([TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials],
+                               truth.area_m2, PHYS, saturation_s=CEILING_S)
+        lo, hi = cal.tau_ci95
+        tau = float(cal.sls.tau_s)
+        assert lo <= tau <= hi, (drift, lo, tau, hi)
+        said = [w for w in cal.warnings if "outside its 95 % profile interval" in w]
+        # With the drift (τ fitted ~2× the truth) the disagreement is said; without it, no false alarm.
+        assert bool(said) == expect_said, (drift, tau, cal.tau_ci95, cal.warnings)
+        if said:
+            assert f"{tau:.4g}" in said[0] and "should not be trusted" in said[0]
