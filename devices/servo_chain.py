@@ -66,6 +66,7 @@ PROTOCOL_VERSION = 2.0
 PER_ID_PING_COST_S = 0.035
 BROADCAST_PING_COST_S = 0.81  # the SDK always waits its full broadcast-ping window
 REBOOT_TIMEOUT_S = 2.0
+FACTORY_RESET_KEEP_ID_AND_BAUD = 0x02  # Protocol 2.0 factory reset option: everything but the ID and the baud rate
 # Protocol 2.0 status packet layout (as dynamixel-sdk indexes it): the length field counts instruction, error,
 # parameters and CRC.
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
@@ -705,6 +706,24 @@ class ServoChain:
 
     def set_led(self, servo_id: int, on: bool) -> None:
         self.write_item(servo_id, "LED", int(bool(on)))
+
+    def factory_reset(self, servo_id: int) -> None:
+        """Factory reset of one servo's control table, keeping its ID and baud rate (the instruction's option 0x02,
+        as Dynamixel Wizard offers it), then wait until it answers again (it restarts, torque off)."""
+        port = self._require_port()
+        self._last_goal_rad = None
+        self._torque_commanded.discard(servo_id)
+        result, error = self._io(self._ph.factoryReset, port, servo_id, FACTORY_RESET_KEEP_ID_AND_BAUD)
+        self._check_comm(result, servo_id, "factory reset")
+        self._check_error(error, servo_id, "factory reset")
+        port.return_delays_s.pop(servo_id, None)  # back at the factory value: read again when needed
+        deadline = time.monotonic() + REBOOT_TIMEOUT_S
+        while True:
+            _model, result, _error = self._io(self._ph.ping, port, servo_id)
+            if result == COMM_SUCCESS:
+                return
+            if time.monotonic() > deadline:
+                raise NoReplyError(servo_id, f"did not come back within {REBOOT_TIMEOUT_S:.0f} s of a factory reset")
 
     def reboot(self, servo_id: int) -> None:
         """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""

@@ -203,10 +203,13 @@ def build_parser() -> argparse.ArgumentParser:
     servo_dump.add_argument("--out", required=True, metavar="SERVOS.json")
     servo_restore = servo_sub.add_parser("restore", help="write a settings file's items back where they differ")
     servo_restore.add_argument("settings", metavar="SERVOS.json")
+    servo_reset = servo_sub.add_parser("reset", help="factory reset of one servo's settings, keeping its ID and "
+                                       "baud rate (dump them first)")
+    servo_reset.add_argument("--yes", action="store_true", help="do it: the servo's settings are erased")
     servo_zero = servo_sub.add_parser("zero", help="lay the robot straight: its present pose becomes every joint's 0 "
                                       "(zero offsets written into --config, the old file kept as a backup)")
     servo_zero.add_argument("--dry-run", action="store_true", help="show the angles before and after; write nothing")
-    for action in (servo_get, servo_set, servo_dump, servo_restore, servo_zero):
+    for action in (servo_get, servo_set, servo_dump, servo_restore, servo_zero, servo_reset):
         action.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
         action.add_argument("--baud", type=int, default=None, metavar="B")
         action.add_argument("--config", metavar="FILE", help="lab config (joint IDs)")

@@ -8,6 +8,7 @@ run, so nothing else uses the bus meanwhile.
     sensnake servo dump --robot /dev/ttyUSB0 --out servos.json          every servo to a file
     sensnake servo restore servos.json --robot /dev/ttyUSB0 [--id 3]    back, differences only
     sensnake servo zero --robot /dev/ttyUSB0 --config my_lab.toml       the straight pose becomes 0 rad
+    sensnake servo reset --robot /dev/ttyUSB0 --id 3 --yes              factory settings, ID and baud kept
 """
 
 from __future__ import annotations
@@ -32,12 +33,15 @@ def run(args: argparse.Namespace) -> int:
     action = args.servo_command
     if action == "zero":
         return _zero(args, robot)
-    if action in ("get", "set") and len(ids) != 1:
+    if action in ("get", "set", "reset") and len(ids) != 1:
         raise ValueError(f"servo {action} needs one --id N (the servo to {'read' if action == 'get' else 'write'})")
     if action == "set":
         ss.check_value(ss.item(args.item), args.value)  # refused before the port is opened
     if action == "restore":
         document = ss.read_document(args.settings)
+    if action == "reset" and not args.yes:
+        raise ValueError(f"a factory reset erases servo {ids[0]}'s settings (gains, limits, Return Delay Time, …; "
+                         "its ID and baud rate are kept): save them first with 'sensnake servo dump', then add --yes")
     with ServoChain(robot, device="robot") as chain:
         if action == "get":
             values = ss.read_table(chain, ids[0])
@@ -56,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
                 print(f"servo {change.servo_id}: {change.item} {change.before} → {change.after} (read back)")
             else:
                 print(f"servo {change.servo_id}: {change.item} already {change.after}: not written")
+            return 0
+        if action == "reset":
+            chain.factory_reset(ids[0])
+            print(f"servo {ids[0]}: factory settings restored (ID and baud rate kept); it answers again, torque off")
             return 0
         if action == "dump":
             document = ss.dump(chain, ids)

@@ -135,3 +135,18 @@ def test_an_id_change_refuses_an_id_already_on_the_bus_and_moves_the_servo_other
     assert "ID  20" in out.out and "ID(s) 12 did not answer" in out.err
     assert main(["servo", "set", "--robot", emulator.path, "--id", "20", "Baud Rate", "1"]) == 1
     assert "not changed from here yet" in capsys.readouterr().err
+
+
+def test_a_factory_reset_asks_for_yes_and_keeps_the_id_and_baud(emulator, capsys):
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "5", "Position P Gain", "300"]) == 0
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "5", "Return Delay Time", "0"]) == 0
+    capsys.readouterr()
+    resets = emulator.counts()["reset"]
+    assert main(["servo", "reset", "--robot", emulator.path, "--id", "5"]) == 1  # not without --yes
+    assert "add --yes" in capsys.readouterr().err and emulator.counts()["reset"] == resets
+    assert main(["servo", "reset", "--robot", emulator.path, "--id", "5", "--yes"]) == 0
+    assert emulator.counts()["reset"] == resets + 1
+    capsys.readouterr()
+    assert main(["servo", "get", "--robot", emulator.path, "--id", "5", "Position P Gain"]) == 0
+    assert " 800 " in capsys.readouterr().out  # back at the factory value, at the same ID and baud rate
+    assert emulator.state(5)["rdt"] == 250
