@@ -717,13 +717,7 @@ class ServoChain:
         self._check_comm(result, servo_id, "factory reset")
         self._check_error(error, servo_id, "factory reset")
         port.return_delays_s.pop(servo_id, None)  # back at the factory value: read again when needed
-        deadline = time.monotonic() + REBOOT_TIMEOUT_S
-        while True:
-            _model, result, _error = self._io(self._ph.ping, port, servo_id)
-            if result == COMM_SUCCESS:
-                return
-            if time.monotonic() > deadline:
-                raise NoReplyError(servo_id, f"did not come back within {REBOOT_TIMEOUT_S:.0f} s of a factory reset")
+        self._wait_until_back(servo_id, "a factory reset")
 
     def reboot(self, servo_id: int) -> None:
         """Reboot a servo (clears a hardware error; torque comes back off) and wait until it answers again."""
@@ -732,13 +726,19 @@ class ServoChain:
         self._torque_commanded.discard(servo_id)
         result, error = self._io(self._ph.reboot, port, servo_id)
         self._check_comm(result, servo_id, "reboot")
+        self._wait_until_back(servo_id, "a reboot")
+
+    def _wait_until_back(self, servo_id: int, after: str) -> None:
+        """Ping ``servo_id`` until it answers again (it restarts after a reboot or a factory reset), at most
+        ``REBOOT_TIMEOUT_S``; NoReplyError saying after what."""
+        port = self._require_port()
         deadline = time.monotonic() + REBOOT_TIMEOUT_S
         while True:
-            model, result, error = self._io(self._ph.ping, port, servo_id)
+            _model, result, _error = self._io(self._ph.ping, port, servo_id)
             if result == COMM_SUCCESS:
                 return
             if time.monotonic() > deadline:
-                raise NoReplyError(servo_id, f"did not come back within {REBOOT_TIMEOUT_S:.0f} s of a reboot")
+                raise NoReplyError(servo_id, f"did not come back within {REBOOT_TIMEOUT_S:.0f} s of {after}")
 
     def set_return_delay(self, delay_us: int = 0, ids: Sequence[int] | None = None) -> None:
         """Set Return Delay Time (µs, even, 0…508) with torque off; 0 makes every sync read faster."""

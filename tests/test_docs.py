@@ -59,15 +59,15 @@ def test_every_environment_switch_the_code_reads_is_in_the_config_page():
     assert names <= documented, f"switches the code reads that docs/CONFIG.md does not explain: {names - documented}"
 
 
-def _sources_hash(files: list[str]) -> str:
-    """As tools/screenshot.py computes it (kept in step by the test below on one picture)."""
-    import hashlib
+def _screenshot_tool():
+    """tools/screenshot.py (not a package): its sources_hash is what it records in the manifest."""
+    import importlib.util
 
-    digest = hashlib.sha256()
-    for name in files:
-        digest.update(name.encode())
-        digest.update((ROOT / name).read_bytes())
-    return digest.hexdigest()[:16]
+    spec = importlib.util.spec_from_file_location("screenshot_tool", ROOT / "tools" / "screenshot.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    return tool
 
 
 def test_every_readme_picture_of_a_tab_was_taken_from_the_code_as_it_is_now():
@@ -82,20 +82,19 @@ def test_every_readme_picture_of_a_tab_was_taken_from_the_code_as_it_is_now():
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     shown = set(re.findall(r"docs/screenshots/([\w.-]+\.png)", readme))
     assert set(sources) <= shown, f"pictures mapped but not in the README: {set(sources) - shown}"
-    stale = [picture for picture, files in sources.items() if manifest.get(picture) != _sources_hash(files)]
+    sources_hash = _screenshot_tool().sources_hash
+    stale = [picture for picture, files in sources.items() if manifest.get(picture) != sources_hash(files)]
     assert not stale, (f"README pictures older than their tab's code: {stale}; retake them on an X display "
                        "(python tools/screenshot.py --xvfb; see its --help for the 3-D and feedback ones)")
 
 
-def test_the_screenshot_tool_hashes_the_sources_as_this_test_does():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("screenshot_tool", ROOT / "tools" / "screenshot.py")
-    assert spec is not None and spec.loader is not None
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
-    files = ["app/gui/tabs/hardware.py", "widgets/hardware_panel.py"]
-    assert tool.sources_hash(files) == _sources_hash(files)
+def test_a_changed_source_changes_the_hash_the_freshness_check_compares(tmp_path, monkeypatch):
+    tool = _screenshot_tool()
+    (tmp_path / "a.py").write_text("x = 1\n")
+    monkeypatch.setattr(tool, "ROOT", tmp_path)
+    before = tool.sources_hash(["a.py"])
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert tool.sources_hash(["a.py"]) != before
 
 
 def test_the_docs_name_the_fit_solver_the_code_defaults_to():
