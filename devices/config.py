@@ -17,6 +17,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from devices.errors import ConfigError
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - exercised on 3.10 only
@@ -25,10 +27,6 @@ else:  # pragma: no cover - exercised on 3.10 only
 N_JOINTS = 12
 SENSOR_SIDES = ("L", "R", "B")
 SIM_PORT = "sim"
-
-
-class ConfigError(ValueError):
-    """A configuration value is missing, of the wrong type or out of range; the message names the key."""
 
 
 def default_sensor_names(n_segments: int = N_JOINTS) -> tuple[str, ...]:
@@ -145,6 +143,9 @@ class LabConfig:
     rig: RigConfig = field(default_factory=RigConfig)
     lab: SimLabConfig = field(default_factory=SimLabConfig)
     source_text: str = ""  # the TOML text this was loaded from, stored in recordings
+    # [servos]: control-table items (name, raw value) every joint servo should hold; applied on connect where a
+    # servo differs (app.core.servo_settings.apply_profile). Empty: the servos are left as they are.
+    servos: tuple[tuple[str, int], ...] = ()
 
     def with_ports(self, robot: str | None = None, board: str | None = None, rig: str | None = None) -> LabConfig:
         """A copy with the given ports replaced (``None`` keeps the configured one)."""
@@ -179,15 +180,63 @@ def parse_config(text: str, source: str = "<config>") -> LabConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
-    unknown = set(data) - {"robot", "board", "rig", "lab"}
+    unknown = set(data) - {"robot", "board", "rig", "lab", "servos"}
     if unknown:
-        raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab)")
+        raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab, "
+                          "servos)")
     # Each section is validated as it is built (__post_init__); _build prefixes the file's name to any error.
     robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
     board = _build(BoardConfig, data.get("board", {}), "board", source)
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
     lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
-    return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text)
+    servos = _servo_profile(data.get("servos", {}), source)
+    return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text, servos=servos)
+
+
+# Items a [servos] profile may not set: the moment's state, and what would lose the servo on the bus.
+PROFILE_REFUSED = frozenset({"Torque Enable", "LED", "Goal PWM", "Goal Current", "Goal Velocity", "Goal Position",
+                             "ID", "Baud Rate", "Registered Instruction", "Homing Offset", "Operating Mode",
+                             "Protocol Type"})
+
+
+def profile_key(item_name: str) -> str:
+    """The [servos] key of a control-table item: "Return Delay Time" → ``return_delay_time``."""
+    return item_name.lower().replace(" ", "_").replace("-", "_")
+
+
+def _why_refused(name: str) -> str:
+    if name in ("ID", "Baud Rate", "Protocol Type"):
+        return "it would lose the servo on the bus"
+    if name == "Operating Mode":
+        return "the app drives every joint in position control mode"
+    if name == "Homing Offset":
+        return "the joints' zero is [robot] zero_offsets_rad, set by 'Set zero pose'"
+    return "it is the servo's state of the moment"
+
+
+def _servo_profile(table: Any, source: str) -> tuple[tuple[str, int], ...]:
+    """``[servos]`` → (item name, raw value) pairs, each item writable, allowed in a profile and in its range."""
+    from devices import control_table as ct
+
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [servos] must be a table of control-table items")
+    by_key = {profile_key(item.name): item for item in ct.XM430_W350_ITEMS}
+    profile = []
+    for key, value in table.items():
+        item = by_key.get(key)
+        if item is None or not item.writable:
+            allowed = sorted(k for k, i in by_key.items() if i.writable and i.name not in PROFILE_REFUSED)
+            what = "a read-only item" if item is not None else "not a control-table item of the XM430-W350"
+            raise ConfigError(f"{source}: servos.{key} is {what} (items a profile can set: {', '.join(allowed)})")
+        if item.name in PROFILE_REFUSED:
+            raise ConfigError(f"{source}: servos.{key} cannot be in a profile applied on every connect ("
+                              + _why_refused(item.name) + ")")
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{source}: servos.{key} = {value!r} must be a whole number in the servo's raw units")
+        if not item.minimum <= value <= item.maximum:
+            raise ConfigError(f"{source}: servos.{key} = {value} is out of its range {item.minimum} … {item.maximum}")
+        profile.append((item.name, int(value)))
+    return tuple(profile)
 
 
 def resolve_relative_scene(config: LabConfig, config_path: str | Path) -> LabConfig:

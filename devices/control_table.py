@@ -11,6 +11,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from devices.errors import (  # noqa: F401 - re-exported: the status packet's error numbers live with their error
+    ERRNUM_ACCESS,
+    ERRNUM_CRC,
+    ERRNUM_DATA_LENGTH,
+    ERRNUM_DATA_LIMIT,
+    ERRNUM_DATA_RANGE,
+    ERRNUM_INSTRUCTION,
+    ERRNUM_NAMES,
+    ERRNUM_RESULT_FAIL,
+)
+
 MODEL_NUMBER_XM430_W350 = 1020
 MODEL_NAMES: dict[int, str] = {
     1020: "XM430-W350",
@@ -73,22 +84,6 @@ def hardware_error_names(status: int) -> tuple[str, ...]:
 
 # Protocol 2.0 status packet error byte.
 ERROR_ALERT_BIT = 0x80
-ERRNUM_RESULT_FAIL = 1
-ERRNUM_INSTRUCTION = 2
-ERRNUM_CRC = 3
-ERRNUM_DATA_RANGE = 4
-ERRNUM_DATA_LENGTH = 5
-ERRNUM_DATA_LIMIT = 6
-ERRNUM_ACCESS = 7
-ERRNUM_NAMES: dict[int, str] = {
-    ERRNUM_RESULT_FAIL: "result fail",
-    ERRNUM_INSTRUCTION: "instruction error",
-    ERRNUM_CRC: "CRC error",
-    ERRNUM_DATA_RANGE: "data range error",
-    ERRNUM_DATA_LENGTH: "data length error",
-    ERRNUM_DATA_LIMIT: "data limit error",
-    ERRNUM_ACCESS: "access error",
-}
 
 
 @dataclass(frozen=True)

@@ -62,13 +62,16 @@ from devices import control_table as ct
 from devices import tick_trace
 from devices.config import RobotConfig
 from devices.errors import (
+    BusBusyError,
     CorruptPacketError,
+    DeadlinePassedError,
     DeviceError,
     JointLimitError,
     LinkLostError,
     NoReplyError,
     PortOpenError,
     ServoHardwareError,
+    ServoLostError,
 )
 from devices.factory import is_sim
 from devices.realtime import (  # noqa: F401 - GIL_SWITCH_INTERVAL_S, BUS_THREAD_RT_PRIORITY: part of this module's face
@@ -78,7 +81,7 @@ from devices.realtime import (  # noqa: F401 - GIL_SWITCH_INTERVAL_S, BUS_THREAD
     _raise_thread_priority,
     _switched_off,
 )
-from devices.servo_chain import ChainState, DeadlinePassedError, ServoChain, ServoHealth, ServoInfo
+from devices.servo_chain import ChainState, ServoChain, ServoHealth, ServoInfo
 
 log = logging.getLogger(__name__)
 
@@ -228,20 +231,6 @@ class _LongLivedObjects:
 
 
 _long_lived = _LongLivedObjects()
-
-
-class BusBusyError(DeviceError):
-    """A bus command that cannot share the bus with the control loop right now (says why and what to do)."""
-
-
-class ServoLostError(DeviceError):
-    """A servo stopped doing what it was told mid-motion: it dropped its torque (a reboot, a power cut) or is far
-    from its goal. Names the servo."""
-
-    def __init__(self, servo_id: int, what: str) -> None:
-        self.servo_id = servo_id
-        super().__init__(f"servo {servo_id} {what}: motion stopped; check its power and cable, then turn torque on "
-                         "again (a rebooted servo comes back limp)")
 
 
 def joint_limit_error(robot: RobotConfig, angles_rad: np.ndarray, what: str) -> JointLimitError | None:

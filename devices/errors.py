@@ -7,6 +7,24 @@ from __future__ import annotations
 
 import os
 
+# Protocol 2.0 status packet error numbers (ROBOTIS e-manual, "Status Packet"): what a servo says when it refuses.
+ERRNUM_RESULT_FAIL = 1
+ERRNUM_INSTRUCTION = 2
+ERRNUM_CRC = 3
+ERRNUM_DATA_RANGE = 4
+ERRNUM_DATA_LENGTH = 5
+ERRNUM_DATA_LIMIT = 6
+ERRNUM_ACCESS = 7
+ERRNUM_NAMES: dict[int, str] = {
+    ERRNUM_RESULT_FAIL: "result fail",
+    ERRNUM_INSTRUCTION: "instruction error",
+    ERRNUM_CRC: "CRC error",
+    ERRNUM_DATA_RANGE: "data range error",
+    ERRNUM_DATA_LENGTH: "data length error",
+    ERRNUM_DATA_LIMIT: "data limit error",
+    ERRNUM_ACCESS: "access error",
+}
+
 
 class DeviceError(RuntimeError):
     """Base of every hardware error raised by ``devices``."""
@@ -123,3 +141,83 @@ def os_words(exc: BaseException) -> str:
 class LabProcessUnavailable(RuntimeError):
     """The simulated lab's own process could not be started (not a device problem): the lab then runs in the
     app's process (:func:`devices.factory.start_lab_process`)."""
+
+
+# raised by devices.controller
+class BusBusyError(DeviceError):
+    """A bus command that cannot share the bus with the control loop right now (says why and what to do)."""
+
+
+# raised by devices.controller
+class ServoLostError(DeviceError):
+    """A servo stopped doing what it was told mid-motion: it dropped its torque (a reboot, a power cut) or is far
+    from its goal. Names the servo."""
+
+    def __init__(self, servo_id: int, what: str) -> None:
+        self.servo_id = servo_id
+        super().__init__(f"servo {servo_id} {what}: motion stopped; check its power and cable, then turn torque on "
+                         "again (a rebooted servo comes back limp)")
+
+
+# raised by devices.config
+class ConfigError(ValueError):
+    """A configuration value is missing, of the wrong type or out of range; the message names the key."""
+
+
+# raised by devices.rig
+class RigForceError(DeviceError, ValueError):
+    """A force the rig must not or cannot apply."""
+
+
+# raised by devices.scene
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the file, the key and the problem."""
+
+
+# raised by devices.servo_chain
+class ServoCommandError(DeviceError, ValueError):
+    """A servo answered but refused the instruction (error number in its status packet)."""
+
+    def __init__(self, servo_id: int, errnum: int, what: str) -> None:
+        self.servo_id = servo_id
+        self.errnum = errnum
+        name = ERRNUM_NAMES.get(errnum, f"error {errnum}")
+        hint = {
+            ERRNUM_ACCESS: "EEPROM items (address < 64) can only be written with torque off; "
+                              "read-only items cannot be written",
+            ERRNUM_DATA_LIMIT: "the value lies outside the servo's configured limits",
+            ERRNUM_DATA_RANGE: "the value or address is out of range",
+            ERRNUM_CRC: "the servo received a corrupted packet; check the bus wiring",
+        }.get(errnum, "see the Dynamixel e-manual")
+        super().__init__(f"servo {servo_id} refused {what}: {name} ({hint})")
+
+
+# raised by devices.servo_chain
+class RateError(DeviceError, ValueError):
+    """A control rate this bus cannot keep (the message says why and how to fix it)."""
+
+
+# raised by devices.servo_chain
+class DeadlinePassedError(DeviceError):
+    """A read given up at the caller's deadline (the next control tick's slot) before all replies came: not a fault
+    of the servos; their late replies are skipped when they arrive (see :class:`_TrackingSyncRead`)."""
+
+
+# raised by devices.loop_process
+class LoopDiedError(DeviceError):
+    """The control loop's process ended without being asked to (killed, crashed). Names the process and the fix."""
+
+
+# raised by devices.process_messages
+class ProtocolError(RuntimeError):
+    """A message that is not what this side expects (another kind, another version, a reply to another request)."""
+
+
+# raised by devices.loop_process
+class LoopProcessUnavailable(RuntimeError):
+    """The child process could not be started (not a device problem): run the loop in-process instead."""
+
+
+# raised by devices.rig
+class RigInterrupted(DeviceError):
+    """A wait was cut short because the caller's ``interrupt`` became true (abort, STOP)."""

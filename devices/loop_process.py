@@ -75,7 +75,7 @@ from devices.controller import (
     _raise_thread_priority,
     _switched_off,
 )
-from devices.errors import DeviceError, LinkLostError
+from devices.errors import LinkLostError, LoopDiedError, LoopProcessUnavailable
 from devices.servo_chain import ChainState, ServoChain, ServoHealth
 
 log = logging.getLogger(__name__)
@@ -93,14 +93,6 @@ EXCEPTIONS_KEPT = 64
 CHILD_METHODS = frozenset({"run_motion", "play", "pause", "resume", "stop_motion", "emergency_stop", "submit",
                            "set_torque", "set_led", "reboot", "scan", "stats", "recent_periods_s"})
 ENV_SWITCH = "SENSNAKE_LOOP_PROCESS"  # "0" keeps the loop in the app's process on every port
-
-
-class LoopProcessUnavailable(RuntimeError):
-    """The child process could not be started (not a device problem): run the loop in-process instead."""
-
-
-class LoopDiedError(DeviceError):
-    """The control loop's process ended without being asked to (killed, crashed). Names the process and the fix."""
 
 
 def loop_process_wanted(port: str) -> tuple[bool, str]:

@@ -19,13 +19,9 @@ import pickle
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from devices.errors import DeviceError
+from devices.errors import DeviceError, ProtocolError
 
 VERSION = 1  # bump when a message's fields change: a child and an app of different versions refuse each other
-
-
-class ProtocolError(RuntimeError):
-    """A message that is not what this side expects (another kind, another version, a reply to another request)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from devices.config import RigConfig, RobotConfig
-from devices.errors import DeviceError
+from devices.errors import DeviceError, RigForceError, RigInterrupted
 from devices.servo_chain import ServoChain
 
 DEFAULT_MAX_FORCE_N = RigConfig().max_force_n  # 8 N: above the paper's 5.25 N, well below the spring's range
@@ -57,14 +57,6 @@ class RigCheckLine:
     name: str
     ok: bool
     detail: str
-
-
-class RigForceError(DeviceError, ValueError):
-    """A force the rig must not or cannot apply."""
-
-
-class RigInterrupted(DeviceError):
-    """A wait was cut short because the caller's ``interrupt`` became true (abort, STOP)."""
 
 
 class CalibrationRig:

@@ -23,15 +23,13 @@ from typing import Any
 import numpy as np
 import tomllib
 
+from devices.errors import SceneError
+
 SIDES = ("B", "L", "R")  # a segment's sheets: row order of the physics lab's loads (the scripted ContactModel's too)
 SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
-
-
-class SceneError(ValueError):
-    """A scene file that cannot be used; the message names the file, the key and the problem."""
 
 
 @dataclass(frozen=True)

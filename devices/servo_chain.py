@@ -47,12 +47,15 @@ from devices import tick_trace
 from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
+    DeadlinePassedError,
     DeviceError,
     DuplicateIdError,
     LinkLostError,
     ModelMismatchError,
     NoReplyError,
     PortOpenError,
+    RateError,
+    ServoCommandError,
     ServoHardwareError,
     os_words,
 )
@@ -82,32 +85,6 @@ MIN_STATUS_BYTES = 11  # a status packet without parameters: header 4, ID, lengt
 DEFAULT_BAUD_BPS = 1_000_000
 PTY_EXTRA_TIMEOUT_MS = 250.0  # a pty (an emulator in a process) crosses the kernel's tty work queue: under load >100 ms
 LATENCY_TIMER_DIR = Path("/sys/bus/usb-serial/devices")
-
-
-class ServoCommandError(DeviceError, ValueError):
-    """A servo answered but refused the instruction (error number in its status packet)."""
-
-    def __init__(self, servo_id: int, errnum: int, what: str) -> None:
-        self.servo_id = servo_id
-        self.errnum = errnum
-        name = ct.ERRNUM_NAMES.get(errnum, f"error {errnum}")
-        hint = {
-            ct.ERRNUM_ACCESS: "EEPROM items (address < 64) can only be written with torque off; "
-                              "read-only items cannot be written",
-            ct.ERRNUM_DATA_LIMIT: "the value lies outside the servo's configured limits",
-            ct.ERRNUM_DATA_RANGE: "the value or address is out of range",
-            ct.ERRNUM_CRC: "the servo received a corrupted packet; check the bus wiring",
-        }.get(errnum, "see the Dynamixel e-manual")
-        super().__init__(f"servo {servo_id} refused {what}: {name} ({hint})")
-
-
-class RateError(DeviceError, ValueError):
-    """A control rate this bus cannot keep (the message says why and how to fix it)."""
-
-
-class DeadlinePassedError(DeviceError):
-    """A read given up at the caller's deadline (the next control tick's slot) before all replies came: not a fault
-    of the servos; their late replies are skipped when they arrive (see :class:`_TrackingSyncRead`)."""
 
 
 @dataclass(frozen=True)

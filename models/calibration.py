@@ -26,6 +26,7 @@ import numpy as np
 from scipy import special
 from scipy.optimize import minimize_scalar
 
+from models.errors import FlatSensorError
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
     PARAM_NAMES,
@@ -138,10 +139,6 @@ def decimate_trial(trial: TrialInput, rate_hz: float, saturation_s: float | None
             at_ceiling[:n].reshape(-1, k).any(axis=1)
         conductance = np.where(hit, saturation_s, conductance)
     return TrialInput(trial.name, blocks(t), blocks(trial.force_n), conductance)
-
-
-class FlatSensorError(ValueError):
-    """A trial shows no usable response (flat-lined or disconnected sensor): the fit is refused."""
 
 
 @dataclass(frozen=True)

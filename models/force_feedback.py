@@ -53,11 +53,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from models.errors import GainsError
 from models.kinematics import forward_kinematics
-
-
-class GainsError(ValueError):
-    """Gains out of their safe ranges; the message names the gain."""
 
 
 @dataclass(frozen=True)

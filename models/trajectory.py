@@ -25,12 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from models.errors import TrajectoryError
+
 AXES = ("pitch", "yaw")
 DEFAULT_SPEED_RAD_S = 0.034  # the paper's follow-the-leader propagation speed
-
-
-class TrajectoryError(ValueError):
-    """A requested trajectory cannot be made (bad shape, speed, or a keyframe step faster than the servos allow)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -83,9 +83,29 @@ def generate() -> str:
             note = notes.get((section, field.name), "").replace("|", "\\|")
             out.append(f"| `{field.name}` | `{_default(field)}` | {note} |")
         out.append("")
+    out += _servos_section()
     out += ["## Environment switches", "", "| variable | what it does |", "|---|---|"]
     out += [f"| `{name}` | {text} |" for name, text in sorted(ENVIRONMENT.items())]
     return "\n".join(out) + "\n"
+
+
+def _servos_section() -> list[str]:
+    """[servos]: the control-table items a profile may set (applied on connect where a servo differs)."""
+    from devices import control_table as ct
+    from devices.config import PROFILE_REFUSED, profile_key
+
+    out = ["## [servos]", "",
+           "Control-table items every joint servo should hold, in the servo's raw units (XM430-W350 e-manual); on "
+           "every connect each servo's table is read once and only the items that differ are written (EEPROM items "
+           "with torque off and back on, each read back); the changes show on the Hardware tab's Servo settings page. "
+           "Empty (the default): the servos are left as they are. Not allowed: "
+           + ", ".join(sorted(f"`{profile_key(n)}`" for n in PROFILE_REFUSED)) + ".", "",
+           "| key | range | memory |", "|---|---|---|"]
+    for item in ct.XM430_W350_ITEMS:
+        if item.writable and item.name not in PROFILE_REFUSED:
+            out.append(f"| `{profile_key(item.name)}` | {item.minimum} … {item.maximum} | "
+                       f"{'EEPROM' if item.eeprom else 'RAM'} |")
+    return out + [""]
 
 
 def main() -> int:

@@ -145,3 +145,31 @@ def test_tests_sleep_only_where_a_comment_says_time_must_pass_on_purpose():
             if "time.sleep(" in line and "real_sleep" not in line and "Deliberate" not in lines[number - 1]:
                 offenders.append(f"{path.relative_to(ROOT)}:{number + 1}")
     assert not offenders, f"sleeps in tests without a 'Deliberate' comment above: {offenders}"
+
+
+def test_error_classes_live_in_their_packages_errors_module():
+    """A newcomer finds every error a package raises in one file (``devices/errors.py``, ``app/core/errors.py``,
+    ``models/errors.py``): an exception class defined anywhere else in those packages fails here, named."""
+    import ast
+
+    homes = {"devices": ROOT / "devices" / "errors.py", "app": ROOT / "app" / "core" / "errors.py",
+             "models": ROOT / "models" / "errors.py", "widgets": None}
+    misplaced, found = [], {}
+    for package, home in homes.items():
+        for path in sorted((ROOT / package).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            for node in tree.body:
+                if not isinstance(node, ast.ClassDef) or node.name.startswith("_"):
+                    continue  # a private exception is a module's own control flow, never raised to a caller
+                bases = {b.id if isinstance(b, ast.Name) else getattr(b, "attr", "") for b in node.bases}
+                if not any(base.endswith(("Error", "Exception", "Unavailable")) for base in bases):
+                    continue
+                if path == home:
+                    found.setdefault(package, []).append(node.name)
+                elif "sim" not in path.parts and "emulators" not in path.parts:
+                    misplaced.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
+    assert not misplaced, f"error classes outside their package's errors module: {misplaced}"
+    # The homes hold them (the check above would pass vacuously if the walk found nothing).
+    assert {"DeviceError", "ServoLostError", "ConfigError", "ProtocolError"} <= set(found["devices"])
+    assert {"CalFileError", "RecordingError", "SettingsError"} <= set(found["app"])
+    assert {"TrajectoryError", "GainsError"} <= set(found["models"])

@@ -182,12 +182,61 @@ def main(argv: list[str] | None = None) -> int:
             print(f"saved {path}")  # noqa: T201 - a command-line script reports what it wrote
             if out.resolve() == SCREENSHOTS.resolve():
                 record_sources(path.name)
+            if name == "hardware":
+                for extra in _hardware_extras(window, page, lab, out, pump):
+                    print(f"saved {extra}")  # noqa: T201
+                    if out.resolve() == SCREENSHOTS.resolve():
+                        record_sources(extra.name)
         window.close()
         app.processEvents()
     return 0
 
 
 SCREENSHOTS = ROOT / "docs" / "screenshots"
+
+
+def _hardware_extras(window: Any, page: Any, lab: Any, out: Path, pump: Any) -> list[Path]:
+    """The Servo settings page after the lab's [servos] profile was applied (the changes it made beside the table),
+    and the Set zero pose dialog over the window."""
+    from widgets.zero_pose_dialog import ZeroPoseDialog
+
+    saved = []
+    robot = lab.robot
+    robot.servo_profile = (("Position P Gain", 640), ("Profile Acceleration", 20), ("Return Delay Time", 0))
+    robot.last_profile_changes = []
+    robot.apply_profile()
+    page.pages.setCurrentWidget(page.settings)
+    pump(20_000, until=lambda: bool(robot.last_profile_changes))
+    page.settings.servo_combo.setCurrentIndex(3)
+    page.settings.live_check.setChecked(True)
+    pump(2_000)
+    page.settings.table.scrollToItem(page.settings.table.item(40, 0))
+    page.settings.table.selectRow(next(k for k, row in enumerate(page.settings.rows) if row.name == "Position P Gain"))
+    pump(1_000)
+    path = out / "hardware-settings.png"
+    window.raise_()
+    pump(200)
+    if _grab(window).save(str(path)):
+        saved.append(path)
+    page.settings.live_check.setChecked(False)
+    state = robot.latest_state
+    config = robot.config
+    present = [float(a) for a in state.position_rad] if state is not None else [0.0] * config.n_joints
+    from app.core.servo_settings import zero_offsets
+
+    dialog = ZeroPoseDialog(config.joint_ids, config.axes, present, list(config.zero_offsets_rad),
+                            zero_offsets(config.zero_offsets_rad, present), "my_lab.toml", window)
+    dialog.show()
+    dialog.adjustSize()
+    pump(1_000)
+    dialog.raise_()
+    pump(200)
+    path = out / "zero-pose.png"
+    if _grab(dialog).save(str(path)):
+        saved.append(path)
+    dialog.close()
+    page.pages.setCurrentWidget(page.panel)
+    return saved
 
 
 def sources_hash(files: list[str]) -> str:

@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     app.setApplicationName(APP_NAME)
 
     lab = LabContext(config, lab_process=True)  # a simulated lab in its own process (devices.sim.lab_process)
+    lab.config_path = Path(args.config) if args.config else None
     window = MainWindow(lab)
     if args.config:
         window.config_path = Path(args.config)

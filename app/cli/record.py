@@ -24,14 +24,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from app.core import live_session
-from app.core.live_session import (
-    BoardGoneError,
-    BoardSilentError,
-    LiveSession,
-    TimedOutcome,
-    describe_stats,
-    record_timed,
-)
+from app.core.errors import BoardGoneError, BoardSilentError
+from app.core.live_session import LiveSession, TimedOutcome, describe_stats, record_timed
 from devices import factory
 from devices.board import BoardReader, BoardStats
 from devices.config import MAX_BAUD, load_config

@@ -11,7 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app.core.recording import RecordingFormatError, open_recording, repair_recording, write_recording
+from app.core.errors import RecordingFormatError
+from app.core.recording import open_recording, repair_recording, write_recording
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,6 +23,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from app.core.errors import CalFileError
 from models.physics import PhysicsConstants
 
 CAL_FORMAT = "sensnake-calibration"
@@ -35,10 +36,6 @@ CONDUCTANCE_COLUMN = "conductance_S"
 # The unit a column stem must carry; a header with the right stem and another unit (force_kN, time_ms) is refused
 # rather than silently misread by a factor of 1000.
 _EXPECTED_UNITS = {"time": "s", "force": "N", "conductance": "S"}
-
-
-class CalFileError(ValueError):
-    """A calibration, trial or series file is malformed. The message names the file (and line) and the fix."""
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from app.core.errors import BoardSilentError
 from app.core.forces_pipeline import ForcesBlock, ForcesPipeline
 from app.core.recorder import Recorder
 from app.core.recording import DEFAULT_MIN_FREE_BYTES
@@ -50,14 +51,6 @@ QUIET_GONE_S = 1.0  # no frame for this long at the end of a timed recording: th
 MISMATCH_GIVE_UP_S = 2.0  # only frames of the wrong channel count for this long: the config does not fit the board
 WAIT_S = 0.1
 TOLD_STATES = ("disconnected", "reconnected", "error")  # reader states worth a line to the user
-
-
-class BoardSilentError(TimeoutError):
-    """The port opened but no valid frame arrived."""
-
-
-class BoardGoneError(ConnectionError):
-    """The recording ended with the board unplugged or silent; everything before is in the file."""
 
 
 # -- link health -------------------------------------------------------------------------------------------------

@@ -44,6 +44,7 @@ import h5py
 import numpy as np
 
 from app.core.calfiles import write_atomically
+from app.core.errors import RecordingError, RecordingFormatError
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -55,14 +56,6 @@ FLUSH_METADATA_RESERVE_BYTES = 256_000  # room reserved for the metadata one flu
 EVENT_TEXT_BYTES = 256
 EVENT_KIND_BYTES = 16
 STAT_KEYS = ("crc_errors", "dropped_frames", "resyncs")  # SPEC §3.5's /daq attributes
-
-
-class RecordingError(OSError):
-    """Writing a recording failed (disk full, file gone); what was flushed before stays readable."""
-
-
-class RecordingFormatError(ValueError):
-    """A file is not a SenSnake recording this version can read; the message names the file."""
 
 
 class DaqBlock(Protocol):

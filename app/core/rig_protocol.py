@@ -63,9 +63,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from app.core import calfiles
+from app.core.errors import BoardStreamError, ForceCollapsedError
 from devices.config import BoardConfig, RigConfig
-from devices.errors import DeviceError
-from devices.rig import ANGLE_LIMIT_RAD, RigInterrupted
+from devices.errors import DeviceError, RigInterrupted
+from devices.rig import ANGLE_LIMIT_RAD
 from models.physics import PhysicsConstants, conductance_from_strain
 from models.sls import TYPICAL_SLS, SLSParams
 
@@ -125,14 +126,6 @@ class RefinableRig(RigDevice, Protocol):
     contact_rad: float | None
 
     def move_to(self, angle_rad: float) -> float: ...
-
-
-class BoardStreamError(RuntimeError):
-    """The sensor's conductance stopped arriving from the board."""
-
-
-class ForceCollapsedError(RuntimeError):
-    """The reading collapsed during a hold: the cable snapped or the probe slipped off the sensor."""
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from app.core.errors import SettingsError
 from devices import control_table as ct
 
 FORMAT = "sensnake-servos"
@@ -47,10 +48,6 @@ UNITS = {
     "Present Velocity": "0.229 rpm", "Present Position": "0.088°", "Velocity Trajectory": "0.229 rpm",
     "Position Trajectory": "0.088°", "Present Input Voltage": "0.1 V", "Present Temperature": "°C",
 }
-
-
-class SettingsError(ValueError):
-    """A settings request that cannot be carried out (unknown item, out of range, read-only, a bad file)."""
 
 
 class Bus(Protocol):
@@ -223,6 +220,32 @@ def restore(bus: Bus, document: dict[str, Any], ids: Sequence[int] | None = None
             else:
                 changes.append(set_item(bus, sid, name, value))
     return changes
+
+
+def apply_profile(bus: Bus, ids: Iterable[int], profile: Sequence[tuple[str, int]]) -> list[Change]:
+    """The lab's ``[servos]`` profile onto servos ``ids``: each servo's table is read once and compared; only the items
+    that differ are written (with :func:`set_item`'s rules: torque off around EEPROM, read back). Every item considered
+    is returned, ``written`` False where the servo already held it."""
+    changes = []
+    for sid in ids:
+        present = read_table(bus, sid)
+        for name, value in profile:
+            if present.get(name) == value:
+                changes.append(Change(sid, name, value, value, written=False))
+            else:
+                changes.append(set_item(bus, sid, name, value))
+    return changes
+
+
+def describe_changes(changes: Sequence[Change]) -> str:
+    """One line: how many items were written on which servos, how many already held their value."""
+    written = [c for c in changes if c.written]
+    if not written:
+        return f"all {len(changes)} item(s) already held their values: nothing written"
+    servos = sorted({c.servo_id for c in written})
+    items = sorted({c.item for c in written})
+    return (f"{len(written)} item(s) written on servo(s) {', '.join(str(s) for s in servos)} "
+            f"({', '.join(items)}); {len(changes) - len(written)} already held their values")
 
 
 # -- zero pose ----------------------------------------------------------------------------------------------------

@@ -20,13 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from app.core import user_folders
+from app.core.errors import ShapeFormatError
 
 SHAPE_FORMAT = "sensnake-shape"
 SHAPE_VERSION = 1
-
-
-class ShapeFormatError(ValueError):
-    """A shape file is unreadable, of an unknown format/version, or has a missing or bad key (named)."""
 
 
 @dataclass(frozen=True)

@@ -45,16 +45,14 @@ from typing import Any
 import numpy as np
 import tomllib
 
-from models.force_feedback import FeedbackGains, GainsError
+from app.core.errors import SweepError
+from models.errors import GainsError
+from models.force_feedback import FeedbackGains
 
 SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains",
               "repeat"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file")
-
-
-class SweepError(ValueError):
-    """A sweep file that cannot be run; the message names the file and the key."""
 
 
 @dataclass(frozen=True)

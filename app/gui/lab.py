@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+from pathlib import Path
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
@@ -70,6 +71,8 @@ class LabContext(QObject):
         self._bridge = ThreadBridge(self)
         self._watched: Any = None
         self.robot = RobotBridge(config.robot, self)
+        self.robot.servo_profile = config.servos
+        self.config_path: Path | None = None  # the lab config file the app was opened with (None: the packaged one)
         self._board: Any = None
         self._board_loaded = False
         self.board_unavailable_reason = ""

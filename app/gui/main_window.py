@@ -31,7 +31,8 @@ from app.core import user_folders
 from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
-from devices.config import ConfigError, load_config
+from devices.config import load_config
+from devices.errors import ConfigError
 from devices.factory import is_sim
 from widgets import theme
 from widgets.placeholder import PlaceholderPage
@@ -262,7 +263,9 @@ class MainWindow(QMainWindow):
             QMessageBox.warning(self, "Configuration not loaded", str(exc))
             return False
         self.config_path = Path(path)
-        self.replace_lab(LabContext(config, lab_process=getattr(self.lab, "lab_process", False)))
+        lab = LabContext(config, lab_process=getattr(self.lab, "lab_process", False))
+        lab.config_path = self.config_path
+        self.replace_lab(lab)
         self.lab.connect_all()
         return True
 

@@ -31,9 +31,9 @@ from app.gui.thread_bridge import Coalescer, ThreadBridge
 from devices import bus_commands
 from devices.bus_commands import bus_command
 from devices.config import RobotConfig
-from devices.errors import DeviceError, LinkLostError
+from devices.errors import DeviceError, LinkLostError, LoopDiedError, LoopProcessUnavailable
 from devices.factory import is_sim, sim_serial_path
-from devices.loop_process import ControllerProcess, LoopDiedError, LoopProcessUnavailable, loop_process_wanted
+from devices.loop_process import ControllerProcess, loop_process_wanted
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -84,6 +84,7 @@ class RobotBridge(QObject):
     # kept because every subscriber uses it.
     event = Signal(str)  # type: ignore[assignment]
     motion_changed = Signal(str)
+    profile_applied = Signal(object)  # list[servo_settings.Change]: the lab's [servos] profile, applied on connect
 
     def __init__(self, config: RobotConfig, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -108,6 +109,9 @@ class RobotBridge(QObject):
         self.connected_at_s: float | None = None
         # Where the control loop runs, in words ("its own process (pid …)" / "the app's process (why)").
         self.loop_where = "not connected"
+        # The lab config's [servos] items (LabContext sets them), applied on every connect; what the last one did.
+        self.servo_profile: tuple[tuple[str, int], ...] = ()
+        self.last_profile_changes: list[Any] = []
 
     # -- properties (GUI thread; latest_state from any thread) ------------------------------------------------------
     @property
@@ -434,6 +438,25 @@ class RobotBridge(QObject):
         how = f" ({scheduling})" if not self.is_sim and scheduling and scheduling != "not started" else ""
         self.event.emit(f"robot connected: {self.n_servos} servos on {self.port} at {self.baud} baud ({kind}){timing}; "
                         f"control loop in {self.loop_where}{how}")
+        if self.servo_profile:
+            self.apply_profile()
+
+    def apply_profile(self) -> None:
+        """The lab's ``[servos]`` items onto every joint, where a servo differs (read-compare, then write)."""
+        from app.core import servo_settings
+
+        future = self.run_on_bus(bus_command(servo_settings.apply_profile, list(self.config.joint_ids),
+                                             list(self.servo_profile)), report_errors=False, holds_bus=True)
+
+        def done(changes: list) -> None:
+            self.last_profile_changes = list(changes)
+            self.event.emit(f"servo settings from the lab config's [servos]: {servo_settings.describe_changes(changes)}")
+            self.profile_applied.emit(self.last_profile_changes)
+
+        def failed(exc: BaseException) -> None:
+            self.event.emit(f"could not apply the lab config's [servos] settings: {describe_error(exc)}")
+
+        self.when_done(future, done, failed)
 
     def _connected_text(self) -> str:
         return f"{self.n_servos} servos on {self.port} ({'simulated' if self.is_sim else 'real'})"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.core import calfiles
-from app.core.calfiles import CalFileError
+from app.core.errors import CalFileError
 from models.physics import PhysicsConstants
 
 

@@ -46,7 +46,8 @@ def test_a_baud_rate_no_port_can_take_is_one_line_never_a_traceback(capsys, comm
 def test_one_writer_per_recording_file_the_second_is_refused_naming_the_first(tmp_path):
     import os
 
-    from app.core.recording import RecordingError, RecordingWriter
+    from app.core.errors import RecordingError
+    from app.core.recording import RecordingWriter
 
     path = tmp_path / "same.h5"
     first = RecordingWriter(path, "", ["S01B"])

@@ -150,3 +150,25 @@ def test_a_factory_reset_asks_for_yes_and_keeps_the_id_and_baud(emulator, capsys
     assert main(["servo", "get", "--robot", emulator.path, "--id", "5", "Position P Gain"]) == 0
     assert " 800 " in capsys.readouterr().out  # back at the factory value, at the same ID and baud rate
     assert emulator.state(5)["rdt"] == 250
+
+
+def test_a_labs_servo_profile_writes_only_what_differs_on_the_emulator(emulator):
+    """The [servos] profile the app applies on connect (app.core.servo_settings.apply_profile), on the emulator: one
+    table read per servo, a write only where a servo differs, EEPROM items with torque off and back on."""
+    from app.core import servo_settings
+
+    profile = [("Position P Gain", 640), ("Return Delay Time", 0)]
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        chain.set_torque(True, [4])
+        reads, writes = emulator.counts()["read"], emulator.counts()["write"]
+        changes = servo_settings.apply_profile(chain, [3, 4], profile)
+        written = {(c.servo_id, c.item) for c in changes if c.written}
+        assert emulator.counts()["read"] >= reads + 2  # at least the one table read per servo
+        assert ("Position P Gain" in {item for _, item in written}) and emulator.state(4)["torque"] == 1
+        again = servo_settings.apply_profile(chain, [3, 4], profile)
+        assert not any(c.written for c in again)
+        writes_after = emulator.counts()["write"]
+        servo_settings.apply_profile(chain, [3, 4], profile)
+        assert emulator.counts()["write"] == writes_after  # read-compare: nothing differs, nothing sent
+    assert writes_after > writes
+    assert "written on servo(s) 3, 4" in servo_settings.describe_changes(changes)

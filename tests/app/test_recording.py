@@ -15,13 +15,8 @@ import h5py
 import numpy as np
 import pytest
 
-from app.core.recording import (
-    RecordingError,
-    RecordingFormatError,
-    RecordingWriter,
-    export_csv,
-    open_recording,
-)
+from app.core.errors import RecordingError, RecordingFormatError
+from app.core.recording import RecordingWriter, export_csv, open_recording
 from devices.board import SampleBlock, conductance_from_counts
 from devices.config import BoardConfig, default_sensor_names
 

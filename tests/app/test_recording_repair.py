@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.core.recording import RecordingFormatError, RecordingWriter, open_recording, recover_recording
+from app.core.errors import RecordingFormatError
+from app.core.recording import RecordingWriter, open_recording, recover_recording
 from devices.board import SampleBlock, conductance_from_counts
 from devices.config import BoardConfig, default_sensor_names
 

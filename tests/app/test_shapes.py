@@ -6,10 +6,10 @@ import json
 
 import pytest
 
+from app.core.errors import ShapeFormatError
 from app.core.shapes import (
     Keyframe,
     Shape,
-    ShapeFormatError,
     ShapeLibrary,
     default_library_dir,
     mirror,

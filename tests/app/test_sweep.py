@@ -9,7 +9,8 @@ import pytest
 pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
-from app.core.sweep import SweepError, compare, read_sweep  # noqa: E402
+from app.core.errors import SweepError
+from app.core.sweep import compare, read_sweep
 
 
 def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_path, capsys):

@@ -9,7 +9,6 @@ import pytest
 
 from devices.config import (
     BoardConfig,
-    ConfigError,
     LabConfig,
     RigConfig,
     RobotConfig,
@@ -17,6 +16,7 @@ from devices.config import (
     load_config,
     parse_config,
 )
+from devices.errors import ConfigError
 
 
 def test_default_config_is_the_simulated_lab():

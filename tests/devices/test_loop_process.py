@@ -21,16 +21,10 @@ from app.core.teach import _read_pose
 from devices import bus_commands
 from devices.bus_commands import bus_command
 from devices.config import RobotConfig
-from devices.controller import RobotController, ServoLostError
-from devices.errors import LinkLostError
-from devices.loop_process import (
-    HUNG_KILL_S,
-    ControllerProcess,
-    LoopDiedError,
-    LoopProcessUnavailable,
-    loop_process_wanted,
-)
-from devices.servo_chain import RateError, ServoChain
+from devices.controller import RobotController
+from devices.errors import LinkLostError, LoopDiedError, LoopProcessUnavailable, RateError, ServoLostError
+from devices.loop_process import HUNG_KILL_S, ControllerProcess, loop_process_wanted
+from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators.xm430_emulator import EmulatorProcess
 from tests.waiting import wait_until

@@ -9,8 +9,7 @@ import pickle
 import pytest
 
 from devices import process_messages as messages
-from devices.errors import DeviceError, NoReplyError
-from devices.servo_chain import ServoCommandError
+from devices.errors import DeviceError, NoReplyError, ServoCommandError
 
 
 def test_a_message_of_another_kind_or_version_is_refused_naming_both():

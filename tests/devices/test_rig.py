@@ -9,8 +9,8 @@ import pytest
 
 from devices import factory
 from devices.config import RigConfig
-from devices.errors import DeviceError
-from devices.rig import CalibrationRig, RigForceError, _hinge_fit_contact
+from devices.errors import DeviceError, RigForceError
+from devices.rig import CalibrationRig, _hinge_fit_contact
 from devices.sim.clock import SimClock
 from devices.sim.rig import VirtualRig
 
@@ -148,7 +148,7 @@ def test_sensor_under_the_probe_creeps_at_constant_force(virtual_rig):
 
 
 def test_interrupted_contact_search_is_released_back_to_slack(virtual_rig):
-    from devices.rig import RigInterrupted
+    from devices.errors import RigInterrupted
 
     # Interrupt once the search has wound the probe onto the sensor (it winds past 1 N before it knows the contact).
     with CalibrationRig(RigConfig(), interrupt=lambda: virtual_rig.applied_force_n() > 1.0) as rig:

@@ -6,7 +6,8 @@ import math
 
 import pytest
 
-from devices.scene import SCENES_DIR, SceneError, load_scene, parse_scene
+from devices.errors import SceneError
+from devices.scene import SCENES_DIR, load_scene, parse_scene
 
 GOOD = """
 [ground]

@@ -15,13 +15,15 @@ from devices import factory
 from devices.config import RobotConfig
 from devices.errors import (
     CorruptPacketError,
+    DeadlinePassedError,
     LinkLostError,
     ModelMismatchError,
     NoReplyError,
     PortOpenError,
+    ServoCommandError,
     ServoHardwareError,
 )
-from devices.servo_chain import DeadlinePassedError, ServoChain, ServoCommandError
+from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
 

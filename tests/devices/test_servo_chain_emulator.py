@@ -22,9 +22,9 @@ import pytest
 from app.cli import main
 from devices import controller as controller_module
 from devices.config import RobotConfig
-from devices.controller import BusBusyError, RobotController
-from devices.errors import JointLimitError, ServoHardwareError
-from devices.servo_chain import DeadlinePassedError, ServoChain
+from devices.controller import RobotController
+from devices.errors import BusBusyError, DeadlinePassedError, JointLimitError, ServoHardwareError
+from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators import xm430_emulator as emu_module
 from tests.emulators.xm430_emulator import EmulatorProcess

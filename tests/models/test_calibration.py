@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.calibration import FlatSensorError, TrialInput, calibrate_sensor, hold_segment
+from models.calibration import TrialInput, calibrate_sensor, hold_segment
+from models.errors import FlatSensorError
 from models.fit_output import PARAM_NAMES
 from models.physics import PhysicsConstants
 from models.synthetic import TREND_TRUTH, TYPICAL_TRUTH, Readout, SensorTruth, make_trial, paper_protocol

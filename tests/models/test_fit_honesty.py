@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.calibration import FlatSensorError, TrialInput, calibrate_sensor
+from models.calibration import TrialInput, calibrate_sensor
+from models.errors import FlatSensorError
 from models.physics import PhysicsConstants
 from models.synthetic import TYPICAL_TRUTH, SensorTruth, make_trial, paper_protocol
 

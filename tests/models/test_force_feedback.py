@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.force_feedback import FeedbackGains, ForceFeedbackLaw, GainsError, node_joints
+from models.errors import GainsError
+from models.force_feedback import FeedbackGains, ForceFeedbackLaw, node_joints
 from models.kinematics import forward_kinematics
 
 AXES = tuple("pitch" if i % 2 == 0 else "yaw" for i in range(12))

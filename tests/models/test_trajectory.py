@@ -9,12 +9,12 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from models.errors import TrajectoryError
 from models.trajectory import (
     FollowTheLeader,
     Keyframes,
     SerpenoidParams,
     SidewindingParams,
-    TrajectoryError,
     axis_groups,
     follow_the_leader_targets,
     plan_follow_the_leader,

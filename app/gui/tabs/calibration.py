@@ -51,6 +51,7 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import calfiles, calibration_fit, user_folders
+from app.core.calibration_wizard import CalibrationWizard, Facts, Step
 from app.core.rig_protocol import (
     ABORTED,
     COMPLETED,
@@ -89,10 +90,8 @@ DESCRIPTION = (
 )
 PLOT_MAX_POINTS = 4000  # per curve: trials are minutes at a few Hz; decimate anything longer for drawing
 PARAM_LABELS = (("E0_Pa", "E0", "Pa"), ("E1_Pa", "E1", "Pa"), ("mu1_Pa_s", "μ1", "Pa·s"))
-# The wizard's steps (pages of CalibrationTab.steps), in order.
-SETUP, RIG_CHECK, CONTACT, PROTOCOL, REVIEW, SAVE = range(6)
-STEP_TITLES = ("Setup: the sensor, its area, the readout", "Rig check", "Find contact · conditioning",
-               "Protocol run", "Review", "Save")
+# The wizard's steps (pages of CalibrationTab.steps, in this order): app.core.calibration_wizard.
+SETUP, RIG_CHECK, CONTACT, PROTOCOL, REVIEW, SAVE = Step
 BOARD_CHECK_S = 5.0  # the rig check waits this long (wall s) for a sample of the sensor from the board
 PHASE_WORDS = {"contact": "finding the contact", "conditioning": "conditioning", "baseline": "baseline", "loading": "loading", "hold": "holding",
                "release": "releasing", "rest": "resting", "paused": "paused", "done": "done"}
@@ -177,18 +176,15 @@ class CalibrationTab(QWidget):
         self.protocol_form.run_requested.connect(self.start_run)
         self.protocol_form.pause_toggled.connect(self._pause_toggled)
         self.protocol_form.abort_requested.connect(self.rig_session.abort)
-        self._rig_check_ok_for: str | None = None  # the sensor whose rig check passed (None: not passed)
+        # The wizard's step and what its steps found (Qt-free: app.core.calibration_wizard); the tab draws it.
+        self.wizard = CalibrationWizard()
         self._check_rig_lines: list[Any] | None = None
         self._check_board_line: tuple[bool, str] | None = None
-        self._check_running = False
-        self._contact_run = False  # the rig session is finding the contact only (the wizard's step)
-        self._contact_found_for: str | None = None  # the sensor whose contact was found
         self._live_fit_thread: threading.Thread | None = None
         self._live_fit_again = False
         self.live_fits_shown = 0  # fits of the trials so far shown during runs
         self._check_board: Any = None
         self._check_channel = 0
-        self._check_sensor = ""
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
         splitter.addWidget(self._build_inputs())
@@ -201,9 +197,9 @@ class CalibrationTab(QWidget):
         layout.setContentsMargins(8, 8, 8, 8)
         layout.addWidget(intro)
         layout.addWidget(splitter, 1)
-        self._update_buttons()
+        self.wizard.subscribe(self._show_wizard)
+        self._show_wizard()
         self.show_unfinished_sessions()
-        self.go_to_step(SETUP)
 
     # -- construction ----------------------------------------------------------------------------------------------
     def _build_inputs(self) -> QWidget:
@@ -216,19 +212,20 @@ class CalibrationTab(QWidget):
         self.step_label.setStyleSheet("font-weight: bold;")
         layout.addWidget(self.step_label)
         self.steps = QStackedWidget()
-        for build in (self._build_setup_page, self._build_check_page, self._build_contact_page,
-                      self._build_protocol_page, self._build_review_page, self._build_save_page):
-            self.steps.addWidget(build())
+        pages = {SETUP: self._build_setup_page, RIG_CHECK: self._build_check_page, CONTACT: self._build_contact_page,
+                 PROTOCOL: self._build_protocol_page, REVIEW: self._build_review_page, SAVE: self._build_save_page}
+        for step in Step:
+            self.steps.addWidget(pages[step]())
         layout.addWidget(self.steps, 1)
         self.step_hint = QLabel("")
         self.step_hint.setWordWrap(True)
         layout.addWidget(self.step_hint)
         nav = QHBoxLayout()
         self.back_button = QPushButton("◀ Back")
-        self.back_button.clicked.connect(lambda: self.go_to_step(self.steps.currentIndex() - 1))
+        self.back_button.clicked.connect(lambda: self.go_to_step(self.wizard.step - 1))
         self.next_button = QPushButton("Next ▶")
         self.next_button.setObjectName("wizard_next_button")
-        self.next_button.clicked.connect(lambda: self.go_to_step(self.steps.currentIndex() + 1))
+        self.next_button.clicked.connect(lambda: self.go_to_step(self.wizard.step + 1))
         nav.addWidget(self.back_button)
         nav.addStretch(1)
         nav.addWidget(self.next_button)
@@ -834,7 +831,7 @@ class CalibrationTab(QWidget):
             self.protocol_form.set_message("resumed", theme.WARN)
 
     def _show_progress(self, progress: Progress) -> None:
-        if self._contact_run:
+        if self.wizard.contact_running:
             if progress.phase != "done":
                 self._show_contact(progress.message, theme.WARN)
             return
@@ -877,7 +874,7 @@ class CalibrationTab(QWidget):
         self._maybe_live_fit()
 
     def _run_finished(self, outcome: Outcome) -> None:
-        if self._contact_run:
+        if self.wizard.contact_running:
             self._contact_finished(outcome)
             return
         self.protocol_form.set_running(False)
@@ -1017,64 +1014,51 @@ class CalibrationTab(QWidget):
         self.status_label.setText(text)
         self.status_label.setStyleSheet(theme.status_style(level))
 
+    def facts(self, fitting: bool = False) -> Facts:
+        """What the tab holds that the wizard's rules read, now."""
+        return Facts(sensor=self.sensor_edit.text().strip(), channels=tuple(self.lab.config.board.channel_names),
+                     trials=len(self.trials), fitting=fitting or self.is_fitting,
+                     rig_running=self.rig_session.is_running, fitted=self.result is not None,
+                     session=self.session_folder is not None)
+
     def _update_buttons(self, fitting: bool = False) -> None:
-        fitting = fitting or self.is_fitting
-        busy = fitting or self.rig_session.is_running
-        has_trials = bool(self.trials)
-        self.fit_button.setEnabled(has_trials and not busy)
-        self.add_button.setEnabled(not busy)
-        self.remove_button.setEnabled(has_trials and not busy)
-        self.clear_button.setEnabled(has_trials and not busy)
-        self.save_button.setEnabled(self.result is not None and not busy)
-        self.sensor_edit.setEnabled(not self.rig_session.is_running)
-        self.sensor_picker.setEnabled(not self.rig_session.is_running)
-        self.area_spin.setEnabled(not self.rig_session.is_running)
-        self.protocol_form.run_button.setEnabled(not busy)
-        self.resume_button.setEnabled(not busy)
-        self.redo_button.setEnabled(not busy and self.session_folder is not None and has_trials)
-        self.check_button.setEnabled(not self.rig_session.is_running and not self._check_running)
-        self.contact_button.setEnabled(not busy)
-        self._update_nav()
+        on = self.wizard.controls(self.facts(fitting))
+        for widget, enabled in ((self.fit_button, on.fit), (self.add_button, on.add_trials),
+                                (self.remove_button, on.remove_trials), (self.clear_button, on.clear_trials),
+                                (self.save_button, on.save), (self.sensor_edit, on.sensor),
+                                (self.sensor_picker, on.sensor), (self.area_spin, on.sensor),
+                                (self.protocol_form.run_button, on.run), (self.resume_button, on.resume),
+                                (self.redo_button, on.redo), (self.check_button, on.rig_check),
+                                (self.contact_button, on.find_contact)):
+            widget.setEnabled(enabled)
+        self._update_nav(fitting)
 
     # -- the wizard's steps ----------------------------------------------------------------------------------------
     def go_to_step(self, step: int) -> None:
-        """Show step ``step`` (SETUP … SAVE) and the view that goes with it."""
-        step = max(SETUP, min(SAVE, step))
-        self.steps.setCurrentIndex(step)
-        self.step_label.setText(f"Step {step + 1} of {len(STEP_TITLES)} · {STEP_TITLES[step]}")
+        """Show step ``step`` (SETUP … SAVE, clamped) and the view that goes with it."""
+        self.wizard.go_to(step)
+        step = self.wizard.step
         view = {PROTOCOL: self.live_plot, REVIEW: self.view_tabs.widget(0), SAVE: self.history_table}.get(step)
         if view is not None:
             self.view_tabs.setCurrentWidget(view)
         if step == SAVE and self.result is not None:
             self.show_history(self.result.sensor)
-        self._update_nav()
 
     def next_blocked(self) -> str:
         """Why Next is off on the current step ("" when it is on)."""
-        step = self.steps.currentIndex()
-        sensor = self.sensor_edit.text().strip()
-        if step == SETUP and sensor not in self.lab.config.board.channel_names:
-            return f"pick a sensor on the body ({sensor or 'none'} is not a channel of the board)"
-        if step == RIG_CHECK and self._rig_check_ok_for != sensor:
-            return "run the rig check: Next needs every line to pass"
-        if step == CONTACT and (self._contact_run or self._contact_found_for != sensor):
-            return "finding the contact…" if self._contact_run else "find the contact first"
-        if step == PROTOCOL and (self.rig_session.is_running or not self.trials):
-            return "the run is going" if self.rig_session.is_running else "run the protocol (or resume a session)"
-        if step == REVIEW and (self.result is None or self.is_fitting):
-            return "fitting…" if self.is_fitting else "fit the trials first"
-        if step == SAVE:
-            return "the last step"
-        return ""
+        return self.wizard.next_blocked(self.facts())
 
-    def _update_nav(self) -> None:
-        if not hasattr(self, "next_button"):
-            return  # still being built
-        blocked = self.next_blocked()
-        self.next_button.setEnabled(not blocked)
-        self.back_button.setEnabled(self.steps.currentIndex() > SETUP)
-        step = self.steps.currentIndex()
-        self.step_hint.setText("" if not blocked or step == SAVE else f"Next: {blocked}")
+    def _show_wizard(self) -> None:
+        """The wizard's state changed: its page, and every control that follows it."""
+        self.steps.setCurrentIndex(self.wizard.step)
+        self._update_buttons()
+
+    def _update_nav(self, fitting: bool = False) -> None:
+        nav = self.wizard.nav(self.facts(fitting))
+        self.step_label.setText(nav.title)
+        self.next_button.setEnabled(nav.next)
+        self.back_button.setEnabled(nav.back)
+        self.step_hint.setText(nav.hint)
         self.step_hint.setStyleSheet(f"color: {theme.STATUS_COLORS[theme.IDLE]};")
 
     def _sensor_changed(self, _text: str) -> None:
@@ -1083,13 +1067,10 @@ class CalibrationTab(QWidget):
     def start_rig_check(self) -> bool:
         """Check the rig (on a worker thread: its port is opened, checked, closed) and that the board streams the
         chosen sensor (its next samples); the lines show as they are known, Next follows the verdict."""
-        if self.rig_session.is_running or self._check_running:
-            return False
         sensor = self.sensor_edit.text().strip()
-        self._rig_check_ok_for = None
+        if self.rig_session.is_running or not self.wizard.check_started(sensor):
+            return False
         self._check_rig_lines, self._check_board_line = None, None
-        self._check_running = True
-        self._check_sensor = sensor
         self.check_table.setRowCount(0)
         self._set_status(f"checking the rig on {self.lab.config.rig.port} and the board's {sensor}…", theme.WARN)
         threading.Thread(target=self._rig_check_worker, name="calibration-rig-check", daemon=True).start()
@@ -1107,7 +1088,6 @@ class CalibrationTab(QWidget):
             if not board.is_running:
                 board.start()
             QTimer.singleShot(int(BOARD_CHECK_S * 1000), self._board_check_timeout)
-        self._update_buttons()
         self._finish_check_if_done()
         return True
 
@@ -1123,10 +1103,8 @@ class CalibrationTab(QWidget):
         except ValueError as exc:
             self._show_contact(str(exc), theme.ERROR)
             return False
-        self._contact_run = True
-        self._contact_found_for = None
         self._show_contact("finding where the probe touches the sensor…", theme.WARN)
-        self._update_buttons()
+        self.wizard.contact_started()
         return True
 
     def _show_contact(self, text: str, level: str) -> None:
@@ -1134,15 +1112,14 @@ class CalibrationTab(QWidget):
         self.contact_label.setStyleSheet(theme.status_style(level))
 
     def _contact_finished(self, outcome: Outcome) -> None:
-        self._contact_run = False
-        if outcome.status == COMPLETED:
-            self._contact_found_for = self.sensor_edit.text().strip()
+        found = outcome.status == COMPLETED
+        if found:
             self._show_contact(outcome.message, theme.OK)
             self._set_status("contact found: Next", theme.OK)
         else:
             self._show_contact(f"contact not found: {outcome.message}", theme.ERROR)
             self._set_status("contact not found — see the step's message", theme.ERROR)
-        self._update_buttons()
+        self.wizard.contact_finished(found, self.sensor_edit.text().strip())
 
     def _rig_check_worker(self) -> None:
         """Worker thread: the rig's own check (devices.rig.CalibrationRig.check)."""
@@ -1164,14 +1141,14 @@ class CalibrationTab(QWidget):
         column = np.asarray(block.conductance_s)[:, self._check_channel]
         finite = column[np.isfinite(column)]
         if finite.size:
-            self._check_board_line = (True, f"{finite.size} sample(s) of {self._check_sensor}, now "
+            self._check_board_line = (True, f"{finite.size} sample(s) of {self.wizard.checking_sensor}, now "
                                             f"{float(finite[-1]) * 1e6:.1f} µS")
             self._stop_board_check()
             self._finish_check_if_done()
 
     def _board_check_timeout(self) -> None:
-        if self._check_board_line is None and self._check_running:
-            self._check_board_line = (False, f"no sample of {self._check_sensor} from the board in "
+        if self._check_board_line is None and self.wizard.checking:
+            self._check_board_line = (False, f"no sample of {self.wizard.checking_sensor} from the board in "
                                              f"{BOARD_CHECK_S:g} s: check the board's cable and that it streams "
                                              "(Forces tab)")
             self._stop_board_check()
@@ -1188,7 +1165,7 @@ class CalibrationTab(QWidget):
             return
         lines = [(line.ok, line.name, line.detail) for line in self._check_rig_lines]
         ok, detail = self._check_board_line
-        lines.append((ok, f"board streams {self._check_sensor}", detail))
+        lines.append((ok, f"board streams {self.wizard.checking_sensor}", detail))
         self.check_table.setRowCount(len(lines))
         for row, (passed, name, seen) in enumerate(lines):
             mark = QTableWidgetItem("✔ pass" if passed else "✘ FAIL")
@@ -1199,16 +1176,14 @@ class CalibrationTab(QWidget):
             item.setToolTip(seen)
             self.check_table.setItem(row, 2, item)
         self.check_table.resizeRowsToContents()
-        self._check_running = False
         passed = all(p for p, _, _ in lines)
         if passed:
-            self._rig_check_ok_for = self._check_sensor
             self._set_status("rig check passed: Next", theme.OK)
         else:
             failed = [f"{name}: {seen}" for p, name, seen in lines if not p]
             self._set_status("rig check FAILED — " + failed[0], theme.ERROR)
+        self.wizard.check_finished(passed)
         self.rig_check_finished.emit(passed)
-        self._update_buttons()
 
     def check_lines(self) -> list[tuple[str, str, str]]:
         """The rig check's table as text (mark, check, seen/reason), for tests and screenshots."""

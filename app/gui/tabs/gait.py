@@ -38,8 +38,9 @@ from app.gui.robot_bridge import (
     MOTION_STOPPED,
     describe_error,
 )
-from models.force_feedback import FeedbackGains, GainsError
-from models.trajectory import SerpenoidParams, SidewindingParams, TrajectoryError, serpenoid, sidewinding
+from models.errors import GainsError, TrajectoryError
+from models.force_feedback import FeedbackGains
+from models.trajectory import SerpenoidParams, SidewindingParams, serpenoid, sidewinding
 from widgets import theme
 from widgets.gait_panel import GaitPanel, GaitRequest
 

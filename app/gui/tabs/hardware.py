@@ -1,27 +1,40 @@
-"""The Hardware tab: wires :class:`widgets.hardware_panel.HardwarePanel` to ``lab.robot``.
+"""The Hardware tab: wires :class:`widgets.hardware_panel.HardwarePanel` (bus, servos, scan, link check, timing) and
+:class:`widgets.servo_settings_view.ServoSettingsView` (each servo's control table, settings files, zero pose) to
+``lab.robot``.
 
 Live values come from a ≤ 10 Hz timer reading the bridge's latest state and health (never per sample), and the timer
 runs only while the tab is on screen. Scans run one baud rate per bus call so progress can be shown; the link check
-pings every servo a few times on the bus thread and times each round trip there. GUI thread only.
+pings every servo a few times on the bus thread and times each round trip there. The settings page reads one servo's
+whole table in one request (at most 2 Hz while "Live" is on and the page is shown, one read in flight at a time, between
+the control loop's ticks) and writes through :mod:`app.core.servo_settings` (range-checked, read before write, torque
+off around an EEPROM write after the user agrees, read back). GUI thread only.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
-from PySide6.QtWidgets import QMessageBox, QVBoxLayout, QWidget
+from PySide6.QtWidgets import QFileDialog, QMessageBox, QTabWidget, QVBoxLayout, QWidget
 
+from app.core import servo_settings, user_folders
+from app.core.errors import SettingsError
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from devices import bus_commands
+from devices import control_table as ct
 from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
+from devices.config import default_config_path
 from devices.errors import hardware_error_advice
 from devices.servo_chain import scan_problems
+from widgets import theme
 from widgets.hardware_panel import HardwarePanel
+from widgets.servo_settings_view import LIVE_INTERVAL_MS, ServoSettingsView, TableRow
+from widgets.zero_pose_dialog import ZeroPoseDialog
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
 LOOP_STATS_EVERY = 5  # refreshes between control-loop statistics updates (2 Hz; they sort 4096 periods)
@@ -36,12 +49,24 @@ class HardwareTab(QWidget):
         self.robot = lab.robot
         self.panel = HardwarePanel()
         self.panel.set_error_advice(hardware_error_advice)  # the e-manual's meaning of each error bit, and the fix
+        self.settings = ServoSettingsView()
+        self.settings.set_rows(table_rows())
+        self.pages = QTabWidget()
+        self.pages.setDocumentMode(True)
+        # Pages on the side: the bus page's scan and link tables need the height a tab bar on top would take.
+        self.pages.setTabPosition(QTabWidget.TabPosition.West)
+        self.pages.addTab(self.panel, "Bus and servos")
+        self.pages.addTab(self.settings, "Servo settings")
+        self.pages.currentChanged.connect(lambda _i: self._settings_page_shown())
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        layout.addWidget(self.panel)
+        layout.addWidget(self.pages)
+        self._reading = False  # a table read is in flight (the live poll never stacks reads)
+        self.table_reads = 0  # reads sent (tests: the live poll's rate)
 
         config = self.robot.config
         self.panel.set_servos(config.joint_ids, config.axes)
+        self.settings.set_servos(config.joint_ids, config.axes)
         self.panel.set_port_baud(self.robot.port, self.robot.baud)
         self.refresh_count = 0
         self._shown_state: Any = None
@@ -54,6 +79,9 @@ class HardwareTab(QWidget):
         self.refresh_timer = QTimer(self)
         self.refresh_timer.setInterval(REFRESH_INTERVAL_MS)
         self.refresh_timer.timeout.connect(self.refresh)
+        self.live_timer = QTimer(self)
+        self.live_timer.setInterval(LIVE_INTERVAL_MS)
+        self.live_timer.timeout.connect(self._live_read)
 
         panel = self.panel
         panel.connect_requested.connect(self._connect)
@@ -66,21 +94,34 @@ class HardwareTab(QWidget):
         panel.link_check_requested.connect(self.start_link_check)
         panel.timing_check_requested.connect(self.start_timing_check)
         panel.fix_return_delay_requested.connect(self.fix_return_delay)
+        settings = self.settings
+        settings.read_requested.connect(self.read_table)
+        settings.live_toggled.connect(lambda _on: self._settings_page_shown())
+        settings.write_requested.connect(self.write_item)
+        settings.save_requested.connect(self.save_settings)
+        settings.restore_requested.connect(self.restore_settings)
+        settings.zero_requested.connect(self.set_zero_pose)
+        self.robot.profile_applied.connect(self._profile_applied)
+        if self.robot.last_profile_changes:
+            self._profile_applied(self.robot.last_profile_changes)
 
         self.robot.connection_changed.connect(self._connection_changed)
         self.robot.connected.connect(self._connected_changed)
         self._connection_changed(self.robot.connection_text)
         if self.robot.is_connected:
             self.panel.set_timing_warnings(self.robot.timing_warnings)
+        self.settings.set_enabled(self.robot.is_connected, "" if self.robot.is_connected else NOT_CONNECTED)
 
     # -- live view -------------------------------------------------------------------------------------------------
     def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt override
         super().showEvent(event)
         self.refresh_timer.start()
         self.refresh()
+        self._settings_page_shown()
 
     def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt override
         self.refresh_timer.stop()
+        self.live_timer.stop()
         super().hideEvent(event)
 
     def refresh(self) -> None:
@@ -112,6 +153,8 @@ class HardwareTab(QWidget):
     def _connected_changed(self, connected: bool) -> None:
         self._connection_changed(self.robot.connection_text)
         self._shown_state = None
+        self.settings.set_enabled(connected, "" if connected else NOT_CONNECTED)
+        self._settings_page_shown()
         if connected:
             self.panel.set_timing_warnings(self.robot.timing_warnings)
             self.refresh()
@@ -126,9 +169,9 @@ class HardwareTab(QWidget):
         if self.confirm(question):
             self.robot.reboot(servo_id)
 
-    def confirm(self, question: str) -> bool:
+    def confirm(self, question: str, title: str = "Reboot servo") -> bool:
         """Ask a yes/no question (modal); tests replace this method."""
-        answer = QMessageBox.question(self, "Reboot servo", question,
+        answer = QMessageBox.question(self, title, question,
                                       QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
                                       QMessageBox.StandardButton.No)
         return answer == QMessageBox.StandardButton.Yes
@@ -201,6 +244,190 @@ class HardwareTab(QWidget):
             self.panel.set_timing_warnings([*self.robot.timing_warnings, f"could not do that: {describe_error(exc)}"])
 
         self.robot.when_done(future, done, failed)
+
+
+    # -- servo settings --------------------------------------------------------------------------------------------
+    def _settings_page_shown(self) -> None:
+        """Read the shown servo when the page comes up; poll it while "Live" is on and the page is on screen."""
+        on_page = self.pages.currentWidget() is self.settings and self.isVisible() and self.robot.is_connected
+        if on_page and self.settings.live_check.isChecked():
+            if not self.live_timer.isActive():
+                self.live_timer.start()
+        else:
+            self.live_timer.stop()
+        if on_page and not self.settings.values and self.settings.servo_id is not None:
+            self.read_table(self.settings.servo_id)
+
+    def _live_read(self) -> None:
+        if not self.isVisible() or self.pages.currentWidget() is not self.settings:
+            self.live_timer.stop()
+            return
+        if self.settings.servo_id is not None and not self._reading:
+            self.read_table(self.settings.servo_id)
+
+    def read_table(self, servo_id: int) -> None:
+        """Every item of ``servo_id`` in one request, shown when it comes back."""
+        if not self.robot.is_connected:
+            self.settings.set_enabled(False, NOT_CONNECTED)
+            return
+        self._reading = True
+        self.table_reads += 1
+        future = self.robot.run_on_bus(bus_command(servo_settings.read_table, servo_id), report_errors=False)
+
+        def done(values: dict[str, int]) -> None:
+            self._reading = False
+            self.settings.set_values(servo_id, values)
+
+        def failed(exc: BaseException) -> None:
+            self._reading = False
+            self.settings.set_message(f"servo {servo_id}: could not read its table: {describe_error(exc)}",
+                                      theme.ERROR)
+
+        self.robot.when_done(future, done, failed)
+
+    def write_item(self, servo_id: int, name: str, value: int) -> None:
+        """Write one item (range already checked by the page); an EEPROM item on a servo with torque on asks first."""
+        entry = ct.ITEMS_BY_NAME[name]
+        if entry.eeprom and self.settings.values.get("Torque Enable") == 1 and not self.confirm(
+                f"{name} lives in EEPROM: servo {servo_id} accepts the write only with its torque off. Turn its "
+                "torque off, write, and turn it back on? The joint goes limp for a moment: support the robot.",
+                "Write an EEPROM item"):
+            self.settings.set_message(f"{name} not written (torque stays on)", theme.WARN)
+            self.settings.set_values(servo_id, self.settings.values)  # the cell shows the servo's value again
+            return
+        self.settings.set_message(f"writing {name} = {value} on servo {servo_id}…", theme.WARN)
+        future = self.robot.run_on_bus(bus_command(servo_settings.set_item, servo_id, name, value),
+                                       report_errors=False)
+
+        def done(change: servo_settings.Change) -> None:
+            if change.written:
+                self.settings.set_message(f"servo {servo_id}: {name} {change.before} → {change.after}, read back "
+                                          "✔" + ("; put the new ID into the lab config's [robot] joint_ids"
+                                                 if name == "ID" else ""), theme.OK)
+            else:
+                self.settings.set_message(f"servo {servo_id}: {name} already held {value}: not written", theme.IDLE)
+            self.settings.show_changes(f"Last write (servo {servo_id})", [change])
+            self.read_table(servo_id)
+
+        def failed(exc: BaseException) -> None:
+            self.settings.set_message(f"servo {servo_id}: {name} not written: {describe_error(exc)}", theme.ERROR)
+            self.read_table(servo_id)
+
+        self.robot.when_done(future, done, failed)
+
+    def save_settings(self) -> None:
+        """Back up every joint's control table into a new file (an existing file is never replaced)."""
+        path = self.ask_path("save", "Save servo settings", "servos.json")
+        if not path:
+            return
+        if Path(path).exists():
+            self.settings.set_message(f"{path} exists: choose a new name (a backup is never written over)",
+                                      theme.ERROR)
+            return
+        ids = list(self.robot.config.joint_ids)
+        self.settings.set_message(f"reading {len(ids)} servos…", theme.WARN)
+        future = self.robot.run_on_bus(bus_command(servo_settings.dump, ids), report_errors=False, holds_bus=True)
+
+        def done(document: dict[str, Any]) -> None:
+            try:
+                written = servo_settings.write_document(path, document)
+            except OSError as exc:
+                self.settings.set_message(f"{path}: not written: {exc.strerror or exc}", theme.ERROR)
+                return
+            self.settings.set_message(f"{len(ids)} servos' settings saved to {written}", theme.OK)
+
+        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+            f"settings not saved: {describe_error(exc)}", theme.ERROR))
+
+    def restore_settings(self, servo_id: int) -> None:
+        """Write a saved file back onto ``servo_id`` (0: every servo in the file), only where the servo differs."""
+        path = self.ask_path("open", "Restore servo settings", "")
+        if not path:
+            return
+        try:
+            document = servo_settings.read_document(path)
+        except (SettingsError, OSError, ValueError) as exc:
+            self.settings.set_message(str(exc), theme.ERROR)
+            return
+        ids = [servo_id] if servo_id else None
+        who = f"servo {servo_id}" if servo_id else f"{len(document['servos'])} servo(s)"
+        self.settings.set_message(f"restoring {who} from {Path(path).name}…", theme.WARN)
+        future = self.robot.run_on_bus(bus_command(servo_settings.restore, document, ids), report_errors=False,
+                                       holds_bus=True)
+
+        def done(changes: list[servo_settings.Change]) -> None:
+            self.settings.show_changes(f"Restore of {who} from {Path(path).name}", changes)
+            self.settings.set_message(servo_settings.describe_changes(changes), theme.OK)
+            if self.settings.servo_id is not None:
+                self.read_table(self.settings.servo_id)
+
+        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+            f"restore stopped: {describe_error(exc)} (items before it were written; see the table)", theme.ERROR))
+
+    def _profile_applied(self, changes: list[servo_settings.Change]) -> None:
+        self.settings.show_changes("On connect, the lab config's [servos]: "
+                                   + servo_settings.describe_changes(changes), changes)
+
+    def set_zero_pose(self) -> None:
+        """Make the present pose read 0 rad on every joint: preview, then the offsets into the lab config."""
+        state = self.robot.latest_state
+        if state is None:
+            self.settings.set_message("no joint angles yet: connect the robot first", theme.ERROR)
+            return
+        config = self.robot.config
+        present = [float(a) for a in state.position_rad]
+        old = list(config.zero_offsets_rad)
+        new = servo_settings.zero_offsets(old, present)
+        target = self.lab.config_path
+        if target is None:
+            target_text = "a new lab config file (the packaged default cannot be changed; you choose where)"
+        else:
+            target_text = str(target)
+        if not self.ask_zero(ZeroPoseDialog(config.joint_ids, config.axes, present, old, new, target_text, self)):
+            self.settings.set_message("zero pose not written", theme.IDLE)
+            return
+        if target is None:
+            chosen = self.ask_path("save", "New lab config with the zero pose", "my_lab.toml")
+            if not chosen:
+                return
+            target = Path(chosen)
+            if target.exists():
+                self.settings.set_message(f"{target} exists: choose a new name (a config is never written over)",
+                                          theme.ERROR)
+                return
+            target.write_text(self.lab.config.source_text or default_config_path().read_text(encoding="utf-8"),
+                              encoding="utf-8")
+        try:
+            backup = servo_settings.write_zero_offsets(target, new)
+        except (SettingsError, OSError) as exc:
+            self.settings.set_message(f"zero pose not written: {exc}", theme.ERROR)
+            return
+        self.settings.set_message(f"zero offsets written into {target} (the file before kept as {backup.name}); they "
+                                  "apply when that config is loaded: File ▸ Open config…", theme.OK)
+
+    # -- questions (tests replace these) ---------------------------------------------------------------------------
+    def ask_zero(self, dialog: ZeroPoseDialog) -> bool:
+        return dialog.exec() == ZeroPoseDialog.DialogCode.Accepted
+
+    def ask_path(self, mode: str, title: str, name: str) -> str:
+        folder = user_folders.dialog_folder(user_folders.data_dir())
+        if mode == "save":
+            path, _filter = QFileDialog.getSaveFileName(self, title, str(Path(folder) / name) if folder else name,
+                                                        "JSON or TOML (*.json *.toml);;All files (*)",
+                                                        options=QFileDialog.Option.DontConfirmOverwrite)
+        else:
+            path, _filter = QFileDialog.getOpenFileName(self, title, folder, "Servo settings (*.json);;All files (*)")
+        return path
+
+
+NOT_CONNECTED = "Connect the robot (Bus and servos) to read and change its servos' settings."
+
+
+def table_rows() -> list[TableRow]:
+    """The XM430-W350's control table as the settings page lists it (units from the e-manual)."""
+    return [TableRow(item.address, item.name, item.size, item.writable, item.eeprom,
+                     servo_settings.UNITS.get(item.name, ""), item.minimum, item.maximum)
+            for item in ct.XM430_W350_ITEMS]
 
 
 def create_tab(lab: LabContext) -> QWidget:

@@ -18,7 +18,8 @@ from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
 from app.gui.thread_bridge import ThreadBridge
-from devices.scene import SceneError, half_cylinder_scene, load_scene
+from devices.errors import SceneError
+from devices.scene import half_cylinder_scene, load_scene
 from widgets.scene_view import SceneView
 
 FRAME_RATE_HZ = 10.0

@@ -1,0 +1,55 @@
+"""The errors app.core raises, in one place: each names what went wrong and what to do, and also inherits the builtin a
+caller would expect (a bad file is a ValueError, a lost link a ConnectionError).
+"""
+
+from __future__ import annotations
+
+
+# raised by app.core.calfiles
+class CalFileError(ValueError):
+    """A calibration, trial or series file is malformed. The message names the file (and line) and the fix."""
+
+
+# raised by app.core.live_session
+class BoardSilentError(TimeoutError):
+    """The port opened but no valid frame arrived."""
+
+
+# raised by app.core.live_session
+class BoardGoneError(ConnectionError):
+    """The recording ended with the board unplugged or silent; everything before is in the file."""
+
+
+# raised by app.core.recording
+class RecordingError(OSError):
+    """Writing a recording failed (disk full, file gone); what was flushed before stays readable."""
+
+
+# raised by app.core.recording
+class RecordingFormatError(ValueError):
+    """A file is not a SenSnake recording this version can read; the message names the file."""
+
+
+# raised by app.core.servo_settings
+class SettingsError(ValueError):
+    """A settings request that cannot be carried out (unknown item, out of range, read-only, a bad file)."""
+
+
+# raised by app.core.rig_protocol
+class BoardStreamError(RuntimeError):
+    """The sensor's conductance stopped arriving from the board."""
+
+
+# raised by app.core.rig_protocol
+class ForceCollapsedError(RuntimeError):
+    """The reading collapsed during a hold: the cable snapped or the probe slipped off the sensor."""
+
+
+# raised by app.core.sweep
+class SweepError(ValueError):
+    """A sweep file that cannot be run; the message names the file and the key."""
+
+
+# raised by app.core.shapes
+class ShapeFormatError(ValueError):
+    """A shape file is unreadable, of an unknown format/version, or has a missing or bad key (named)."""

@@ -1,0 +1,20 @@
+"""The errors models raises, in one place: each names what went wrong and what to do, and also inherits the builtin a
+caller would expect (a bad file is a ValueError, a lost link a ConnectionError).
+"""
+
+from __future__ import annotations
+
+
+# raised by models.calibration
+class FlatSensorError(ValueError):
+    """A trial shows no usable response (flat-lined or disconnected sensor): the fit is refused."""
+
+
+# raised by models.trajectory
+class TrajectoryError(ValueError):
+    """A requested trajectory cannot be made (bad shape, speed, or a keyframe step faster than the servos allow)."""
+
+
+# raised by models.force_feedback
+class GainsError(ValueError):
+    """Gains out of their safe ranges; the message names the gain."""

@@ -1,0 +1,229 @@
+"""The Hardware tab's Servo settings page on the simulated lab: the control table read in one request and polled
+live, edits range-checked and read back, EEPROM writes asking for torque off, settings saved/restored, the lab's
+[servos] profile applied on connect, the zero pose written into the lab config."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from devices import dxl_wire as wire
+from devices.config import SIM_PORT, ConfigError, load_config, parse_config
+from tests.app.windows import open_connected_window
+
+CONNECT_TIMEOUT_MS = 10_000
+
+
+@pytest.fixture
+def window(qtbot, sim_lab_fast, tmp_path):
+    config = load_config().with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    win = open_connected_window(qtbot, config, tmp_path, CONNECT_TIMEOUT_MS)
+    yield win
+    win.close()
+
+
+def settings_page(window, qtbot):
+    tab = window.show_tab("hardware")
+    tab.pages.setCurrentWidget(tab.settings)
+    qtbot.waitUntil(lambda: tab.settings.values.get("Model Number") == 1020, timeout=10_000)
+    return tab, tab.settings
+
+
+def test_the_whole_table_is_read_and_polled_live_without_costing_the_loop_a_tick(window, qtbot, sim_lab_fast):
+    tab, page = settings_page(window, qtbot)
+    assert page.table.rowCount() == len(page.rows) > 50
+    assert page.value_text("ID") == "1" and page.value_text("Model Number") == "1020"
+    # Another servo: its own ID comes back.
+    page.servo_combo.setCurrentIndex(4)
+    qtbot.waitUntil(lambda: page.value_text("ID") == "5", timeout=10_000)
+
+    stats0 = window.lab.robot.loop_stats()
+    reads0 = tab.table_reads
+    page.live_check.setChecked(True)
+    qtbot.wait(3000)
+    reads = tab.table_reads - reads0
+    assert 3 <= reads <= 8, f"{reads} reads in 3 s: the live poll should be ~2 Hz"
+    stats = window.lab.robot.loop_stats()
+    assert stats.ticks > stats0.ticks
+    assert stats.missed_ticks == stats0.missed_ticks, "a table read cost the control loop a tick"
+    assert stats.held_ticks == stats0.held_ticks  # a read fits between ticks: it never holds the bus
+
+    # Leaving the page stops the poll.
+    tab.pages.setCurrentWidget(tab.panel)
+    qtbot.wait(100)
+    reads1 = tab.table_reads
+    qtbot.wait(1500)
+    assert tab.table_reads == reads1 and not tab.live_timer.isActive()
+
+
+def test_an_edit_is_range_checked_written_once_and_read_back(window, qtbot, sim_lab_fast):
+    tab, page = settings_page(window, qtbot)
+    chain = sim_lab_fast.chain
+    # Out of range, and not a number: refused on the page, nothing sent, the cell shows the servo's value again.
+    before = page.value_text("Position P Gain")
+    page.edit("Position P Gain", "99999")
+    assert "out of its range 0 … 16383" in page.message.text()
+    assert page.value_text("Position P Gain") == before
+    page.edit("Position P Gain", "lots")
+    assert "not a whole number" in page.message.text()
+    assert chain.register(1, "Position P Gain") == int(before)
+    # In range: written, read back, shown.
+    page.edit("Position P Gain", "640")
+    qtbot.waitUntil(lambda: "read back" in page.message.text(), timeout=10_000)
+    assert chain.register(1, "Position P Gain") == 640
+    qtbot.waitUntil(lambda: page.value_text("Position P Gain") == "640", timeout=10_000)
+    assert page.change_lines() == [f"1 | Position P Gain | {before} | 640 | written ✔"]
+    # A write of what the servo already holds (the page's copy stale, say): read before write, nothing sent.
+    writes = chain.count(wire.WRITE)
+    tab.write_item(1, "Position P Gain", 640)
+    qtbot.waitUntil(lambda: "already held 640: not written" in page.message.text(), timeout=10_000)
+    assert chain.count(wire.WRITE) == writes
+
+
+def test_an_eeprom_write_on_a_servo_with_torque_on_asks_and_restores_torque(window, qtbot, sim_lab_fast):
+    robot = window.lab.robot
+    robot.set_torque(True).result(timeout=30)
+    tab, page = settings_page(window, qtbot)
+    tab.read_table(1)
+    qtbot.waitUntil(lambda: page.values.get("Torque Enable") == 1, timeout=10_000)
+    chain = sim_lab_fast.chain
+    old = chain.register(1, "Return Delay Time")
+    new = 0 if old else 5
+    asked: list[str] = []
+    tab.confirm = lambda question, title="": asked.append(question) or False  # type: ignore[method-assign]
+    page.edit("Return Delay Time", str(new))
+    assert asked and "EEPROM" in asked[0] and "torque" in asked[0]
+    assert "not written" in page.message.text() and chain.register(1, "Return Delay Time") == old
+    tab.confirm = lambda question, title="": True  # type: ignore[method-assign]
+    page.edit("Return Delay Time", str(new))
+    qtbot.waitUntil(lambda: "read back" in page.message.text(), timeout=10_000)
+    assert chain.register(1, "Return Delay Time") == new
+    assert chain.register(1, "Torque Enable") == 1  # back on after the write
+
+
+def test_settings_saved_then_restored_onto_a_changed_servo(window, qtbot, sim_lab_fast, tmp_path):
+    tab, page = settings_page(window, qtbot)
+    chain = sim_lab_fast.chain
+    backup = tmp_path / "servos.json"
+    tab.ask_path = lambda mode, title, name: str(backup)  # type: ignore[method-assign]
+    page.save_button.click()
+    qtbot.waitUntil(lambda: "saved to" in page.message.text(), timeout=20_000)
+    document = json.loads(backup.read_text())
+    assert document["format"] == "sensnake-servos" and len(document["servos"]) == 12
+    saved_gain = document["servos"]["3"]["items"]["Position P Gain"]
+    # A second save onto the same name is refused: a backup is never written over.
+    stamp = backup.stat().st_mtime_ns
+    page.save_button.click()
+    assert "exists" in page.message.text() and backup.stat().st_mtime_ns == stamp
+
+    page.servo_combo.setCurrentIndex(2)  # servo 3
+    qtbot.waitUntil(lambda: page.value_text("ID") == "3", timeout=10_000)
+    page.edit("Position P Gain", str(saved_gain + 100))
+    qtbot.waitUntil(lambda: chain.register(3, "Position P Gain") == saved_gain + 100, timeout=10_000)
+    page.restore_button.click()  # this servo only
+    qtbot.waitUntil(lambda: "Restore of servo 3" in page.changes_title.text(), timeout=20_000)
+    assert chain.register(3, "Position P Gain") == saved_gain
+    written = [line for line in page.change_lines() if "written ✔" in line]
+    assert written == [f"3 | Position P Gain | {saved_gain + 100} | {saved_gain} | written ✔"]
+
+
+def test_the_labs_servo_profile_is_applied_on_connect_only_where_it_differs(qtbot, sim_lab_fast, tmp_path):
+    text = load_config().source_text + "\n[servos]\nposition_p_gain = 700\nreturn_delay_time = 0\n"
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    config = load_config(path).with_ports(robot=SIM_PORT, board=SIM_PORT, rig=SIM_PORT)
+    assert config.servos == (("Position P Gain", 700), ("Return Delay Time", 0))
+    chain = sim_lab_fast.chain
+    chain_gain_before = chain.register(1, "Position P Gain")
+    assert chain_gain_before != 700
+    win = open_connected_window(qtbot, config, tmp_path, CONNECT_TIMEOUT_MS)
+    try:
+        robot = win.lab.robot
+        qtbot.waitUntil(lambda: bool(robot.last_profile_changes), timeout=20_000)
+        changes = robot.last_profile_changes
+        assert len(changes) == 24  # two items × 12 servos, each considered
+        assert {c.servo_id for c in changes if c.item == "Position P Gain" and c.written} == set(range(1, 13))
+        assert all(chain.register(sid, "Position P Gain") == 700 for sid in range(1, 13))
+        tab = win.show_tab("hardware")
+        assert "[servos]" in tab.settings.changes_title.text()
+        # Connected again: nothing differs, nothing is written.
+        with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS):
+            robot.disconnect_robot()
+        robot.last_profile_changes = []
+        with qtbot.waitSignal(robot.profile_applied, timeout=20_000):
+            robot.connect_robot()
+        assert not any(c.written for c in robot.last_profile_changes)
+    finally:
+        win.close()
+
+
+@pytest.mark.parametrize(("body", "words"), [
+    ("[servos]\nposition_gain = 1\n", "not a control-table item"),
+    ("[servos]\nid = 3\n", "would lose the servo on the bus"),
+    ("[servos]\ntorque_enable = 1\n", "state of the moment"),
+    ("[servos]\nposition_p_gain = 20000\n", "out of its range 0 … 16383"),
+    ("[servos]\nposition_p_gain = 1.5\n", "whole number"),
+    ("[servos]\npresent_position = 0\n", "read-only"),
+])
+def test_a_bad_servo_profile_is_refused_naming_the_key(body, words):
+    with pytest.raises(ConfigError, match=words):
+        parse_config(body, "lab.toml")
+
+
+def test_zero_pose_previews_and_writes_the_offsets_into_the_lab_config(window, qtbot, sim_lab_fast, tmp_path):
+    tab, page = settings_page(window, qtbot)
+    robot = window.lab.robot
+    qtbot.waitUntil(lambda: robot.latest_state is not None, timeout=10_000)
+    config_file = tmp_path / "my_lab.toml"
+    config_file.write_text("# my lab\n" + window.lab.config.source_text)
+    window.lab.config_path = config_file
+    shown = []
+
+    def accept(dialog):
+        shown.append([dialog.cell(k, 6) for k in range(dialog.table.rowCount())])
+        return True
+
+    tab.ask_zero = accept  # type: ignore[method-assign]
+    present = np.asarray(robot.latest_state.position_rad, dtype=float)
+    page.zero_button.click()
+    assert "zero offsets written into" in page.message.text()
+    assert shown and all(cell == "+0.0" for cell in shown[0])  # every joint reads 0 after
+    offsets = load_config(config_file).robot.zero_offsets_rad
+    old = window.lab.config.robot.zero_offsets_rad
+    # New offsets = old − present: the pose of the moment (within the state's age; the limp robot settles slowly).
+    assert np.allclose(offsets, np.asarray(old) - present, atol=0.02)
+    assert config_file.read_text().startswith("# my lab")  # the user's comments are kept
+    assert (tmp_path / "my_lab.toml.bak-1").read_text().startswith("# my lab")
+
+    # On the packaged config: the user names a new file; an existing one is never written over.
+    window.lab.config_path = None
+    taken = tmp_path / "taken.toml"
+    taken.write_text("keep me")
+    tab.ask_path = lambda mode, title, name: str(taken)  # type: ignore[method-assign]
+    page.zero_button.click()
+    assert "exists" in page.message.text() and taken.read_text() == "keep me"
+    fresh = tmp_path / "fresh.toml"
+    tab.ask_path = lambda mode, title, name: str(fresh)  # type: ignore[method-assign]
+    page.zero_button.click()
+    assert len(load_config(fresh).robot.zero_offsets_rad) == 12
+    # Declined: nothing written.
+    tab.ask_zero = lambda dialog: False  # type: ignore[method-assign]
+    stamp = fresh.stat().st_mtime_ns
+    page.zero_button.click()
+    assert "not written" in page.message.text() and fresh.stat().st_mtime_ns == stamp
+    assert math.isfinite(sum(offsets))
+
+
+def test_the_page_says_to_connect_when_the_robot_is_not(window, qtbot):
+    tab = window.show_tab("hardware")
+    robot = window.lab.robot
+    with qtbot.waitSignal(robot.connected, timeout=CONNECT_TIMEOUT_MS):
+        robot.disconnect_robot()
+    assert not tab.settings.read_button.isEnabled()
+    assert "Connect the robot" in tab.settings.message.text()
+    path = Path(tab.settings.message.text())
+    assert not path.exists()
