@@ -34,6 +34,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -140,6 +141,19 @@ def bench_rates(seconds: float) -> None:
 
 GUI_CASES = ((50.0, 250), (100.0, 0))  # (rate Hz, Return Delay Time register): the issue's two in-app targets
 GUI_TABS = ("forces", "gait", "hardware")
+# Not a tab but a page: the Hardware tab's Servo settings page with "Live" on (the control table re-read at 2 Hz).
+SETTINGS_LIVE = "servo-settings"
+
+
+def _show(window: Any, name: str) -> None:
+    """Show tab ``name``; ``servo-settings``: the Hardware tab's Servo settings page polling live."""
+    if name != SETTINGS_LIVE:
+        window.show_tab(name)
+        return
+    tab = window.show_tab("hardware")
+    tab.pages.setCurrentWidget(tab.settings)
+    tab.settings.live_check.setChecked(True)
+
 ALL_TABS = ("teach", "gait", "calibration", "forces", "hardware", "scene")
 
 
@@ -239,12 +253,12 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
             lab.robot.set_torque(True)
             spin(0.3)
             for tab in tabs if prebuild else ():  # each tab is built on its first show (once per session)
-                window.show_tab(tab)
+                _show(window, tab)
                 spin(0.5)
             lab.robot.run_motion(Wave(), "bench wave")
             windows = [(tab, seconds) for tab in tabs] if not rotate_s else [("rotating", seconds)]
             for name, length in windows:
-                window.show_tab(name if not rotate_s else tabs[0])
+                _show(window, name if not rotate_s else tabs[0])
                 spin(0.5)
                 load0 = os.getloadavg()[0]
                 if tracing is not None:
@@ -266,7 +280,7 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                     taken = s.ticks
                     if rotate_s:
                         k += 1
-                        window.show_tab(tabs[k % len(tabs)])
+                        _show(window, tabs[k % len(tabs)])
                 traced.append((t0, time.monotonic()))
                 if lab.robot.controller is None:
                     print(f"    {rate:8.0f}  the window ended after {time.monotonic() - t0:.0f} s: "
@@ -278,6 +292,9 @@ def bench_gui(seconds: float, cases=GUI_CASES, tabs=GUI_TABS, rotate_s: float | 
                 cpu = (time.process_time() - cpu0) / wall * 100
                 note = f"load {load0:.2f}->{os.getloadavg()[0]:.2f}; loop in {lab.robot.loop_where}"
                 note += f"; {s1.failed_reads - s0.failed_reads} failed feedback reads"
+                if name == SETTINGS_LIVE:
+                    hardware: Any = window.show_tab("hardware")
+                    note += f"; {hardware.table_reads} control-table reads by the settings page"
                 for name_, pid in others.items():
                     used0, used1 = others0[name_], _process_cpu_s(pid)
                     if used0 is not None and used1 is not None:
@@ -562,7 +579,8 @@ if __name__ == "__main__":
     parser.add_argument("--prebuild", action="store_true",
                         help="gui case: show every tab once before measuring (tabs are built on first show)")
     parser.add_argument("--tabs", help=f"gui case: comma-separated tabs to show (default: with --rotate all of "
-                        f"{','.join(ALL_TABS)}, else {','.join(GUI_TABS)})")
+                        f"{','.join(ALL_TABS)}, else {','.join(GUI_TABS)}; '{SETTINGS_LIVE}': the Hardware tab's "
+                        "Servo settings page reading a servo's table live)")
     parser.add_argument("--gui-loop", choices=("auto", "app", "process", "both"), default="auto",
                         help="gui case: where the control loop runs: the app's choice (default), the app's process, "
                              "its own process (needs --gui-chain pty), or both in turn")
