@@ -160,6 +160,8 @@ XM430_W350_ITEMS: tuple[Item, ...] = (
     Item("Backup Ready", 147, 1, False, 0),
 )
 CONTROL_TABLE_SIZE = 148  # reads must end at or before this address
+# Each model's control table by its Model Number (item 0): another model is one more entry.
+TABLES_BY_MODEL: dict[int, tuple[Item, ...]] = {MODEL_NUMBER_XM430_W350: XM430_W350_ITEMS}
 ITEMS_BY_NAME: dict[str, Item] = {item.name: item for item in XM430_W350_ITEMS}
 ITEMS_BY_ADDRESS: dict[int, Item] = {item.address: item for item in XM430_W350_ITEMS}
 

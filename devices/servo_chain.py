@@ -705,6 +705,28 @@ class ServoChain:
         self._check_comm(result, servo_id, "reboot")
         self._wait_until_back(servo_id, "a reboot")
 
+    def change_baud(self, servo_id: int, index: int) -> None:
+        """Baud Rate := ``index`` (0…7, e-manual) on one servo whose torque is off (an EEPROM item), then find it at
+        its new rate: the port switches to it, pings until the servo answers, reads the item back, and switches back
+        to the bus's rate. The write's own status packet is not relied on (the servo may send it at either rate, or
+        lose it switching). :class:`NoReplyError` if it does not answer at the new rate."""
+        if index not in ct.BAUD_RATES_BPS:
+            raise ValueError(f"Baud Rate {index} is not one of the servo's rates (0…7)")
+        port = self._require_port()
+        item = ct.ITEMS_BY_NAME["Baud Rate"]
+        bus_bps = port.getBaudRate()
+        new_bps = ct.BAUD_RATES_BPS[index]
+        self._io(self._ph.writeTxRx, port, servo_id, item.address, item.size, [index])
+        self._set_port_baud(new_bps)
+        try:
+            self._wait_until_back(servo_id, f"its Baud Rate was set to {new_bps} bps")
+            now = self.read_item(servo_id, "Baud Rate")
+            if now != index:
+                raise DeviceError(f"servo {servo_id} answers at {new_bps} bps but reads Baud Rate {now}")
+        finally:
+            self._set_port_baud(bus_bps)
+            port.return_delays_s.pop(servo_id, None)
+
     def _wait_until_back(self, servo_id: int, after: str) -> None:
         """Ping ``servo_id`` until it answers again (it restarts after a reboot or a factory reset), at most
         ``REBOOT_TIMEOUT_S``; NoReplyError saying after what."""

@@ -61,6 +61,7 @@ class ServoSettingsView(QWidget):
     save_requested = Signal()
     restore_requested = Signal(int)  # servo ID, or 0 for every servo
     zero_requested = Signal()
+    direction_requested = Signal(int)  # servo ID: move its joint a little and ask which way it went
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -104,6 +105,11 @@ class ServoSettingsView(QWidget):
                                     "into your lab config, the old file kept)")
         self.zero_button.clicked.connect(self.zero_requested)
         bar.addWidget(self.zero_button)
+        self.direction_button = QPushButton("Check direction…")
+        self.direction_button.setToolTip("Move this servo's joint a little the positive way and back, then say whether "
+                                          "it went the way the app expects (a wrong sign is fixed in your lab config)")
+        self.direction_button.clicked.connect(lambda: self.direction_requested.emit(self.servo_id or 0))
+        bar.addWidget(self.direction_button)
         layout.addLayout(bar)
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
@@ -214,7 +220,7 @@ class ServoSettingsView(QWidget):
 
     def set_enabled(self, connected: bool, why: str = "") -> None:
         for widget in (self.read_button, self.live_check, self.save_button, self.restore_button,
-                       self.restore_all_button, self.zero_button, self.table):
+                       self.restore_all_button, self.zero_button, self.direction_button, self.table):
             widget.setEnabled(connected)
         if not connected and why:
             self.set_message(why, theme.IDLE)

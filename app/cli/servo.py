@@ -58,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
             change = ss.set_item(chain, ids[0], args.item, args.value)
             if change.written:
                 print(f"servo {change.servo_id}: {change.item} {change.before} → {change.after} (read back)")
+                if ss.baud_note(change):
+                    print(ss.baud_note(change), file=sys.stderr)
             else:
                 print(f"servo {change.servo_id}: {change.item} already {change.after}: not written")
             return 0

@@ -61,6 +61,8 @@ class Bus(Protocol):
 
     def ping(self, servo_id: int) -> Any: ...
 
+    def change_baud(self, servo_id: int, index: int) -> None: ...
+
 
 @dataclass(frozen=True)
 class Change:
@@ -92,8 +94,14 @@ def item(name: str) -> ct.Item:
 def read_table(bus: Bus, servo_id: int) -> dict[str, int]:
     """Every item of servo ``servo_id`` from ONE read of the whole table, by item name (signed where it is)."""
     raw = bus.read_block(servo_id, 0, ct.CONTROL_TABLE_SIZE)
+    model = int.from_bytes(raw[0:2], "little")
+    items = ct.TABLES_BY_MODEL.get(model)
+    if items is None:
+        known = ", ".join(str(m) for m in ct.TABLES_BY_MODEL)
+        raise SettingsError(f"servo {servo_id} is model {model}, whose control table this app does not know (it knows "
+                            f"model(s) {known}: the XM430-W350); add it to devices/control_table.TABLES_BY_MODEL")
     values = {}
-    for entry in ct.XM430_W350_ITEMS:
+    for entry in items:
         value = int.from_bytes(raw[entry.address:entry.address + entry.size], "little")
         values[entry.name] = ct.to_signed(value, entry.size) if entry.signed else value
     return values
@@ -113,12 +121,11 @@ def set_item(bus: Bus, servo_id: int, name: str, value: int) -> Change:
     off around an EEPROM write (and restored), confirmed by reading it back."""
     entry = item(name)
     check_value(entry, value)
-    if entry.name == "Baud Rate":
-        raise SettingsError("Baud Rate is not changed from here yet: the servo would leave this bus's rate "
-                            "mid-command (use Dynamixel Wizard, then connect at the new rate)")
     before = bus.read_item(servo_id, entry.name)
     if before == value:
         return Change(servo_id, entry.name, before, value, written=False)
+    if entry.name == "Baud Rate":
+        return _change_baud(bus, servo_id, before, value)
     if entry.name == "ID" and _answers(bus, value):
         raise SettingsError(f"ID {value} is already on the bus (a servo answers to it): choose a free ID, or two "
                             "servos would share it")
@@ -136,6 +143,25 @@ def set_item(bus: Bus, servo_id: int, name: str, value: int) -> Change:
         raise SettingsError(f"servo {servo_id}: {entry.name} reads {after} after writing {value}: the write did not "
                             "stick")
     return Change(servo_id, entry.name, before, after, written=True)
+
+
+def _change_baud(bus: Bus, servo_id: int, before: int, value: int) -> Change:
+    """Move one servo to another baud rate: torque off (EEPROM), the write, and the servo found at its new rate and
+    read back there (:meth:`devices.servo_chain.ServoChain.change_baud`). Its torque stays off: at the new rate it no
+    longer hears this bus."""
+    if bus.read_item(servo_id, "Torque Enable") == 1:
+        bus.write_item(servo_id, "Torque Enable", 0)
+    bus.change_baud(servo_id, value)
+    return Change(servo_id, "Baud Rate", before, value, written=True)
+
+
+def baud_note(change: Change) -> str:
+    """What a user does after a baud-rate change (empty for other items)."""
+    if change.item != "Baud Rate" or not change.written:
+        return ""
+    bps = ct.BAUD_RATES_BPS.get(change.after, change.after)
+    return (f"servo {change.servo_id} now talks at {bps} bps and no longer answers on this bus's rate (torque off): "
+            f"set the other servos to the same rate, then connect at {bps} (--baud {bps}, or the Hardware tab's Baud)")
 
 
 def _answers(bus: Bus, servo_id: int) -> bool:
@@ -261,13 +287,19 @@ def zero_offsets(old_offsets_rad: Sequence[float], present_rad: Sequence[float])
 
 
 def write_zero_offsets(config_path: str | os.PathLike[str], offsets_rad: Sequence[float]) -> Path:
-    """Set ``[robot] zero_offsets_rad`` in the lab config at ``config_path``, keeping every other line (comments
+    """Set ``[robot] zero_offsets_rad`` in the lab config at ``config_path`` (see :func:`write_robot_key`); returns
+    the backup of the file as it was."""
+    return write_robot_key(config_path, ZERO_KEY, [repr(float(v)) for v in offsets_rad])
+
+
+def write_robot_key(config_path: str | os.PathLike[str], key: str, values: Sequence[str]) -> Path:
+    """Set ``[robot] <key> = [values…]`` in the lab config at ``config_path``, keeping every other line (comments
     too); the file as it was is first copied to ``<name>.bak-N`` (a new name, never over an older backup), which is
     returned. The key's line is replaced where it is, or added at the top of ``[robot]`` (a ``[robot]`` table is
     added when there is none)."""
     path = Path(config_path)
     text = path.read_text(encoding="utf-8")
-    line = f"{ZERO_KEY} = [{', '.join(repr(float(v)) for v in offsets_rad)}]"
+    line = f"{key} = [{', '.join(values)}]"
     lines = text.splitlines()
     section = None
     robot_at = None
@@ -279,9 +311,9 @@ def write_zero_offsets(config_path: str | os.PathLike[str], offsets_rad: Sequenc
             if section == "robot" and robot_at is None:
                 robot_at = index
             continue
-        if section == "robot" and re.match(rf"\s*{ZERO_KEY}\s*=", raw):
+        if section == "robot" and re.match(rf"\s*{key}\s*=", raw):
             if "]" not in raw:
-                raise SettingsError(f"{path}: {ZERO_KEY} spans several lines; put it on one line to have it set here")
+                raise SettingsError(f"{path}: {key} spans several lines; put it on one line to have it set here")
             comment = raw[raw.index("]") + 1:].strip()
             lines[index] = line + (f"  {comment}" if comment.startswith("#") else "")
             replaced = True

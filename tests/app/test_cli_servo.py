@@ -133,8 +133,6 @@ def test_an_id_change_refuses_an_id_already_on_the_bus_and_moves_the_servo_other
     assert main(["scan", "--robot", emulator.path]) == 0
     out = capsys.readouterr()
     assert "ID  20" in out.out and "ID(s) 12 did not answer" in out.err
-    assert main(["servo", "set", "--robot", emulator.path, "--id", "20", "Baud Rate", "1"]) == 1
-    assert "not changed from here yet" in capsys.readouterr().err
 
 
 def test_a_factory_reset_asks_for_yes_and_keeps_the_id_and_baud(emulator, capsys):
@@ -172,3 +170,26 @@ def test_a_labs_servo_profile_writes_only_what_differs_on_the_emulator(emulator)
         assert emulator.counts()["write"] == writes_after  # read-compare: nothing differs, nothing sent
     assert writes_after > writes
     assert "written on servo(s) 3, 4" in servo_settings.describe_changes(changes)
+
+
+def test_a_baud_rate_change_finds_the_servo_at_its_new_rate_and_says_what_to_do(emulator, capsys):
+    """Wizard's "change baud": the servo is written (torque off), found at its new rate and read back there; the bus
+    keeps its own rate, so the servo no longer answers on it until the host switches too."""
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        chain.set_torque(True, [6])
+    capsys.readouterr()
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "6", "Baud Rate", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert "Baud Rate 3 → 1" in out and "now talks at 57600 bps" in err and "--baud 57600" in err
+    assert emulator.state(6)["torque"] == 0
+    # At the bus's 1 Mbps servo 6 is silent; at 57600 it is the only one that answers.
+    assert main(["scan", "--robot", emulator.path, "--baud", "1000000"]) == 0
+    found = [line.split()[1] for line in capsys.readouterr().out.splitlines() if line.startswith("ID")]
+    assert found == [str(i) for i in range(1, 13) if i != 6]
+    assert main(["scan", "--robot", emulator.path, "--baud", "57600"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("ID")]
+    assert [line.split()[1] for line in lines] == ["6"] and "57600 bps" in lines[0]
+    # And back, from its new rate.
+    assert main(["servo", "set", "--robot", emulator.path, "--baud", "57600", "--id", "6", "Baud Rate", "3"]) == 0
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        assert chain.read_item(6, "Baud Rate") == 3

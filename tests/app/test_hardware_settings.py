@@ -105,6 +105,21 @@ def test_an_eeprom_write_on_a_servo_with_torque_on_asks_and_restores_torque(wind
     assert chain.register(1, "Torque Enable") == 1  # back on after the write
 
 
+def test_a_baud_rate_change_asks_moves_the_servo_and_says_what_to_do(window, qtbot, sim_lab_fast):
+    tab, page = settings_page(window, qtbot)
+    page.servo_combo.setCurrentIndex(11)  # servo 12, the tail
+    qtbot.waitUntil(lambda: page.value_text("ID") == "12", timeout=10_000)
+    asked: list[str] = []
+    tab.confirm = lambda question, title="": asked.append(question) or False  # type: ignore[method-assign]
+    page.edit("Baud Rate", "1")
+    assert asked and "leaves this bus's 1000000 bps" in asked[0]
+    assert sim_lab_fast.chain.register(12, "Baud Rate") == 3
+    tab.confirm = lambda question, title="": True  # type: ignore[method-assign]
+    page.edit("Baud Rate", "1")
+    qtbot.waitUntil(lambda: "now talks at 57600 bps" in page.message.text(), timeout=15_000)
+    assert sim_lab_fast.chain.register(12, "Baud Rate") == 1
+
+
 def test_settings_saved_then_restored_onto_a_changed_servo(window, qtbot, sim_lab_fast, tmp_path):
     tab, page = settings_page(window, qtbot)
     chain = sim_lab_fast.chain
@@ -227,3 +242,51 @@ def test_the_page_says_to_connect_when_the_robot_is_not(window, qtbot):
     assert "Connect the robot" in tab.settings.message.text()
     path = Path(tab.settings.message.text())
     assert not path.exists()
+
+
+def test_a_direction_check_moves_one_joint_out_and_back_and_a_no_flips_its_sign(window, qtbot, sim_lab_fast,
+                                                                                  tmp_path):
+    tab, page = settings_page(window, qtbot)
+    robot = window.lab.robot
+    page.servo_combo.setCurrentIndex(3)  # servo 4, joint 4 (yaw)
+    qtbot.waitUntil(lambda: page.value_text("ID") == "4", timeout=10_000)
+    config_file = tmp_path / "lab.toml"
+    config_file.write_text(window.lab.config.source_text)
+    window.lab.config_path = config_file
+    seen: list[float] = []
+    robot.state_block.connect(lambda block: seen.extend(float(s.position_rad[3]) for s in block))
+    asked: list[str] = []
+    tab.ask_direction = lambda question: asked.append(question) or False  # type: ignore[method-assign]
+    page.direction_button.click()
+    qtbot.waitUntil(lambda: bool(asked), timeout=20_000)
+    assert "joint 4 (servo 4, yaw)" in asked[0] and "RIGHT" in asked[0]
+    start, peak, end = seen[0], max(seen), seen[-1]
+    assert 0.10 < peak - start < 0.20, f"the joint went {peak - start:+.3f} rad out (asked +0.15)"
+    assert abs(end - start) < 0.03  # and came back
+    qtbot.waitUntil(lambda: "sign" in page.message.text(), timeout=5_000)
+    assert load_config(config_file).robot.signs[3] == -window.lab.config.robot.signs[3]
+    assert (tmp_path / "lab.toml.bak-1").exists()
+    # Yes: nothing written.
+    stamp = config_file.stat().st_mtime_ns
+    asked.clear()
+    tab.ask_direction = lambda question: asked.append(question) or True  # type: ignore[method-assign]
+    page.direction_button.click()
+    qtbot.waitUntil(lambda: "moves the way the app expects" in page.message.text(), timeout=20_000)
+    assert config_file.stat().st_mtime_ns == stamp
+
+
+def test_a_nudge_goes_out_smoothly_and_ends_where_it_started():
+    from app.core.direction_check import JointNudge
+
+    nudge = JointNudge(2, 0.15, ramp_s=1.0, hold_s=1.0)
+    start = np.linspace(-0.3, 0.3, 12)
+    goals = [nudge.goal_at(t, start) for t in np.arange(0.0, 3.0001, 0.02)]
+    assert all(g is not None for g in goals)
+    out = np.array([g[2] - start[2] for g in goals])  # type: ignore[index]
+    assert out.max() == pytest.approx(0.15) and out[0] == 0.0 and abs(out[-1]) < 1e-9
+    assert np.abs(np.diff(out)).max() < 0.15 * 0.02 * np.pi / 2 / 1.0 + 1e-9  # a half-cosine ramp's top speed
+    others = np.array([np.delete(g, 2) for g in goals])  # type: ignore[arg-type]
+    assert np.array_equal(others, np.tile(np.delete(start, 2), (len(goals), 1)))
+    assert nudge.goal_at(3.1, start) is None
+    with pytest.raises(ValueError, match="at most 0.5 rad"):
+        JointNudge(0, 0.8)

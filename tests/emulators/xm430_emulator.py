@@ -28,7 +28,10 @@ channel):
 Wire timing: every instruction occupies the wire for its bytes at the configured baud (10 bits per byte); each
 status packet starts Return Delay Time (2 µs per unit, factory 250 = 500 µs) after the end of the instruction or of
 the previous servo's status packet (sync/bulk read), and is written to the pty whole when its last byte would have
-arrived. Bytes sent at another baud rate (the slave's termios speed) are not understood, as on a real bus.
+arrived. Bytes sent at another baud rate (the slave's termios speed) are not understood, as on a real bus: each servo
+listens at its own Baud Rate item, so a servo whose rate was changed answers only when the host switches to it (it
+answers the write that changed it at the old rate, then listens at the new one — an assumption: the e-manual does not
+say at which rate that status packet goes).
 
 Motion: torque on drives to whatever Goal Position holds (it is set to the present position only at power-on); with
 torque on, the present position moves towards the goal at up to the no-load speed (or Profile
@@ -349,6 +352,8 @@ class Bus:
         servo = self.servos.get(dev_id)
         if servo is None or servo.silent or now < servo.silent_until_s:
             return None
+        if servo.get("baud_rate") != self.baud_index:
+            return None  # it listens at another rate: the host's bytes are noise to it
         return servo
 
     def handle(self, dev_id: int, inst: int, params: bytes, now: float) -> list[tuple[Servo, bytes]]:
@@ -608,7 +613,12 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                 now = time.monotonic()
                 own = BAUD_BPS[bus.baud_index]
                 rate = host_baud(slave_fd)
-                understood = rate == own if rate is not None else own not in _termios_speeds().values()
+                if rate is not None and rate in BAUD_BPS.values():
+                    # The wire runs at the host's rate; each servo hears it only at its own Baud Rate (answering).
+                    bus.baud_index = next(k for k, bps in BAUD_BPS.items() if bps == rate)
+                    understood = True
+                else:
+                    understood = rate == own if rate is not None else own not in _termios_speeds().values()
                 if data and understood:
                     # The host wrote at once; on a real wire its bytes arrive over len·10/baud.
                     wire_free_s = max(now, wire_free_s) + len(data) * bus.byte_s

@@ -21,7 +21,7 @@ from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
 from PySide6.QtWidgets import QFileDialog, QMessageBox, QTabWidget, QVBoxLayout, QWidget
 
-from app.core import servo_settings, user_folders
+from app.core import direction_check, servo_settings, user_folders
 from app.core.errors import SettingsError
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
@@ -101,6 +101,7 @@ class HardwareTab(QWidget):
         settings.save_requested.connect(self.save_settings)
         settings.restore_requested.connect(self.restore_settings)
         settings.zero_requested.connect(self.set_zero_pose)
+        settings.direction_requested.connect(self.check_direction)
         self.robot.profile_applied.connect(self._profile_applied)
         if self.robot.last_profile_changes:
             self._profile_applied(self.robot.last_profile_changes)
@@ -288,7 +289,14 @@ class HardwareTab(QWidget):
     def write_item(self, servo_id: int, name: str, value: int) -> None:
         """Write one item (range already checked by the page); an EEPROM item on a servo with torque on asks first."""
         entry = ct.ITEMS_BY_NAME[name]
-        if entry.eeprom and self.settings.values.get("Torque Enable") == 1 and not self.confirm(
+        if name == "Baud Rate" and not self.confirm(
+                f"Move servo {servo_id} to {ct.BAUD_RATES_BPS.get(value, value)} bps? It leaves this bus's "
+                f"{self.robot.baud} bps at once: the robot loses it (torque off) until the other servos and the app "
+                "use the same rate. Dynamixel Wizard does the same.", "Change a servo's baud rate"):
+            self.settings.set_message("Baud Rate not written", theme.IDLE)
+            self.settings.set_values(servo_id, self.settings.values)
+            return
+        if entry.eeprom and name != "Baud Rate" and self.settings.values.get("Torque Enable") == 1 and not self.confirm(
                 f"{name} lives in EEPROM: servo {servo_id} accepts the write only with its torque off. Turn its "
                 "torque off, write, and turn it back on? The joint goes limp for a moment: support the robot.",
                 "Write an EEPROM item"):
@@ -307,6 +315,9 @@ class HardwareTab(QWidget):
             else:
                 self.settings.set_message(f"servo {servo_id}: {name} already held {value}: not written", theme.IDLE)
             self.settings.show_changes(f"Last write (servo {servo_id})", [change])
+            if servo_settings.baud_note(change):
+                self.settings.set_message(servo_settings.baud_note(change), theme.WARN)
+                return  # it no longer answers at this bus's rate: nothing to read back here
             self.read_table(servo_id)
 
         def failed(exc: BaseException) -> None:
@@ -386,8 +397,14 @@ class HardwareTab(QWidget):
         if not self.ask_zero(ZeroPoseDialog(config.joint_ids, config.axes, present, old, new, target_text, self)):
             self.settings.set_message("zero pose not written", theme.IDLE)
             return
+        self._write_config("zero offsets", "the zero pose", lambda path: servo_settings.write_zero_offsets(path, new))
+
+    def _write_config(self, what: str, for_what: str, write: Any) -> None:
+        """``write(path)`` into the lab config the app was opened with, or (on the packaged one) into a new file the
+        user names, a copy of the config (an existing file is never written over); says where it went."""
+        target = self.lab.config_path
         if target is None:
-            chosen = self.ask_path("save", "New lab config with the zero pose", "my_lab.toml")
+            chosen = self.ask_path("save", f"New lab config with {for_what}", "my_lab.toml")
             if not chosen:
                 return
             target = Path(chosen)
@@ -398,14 +415,55 @@ class HardwareTab(QWidget):
             target.write_text(self.lab.config.source_text or default_config_path().read_text(encoding="utf-8"),
                               encoding="utf-8")
         try:
-            backup = servo_settings.write_zero_offsets(target, new)
+            backup = write(target)
         except (SettingsError, OSError) as exc:
-            self.settings.set_message(f"zero pose not written: {exc}", theme.ERROR)
+            self.settings.set_message(f"{what} not written: {exc}", theme.ERROR)
             return
-        self.settings.set_message(f"zero offsets written into {target} (the file before kept as {backup.name}); they "
+        self.settings.set_message(f"{what} written into {target} (the file before kept as {backup.name}); they "
                                   "apply when that config is loaded: File ▸ Open config…", theme.OK)
 
+    def check_direction(self, servo_id: int) -> None:
+        """Move ``servo_id``'s joint +0.15 rad and back (torque on, holding the rest), then ask which way it went;
+        "no" flips that joint's sign in the lab config."""
+        config = self.robot.config
+        if servo_id not in config.joint_ids:
+            self.settings.set_message(f"servo {servo_id} is not a joint of the robot ([robot] joint_ids)", theme.ERROR)
+            return
+        if self.robot.motion_state in ("running", "paused"):
+            self.settings.set_message("a motion is playing: stop it first (the check moves one joint)", theme.ERROR)
+            return
+        joint = list(config.joint_ids).index(servo_id)
+        axis = config.axes[joint]
+        self.settings.set_message(f"moving joint {joint + 1} (servo {servo_id}) by +{direction_check.NUDGE_RAD:g} rad "
+                                  "and back — watch which way it goes…", theme.WARN)
+        future = self.robot.run_motion(direction_check.JointNudge(joint), f"direction check J{joint + 1}", play=True)
+
+        def done(outcome: str) -> None:
+            if outcome != "finished":
+                self.settings.set_message(f"direction check {outcome}: nothing asked, nothing written", theme.WARN)
+                return
+            answer = self.ask_direction(direction_check.question(joint, servo_id, axis))
+            if answer is None:
+                self.settings.set_message("direction check: no answer, nothing written", theme.IDLE)
+            elif answer:
+                self.settings.set_message(f"joint {joint + 1} (servo {servo_id}) moves the way the app expects",
+                                          theme.OK)
+            else:
+                signs = direction_check.flipped_signs(config.signs, joint)
+                self._write_config(f"joint {joint + 1}'s sign ({config.signs[joint]:+d} → {signs[joint]:+d})",
+                                   "the joint signs", lambda path: direction_check.write_signs(path, signs))
+
+        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+            f"direction check stopped: {describe_error(exc)}", theme.ERROR))
+
     # -- questions (tests replace these) ---------------------------------------------------------------------------
+    def ask_direction(self, question: str) -> bool | None:
+        """Yes / No / Cancel (None)."""
+        answer = QMessageBox.question(self, "Joint direction", question,
+                                      QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No
+                                      | QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Cancel)
+        return {QMessageBox.StandardButton.Yes: True, QMessageBox.StandardButton.No: False}.get(answer)
+
     def ask_zero(self, dialog: ZeroPoseDialog) -> bool:
         return dialog.exec() == ZeroPoseDialog.DialogCode.Accepted
 
