@@ -13,8 +13,8 @@ code (ForceStatus)     condition                                               w
                        1e300 S glitch lands here)
 ``READOUT_SATURATED``  ``C = 1/R_C`` (counts = 0, or the board's saturation    kept at the ceiling: the force is a
                        bit)                                                    lower bound, "saturated: force ≥ X N"
-``FLAT``               the same non-zero reading, bit for bit, for at least    rejected: a gap, force NaN (no force is
-                       ``flat_s`` seconds (a stuck channel)                    claimed for a frozen line)
+``FLAT``               the same non-zero reading, bit for bit, for longer      rejected: a gap, force NaN (no force is
+                       than the sensor's own history makes likely (below)     claimed for a frozen line)
 =====================  ======================================================  ========================================
 
 After the inverse, a force below the smallest (or above the largest) calibrated force is flagged ``EXTRAPOLATED``
@@ -25,6 +25,19 @@ creep state keeps evolving over the gap's elapsed time under a zero-order hold o
 exact "hold" update with the gap's length). Time therefore passes: after a gap the creep strain is what it would be
 had the force stayed at its last good value. A single rejected glitch thus changes the state by no more than one
 sample of that hold; it never feeds an impossible value into the state.
+
+**When a repeated reading is a stuck channel.** A healthy sensor's reading changes from one sample to the next with a
+rate ``p`` of its own (readout noise against the ADC step: ~0.5 at the simulated board's 0.5-count noise, lower for a
+quieter sensor). A healthy sensor repeats its present value with probability at most ``sqrt(1 − p)`` per sample (the
+most frequent of values at frequencies ``f_i`` has ``f_1² ≤ Σ f_i² = 1 − p``; a two-level sensor on its usual level
+reaches it), so a run of ``L`` identical samples has probability at most ``(1 − p)^(L/2)``; the run is called flat once
+that falls below ``flat_false_alarm`` (1e-6): ``L = 2 ln(1e-6) / ln(1 − p)`` samples, with ``p`` a low
+estimate (3 σ below the count) of the rate seen on the sensor's samples before the run began — never before
+``flat_min_s`` (1 s), never later than ``flat_max_s`` (60 s). A sensor with fewer than ``FLAT_MIN_HISTORY``
+comparisons before the run, or none of them changes (stuck from the start), waits ``flat_s`` (10 s). Measured at 30
+Hz on a resting sensor after 20 s of history (tests/models/test_validation.py, benchmarks/bench_flat_line.py): at the
+simulated board's 0.5-count noise a stuck channel is flagged 1.0 s after it froze, at 0.3 counts ~1.3 s; a healthy
+sensor at 0.15–0.5 counts is never flagged in an hour.
 
 A validator carries the flat-line run of each sensor across blocks (a stream split into blocks is judged exactly
 like the whole record). Not thread-safe: use it from the thread that feeds the estimator.
@@ -40,7 +53,10 @@ from models.sls import ForceStatus
 
 # The default readout of SPEC §4 (R_C = 900 Ω): counts = 0 reads 1/R_C.
 DEFAULT_R_C_OHM = 900.0
-DEFAULT_FLAT_S = 10.0
+DEFAULT_FLAT_S = 10.0  # the longest a repeated reading is trusted (a sensor with no history, or a very quiet one)
+DEFAULT_FLAT_MIN_S = 1.0  # the shortest run ever called flat
+DEFAULT_FLAT_FALSE_ALARM = 1e-6  # the chance a healthy sensor repeats itself that long (at most; module docstring)
+FLAT_MIN_HISTORY = 30  # comparisons before a run needed to trust the sensor's own change rate
 # A reading within this relative distance of the ceiling is the ceiling (the CSV's %.17g round trip, V arithmetic).
 _CEILING_REL = 1e-9
 
@@ -54,6 +70,9 @@ class ValidationRule:
 
     ceiling_s: float | None = 1.0 / DEFAULT_R_C_OHM
     flat_s: float = DEFAULT_FLAT_S
+    flat_min_s: float = DEFAULT_FLAT_MIN_S
+    flat_max_s: float = 60.0  # a reading repeated this long is stuck, however quiet the sensor was
+    flat_false_alarm: float = DEFAULT_FLAT_FALSE_ALARM
 
     @classmethod
     def for_readout(cls, r_c_ohm: float, flat_s: float = DEFAULT_FLAT_S) -> ValidationRule:
@@ -82,9 +101,13 @@ class SampleValidator:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the flat-line runs (a new record, or after the clock restarted)."""
+        """Forget the flat-line runs and the sensors' change rates (a new record, or after the clock restarted)."""
         self._last_value = np.full(self.n_sensors, np.nan)
         self._run_start_s = np.full(self.n_sensors, np.nan)
+        self._run_length = np.zeros(self.n_sensors, dtype=np.int64)  # samples in the current run
+        self._run_needs = np.full(self.n_sensors, np.inf)  # samples the current run needs to be flat
+        self._changes = np.zeros(self.n_sensors, dtype=np.int64)  # sample-to-sample changes seen
+        self._compares = np.zeros(self.n_sensors, dtype=np.int64)  # sample-to-sample comparisons made
 
     def check(self, t_s: np.ndarray, conductance_s: np.ndarray, saturated: np.ndarray | None = None) -> CheckedBlock:
         """Validate a block: ``t_s`` (N,) s, ``conductance_s`` (N, S) S, optional ``saturated`` (N, S) bool from the
@@ -123,18 +146,55 @@ class SampleValidator:
         return CheckedBlock(cond, status)
 
     def _flat(self, t: np.ndarray, cond: np.ndarray) -> np.ndarray:
-        """Samples whose non-zero reading has been identical since at least ``flat_s`` seconds before them."""
-        n, s = cond.shape
+        """Samples whose non-zero reading has been identical for longer than the sensor's history makes likely
+        (module docstring), and at least ``flat_min_s``, or for ``flat_s`` whatever the history."""
+        rule = self.rule
+        n, _s = cond.shape
+        rows = np.arange(n)[:, None]
         previous = np.vstack([self._last_value[None, :], cond[:-1]])
         changed = ~(cond == previous)  # NaN never equals: a gap ends a run
-        first = changed.copy()
-        index = np.where(first, np.arange(n)[:, None], -1)
+        compared = np.isfinite(cond) & np.isfinite(previous)
+        changes = self._changes + np.cumsum(changed & compared, axis=0)
+        compares = self._compares + np.cumsum(compared, axis=0)
+        index = np.where(changed, rows, -1)
         np.maximum.accumulate(index, axis=0, out=index)
-        start_s = np.where(index >= 0, t[np.maximum(index, 0)], self._run_start_s[None, :])
-        flat = (t[:, None] - start_s >= self.rule.flat_s) & (cond != 0.0)
+        started = index >= 0
+        at = np.maximum(index, 0)
+        start_s = np.where(started, t[at], self._run_start_s[None, :])
+        length = np.where(started, rows - index + 1, self._run_length[None, :] + rows + 1)
+        # The run's threshold in samples, from the change rate before it began (carried for a run from earlier).
+        cols = np.arange(cond.shape[1])[None, :]
+        before_changes = np.take_along_axis(changes, at, axis=0) - (changed & compared)[at, cols]
+        before_compares = np.take_along_axis(compares, at, axis=0) - compared[at, cols]
+        needs = np.where(started, self._needs(before_changes, before_compares), self._run_needs[None, :])
+        elapsed = t[:, None] - start_s
+        # Without a usable history (needs = inf) flat_s decides; with one, the history does (a quiet sensor can
+        # legitimately repeat itself longer than flat_s), up to flat_max_s.
+        judged = np.isfinite(needs)
+        flat = (np.where(judged, (length >= needs) & (elapsed >= rule.flat_min_s), elapsed >= rule.flat_s)
+                | (elapsed >= rule.flat_max_s)) & (cond != 0.0)
         self._last_value = cond[-1].copy()
         self._run_start_s = start_s[-1].copy()
+        self._run_length = length[-1].astype(np.int64)
+        self._run_needs = needs[-1].copy()
+        self._changes = changes[-1].astype(np.int64)
+        self._compares = compares[-1].astype(np.int64)
         return flat
+
+    def _needs(self, changes: np.ndarray, compares: np.ndarray) -> np.ndarray:
+        """Run length (samples) past which a healthy sensor with this history repeats itself with probability below
+        ``flat_false_alarm``; inf without enough history (then ``flat_s`` decides)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # A low estimate of the rate (3 σ of a count below what was seen): a short or lucky history must not make
+            # a quiet sensor look lively, and a flat run of it look unlikely.
+            low = np.maximum(changes - 3.0 * np.sqrt(changes), 0.0)
+            p = np.where(compares > 0, low / np.maximum(compares, 1), 0.0)
+            # The chance to repeat the current value: at most sqrt(1 − p) whatever the noise's shape (with values at
+            # frequencies f_i, p = 1 − Σ f_i², so the most frequent value's f_1 ≤ sqrt(1 − p)); a two-level sensor
+            # sitting on its usual level reaches it.
+            stay = 0.5 * np.log1p(-np.minimum(p, 1.0 - 1e-12))  # ln sqrt(1 − p) < 0
+            needs = np.where(p > 0, np.log(self.rule.flat_false_alarm) / stay, np.inf)
+        return np.where(compares >= FLAT_MIN_HISTORY, np.ceil(needs), np.inf)
 
 
 def saturated_lower_bounds(force_n: np.ndarray, status: np.ndarray) -> np.ndarray:

@@ -102,9 +102,10 @@ def test_flat_lined_sensor_claims_no_force(record):
     got, status = _estimate(t, stuck)
     flat = status == ForceStatus.FLAT
     assert flat.any() and np.all(np.isnan(got[flat]))
-    # Flagged from flat_s after the freeze onwards; before that the frozen value is still a plausible reading.
-    assert t[flat][0] == pytest.approx(70.0 + ValidationRule().flat_s, abs=0.1)
-    assert np.all(t[flat] >= 80.0 - 1e-9)
+    # A sensor that changed every sample before is flagged as soon as a run may be called flat (flat_min_s after the
+    # freeze); before that the frozen value is still a plausible reading.
+    assert t[flat][0] == pytest.approx(70.0 + ValidationRule().flat_min_s, abs=0.1)
+    assert np.all(t[flat] >= 71.0 - 1e-9)
 
 
 def test_flat_detection_is_the_same_in_blocks_as_whole():
@@ -147,3 +148,58 @@ def test_live_pipeline_reports_validation_codes(record, tmp_path):
     assert block.status is not None
     assert block.status[100, 1] == ForceStatus.NEGATIVE_CONDUCTANCE and np.isnan(block.force_n[100, 1])
     assert block.status[200, 0] == ForceStatus.READOUT_SATURATED and np.isfinite(block.force_n[200, 0])
+
+
+LSB_S = 1e-6 / 3.7  # one ADC step of the default readout near rest (S)
+
+
+def _resting(seed: int, sigma_counts: float, seconds: float, rate_hz: float = 30.0, n: int = 1):
+    """A sensor at rest read through the ADC: a level 0.3 steps off a step boundary plus Gaussian noise, quantised."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate_hz)
+    x = np.round((50e-6 + 0.3 * LSB_S + rng.normal(0.0, sigma_counts * LSB_S, (t.size, n))) / LSB_S) * LSB_S
+    return t, x
+
+
+@pytest.mark.parametrize("seed", [201, 202, 203, 204, 205])
+def test_a_channel_that_freezes_is_flagged_within_two_seconds_at_30_hz(seed):
+    """The board's noise (0.5 counts), 20 s of normal life, then the line freezes at whatever it read."""
+    t, x = _resting(seed, 0.5, 40.0)
+    k = int(20.0 * 30.0)
+    x[k:] = x[k]
+    status = SampleValidator(1, ValidationRule(ceiling_s=None)).check(t, x).status[:, 0]
+    flat = np.flatnonzero(status == ForceStatus.FLAT)
+    assert flat.size and flat[0] > k - 1
+    delay = t[flat[0]] - t[k]
+    assert 1.0 - 1e-9 <= delay <= 2.0, f"flagged {delay:.2f} s after the freeze"
+    assert np.all(status[flat[0]:] == ForceStatus.FLAT)
+
+
+@pytest.mark.parametrize("sigma_counts", [0.15, 0.2, 0.3, 0.5])
+def test_a_quiet_healthy_sensor_is_never_called_flat(sigma_counts):
+    """Twenty minutes at rest per noise level, four sensors each (new seeds): not one sample called flat, although the
+    quietest repeat a value for seconds at a time."""
+    t, x = _resting(int(sigma_counts * 1000) + 7, sigma_counts, 1200.0, n=4)
+    status = SampleValidator(4, ValidationRule(ceiling_s=None)).check(t, x).status
+    assert not np.any(status == ForceStatus.FLAT)
+    repeats = np.diff(np.flatnonzero(np.diff(x[:, 0]) != 0))
+    assert sigma_counts > 0.25 or repeats.max() > 30  # the quiet ones do sit still for over a second
+
+
+def test_a_channel_stuck_from_the_start_waits_flat_s():
+    """No history to judge by: a reading is trusted for flat_s (10 s), then called flat."""
+    t = np.arange(0.0, 20.0, 1.0 / 30.0)
+    x = np.full((t.size, 1), 123e-6)
+    status = SampleValidator(1, ValidationRule(ceiling_s=None)).check(t, x).status[:, 0]
+    first = t[np.flatnonzero(status == ForceStatus.FLAT)[0]]
+    assert first == pytest.approx(ValidationRule().flat_s, abs=0.05)
+
+
+def test_flat_judgement_streamed_in_blocks_matches_the_whole_record_with_noise():
+    t, x = _resting(311, 0.4, 60.0, n=3)
+    x[900:, 1] = x[900, 1]
+    whole = SampleValidator(3, ValidationRule(ceiling_s=None)).check(t, x).status
+    streamed = SampleValidator(3, ValidationRule(ceiling_s=None))
+    parts = [streamed.check(t[i:i + 17], x[i:i + 17]).status for i in range(0, t.size, 17)]
+    np.testing.assert_array_equal(np.vstack(parts), whole)
+    assert np.any(whole[:, 1] == ForceStatus.FLAT)
