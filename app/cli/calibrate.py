@@ -38,6 +38,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from app.cli.fit import _physics, print_report
 from app.core import calfiles, calibration_fit
 from app.core.rig_protocol import (
@@ -279,6 +281,36 @@ def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, t
     return outcome
 
 
+def _what_the_sensor_read(args: argparse.Namespace, settings: Any) -> tuple[Any, Any]:
+    """What predicts this sensor's reading at the top force (for check_protocol): its calibration in ``--out`` if it
+    has one, else the highest reading of a trial of the session being resumed, else nothing (a typical sensor)."""
+    from models.sls_model import SLSParams
+
+    if Path(args.out).exists():
+        document = calfiles.read_calibration(args.out)
+        try:
+            entry = calfiles.sensor_entry(document, settings.sensor, "sls", str(args.out))
+            physics = calfiles.physics_from_calibration(document, str(args.out))
+        except ValueError:
+            pass  # no usable earlier calibration of this sensor: try the session's trials
+        else:
+            sls = entry["sls"]
+            params = SLSParams(E0_Pa=float(sls["E0_Pa"]), E1_Pa=float(sls["E1_Pa"]), mu1_Pa_s=float(sls["mu1_Pa_s"]))
+            return (params, float(entry["area_m2"]), physics), None
+    if args.resume:
+        best: tuple[float, float] | None = None
+        for path in finished_trials(Path(args.resume), settings).values():
+            try:
+                trial = calfiles.read_trial_csv(path)
+            except (ValueError, OSError):
+                continue
+            force = float(np.nanmax(trial.force_n))
+            if best is None or force > best[0]:
+                best = (force, float(np.nanmax(trial.conductance_s)))
+        return None, best
+    return None, None
+
+
 def run(args: argparse.Namespace) -> int:
     config = _config(args)
     settings = _settings(args, config)
@@ -286,7 +318,7 @@ def run(args: argparse.Namespace) -> int:
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before the rig moves
     if not Path(args.out).resolve().parent.is_dir():
         raise ValueError(f"--out {args.out}: folder {Path(args.out).resolve().parent} does not exist")
-    check = check_protocol(settings, config.rig, config.board)
+    check = check_protocol(settings, config.rig, config.board, *_what_the_sensor_read(args, settings))
     if not check.ok:
         raise ValueError("protocol refused: " + "; ".join(check.errors))
     for text in check.warnings:

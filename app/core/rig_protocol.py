@@ -394,6 +394,7 @@ class ProtocolRunner:
         self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
+        self._conditioned = False  # this run has done (or skipped) its conditioning
         self._on_progress = on_progress or (lambda _p: None)
         self._on_sample = on_sample or (lambda _s: None)
         self._on_trial = on_trial or (lambda _t: None)
@@ -435,6 +436,7 @@ class ProtocolRunner:
         s = self.settings
         self.rig = rig
         self._started_s = self._clock()
+        self._conditioned = False  # the conditioning of this run is over (the time left no longer counts it)
         try:
             if not self.contact_only:
                 self.folder.mkdir(parents=True, exist_ok=True)
@@ -536,6 +538,7 @@ class ProtocolRunner:
             document["cycles_done"] = cycle + 1
             document["finished"] = cycle + 1 == s.condition_cycles
             write_conditioning(self.folder, document)
+        self._conditioned = True
 
     def _refine_contact(self) -> None:
         """Refine the contact the rig found from its servo's current with the sensor itself: from a little before
@@ -632,11 +635,22 @@ class ProtocolRunner:
         return (rest_left_s + max(0.0, s.trial_duration_s() - elapsed_in_trial_s)
                 + remaining_trials * (s.trial_duration_s() + s.rest_s))
 
+    def _before_trials_left_s(self) -> float:
+        """Run time left (s) before the first trial of this run starts: the conditioning still to do (not for a
+        resumed session whose conditioning finished, nor once trials exist) and every trial still to record with
+        the rest before it."""
+        s = self.settings
+        conditioning = 0.0
+        if s.condition_cycles and not self.done and not self._conditioned:
+            log = read_conditioning(self.folder) if self.folder.exists() else None
+            if not (log is not None and log.get("finished")):
+                conditioning = s.conditioning_duration_s()
+        return conditioning + (s.n_trials - len(self.done)) * (s.trial_duration_s() + s.rest_s)
+
     def _progress(self, phase: str, index: int, force: float, repeat: int, elapsed_s: float, message: str,
                   time_left_s: float | None = None) -> None:
         if time_left_s is None:
-            todo = self.settings.n_trials - len(self.done)
-            time_left_s = todo * (self.settings.trial_duration_s() + self.settings.rest_s)
+            time_left_s = 0.0 if phase == "done" else self._before_trials_left_s()
         left = time_left_s
         self._on_progress(Progress(phase, index, self.settings.n_trials, force, repeat, elapsed_s, left, message))
 
@@ -729,7 +743,8 @@ class ProtocolRunner:
         if self.feed.latest()[0] < times[-1] - period:
             raise BoardStreamError(f"the board's samples of sensor {s.sensor} stopped arriving before the end of "
                                    f"{label}")
-        self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load")
+        self._progress("release", index, force, repeat, s.trial_duration_s(), f"{label}: releasing the load",
+                       self._time_left(index, s.trial_duration_s()))
         rig.release()
         snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
         conductance = decimate_to(times + 0.5 * period, period,
@@ -758,10 +773,13 @@ def readout_ceiling_s(board: BoardConfig) -> float:
 
 
 def check_protocol(settings: ProtocolSettings, rig: RigConfig, board: BoardConfig,
-                   expected_sls: tuple[SLSParams, float, PhysicsConstants] | None = None) -> ProtocolCheck:
+                   expected_sls: tuple[SLSParams, float, PhysicsConstants] | None = None,
+                   seen: tuple[float, float] | None = None) -> ProtocolCheck:
     """Everything the run and the fit need, checked before the rig moves (the settings' own checks ran when they
-    were made). ``expected_sls``: (SLS parameters, area m², physics) of this sensor from an earlier calibration, to
-    predict the readout's range; without it the models' typical sensor gives a warning only."""
+    were made). The readout's range at the top force is predicted from, in order: ``expected_sls`` (SLS parameters,
+    area m², physics) of this sensor's earlier calibration; ``seen`` (force N, highest conductance S) of a trial of
+    this session already recorded, scaled in proportion to the top force (an over-estimate: the contact term makes
+    the reading rise more slowly than the force); else the models' typical sensor, which only warns."""
     errors: list[str] = []
     warnings: list[str] = []
     names = board.channel_names
@@ -790,14 +808,20 @@ def check_protocol(settings: ProtocolSettings, rig: RigConfig, board: BoardConfi
                         "the creep of one trial still fades in the next, which the fit does not model; rest "
                         f"≥ {REST_CREEP_TIMES * CREEP_TIME_S:g} s")
     ceiling = readout_ceiling_s(board)
-    params, area, physics = expected_sls if expected_sls is not None else (TYPICAL_SLS, settings.area_m2,
-                                                                           PhysicsConstants())
     top = max(settings.forces_n)  # the readout matters for the recorded trials only, not for the conditioning
-    strain = np.array([top / area / float(params.b)])
-    predicted = float(conductance_from_strain(strain, np.array([top]), physics)[0])
+    if expected_sls is None and seen is not None and seen[0] > 0 and np.isfinite(seen[1]):
+        predicted = seen[1] * top / seen[0]
+        source = f"scaling this session's trial at {seen[0]:g} N ({seen[1] * 1e6:.0f} µS)"
+    else:
+        params, area, physics = expected_sls if expected_sls is not None else (TYPICAL_SLS, settings.area_m2,
+                                                                               PhysicsConstants())
+        strain = np.array([top / area / float(params.b)])
+        predicted = float(conductance_from_strain(strain, np.array([top]), physics)[0])
+        source = "this sensor's last calibration" if expected_sls is not None else (
+            "a typical sensor (no calibration or trial of this sensor to go by)")
     if predicted >= READOUT_MARGIN * ceiling:
-        source = "this sensor's last calibration" if expected_sls is not None else "a typical sensor"
-        text = (f"at {top:g} N {source} would read {predicted * 1e6:.0f} µS, at or near the readout's ceiling "
+        text = (f"at {top:g} N the sensor would read {predicted * 1e6:.0f} µS by {source}, at or near the readout's "
+                f"ceiling "
                 f"{ceiling * 1e6:.0f} µS (1/R_C, R_C = {board.r_c_ohm:g} Ω): saturated samples only say 'at least'; "
                 "lower the top force or R_C if the first trial saturates")
         (errors if expected_sls is not None and predicted >= ceiling else warnings).append(text)

@@ -277,3 +277,53 @@ def test_conditioning_runs_before_the_trials_is_logged_and_not_repeated_on_resum
     code = main(["calibrate", "--rig", "sim", "--daq", "sim", "--resume", str(session), "--condition", "2",
                  "--out", str(out)])
     assert code == 1 and "drop --condition" in capsys.readouterr().err
+
+
+def test_the_time_left_counts_the_whole_remaining_protocol_and_never_jumps_back(tmp_path, lab_config, monkeypatch,
+                                                                                   capsys):
+    """Every progress report's time left (protocol seconds), from the contact search to the end: it starts at the
+    whole protocol (conditioning included) and only goes down — no jump back up at a release or a rest."""
+    from app.core import rig_protocol
+
+    seen: list[rig_protocol.Progress] = []
+    real = rig_protocol.Progress
+
+    def record(*args, **kwargs):
+        progress = real(*args, **kwargs)
+        seen.append(progress)
+        return progress
+
+    monkeypatch.setattr(rig_protocol, "Progress", record)
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--forces", "2,4",
+                 "--trials", "1", "--hold", "60", "--rest", "30", "--condition", "1@3", "--time-scale", "60",
+                 "--save-anyway", "--out", str(tmp_path / "cal.json")])
+    assert code == 0, capsys.readouterr().err
+    settings = ProtocolSettings(forces_n=(2.0, 4.0), trials_per_force=1, hold_s=60.0, rest_s=30.0,
+                                condition_cycles=1, condition_force_n=3.0)
+    left = np.array([p.time_left_s for p in seen])
+    phases = [p.phase for p in seen]
+    assert phases[0] == "contact" and left[0] == pytest.approx(settings.total_duration_s(), rel=1e-6)
+    rises = np.flatnonzero(np.diff(left) > 1.0)  # protocol seconds; reports are ≤ 1 s of protocol time apart
+    assert rises.size == 0, [(phases[k], left[k], phases[k + 1], left[k + 1]) for k in rises]
+    assert "release" in phases and phases[-1] == "done" and left[-1] == 0.0
+
+
+def test_the_preflight_predicts_the_reading_from_the_sensor_itself_when_it_can():
+    """The top force's reading: from the sensor's last calibration, else from a trial of this session, else a typical
+    sensor (a warning that says so). The simulated sensor (E0 2 MPa, E1 4 MPa) reads far below the ceiling at 5.25 N,
+    where the typical sensor would be near it."""
+    from models.physics import PhysicsConstants
+    from models.sls_model import SLSParams
+
+    settings = ProtocolSettings()  # the paper's 1.75 … 5.25 N
+    typical = check_protocol(settings, RigConfig(), BoardConfig())
+    assert any("a typical sensor (no calibration or trial" in w for w in typical.warnings)
+    own = check_protocol(settings, RigConfig(), BoardConfig(),
+                         expected_sls=(SLSParams(E0_Pa=2e6, E1_Pa=4e6, mu1_Pa_s=4e8), 1.4e-3, PhysicsConstants()))
+    assert own.ok and not any("readout's ceiling" in w for w in own.warnings), own
+    # A trial of the session at 3 N read 400 µS: 700 µS at 5.25 N, well inside the 1111 µS ceiling.
+    quiet = check_protocol(settings, RigConfig(), BoardConfig(), seen=(3.0, 400e-6))
+    assert quiet.ok and not any("readout's ceiling" in w for w in quiet.warnings)
+    # One that read 650 µS at 3 N would reach ~1140 µS: warned, naming where the number comes from.
+    loud = check_protocol(settings, RigConfig(), BoardConfig(), seen=(3.0, 650e-6))
+    assert any("scaling this session's trial at 3 N (650 µS)" in w for w in loud.warnings), loud
