@@ -9,6 +9,10 @@ sample-validation rule of :mod:`models.validation` with the readout ceiling ``1/
 (force NaN in OUT.csv; time passes for the creep state), never a refusal of the file. OUT.csv keeps exactly the SPEC
 §3.2 columns; ``--flags`` writes a sidecar CSV with the same header holding each sample's integer
 :class:`models.sls.ForceStatus` code (0 = ok; legend in docs/NUMERICS.md); stderr gets one line per affected sensor.
+A column without a calibration is passed through as ``<name>_uS`` (conductance in µS) with a note; a file with no
+calibrated column is refused. ``sensnake estimate REC.h5 --cal CAL.json --out NEW.h5`` re-estimates a recording: NEW.h5
+is a copy of it (daq, robot, control, events kept; REC.h5 untouched) whose ``/forces`` holds ``force_N`` (NaN for the
+channels without a calibration), ``status`` (the flag codes) and the calibration as the attribute ``calibration``.
 A calibration that ``sensnake fit`` marked ``"degenerate": true`` is refused unless ``--allow-degenerate``.
 Runs on the CLI's main thread.
 """
@@ -16,8 +20,10 @@ Runs on the CLI's main thread.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -92,12 +98,8 @@ def run_estimator(estimator: LinearEstimator | SLSEstimator, conductance_s: np.n
     return force, estimator.last_status
 
 
-def run(args: argparse.Namespace) -> int:
-    document = calfiles.read_calibration(args.cal)
-    table = calfiles.read_series_csv(args.input, calfiles.CONDUCTANCE_COLUMN, allow_gaps=True)
-    names = resolve_columns(table, document, calfiles.CONDUCTANCE_COLUMN, args.cal)
-    entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
-    refuse_degenerate(document, names, args.model, args.cal, getattr(args, "allow_degenerate", False))
+def _readout(args: argparse.Namespace, document: dict, names: list[str]) -> BoardConfig:
+    """The readout circuit: ``--config``'s, else the one stored with the calibration, else the default (said)."""
     stored = calfiles.sensor_readout(document, names, args.cal)
     if getattr(args, "config", None):
         board = load_config(args.config).board
@@ -111,6 +113,15 @@ def run(args: argparse.Namespace) -> int:
         source = "the default: the calibration does not say which readout it was fitted on (give --config)"
     print(f"sensnake estimate: note: readout R_C {board.r_c_ohm:g} Ω, V_ref {board.v_ref_v:g} V ({source})",
           file=sys.stderr)
+    return board
+
+
+def _estimate(args: argparse.Namespace, document: dict, names: list[str], time_s: np.ndarray,
+              conductance_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[float, float] | None]]:
+    """Force (N, S), status codes and force ranges of sensors ``names`` (each calibrated) over a whole record."""
+    entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
+    refuse_degenerate(document, names, args.model, args.cal, getattr(args, "allow_degenerate", False))
+    board = _readout(args, document, names)
     rule = ValidationRule.for_readout(board.r_c_ohm)
     ranges = _force_ranges(document, names)
     bounds = _range_arrays(ranges)
@@ -130,18 +141,98 @@ def run(args: argparse.Namespace) -> int:
         estimator = SLSEstimator(params, areas, phys, interp=getattr(args, "interp", "hold"),
                                  with_contact=not getattr(args, "no_contact", False), n_sensors=len(names),
                                  force_range_n=bounds, validation=rule)
-    force, status = run_estimator(estimator, table.values, table.time_s, getattr(args, "engine", "compiled"),
+    force, status = run_estimator(estimator, conductance_s, time_s, getattr(args, "engine", "compiled"),
                                   getattr(args, "float32", False))
-    out_names = output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN)
+    for line in summarise(names, force, status, ranges):
+        print(f"sensnake estimate: warning: {line}", file=sys.stderr)
+    return force, status, ranges
+
+
+def split_calibrated(columns: tuple[str, ...] | list[str], document: dict, source: str,
+                     cal_path: str) -> tuple[list[int], list[int]]:
+    """Indices of the columns with a calibration and of those without; none calibrated is refused."""
+    sensors = document.get("sensors", {})
+    calibrated = [k for k, name in enumerate(columns) if name in sensors]
+    if not calibrated:
+        raise calfiles.CalFileError(
+            f"{source}: none of its columns ({', '.join(columns[:4])}{' …' if len(columns) > 4 else ''}) has a "
+            f"calibration in {cal_path} (calibrated: {', '.join(sorted(sensors)) or 'none'}): run 'sensnake fit'")
+    return calibrated, [k for k in range(len(columns)) if k not in calibrated]
+
+
+def _passed_through_note(names: list[str], how: str) -> None:
+    if names:
+        shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+        print(f"sensnake estimate: note: {len(names)} channel(s) without a calibration {how}: {shown}",
+              file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    document = calfiles.read_calibration(args.cal)
+    if is_recording(args.input):
+        return _run_recording(args, document)
+    table = calfiles.read_series_csv(args.input, calfiles.CONDUCTANCE_COLUMN, allow_gaps=True)
+    if table.columns == (calfiles.CONDUCTANCE_COLUMN,):
+        names = resolve_columns(table, document, calfiles.CONDUCTANCE_COLUMN, args.cal)
+        calibrated, passed = [0], list[int]()
+    else:
+        names = list(table.columns)
+        calibrated, passed = split_calibrated(table.columns, document, f"{table.file}:1", args.cal)
     for name, (count, line_no, text) in table.bad_cells.items():
         print(f"sensnake estimate: warning: {name}: {count} non-numeric cell(s) read as gaps (first at line {line_no}: "
               f"'{text}')", file=sys.stderr)
-    for line in summarise(names, force, status, ranges):
-        print(f"sensnake estimate: warning: {line}", file=sys.stderr)
-    calfiles.write_series_csv(args.out, table.time_s, out_names, force, 9 if getattr(args, "float32", False) else 17)
+    estimated = [names[k] for k in calibrated]
+    force, status, _ranges = _estimate(args, document, estimated, table.time_s, table.values[:, calibrated])
+    out_names = list(output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN))
+    values = np.empty(table.values.shape)
+    codes = np.zeros(table.values.shape)
+    values[:, calibrated], codes[:, calibrated] = force, status
+    values[:, passed] = table.values[:, passed] * 1e6  # µS: the column name says so
+    for k in passed:
+        out_names[k] = f"{names[k]}_uS"
+    _passed_through_note([names[k] for k in passed], "passed through as conductance in µS (columns <name>_uS)")
+    calfiles.write_series_csv(args.out, table.time_s, out_names, values, 9 if getattr(args, "float32", False) else 17)
     if getattr(args, "flags", None):
-        calfiles.write_series_csv(args.flags, table.time_s, out_names, status.astype(np.float64))
+        calfiles.write_series_csv(args.flags, table.time_s, out_names, codes)
     elif status.any():
         print("sensnake estimate: note: per-sample flags: add --flags FLAGS.csv", file=sys.stderr)
     print(f"wrote {force.shape[0]} samples × {force.shape[1]} sensor(s) of force ({args.model}) to {args.out}")
+    return 0
+
+
+def is_recording(path: str) -> bool:
+    """An HDF5 file (by its signature, whatever its name)."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+
+
+def _run_recording(args: argparse.Namespace, document: dict) -> int:
+    """``sensnake estimate REC.h5 --cal CAL.json --out NEW.h5``: a copy of the recording with /forces re-estimated."""
+    from app.core.recording import open_recording, write_reestimated
+
+    if getattr(args, "flags", None):
+        raise ValueError("--flags is for a CSV input: with a recording the per-sample flags go into NEW.h5 as "
+                         "/forces/status")
+    if Path(args.out).suffix.lower() in (".csv", ".txt"):
+        raise ValueError(f"--out {args.out}: a recording is re-estimated into a new recording (NEW.h5); for a "
+                         "CSV, 'sensnake export' it first")
+    recording = open_recording(args.input)
+    names = list(recording.channels)
+    calibrated, passed = split_calibrated(names, document, str(args.input), args.cal)
+    estimated = [names[k] for k in calibrated]
+    force, status, _ranges = _estimate(args, document, estimated, recording.time_s,
+                                       recording.conductance_s[:, calibrated])
+    force_all = np.full(recording.conductance_s.shape, np.nan)
+    status_all = np.zeros(recording.conductance_s.shape, dtype=np.int8)
+    force_all[:, calibrated], status_all[:, calibrated] = force, status
+    _passed_through_note([names[k] for k in passed], "kept as conductance only (/daq/conductance_S; force NaN)")
+    note = (f"{args.model} model, {len(calibrated)} of {len(names)} channel(s), from {Path(args.cal).name} by "
+            f"'sensnake estimate'" + (f"; without a calibration: {', '.join(names[k] for k in passed)}" if passed
+                                      else ""))
+    write_reestimated(args.input, args.out, force_all, status_all, json.dumps(document), note)
+    print(f"wrote {args.out}: {recording.n_samples} samples, /forces re-estimated for {len(calibrated)} of "
+          f"{len(names)} channel(s) ({args.model})")
     return 0

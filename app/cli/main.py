@@ -122,11 +122,15 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--config", metavar="FILE", help="lab config (rig, board channel map, readout circuit)")
     calibrate.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
 
-    estimate = sub.add_parser("estimate", help="conductance → force for every sensor column")
-    estimate.add_argument("input", metavar="IN.csv")
+    estimate = sub.add_parser("estimate", help="conductance → force for every sensor column, or a recording's "
+                              "forces re-estimated with another calibration")
+    estimate.add_argument("input", metavar="IN.csv|REC.h5",
+                          help="a conductance CSV, or a recording (its /forces are re-estimated into --out NEW.h5)")
     estimate.add_argument("--cal", required=True, metavar="CAL.json")
     estimate.add_argument("--model", choices=("linear", "sls"), default="sls")
-    estimate.add_argument("--out", required=True, metavar="OUT.csv")
+    estimate.add_argument("--out", required=True, metavar="OUT.csv|NEW.h5",
+                          help="forces CSV (a column without a calibration passes through as <name>_uS), or for a "
+                          "recording a copy of it with /forces replaced")
     estimate.add_argument("--flags", metavar="FLAGS.csv",
                           help="also write per-sample flag codes (same columns; 0 = ok, legend in docs/NUMERICS.md)")
     estimate.add_argument("--config", metavar="FILE",

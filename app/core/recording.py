@@ -931,6 +931,37 @@ def write_recording(recording: Recording, out: str | Path) -> Path:
     return out
 
 
+def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, status: np.ndarray,
+                      calibration_json: str, note: str) -> Path:
+    """A copy of the recording ``path`` at ``out`` (everything kept: daq, robot, control, events, attributes) whose
+    ``/forces`` is replaced: ``force_N`` (N, C; NaN for a channel without calibration), ``status`` (N, C) int8
+    :class:`models.sls.ForceStatus` codes, the calibration JSON as the attribute ``calibration`` and ``note`` (what
+    was re-estimated, with what) as ``reestimated``. Written beside ``out`` under a hidden name and moved into place
+    complete; ``path`` is never changed."""
+    path, out = Path(path), Path(out)
+    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
+    try:
+        fd = os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644)  # ours alone
+        with open(path, "rb") as source, os.fdopen(fd, "wb") as target:
+            shutil.copyfileobj(source, target, 8 << 20)
+        with h5py.File(work, "r+", locking=False) as f:
+            if "forces" in f:
+                del f["forces"]
+            forces = f.create_group("forces")
+            forces.attrs["calibration"] = calibration_json
+            forces.attrs["reestimated"] = note
+            forces.create_dataset("force_N", data=np.asarray(force_n, dtype=np.float64), chunks=True)
+            forces.create_dataset("status", data=np.asarray(status, dtype=np.int8), chunks=True)
+        _fsync(work)
+        _keep_mode(out, work)
+        os.replace(work, out)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+    return out
+
+
 def _attr_text(value: Any) -> str:
     return value.decode("utf-8") if isinstance(value, bytes) else str(value)
 

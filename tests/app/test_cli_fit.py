@@ -222,9 +222,10 @@ def _bad_cases(folder, paths, tmp_path):
         "unknown version": ("cal.json", '{"format": "sensnake-calibration", "version": 9}',
                             ["fit", paths[0], "--sensor", "S", "--area", AREA, "--out", "@"],
                             "unsupported calibration version 9"),
-        "uncalibrated column": ("in.csv", "time_s,S06B,S07L\n0,1e-4,1e-4\n",
+        # A column without a calibration is passed through in µS (test_cli_estimate_reanalysis); none at all is refused.
+        "uncalibrated column": ("in.csv", "time_s,S07L,S08L\n0,1e-4,1e-4\n",
                                 ["estimate", "@", "--cal", good_cal, "--out", str(text / "o.csv")],
-                                "in.csv:1: column 'S07L' has no calibration"),
+                                "in.csv:1: none of its columns (S07L, S08L) has a calibration"),
         "forward kN": ("in.csv", "time_s,force_kN\n0,1\n",
                        ["forward", "@", "--cal", good_cal, "--out", str(text / "o.csv")],
                        "in.csv:1: column 'force_kN' is in kN"),
