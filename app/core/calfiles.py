@@ -309,8 +309,37 @@ def read_series_csv(path: str | os.PathLike, single_column: str, allow_gaps: boo
     data = _read_columns(file, header, [time_index] + [header.index(name) for name in names],
                          gaps_from=1 if allow_gaps else None, bad_cells=bad_cells)
     _check_time(file, data[:, 0])
-    return SeriesTable(file=str(file), time_s=data[:, 0].copy(), columns=tuple(names),
-                       values=np.ascontiguousarray(data[:, 1:]), bad_cells=bad_cells)
+    sensors, scales = _unit_suffixes(file, names, single_column)
+    values = np.ascontiguousarray(data[:, 1:])
+    if np.any(scales != 1.0):
+        values *= scales[None, :]
+    renamed = dict(zip(names, sensors, strict=True))
+    bad_cells = {renamed[name]: cell for name, cell in bad_cells.items()}
+    return SeriesTable(file=str(file), time_s=data[:, 0].copy(), columns=tuple(sensors), values=values,
+                       bad_cells=bad_cells)
+
+
+# A sensor column may carry its unit (the GUI's exports do: S01L_uS); bare names are the SPEC §3.2 default unit.
+UNIT_SUFFIXES: dict[str, dict[str, float]] = {CONDUCTANCE_COLUMN: {"uS": 1e-6, "S": 1.0}, FORCE_COLUMN: {"N": 1.0}}
+
+
+def _unit_suffixes(path: Path, names: list[str], single_column: str) -> tuple[list[str], np.ndarray]:
+    """Sensor names without a unit suffix and the factor to the SPEC unit (``S06B_uS`` → ``S06B`` × 1e-6); a sensor
+    given twice (``S06B`` and ``S06B_uS``) is refused."""
+    units = UNIT_SUFFIXES.get(single_column, {})
+    sensors, scales = [], []
+    for name in names:
+        stem, sep, unit = name.rpartition("_")
+        if sep and stem and name != single_column and unit in units:
+            sensors.append(stem)
+            scales.append(units[unit])
+        else:
+            sensors.append(name)
+            scales.append(1.0)
+    if len(set(sensors)) != len(sensors):
+        twice = next(name for name in sensors if sensors.count(name) > 1)
+        raise CalFileError(f"{path}:1: sensor '{twice}' has two columns (with and without a unit suffix)")
+    return sensors, np.array(scales)
 
 
 def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],

@@ -131,3 +131,28 @@ def test_a_recording_re_estimate_refuses_a_csv_out_and_flags_in_one_line(tmp_pat
     assert not (tmp_path / "x.h5").exists()
     assert main(["estimate", str(rec), "--cal", str(cal), "--out", str(rec)]) == 1  # never onto its input
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_column_with_its_unit_reads_like_the_bare_spec_column(tmp_path, capsys):
+    """The GUI's exports name their unit (S06B_uS); `estimate` reads them as the bare SPEC column in siemens, and a
+    sensor given both ways is refused in one line."""
+    cal = tmp_path / "cal.json"
+    _calibration(cal)
+    t = np.arange(0.0, 30.0, 1.0 / RATE_HZ)
+    sensor = conductance_from_force(t, _force(t)[:, None], SLSParams.from_dict(PARAMS), np.array([AREA_M2]),
+                                    PhysicsConstants())[:, 0]
+    bare, suffixed = tmp_path / "bare.csv", tmp_path / "suffixed.csv"
+    calfiles.write_series_csv(bare, t, (SENSOR,), sensor[:, None])
+    calfiles.write_series_csv(suffixed, t, (f"{SENSOR}_uS",), sensor[:, None] * 1e6)
+    outs = []
+    for source in (bare, suffixed):
+        out = tmp_path / f"{source.stem}_forces.csv"
+        assert main(["estimate", str(source), "--cal", str(cal), "--out", str(out)]) == 0
+        outs.append(np.loadtxt(out, delimiter=",", skiprows=1))
+        assert out.read_text().splitlines()[0] == f"time_s,{SENSOR}"
+    np.testing.assert_allclose(outs[1], outs[0], rtol=1e-9, atol=1e-12)
+    both = tmp_path / "both.csv"
+    calfiles.write_series_csv(both, t, (SENSOR, f"{SENSOR}_uS"), np.column_stack([sensor, sensor * 1e6]))
+    capsys.readouterr()
+    assert main(["estimate", str(both), "--cal", str(cal), "--out", str(tmp_path / "o.csv")]) == 1
+    assert "sensor 'S06B' has two columns" in capsys.readouterr().err
