@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy import special
@@ -220,6 +221,10 @@ class SensorCalibration:
     # 95 % profile-likelihood interval of the creep time τ = mu1/E1 (s) from models.fit_profile (no linearisation;
     # an end the records do not bound is 0 or inf).
     tau_ci95: tuple[float, float] = (0.0, math.inf)
+    # A baseline drift found and separated from the creep (S/s; :func:`calibrate_with_drift`): 0.0 when looked for
+    # and not found, None when not looked for. The parameters are those of the trials with it removed.
+    drift_s_per_s: float | None = None
+    trend_rmse_s: float | None = None  # the force-trend fit's RMSE (S), when it was fitted
 
     @property
     def degenerate(self) -> bool:
@@ -249,6 +254,8 @@ class SensorCalibration:
         entry["degenerate"] = self.degenerate
         entry["degenerate_reasons"] = list(self.degenerate_reasons)
         entry["tau_s_ci95"] = [_or_none(self.tau_ci95[0]), _or_none(self.tau_ci95[1])]  # null: not bounded
+        if self.drift_s_per_s is not None:
+            entry["drift_S_per_s"] = self.drift_s_per_s
         return entry
 
 
@@ -714,9 +721,11 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     poor = [r.name for r in reports if any(w.startswith("poor fit") for w in r.warnings)]
     if poor:
         sensor_warnings.append(f"poor fit in {', '.join(poor)}")
+    trend_rmse_s: float | None = None
     if trend is not None:
         sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
         trend_rmse = float(np.sqrt(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / sum(trend.n_used)))
+        trend_rmse_s = trend_rmse
         joint_rmse_s = float(np.sqrt(np.sum(np.square(joint.rmse_s) * np.array(joint.n_used)) / sum(joint.n_used)))
         if joint_rmse_s > POOR_FIT_NOISE_RATIO * trend_rmse:
             sensor_warnings.append(
@@ -737,4 +746,98 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
         trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
         solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate),
-        tau_ci95=(tau_lo, tau_hi))
+        tau_ci95=(tau_lo, tau_hi), trend_rmse_s=trend_rmse_s)
+
+
+# -- a drifting baseline -----------------------------------------------------------------------------------------
+DRIFT_BOUND_S_PER_S = 2e-6  # the drift rates searched (±; 2 µS/s moves a 370 s record by 740 µS)
+DRIFT_STATISTIC = 25.0  # N·ln(SSE0/SSE1), a likelihood ratio (χ², 1 dof): 25 ≈ 5 σ; below it no drift is claimed
+DRIFT_TOLERANCE_S_PER_S = 1e-9  # the search stops within 0.001 µS/s
+
+
+def without_drift(trial: TrialInput, rate_s_per_s: float, saturation_s: float | None = None) -> TrialInput:
+    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out; samples at the
+    readout's ceiling stay at it (they are censored, not measured)."""
+    if rate_s_per_s == 0.0:
+        return trial
+    ramp = rate_s_per_s * (trial.time_s - trial.time_s[0])
+    corrected = trial.conductance_s - ramp
+    if saturation_s is not None:
+        corrected = np.where(trial.conductance_s >= saturation_s * (1.0 - 1e-9), trial.conductance_s, corrected)
+    return TrialInput(trial.name, trial.time_s, trial.force_n, corrected)
+
+
+def _below_ceiling(trial: TrialInput, saturation_s: float | None) -> TrialInput:
+    if saturation_s is None:
+        return trial
+    keep = trial.conductance_s < saturation_s * (1.0 - 1e-9)
+    if keep.all():
+        return trial
+    return TrialInput(trial.name, trial.time_s[keep], trial.force_n[keep], trial.conductance_s[keep])
+
+
+def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
+                         saturation_s: float | None = None, fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ,
+                         **options: Any) -> SensorCalibration:
+    """:func:`calibrate_sensor`, with a baseline drift looked for and separated from the creep.
+
+    A drift (temperature, a relaxing shell) adds ``d·t`` to every trial; fitted as creep it makes τ too long and E1
+    too low with no other sign. The SLS parameters are shared by the trials at every force while the creep they
+    describe scales with the force and levels off after a few τ; a drift does neither, so one rate ``d`` common to
+    all trials can be told apart: the joint fit's cost is profiled over ``d`` (a bounded scalar search, each step a
+    joint fit of the trials with ``d·t`` removed). When removing the best ``d`` lowers the cost by more than chance
+    (likelihood ratio > :data:`DRIFT_STATISTIC`), the calibration is that of the trials without it, ``drift_s_per_s``
+    says the rate and a warning says what was done; otherwise it is the plain fit with ``drift_s_per_s = 0``. One
+    force level only, or τ near the hold's length: the two cannot be separated (docs/NUMERICS.md)."""
+    from scipy.optimize import minimize_scalar
+
+    if fit_rate_hz:
+        trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
+    # The search compares fits of the same samples: those at the readout's ceiling are left out of it (their
+    # censoring level would move with the drift removed).
+    measured = [_below_ceiling(trial, saturation_s) for trial in trials]
+    n_samples = sum(int(trial.time_s.size) for trial in measured)
+    solver = options.get("solver", DEFAULT_SOLVER)
+    plain = calibrate_sensor(trials, area_m2, phys, saturation_s=saturation_s, fit_rate_hz=None, **options)
+    holds = [hold_segment(trial.force_n)[1] for trial in measured]
+
+    def cost(rate: float) -> float:
+        """Mean squared residual of the best-specified model for the trials with ``rate`` removed: the force trend
+        (parameters that grow with force, as the paper's sensors' do: one shared set would misfit, and a drift
+        would soak the misfit up), fitted from the plain fit's joint parameters — a local refit, not the whole
+        multi-start calibration."""
+        fit_trials = [FitTrial(t.name, t.time_s, t.force_n, without_drift(t, rate).conductance_s, hold)
+                      for t, hold in zip(measured, holds, strict=True)]
+        try:
+            joint = _fit(fit_trials, area_m2, phys, plain.sls, "joint", saturation_s, solver)
+            assert joint.ref is not None
+            trend = _fit(fit_trials, area_m2, phys, joint.ref, "trend", saturation_s, solver)
+        except (ValueError, ArithmeticError):
+            return math.inf  # a rate that leaves nothing an SLS can describe
+        return float(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / max(sum(trend.n_used), 1))
+
+    forces = {round(float(r.force_n), 3) for r in plain.trials}
+    if len(forces) < 2:
+        return replace(plain, warnings=(*plain.warnings, "one force level: a baseline drift cannot be told apart "
+                                        "from creep (not looked for)"))
+    base = cost(0.0)
+    best = minimize_scalar(lambda rate: min(cost(rate), 1e6 * base), bounds=(-DRIFT_BOUND_S_PER_S,
+                           DRIFT_BOUND_S_PER_S), method="bounded", options={"xatol": DRIFT_TOLERANCE_S_PER_S})
+    rate, lowest = float(best.x), float(best.fun)
+    statistic = n_samples * math.log(base / lowest) if lowest > 0 and base > 0 else 0.0
+    if statistic < DRIFT_STATISTIC:
+        return replace(plain, drift_s_per_s=0.0)
+    at_bound = abs(rate) > 0.95 * DRIFT_BOUND_S_PER_S
+    fitted = calibrate_sensor([without_drift(t, rate) for t in measured], area_m2, phys,
+                              saturation_s=saturation_s, fit_rate_hz=None, **options)
+    censored = sum(int(t.time_s.size) for t in trials) - n_samples
+    note = (f"baseline drift of {rate * 1e6:+.3g} µS/s found and separated from the creep (the parameters are those "
+            f"of the trials with it removed; without that, τ would read {float(plain.sls.tau_s):.3g} s instead of "
+            f"{float(fitted.sls.tau_s):.3g} s)" + (f"; {censored} sample(s) at the readout's ceiling left out" if
+                                                   censored else "") + ": check the sensor's temperature and settling")
+    if at_bound:
+        note = (f"a baseline drift beyond ±{DRIFT_BOUND_S_PER_S * 1e6:g} µS/s (best {rate * 1e6:+.3g} µS/s at the "
+                "search's edge): the trials are not usable as they are")
+        return replace(fitted, drift_s_per_s=rate, warnings=(*fitted.warnings, note),
+                       degenerate_reasons=(*fitted.degenerate_reasons, note))
+    return replace(fitted, drift_s_per_s=rate, warnings=(*fitted.warnings, note))

@@ -27,6 +27,7 @@ from models.calibration import (
     SensorCalibration,
     TrialInput,
     calibrate_sensor,
+    calibrate_with_drift,
 )
 from models.physics import PhysicsConstants
 
@@ -92,6 +93,9 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     tau_lo, tau_hi = cal.tau_ci95
     print(f"  sls tau_s     {float(s.tau_s):12.5g}   95% [{tau_lo:.5g}, {tau_hi:.5g}] (profile)   "
           f"joint rmse {cal.rmse_s:.3e} S")
+    if cal.drift_s_per_s is not None:
+        print(f"  baseline drift {cal.drift_s_per_s * 1e6:+.4g} µS/s" + (" (separated from the creep: see warnings)"
+                                                                      if cal.drift_s_per_s else " (none found)"))
     if cal.sls_trend is not None:
         for key, (intercept, slope) in cal.sls_trend.items():
             print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")
@@ -156,8 +160,9 @@ def run(args: argparse.Namespace) -> int:
         fit_rate = DEFAULT_FIT_RATE_HZ
     if not (math.isfinite(fit_rate) and fit_rate >= 0):
         raise ValueError(f"--fit-rate must be a rate in Hz ≥ 0 (0: every sample), got {fit_rate:g}")
-    cal = calibrate_sensor(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver,
-                           fit_rate_hz=fit_rate or None)
+    fitter = calibrate_with_drift if getattr(args, "drift", "fit") == "fit" else calibrate_sensor
+    cal = fitter(trials, args.area, physics, window_s=window, saturation_s=saturation_s, solver=solver,
+                 fit_rate_hz=fit_rate or None)
     calfiles.update_calibration(args.out, args.sensor, cal.to_dict(), physics, calfiles.readout_of(board))
     print_report(args.sensor, cal, args.out)
     return 0

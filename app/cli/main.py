@@ -96,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--config", metavar="FILE",
                      help="lab config: its board's channel names (--sensor must be one) and readout circuit "
                           "(board.r_c_ohm, the saturation level not to fit)")
+    fit.add_argument("--drift", choices=("fit", "off"), default="fit",
+                     help="fit: look for a baseline drift common to the trials and separate it from the creep "
+                          "(default; its rate is stored as drift_S_per_s and said); off: the plain fit, faster")
 
     calibrate = sub.add_parser("calibrate", help="run the calibration protocol on the rig, fit and save (unattended)")
     calibrate.add_argument("--rig", metavar="PORT", help="the rig servo's serial port, or sim (default: the config's)")

@@ -28,7 +28,7 @@ import numpy as np
 
 from app.core import calfiles
 from devices.config import BoardConfig
-from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_sensor
+from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_with_drift
 from models.linear import DEFAULT_WINDOW_S, trial_baseline, trial_mean
 from models.physics import PhysicsConstants
 
@@ -90,7 +90,8 @@ def fit_trials(trials: Sequence[TrialInput], sensor: str, area_m2: float, physic
     """Fit ``trials`` of ``sensor`` with the readout circuit of ``board``; see the module docstring. Raises
     ValueError (FlatSensorError, unusable trials) naming the trial."""
     ceiling = 1.0 / board.r_c_ohm
-    cal = calibrate_sensor(trials, area_m2, physics, window_s=window_s, saturation_s=ceiling, solver=solver)
+    # A drifting baseline is looked for and separated from the creep (models.calibration.calibrate_with_drift).
+    cal = calibrate_with_drift(trials, area_m2, physics, window_s=window_s, saturation_s=ceiling, solver=solver)
     means, unloaded = [], []
     for trial in trials:
         means.append(trial_mean(trial.time_s, trial.conductance_s, window_s))
