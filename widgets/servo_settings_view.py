@@ -62,6 +62,7 @@ class ServoSettingsView(QWidget):
     restore_requested = Signal(int)  # servo ID, or 0 for every servo
     zero_requested = Signal()
     direction_requested = Signal(int)  # servo ID: move its joint a little and ask which way it went
+    reset_requested = Signal(int)  # servo ID: factory settings, ID and baud kept
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -110,6 +111,11 @@ class ServoSettingsView(QWidget):
                                           "it went the way the app expects (a wrong sign is fixed in your lab config)")
         self.direction_button.clicked.connect(lambda: self.direction_requested.emit(self.servo_id or 0))
         bar.addWidget(self.direction_button)
+        self.reset_button = QPushButton("Factory reset…")
+        self.reset_button.setToolTip("Factory settings on this servo, keeping its ID and baud rate (save its settings "
+                                     "first: gains, limits and Return Delay Time go back to the factory's)")
+        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.servo_id or 0))
+        bar.addWidget(self.reset_button)
         layout.addLayout(bar)
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
@@ -220,7 +226,8 @@ class ServoSettingsView(QWidget):
 
     def set_enabled(self, connected: bool, why: str = "") -> None:
         for widget in (self.read_button, self.live_check, self.save_button, self.restore_button,
-                       self.restore_all_button, self.zero_button, self.direction_button, self.table):
+                       self.restore_all_button, self.zero_button, self.direction_button, self.reset_button,
+                       self.table):
             widget.setEnabled(connected)
         if not connected and why:
             self.set_message(why, theme.IDLE)

@@ -63,6 +63,8 @@ class Bus(Protocol):
 
     def change_baud(self, servo_id: int, index: int) -> None: ...
 
+    def factory_reset(self, servo_id: int) -> None: ...
+
 
 @dataclass(frozen=True)
 class Change:
@@ -153,6 +155,13 @@ def _change_baud(bus: Bus, servo_id: int, before: int, value: int) -> Change:
         bus.write_item(servo_id, "Torque Enable", 0)
     bus.change_baud(servo_id, value)
     return Change(servo_id, "Baud Rate", before, value, written=True)
+
+
+def factory_reset(bus: Bus, servo_id: int) -> dict[str, int]:
+    """Factory settings on one servo, keeping its ID and baud rate (Dynamixel Wizard's option); waits until it
+    answers again (torque off) and returns its table as it is now."""
+    bus.factory_reset(servo_id)
+    return read_table(bus, servo_id)
 
 
 def baud_note(change: Change) -> str:

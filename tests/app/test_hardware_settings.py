@@ -290,3 +290,23 @@ def test_a_nudge_goes_out_smoothly_and_ends_where_it_started():
     assert nudge.goal_at(3.1, start) is None
     with pytest.raises(ValueError, match="at most 0.5 rad"):
         JointNudge(0, 0.8)
+
+
+def test_a_factory_reset_asks_then_restores_the_factory_settings_keeping_the_id(window, qtbot, sim_lab_fast):
+    tab, page = settings_page(window, qtbot)
+    chain = sim_lab_fast.chain
+    page.servo_combo.setCurrentIndex(6)  # servo 7
+    qtbot.waitUntil(lambda: page.value_text("ID") == "7", timeout=10_000)
+    factory_gain = int(page.value_text("Position P Gain"))
+    page.edit("Position P Gain", str(factory_gain + 111))
+    qtbot.waitUntil(lambda: chain.register(7, "Position P Gain") == factory_gain + 111, timeout=10_000)
+    tab.confirm = lambda question, title="": False  # type: ignore[method-assign]
+    page.reset_button.click()
+    assert "not done" in page.message.text() and chain.register(7, "Position P Gain") == factory_gain + 111
+    asked: list[str] = []
+    tab.confirm = lambda question, title="": asked.append(question) or True  # type: ignore[method-assign]
+    page.reset_button.click()
+    qtbot.waitUntil(lambda: "factory settings restored" in page.message.text(), timeout=15_000)
+    assert "ID and baud rate are kept" in asked[0]
+    assert chain.register(7, "Position P Gain") == factory_gain and chain.register(7, "ID") == 7
+    assert page.value_text("Position P Gain") == str(factory_gain)

@@ -102,6 +102,7 @@ class HardwareTab(QWidget):
         settings.restore_requested.connect(self.restore_settings)
         settings.zero_requested.connect(self.set_zero_pose)
         settings.direction_requested.connect(self.check_direction)
+        settings.reset_requested.connect(self.factory_reset)
         self.robot.profile_applied.connect(self._profile_applied)
         if self.robot.last_profile_changes:
             self._profile_applied(self.robot.last_profile_changes)
@@ -374,6 +375,25 @@ class HardwareTab(QWidget):
 
         self.robot.when_done(future, done, lambda exc: self.settings.set_message(
             f"restore stopped: {describe_error(exc)} (items before it were written; see the table)", theme.ERROR))
+
+    def factory_reset(self, servo_id: int) -> None:
+        """Factory settings on ``servo_id`` (ID and baud kept) after the user agrees; the table shows it after."""
+        if not self.confirm(f"Factory reset servo {servo_id}? Its gains, limits, Return Delay Time and every other "
+                            "setting go back to the factory's (its ID and baud rate are kept); it restarts with torque "
+                            "OFF. Save servo settings first to be able to go back.", "Factory reset"):
+            self.settings.set_message("factory reset not done", theme.IDLE)
+            return
+        self.settings.set_message(f"factory reset of servo {servo_id}…", theme.WARN)
+        future = self.robot.run_on_bus(bus_command(servo_settings.factory_reset, servo_id), report_errors=False,
+                                       holds_bus=True)
+
+        def done(values: dict[str, int]) -> None:
+            self.settings.set_values(servo_id, values)
+            self.settings.set_message(f"servo {servo_id}: factory settings restored (ID and baud rate kept); it "
+                                      "answers again, torque off", theme.OK)
+
+        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+            f"factory reset of servo {servo_id} failed: {describe_error(exc)}", theme.ERROR))
 
     def _profile_applied(self, changes: list[servo_settings.Change]) -> None:
         self.settings.show_changes("On connect, the lab config's [servos]: "
