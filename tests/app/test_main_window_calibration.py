@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -478,3 +479,26 @@ def test_the_fit_of_the_trials_so_far_updates_during_the_run(rig_tab, qtbot, mon
     assert tab.steps.currentIndex() == PROTOCOL  # the run's page stays
     with qtbot.waitSignal(tab.rig_session.finished, timeout=30_000):
         tab.protocol_form.abort_button.click()
+
+
+def test_the_protocol_check_predicts_the_reading_from_the_sensors_last_calibration(tab, tmp_path):
+    """With a saved calibration of the sensor in its history, the check predicts from it (a stiff sensor reads far
+    below the ceiling: no warning); without one, from a typical sensor (which says so)."""
+    from app.core import user_folders
+    from app.core.calibration_fit import HISTORY_FILE
+    from app.core.rig_protocol import check_protocol
+
+    sensor = "S07B"
+    settings = replace(tab.protocol_settings(), sensor=sensor)
+    assert tab.last_calibration(sensor, settings.area_m2) is None
+    typical = check_protocol(settings, tab.lab.config.rig, tab.lab.config.board,
+                             expected_sls=tab.last_calibration(sensor, settings.area_m2))
+    assert any("a typical sensor" in w for w in typical.warnings)
+    folder = user_folders.calibrations_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    with (folder / HISTORY_FILE).open("a", encoding="utf-8") as handle:
+        handle.write(json.dumps({"sensor": sensor, "sls": {"E0_Pa": 2e6, "E1_Pa": 4e6, "mu1_Pa_s": 4e8}}) + "\n")
+    expected = tab.last_calibration(sensor, settings.area_m2)
+    assert expected is not None and float(expected[0].E0_Pa) == 2e6
+    own = check_protocol(settings, tab.lab.config.rig, tab.lab.config.board, expected_sls=expected)
+    assert not any("readout's ceiling" in w for w in own.warnings), own.warnings

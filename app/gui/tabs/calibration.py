@@ -729,7 +729,8 @@ class CalibrationTab(QWidget):
             return False
         try:
             settings = self.protocol_settings()
-            check = check_protocol(settings, self.lab.config.rig, self.lab.config.board)
+            check = check_protocol(settings, self.lab.config.rig, self.lab.config.board,
+                                   expected_sls=self.last_calibration(settings.sensor, settings.area_m2))
             if not check.ok:
                 raise ValueError("protocol refused: " + "; ".join(check.errors))
             folder = self.rig_session.start(settings, self.protocol_form.folder_edit.text().strip()
@@ -755,6 +756,19 @@ class CalibrationTab(QWidget):
         self._set_status(f"rig run on {settings.sensor}: {settings.n_trials} trial(s)", theme.WARN)
         self._update_buttons()
         return True
+
+    def last_calibration(self, sensor: str, area_m2: float) -> tuple[Any, float, PhysicsConstants] | None:
+        """This sensor's last saved calibration (the calibration history), as the protocol check's prediction of
+        its reading: (SLS parameters, area, physics); None when it has none."""
+        from models.sls_model import SLSParams
+
+        for record in reversed(calibration_fit.read_history(user_folders.calibrations_dir(), sensor)):
+            sls = record.get("sls") or {}
+            try:
+                return SLSParams.from_dict(sls), area_m2, self.physics
+            except (KeyError, TypeError, ValueError):
+                continue
+        return None
 
     def resume_run(self, folder: str | Path) -> bool:
         """Continue the session in ``folder`` (after an abort, a crash or an app restart): its protocol goes into the
