@@ -288,12 +288,16 @@ def _what_the_sensor_read(args: argparse.Namespace, settings: Any) -> tuple[Any,
 
     if Path(args.out).exists():
         document = calfiles.read_calibration(args.out)
+        entry: dict | None = None
         try:
             entry = calfiles.sensor_entry(document, settings.sensor, "sls", str(args.out))
             physics = calfiles.physics_from_calibration(document, str(args.out))
         except ValueError:
-            pass  # no usable earlier calibration of this sensor: try the session's trials
+            entry = None  # no usable earlier calibration of this sensor: try the session's trials
         else:
+            if entry.get("degenerate") or entry.get("refusal_reasons"):
+                entry = None  # a fit that was not fit to use predicts nothing
+        if entry is not None:
             sls = entry["sls"]
             params = SLSParams(E0_Pa=float(sls["E0_Pa"]), E1_Pa=float(sls["E1_Pa"]), mu1_Pa_s=float(sls["mu1_Pa_s"]))
             return (params, float(entry["area_m2"]), physics), None

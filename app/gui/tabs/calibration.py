@@ -764,6 +764,8 @@ class CalibrationTab(QWidget):
 
         for record in reversed(calibration_fit.read_history(user_folders.calibrations_dir(), sensor)):
             sls = record.get("sls") or {}
+            if record.get("refusal_reasons"):
+                continue  # a calibration saved despite its problems predicts nothing
             try:
                 return SLSParams.from_dict(sls), area_m2, self.physics
             except (KeyError, TypeError, ValueError):
