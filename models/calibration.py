@@ -816,15 +816,16 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
             return math.inf  # a rate that leaves nothing an SLS can describe
         return float(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / max(sum(trend.n_used), 1))
 
-    forces = {round(float(r.force_n), 3) for r in plain.trials}
-    if len(forces) < 2:
+    forces = np.array([float(r.force_n) for r in plain.trials])
+    if not np.ptp(forces) > 0.05 * float(np.mean(forces)):  # the force trend's own criterion (calibrate_sensor)
         return replace(plain, warnings=(*plain.warnings, "one force level: a baseline drift cannot be told apart "
                                         "from creep (not looked for)"))
     base = cost(0.0)
     best = minimize_scalar(lambda rate: min(cost(rate), 1e6 * base), bounds=(-DRIFT_BOUND_S_PER_S,
                            DRIFT_BOUND_S_PER_S), method="bounded", options={"xatol": DRIFT_TOLERANCE_S_PER_S})
     rate, lowest = float(best.x), float(best.fun)
-    statistic = n_samples * math.log(base / lowest) if lowest > 0 and base > 0 else 0.0
+    usable = math.isfinite(base) and math.isfinite(lowest) and lowest > 0
+    statistic = n_samples * math.log(base / lowest) if usable else 0.0  # no comparable fits: nothing claimed
     if statistic < DRIFT_STATISTIC:
         return replace(plain, drift_s_per_s=0.0)
     at_bound = abs(rate) > 0.95 * DRIFT_BOUND_S_PER_S
