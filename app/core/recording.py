@@ -33,7 +33,7 @@ import shutil
 import stat
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from functools import cached_property
@@ -881,53 +881,43 @@ def repair_recording(path: str | Path, out: str | Path) -> RecoveryReport:
 def write_recording(recording: Recording, out: str | Path) -> Path:
     """Write a whole :class:`Recording` (read or salvaged) as a SPEC §3.5 file at ``out`` (atomically)."""
     out = Path(out)
-    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
-    try:
-        os.close(os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))  # ours alone (see above)
-        with h5py.File(work, "w", locking=False) as f:
-            f.attrs["format"] = FORMAT
-            f.attrs["version"] = VERSION
-            f.attrs["started"] = recording.started
-            f.attrs["config"] = recording.config_text
-            f.attrs["duration_s"] = recording.duration_s
-            if recording.recovery:
-                f.attrs["recovered"] = recording.recovery
-            daq = f.create_group("daq")
-            daq.attrs["channels"] = np.array(recording.channels, dtype=h5py.string_dtype())
-            for key, value in (("crc_errors", recording.crc_errors), ("dropped_frames", recording.dropped_frames),
-                               ("resyncs", recording.resyncs)):
-                daq.attrs[key] = np.int64(value)
-            daq["time_s"] = recording.time_s
-            daq["seq"] = recording.seq.astype(np.uint32)
-            daq["counts"] = recording.counts.astype(np.uint16)
-            daq["conductance_S"] = recording.conductance_s
-            if recording.board_time_s is not None:
-                daq["board_time_s"] = recording.board_time_s
-            if recording.clock_segment is not None:
-                daq["clock_segment"] = recording.clock_segment.astype(np.int32)
-            if recording.robot is not None:
-                robot = f.create_group("robot")
-                robot["time_s"] = recording.robot.time_s
-                robot["goal_rad"] = recording.robot.goal_rad
-                robot["present_rad"] = recording.robot.present_rad
-                robot["current_mA"] = recording.robot.current_ma
-            if recording.forces_n is not None:
-                forces = f.create_group("forces")
-                forces.attrs["calibration"] = recording.calibration_json or ""
-                forces["force_N"] = recording.forces_n
-            events = f.create_group("events")
-            events["time_s"] = np.array([e.time_s for e in recording.events], dtype=np.float64)
-            events["kind"] = np.array([e.kind.encode()[:EVENT_KIND_BYTES] for e in recording.events],
-                                      dtype=f"S{EVENT_KIND_BYTES}")
-            events["text"] = np.array([_truncate_utf8(e.text, EVENT_TEXT_BYTES) for e in recording.events],
-                                      dtype=f"S{EVENT_TEXT_BYTES}")
-        _fsync(work)
-        _keep_mode(out, work)
-        os.replace(work, out)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            work.unlink()
-        raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+    with _written_into_place(out) as work, h5py.File(work, "w", locking=False) as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["version"] = VERSION
+        f.attrs["started"] = recording.started
+        f.attrs["config"] = recording.config_text
+        f.attrs["duration_s"] = recording.duration_s
+        if recording.recovery:
+            f.attrs["recovered"] = recording.recovery
+        daq = f.create_group("daq")
+        daq.attrs["channels"] = np.array(recording.channels, dtype=h5py.string_dtype())
+        for key, value in (("crc_errors", recording.crc_errors), ("dropped_frames", recording.dropped_frames),
+                           ("resyncs", recording.resyncs)):
+            daq.attrs[key] = np.int64(value)
+        daq["time_s"] = recording.time_s
+        daq["seq"] = recording.seq.astype(np.uint32)
+        daq["counts"] = recording.counts.astype(np.uint16)
+        daq["conductance_S"] = recording.conductance_s
+        if recording.board_time_s is not None:
+            daq["board_time_s"] = recording.board_time_s
+        if recording.clock_segment is not None:
+            daq["clock_segment"] = recording.clock_segment.astype(np.int32)
+        if recording.robot is not None:
+            robot = f.create_group("robot")
+            robot["time_s"] = recording.robot.time_s
+            robot["goal_rad"] = recording.robot.goal_rad
+            robot["present_rad"] = recording.robot.present_rad
+            robot["current_mA"] = recording.robot.current_ma
+        if recording.forces_n is not None:
+            forces = f.create_group("forces")
+            forces.attrs["calibration"] = recording.calibration_json or ""
+            forces["force_N"] = recording.forces_n
+        events = f.create_group("events")
+        events["time_s"] = np.array([e.time_s for e in recording.events], dtype=np.float64)
+        events["kind"] = np.array([e.kind.encode()[:EVENT_KIND_BYTES] for e in recording.events],
+                                  dtype=f"S{EVENT_KIND_BYTES}")
+        events["text"] = np.array([_truncate_utf8(e.text, EVENT_TEXT_BYTES) for e in recording.events],
+                                  dtype=f"S{EVENT_TEXT_BYTES}")
     return out
 
 
@@ -939,10 +929,8 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
     was re-estimated, with what) as ``reestimated``. Written beside ``out`` under a hidden name and moved into place
     complete; ``path`` is never changed."""
     path, out = Path(path), Path(out)
-    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
-    try:
-        fd = os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644)  # ours alone
-        with open(path, "rb") as source, os.fdopen(fd, "wb") as target:
+    with _written_into_place(out) as work:
+        with open(path, "rb") as source, open(work, "wb") as target:
             shutil.copyfileobj(source, target, 8 << 20)
         with h5py.File(work, "r+", locking=False) as f:
             if "forces" in f:
@@ -952,6 +940,18 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
             forces.attrs["reestimated"] = note
             forces.create_dataset("force_N", data=np.asarray(force_n, dtype=np.float64), chunks=True)
             forces.create_dataset("status", data=np.asarray(status, dtype=np.int8), chunks=True)
+    return out
+
+
+@contextlib.contextmanager
+def _written_into_place(out: Path) -> Iterator[Path]:
+    """A hidden work file beside ``out``, created here and nowhere else (O_EXCL, not through a symlink), that becomes
+    ``out`` (synced, with ``out``'s mode if it existed) when the block ends; on an OSError it is removed and a
+    :class:`RecordingError` names ``out`` and the reason."""
+    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
+    try:
+        os.close(os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))  # ours alone
+        yield work
         _fsync(work)
         _keep_mode(out, work)
         os.replace(work, out)
@@ -959,7 +959,6 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
         with contextlib.suppress(OSError):
             work.unlink()
         raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
-    return out
 
 
 def _attr_text(value: Any) -> str:
