@@ -298,9 +298,7 @@ def _what_the_sensor_read(args: argparse.Namespace, settings: Any) -> tuple[Any,
             if entry.get("degenerate") or entry.get("refusal_reasons"):
                 entry = None  # a fit that was not fit to use predicts nothing
         if entry is not None:
-            sls = entry["sls"]
-            params = SLSParams(E0_Pa=float(sls["E0_Pa"]), E1_Pa=float(sls["E1_Pa"]), mu1_Pa_s=float(sls["mu1_Pa_s"]))
-            return (params, float(entry["area_m2"]), physics), None
+            return (SLSParams.from_dict(entry["sls"]), float(entry["area_m2"]), physics), None
     if args.resume:
         best: tuple[float, float] | None = None
         for path in finished_trials(Path(args.resume), settings).values():

@@ -2,7 +2,7 @@
 (``sensnake calibrate``, ``sensnake fit``'s checks) and the Calibration tab, so both give the same result on the same
 files.
 
-:func:`fit_trials` runs :func:`models.calibration.calibrate_sensor` (the numerics' fitter: multi-start, degenerate
+:func:`fit_trials` runs :func:`models.calibration.calibrate_with_drift` (the numerics' fitter: multi-start, degenerate
 marking, warnings) with the readout circuit of the lab config (its ceiling ``1/R_C`` censors saturated samples, SPEC
 §4) and the paper's averaging window scaled to the hold. It adds what the calibration file should say about what the
 rig saw: per trial the window mean the linear model uses (``mean_conductance_S``) and the unloaded level before the
@@ -73,6 +73,19 @@ class SessionFit:
 
 def _finite_or_none(value: float | None) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
+
+
+FIT_NICENESS = 10  # how much lower than the app a background fit runs (POSIX nice; 0 … 19)
+
+
+def yield_cpu() -> None:
+    """In a fitting worker process: run below the app's priority, so a long fit takes only the CPU that the robot's
+    control loop, the board and the simulated lab leave (no effect where the platform has no ``nice``)."""
+    import contextlib
+    import os
+
+    with contextlib.suppress(AttributeError, OSError):
+        os.nice(FIT_NICENESS)
 
 
 def read_trials(paths: Sequence[str | Path]) -> list[TrialInput]:

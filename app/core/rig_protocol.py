@@ -436,8 +436,11 @@ class ProtocolRunner:
         s = self.settings
         self.rig = rig
         self._started_s = self._clock()
-        self._conditioned = False  # the conditioning of this run is over (the time left no longer counts it)
+        self._conditioned = False
         try:
+            # The conditioning is over (the time left no longer counts it): read once here, not at every report.
+            log = read_conditioning(self.folder) if s.condition_cycles and self.folder.exists() else None
+            self._conditioned = bool(log is not None and log.get("finished"))
             if not self.contact_only:
                 self.folder.mkdir(parents=True, exist_ok=True)
                 write_session(self.folder, s)
@@ -642,9 +645,7 @@ class ProtocolRunner:
         s = self.settings
         conditioning = 0.0
         if s.condition_cycles and not self.done and not self._conditioned:
-            log = read_conditioning(self.folder) if self.folder.exists() else None
-            if not (log is not None and log.get("finished")):
-                conditioning = s.conditioning_duration_s()
+            conditioning = s.conditioning_duration_s()
         return conditioning + (s.n_trials - len(self.done)) * (s.trial_duration_s() + s.rest_s)
 
     def _progress(self, phase: str, index: int, force: float, repeat: int, elapsed_s: float, message: str,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 
@@ -448,3 +449,18 @@ def test_the_readout_travels_with_the_calibration_and_estimate_says_which_it_use
     code, _, err = _run(["estimate", str(tmp_path / "c.csv"), "--cal", str(old), "--out", str(tmp_path / "f3.csv")],
                         capsys)
     assert "the default" in err and "does not say which readout" in err
+
+
+@pytest.mark.skipif(not hasattr(os, "nice"), reason="no POSIX nice on this platform")
+def test_a_background_fit_runs_below_the_apps_priority():
+    """The Calibration tab fits in a worker process started with calibration_fit.yield_cpu: it must not compete with
+    the robot's loop for the cores (a fit with its drift search takes seconds of CPU)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from app.core import calibration_fit
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=calibration_fit.yield_cpu) as pool:
+        child = pool.submit(os.nice, 0).result(timeout=60)
+    assert child >= min(os.nice(0) + calibration_fit.FIT_NICENESS, 19)

@@ -1,7 +1,7 @@
 """The Calibration tab: load calibration trials, fit the sensor models, see measured against fitted conductance.
 
 Trials are SPEC §3.1 CSVs (``time_s,force_N,conductance_S``), read with :mod:`app.core.calfiles`; the fit is
-:func:`models.calibration.calibrate_sensor` (the same as ``sensnake fit``), run from a worker thread so the window never
+:func:`models.calibration.calibrate_with_drift` (the same as ``sensnake fit``: a baseline drift separated), run from a worker thread so the window never
 waits for it, in a child process so it never starves the robot's control thread of the GIL. The plot overlays each
 trial's measured conductance and the conductance the fitted SLS model predicts from its force — the model
 ``sensnake estimate`` and the Forces tab use. "Save" writes the sensor into a calibration
@@ -590,7 +590,10 @@ class CalibrationTab(QWidget):
         try:
             # A fit is seconds of Python-level work: in this process it would hold the GIL against the robot's
             # control thread (missed ticks, a tripped feedback watchdog). A child process keeps the loop on time.
-            with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            # …and at a lower CPU priority: the fit (with its drift search, seconds of CPU) must not take the cores
+            # the robot's loop and the simulated lab need (it cost 88 of 252 ticks at 50 Hz on 2 cores without it).
+            with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                     initializer=calibration_fit.yield_cpu) as pool:
                 session, fitted = pool.submit(calibration_fit.fit_trials_with_curves, inputs, sensor, area_m2,
                                               physics, board, window_s or DEFAULT_WINDOW_S).result()
             cal = session.calibration
