@@ -10,7 +10,9 @@ Data: the paper's protocol (4 forces × 3 trials, 370 s at 6 Hz, loading ramp) f
 * derivative-free — integrated Eq. 5, all 12 trials at once (the starting values);
 * scipy joint / scipy per-trial — output-error in the conductance domain, batched finite-difference Jacobian;
 * casadi GN / ipopt / sqpmethod — the joint output-error fit on the CasADi graph (mapaccum), exact AD Jacobian;
-* calibrate_sensor — the full pipeline ``sensnake fit`` runs for one sensor (target ≤ 2 s).
+* calibrate_sensor — the full pipeline ``sensnake fit`` runs for one sensor (target ≤ 2 s);
+
+then the 95 % intervals' coverage on fresh sensors and the drift figures (:mod:`benchmarks.bench_coverage`).
 
 Run: ``python -m benchmarks.bench_fitters [--quick]`` or ``sensnake bench``.
 """
@@ -23,6 +25,7 @@ import time
 
 import numpy as np
 
+from benchmarks import bench_coverage
 from models.calibration import TrialInput, calibrate_sensor, hold_segment, paper_procedure
 from models.fit_dfree import estimate_sls
 from models.fit_output import PARAM_NAMES, FitTrial, fit_output_casadi, fit_output_scipy
@@ -160,6 +163,9 @@ def run(quick: bool) -> None:
         verdict = "meets" if max(times) <= TARGET_CALIBRATION_S else "MISSES"
         print(f"full 12-trial calibration of one sensor ({solver}): median {np.median(times):.2f} s, "
               f"max {max(times):.2f} s — {verdict} the {TARGET_CALIBRATION_S:g} s target")
+    # What the intervals are worth and what a drifting baseline does (benchmarks/bench_coverage.py has the options).
+    bench_coverage.run(sensors=8 if quick else 40)
+    bench_coverage.run(drift=True)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,9 @@ Fitting (``sensnake fit --fit-rate/--solver``): the paper's 4 forces, 370 s tria
 the mean applied force), and a mode qualifies when its error is at most the best one + 1 percentage point. Among
 the qualifying modes the fastest wins; times within 5 % of each other are timing noise on this shared machine and
 count as a tie, which the CLI default keeps. Times are one core, process time: noisy, repeat before concluding.
-Run: ``python -m benchmarks.bench_pareto [--quick]``.
+Then (``--only coverage``) how often the fit's 95 % intervals hold the truth on fresh sensors, and the drift
+figures (:mod:`benchmarks.bench_coverage`).
+Run: ``python -m benchmarks.bench_pareto [--quick] [--only throughput|estimation|fitting|coverage]``.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.cli.estimate import run_estimator
+from benchmarks import bench_coverage
 from models.calibration import DEFAULT_FIT_RATE_HZ, DEFAULT_SOLVER, TrialInput, calibrate_sensor
 from models.estimators import SLSEstimator
 from models.physics import DEFAULT_PHYSICS, PhysicsConstants
@@ -162,11 +165,14 @@ def run(quick: bool, only: str = "") -> None:
         _estimation_table(quick)
     if only in ("", "fitting"):
         _fitting_table(quick)
+    if only in ("", "coverage"):
+        bench_coverage.run(sensors=8 if quick else 40)
+        bench_coverage.run(drift=True)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter records")
-    parser.add_argument("--only", choices=("throughput", "estimation", "fitting"), default="")
+    parser.add_argument("--only", choices=("throughput", "estimation", "fitting", "coverage"), default="")
     arguments = parser.parse_args()
     run(arguments.quick, arguments.only)

@@ -33,6 +33,7 @@ from models.fit_output import (
     PARAM_NAMES,
     FitTrial,
     OutputFit,
+    estimate_noise,
     fit_output_casadi,
     fit_output_scipy,
     trial_costs,
@@ -41,7 +42,7 @@ from models.fit_paper import ExponentialFit, PaperLSResult, fit_exponential, fit
 from models.fit_profile import profile_tau, refined_tau_interval
 from models.linear import DEFAULT_WINDOW_S, LinearFit, fit_linear_trials, trial_mean
 from models.physics import PhysicsConstants, strain_from_conductance
-from models.sls import SLSParams, abc_from_sls, conductance_from_force
+from models.sls import TYPICAL_SLS, SLSParams, abc_from_sls, conductance_from_force
 
 # The hold starts where the applied force first reaches this fraction of the trial's top force, and ends where it
 # falls below the second fraction.
@@ -294,15 +295,6 @@ def hold_segment(force_n: np.ndarray) -> tuple[slice, float]:
     stop = start + int(dropped[0]) if dropped.size else force_n.size
     hold = force_n[start:stop]
     return slice(start, stop), float(np.nanmean(hold[hold >= HOLD_END_FRACTION * top]))  # glitches left out
-
-
-def estimate_noise(conductance_s: np.ndarray) -> float:
-    """Conductance noise std (S) from second differences (robust MAD), insensitive to the slow creep."""
-    c = conductance_s[np.isfinite(conductance_s)]
-    if c.size < 5:
-        return math.nan
-    d2 = np.diff(c, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
 
 
 def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None) -> float:
@@ -569,6 +561,9 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         if not np.any(np.isfinite(strain)):
             raise ValueError(f"{trial.name}: no sample gives a strain from Eq. 3 (the contact term K/√F exceeds "
                              "every reading): check the physics constants (--physics) and the force column")
+        if saturation_s is not None:
+            # A reading at the ceiling is not a strain (the readout clipped it): left out of the starting values.
+            strain[trial.conductance_s[rows] >= saturation_s * (1 - 1e-12)] = np.nan
         try:
             dfree = estimate_sls([(trial.time_s[rows], trial.force_n[rows] / area_m2, strain)])
         except ValueError:
@@ -588,9 +583,15 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
 
     step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
     span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
-    joint_start = estimate_sls([p["strain"] for p in prelim])
-    candidates = [SLSParams(joint_start.E0_Pa, joint_start.E1_Pa, joint_start.mu1_Pa_s)]
-    candidates += [SLSParams(p["dfree"].E0_Pa, p["dfree"].E1_Pa, p["dfree"].mu1_Pa_s) for p in prelim if p["dfree"]]
+    try:
+        estimates = [estimate_sls([p["strain"] for p in prelim])]
+    except ValueError:
+        estimates = []
+    estimates += [p["dfree"] for p in prelim if p["dfree"]]
+    # Starting values only: one that is not a physical parameter set (a record almost all at the ceiling can give
+    # τ → 0) is dropped, and the typical sensor stands in when none is left.
+    candidates = [SLSParams(e.E0_Pa, e.E1_Pa, e.mu1_Pa_s) for e in estimates
+                  if all(math.isfinite(v) and v > 0 for v in (e.E0_Pa, e.E1_Pa, e.mu1_Pa_s))] or [TYPICAL_SLS]
     candidates += _tau_grid(candidates[0], step_s, span_s)
     # The profile over log τ: each trial's own minimum and the joint minima join the starts.
     profile = profile_tau(fit_trials, area_m2, phys,

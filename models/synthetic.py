@@ -59,6 +59,28 @@ TYPICAL_TRUTH = SensorTruth.constant(6.0e5, 9.0e5, 9.0e7)
 TREND_TRUTH = SensorTruth((3.0e5, 6.0e4), (4.5e5, 9.0e4), (4.5e7, 9.0e6))
 
 
+# Fresh sensors for coverage checks: a wider range than the sensors the fitter was developed on (about a third of them
+# reach the readout's ceiling at 5.25 N for part of the hold).
+RANDOM_E0_LOG10_PA = (5.5, 6.3)
+RANDOM_E1_LOG10_PA = (5.6, 6.4)
+RANDOM_TAU_S = (60.0, 140.0)
+RANDOM_TREND_GROWTH = (0.0, 0.5)  # u in P(F) = P_ref·(1 + u·(F − F_ref)/F_ref), per parameter
+TREND_REF_FORCE_N = 3.5  # the mean of the paper's hold forces
+
+
+def random_sensor(rng: np.random.Generator, trend: bool = False) -> SensorTruth:
+    """A random sensor: E0, E1 log-uniform and τ uniform in the ranges above; with ``trend`` each parameter also
+    grows with the force by its own u (the paper's observation; TREND_TRUTH has u ≈ 0.4)."""
+    e0 = 10 ** rng.uniform(*RANDOM_E0_LOG10_PA)
+    e1 = 10 ** rng.uniform(*RANDOM_E1_LOG10_PA)
+    mu1 = e1 * rng.uniform(*RANDOM_TAU_S)
+    if not trend:
+        return SensorTruth.constant(e0, e1, mu1)
+    u = rng.uniform(*RANDOM_TREND_GROWTH, 3)
+    e0_trend, e1_trend, mu1_trend = ((p * (1 - k), p * k / TREND_REF_FORCE_N) for p, k in zip((e0, e1, mu1), u))
+    return SensorTruth(e0_trend, e1_trend, mu1_trend)
+
+
 @dataclass(frozen=True)
 class Readout:
     """The board's readout circuit (mirrors ``devices.config.BoardConfig``; SPEC §4)."""
