@@ -27,6 +27,7 @@ import numpy as np
 from scipy import special
 from scipy.optimize import minimize_scalar
 
+from models.creep_arms import SecondArm, check_second_arm
 from models.errors import FlatSensorError
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
@@ -226,6 +227,8 @@ class SensorCalibration:
     # and not found, None when not looked for. The parameters are those of the trials with it removed.
     drift_s_per_s: float | None = None
     trend_rmse_s: float | None = None  # the force-trend fit's RMSE (S), when it was fitted
+    # The two-arm creep check (models.creep_arms; run by calibrate_with_drift): None when not run.
+    second_arm: SecondArm | None = None
 
     @property
     def degenerate(self) -> bool:
@@ -257,6 +260,8 @@ class SensorCalibration:
         entry["tau_s_ci95"] = [_or_none(self.tau_ci95[0]), _or_none(self.tau_ci95[1])]  # null: not bounded
         if self.drift_s_per_s is not None:
             entry["drift_S_per_s"] = self.drift_s_per_s
+        if self.second_arm is not None:
+            entry["creep_second_arm"] = self.second_arm.to_dict()
         return entry
 
 
@@ -817,10 +822,23 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
             return math.inf  # a rate that leaves nothing an SLS can describe
         return float(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / max(sum(trend.n_used), 1))
 
+    # A slow change that scales with the force is a second creep arm, not a drift (models.creep_arms): when the
+    # records resolve one, it is reported and no drift is removed.
+    try:
+        arm: SecondArm | None = check_second_arm(
+            [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, hold_segment(t.force_n)[1]) for t in trials],
+            area_m2, phys, plain.sls, saturation_s=saturation_s)
+    except (ValueError, ArithmeticError):
+        arm = None  # too few samples below the ceiling to judge
+    plain = replace(plain, second_arm=arm)
     forces = np.array([float(r.force_n) for r in plain.trials])
     if not np.ptp(forces) > 0.05 * float(np.mean(forces)):  # the force trend's own criterion (calibrate_sensor)
         return replace(plain, warnings=(*plain.warnings, "one force level: a baseline drift cannot be told apart "
                                         "from creep (not looked for)"))
+    if arm is not None and arm.resolved:
+        return replace(plain, drift_s_per_s=0.0, warnings=(
+            *plain.warnings, f"{arm.message()} (a slow change that scales with the force: a second creep arm, not a "
+            "baseline drift; none removed)"))
     base = cost(0.0)
     best = minimize_scalar(lambda rate: min(cost(rate), 1e6 * base), bounds=(-DRIFT_BOUND_S_PER_S,
                            DRIFT_BOUND_S_PER_S), method="bounded", options={"xatol": DRIFT_TOLERANCE_S_PER_S})
@@ -830,8 +848,8 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
     if statistic < DRIFT_STATISTIC:
         return replace(plain, drift_s_per_s=0.0)
     at_bound = abs(rate) > 0.95 * DRIFT_BOUND_S_PER_S
-    fitted = calibrate_sensor([without_drift(t, rate) for t in measured], area_m2, phys,
-                              saturation_s=saturation_s, fit_rate_hz=None, **options)
+    fitted = replace(calibrate_sensor([without_drift(t, rate) for t in measured], area_m2, phys,
+                                      saturation_s=saturation_s, fit_rate_hz=None, **options), second_arm=arm)
     censored = sum(int(t.time_s.size) for t in trials) - n_samples
     note = (f"baseline drift of {rate * 1e6:+.3g} µS/s found and separated from the creep (the parameters are those "
             f"of the trials with it removed; without that, τ would read {float(plain.sls.tau_s):.3g} s instead of "
