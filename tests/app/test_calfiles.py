@@ -171,3 +171,35 @@ def test_sensor_entry_checks_model_section(tmp_path):
         calfiles.sensor_entry(document, "S01L", "linear", "cal.json")
     with pytest.raises(CalFileError, match="has no 'sls' model"):
         calfiles.sensor_entry(document, "S01L", "sls", "cal.json")
+
+
+def test_the_fast_csv_path_reads_and_writes_what_the_numpy_path_does(tmp_path):
+    """Arrow's reader/writer (the fast path) against numpy's loadtxt on the same files: same numbers, empty cells as
+    NaN, a text cell handed to the numpy path (which counts it), full float64 / float32 round trips."""
+    rng = np.random.default_rng(5)
+    t = np.arange(200) / 100.0
+    values = rng.uniform(1e-5, 1e-3, (200, 3))
+    path = tmp_path / "in.csv"
+    calfiles.write_series_csv(path, t, ["S01L", "S01R", "S01B"], values)
+    header = calfiles._read_header(path)
+    fast = calfiles._read_numbers_fast(path, header, [0, 1, 2, 3])
+    slow = calfiles._read_columns_numpy(path, header, [0, 1, 2, 3], 1, {})
+    assert fast is not None and np.array_equal(fast, slow)
+    assert np.array_equal(fast[:, 1:], values) and np.array_equal(fast[:, 0], t)  # float64 round trip
+    calfiles.write_series_csv(path, t, ["S01L", "S01R", "S01B"], values, digits=9)
+    read32 = calfiles.read_series_csv(path, "conductance_S").values.astype(np.float32)
+    assert np.array_equal(read32, values.astype(np.float32))  # reads back to the same float32
+    lines = path.read_text().splitlines()
+    assert lines[0] == "time_s,S01L,S01R,S01B"  # the header as the SPEC writes it, unquoted
+    lines[5] = lines[5].split(",", 1)[0] + ",,nan,inf"
+    lines[9] = lines[9].split(",", 1)[0] + ",ERR,1e-4,2e-4"
+    path.write_text("\n".join(lines) + "\n")
+    assert calfiles._read_numbers_fast(path, header, [0, 1, 2, 3]) is None  # text: the numpy path decides
+    table = calfiles.read_series_csv(path, "conductance_S", allow_gaps=True)
+    assert np.isnan(table.values[4, 0]) and np.isnan(table.values[4, 1]) and np.isinf(table.values[4, 2])
+    assert np.isnan(table.values[8, 0]) and table.bad_cells["S01L"][0] == 1
+    del lines[9]
+    path.write_text("\n".join(lines) + "\n")
+    fast = calfiles._read_numbers_fast(path, header, [0, 1, 2, 3])
+    slow = calfiles._read_columns_numpy(path, header, [0, 1, 2, 3], 1, {})
+    assert fast is not None and np.array_equal(fast, slow, equal_nan=True)
