@@ -562,13 +562,16 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     residual = weight * (model - target)
     jac = ca.horzcat(*[weight * ca.vec(d)[selected] for d in derivatives])
     if cens.any():
-        # Censored samples: only a model below the saturation level is penalised (zero residual and slope above).
+        # Censored samples: their censored-normal (Tobit) likelihood as a residual, as the scipy path (the module
+        # docstring); its slope with respect to the model times the model's own sensitivities.
         assert problem.saturation_s is not None  # censored samples exist only when a saturation level was given
-        sat = float(problem.saturation_s)
-        below = ca.DM(cens.astype(float)) * (model < sat)
-        residual = ca.if_else(ca.DM(cens.astype(float)), weight * ca.fmin(model - sat, 0), residual)
-        active = 1 - ca.DM(cens.astype(float)) + below
-        jac = jac * ca.repmat(active, 1, problem.n_params)
+        noise = np.concatenate([np.full(int(problem.masks[i].sum()), problem.noise_s[i])
+                                for i in range(n_trials)])[cens]
+        tobit, slope = _casadi_censored(ca, model[np.flatnonzero(cens).tolist()], float(problem.saturation_s),
+                                        ca.DM(np.nan_to_num(noise, nan=0.0)))
+        rows_c = np.flatnonzero(cens).tolist()
+        residual[rows_c] = ca.DM(weight[cens]) * tobit
+        jac[rows_c, :] = jac[rows_c, :] * ca.repmat(slope, 1, problem.n_params)
     res_jac = ca.Function("residual_jacobian", [theta], [residual, jac])
     res_only = ca.Function("residual", [theta], [residual])
 
@@ -615,6 +618,31 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
         raise ValueError(f"solver must be 'gauss-newton', 'ipopt' or 'sqpmethod', got {solver!r}")
     r_opt, j_opt = (np.asarray(x) for x in res_jac(theta_opt))
     return problem.summarise(theta_opt, r_opt.ravel(), j_opt, iterations, success, message, f"casadi {solver}")
+
+
+def _casadi_censored(ca, model, ceiling_s: float, noise_s):
+    """CasADi form of :func:`_censored_residual` (S) and its slope with respect to the model, elementwise:
+    ``σ·√(−2 log Φ(x))``, x = (model − ceiling)/σ, with log Φ from erf in |x| ≤ 5 and its asymptotic series
+    outside (erf loses it there); σ = 0: the one-sided limit ``min(model − ceiling, 0)``."""
+    x = ca.SX.sym("x")
+    # Each branch on its own clamped argument, so every branch (and its derivative, which sqpmethod's AD takes
+    # through both sides of an if_else) stays finite everywhere.
+    low, mid, high = ca.fmin(x, -5), ca.fmin(ca.fmax(x, -5), 5), ca.fmax(x, 5)
+    log_cdf = ca.if_else(x < -5, -0.5 * low**2 - ca.log(-low) - 0.5 * math.log(2 * math.pi)
+                         + ca.log(1 - 1 / low**2 + 3 / low**4),
+                         ca.if_else(x > 5, -ca.exp(-0.5 * high**2) / (high * math.sqrt(2 * math.pi)) * (1 - 1 / high**2),
+                                    ca.log(0.5 * (1 + ca.erf(mid / math.sqrt(2))))))
+    root = ca.sqrt(-2 * log_cdf + 1e-300)
+    # d√(−2 log Φ)/dx = −(φ/Φ)/√(−2 log Φ); 0 where the root underflows (the model far above the ceiling).
+    d_root = ca.if_else(root > 1e-150, -ca.exp(-0.5 * x**2 - log_cdf) / (math.sqrt(2 * math.pi) * root), 0)
+    unit = ca.Function("tobit_unit", [x], [root, d_root]).map(model.shape[0])
+    sigma = ca.fmax(noise_s, 1e-300)
+    root_v, d_root_v = unit(((model - ceiling_s) / sigma).T)
+    hinge = ca.fmin(model - ceiling_s, 0)
+    with_noise = noise_s > 0
+    residual = ca.if_else(with_noise, sigma * root_v.T, hinge)
+    slope = ca.if_else(with_noise, d_root_v.T, model < ceiling_s)
+    return residual, slope
 
 
 def _casadi_graph(ca, problem: _Problem):
