@@ -191,9 +191,12 @@ def run(args: argparse.Namespace) -> int:
     for k in passed:
         out_names[k] = f"{names[k]}_uS"
     _passed_through_note([names[k] for k in passed], "passed through as conductance in µS (columns <name>_uS)")
+    flag_names = list(out_names)
+    if getattr(args, "units", "bare") == "suffixed":
+        out_names, values = calfiles.with_unit_suffixes(out_names, values, calfiles.FORCE_COLUMN)
     calfiles.write_series_csv(args.out, table.time_s, out_names, values, 9 if getattr(args, "float32", False) else 17)
     if getattr(args, "flags", None):
-        calfiles.write_series_csv(args.flags, table.time_s, out_names, codes)
+        calfiles.write_series_csv(args.flags, table.time_s, flag_names, codes)  # codes: no unit
     elif status.any():
         print("sensnake estimate: note: per-sample flags: add --flags FLAGS.csv", file=sys.stderr)
     print(f"wrote {force.shape[0]} samples × {force.shape[1]} sensor(s) of force ({args.model}) to {args.out}")

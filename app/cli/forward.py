@@ -28,8 +28,10 @@ def run(args: argparse.Namespace) -> int:
     params = SLSParams.stack([SLSParams.from_dict(entry["sls"]) for entry in entries])
     areas = np.array([float(entry["area_m2"]) for entry in entries])
     conductance = conductance_from_force(table.time_s, forces, params, areas, phys)
-    calfiles.write_series_csv(args.out, table.time_s, output_names(table, calfiles.FORCE_COLUMN,
-                                                                   calfiles.CONDUCTANCE_COLUMN), conductance)
+    names_out = list(output_names(table, calfiles.FORCE_COLUMN, calfiles.CONDUCTANCE_COLUMN))
+    if getattr(args, "units", "bare") == "suffixed":
+        names_out, conductance = calfiles.with_unit_suffixes(names_out, conductance, calfiles.CONDUCTANCE_COLUMN)
+    calfiles.write_series_csv(args.out, table.time_s, names_out, conductance)
     print(f"wrote {conductance.shape[0]} samples × {conductance.shape[1]} sensor(s) of conductance to {args.out}")
     return 0
 

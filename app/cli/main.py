@@ -26,6 +26,11 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
+# Column names of the CSVs estimate, forward and export write (app.core.calfiles.with_unit_suffixes).
+UNIT_STYLES = ("bare", "suffixed")
+UNITS_HELP = ("bare (default, SPEC §3.2): sensor names as in the calibration, forces in N, conductance in S; "
+              "suffixed: each column names its unit (<name>_N; <name>_uS, in µS), as the GUI's exports do")
+
 
 # Per command: the arguments that name files it reads, and those that name files it writes. A write onto a file the
 # command is reading destroys the input before it has been read (issue 25): refused before anything runs.
@@ -150,6 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="sls: leave out the contact term K/√F (faster; biased on a sensor that has one)")
     estimate.add_argument("--float32", action="store_true",
                           help="round readings and forces to float32 and write 9 significant digits (smaller file)")
+    estimate.add_argument("--units", choices=UNIT_STYLES, default="bare", help=UNITS_HELP)
 
     forward = sub.add_parser("forward", help="force → conductance (the model run forwards)")
     forward.add_argument("input", metavar="IN.csv")
@@ -158,6 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     forward.add_argument("--clip-negative", action="store_true",
                          help="read negative forces (load-cell noise) as 0 N, with a warning; without it they are "
                               "refused: a contact sensor is pressed, never pulled")
+    forward.add_argument("--units", choices=UNIT_STYLES, default="bare", help=UNITS_HELP)
 
     scan = sub.add_parser("scan", help="list the servos on a bus")
     scan.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
@@ -195,6 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
     export = sub.add_parser("export", help="recording → CSV")
     export.add_argument("recording", metavar="REC.h5")
     export.add_argument("--csv", required=True, metavar="OUT.csv")
+    export.add_argument("--units", choices=UNIT_STYLES, default="bare", help=UNITS_HELP)
 
     servo = sub.add_parser("servo", help="read, write, back up and restore the servos' control tables",
                            description="The servos' control tables without Dynamixel Wizard: every item of a servo "

@@ -384,6 +384,23 @@ def _unit_suffixes(path: Path, names: list[str], single_column: str) -> tuple[li
     return sensors, np.array(scales)
 
 
+def with_unit_suffixes(columns: Sequence[str], values: np.ndarray, quantity: str) -> tuple[list[str], np.ndarray]:
+    """``--units suffixed``: each column named with its unit, as the GUI's exports are — forces ``<name>_N``,
+    conductance ``<name>_uS`` (values × 1e6). A name already ending in a unit (a ``_uS`` pass-through column, the
+    generic ``force_N``/``conductance_S``) is kept as it is. ``quantity``: :data:`FORCE_COLUMN` or
+    :data:`CONDUCTANCE_COLUMN`. Every reader here takes both styles (:data:`UNIT_SUFFIXES`)."""
+    suffix, scale = ("N", 1.0) if quantity == FORCE_COLUMN else ("uS", 1e6)
+    names, scaled = [], np.array(values, dtype=np.float64, copy=True)
+    known = {unit for units in UNIT_SUFFIXES.values() for unit in units}
+    for k, name in enumerate(columns):
+        if name in (FORCE_COLUMN, CONDUCTANCE_COLUMN) or name.rpartition("_")[2] in known and "_" in name:
+            names.append(name)
+        else:
+            names.append(f"{name}_{suffix}")
+            scaled[:, k] *= scale
+    return names, scaled
+
+
 def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple[str, ...] | list[str],
                      values: np.ndarray, digits: int = 17) -> None:
     """Write ``time_s`` (N,) and ``values`` (N, S) under the header ``time_s,<columns>`` with full float precision

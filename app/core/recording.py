@@ -43,7 +43,7 @@ from typing import Any, Protocol, TextIO
 import h5py
 import numpy as np
 
-from app.core.calfiles import write_atomically
+from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
 from app.core.errors import RecordingError, RecordingFormatError
 
 FORMAT = "sensnake-recording"
@@ -1018,17 +1018,22 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
 
 
 # -- export ------------------------------------------------------------------------------------------------------
-def export_csv(recording: Recording, out: str | Path) -> Path:
-    """Write ``time_s`` then one column per channel: forces (N) if stored from a calibration, else conductance (S).
-    Returns ``out``."""
+def export_csv(recording: Recording, out: str | Path, unit_suffixes: bool = False) -> Path:
+    """Write ``time_s`` then one column per channel: forces (N) if stored from a calibration, else conductance (S);
+    ``unit_suffixes``: columns ``<name>_N`` / ``<name>_uS`` (µS) instead of the bare SPEC names. Returns ``out``."""
     out = Path(out)
     values = recording.conductance_s
+    quantity = CONDUCTANCE_COLUMN
     if recording.forces_n is not None and not recording.forces_from_defaults:
-        values = recording.forces_n
+        values, quantity = recording.forces_n, FORCE_COLUMN
     n = min(values.shape[0], recording.n_samples)
-    table = np.column_stack([recording.time_s[:n], values[:n]])
+    names = list(recording.channels)
+    block = values[:n]
+    if unit_suffixes:
+        names, block = with_unit_suffixes(names, block, quantity)
+    table = np.column_stack([recording.time_s[:n], block])
     def write(handle: TextIO) -> None:
-        csv.writer(handle).writerow(["time_s", *recording.channels])
+        csv.writer(handle).writerow(["time_s", *names])
         np.savetxt(handle, table, delimiter=",", fmt="%.10g")
 
     # All or nothing: a failure (disk full, a folder at OUT) never leaves half a CSV over an earlier export.

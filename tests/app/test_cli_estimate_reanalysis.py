@@ -156,3 +156,36 @@ def test_a_column_with_its_unit_reads_like_the_bare_spec_column(tmp_path, capsys
     capsys.readouterr()
     assert main(["estimate", str(both), "--cal", str(cal), "--out", str(tmp_path / "o.csv")]) == 1
     assert "sensor 'S06B' has two columns" in capsys.readouterr().err
+
+
+def test_units_suffixed_names_every_column_and_the_files_read_back(tmp_path):
+    """``--units suffixed`` on export, forward and estimate: each column carries its unit (the GUI's style), the
+    numbers are the bare files' in that unit, and each command reads the other's output back."""
+    cal = tmp_path / "cal.json"
+    _calibration(cal)
+    rec = tmp_path / "rec.h5"
+    _recording(rec, seconds=20.0)
+    bare, suffixed = tmp_path / "bare.csv", tmp_path / "suffixed.csv"
+    assert main(["export", str(rec), "--csv", str(bare)]) == 0
+    assert main(["export", str(rec), "--csv", str(suffixed), "--units", "suffixed"]) == 0
+    assert bare.read_text().splitlines()[0].split(",") == ["time_s", *CHANNELS]
+    assert suffixed.read_text().splitlines()[0].split(",") == ["time_s", *(f"{c}_N" for c in CHANNELS)]
+    np.testing.assert_array_equal(np.loadtxt(bare, delimiter=",", skiprows=1),
+                                  np.loadtxt(suffixed, delimiter=",", skiprows=1))
+
+    t = np.arange(0.0, 60.0, 1.0 / RATE_HZ)
+    forces_in, conductance_out, forces_out = tmp_path / "f.csv", tmp_path / "c.csv", tmp_path / "f2.csv"
+    calfiles.write_series_csv(forces_in, t, (SENSOR,), _force(t)[:, None])
+    assert main(["forward", str(forces_in), "--cal", str(cal), "--out", str(conductance_out),
+                 "--units", "suffixed"]) == 0
+    assert conductance_out.read_text().splitlines()[0] == f"time_s,{SENSOR}_uS"
+    expected = conductance_from_force(t, _force(t)[:, None], SLSParams.from_dict(PARAMS), np.array([AREA_M2]),
+                                      PhysicsConstants())[:, 0]
+    micro = np.loadtxt(conductance_out, delimiter=",", skiprows=1)[:, 1]
+    np.testing.assert_allclose(micro, expected * 1e6, rtol=1e-12)
+    assert main(["estimate", str(conductance_out), "--cal", str(cal), "--out", str(forces_out),
+                 "--units", "suffixed"]) == 0
+    assert forces_out.read_text().splitlines()[0] == f"time_s,{SENSOR}_N"
+    back = np.loadtxt(forces_out, delimiter=",", skiprows=1)[:, 1]
+    hold = (t > 12) & (t < 55)
+    assert back[hold] == pytest.approx(_force(t)[hold], abs=1e-6)
