@@ -96,6 +96,15 @@ def print_report(sensor: str, cal: SensorCalibration, out: str) -> None:
     if cal.drift_s_per_s is not None:
         print(f"  baseline drift {cal.drift_s_per_s * 1e6:+.4g} µS/s" + (" (separated from the creep: see warnings)"
                                                                       if cal.drift_s_per_s else " (none found)"))
+    arm = cal.second_arm
+    if arm is not None:
+        if not arm.resolved:
+            print(f"  second creep arm: none resolved (likelihood ratio {arm.lr:.1f})")
+        else:
+            slow = f"tau2 {arm.tau2_s:.4g} s, {100 * arm.share:.0f} % of the creep" if arm.tau2_resolved else \
+                "tau2 beyond the records"
+            print(f"  second creep arm: {slow}; ignoring it costs {arm.record_rms_n:.3g} N RMS here, "
+                  f"{arm.long_hold_error_n:+.3g} N after {arm.long_hold_s / 60:.0f} min (see warnings)")
     if cal.sls_trend is not None:
         for key, (intercept, slope) in cal.sls_trend.items():
             print(f"  sls_trend {key:<9} {intercept:12.5e} + {slope:12.5e}·F")

@@ -464,3 +464,24 @@ def test_a_background_fit_runs_below_the_apps_priority():
                              initializer=calibration_fit.yield_cpu) as pool:
         child = pool.submit(os.nice, 0).result(timeout=60)
     assert child >= min(os.nice(0) + calibration_fit.FIT_NICENESS, 19)
+
+
+def test_fit_names_a_second_creep_arm_and_stores_it(tmp_path, capsys):
+    """Trials from a sensor with a second, slower creep arm (a model the app does not fit): `sensnake fit` says so on
+    its summary, warns with the cost, removes no drift and stores `creep_second_arm` in the calibration."""
+    from models.sls import SLSParams
+    from tests.models.test_creep_arms import _two_arm_trials
+
+    paths = []
+    for trial in _two_arm_trials(SLSParams(6.0e5, 1.2e6, 1.2e6 * 80.0), 0.3, 450.0, 370.0, seed=57):
+        path = tmp_path / f"{trial.name}.csv"
+        calfiles.write_trial_csv(path, trial.time_s, trial.force_n, trial.conductance_s)
+        paths.append(str(path))
+    out = tmp_path / "cal.json"
+    assert main(["fit", *paths, "--sensor", "S06B", "--area", "1.4e-3", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "second creep arm: tau2" in printed and "baseline drift +0 µS/s" in printed
+    assert "a second creep arm, not a baseline drift" in printed
+    entry = json.loads(out.read_text())["sensors"]["S06B"]
+    assert entry["creep_second_arm"]["resolved"] is True and entry["drift_S_per_s"] == 0.0
+    assert 450 / 2 < entry["creep_second_arm"]["tau2_s"] < 450 * 2
