@@ -29,7 +29,7 @@ import numpy as np
 from models.calibration import TrialInput, calibrate_sensor, calibrate_with_drift
 from models.fit_output import PARAM_NAMES
 from models.physics import PhysicsConstants
-from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol, random_sensor
+from models.synthetic import PAPER_RATE_HZ, TYPICAL_TRUTH, Readout, paper_protocol, random_sensor
 
 PHYS = PhysicsConstants()
 READOUT = Readout()
@@ -47,11 +47,12 @@ def wilson(hits: int, n: int) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def one_sensor(seed: int, noise_rel: float, trend: bool) -> dict[str, list[bool]]:
+def one_sensor(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ) -> dict[str, list[bool]]:
     """Fit one fresh sensor; per interval name, whether each of its intervals held the truth."""
     rng = np.random.default_rng(seed)
     truth = random_sensor(rng, trend)
-    trials = paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=noise_rel, readout=READOUT)
+    trials = paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=noise_rel, readout=READOUT,
+                            rate_hz=rate_hz)
     inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
     cal = calibrate_sensor(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s, fit_trend=trend)
     hits: dict[str, list[bool]] = {}
@@ -76,26 +77,27 @@ def one_sensor(seed: int, noise_rel: float, trend: bool) -> dict[str, list[bool]
     return hits
 
 
-def coverage(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2
-             ) -> dict[str, list[bool]]:
+def coverage(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
+             rate_hz: float = PAPER_RATE_HZ) -> dict[str, list[bool]]:
     """Pooled hits over ``sensors`` fresh sensors (seeded from ``seed``), fitted in ``jobs`` processes."""
     seeds = [int(s) for s in np.random.SeedSequence(seed).generate_state(sensors)]
     pooled: dict[str, list[bool]] = {}
     with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for hits in pool.map(one_sensor, seeds, [noise_rel] * sensors, [trend] * sensors):
+        for hits in pool.map(one_sensor, seeds, [noise_rel] * sensors, [trend] * sensors, [rate_hz] * sensors):
             for key, values in hits.items():
                 pooled.setdefault(key, []).extend(values)
     return pooled
 
 
-def print_coverage(noise_levels: Sequence[float], sensors: int, seed: int, trend: bool, jobs: int) -> None:
+def print_coverage(noise_levels: Sequence[float], sensors: int, seed: int, trend: bool, jobs: int,
+                   rate_hz: float = PAPER_RATE_HZ) -> None:
     kind = "force-trend sensors" if trend else "constant sensors"
-    print(f"\n95 % interval coverage on fresh {kind} ({sensors} per noise level, seed {seed}; target "
+    print(f"\n95 % interval coverage on fresh {kind} ({sensors} per noise level, seed {seed}, {rate_hz:g} Hz; target "
           f"{100 * TARGET[0]:.0f}–{100 * TARGET[1]:.0f} %)")
     print(f"{'noise':>6}  {'interval':<24} {'n':>5} {'coverage':>9}  {'95 % Wilson':>13}  {'time':>6}")
     for noise in noise_levels:
         start = time.perf_counter()
-        pooled = coverage(noise, sensors, seed, trend, jobs)
+        pooled = coverage(noise, sensors, seed, trend, jobs, rate_hz)
         took = time.perf_counter() - start
         for key, values in pooled.items():
             n, hit = len(values), int(sum(values))
@@ -125,11 +127,11 @@ def print_drift(seed: int) -> None:
 
 
 def run(noise_levels: Sequence[float] = (0.002, 0.01), sensors: int = 24, seed: int = 29, trend: bool = False,
-        drift: bool = False, jobs: int = 2) -> None:
+        drift: bool = False, jobs: int = 2, rate_hz: float = PAPER_RATE_HZ) -> None:
     if drift:
         print_drift(seed)
         return
-    print_coverage(noise_levels, sensors, seed, trend, jobs)
+    print_coverage(noise_levels, sensors, seed, trend, jobs, rate_hz)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -141,10 +143,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--trend", action="store_true", help="parameters that grow with the force")
     parser.add_argument("--drift", action="store_true", help="the drift figures instead of the coverage")
     parser.add_argument("--jobs", type=int, default=2, help="processes")
+    parser.add_argument("--rate", type=float, default=PAPER_RATE_HZ,
+                        help="sample rate of the trials (Hz; the paper's 6 by default; faster ones are block-averaged "
+                             "to 5 Hz by the fit)")
     args = parser.parse_args(argv)
-    if args.sensors < 1 or args.jobs < 1:
-        parser.error("--sensors and --jobs must be at least 1")
-    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs)
+    if args.sensors < 1 or args.jobs < 1 or not args.rate > 0:
+        parser.error("--sensors and --jobs must be at least 1, --rate positive")
+    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate)
 
 
 if __name__ == "__main__":

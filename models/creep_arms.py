@@ -137,6 +137,7 @@ class _Holds:
         self.trials, self.area_m2, self.phys = list(trials), area_m2, phys
         self.masks: list[np.ndarray] = []
         self.weights: list[float] = []
+        self.sample_weights: list[np.ndarray] = []
         for trial in self.trials:
             c = trial.conductance_s
             mask = np.isfinite(c) & np.isfinite(trial.force_n) & (
@@ -146,6 +147,9 @@ class _Holds:
             self.masks.append(mask)
             typical = float(np.median(c[mask])) if mask.any() else 0.0
             self.weights.append(1.0 / typical if typical > 0 else 0.0)
+            # An average of k raw samples (decimate_trial) counts as k of them.
+            counts = np.ones(c.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)
+            self.sample_weights.append(self.weights[-1] * np.sqrt(counts[mask]))
         self.n = int(sum(int(m.sum()) for m in self.masks))
         self.groups: list[list[int]] = []
         for i, trial in enumerate(self.trials):
@@ -176,7 +180,7 @@ class _Holds:
             model = (model + np.outer(t, rows[:, 5])).reshape(t.size, len(group), k)
             for j, i in enumerate(group):
                 mask = self.masks[i]
-                out[i] = (model[mask, j, :] - self.trials[i].conductance_s[mask, None]) * self.weights[i]
+                out[i] = (model[mask, j, :] - self.trials[i].conductance_s[mask, None]) * self.sample_weights[i][:, None]
         r = np.concatenate(out, axis=0)
         return np.where(np.isfinite(r), r, 1e3)  # an over-strained trial step: a large residual, rejected
 

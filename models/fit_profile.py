@@ -136,6 +136,8 @@ def _gram(trial: FitTrial, area_m2: float, phys: PhysicsConstants, taus: np.ndar
     # |dC/dε| / C_typical: the conductance-domain weight of a strain residual (the output-error fit's weighting).
     dc_de = c[rows] ** 2 * phys.R0_ohm * np.exp(-k * strain) * (1 + k * (1 - strain))
     w2 = (dc_de / float(np.median(c[rows]))) ** 2
+    if trial.counts is not None:  # an average of k raw samples counts as k of them (decimate_trial)
+        w2 = w2 * np.asarray(trial.counts, dtype=np.float64)[::stride][rows]
     sigma_all = force / area_m2
     # g_τ for every τ at once: unit stiffnesses, so the recursion's strain is σ + g_τ.
     unit = SLSParams(np.ones(taus.size), np.ones(taus.size), taus.astype(np.float64))

@@ -25,17 +25,30 @@ def test_block_average_keeps_time_force_and_conductance_means():
     assert decimate_trial(trial, 2000.0) is trial  # not faster than the rate: untouched
 
 
-def test_saturated_sample_keeps_its_block_censored_and_gaps_are_left_out():
+def test_a_block_at_the_ceiling_or_under_a_moving_force_stays_sample_by_sample_and_gaps_are_left_out():
+    """A block holding a sample at the readout's ceiling is kept sample by sample (a mean of censored and uncensored
+    samples is neither), so is a block while the force moves (a ramp); steady blocks are averaged and say how many
+    samples they stand for; dropped samples are left out of a block's mean."""
     t = np.arange(1000) / 1000.0
     c = np.full(t.size, 5e-4)
     c[150] = CEILING_S  # one sample at the readout ceiling
     c[420:430] = np.nan  # ten dropped samples
     c[500:600] = np.nan  # a whole block dropped
     out = decimate_trial(TrialInput("x", t, np.ones(t.size), c), 10.0, saturation_s=CEILING_S)
-    assert out.conductance_s[1] == CEILING_S
-    assert out.conductance_s[4] == pytest.approx(5e-4)
-    assert np.isnan(out.conductance_s[5])
-    assert np.all(out.conductance_s[[0, 2, 3, 6, 7, 8, 9]] == pytest.approx(5e-4))
+    assert out.time_s.size == 9 + 100  # nine averaged blocks, block 1 sample by sample
+    assert np.all(np.diff(out.time_s) > 0)
+    assert out.counts is not None
+    raw = np.isin(out.time_s, t[100:200])
+    assert raw.sum() == 100 and np.all(out.counts[raw] == 1)
+    assert out.conductance_s[raw][50] == CEILING_S  # the censored sample itself, kept
+    averaged = np.flatnonzero(~raw)
+    assert out.counts[averaged[3]] == 90  # block 4: ten samples dropped
+    assert out.conductance_s[averaged[3]] == pytest.approx(5e-4)
+    assert np.isnan(out.conductance_s[averaged[4]])  # block 5: all dropped
+    ramp = TrialInput("r", t, np.clip((t - 0.3) * 10.0, 0.0, 2.0), np.full(t.size, 5e-4))
+    out = decimate_trial(ramp, 10.0)
+    assert out.counts is not None and np.all(out.counts[(out.time_s > 0.3) & (out.time_s < 0.5)] == 1)
+    assert out.time_s.size == 6 + 400  # the ramp's two blocks and their neighbours sample by sample, six averaged
 
 
 def test_1_khz_calibration_costs_little_error_against_the_truth():

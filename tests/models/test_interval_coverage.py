@@ -22,8 +22,8 @@ PHYS = PhysicsConstants()
 READOUT = Readout()
 
 
-def _fit(truth: SensorTruth, seed: int, noise_rel: float, trend: bool = False):
-    trials = paper_protocol(truth, PHYS, seed=seed, noise_rel=noise_rel, readout=READOUT)
+def _fit(truth: SensorTruth, seed: int, noise_rel: float, trend: bool = False, rate_hz: float = 6.0):
+    trials = paper_protocol(truth, PHYS, seed=seed, noise_rel=noise_rel, readout=READOUT, rate_hz=rate_hz)
     inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
     return trials, calibrate_sensor(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s, fit_trend=trend)
 
@@ -96,3 +96,21 @@ def test_force_trend_intervals_cover_the_truth():
                 hits.append(lo <= value <= hi)
     # 72 intervals (6 per sensor, correlated): the benchmark's 120 sensors measured 92–97 % per quantity.
     assert 0.86 <= float(np.mean(hits)) <= 1.0, f"force-trend coverage {np.mean(hits):.3f}"
+
+
+def test_intervals_cover_on_trials_recorded_at_the_boards_30_hz():
+    """Faster trials are block-averaged to 5 Hz before the fit; averaging through the loading ramp and at the
+    ceiling too put these intervals at 35 % coverage. Blocks are now averaged only where the force holds still and
+    the readout is clear of its ceiling, each weighed by the samples it stands for."""
+    rng = np.random.default_rng(3030)
+    hits: list[bool] = []
+    for _ in range(10):
+        truth = random_sensor(rng)
+        _, cal = _fit(truth, int(rng.integers(1 << 30)), 0.002, rate_hz=30.0)
+        for report in cal.trials:
+            if report.refused is not None:
+                continue
+            exact = truth.params_at(report.force_n)
+            hits += [report.ci95[n][0] <= float(getattr(exact, n)) <= report.ci95[n][1] for n in PARAM_NAMES]
+    assert len(hits) >= 300
+    assert 0.91 <= float(np.mean(hits)) <= 0.99, f"coverage {np.mean(hits):.3f} over {len(hits) // 3} trials"
