@@ -104,8 +104,8 @@ DEFAULT_SOLVER = "scipy"
 # 370 s is 370 000 samples, which the output-error fit would run through its recursion ~100 times per start (minutes
 # and ~0.45 GB per trial). Averaging k samples keeps their information about a slow creep (white noise shrinks by
 # √k) at 1/k of the cost. The error it costs (benchmarks/bench_pareto.py, fitting table, worst parameter error
-# against the truth at 0.2 % noise): every sample 0.011 %, 30 Hz 0.014 %, 10 Hz 0.048 %, 5 Hz 0.10 % (noise-free
-# 1 kHz: 1.6e-4, 5e-4, 1e-3); 5 Hz is the fastest within 1 % of the best error, the paper's own rate is 6 Hz.
+# against the truth at 0.2 % noise, 2026-11-28): every sample 0.011 %, 30 Hz 0.014 %, 10 Hz 0.011 %, 5 Hz 0.011 %;
+# 5 Hz is the fastest within 1 % of the best error, the paper's own rate is 6 Hz.
 DEFAULT_FIT_RATE_HZ = 5.0
 
 
