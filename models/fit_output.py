@@ -20,15 +20,16 @@ scipy path measured 2–3× faster for these 3–6 parameter joint fits (CasADi 
 it is the default in :mod:`models.calibration` and CasADi is the cross-check (benchmarks/bench_fitters.py). casadi is imported
 inside the function, never at module import.
 
-Samples are weighted equally in units of the trial's typical conductance; samples below ``min_force_fraction`` of
-the hold force are left out (the contact term makes the model singular at F → 0 and the readout there is noise);
-NaN samples are skipped; samples at or above ``saturation_s`` are censored (they only say "at least this much").
-A censored sample enters with its censored-normal (Tobit) likelihood, ``−log Φ((model − ceiling)/σ)`` written as a
-residual ``σ·√(−2 log Φ)``, σ the trial's noise: near the ceiling the noise decides which samples come out as
-numbers, so those that do are biased low, and only the likelihood of both kinds together is unbiased (a one-sided
-penalty ``min(model − ceiling, 0)`` made E1 2–4 standard errors high on trials a quarter saturated; the residual
-tends to it as σ → 0). The noise σ, the residual variance and the rms misfit come from the uncensored samples. Uncertainties come from the Jacobian at the solution (Gauss–Newton covariance scaled by
-the residual variance) as 95 % intervals.
+Samples are weighted in units of the trial's typical conductance, times √(raw samples each one averages) for a
+block-averaged record (``FitTrial.counts``); samples below ``min_force_fraction`` of the hold force are left out
+(the contact term makes the model singular at F → 0 and the readout there is noise); NaN samples are skipped;
+samples at or above ``saturation_s`` are censored (they only say "at least this much"). A censored sample enters
+with its censored-normal (Tobit) likelihood, ``−log Φ((model − ceiling)/σ)`` written as a residual
+``σ·√(−2 log Φ)``, σ the trial's noise: near the ceiling the noise decides which samples come out as numbers, so
+those that do are biased low, and only the likelihood of both kinds together is unbiased (a one-sided penalty
+``min(model − ceiling, 0)`` made E1 2–4 standard errors high on trials a quarter saturated; the residual tends to
+it as σ → 0). The residual variance and the rms misfit come from the uncensored samples. Uncertainties come from
+the Jacobian at the solution (Gauss–Newton covariance scaled by the residual variance) as 95 % intervals.
 
 Pure numerics: any thread may call these; nothing is shared between calls.
 """
