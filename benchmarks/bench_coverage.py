@@ -29,7 +29,14 @@ import numpy as np
 from models.calibration import TrialInput, calibrate_sensor, calibrate_with_drift
 from models.fit_output import PARAM_NAMES
 from models.physics import PhysicsConstants
-from models.synthetic import PAPER_RATE_HZ, TYPICAL_TRUTH, Readout, paper_protocol, random_sensor
+from models.synthetic import (
+    PAPER_RATE_HZ,
+    TYPICAL_TRUTH,
+    Readout,
+    paper_protocol,
+    random_sensor,
+    trial_interval_hits,
+)
 
 PHYS = PhysicsConstants()
 READOUT = Readout()
@@ -55,14 +62,7 @@ def one_sensor(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_
                             rate_hz=rate_hz)
     inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
     cal = calibrate_sensor(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s, fit_trend=trend)
-    hits: dict[str, list[bool]] = {}
-    for report in cal.trials:
-        if report.refused is not None:
-            continue
-        exact = truth.params_at(report.force_n)
-        for name in PARAM_NAMES:
-            lo, hi = report.ci95[name]
-            hits.setdefault(f"trial {name}", []).append(bool(lo <= float(getattr(exact, name)) <= hi))
+    hits = {f"trial {name}": values for name, values in trial_interval_hits(cal.trials, truth).items()}
     if trend:
         for k, name in enumerate(PARAM_NAMES):
             intercept, slope = (truth.E0_Pa, truth.E1_Pa, truth.mu1_Pa_s)[k]

@@ -266,7 +266,6 @@ class SensorCalibration:
     # A baseline drift found and separated from the creep (S/s; :func:`calibrate_with_drift`): 0.0 when looked for
     # and not found, None when not looked for. The parameters are those of the trials with it removed.
     drift_s_per_s: float | None = None
-    trend_rmse_s: float | None = None  # the force-trend fit's RMSE (S), when it was fitted
     # The two-arm creep check (models.creep_arms; run by calibrate_with_drift): None when not run.
     second_arm: SecondArm | None = None
 
@@ -342,11 +341,14 @@ def hold_segment(force_n: np.ndarray) -> tuple[slice, float]:
     return slice(start, stop), float(np.nanmean(hold[hold >= HOLD_END_FRACTION * top]))  # glitches left out
 
 
-def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None) -> float:
-    """Noise (S) from the hold's unsaturated samples; NaN when fewer than 20 remain (no poor-fit verdict then)."""
+def _hold_noise(conductance_s: np.ndarray, saturation_s: float | None, counts: np.ndarray | None = None) -> float:
+    """The raw samples' noise (S) from the hold's unsaturated samples (``counts``: raw samples each one averages,
+    see :func:`decimate_trial`); NaN when fewer than 20 remain (no poor-fit verdict then)."""
     if saturation_s is not None:
-        conductance_s = conductance_s[conductance_s < saturation_s * (1 - 1e-12)]
-    return estimate_noise(conductance_s) if conductance_s.size >= 20 else math.nan
+        keep = conductance_s < saturation_s * (1 - 1e-12)
+        conductance_s = conductance_s[keep]
+        counts = None if counts is None else counts[keep]
+    return estimate_noise(conductance_s, counts) if conductance_s.size >= 20 else math.nan
 
 
 def _check_not_flat(trial: TrialInput) -> None:
@@ -380,9 +382,10 @@ def _check_not_flat(trial: TrialInput) -> None:
 def hold_misfit(trial: TrialInput, hold: slice, params: SLSParams, area_m2: float, phys: PhysicsConstants,
                 saturation_s: float | None) -> tuple[float, float]:
     """The fitted model's misfit over the hold and its sensitivity there: (rmse (S) of measured − model over the
-    hold's unsaturated samples, dC/dF (S/N) at the trial's level — the model run on the trial's own force record
-    scaled by 1 ± :data:`SENSITIVITY_STEP`, the hold's median conductance change over the force change). NaN where
-    the model cannot be run (a strain ≥ 1 is clamped) or no sample is left.
+    hold's unsaturated samples, at the raw samples' level (an average of k weighs k), dC/dF (S/N) at the trial's
+    level — the model run on the trial's own force record scaled by 1 ± :data:`SENSITIVITY_STEP`, the hold's median
+    conductance change over the force change). NaN where the model cannot be run (a strain ≥ 1 is clamped) or no
+    sample is left.
 
     Over the hold only: during the ramp the conductance changes by tens of µS per sample, so a force reference read a
     fraction of a sample early or late (a busy rig thread) leaves residuals there that say nothing about the creep
@@ -399,7 +402,10 @@ def hold_misfit(trial: TrialInput, hold: slice, params: SLSParams, area_m2: floa
     used = np.isfinite(measured) & np.isfinite(model)
     if saturation_s is not None:
         used &= measured < saturation_s * (1 - 1e-12)
-    rmse = float(np.sqrt(np.mean(np.square(measured[used] - model[used])))) if used.any() else math.nan
+    # An average of k raw samples counts as k of them (decimate_trial): the rmse is then the raw samples', as the
+    # noise it is judged against.
+    counts = np.ones(measured.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)[hold]
+    rmse = float(np.sqrt(np.mean(counts[used] * np.square(measured[used] - model[used])))) if used.any() else math.nan
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = (up - down) / (2 * step * force[hold])
     ratio = ratio[np.isfinite(ratio)]
@@ -625,7 +631,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                                    counts=trial.counts))
         prelim.append({"hold": hold, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
-                       "sat": n_sat, "sat_fraction": sat_fraction, "noise": _hold_noise(trial.conductance_s[hold], saturation_s)})
+                       "sat": n_sat, "sat_fraction": sat_fraction, "noise": _hold_noise(trial.conductance_s[hold], saturation_s,
+                                            None if trial.counts is None else trial.counts[hold])})
 
     step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
     span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
@@ -768,11 +775,9 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     poor = [r.name for r in reports if any(w.startswith("poor fit") for w in r.warnings)]
     if poor:
         sensor_warnings.append(f"poor fit in {', '.join(poor)}")
-    trend_rmse_s: float | None = None
     if trend is not None:
         sensor_warnings.extend(w for w in trend.warnings if w not in sensor_warnings)
         trend_rmse = float(np.sqrt(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / sum(trend.n_used)))
-        trend_rmse_s = trend_rmse
         joint_rmse_s = float(np.sqrt(np.sum(np.square(joint.rmse_s) * np.array(joint.n_used)) / sum(joint.n_used)))
         if joint_rmse_s > POOR_FIT_NOISE_RATIO * trend_rmse:
             sensor_warnings.append(
@@ -793,7 +798,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
         trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
         solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate),
-        tau_ci95=(tau_lo, tau_hi), trend_rmse_s=trend_rmse_s)
+        tau_ci95=(tau_lo, tau_hi))
 
 
 # -- a drifting baseline -----------------------------------------------------------------------------------------
@@ -802,15 +807,12 @@ DRIFT_STATISTIC = 25.0  # N·ln(SSE0/SSE1), a likelihood ratio (χ², 1 dof): 25
 DRIFT_TOLERANCE_S_PER_S = 1e-9  # the search stops within 0.001 µS/s
 
 
-def without_drift(trial: TrialInput, rate_s_per_s: float, saturation_s: float | None = None) -> TrialInput:
-    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out; samples at the
-    readout's ceiling stay at it (they are censored, not measured)."""
+def without_drift(trial: TrialInput, rate_s_per_s: float) -> TrialInput:
+    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out (the drift search
+    passes trials whose samples at the readout's ceiling are left out: they are censored, not measured)."""
     if rate_s_per_s == 0.0:
         return trial
-    ramp = rate_s_per_s * (trial.time_s - trial.time_s[0])
-    corrected = trial.conductance_s - ramp
-    if saturation_s is not None:
-        corrected = np.where(trial.conductance_s >= saturation_s * (1.0 - 1e-9), trial.conductance_s, corrected)
+    corrected = trial.conductance_s - rate_s_per_s * (trial.time_s - trial.time_s[0])
     return TrialInput(trial.name, trial.time_s, trial.force_n, corrected, counts=trial.counts)
 
 
@@ -837,8 +839,6 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
     (likelihood ratio > :data:`DRIFT_STATISTIC`), the calibration is that of the trials without it, ``drift_s_per_s``
     says the rate and a warning says what was done; otherwise it is the plain fit with ``drift_s_per_s = 0``. One
     force level only, or τ near the hold's length: the two cannot be separated (docs/NUMERICS.md)."""
-    from scipy.optimize import minimize_scalar
-
     if fit_rate_hz:
         trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
     # The search compares fits of the same samples: those at the readout's ceiling are left out of it (their

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -79,6 +80,20 @@ def random_sensor(rng: np.random.Generator, trend: bool = False) -> SensorTruth:
     u = rng.uniform(*RANDOM_TREND_GROWTH, 3)
     e0_trend, e1_trend, mu1_trend = ((p * (1 - k), p * k / TREND_REF_FORCE_N) for p, k in zip((e0, e1, mu1), u))
     return SensorTruth(e0_trend, e1_trend, mu1_trend)
+
+
+def trial_interval_hits(reports: Sequence[Any], truth: SensorTruth) -> dict[str, list[bool]]:
+    """Per SLS parameter, whether each reported trial's 95 % interval (``TrialReport.ci95``; refused trials left out)
+    holds the truth at the trial's force: what coverage is counted from."""
+    hits: dict[str, list[bool]] = {name: [] for name in ("E0_Pa", "E1_Pa", "mu1_Pa_s")}
+    for report in reports:
+        if report.refused is not None:
+            continue
+        exact = truth.params_at(report.force_n)
+        for name, values in hits.items():
+            lo, hi = report.ci95[name]
+            values.append(bool(lo <= float(getattr(exact, name)) <= hi))
+    return hits
 
 
 @dataclass(frozen=True)

@@ -117,8 +117,8 @@ def _readout(args: argparse.Namespace, document: dict, names: list[str]) -> Boar
 
 
 def _estimate(args: argparse.Namespace, document: dict, names: list[str], time_s: np.ndarray,
-              conductance_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[float, float] | None]]:
-    """Force (N, S), status codes and force ranges of sensors ``names`` (each calibrated) over a whole record."""
+              conductance_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Force (N, S) and status codes of sensors ``names`` (each calibrated) over a whole record."""
     entries = [calfiles.sensor_entry(document, name, args.model, args.cal) for name in names]
     refuse_degenerate(document, names, args.model, args.cal, getattr(args, "allow_degenerate", False))
     board = _readout(args, document, names)
@@ -145,7 +145,7 @@ def _estimate(args: argparse.Namespace, document: dict, names: list[str], time_s
                                   getattr(args, "float32", False))
     for line in summarise(names, force, status, ranges):
         print(f"sensnake estimate: warning: {line}", file=sys.stderr)
-    return force, status, ranges
+    return force, status
 
 
 def split_calibrated(columns: tuple[str, ...] | list[str], document: dict, source: str,
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"sensnake estimate: warning: {name}: {count} non-numeric cell(s) read as gaps (first at line {line_no}: "
               f"'{text}')", file=sys.stderr)
     estimated = [names[k] for k in calibrated]
-    force, status, _ranges = _estimate(args, document, estimated, table.time_s, table.values[:, calibrated])
+    force, status = _estimate(args, document, estimated, table.time_s, table.values[:, calibrated])
     out_names = list(output_names(table, calfiles.CONDUCTANCE_COLUMN, calfiles.FORCE_COLUMN))
     values = np.empty(table.values.shape)
     codes = np.zeros(table.values.shape)
@@ -226,7 +226,7 @@ def _run_recording(args: argparse.Namespace, document: dict) -> int:
     names = list(recording.channels)
     calibrated, passed = split_calibrated(names, document, str(args.input), args.cal)
     estimated = [names[k] for k in calibrated]
-    force, status, _ranges = _estimate(args, document, estimated, recording.time_s,
+    force, status = _estimate(args, document, estimated, recording.time_s,
                                        recording.conductance_s[:, calibrated])
     force_all = np.full(recording.conductance_s.shape, np.nan)
     status_all = np.zeros(recording.conductance_s.shape, dtype=np.int8)

@@ -185,8 +185,8 @@ def _read_with_bad_cells(path: Path, header: list[str], indices: list[int], gaps
 
 
 def _read_numbers_fast(path: Path, header: list[str], indices: list[int]) -> np.ndarray | None:
-    """The columns ``indices`` through Arrow's multithreaded C++ CSV parser (~3× numpy's loadtxt on a 31 MB
-    36-sensor file, docs/BENCHMARKS.md), or None — pyarrow missing, the header not on the first line, or any cell
+    """The columns ``indices`` through Arrow's multithreaded C++ CSV parser (0.06 s against numpy's 0.40 s on a
+    30 MB 36-sensor file, docs/BENCHMARKS.md), or None — pyarrow missing, the header not on the first line, or any cell
     Arrow will not read as a number (text, a short row): the caller's numpy path then reads the file and names the
     cell. Empty cells read as NaN, as the numpy path reads them."""
     if _arrow_csv is None:
@@ -393,7 +393,8 @@ def with_unit_suffixes(columns: Sequence[str], values: np.ndarray, quantity: str
     names, scaled = [], np.array(values, dtype=np.float64, copy=True)
     known = {unit for units in UNIT_SUFFIXES.values() for unit in units}
     for k, name in enumerate(columns):
-        if name in (FORCE_COLUMN, CONDUCTANCE_COLUMN) or name.rpartition("_")[2] in known and "_" in name:
+        stem, sep, unit = name.rpartition("_")
+        if name in (FORCE_COLUMN, CONDUCTANCE_COLUMN) or (sep and stem and unit in known):
             names.append(name)
         else:
             names.append(f"{name}_{suffix}")
@@ -411,8 +412,9 @@ def write_series_csv(path: str | os.PathLike, time_s: np.ndarray, columns: tuple
         raise ValueError(f"{len(columns)} column names for {values.shape[1]} columns")
     header = ",".join([TIME_COLUMN, *columns])
     if _arrow_csv is not None and digits in (9, 17):
-        # Arrow's C++ writer, ~2.6× numpy's savetxt: each number in the shortest form that reads back to the same
-        # float64 (17 digits) or float32 (9 digits) — the same values savetxt's %.17g / %.9g give, in fewer bytes.
+        # Arrow's C++ writer (0.15 s against savetxt's 0.56 s, 30 MB): each number in the shortest form that reads
+        # back to the same float64 (17 digits) or float32 (9 digits) — the same values savetxt's %.17g / %.9g
+        # give, in fewer bytes.
         kind = np.float64 if digits == 17 else np.float32
         arrays = [_arrow.array(time_s)] + [_arrow.array(values[:, i].astype(kind)) for i in range(values.shape[1])]
         table = _arrow.Table.from_arrays(arrays, names=[f"c{i}" for i in range(len(arrays))])

@@ -16,7 +16,7 @@ import pytest
 from models.calibration import TrialInput, calibrate_sensor
 from models.fit_output import PARAM_NAMES
 from models.physics import PhysicsConstants
-from models.synthetic import Readout, SensorTruth, paper_protocol, random_sensor
+from models.synthetic import Readout, SensorTruth, paper_protocol, random_sensor, trial_interval_hits
 
 PHYS = PhysicsConstants()
 READOUT = Readout()
@@ -35,14 +35,11 @@ def test_per_trial_intervals_cover_the_truth_on_240_fresh_trials(noise_rel):
     for _ in range(20):
         truth = random_sensor(rng)
         _, cal = _fit(truth, int(rng.integers(1 << 30)), noise_rel)
-        for report in cal.trials:
-            if report.refused is not None:
-                continue
-            exact = truth.params_at(report.force_n)
+        for name, values in trial_interval_hits(cal.trials, truth).items():
+            hits[name] += values
+        for report in (r for r in cal.trials if r.refused is None):  # an interval holds its own estimate
             for name in PARAM_NAMES:
-                lo, hi = report.ci95[name]
-                assert lo <= float(getattr(report.params, name)) <= hi  # an interval holds its own estimate
-                hits[name].append(lo <= float(getattr(exact, name)) <= hi)
+                assert report.ci95[name][0] <= float(getattr(report.params, name)) <= report.ci95[name][1]
     n = len(hits["E0_Pa"])
     assert n >= 200
     pooled = float(np.mean([h for values in hits.values() for h in values]))
@@ -107,10 +104,6 @@ def test_intervals_cover_on_trials_recorded_at_the_boards_30_hz():
     for _ in range(10):
         truth = random_sensor(rng)
         _, cal = _fit(truth, int(rng.integers(1 << 30)), 0.002, rate_hz=30.0)
-        for report in cal.trials:
-            if report.refused is not None:
-                continue
-            exact = truth.params_at(report.force_n)
-            hits += [report.ci95[n][0] <= float(getattr(exact, n)) <= report.ci95[n][1] for n in PARAM_NAMES]
+        hits += [h for values in trial_interval_hits(cal.trials, truth).values() for h in values]
     assert len(hits) >= 300
     assert 0.91 <= float(np.mean(hits)) <= 0.99, f"coverage {np.mean(hits):.3f} over {len(hits) // 3} trials"
