@@ -75,6 +75,9 @@ WIDE_INTERVAL = 0.5
 # A trial with more than this fraction of its hold saturated is refused for the per-trial table (it only says
 # "at least this much"); it still enters the joint fit as one-sided (censored) residuals.
 MAX_CENSORED_FRACTION = 0.5
+# Above this share of the hold at the ceiling a trial's E1 interval is said to be possibly too narrow (measured:
+# trials a quarter saturated, 30–100 Hz, 60–77 % coverage; docs/NUMERICS.md).
+OPTIMISTIC_E1_FRACTION = 0.1
 # Multi-start over log τ: starting creep times from TAU_GRID_LOW × the sample step to TAU_GRID_HIGH × the record
 # length, TAU_GRID_POINTS of them; the joint fit runs from the JOINT_STARTS best distinct ones and keeps the lowest
 # cost (a slow-creep sensor otherwise stops on the τ → 0 plateau, whose cost is far above the optimum).
@@ -706,6 +709,10 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         if p["sat"]:
             warnings.append(f"{p['sat']} saturated sample(s) (readout at its limit): censored in the fit; lower "
                             "the force or the readout gain")
+            if OPTIMISTIC_E1_FRACTION < p["sat_fraction"] <= MAX_CENSORED_FRACTION:
+                warnings.append(f"{100 * p['sat_fraction']:.0f} % of the hold at the ceiling: this trial's E1 "
+                                "interval may be too narrow (such trials' E1 intervals held the truth 60–77 % of the "
+                                "time on 30–100 Hz records; docs/NUMERICS.md)")
         refused = None
         if p["sat_fraction"] > MAX_CENSORED_FRACTION:
             refused = (f"{100 * p['sat_fraction']:.0f} % of the hold is saturated (readout at 1/R_C): the trial only "
