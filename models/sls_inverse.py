@@ -21,7 +21,7 @@ from models.sls_recursion import (
     _check_area,
     _check_interp,
     _coeffs,
-    _compiled,
+    _compiled_inverse,
     check_timestamps,
     one_minus_phi1,
 )
@@ -121,7 +121,7 @@ class SLSInverse:
             status[np.isnan(cond)] = ForceStatus.NAN_INPUT
             status[cond < 0.0] = ForceStatus.NEGATIVE_CONDUCTANCE
             status[cond == 0.0] = ForceStatus.OPEN_CIRCUIT
-        compiled = _compiled()
+        compiled = _compiled_inverse()
         if compiled is not None:
             self._run_compiled(compiled, cond, oma, ramp, force, status)
         elif s == 1:
@@ -149,7 +149,7 @@ class SLSInverse:
         ramp_t = oma_t if ramp is None else np.ascontiguousarray(ramp.T)
         force_t = np.empty((s, n))
         status_t = np.ascontiguousarray(status.T)
-        kern.inverse(np.ascontiguousarray(cond.T), oma_t, ramp_t, ramp is not None, co.e0, co.e1, co.area, contact,
+        kern(np.ascontiguousarray(cond.T), oma_t, ramp_t, ramp is not None, co.e0, co.e1, co.area, contact,
                      phys.tunnelling_k, phys.R0_ohm, phys.K_contact_ohm_sqrtN, np.ascontiguousarray(strain.T),
                      np.ascontiguousarray(strain_status.T), st.q, st.sigma_prev, st.force_prev, force_t, status_t)
         force[...] = force_t.T

@@ -111,13 +111,15 @@ def inverse(cond: np.ndarray, oma: np.ndarray, ramp: np.ndarray, use_ramp: bool,
             force: np.ndarray, status: np.ndarray) -> None:
     """The conductance → force recursion of :meth:`models.sls.SLSInverse.update` (the algebra of its one-sensor
     path) for S sensors, **sensor-major**: every array is (S, N) — one contiguous row per sensor, so the state stays
-    in registers along a row (the caller transposes). ``oma``/``ramp`` may be (1, N) (shared τ). Without the contact
+    in registers along a row (the caller transposes). ``oma`` and ``ramp`` may each be (1, N) (shared τ). Without the contact
     term ``strain`` holds Eq. 3's strain of every reading and ``strain_status`` its codes (unused with contact). The
     state arrays (S,) are updated in place; ``status`` keeps codes that are already non-zero."""
     s, n = cond.shape
     shared = oma.shape[0] == 1
+    ramp_shared = ramp.shape[0] == 1  # a shared τ's ramp is per sensor when only some steps need the linear fallback
     for j in range(s):
         jj = 0 if shared else j
+        jr = 0 if ramp_shared else j
         inv_e0 = 1.0 / e0[j]
         inv_e1 = 1.0 / e1[j]
         a = area[j]
@@ -127,7 +129,7 @@ def inverse(cond: np.ndarray, oma: np.ndarray, ramp: np.ndarray, use_ramp: bool,
         for i in range(n):
             c = cond[j, i]
             p = q + oma[jj, i] * (sig_prev * inv_e1 - q)
-            r_i = ramp[jj, i] if use_ramp else 0.0
+            r_i = ramp[jr, i] if use_ramp else 0.0
             p -= r_i * sig_prev * inv_e1
             inv_eff = inv_e0 + r_i * inv_e1
             code = _OK
@@ -171,6 +173,11 @@ def inverse(cond: np.ndarray, oma: np.ndarray, ramp: np.ndarray, use_ramp: bool,
         f_state[j] = f_prev
 
 
+def disabled() -> bool:
+    """``SENSNAKE_NO_JIT=1``: no compiled code at all (neither numba nor the C kernel of :mod:`models.sls_ckernel`)."""
+    return os.environ.get("SENSNAKE_NO_JIT", "") == "1"
+
+
 _KERNELS: SimpleNamespace | None = None
 _TRIED = False
 
@@ -183,7 +190,7 @@ def kernels() -> SimpleNamespace | None:
     if _TRIED:
         return _KERNELS
     _TRIED = True
-    if os.environ.get("SENSNAKE_NO_JIT", "") == "1":
+    if disabled():
         return None
     try:
         import numba

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models import sls_kernels
+from models import sls_ckernel, sls_kernels
 from models.physics import PhysicsConstants, conductance_from_strain
 from models.sls_model import SLSParams, SLSTrend
 
@@ -38,6 +38,18 @@ def engine(name: str) -> Iterator[None]:
 
 def _compiled():
     return sls_kernels.kernels() if _engine == "auto" else None
+
+
+def _compiled_inverse():
+    """The conductance → force kernel: the C library (:mod:`models.sls_ckernel`, ~1 ms to load) when it builds,
+    else numba's, else None (the numpy reference)."""
+    if _engine != "auto" or sls_kernels.disabled():
+        return None
+    c_kernel = sls_ckernel.inverse_kernel()
+    if c_kernel is not None:
+        return c_kernel
+    numba_kernels = sls_kernels.kernels()
+    return None if numba_kernels is None else numba_kernels.inverse
 
 # Below this x = h/τ, 1 − φ1 comes from its Taylor series (direct evaluation cancels: relative error ~ε_mach/x).
 _SERIES_X = 0.1

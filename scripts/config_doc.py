@@ -30,7 +30,10 @@ ENVIRONMENT = {
     "SENSNAKE_LOOP_PROCESS": "0: the control loop runs in the app's process on every port",
     "SENSNAKE_LAB_PROCESS": "0: the simulated lab runs in the app's process (then the loop too on port sim)",
     "SENSNAKE_FIT_SOLVER": "the calibration fit's solver when none is chosen (scipy, gauss-newton, ipopt, sqpmethod)",
-    "SENSNAKE_NO_JIT": "1: the estimators' numpy reference path instead of the compiled (numba) one",
+    "SENSNAKE_NO_JIT": "1: the estimators' numpy reference path instead of the compiled ones (C and numba)",
+    "SENSNAKE_NO_CC": "1: the SLS inverse does not build or load its C kernel (numba's runs)",
+    "SENSNAKE_CACHE_DIR": "where the C kernel of the SLS inverse is built (default: the user's cache folder, e.g. "
+                          "`~/.cache/sensnake`)",
     "SENSNAKE_DEBUG": "1: a command's expected failure shows its traceback instead of one line",
     "SENSNAKE_QUIT_AFTER_MS": "the app quits by itself after this many milliseconds (scripts, probes)",
     "SENSNAKE_TICK_TRACE": "a file: the control loop writes a trace of every tick there (late-tick hunting)",

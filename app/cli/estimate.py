@@ -88,8 +88,8 @@ def refuse_degenerate(document: dict, names: list[str], model: str, cal_path: st
 
 def run_estimator(estimator: LinearEstimator | SLSEstimator, conductance_s: np.ndarray, time_s: np.ndarray,
                   engine: str = "compiled", float32: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Force (N) and status codes of ``estimator`` over a whole record: ``engine`` "compiled" (numba kernels) or
-    "reference" (the numpy paths, same numbers); ``float32`` rounds the readings and the forces to float32."""
+    """Force (N) and status codes of ``estimator`` over a whole record: ``engine`` "compiled" (the C kernel, else
+    numba's) or "reference" (the numpy paths, same numbers); ``float32`` rounds the readings and the forces to float32."""
     values = conductance_s.astype(np.float32).astype(np.float64) if float32 else conductance_s
     with sls.engine("numpy" if engine == "reference" else "auto"):
         force = estimator.update(time_s, values)

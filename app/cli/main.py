@@ -148,7 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     # Run time against error: `sensnake bench` (bench_pareto) measures every mode; the defaults are the fastest
     # within 1 % of the best error.
     estimate.add_argument("--engine", choices=("compiled", "reference"), default="compiled",
-                          help="sls: compiled recursion (numba, default) or the numpy reference (same numbers, slower)")
+                          help="sls: compiled recursion (C, else numba; default) or the numpy reference (same numbers, slower)")
     estimate.add_argument("--interp", choices=("hold", "linear"), default="hold",
                           help="sls: force held (default, the paper's Eq. 12) or linear between samples")
     estimate.add_argument("--no-contact", action="store_true",
