@@ -134,7 +134,8 @@ class FeedbackProgress(Progress):
     """The motion's :class:`Progress` plus what the controller did this tick (the Gait tab shows it, the recording
     stores it): ``correction_rad`` per joint, ``node_joints`` and their ``node_load_n`` (NaN: not sensed) against
     ``target_n``, ``fallback`` (node joint → why it is on feedforward), ``force_age_s`` (how old the forces were),
-    ``tick_s`` (the motion's time of this tick)."""
+    ``frame_latency_s`` (on the first tick that uses a new board frame: the frame's arrival at the host → the goal it
+    changes, written this tick; NaN on ticks that reuse a frame), ``tick_s`` (the motion's time of this tick)."""
 
     correction_rad: tuple[float, ...] = ()
     node_joints: tuple[int, ...] = ()
@@ -142,6 +143,7 @@ class FeedbackProgress(Progress):
     target_n: float = 0.0
     fallback: tuple[tuple[int, str], ...] = ()
     force_age_s: float = math.inf
+    frame_latency_s: float = math.nan  # the first tick to use a board frame: its arrival → this goal (else NaN)
     tick_s: float = 0.0
     controller: str = "feedback"
     gains_json: str = ""
@@ -178,6 +180,7 @@ class ForceFeedbackMotion:
         self.law = ForceFeedbackLaw(self.axes, self.gains)
         self._bottom = bottom_channels(self.channel_names, len(self.axes))
         self._last_t: float | None = None
+        self._last_arrival = -math.inf
         self._gains_version = 0
         self.progress: Progress = getattr(self.source, "progress", Progress("shift", 0, 1, 0.0, 0.0, 0.0, 0.0))
 
@@ -214,6 +217,8 @@ class ForceFeedbackMotion:
                 self.set_gains(gains)  # live adjustment from the app (checked against the safe ranges)
         now = (self.clock or time.monotonic)()
         age = now - arrival
+        fresh = math.isfinite(arrival) and arrival != self._last_arrival
+        self._last_arrival = arrival
         n = len(self.axes)
         bottom = np.full(n, np.nan)
         valid = np.zeros(n, bool)
@@ -239,7 +244,8 @@ class ForceFeedbackMotion:
                 base.done, correction_rad=tuple(float(c) for c in correction),
                 node_joints=tuple(int(j) for j in self.law.nodes),
                 node_load_n=tuple(float(v) for v in self.law.node_load_n), target_n=self.law.gains.target_n,
-                fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age), tick_s=float(t_s),
+                fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age),
+                frame_latency_s=float(age) if fresh else math.nan, tick_s=float(t_s),
                 gains_json=json.dumps(asdict(self.law.gains)))
         goal = np.asarray(goal, dtype=float)
         if self.joint_min_rad is not None and self.joint_max_rad is not None:

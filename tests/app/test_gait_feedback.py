@@ -139,6 +139,41 @@ def test_a_stale_page_falls_back_to_feedforward_within_100_ms():
     assert "no force estimate for 200 ms" in motion.law.fallback[4]
 
 
+def test_the_frame_latency_is_taken_at_the_first_tick_that_uses_a_frame():
+    from app.core.force_control import ForceFeedbackMotion
+    from models.trajectory import FollowTheLeader
+
+    class Page:
+        arrival = -math.inf
+
+        def read(self):
+            return self.arrival, np.full(36, 1.5), np.ones(36, bool)
+
+    now = [0.0]
+    page = Page()
+    shape = np.zeros(12)
+    shape[[2, 4, 6]] = -0.3
+    motion = ForceFeedbackMotion(FollowTheLeader(shape, AXES, 0.2), AXES, LabConfig().board.channel_names, page=page,
+                                 clock=lambda: now[0])
+    frames = np.arange(0.005, 1.0, 1 / 30)  # board frames every 33 ms, ticks every 20 ms
+    expected, got = [], []
+    for k in range(50):
+        now[0] = k * 0.02
+        arrived = frames[frames <= now[0]]
+        new = arrived.size and arrived[-1] != page.arrival
+        if arrived.size:
+            page.arrival = arrived[-1]
+        motion.goal_at(now[0], np.zeros(12))
+        latency = motion.progress.frame_latency_s
+        got.append(latency)
+        expected.append(now[0] - page.arrival if new else math.nan)
+        if arrived.size:
+            assert motion.progress.force_age_s == pytest.approx(now[0] - page.arrival)
+    np.testing.assert_allclose(got, expected)  # NaN where the tick reused a frame
+    fresh = np.isfinite(got)
+    assert 25 <= fresh.sum() <= 31 and max(np.array(got)[fresh]) < 0.02 + 1e-9  # each frame once, within a tick
+
+
 def test_a_feedback_motion_crosses_to_the_loop_process_by_pickling_and_opens_the_page_there(tmp_path):
     import pickle
 
