@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import pytest
 
@@ -62,3 +63,15 @@ def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
     assert (c.ff_success_in_those, c.fb_success_in_those) == (0.0, 0.5)
     assert c.median_advance_ratio == pytest.approx(1.5)  # ratios 1.1, 2.0, 1.5
     assert c.slower_where_ff_succeeds == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("sweep_*.toml")),
+                         ids=lambda p: p.name)
+def test_every_sweep_file_in_the_benchmarks_reads_and_names_scenes_that_exist(path, monkeypatch):
+    from devices.scene import load_scene
+
+    monkeypatch.chdir(path.parents[1])  # scene paths in the files are relative to the repository
+    plan = read_sweep(path)
+    assert plan.scenes and plan.controllers
+    for scene in plan.scenes:
+        load_scene(scene)  # a built-in name or a file that parses
