@@ -35,7 +35,17 @@ should push with), ``contact_n`` (below: no contact) and ``overload_n`` (above: 
     pushing node in contact, F < target_n    δ̇ = +push_gain · (target_n − F) / target_n       (press: push)
     otherwise (at target, or no sensing)     δ̇ = −δ / relax_s                                  (back to feedforward)
 
-``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad``; the summed correction of each joint is clipped to
+The lead (``lead_gain`` > 0): the first body pitch joint (joint 3, behind the two front segments) tilts the front
+down at ``lead_gain`` while their bottom sheets carry less than ``contact_n``, keeps the bend that found the terrain,
+and lifts back (up to ``lead_gain``) when they carry more than ``target_n``. As follow-the-leader propagates the shape
+one pitch joint per shift, the lead's bend travels back with it: the pitch joint ``b`` places behind joint 3 gets
+the bend the lead had ``b`` shifts earlier (the shift phase comes from the feedforward's progress; a new play starts
+afresh). Without it the front straightens as the taught bend moves back (SPEC §5 feeds the head 0, straight) and
+lifts off the far face of an obstacle; with it the body takes the shape the front found — Fu & Li's contact
+feedback at the head, propagated as their feedforward propagates the shape. Stale or flagged front sensors: the lead
+relaxes to 0.
+
+``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
 ``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
 (stale, flagged by the health monitor, uncalibrated) never drives a correction: its δ relaxes to 0 (the feedforward)
 and :attr:`ForceFeedbackLaw.fallback` says which nodes and why. Liljebäck's jam resolution (measured contact forces
@@ -70,6 +80,7 @@ class FeedbackGains:
     relax_s: float = 1.0  # time constant back to the feedforward
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
+    lead_gain: float = 0.0  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -97,6 +108,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
+    "lead_gain": (0.0, 0.5),
 }
 
 
@@ -134,6 +146,15 @@ class ForceFeedbackLaw:
         self.fallback: dict[int, str] = {}  # node joint → why it is on feedforward now
         self.node_load_n = np.full(len(self.nodes), np.nan)
         self.pushing = np.zeros(len(self.nodes), bool)  # the nodes the feedforward bends down around (may push)
+        # the lead: the first pitch joint behind the front (it tilts the segments ahead of it), their segments, and
+        # the pitch joints behind it in order (where its bend travels as the shape propagates)
+        self._pitch = np.array(pitch, dtype=int)
+        self._lead_joint = int(pitch[1]) if len(pitch) > 1 else -1
+        self._lead_segments = np.arange(0, max(self._lead_joint, 0))
+        self.lead_rad = 0.0
+        self._lead_phase: list[float] = []
+        self._lead_value: list[float] = []
+        self._phase = 0.0
 
     def set_gains(self, gains: FeedbackGains) -> None:
         """New gains from the next tick on (live adjustment); the state carries over."""
@@ -145,6 +166,9 @@ class ForceFeedbackLaw:
         self._last_contact_s[:] = -math.inf
         self._t_s = 0.0
         self.fallback = {}
+        self.lead_rad = 0.0
+        self._lead_phase, self._lead_value = [], []
+        self._phase = 0.0
 
     def node_loads(self, bottom_n: np.ndarray) -> np.ndarray:
         """Each node's load (N): the bottom forces of the two segments meeting at it."""
@@ -166,7 +190,7 @@ class ForceFeedbackLaw:
         return lean / np.maximum(np.linalg.norm(normal, axis=1), 1e-9)
 
     def step(self, dt_s: float, bottom_n: np.ndarray, valid: np.ndarray, why_invalid: Sequence[str] = (),
-             present_rad: np.ndarray | None = None) -> np.ndarray:
+             present_rad: np.ndarray | None = None, phase: float | None = None) -> np.ndarray:
         """One tick: ``bottom_n`` (n segments) the estimated bottom-sheet forces, ``valid`` (n) which may drive a
         correction (``why_invalid[s]`` says why not, for :attr:`fallback`), ``present_rad`` (n joints) the present
         joint angles (for :meth:`node_lean`; None: every node may push). Returns the correction (n joints, rad) to
@@ -195,15 +219,59 @@ class ForceFeedbackLaw:
         rate = np.where(relieve, -g.relieve_gain * np.nan_to_num(load) / g.target_n, rate)
         rate = np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s)
         self.delta_rad = np.clip(self.delta_rad + rate * dt_s, -g.max_node_rad, g.max_node_rad)
+        self._step_lead(dt_s, bottom, np.asarray(valid, dtype=bool), phase)
         self.fallback = {}
         for k in np.flatnonzero(~ok):
             reasons = [why_invalid[s] for s in self._segments[k] if s < len(why_invalid) and why_invalid[s]]
             self.fallback[int(self.nodes[k])] = "; ".join(reasons) or "no force estimate"
         return self.correction()
 
-    def correction(self) -> np.ndarray:
-        """The present correction per joint (rad): each node's dent, summed and clipped."""
+    def _step_lead(self, dt_s: float, bottom: np.ndarray, valid: np.ndarray, phase: float | None) -> None:
+        g = self.gains
+        if g.lead_gain <= 0.0 or self._lead_joint < 0:
+            self.lead_rad = 0.0
+            return
+        segments = self._lead_segments
+        if valid[segments].all() and np.isfinite(bottom[segments]).all():
+            load = float(bottom[segments].sum())
+            if load < g.contact_n:
+                rate = g.lead_gain  # no contact ahead: tilt the front down toward the terrain
+            elif load > g.target_n:
+                rate = -g.lead_gain * min((load - g.target_n) / g.target_n, 1.0)
+            else:
+                rate = 0.0  # in contact: keep the bend that found it
+        else:
+            rate = -self.lead_rad / g.relax_s
+        self.lead_rad = float(np.clip(self.lead_rad + np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s) * dt_s,
+                                      -g.max_node_rad, g.max_node_rad))
+        if phase is None:
+            return
+        if self._lead_phase and phase < self._lead_phase[-1] - 0.5:  # a new play: the shape re-formed at the head
+            self._lead_phase, self._lead_value = [], []
+        if not self._lead_phase or phase > self._lead_phase[-1]:
+            self._lead_phase.append(float(phase))
+            self._lead_value.append(self.lead_rad)
+        self._phase = float(phase)
+
+    def lead_correction(self) -> np.ndarray:
+        """The lead's bend at its joint and, carried back one pitch joint per shift, behind it (rad per joint)."""
         out = np.zeros(len(self.axes))
+        if self.gains.lead_gain <= 0.0 or self._lead_joint < 0:
+            return out
+        out[self._lead_joint] = self.lead_rad
+        if self._lead_phase:
+            phases = np.asarray(self._lead_phase)
+            values = np.asarray(self._lead_value)
+            for behind, joint in enumerate(self._pitch[2:], start=1):
+                at = self._phase - behind
+                if at >= phases[0]:
+                    out[joint] = float(np.interp(at, phases, values))
+        return out
+
+    def correction(self) -> np.ndarray:
+        """The present correction per joint (rad): each node's dent and the lead's propagated bend, summed and
+        clipped."""
+        out = self.lead_correction()
         np.add.at(out, self._before, -self.delta_rad)
         np.add.at(out, self.nodes, 2.0 * self.delta_rad)
         np.add.at(out, self._after, -self.delta_rad)

@@ -236,8 +236,13 @@ class ForceFeedbackMotion:
                 why[segment] = f"{name}: flagged by the health monitor"
             else:
                 bottom[segment], valid[segment] = forces[channel], True
-        correction = self.law.step(dt, bottom, valid, why, present_rad=np.asarray(present_rad, dtype=float))
         base = getattr(self.source, "progress", None)
+        phase = None
+        if isinstance(base, Progress) and base.kind == "shift":
+            # shifts done so far, continuous: approaching target k means shift k−1 → k is under way
+            phase = max(base.index - 1 + base.move_fraction, 0.0) if base.index >= 1 else 0.0
+        correction = self.law.step(dt, bottom, valid, why, present_rad=np.asarray(present_rad, dtype=float),
+                                   phase=phase)
         if isinstance(base, Progress):
             self.progress = FeedbackProgress(
                 base.kind, base.index, base.count, base.move_fraction, base.fraction, base.elapsed_s, base.total_s,

@@ -106,3 +106,59 @@ def test_rates_and_sizes_are_limited():
 def test_gains_outside_their_safe_ranges_are_refused_by_name(values, words):
     with pytest.raises(GainsError, match=words.replace("(", r"\(").replace("[", r"\[")):
         FeedbackGains.from_mapping(values, "g.toml")
+
+
+def _front(load_n: float) -> np.ndarray:
+    """Bottom forces with ``load_n`` on the two segments ahead of the first body pitch joint (joint 3), 2 N per node
+    elsewhere."""
+    bottom = np.full(12, 1.0)
+    bottom[[0, 1]] = load_n / 2
+    return bottom
+
+
+def test_the_lead_tilts_the_front_down_until_it_touches_then_holds_and_yields_to_an_overload():
+    law = _law(lead_gain=0.2, target_n=5.0, push_gain=0.0, conform_gain=0.0)  # the lead alone
+    for _ in range(50):  # 1 s with the front in the air
+        law.step(DT, _front(0.0), np.ones(12, bool))
+    assert law.lead_rad == pytest.approx(0.2, rel=0.02)
+    assert law.correction()[2] == pytest.approx(law.lead_rad)  # at joint 3: the segments ahead of it tilt down
+    held = law.lead_rad
+    for _ in range(50):  # in contact, under the target: it keeps the bend that found the terrain
+        law.step(DT, _front(3.0), np.ones(12, bool))
+    assert law.lead_rad == pytest.approx(held)
+    for _ in range(50):  # twice the target: lifts back at up to lead_gain
+        law.step(DT, _front(10.0), np.ones(12, bool))
+    assert law.lead_rad == pytest.approx(held - 0.2, abs=0.01)
+    off = _law(push_gain=0.0, conform_gain=0.0)  # lead_gain 0 (the default): no lead at all
+    for _ in range(50):
+        off.step(DT, _front(0.0), np.ones(12, bool))
+    assert off.lead_rad == 0.0 and off.correction()[2] == 0.0
+
+
+def test_the_lead_bend_travels_back_one_pitch_joint_per_shift_and_restarts_with_a_new_play():
+    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0)
+    phases = np.arange(0, 151) * 0.02  # three shifts in 3 s
+    history = []
+    for k, phase in enumerate(phases):
+        law.step(DT, _front(0.0 if k < 25 else 3.0), np.ones(12, bool), phase=float(phase))
+        history.append(law.lead_rad)
+    correction = law.correction()
+    # at phase 3.0 joint 5 carries the lead's bend of phase 2.0, joint 7 of phase 1.0, joint 9 of phase 0.0
+    for joint, behind in ((4, 1), (6, 2), (8, 3)):
+        assert correction[joint] == pytest.approx(np.interp(3.0 - behind, phases, history))
+    assert correction[10] == 0.0  # nothing yet reached joint 11 (it would be the lead's bend before the play)
+    assert correction[8] == pytest.approx(0.2 * DT)  # at phase 0 the front had tilted for one tick
+    law.step(DT, _front(3.0), np.ones(12, bool), phase=0.0)  # a new play: the shape re-formed at the head
+    assert law.correction()[[4, 6, 8]] == pytest.approx([0.0, 0.0, 0.0])
+
+
+def test_the_lead_never_acts_on_stale_or_flagged_front_sensors():
+    law = _law(lead_gain=0.2, relax_s=0.5)
+    for _ in range(50):
+        law.step(DT, _front(0.0), np.ones(12, bool))
+    valid = np.ones(12, bool)
+    valid[1] = False  # S02B flagged
+    before = law.lead_rad
+    for _ in range(100):  # 2 s = 4 relax times: back toward the feedforward, never further down
+        law.step(DT, _front(0.0), valid)
+    assert law.lead_rad < before * 0.05
