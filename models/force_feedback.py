@@ -80,7 +80,7 @@ class FeedbackGains:
     relax_s: float = 1.0  # time constant back to the feedforward
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
-    lead_gain: float = 0.0  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
+    lead_gain: float = 0.1  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5

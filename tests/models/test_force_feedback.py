@@ -129,7 +129,7 @@ def test_the_lead_tilts_the_front_down_until_it_touches_then_holds_and_yields_to
     for _ in range(50):  # twice the target: lifts back at up to lead_gain
         law.step(DT, _front(10.0), np.ones(12, bool))
     assert law.lead_rad == pytest.approx(held - 0.2, abs=0.01)
-    off = _law(push_gain=0.0, conform_gain=0.0)  # lead_gain 0 (the default): no lead at all
+    off = _law(push_gain=0.0, conform_gain=0.0, lead_gain=0.0)  # lead_gain 0: no lead at all
     for _ in range(50):
         off.step(DT, _front(0.0), np.ones(12, bool))
     assert off.lead_rad == 0.0 and off.correction()[2] == 0.0

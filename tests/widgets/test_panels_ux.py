@@ -200,3 +200,15 @@ def test_gait_progress_line_fits_its_column_and_keeps_the_time_left(qtbot):
     assert label.text() != long, "the column is narrower than this line: it must be shortened, not widen the column"
     assert label.text().endswith("11111.1 s left") and label.text().startswith("shift 11/12")
     assert label.toolTip() == long  # all of it, on hover
+
+
+def test_the_feedback_gains_the_panel_starts_with_are_the_laws_defaults_and_within_its_safe_ranges(qtbot):
+    from models.force_feedback import GAIN_RANGES, FeedbackGains
+
+    panel = GaitPanel(ROBOT.axes, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    defaults = FeedbackGains()
+    for key, spin in panel.gain_spins.items():
+        assert spin.value() == pytest.approx(getattr(defaults, key)), key
+        assert (spin.minimum(), spin.maximum()) == pytest.approx(GAIN_RANGES[key]), key
+    assert {"conform_gain", "push_gain", "target_n", "lead_gain"} <= set(panel.gain_spins)
