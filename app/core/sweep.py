@@ -264,7 +264,8 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
 
 def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380) -> str:
     """Two panels (success rate, median advance) against tail load; one colour per scene, solid for feedforward and
-    dashed for feedback (a shade per gain set); the legend on the right."""
+    dashed for feedback (a shade per gain set); the legend on the right. In the success panel the series are drawn a
+    few pixels apart (at most ±6 px), so that equal rates stay visible."""
     table = summary_table(rows)
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for entry in table:
@@ -297,11 +298,14 @@ def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380
             y = bottom - frac * (bottom - top)
             parts.append(f'<text x="{x0 - 6}" y="{y + 4}" text-anchor="end">{value:.2f}</text>')
             parts.append(f'<line x1="{x0}" y1="{y}" x2="{x0 + panel_w}" y2="{y}" stroke="#dddddd"/>')
-        for (scene, label), entries in sorted(series.items()):
+        for k, ((scene, label), entries) in enumerate(sorted(series.items())):
             colour = colours[scenes.index(scene) % len(colours)]
             dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
+            # success rates coincide often (all 0 or all 1): each series is drawn up to ±6 px apart so none hides
+            nudge = (k - (len(series) - 1) / 2) * min(12.0 / max(len(series) - 1, 1), 3.0) if key == "success" else 0.0
             points = " ".join(f"{x_of(e['tail_load_N']):.1f},"
-                              f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top):.1f}" for e in entries)
+                              f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top) + nudge:.1f}"
+                              for e in entries)
             parts.append(f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="2"{dash}/>')
     legend_x = left + 2 * panel_w + gap + 30
     for k, (scene, label) in enumerate(sorted(series)):
