@@ -152,6 +152,7 @@ class ForceFeedbackLaw:
         self._lead_joint = int(pitch[1]) if len(pitch) > 1 else -1
         self._lead_segments = np.arange(0, max(self._lead_joint, 0))
         self.lead_rad = 0.0
+        self.front_load_n = math.nan  # the load the lead last acted on (N; NaN: off or not sensed)
         self._lead_phase: list[float] = []
         self._lead_value: list[float] = []
         self._phase = 0.0
@@ -228,12 +229,13 @@ class ForceFeedbackLaw:
 
     def _step_lead(self, dt_s: float, bottom: np.ndarray, valid: np.ndarray, phase: float | None) -> None:
         g = self.gains
+        self.front_load_n = math.nan
         if g.lead_gain <= 0.0 or self._lead_joint < 0:
             self.lead_rad = 0.0
             return
         segments = self._lead_segments
         if valid[segments].all() and np.isfinite(bottom[segments]).all():
-            load = float(bottom[segments].sum())
+            load = self.front_load_n = float(bottom[segments].sum())
             if load < g.contact_n:
                 rate = g.lead_gain  # no contact ahead: tilt the front down toward the terrain
             elif load > g.target_n:

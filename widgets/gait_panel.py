@@ -348,12 +348,18 @@ class GaitPanel(QWidget):
         """The feedback gains set in the panel."""
         return {key: spin.value() for key, spin in self.gain_spins.items()}
 
-    def set_feedback_readout(self, rows: Sequence[tuple[str, float, float, float, str]]) -> None:
-        """Per node: (name, target N, measured N or NaN, correction rad, why it is on feedforward or '')."""
+    def set_feedback_readout(self, rows: Sequence[tuple[str, float, float, float, str]],
+                             lead: tuple[float, float] | None = None) -> None:
+        """Per node: (name, target N, measured N or NaN, correction rad, why it is on feedforward or ''); ``lead``:
+        (the front's bottom load N or NaN, the lead's bend rad) when the lead is on."""
         lines = ["node target  measured  correction"] if rows else []
         for name, target, measured, correction, why in rows:
             load = f"{measured:5.1f} N" if math.isfinite(measured) else "   —   "
             lines.append(f"{name:<4} {target:4.1f} N  {load}  {correction:+.3f} rad" + (f"\n     ff: {why}" if why else ""))
+        if rows and lead is not None:
+            front, bend = lead
+            load = f"{front:5.1f} N" if math.isfinite(front) else "   —   "
+            lines.append(f"lead front   {load}  {bend:+.3f} rad")
         text = "\n".join(lines)
         if self.feedback_label.text() != text:
             self.feedback_label.setText(text)

@@ -144,6 +144,8 @@ class FeedbackProgress(Progress):
     fallback: tuple[tuple[int, str], ...] = ()
     force_age_s: float = math.inf
     frame_latency_s: float = math.nan  # the first tick to use a board frame: its arrival → this goal (else NaN)
+    lead_rad: float = 0.0  # the lead's bend at its joint (rad, + tilts the front down)
+    front_load_n: float = math.nan  # the front's bottom load the lead acts on (N; NaN: not sensed)
     tick_s: float = 0.0
     controller: str = "feedback"
     gains_json: str = ""
@@ -250,7 +252,8 @@ class ForceFeedbackMotion:
                 node_joints=tuple(int(j) for j in self.law.nodes),
                 node_load_n=tuple(float(v) for v in self.law.node_load_n), target_n=self.law.gains.target_n,
                 fallback=tuple(sorted(self.law.fallback.items())), force_age_s=float(age),
-                frame_latency_s=float(age) if fresh else math.nan, tick_s=float(t_s),
+                frame_latency_s=float(age) if fresh else math.nan, lead_rad=float(self.law.lead_rad),
+                front_load_n=float(self.law.front_load_n), tick_s=float(t_s),
                 gains_json=json.dumps(asdict(self.law.gains)))
         goal = np.asarray(goal, dtype=float)
         if self.joint_min_rad is not None and self.joint_max_rad is not None:

@@ -212,3 +212,16 @@ def test_the_feedback_gains_the_panel_starts_with_are_the_laws_defaults_and_with
         assert spin.value() == pytest.approx(getattr(defaults, key)), key
         assert (spin.minimum(), spin.maximum()) == pytest.approx(GAIN_RANGES[key]), key
     assert {"conform_gain", "push_gain", "target_n", "lead_gain"} <= set(panel.gain_spins)
+
+
+def test_the_feedback_readout_shows_the_lead_only_when_it_is_on(qtbot):
+    panel = GaitPanel(ROBOT.axes, rate_hz=50.0)
+    qtbot.addWidget(panel)
+    rows = [("J3", 5.0, 2.5, 0.1, ""), ("J5", 5.0, float("nan"), 0.0, "S05B: uncalibrated")]
+    panel.set_feedback_readout(rows, lead=(0.0, 0.123))
+    text = panel.feedback_label.text()
+    assert "lead front" in text and "0.0 N" in text and "+0.123 rad" in text
+    panel.set_feedback_readout(rows, lead=(float("nan"), 0.0))
+    assert "lead front      —" in panel.feedback_label.text()  # not sensed: a dash, never a number
+    panel.set_feedback_readout(rows)
+    assert "lead" not in panel.feedback_label.text()

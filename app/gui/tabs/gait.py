@@ -14,6 +14,7 @@ seen sliding along the body. Refreshed by a 20 Hz timer while the tab is visible
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -256,9 +257,11 @@ class GaitTab(QWidget):
             self.panel.set_progress(progress_text(p), p.fraction)
             if isinstance(p, FeedbackProgress) and p.node_joints:
                 why = dict(p.fallback)
+                lead_on = json.loads(p.gains_json or "{}").get("lead_gain", 0.0) > 0.0
                 self.panel.set_feedback_readout([
                     (f"J{j + 1}", p.target_n, load, p.correction_rad[j], why.get(j, ""))
-                    for j, load in zip(p.node_joints, p.node_load_n)])
+                    for j, load in zip(p.node_joints, p.node_load_n)],
+                    lead=(p.front_load_n, p.lead_rad) if lead_on else None)
 
 
 def progress_text(p: Any) -> str:
