@@ -57,6 +57,7 @@ Pure numpy: arrays in, corrections out, units in the names, no clock, no I/O. On
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -253,6 +254,11 @@ class ForceFeedbackLaw:
         if not self._lead_phase or phase > self._lead_phase[-1]:
             self._lead_phase.append(float(phase))
             self._lead_value.append(self.lead_rad)
+            # only the last (pitch joints behind the lead) shifts can still be read: the history stays bounded
+            # however long a play lasts (a few shifts' ticks)
+            keep = bisect.bisect_left(self._lead_phase, phase - len(self._pitch) - 1)
+            if keep:
+                del self._lead_phase[:keep], self._lead_value[:keep]
         self._phase = float(phase)
 
     def lead_correction(self) -> np.ndarray:
