@@ -82,6 +82,7 @@ class FeedbackGains:
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     lead_gain: float = 0.1  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
+    lead_keep: float = 0.75  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -109,7 +110,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
-    "lead_gain": (0.0, 0.5),
+    "lead_gain": (0.0, 0.5), "lead_keep": (0.0, 1.0),
 }
 
 
@@ -273,7 +274,7 @@ class ForceFeedbackLaw:
             for behind, joint in enumerate(self._pitch[2:], start=1):
                 at = self._phase - behind
                 if at >= phases[0]:
-                    out[joint] = float(np.interp(at, phases, values))
+                    out[joint] = self.gains.lead_keep ** behind * float(np.interp(at, phases, values))
         return out
 
     def correction(self) -> np.ndarray:

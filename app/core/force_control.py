@@ -28,7 +28,7 @@ import struct
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, astuple, dataclass, field, fields
+from dataclasses import asdict, astuple, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -182,6 +182,8 @@ class ForceFeedbackMotion:
         self.law = ForceFeedbackLaw(self.axes, self.gains)
         self._bottom = bottom_channels(self.channel_names, len(self.axes))
         self._last_t: float | None = None
+        self._last_goal: np.ndarray | None = None  # the feedforward's last goal (its final pose once it has ended)
+        self._correction = np.zeros(len(self.axes))  # the correction sent with the last goal
         self._last_arrival = -math.inf
         self._gains_version = 0
         self.progress: Progress = getattr(self.source, "progress", Progress("shift", 0, 1, 0.0, 0.0, 0.0, 0.0))
@@ -207,8 +209,7 @@ class ForceFeedbackMotion:
     def goal_at(self, t_s: float, present_rad: np.ndarray) -> np.ndarray | None:
         goal = self.source.goal_at(t_s, present_rad)
         if goal is None:
-            self.progress = getattr(self.source, "progress", self.progress)
-            return None
+            return self._hand_back(t_s)
         dt = 1.0 / self.rate_hz if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
         arrival, forces, trusted = self._read()
@@ -256,6 +257,27 @@ class ForceFeedbackMotion:
                 front_load_n=float(self.law.front_load_n), tick_s=float(t_s),
                 gains_json=json.dumps(asdict(self.law.gains)))
         goal = np.asarray(goal, dtype=float)
+        self._last_goal, self._correction = goal.copy(), correction.copy()
+        return self._corrected(goal, correction)
+
+    def _hand_back(self, t_s: float) -> np.ndarray | None:
+        """After the feedforward's last goal: the correction goes back to 0 at ``max_rate_rad_s`` per joint, so the
+        motion ends in the feedforward's final pose (a play that ends straight ends straight), then the motion ends.
+        Holding the last correction instead kept a bend the feedforward straightens at the end of a play, and its
+        last shift is what carries a body's tail over an obstacle (measured: docs/FORCE_FEEDBACK.md)."""
+        if self._last_goal is None or not np.any(self._correction):
+            self.progress = getattr(self.source, "progress", self.progress)
+            return None
+        dt = 1.0 / self.rate_hz if self._last_t is None else max(t_s - self._last_t, 0.0)
+        self._last_t = t_s
+        step = self.law.gains.max_rate_rad_s * dt if self.law.gains.max_rate_rad_s > 0.0 else math.inf
+        self._correction = np.sign(self._correction) * np.maximum(np.abs(self._correction) - step, 0.0)
+        if isinstance(self.progress, FeedbackProgress):
+            self.progress = replace(self.progress, done=False, correction_rad=tuple(float(c) for c in self._correction),
+                                    frame_latency_s=math.nan, tick_s=float(t_s))
+        return self._corrected(self._last_goal, self._correction)
+
+    def _corrected(self, goal: np.ndarray, correction: np.ndarray) -> np.ndarray:
         if self.joint_min_rad is not None and self.joint_max_rad is not None:
             # the correction never takes a goal past a joint limit (the controller refuses such a goal outright)
             corrected = np.clip(goal + correction, self.joint_min_rad, self.joint_max_rad)
