@@ -227,3 +227,50 @@ def test_robot_states_with_a_correction_are_recorded_in_the_control_group(tmp_pa
         assert f["control/time_s"][0] == pytest.approx(0.06)
         assert f["control"].attrs["controller"] == "feedback"
         assert json.loads(f["control"].attrs["gains"]) == {"push_gain": 0.1}
+
+
+def test_at_the_end_of_a_play_the_correction_goes_back_to_the_feedforward_at_the_rate_limit():
+    from app.core.force_control import ForceFeedbackMotion
+    from models.force_feedback import FeedbackGains
+    from models.trajectory import FollowTheLeader
+
+    class Page:  # a fresh frame every tick, nothing under the front: the lead tilts it down all play long
+        def __init__(self):
+            self.arrival = 0.0
+
+        def read(self):
+            return self.arrival, np.zeros(36), np.ones(36, bool)
+
+    now = [0.0]
+    page = Page()
+    shape = np.zeros(12)
+    shape[[2, 4]] = -0.2
+    gains = FeedbackGains(lead_gain=0.2, max_rate_rad_s=0.25)
+    motion = ForceFeedbackMotion(FollowTheLeader(shape, AXES, 0.5), AXES, LabConfig().board.channel_names, page=page,
+                                 clock=lambda: now[0], gains=gains)
+    goals = []
+    for k in range(5000):
+        now[0] = page.arrival = k * 0.02
+        goal = motion.goal_at(now[0], np.zeros(12))
+        if goal is None:
+            break
+        goals.append(goal)
+    else:
+        pytest.fail("the motion never ended")
+    goals = np.array(goals)
+    plain = FollowTheLeader(shape, AXES, 0.5)
+    feedforward = []
+    for k in range(len(goals)):
+        goal = plain.goal_at(k * 0.02, np.zeros(12))
+        if goal is None:
+            break
+        feedforward.append(goal)
+    played = len(feedforward)
+    assert played < len(goals)  # it went on after the feedforward's last goal …
+    correction = goals[played - 1] - feedforward[-1]
+    assert np.abs(correction).max() > 0.1  # … with a bend to hand back (the lead's)
+    after = goals[played:] - feedforward[-1]
+    steps = np.abs(np.diff(np.vstack([correction, after]), axis=0))
+    assert steps.max() <= 0.25 * 0.02 + 1e-12  # never faster than max_rate_rad_s
+    np.testing.assert_allclose(goals[-1], feedforward[-1], atol=1e-12)  # and ends in the feedforward's final pose
+    assert len(after) <= int(np.abs(correction).max() / (0.25 * 0.02)) + 2

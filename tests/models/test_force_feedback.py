@@ -135,19 +135,24 @@ def test_the_lead_tilts_the_front_down_until_it_touches_then_holds_and_yields_to
     assert off.lead_rad == 0.0 and off.correction()[2] == 0.0
 
 
-def test_the_lead_bend_travels_back_one_pitch_joint_per_shift_and_restarts_with_a_new_play():
-    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0)
+@pytest.mark.parametrize("keep", [1.0, 0.75, 0.0])
+def test_the_lead_bend_travels_back_one_pitch_joint_per_shift_fading_and_restarts_with_a_new_play(keep):
+    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0, lead_keep=keep)
     phases = np.arange(0, 151) * 0.02  # three shifts in 3 s
     history = []
     for k, phase in enumerate(phases):
         law.step(DT, _front(0.0 if k < 25 else 3.0), np.ones(12, bool), phase=float(phase))
         history.append(law.lead_rad)
     correction = law.correction()
-    # at phase 3.0 joint 5 carries the lead's bend of phase 2.0, joint 7 of phase 1.0, joint 9 of phase 0.0
+    # at phase 3.0 joint 5 carries the lead's bend of phase 2.0, joint 7 of phase 1.0, joint 9 of phase 0.0, each
+    # times lead_keep per pitch joint travelled
+    assert correction[2] == pytest.approx(history[-1])
     for joint, behind in ((4, 1), (6, 2), (8, 3)):
-        assert correction[joint] == pytest.approx(np.interp(3.0 - behind, phases, history))
+        assert correction[joint] == pytest.approx(keep**behind * np.interp(3.0 - behind, phases, history))
     assert correction[10] == 0.0  # nothing yet reached joint 11 (it would be the lead's bend before the play)
-    assert correction[8] == pytest.approx(0.2 * DT)  # at phase 0 the front had tilted for one tick
+    assert correction[8] == pytest.approx(keep**3 * 0.2 * DT)  # at phase 0 the front had tilted for one tick
+    if keep > 0:
+        assert correction[4] >= 0.07  # the bend found at the front (0.1 rad) does travel back
     law.step(DT, _front(3.0), np.ones(12, bool), phase=0.0)  # a new play: the shape re-formed at the head
     assert law.correction()[[4, 6, 8]] == pytest.approx([0.0, 0.0, 0.0])
 
@@ -165,7 +170,7 @@ def test_the_lead_never_acts_on_stale_or_flagged_front_sensors():
 
 
 def test_the_lead_history_stays_bounded_however_long_the_play():
-    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0)
+    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0, lead_keep=1.0)
     for k in range(60_000):  # 20 min at 50 Hz, a shift every 10 s: 120 shifts
         law.step(DT, _front(0.0 if (k // 700) % 2 else 3.0), np.ones(12, bool), phase=k * 0.002)
     assert len(law._lead_phase) <= (6 + 2) / 0.002  # the last few shifts' ticks, not the whole play's 60 000
