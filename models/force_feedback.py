@@ -82,7 +82,7 @@ class FeedbackGains:
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     lead_gain: float = 0.1  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
-    lead_keep: float = 0.75  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
+    lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
