@@ -16,11 +16,13 @@
     ones), and the estimated forces' error against the true ones (RMS and 99th percentile per loaded sheet).
 (e) The paper's experiment (``sensnake experiment obstacle``) at 20, 30 and 76 s: the median total bottom force and
     its vertical part against the weight.
+(f) The other built-in scenes (step, wedge, two obstacles), the bent shape and the settled drape at 0.034 and
+    0.3 rad/s: the same checks as (d), with every sheet summed as well as the bottom ones' vertical part.
 Targets (issues 13, 23): the simulation at least at real time on 2 cores while the GUI plots; forces summing to the
 weight within ±10 % in ≥ 95 % of frames, < 1 % of frames with a > 1 N jump, median per-sheet RMS ≤ 0.3 N.
 
 Wall-clock figures depend on the machine's load (the lab's 2 cores are shared): compare rows of one run.
-``run(quick)``; ``python -m benchmarks.bench_physics [--quick]``.
+``run(quick, sections)``; ``python -m benchmarks.bench_physics [--quick] [--sections abcdef]``.
 """
 
 from __future__ import annotations
@@ -149,7 +151,7 @@ def _app_rows(quick: bool) -> list[dict]:
     return rows
 
 
-def _truth_rows(quick: bool) -> list[dict]:
+def _truth_rows(quick: bool, scenes: tuple[str, ...] = ("flat", "paper_obstacle"), both_shapes: bool = False) -> list[dict]:
     import tempfile
     from pathlib import Path
 
@@ -160,17 +162,21 @@ def _truth_rows(quick: bool) -> list[dict]:
     bent = np.zeros(12)
     bent[[1, 2, 3, 4, 5]] = [0.45, 0.2, -0.55, -0.2, 0.45]
     shape = Shape("bent", tuple("pitch" if i % 2 == 0 else "yaw" for i in range(12)), tuple(bent))
+    # flat ground plays the bent shape, an obstacle its settled drape (or both, for the other scenes)
+    plans = [(scene, taught) for scene in scenes
+             for taught in ((shape, None) if both_shapes else ((shape,) if scene == "flat" else (None,)))]
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
-        for scene, taught in (("flat", shape), ("paper_obstacle", None)):
+        for scene, taught in plans:
             for speed in (0.034, 0.3):
                 seconds = (20.0 if quick else 60.0) if speed < 0.1 else (10.0 if quick else 30.0)
-                out = Path(scratch) / f"{scene}_{speed}.h5"
+                out = Path(scratch) / f"{scene}_{speed}_{'bent' if taught is not None else 'drape'}.h5"
                 t0 = time.perf_counter()
                 result = run_experiment(out, scene=scene, shape=taught, speed_rad_s=speed, seconds=seconds,
                                         settle_s=3.0 if scene == "flat" else 6.0)
                 wall = time.perf_counter() - t0
                 rows.append({"scene": scene, "speed": speed, "seconds": seconds, "wall": wall,
+                             "shape": "bent" if taught is not None else "drape",
                              "check": check_recording(out), "rtf": result.real_time_factor})
     return rows
 
@@ -190,51 +196,72 @@ def _paper_rows(quick: bool) -> list[dict]:
     return rows
 
 
-def run(quick: bool) -> None:
-    print("(a) world alone: real-time factor (simulated s / wall s) against error with known ground truth")
-    print(f"{'dt ms':>6} {'RTF flat':>9} {'RTF drape':>10} {'RTF play':>9} {'|Σbottom−mg|/mg':>16} "
-          f"{'drape − wrap (rad)':>19}")
-    for row in _world_rows(quick):
-        print(f"{row['dt_ms']:6.1f} {row['rtf_flat']:9.1f} {row['rtf_drape']:10.1f} {row['rtf_play']:9.1f} "
-              f"{row['weight_err_pct']:15.3f}% {row['drape_err_rad']:19.3f}")
-    print("\n(b) headless lab (world + virtual chain + virtual board through their wire protocols), 2 ms step: "
-          f"{_headless_rtf(quick):.1f}× real time")
-    print("\n(c) the app's physics lab at real time (speed 1), 2 ms step; target: RTF ≥ 1.0 with the plots running")
-    print("    stepping = wall time inside PhysicsWorld.step per wall second; headroom = 1 / stepping (how much faster "
-          "than real time the world could run here, at this load)")
-    print(f"{'scenario':<36} {'world RTF':>9} {'skipped s':>10} {'stepping':>9} {'headroom':>9} {'process CPU':>12} "
-          f"{'plot fps':>9}")
-    for row in _app_rows(quick):
-        headroom = 1.0 / row["busy"] if row["busy"] > 0 else float("inf")
-        print(f"{row['scenario']:<36} {row['rtf']:9.2f} {row['lagged_s']:10.2f} {100 * row['busy']:8.1f}% "
-              f"{headroom:8.1f}× {row['cpu_pct']:11.0f}% {row['fps']:9.1f}")
-    print("(machine load changes every wall-clock figure; the lab's 2 cores are shared)")
-    print("\n(d) how true the forces are: recordings of `sensnake experiment run`, checked by app.core.physics_check")
-    print("    targets: sum within ±10 % of the weight in ≥ 95 % of frames; < 1 % of 30 Hz frames with a > 1 N jump; "
-          "median per-sheet RMS ≤ 0.3 N")
-    print(f"{'scene':<15} {'rad/s':>6} {'sim s':>6} {'RTF':>5} {'Σbottom±10%':>12} {'vertical±10%':>13} "
-          f"{'jumps true':>11} {'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8} "
-          f"{'p99 med':>8} {'p99 max':>8}")
-    for row in _truth_rows(quick):
-        c = row["check"]
-        print(f"{row['scene']:<15} {row['speed']:6.3f} {row['seconds']:6.0f} {row['rtf']:5.1f} "
-              f"{100 * c.bottom_within_10pct:11.1f}% {100 * c.vertical_within_10pct:12.1f}% "
-              f"{100 * c.true_jump_frames:10.2f}% {100 * c.true_reversal_frames:8.2f}% "
-              f"{100 * c.estimated_jump_frames:9.2f}% {100 * c.estimated_reversal_frames:8.2f}% "
-              f"{c.median_rms_n:8.3f} {c.worst_rms_n:8.3f} {c.median_p99_n:8.3f} {c.worst_p99_n:8.3f}")
-    print("    (on the obstacle the normals sum to more than the weight: a curve; their vertical part is the check)")
-    print("\n(e) the paper's experiment (`sensnake experiment obstacle --seconds S`): estimated forces, median over the "
-          "run")
-    print(f"{'S':>4} {'Σ bottom N':>11} {'vertical N':>11} {'weight N':>9} {'vertical − weight':>18}")
-    for row in _paper_rows(quick):
-        print(f"{row['seconds']:4.0f} {row['bottom']:11.2f} {row['vertical']:11.2f} {row['weight']:9.2f} "
-              f"{100 * (row['vertical'] / row['weight'] - 1):17.1f}%")
+def run(quick: bool, sections: str = "abcdef") -> None:
+    if "a" in sections:
+        print("(a) world alone: real-time factor (simulated s / wall s) against error with known ground truth")
+        print(f"{'dt ms':>6} {'RTF flat':>9} {'RTF drape':>10} {'RTF play':>9} {'|Σbottom−mg|/mg':>16} "
+              f"{'drape − wrap (rad)':>19}")
+        for row in _world_rows(quick):
+            print(f"{row['dt_ms']:6.1f} {row['rtf_flat']:9.1f} {row['rtf_drape']:10.1f} {row['rtf_play']:9.1f} "
+                  f"{row['weight_err_pct']:15.3f}% {row['drape_err_rad']:19.3f}")
+    if "b" in sections:
+        print("\n(b) headless lab (world + virtual chain + virtual board through their wire protocols), 2 ms step: "
+              f"{_headless_rtf(quick):.1f}× real time")
+    if "c" in sections:
+        print("\n(c) the app's physics lab at real time (speed 1), 2 ms step; target: RTF ≥ 1.0 with the plots running")
+        print("    stepping = wall time inside PhysicsWorld.step per wall second; headroom = 1 / stepping (how much faster "
+              "than real time the world could run here, at this load)")
+        print(f"{'scenario':<36} {'world RTF':>9} {'skipped s':>10} {'stepping':>9} {'headroom':>9} {'process CPU':>12} "
+              f"{'plot fps':>9}")
+        for row in _app_rows(quick):
+            headroom = 1.0 / row["busy"] if row["busy"] > 0 else float("inf")
+            print(f"{row['scenario']:<36} {row['rtf']:9.2f} {row['lagged_s']:10.2f} {100 * row['busy']:8.1f}% "
+                  f"{headroom:8.1f}× {row['cpu_pct']:11.0f}% {row['fps']:9.1f}")
+        print("(machine load changes every wall-clock figure; the lab's 2 cores are shared)")
+    if "d" in sections:
+        print("\n(d) how true the forces are: recordings of `sensnake experiment run`, checked by app.core.physics_check")
+        print("    targets: sum within ±10 % of the weight in ≥ 95 % of frames; < 1 % of 30 Hz frames with a > 1 N jump; "
+              "median per-sheet RMS ≤ 0.3 N")
+        print(f"{'scene':<15} {'rad/s':>6} {'sim s':>6} {'RTF':>5} {'Σbottom±10%':>12} {'vertical±10%':>13} "
+              f"{'jumps true':>11} {'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8} "
+              f"{'p99 med':>8} {'p99 max':>8}")
+        for row in _truth_rows(quick):
+            c = row["check"]
+            print(f"{row['scene']:<15} {row['speed']:6.3f} {row['seconds']:6.0f} {row['rtf']:5.1f} "
+                  f"{100 * c.bottom_within_10pct:11.1f}% {100 * c.vertical_within_10pct:12.1f}% "
+                  f"{100 * c.true_jump_frames:10.2f}% {100 * c.true_reversal_frames:8.2f}% "
+                  f"{100 * c.estimated_jump_frames:9.2f}% {100 * c.estimated_reversal_frames:8.2f}% "
+                  f"{c.median_rms_n:8.3f} {c.worst_rms_n:8.3f} {c.median_p99_n:8.3f} {c.worst_p99_n:8.3f}")
+        print("    (on the obstacle the normals sum to more than the weight: a curve; their vertical part is the check)")
+    if "e" in sections:
+        print("\n(e) the paper's experiment (`sensnake experiment obstacle --seconds S`): estimated forces, median over the "
+              "run")
+        print(f"{'S':>4} {'Σ bottom N':>11} {'vertical N':>11} {'weight N':>9} {'vertical − weight':>18}")
+        for row in _paper_rows(quick):
+            print(f"{row['seconds']:4.0f} {row['bottom']:11.2f} {row['vertical']:11.2f} {row['weight']:9.2f} "
+                  f"{100 * (row['vertical'] / row['weight'] - 1):17.1f}%")
+    if "f" in sections:
+        print("\n(f) the other built-in scenes (step, wedge, two obstacles), the bent shape and the settled drape: "
+              "forces continuous and carrying the weight?")
+        print("    Σ all sheets: every sheet summed (a body rolled onto its side carries its weight on its side sheets); "
+              "what no sheet feels: a segment's rounded end on an edge, friction")
+        print(f"{'scene':<14} {'shape':<6} {'rad/s':>6} {'sim s':>6} {'Σall±10%':>9} {'vertical±10%':>13} "
+              f"{'jumps true':>11} {'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8}")
+        for row in _truth_rows(quick, ("step", "wedge", "two_obstacles"), both_shapes=True):
+            c = row["check"]
+            print(f"{row['scene']:<14} {row['shape']:<6} {row['speed']:6.3f} {row['seconds']:6.0f} "
+                  f"{100 * c.all_sheets_within_10pct:8.1f}% {100 * c.vertical_within_10pct:12.1f}% "
+                  f"{100 * c.true_jump_frames:10.2f}% {100 * c.true_reversal_frames:8.2f}% "
+                  f"{100 * c.estimated_jump_frames:9.2f}% {100 * c.estimated_reversal_frames:8.2f}% "
+                  f"{c.median_rms_n:8.3f} {c.worst_rms_n:8.3f}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    run(parser.parse_args().quick)
+    parser.add_argument("--sections", default="abcdef", help="which sections to run, e.g. 'df' (default: all)")
+    args = parser.parse_args()
+    run(args.quick, args.sections)
 
 
 if __name__ == "__main__":

@@ -135,7 +135,8 @@ class FeedbackProgress(Progress):
     stores it): ``correction_rad`` per joint, ``node_joints`` and their ``node_load_n`` (NaN: not sensed) against
     ``target_n``, ``fallback`` (node joint → why it is on feedforward), ``force_age_s`` (how old the forces were),
     ``frame_latency_s`` (on the first tick that uses a new board frame: the frame's arrival at the host → the goal it
-    changes, written this tick; NaN on ticks that reuse a frame), ``tick_s`` (the motion's time of this tick)."""
+    changes, written this tick; NaN on ticks that reuse a frame), ``tick_s`` (the motion's time of this tick),
+    ``handing_back`` (after the feedforward's last goal, while the correction goes back to 0)."""
 
     correction_rad: tuple[float, ...] = ()
     node_joints: tuple[int, ...] = ()
@@ -147,6 +148,7 @@ class FeedbackProgress(Progress):
     lead_rad: float = 0.0  # the lead's bend at its joint (rad, + tilts the front down)
     front_load_n: float = math.nan  # the front's bottom load the lead acts on (N; NaN: not sensed)
     tick_s: float = 0.0
+    handing_back: bool = False  # the feedforward has ended: the correction is going back to 0 (the hand-back)
     controller: str = "feedback"
     gains_json: str = ""
 
@@ -274,7 +276,7 @@ class ForceFeedbackMotion:
         self._correction = np.sign(self._correction) * np.maximum(np.abs(self._correction) - step, 0.0)
         if isinstance(self.progress, FeedbackProgress):
             self.progress = replace(self.progress, done=False, correction_rad=tuple(float(c) for c in self._correction),
-                                    frame_latency_s=math.nan, tick_s=float(t_s))
+                                    frame_latency_s=math.nan, tick_s=float(t_s), handing_back=True)
         return self._corrected(self._last_goal, self._correction)
 
     def _corrected(self, goal: np.ndarray, correction: np.ndarray) -> np.ndarray:

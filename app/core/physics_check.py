@@ -5,7 +5,8 @@
 - **weight**: the bottom sheets' true normal forces summed, against the robot's weight, frame by frame (on flat ground
   they must match; on a curve the normals add up to more, see :mod:`app.core.experiment`), and the same with each
   sheet's force taken along its segment's up axis (what must match the weight on any terrain, less what friction
-  holds up, which no sheet feels);
+  holds up, which no sheet feels), and every sheet's force summed (a body that rolled onto its side carries its
+  weight on its side sheets);
 - **jumps**: how often a sheet's force changes by more than ``jump_n`` between two board frames (30 Hz), in the
   true forces and in the app's estimated ones, and how many of those are *reversals* (a jump followed at once by
   one the other way: chatter, as opposed to a load moving fast);
@@ -18,6 +19,7 @@ Pure numpy and h5py; any thread.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +39,7 @@ class PhysicsCheck:
     vertical_within_10pct: float  # … the same for their force along each segment's up axis
     median_bottom_n: float
     median_vertical_n: float
+    all_sheets_within_10pct: float  # … the same for every sheet's force summed (a body rolled onto its side, too)
     true_jump_frames: float  # fraction of 30 Hz frames with a > jump_n change on some sheet (true forces)
     true_reversal_frames: float  # … of which followed at once by a jump the other way (chatter)
     estimated_jump_frames: float
@@ -45,6 +48,12 @@ class PhysicsCheck:
     worst_rms_n: float
     median_p99_n: float
     worst_p99_n: float
+
+
+def _nan_or(reduce, values: np.ndarray) -> float:
+    """``reduce`` over the finite values; NaN when there are none (no estimate recorded, no sheet loaded)."""
+    finite = values[np.isfinite(values)]
+    return float(reduce(finite)) if finite.size else math.nan
 
 
 def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
@@ -100,8 +109,9 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         bottom_within_10pct=float(np.mean(np.abs(bottom_sum - weight) <= 0.1 * weight)),
         vertical_within_10pct=float(np.mean(np.abs(vertical - weight) <= 0.1 * weight)),
         median_bottom_n=float(np.median(bottom_sum)), median_vertical_n=float(np.median(vertical)),
+        all_sheets_within_10pct=float(np.mean(np.abs(true[:, rows >= 0].sum(axis=1) - weight) <= 0.1 * weight)),
         true_jump_frames=true_jump, true_reversal_frames=true_reversal,
         estimated_jump_frames=est_jump, estimated_reversal_frames=est_reversal,
-        median_rms_n=float(np.nanmedian(rms)), worst_rms_n=float(np.nanmax(rms)),
-        median_p99_n=float(np.nanmedian(p99)), worst_p99_n=float(np.nanmax(p99)),
+        median_rms_n=_nan_or(np.nanmedian, rms), worst_rms_n=_nan_or(np.nanmax, rms),
+        median_p99_n=_nan_or(np.nanmedian, p99), worst_p99_n=_nan_or(np.nanmax, p99),
     )

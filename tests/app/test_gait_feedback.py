@@ -248,13 +248,14 @@ def test_at_the_end_of_a_play_the_correction_goes_back_to_the_feedforward_at_the
     gains = FeedbackGains(lead_gain=0.2, max_rate_rad_s=0.25)
     motion = ForceFeedbackMotion(FollowTheLeader(shape, AXES, 0.5), AXES, LabConfig().board.channel_names, page=page,
                                  clock=lambda: now[0], gains=gains)
-    goals = []
+    goals, handing_back = [], []
     for k in range(5000):
         now[0] = page.arrival = k * 0.02
         goal = motion.goal_at(now[0], np.zeros(12))
         if goal is None:
             break
         goals.append(goal)
+        handing_back.append(motion.progress.handing_back)
     else:
         pytest.fail("the motion never ended")
     goals = np.array(goals)
@@ -274,3 +275,4 @@ def test_at_the_end_of_a_play_the_correction_goes_back_to_the_feedforward_at_the
     assert steps.max() <= 0.25 * 0.02 + 1e-12  # never faster than max_rate_rad_s
     np.testing.assert_allclose(goals[-1], feedforward[-1], atol=1e-12)  # and ends in the feedforward's final pose
     assert len(after) <= int(np.abs(correction).max() / (0.25 * 0.02)) + 2
+    assert not any(handing_back[:played]) and all(handing_back[played:])  # the Gait tab says so while it lasts

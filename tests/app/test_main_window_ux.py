@@ -8,6 +8,7 @@ from PySide6.QtCore import QSettings, Qt
 from app.gui.lab import LabContext
 from app.gui.main_window import SHORTCUTS_TEXT, MainWindow
 from app.gui.robot_bridge import MOTION_PAUSED, MOTION_RUNNING
+from app.core.force_control import FeedbackProgress
 from app.gui.tabs.gait import progress_text
 from devices.config import SIM_PORT, load_config
 from models.trajectory import Progress
@@ -82,6 +83,8 @@ def test_gait_play_follows_the_connection(window, qtbot):
     (Progress("cycle", 2, 3, 1.0, 1.0, 15.0, 15.0, done=True), "cycle 3/3   15.0 / 15.0 s   done"),
     (Progress("keyframe", 0, 4, 0.5, 0.1, 1.0, 10.0), "keyframe 1/4   1.0 / 10.0 s   9.0 s left"),
     (Progress("shift", 2, 7, 0.32, 0.3, 2.4, 7.0), "shift 2/6   move  32%   2.4 / 7.0 s   4.6 s left"),
+    (FeedbackProgress("shift", 6, 7, 1.0, 1.0, 7.0, 7.0, handing_back=True),
+     "shift 6/6   move 100%   7.0 / 7.0 s   easing the correction back to the taught pose"),
 ])
 def test_gait_progress_counts_like_a_person(progress, expected):
     assert progress_text(progress) == expected

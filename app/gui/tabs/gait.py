@@ -278,6 +278,8 @@ def progress_text(p: Any) -> str:
         where = f"{p.kind} {min(p.index + 1, max(p.count, 1))}/{max(p.count, 1)}"
     left_s = max(p.total_s - p.elapsed_s, 0.0)
     tail = "done" if p.done else f"{left_s:.1f} s left"
+    if getattr(p, "handing_back", False):
+        tail = "easing the correction back to the taught pose"
     return f"{where}   {p.elapsed_s:.1f} / {p.total_s:.1f} s   {tail}"
 
 
