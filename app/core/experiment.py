@@ -48,6 +48,7 @@ from app.core.forces_pipeline import ForcesPipeline
 from app.core.recording import RecordingWriter
 from devices import factory
 from devices.board import FrameParser, conductance_from_counts
+from devices.board_wire import saturated_from_counts
 from devices.config import LabConfig
 from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
 from models.force_feedback import FeedbackGains
@@ -293,15 +294,19 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     start = world.scene.terrain.start
     page = _LatestForces(len(names))
 
-    def read_board() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """The frames that arrived, their forces estimated and published for the controller (as the app does)."""
+    def read_board() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None,
+                              np.ndarray | None]:
+        """The frames that arrived, their forces estimated (with each force's status code) and published for the
+        controller (as the app does)."""
         counts, conductance, board_time, seq = stream.read()
         if not seq.size:
-            return counts, conductance, board_time, seq, None
-        forces = pipeline.process(board_time, conductance).force_n
-        health.update(board_time, conductance, counts == 0)
+            return counts, conductance, board_time, seq, None, None
+        saturated = saturated_from_counts(counts)  # the readout at its ceiling, as the app's board reader marks it
+        block = pipeline.process(board_time, conductance, saturated)
+        forces = block.force_n
+        health.update(board_time, conductance, saturated)
         page.publish(lab.time_s, forces[-1], np.isfinite(forces[-1]) & health_trusted(health.flags))
-        return counts, conductance, board_time, seq, forces
+        return counts, conductance, board_time, seq, forces, block.status
 
     # 1. Start: settle limp (or lie straight, held); the pipeline follows the sensors from the start so its creep
     # state is right at capture.
@@ -384,10 +389,10 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             sim_sheets.append(sheet)
             k += 1
             lab.advance_to(t_capture + k * period_s)
-            counts, conductance, board_time, seq, forces = read_board()
+            counts, conductance, board_time, seq, forces, status = read_board()
             if forces is not None:
                 writer.append_daq(DaqRows(counts, conductance, host0 + (board_time - t_capture), board_time, seq))
-                writer.append_forces(forces)
+                writer.append_forces(forces, status)
                 bottom_totals.append(np.nansum(forces[:, bottom], axis=1))
                 last_forces = forces[-1]
             if last_forces is not None:

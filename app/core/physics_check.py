@@ -12,7 +12,9 @@
   one the other way: chatter, as opposed to a load moving fast);
 - **accuracy** of the whole sensing chain on moving contact: the estimated forces (board → sensor model →
   estimator, what the Forces tab shows) against the true ones at the board's sample times, RMS and 99th
-  percentile per sheet, over the sheets that were loaded at some time.
+  percentile per sheet, over the sheets that were loaded at some time. A sample the recording flags
+  ``READOUT_SATURATED`` (``/forces/status``: the readout at its ceiling, the force only a lower bound) is left out
+  of the error and counted apart (``estimated_saturated_frames``).
 
 Pure numpy and h5py; any thread.
 """
@@ -27,6 +29,7 @@ import h5py
 import numpy as np
 
 from devices.scene import channel_map
+from models.sls import ForceStatus
 
 BOARD_PERIOD_S = 1.0 / 30.0
 
@@ -48,6 +51,7 @@ class PhysicsCheck:
     worst_rms_n: float
     median_p99_n: float
     worst_p99_n: float
+    estimated_saturated_frames: float = math.nan  # fraction of frames with a sheet at the readout's ceiling
 
 
 def _nan_or(reduce, values: np.ndarray) -> float:
@@ -79,6 +83,7 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         channels = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
         daq_t = f["daq/time_s"][:]
         estimated = f["forces/force_N"][:] if "forces" in f else None
+        status = f["forces/status"][:] if "forces" in f and "status" in f["forces"] else None
     rows, segments = channel_map(channels, points.shape[1] - 1)
     bottom = rows == 0
     bottom_sum = true[:, bottom].sum(axis=1)
@@ -94,6 +99,7 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
     true_jump, true_reversal = _jumps(true_frames, jump_n)
     est_jump = est_reversal = float("nan")
     rms = p99 = np.array([np.nan])
+    saturated_frames = math.nan
     if estimated is not None:
         t = daq_t - offset
         inside = (t >= sim_t[0]) & (t <= sim_t[-1])
@@ -102,8 +108,16 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         truth = np.column_stack([np.interp(t[inside], sim_t, true[:, c]) for c in range(true.shape[1])])
         loaded = (truth > 0.05).any(axis=0) & (rows >= 0)
         error = est[:, loaded] - truth[:, loaded]
-        rms = np.sqrt(np.nanmean(error**2, axis=0))
-        p99 = np.nanpercentile(np.abs(error), 99, axis=0)
+        if status is not None:  # a lower bound is not an estimate: left out of the error, counted apart
+            censored = status[inside] == ForceStatus.READOUT_SATURATED
+            error = np.where(censored[:, loaded], np.nan, error)
+            saturated_frames = float(np.mean(censored.any(axis=1))) if len(censored) else 0.0
+        judged = np.isfinite(error).any(axis=0)  # a sheet whose every sample is a lower bound is not judged
+        rms = np.full(error.shape[1], np.nan)
+        p99 = np.full(error.shape[1], np.nan)
+        if judged.any():
+            rms[judged] = np.sqrt(np.nanmean(error[:, judged] ** 2, axis=0))
+            p99[judged] = np.nanpercentile(np.abs(error[:, judged]), 99, axis=0)
     return PhysicsCheck(
         frames=len(true), weight_n=weight,
         bottom_within_10pct=float(np.mean(np.abs(bottom_sum - weight) <= 0.1 * weight)),
@@ -114,4 +128,5 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         estimated_jump_frames=est_jump, estimated_reversal_frames=est_reversal,
         median_rms_n=_nan_or(np.nanmedian, rms), worst_rms_n=_nan_or(np.nanmax, rms),
         median_p99_n=_nan_or(np.nanmedian, p99), worst_p99_n=_nan_or(np.nanmax, p99),
+        estimated_saturated_frames=saturated_frames,
     )

@@ -112,8 +112,9 @@ class Recorder:
         return self._thread is not None
 
     # -- data (controlling thread: enqueue only) -------------------------------------------------------------------
-    def add_block(self, block: Any, force_n: np.ndarray | None = None) -> None:
-        """A board :class:`~devices.board.SampleBlock` and, when forces are recorded, its (N×C) forces in N."""
+    def add_block(self, block: Any, force_n: np.ndarray | None = None, status: np.ndarray | None = None) -> None:
+        """A board :class:`~devices.board.SampleBlock` and, when forces are recorded, its (N×C) forces in N and
+        their (N×C) :class:`models.sls.ForceStatus` codes (None: all ok)."""
         if not self.is_active:
             return
         host = getattr(block, "host_time_s", None)
@@ -125,9 +126,10 @@ class Recorder:
                 return
             block = _frames_from(block, first)
             force_n = None if force_n is None else force_n[first:]
+            status = None if status is None else status[first:]
         self.n_daq_samples += len(block.seq)
         forces = force_n if self.with_forces else None
-        self._queue.put(lambda w: _append_daq(w, block, forces))
+        self._queue.put(lambda w: _append_daq(w, block, forces, status))
 
     def add_robot_states(self, states: Iterable[Any]) -> None:
         """``ChainState`` objects (host_time_s, position_rad, current_ma, and goal_rad when the chain has it)."""
@@ -208,10 +210,11 @@ def _frames_from(block: Any, first: int) -> Any:
     return dataclasses.replace(block, **{f.name: cut(getattr(block, f.name)) for f in dataclasses.fields(block)})
 
 
-def _append_daq(writer: RecordingWriter, block: Any, force_n: np.ndarray | None) -> None:
+def _append_daq(writer: RecordingWriter, block: Any, force_n: np.ndarray | None,
+                status: np.ndarray | None = None) -> None:
     writer.append_daq(block)
     if force_n is not None:
-        writer.append_forces(force_n)
+        writer.append_forces(force_n, status)
 
 
 def _append_robot(writer: RecordingWriter, states: list[Any]) -> None:

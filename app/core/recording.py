@@ -4,7 +4,9 @@ Layout (SPEC §3.5, plus extras that readers may ignore): root attributes ``form
 (ISO 8601, UTC), ``config`` (TOML text); ``/daq`` with ``time_s``, ``seq``, ``counts``, ``conductance_S`` and
 attributes ``channels``, ``crc_errors``, ``dropped_frames``, ``resyncs``; ``/robot`` (``time_s``, ``goal_rad``,
 ``present_rad``, ``current_mA``) when a robot is connected; ``/forces/force_N`` with the calibration JSON as the
-attribute ``calibration`` when forces are estimated live. Extras: ``/daq/board_time_s`` (the board's own clock,
+attribute ``calibration`` when forces are estimated live. Extras: ``/forces/status`` (int8 per force, the
+estimator's :class:`models.sls.ForceStatus` code: 0 ok; e.g. a reading at the readout's ceiling is flagged, never a
+silent number), ``/daq/board_time_s`` (the board's own clock,
 unwrapped, for exact sample spacing), ``/daq/clock_segment`` (0, then +1 each time the board restarted its clock —
 a re-plug or power cycle; ``seq`` and the board clock restart with it), more link counters as ``/daq`` attributes
 (``out_of_range_frames``, ``channel_mismatches``, ``reconnects``), and ``/events`` (``time_s``, ``kind``, ``text``:
@@ -216,7 +218,7 @@ class RecordingWriter:
                 if calibration_json is not None:
                     forces = f.create_group("forces")
                     forces.attrs["calibration"] = calibration_json
-                    self._forces = _Table(forces, {"force_N": (np.float64, (n,))})
+                    self._forces = _Table(forces, {"force_N": (np.float64, (n,)), "status": (np.int8, (n,))})
                 self._events = _Table(f.create_group("events"), {
                     "time_s": (np.float64, ()), "kind": (f"S{EVENT_KIND_BYTES}", ()),
                     "text": (f"S{EVENT_TEXT_BYTES}", ())})
@@ -304,12 +306,16 @@ class RecordingWriter:
             len(times), self._n_joints))
         self._maybe_flush()
 
-    def append_forces(self, force_n: np.ndarray) -> None:
-        """Append estimated forces (N×C newtons), one row per board sample appended with :meth:`append_daq`."""
+    def append_forces(self, force_n: np.ndarray, status: np.ndarray | None = None) -> None:
+        """Append estimated forces (N×C newtons), one row per board sample appended with :meth:`append_daq`, and
+        their :class:`models.sls.ForceStatus` codes (N×C; None: all ok)."""
         self._check()
         if self._forces is None:
             raise RuntimeError(f"recording {self.path} was created without a calibration: no forces to store")
-        self._forces.append(force_N=np.asarray(force_n, dtype=np.float64).reshape(-1, len(self.channel_names)))
+        force = np.asarray(force_n, dtype=np.float64).reshape(-1, len(self.channel_names))
+        codes = np.zeros(force.shape, np.int8) if status is None else np.asarray(status, dtype=np.int8).reshape(
+            force.shape)
+        self._forces.append(force_N=force, status=codes)
         self._maybe_flush()
 
     def mark_gap(self, host_monotonic_s: float, reason: str) -> None:
@@ -647,6 +653,7 @@ class Recording:
     calibration_json: str | None
     events: tuple[RecordingEvent, ...]
     clock_segment: np.ndarray | None = None  # (N,) the board clock's segment (re-plugs, power cycles)
+    forces_status: np.ndarray | None = None  # (N, C) int8 ForceStatus codes of forces_n, when the file has them
     recovery: str | None = None  # set when the file was salvaged: how much was recovered
 
     @property
@@ -746,7 +753,7 @@ def _h5_reason(exc: BaseException) -> str:
 
 # -- salvage -----------------------------------------------------------------------------------------------------
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-OPTIONAL_COLUMNS = ("daq/board_time_s", "daq/clock_segment")  # extras a salvage drops rather than cut rows for
+OPTIONAL_COLUMNS = ("daq/board_time_s", "daq/clock_segment", "forces/status")  # extras a salvage drops rather than cut rows for
 
 
 @dataclass(frozen=True)
@@ -912,6 +919,8 @@ def write_recording(recording: Recording, out: str | Path) -> Path:
             forces = f.create_group("forces")
             forces.attrs["calibration"] = recording.calibration_json or ""
             forces["force_N"] = recording.forces_n
+            if recording.forces_status is not None:
+                forces["status"] = recording.forces_status.astype(np.int8)
         events = f.create_group("events")
         events["time_s"] = np.array([e.time_s for e in recording.events], dtype=np.float64)
         events["kind"] = np.array([e.kind.encode()[:EVENT_KIND_BYTES] for e in recording.events],
@@ -988,6 +997,10 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
         n_forces = min(f["forces/force_N"].shape[0], cap.get("forces", np.iinfo(np.int64).max))
         forces = f["forces/force_N"][:min(n, n_forces)]
     big = np.iinfo(np.int64).max
+    status = None
+    if forces is not None and "status" in f["forces"] and min(f["forces/status"].shape[0],
+                                                               cap.get("forces/status", big)) >= len(forces):
+        status = f["forces/status"][:len(forces)]
     board_time = daq["board_time_s"][:n] if "board_time_s" in daq and cap.get("daq/board_time_s", big) >= n else None
     segment = daq["clock_segment"][:n] if "clock_segment" in daq and cap.get("daq/clock_segment", big) >= n else None
     robot = None
@@ -1014,7 +1027,7 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
         time_s=daq["time_s"][:n], seq=daq["seq"][:n], counts=counts, conductance_s=daq["conductance_S"][:n],
         board_time_s=board_time, clock_segment=segment, crc_errors=int(daq.attrs.get("crc_errors", 0)),
         dropped_frames=int(daq.attrs.get("dropped_frames", 0)), resyncs=int(daq.attrs.get("resyncs", 0)),
-        robot=robot, forces_n=forces, calibration_json=calibration, events=events)
+        robot=robot, forces_n=forces, calibration_json=calibration, events=events, forces_status=status)
 
 
 # -- export ------------------------------------------------------------------------------------------------------

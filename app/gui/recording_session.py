@@ -97,8 +97,8 @@ class RecordingSession(QObject):
         self._finish()
 
     # -- data (forwarded; the Forces tab's live session feeds the recorder directly) -------------------------------
-    def add_block(self, block: Any, force_n: np.ndarray | None = None) -> None:
-        self.recorder.add_block(block, force_n)
+    def add_block(self, block: Any, force_n: np.ndarray | None = None, status: np.ndarray | None = None) -> None:
+        self.recorder.add_block(block, force_n, status)
 
     def add_robot_states(self, states: Iterable[Any]) -> None:
         self.recorder.add_robot_states(states)

@@ -13,6 +13,7 @@ pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
 from devices.scene import load_scene  # noqa: E402
+from models.sls import ForceStatus
 
 
 def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_scene(tmp_path, capsys):
@@ -37,6 +38,9 @@ def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_sc
         assert np.allclose(sim["bottom_true_N"][:], sheets[:, 2::3])
         weight = sim.attrs["weight_N"]
         goals = f["robot/goal_rad"][:]
+        status, counts = f["forces/status"][:], f["daq/counts"][:]
+    assert status.shape == counts.shape  # each force's status code, one row per board sample
+    assert (status[counts == 0] == ForceStatus.READOUT_SATURATED).all()  # a reading at the ceiling is flagged
     assert np.abs(goals[-1, [1, 3]]).max() > 0.1  # the shape's yaw bends were played
     bottom = sheets[:, 2::3].sum(axis=1)
     assert np.median(bottom) == pytest.approx(weight, rel=0.1)  # a gentle ramp: normals nearly vertical

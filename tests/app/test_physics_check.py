@@ -10,6 +10,7 @@ import pytest
 from app.core.physics_check import check_recording
 from devices.config import LabConfig
 from devices.scene import channel_map
+from models.sls import ForceStatus
 
 CHANNELS = LabConfig().board.channel_names
 ROWS, SEGMENTS = channel_map(CHANNELS, 12)
@@ -87,3 +88,20 @@ def test_chatter_is_counted_as_jumps_that_reverse_and_a_fast_ramp_as_jumps_that_
     check = check_recording(tmp_path / "r.h5")
     assert 0.03 < check.true_jump_frames < 0.06 and check.true_reversal_frames == 0.0
     assert np.isnan(check.estimated_jump_frames) and np.isnan(check.median_rms_n)  # no /forces: not judged
+
+
+def test_a_force_flagged_at_the_readout_ceiling_is_a_lower_bound_left_out_of_the_error(tmp_path):
+    true = np.zeros((300, 36))
+    true[:, ROWS == 0] = WEIGHT_N / 12
+    true[:, 5] += 10.0  # S02B carries more than its readout can say …
+    estimated = true.copy()
+    estimated[:, 5] -= 3.0  # … and its estimate stops at the ceiling
+    path = tmp_path / "r.h5"
+    _write(path, true, _straight(300), estimated_n=estimated)
+    assert check_recording(path).worst_rms_n == pytest.approx(3.0)  # without flags: an error like any other
+    with h5py.File(path, "a") as f:
+        status = np.zeros(f["forces/force_N"].shape, np.int8)
+        status[:, 5] = ForceStatus.READOUT_SATURATED
+        f["forces/status"] = status
+    check = check_recording(path)
+    assert check.worst_rms_n == pytest.approx(0.0, abs=1e-9) and check.estimated_saturated_frames == 1.0

@@ -81,6 +81,8 @@ def test_round_trip_keeps_every_field_on_one_clock(tmp_path):
         assert list(f["daq"].attrs["channels"].astype(str))[:2] == ["S01L", "S01R"]
         assert set(f["robot"]) == {"time_s", "goal_rad", "present_rad", "current_mA"}
         assert f["forces/force_N"].shape == (35, 36)
+        assert f["forces/status"].shape == (35, 36) and not f["forces/status"][:].any()  # no flags given: all ok
+    assert rec.forces_status is not None and not rec.forces_status.any()
 
 
 def test_recording_without_robot_or_calibration_has_neither(tmp_path):
@@ -367,3 +369,46 @@ def test_hdf5_internals_and_the_hidden_work_file_never_reach_a_message(tmp_path)
         assert f"cannot create recording {out}" in text and words in text, text
         for internal in ("errno =", "flags =", "o_flags", "partial", "Unable to"):
             assert internal not in text, text
+
+
+def test_a_live_recording_flags_each_force_read_at_the_readout_ceiling(tmp_path):
+    """LiveSession → ForcesPipeline → Recorder: /forces/status holds each force's code, so a force that is only a
+    lower bound (the readout at its ceiling, counts 0) is never a silent number in the file."""
+    import dataclasses
+    import json
+
+    from app.core.forces_pipeline import ForcesPipeline
+    from app.core.live_session import LiveSession
+    from app.core.recorder import Recorder
+    from devices.config import LabConfig, SimLabConfig
+    from devices.sim.lab import SimLab
+    from models.sls import ForceStatus
+
+    config = LabConfig()
+    lab = SimLab(dataclasses.replace(config, lab=SimLabConfig(physics="scripted")), seed=1)
+    try:
+        calibration = json.dumps(lab.board.ground_truth_calibration())
+    finally:
+        lab.close()
+    cal = tmp_path / "cal.json"
+    cal.write_text(calibration, encoding="utf-8")
+    pipeline = ForcesPipeline(config.board.channel_names)
+    pipeline.load_calibration(cal)
+    t0 = time.monotonic()
+    live = LiveSession(config.board, pipeline=pipeline, t0_monotonic_s=t0)
+    recorder = Recorder(tmp_path / "live.h5", "[board]\n", config.board.channel_names, calibration_json=calibration,
+                        t0_monotonic_s=t0)
+    recorder.start()
+    live.recorder = recorder
+    block = make_block(0, 30, t0)
+    counts = block.counts.copy()
+    counts[10:13, 4] = 0  # S02R at the ceiling for three frames
+    live.process_block(SampleBlock(counts=counts, conductance_s=conductance_from_counts(counts, BoardConfig()),
+                                   board_time_s=block.board_time_s, host_time_s=block.host_time_s, seq=block.seq,
+                                   saturated=counts == 0))
+    recorder.stop()
+    rec = open_recording(tmp_path / "live.h5")
+    assert rec.forces_status is not None and rec.forces_status.shape == (30, 36)
+    flagged = rec.forces_status == ForceStatus.READOUT_SATURATED
+    assert flagged[10:13, 4].all() and flagged.sum() == 3
+    assert np.isfinite(rec.forces_n[10:13, 4]).all()  # the lower bound is kept, and said to be one

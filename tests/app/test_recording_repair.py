@@ -14,12 +14,20 @@ from app.core.errors import RecordingFormatError
 from app.core.recording import RecordingWriter, open_recording, recover_recording
 from devices.board import SampleBlock, conductance_from_counts
 from devices.config import BoardConfig, default_sensor_names
+from models.sls import ForceStatus
 
 CHANNELS = default_sensor_names()
 
 
 def counts_for(seq: np.ndarray) -> np.ndarray:
     return ((seq[:, None] * 7 + np.arange(len(CHANNELS))) % 4095 + 1).astype(np.uint16)
+
+
+def status_for(seq: np.ndarray) -> np.ndarray:
+    """Every 7th sample's S01L flagged at the readout's ceiling."""
+    status = np.zeros((len(seq), len(CHANNELS)), np.int8)
+    status[seq % 7 == 0, 0] = ForceStatus.READOUT_SATURATED
+    return status
 
 
 def write_recording(path, blocks: int = 100, rows: int = 30) -> None:
@@ -31,7 +39,7 @@ def write_recording(path, blocks: int = 100, rows: int = 30) -> None:
             counts = counts_for(seq)
             writer.append_daq(SampleBlock(counts, conductance_from_counts(counts, BoardConfig()), seq / 30.0,
                                           t0 + seq / 30.0, seq, counts == 0))
-            writer.append_forces(np.full((rows, len(CHANNELS)), float(k)))
+            writer.append_forces(np.full((rows, len(CHANNELS)), float(k)), status_for(seq))
             if k % 10 == 0:
                 writer.log_event(f"block {k}")
 
@@ -65,6 +73,8 @@ def test_truncated_file_is_salvaged_with_only_intact_rows(good_file, tmp_path, f
     np.testing.assert_array_equal(rec.seq, np.arange(got))
     np.testing.assert_array_equal(rec.counts, counts_for(rec.seq.astype(np.int64)))
     assert "recovered" in report.text and f"{got} of 3000" in report.text
+    if rec.forces_status is not None:  # the status column is kept with the forces it flags, or dropped, never cut
+        np.testing.assert_array_equal(rec.forces_status, status_for(rec.seq[:len(rec.forces_status)].astype(np.int64)))
     assert open_recording(cut, recover=True).recovery == report.text
 
 
@@ -81,6 +91,8 @@ def test_repair_command_writes_a_clean_file_and_says_how_much(good_file, tmp_pat
         assert f["daq/counts"].shape == (n, 36) and f.attrs["format"] == "sensnake-recording"
     rec = open_recording(fixed)
     assert rec.n_samples == n > 0 and rec.recovery is None
+    assert rec.forces_status is not None  # the flags survive the repair with the forces
+    np.testing.assert_array_equal(rec.forces_status, status_for(rec.seq[:len(rec.forces_n)].astype(np.int64)))
     assert main(["export", str(fixed), "--csv", str(tmp_path / "fixed.csv")]) == 0
 
 
