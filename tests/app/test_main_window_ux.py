@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 from PySide6.QtCore import QSettings, Qt
 
+from app.core.force_control import FeedbackProgress
 from app.gui.lab import LabContext
 from app.gui.main_window import SHORTCUTS_TEXT, MainWindow
 from app.gui.robot_bridge import MOTION_PAUSED, MOTION_RUNNING
-from app.core.force_control import FeedbackProgress
 from app.gui.tabs.gait import progress_text
 from devices.config import SIM_PORT, load_config
 from models.trajectory import Progress
