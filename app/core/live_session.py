@@ -169,9 +169,10 @@ class LiveSession:
             self.force_page.publish(float(block.host_time_s[-1]), forces.force_n[-1], trusted)
         recorder = self.recorder
         if recorder is not None and recorder.is_active:
-            with_forces = forces is not None and recorder.with_forces
-            recorder.add_block(block, forces.force_n if with_forces else None,
-                               forces.status if with_forces else None)
+            if forces is not None and recorder.with_forces:
+                recorder.add_block(block, forces.force_n, forces.status)
+            else:
+                recorder.add_block(block)
             if problem:
                 recorder.log_event(problem, kind="forces")
             if changed.size and self.health is not None:

@@ -22,8 +22,10 @@ Pure numpy and h5py; any thread.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -54,7 +56,7 @@ class PhysicsCheck:
     estimated_saturated_frames: float = math.nan  # fraction of frames with a sheet at the readout's ceiling
 
 
-def _nan_or(reduce, values: np.ndarray) -> float:
+def _nan_or(reduce: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
     """``reduce`` over the finite values; NaN when there are none (no estimate recorded, no sheet loaded)."""
     finite = values[np.isfinite(values)]
     return float(reduce(finite)) if finite.size else math.nan
