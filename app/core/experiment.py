@@ -376,7 +376,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                     writer.log_event(text, host0 + t, kind="servo")
             writer.append_robot(host0 + t, goal, reading.position_rad, reading.current_ma)
             currents.append(reading.current_ma)
-            corrections.append(feedback.law.correction() if feedback is not None else np.zeros(robot.n_joints))
+            corrections.append(feedback.correction_rad if feedback is not None else np.zeros(robot.n_joints))
             body = lab.body_state()
             sim_times.append(t)
             sim_points.append(body.points_m)

@@ -262,6 +262,12 @@ class ForceFeedbackMotion:
         self._last_goal, self._correction = goal.copy(), correction.copy()
         return self._corrected(goal, correction)
 
+    @property
+    def correction_rad(self) -> np.ndarray:
+        """The correction (rad per joint) sent with the last goal — the law's, or during the hand-back what is left
+        of it."""
+        return self._correction.copy()
+
     def _hand_back(self, t_s: float) -> np.ndarray | None:
         """After the feedforward's last goal: the correction goes back to 0 at ``max_rate_rad_s`` per joint, so the
         motion ends in the feedforward's final pose (a play that ends straight ends straight), then the motion ends.

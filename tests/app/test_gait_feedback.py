@@ -256,6 +256,7 @@ def test_at_the_end_of_a_play_the_correction_goes_back_to_the_feedforward_at_the
             break
         goals.append(goal)
         handing_back.append(motion.progress.handing_back)
+        np.testing.assert_allclose(motion.correction_rad, motion.progress.correction_rad)  # what /control records
     else:
         pytest.fail("the motion never ended")
     goals = np.array(goals)
