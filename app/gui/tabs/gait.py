@@ -78,6 +78,7 @@ class GaitTab(QWidget):
         self.robot.error.connect(self._robot_error)
         self.robot.connected.connect(p.set_connected)
         p.set_connected(self.robot.is_connected)
+        self._lead_on: tuple[str, bool] = ("", False)  # (gains JSON, lead on?) parsed once per change, not per refresh
         self._timer = QTimer(self)
         self._timer.setInterval(REFRESH_INTERVAL_MS)
         self._timer.timeout.connect(self.refresh)
@@ -257,7 +258,9 @@ class GaitTab(QWidget):
             self.panel.set_progress(progress_text(p), p.fraction)
             if isinstance(p, FeedbackProgress) and p.node_joints:
                 why = dict(p.fallback)
-                lead_on = json.loads(p.gains_json or "{}").get("lead_gain", 0.0) > 0.0
+                if p.gains_json != self._lead_on[0]:
+                    self._lead_on = (p.gains_json, json.loads(p.gains_json or "{}").get("lead_gain", 0.0) > 0.0)
+                lead_on = self._lead_on[1]
                 self.panel.set_feedback_readout([
                     (f"J{j + 1}", p.target_n, load, p.correction_rad[j], why.get(j, ""))
                     for j, load in zip(p.node_joints, p.node_load_n)],
