@@ -35,15 +35,18 @@ should push with), ``contact_n`` (below: no contact) and ``overload_n`` (above: 
     pushing node in contact, F < target_n    δ̇ = +push_gain · (target_n − F) / target_n       (press: push)
     otherwise (at target, or no sensing)     δ̇ = −δ / relax_s                                  (back to feedforward)
 
-The lead (``lead_gain`` > 0): the first body pitch joint (joint 3, behind the two front segments) tilts the front
-down at ``lead_gain`` while their bottom sheets carry less than ``contact_n``, keeps the bend that found the terrain,
-and lifts back (up to ``lead_gain``) when they carry more than ``target_n``. As follow-the-leader propagates the shape
-one pitch joint per shift, the lead's bend travels back with it: the pitch joint ``b`` places behind joint 3 gets
-the bend the lead had ``b`` shifts earlier (the shift phase comes from the feedforward's progress; a new play starts
-afresh). Without it the front straightens as the taught bend moves back (SPEC §5 feeds the head 0, straight) and
-lifts off the far face of an obstacle; with it the body takes the shape the front found — Fu & Li's contact
-feedback at the head, propagated as their feedforward propagates the shape. Stale or flagged front sensors: the lead
-relaxes to 0.
+The lead (``lead_gain`` ≠ 0): the first body pitch joint (joint 3, behind the two front segments) bends by λ at
+``lead_gain`` while their bottom sheets carry less than ``contact_n``, keeps the bend once they touch, and bends back
+(up to ``lead_gain``) when they carry more than ``target_n``. λ is a pitch angle, and a positive pitch lifts what is
+behind a joint: with the heavy body resting behind joint 3, a positive lead turns the light front *up and forward*,
+out of a drape's downward bend (on the paper obstacle's drape +0.3 rad moves the head 2 cm up and 4 cm forward over
+the far face; tests/app/test_feedback_physics.py); a negative one turns it down toward the terrain. The default is
+positive: until stop 36 these docs said it "tilts the front down", which is what a negative lead does, and that one
+measured worse (benchmarks/sweep_tune_lead_sign.toml: it lost the paper obstacle at 0 and 0.5 N, traversed nothing
+feedforward fails). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
+with it: the pitch joint ``b`` places behind joint 3 gets the bend the lead had ``b`` shifts earlier (the shift phase
+comes from the feedforward's progress; a new play starts afresh), so the propagated drape opens where the front found
+nothing. Stale or flagged front sensors: the lead relaxes to 0.
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
 ``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
@@ -81,7 +84,7 @@ class FeedbackGains:
     relax_s: float = 1.0  # time constant back to the feedforward
     slope_min: float = 0.15  # a node pushes where its contact normal leans forward by more than this (sine)
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
-    lead_gain: float = 0.1  # rad/s: the front tilts down while it has no contact; the bend it finds propagates back
+    lead_gain: float = 0.1  # rad/s, signed: + the front straightens out (turns up) while it feels nothing, − it tilts down
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
@@ -110,7 +113,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
-    "lead_gain": (0.0, 0.5), "lead_keep": (0.0, 1.0),
+    "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0),
 }
 
 
@@ -148,7 +151,7 @@ class ForceFeedbackLaw:
         self.fallback: dict[int, str] = {}  # node joint → why it is on feedforward now
         self.node_load_n = np.full(len(self.nodes), np.nan)
         self.pushing = np.zeros(len(self.nodes), bool)  # the nodes the feedforward bends down around (may push)
-        # the lead: the first pitch joint behind the front (it tilts the segments ahead of it), their segments, and
+        # the lead: the first pitch joint behind the front (it turns the segments ahead of it), their segments, and
         # the pitch joints behind it in order (where its bend travels as the shape propagates)
         self._pitch = np.array(pitch, dtype=int)
         self._lead_joint = int(pitch[1]) if len(pitch) > 1 else -1
@@ -232,14 +235,14 @@ class ForceFeedbackLaw:
     def _step_lead(self, dt_s: float, bottom: np.ndarray, valid: np.ndarray, phase: float | None) -> None:
         g = self.gains
         self.front_load_n = math.nan
-        if g.lead_gain <= 0.0 or self._lead_joint < 0:
+        if g.lead_gain == 0.0 or self._lead_joint < 0:
             self.lead_rad = 0.0
             return
         segments = self._lead_segments
         if valid[segments].all() and np.isfinite(bottom[segments]).all():
             load = self.front_load_n = float(bottom[segments].sum())
             if load < g.contact_n:
-                rate = g.lead_gain  # no contact ahead: tilt the front down toward the terrain
+                rate = g.lead_gain  # nothing under the front: bend it (up and forward for a positive gain)
             elif load > g.target_n:
                 rate = -g.lead_gain * min((load - g.target_n) / g.target_n, 1.0)
             else:
@@ -263,9 +266,11 @@ class ForceFeedbackLaw:
         self._phase = float(phase)
 
     def lead_correction(self) -> np.ndarray:
-        """The lead's bend at its joint and, carried back one pitch joint per shift, behind it (rad per joint)."""
+        """The lead's bend at its joint and, carried back one pitch joint per shift, behind it (rad per joint): a
+        positive pitch, which lifts what is behind the joint; with the heavy body resting behind it, that turns the
+        light front up and forward, out of a drape's downward bend (see the module docstring)."""
         out = np.zeros(len(self.axes))
-        if self.gains.lead_gain <= 0.0 or self._lead_joint < 0:
+        if self.gains.lead_gain == 0.0 or self._lead_joint < 0:
             return out
         out[self._lead_joint] = self.lead_rad
         if self._lead_phase:

@@ -91,9 +91,9 @@ FEEDBACK_SPINS = (
      "How fast a node in contact presses down when it carries less than the target force"),
     ("target_n", "target", 0.5, 20.0, 5.0, 0.5, 1, " N",
      "The load a node (two segments' bottom sheets) should push with"),
-    ("lead_gain", "lead", 0.0, 0.5, 0.10, 0.01, 2, " rad/s",
-     "How fast the front tilts down toward the terrain while its bottom sheets feel nothing; the bend it finds "
-     "travels back with the shape (0: off)"),
+    ("lead_gain", "lead", -0.5, 0.5, 0.10, 0.01, 2, " rad/s",
+     "How fast joint 3 bends the front while its bottom sheets feel nothing: positive turns it up and forward, out "
+     "of the taught bend; negative turns it down toward the terrain. The bend travels back with the shape (0: off)"),
 )
 
 

@@ -145,7 +145,7 @@ class FeedbackProgress(Progress):
     fallback: tuple[tuple[int, str], ...] = ()
     force_age_s: float = math.inf
     frame_latency_s: float = math.nan  # the first tick to use a board frame: its arrival → this goal (else NaN)
-    lead_rad: float = 0.0  # the lead's bend at its joint (rad, + tilts the front down)
+    lead_rad: float = 0.0  # the lead's bend at its joint (rad, a pitch: + turns the front up and forward)
     front_load_n: float = math.nan  # the front's bottom load the lead acts on (N; NaN: not sensed)
     tick_s: float = 0.0
     handing_back: bool = False  # the feedforward has ended: the correction is going back to 0 (the hand-back)

@@ -50,3 +50,29 @@ def test_feedback_regains_the_far_face_contact_a_mismatched_shape_loses(tmp_path
     assert np.abs(correction).max() > 0.02  # it did correct
     with h5py.File(tmp_path / "feedforward.h5") as f:
         assert "control" not in f
+
+
+def test_the_default_lead_turns_the_draped_front_up_and_forward_in_the_physics():
+    """On the robot (here the physics lab), a positive lead pitch at joint 3 on the paper obstacle's drape turns the
+    two light front segments up and forward (head higher and farther out over the far face), a negative one down:
+    what docs/FORCE_FEEDBACK.md says the lead does, measured on the body rather than read off the sign convention."""
+    from devices.scene import load_scene
+    from devices.sim.physics.model import SceneParams
+    from devices.sim.physics.world import PhysicsWorld
+
+    moved = {}
+    for bend in (0.3, -0.3):
+        world = PhysicsWorld(SceneParams(terrain_scene=load_scene("paper_obstacle")))
+        world.command(np.zeros(12, bool), np.zeros(12))
+        world.step(int(4.0 / 0.002))  # limp: it drapes
+        drape = world.joint_state().position_rad.copy()
+        world.command(np.ones(12, bool), drape)
+        world.step(250)
+        before = world.body_state().points_m[0].copy()
+        goal = drape.copy()
+        goal[2] += bend
+        world.command(np.ones(12, bool), goal)
+        world.step(int(3.0 / 0.002))
+        moved[bend] = world.body_state().points_m[0] - before
+    assert moved[0.3][2] > 0.01 and moved[0.3][0] > 0.01  # up (cm) and forward
+    assert moved[-0.3][0] < 0.0  # the other way it bends back down toward the obstacle

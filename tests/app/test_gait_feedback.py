@@ -57,10 +57,12 @@ def _play(qtbot, lab, gait):
 def test_without_a_calibration_every_node_stays_on_feedforward_and_says_why(qtbot, lab, tmp_path):
     forces, gait = _tabs(qtbot, lab, tmp_path)
     _play(qtbot, lab, gait)
+    # on a loaded machine a tick may find the page a little stale first (its own, also named, reason): wait for one
+    # that has the latest frame
+    qtbot.waitUntil(lambda: all("uncalibrated" in why for _, why in gait.source.progress.fallback), timeout=WAIT_MS)
     progress = gait.source.progress
     assert progress.node_joints == (2, 4, 6, 8)
     assert dict(progress.fallback).keys() == {2, 4, 6, 8}
-    assert all("uncalibrated" in why for _, why in progress.fallback)
     assert np.allclose(progress.correction_rad, 0.0)
     gait.refresh()
     assert "ff:" in gait.panel.feedback_label.text() and "uncalibrated" in gait.panel.feedback_label.text()
@@ -234,7 +236,7 @@ def test_at_the_end_of_a_play_the_correction_goes_back_to_the_feedforward_at_the
     from models.force_feedback import FeedbackGains
     from models.trajectory import FollowTheLeader
 
-    class Page:  # a fresh frame every tick, nothing under the front: the lead tilts it down all play long
+    class Page:  # a fresh frame every tick, nothing under the front: the lead bends it all play long
         def __init__(self):
             self.arrival = 0.0
 

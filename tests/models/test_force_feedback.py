@@ -116,12 +116,12 @@ def _front(load_n: float) -> np.ndarray:
     return bottom
 
 
-def test_the_lead_tilts_the_front_down_until_it_touches_then_holds_and_yields_to_an_overload():
+def test_the_lead_bends_while_the_front_feels_nothing_then_holds_and_yields_to_an_overload():
     law = _law(lead_gain=0.2, target_n=5.0, push_gain=0.0, conform_gain=0.0)  # the lead alone
     for _ in range(50):  # 1 s with the front in the air
         law.step(DT, _front(0.0), np.ones(12, bool))
     assert law.lead_rad == pytest.approx(0.2, rel=0.02)
-    assert law.correction()[2] == pytest.approx(law.lead_rad)  # at joint 3: the segments ahead of it tilt down
+    assert law.correction()[2] == pytest.approx(law.lead_rad)  # at joint 3 (what that does to the front: next test)
     held = law.lead_rad
     for _ in range(50):  # in contact, under the target: it keeps the bend that found the terrain
         law.step(DT, _front(3.0), np.ones(12, bool))
@@ -133,6 +133,30 @@ def test_the_lead_tilts_the_front_down_until_it_touches_then_holds_and_yields_to
     for _ in range(50):
         off.step(DT, _front(0.0), np.ones(12, bool))
     assert off.lead_rad == 0.0 and off.correction()[2] == 0.0
+
+
+@pytest.mark.parametrize("gain", [0.2, -0.2])
+def test_a_positive_lead_turns_the_front_up_out_of_the_drape_a_negative_one_down(gain):
+    """What the lead does to the body: with the segments behind the lead joint held where they are (they carry the
+    weight; the two front segments are the light end), the head tip goes *up* under a positive lead (a positive
+    pitch lifts what is behind the joint) and down under a negative one. Until stop 36 the docs said the default
+    (positive) lead "tilts the front down"; it does the opposite, and that is the variant that traverses
+    (benchmarks/sweep_tune_lead_sign.toml). Checked on the body straight and on the paper obstacle's drape."""
+    for pitch in (0.0, -0.5):
+        pose = np.zeros(12)
+        pose[[2, 4, 6, 8]] = pitch
+        law = _law(lead_gain=gain, push_gain=0.0, conform_gain=0.0)
+        for _ in range(50):  # 1 s with nothing under the front
+            law.step(DT, _front(0.0), np.ones(12, bool))
+
+        def head_seen_from_joint3(angles: np.ndarray) -> np.ndarray:
+            body = forward_kinematics(angles, AXES, 0.08)
+            return body.frames[2].T @ (body.points_m[0] - body.points_m[2])  # in segment 3's frame
+
+        rise = head_seen_from_joint3(pose + law.correction())[2] - head_seen_from_joint3(pose)[2]
+        assert np.sign(rise) == np.sign(gain)
+        turned = pitch + law.correction()[2]  # joint 3 turns the two front segments (0.16 m) by the correction
+        assert abs(rise) == pytest.approx(0.16 * abs(np.sin(turned) - np.sin(pitch)), rel=1e-6)
 
 
 @pytest.mark.parametrize("keep", [1.0, 0.75, 0.0])

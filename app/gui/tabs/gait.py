@@ -259,7 +259,7 @@ class GaitTab(QWidget):
             if isinstance(p, FeedbackProgress) and p.node_joints:
                 why = dict(p.fallback)
                 if p.gains_json != self._lead_on[0]:
-                    self._lead_on = (p.gains_json, json.loads(p.gains_json or "{}").get("lead_gain", 0.0) > 0.0)
+                    self._lead_on = (p.gains_json, json.loads(p.gains_json or "{}").get("lead_gain", 0.0) != 0.0)
                 lead_on = self._lead_on[1]
                 self.panel.set_feedback_readout([
                     (f"J{j + 1}", p.target_n, load, p.correction_rad[j], why.get(j, ""))
