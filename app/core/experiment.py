@@ -122,6 +122,14 @@ class ExperimentResult:
     traverse_s: float = math.nan  # when the tail passed the far edge (NaN: it did not)
     peak_current_ma: float = math.nan
     front_face_cv: float = math.nan
+    lost_ground_s: float = math.nan  # first time the sheets together carried < a quarter of the weight (NaN: never)
+    rolled_s: float = math.nan  # first time the side sheets carried most of the load (NaN: never)
+    crawl_m: float = math.nan  # the centroid's advance when the first of those began (the whole advance if neither)
+
+    @property
+    def upright_traverse(self) -> bool:
+        """Traversed before the body lost the ground or rolled onto its side (see :func:`body_upsets`)."""
+        return self.traversed and self.traverse_s < min(_or_inf(self.lost_ground_s), _or_inf(self.rolled_s))
 
     @property
     def real_time_factor(self) -> float:
@@ -420,13 +428,16 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     scene_terrain = world.scene.terrain
     traversed = bool(scene_terrain.obstacles) and not math.isnan(traverse_s)
     peak_ma = float(np.nanmax(np.abs(np.array(currents)))) if currents else math.nan
+    lost_ground_s, rolled_s = body_upsets(times, sheets, rows, world.weight_n)
     return ExperimentResult(Path(out), taught, simulated_s, wall_s, end_centroid - start_centroid,
                             float(np.nanmedian(totals)), float(np.median(vertical)) if vertical else math.nan,
                             world.weight_n, tuple(overloads), scene_terrain.name, traversed,
                             controller=controller, tail_load_n=tail_load_n, traverse_s=traverse_s,
                             peak_current_ma=peak_ma,
                             front_face_cv=front_face_cv(times, points, sheets[:, bottom] if len(sheets) else sheets,
-                                                        scene_terrain))
+                                                        scene_terrain),
+                            lost_ground_s=lost_ground_s, rolled_s=rolled_s,
+                            crawl_m=crawl_m(times, points, (lost_ground_s, rolled_s)))
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
@@ -444,6 +455,75 @@ def read_gains(path: str | Path) -> FeedbackGains:
     if not isinstance(table, dict):
         raise ValueError(f"{path}: [feedback] must be a table")
     return FeedbackGains.from_mapping(table, str(path))
+
+
+def _or_inf(t_s: float) -> float:
+    return math.inf if math.isnan(t_s) else t_s
+
+
+LOST_GROUND_SHARE = 0.25  # the sheets together carry less than this share of the weight …
+LOST_GROUND_S = 0.1  # … for this long: the body is in the air or lies on what no sheet covers (its top, its ends)
+ROLLED_SHARE = 0.5  # the side sheets carry more than this share of what all the sheets carry …
+ROLLED_S = 0.5  # … for this long: the body lies on its side
+
+
+def _first_span(times: np.ndarray, condition: np.ndarray, min_s: float) -> float:
+    """The start of the first run of ``condition`` that lasts at least ``min_s`` (NaN: none); a run lasts from its
+    first sample to the sample after its last (one tick more for a run that ends the recording)."""
+    held = np.asarray(condition, dtype=bool)
+    if len(times) == 0 or not held.any():
+        return math.nan
+    tick = float(times[-1] - times[-2]) if len(times) > 1 else 0.0
+    edges = np.diff(np.concatenate([[0], held.astype(np.int8), [0]]))
+    for start, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        ends_s = times[end] if end < len(times) else times[-1] + tick
+        if ends_s - times[start] >= min_s - 1e-9:
+            return float(times[start])
+    return math.nan
+
+
+def body_upsets(times: np.ndarray, sheets_n: np.ndarray, rows: np.ndarray, weight_n: float) -> tuple[float, float]:
+    """(when the body first lost the ground, when it first rolled onto its side), NaN for never, from the true
+    sheet forces (T × channels, ``rows`` the channel map's side index: 0 bottom, 1 left, 2 right, −1 none).
+
+    A robot that crawls over an obstacle stays on its bottom sheets. The physics lab's segments are round, and a
+    body balanced on a crest can fall off it or roll onto its side; such a run may still end with its tail past the
+    obstacle. These two times let a traversal be told from a fall: *lost the ground* — the sheets together carry
+    less than a quarter of the weight for 0.1 s (in the air, or lying on its top or its segments' ends, which no
+    sheet covers); *rolled* — the side sheets carry more than half of what the sheets carry for 0.5 s."""
+    if len(times) == 0:
+        return math.nan, math.nan
+    sheets = np.asarray(sheets_n, dtype=float)
+    sensed = sheets[:, rows >= 0].sum(axis=1)
+    sides = sheets[:, rows >= 1].sum(axis=1)
+    lost = _first_span(times, sensed < LOST_GROUND_SHARE * weight_n, LOST_GROUND_S)
+    on_side = (sensed >= LOST_GROUND_SHARE * weight_n) & (sides > ROLLED_SHARE * np.maximum(sensed, 1e-9))
+    return lost, _first_span(times, on_side, ROLLED_S)
+
+
+def crawl_m(times: np.ndarray, points: np.ndarray, upsets_s: tuple[float, ...]) -> float:
+    """How far the body's centroid had advanced (+x, m) when the first upset began: what it crawled before it fell
+    or rolled (the whole advance if it did neither; NaN for an empty run)."""
+    if len(times) == 0:
+        return math.nan
+    first = min((t for t in upsets_s if not math.isnan(t)), default=math.inf)
+    k = len(times) - 1 if math.isinf(first) else int(np.searchsorted(times, first))
+    k = min(max(k, 0), len(times) - 1)
+    return float(points[k, :, 0].mean() - points[0, :, 0].mean())
+
+
+def upsets_from_recording(path: str | Path) -> tuple[float, float, float]:
+    """(lost the ground, rolled, crawled m) of a recording of :func:`run_experiment`: :func:`body_upsets` and
+    :func:`crawl_m` from its ``/sim`` group and the board's channels."""
+    with h5py.File(path, "r") as f:
+        times = f["sim/time_s"][:]
+        sheets = f["sim/sheet_true_N"][:]
+        points = f["sim/points_m"][:]
+        weight = float(f["sim"].attrs["weight_N"])
+        names = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
+    rows, _ = channel_map(names, points.shape[1] - 1)
+    lost, rolled = body_upsets(times, sheets, rows, weight)
+    return lost, rolled, crawl_m(times, points, (lost, rolled))
 
 
 def front_face_cv(times: np.ndarray, points: np.ndarray, bottom_n: np.ndarray, terrain: Any) -> float:

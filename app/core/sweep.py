@@ -21,8 +21,11 @@ A sweep file (TOML; unknown keys refused, naming the key)::
 Each row of ``summary.csv``: scene, controller, gains (the set's index and its JSON), tail load, seed, traversed
 (the tail point passed the far edge of the last obstacle within the limit), time to traverse, advance of the body's
 centroid, overload events, peak current, coefficient of variation of the bottom forces on the obstacle's front face
-(:func:`app.core.experiment.front_face_cv`), wall time, the recording's file name. The analysis reads only the
-recordings' results, so any run can be re-analysed later. The figure (``summary.svg``): success rate and median
+(:func:`app.core.experiment.front_face_cv`), wall time, the recording's file name, and when the body first lost the
+ground and first rolled onto its side, whether it traversed *upright* — before either — and how far it had crawled
+when the first began
+(:func:`app.core.experiment.body_upsets`; :func:`with_upsets` computes them again for an older summary). The
+analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``): success rate and median
 advance against tail load, one line per scene × controller.
 
 Qt-free; the runs are processes (``concurrent.futures.ProcessPoolExecutor``), the caller's thread waits.
@@ -52,7 +55,8 @@ from models.force_feedback import FeedbackGains
 SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains",
               "repeat"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
-                   "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file")
+                   "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file",
+                   "lost_ground_s", "rolled_s", "upright", "crawl_m")
 
 
 @dataclass(frozen=True)
@@ -144,7 +148,9 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
             "tail_load_N": args["tail_load_n"], "seed": args["seed"], "traversed": int(result.traversed),
             "traverse_s": result.traverse_s, "advance_m": result.advance_m, "overloads": len(result.overloads),
             "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
-            "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name}
+            "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name,
+            "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "upright": int(result.upright_traverse),
+            "crawl_m": result.crawl_m}
 
 
 def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
@@ -177,7 +183,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
                                      "gains_index": task["gains_index"], "gains": "", "tail_load_N": task["tail_load_n"],
                                      "seed": task["seed"], "traversed": "", "traverse_s": "", "advance_m": "",
                                      "overloads": "", "peak_current_mA": "", "front_face_cv": "", "wall_s": "",
-                                     "file": f"failed: {exc}"}
+                                     "file": f"failed: {exc}", "lost_ground_s": "", "rolled_s": "", "upright": "",
+                                     "crawl_m": ""}
             if progress is not None:
                 done = len(rows)
                 elapsed = time.monotonic() - started
@@ -196,6 +203,25 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
 def read_summary(path: str | Path) -> list[dict[str, Any]]:
     with open(path, newline="", encoding="utf-8") as f:
         return list(csv.DictReader(f))
+
+
+def with_upsets(rows: list[dict[str, Any]], folder: str | Path) -> list[dict[str, Any]]:
+    """``rows`` (a summary, possibly from before the upset columns existed) with ``lost_ground_s``, ``rolled_s`` and
+    ``upright`` and ``crawl_m`` computed again from the recordings in ``folder`` (the analysis reads only the
+    recordings)."""
+    from app.core.experiment import upsets_from_recording
+
+    out = []
+    for row in rows:
+        row = dict(row)
+        if row.get("traversed", "") != "":
+            lost, rolled, crawled = upsets_from_recording(Path(folder) / str(row["file"]))
+            traverse = float(row["traverse_s"]) if row["traverse_s"] not in ("", "nan") else math.nan
+            first = min(math.inf if math.isnan(lost) else lost, math.inf if math.isnan(rolled) else rolled)
+            row.update(lost_ground_s=lost, rolled_s=rolled,
+                       upright=int(bool(int(row["traversed"])) and traverse < first), crawl_m=crawled)
+        out.append(row)
+    return out
 
 
 def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, list[dict[str, Any]]]]:
@@ -230,10 +256,24 @@ class Comparison:
     ff_fail_cases: int  # scene × load cases where feedforward traversed in fewer than all of its runs
     ff_success_in_those: float
     fb_success_in_those: float
+    ff_upright_in_those: float  # … traversed before losing the ground or rolling onto its side (NaN: not known)
+    fb_upright_in_those: float
+    ff_crawl_in_those: float  # median crawl (m) of those runs: the advance before the body fell or rolled
+    fb_crawl_in_those: float
     median_advance_ratio: float  # median over pairs of feedback's advance / feedforward's (positive advances)
     ff_overloads: int
     fb_overloads: int
     slower_where_ff_succeeds: float  # median of (feedback's time to traverse / feedforward's − 1), both traversed
+
+
+def _upright_rate(rows: list[dict[str, Any]]) -> float:
+    known = [int(r["upright"]) for r in rows if str(r.get("upright", "")) not in ("", "nan")]
+    return float(np.mean(known)) if rows and len(known) == len(rows) else math.nan
+
+
+def _median_of(rows: list[dict[str, Any]], key: str) -> float:
+    known = [float(r[key]) for r in rows if str(r.get(key, "")) not in ("", "nan")]
+    return float(np.median(known)) if rows and len(known) == len(rows) else math.nan
 
 
 def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
@@ -256,6 +296,10 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         candidate=f"feedback g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
         ff_success_in_those=float(np.mean([int(ff[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
         fb_success_in_those=float(np.mean([int(fb[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
+        ff_upright_in_those=_upright_rate([ff[k] for k in in_failing]),
+        fb_upright_in_those=_upright_rate([fb[k] for k in in_failing]),
+        ff_crawl_in_those=_median_of([ff[k] for k in in_failing], "crawl_m"),
+        fb_crawl_in_those=_median_of([fb[k] for k in in_failing], "crawl_m"),
         median_advance_ratio=float(np.median(ratios)) if ratios else math.nan,
         ff_overloads=int(sum(int(ff[k]["overloads"]) for k in keys)),
         fb_overloads=int(sum(int(fb[k]["overloads"]) for k in keys)),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,7 @@ pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
 from app.core.errors import SweepError
-from app.core.sweep import compare, read_sweep
+from app.core.sweep import compare, read_sweep, with_upsets
 
 
 def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_path, capsys):
@@ -29,6 +30,12 @@ def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_pa
     assert {r["controller"] for r in rows} == {"feedforward", "feedback"}
     assert all((out / r["file"]).exists() for r in rows)
     assert {r["tail_load_N"] for r in rows} == {"0.5"}
+    assert all(r["upright"] in ("0", "1") for r in rows)  # 1.5 s on the paper obstacle traverses nothing
+    again = with_upsets([{k: v for k, v in r.items() if k not in ("lost_ground_s", "rolled_s", "upright")}
+                         for r in rows], out)  # an older summary, re-analysed from its recordings
+    keys = ("lost_ground_s", "rolled_s", "upright", "crawl_m")
+    assert [float(a[k]) for a in again for k in keys] == pytest.approx([float(r[k]) for r in rows for k in keys],
+                                                                       nan_ok=True)
     assert (out / "summary.svg").read_text(encoding="utf-8").startswith("<svg")
     # a second sweep into the same folder is refused: nothing a user does is overwritten
     assert main(["experiment", "sweep", str(plan), "--out", str(out)]) != 0
@@ -63,6 +70,12 @@ def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
     assert (c.ff_success_in_those, c.fb_success_in_those) == (0.0, 0.5)
     assert c.median_advance_ratio == pytest.approx(1.5)  # ratios 1.1, 2.0, 1.5
     assert c.slower_where_ff_succeeds == pytest.approx(0.1)
+    assert math.isnan(c.fb_upright_in_those)  # a summary from before the upset columns: not known, not 0
+    for r, upright in zip(rows, (1, 1, 0, 0, 0, 0)):  # feedback's one traversal where feedforward fails was a fall
+        r["upright"] = upright
+    c = compare(rows)
+    assert (c.ff_upright_in_those, c.fb_upright_in_those) == (0.0, 0.0)
+    assert c.fb_success_in_those == 0.5
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("sweep_*.toml")),

@@ -1,0 +1,48 @@
+"""Re-analyse a sweep folder of ``sensnake experiment sweep`` for falls: when each run's body lost the ground or
+rolled onto its side, and whether it traversed upright (before either), from its recordings alone
+(:func:`app.core.sweep.with_upsets`). For a summary written before those columns existed.
+
+    python scripts/sweep_upsets.py SWEEP_DIR [OUT.csv]
+
+Writes ``OUT.csv`` (default ``SWEEP_DIR/summary_upsets.csv``; an existing file is refused, never overwritten) and
+prints, per feedback gain set, the traversal rates where feedforward fails, all of them and the upright ones.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from app.core.sweep import SUMMARY_COLUMNS, compare, read_summary, with_upsets  # noqa: E402
+
+
+def main(argv: list[str]) -> int:
+    if not 1 <= len(argv) <= 2:
+        sys.stderr.write(__doc__ or "")
+        return 2
+    folder = argv[0]
+    out = argv[1] if len(argv) == 2 else os.path.join(folder, "summary_upsets.csv")
+    rows = with_upsets(read_summary(os.path.join(folder, "summary.csv")), folder)
+    try:
+        with open(out, "x", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
+            writer.writeheader()
+            writer.writerows(rows)
+    except FileExistsError:
+        sys.stderr.write(f"{out}: exists; not overwritten (name another file)\n")
+        return 1
+    for index in sorted({int(r["gains_index"]) for r in rows if r["controller"] == "feedback"}):
+        c = compare(rows, index)
+        sys.stdout.write(f"g{index}: where feedforward fails ({c.ff_fail_cases} cases) traversed "
+                         f"{100 * c.fb_success_in_those:.0f}% against {100 * c.ff_success_in_those:.0f}%, upright "
+                         f"{100 * c.fb_upright_in_those:.0f}% against {100 * c.ff_upright_in_those:.0f}%, median crawl "
+                         f"{c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m\n")
+    sys.stdout.write(f"wrote {out}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
