@@ -236,14 +236,16 @@ def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, lis
 
 
 def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per scene × controller (× gain set) × tail load: runs, success rate, median advance (m), overload events."""
+    """Per scene × controller (× gain set) × tail load: runs, success rate, median advance (m), overload events, and
+    the rate of upright traversals (NaN for a summary without that column)."""
     table = []
     for (scene, label), by_load in sorted(_groups(rows).items()):
         for load, group in sorted(by_load.items()):
             table.append({"scene": scene, "controller": label, "tail_load_N": load, "runs": len(group),
                           "success": float(np.mean([int(r["traversed"]) for r in group])),
                           "median_advance_m": float(np.median([float(r["advance_m"]) for r in group])),
-                          "overloads": int(sum(int(r["overloads"]) for r in group))})
+                          "overloads": int(sum(int(r["overloads"]) for r in group)),
+                          "upright": _upright_rate(group)})
     return table
 
 
@@ -306,9 +308,10 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan)
 
 
-def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380) -> str:
-    """Two panels (success rate, median advance) against tail load; one colour per scene, solid for feedforward and
-    dashed for feedback (a shade per gain set); the legend on the right. In the success panel the series are drawn a
+def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: int = 380) -> str:
+    """Panels against tail load — success rate, the rate of upright traversals (when the summary has it: before the
+    body lost the ground or rolled onto its side), median advance — one colour per scene, solid for feedforward and
+    dashed for feedback (a shade per gain set); the legend on the right. In the rate panels the series are drawn a
     few pixels apart (at most ±6 px), so that equal rates stay visible."""
     table = summary_table(rows)
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -320,12 +323,16 @@ def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380
     adv_min = min([e["median_advance_m"] for e in table] + [0.0])
     colours = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
     scenes = sorted({scene for scene, _ in series})
+    panels: list[tuple[str, str, float, float]] = [("traversed (fraction of runs)", "success", 0.0, 1.0)]
+    if table and all(math.isfinite(e["upright"]) for e in table):
+        panels.append(("traversed upright (before a fall or roll)", "upright", 0.0, 1.0))
+    panels.append(("median advance of the centroid (m)", "median_advance_m", adv_min, adv_max))
     panel_w, top, bottom, left, gap = 330.0, 40, height - 50, 60, 70
+    legend_x = left + len(panels) * panel_w + (len(panels) - 1) * gap + 30
+    width = width or int(legend_x + 330)
     parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
              f'font-size="12"><rect width="100%" height="100%" fill="white"/>']
-    for panel, (title, key, lo, hi) in enumerate((("traversed (fraction of runs)", "success", 0.0, 1.0),
-                                                   ("median advance of the centroid (m)", "median_advance_m",
-                                                    adv_min, adv_max))):
+    for panel, (title, key, lo, hi) in enumerate(panels):
         x0 = left + panel * (panel_w + gap)
         parts.append(f'<text x="{x0 + panel_w / 2}" y="20" text-anchor="middle">{title}</text>')
         parts.append(f'<line x1="{x0}" y1="{bottom}" x2="{x0 + panel_w}" y2="{bottom}" stroke="black"/>')
@@ -346,12 +353,12 @@ def summary_svg(rows: list[dict[str, Any]], width: int = 1120, height: int = 380
             colour = colours[scenes.index(scene) % len(colours)]
             dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
             # success rates coincide often (all 0 or all 1): each series is drawn up to ±6 px apart so none hides
-            nudge = (k - (len(series) - 1) / 2) * min(12.0 / max(len(series) - 1, 1), 3.0) if key == "success" else 0.0
+            nudge = ((k - (len(series) - 1) / 2) * min(12.0 / max(len(series) - 1, 1), 3.0)
+                     if key in ("success", "upright") else 0.0)
             points = " ".join(f"{x_of(e['tail_load_N']):.1f},"
                               f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top) + nudge:.1f}"
                               for e in entries)
             parts.append(f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="2"{dash}/>')
-    legend_x = left + 2 * panel_w + gap + 30
     for k, (scene, label) in enumerate(sorted(series)):
         colour = colours[scenes.index(scene) % len(colours)]
         dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'

@@ -12,7 +12,7 @@ pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
 from app.core.errors import SweepError
-from app.core.sweep import compare, read_sweep, with_upsets
+from app.core.sweep import compare, read_sweep, summary_svg, with_upsets
 
 
 def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_path, capsys):
@@ -76,6 +76,10 @@ def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
     c = compare(rows)
     assert (c.ff_upright_in_those, c.fb_upright_in_those) == (0.0, 0.0)
     assert c.fb_success_in_those == 0.5
+    for r in rows:
+        r["crawl_m"] = r["advance_m"]
+    assert "traversed upright" in summary_svg(rows)  # the figure draws the upright rate once a summary has it
+    assert "traversed upright" not in summary_svg([{k: v for k, v in r.items() if k != "upright"} for r in rows])
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("sweep_*.toml")),
