@@ -1,11 +1,11 @@
 """Re-analyse a sweep folder of ``sensnake experiment sweep`` for falls: when each run's body lost the ground or
-rolled onto its side, and whether it traversed upright (before either), from its recordings alone
-(:func:`app.core.sweep.with_upsets`). For a summary written before those columns existed.
+rolled onto its side, how far it had crawled by then, and whether it traversed crawling (not falling off a crest),
+from its recordings alone (:func:`app.core.sweep.with_upsets`). For a summary written before those columns existed.
 
     python scripts/sweep_upsets.py SWEEP_DIR [OUT.csv]
 
 Writes ``OUT.csv`` (default ``SWEEP_DIR/summary_upsets.csv``; an existing file is refused, never overwritten) and
-prints, per feedback gain set, the traversal rates where feedforward fails, all of them and the upright ones.
+prints, per feedback gain set, the traversal rates where feedforward fails, all of them and the crawled ones.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ def main(argv: list[str]) -> int:
     for index in sorted({int(r["gains_index"]) for r in rows if r["controller"] == "feedback"}):
         c = compare(rows, index)
         sys.stdout.write(f"g{index}: where feedforward fails ({c.ff_fail_cases} cases) traversed "
-                         f"{100 * c.fb_success_in_those:.0f}% against {100 * c.ff_success_in_those:.0f}%, upright "
-                         f"{100 * c.fb_upright_in_those:.0f}% against {100 * c.ff_upright_in_those:.0f}%, median crawl "
+                         f"{100 * c.fb_success_in_those:.0f}% against {100 * c.ff_success_in_those:.0f}%, crawling "
+                         f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%, median crawl "
                          f"{c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m\n")
     sys.stdout.write(f"wrote {out}\n")
     return 0

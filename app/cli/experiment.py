@@ -43,9 +43,9 @@ def _sweep(args: argparse.Namespace) -> int:
             c = compare(rows, index)
             print(f"feedback g{index} against feedforward over {c.pairs} paired runs: where feedforward fails "
                   f"({c.ff_fail_cases} scene × load cases) it traverses {100 * c.fb_success_in_those:.0f}% against "
-                  f"{100 * c.ff_success_in_those:.0f}% (upright, before losing the ground or rolling onto its side: "
-                  f"{100 * c.fb_upright_in_those:.0f}% against {100 * c.ff_upright_in_those:.0f}%; median crawl "
-                  f"before that {c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m); median advance ratio "
+                  f"{100 * c.ff_success_in_those:.0f}% (crawling, not falling off a crest: "
+                  f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%; median crawl before "
+                  f"a fall or roll {c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m); median advance ratio "
                   f"{c.median_advance_ratio:.2f}; overloads "
                   f"{c.fb_overloads} against {c.ff_overloads}; where both traverse, {100 * c.slower_where_ff_succeeds:+.0f}% "
                   f"time to traverse")

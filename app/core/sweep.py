@@ -22,8 +22,8 @@ Each row of ``summary.csv``: scene, controller, gains (the set's index and its J
 (the tail point passed the far edge of the last obstacle within the limit), time to traverse, advance of the body's
 centroid, overload events, peak current, coefficient of variation of the bottom forces on the obstacle's front face
 (:func:`app.core.experiment.front_face_cv`), wall time, the recording's file name, and when the body first lost the
-ground and first rolled onto its side, whether it traversed *upright* — before either — and how far it had crawled
-when the first began
+ground and first rolled onto its side, how far its centroid had crawled when the first began, and whether it
+traversed *crawling* (at least ``CRAWLED_M`` before the first; else it fell off a crest)
 (:func:`app.core.experiment.body_upsets`; :func:`with_upsets` computes them again for an older summary). The
 analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``): success rate and median
 advance against tail load, one line per scene × controller.
@@ -56,7 +56,7 @@ SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "spee
               "repeat"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file",
-                   "lost_ground_s", "rolled_s", "upright", "crawl_m")
+                   "lost_ground_s", "rolled_s", "crawl_m", "crawled")
 
 
 @dataclass(frozen=True)
@@ -149,8 +149,8 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
             "traverse_s": result.traverse_s, "advance_m": result.advance_m, "overloads": len(result.overloads),
             "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
             "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name,
-            "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "upright": int(result.upright_traverse),
-            "crawl_m": result.crawl_m}
+            "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "crawl_m": result.crawl_m,
+            "crawled": int(result.crawled_traverse)}
 
 
 def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
@@ -183,8 +183,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
                                      "gains_index": task["gains_index"], "gains": "", "tail_load_N": task["tail_load_n"],
                                      "seed": task["seed"], "traversed": "", "traverse_s": "", "advance_m": "",
                                      "overloads": "", "peak_current_mA": "", "front_face_cv": "", "wall_s": "",
-                                     "file": f"failed: {exc}", "lost_ground_s": "", "rolled_s": "", "upright": "",
-                                     "crawl_m": ""}
+                                     "file": f"failed: {exc}", "lost_ground_s": "", "rolled_s": "", "crawl_m": "",
+                                     "crawled": ""}
             if progress is not None:
                 done = len(rows)
                 elapsed = time.monotonic() - started
@@ -207,19 +207,17 @@ def read_summary(path: str | Path) -> list[dict[str, Any]]:
 
 def with_upsets(rows: list[dict[str, Any]], folder: str | Path) -> list[dict[str, Any]]:
     """``rows`` (a summary, possibly from before the upset columns existed) with ``lost_ground_s``, ``rolled_s`` and
-    ``upright`` and ``crawl_m`` computed again from the recordings in ``folder`` (the analysis reads only the
+    ``crawl_m`` and ``crawled`` computed again from the recordings in ``folder`` (the analysis reads only the
     recordings)."""
-    from app.core.experiment import upsets_from_recording
+    from app.core.experiment import crawled, upsets_from_recording
 
     out = []
     for row in rows:
         row = dict(row)
         if row.get("traversed", "") != "":
-            lost, rolled, crawled = upsets_from_recording(Path(folder) / str(row["file"]))
-            traverse = float(row["traverse_s"]) if row["traverse_s"] not in ("", "nan") else math.nan
-            first = min(math.inf if math.isnan(lost) else lost, math.inf if math.isnan(rolled) else rolled)
-            row.update(lost_ground_s=lost, rolled_s=rolled,
-                       upright=int(bool(int(row["traversed"])) and traverse < first), crawl_m=crawled)
+            lost, rolled, crawl = upsets_from_recording(Path(folder) / str(row["file"]))
+            row.update(lost_ground_s=lost, rolled_s=rolled, crawl_m=crawl,
+                       crawled=int(crawled(bool(int(row["traversed"])), crawl)))
         out.append(row)
     return out
 
@@ -237,7 +235,7 @@ def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, lis
 
 def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per scene × controller (× gain set) × tail load: runs, success rate, median advance (m), overload events, and
-    the rate of upright traversals (NaN for a summary without that column)."""
+    the rate of crawled traversals (NaN for a summary without that column)."""
     table = []
     for (scene, label), by_load in sorted(_groups(rows).items()):
         for load, group in sorted(by_load.items()):
@@ -245,7 +243,7 @@ def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                           "success": float(np.mean([int(r["traversed"]) for r in group])),
                           "median_advance_m": float(np.median([float(r["advance_m"]) for r in group])),
                           "overloads": int(sum(int(r["overloads"]) for r in group)),
-                          "upright": _upright_rate(group)})
+                          "crawled": _crawled_rate(group)})
     return table
 
 
@@ -258,8 +256,8 @@ class Comparison:
     ff_fail_cases: int  # scene × load cases where feedforward traversed in fewer than all of its runs
     ff_success_in_those: float
     fb_success_in_those: float
-    ff_upright_in_those: float  # … traversed before losing the ground or rolling onto its side (NaN: not known)
-    fb_upright_in_those: float
+    ff_crawled_in_those: float  # … traversed crawling, not falling off a crest (NaN: not known)
+    fb_crawled_in_those: float
     ff_crawl_in_those: float  # median crawl (m) of those runs: the advance before the body fell or rolled
     fb_crawl_in_those: float
     median_advance_ratio: float  # median over pairs of feedback's advance / feedforward's (positive advances)
@@ -268,8 +266,8 @@ class Comparison:
     slower_where_ff_succeeds: float  # median of (feedback's time to traverse / feedforward's − 1), both traversed
 
 
-def _upright_rate(rows: list[dict[str, Any]]) -> float:
-    known = [int(r["upright"]) for r in rows if str(r.get("upright", "")) not in ("", "nan")]
+def _crawled_rate(rows: list[dict[str, Any]]) -> float:
+    known = [int(r["crawled"]) for r in rows if str(r.get("crawled", "")) not in ("", "nan")]
     return float(np.mean(known)) if rows and len(known) == len(rows) else math.nan
 
 
@@ -298,8 +296,8 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         candidate=f"feedback g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
         ff_success_in_those=float(np.mean([int(ff[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
         fb_success_in_those=float(np.mean([int(fb[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
-        ff_upright_in_those=_upright_rate([ff[k] for k in in_failing]),
-        fb_upright_in_those=_upright_rate([fb[k] for k in in_failing]),
+        ff_crawled_in_those=_crawled_rate([ff[k] for k in in_failing]),
+        fb_crawled_in_those=_crawled_rate([fb[k] for k in in_failing]),
         ff_crawl_in_those=_median_of([ff[k] for k in in_failing], "crawl_m"),
         fb_crawl_in_those=_median_of([fb[k] for k in in_failing], "crawl_m"),
         median_advance_ratio=float(np.median(ratios)) if ratios else math.nan,
@@ -309,8 +307,8 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
 
 
 def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: int = 380) -> str:
-    """Panels against tail load — success rate, the rate of upright traversals (when the summary has it: before the
-    body lost the ground or rolled onto its side), median advance — one colour per scene, solid for feedforward and
+    """Panels against tail load — success rate, the rate of crawled traversals (when the summary has it: not a fall
+    off a crest), median advance — one colour per scene, solid for feedforward and
     dashed for feedback (a shade per gain set); the legend on the right. In the rate panels the series are drawn a
     few pixels apart (at most ±6 px), so that equal rates stay visible."""
     table = summary_table(rows)
@@ -324,8 +322,8 @@ def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: in
     colours = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
     scenes = sorted({scene for scene, _ in series})
     panels: list[tuple[str, str, float, float]] = [("traversed (fraction of runs)", "success", 0.0, 1.0)]
-    if table and all(math.isfinite(e["upright"]) for e in table):
-        panels.append(("traversed upright (before a fall or roll)", "upright", 0.0, 1.0))
+    if table and all(math.isfinite(e["crawled"]) for e in table):
+        panels.append(("traversed crawling (not falling off a crest)", "crawled", 0.0, 1.0))
     panels.append(("median advance of the centroid (m)", "median_advance_m", adv_min, adv_max))
     panel_w, top, bottom, left, gap = 330.0, 40, height - 50, 60, 70
     legend_x = left + len(panels) * panel_w + (len(panels) - 1) * gap + 30
@@ -354,7 +352,7 @@ def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: in
             dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
             # success rates coincide often (all 0 or all 1): each series is drawn up to ±6 px apart so none hides
             nudge = ((k - (len(series) - 1) / 2) * min(12.0 / max(len(series) - 1, 1), 3.0)
-                     if key in ("success", "upright") else 0.0)
+                     if key in ("success", "crawled") else 0.0)
             points = " ".join(f"{x_of(e['tail_load_N']):.1f},"
                               f"{bottom - (e[key] - lo) / max(hi - lo, 1e-9) * (bottom - top) + nudge:.1f}"
                               for e in entries)

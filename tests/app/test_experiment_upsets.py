@@ -46,18 +46,16 @@ def test_a_body_that_rolled_carries_its_weight_on_its_side_sheets():
     assert rolled == pytest.approx(6.0)
 
 
-def test_a_traversal_is_upright_only_if_it_came_before_either_upset():
-    def result(traverse_s: float, lost: float, rolled: float, traversed: bool = True) -> ExperimentResult:
-        return ExperimentResult(path=None, shape_rad=np.zeros(12), simulated_s=1.0, wall_s=1.0, advance_m=0.5,
+def test_a_traversal_is_a_crawl_only_if_the_body_advanced_before_its_first_upset():
+    def result(crawl: float, traversed: bool = True) -> ExperimentResult:
+        return ExperimentResult(path=None, shape_rad=np.zeros(12), simulated_s=1.0, wall_s=1.0, advance_m=0.8,
                                 median_bottom_force_n=23.5, median_vertical_support_n=23.5, weight_n=23.5,
-                                overloads=(), traversed=traversed, traverse_s=traverse_s, lost_ground_s=lost,
-                                rolled_s=rolled)
+                                overloads=(), traversed=traversed, crawl_m=crawl)
 
-    assert result(20.0, math.nan, math.nan).upright_traverse
-    assert result(20.0, 25.0, 30.0).upright_traverse  # it fell later, on the far side
-    assert not result(30.5, 29.8, 30.2).upright_traverse  # the tail passed the edge as the body fell off the crest
-    assert not result(30.5, math.nan, 28.0).upright_traverse
-    assert not result(math.nan, math.nan, math.nan, traversed=False).upright_traverse
+    assert result(0.55).crawled_traverse  # crawled on until the tail tipped over the crest
+    assert not result(0.06).crawled_traverse  # balanced on the crest, then fell off it forward
+    assert not result(0.55, traversed=False).crawled_traverse
+    assert not result(math.nan).crawled_traverse  # not known is not a crawl
 
 
 def test_the_crawl_is_the_advance_until_the_first_upset():

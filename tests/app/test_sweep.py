@@ -30,10 +30,10 @@ def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_pa
     assert {r["controller"] for r in rows} == {"feedforward", "feedback"}
     assert all((out / r["file"]).exists() for r in rows)
     assert {r["tail_load_N"] for r in rows} == {"0.5"}
-    assert all(r["upright"] in ("0", "1") for r in rows)  # 1.5 s on the paper obstacle traverses nothing
-    again = with_upsets([{k: v for k, v in r.items() if k not in ("lost_ground_s", "rolled_s", "upright")}
+    assert all(r["crawled"] in ("0", "1") for r in rows)  # 1.5 s on the paper obstacle traverses nothing
+    again = with_upsets([{k: v for k, v in r.items() if k not in ("lost_ground_s", "rolled_s", "crawl_m", "crawled")}
                          for r in rows], out)  # an older summary, re-analysed from its recordings
-    keys = ("lost_ground_s", "rolled_s", "upright", "crawl_m")
+    keys = ("lost_ground_s", "rolled_s", "crawl_m", "crawled")
     assert [float(a[k]) for a in again for k in keys] == pytest.approx([float(r[k]) for r in rows for k in keys],
                                                                        nan_ok=True)
     assert (out / "summary.svg").read_text(encoding="utf-8").startswith("<svg")
@@ -70,16 +70,16 @@ def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
     assert (c.ff_success_in_those, c.fb_success_in_those) == (0.0, 0.5)
     assert c.median_advance_ratio == pytest.approx(1.5)  # ratios 1.1, 2.0, 1.5
     assert c.slower_where_ff_succeeds == pytest.approx(0.1)
-    assert math.isnan(c.fb_upright_in_those)  # a summary from before the upset columns: not known, not 0
-    for r, upright in zip(rows, (1, 1, 0, 0, 0, 0)):  # feedback's one traversal where feedforward fails was a fall
-        r["upright"] = upright
+    assert math.isnan(c.fb_crawled_in_those)  # a summary from before the upset columns: not known, not 0
+    for r, crawl in zip(rows, (0.5, 0.6, 0.4, 0.05, 0.2, 0.3)):  # feedback's traversal where feedforward fails: a fall
+        r["crawl_m"] = crawl
+        r["crawled"] = int(bool(r["traversed"]) and crawl >= 0.2)
     c = compare(rows)
-    assert (c.ff_upright_in_those, c.fb_upright_in_those) == (0.0, 0.0)
+    assert (c.ff_crawled_in_those, c.fb_crawled_in_those) == (0.0, 0.0)
     assert c.fb_success_in_those == 0.5
-    for r in rows:
-        r["crawl_m"] = r["advance_m"]
-    assert "traversed upright" in summary_svg(rows)  # the figure draws the upright rate once a summary has it
-    assert "traversed upright" not in summary_svg([{k: v for k, v in r.items() if k != "upright"} for r in rows])
+    assert (c.ff_crawl_in_those, c.fb_crawl_in_those) == pytest.approx((0.3, 0.175))
+    assert "traversed crawling" in summary_svg(rows)  # the figure draws the crawled rate once a summary has it
+    assert "traversed crawling" not in summary_svg([{k: v for k, v in r.items() if k != "crawled"} for r in rows])
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("sweep_*.toml")),
