@@ -25,8 +25,8 @@ centroid, overload events, peak current, coefficient of variation of the bottom 
 ground and first rolled onto its side, how far its centroid had crawled when the first began, and whether it
 traversed *crawling* (at least ``CRAWLED_M`` before the first; else it fell off a crest)
 (:func:`app.core.experiment.body_upsets`; :func:`with_upsets` computes them again for an older summary). The
-analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``): success rate and median
-advance against tail load, one line per scene × controller.
+analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``):
+success rate, crawled rate and median advance against tail load, one line per scene × controller.
 
 Qt-free; the runs are processes (``concurrent.futures.ProcessPoolExecutor``), the caller's thread waits.
 """
@@ -308,9 +308,9 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
 
 def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: int = 380) -> str:
     """Panels against tail load — success rate, the rate of crawled traversals (when the summary has it: not a fall
-    off a crest), median advance — one colour per scene, solid for feedforward and
-    dashed for feedback (a shade per gain set); the legend on the right. In the rate panels the series are drawn a
-    few pixels apart (at most ±6 px), so that equal rates stay visible."""
+    off a crest), median advance — one colour per scene, solid for feedforward and dashed for feedback (a shade per
+    gain set); the legend on the right. In the rate panels the series are drawn a few pixels apart (at most ±6 px),
+    so that equal rates stay visible."""
     table = summary_table(rows)
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for entry in table:
