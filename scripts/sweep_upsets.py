@@ -10,6 +10,7 @@ prints, per feedback gain set, the traversal rates where feedforward fails, all 
 
 from __future__ import annotations
 
+import argparse
 import csv
 import os
 import sys
@@ -20,12 +21,17 @@ from app.core.sweep import SUMMARY_COLUMNS, compare, read_summary, with_upsets  
 
 
 def main(argv: list[str]) -> int:
-    if not 1 <= len(argv) <= 2:
-        sys.stderr.write(__doc__ or "")
-        return 2
-    folder = argv[0]
-    out = argv[1] if len(argv) == 2 else os.path.join(folder, "summary_upsets.csv")
-    rows = with_upsets(read_summary(os.path.join(folder, "summary.csv")), folder)
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("folder", help="a folder written by sensnake experiment sweep (summary.csv and recordings)")
+    parser.add_argument("out", nargs="?", help="the CSV to write (default: FOLDER/summary_upsets.csv)")
+    args = parser.parse_args(argv)
+    folder = args.folder
+    out = args.out or os.path.join(folder, "summary_upsets.csv")
+    summary = os.path.join(folder, "summary.csv")
+    if not os.path.isfile(summary):
+        sys.stderr.write(f"{summary}: no such file (not a sweep folder)\n")
+        return 1
+    rows = with_upsets(read_summary(summary), folder)
     try:
         with open(out, "x", newline="", encoding="utf-8") as f:
             writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
