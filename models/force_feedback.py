@@ -86,6 +86,7 @@ class FeedbackGains:
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     lead_gain: float = 0.1  # rad/s, signed: + the front straightens out (turns up) while it feels nothing, − it tilts down
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
+    tail_guard_n: float = 0.0  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -113,7 +114,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
-    "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0),
+    "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0), "tail_guard_n": (0.0, 5.0),
 }
 
 
@@ -158,6 +159,8 @@ class ForceFeedbackLaw:
         self._lead_segments = np.arange(0, max(self._lead_joint, 0))
         self.lead_rad = 0.0
         self.front_load_n = math.nan  # the load the lead last acted on (N; NaN: off or not sensed)
+        self._tail_segments = np.arange(max(len(self.axes) - 2, 0), len(self.axes))
+        self.tail_load_n = math.nan  # the tail's load the guard last read (N; NaN: guard off or not sensed)
         self._lead_phase: list[float] = []
         self._lead_value: list[float] = []
         self._phase = 0.0
@@ -247,6 +250,14 @@ class ForceFeedbackLaw:
                 rate = -g.lead_gain * min((load - g.target_n) / g.target_n, 1.0)
             else:
                 rate = 0.0  # in contact: keep the bend that found it
+            tail = self._tail_segments
+            self.tail_load_n = math.nan
+            if g.tail_guard_n > 0.0 and valid[tail].all() and np.isfinite(bottom[tail]).all():
+                self.tail_load_n = float(bottom[tail].sum())
+                if self.tail_load_n < g.tail_guard_n and self.lead_rad != 0.0:
+                    # the tail has left the floor: the body balances on the terrain with both ends up (a seesaw);
+                    # opening the drape further tips it over the crest. Close the lead back toward the taught shape.
+                    rate = -math.copysign(min(abs(g.lead_gain), abs(self.lead_rad) / dt_s), self.lead_rad)
         else:
             rate = -self.lead_rad / g.relax_s
         self.lead_rad = float(np.clip(self.lead_rad + np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s) * dt_s,
