@@ -46,7 +46,11 @@ measured worse (benchmarks/sweep_tune_lead_sign.toml: it lost the paper obstacle
 feedforward fails). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
 with it: the pitch joint ``b`` places behind joint 3 gets the bend the lead had ``b`` shifts earlier (the shift phase
 comes from the feedforward's progress; a new play starts afresh), so the propagated drape opens where the front found
-nothing. Stale or flagged front sensors: the lead relaxes to 0.
+nothing. Stale or flagged front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two
+tail segments' bottom sheets carry less than it (the tail has left the floor: the body balances on the terrain with
+both ends up, and opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0
+instead (never past it); flagged or stale tail sensors leave the lead as without the guard. Chosen on
+benchmarks/sweep_tune_tail_guard.toml, judged on held-out set 6 (docs/FORCE_FEEDBACK.md).
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
 ``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
@@ -86,7 +90,7 @@ class FeedbackGains:
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     lead_gain: float = 0.1  # rad/s, signed: + the front straightens out (turns up) while it feels nothing, − it tilts down
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
-    tail_guard_n: float = 0.0  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
+    tail_guard_n: float = 0.5  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -257,7 +261,8 @@ class ForceFeedbackLaw:
                 if self.tail_load_n < g.tail_guard_n and self.lead_rad != 0.0:
                     # the tail has left the floor: the body balances on the terrain with both ends up (a seesaw);
                     # opening the drape further tips it over the crest. Close the lead back toward the taught shape.
-                    rate = -math.copysign(min(abs(g.lead_gain), abs(self.lead_rad) / dt_s), self.lead_rad)
+                    closing = abs(g.lead_gain) if dt_s <= 0.0 else min(abs(g.lead_gain), abs(self.lead_rad) / dt_s)
+                    rate = -math.copysign(closing, self.lead_rad)
         else:
             rate = -self.lead_rad / g.relax_s
         self.lead_rad = float(np.clip(self.lead_rad + np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s) * dt_s,

@@ -306,10 +306,21 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan)
 
 
+_DASHES = ("7 4", "2 3", "9 3 2 3", "12 4", "4 2 4 6")
+
+
+def _dash(label: str) -> str:
+    """The stroke pattern of a series: solid for feedforward, one pattern per feedback gain set ('feedback g1')."""
+    if label.startswith("feedforward"):
+        return ""
+    index = int(label.rsplit("g", 1)[1]) if " g" in label else 0
+    return f' stroke-dasharray="{_DASHES[index % len(_DASHES)]}"'
+
+
 def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: int = 380) -> str:
     """Panels against tail load — success rate, the rate of crawled traversals (when the summary has it: not a fall
-    off a crest), median advance — one colour per scene, solid for feedforward and dashed for feedback (a shade per
-    gain set); the legend on the right. In the rate panels the series are drawn a few pixels apart (at most ±6 px),
+    off a crest), median advance — one colour per scene, solid for feedforward, dashed for feedback (a dash pattern per
+    gain set: g0 dashed, g1 dotted, g2 dash-dot, …); the legend on the right. In the rate panels the series are drawn a few pixels apart (at most ±6 px),
     so that equal rates stay visible."""
     table = summary_table(rows)
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -349,7 +360,7 @@ def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: in
             parts.append(f'<line x1="{x0}" y1="{y}" x2="{x0 + panel_w}" y2="{y}" stroke="#dddddd"/>')
         for k, ((scene, label), entries) in enumerate(sorted(series.items())):
             colour = colours[scenes.index(scene) % len(colours)]
-            dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
+            dash = _dash(label)
             # success rates coincide often (all 0 or all 1): each series is drawn up to ±6 px apart so none hides
             nudge = ((k - (len(series) - 1) / 2) * min(12.0 / max(len(series) - 1, 1), 3.0)
                      if key in ("success", "crawled") else 0.0)
@@ -359,7 +370,7 @@ def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: in
             parts.append(f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="2"{dash}/>')
     for k, (scene, label) in enumerate(sorted(series)):
         colour = colours[scenes.index(scene) % len(colours)]
-        dash = "" if label.startswith("feedforward") else ' stroke-dasharray="7 4"'
+        dash = _dash(label)
         y = top + 16 * k
         parts.append(f'<line x1="{legend_x}" y1="{y - 4}" x2="{legend_x + 26}" y2="{y - 4}" stroke="{colour}" '
                      f'stroke-width="2"{dash}/>')

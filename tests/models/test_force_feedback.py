@@ -202,3 +202,32 @@ def test_the_lead_history_stays_bounded_however_long_the_play():
     assert phases[-1] == pytest.approx(59_999 * 0.002) and phases[0] >= phases[-1] - 8
     # what the joints behind read is still the lead's bend one, two, … shifts ago
     assert law.correction()[4] == pytest.approx(np.interp(law._phase - 1, phases, law._lead_value))
+
+
+def test_the_tail_guard_closes_the_lead_while_the_tail_is_off_the_floor_and_0_turns_it_off():
+    def run(guard: float, tail_n: float, ticks: int = 100) -> ForceFeedbackLaw:
+        law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0, tail_guard_n=guard)
+        for _ in range(50):  # 1 s with nothing under the front: the lead opens to 0.2 rad
+            law.step(DT, _front(0.0), np.ones(12, bool))
+        bottom = _front(0.0)
+        bottom[[10, 11]] = tail_n / 2
+        for _ in range(ticks):
+            law.step(DT, bottom, np.ones(12, bool))
+        return law
+
+    assert FeedbackGains().tail_guard_n == 0.5  # on by default (held-out set 6)
+    assert run(0.0, 0.0, ticks=25).lead_rad == pytest.approx(0.3)  # off: the front feels nothing, the lead opens
+    assert run(0.5, 2.0, ticks=25).lead_rad == pytest.approx(0.3)  # the tail on the floor: no guard
+    lifted = run(0.5, 0.2, ticks=25)  # the tail carries 0.2 N < 0.5 N: the lead closes at its gain's rate
+    assert lifted.lead_rad == pytest.approx(0.2 - 25 * 0.2 * DT)
+    assert lifted.tail_load_n == pytest.approx(0.2)
+    assert run(0.5, 0.2, ticks=200).lead_rad == 0.0  # and stops at the taught shape, never past it
+    again = run(0.5, 0.2, ticks=1)
+    again.step(0.0, _front(0.0) * np.r_[np.ones(10), 0.1, 0.1], np.ones(12, bool))  # a tick of no time: no change
+    assert again.lead_rad == pytest.approx(0.2 - 0.2 * DT)
+    valid = np.ones(12, bool)
+    valid[11] = False  # a flagged tail sensor never drives the guard: the lead goes on as without it
+    law = _law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0, tail_guard_n=0.5)
+    for _ in range(50):
+        law.step(DT, _front(0.0), valid)
+    assert law.lead_rad == pytest.approx(0.2) and np.isnan(law.tail_load_n)
