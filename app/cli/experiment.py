@@ -8,6 +8,7 @@ and a summary at the end. Runs on the main thread.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from app.core.experiment import read_gains, run_experiment, run_obstacle_experiment
@@ -94,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"median total bottom force {result.median_bottom_force_n:.1f} N (normal forces: more than the weight "
           f"where the body lies on a curve); their vertical part {result.median_vertical_support_n:.1f} N "
           f"(robot weight {result.weight_n:.1f} N)")
+    if math.isfinite(result.median_support_n):
+        print(f"true contact forces, normal and friction, upward part: on the bottom sheets "
+              f"{result.median_bottom_support_n:.1f} N, on the whole robot {result.median_support_n:.1f} N "
+              f"(the weight when nothing accelerates)")
     for line in result.overloads:
         print(line)
     print(f"wrote {result.path}")

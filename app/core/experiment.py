@@ -23,8 +23,11 @@ headless_physics_lab``), so the run takes as long as the machine needs, not as l
 
 The weight check: on flat ground the bottom sheets' normal forces add up to the weight; on a curved obstacle they
 add up to more (a normal 60° from vertical carries half its force upward), and what equals the weight is their
-*vertical* part — each sheet's force along the direction its segment's pose gives it (:func:`vertical_support_n`).
-Both are reported.
+*vertical* part — each sheet's force along the direction its segment's pose gives it (:func:`vertical_support_n`) —
+less what friction holds up on a slope, which no sheet feels (a sheet reads pressure). Both are reported, from the
+estimated forces as the app shows them; and, from the simulation's true contact forces, the upward part of the
+*whole* contact forces (normal and friction) on the bottom sheets and on the whole robot (Newton's check: the weight
+when nothing accelerates, on any terrain).
 
 Called from one thread (the CLI's main thread).
 """
@@ -125,6 +128,9 @@ class ExperimentResult:
     lost_ground_s: float = math.nan  # first time the sheets together carried < a quarter of the weight (NaN: never)
     rolled_s: float = math.nan  # first time the side sheets carried most of the load (NaN: never)
     crawl_m: float = math.nan  # the centroid's advance when the first of those began (the whole advance if neither)
+    median_bottom_support_n: float = math.nan  # median over ticks of the true bottom sheets' whole contact forces'
+    # upward part (normal and friction; PhysicsWorld.contact_support_n): the weight, less what lands off the sheets
+    median_support_n: float = math.nan  # … of every contact force on the robot: the weight when nothing accelerates
 
     @property
     def crawled_traverse(self) -> bool:
@@ -353,6 +359,8 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     sim_times: list[float] = []
     sim_points: list[np.ndarray] = []
     sim_sheets: list[np.ndarray] = []
+    sim_support: list[np.ndarray] = []
+    sim_support_total: list[float] = []
     corrections: list[np.ndarray] = []
     currents: list[np.ndarray] = []
     bottom_totals: list[np.ndarray] = []
@@ -396,6 +404,11 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             known = rows >= 0
             sheet[known] = loads[rows[known], segments[known]]
             sim_sheets.append(sheet)
+            support, support_total = lab.contact_support_n()
+            sheet = np.zeros(len(names))
+            sheet[known] = support[rows[known], segments[known]]
+            sim_support.append(sheet)
+            sim_support_total.append(support_total)
             k += 1
             lab.advance_to(t_capture + k * period_s)
             counts, conductance, board_time, seq, forces, status = read_board()
@@ -420,7 +433,8 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     final = lab.body_state().points_m
     end_centroid = float(final[:, 0].mean())
     times, points, sheets = np.array(sim_times), np.array(sim_points), np.array(sim_sheets)
-    _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain.text if terrain is not None else "")
+    _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain.text if terrain is not None else "",
+                 support=(np.array(sim_support).reshape(len(times), -1), np.array(sim_support_total)))
     if controller != "feedforward":  # SPEC §3.5: /control when a controller other than feedforward ran
         _append_control(out, times, np.array(corrections), controller, gains or FeedbackGains(), tail_load_n)
     totals = np.concatenate(bottom_totals) if bottom_totals else np.array([np.nan])
@@ -438,7 +452,10 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                             front_face_cv=front_face_cv(times, points, sheets[:, bottom] if len(sheets) else sheets,
                                                         scene_terrain),
                             lost_ground_s=lost_ground_s, rolled_s=rolled_s,
-                            crawl_m=crawl_m(times, points, (lost_ground_s, rolled_s)))
+                            crawl_m=crawl_m(times, points, (lost_ground_s, rolled_s)),
+                            median_bottom_support_n=float(np.median(np.array(sim_support)[:, bottom].sum(axis=1)))
+                            if sim_support else math.nan,
+                            median_support_n=float(np.median(sim_support_total)) if sim_support_total else math.nan)
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
@@ -563,8 +580,10 @@ def _append_control(out: str | Path, times: np.ndarray, corrections: np.ndarray,
 
 
 def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_n: np.ndarray, bottom: np.ndarray,
-                 lab: Any, terrain_text: str) -> None:
-    """The simulated body as the extra ``/sim`` group (after the recording is closed: readers ignore it)."""
+                 lab: Any, terrain_text: str, support: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """The simulated body as the extra ``/sim`` group (after the recording is closed: readers ignore it);
+    ``support``: (T×C, T) the upward part of each sheet's whole contact force and of every contact force on the
+    robot (``PhysicsWorld.contact_support_n``)."""
     world = lab.physics.world
     scene = world.scene
     terrain = scene.terrain
@@ -574,6 +593,9 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.create_dataset("points_m", data=points)
         group.create_dataset("sheet_true_N", data=sheets_n.reshape(len(times), -1))
         group.create_dataset("bottom_true_N", data=sheets_n.reshape(len(times), -1)[:, bottom])
+        if support is not None:
+            group.create_dataset("sheet_support_N", data=support[0])
+            group.create_dataset("support_N", data=support[1])
         group.attrs["scene"] = terrain_text or _legacy_scene_text(terrain)
         group.attrs["scene_name"] = terrain.name
         group.attrs["obstacle_height_m"] = max((o.top_m for o in terrain.obstacles), default=0.0)
@@ -583,7 +605,9 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["weight_N"] = world.weight_n
         group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
                                "end of segment i; sheet_true_N the normal force on each sheet (board channel "
-                               "order); the obstacles span y, the robot heads toward +x")
+                               "order); sheet_support_N the upward part of each sheet's whole contact force "
+                               "(normal and friction), support_N that of every contact force on the robot (the "
+                               "weight when nothing accelerates); the obstacles span y, the robot heads toward +x")
 
 
 def _legacy_scene_text(terrain: Any) -> str:

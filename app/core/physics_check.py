@@ -6,7 +6,10 @@
   they must match; on a curve the normals add up to more, see :mod:`app.core.experiment`), and the same with each
   sheet's force taken along its segment's up axis (what must match the weight on any terrain, less what friction
   holds up, which no sheet feels), and every sheet's force summed (a body that rolled onto its side carries its
-  weight on its side sheets);
+  weight on its side sheets); and, from ``/sim/support_N`` and ``/sim/sheet_support_N`` when the recording has them,
+  the upward part of the *whole* contact forces (normal and friction) on the bottom sheets and on the whole robot:
+  Newton's check, the weight on any terrain when nothing accelerates, which the sheets' readings (pressure only)
+  cannot be on a curve or a slope held by friction;
 - **jumps**: how often a sheet's force changes by more than ``jump_n`` between two board frames (30 Hz), in the
   true forces and in the app's estimated ones, and how many of those are *reversals* (a jump followed at once by
   one the other way: chatter, as opposed to a load moving fast);
@@ -54,6 +57,9 @@ class PhysicsCheck:
     median_p99_n: float
     worst_p99_n: float
     estimated_saturated_frames: float = math.nan  # fraction of frames with a sheet at the readout's ceiling
+    support_within_10pct: float = math.nan  # … every contact force's upward part on the robot (normal and friction)
+    bottom_support_within_10pct: float = math.nan  # … the bottom sheets' whole contact forces' upward part
+    median_bottom_support_n: float = math.nan
 
 
 def _nan_or(reduce: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
@@ -86,6 +92,8 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         daq_t = f["daq/time_s"][:]
         estimated = f["forces/force_N"][:] if "forces" in f else None
         status = f["forces/status"][:] if "forces" in f and "status" in f["forces"] else None
+        support = f["sim/support_N"][:] if "support_N" in f["sim"] else None
+        sheet_support = f["sim/sheet_support_N"][:] if "sheet_support_N" in f["sim"] else None
     rows, segments = channel_map(channels, points.shape[1] - 1)
     bottom = rows == 0
     bottom_sum = true[:, bottom].sum(axis=1)
@@ -120,6 +128,11 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         if judged.any():
             rms[judged] = np.sqrt(np.nanmean(error[:, judged] ** 2, axis=0))
             p99[judged] = np.nanpercentile(np.abs(error[:, judged]), 99, axis=0)
+    def within(values: np.ndarray | None) -> float:
+        return float(np.mean(np.abs(values - weight) <= 0.1 * weight)) if values is not None and len(values) \
+            else math.nan
+
+    bottom_support = sheet_support[:, bottom].sum(axis=1) if sheet_support is not None else None
     return PhysicsCheck(
         frames=len(true), weight_n=weight,
         bottom_within_10pct=float(np.mean(np.abs(bottom_sum - weight) <= 0.1 * weight)),
@@ -131,4 +144,7 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         median_rms_n=_nan_or(np.nanmedian, rms), worst_rms_n=_nan_or(np.nanmax, rms),
         median_p99_n=_nan_or(np.nanmedian, p99), worst_p99_n=_nan_or(np.nanmax, p99),
         estimated_saturated_frames=saturated_frames,
+        support_within_10pct=within(support), bottom_support_within_10pct=within(bottom_support),
+        median_bottom_support_n=float(np.median(bottom_support)) if bottom_support is not None and
+        len(bottom_support) else math.nan,
     )

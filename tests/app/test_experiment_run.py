@@ -29,7 +29,7 @@ def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_sc
                  "--seconds", "3", "--settle", "1", "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "scene ramp" in printed and "vertical part" in printed
+    assert "scene ramp" in printed and "vertical part" in printed and "on the whole robot" in printed
     with h5py.File(out) as f:
         sim = f["sim"]
         sheets = sim["sheet_true_N"][:]
@@ -37,11 +37,16 @@ def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_sc
         assert sim.attrs["scene"] == scene.read_text(encoding="utf-8")
         assert np.allclose(sim["bottom_true_N"][:], sheets[:, 2::3])
         weight = sim.attrs["weight_N"]
+        support, support_total = sim["sheet_support_N"][:], sim["support_N"][:]
         goals = f["robot/goal_rad"][:]
         status, counts = f["forces/status"][:], f["daq/counts"][:]
     assert status.shape == counts.shape  # each force's status code, one row per board sample
     assert (status[counts == 0] == ForceStatus.READOUT_SATURATED).all()  # a reading at the ceiling is flagged
     assert np.abs(goals[-1, [1, 3]]).max() > 0.1  # the shape's yaw bends were played
+    assert support.shape == sheets.shape and support_total.shape == (sheets.shape[0],)
+    # Newton: the whole contact forces hold the robot up (a playing body accelerates a little)
+    assert np.mean(np.abs(support_total - weight) <= 0.1 * weight) >= 0.95
+    assert np.all(support.sum(axis=1) <= support_total + 1e-9)
     bottom = sheets[:, 2::3].sum(axis=1)
     assert np.median(bottom) == pytest.approx(weight, rel=0.1)  # a gentle ramp: normals nearly vertical
     jumps = np.abs(np.diff(sheets[::2], axis=0)).max(axis=1)  # 25 Hz

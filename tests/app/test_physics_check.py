@@ -105,3 +105,25 @@ def test_a_force_flagged_at_the_readout_ceiling_is_a_lower_bound_left_out_of_the
         f["forces/status"] = status
     check = check_recording(path)
     assert check.worst_rms_n == pytest.approx(0.0, abs=1e-9) and check.estimated_saturated_frames == 1.0
+
+
+def test_the_whole_contact_forces_check_newton_where_the_sheets_readings_exceed_the_weight(tmp_path):
+    ticks = 300
+    true = np.zeros((ticks, 36))
+    true[:, ROWS == 0] = 1.2 * WEIGHT_N / 12  # a curve: the normals add up to more than the weight
+    support = np.zeros((ticks, 36))
+    support[:, ROWS == 0] = 0.97 * WEIGHT_N / 12  # their whole forces' upward part: the weight less the ends' share
+    total = np.full(ticks, WEIGHT_N)
+    total[100:106] = 2.0 * WEIGHT_N  # the head landing on the floor: the body accelerates for six ticks
+    path = tmp_path / "r.h5"
+    _write(path, true, _straight(ticks))
+    with h5py.File(path, "a") as f:
+        f["sim/sheet_support_N"], f["sim/support_N"] = support, total
+    check = check_recording(path)
+    assert check.bottom_within_10pct == 0.0
+    assert check.bottom_support_within_10pct == 1.0
+    assert check.median_bottom_support_n == pytest.approx(0.97 * WEIGHT_N)
+    assert check.support_within_10pct == pytest.approx(1.0 - 6 / ticks)
+    _write(tmp_path / "old.h5", true, _straight(ticks))  # a recording from before: not known, not a pass
+    old = check_recording(tmp_path / "old.h5")
+    assert np.isnan(old.support_within_10pct) and np.isnan(old.median_bottom_support_n)

@@ -95,3 +95,25 @@ def test_on_the_paper_obstacle_the_normal_forces_exceed_the_weight_by_the_curve_
     assert 0.9 * world.weight_n < vertical < world.weight_n
     assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)
     assert bottom.sum() > 1.1 * world.weight_n
+
+
+@pytest.mark.parametrize("terrain", [
+    # terrains no built-in scene has: a lower, rougher half cylinder, and a steep wedge whose slope friction must hold
+    '[ground]\nfriction = 0.35\n[[obstacle]]\nshape = "half_cylinder"\nx_m = 0.0\nradius_m = 0.22\nfriction = 0.15\n'
+    '[robot]\nhead_x_m = 0.38\nstart = "settle"\n',
+    '[ground]\nfriction = 0.4\n[[obstacle]]\nshape = "wedge"\nx_m = 0.0\nlength_m = 0.5\nheight_m = 0.16\n'
+    'friction = 0.35\n[robot]\nhead_x_m = 0.3\nstart = "settle"\n',
+])
+def test_the_whole_contact_forces_carry_the_weight_where_the_sheets_readings_cannot(tmp_path, terrain):
+    path = tmp_path / "terrain.toml"
+    path.write_text(terrain, encoding="utf-8")
+    world = PhysicsWorld(SceneParams(terrain_scene=load_scene(str(path))))
+    world.step(3000)  # 6 s limp: settled
+    sheets, total = world.contact_support_n()
+    assert total == pytest.approx(world.weight_n, rel=0.01)  # Newton, nothing accelerating
+    assert total == pytest.approx(world.vertical_contact_force_n(), abs=1e-9)
+    assert sheets.sum() <= total + 1e-9 and sheets.sum() > 0.8 * total  # what lands on no sheet: ends, top
+    readings = world.segment_loads_n()
+    frames = world.body_state().frames
+    # a sheet reads pressure only: its readings' vertical part misses what friction holds up on the slopes
+    assert float(np.sum(readings[0] * frames[:, 2, 2])) < sheets[0].sum()

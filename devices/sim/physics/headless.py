@@ -158,3 +158,8 @@ class HeadlessPhysicsLab:
     def segment_loads_n(self) -> np.ndarray:
         """(3, n) true normal force per sheet (bottom, left, right rows), N."""
         return self.physics.world.segment_loads_n()
+
+    def contact_support_n(self) -> tuple[np.ndarray, float]:
+        """The upward part (N) of the whole contact forces per sheet (3, n) and on the whole robot (see
+        ``PhysicsWorld.contact_support_n``)."""
+        return self.physics.world.contact_support_n()

@@ -474,6 +474,38 @@ class PhysicsWorld:
                 total += float(world_force[2]) * (1.0 if robot_second else -1.0)
             return total
 
+    def contact_support_n(self) -> tuple[np.ndarray, float]:
+        """The weight check on any terrain, this step: ``(sheets, total)`` — ``sheets`` (3, n) the upward part (N) of
+        the whole contact force (normal *and* friction) on each segment's bottom, left and right sheet, shared among
+        them by where each contact is as the sheets' readings are (:func:`sheet_weights`), and ``total`` the upward
+        part of every contact force on the robot, sensed or not (its segments' ends, the PLA top, the nose).
+        ``total`` is the weight when nothing accelerates (Newton), whatever the terrain's shape; ``sheets`` summed
+        is that less what lands on no sheet. A sheet's *reading* is only the pressure part of its force
+        (:meth:`segment_loads_n`); on a slope friction holds up some weight no sheet reads."""
+        with self._lock:
+            sheets = np.zeros((3, self.n_joints))
+            total = 0.0
+            data, model, buf = self.data, self.model, self._force_buf
+            for i in range(data.ncon):
+                contact = data.contact[i]
+                first, second = self._segment_of_geom[contact.geom1], self._segment_of_geom[contact.geom2]
+                robot_first = first >= 0 or contact.geom1 == self._head_geom
+                robot_second = second >= 0 or contact.geom2 == self._head_geom
+                if robot_first == robot_second:  # not the robot's, or the robot on itself (no net force)
+                    continue
+                mujoco.mj_contactForce(model, data, i, buf)
+                up = float((contact.frame.reshape(3, 3).T @ buf[:3])[2]) * (1.0 if robot_second else -1.0)
+                total += up
+                segment = second if robot_second else first
+                if segment < 0:
+                    continue  # the nose
+                rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
+                local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
+                if math.hypot(float(local[1]), float(local[2])) < 1e-9:
+                    continue
+                sheets[:, segment] += up * sheet_weights(math.degrees(math.atan2(float(local[1]), -float(local[2]))))
+            return sheets, total
+
     def body_state(self) -> BodyState:
         with self._lock:
             frames = self.data.xmat[self._seg_body].reshape(-1, 3, 3).copy()
