@@ -49,7 +49,9 @@ comes from the feedforward's progress; a new play starts afresh), so the propaga
 nothing. Stale or flagged front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two
 tail segments' bottom sheets carry less than it (the tail has left the floor: the body balances on the terrain with
 both ends up, and opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0
-instead (never past it); flagged or stale tail sensors leave the lead as without the guard. Chosen on
+instead (never past it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted
+tail, closes too (at that part of the lead's rate); flagged or stale tail sensors leave the lead as without the
+guard. Chosen on
 benchmarks/sweep_tune_tail_guard.toml, judged on held-out set 6 (docs/FORCE_FEEDBACK.md).
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
@@ -91,6 +93,8 @@ class FeedbackGains:
     lead_gain: float = 0.1  # rad/s, signed: + the front straightens out (turns up) while it feels nothing, − it tilts down
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
     tail_guard_n: float = 0.5  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
+    tail_guard_back: float = 0.0  # while the guard acts, the bend already carried back closes too, at this part of the
+    # lead's rate (0: only the lead joint closes)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5
@@ -119,6 +123,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
     "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0), "tail_guard_n": (0.0, 5.0),
+    "tail_guard_back": (0.0, 3.0),
 }
 
 
@@ -246,6 +251,7 @@ class ForceFeedbackLaw:
             self.lead_rad = 0.0
             return
         segments = self._lead_segments
+        tail_off = False
         if valid[segments].all() and np.isfinite(bottom[segments]).all():
             load = self.front_load_n = float(bottom[segments].sum())
             if load < g.contact_n:
@@ -258,7 +264,8 @@ class ForceFeedbackLaw:
             self.tail_load_n = math.nan
             if g.tail_guard_n > 0.0 and valid[tail].all() and np.isfinite(bottom[tail]).all():
                 self.tail_load_n = float(bottom[tail].sum())
-                if self.tail_load_n < g.tail_guard_n and self.lead_rad != 0.0:
+                tail_off = self.tail_load_n < g.tail_guard_n
+                if tail_off and self.lead_rad != 0.0:
                     # the tail has left the floor: the body balances on the terrain with both ends up (a seesaw);
                     # opening the drape further tips it over the crest. Close the lead back toward the taught shape.
                     closing = abs(g.lead_gain) if dt_s <= 0.0 else min(abs(g.lead_gain), abs(self.lead_rad) / dt_s)
@@ -267,6 +274,10 @@ class ForceFeedbackLaw:
             rate = -self.lead_rad / g.relax_s
         self.lead_rad = float(np.clip(self.lead_rad + np.clip(rate, -g.max_rate_rad_s, g.max_rate_rad_s) * dt_s,
                                       -g.max_node_rad, g.max_node_rad))
+        if tail_off and g.tail_guard_back > 0.0 and dt_s > 0.0 and self._lead_value:
+            # the bend the lead opened earlier is travelling back toward the lifted tail: close it too, never past 0
+            step = g.tail_guard_back * abs(g.lead_gain) * dt_s
+            self._lead_value = [v - math.copysign(min(abs(v), step), v) for v in self._lead_value]
         if phase is None:
             return
         if self._lead_phase and phase < self._lead_phase[-1] - 0.5:  # a new play: the shape re-formed at the head
