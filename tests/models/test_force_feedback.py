@@ -231,3 +231,31 @@ def test_the_tail_guard_closes_the_lead_while_the_tail_is_off_the_floor_and_0_tu
     for _ in range(50):
         law.step(DT, _front(0.0), valid)
     assert law.lead_rad == pytest.approx(0.2) and np.isnan(law.tail_load_n)
+
+
+def test_the_guard_reaching_back_closes_the_bend_already_carried_toward_the_lifted_tail():
+    def run(back: float, tail_n: float, lifted_ticks: int) -> ForceFeedbackLaw:
+        law = _law(lead_gain=0.1, push_gain=0.0, conform_gain=0.0, tail_guard_n=0.5, tail_guard_back=back)
+        phase = 0.0
+        for _ in range(200):  # 4 s with nothing under the front, the shape shifting 0.5 pitch joints a second
+            phase += 0.5 * DT
+            law.step(DT, _front(0.0), np.ones(12, bool), phase=phase)
+        bottom = _front(0.0)
+        bottom[[10, 11]] = tail_n / 2
+        for _ in range(lifted_ticks):
+            phase += 0.5 * DT
+            law.step(DT, bottom, np.ones(12, bool), phase=phase)
+        return law
+
+    carried = run(0.0, 2.0, 0).lead_correction()
+    assert carried[4] > 0.1  # the lead's bend travels back behind joint 3
+    assert FeedbackGains().tail_guard_back == 0.0  # off by default: only the lead joint closes
+    without = run(0.0, 0.2, 50).lead_correction()
+    with_back = run(1.0, 0.2, 50).lead_correction()
+    assert with_back[2] == pytest.approx(without[2])  # the lead joint closes as before
+    behind = [4, 6, 8, 10]
+    assert np.all(with_back[behind] <= without[behind] + 1e-12) and with_back[behind].sum() < without[behind].sum() - 0.1
+    assert np.all(run(3.0, 0.2, 300).lead_correction() >= 0.0)  # closed toward the taught shape, never past it
+    assert np.allclose(run(3.0, 2.0, 50).lead_correction(), run(0.0, 2.0, 50).lead_correction())  # tail down: none
+    with pytest.raises(GainsError):
+        FeedbackGains(tail_guard_back=4.0)
