@@ -405,9 +405,9 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             sheet[known] = loads[rows[known], segments[known]]
             sim_sheets.append(sheet)
             support, support_total = lab.contact_support_n()
-            sheet = np.zeros(len(names))
-            sheet[known] = support[rows[known], segments[known]]
-            sim_support.append(sheet)
+            support_row = np.zeros(len(names))
+            support_row[known] = support[rows[known], segments[known]]
+            sim_support.append(support_row)
             sim_support_total.append(support_total)
             k += 1
             lab.advance_to(t_capture + k * period_s)

@@ -42,6 +42,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -409,20 +410,29 @@ class PhysicsWorld:
             mujoco.mj_contactForce(model, data, i, buf)
             if buf[0] <= 0.0:
                 continue
-            rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
-            local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
-            ly, lz = float(local[1]), float(local[2])
-            if math.hypot(ly, lz) < 1e-9:
+            share = self._contact_share(contact, segment)
+            if share is None:
                 continue
             # the contact's whole force on geom2, from its frame (rows: normal, tangents) to the world, on the segment
             force = contact.frame.reshape(3, 3).T @ buf[:3]
             if self._segment_of_geom[contact.geom2] != segment:
                 force = -force
+            rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
             radial = (rotation.T @ force)[1:3]  # its axial part goes to the housing through the shell's rigid x
-            pressing = float(math.hypot(*radial))
-            sheets[:, segment] += pressing * sheet_weights(math.degrees(math.atan2(ly, -lz)))
+            sheets[:, segment] += float(math.hypot(*radial)) * share
             push[segment] += radial
         return sheets, push
+
+    def _contact_share(self, contact: Any, segment: int) -> np.ndarray | None:
+        """How ``contact`` on ``segment`` is shared by its (bottom, left, right) sheets (:func:`sheet_weights` of the
+        contact's angle around the segment); None for a contact on the segment's axis (no angle)."""
+        data = self.data
+        rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
+        local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
+        ly, lz = float(local[1]), float(local[2])
+        if math.hypot(ly, lz) < 1e-9:
+            return None
+        return sheet_weights(math.degrees(math.atan2(ly, -lz)))
 
     def _shell_force(self) -> np.ndarray:
         """(n, 2) the force (N) each shell passes to its segment's housing (y, z in the segment's frame) through its
@@ -459,20 +469,8 @@ class PhysicsWorld:
 
     def vertical_contact_force_n(self) -> float:
         """The upward part (N) of every contact force on the robot (normal and friction): the weight when nothing
-        accelerates, whatever the terrain's shape."""
-        with self._lock:
-            total = 0.0
-            for i in range(self.data.ncon):
-                contact = self.data.contact[i]
-                robot_first = self._segment_of_geom[contact.geom1] >= 0 or contact.geom1 == self._head_geom
-                robot_second = self._segment_of_geom[contact.geom2] >= 0 or contact.geom2 == self._head_geom
-                if not (robot_first or robot_second):
-                    continue
-                mujoco.mj_contactForce(self.model, self.data, i, self._force_buf)
-                # the force in the contact frame acts on geom2 from geom1; rows of frame are the frame's axes
-                world_force = contact.frame.reshape(3, 3).T @ self._force_buf[:3]
-                total += float(world_force[2]) * (1.0 if robot_second else -1.0)
-            return total
+        accelerates, whatever the terrain's shape (:meth:`contact_support_n`'s total)."""
+        return self.contact_support_n()[1]
 
     def contact_support_n(self) -> tuple[np.ndarray, float]:
         """The weight check on any terrain, this step: ``(sheets, total)`` — ``sheets`` (3, n) the upward part (N) of
@@ -494,16 +492,13 @@ class PhysicsWorld:
                 if robot_first == robot_second:  # not the robot's, or the robot on itself (no net force)
                     continue
                 mujoco.mj_contactForce(model, data, i, buf)
+                # the force in the contact frame acts on geom2 from geom1; rows of frame are the frame's axes
                 up = float((contact.frame.reshape(3, 3).T @ buf[:3])[2]) * (1.0 if robot_second else -1.0)
                 total += up
                 segment = second if robot_second else first
-                if segment < 0:
-                    continue  # the nose
-                rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
-                local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
-                if math.hypot(float(local[1]), float(local[2])) < 1e-9:
-                    continue
-                sheets[:, segment] += up * sheet_weights(math.degrees(math.atan2(float(local[1]), -float(local[2]))))
+                share = self._contact_share(contact, segment) if segment >= 0 else None  # the nose: no sheet
+                if share is not None:
+                    sheets[:, segment] += up * share
             return sheets, total
 
     def body_state(self) -> BodyState:
