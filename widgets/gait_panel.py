@@ -37,6 +37,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from models.force_feedback import FeedbackGains
 from widgets import theme
 from widgets.body_view import BodyView
 from widgets.tables import cell_item
@@ -83,18 +84,19 @@ def _spin(lo: float, hi: float, value: float, step: float, decimals: int, suffix
     return spin
 
 
-# The feedback gains the panel lets a user adjust, live, within these ranges (the law's safe ranges may be wider).
+# The feedback gains the panel lets a user adjust, live, within these ranges (the law's safe ranges may be wider);
+# each starts at the law's default (FeedbackGains).
 FEEDBACK_SPINS = (
-    ("conform_gain", "conform", 0.0, 0.5, 0.15, 0.01, 2, " rad/s",
+    ("conform_gain", "conform", 0.0, 0.5, 0.01, 2, " rad/s",
      "How fast a node the shape wraps reaches for contact it lost, and yields per unit of overload"),
-    ("push_gain", "push", 0.0, 0.5, 0.10, 0.01, 2, " rad/s",
+    ("push_gain", "push", 0.0, 0.5, 0.01, 2, " rad/s",
      "How fast a node in contact presses down when it carries less than the target force"),
-    ("target_n", "target", 0.5, 20.0, 5.0, 0.5, 1, " N",
+    ("target_n", "target", 0.5, 20.0, 0.5, 1, " N",
      "The load a node (two segments' bottom sheets) should push with"),
-    ("lead_gain", "lead", -0.5, 0.5, 0.10, 0.01, 2, " rad/s",
+    ("lead_gain", "lead", -0.5, 0.5, 0.01, 2, " rad/s",
      "How fast joint 3 bends the front while its bottom sheets feel nothing: positive turns it up and forward, out "
      "of the taught bend; negative turns it down toward the terrain. The bend travels back with the shape (0: off)"),
-    ("tail_guard_n", "tail guard", 0.0, 5.0, 0.5, 0.1, 1, " N",
+    ("tail_guard_n", "tail guard", 0.0, 5.0, 0.1, 1, " N",
      "While the two tail segments' bottom sheets carry less than this, the lead closes back toward the taught shape "
      "instead of opening it: the tail has left the floor and the body is balancing on the terrain (0: off)"),
 )
@@ -225,8 +227,9 @@ class GaitPanel(QWidget):
             "uncalibrated sensor leaves its node on feedforward.")
         controller_form.addRow("mode", self.controller_combo)
         self.gain_spins: dict[str, QDoubleSpinBox] = {}
-        for key, label, lo, hi, value, step, decimals, suffix, tip in FEEDBACK_SPINS:
-            spin = _spin(lo, hi, value, step, decimals, suffix)
+        defaults = FeedbackGains()
+        for key, label, lo, hi, step, decimals, suffix, tip in FEEDBACK_SPINS:
+            spin = _spin(lo, hi, getattr(defaults, key), step, decimals, suffix)
             spin.setToolTip(tip + " (adjustable while playing)")
             spin.valueChanged.connect(lambda _v: self.gains_changed.emit(self.gains()))
             self.gain_spins[key] = spin
