@@ -237,7 +237,7 @@ def strain_from_conductance(
 ) -> StrainResult:
     """Strain from conductance in siemens (C = 0 is an open circuit); see :func:`strain_from_resistance`."""
     c = np.asarray(conductance_s, dtype=np.float64)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):  # C subnormal: 1/C = ∞, an open circuit
         r = np.where(c == 0.0, np.inf, 1.0 / np.where(c == 0.0, 1.0, c))
     return strain_from_resistance(r, force_n, phys)
 
@@ -356,7 +356,8 @@ def strain_from_resistance(
     if not phys.has_contact and r.size:
         # Hot path of the no-contact inverse: one min/max pass proves every reading usable (NaN fails both).
         r_min, r_max = float(r.min()), float(r.max())
-        if r_min > 0.0 and r_max < np.inf:
+        # The ratio, not R, must be > 0: a subnormal R (5e-324 Ω) is > 0 but R/R0 underflows to 0 (log → -inf).
+        if r_min / phys.R0_ohm > 0.0 and r_max < np.inf:
             eps, converged, iterations = _newton_strain(np.log(r / phys.R0_ohm), phys.tunnelling_k)
             status = np.zeros(r.shape, dtype=np.int8)
             if float(eps.min()) < 0.0:
@@ -376,7 +377,8 @@ def strain_from_resistance(
     status[negative_r] = StrainStatus.NEGATIVE_RESISTANCE
     open_circuit = ~nan_in & np.isposinf(r)
     status[open_circuit] = StrainStatus.OPEN_CIRCUIT
-    short = ~nan_in & (r == 0.0)
+    # R = 0, or so small that R/R0 underflows to 0: indistinguishable from a short (log would be -inf).
+    short = ~nan_in & (r / phys.R0_ohm == 0.0)
     status[short] = StrainStatus.SHORT_CIRCUIT
     usable = ~(nan_in | negative_r | open_circuit | short)
     if phys.has_contact:
@@ -388,6 +390,9 @@ def strain_from_resistance(
     exceeds = usable & (r_t <= 0.0)
     status[exceeds] = StrainStatus.CONTACT_EXCEEDS_READING
     usable &= ~exceeds
+    tunnel_short = usable & (r_t / phys.R0_ohm == 0.0)  # R_t > 0 but R_t/R0 underflows: a short at the tunnel
+    status[tunnel_short] = StrainStatus.SHORT_CIRCUIT
+    usable &= ~tunnel_short
 
     iterations = 0
     if np.any(usable):
