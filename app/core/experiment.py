@@ -380,6 +380,11 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
         k = 0
         while True:
             t = k * period_s
+            # The body and its true forces at the tick's instant t: read_robot then waits REPLY_WAIT_S for the
+            # replies, and sampling after it recorded /sim 8.5 ms late under the tick's time stamp.
+            body = lab.body_state()
+            loads = lab.segment_loads_n()
+            support, support_total = lab.contact_support_n()
             reading = lab.read_robot()
             goal = motion.goal_at(t, reading.position_rad)
             if goal is None or (seconds is not None and t > seconds):
@@ -394,17 +399,14 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             writer.append_robot(host0 + t, goal, reading.position_rad, reading.current_ma)
             currents.append(reading.current_ma)
             corrections.append(feedback.correction_rad if feedback is not None else np.zeros(robot.n_joints))
-            body = lab.body_state()
             sim_times.append(t)
             sim_points.append(body.points_m)
             if math.isnan(traverse_s) and float(body.points_m[-1, 0]) > far_edge:
                 traverse_s = t
-            loads = lab.segment_loads_n()
             sheet = np.zeros(len(names))
             known = rows >= 0
             sheet[known] = loads[rows[known], segments[known]]
             sim_sheets.append(sheet)
-            support, support_total = lab.contact_support_n()
             support_row = np.zeros(len(names))
             support_row[known] = support[rows[known], segments[known]]
             sim_support.append(support_row)

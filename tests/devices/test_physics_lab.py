@@ -116,3 +116,31 @@ def test_the_process_wide_physics_lab_stops_its_thread_before_the_interpreter_ex
                           cwd=Path(__file__).resolve().parents[2])
     assert done.returncode == 0, done.stderr
     assert done.stdout.split("\n")[:2] == ["running", "stopped at exit"], done.stdout
+
+
+def test_a_board_frame_read_late_carries_the_forces_of_its_own_instant():
+    """The board samples at k / 30 s; a host reading it on a 50 Hz tick asks for frames already stepped past. Those
+    read what the sheets carried at the frame's instant (kept on the way), not the forces of whenever the host came —
+    the latter put a 0-20 ms error cycling with the 50/30 Hz beat into every frame of a moving body."""
+    from devices.sim.physics.headless import ManualClock
+
+    def dropping(clock: ManualClock) -> PhysicsBackend:
+        backend = PhysicsBackend(FLAT, clock, scene=SceneParams(obstacle_height_m=0.0))  # type: ignore[arg-type]
+        backend.world.place(height_m=0.12)  # 8 cm above the floor: it falls, lands and rebounds — loads change fast
+        return backend
+
+    period = 1.0 / FLAT.board.rate_hz
+    late_clock, on_time_clock = ManualClock(), ManualClock()
+    late, on_time = dropping(late_clock), dropping(on_time_clock)
+    late_clock.set(0.5)
+    late.advance_to(0.5)  # the host comes late: every frame up to 0.5 s is read now
+    changed = 0
+    for k in range(1, 15):
+        on_time_clock.set(k * period)
+        on_time.advance_to(k * period)
+        truth = on_time.world.segment_loads_n()  # read at the instant, from a world stepped the same way
+        expected = np.zeros(len(FLAT.board.channel_names))
+        expected[late._known] = truth[late._rows[late._known], late._segments[late._known]]
+        assert late.forces_n(k * period) == pytest.approx(expected, abs=1e-9)
+        changed += not np.allclose(expected, late.forces_n(0.5), atol=0.05)
+    assert changed >= 7  # the body was moving: the present forces would have been wrong

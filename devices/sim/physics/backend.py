@@ -12,8 +12,10 @@ Threads: all methods may be called from any thread (the world locks).
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,6 +29,7 @@ from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, chann
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.physics.render import ThreadRenderers
 
+SAMPLE_HISTORY = 64  # board instants whose sheet loads are kept (~2 s at 30 Hz): a board catches up a few frames
 STEP_INTERVAL_S = 0.02  # the background thread catches up every 20 ms of wall time (the 3-D view draws <= 10/s;
 # the chain and the board step the world to their own events anyway)
 
@@ -53,6 +56,13 @@ class PhysicsBackend:
         self._rows, self._segments = channel_map(config.board.channel_names, self.world.n_joints)
         self._known = self._rows >= 0
         self._time0_s = clock.now()  # the world starts at 0 s when the clock reads this
+        # The board samples at k·period of the clock (VirtualBoard); the world is stopped at each such instant on its
+        # way and the sheet loads kept, so a frame due in the past reads the forces of its own instant, not of
+        # whenever the host came to read (a 50 Hz control tick reading a 30 Hz board made frames 0-20 ms late).
+        self._sample_period_s = 1.0 / config.board.rate_hz
+        self._next_sample = math.ceil(self._time0_s / self._sample_period_s)
+        self._samples: deque[tuple[int, np.ndarray]] = deque(maxlen=SAMPLE_HISTORY)
+        self._advance_lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._renderers: ThreadRenderers | None = None  # one per rendering thread, made on first use
@@ -62,8 +72,32 @@ class PhysicsBackend:
         self.world.command(torque_on, goal_rad, speed_rad_s)
 
     def advance_to(self, sim_s: float) -> None:
-        """Step the world to the clock's simulated time ``sim_s`` (s)."""
-        self.world.advance_to(sim_s - self._time0_s)
+        """Step the world to the clock's simulated time ``sim_s`` (s), stopping at each board instant on the way to
+        keep its sheet loads (:meth:`forces_n`)."""
+        with self._advance_lock:
+            period = self._sample_period_s
+            # a slow machine: the world skips what it cannot catch up on, and the instants skipped read the present
+            self.world.limit_lag(sim_s - self._time0_s)
+            self._next_sample = max(self._next_sample,
+                                    math.ceil((self.world.time_s + self._time0_s) / period - 1e-9))
+            while self._next_sample * period <= sim_s:
+                self.world.advance_to(self._next_sample * period - self._time0_s)
+                self._samples.append((self._next_sample, self.world.segment_loads_n()))
+                self._next_sample += 1
+            self.world.advance_to(sim_s - self._time0_s)
+
+    def _loads_at(self, t_s: float) -> np.ndarray:
+        """The sheet loads (3, n) at ``t_s``: those kept for that board instant, else the present ones."""
+        with self._advance_lock:
+            self.advance_to(t_s)
+            index = round(t_s / self._sample_period_s)
+            if abs(index * self._sample_period_s - t_s) <= 1e-9 * max(1.0, abs(t_s)):
+                for kept, loads in reversed(self._samples):
+                    if kept == index:
+                        return loads
+                    if kept < index:
+                        break
+            return self.world.segment_loads_n()
 
     def joint_state(self) -> JointState:
         return self.world.joint_state()
@@ -82,9 +116,9 @@ class PhysicsBackend:
     def forces_n(self, t_s: float) -> np.ndarray:
         """Normal force (N) on each channel of ``config.board`` at the clock's time ``t_s``: the contact force on
         the sheet the channel names (``S06B``), 0 for a channel the robot does not carry. A time already stepped
-        past reads the present forces (the board catches up a few frames at most)."""
-        self.advance_to(t_s)
-        loads = self.world.segment_loads_n()
+        past reads the forces kept for it if it is a board instant (the board catches up a few frames at most), else
+        the present ones."""
+        loads = self._loads_at(t_s)
         forces = np.zeros(self._rows.size)
         forces[self._known] = loads[self._rows[self._known], self._segments[self._known]]
         return forces

@@ -321,20 +321,26 @@ class PhysicsWorld:
         """Step until the world's clock reaches ``t_s`` (s); if that is more than ``MAX_CATCH_UP_S`` ahead, skip the
         excess (the robot freezes for it, counted in ``lagged_s``) so a slow machine never blocks a caller long."""
         with self._lock:
+            self.limit_lag(t_s)
             behind = t_s - self.time_s
             if self._resting:  # nothing moves: the clock moves on without stepping
                 if behind > 0.0:
                     self._offset_s += behind
                     self.rested_s += behind
                 return
-            if behind > MAX_CATCH_UP_S:
-                skip = behind - MAX_CATCH_UP_S
-                self._offset_s += skip
-                self.lagged_s += skip
-                behind = MAX_CATCH_UP_S
             n = int(math.floor(behind / self._dt))
             if n > 0:
                 self.step(n)
+
+    def limit_lag(self, t_s: float) -> None:
+        """Skip ahead (counted in ``lagged_s``, the robot frozen for it) so that ``t_s`` is at most
+        ``MAX_CATCH_UP_S`` ahead of the world's clock; a resting world skips nothing (it rests through any gap)."""
+        with self._lock:
+            behind = t_s - self.time_s
+            if not self._resting and behind > MAX_CATCH_UP_S:
+                skip = behind - MAX_CATCH_UP_S
+                self._offset_s += skip
+                self.lagged_s += skip
 
     # -- readings (any thread) -------------------------------------------------------------------------------------------
     def joint_state(self) -> JointState:
