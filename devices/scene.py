@@ -28,6 +28,8 @@ from devices.errors import SceneError
 SIDES = ("B", "L", "R")  # a segment's sheets: row order of the physics lab's loads (the scripted ContactModel's too)
 SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
+MIN_SIZE_M = 0.001  # an obstacle's smallest radius, length or height: below 1 mm nothing the 36 mm-radius robot meets
+# (and MuJoCo refuses a geom whose size rounds to 0 in the model's text)
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
 
@@ -171,11 +173,11 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
         x_m = _number(where, table, "x_m", low=-50.0, high=50.0)
         friction = _number(where, table, "friction", low=0.0, high=5.0, default=ground_friction)
         if shape == "half_cylinder":
-            radius = _number(where, table, "radius_m", low=0.0, high=5.0, low_open=True)
+            radius = _number(where, table, "radius_m", low=MIN_SIZE_M, high=5.0)
             obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius))
         else:
-            length = _number(where, table, "length_m", low=0.0, high=50.0, low_open=True)
-            height = _number(where, table, "height_m", low=0.0, high=5.0, low_open=True)
+            length = _number(where, table, "length_m", low=MIN_SIZE_M, high=50.0)
+            height = _number(where, table, "height_m", low=MIN_SIZE_M, high=5.0)
             obstacles.append(Obstacle(shape, x_m, friction, length_m=length, height_m=height))
     robot = data.get("robot", {})
     if not isinstance(robot, dict):

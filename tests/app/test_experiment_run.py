@@ -81,6 +81,25 @@ def test_a_run_that_cannot_start_says_why_in_one_line(tmp_path, capsys, args, wo
     assert not (tmp_path / "x.h5").exists()
 
 
+@pytest.mark.parametrize(("axes", "angles", "words"), [
+    (["pitch", "yaw"] * 6, [0.0, 9.0] + [0.0] * 10, ["joint 2", "beyond its limit"]),  # 9 rad: no servo goes there
+    (["yaw", "pitch"] * 6, [0.0, 0.1] + [0.0] * 10, ["joint axes differ from the robot's"]),
+])
+def test_a_shape_the_robot_cannot_play_is_refused_before_anything_runs(tmp_path, capsys, axes, angles, words):
+    """As `sensnake play` refuses them: until stop 40 `experiment run` played such shapes (clamped or misread)."""
+    shape = tmp_path / "s.json"
+    shape.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": "s", "axes": axes,
+                                 "angles_rad": angles}), encoding="utf-8")
+    code = main(["experiment", "run", "--scene", "flat", "--shape", str(shape), "--seconds", "1", "--settle", "0.2",
+                 "--out", str(tmp_path / "x.h5")])
+    assert code != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    for word in words:
+        assert word in err
+    assert not (tmp_path / "x.h5").exists()
+
+
 def test_the_estimated_forces_follow_the_true_ones_on_the_fastest_ramp_of_the_paper_obstacle(tmp_path):
     """The paper's drape played at 0.3 rad/s (9x the paper's speed): S05B unloads from ~15 N at ~30 N/s. The whole
     chain (board samples at 30 Hz, sensor physics, estimator) must track it: the estimate's error stays a few
