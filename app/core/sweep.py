@@ -117,11 +117,18 @@ def read_sweep(path: str | Path) -> SweepPlan:
     except GainsError as exc:
         raise SweepError(str(exc)) from None
     scalars = {}
-    for key, default in (("seconds", 60.0), ("speed_rad_s", 0.1), ("settle_s", 6.0)):
+    for key, default, positive in (("seconds", 60.0, True), ("speed_rad_s", 0.1, True), ("settle_s", 6.0, False)):
         value = data.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
-            raise SweepError(f"{path}: '{key}' must be a number ≥ 0, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0 \
+                or (positive and value == 0):
+            raise SweepError(f"{path}: '{key}' must be a number {'>' if positive else '≥'} 0, got {value!r}")
         scalars[key] = float(value)
+    from app.core.experiment import MAX_TAIL_LOAD_N  # here, not at import: the experiment module loads MuJoCo
+
+    tail_loads = numbers("tail_loads_n", (0.0,), float)
+    if any(not 0.0 <= load <= MAX_TAIL_LOAD_N for load in tail_loads):
+        # refused before any run: a negative load would be a forward push, every run would fail on its own
+        raise SweepError(f"{path}: 'tail_loads_n' must be in [0, {MAX_TAIL_LOAD_N:g}] N, got {list(tail_loads)}")
     seeds = numbers("seeds", (0,), int)
     if any(s < 0 for s in seeds):
         raise SweepError(f"{path}: 'seeds' must be 0 or more")
@@ -129,7 +136,7 @@ def read_sweep(path: str | Path) -> SweepPlan:
     if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= 100:
         raise SweepError(f"{path}: 'repeat' must be a whole number 1 … 100, got {repeat!r}")
     return SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers), repeat=repeat,
-                     tail_loads_n=numbers("tail_loads_n", (0.0,), float), seeds=seeds,
+                     tail_loads_n=tail_loads, seeds=seeds,
                      mode=str(data.get("mode", "follow")), gains=gains, **scalars)
 
 

@@ -48,6 +48,11 @@ def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_pa
     ('scenes = ["flat"]\ncontrollers = ["pid"]\n', "'controllers' must list"),
     ('scenes = ["flat"]\n[[gains]]\npush_gain = 9\n', "'push_gain' = 9 is outside"),
     ('scenes = ["flat"]\nseeds = [-1]\n', "'seeds' must be 0 or more"),
+    # refused before any run (they used to run and fail one by one, or push the tail forward)
+    ('scenes = ["flat"]\ntail_loads_n = [0.5, -1.0]\n', "'tail_loads_n' must be in"),
+    ('scenes = ["flat"]\ntail_loads_n = [31]\n', "'tail_loads_n' must be in"),
+    ('scenes = ["flat"]\nspeed_rad_s = 0\n', "'speed_rad_s' must be a number > 0"),
+    ('scenes = ["flat"]\nseconds = 0\n', "'seconds' must be a number > 0"),
 ])
 def test_a_bad_sweep_file_is_refused_naming_the_key(tmp_path, text, words):
     path = tmp_path / "bad.toml"
