@@ -34,22 +34,29 @@ def check_shape_limits(shape: Shape, robot: RobotConfig) -> None:
             raise error
 
 
-def build_source(shape: Shape, robot: RobotConfig, mode: str, speed_rad_s: float, time_scale: float,
-                 shifts: int | None, repeat: int = 1) -> PlannedMotion:
-    """The MotionSource for a shape, sampled at ``robot.control_rate_hz`` (raises ValueError with a clear message
-    before anything moves). Shared by ``sensnake play`` and the Gait tab; start it with
-    :meth:`devices.controller.RobotController.play`."""
+def check_shape_fits(shape: Shape, robot: RobotConfig) -> None:
+    """ValueError naming the mismatch if ``shape`` is not one this robot can play: another joint count, other joint
+    axes, or an angle (of the shape or a keyframe) beyond a joint limit. Shared by ``play``, the Gait tab and
+    ``experiment run``."""
     if shape.n_joints != robot.n_joints:
         raise ValueError(f"the shape has {shape.n_joints} joints but the robot has {robot.n_joints}")
     if tuple(shape.axes) != tuple(robot.axes):
         raise ValueError("the shape's joint axes differ from the robot's (robot.axes in the config): "
                          f"shape {list(shape.axes)}, robot {list(robot.axes)}")
+    check_shape_limits(shape, robot)
+
+
+def build_source(shape: Shape, robot: RobotConfig, mode: str, speed_rad_s: float, time_scale: float,
+                 shifts: int | None, repeat: int = 1) -> PlannedMotion:
+    """The MotionSource for a shape, sampled at ``robot.control_rate_hz`` (raises ValueError with a clear message
+    before anything moves). Shared by ``sensnake play`` and the Gait tab; start it with
+    :meth:`devices.controller.RobotController.play`."""
+    check_shape_fits(shape, robot)
     if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= robot.max_joint_speed_rad_s):
         raise ValueError(f"--speed {speed_rad_s} rad/s must be positive and at most the robot's "
                          f"max_joint_speed_rad_s = {robot.max_joint_speed_rad_s} rad/s")
     if shifts is not None and shifts < 0:
         raise ValueError(f"--shifts must be 0 or more, got {shifts}")
-    check_shape_limits(shape, robot)
     if mode == "follow":
         return FollowTheLeader(shape.angles_rad, shape.axes, speed_rad_s, shifts, repeat,
                                rate_hz=robot.control_rate_hz)
