@@ -66,12 +66,15 @@ def test_feedback_on_emulated_ports_reads_fresh_forces_every_tick_and_stops_on_s
             controller.start()
             try:
                 future = controller.play(motion, "feedback")
-                ages, sensed = [], 0
+                ages, sensed, drains, backlog = [], 0, [], []
                 deadline = time.monotonic() + 20.0
                 while time.monotonic() < deadline and len(ages) < 100:
+                    drains.append(time.monotonic())
                     block = reader.read_block()
                     if block is not None and len(block):
                         live.process_block(block)  # what the Forces tab does with each drained block
+                        # how late this "GUI thread" published the block's last frame (a loaded machine's share)
+                        backlog.append(time.monotonic() - float(block.host_time_s[-1]))
                     progress = motion.progress
                     if isinstance(progress, FeedbackProgress) and progress.tick_s > 0.5:
                         ages.append(progress.force_age_s)
@@ -79,8 +82,11 @@ def test_feedback_on_emulated_ports_reads_fresh_forces_every_tick_and_stops_on_s
                     # Deliberate: the GUI's drain rate (this test plays the GUI thread).
                     time.sleep(1 / 60)
                 assert len(ages) >= 50, "the feedback motion did not run"
-                # fresh forces reach the loop: at most a board period, a drain and a tick old
-                assert np.median(ages) < 1 / 30 + 1 / 60 + 1 / 50
+                # fresh forces reach the loop: at most a board period, a drain and a tick older than this test's
+                # "GUI thread" published them. The drain's period and lateness are the ones this loop kept (1/60 s and
+                # ~0 asked; more on a loaded machine): the loop's own share is what is asserted.
+                drain_s = max(float(np.median(np.diff(drains))), 1 / 60)
+                assert np.median(ages) < float(np.median(backlog)) + 1 / 30 + drain_s + 1 / 50
                 assert sensed > 0.8 * len(ages)  # the emulated board's frames became node loads
                 corrections = np.array([s.correction_rad for s in states if s.correction_rad is not None])
                 assert corrections.size and np.abs(corrections).max() <= FeedbackGains().max_correction_rad + 1e-9

@@ -35,7 +35,10 @@ class PtyServer:
 
     def close(self) -> int:
         self.proc.stdin.close()  # the server ends when its stdin closes
-        return self.proc.wait(timeout=10)
+        try:
+            return self.proc.wait(timeout=10)
+        finally:
+            self.proc.stdout.close()
 
 
 @pytest.fixture

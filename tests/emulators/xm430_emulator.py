@@ -711,7 +711,11 @@ class EmulatorProcess:
         if self.proc.poll() is None and self.proc.stdin is not None:
             with contextlib.suppress(BrokenPipeError):
                 self.proc.stdin.close()
-        return self.proc.wait(timeout=10)
+        try:
+            return self.proc.wait(timeout=10)
+        finally:
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()  # the answer pipe (left open, it is a ResourceWarning at collection)
 
 
 def main(argv: list[str] | None = None) -> int:
