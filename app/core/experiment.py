@@ -279,7 +279,9 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     if controller not in CONTROLLERS:
         raise ValueError(f"--controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"--seconds must be positive, got {seconds}")
+        raise ValueError(f"--seconds must be a finite number above 0, got {seconds}")
+    if seed < 0:
+        raise ValueError(f"--seed must be 0 or more, got {seed}")
     if not (math.isfinite(settle_s) and settle_s >= 0):
         raise ValueError(f"--settle must be 0 s or more, got {settle_s}")
     if not (math.isfinite(speed_rad_s) and 0 < speed_rad_s <= config.robot.max_joint_speed_rad_s):

@@ -70,6 +70,8 @@ def test_the_paper_scene_file_is_the_legacy_obstacle_and_serpenoid_runs_on_flat_
     (["--repeat", "0"], ["--repeat must be 1"]),
     (["--tail-load", "100"], ["--tail-load must be in"]),
     (["--controller", "feedback", "--gains", "/no/such/gains.toml"], ["gains file not found"]),
+    (["--seed", "-1"], ["--seed must be 0 or more"]),  # numpy's own words did not name the option
+    (["--seconds", "inf"], ["--seconds must be a finite number"]),
 ])
 def test_a_run_that_cannot_start_says_why_in_one_line(tmp_path, capsys, args, words):
     _assert_refused_in_one_line(tmp_path, capsys, args, words)
