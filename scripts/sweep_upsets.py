@@ -1,6 +1,6 @@
 """Re-analyse a sweep folder of ``sensnake experiment sweep`` for falls: when each run's body lost the ground or
-rolled onto its side, how far it had crawled by then, and whether it traversed crawling (not falling off a crest),
-from its recordings alone (:func:`app.core.sweep.with_upsets`). For a summary written before those columns existed.
+rolled onto its side, how far it had crawled by then, whether it traversed crawling (not falling off a crest), and
+how far its tail advanced and how it lay at the end, from its recordings alone (:func:`app.core.sweep.with_upsets`). For a summary written before those columns existed.
 
     python scripts/sweep_upsets.py SWEEP_DIR [OUT.csv]
 
@@ -45,7 +45,9 @@ def main(argv: list[str]) -> int:
         sys.stdout.write(f"g{index}: where feedforward fails ({c.ff_fail_cases} cases) traversed "
                          f"{100 * c.fb_success_in_those:.0f}% against {100 * c.ff_success_in_those:.0f}%, crawling "
                          f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%, median crawl "
-                         f"{c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m\n")
+                         f"{c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m; median advance ratio "
+                         f"{c.median_advance_ratio:.2f} (the tail point's {c.median_tail_advance_ratio:.2f}, the "
+                         f"centroid's where both traverse {c.median_advance_ratio_both_traversed:.2f})\n")
     sys.stdout.write(f"wrote {out}\n")
     return 0
 

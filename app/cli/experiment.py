@@ -47,7 +47,8 @@ def _sweep(args: argparse.Namespace) -> int:
                   f"{100 * c.ff_success_in_those:.0f}% (crawling, not falling off a crest: "
                   f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%; median crawl before "
                   f"a fall or roll {c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m); median advance ratio "
-                  f"{c.median_advance_ratio:.2f}; overloads "
+                  f"{c.median_advance_ratio:.2f} (the tail point's {c.median_tail_advance_ratio:.2f}; the centroid's "
+                  f"where both traverse {c.median_advance_ratio_both_traversed:.2f}); overloads "
                   f"{c.fb_overloads} against {c.ff_overloads}; where both traverse, {100 * c.slower_where_ff_succeeds:+.0f}% "
                   f"time to traverse")
     for row in failed:
@@ -90,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"scene {result.scene_name}: simulated {result.simulated_s:.1f} s in {result.wall_s:.1f} s "
           f"({result.real_time_factor:.1f}× real time; machine load changes this)")
     traversed = (f"yes, at {result.traverse_s:.1f} s" if result.traversed else "no")
-    print(f"{result.controller}, tail load {result.tail_load_n:g} N: body advanced {result.advance_m * 100:+.1f} cm; "
+    print(f"{result.controller}, tail load {result.tail_load_n:g} N: body advanced {result.advance_m * 100:+.1f} cm "
+          f"(its tail {result.tail_advance_m * 100:+.1f} cm; it ends {result.end_extent_m:.2f} m long along the path); "
           f"traversed: {traversed}; {len(result.overloads)} overload(s); peak current {result.peak_current_ma:.0f} mA")
     print(f"median total bottom force {result.median_bottom_force_n:.1f} N (normal forces: more than the weight "
           f"where the body lies on a curve); their vertical part {result.median_vertical_support_n:.1f} N "

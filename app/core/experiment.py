@@ -132,6 +132,8 @@ class ExperimentResult:
     median_bottom_support_n: float = math.nan  # median over ticks of the true bottom sheets' whole contact forces'
     # upward part (normal and friction; PhysicsWorld.contact_support_n): the weight, less what lands off the sheets
     median_support_n: float = math.nan  # … of every contact force on the robot: the weight when nothing accelerates
+    tail_advance_m: float = math.nan  # how far the tail point moved forward (+x) while playing (see end_pose)
+    end_extent_m: float = math.nan  # head tip x − tail end x at the end: ~0.96 m lying straight along the path
 
     @property
     def crawled_traverse(self) -> bool:
@@ -460,7 +462,8 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                             crawl_m=crawl_m(times, points, (lost_ground_s, rolled_s)),
                             median_bottom_support_n=float(np.median(np.array(sim_support)[:, bottom].sum(axis=1)))
                             if sim_support else math.nan,
-                            median_support_n=float(np.median(sim_support_total)) if sim_support_total else math.nan)
+                            median_support_n=float(np.median(sim_support_total)) if sim_support_total else math.nan,
+                            **dict(zip(("tail_advance_m", "end_extent_m"), end_pose(points))))
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
@@ -552,6 +555,22 @@ def upsets_from_recording(path: str | Path) -> tuple[float, float, float]:
     rows, _ = channel_map(names, points.shape[1] - 1)
     lost, rolled = body_upsets(times, sheets, rows, weight)
     return lost, rolled, crawl_m(times, points, (lost, rolled))
+
+
+def end_pose(points: np.ndarray) -> tuple[float, float]:
+    """(the tail's advance, the body's extent along the path at the end), m, of a run's body points (T×13×3, head tip
+    first). Where both controllers traverse, the tail ends in nearly the same place; the centroid's advance then
+    says mostly how the body lay down after it came off the obstacle: straight along the path (extent ~0.96 m) or
+    curled across it after rolling onto its side (0.3-0.6 m), the centroid ~0.25 m farther back (docs/FORCE_FEEDBACK.md)."""
+    if len(points) == 0:
+        return math.nan, math.nan
+    return float(points[-1, -1, 0] - points[0, -1, 0]), float(points[-1, 0, 0] - points[-1, -1, 0])
+
+
+def pose_from_recording(path: str | Path) -> tuple[float, float]:
+    """:func:`end_pose` of a recording of :func:`run_experiment` (its ``/sim/points_m``)."""
+    with h5py.File(path, "r") as f:
+        return end_pose(f["sim/points_m"][:])
 
 
 def front_face_cv(times: np.ndarray, points: np.ndarray, bottom_n: np.ndarray, terrain: Any) -> float:

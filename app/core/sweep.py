@@ -56,7 +56,7 @@ SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "spee
               "repeat"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file",
-                   "lost_ground_s", "rolled_s", "crawl_m", "crawled")
+                   "lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m")
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,8 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
             "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
             "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name,
             "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "crawl_m": result.crawl_m,
-            "crawled": int(result.crawled_traverse)}
+            "crawled": int(result.crawled_traverse), "tail_advance_m": result.tail_advance_m,
+            "end_extent_m": result.end_extent_m}
 
 
 def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
@@ -186,12 +187,10 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
             try:
                 rows[task["run"]] = future.result()
             except Exception as exc:  # noqa: BLE001 - one failed run is a row that says why, not a lost sweep
-                rows[task["run"]] = {"run": task["run"], "scene": task["scene"], "controller": task["controller"],
-                                     "gains_index": task["gains_index"], "gains": "", "tail_load_N": task["tail_load_n"],
-                                     "seed": task["seed"], "traversed": "", "traverse_s": "", "advance_m": "",
-                                     "overloads": "", "peak_current_mA": "", "front_face_cv": "", "wall_s": "",
-                                     "file": f"failed: {exc}", "lost_ground_s": "", "rolled_s": "", "crawl_m": "",
-                                     "crawled": ""}
+                rows[task["run"]] = {**dict.fromkeys(SUMMARY_COLUMNS, ""), "run": task["run"], "scene": task["scene"],
+                                     "controller": task["controller"], "gains_index": task["gains_index"],
+                                     "tail_load_N": task["tail_load_n"], "seed": task["seed"],
+                                     "file": f"failed: {exc}"}
             if progress is not None:
                 done = len(rows)
                 elapsed = time.monotonic() - started
@@ -213,18 +212,20 @@ def read_summary(path: str | Path) -> list[dict[str, Any]]:
 
 
 def with_upsets(rows: list[dict[str, Any]], folder: str | Path) -> list[dict[str, Any]]:
-    """``rows`` (a summary, possibly from before the upset columns existed) with ``lost_ground_s``, ``rolled_s`` and
-    ``crawl_m`` and ``crawled`` computed again from the recordings in ``folder`` (the analysis reads only the
-    recordings)."""
-    from app.core.experiment import crawled, upsets_from_recording
+    """``rows`` (a summary, possibly from before the upset columns existed) with ``lost_ground_s``, ``rolled_s``,
+    ``crawl_m``, ``crawled``, ``tail_advance_m`` and ``end_extent_m`` computed again from the recordings in ``folder``
+    (the analysis reads only the recordings)."""
+    from app.core.experiment import crawled, pose_from_recording, upsets_from_recording
 
     out = []
     for row in rows:
         row = dict(row)
         if row.get("traversed", "") != "":
             lost, rolled, crawl = upsets_from_recording(Path(folder) / str(row["file"]))
+            tail, extent = pose_from_recording(Path(folder) / str(row["file"]))
             row.update(lost_ground_s=lost, rolled_s=rolled, crawl_m=crawl,
-                       crawled=int(crawled(bool(int(row["traversed"])), crawl)))
+                       crawled=int(crawled(bool(int(row["traversed"])), crawl)), tail_advance_m=tail,
+                       end_extent_m=extent)
         out.append(row)
     return out
 
@@ -271,6 +272,11 @@ class Comparison:
     ff_overloads: int
     fb_overloads: int
     slower_where_ff_succeeds: float  # median of (feedback's time to traverse / feedforward's − 1), both traversed
+    # Read beside the advance ratio (not a yardstick of the issue): the tail point's advance ratio over the same pairs,
+    # and the centroid's over the pairs both traverse, where the tail ends alike and the centroid's ratio is mostly how
+    # the body lay down (end_pose). NaN for a summary without the columns.
+    median_tail_advance_ratio: float = math.nan
+    median_advance_ratio_both_traversed: float = math.nan
 
 
 def _crawled_rate(rows: list[dict[str, Any]]) -> float:
@@ -297,8 +303,12 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
     failing = [c for c, ks in cases.items() if np.mean([int(ff[k]["traversed"]) for k in ks]) < 1.0]
     in_failing = [k for c in failing for k in cases[c]]
     ratios = [float(fb[k]["advance_m"]) / float(ff[k]["advance_m"]) for k in keys if float(ff[k]["advance_m"]) > 0.01]
-    slower = [float(fb[k]["traverse_s"]) / float(ff[k]["traverse_s"]) - 1 for k in keys
-              if int(ff[k]["traversed"]) and int(fb[k]["traversed"])]
+    both = [k for k in keys if int(ff[k]["traversed"]) and int(fb[k]["traversed"])]
+    slower = [float(fb[k]["traverse_s"]) / float(ff[k]["traverse_s"]) - 1 for k in both]
+    ratioed = [k for k in keys if float(ff[k]["advance_m"]) > 0.01]
+    tails = [(_number(ff[k], "tail_advance_m"), _number(fb[k], "tail_advance_m")) for k in ratioed]
+    tail_ratios = [b / a for a, b in tails if a > 0.01] if all(math.isfinite(a) for a, _ in tails) else []
+    both_ratios = [float(fb[k]["advance_m"]) / float(ff[k]["advance_m"]) for k in both if k in ratioed]
     return Comparison(
         candidate=f"feedback g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
         ff_success_in_those=float(np.mean([int(ff[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
@@ -310,7 +320,15 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         median_advance_ratio=float(np.median(ratios)) if ratios else math.nan,
         ff_overloads=int(sum(int(ff[k]["overloads"]) for k in keys)),
         fb_overloads=int(sum(int(fb[k]["overloads"]) for k in keys)),
-        slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan)
+        slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan,
+        median_tail_advance_ratio=float(np.median(tail_ratios)) if tail_ratios else math.nan,
+        median_advance_ratio_both_traversed=float(np.median(both_ratios)) if both_ratios else math.nan)
+
+
+def _number(row: dict[str, Any], key: str) -> float:
+    """``row[key]`` as a float; NaN when the column is missing or empty (a summary from before it existed)."""
+    text = str(row.get(key, ""))
+    return float(text) if text not in ("", "nan") else math.nan
 
 
 _DASHES = ("7 4", "2 3", "9 3 2 3", "12 4", "4 2 4 6")

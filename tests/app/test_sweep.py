@@ -31,9 +31,12 @@ def test_a_tiny_sweep_writes_one_recording_per_run_a_summary_and_a_figure(tmp_pa
     assert all((out / r["file"]).exists() for r in rows)
     assert {r["tail_load_N"] for r in rows} == {"0.5"}
     assert all(r["crawled"] in ("0", "1") for r in rows)  # 1.5 s on the paper obstacle traverses nothing
-    again = with_upsets([{k: v for k, v in r.items() if k not in ("lost_ground_s", "rolled_s", "crawl_m", "crawled")}
-                         for r in rows], out)  # an older summary, re-analysed from its recordings
-    keys = ("lost_ground_s", "rolled_s", "crawl_m", "crawled")
+    for r in rows:  # the draped body, 1.5 s into a play: its tail moved a little, its extent along x is a drape's
+        assert abs(float(r["tail_advance_m"])) < 0.1
+        assert 0.3 < float(r["end_extent_m"]) < 0.95  # shorter than the 0.96 m body: it lies over the cylinder
+    keys = ("lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m")
+    again = with_upsets([{k: v for k, v in r.items() if k not in keys} for r in rows], out)  # an older summary,
+    # re-analysed from its recordings
     assert [float(a[k]) for a in again for k in keys] == pytest.approx([float(r[k]) for r in rows for k in keys],
                                                                        nan_ok=True)
     assert (out / "summary.svg").read_text(encoding="utf-8").startswith("<svg")
@@ -79,7 +82,13 @@ def test_the_comparison_pairs_runs_and_reads_the_issue_yardsticks():
     for r, crawl in zip(rows, (0.5, 0.6, 0.4, 0.05, 0.2, 0.3)):  # feedback's traversal where feedforward fails: a fall
         r["crawl_m"] = crawl
         r["crawled"] = int(bool(r["traversed"]) and crawl >= 0.2)
+    assert math.isnan(c.median_tail_advance_ratio)  # no tail column: not known
+    assert c.median_advance_ratio_both_traversed == pytest.approx(1.1)  # the one pair both traverse
+    for r, tail in zip(rows, (0.9, 0.9, 0.2, 0.6, 0.1, 0.1)):
+        r["tail_advance_m"] = tail
     c = compare(rows)
+    assert c.median_tail_advance_ratio == pytest.approx(1.0)  # ratios 1.0, 3.0, 1.0
+    assert c.median_advance_ratio == pytest.approx(1.5)  # unchanged: the yardstick is the centroid's
     assert (c.ff_crawled_in_those, c.fb_crawled_in_those) == (0.0, 0.0)
     assert c.fb_success_in_those == 0.5
     assert (c.ff_crawl_in_those, c.fb_crawl_in_those) == pytest.approx((0.3, 0.175))
