@@ -46,7 +46,7 @@ measured worse (benchmarks/sweep_tune_lead_sign.toml: it lost the paper obstacle
 feedforward fails). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
 with it: the pitch joint ``b`` places behind joint 3 gets the bend the lead had ``b`` shifts earlier (the shift phase
 comes from the feedforward's progress; a new play starts afresh), so the propagated drape opens where the front found
-nothing. Stale or flagged front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two
+nothing; ``lead_reach`` (pitch joints, default all) stops it that many pitch joints behind joint 3. Stale or flagged front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two
 tail segments' bottom sheets carry less than it (the tail has left the floor: the body balances on the terrain with
 both ends up, and opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0
 instead (never past it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted
@@ -92,6 +92,7 @@ class FeedbackGains:
     relieve_gain: float = 0.0  # rad/s per unit of relative load: lift nodes on the near face (leaning back)
     lead_gain: float = 0.1  # rad/s, signed: + the front straightens out (turns up) while it feels nothing, − it tilts down
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
+    lead_reach: float = 12.0  # how many pitch joints behind the lead its bend travels (12: all; 0: it stays at the lead)
     tail_guard_n: float = 0.5  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
     tail_guard_back: float = 0.0  # while the guard acts, the bend already carried back closes too, at this part of the
     # lead's rate (0: only the lead joint closes)
@@ -122,7 +123,7 @@ GAIN_RANGES: dict[str, tuple[float, float]] = {
     "conform_gain": (0.0, 0.5), "push_gain": (0.0, 0.5), "target_n": (0.5, 20.0), "contact_n": (0.05, 5.0),
     "overload_n": (1.0, 40.0), "memory_s": (0.0, 30.0), "relax_s": (0.05, 30.0), "max_rate_rad_s": (0.0, 1.0),
     "max_node_rad": (0.0, 0.6), "max_correction_rad": (0.0, 0.8), "slope_min": (-1.0, 1.0), "relieve_gain": (0.0, 0.5),
-    "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0), "tail_guard_n": (0.0, 5.0),
+    "lead_gain": (-0.5, 0.5), "lead_keep": (0.0, 1.0), "lead_reach": (0.0, 12.0), "tail_guard_n": (0.0, 5.0),
     "tail_guard_back": (0.0, 3.0),
 }
 
@@ -305,7 +306,7 @@ class ForceFeedbackLaw:
             values = np.asarray(self._lead_value)
             for behind, joint in enumerate(self._pitch[2:], start=1):
                 at = self._phase - behind
-                if at >= phases[0]:
+                if at >= phases[0] and behind <= self.gains.lead_reach:
                     out[joint] = self.gains.lead_keep ** behind * float(np.interp(at, phases, values))
         return out
 

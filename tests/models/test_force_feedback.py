@@ -181,6 +181,20 @@ def test_the_lead_bend_travels_back_one_pitch_joint_per_shift_fading_and_restart
     assert law.correction()[[4, 6, 8]] == pytest.approx([0.0, 0.0, 0.0])
 
 
+@pytest.mark.parametrize("reach", [0, 1, 2, 12])
+def test_the_lead_bend_travels_back_only_as_far_as_its_reach(reach):
+    phases = np.arange(0, 251) * 0.02  # five shifts in 5 s: without a limit the bend reaches joint 11
+    laws = [_law(lead_gain=0.2, push_gain=0.0, conform_gain=0.0, lead_reach=r) for r in (12, reach)]
+    for k, phase in enumerate(phases):
+        for law in laws:
+            law.step(DT, _front(0.0 if k < 25 else 3.0), np.ones(12, bool), phase=float(phase))
+    full, limited = (law.correction() for law in laws)
+    assert (full[[4, 6, 8, 10]] > 0.01).all()
+    for joint, behind in ((4, 1), (6, 2), (8, 3), (10, 4)):
+        assert limited[joint] == (full[joint] if behind <= reach else 0.0)
+    assert limited[2] == full[2]  # the lead itself is unchanged
+
+
 def test_the_lead_never_acts_on_stale_or_flagged_front_sensors():
     law = _law(lead_gain=0.2, relax_s=0.5)
     for _ in range(50):
