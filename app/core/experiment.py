@@ -561,7 +561,8 @@ def end_pose(points: np.ndarray) -> tuple[float, float]:
     """(the tail's advance, the body's extent along the path at the end), m, of a run's body points (T×13×3, head tip
     first). Where both controllers traverse, the tail ends in nearly the same place; the centroid's advance then
     says mostly how the body lay down after it came off the obstacle: straight along the path (extent ~0.96 m) or
-    curled across it after rolling onto its side (0.3-0.6 m), the centroid ~0.25 m farther back (docs/FORCE_FEEDBACK.md)."""
+    curled across it after rolling onto its side (0.25-0.75 m), the centroid up to 0.3 m farther back
+    (docs/FORCE_FEEDBACK.md)."""
     if len(points) == 0:
         return math.nan, math.nan
     return float(points[-1, -1, 0] - points[0, -1, 0]), float(points[-1, 0, 0] - points[-1, -1, 0])
