@@ -78,6 +78,7 @@ def test_with_calibrated_sensors_the_loop_corrects_from_fresh_forces_and_stops_o
     assert forces.load_calibration(path)
     qtbot.waitUntil(lambda: math.isfinite(lab.force_page.read()[0]), timeout=WAIT_MS)
     gait.panel.gain_spins["push_gain"].setValue(0.3)
+    gait.panel.gain_spins["lead_reach"].setValue(2)
     _play(qtbot, lab, gait)
     qtbot.waitUntil(lambda: any(math.isfinite(v) for v in gait.source.progress.node_load_n), timeout=WAIT_MS)
     progress = gait.source.progress
@@ -88,7 +89,8 @@ def test_with_calibrated_sensors_the_loop_corrects_from_fresh_forces_and_stops_o
         qtbot.waitUntil(lambda p=gait.source.progress: gait.source.progress is not p, timeout=WAIT_MS)
         ages.append(gait.source.progress.force_age_s)
     assert np.median(ages) < 1 / 30 + 1 / 50 + 0.02
-    assert json.loads(progress.gains_json)["push_gain"] == pytest.approx(0.3)  # the panel's gain reached the loop
+    assert json.loads(progress.gains_json)["push_gain"] == pytest.approx(0.3)  # the panel's gains reached the loop
+    assert json.loads(progress.gains_json)["lead_reach"] == pytest.approx(2.0)
     # live adjustment: a new gain reaches the running motion through the page
     gait.panel.gain_spins["target_n"].setValue(7.5)
     qtbot.waitUntil(lambda: gait.source.progress.target_n == pytest.approx(7.5), timeout=WAIT_MS)
