@@ -93,6 +93,7 @@ def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_pat
         process.send_signal(signal.SIGKILL)
     finally:
         process.wait(timeout=60)
+        process.stderr.close()
     assert process.returncode == -signal.SIGKILL
     session = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("S06B_"))
     settings = read_session(session)

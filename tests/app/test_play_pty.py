@@ -43,6 +43,7 @@ def pty_robot():
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+        server.stdout.close()
 
 
 def sensnake(*args: str) -> subprocess.CompletedProcess:

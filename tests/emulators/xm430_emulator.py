@@ -708,7 +708,7 @@ class EmulatorProcess:
 
     def close(self) -> int:
         """End the process (closing its stdin) and return its exit code."""
-        if self.proc.poll() is None and self.proc.stdin is not None:
+        if self.proc.stdin is not None:  # also after a 'kill' ended the process: the pipe is still ours to close
             with contextlib.suppress(BrokenPipeError):
                 self.proc.stdin.close()
         try:
