@@ -24,7 +24,9 @@ centroid, overload events, peak current, coefficient of variation of the bottom 
 (:func:`app.core.experiment.front_face_cv`), wall time, the recording's file name, and when the body first lost the
 ground and first rolled onto its side, how far its centroid had crawled when the first began, and whether it
 traversed *crawling* (at least ``CRAWLED_M`` before the first; else it fell off a crest)
-(:func:`app.core.experiment.body_upsets`; :func:`with_upsets` computes them again for an older summary). The
+(:func:`app.core.experiment.body_upsets`), and how far the tail point advanced and how long the body lay along the
+path at the end (:func:`app.core.experiment.end_pose`); :func:`with_upsets` computes those again for an older
+summary. The
 analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``):
 success rate, crawled rate and median advance against tail load, one line per scene × controller.
 
