@@ -46,12 +46,12 @@ measured worse (benchmarks/sweep_tune_lead_sign.toml: it lost the paper obstacle
 feedforward fails). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
 with it: the pitch joint ``b`` places behind joint 3 gets the bend the lead had ``b`` shifts earlier (the shift phase
 comes from the feedforward's progress; a new play starts afresh), so the propagated drape opens where the front found
-nothing; ``lead_reach`` (pitch joints, default all) stops it that many pitch joints behind joint 3. Stale or flagged front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two
-tail segments' bottom sheets carry less than it (the tail has left the floor: the body balances on the terrain with
-both ends up, and opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0
-instead (never past it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted
-tail, closes too (at that part of the lead's rate); flagged or stale tail sensors leave the lead as without the
-guard. Chosen on
+nothing; ``lead_reach`` (pitch joints, default all) stops it that many pitch joints behind joint 3. Stale or flagged
+front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): while the two tail segments' bottom
+sheets carry less than it (the tail has left the floor: the body balances on the terrain with both ends up, and
+opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0 instead (never past
+it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted tail, closes too (at
+that part of the lead's rate); flagged or stale tail sensors leave the lead as without the guard. Chosen on
 benchmarks/sweep_tune_tail_guard.toml, judged on held-out set 6 (docs/FORCE_FEEDBACK.md).
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to

@@ -451,6 +451,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     traversed = bool(scene_terrain.obstacles) and not math.isnan(traverse_s)
     peak_ma = float(np.nanmax(np.abs(np.array(currents)))) if currents else math.nan
     lost_ground_s, rolled_s = body_upsets(times, sheets, rows, world.weight_n)
+    tail_advance_m, end_extent_m = end_pose(points)
     return ExperimentResult(Path(out), taught, simulated_s, wall_s, end_centroid - start_centroid,
                             float(np.nanmedian(totals)), float(np.median(vertical)) if vertical else math.nan,
                             world.weight_n, tuple(overloads), scene_terrain.name, traversed,
@@ -463,7 +464,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                             median_bottom_support_n=float(np.median(np.array(sim_support)[:, bottom].sum(axis=1)))
                             if sim_support else math.nan,
                             median_support_n=float(np.median(sim_support_total)) if sim_support_total else math.nan,
-                            **dict(zip(("tail_advance_m", "end_extent_m"), end_pose(points))))
+                            tail_advance_m=tail_advance_m, end_extent_m=end_extent_m)
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
