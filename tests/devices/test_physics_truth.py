@@ -117,3 +117,43 @@ def test_the_whole_contact_forces_carry_the_weight_where_the_sheets_readings_can
     frames = world.body_state().frames
     # a sheet reads pressure only: its readings' vertical part misses what friction holds up on the slopes
     assert float(np.sum(readings[0] * frames[:, 2, 2])) < sheets[0].sum()
+
+
+def _held_then_nudged(world: PhysicsWorld, shape: np.ndarray, seconds: float) -> tuple[float, float]:
+    """Hold ``shape`` with the servos, then turn yaw joint 2 by 0.05 rad (a nudge sideways) and hold that for
+    ``seconds``; (bottom sheets' load, side sheets' load) at the end, N."""
+    on = np.ones(world.n_joints, dtype=bool)
+    world.command(on, shape)
+    world.step(500)
+    bottom, left, right = world.segment_loads_n()
+    assert bottom.sum() > 0.9 * world.weight_n and left.sum() + right.sum() < 0.05 * world.weight_n  # upright
+    nudged = shape.copy()
+    nudged[1] += 0.05
+    world.command(on, nudged)
+    world.step(int(seconds / world.scene.timestep_s))
+    bottom, left, right = world.segment_loads_n()
+    return float(bottom.sum()), float(left.sum() + right.sum())
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["arch", "sag"])
+def test_a_body_bent_in_pitch_on_a_floor_rolls_onto_its_side_at_a_nudge_as_statics_says(sign):
+    """Round segments on a floor: a body bent in pitch, held rigid, has its centre of mass above the line it rolls
+    about (an arch's middle, a sag's ends), so it is in an unstable equilibrium — the smallest sideways nudge lays it
+    on its side (the roll docs/PHYSICS_LAB.md reports); held straight it is neutral and stays."""
+    angles = sign * np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
+    world = PhysicsWorld(FLAT)
+    world.place(angles_rad=angles)
+    bottom, side = _held_then_nudged(world, angles, seconds=2.0)
+    assert side > 0.9 * world.weight_n and bottom < 0.05 * world.weight_n  # lying on its side sheets
+    straight = PhysicsWorld(FLAT)
+    bottom, side = _held_then_nudged(straight, np.zeros(straight.n_joints), seconds=2.0)
+    assert bottom > 0.95 * straight.weight_n and side < 0.01 * straight.weight_n
+
+
+def test_a_drape_over_the_obstacle_is_held_upright_by_the_obstacle_against_the_same_nudge():
+    """Draped over the half cylinder, the part of the body above the line through its two floor contacts would have
+    to move down into the obstacle to roll: the obstacle holds it upright (what the drape does in the experiments)."""
+    world = PhysicsWorld(SceneParams())
+    world.step(2000)  # 4 s limp: settled over the paper's obstacle
+    bottom, side = _held_then_nudged(world, world.joint_state().position_rad.copy(), seconds=2.0)
+    assert bottom > 0.9 * world.weight_n and side < 0.05 * world.weight_n
