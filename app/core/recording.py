@@ -721,7 +721,14 @@ def open_recording(path: str | Path, recover: bool = False) -> Recording:
     try:
         with handle as f:
             return _read(f, path)
-    except (KeyError, OSError, TypeError) as exc:
+    except OSError as exc:
+        # The file opens but a data chunk lies past the end the superblock claims: a writer killed in the middle of
+        # a flush (its metadata reached the disk, the superblock's new end did not). The chunks before it are whole.
+        if recover and _stored_eof(path) is not None:
+            return recover_recording(path)[0]
+        hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc}){hint}") from exc
+    except (KeyError, TypeError) as exc:
         raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
 
 
@@ -772,9 +779,10 @@ class RecoveryReport:
         got, claimed = self.rows.get("daq", (0, 0))
         share = f"{got / claimed:.1%}" if claimed else "none"
         extra = "; ".join(f"{name} {g}/{c}" for name, (g, c) in self.rows.items() if name != "daq")
-        return (f"{self.path.name} is truncated ({self.file_bytes} of {self.claimed_bytes} bytes): recovered "
-                f"{got} of {claimed} board samples ({share}, {self.duration_s:.1f} s)" + (f"; {extra}" if extra
-                                                                                           else ""))
+        what = (f"is truncated ({self.file_bytes} of {self.claimed_bytes} bytes)" if self.file_bytes < self.claimed_bytes
+                else "was cut off in the middle of a write (its last data lies past the end its header claims)")
+        return (f"{self.path.name} {what}: recovered {got} of {claimed} board samples ({share}, "
+                f"{self.duration_s:.1f} s)" + (f"; {extra}" if extra else ""))
 
 
 def _stored_eof(path: Path) -> int | None:

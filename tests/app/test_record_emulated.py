@@ -243,8 +243,15 @@ def test_kill_9_leaves_a_file_plain_h5py_opens(tmp_path, config_file):
         log = emu.stop()
     rows = plain_h5py_rows(out)
     assert rows >= 150  # flushed every 0.5 s: at most about a second is lost
-    rec = open_recording(out)
-    assert rec.n_samples == rows
+    # The kill lands between flushes (the file is whole) or, a few times in a hundred, inside one: then the last
+    # flush's chunk lies past the end the superblock claims and the app salvages the whole chunks before it, as the
+    # GUI does (tests/app/test_recording_repair.py makes that case on purpose).
+    rec = open_recording(out, recover=True)
+    if rec.recovery is None:
+        assert rec.n_samples == rows
+    else:
+        assert rec.n_samples >= rows - 2 * RATE_HZ  # at most the unfinished flush's chunk more is lost (< 2 s here)
+    assert rec.n_samples >= 150
     assert_exact_and_complete(rec, log)
 
 

@@ -111,6 +111,38 @@ def test_repair_of_a_non_hdf5_file_is_one_line(tmp_path, capsys):
     assert "junk.h5" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
+def killed_mid_flush(good, tmp_path):
+    """``good`` as a writer killed in the middle of a flush leaves it (seen in CI: kill -9 of ``sensnake record``):
+    the chunk index already points at the last data chunk of /daq/counts, but the superblock's end-of-allocation
+    was not moved past it (HDF5: "addr overflow, addr = …, eoa = …"). The file opens; that chunk does not read."""
+    with h5py.File(good, "r") as f:
+        counts = f["daq/counts"].id
+        last = max(counts.get_chunk_info(i).byte_offset for i in range(counts.get_num_chunks()))
+    data = bytearray(good.read_bytes())
+    assert data[8] == 0  # superblock version 0 (no checksum): its end-of-allocation address is at 24 + 2 offsets
+    size = data[13]
+    data[24 + 2 * size:24 + 3 * size] = last.to_bytes(size, "little")
+    bad = tmp_path / "killed.h5"
+    bad.write_bytes(bytes(data))
+    return bad
+
+
+def test_a_file_killed_in_the_middle_of_a_flush_is_refused_with_the_repair_hint_and_salvaged_exactly(good_file,
+                                                                                                      tmp_path):
+    bad = killed_mid_flush(good_file, tmp_path)
+    with h5py.File(bad, "r") as f:  # plain h5py opens it ...
+        assert f["daq/seq"].shape[0] == 3000
+        with pytest.raises(OSError):
+            f["daq/counts"][:]  # ... but its last chunk lies past the end the superblock claims
+    with pytest.raises(RecordingFormatError, match="sensnake repair"):
+        open_recording(bad)  # strict: a command names the damage and the way out (it said neither)
+    rec = open_recording(bad, recover=True)  # what the GUI does: it used to refuse this file
+    assert 2500 < rec.n_samples < 3000 and "cut off in the middle of a write" in rec.recovery
+    np.testing.assert_array_equal(rec.seq, np.arange(rec.n_samples))  # whole chunks only, nothing guessed
+    assert main(["repair", str(bad), "--out", str(tmp_path / "fixed.h5")]) == 0
+    assert open_recording(tmp_path / "fixed.h5").n_samples == rec.n_samples
+
+
 @pytest.mark.usefixtures("sim_lab_fast")
 def test_the_forces_tab_opens_a_truncated_recording_saying_how_much_was_recovered(good_file, tmp_path, qtbot,
                                                                                    monkeypatch):
