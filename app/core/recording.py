@@ -702,18 +702,21 @@ class Recording:
 def open_recording(path: str | Path, recover: bool = False) -> Recording:
     """Read a recording (also one cut short by a crash). Raises :class:`RecordingFormatError` naming the file.
 
-    A file that HDF5 refuses because it is truncated is salvaged when ``recover`` is True (the GUI does this and
-    shows :attr:`Recording.recovery`); otherwise the error says to run ``sensnake repair``.
+    A file that HDF5 refuses because it is truncated, or that opens but whose last data chunk lies past the end its
+    superblock claims (a writer killed in the middle of a flush: its metadata reached the disk, the superblock's new
+    end did not), is salvaged when ``recover`` is True (the GUI does this and shows :attr:`Recording.recovery`);
+    otherwise the error says to run ``sensnake repair``.
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"recording {path} does not exist")
+    salvageable = _stored_eof(path) is not None
+    hint = " — 'sensnake repair' salvages what it can" if salvageable else ""
     try:
         handle = _open_h5(path)
     except OSError as exc:
-        if recover and _stored_eof(path) is not None:
+        if recover and salvageable:
             return recover_recording(path)[0]
-        hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
         reason = _h5_reason(exc)
         if reason != "not an HDF5 file":
             reason = f"not HDF5, or truncated/corrupt: {reason}"
@@ -721,12 +724,9 @@ def open_recording(path: str | Path, recover: bool = False) -> Recording:
     try:
         with handle as f:
             return _read(f, path)
-    except OSError as exc:
-        # The file opens but a data chunk lies past the end the superblock claims: a writer killed in the middle of
-        # a flush (its metadata reached the disk, the superblock's new end did not). The chunks before it are whole.
-        if recover and _stored_eof(path) is not None:
+    except OSError as exc:  # a chunk that does not read: the chunks before it are whole
+        if recover and salvageable:
             return recover_recording(path)[0]
-        hint = " — 'sensnake repair' salvages what it can" if _stored_eof(path) is not None else ""
         raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc}){hint}") from exc
     except (KeyError, TypeError) as exc:
         raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
