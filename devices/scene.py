@@ -30,6 +30,7 @@ SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
 MIN_SIZE_M = 0.001  # an obstacle's smallest radius, length or height: below 1 mm nothing the 36 mm-radius robot meets
 # (and MuJoCo refuses a geom whose size rounds to 0 in the model's text)
+MAX_ROLL_M = 0.036  # the ground's roll resistance at most the shell's radius: a lever arm longer than that is no patch
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
 
@@ -74,6 +75,10 @@ class Scene:
 
     ground_friction: float = 0.3
     obstacles: tuple[Obstacle, ...] = ()
+    # The ground's resistance to a shell rolling about its own axis, as a lever arm (m): a torque up to N times this.
+    # 0 (default): round shells roll freely. Half the width of a loaded shell's flattened contact patch is the physical
+    # reading (about 8.5 mm under a segment's share, docs/PHYSICS_LAB.md); unmeasured on the real robot.
+    ground_roll_m: float = 0.0
     head_x_m: float | None = None  # None: the default start (see PhysicsWorld.place)
     start: str = "settle"
     name: str = "flat"
@@ -97,6 +102,8 @@ class Scene:
 def scene_to_toml(scene: Scene) -> str:
     """The scene file that reads back as ``scene`` (SPEC §6)."""
     lines = ["[ground]", f"friction = {scene.ground_friction!r}"]
+    if scene.ground_roll_m:
+        lines.append(f"roll_resistance_m = {scene.ground_roll_m!r}")
     for o in scene.obstacles:
         lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m!r}"]
         if o.shape == "half_cylinder":
@@ -156,8 +163,9 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
     ground = data.get("ground", {})
     if not isinstance(ground, dict):
         raise SceneError(f"{source}: [ground] must be a table")
-    _only(f"{source} [ground]", ground, {"friction"})
+    _only(f"{source} [ground]", ground, {"friction", "roll_resistance_m"})
     ground_friction = _number(f"{source} [ground]", ground, "friction", low=0.0, high=5.0, default=0.3)
+    ground_roll = _number(f"{source} [ground]", ground, "roll_resistance_m", low=0.0, high=MAX_ROLL_M, default=0.0)
     raw = data.get("obstacle", [])
     if not isinstance(raw, list):
         raise SceneError(f"{source}: obstacles are written [[obstacle]] (an array of tables)")
@@ -188,7 +196,7 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
     if start not in STARTS:
         raise SceneError(f"{source} [robot]: 'start' must be one of {', '.join(STARTS)}, got {start!r}")
     return Scene(ground_friction=ground_friction, obstacles=tuple(obstacles), head_x_m=head_x, start=start,
-                 name=name, text=text)
+                 name=name, text=text, ground_roll_m=ground_roll)
 
 
 def resolve_scene_path(value: str | Path) -> Path:

@@ -157,3 +157,28 @@ def test_a_drape_over_the_obstacle_is_held_upright_by_the_obstacle_against_the_s
     world.step(2000)  # 4 s limp: settled over the paper's obstacle
     bottom, side = _held_then_nudged(world, world.joint_state().position_rad.copy(), seconds=2.0)
     assert bottom > 0.9 * world.weight_n and side < 0.05 * world.weight_n
+
+
+def test_a_ground_that_resists_the_roll_holds_the_bent_body_upright_and_only_about_the_segments_axis():
+    """``roll_resistance_m`` (a flattened shell's contact patch, as a lever arm): the arched body of the test above
+    stays on its bottom sheets at the same nudge. MuJoCo resists the roll about a capsule-plane contact's first
+    tangent, and that tangent runs along the capsule (its direction on the ground): the segment's own axis, not the axis it would roll along the
+    path about (so a body pushed along the floor meets no added resistance)."""
+    from devices.scene import Scene
+    scene = SceneParams(obstacle_height_m=0.0, terrain_scene=Scene(ground_roll_m=0.0085))
+    angles = np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
+    world = PhysicsWorld(scene)
+    world.place(angles_rad=angles)
+    bottom, side = _held_then_nudged(world, angles, seconds=2.0)
+    assert bottom > 0.95 * world.weight_n and side < 0.01 * world.weight_n
+    data, model = world.data, world.model
+    assert data.ncon >= 2  # the arch stands on a few shells
+    for contact in data.contact[:data.ncon]:
+        shell = contact.geom2 if model.geom_bodyid[contact.geom2] else contact.geom1
+        axis = data.geom_xmat[shell].reshape(3, 3)[:, 2]  # a capsule's axis is its local z
+        normal, tangent1, tangent2 = contact.frame.reshape(3, 3)
+        along = axis - (axis @ normal) * normal  # the axis's direction on the ground
+        along /= np.linalg.norm(along)
+        assert contact.dim == 6 and abs(tangent1 @ along) > 0.999 and abs(tangent2 @ along) < 1e-3
+        assert contact.friction[3] == 0.0085 and contact.friction[4] <= 1e-5  # only the roll about the axis
+    assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)

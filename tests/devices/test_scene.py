@@ -45,6 +45,15 @@ def test_a_scene_reads_every_shape_and_the_robot_start():
     assert scene.far_edge_m == pytest.approx(0.95)
 
 
+def test_the_grounds_roll_resistance_is_optional_and_survives_a_round_trip():
+    from devices.scene import scene_to_toml
+    assert parse_scene(GOOD).ground_roll_m == 0.0  # the default: round shells roll freely
+    scene = parse_scene("[ground]\nfriction = 0.3\nroll_resistance_m = 0.0085\n")
+    assert scene.ground_roll_m == 0.0085
+    assert parse_scene(scene_to_toml(scene)).ground_roll_m == 0.0085
+    assert "roll_resistance_m" not in scene_to_toml(parse_scene(GOOD))  # files without it are written as before
+
+
 def test_the_height_profile_follows_each_shape():
     scene = parse_scene(GOOD)
     assert scene.height_at(0.0) == pytest.approx(0.27)  # the cylinder's top
@@ -70,6 +79,7 @@ def test_the_height_profile_follows_each_shape():
     ("[[obstacle]]\nshape = 'wedge'\nx_m = 0\nlength_m = 0.3\nheight_m = 0\n", ["'height_m' = 0 is outside"]),
     ("[[obstacle]]\nshape = 'half_cylinder'\nx_m = 'left'\nradius_m = 1\n", ["'x_m' must be a number"]),
     ("[ground]\nfriction = nan\n", ["'friction' = nan is outside"]),
+    ("[ground]\nroll_resistance_m = 0.05\n", ["'roll_resistance_m' = 0.05 is outside [0, 0.036]"]),
     ("[robot]\nstart = 'fly'\n", ["'start' must be one of"]),
     ("[terrain]\n", ["unknown key 'terrain'"]),
     ("[ground\n", ["bad.toml", "not valid TOML"]),

@@ -56,7 +56,8 @@ def scene_description(config: Any) -> str:
                 else f"{o.length_m:.2f} m long, {o.height_m:.2f} m high")
         parts.append(f"{o.shape.replace('_', ' ')} at x {o.x_m:+.2f} m ({size}, μ {o.friction:g})")
     terrain = "; ".join(parts) if parts else "no obstacle"
-    return f"Scene: {scene.name} — ground μ {scene.ground_friction:g}; {terrain}"
+    roll = f", roll resistance {scene.ground_roll_m * 1000:g} mm" if scene.ground_roll_m else ""
+    return f"Scene: {scene.name} — ground μ {scene.ground_friction:g}{roll}; {terrain}"
 
 
 class SceneTab(QWidget):

@@ -205,6 +205,17 @@ def build_mjcf(scene: SceneParams) -> str:
         for i in range(scene.n_segments)
     )
     head_z = radius
+    # The ground's roll resistance (Scene.ground_roll_m): explicit shell-ground pairs with rolling friction, the
+    # ground then colliding through them only. condim 6 gives a contact two rolling coefficients; MuJoCo's
+    # capsule-plane contact frame has its first tangent along the capsule's axis, so "0 a 0" in the roll slots resists
+    # only the roll about the segment's own axis (tested: tests/devices/test_physics_truth.py), never rolling along
+    # the path, and the obstacles' contacts are as without it.
+    roll = terrain.ground_roll_m
+    ground_affinity = "0" if roll > 0 else "1"
+    pairs = "".join(
+        f'<pair geom1="ground" geom2="{segment_name(i)}" condim="6" solref="0.01 1" '
+        f'friction="{terrain.ground_friction} {terrain.ground_friction} 0 {roll} 0"/>'
+        for i in range(scene.n_segments)) if roll > 0 else ""
     return f"""<mujoco model="sensnake_v2">
   <compiler angle="degree" autolimits="true"/>
   <option timestep="{scene.timestep_s}" integrator="implicitfast" cone="elliptic" gravity="0 0 {-GRAVITY_M_S2}"/>
@@ -223,7 +234,7 @@ def build_mjcf(scene: SceneParams) -> str:
   </asset>
   <worldbody>
     <light pos="0 -1 2" dir="0 0.5 -1" castshadow="false"/>
-    <geom name="ground" type="plane" size="5 5 0.1" material="grid" contype="0" conaffinity="1"
+    <geom name="ground" type="plane" size="5 5 0.1" material="grid" contype="0" conaffinity="{ground_affinity}"
           friction="{terrain.ground_friction} 0.005 0.0001"/>
     {obstacles}{walls}
     <body name="head" pos="0 0 {head_z}">
@@ -233,6 +244,7 @@ def build_mjcf(scene: SceneParams) -> str:
       {body}
     </body>
   </worldbody>
+  <contact>{pairs}</contact>
   <equality>{hands}</equality>
   <actuator>{actuators}</actuator>
 </mujoco>
