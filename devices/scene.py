@@ -30,6 +30,10 @@ SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
 MIN_SIZE_M = 0.001  # an obstacle's smallest radius, length or height: below 1 mm nothing the 36 mm-radius robot meets
 # (and MuJoCo refuses a geom whose size rounds to 0 in the model's text)
+# Half the width of a loaded shell's flattened contact patch, sqrt(2 R d) for the 36 mm shell deflecting d = 1 mm under a
+# segment's share of the weight (ShellParams' assumed stiffness; docs/PHYSICS_LAB.md): the ground's default roll
+# resistance. An assumption derived from another; a rig measurement of the shell's contact width replaces it.
+GROUND_ROLL_M = round(math.sqrt(2 * 0.036 * 0.001), 4)  # 0.0085 m
 MAX_ROLL_M = 0.036  # the ground's roll resistance at most the shell's radius: a lever arm longer than that is no patch
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
@@ -75,10 +79,10 @@ class Scene:
 
     ground_friction: float = 0.3
     obstacles: tuple[Obstacle, ...] = ()
-    # The ground's resistance to a shell rolling about its own axis, as a lever arm (m): a torque up to N times this.
-    # 0 (default): round shells roll freely. Half the width of a loaded shell's flattened contact patch is the physical
-    # reading (about 8.5 mm under a segment's share, docs/PHYSICS_LAB.md); unmeasured on the real robot.
-    ground_roll_m: float = 0.0
+    # The ground's resistance to a shell rolling about its own axis, as a lever arm (m): a torque up to N times this
+    # (a tipping box's half width). Default: half the width of the shell's flattened contact patch (GROUND_ROLL_M);
+    # 0: round shells roll freely (the physics lab until stop 42).
+    ground_roll_m: float = GROUND_ROLL_M
     head_x_m: float | None = None  # None: the default start (see PhysicsWorld.place)
     start: str = "settle"
     name: str = "flat"
@@ -102,8 +106,7 @@ class Scene:
 def scene_to_toml(scene: Scene) -> str:
     """The scene file that reads back as ``scene`` (SPEC §6)."""
     lines = ["[ground]", f"friction = {scene.ground_friction!r}"]
-    if scene.ground_roll_m:
-        lines.append(f"roll_resistance_m = {scene.ground_roll_m!r}")
+    lines.append(f"roll_resistance_m = {scene.ground_roll_m!r}")
     for o in scene.obstacles:
         lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m!r}"]
         if o.shape == "half_cylinder":
@@ -165,7 +168,8 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
         raise SceneError(f"{source}: [ground] must be a table")
     _only(f"{source} [ground]", ground, {"friction", "roll_resistance_m"})
     ground_friction = _number(f"{source} [ground]", ground, "friction", low=0.0, high=5.0, default=0.3)
-    ground_roll = _number(f"{source} [ground]", ground, "roll_resistance_m", low=0.0, high=MAX_ROLL_M, default=0.0)
+    ground_roll = _number(f"{source} [ground]", ground, "roll_resistance_m", low=0.0, high=MAX_ROLL_M,
+                          default=GROUND_ROLL_M)
     raw = data.get("obstacle", [])
     if not isinstance(raw, list):
         raise SceneError(f"{source}: obstacles are written [[obstacle]] (an array of tables)")

@@ -638,7 +638,7 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
 
 def _legacy_scene_text(terrain: Any) -> str:
     """The scene file that describes a terrain built from the lab config's legacy keys."""
-    lines = ["[ground]", f"friction = {terrain.ground_friction}"]
+    lines = ["[ground]", f"friction = {terrain.ground_friction}", f"roll_resistance_m = {terrain.ground_roll_m}"]
     for o in terrain.obstacles:
         lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m}", f"radius_m = {o.radius_m}",
                   f"friction = {o.friction}"]

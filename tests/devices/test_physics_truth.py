@@ -137,15 +137,18 @@ def _held_then_nudged(world: PhysicsWorld, shape: np.ndarray, seconds: float) ->
 
 @pytest.mark.parametrize("sign", [1.0, -1.0], ids=["arch", "sag"])
 def test_a_body_bent_in_pitch_on_a_floor_rolls_onto_its_side_at_a_nudge_as_statics_says(sign):
-    """Round segments on a floor: a body bent in pitch, held rigid, has its centre of mass above the line it rolls
-    about (an arch's middle, a sag's ends), so it is in an unstable equilibrium — the smallest sideways nudge lays it
-    on its side (the roll docs/PHYSICS_LAB.md reports); held straight it is neutral and stays."""
+    """Round segments on a floor that does not resist their roll (``roll_resistance_m = 0``, the physics lab until
+    stop 42): a body bent in pitch, held rigid, has its centre of mass above the line it rolls about (an arch's
+    middle, a sag's ends), so it is in an unstable equilibrium — the smallest sideways nudge lays it on its side;
+    held straight it is neutral and stays."""
+    from devices.scene import Scene
+    free = SceneParams(obstacle_height_m=0.0, terrain_scene=Scene(ground_roll_m=0.0))
     angles = sign * np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
-    world = PhysicsWorld(FLAT)
+    world = PhysicsWorld(free)
     world.place(angles_rad=angles)
     bottom, side = _held_then_nudged(world, angles, seconds=2.0)
     assert side > 0.9 * world.weight_n and bottom < 0.05 * world.weight_n  # lying on its side sheets
-    straight = PhysicsWorld(FLAT)
+    straight = PhysicsWorld(free)
     bottom, side = _held_then_nudged(straight, np.zeros(straight.n_joints), seconds=2.0)
     assert bottom > 0.95 * straight.weight_n and side < 0.01 * straight.weight_n
 
@@ -159,15 +162,14 @@ def test_a_drape_over_the_obstacle_is_held_upright_by_the_obstacle_against_the_s
     assert bottom > 0.9 * world.weight_n and side < 0.05 * world.weight_n
 
 
-def test_a_ground_that_resists_the_roll_holds_the_bent_body_upright_and_only_about_the_segments_axis():
-    """``roll_resistance_m`` (a flattened shell's contact patch, as a lever arm): the arched body of the test above
-    stays on its bottom sheets at the same nudge. MuJoCo resists the roll about a capsule-plane contact's first
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["arch", "sag"])
+def test_the_default_ground_resists_the_roll_holds_the_bent_body_upright_and_only_about_the_segments_axis(sign):
+    """The default ``roll_resistance_m`` (the shell's flattened contact patch, as a lever arm): the bent bodies of
+    the test above stay on their bottom sheets at the same nudge. MuJoCo resists the roll about a capsule-plane contact's first
     tangent, and that tangent runs along the capsule (its direction on the ground): the segment's own axis, not the axis it would roll along the
     path about (so a body pushed along the floor meets no added resistance)."""
-    from devices.scene import Scene
-    scene = SceneParams(obstacle_height_m=0.0, terrain_scene=Scene(ground_roll_m=0.0085))
-    angles = np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
-    world = PhysicsWorld(scene)
+    angles = sign * np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
+    world = PhysicsWorld(FLAT)
     world.place(angles_rad=angles)
     bottom, side = _held_then_nudged(world, angles, seconds=2.0)
     assert bottom > 0.95 * world.weight_n and side < 0.01 * world.weight_n
@@ -180,5 +182,5 @@ def test_a_ground_that_resists_the_roll_holds_the_bent_body_upright_and_only_abo
         along = axis - (axis @ normal) * normal  # the axis's direction on the ground
         along /= np.linalg.norm(along)
         assert contact.dim == 6 and abs(tangent1 @ along) > 0.999 and abs(tangent2 @ along) < 1e-3
-        assert contact.friction[3] == 0.0085 and contact.friction[4] <= 1e-5  # only the roll about the axis
+        assert contact.friction[3] == pytest.approx(0.0085) and contact.friction[4] <= 1e-5  # that roll only
     assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)

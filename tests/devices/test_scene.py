@@ -45,13 +45,14 @@ def test_a_scene_reads_every_shape_and_the_robot_start():
     assert scene.far_edge_m == pytest.approx(0.95)
 
 
-def test_the_grounds_roll_resistance_is_optional_and_survives_a_round_trip():
-    from devices.scene import scene_to_toml
-    assert parse_scene(GOOD).ground_roll_m == 0.0  # the default: round shells roll freely
-    scene = parse_scene("[ground]\nfriction = 0.3\nroll_resistance_m = 0.0085\n")
-    assert scene.ground_roll_m == 0.0085
-    assert parse_scene(scene_to_toml(scene)).ground_roll_m == 0.0085
-    assert "roll_resistance_m" not in scene_to_toml(parse_scene(GOOD))  # files without it are written as before
+def test_the_grounds_roll_resistance_defaults_to_the_shells_contact_patch_and_survives_a_round_trip():
+    from devices.scene import GROUND_ROLL_M, scene_to_toml
+    assert abs(GROUND_ROLL_M - math.sqrt(2 * 0.036 * 0.001)) < 1e-4  # sqrt(2 R d), d = 1 mm
+    assert parse_scene(GOOD).ground_roll_m == GROUND_ROLL_M
+    free = parse_scene("[ground]\nfriction = 0.3\nroll_resistance_m = 0\n")  # round shells rolling freely
+    assert free.ground_roll_m == 0.0
+    assert parse_scene(scene_to_toml(free)).ground_roll_m == 0.0
+    assert parse_scene(scene_to_toml(parse_scene(GOOD))).ground_roll_m == GROUND_ROLL_M
 
 
 def test_the_height_profile_follows_each_shape():
