@@ -30,11 +30,12 @@ SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
 MIN_SIZE_M = 0.001  # an obstacle's smallest radius, length or height: below 1 mm nothing the 36 mm-radius robot meets
 # (and MuJoCo refuses a geom whose size rounds to 0 in the model's text)
-# Half the width of a loaded shell's flattened contact patch, sqrt(2 R d) for the 36 mm shell deflecting d = 1 mm under a
+SHELL_RADIUS_M = 0.036  # the paper's segment radius (SceneParams.segment_radius_m)
+# Half the width of a loaded shell's flattened contact patch, sqrt(2 R d) for the shell deflecting d = 1 mm under a
 # segment's share of the weight (ShellParams' assumed stiffness; docs/PHYSICS_LAB.md): the ground's default roll
 # resistance. An assumption derived from another; a rig measurement of the shell's contact width replaces it.
-GROUND_ROLL_M = round(math.sqrt(2 * 0.036 * 0.001), 4)  # 0.0085 m
-MAX_ROLL_M = 0.036  # the ground's roll resistance at most the shell's radius: a lever arm longer than that is no patch
+GROUND_ROLL_M = round(math.sqrt(2 * SHELL_RADIUS_M * 0.001), 4)  # 0.0085 m
+MAX_ROLL_M = SHELL_RADIUS_M  # a lever arm longer than the shell's radius is no contact patch
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
 

@@ -622,7 +622,7 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         if support is not None:
             group.create_dataset("sheet_support_N", data=support[0])
             group.create_dataset("support_N", data=support[1])
-        group.attrs["scene"] = terrain_text or _legacy_scene_text(terrain)
+        group.attrs["scene"] = terrain_text or scene_to_toml(terrain)
         group.attrs["scene_name"] = terrain.name
         group.attrs["obstacle_height_m"] = max((o.top_m for o in terrain.obstacles), default=0.0)
         group.attrs["obstacle_friction"] = terrain.obstacles[0].friction if terrain.obstacles else math.nan
@@ -634,12 +634,3 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
                                "order); sheet_support_N the upward part of each sheet's whole contact force "
                                "(normal and friction), support_N that of every contact force on the robot (the "
                                "weight when nothing accelerates); the obstacles span y, the robot heads toward +x")
-
-
-def _legacy_scene_text(terrain: Any) -> str:
-    """The scene file that describes a terrain built from the lab config's legacy keys."""
-    lines = ["[ground]", f"friction = {terrain.ground_friction}", f"roll_resistance_m = {terrain.ground_roll_m}"]
-    for o in terrain.obstacles:
-        lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m}", f"radius_m = {o.radius_m}",
-                  f"friction = {o.friction}"]
-    return "\n".join(lines) + "\n"

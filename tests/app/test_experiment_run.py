@@ -63,6 +63,20 @@ def test_the_paper_scene_file_is_the_legacy_obstacle_and_serpenoid_runs_on_flat_
     assert load_scene("paper_obstacle").obstacles[0].radius_m == pytest.approx(0.2688)
 
 
+def test_a_run_on_the_lab_configs_legacy_terrain_records_a_scene_file_that_reads_back_as_that_terrain(tmp_path):
+    """No [lab] scene: the paper's half cylinder from the legacy keys; the recording's scene text is a scene file."""
+    from app.core.experiment import run_experiment
+    from devices.scene import GROUND_ROLL_M, parse_scene
+    out = tmp_path / "legacy.h5"
+    run_experiment(out, seconds=0.5, settle_s=0.5)
+    with h5py.File(out) as f:
+        scene = parse_scene(f["sim"].attrs["scene"], "recorded")
+    (cylinder,) = scene.obstacles
+    assert (cylinder.shape, cylinder.x_m, cylinder.friction) == ("half_cylinder", 0.0, 0.1)
+    assert cylinder.radius_m == pytest.approx(0.28 * 0.96)
+    assert scene.ground_friction == 0.3 and scene.ground_roll_m == GROUND_ROLL_M
+
+
 @pytest.mark.parametrize(("args", "words"), [
     (["--scene", "no_such_scene"], ["no_such_scene", "scene file not found"]),
     (["--mode", "keyframes"], ["keyframes needs a --shape file with keyframes"]),

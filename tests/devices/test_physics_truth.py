@@ -165,9 +165,10 @@ def test_a_drape_over_the_obstacle_is_held_upright_by_the_obstacle_against_the_s
 @pytest.mark.parametrize("sign", [1.0, -1.0], ids=["arch", "sag"])
 def test_the_default_ground_resists_the_roll_holds_the_bent_body_upright_and_only_about_the_segments_axis(sign):
     """The default ``roll_resistance_m`` (the shell's flattened contact patch, as a lever arm): the bent bodies of
-    the test above stay on their bottom sheets at the same nudge. MuJoCo resists the roll about a capsule-plane contact's first
-    tangent, and that tangent runs along the capsule (its direction on the ground): the segment's own axis, not the axis it would roll along the
-    path about (so a body pushed along the floor meets no added resistance)."""
+    the test above stay on their bottom sheets at the same nudge. MuJoCo resists the roll about a capsule-plane
+    contact's first tangent, and that tangent runs along the capsule (its direction on the ground): the segment's
+    own axis, not the axis it would roll along the path about (a body pushed along the floor meets no added
+    resistance)."""
     angles = sign * np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
     world = PhysicsWorld(FLAT)
     world.place(angles_rad=angles)
