@@ -51,6 +51,9 @@ class Obstacle:
     radius_m: float = 0.0
     length_m: float = 0.0
     height_m: float = 0.0
+    # Its resistance to a shell rolling about the path's heading (x) on it, as a lever arm (m): the same flattened
+    # patch as on the ground (Scene.ground_roll_m, whose value a file's obstacle takes unless it names its own).
+    roll_resistance_m: float = GROUND_ROLL_M
 
     @property
     def x_range_m(self) -> tuple[float, float]:
@@ -115,6 +118,7 @@ def scene_to_toml(scene: Scene) -> str:
         else:
             lines += [f"length_m = {o.length_m!r}", f"height_m = {o.height_m!r}"]
         lines.append(f"friction = {o.friction!r}")
+        lines.append(f"roll_resistance_m = {o.roll_resistance_m!r}")
     lines += ["", "[robot]", f'start = "{scene.start}"']
     if scene.head_x_m is not None:
         lines.append(f"head_x_m = {scene.head_x_m!r}")
@@ -129,9 +133,9 @@ def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float
 
 
 # -- reading a file ----------------------------------------------------------------------------------------------------
-_OBSTACLE_KEYS = {"half_cylinder": {"shape", "x_m", "radius_m", "friction"},
-                  "box": {"shape", "x_m", "length_m", "height_m", "friction"},
-                  "wedge": {"shape", "x_m", "length_m", "height_m", "friction"}}
+_OBSTACLE_KEYS = {"half_cylinder": {"shape", "x_m", "radius_m", "friction", "roll_resistance_m"},
+                  "box": {"shape", "x_m", "length_m", "height_m", "friction", "roll_resistance_m"},
+                  "wedge": {"shape", "x_m", "length_m", "height_m", "friction", "roll_resistance_m"}}
 
 
 def _number(where: str, table: dict[str, Any], key: str, *, low: float, high: float, default: float | None = None,
@@ -185,13 +189,15 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
         _only(where, table, _OBSTACLE_KEYS[shape])
         x_m = _number(where, table, "x_m", low=-50.0, high=50.0)
         friction = _number(where, table, "friction", low=0.0, high=5.0, default=ground_friction)
+        roll = _number(where, table, "roll_resistance_m", low=0.0, high=MAX_ROLL_M, default=ground_roll)
         if shape == "half_cylinder":
             radius = _number(where, table, "radius_m", low=MIN_SIZE_M, high=5.0)
-            obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius))
+            obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius, roll_resistance_m=roll))
         else:
             length = _number(where, table, "length_m", low=MIN_SIZE_M, high=50.0)
             height = _number(where, table, "height_m", low=MIN_SIZE_M, high=5.0)
-            obstacles.append(Obstacle(shape, x_m, friction, length_m=length, height_m=height))
+            obstacles.append(Obstacle(shape, x_m, friction, length_m=length, height_m=height,
+                                      roll_resistance_m=roll))
     robot = data.get("robot", {})
     if not isinstance(robot, dict):
         raise SceneError(f"{source}: [robot] must be a table")

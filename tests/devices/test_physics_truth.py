@@ -185,3 +185,39 @@ def test_the_default_ground_resists_the_roll_holds_the_bent_body_upright_and_onl
         assert contact.dim == 6 and abs(tangent1 @ along) > 0.999 and abs(tangent2 @ along) < 1e-3
         assert contact.friction[3] == pytest.approx(0.0085) and contact.friction[4] <= 1e-5  # that roll only
     assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)
+
+
+def _obstacle(shape: str, roll_m: float):
+    """A wide, gentle obstacle of each shape with room on top for the whole body (0.96 m)."""
+    from devices.scene import Obstacle
+    if shape == "half_cylinder":
+        return Obstacle(shape, 0.0, 0.3, radius_m=3.0, roll_resistance_m=roll_m)
+    return Obstacle(shape, 0.0, 0.3, length_m=2.0, height_m=0.05 if shape == "box" else 0.1, roll_resistance_m=roll_m)
+
+
+@pytest.mark.parametrize("shape", ["half_cylinder", "box", "wedge"])
+def test_an_obstacle_resists_the_roll_as_the_ground_does_and_only_about_the_heading(shape):
+    """On top of an obstacle the arch of the tests above rolls onto its side at the nudge when the obstacle lets it
+    roll freely (``roll_resistance_m = 0`` on the obstacle), and stays on its bottom sheets with the default (the
+    shell's patch, as on the ground). MuJoCo's frame for a contact on an obstacle across the path has its first
+    tangent along y (the obstacle's width), so the resisted roll is about the second, the heading across it (a
+    segment lying along the path rolling about its own axis), never about y (a segment rolling along the path)."""
+    from devices.scene import GROUND_ROLL_M, Scene
+    angles = np.array([0, 0, 0.4, 0, -0.4, 0, 0, 0, -0.4, 0, 0.4, 0])
+    results = {}
+    for roll_m in (0.0, GROUND_ROLL_M):
+        world = PhysicsWorld(SceneParams(terrain_scene=Scene(obstacles=(_obstacle(shape, roll_m),), head_x_m=0.48)))
+        world.place(angles_rad=angles)
+        results[roll_m] = _held_then_nudged(world, angles, seconds=2.0)
+    bottom, side = results[0.0]
+    assert side > 0.9 * world.weight_n and bottom < 0.05 * world.weight_n  # free: lying on its side sheets
+    bottom, side = results[GROUND_ROLL_M]
+    assert bottom > 0.95 * world.weight_n and side < 0.01 * world.weight_n  # resisted: upright
+    data, model = world.data, world.model
+    on_obstacle = [c for c in data.contact[:data.ncon] if "obstacle" in (model.geom(c.geom1).name + model.geom(c.geom2).name)]
+    assert len(on_obstacle) >= 2  # the arch stands on the obstacle, not on the floor
+    for contact in on_obstacle:
+        normal, tangent1, tangent2 = contact.frame.reshape(3, 3)
+        assert contact.dim == 6 and abs(tangent1[1]) > 0.999 and abs(tangent2[1]) < 1e-3
+        assert contact.friction[3] <= 1e-5 and contact.friction[4] == pytest.approx(GROUND_ROLL_M)
+    assert world.vertical_contact_force_n() == pytest.approx(world.weight_n, rel=1e-3)

@@ -55,6 +55,17 @@ def test_the_grounds_roll_resistance_defaults_to_the_shells_contact_patch_and_su
     assert parse_scene(scene_to_toml(parse_scene(GOOD))).ground_roll_m == GROUND_ROLL_M
 
 
+def test_an_obstacles_roll_resistance_is_the_grounds_unless_it_names_its_own_and_survives_a_round_trip():
+    from devices.scene import GROUND_ROLL_M, scene_to_toml
+    assert {o.roll_resistance_m for o in parse_scene(GOOD).obstacles} == {GROUND_ROLL_M}
+    text = ("[ground]\nroll_resistance_m = 0\n[[obstacle]]\nshape = 'box'\nx_m = 0\nlength_m = 0.3\nheight_m = 0.1\n"
+            "[[obstacle]]\nshape = 'half_cylinder'\nx_m = 1\nradius_m = 0.2\nroll_resistance_m = 0.004\n")
+    free_box, cylinder = parse_scene(text).obstacles
+    assert free_box.roll_resistance_m == 0.0 and cylinder.roll_resistance_m == 0.004  # the ground's, its own
+    again = parse_scene(scene_to_toml(parse_scene(text))).obstacles
+    assert [o.roll_resistance_m for o in again] == [0.0, 0.004]
+
+
 def test_the_height_profile_follows_each_shape():
     scene = parse_scene(GOOD)
     assert scene.height_at(0.0) == pytest.approx(0.27)  # the cylinder's top
@@ -81,6 +92,8 @@ def test_the_height_profile_follows_each_shape():
     ("[[obstacle]]\nshape = 'half_cylinder'\nx_m = 'left'\nradius_m = 1\n", ["'x_m' must be a number"]),
     ("[ground]\nfriction = nan\n", ["'friction' = nan is outside"]),
     ("[ground]\nroll_resistance_m = 0.05\n", ["'roll_resistance_m' = 0.05 is outside [0, 0.036]"]),
+    ("[[obstacle]]\nshape = 'wedge'\nx_m = 0\nlength_m = 0.3\nheight_m = 0.1\nroll_resistance_m = -0.001\n",
+     ["[[obstacle]] #1", "'roll_resistance_m' = -0.001 is outside [0, 0.036]"]),
     ("[robot]\nstart = 'fly'\n", ["'start' must be one of"]),
     ("[terrain]\n", ["unknown key 'terrain'"]),
     ("[ground\n", ["bad.toml", "not valid TOML"]),

@@ -124,7 +124,9 @@ def _obstacle_geom(index: int, obstacle: Obstacle, width_m: float) -> tuple[str,
     """(geom XML, asset XML) of one obstacle. Friction: the obstacle's own (the robot's geoms carry 0, and MuJoCo
     takes the larger of a pair's two coefficients, so the pair's coefficient is the terrain's)."""
     name = f"obstacle{index + 1}"
-    common = (f'friction="{obstacle.friction} 0.005 0.0001" contype="0" conaffinity="1" '
+    # An obstacle resisting the roll collides through explicit pairs only (build_mjcf), as the ground does.
+    affinity = "0" if obstacle.roll_resistance_m > 0 else "1"
+    common = (f'friction="{obstacle.friction} 0.005 0.0001" contype="0" conaffinity="{affinity}" '
               f'rgba="0.8 0.84 0.92 0.8"')
     if obstacle.shape == "half_cylinder":
         # A capsule of the radius lying across the path with its axis on the ground: what shows above the ground
@@ -216,6 +218,17 @@ def build_mjcf(scene: SceneParams) -> str:
         f'<pair geom1="ground" geom2="{segment_name(i)}" condim="6" solref="0.01 1" '
         f'friction="{terrain.ground_friction} {terrain.ground_friction} 0 {roll} 0"/>'
         for i in range(scene.n_segments)) if roll > 0 else ""
+    # The obstacles' roll resistance (Obstacle.roll_resistance_m): every obstacle spans the width (y) and its surface
+    # normal lies in the x-z plane, where MuJoCo's contact frame for a capsule on a capsule, a box or a convex mesh
+    # takes its first tangent along y (tested: tests/devices/test_physics_truth.py), so "0 a" resists the roll
+    # about the second, the heading across the obstacle — a segment lying along the path rolling about its own axis
+    # — and never the roll about y, a segment rolling along the path over the obstacle (resisting every axis made
+    # the drape stick-slip, docs/PHYSICS_LAB.md).
+    pairs += "".join(
+        f'<pair geom1="obstacle{k + 1}" geom2="{segment_name(i)}" condim="6" solref="0.01 1" '
+        f'friction="{obstacle.friction} {obstacle.friction} 0 0 {obstacle.roll_resistance_m}"/>'
+        for k, obstacle in enumerate(terrain.obstacles) if obstacle.roll_resistance_m > 0
+        for i in range(scene.n_segments))
     return f"""<mujoco model="sensnake_v2">
   <compiler angle="degree" autolimits="true"/>
   <option timestep="{scene.timestep_s}" integrator="implicitfast" cone="elliptic" gravity="0 0 {-GRAVITY_M_S2}"/>
