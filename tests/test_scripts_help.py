@@ -34,3 +34,18 @@ def test_help_and_bad_arguments_give_a_usage_line(script):
     bad = _run(script, "--no-such-option")
     assert bad.returncode == 2, (bad.stdout[-500:], bad.stderr[-500:])
     assert "usage:" in bad.stderr.lower() and "Traceback" not in bad.stderr, bad.stderr[-1000:]
+
+
+def test_the_sweep_figure_is_drawn_from_a_summary_and_never_clobbers_a_file(tmp_path):
+    out = tmp_path / "figure.png"
+    done = _run(ROOT / "scripts" / "sweep_figure.py", "docs/feedback_heldout13_summary.csv", str(out))
+    assert done.returncode == 0, done.stderr[-1000:]
+    assert out.stat().st_size > 10_000 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    before = out.read_bytes()
+    again = _run(ROOT / "scripts" / "sweep_figure.py", "docs/feedback_heldout13_summary.csv", str(out))
+    assert again.returncode == 2 and "exists" in again.stderr and "Traceback" not in again.stderr
+    assert out.read_bytes() == before
+    empty = tmp_path / "empty.csv"
+    empty.write_text("run,scene,controller\n", encoding="utf-8")
+    refused = _run(ROOT / "scripts" / "sweep_figure.py", str(empty), str(tmp_path / "other.png"))
+    assert refused.returncode == 2 and "no runs" in refused.stderr and not (tmp_path / "other.png").exists()

@@ -137,3 +137,8 @@ def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_
     bad.write_text("[ground]\nfrction = 0.3\n", encoding="utf-8")
     broken = replace(config, lab=replace(config.lab, scene=str(bad)))
     assert "unknown key 'frction'" in scene_description(broken)
+    own = tmp_path / "own.toml"  # an obstacle whose roll resistance is not the ground's says so; the default does not
+    own.write_text("[[obstacle]]\nshape = 'box'\nx_m = 0\nlength_m = 0.3\nheight_m = 0.1\nroll_resistance_m = 0\n"
+                   "[[obstacle]]\nshape = 'box'\nx_m = 1\nlength_m = 0.3\nheight_m = 0.1\n", encoding="utf-8")
+    line = scene_description(replace(config, lab=replace(config.lab, scene=str(own))))
+    assert line.count("rolls freely") == 1 and line.split(";")[0].endswith("roll resistance 8.5 mm")

@@ -54,10 +54,13 @@ def scene_description(config: Any) -> str:
     for o in scene.obstacles:
         size = (f"r {o.radius_m:.2f} m" if o.shape == "half_cylinder"
                 else f"{o.length_m:.2f} m long, {o.height_m:.2f} m high")
+        if o.roll_resistance_m != scene.ground_roll_m:  # said only where it differs from the ground's
+            size += f", roll resistance {o.roll_resistance_m * 1000:g} mm" if o.roll_resistance_m else ", rolls freely"
         parts.append(f"{o.shape.replace('_', ' ')} at x {o.x_m:+.2f} m ({size}, μ {o.friction:g})")
     terrain = "; ".join(parts) if parts else "no obstacle"
-    roll = f", roll resistance {scene.ground_roll_m * 1000:g} mm" if scene.ground_roll_m else ""
-    return f"Scene: {scene.name} — ground μ {scene.ground_friction:g}{roll}; {terrain}"
+    # the ground's roll resistance is every obstacle's too unless an obstacle says otherwise: said first, scene-wide
+    roll = f"roll resistance {scene.ground_roll_m * 1000:g} mm; " if scene.ground_roll_m else "shells roll freely; "
+    return f"Scene: {scene.name} — {roll}ground μ {scene.ground_friction:g}; {terrain}"
 
 
 class SceneTab(QWidget):
