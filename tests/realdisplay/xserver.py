@@ -59,6 +59,8 @@ class XServer:
         except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait()
+        if self.process.stderr is not None:  # the pipe start() read a failure from: closed with the server (CI's
+            self.process.stderr.close()  # last ResourceWarning, an unclosed BufferedReader GC'd in a later test)
 
 
 def probe_env(display: str) -> dict[str, str]:
