@@ -51,8 +51,10 @@ front sensors: the lead relaxes to 0. The tail guard (``tail_guard_n`` > 0): whi
 sheets carry less than it (the tail has left the floor: the body balances on the terrain with both ends up, and
 opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0 instead (never past
 it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted tail, closes too (at
-that part of the lead's rate); flagged or stale tail sensors leave the lead as without the guard. Chosen on
-benchmarks/sweep_tune_tail_guard.toml, judged on held-out set 6 (docs/FORCE_FEEDBACK.md).
+that part of the lead's rate; default 0.3, which stops the body being lifted off the crest by its own tail and
+sliding back under heavy tail loads); flagged or stale tail sensors leave the lead as without the guard. The guard
+was chosen on benchmarks/sweep_tune_tail_guard.toml and judged on held-out set 6, its reaching back at 0.3 found on
+benchmarks/sweep_tune_heavy2.toml and judged on held-out set 14 (docs/FORCE_FEEDBACK.md).
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
 ``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
@@ -94,8 +96,8 @@ class FeedbackGains:
     lead_keep: float = 1.0  # the part of the lead's bend kept per pitch joint it travels back (1: all of it)
     lead_reach: float = 12.0  # how many pitch joints behind the lead its bend travels (12: all; 0: it stays at the lead)
     tail_guard_n: float = 0.5  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
-    tail_guard_back: float = 0.0  # while the guard acts, the bend already carried back closes too, at this part of the
-    # lead's rate (0: only the lead joint closes)
+    tail_guard_back: float = 0.3  # while the guard acts, the bend already carried back closes too, at this part of the
+    # lead's rate (0: only the lead joint closes). 0.3: chosen by held-out set 14's rule (docs/FORCE_FEEDBACK.md)
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5

@@ -97,12 +97,16 @@ FEEDBACK_SPINS = (
      "How fast joint 3 bends the front while its bottom sheets feel nothing: positive turns it up and forward, out "
      "of the taught bend; negative turns it down toward the terrain. The bend travels back with the shape (0: off)"),
     ("lead_reach", "lead reach", 0.0, 12.0, 1.0, 0, " joints",
-     "How many pitch joints behind joint 3 the lead's bend travels with the shape (12: all, the default). Under "
-     "heavy tail loads 2 held the body on the crest where the whole bend, carried to the tail, lifted it and slid "
-     "back (docs/FORCE_FEEDBACK.md)"),
+     "How many pitch joints behind joint 3 the lead's bend travels with the shape (12: all, the default; 2 stops "
+     "it at joint 7, which also holds the body on the crest under heavy tail loads but traverses less; "
+     "docs/FORCE_FEEDBACK.md)"),
     ("tail_guard_n", "tail guard", 0.0, 5.0, 0.1, 1, " N",
      "While the two tail segments' bottom sheets carry less than this, the lead closes back toward the taught shape "
      "instead of opening it: the tail has left the floor and the body is balancing on the terrain (0: off)"),
+    ("tail_guard_back", "guard back", 0.0, 3.0, 0.1, 1, " × lead",
+     "While the tail guard acts, the lead's bend already carried back toward the lifted tail closes too, at this part "
+     "of the lead's rate (0: only joint 3 closes). 0.3, the default, stopped the body sliding back off the crest "
+     "under heavy tail loads (docs/FORCE_FEEDBACK.md)"),
 )
 
 
