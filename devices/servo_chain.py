@@ -76,6 +76,7 @@ _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8,
 _STATUS_OVERHEAD = 4
 PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruction, error, model 2, firmware, CRC 2
 SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
+STALE_DRAINS = 5  # check_models first drops what still arrives from a port's last session, this many windows at most
 COLLISION_TRIES = 2  # garbled replies in a row, after the first, that make an ID "collided" (two servos on it)
 SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 # The wait rule for replies (the pacing constants with it): devices/reply_pacing.py.
@@ -605,6 +606,10 @@ class ServoChain:
         infos: dict[int, ServoInfo] = {}
         collided: list[int] = []
         missing: list[int] = []
+        port = self._require_port()
+        for _ in range(STALE_DRAINS):  # a reply of the port's last session still arriving is no servo's answer now
+            if not self._second_reply(port):
+                break
         for sid in self.ids:
             try:
                 infos[sid] = self.ping(sid)
@@ -626,6 +631,12 @@ class ServoChain:
         if missing:
             raise NoReplyError(missing[0], "ping")
         for sid, info in infos.items():
+            if info.model_number != ct.MODEL_NUMBER_XM430_W350:
+                # Asked once more before refusing: a stale status packet from this servo (CI once read "model 120",
+                # a read's two data bytes, as a reopened port's first ping reply) is not its model; a servo of
+                # another model answers the same twice.
+                self._io(port.clearPort)
+                info = infos[sid] = self.ping(sid)
             if info.model_number != ct.MODEL_NUMBER_XM430_W350:
                 raise ModelMismatchError(
                     f"servo {sid} is a {info.model_name} (model {info.model_number}), but this driver is written "

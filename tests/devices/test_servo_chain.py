@@ -71,6 +71,28 @@ def test_check_models_names_the_odd_servo(sim_chain):
         chain.check_models()
 
 
+def test_a_reply_left_on_the_line_from_before_the_port_opened_is_not_taken_for_a_servos_model(servos, sim_chain,
+                                                                                              monkeypatch):
+    """CI once read servo 1 as "model 120" when a control loop reopened the emulator's port: a status packet of the
+    session before (a read's reply, 120 in its two data bytes) came in as the ping's reply. check_models first drops
+    what still arrives on the line, and asks a servo whose model is wrong once more before refusing it."""
+    from devices.sim.dxl_chain import _Chunk
+
+    stale = wire.build_status(1, 0, (120).to_bytes(2, "little"))  # valid, from servo 1, not a ping's reply
+    sim_chain._outgoing.append(_Chunk(time.monotonic() + 0.001, 1e-9, stale))  # arriving just after the open
+    servos.check_models()  # dropped before the first ping: no DuplicateIdError, no "model 120"
+    real_ping, answers = servos.ping, []
+
+    def ping_once_stale(sid):
+        info = real_ping(sid)
+        answers.append(sid)
+        return dataclasses.replace(info, model_number=120) if answers.count(sid) == 1 and sid == 1 else info
+
+    monkeypatch.setattr(servos, "ping", ping_once_stale)
+    servos.check_models()  # the wrong model once: asked again, right
+    assert answers.count(1) == 2 and answers.count(2) == 1
+
+
 def test_ticks_and_angles_follow_spec_section_2():
     robot = dataclasses.replace(ROBOT, signs=(-1,) + (1,) * 11, zero_offsets_rad=(0.1,) + (0.0,) * 11)
     chain = ServoChain(robot)
