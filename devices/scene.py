@@ -133,9 +133,10 @@ def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float
 
 
 # -- reading a file ----------------------------------------------------------------------------------------------------
-_OBSTACLE_KEYS = {"half_cylinder": {"shape", "x_m", "radius_m", "friction", "roll_resistance_m"},
-                  "box": {"shape", "x_m", "length_m", "height_m", "friction", "roll_resistance_m"},
-                  "wedge": {"shape", "x_m", "length_m", "height_m", "friction", "roll_resistance_m"}}
+_EVERY_OBSTACLE_KEYS = {"shape", "x_m", "friction", "roll_resistance_m"}
+_OBSTACLE_KEYS = {"half_cylinder": _EVERY_OBSTACLE_KEYS | {"radius_m"},
+                  "box": _EVERY_OBSTACLE_KEYS | {"length_m", "height_m"},
+                  "wedge": _EVERY_OBSTACLE_KEYS | {"length_m", "height_m"}}
 
 
 def _number(where: str, table: dict[str, Any], key: str, *, low: float, high: float, default: float | None = None,
