@@ -84,8 +84,9 @@ class FeedbackGains:
     """The law's parameters (see the module docstring); forces in N, angles in rad, times in s."""
 
     conform_gain: float = 0.15  # rad/s: how fast a node reaches for lost contact, and yields per unit of overload
-    push_gain: float = 0.10  # rad/s per unit of relative force deficit
-    target_n: float = 5.0  # the load a node in contact should push with (two segments weigh ~3.9 N)
+    push_gain: float = 0.20  # rad/s per unit of relative force deficit
+    target_n: float = 8.0  # the load a node in contact should push with (two segments weigh ~3.9 N); 8 N and push
+    # 0.2 (5 N and 0.1 until stop 44): chosen on sweep_tune_crest2.toml, kept by held-out set 16's rule
     contact_n: float = 0.5  # below this a node has no contact
     overload_n: float = 20.0  # above this a node is overloaded (its servos near their stall torque)
     memory_s: float = 3.0  # a node that had contact this recently and lost it reaches for it again

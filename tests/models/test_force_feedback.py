@@ -19,7 +19,7 @@ def _law(**gains) -> ForceFeedbackLaw:
 
 def _loads(node_loads: dict[int, float]) -> np.ndarray:
     """Bottom forces per segment putting ``load`` on node ``p`` (half on each of its two segments)."""
-    bottom = np.full(12, 1.0)  # 2 N on every node: under the default 5 N target unless set
+    bottom = np.full(12, 1.0)  # 2 N on every node: under the target (5 or 8 N) unless set
     for p, load in node_loads.items():
         bottom[p - 1] = bottom[p] = load / 2
     return bottom
@@ -57,7 +57,7 @@ def test_a_node_that_lost_contact_reaches_down_for_it_at_the_conform_rate_then_r
 
 
 def test_under_target_it_pushes_overloaded_it_yields_at_target_it_relaxes():
-    law = _law()
+    law = _law(target_n=5.0, push_gain=0.1)
     for _ in range(10):
         law.step(DT, _loads({2: 2.5, 4: 25.0, 6: 8.0, 8: 8.0}), np.ones(12, bool))
     delta = dict(zip(law.nodes, law.delta_rad))
@@ -273,3 +273,13 @@ def test_the_guard_reaching_back_closes_the_bend_already_carried_toward_the_lift
     assert np.allclose(run(3.0, 2.0, 50).lead_correction(), run(0.0, 2.0, 50).lead_correction())  # tail down: none
     with pytest.raises(GainsError):
         FeedbackGains(tail_guard_back=4.0)
+
+
+def test_the_default_target_and_push_are_the_crest_screens_choice():
+    # 8 N and 0.2 rad/s since held-out set 16 kept them (sweep_tune_crest2.toml's gain set 6); 5 N and 0.1 before
+    defaults = FeedbackGains()
+    assert (defaults.target_n, defaults.push_gain) == (8.0, 0.2)
+    law = ForceFeedbackLaw(AXES)
+    for _ in range(10):  # a node carrying 6 N, its two segments' weight and more, still presses toward 8 N
+        law.step(DT, _loads({4: 6.0}), np.ones(12, bool))
+    assert dict(zip(law.nodes, law.delta_rad))[4] > 0
