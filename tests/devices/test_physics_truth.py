@@ -97,6 +97,58 @@ def test_on_the_paper_obstacle_the_normal_forces_exceed_the_weight_by_the_curve_
     assert bottom.sum() > 1.1 * world.weight_n
 
 
+def test_a_limp_chain_wrapping_a_frictionless_half_cylinder_presses_it_with_four_over_pi_of_its_weight():
+    """A known answer for why the sheets' readings add up to more than the weight on a curve. A flexible chain of
+    weight w per length wrapped over a frictionless half cylinder (centre-line radius R) has tension T = wR·cos θ
+    (tangential balance, T = 0 at the feet) and so presses N = w·cos θ + T/R = 2w·cos θ per length: in all 4wR, 4/π
+    of its weight πRw. The paper's obstacle is that case: 0.96 m of body is half the circumference at its centre line
+    (R = 0.2688 + 0.036 m). The limp robot, 12 rigid links, settles to within 5 % of it; with no friction the
+    sheets' readings' vertical part is the weight (less what its rounded ends pass axially)."""
+    from devices.scene import Obstacle, Scene
+    cylinder = Obstacle("half_cylinder", 0.0, 0.0, radius_m=0.2688)
+    world = PhysicsWorld(SceneParams(terrain_scene=Scene(ground_friction=0.0, obstacles=(cylinder,), head_x_m=0.48)))
+    world.step(3000)  # 6 s limp
+    readings = world.segment_loads_n()
+    assert readings[1:].sum() < 0.01 * world.weight_n  # it lies on its bottom sheets
+    assert readings.sum() == pytest.approx(4.0 / np.pi * world.weight_n, rel=0.05)
+    vertical = float(np.sum(readings[0] * world.body_state().frames[:, 2, 2]))
+    assert vertical == pytest.approx(world.weight_n, rel=0.03)
+    assert world.contact_support_n()[1] == pytest.approx(world.weight_n, rel=1e-3)
+
+
+def _momentum_z(world: PhysicsWorld) -> float:
+    """The robot's vertical momentum (kg·m/s) in the state the next step starts from (its kinematics computed)."""
+    import mujoco
+    mujoco.mj_step1(world.model, world.data)
+    mujoco.mj_subtreeVel(world.model, world.data)
+    return float(world.data.subtree_linvel[0, 2] * world.model.body_subtreemass[0])
+
+
+@pytest.mark.parametrize("name", ["flat", "two_obstacles"])
+def test_the_contact_forces_obey_newton_step_by_step_while_the_body_falls_and_lands(name):
+    """Where the contact forces' upward part is not the weight, the body is accelerating: Σ F_z − W = dp_z/dt at
+    every 2 ms step, through a drop onto flat ground and a limp settle over the low cylinder and the step (its
+    landings push 3–9× the weight). The residual is the step's first-order discretisation of a rotating body's
+    momentum (it halves with the step: 0.21 → 0.10 → 0.05 N at 2, 1, 0.5 ms on two obstacles; 4·10⁻⁵ N for the
+    straight drop)."""
+    import mujoco
+    world = PhysicsWorld(SceneParams(terrain_scene=load_scene(name)))
+    if name == "flat":
+        world.place(height_m=0.08)  # dropped from 4.4 cm
+    dt = world.scene.timestep_s
+    worst_residual = worst_off = 0.0
+    momentum = _momentum_z(world)
+    for _ in range(1000):
+        mujoco.mj_step2(world.model, world.data)
+        support = world.contact_support_n()[1]  # the forces of the step just taken
+        following = _momentum_z(world)
+        worst_residual = max(worst_residual, abs(support - world.weight_n - (following - momentum) / dt))
+        worst_off = max(worst_off, abs(support - world.weight_n))
+        momentum = following
+    assert worst_off > 2.0 * world.weight_n  # landings: the check is not the resting case
+    assert worst_residual < 0.015 * world.weight_n
+
+
 @pytest.mark.parametrize("terrain", [
     # terrains no built-in scene has: a lower, rougher half cylinder, and a steep wedge whose slope friction must hold
     '[ground]\nfriction = 0.35\n[[obstacle]]\nshape = "half_cylinder"\nx_m = 0.0\nradius_m = 0.22\nfriction = 0.15\n'
