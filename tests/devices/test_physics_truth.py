@@ -128,7 +128,7 @@ def _momentum_z(world: PhysicsWorld) -> float:
 def test_the_contact_forces_obey_newton_step_by_step_while_the_body_falls_and_lands(name):
     """Where the contact forces' upward part is not the weight, the body is accelerating: Σ F_z − W = dp_z/dt at
     every 2 ms step, through a drop onto flat ground and a limp settle over the low cylinder and the step (its
-    landings push 3–9× the weight). The residual is the step's first-order discretisation of a rotating body's
+    landings push 4–10× the weight). The residual is the step's first-order discretisation of a rotating body's
     momentum (it halves with the step: 0.21 → 0.10 → 0.05 N at 2, 1, 0.5 ms on two obstacles; 4·10⁻⁵ N for the
     straight drop)."""
     import mujoco
