@@ -17,12 +17,15 @@
 (e) The paper's experiment (``sensnake experiment obstacle``) at 20, 30 and 76 s: the median total bottom force and
     its vertical part against the weight.
 (f) The other built-in scenes (step, wedge, two obstacles), the bent shape and the settled drape at 0.034 and
-    0.3 rad/s: the same checks as (d), with every sheet summed as well as the bottom ones' vertical part.
+    0.3 rad/s: the same checks as (d), with every sheet summed as well as the bottom ones' vertical part, and the
+    jumps split by what the body was doing: falling, tipping or landing (a point faster than 0.2 m/s) or creeping.
+(g) Scenes no built-in has and nothing was tuned on (``benchmarks/scenes/terrain/``: a 12 cm step, a step down, a
+    27° ramp, three bumps, a ramp then a cylinder), the settled drape at 0.034 and 0.3 rad/s: the checks of (f).
 Targets (issues 13, 23): the simulation at least at real time on 2 cores while the GUI plots; forces summing to the
 weight within ±10 % in ≥ 95 % of frames, < 1 % of frames with a > 1 N jump, median per-sheet RMS ≤ 0.3 N.
 
 Wall-clock figures depend on the machine's load (the lab's 2 cores are shared): compare rows of one run.
-``run(quick, sections)``; ``python -m benchmarks.bench_physics [--quick] [--sections abcdef]``.
+``run(quick, sections)``; ``python -m benchmarks.bench_physics [--quick] [--sections abcdefg]``.
 """
 
 from __future__ import annotations
@@ -170,7 +173,7 @@ def _truth_rows(quick: bool, scenes: tuple[str, ...] = ("flat", "paper_obstacle"
         for scene, taught in plans:
             for speed in (0.034, 0.3):
                 seconds = (20.0 if quick else 60.0) if speed < 0.1 else (10.0 if quick else 30.0)
-                out = Path(scratch) / f"{scene}_{speed}_{'bent' if taught is not None else 'drape'}.h5"
+                out = Path(scratch) / f"{Path(scene).stem}_{speed}_{'bent' if taught is not None else 'drape'}.h5"
                 t0 = time.perf_counter()
                 result = run_experiment(out, scene=scene, shape=taught, speed_rad_s=speed, seconds=seconds,
                                         settle_s=3.0 if scene == "flat" else 6.0)
@@ -197,7 +200,27 @@ def _paper_rows(quick: bool) -> list[dict]:
     return rows
 
 
-def run(quick: bool, sections: str = "abcdef") -> None:
+TERRAIN_DIR = os.path.join(os.path.dirname(__file__), "scenes", "terrain")
+
+
+def _print_scene_rows(rows: list[dict]) -> None:
+    print(f"{'scene':<20} {'shape':<6} {'rad/s':>6} {'sim s':>6} {'Σall±10%':>9} {'vertical±10%':>13} "
+          f"{'robot↑±10%':>11} {'jumps true':>11} {'(chatter)':>9} {'falling':>8} {'jumps creeping':>15} "
+          f"{'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8}")
+    for row in rows:
+        c = row["check"]
+        print(f"{row['scene']:<20} {row['shape']:<6} {row['speed']:6.3f} {row['seconds']:6.0f} "
+              f"{100 * c.all_sheets_within_10pct:8.1f}% {100 * c.vertical_within_10pct:12.1f}% "
+              f"{100 * c.support_within_10pct:10.1f}% {100 * c.true_jump_frames:10.2f}% "
+              f"{100 * c.true_reversal_frames:8.2f}% {100 * c.fast_frames:7.1f}% {100 * c.true_jump_frames_slow:14.2f}% "
+              f"{100 * c.true_reversal_frames_slow:8.2f}% {100 * c.estimated_jump_frames:9.2f}% "
+              f"{100 * c.estimated_reversal_frames:8.2f}% {c.median_rms_n:8.3f} {c.worst_rms_n:8.3f}")
+    print("    falling: frames in which some body point moves faster than 0.2 m/s (a fall off a crest, a tip onto the "
+          "side, a landing); jumps creeping: > 1 N jumps in the other frames (a load moving fast, or chatter when "
+          "they reverse)")
+
+
+def run(quick: bool, sections: str = "abcdefg") -> None:
     if "a" in sections:
         print("(a) world alone: real-time factor (simulated s / wall s) against error with known ground truth")
         print(f"{'dt ms':>6} {'RTF flat':>9} {'RTF drape':>10} {'RTF play':>9} {'|Σbottom−mg|/mg':>16} "
@@ -254,21 +277,21 @@ def run(quick: bool, sections: str = "abcdef") -> None:
               "forces continuous and carrying the weight?")
         print("    Σ all sheets: every sheet summed (a body rolled onto its side carries its weight on its side sheets); "
               "what no sheet feels: a segment's rounded end on an edge, friction")
-        print(f"{'scene':<14} {'shape':<6} {'rad/s':>6} {'sim s':>6} {'Σall±10%':>9} {'vertical±10%':>13} "
-              f"{'robot↑±10%':>11} {'jumps true':>11} {'(chatter)':>9} {'jumps est':>10} {'(chatter)':>9} {'RMS med':>8} {'RMS max':>8}")
-        for row in _truth_rows(quick, ("step", "wedge", "two_obstacles"), both_shapes=True):
-            c = row["check"]
-            print(f"{row['scene']:<14} {row['shape']:<6} {row['speed']:6.3f} {row['seconds']:6.0f} "
-                  f"{100 * c.all_sheets_within_10pct:8.1f}% {100 * c.vertical_within_10pct:12.1f}% "
-                  f"{100 * c.support_within_10pct:10.1f}% {100 * c.true_jump_frames:10.2f}% {100 * c.true_reversal_frames:8.2f}% "
-                  f"{100 * c.estimated_jump_frames:9.2f}% {100 * c.estimated_reversal_frames:8.2f}% "
-                  f"{c.median_rms_n:8.3f} {c.worst_rms_n:8.3f}")
-
+        _print_scene_rows(_truth_rows(quick, ("step", "wedge", "two_obstacles"), both_shapes=True))
+    if "g" in sections:
+        print("\n(g) scenes no built-in has (benchmarks/scenes/terrain/), the settled drape: continuous and carrying the "
+              "weight?")
+        scenes = tuple(sorted(os.path.join(TERRAIN_DIR, name) for name in os.listdir(TERRAIN_DIR)
+                              if name.endswith(".toml")))
+        rows = _truth_rows(quick, scenes)
+        for row in rows:
+            row["scene"] = os.path.basename(row["scene"]).removesuffix(".toml")
+        _print_scene_rows(rows)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--sections", default="abcdef", help="which sections to run, e.g. 'df' (default: all)")
+    parser.add_argument("--sections", default="abcdefg", help="which sections to run, e.g. 'df' (default: all)")
     args = parser.parse_args()
     run(args.quick, args.sections)
 

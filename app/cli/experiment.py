@@ -12,6 +12,7 @@ import math
 import sys
 
 from app.core.experiment import read_gains, run_experiment, run_obstacle_experiment
+from app.core.physics_check import check_recording
 from app.core.shapes import read_shape
 from app.core.sweep import compare, read_sweep, run_sweep, summary_table
 from devices.config import LabConfig, load_config
@@ -101,6 +102,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"true contact forces, normal and friction, upward part: on the bottom sheets "
               f"{result.median_bottom_support_n:.1f} N, on the whole robot {result.median_support_n:.1f} N "
               f"(the weight when nothing accelerates)")
+        check = check_recording(result.path)
+        print(f"true sheet forces frame to frame: {100 * check.true_jump_frames:.1f} % of 30 Hz frames with a sheet "
+              f"changing by > 1 N; {100 * (check.true_jump_frames - check.true_jump_frames_slow):.1f} % while the body "
+              f"fell, tipped or landed, {100 * check.true_reversal_frames_slow:.1f} % reversing while it crept "
+              f"(chatter)")
     for line in result.overloads:
         print(line)
     print(f"wrote {result.path}")

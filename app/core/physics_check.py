@@ -12,7 +12,9 @@
   cannot be on a curve or a slope held by friction;
 - **jumps**: how often a sheet's force changes by more than ``jump_n`` between two board frames (30 Hz), in the
   true forces and in the app's estimated ones, and how many of those are *reversals* (a jump followed at once by
-  one the other way: chatter, as opposed to a load moving fast);
+  one the other way: chatter, as opposed to a load moving fast); and how many of them come while the body moves
+  slowly (no point of it faster than ``FAST_M_S`` around the frame): a jump while the body falls off a crest, tips
+  over or lands is an event a real robot's sheets feel too, one while it creeps is a load moving fast or chatter;
 - **accuracy** of the whole sensing chain on moving contact: the estimated forces (board → sensor model →
   estimator, what the Forces tab shows) against the true ones at the board's sample times, RMS and 99th
   percentile per sheet, over the sheets that were loaded at some time. A sample the recording flags
@@ -37,6 +39,9 @@ from devices.scene import channel_map
 from models.sls import ForceStatus
 
 BOARD_PERIOD_S = 1.0 / 30.0
+# A body point faster than this is falling, tipping over or sliding away: the gaits' fastest point moves at under
+# 0.1 m/s on every built-in scene and five others while nothing falls (0.3 rad/s), a fall or a tip at 0.3–1.5 m/s.
+FAST_M_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,9 @@ class PhysicsCheck:
     support_within_10pct: float = math.nan  # … every contact force's upward part on the robot (normal and friction)
     bottom_support_within_10pct: float = math.nan  # … the bottom sheets' whole contact forces' upward part
     median_bottom_support_n: float = math.nan
+    fast_frames: float = math.nan  # fraction of 30 Hz frames in which some body point moves faster than FAST_M_S
+    true_jump_frames_slow: float = math.nan  # fraction of frames with a > jump_n change while the body moves slowly
+    true_reversal_frames_slow: float = math.nan  # … of which reversing (chatter while nothing falls)
 
 
 def _nan_or(reduce: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
@@ -68,14 +76,37 @@ def _nan_or(reduce: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
     return float(reduce(finite)) if finite.size else math.nan
 
 
-def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
-    """(fraction of steps with a > jump_n change on some channel, fraction that reverse at the next step)."""
+def _jump_steps(series: np.ndarray, jump_n: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per step between rows: (a > jump_n change on some channel, one that reverses at the next step)."""
     if len(series) < 3:
-        return 0.0, 0.0
+        return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
     steps = np.diff(series, axis=0)
     big = np.abs(steps) > jump_n
-    reversal = big[:-1] & big[1:] & (np.sign(steps[:-1]) != np.sign(steps[1:]))
-    return float(np.mean(big.any(axis=1))), float(np.mean(reversal.any(axis=1)))
+    reversal = np.zeros(len(steps), dtype=bool)
+    reversal[:-1] = (big[:-1] & big[1:] & (np.sign(steps[:-1]) != np.sign(steps[1:]))).any(axis=1)
+    return big.any(axis=1), reversal
+
+
+def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
+    """(fraction of steps with a > jump_n change on some channel, fraction that reverse at the next step)."""
+    big, reversal = _jump_steps(series, jump_n)
+    if not len(big):
+        return 0.0, 0.0
+    return float(np.mean(big)), float(np.mean(reversal[:-1]))
+
+
+def _fast_steps(sim_t: np.ndarray, points: np.ndarray, frames_at: np.ndarray) -> np.ndarray:
+    """Per step between board frames: did some body point move faster than ``FAST_M_S`` over a tick from one tick
+    before the step to one tick after it."""
+    steps = max(len(frames_at) - 1, 0)
+    if len(sim_t) < 2 or not steps:
+        return np.zeros(steps, dtype=bool)
+    speed = np.linalg.norm(np.diff(points, axis=0), axis=2).max(axis=1) / np.maximum(np.diff(sim_t), 1e-9)
+    tick = float(np.median(np.diff(sim_t)))
+    ends = sim_t[1:]  # each speed is over the tick that ends here
+    start = np.searchsorted(ends, frames_at[:-1] - tick, side="left")
+    stop = np.searchsorted(ends, frames_at[1:] + tick, side="right")
+    return np.array([b > a and speed[a:b].max() > FAST_M_S for a, b in zip(start, stop)], dtype=bool)
 
 
 def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
@@ -107,6 +138,10 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
     frames_at = np.arange(sim_t[0], sim_t[-1], BOARD_PERIOD_S)
     true_frames = np.column_stack([np.interp(frames_at, sim_t, true[:, c]) for c in range(true.shape[1])])
     true_jump, true_reversal = _jumps(true_frames, jump_n)
+    big, reversing = _jump_steps(true_frames, jump_n)
+    fast = _fast_steps(sim_t, points, frames_at)[:len(big)]
+    slow_jump = float(np.mean(big & ~fast)) if len(big) else 0.0
+    slow_reversal = float(np.mean((reversing & ~fast)[:-1])) if len(big) else 0.0
     est_jump = est_reversal = float("nan")
     rms = p99 = np.array([np.nan])
     saturated_frames = math.nan
@@ -147,4 +182,6 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         support_within_10pct=within(support), bottom_support_within_10pct=within(bottom_support),
         median_bottom_support_n=float(np.median(bottom_support)) if bottom_support is not None and
         len(bottom_support) else math.nan,
+        fast_frames=float(np.mean(fast)) if len(fast) else 0.0,
+        true_jump_frames_slow=slow_jump, true_reversal_frames_slow=slow_reversal,
     )

@@ -30,6 +30,7 @@ def test_a_run_on_a_scene_file_with_a_shape_records_true_sheet_forces_and_the_sc
     assert code == 0
     printed = capsys.readouterr().out
     assert "scene ramp" in printed and "vertical part" in printed and "on the whole robot" in printed
+    assert "reversing while it crept (chatter)" in printed
     with h5py.File(out) as f:
         sim = f["sim"]
         sheets = sim["sheet_true_N"][:]

@@ -90,6 +90,27 @@ def test_chatter_is_counted_as_jumps_that_reverse_and_a_fast_ramp_as_jumps_that_
     assert np.isnan(check.estimated_jump_frames) and np.isnan(check.median_rms_n)  # no /forces: not judged
 
 
+def test_jumps_while_the_body_falls_are_told_apart_from_jumps_while_it_creeps(tmp_path):
+    tick = 1 / 300
+    t = np.arange(3000) * tick
+    true = np.zeros((3000, 36))
+    true[:, ROWS == 0] = WEIGHT_N / 12
+    falling = (t >= 4.0) & (t < 4.3)
+    true[falling, 5] += 1.5 * (np.floor(t[falling] * 30 + 0.5) % 2)  # a landing's bounce, 9 frames
+    points = _straight(3000)
+    points[:, :, 2] -= 0.5 * np.clip(t - 4.0, 0.0, 0.3)[:, None]  # the body drops at 0.5 m/s meanwhile
+    _write(tmp_path / "fall.h5", true, points, tick_s=tick)
+    check = check_recording(tmp_path / "fall.h5")
+    assert 0.02 < check.true_jump_frames < 0.04 and check.true_reversal_frames > 0.02
+    assert 0.03 < check.fast_frames < 0.05  # the drop, and a tick either side of it
+    assert check.true_jump_frames_slow == check.true_reversal_frames_slow == 0.0
+    points = _straight(3000)  # the same jumps with the body still: chatter
+    _write(tmp_path / "still.h5", true, points, tick_s=tick)
+    check = check_recording(tmp_path / "still.h5")
+    assert check.fast_frames == 0.0
+    assert check.true_jump_frames_slow == check.true_jump_frames and check.true_reversal_frames_slow > 0.02
+
+
 def test_a_force_flagged_at_the_readout_ceiling_is_a_lower_bound_left_out_of_the_error(tmp_path):
     true = np.zeros((300, 36))
     true[:, ROWS == 0] = WEIGHT_N / 12
