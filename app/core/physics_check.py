@@ -84,7 +84,7 @@ def _jump_steps(series: np.ndarray, jump_n: float) -> tuple[np.ndarray, np.ndarr
     big = np.abs(steps) > jump_n
     reversal = np.zeros(len(steps), dtype=bool)
     reversal[:-1] = (big[:-1] & big[1:] & (np.sign(steps[:-1]) != np.sign(steps[1:]))).any(axis=1)
-    return big.any(axis=1), reversal
+    return np.asarray(big.any(axis=1), dtype=bool), reversal
 
 
 def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
