@@ -36,6 +36,8 @@ SHELL_RADIUS_M = 0.036  # the paper's segment radius (SceneParams.segment_radius
 # resistance. An assumption derived from another; a rig measurement of the shell's contact width replaces it.
 GROUND_ROLL_M = round(math.sqrt(2 * SHELL_RADIUS_M * 0.001), 4)  # 0.0085 m
 MAX_ROLL_M = SHELL_RADIUS_M  # a lever arm longer than the shell's radius is no contact patch
+# [ground] contact_onset_m: from 0.05 mm (a contact near rigid, as MuJoCo's default) to 5 mm (a soft cover)
+MIN_ONSET_M, MAX_ONSET_M = 0.00005, 0.005
 SCENES_DIR = Path(str(resources.files("resources").joinpath("scenes")))
 PAPER_SCENE = SCENES_DIR / "paper_obstacle.toml"
 
@@ -87,6 +89,9 @@ class Scene:
     # (a tipping box's half width). Default: half the width of the shell's flattened contact patch (GROUND_ROLL_M);
     # 0: round shells roll freely (the physics lab until stop 42).
     ground_roll_m: float = GROUND_ROLL_M
+    # The penetration (m) over which a terrain contact's force grows from zero to full, on the ground, half cylinders
+    # and boxes (devices.sim.physics.model.soft_onset_solimp); None: MuJoCo's default impedance, 90 % at touching.
+    contact_onset_m: float | None = None
     head_x_m: float | None = None  # None: the default start (see PhysicsWorld.place)
     start: str = "settle"
     name: str = "flat"
@@ -111,6 +116,8 @@ def scene_to_toml(scene: Scene) -> str:
     """The scene file that reads back as ``scene`` (SPEC §6)."""
     lines = ["[ground]", f"friction = {scene.ground_friction!r}"]
     lines.append(f"roll_resistance_m = {scene.ground_roll_m!r}")
+    if scene.contact_onset_m is not None:
+        lines.append(f"contact_onset_m = {scene.contact_onset_m!r}")
     for o in scene.obstacles:
         lines += ["", "[[obstacle]]", f'shape = "{o.shape}"', f"x_m = {o.x_m!r}"]
         if o.shape == "half_cylinder":
@@ -172,10 +179,12 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
     ground = data.get("ground", {})
     if not isinstance(ground, dict):
         raise SceneError(f"{source}: [ground] must be a table")
-    _only(f"{source} [ground]", ground, {"friction", "roll_resistance_m"})
+    _only(f"{source} [ground]", ground, {"friction", "roll_resistance_m", "contact_onset_m"})
     ground_friction = _number(f"{source} [ground]", ground, "friction", low=0.0, high=5.0, default=0.3)
     ground_roll = _number(f"{source} [ground]", ground, "roll_resistance_m", low=0.0, high=MAX_ROLL_M,
                           default=GROUND_ROLL_M)
+    onset = _number(f"{source} [ground]", ground, "contact_onset_m", low=MIN_ONSET_M, high=MAX_ONSET_M) \
+        if "contact_onset_m" in ground else None
     raw = data.get("obstacle", [])
     if not isinstance(raw, list):
         raise SceneError(f"{source}: obstacles are written [[obstacle]] (an array of tables)")
@@ -208,7 +217,7 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
     if start not in STARTS:
         raise SceneError(f"{source} [robot]: 'start' must be one of {', '.join(STARTS)}, got {start!r}")
     return Scene(ground_friction=ground_friction, obstacles=tuple(obstacles), head_x_m=head_x, start=start,
-                 name=name, text=text, ground_roll_m=ground_roll)
+                 name=name, text=text, ground_roll_m=ground_roll, contact_onset_m=onset)
 
 
 def resolve_scene_path(value: str | Path) -> Path:

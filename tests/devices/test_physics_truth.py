@@ -96,16 +96,14 @@ def test_a_contact_whose_force_grows_from_zero_lets_go_gradually_where_mujocos_d
     """A yaw-and-pitch shape played on flat ground drags and lifts loaded shells. MuJoCo's default contact impedance
     (0.9 at zero penetration) holds such a contact near full strength until the geometry separates and then drops it
     for one step, over and over (the shell rebounds: the chatter of a dragged end, docs/PHYSICS_LAB.md). An impedance
-    growing from zero (``SOFT_ONSET_SOLIMP``, as a compliant cover's force grows with its deflection) lets go
-    gradually: not one loss. The lab's default is still MuJoCo's (``SceneParams.contact_solimp``)."""
-    from dataclasses import replace
-
-    from devices.sim.physics.model import SOFT_ONSET_SOLIMP
+    growing from zero (a scene's ``[ground] contact_onset_m``, as a compliant cover's force grows with its
+    deflection) lets go gradually: not one loss. The lab's default is still MuJoCo's."""
+    from devices.scene import Scene
     shape = np.zeros(12)
     shape[[1, 3, 5]] = [0.35, -0.35, 0.35]
     shape[[2, 4]] = -0.3
     assert _one_step_losses(PhysicsWorld(FLAT), shape, 0.3, seconds=4.0) > 20
-    soft = replace(FLAT, contact_solimp=SOFT_ONSET_SOLIMP)
+    soft = SceneParams(terrain_scene=Scene(contact_onset_m=0.0003))
     assert _one_step_losses(PhysicsWorld(soft), shape, 0.3, seconds=4.0) == 0
 
 

@@ -66,6 +66,24 @@ def test_an_obstacles_roll_resistance_is_the_grounds_unless_it_names_its_own_and
     assert [o.roll_resistance_m for o in again] == [0.0, 0.004]
 
 
+def test_the_contact_onset_is_mujocos_default_unless_named_refused_out_of_range_and_survives_a_round_trip():
+    import mujoco
+
+    from devices.scene import scene_to_toml
+    from devices.sim.physics.model import SceneParams, build_mjcf
+    assert parse_scene(GOOD).contact_onset_m is None
+    soft = parse_scene("[ground]\ncontact_onset_m = 0.0003\n" + GOOD.split("[ground]")[1].split("\n", 1)[1], "s.toml")
+    assert soft.contact_onset_m == 0.0003
+    assert parse_scene(scene_to_toml(soft)).contact_onset_m == 0.0003
+    with pytest.raises(SceneError, match=r"s\.toml \[ground\].*contact_onset_m.*outside"):
+        parse_scene("[ground]\ncontact_onset_m = 0.1\n", "s.toml")
+    model = mujoco.MjModel.from_xml_string(build_mjcf(SceneParams(terrain_scene=soft)))
+    impedance = {model.geom(int(g)).name: tuple(model.pair_solimp[k, :3])
+                 for k, g in enumerate(model.pair_geom1)}
+    assert impedance["ground"] == impedance["obstacle1"] == impedance["obstacle2"] == (0.0, 0.95, 0.0003)
+    assert impedance["obstacle3"] == (0.9, 0.95, 0.001)  # the wedge, a mesh, keeps MuJoCo's default
+
+
 def test_the_height_profile_follows_each_shape():
     scene = parse_scene(GOOD)
     assert scene.height_at(0.0) == pytest.approx(0.27)  # the cylinder's top

@@ -78,9 +78,6 @@ class SceneParams:
     # A scene file's terrain (devices.sim.physics.scene); None: the one half cylinder of obstacle_height_m at x = 0
     # with obstacle_friction, on ground_friction (the lab config's legacy keys, the paper's obstacle by default).
     terrain_scene: Scene | None = None
-    # The terrain contacts' impedance (MuJoCo solimp) on the ground, half cylinders and boxes: None, MuJoCo's
-    # default; SOFT_ONSET_SOLIMP, a force growing from zero (see there). Needs the roll resistance's explicit pairs.
-    contact_solimp: str | None = None
 
     @property
     def terrain(self) -> Scene:
@@ -101,14 +98,15 @@ class SceneParams:
 HEAD_RADIUS_M = 0.028  # thinner than a segment: the nose does not touch flat ground when the body is straight
 HEAD_LENGTH_M = 0.03
 SEGMENT_GAP_M = 0.002  # between neighbouring cylinders, so their end faces never overlap when straight
-# A contact impedance that grows from zero (MuJoCo solimp d0 dmax width): 0 where a shell just touches, 0.95 at 0.3 mm
-# of penetration, so a contact's force grows from zero as a shell's cover presses in and falls to zero as it lifts
-# off, as a compliant cover's does. MuJoCo's default (0.9 at zero penetration) holds a contact near full strength
-# until the geometry separates, then drops it in one step: a loaded shell lifting slowly (an end dragged or pushed
-# along the floor) loses its contact for one 2 ms step every 20-35 ms (220 times in 30 s of the two obstacles' drape
-# at 0.3 rad/s; 0 with this). Not the default (SceneParams.contact_solimp): measured at stop 45, it moves issue 24's
-# traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips").
-SOFT_ONSET_SOLIMP = "0 0.95 0.0003"
+def soft_onset_solimp(onset_m: float) -> str:
+    """A contact impedance that grows from zero (MuJoCo solimp d0 dmax width): 0 where a shell just touches, 0.95 at
+    ``onset_m`` of penetration, so a contact's force grows from zero as a shell's cover presses in and falls to zero
+    as it lifts off, as a compliant cover's does (a scene's ``[ground] contact_onset_m``). MuJoCo's default (0.9 at
+    zero penetration) holds a contact near full strength until the geometry separates, then drops it in one step: a
+    loaded shell lifting slowly (an end dragged or pushed along the floor) loses its contact for one 2 ms step every
+    20-35 ms (220 times in 30 s of the two obstacles' drape at 0.3 rad/s; 0 with 0.3 mm). Not the default: measured
+    at stop 45, it moves issue 24's traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips")."""
+    return f"0 0.95 {onset_m!r}"
 HAND_SOLREF_S = 0.01  # the hand's grip: a stiff constraint (10 ms time constant), stiffer than the soft contacts
 
 
@@ -224,7 +222,10 @@ def build_mjcf(scene: SceneParams) -> str:
     # only the roll about the segment's own axis (tested: tests/devices/test_physics_truth.py), never rolling along
     # the path, and the obstacles' contacts are as without it.
     roll = terrain.ground_roll_m
-    solimp = f' solimp="{scene.contact_solimp}"' if scene.contact_solimp else ""
+    # terrain.contact_onset_m: the ground's, half cylinders' and boxes' contacts grow from zero (soft_onset_solimp);
+    # it acts through the explicit pairs, so only where the roll is resisted (the default)
+    onset = terrain.contact_onset_m
+    solimp = f' solimp="{soft_onset_solimp(onset)}"' if onset is not None else ""
     ground_affinity = "0" if roll > 0 else "1"
     pairs = "".join(
         f'<pair geom1="ground" geom2="{segment_name(i)}" condim="6" solref="0.01 1"{solimp} '
@@ -237,7 +238,7 @@ def build_mjcf(scene: SceneParams) -> str:
     # — and never the roll about y, a segment rolling along the path over the obstacle (resisting every axis made
     # the drape stick-slip, docs/PHYSICS_LAB.md).
     # A half cylinder (a capsule) and a box collide with a shell analytically, their contacts' depths continuous:
-    # they take SceneParams.contact_solimp as the ground does. A wedge is a convex mesh, whose general collider gives
+    # they take the scene's contact onset as the ground does. A wedge is a convex mesh, whose general collider gives
     # a capsule lying on a face one contact point that jumps from end to end, its depth with it: a force growing from
     # zero would jump with it (S01B ±3 N on the wedge's drape at 0.034 rad/s), so a wedge keeps MuJoCo's impedance.
     pairs += "".join(
