@@ -142,3 +142,8 @@ def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_
                    "[[obstacle]]\nshape = 'box'\nx_m = 1\nlength_m = 0.3\nheight_m = 0.1\n", encoding="utf-8")
     line = scene_description(replace(config, lab=replace(config.lab, scene=str(own))))
     assert line.count("rolls freely") == 1 and line.split(";")[0].endswith("roll resistance 8.5 mm")
+    assert "contact onset" not in line  # MuJoCo's impedance: not said
+    soft = tmp_path / "soft.toml"
+    soft.write_text("[ground]\ncontact_onset_m = 0.0003\n", encoding="utf-8")
+    line = scene_description(replace(config, lab=replace(config.lab, scene=str(soft))))
+    assert "contact onset 0.3 mm" in line

@@ -60,6 +60,8 @@ def scene_description(config: Any) -> str:
     terrain = "; ".join(parts) if parts else "no obstacle"
     # the ground's roll resistance is every obstacle's too unless an obstacle says otherwise: said first, scene-wide
     roll = f"roll resistance {scene.ground_roll_m * 1000:g} mm; " if scene.ground_roll_m else "shells roll freely; "
+    if scene.contact_onset_m is not None:  # said only when a scene asks for it (MuJoCo's impedance otherwise)
+        roll += f"contact onset {scene.contact_onset_m * 1000:g} mm; "
     return f"Scene: {scene.name} — {roll}ground μ {scene.ground_friction:g}; {terrain}"
 
 
