@@ -129,3 +129,16 @@ def test_a_released_contact_is_not_a_dropout():
     values[values[:, 7] < 1e-6, 7] = 0.0
     flags = run(HealthMonitor(N_SENSORS, RATE_HZ), t, values)
     assert not flags[7] & SensorHealth.DROPOUT
+
+
+def test_one_open_sample_is_a_grazing_touch_two_in_the_window_a_dropout():
+    t, values = healthy_signals(8.0)
+    values[t >= 0.0, 7] = np.maximum(values[:, 7], 7e-5)  # sensor 7 clearly loaded throughout
+    once = values.copy()
+    once[np.searchsorted(t, 6.0), 7] = 0.0  # lets go for one frame
+    flags = run(HealthMonitor(N_SENSORS, RATE_HZ), t, once)
+    assert not flags[7] & SensorHealth.DROPOUT, describe(flags[7])
+    twice = once.copy()
+    twice[np.searchsorted(t, 6.5), 7] = 0.0  # and again within the 2 s window
+    flags = run(HealthMonitor(N_SENSORS, RATE_HZ), t, twice)
+    assert flags[7] & SensorHealth.DROPOUT, describe(flags[7])
