@@ -288,6 +288,7 @@ def run(quick: bool, sections: str = "abcdefg") -> None:
             row["scene"] = os.path.basename(row["scene"]).removesuffix(".toml")
         _print_scene_rows(rows)
 
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")

@@ -185,6 +185,8 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
                           default=GROUND_ROLL_M)
     onset = _number(f"{source} [ground]", ground, "contact_onset_m", low=MIN_ONSET_M, high=MAX_ONSET_M) \
         if "contact_onset_m" in ground else None
+    if onset is not None and ground_roll == 0.0:  # it acts through the roll resistance's contact pairs
+        raise SceneError(f"{source} [ground]: 'contact_onset_m' needs 'roll_resistance_m' > 0")
     raw = data.get("obstacle", [])
     if not isinstance(raw, list):
         raise SceneError(f"{source}: obstacles are written [[obstacle]] (an array of tables)")
@@ -200,6 +202,8 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
         x_m = _number(where, table, "x_m", low=-50.0, high=50.0)
         friction = _number(where, table, "friction", low=0.0, high=5.0, default=ground_friction)
         roll = _number(where, table, "roll_resistance_m", low=0.0, high=MAX_ROLL_M, default=ground_roll)
+        if onset is not None and roll == 0.0 and shape != "wedge":
+            raise SceneError(f"{where}: 'roll_resistance_m' = 0 leaves it without the ground's 'contact_onset_m'")
         if shape == "half_cylinder":
             radius = _number(where, table, "radius_m", low=MIN_SIZE_M, high=5.0)
             obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius, roll_resistance_m=roll))

@@ -87,12 +87,16 @@ def _jump_steps(series: np.ndarray, jump_n: float) -> tuple[np.ndarray, np.ndarr
     return np.asarray(big.any(axis=1), dtype=bool), reversal
 
 
-def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
-    """(fraction of steps with a > jump_n change on some channel, fraction that reverse at the next step)."""
-    big, reversal = _jump_steps(series, jump_n)
+def _fractions(big: np.ndarray, reversal: np.ndarray) -> tuple[float, float]:
+    """(fraction of steps with a jump, fraction that reverse at the next step) from :func:`_jump_steps`."""
     if not len(big):
         return 0.0, 0.0
     return float(np.mean(big)), float(np.mean(reversal[:-1]))
+
+
+def _jumps(series: np.ndarray, jump_n: float) -> tuple[float, float]:
+    """(fraction of steps with a > jump_n change on some channel, fraction that reverse at the next step)."""
+    return _fractions(*_jump_steps(series, jump_n))
 
 
 def _fast_steps(sim_t: np.ndarray, points: np.ndarray, frames_at: np.ndarray) -> np.ndarray:
@@ -137,11 +141,10 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
     offset = robot_t[0] - sim_t[0]
     frames_at = np.arange(sim_t[0], sim_t[-1], BOARD_PERIOD_S)
     true_frames = np.column_stack([np.interp(frames_at, sim_t, true[:, c]) for c in range(true.shape[1])])
-    true_jump, true_reversal = _jumps(true_frames, jump_n)
     big, reversing = _jump_steps(true_frames, jump_n)
+    true_jump, true_reversal = _fractions(big, reversing)
     fast = _fast_steps(sim_t, points, frames_at)[:len(big)]
-    slow_jump = float(np.mean(big & ~fast)) if len(big) else 0.0
-    slow_reversal = float(np.mean((reversing & ~fast)[:-1])) if len(big) else 0.0
+    slow_jump, slow_reversal = _fractions(big & ~fast, reversing & ~fast)
     est_jump = est_reversal = float("nan")
     rms = p99 = np.array([np.nan])
     saturated_frames = math.nan

@@ -77,6 +77,11 @@ def test_the_contact_onset_is_mujocos_default_unless_named_refused_out_of_range_
     assert parse_scene(scene_to_toml(soft)).contact_onset_m == 0.0003
     with pytest.raises(SceneError, match=r"s\.toml \[ground\].*contact_onset_m.*outside"):
         parse_scene("[ground]\ncontact_onset_m = 0.1\n", "s.toml")
+    with pytest.raises(SceneError, match=r"s\.toml \[ground\]: 'contact_onset_m' needs 'roll_resistance_m' > 0"):
+        parse_scene("[ground]\ncontact_onset_m = 0.0003\nroll_resistance_m = 0\n", "s.toml")
+    with pytest.raises(SceneError, match=r"s\.toml \[\[obstacle\]\] #1: 'roll_resistance_m' = 0 leaves it"):
+        parse_scene("[ground]\ncontact_onset_m = 0.0003\n[[obstacle]]\nshape = 'box'\nx_m = 0\nlength_m = 0.3\n"
+                    "height_m = 0.1\nroll_resistance_m = 0\n", "s.toml")
     model = mujoco.MjModel.from_xml_string(build_mjcf(SceneParams(terrain_scene=soft)))
     impedance = {model.geom(int(g)).name: tuple(model.pair_solimp[k, :3])
                  for k, g in enumerate(model.pair_geom1)}

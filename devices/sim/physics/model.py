@@ -98,15 +98,6 @@ class SceneParams:
 HEAD_RADIUS_M = 0.028  # thinner than a segment: the nose does not touch flat ground when the body is straight
 HEAD_LENGTH_M = 0.03
 SEGMENT_GAP_M = 0.002  # between neighbouring cylinders, so their end faces never overlap when straight
-def soft_onset_solimp(onset_m: float) -> str:
-    """A contact impedance that grows from zero (MuJoCo solimp d0 dmax width): 0 where a shell just touches, 0.95 at
-    ``onset_m`` of penetration, so a contact's force grows from zero as a shell's cover presses in and falls to zero
-    as it lifts off, as a compliant cover's does (a scene's ``[ground] contact_onset_m``). MuJoCo's default (0.9 at
-    zero penetration) holds a contact near full strength until the geometry separates, then drops it in one step: a
-    loaded shell lifting slowly (an end dragged or pushed along the floor) loses its contact for one 2 ms step every
-    20-35 ms (220 times in 30 s of the two obstacles' drape at 0.3 rad/s; 0 with 0.3 mm). Not the default: measured
-    at stop 45, it moves issue 24's traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips")."""
-    return f"0 0.95 {onset_m!r}"
 HAND_SOLREF_S = 0.01  # the hand's grip: a stiff constraint (10 ms time constant), stiffer than the soft contacts
 
 
@@ -152,6 +143,17 @@ def _obstacle_geom(index: int, obstacle: Obstacle, width_m: float) -> tuple[str,
     vertices = [(lo, -w, 0.0), (hi, -w, 0.0), (hi, -w, h), (lo, w, 0.0), (hi, w, 0.0), (hi, w, h)]
     text = " ".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices)
     return f'<geom name="{name}" type="mesh" mesh="{name}_mesh" {common}/>', f'<mesh name="{name}_mesh" vertex="{text}"/>'
+
+
+def soft_onset_solimp(onset_m: float) -> str:
+    """A contact impedance that grows from zero (MuJoCo solimp d0 dmax width): 0 where a shell just touches, 0.95 at
+    ``onset_m`` of penetration, so a contact's force grows from zero as a shell's cover presses in and falls to zero
+    as it lifts off, as a compliant cover's does (a scene's ``[ground] contact_onset_m``). MuJoCo's default (0.9 at
+    zero penetration) holds a contact near full strength until the geometry separates, then drops it in one step: a
+    loaded shell lifting slowly (an end dragged or pushed along the floor) loses its contact for one 2 ms step every
+    20-35 ms (220 times in 30 s of the two obstacles' drape at 0.3 rad/s; 0 with 0.3 mm). Not the default: measured
+    at stop 45, it moves issue 24's traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips")."""
+    return f"0 0.95 {onset_m!r}"
 
 
 def build_mjcf(scene: SceneParams) -> str:
