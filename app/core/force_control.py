@@ -13,8 +13,8 @@ Stale forces never drive a correction: a page older than ``stale_s`` (100 ms: th
 health monitor flags, an uncalibrated sensor (no force) — that segment's node falls back to the feedforward, and
 :attr:`FeedbackProgress.fallback` says which and why.
 
-:class:`ForcePage` is a small file in shared memory (``/dev/shm`` where it exists) with a sequence lock, so a reader in
-another process never sees half a write; a :class:`ForceFeedbackMotion` crosses to the loop's process by pickling and
+:class:`ForcePage` is a small file in shared memory (``/dev/shm`` where it exists) holding a ring of publications, so a
+reader in another process never sees half a write and never waits on the writer; a :class:`ForceFeedbackMotion` crosses to the loop's process by pickling and
 opens the page there by its path. Qt-free; the writer is one thread, the reader the control loop's thread.
 """
 
@@ -39,33 +39,108 @@ from models.force_feedback import FeedbackGains, ForceFeedbackLaw
 from models.trajectory import Progress
 
 STALE_S = 0.1
-_HEADER = struct.Struct("<QdI")  # sequence (odd while writing), arrival time (monotonic s), channel count
+_MAGIC = b"SSFP"
+_LAYOUT = 2
+_HEADER = struct.Struct("<4sIIIQQ")  # magic, layout, channel count, slots, latest force publication, latest gains one
+_LATEST_FORCES_AT = 16
+_LATEST_GAINS_AT = 24
+_SLOTS = 4
 _GAIN_NAMES = tuple(f.name for f in fields(FeedbackGains))
-_GAINS = struct.Struct(f"<Q{len(_GAIN_NAMES)}d")  # version (odd while writing; 0: none set), the gains in field order
+
+
+def _round8(n: int) -> int:
+    return (n + 7) // 8 * 8
+
+
+class _SlotRing:
+    """Single-writer, wait-free publications in shared memory: a ring of ``slots`` slots, each a sequence word
+    (``2·p + 1`` while publication ``p`` is written into it, ``2·p`` once complete) and ``payload`` bytes, plus a word
+    elsewhere holding the latest complete publication, written last.
+
+    A reader takes the latest publication, copies its slot and checks the slot's word again; if the writer got there
+    meanwhile (it would have to publish ``slots`` more times during one copy) it tries the publication before, and
+    if none is whole it returns the last one it read. So a reader never waits and never raises, and a writer stopped
+    half-way through a write (descheduled, SIGSTOPped, killed) leaves the previous publication readable: the ring
+    replaces the spinning sequence lock, which a descheduled writer could make fail. A reader also never returns a
+    publication older than the one it returned before (:attr:`last_publication`)."""
+
+    def __init__(self, mm: mmap.mmap, latest_at: int, slots_at: int, payload: int, slots: int) -> None:
+        self._map = mm
+        self._latest_at = latest_at
+        self._slots_at = slots_at
+        self._payload = payload
+        self._stride = 8 + _round8(payload)
+        self._slots = slots
+        self.last_publication = 0
+        self._last_payload = b""
+
+    @property
+    def size(self) -> int:
+        return self._stride * self._slots
+
+    def publish(self, payload: bytes) -> None:
+        """Write one publication (the writer's thread only: one writer per ring)."""
+        publication = struct.unpack_from("<Q", self._map, self._latest_at)[0] + 1
+        at = self._slots_at + (publication % self._slots) * self._stride
+        struct.pack_into("<Q", self._map, at, 2 * publication + 1)
+        self._map[at + 8:at + 8 + self._payload] = payload
+        struct.pack_into("<Q", self._map, at, 2 * publication)
+        struct.pack_into("<Q", self._map, self._latest_at, publication)
+
+    def writing(self) -> bool:
+        """Whether a publication is under way (a writer stopped half-way through one leaves this True)."""
+        following = struct.unpack_from("<Q", self._map, self._latest_at)[0] + 1
+        at = self._slots_at + (following % self._slots) * self._stride
+        return bool(struct.unpack_from("<Q", self._map, at)[0] == 2 * following + 1)
+
+    def read(self) -> tuple[int, bytes]:
+        """(publication number, its payload) of the newest complete publication not older than the last one read;
+        (0, b"") before the first. Never waits."""
+        latest = struct.unpack_from("<Q", self._map, self._latest_at)[0]
+        for publication in range(latest, max(latest - self._slots, 0), -1):
+            if publication <= self.last_publication:
+                break
+            at = self._slots_at + (publication % self._slots) * self._stride
+            if struct.unpack_from("<Q", self._map, at)[0] != 2 * publication:
+                continue  # being rewritten with a newer one (the writer lapped this reader), or torn
+            payload = self._map[at + 8:at + 8 + self._payload]
+            if struct.unpack_from("<Q", self._map, at)[0] != 2 * publication:
+                continue
+            self.last_publication, self._last_payload = publication, payload
+            break
+        return self.last_publication, self._last_payload
 
 
 class ForcePage:
     """The latest estimated force of every channel, shared between processes. ``create`` makes one (the writer's
-    side, which removes it on :meth:`close`); ``ForcePage(path)`` opens it (a reader)."""
+    side, which removes it on :meth:`close`); ``ForcePage(path)`` opens it (a reader). One thread publishes forces,
+    one sets gains; any number of processes read. Reads never wait on a writer (:class:`_SlotRing`)."""
 
     def __init__(self, path: str | os.PathLike, n_channels: int | None = None, *, owner: bool = False) -> None:
         self.path = Path(path)
         self._owner = owner
-        if n_channels is None:
-            with open(self.path, "rb") as f:
-                n_channels = _HEADER.unpack(f.read(_HEADER.size))[2]
-        self.n_channels = int(n_channels)
-        self._gains_at = _HEADER.size + 9 * self.n_channels
-        self._size = self._gains_at + _GAINS.size
+        with open(self.path, "rb") as f:
+            magic, layout, stored_channels, slots, _, _ = _HEADER.unpack(f.read(_HEADER.size))
+        if magic != _MAGIC or layout != _LAYOUT or slots < 2:
+            raise ValueError(f"{self.path}: not a force page of this version of the app")
+        if n_channels is not None and int(n_channels) != stored_channels:
+            raise ValueError(f"{self.path}: the page holds {stored_channels} channels, not {n_channels}")
+        self.n_channels = int(stored_channels)
+        force_payload = 8 + 9 * self.n_channels  # arrival time, forces, trusted flags
+        self._size = _page_size(self.n_channels, slots)
         with open(self.path, "r+b") as f:
             self._map = mmap.mmap(f.fileno(), self._size)
+        self._forces = _SlotRing(self._map, _LATEST_FORCES_AT, _HEADER.size, force_payload, slots)
+        self._gains = _SlotRing(self._map, _LATEST_GAINS_AT, _HEADER.size + self._forces.size,
+                                8 * len(_GAIN_NAMES), slots)
 
     @classmethod
     def create(cls, n_channels: int, folder: str | os.PathLike | None = None) -> ForcePage:
         base = folder or ("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir())
         fd, name = tempfile.mkstemp(prefix="sensnake-forces-", suffix=".page", dir=base)
+        header = _HEADER.pack(_MAGIC, _LAYOUT, n_channels, _SLOTS, 0, 0)
         with os.fdopen(fd, "wb") as f:
-            f.write(_HEADER.pack(0, -math.inf, n_channels) + bytes(9 * n_channels + _GAINS.size))
+            f.write(header + bytes(_page_size(n_channels, _SLOTS) - len(header)))
         return cls(name, n_channels, owner=True)
 
     def publish(self, arrival_s: float, force_n: np.ndarray, trusted: np.ndarray) -> None:
@@ -73,60 +148,59 @@ class ForcePage:
         NaN where there is no estimate, and which channels may drive a correction."""
         if self._map.closed:
             return  # closed with the app: a last block on its way is dropped
-        forces = np.asarray(force_n, dtype="<f8")
-        ok = np.asarray(trusted, dtype=np.uint8)
-        seq = struct.unpack_from("<Q", self._map, 0)[0]
-        struct.pack_into("<Q", self._map, 0, seq + 1)  # odd: a write is under way
-        struct.pack_into("<dI", self._map, 8, float(arrival_s), self.n_channels)
-        self._map[_HEADER.size:_HEADER.size + 8 * self.n_channels] = forces.tobytes()
-        self._map[_HEADER.size + 8 * self.n_channels:self._gains_at] = ok.tobytes()
-        struct.pack_into("<Q", self._map, 0, seq + 2)
+        forces = np.asarray(force_n, dtype="<f8").reshape(self.n_channels)
+        ok = np.asarray(trusted, dtype=np.uint8).reshape(self.n_channels)
+        self._forces.publish(struct.pack("<d", float(arrival_s)) + forces.tobytes() + ok.tobytes())
+
+    @property
+    def publication(self) -> int:
+        """How many publications this reader has seen (the number of the last one :meth:`read` returned)."""
+        return self._forces.last_publication
+
+    @property
+    def being_written(self) -> bool:
+        """True while the writer is half-way through a publication (readers then get the one before)."""
+        return not self._map.closed and self._forces.writing()
 
     def read(self) -> tuple[float, np.ndarray, np.ndarray]:
-        """(arrival time, forces, trusted) of the latest publication; (−inf, NaN…, False…) before the first (and
-        once the page is closed)."""
+        """(arrival time, forces, trusted) of the newest complete publication; (−inf, NaN…, False…) before the
+        first (and once the page is closed). Never waits: a publication being written is skipped for the one before,
+        and a read never returns an older publication than the read before it."""
         if self._map.closed:
             return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
-        for _ in range(1000):
-            seq = struct.unpack_from("<Q", self._map, 0)[0]
-            if seq % 2:
-                continue
-            arrival = struct.unpack_from("<d", self._map, 8)[0]
-            forces = np.frombuffer(self._map, dtype="<f8", count=self.n_channels, offset=_HEADER.size).copy()
-            trusted = np.frombuffer(self._map, dtype=np.uint8, count=self.n_channels,
-                                    offset=_HEADER.size + 8 * self.n_channels).astype(bool)
-            if struct.unpack_from("<Q", self._map, 0)[0] == seq:
-                if seq == 0:
-                    return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
-                return arrival, forces, trusted
-        raise RuntimeError(f"{self.path}: the force page is being written without end")
+        publication, payload = self._forces.read()
+        if publication == 0:
+            return -math.inf, np.full(self.n_channels, np.nan), np.zeros(self.n_channels, bool)
+        arrival = struct.unpack_from("<d", payload, 0)[0]
+        forces = np.frombuffer(payload, dtype="<f8", count=self.n_channels, offset=8).copy()
+        trusted = np.frombuffer(payload, dtype=np.uint8, count=self.n_channels, offset=8 + 8 * self.n_channels)
+        return arrival, forces, trusted.astype(bool)
 
     def set_gains(self, gains: FeedbackGains) -> None:
         """New gains for a running feedback motion (any process reading this page takes them at its next tick)."""
         if self._map.closed:
             return
-        version = struct.unpack_from("<Q", self._map, self._gains_at)[0]
-        struct.pack_into("<Q", self._map, self._gains_at, version + 1)
-        struct.pack_into(f"<{len(_GAIN_NAMES)}d", self._map, self._gains_at + 8, *astuple(gains))
-        struct.pack_into("<Q", self._map, self._gains_at, version + 2)
+        self._gains.publish(struct.pack(f"<{len(_GAIN_NAMES)}d", *astuple(gains)))
 
     def gains(self) -> tuple[int, FeedbackGains | None]:
-        """(version, gains) last set with :meth:`set_gains`; (0, None) before."""
+        """(version, gains) last set with :meth:`set_gains`; (0, None) before. Never waits, like :meth:`read`."""
         if self._map.closed:
             return 0, None
-        for _ in range(1000):
-            version = struct.unpack_from("<Q", self._map, self._gains_at)[0]
-            if version % 2:
-                continue
-            values = struct.unpack_from(f"<{len(_GAIN_NAMES)}d", self._map, self._gains_at + 8)
-            if struct.unpack_from("<Q", self._map, self._gains_at)[0] == version:
-                return (0, None) if version == 0 else (version, FeedbackGains(*values))
-        raise RuntimeError(f"{self.path}: the gains are being written without end")
+        version, payload = self._gains.read()
+        if version == 0:
+            return 0, None
+        return version, FeedbackGains(*struct.unpack(f"<{len(_GAIN_NAMES)}d", payload))
 
     def close(self) -> None:
         self._map.close()
         if self._owner:
             self.path.unlink(missing_ok=True)
+
+
+def _page_size(n_channels: int, slots: int) -> int:
+    forces = (8 + _round8(8 + 9 * n_channels)) * slots
+    gains = (8 + 8 * len(_GAIN_NAMES)) * slots
+    return _HEADER.size + forces + gains
 
 
 @dataclass(frozen=True)
