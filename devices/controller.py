@@ -22,8 +22,8 @@ Health (hardware error, torque, LED; voltage and temperature on every 5th poll) 
 ``HEALTH_OVERDUE_S`` reads one servo per tick regardless); ``on_health`` gets the whole poll once complete. It is
 read at once, all servos, when a status packet carries the alert bit. A hardware error stops the motion
 before anything else is sent and reports :class:`ServoHardwareError` naming the servo; nothing is written until the
-servo is rebooted. If feedback goes stale (consecutive failed reads for ``WATCHDOG_S``), the motion stops and
-``on_error`` names the servo that stopped answering. A pulled cable reports :class:`LinkLostError` and the loop
+servo is rebooted. If feedback goes stale (consecutive failed reads over ``WATCHDOG_S`` of polling — time the loop
+itself was held off the CPU does not count), the motion stops and ``on_error`` names the servo that stopped answering. A pulled cable reports :class:`LinkLostError` and the loop
 tries to reopen the port every ``RECONNECT_INTERVAL_S``.
 
 With no motion running the loop still reads the state every tick and sends nothing. ``run_motion`` returns a Future
@@ -346,6 +346,8 @@ class RobotController:
         self._connected = False
         self._last_good_read_s = 0.0
         self._consecutive_failed_reads = 0
+        self._silent_polled_s = 0.0  # time polled without a valid reply in the current run of failed reads (s)
+        self._last_failed_read_s = 0.0
         self._stale_reported = False
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._torque_lost: set[int] = set()  # servos reported for dropping their torque (until it is on again)
@@ -741,12 +743,23 @@ class RobotController:
             self._consecutive_failed_reads += 1
             with self._lock:
                 self._failed_reads += 1
-            stale_s = time.monotonic() - self._last_good_read_s
-            if (self._consecutive_failed_reads >= WATCHDOG_MIN_FAILED_READS and stale_s >= WATCHDOG_S
+            # Silence is counted over time the bus was actually polled: from the first unanswered poll, each gap
+            # between polls counted at most two periods. A loop held off the CPU (a busy machine) polls nobody
+            # while it waits; that wait is the loop's stall (reported as such), not the servo's silence.
+            failed_at = time.monotonic()
+            if self._consecutive_failed_reads == 1:
+                self._silent_polled_s = 0.0
+            else:
+                self._silent_polled_s += min(failed_at - self._last_failed_read_s, 2.0 * self.period_s)
+            self._last_failed_read_s = failed_at
+            stale_s = failed_at - self._last_good_read_s
+            if (self._consecutive_failed_reads >= WATCHDOG_MIN_FAILED_READS and self._silent_polled_s >= WATCHDOG_S
                     and not self._stale_reported):
                 self._stale_reported = True
                 sid = exc.servo_id if exc.servo_id is not None else self.chain.ids[0]
-                error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s; motion stopped")
+                what = "motion stopped" if self._motion is not None else "no motion was running"
+                error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s "
+                                          f"({self._consecutive_failed_reads} polls unanswered); {what}")
                 self._stop_motion_with(error)
                 self._emit(self._on_error, error)
             return False

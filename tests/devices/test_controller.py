@@ -205,6 +205,32 @@ def test_watchdog_names_the_servo_that_stopped_answering(controller, sim_chain):
     assert len(rec.errors) == 1  # reported once, not every tick
 
 
+def test_a_loop_held_off_the_cpu_is_not_a_silent_servo(controller, monkeypatch):
+    """The bus thread is held for 0.6 s (a busy machine) and the two polls around the hold fail (replies late):
+    the servos were polled twice, not for 0.6 s, so nobody is called silent and the motion goes on. A servo that
+    really stops answering is still named (test above)."""
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(speed=0.2), "ramp")
+    rec.wait_more_states(3)
+    real_read = ctl.chain.read_state
+    upsets = [0]
+
+    def held_then_late(*args, **kwargs):
+        upsets[0] += 1
+        if upsets[0] == 1:
+            time.sleep(0.6)
+        if upsets[0] <= 2:
+            raise NoReplyError(3, "late reply")
+        return real_read(*args, **kwargs)
+
+    monkeypatch.setattr(ctl.chain, "read_state", held_then_late)
+    rec.wait(lambda: upsets[0] > 2, "the reads to come back")
+    rec.wait_more_states(5)
+    assert not rec.errors and not future.done()
+    ctl.emergency_stop()
+    future.result(WAIT_S)
+
+
 def test_lost_link_reports_and_reconnects(controller, sim_chain):
     ctl, rec = controller
     rec.wait_more_states(2)
