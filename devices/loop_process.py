@@ -95,6 +95,14 @@ CHILD_METHODS = frozenset({"run_motion", "play", "pause", "resume", "stop_motion
 ENV_SWITCH = "SENSNAKE_LOOP_PROCESS"  # "0" keeps the loop in the app's process on every port
 
 
+def _machine_load() -> str:
+    """The machine's 1-minute load average against its cores, for a stall message ("load 9.8 on 2 cores")."""
+    try:
+        return f"load {os.getloadavg()[0]:.1f} on {os.cpu_count() or 1} cores"
+    except OSError:
+        return "load unknown"
+
+
 def loop_process_wanted(port: str) -> tuple[bool, str]:
     """Whether a robot on ``port`` gets its loop in a child process, and if not, why (one line)."""
     from devices.factory import is_sim, sim_serial_path
@@ -468,8 +476,9 @@ class ControllerProcess:
             self._stall_reported_s = last_s
             self._emit(self._on_event, (
                 f"control loop process (pid {self.pid}) has not ticked for {silent_s * 1e3:.0f} ms "
-                f"({silent_s / self.period_s:.0f} periods at {self.robot.control_rate_hz:g} Hz); it is ended if "
-                f"it stays silent for {self.hung_after_s:g} s"))
+                f"({silent_s / self.period_s:.0f} periods at {self.robot.control_rate_hz:g} Hz): the loop was held "
+                f"off the CPU ({_machine_load()}), not a servo; it is ended if it stays silent for "
+                f"{self.hung_after_s:g} s"))
         elif self._stall_reported_s is not None and last_s > self._stall_reported_s:
             self._emit(self._on_event, (f"control loop process (pid {self.pid}) ticks again after "
                                         f"{(last_s - self._stall_reported_s) * 1e3:.0f} ms"))

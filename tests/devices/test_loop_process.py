@@ -284,6 +284,22 @@ def test_a_stall_that_ends_is_said_so_and_the_loop_goes_on(child, emulator):
     assert process.running and process.died is None and not recorder.errors
 
 
+def test_a_loop_descheduled_mid_play_is_named_as_the_loop_not_as_a_servo(child, emulator):
+    """The loop's process stopped for 300 ms in the middle of a play (a busy machine at its worst): the stall is
+    reported as the loop's, with the machine's load, no servo is blamed and the play goes on to its end."""
+    process, recorder, robot = child
+    playing = process.play(wave(robot, 0.3, 0.5), "wave")
+    assert wait_until(lambda: emulator.counts()["sync_write"] >= 5, WAIT_S)
+    os.kill(process.pid, signal.SIGSTOP)
+    time.sleep(0.3)
+    os.kill(process.pid, signal.SIGCONT)
+    assert wait_until(lambda: any("ticks again" in e for e in list(recorder.events)), WAIT_S)
+    stall = next(e for e in recorder.events if "has not ticked" in e)
+    assert "control loop process" in stall and "load" in stall
+    assert playing.result(WAIT_S) == "finished"
+    assert not recorder.errors, recorder.errors
+
+
 def test_bus_commands_that_hold_the_ticks_are_not_taken_for_a_hung_loop(child, emulator):
     """A scan of the whole bus (a broadcast ping waits its ~0.8 s window) and a reboot (waits for the servo to
     answer) hold the ticks far longer than the stall limit: announced in the heartbeat, they are not a stall."""
