@@ -43,6 +43,10 @@ def spawn(module: str, pages: int, prefix: str) -> Child:
     env = dict(os.environ)
     root = str(Path(__file__).resolve().parents[1])  # the checkout this package comes from
     env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+    # One thread of numeric work: a BLAS pool (OpenBLAS starts one thread per core at numpy's import) would be threads
+    # of a real-time process at normal priority, which a tick using numpy waits for behind the machine's load.
+    for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[variable] = "1"
     try:
         os.ftruncate(fd, mmap.PAGESIZE * pages)
         shared = mmap.mmap(fd, mmap.PAGESIZE * pages)

@@ -24,6 +24,7 @@ from devices.config import RobotConfig
 from devices.controller import RobotController
 from devices.errors import LinkLostError, LoopDiedError, LoopProcessUnavailable, RateError, ServoLostError
 from devices.loop_process import HUNG_KILL_S, ControllerProcess, loop_process_wanted
+from devices.realtime import BUS_THREAD_RT_PRIORITY
 from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators.xm430_emulator import EmulatorProcess
@@ -343,5 +344,34 @@ def test_a_watcher_held_up_here_is_not_taken_for_a_stalled_loop(emulator):
         if periods.size and periods.max() < process.stall_limit_s:  # the child itself ticked throughout
             assert not any("has not ticked" in e for e in recorder.events), recorder.events
         assert process.running and not recorder.errors
+    finally:
+        process.close()
+
+
+def _can_be_realtime() -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (OSError, AttributeError):
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+@pytest.mark.skipif(not _can_be_realtime(), reason="real-time priority not permitted here")
+def test_every_thread_of_the_loop_process_runs_at_the_loops_priority(emulator, monkeypatch):
+    """A thread at normal priority in the loop's process (a BLAS pool started at numpy's import was one) is one the
+    real-time bus thread can end up waiting for behind the machine's load."""
+    monkeypatch.setenv("SENSNAKE_REALTIME", "1")
+    recorder = Recorder()
+    process = ControllerProcess(robot_on(emulator.path), **recorder.callbacks())
+    process.start()
+    try:
+        assert wait_until(lambda: process.ticks_seen > 5, WAIT_S)
+        policies = {}
+        for task in os.listdir(f"/proc/{process.pid}/task"):
+            with open(f"/proc/{process.pid}/task/{task}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            policies[int(task)] = (int(fields[38]), int(fields[37]))  # policy, real-time priority
+        assert set(policies.values()) == {(os.SCHED_FIFO, BUS_THREAD_RT_PRIORITY)}, policies
     finally:
         process.close()
