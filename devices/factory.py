@@ -69,6 +69,29 @@ def start_sim_lab(config: LabConfig | None = None, *, speed: float = 1.0,
     return lab, install_sim_lab(lab)
 
 
+SIMULATED_TRUTH_NOTE = ("the simulated lab's sensors' true parameters: the simulation's truth, not a measurement "
+                        "(on a real robot, calibrate each sensor on the rig)")
+
+
+def simulated_sensors_calibration(config: LabConfig | None = None, *, seed: int = 0) -> dict:
+    """The calibration (SPEC §3.3 document) of every sensor of the simulated lab that ``config`` and ``seed`` make
+    (the app's and the CLI's lab use seed 0): the true parameters its board computes conductance from, with
+    ``source`` saying so. The same document as the running lab's ``board.ground_truth_calibration()``, computed
+    without starting a lab: the sensors' spread comes from the seed alone, not from the physics."""
+    from dataclasses import replace
+
+    from devices.sim.lab import SimLab
+
+    config = config or LabConfig()
+    lab = SimLab(replace(config, lab=replace(config.lab, physics="scripted")), seed=seed)
+    try:
+        document = dict(lab.board.ground_truth_calibration())
+    finally:
+        lab.close()
+    document["source"] = SIMULATED_TRUTH_NOTE
+    return document
+
+
 LAB_PROCESS_SWITCH = "SENSNAKE_LAB_PROCESS"  # "0" keeps the simulated lab in the app's process
 
 

@@ -66,6 +66,7 @@ class ForcesControls(QWidget):
     Signals: ``window_changed(float)`` seconds, ``pause_toggled(bool)``, ``side_toggled(str, bool)``,
     ``quantity_changed(str)`` (``force``/``conductance``), ``estimator_changed(str)`` (``sls``/``linear``),
     ``record_toggled(bool)`` (True = start), ``browse_requested()``, ``load_calibration_requested()``,
+    ``truth_calibration_requested()`` (the simulated lab's true calibration: its button shows on a simulated board),
     ``open_requested()``, ``overlay_requested()``, ``export_requested(bool)`` (True: only the time range the plots
     show), ``live_requested()`` (back to the board).
     """
@@ -78,6 +79,7 @@ class ForcesControls(QWidget):
     record_toggled = Signal(bool)
     browse_requested = Signal()
     load_calibration_requested = Signal()
+    truth_calibration_requested = Signal()
     open_requested = Signal()
     overlay_requested = Signal()
     export_requested = Signal(bool)
@@ -111,6 +113,13 @@ class ForcesControls(QWidget):
         self.load_calibration.setToolTip("Load a calibration JSON (sensnake fit output)")
         self.load_calibration.clicked.connect(self.load_calibration_requested)
         view_row.addWidget(self.load_calibration)
+        self.truth_calibration = QToolButton(self)
+        self.truth_calibration.setText("Simulated truth")
+        self.truth_calibration.setToolTip("Use the simulated lab's every sensor's true calibration: the simulation's "
+                                          "truth, not a measurement (on the robot, calibrate on the rig)")
+        self.truth_calibration.clicked.connect(self.truth_calibration_requested)
+        self.truth_calibration.setVisible(False)
+        view_row.addWidget(self.truth_calibration)
         self.calibration_label = QLabel("no calibration", self)
         self.calibration_label.setStyleSheet(status_style("idle"))
         # May be cut short in a narrow window (the tooltip keeps the whole text) rather than push the plots' side

@@ -313,8 +313,23 @@ def _what_the_sensor_read(args: argparse.Namespace, settings: Any) -> tuple[Any,
     return None, None
 
 
+def _write_simulated_truth(args: argparse.Namespace, config: LabConfig) -> int:
+    """``--simulated-truth``: the simulated lab's sensors' true calibration into a new file (never over one)."""
+    import json
+
+    out = Path(args.out)
+    if out.exists() or out.is_symlink():
+        raise ValueError(f"--out {args.out} already exists: --simulated-truth writes a new file only")
+    document = factory.simulated_sensors_calibration(config)
+    calfiles.write_atomically(out, lambda handle: json.dump(document, handle, indent=1))
+    print(f"wrote {len(document['sensors'])} simulated sensors to {args.out}: {factory.SIMULATED_TRUTH_NOTE}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     config = _config(args)
+    if getattr(args, "simulated_truth", False):
+        return _write_simulated_truth(args, config)
     settings = _settings(args, config)
     if Path(args.out).exists():
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before the rig moves

@@ -73,6 +73,9 @@ class _OneLineErrorParser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {' '.join(message.split())} (see '{self.prog} --help')\n")
 
 
+ROBOT_HELP = "the servo bus: a serial device or 'sim' (default: the --config file's [robot] port)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineErrorParser(
         prog="sensnake",
@@ -128,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--save-anyway", action="store_true",
                            help="save a fit that is degenerate or non-physical (still named on stderr)")
     calibrate.add_argument("--config", metavar="FILE", help="lab config (rig, board channel map, readout circuit)")
+    calibrate.add_argument("--simulated-truth", action="store_true",
+                           help="write the simulated lab's every sensor's true calibration (the simulation's truth, "
+                                "not a measurement) to a new --out and exit; nothing moves")
     calibrate.add_argument("--out", required=True, metavar="CAL.json", help="calibration file to create or update")
 
     estimate = sub.add_parser("estimate", help="conductance → force for every sensor column, or a recording's "
@@ -167,13 +173,14 @@ def build_parser() -> argparse.ArgumentParser:
     forward.add_argument("--units", choices=UNIT_STYLES, default="bare", help=UNITS_HELP)
 
     scan = sub.add_parser("scan", help="list the servos on a bus")
-    scan.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
+    scan.add_argument("--robot", metavar="PORT", help=ROBOT_HELP)
+    scan.add_argument("--config", metavar="FILE", help="lab config (its [robot] port, baud and joint IDs)")
     bauds = scan.add_mutually_exclusive_group()
     bauds.add_argument("--baud", type=int, default=None, metavar="B")
     bauds.add_argument("--all-bauds", action="store_true", help="try every Dynamixel baud rate")
 
     teach = sub.add_parser("teach", help="pose the robot by hand and capture the shape")
-    teach.add_argument("--robot", required=True, metavar="PORT")
+    teach.add_argument("--robot", metavar="PORT", help=ROBOT_HELP)
     teach.add_argument("--baud", type=int, default=None, metavar="B")
     teach.add_argument("--after", type=float, default=None, metavar="SECONDS",
                        help="capture after this many seconds instead of waiting for Enter")
@@ -182,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     play = sub.add_parser("play", help="play a taught shape on the robot")
     play.add_argument("shape", metavar="SHAPE.json")
-    play.add_argument("--robot", required=True, metavar="PORT")
+    play.add_argument("--robot", metavar="PORT", help=ROBOT_HELP)
     play.add_argument("--baud", type=int, default=None, metavar="B")
     play.add_argument("--mode", choices=("follow", "keyframes"), default="follow")
     play.add_argument("--speed", type=float, default=0.034, metavar="RAD_S")
@@ -190,10 +197,15 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--rate", type=float, default=50.0, metavar="HZ")
     play.add_argument("--shifts", type=int, default=None, metavar="K")
     play.add_argument("--log", metavar="LOG.csv")
+    play.add_argument("--strict", action="store_true",
+                      help="exit 1 when more than 1 %% of the control ticks were missed (the cause and its fix are "
+                           "said either way)")
     play.add_argument("--config", metavar="FILE", help="lab config (joint IDs, signs, offsets, limits)")
 
     record = sub.add_parser("record", help="record the force-sensor board to HDF5")
-    record.add_argument("--daq", required=True, metavar="PORT")
+    record.add_argument("--daq", metavar="PORT",
+                        help="the force-sensor board's serial device or 'sim' (default: the --config file's [board] "
+                             "port)")
     record.add_argument("--baud", type=int, default=None, metavar="B")
     record.add_argument("--seconds", required=True, type=float, metavar="S")
     record.add_argument("--out", required=True, metavar="REC.h5")
@@ -224,12 +236,22 @@ def build_parser() -> argparse.ArgumentParser:
     servo_zero = servo_sub.add_parser("zero", help="lay the robot straight: its present pose becomes every joint's 0 "
                                       "(zero offsets written into --config, the old file kept as a backup)")
     servo_zero.add_argument("--dry-run", action="store_true", help="show the angles before and after; write nothing")
-    for action in (servo_get, servo_set, servo_dump, servo_restore, servo_zero, servo_reset):
-        action.add_argument("--robot", required=True, metavar="PORT", help="serial device or 'sim'")
+    servo_reboot = servo_sub.add_parser("reboot", help="reboot servos (clears a latched hardware error such as an "
+                                        "overload; each comes back with torque off) and read their error status")
+    servo_torque = servo_sub.add_parser("torque", help="torque on (each joint held where it is) or off")
+    servo_led = servo_sub.add_parser("led", help="LED on or off")
+    for switch in (servo_torque, servo_led):
+        switch.add_argument("state", choices=("on", "off"))
+    for action in (servo_get, servo_set, servo_dump, servo_restore, servo_zero, servo_reset, servo_reboot,
+                   servo_torque, servo_led):
+        action.add_argument("--robot", metavar="PORT", help=ROBOT_HELP)
         action.add_argument("--baud", type=int, default=None, metavar="B")
-        action.add_argument("--config", metavar="FILE", help="lab config (joint IDs)")
-        action.add_argument("--id", type=int, action="append", dest="ids", metavar="N",
-                            help="a servo ID (repeatable; default: every configured joint; get and set need one)")
+        action.add_argument("--config", metavar="FILE", help="lab config (its [robot] port and joint IDs)")
+        ids = action.add_mutually_exclusive_group() if action in (servo_reboot, servo_torque, servo_led) else action
+        ids.add_argument("--id", type=int, action="append", dest="ids", metavar="N",
+                         help="a servo ID (repeatable; default: every configured joint; get and set need one)")
+        if action in (servo_reboot, servo_torque, servo_led):
+            ids.add_argument("--all", action="store_true", help="every configured joint (reboot needs --id or this)")
 
     repair = sub.add_parser("repair", help="salvage a truncated recording into a clean file")
     repair.add_argument("recording", metavar="REC.h5")

@@ -142,6 +142,19 @@ class LabContext(QObject):
         self.recording_changed.emit(session)
 
     # -- life cycle ------------------------------------------------------------------------------------------------
+    def simulated_sensors_calibration(self) -> dict | None:
+        """The simulated board's sensors' true calibration (a SPEC §3.3 document marked as the simulation's truth);
+        None when the board is not simulated."""
+        if not is_sim(self.config.board.port):
+            return None
+        from devices import factory
+
+        # The running lab's own sensors when it can say (in this process or its own); else the same lab's, computed
+        truth = getattr(getattr(factory.installed_sim_lab(), "board", None), "ground_truth_calibration", None)
+        if not callable(truth):
+            return factory.simulated_sensors_calibration(self.config)
+        return {**truth(), "source": factory.SIMULATED_TRUTH_NOTE}
+
     @property
     def is_all_sim(self) -> bool:
         return all(is_sim(port) for port in (self.config.robot.port, self.config.board.port, self.config.rig.port))

@@ -328,3 +328,23 @@ def test_the_preflight_predicts_the_reading_from_the_sensor_itself_when_it_can()
     # One that read 650 µS at 3 N would reach ~1140 µS: warned, naming where the number comes from.
     loud = check_protocol(settings, RigConfig(), BoardConfig(), seen=(3.0, 650e-6))
     assert any("scaling this session's trial at 3 N (650 µS)" in w for w in loud.warnings), loud
+
+
+def test_simulated_truth_writes_every_sensor_of_the_apps_lab_and_never_over_a_file(tmp_path, capsys):
+    """`calibrate --simulated-truth` gives the calibration the app's simulated lab (seed 0, physics lab) computes its
+    sensors from — the way to drive force feedback on the simulated lab without 36 rig runs — and says what it is."""
+    out = tmp_path / "truth.json"
+    assert main(["calibrate", "--simulated-truth", "--out", str(out)]) == 0
+    document = json.loads(out.read_text())
+    assert len(document["sensors"]) == 36 and "not a measurement" in document["source"]
+    assert "not a measurement" in capsys.readouterr().out
+    lab = SimLab()  # the app's lab: the physics lab by default, seed 0
+    try:
+        truth = lab.board.ground_truth_calibration()
+    finally:
+        lab.close()
+    assert document["sensors"] == truth["sensors"] and document["physics"] == truth["physics"]
+    before = out.read_bytes()
+    assert main(["calibrate", "--simulated-truth", "--out", str(out)]) != 0
+    assert out.read_bytes() == before
+    assert "already exists" in capsys.readouterr().err

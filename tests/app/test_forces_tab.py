@@ -350,3 +350,25 @@ def test_a_new_calibration_reestimates_the_history_so_no_microsiemens_sit_on_a_n
     _t, after = tab.force_history.value_at(t_mid)  # the same past, estimated with the calibration
     assert after[17] != pytest.approx(micro[17]) and np.isfinite(after[17])
     assert after[5] == pytest.approx(micro[5])  # S02R is still uncalibrated: still µS
+
+
+def test_simulated_truth_calibrates_every_sensor_and_says_it_is_the_simulations_truth(qtbot, lab, tab):
+    """On the simulated lab one click gives every sensor the simulated board's true calibration, saved in the
+    calibrations folder (never over another file) and labelled as the simulation's truth, not a measurement."""
+    from app.core import user_folders
+
+    assert tab.controls.truth_calibration.isVisibleTo(tab)
+    other = user_folders.calibrations_dir() / "simulated-lab-truth.json"
+    other.parent.mkdir(parents=True, exist_ok=True)
+    other.write_text("{}")  # someone's file of that name: kept
+    tab.controls.truth_calibration.click()
+    assert other.read_text() == "{}"
+    saved = user_folders.calibrations_dir() / "simulated-lab-truth-2.json"
+    assert json.loads(saved.read_text())["source"].startswith("the simulated lab's sensors' true parameters")
+    assert all(status != "uncalibrated" for status in tab.pipeline.status)
+    assert "not a measurement" in tab.controls.message.text()
+    lab.board.start()
+    qtbot.waitUntil(lambda: len(tab.force_history) > 5, timeout=15_000)
+    assert tab.plots.units == "N"
+    tab.controls.truth_calibration.click()  # the same truth again: the same file, no third one
+    assert not (user_folders.calibrations_dir() / "simulated-lab-truth-3.json").exists()

@@ -17,6 +17,7 @@ GUI thread only.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from collections.abc import Iterator, Sequence
@@ -46,11 +47,13 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import user_folders
+from app.core.calfiles import write_atomically
 from app.core.forces_pipeline import NO_CALIBRATION_HINT, UNCALIBRATED, ForcesPipeline
 from app.core.live_session import LiveSession, LiveUpdate
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
 from app.gui.recording_session import RecordingSession
+from devices.factory import SIMULATED_TRUTH_NOTE, is_sim
 from models.health import BAD_FLAGS, HealthMonitor, describe
 from widgets.body_view import BodyView
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
@@ -261,6 +264,9 @@ class ForcesTab(QWidget):
         c.record_toggled.connect(self._on_record_toggled)
         c.browse_requested.connect(self._browse_recording_path)
         c.load_calibration_requested.connect(self._choose_calibration)
+        c.truth_calibration_requested.connect(self.load_simulated_truth)
+        c.truth_calibration.setVisible(callable(getattr(self.lab, "simulated_sensors_calibration", None))
+                                       and is_sim(self.lab.config.board.port))
         c.open_requested.connect(self._choose_recording)
         c.overlay_requested.connect(self._choose_overlay)
         c.export_requested.connect(self._choose_export)
@@ -740,6 +746,33 @@ class ForcesTab(QWidget):
                                               "Recordings (*.h5)")
         if path:
             self.controls.path.setText(path)
+
+    def load_simulated_truth(self) -> bool:
+        """The simulated lab's true calibration of every sensor, saved in the calibrations folder (a file already
+        there with the same content is reused, another is never overwritten) and loaded, said to be the simulation's
+        truth. Returns success."""
+        document = self.lab.simulated_sensors_calibration()
+        if document is None:
+            self.controls.set_message("the board is not simulated: calibrate its sensors on the rig", "error")
+            return False
+        text = json.dumps(document, indent=1)
+        folder = user_folders.calibrations_dir()
+        path = folder / "simulated-lab-truth.json"
+        stamp = 1
+        while path.exists() and path.read_text(errors="replace") != text:
+            stamp += 1
+            path = folder / f"simulated-lab-truth-{stamp}.json"
+        if not path.exists():
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                write_atomically(path, lambda handle: handle.write(text))
+            except (OSError, ValueError) as exc:
+                self.controls.set_message(f"simulated calibration not saved: {exc}", "error")
+                return False
+        if not self.load_calibration(path):
+            return False
+        self.controls.set_message(f"{path.name}: {len(document['sensors'])} sensors, {SIMULATED_TRUTH_NOTE}", "warn")
+        return True
 
     def _choose_calibration(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Calibration file",
