@@ -220,6 +220,18 @@ class ServoSettingsView(QWidget):
                 item.setText(text)
         self._filling = False
 
+    def restore_value(self, name: str) -> None:
+        """Show again the value the servo was last read holding in ``name``'s cell (a write refused or declined:
+        the cell must not keep the value that was not written), even while its editor is closing."""
+        k = self._row_of.get(name)
+        item = self.table.item(k, COL_VALUE) if k is not None else None
+        if item is None:
+            return
+        self._filling = True
+        shown = self.values.get(name)
+        item.setText("" if shown is None else str(shown))
+        self._filling = False
+
     def value_text(self, name: str) -> str:
         item = self.table.item(self._row_of[name], COL_VALUE)
         return item.text() if item is not None else ""

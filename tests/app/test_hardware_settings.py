@@ -84,6 +84,23 @@ def test_an_edit_is_range_checked_written_once_and_read_back(window, qtbot, sim_
     assert chain.count(wire.WRITE) == writes
 
 
+def _type_into_cell(qtbot, page, name: str, text: str) -> None:
+    from PySide6.QtCore import Qt
+    from PySide6.QtWidgets import QApplication, QLineEdit
+
+    from widgets.servo_settings_view import COL_VALUE
+
+    row = page.rows.index(next(r for r in page.rows if r.name == name))
+    item = page.table.item(row, COL_VALUE)
+    page.table.setCurrentItem(item)
+    page.table.editItem(item)
+    qtbot.waitUntil(lambda: page.table.findChild(QLineEdit) is not None, timeout=5_000)
+    editor = page.table.findChild(QLineEdit)
+    editor.setText(text)
+    qtbot.keyClick(editor, Qt.Key.Key_Return)
+    QApplication.processEvents()
+
+
 def test_an_eeprom_write_on_a_servo_with_torque_on_asks_and_restores_torque(window, qtbot, sim_lab_fast):
     robot = window.lab.robot
     robot.set_torque(True).result(timeout=30)
@@ -95,9 +112,10 @@ def test_an_eeprom_write_on_a_servo_with_torque_on_asks_and_restores_torque(wind
     new = 0 if old else 5
     asked: list[str] = []
     tab.confirm = lambda question, title="": asked.append(question) or False  # type: ignore[method-assign]
-    page.edit("Return Delay Time", str(new))
+    _type_into_cell(qtbot, page, "Return Delay Time", str(new))  # as a user does: the cell's editor, then Enter
     assert asked and "EEPROM" in asked[0] and "torque" in asked[0]
     assert "not written" in page.message.text() and chain.register(1, "Return Delay Time") == old
+    assert page.value_text("Return Delay Time") == str(old)  # declined: the cell shows what the servo holds
     tab.confirm = lambda question, title="": True  # type: ignore[method-assign]
     page.edit("Return Delay Time", str(new))
     qtbot.waitUntil(lambda: "read back" in page.message.text(), timeout=10_000)

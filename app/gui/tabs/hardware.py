@@ -295,14 +295,16 @@ class HardwareTab(QWidget):
                 f"{self.robot.baud} bps at once: the robot loses it (torque off) until the other servos and the app "
                 "use the same rate. Dynamixel Wizard does the same.", "Change a servo's baud rate"):
             self.settings.set_message("Baud Rate not written", theme.IDLE)
-            self.settings.set_values(servo_id, self.settings.values)
+            self.settings.restore_value(name)
+            self.read_table(servo_id)  # and what the servo holds, read again
             return
         if entry.eeprom and name != "Baud Rate" and self.settings.values.get("Torque Enable") == 1 and not self.confirm(
                 f"{name} lives in EEPROM: servo {servo_id} accepts the write only with its torque off. Turn its "
                 "torque off, write, and turn it back on? The joint goes limp for a moment: support the robot.",
                 "Write an EEPROM item"):
             self.settings.set_message(f"{name} not written (torque stays on)", theme.WARN)
-            self.settings.set_values(servo_id, self.settings.values)  # the cell shows the servo's value again
+            self.settings.restore_value(name)  # the cell shows the servo's value again, at once
+            self.read_table(servo_id)  # and what the servo holds, read again
             return
         self.settings.set_message(f"writing {name} = {value} on servo {servo_id}…", theme.WARN)
         future = self.robot.run_on_bus(bus_command(servo_settings.set_item, servo_id, name, value),
