@@ -11,6 +11,7 @@ Any thread may call these functions; the objects are immutable.
 from __future__ import annotations
 
 import math
+import stat
 import sys
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
@@ -157,6 +158,15 @@ class LabConfig:
         )
 
 
+def sets_port(config: LabConfig, section: str) -> bool:
+    """Whether the config's own text sets ``[<section>] port``, rather than leaving it at its default (the
+    simulator): a command taking its port from a config that forgot it must not quietly drive the simulator."""
+    if not config.source_text:
+        return False
+    table = tomllib.loads(config.source_text).get(section, {})
+    return isinstance(table, dict) and "port" in table
+
+
 def default_config_path() -> Path:
     """The packaged default config (simulated lab)."""
     return Path(str(resources.files("resources").joinpath("default_lab.toml")))
@@ -166,6 +176,13 @@ def load_config(path: str | Path | None = None) -> LabConfig:
     """Load and validate a lab config; ``None`` loads the packaged default (simulated lab)."""
     path = Path(path) if path is not None else default_config_path()
     try:
+        # A FIFO or a device would block the read or never end it: only a regular file is read.
+        mode = path.stat().st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
+                "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file"
+            raise ConfigError(f"{path} is {kind}, not a lab configuration: the config is a TOML text file like "
+                              "resources/default_lab.toml")
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from exc
@@ -235,6 +252,9 @@ def _servo_profile(table: Any, source: str) -> tuple[tuple[str, int], ...]:
             raise ConfigError(f"{source}: servos.{key} = {value!r} must be a whole number in the servo's raw units")
         if not item.minimum <= value <= item.maximum:
             raise ConfigError(f"{source}: servos.{key} = {value} is out of its range {item.minimum} … {item.maximum}")
+        cut_off = ct.cut_off_reason(item.name, value)
+        if cut_off:
+            raise ConfigError(f"{source}: servos.{key} = {value} would cut the app off from every joint: {cut_off}")
         profile.append((item.name, int(value)))
     return tuple(profile)
 

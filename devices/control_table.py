@@ -160,10 +160,31 @@ XM430_W350_ITEMS: tuple[Item, ...] = (
     Item("Backup Ready", 147, 1, False, 0),
 )
 CONTROL_TABLE_SIZE = 148  # reads must end at or before this address
+
 # Each model's control table by its Model Number (item 0): another model is one more entry.
 TABLES_BY_MODEL: dict[int, tuple[Item, ...]] = {MODEL_NUMBER_XM430_W350: XM430_W350_ITEMS}
 ITEMS_BY_NAME: dict[str, Item] = {item.name: item for item in XM430_W350_ITEMS}
 ITEMS_BY_ADDRESS: dict[int, Item] = {item.address: item for item in XM430_W350_ITEMS}
+
+
+# The app talks Protocol 2.0 and waits for a status packet after every instruction it sends one by one (reads, and
+# writes it confirms): a servo set otherwise stops answering the app, which then cannot even set it back.
+STATUS_RETURN_ALL = 2  # Status Return Level: a status packet for every instruction
+PROTOCOL_2 = 2  # Protocol Type
+
+
+def cut_off_reason(name: str, value: int) -> str | None:
+    """Why writing ``value`` into item ``name`` would cut the app off from the servo, or None if it would not. (ID
+    and Baud Rate move a servo, not silence it: the settings code handles them apart.)"""
+    if name == "Status Return Level" and value < STATUS_RETURN_ALL:
+        what = "pings only" if value == 0 else "pings and reads, never a write"
+        return (f"the servo would then answer {what}, and the app needs its answer to every read and write (torque, "
+                f"settings): keep it at {STATUS_RETURN_ALL}")
+    if name == "Protocol Type" and value != PROTOCOL_2:
+        return (f"the servo would then speak Protocol 1.0, which this app does not: it would answer nothing; keep it "
+                f"at {PROTOCOL_2}")
+    return None
+
 
 ADDR_MODEL_NUMBER = 0
 ADDR_FIRMWARE_VERSION = 6

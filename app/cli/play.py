@@ -1,11 +1,18 @@
 """``sensnake play SHAPE.json --robot PORT [--mode follow|keyframes] [--speed] [--time-scale] [--rate] [--shifts]
-[--log LOG.csv]`` (SPEC §1, §5).
+[--log LOG.csv] [--strict] [--config LAB.toml]`` (SPEC §1, §5; without ``--robot`` the port is the config's).
 
 Plays a shape through :meth:`devices.controller.RobotController.play` with the source from
 :func:`app.core.play.build_source` (the same code path as the Gait tab): one command on the bus thread holds the
 limp joints, checks the plan against the joint limits and speed, then starts the motion, with the control loop ticking at ``--rate`` Hz (one synchronised write per tick), prints progress, writes the optional log
 (``time_s, goal_rad_1..n, present_rad_1..n, current_mA_1..n``, one row per tick) and reports the control period's
-p99 error at the end. A servo error or a lost link ends it with one clear line and a non-zero exit.
+p99 error at the end. A servo error or a lost link ends it with one clear line and a non-zero exit; a servo in
+hardware error found before anything moved is said so (never "motion stopped"), and every hardware error names the
+command that clears it (``sensnake servo reboot --id N``).
+
+When more than :data:`MISSED_TICKS_LIMIT` of the control ticks were missed, the command measures why (a bus cycle
+timed on the bus thread, the USB adapter's latency timer, each servo's Return Delay Time, the longest tick) and says
+the cause and its fix on stderr: a warning (exit 0, the SPEC's contract: the motion finished), or with ``--strict``
+the error line and exit 1.
 Runs on the main thread; the controller thread only appends states to a list the main thread drains.
 """
 
@@ -15,21 +22,26 @@ import argparse
 import concurrent.futures
 import csv
 import math
+import sys
 import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
-from app.cli._robot import robot_config, start_controller
+from app.cli._robot import BUS_TIMEOUT_S, reworded, robot_config, start_controller
 from app.core.play import build_source
-from app.core.shapes import Shape, read_shape
+from app.core.shapes import read_shape
+from devices.errors import ServoHardwareError
 from models.trajectory import PlannedMotion
 
 PROGRESS_INTERVAL_S = 2.0
 POLL_INTERVAL_S = 0.2
+MISSED_TICKS_LIMIT = 0.01  # a share of the control ticks: more missed, and the cause is measured and said
+BUS_SHARE_LIMIT = 0.5  # a bus cycle filling more of a tick leaves no room for the host's latency and the health poll
+CYCLES_MEASURED = 5
 
 
 class StateLog:
@@ -69,6 +81,11 @@ class StateLog:
     def periods_s(self) -> np.ndarray:
         return np.diff(np.asarray(self._times))
 
+    @property
+    def ticks(self) -> int:
+        """Control ticks read since the motion started."""
+        return len(self._times)
+
 
 def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.rate) and 0 < args.rate <= 1000):
@@ -78,14 +95,26 @@ def run(args: argparse.Namespace) -> int:
     shape = read_shape(args.shape)
     robot = replace(robot_config(args), control_rate_hz=float(args.rate))
     source = build_source(shape, robot, args.mode, args.speed, args.time_scale, args.shifts)
+    name = f"{args.mode} {shape.name or Path(args.shape).stem}"
+    started = threading.Event()  # set on the controller thread once the motion has started (torque on)
+
+    def on_event(text: str) -> None:  # controller thread
+        if text == f"motion {name!r} started":
+            started.set()
+
     log_file = open(args.log, "w", newline="", encoding="utf-8") if args.log else None  # noqa: SIM115
+    diagnosis = None
     try:
         state_log = StateLog(robot.n_joints, log_file)
-        controller = start_controller(robot, on_state=state_log.on_state)
+        controller = start_controller(robot, on_state=state_log.on_state, on_event=on_event)
         try:
-            outcome = _play(controller, source, state_log, args, shape)
-        finally:
+            outcome = _play(controller, source, state_log, args, name, started)
             missed_ticks = controller.stats().missed_ticks - state_log.missed_ticks_before
+            state_log.drain()
+            slots = state_log.ticks + missed_ticks
+            if slots and missed_ticks > MISSED_TICKS_LIMIT * slots:
+                diagnosis = missed_ticks_cause(controller, missed_ticks, slots, state_log.periods_s(), args.rate)
+        finally:
             scheduling = controller.scheduling
             controller.close()
             state_log.drain()
@@ -100,12 +129,71 @@ def run(args: argparse.Namespace) -> int:
               f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}; bus thread: {scheduling}")
     if args.log:
         print(f"wrote {Path(args.log)}")
+    if diagnosis is not None:
+        if args.strict:
+            raise RuntimeError(diagnosis)
+        print(f"sensnake play: warning: {diagnosis} (--strict makes this an error)", file=sys.stderr)
     return 0 if outcome == "finished" else 1
 
 
-def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: argparse.Namespace,
-          shape: Shape) -> str:
-    name = f"{args.mode} {shape.name or Path(args.shape).stem}"
+@dataclass(frozen=True)
+class BusTiming:
+    """What the bus thread measured of the bus, for :func:`describe_missed_ticks`."""
+
+    cycle_s: float  # median sync read, plus the goals' sync write on the wire
+    latency_timer_ms: int | None  # the USB adapter's (Linux), None where there is none (pty, sim)
+    latency_fix: str | None  # how to set it to 1 ms, when it is above
+    return_delays_s: dict[int, float]  # each servo's Return Delay Time
+
+
+def missed_ticks_cause(controller: Any, missed: int, slots: int, periods_s: np.ndarray, rate_hz: float) -> str:
+    """Measure the bus on the bus thread (between ticks; the motion is over) and describe the missed ticks."""
+    def measure(chain: Any) -> BusTiming:
+        return BusTiming(chain.measure_cycle_s(CYCLES_MEASURED), chain.latency_timer_ms(), chain.latency_warning(),
+                         chain.return_delays_s)
+
+    timing = controller.submit(measure).result(timeout=BUS_TIMEOUT_S)
+    longest_s = float(periods_s.max()) if periods_s.size else math.nan
+    return describe_missed_ticks(missed, slots, rate_hz, timing, longest_s, controller.scheduling)
+
+
+def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTiming, longest_period_s: float,
+                          scheduling: str) -> str:
+    """One line: how many ticks were missed, what was measured, each cause found with its fix."""
+    period_s = 1.0 / rate_hz
+    causes = []
+    if timing.latency_timer_ms is not None and timing.latency_timer_ms > 1:
+        causes.append(f"the USB adapter's latency timer is {timing.latency_timer_ms} ms (16 ms is the adapters' "
+                      f"default; a servo bus needs 1 ms: each reply waits up to that long) — {timing.latency_fix}")
+    delays = {sid: d for sid, d in timing.return_delays_s.items() if d > 0}
+    if delays:
+        worst_us = max(delays.values()) * 1e6
+        cost_ms = sum(delays.values()) * 1e3
+        causes.append(f"Return Delay Time up to {worst_us:.0f} µs on servo(s) {_ids(sorted(delays))} adds "
+                      f"{cost_ms:.1f} ms to every tick's read — fix: sensnake servo set --id N \"Return Delay Time\" 0 "
+                      "on each")
+    if timing.cycle_s > BUS_SHARE_LIMIT * period_s:
+        fastest_hz = math.floor(BUS_SHARE_LIMIT / timing.cycle_s)
+        causes.append(f"the bus cycle fills {timing.cycle_s / period_s:.0%} of a tick — fix: --rate {fastest_hz} "
+                      "or lower, or a faster baud rate")
+    if math.isfinite(longest_period_s) and longest_period_s > max(2 * period_s, 3 * timing.cycle_s):
+        causes.append(f"the longest tick took {longest_period_s * 1e3:.0f} ms, "
+                      f"{longest_period_s / max(timing.cycle_s, 1e-6):.0f}× a bus cycle: replies came late or this "
+                      f"machine held the loop back (bus thread: {scheduling}) — fix: close other busy programs, give "
+                      "the loop real-time priority (docs/REALTIME.md), or lower --rate")
+    if not causes:
+        causes.append(f"no single cause stands out (bus thread: {scheduling}) — fix: lower --rate")
+    return (f"{missed} of {slots} control ticks missed ({missed / slots:.1%}, more than "
+            f"{MISSED_TICKS_LIMIT:.0%}) at {rate_hz:g} Hz ({period_s * 1e3:.1f} ms a tick; a bus cycle measured "
+            f"{timing.cycle_s * 1e3:.1f} ms): " + "; ".join(causes))
+
+
+def _ids(ids: list[int]) -> str:
+    return ", ".join(str(i) for i in ids)
+
+
+def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: argparse.Namespace, name: str,
+          started: threading.Event) -> str:
     state_log.missed_ticks_before = controller.stats().missed_ticks
     state_log.t0_s = time.monotonic()
     # One command: servos power up limp, so torque on where they are, check the plan, then move.
@@ -127,7 +215,11 @@ def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: arg
     except KeyboardInterrupt:
         controller.stop_motion()
         raise
-    outcome = future.result()  # raises the servo error / lost link that stopped the motion
+    try:
+        outcome = future.result()  # raises the servo error / lost link that stopped the motion
+    except ServoHardwareError as exc:
+        when = "motion stopped" if started.is_set() else "found before the motion started, nothing moved"
+        raise reworded(exc, when) from None
     if outcome == "finished":
         print(f"{source.progress.describe()}\nfinished")
     else:

@@ -1,4 +1,5 @@
-"""``sensnake record --daq PORT [--baud B] --seconds S --out REC.h5 [--config FILE]`` (SPEC §1, §3.5, §4).
+"""``sensnake record --daq PORT [--baud B] --seconds S --out REC.h5 [--config FILE]`` (SPEC §1, §3.5, §4); without
+``--daq`` the port is the ``--config`` file's ``[board] port``.
 
 A thin face over the core: :class:`app.core.live_session.LiveSession` (the same data path the GUI's Forces tab
 uses: verified frames → health → :class:`app.core.recorder.Recorder`) driven by
@@ -23,6 +24,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from app.cli._robot import lab_config, port_from
 from app.core import live_session
 from app.core.errors import BoardGoneError, BoardSilentError
 from app.core.live_session import LiveSession, TimedOutcome, describe_stats, record_timed
@@ -53,8 +55,10 @@ def _raise_stop(signum: int, _frame: object) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.seconds > 0:
         raise ValueError(f"--seconds must be positive, got {args.seconds}")
-    config = load_config(args.config) if args.config else load_config()
-    board = replace(config.board, port=args.daq.strip())
+    named = lab_config(args)
+    port = port_from(args, "daq", "board", named)  # --daq, else the config's [board] port
+    config = named if named is not None else load_config()
+    board = replace(config.board, port=port)
     if args.baud is not None:
         if args.baud <= 0:
             raise ValueError(f"--baud must be a positive rate in bps, got {args.baud}")

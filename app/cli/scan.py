@@ -1,4 +1,5 @@
-"""``sensnake scan --robot PORT [--baud B | --all-bauds]`` (SPEC §1): list the servos answering on a bus.
+"""``sensnake scan --robot PORT [--baud B | --all-bauds] [--config LAB.toml]`` (SPEC §1): list the servos answering
+on a bus. Without ``--robot`` the port is the config's ``[robot] port``.
 
 One line per servo on stdout: ID, model name and number, firmware, baud rate. Exits 1 with one line on stderr when
 nothing answers, or when two servos answer to one ID (their replies collide; the line names the ID, the configured

@@ -2,6 +2,8 @@
 
 Torque off, a person poses the robot by hand, the pose is captured after Enter (or after ``--after`` seconds), then
 torque comes back on holding the captured pose (goals = present first, so nothing jumps) and the shape is written.
+A servo in hardware error is refused at connect, before anyone poses the robot; the message names the command that
+clears it (``sensnake servo reboot --id N``). Without ``--robot`` the port is the ``--config`` file's.
 The robot is driven through :class:`devices.controller.RobotController` and :class:`app.core.teach.TeachSession`, the
 same code as the Teach tab. Runs on the main thread; bus work happens on the controller thread.
 """
@@ -14,9 +16,10 @@ import sys
 import threading
 from pathlib import Path
 
-from app.cli._robot import BUS_TIMEOUT_S, robot_config, start_controller
+from app.cli._robot import BUS_TIMEOUT_S, reworded, robot_config, start_controller
 from app.core.shapes import Shape, write_shape
 from app.core.teach import TeachSession
+from devices.errors import ServoHardwareError
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,7 +40,10 @@ def run(args: argparse.Namespace) -> int:
             if sys.stdin.readline() == "":
                 raise RuntimeError("standard input closed before Enter: nothing captured (use --after SECONDS)")
         pose = session.capture().result(timeout=BUS_TIMEOUT_S)
-        session.hold().result(timeout=BUS_TIMEOUT_S)
+        try:
+            session.hold().result(timeout=BUS_TIMEOUT_S)
+        except ServoHardwareError as exc:  # nothing moves while posed by hand: say so, not "motion stopped"
+            raise reworded(exc, "its torque stays off, the pose is not held and the shape not written") from None
     finally:
         controller.close()
     shape = Shape(out.stem, tuple(robot.axes), tuple(float(a) for a in pose.angles_rad))

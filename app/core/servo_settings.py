@@ -12,28 +12,42 @@ The rules Wizard's users ask for (DynamixelSDK issues #160, #269, #274, #306):
 - **range checked** before anything is sent, naming the item and its range; read-only items are refused;
 - **confirmed**: every write is read back; a value that did not stick is an error naming the servo and the item.
 
+- **never cut off**: a value that would leave the app unable to talk to the servo (Status Return Level below 2,
+  Protocol Type 1) is refused with the reason (:func:`devices.control_table.cut_off_reason`).
+
 The settings file (``sensnake-servos`` v1, JSON): ``{"format", "version", "servos": {"<id>": {"model_number": N,
 "items": {"<item name>": value, …}}}}`` with every item as read. A restore writes only the writable items that are
 neither volatile (torque, LED, goals: the state of the moment) nor identity (ID, baud rate: changing them would lose
-the servo on the bus), and only where they differ.
+the servo on the bus), and only where they differ. The whole file is checked against the servos present before
+anything is written (each servo answers and is the file's model, every value may be written, the limits are in
+order); a servo that refuses a value midway stops the restore with a message naming what was and was not written.
+
+Files are written through a temporary created exclusively beside the target (never through a symbolic link planted
+at its name); a settings file never replaces an existing file, a lab config is rewritten only after its backup.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import re
-import shutil
-from collections.abc import Iterable, Sequence
+import stat
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 from app.core.errors import SettingsError
 from devices import control_table as ct
+from devices.errors import DeviceError, NoReplyError
 
 FORMAT = "sensnake-servos"
 VERSION = 1
+RESTART_TIMEOUT_S = 2.0  # a servo restarting (reboot, factory reset) answers a ping again within this
 # Items a restore never writes: the moment's state, and what would lose the servo on the bus.
 NOT_RESTORED = frozenset({"Torque Enable", "LED", "Goal PWM", "Goal Current", "Goal Velocity", "Goal Position",
                           "ID", "Baud Rate", "Registered Instruction"})
@@ -64,6 +78,8 @@ class Bus(Protocol):
     def change_baud(self, servo_id: int, index: int) -> None: ...
 
     def factory_reset(self, servo_id: int) -> None: ...
+
+    def reboot(self, servo_id: int) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -116,6 +132,9 @@ def check_value(entry: ct.Item, value: int) -> None:
     if not entry.minimum <= value <= entry.maximum:
         unit = f" ({UNITS[entry.name]} units)" if entry.name in UNITS else ""
         raise SettingsError(f"{entry.name} = {value} is out of its range {entry.minimum} … {entry.maximum}{unit}")
+    cut_off = ct.cut_off_reason(entry.name, value)
+    if cut_off:
+        raise SettingsError(f"{entry.name} = {value} would cut the app off from the servo: {cut_off}")
 
 
 def set_item(bus: Bus, servo_id: int, name: str, value: int) -> Change:
@@ -159,9 +178,38 @@ def _change_baud(bus: Bus, servo_id: int, before: int, value: int) -> Change:
 
 def factory_reset(bus: Bus, servo_id: int) -> dict[str, int]:
     """Factory settings on one servo, keeping its ID and baud rate (Dynamixel Wizard's option); waits until it
-    answers again (torque off) and returns its table as it is now."""
-    bus.factory_reset(servo_id)
+    answers again (torque off) and returns its table as it is now. Also brings back a servo that answers only pings
+    (Status Return Level 0, see :func:`_restart`)."""
+    _restart(bus, servo_id, bus.factory_reset, "a factory reset")
     return read_table(bus, servo_id)
+
+
+def reboot(bus: Bus, servo_id: int) -> tuple[int | None, int]:
+    """Reboot one servo (the Reboot instruction: it clears a latched hardware error, keeps its position and comes
+    back with torque off and its RAM items at their defaults); waits until it answers again. Returns its Hardware
+    Error Status before (None when it did not answer a read) and after."""
+    before: int | None
+    try:
+        before = bus.read_item(servo_id, "Hardware Error Status")
+    except NoReplyError:
+        before = None  # it answers pings only, perhaps (Status Return Level 0): the reboot brings it back
+    _restart(bus, servo_id, bus.reboot, "a reboot")
+    return before, bus.read_item(servo_id, "Hardware Error Status")
+
+
+def _restart(bus: Bus, servo_id: int, instruction: Callable[[int], None], what: str) -> None:
+    """Send an instruction after which the servo restarts, and wait until it answers again. A servo that answers
+    nothing but pings (Status Return Level 0) sends no status packet for the instruction, yet carries it out and
+    comes back answering everything (the level is a RAM item, back at its default 2): its silence to the
+    instruction is then no failure, the ping that follows is the proof. NoReplyError when nothing answers."""
+    try:
+        instruction(servo_id)
+    except NoReplyError:
+        deadline = time.monotonic() + RESTART_TIMEOUT_S
+        while not _answers(bus, servo_id):
+            if time.monotonic() > deadline:
+                raise NoReplyError(servo_id, f"to {what}, nor to a ping within {RESTART_TIMEOUT_S:g} s of it") \
+                    from None
 
 
 def baud_note(change: Change) -> str:
@@ -174,8 +222,6 @@ def baud_note(change: Change) -> str:
 
 
 def _answers(bus: Bus, servo_id: int) -> bool:
-    from devices.errors import NoReplyError
-
     try:
         bus.ping(servo_id)
     except NoReplyError:
@@ -193,19 +239,119 @@ def dump(bus: Bus, ids: Iterable[int]) -> dict[str, Any]:
 
 
 def write_document(path: str | os.PathLike[str], document: dict[str, Any]) -> Path:
-    """Write ``document`` to ``path`` whole or not at all (a hidden temporary moved into place)."""
+    """Write ``document`` into a NEW file at ``path``, whole or not at all; an existing file is never replaced (a
+    settings file may be the only copy of a servo's settings), and a device, FIFO or socket is refused."""
     path = Path(path)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    text = json.dumps(document, indent=1, sort_keys=False) + "\n"
+    check_new_file(path)
+    temporary = _temporary_beside(path)
     try:
-        temporary.write_text(json.dumps(document, indent=1, sort_keys=False) + "\n", encoding="utf-8")
-        os.replace(temporary, path)
+        with os.fdopen(temporary.fd, "w", encoding="utf-8") as file:
+            file.write(text)
+        try:
+            os.link(temporary.path, path)  # atomic, and fails if a file appeared at ``path`` meanwhile
+        except FileExistsError:
+            raise SettingsError(_exists_message(path)) from None
+        except OSError as exc:
+            if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
+                raise
+            check_new_file(path)  # a file system without hard links (FAT, some shares): the check, then a move
+            os.replace(temporary.path, path)
     finally:
-        temporary.unlink(missing_ok=True)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary.path)
     return path
 
 
+@dataclass(frozen=True)
+class _Temporary:
+    fd: int
+    path: str
+
+
+def _temporary_beside(path: Path, mode: int | None = None) -> _Temporary:
+    """A hidden temporary in ``path``'s folder, created here and nowhere else: :func:`tempfile.mkstemp` opens an
+    unpredictable name with O_CREAT | O_EXCL | O_NOFOLLOW, so a file or symbolic link planted there is never
+    written through. Its mode is ``mode``, else what any new file of the user gets (0666 less the umask; mkstemp's
+    is 0600)."""
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
+    try:
+        os.fchmod(fd, _new_file_mode() if mode is None else mode)
+    except OSError:
+        os.close(fd)
+        os.unlink(name)
+        raise
+    return _Temporary(fd, name)
+
+
+def _new_file_mode() -> int:
+    """0666 less the process's umask, read without changing it where the system says it (Linux)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
+            if line.startswith("Umask:"):
+                return 0o666 & ~int(line.split()[1], 8)
+    mask = os.umask(0o022)  # elsewhere: read by setting it, and set back at once
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _special_kind(mode: int) -> str | None:
+    """What a file that is not a regular file is, in words (None for a regular file)."""
+    for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return None if stat.S_ISREG(mode) else "not a regular file"
+
+
+def check_new_file(path: str | os.PathLike[str]) -> None:
+    """SettingsError when something is at ``path`` (a file, a symbolic link, a device, …): a settings file is only
+    ever written as a new file (:func:`write_document`)."""
+    path = Path(path)
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return
+    kind = None if stat.S_ISLNK(info.st_mode) else _special_kind(info.st_mode)
+    if kind is not None:
+        raise SettingsError(f"{path} is {kind}, not a file to write: nothing written")
+    raise SettingsError(_exists_message(path))
+
+
+def _exists_message(path: Path) -> str:
+    return (f"{path} exists: a settings file is never written over (it may be the only copy of those settings); "
+            "choose a new name, or remove the old file first")
+
+
+def _servo_key(source: Path, key: object) -> int:
+    """A settings file's servo key as an ID: the decimal number a dump writes, 0 … 252."""
+    if isinstance(key, str) and key.isascii() and key.isdigit() and str(int(key)) == key and int(key) <= ct.MAX_ID:
+        return int(key)
+    why = " (254 is the broadcast ID: every servo hears it, none answers to it as its own)" \
+        if key == str(ct.BROADCAST_ID) else ""
+    raise SettingsError(f"{source}: servo {key!r} is not a servo ID: servos are keyed by their ID, a whole number "
+                        f"0 … {ct.MAX_ID}{why}")
+
+
+def _restorable(entry: ct.Item) -> bool:
+    return entry.writable and entry.name not in NOT_RESTORED
+
+
+# Items whose two values must stay in order on a servo: (the lower, the higher).
+ORDERED_PAIRS = (("Min Position Limit", "Max Position Limit"), ("Min Voltage Limit", "Max Voltage Limit"))
+
+
+def _check_order(values: dict[str, int], where: str) -> None:
+    for low, high in ORDERED_PAIRS:
+        if low in values and high in values and values[low] > values[high]:
+            raise SettingsError(f"{where}: {low} = {values[low]} is above {high} = {values[high]} (the servo would "
+                                "have no room to move)")
+
+
 def read_document(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A settings file, checked: SettingsError naming the file and what is wrong."""
+    """A settings file, checked whole before anything uses it: SettingsError naming the file, the servo, the item
+    and what is wrong. Returned with its item names as the e-manual spells them (a file may use any case)."""
     path = Path(path)
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
@@ -220,41 +366,119 @@ def read_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     servos = document.get("servos")
     if not isinstance(servos, dict) or not servos:
         raise SettingsError(f"{path}: no servos in it")
-    for sid, entry in servos.items():
-        if not sid.isdigit() or not isinstance(entry, dict) or not isinstance(entry.get("items"), dict):
-            raise SettingsError(f"{path}: servo {sid!r} is malformed (expected {{'items': {{name: value}}}})")
+    checked: dict[str, Any] = {}
+    for key, entry in servos.items():
+        sid = _servo_key(path, key)
+        if not isinstance(entry, dict) or not isinstance(entry.get("items"), dict):
+            raise SettingsError(f"{path}: servo {key!r} is malformed (expected {{'items': {{name: value}}}})")
+        where = f"{path}: servo {sid}"
+        items: dict[str, int] = {}
         for name, value in entry["items"].items():
+            try:
+                found = item(name)
+            except SettingsError as exc:
+                raise SettingsError(f"{where}: {exc}") from None
+            if found.name in items:
+                raise SettingsError(f"{where}: {found.name} is given twice")
             if not isinstance(value, int) or isinstance(value, bool):
-                raise SettingsError(f"{path}: servo {sid}, {name}: {value!r} is not an integer")
-            if name in ct.ITEMS_BY_NAME and name not in NOT_RESTORED and ct.ITEMS_BY_NAME[name].writable:
+                raise SettingsError(f"{where}, {found.name}: {value!r} is not an integer")
+            if _restorable(found):
                 try:
-                    check_value(ct.ITEMS_BY_NAME[name], value)
+                    check_value(found, value)
                 except SettingsError as exc:
-                    raise SettingsError(f"{path}: servo {sid}: {exc}") from None
-    return document
+                    raise SettingsError(f"{where}: {exc}") from None
+            items[found.name] = value
+        models = {value for value in (entry.get("model_number"), items.get("Model Number")) if value is not None}
+        if len(models) != 1 or not all(isinstance(m, int) and not isinstance(m, bool) for m in models):
+            what = "two model numbers" if len(models) > 1 else "no model_number" if not models else "a model_number " \
+                "that is not an integer"
+            raise SettingsError(f"{where} has {what}: which servo model its items are for is unknown "
+                                "(a dump writes it)")
+        _check_order(items, where)
+        checked[str(sid)] = {"model_number": models.pop(), "items": items}
+    return {"format": FORMAT, "version": VERSION, "servos": checked}
+
+
+@dataclass(frozen=True)
+class _Planned:
+    """One servo's restore, checked: every restorable item of the file with the value the servo holds now."""
+
+    servo_id: int
+    items: tuple[tuple[str, int, int], ...]  # (item, present value, saved value)
 
 
 def restore(bus: Bus, document: dict[str, Any], ids: Sequence[int] | None = None) -> list[Change]:
     """Write back the restorable items of ``document`` (all its servos, or ``ids``) where the servo differs; every
-    item considered is returned (``written`` False where it already held the value)."""
+    item considered is returned (``written`` False where it already held the value).
+
+    Every servo is checked before anything is written: it answers, it is the model the file was made for, each
+    value may be written, the position and voltage limits stay in order (SettingsError naming the servo and the
+    item; nothing written). A servo that refuses a write midway (or stops answering) ends the restore with a
+    SettingsError naming the servos and items that were written and those that were not."""
     servos = document["servos"]
     chosen = [int(sid) for sid in servos] if ids is None else list(ids)
     missing = [sid for sid in chosen if str(sid) not in servos]
     if missing:
         raise SettingsError(f"the settings file has no servo {', '.join(str(m) for m in missing)}")
-    changes = []
-    for sid in chosen:
-        saved = servos[str(sid)]["items"]
-        present = read_table(bus, sid)
-        for name, value in saved.items():
-            entry = ct.ITEMS_BY_NAME.get(name)
-            if entry is None or not entry.writable or name in NOT_RESTORED:
+    plans = [_plan(bus, sid, servos[str(sid)]) for sid in chosen]
+    changes: list[Change] = []
+    for index, plan in enumerate(plans):
+        for position, (name, present, saved) in enumerate(plan.items):
+            if present == saved:
+                changes.append(Change(plan.servo_id, name, saved, saved, written=False))
                 continue
-            if present.get(name) == value:
-                changes.append(Change(sid, name, value, value, written=False))
-            else:
-                changes.append(set_item(bus, sid, name, value))
+            try:
+                changes.append(set_item(bus, plan.servo_id, name, saved))
+            except (SettingsError, DeviceError) as exc:
+                left = [(plan.servo_id, plan.items[position:])] + [(p.servo_id, p.items) for p in plans[index + 1:]]
+                raise SettingsError(_stopped_message(plan.servo_id, name, saved, exc, changes, left)) from exc
     return changes
+
+
+def _plan(bus: Bus, servo_id: int, saved: dict[str, Any]) -> _Planned:
+    """Check one servo of a settings file against the servo on the bus (see :func:`restore`); reads its table."""
+    try:
+        present = read_table(bus, servo_id)
+    except NoReplyError:
+        raise SettingsError(f"servo {servo_id} of the settings file does not answer on this bus: nothing written "
+                            "(check its cable and power; --id restores the others)") from None
+    model = saved.get("model_number", saved["items"].get("Model Number"))
+    if model != present["Model Number"]:
+        raise SettingsError(f"servo {servo_id}: the settings file is for a {ct.model_name(model)} (model {model}), but "
+                            f"servo {servo_id} is a {ct.model_name(present['Model Number'])} (model "
+                            f"{present['Model Number']}): nothing written")
+    after = dict(present)
+    planned = []
+    for name, value in saved["items"].items():
+        entry = ct.ITEMS_BY_NAME.get(name)
+        if entry is None:
+            raise SettingsError(f"servo {servo_id}: no control-table item {name!r}: nothing written")
+        if not _restorable(entry):
+            continue
+        try:
+            check_value(entry, value)
+        except SettingsError as exc:
+            raise SettingsError(f"servo {servo_id}: {exc}: nothing written") from None
+        after[name] = value
+        planned.append((name, present[name], value))
+    _check_order(after, f"servo {servo_id} after the restore")
+    return _Planned(servo_id, tuple(planned))
+
+
+def _stopped_message(servo_id: int, name: str, value: int, exc: BaseException, changes: Sequence[Change],
+                     left: Sequence[tuple[int, Sequence[tuple[str, int, int]]]]) -> str:
+    """One line: which write failed and why, what was written before it, what was not written."""
+    def by_servo(pairs: Iterable[tuple[int, str]]) -> str:
+        grouped: dict[int, list[str]] = {}
+        for sid, item_name in pairs:
+            grouped.setdefault(sid, []).append(item_name)
+        return "; ".join(f"servo {sid} ({', '.join(names)})" for sid, names in grouped.items()) or "nothing"
+
+    written = by_servo((c.servo_id, c.item) for c in changes if c.written)
+    not_written = by_servo((sid, item_name) for sid, items in left for item_name, present, saved in items
+                           if present != saved)
+    return (f"restore stopped at servo {servo_id}, {name} = {value}: {' '.join(str(exc).split())}. Written: "
+            f"{written}. Not written: {not_written}")
 
 
 def apply_profile(bus: Bus, ids: Iterable[int], profile: Sequence[tuple[str, int]]) -> list[Change]:
@@ -305,8 +529,16 @@ def write_robot_key(config_path: str | os.PathLike[str], key: str, values: Seque
     """Set ``[robot] <key> = [values…]`` in the lab config at ``config_path``, keeping every other line (comments
     too); the file as it was is first copied to ``<name>.bak-N`` (a new name, never over an older backup), which is
     returned. The key's line is replaced where it is, or added at the top of ``[robot]`` (a ``[robot]`` table is
-    added when there is none)."""
-    path = Path(config_path)
+    added when there is none). A config reached through a symbolic link is rewritten where it lives (the link
+    kept); one that is not a regular file (a device, a FIFO) is refused before it is read."""
+    path = Path(os.path.realpath(config_path))
+    try:
+        info = os.stat(path)
+    except OSError as exc:
+        raise SettingsError(f"{config_path}: cannot read the lab config ({exc.strerror or exc})") from None
+    kind = _special_kind(info.st_mode)
+    if kind is not None:
+        raise SettingsError(f"{config_path} is {kind}, not a lab config: nothing written")
     text = path.read_text(encoding="utf-8")
     line = f"{key} = [{', '.join(values)}]"
     lines = text.splitlines()
@@ -331,21 +563,35 @@ def write_robot_key(config_path: str | os.PathLike[str], key: str, values: Seque
             lines = ["[robot]", line, ""] + lines
         else:
             lines.insert(robot_at + 1, line)
-    backup = _backup_name(path)
-    shutil.copy2(path, backup)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    mode = stat.S_IMODE(info.st_mode)
+    backup = _write_backup(path, text.encode("utf-8"), mode)
+    temporary = _temporary_beside(path, mode)
     try:
-        temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
-        shutil.copymode(path, temporary)
-        os.replace(temporary, path)
+        with os.fdopen(temporary.fd, "w", encoding="utf-8") as file:
+            file.write("\n".join(lines) + "\n")
+        os.replace(temporary.path, path)
     finally:
-        temporary.unlink(missing_ok=True)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary.path)
     return backup
 
 
-def _backup_name(path: Path) -> Path:
+def _write_backup(path: Path, content: bytes, mode: int) -> Path:
+    """``content`` into ``<name>.bak-N`` beside ``path``, the first N free: each candidate is created exclusively
+    (O_CREAT | O_EXCL | O_NOFOLLOW), so an older backup, or a link planted at the name, is never written through."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
     for n in range(1, 10_000):
         candidate = path.with_name(f"{path.name}.bak-{n}")
-        if not candidate.exists():
-            return candidate
+        try:
+            fd = os.open(candidate, flags, mode)
+        except FileExistsError:
+            continue
+        try:
+            os.fchmod(fd, mode)  # the config's own mode, whatever the umask
+            with os.fdopen(fd, "wb") as file:
+                file.write(content)
+        except BaseException:
+            candidate.unlink(missing_ok=True)
+            raise
+        return candidate
     raise SettingsError(f"{path}: too many backups beside it; remove some")

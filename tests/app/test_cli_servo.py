@@ -92,8 +92,9 @@ def test_a_bad_settings_file_is_one_line_naming_it(emulator, capsys, tmp_path):
     assert main(["servo", "restore", str(bad), "--robot", emulator.path]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.json" in err[0] and "servo 3" in err[0] and "out of its range" in err[0]
-    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(bad)]) == 0  # an output may replace a file
-    assert main(["servo", "restore", str(bad), "--robot", emulator.path]) == 0  # and is then a good one
+    good = tmp_path / "good.json"
+    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(good)]) == 0
+    assert main(["servo", "restore", str(good), "--robot", emulator.path]) == 0
 
 
 def test_zero_makes_the_present_pose_read_zero_and_keeps_the_old_config(emulator, capsys, tmp_path):
