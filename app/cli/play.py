@@ -92,8 +92,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--rate must be in (0, 1000] Hz, got {args.rate}")
     if not (math.isfinite(args.time_scale) and args.time_scale > 0):
         raise ValueError(f"--time-scale must be positive, got {args.time_scale}")
+    robot = replace(robot_config(args), control_rate_hz=float(args.rate))  # a usage error first, as argparse's
     shape = read_shape(args.shape)
-    robot = replace(robot_config(args), control_rate_hz=float(args.rate))
     source = build_source(shape, robot, args.mode, args.speed, args.time_scale, args.shifts)
     name = f"{args.mode} {shape.name or Path(args.shape).stem}"
     started = threading.Event()  # set on the controller thread once the motion has started (torque on)
@@ -177,10 +177,11 @@ def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTi
         causes.append(f"the bus cycle fills {timing.cycle_s / period_s:.0%} of a tick — fix: --rate {fastest_hz} "
                       "or lower, or a faster baud rate")
     if math.isfinite(longest_period_s) and longest_period_s > max(2 * period_s, 3 * timing.cycle_s):
+        priority = "" if scheduling.startswith("real-time") else ", give the loop real-time priority (docs/REALTIME.md)"
         causes.append(f"the longest tick took {longest_period_s * 1e3:.0f} ms, "
                       f"{longest_period_s / max(timing.cycle_s, 1e-6):.0f}× a bus cycle: replies came late or this "
-                      f"machine held the loop back (bus thread: {scheduling}) — fix: close other busy programs, give "
-                      "the loop real-time priority (docs/REALTIME.md), or lower --rate")
+                      f"machine held the loop back (bus thread: {scheduling}) — fix: close other busy programs"
+                      f"{priority}, or lower --rate")
     if not causes:
         causes.append(f"no single cause stands out (bus thread: {scheduling}) — fix: lower --rate")
     return (f"{missed} of {slots} control ticks missed ({missed / slots:.1%}, more than "

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -98,8 +100,6 @@ def test_a_bad_settings_file_is_one_line_naming_it(emulator, capsys, tmp_path):
 
 
 def test_zero_makes_the_present_pose_read_zero_and_keeps_the_old_config(emulator, capsys, tmp_path):
-    from pathlib import Path
-
     from devices.config import load_config
 
     config = tmp_path / "lab.toml"
@@ -194,3 +194,169 @@ def test_a_baud_rate_change_finds_the_servo_at_its_new_rate_and_says_what_to_do(
     assert main(["servo", "set", "--robot", emulator.path, "--baud", "57600", "--id", "6", "Baud Rate", "3"]) == 0
     with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
         assert chain.read_item(6, "Baud Rate") == 3
+
+
+TWO_JOINTS = """[robot]
+port = "{port}"
+joint_ids = [1, 2]
+axes = ["pitch", "yaw"]
+signs = [1, 1]
+zero_offsets_rad = [0.0, 0.0]
+joint_min_rad = [-1.57, -1.57]
+joint_max_rad = [1.57, 1.57]
+"""
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    return err[0]
+
+
+def test_reboot_torque_and_led_with_the_port_from_the_config(tmp_path, capsys):
+    process = EmulatorProcess("--ids", "1-2")
+    try:
+        config = tmp_path / "lab.toml"
+        config.write_text(TWO_JOINTS.format(port=process.path))  # no --robot below: the config's port
+        process.command("overload 2")
+        reboots = process.counts()["reboot"]
+        assert main(["servo", "reboot", "--all", "--config", str(config)]) == 0
+        out = capsys.readouterr().out
+        assert "servo 2: rebooted (torque off); Hardware Error Status 32 (overload) → 0 (no error)" in out
+        assert "servo 1: rebooted" in out and process.counts()["reboot"] == reboots + 2
+        assert process.state(2)["hw_error"] == 0  # the latched overload is cleared
+        with pytest.raises(SystemExit) as exit_info:  # which servos? a reboot drops them: never implied
+            main(["servo", "reboot", "--config", str(config)])
+        assert exit_info.value.code == 2 and "--id N" in one_error_line(capsys)
+
+        assert main(["servo", "torque", "on", "--config", str(config)]) == 0
+        assert process.state(1)["torque"] == 1 and process.state(2)["torque"] == 1
+        assert main(["servo", "torque", "off", "--config", str(config), "--id", "2"]) == 0
+        assert process.state(1)["torque"] == 1 and process.state(2)["torque"] == 0
+        assert main(["servo", "led", "on", "--config", str(config), "--id", "2"]) == 0
+        assert main(["servo", "get", "--config", str(config), "--id", "2", "LED"]) == 0
+        assert capsys.readouterr().out.split("\n")[-2].split()[5] == "1"  # the LED item reads 1
+
+        process.command("overload 1")  # an error found while idle: never "motion stopped"
+        assert main(["servo", "torque", "on", "--config", str(config), "--id", "1"]) == 1
+        line = one_error_line(capsys)
+        assert "servo 1 overload" in line and "sensnake servo reboot --id 1" in line and "motion" not in line
+        assert main(["servo", "get", "--config", str(config), "--id", "254"]) == 1
+        assert "not a servo ID" in one_error_line(capsys)
+    finally:
+        assert process.close() == 0
+
+
+def test_a_servo_answering_only_pings_is_brought_back_by_reset_and_never_set_so(emulator, capsys):
+    writes = emulator.counts()["write"]
+    for item, value in (("Status Return Level", "0"), ("Status Return Level", "1"), ("Protocol Type", "1")):
+        assert main(["servo", "set", "--robot", emulator.path, "--id", "4", item, value]) == 1
+        assert "would cut the app off" in one_error_line(capsys)
+    assert emulator.counts()["write"] == writes
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        chain.write_item(4, "Status Return Level", 0)  # as another tool could leave it: it answers pings only
+    assert main(["servo", "get", "--robot", emulator.path, "--id", "4", "ID"]) == 1
+    capsys.readouterr()
+    assert main(["servo", "reset", "--robot", emulator.path, "--id", "4", "--yes"]) == 0  # no status packet: fine
+    assert main(["servo", "get", "--robot", emulator.path, "--id", "4", "Status Return Level"]) == 0
+    assert " 2 " in capsys.readouterr().out
+
+
+def changed(document: dict, sid: str = "3", **items: int) -> dict:
+    copy = json.loads(json.dumps(document))
+    copy["servos"][sid]["items"].update(items)
+    return copy
+
+
+def test_restore_checks_the_whole_file_against_the_servos_before_writing(emulator, capsys, tmp_path):
+    saved = tmp_path / "servos.json"
+    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(saved)]) == 0
+    document = json.loads(saved.read_text())
+    assert main(["servo", "set", "--robot", emulator.path, "--id", "3", "Position P Gain", "300"]) == 0
+    other_model = changed(document, "12")
+    other_model["servos"]["12"]["model_number"] = other_model["servos"]["12"]["items"]["Model Number"] = 1200
+    with_13 = json.loads(json.dumps(document))
+    with_13["servos"]["13"] = document["servos"]["12"]
+    broadcast = json.loads(json.dumps(document))
+    broadcast["servos"]["254"] = broadcast["servos"].pop("12")
+    misspelt = changed(document, "12")
+    misspelt["servos"]["12"]["items"]["Positon P Gain"] = 700
+    cases = {
+        "model.json": (other_model, ("servo 12", "model 1200", "model 1020", "nothing written")),
+        "with13.json": (with_13, ("servo 13", "does not answer", "nothing written")),
+        "broadcast.json": (broadcast, ("'254'", "not a servo ID", "broadcast")),
+        "misspelt.json": (misspelt, ("servo 12", "'Positon P Gain'", "did you mean 'Position P Gain'")),
+        "range.json": (changed(document, "12", **{"Velocity Limit": 5000}), ("servo 12", "Velocity Limit", "range")),
+        "limits.json": (changed(document, "12", **{"Min Position Limit": 3000, "Max Position Limit": 1000}),
+                        ("servo 12", "Min Position Limit = 3000 is above Max Position Limit = 1000")),
+        "silent.json": (changed(document, "12", **{"Status Return Level": 0}), ("servo 12", "cut the app off")),
+    }
+    capsys.readouterr()
+    writes = emulator.counts()["write"]
+    for name, (content, words) in cases.items():
+        (tmp_path / name).write_text(json.dumps(content))
+        assert main(["servo", "restore", str(tmp_path / name), "--robot", emulator.path]) == 1, name
+        line = one_error_line(capsys)
+        assert all(word in line for word in words), (name, line)
+    # servo 3 comes first in every file, its change was never written: the checks ran before any write
+    assert emulator.counts()["write"] == writes and emulator.state(3)["goal_writes"] == 0
+    capsys.readouterr()
+    assert main(["servo", "restore", str(tmp_path / "with13.json"), "--robot", emulator.path, "--id", "3"]) == 0
+    assert "servo 3: Position P Gain 300 → 800" in capsys.readouterr().out  # the servos chosen are checked
+
+
+def test_a_servo_refusing_midway_names_what_was_and_was_not_written(emulator, capsys, tmp_path, monkeypatch):
+    from devices.errors import ERRNUM_DATA_LIMIT, ServoCommandError
+
+    saved = tmp_path / "servos.json"
+    assert main(["servo", "dump", "--robot", emulator.path, "--out", str(saved)]) == 0
+    for sid, item, value in ((3, "Position P Gain", "300"), (5, "Velocity Limit", "100"),
+                             (5, "Position P Gain", "300"), (7, "Position P Gain", "300")):
+        assert main(["servo", "set", "--robot", emulator.path, "--id", str(sid), item, value]) == 0
+    capsys.readouterr()
+    write_item = ServoChain.write_item
+
+    def refusing(self, servo_id, name, value, **kwargs):  # a servo whose firmware refuses this value
+        if (servo_id, name) == (5, "Velocity Limit"):
+            raise ServoCommandError(servo_id, ERRNUM_DATA_LIMIT, f"writing {name} = {value}")
+        return write_item(self, servo_id, name, value, **kwargs)
+
+    monkeypatch.setattr(ServoChain, "write_item", refusing)
+    assert main(["servo", "restore", str(saved), "--robot", emulator.path]) == 1
+    line = one_error_line(capsys)
+    assert "restore stopped at servo 5, Velocity Limit = 200" in line and "data limit error" in line
+    assert "Written: servo 3 (Position P Gain)." in line
+    assert "Not written: servo 5 (Velocity Limit, Position P Gain); servo 7 (Position P Gain)" in line
+    monkeypatch.undo()
+    with ServoChain(dataclasses.replace(RobotConfig(), port=emulator.path)) as chain:
+        assert [chain.read_item(s, "Position P Gain") for s in (3, 5, 7)] == [800, 300, 300]  # as the line says
+
+
+def test_settings_and_config_writers_never_clobber_nor_follow_links(emulator, capsys, tmp_path):
+    existing = tmp_path / "servos.json"
+    existing.write_text("keep")
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    dangling = tmp_path / "link.json"
+    dangling.symlink_to(tmp_path / "nowhere.json")
+    for out, words in ((existing, "never written over"), (fifo, "is a FIFO"), (dangling, "exists")):
+        assert main(["servo", "dump", "--robot", emulator.path, "--out", str(out)]) == 1
+        line = one_error_line(capsys)
+        assert str(out) in line and words in line, line
+    assert existing.read_text() == "keep" and not (tmp_path / "nowhere.json").exists()
+
+    real = tmp_path / "real.toml"
+    original = (Path(__file__).resolve().parents[2] / "resources" / "default_lab.toml").read_text()
+    real.write_text(original)
+    config = tmp_path / "lab.toml"
+    config.symlink_to(real)  # the lab keeps its config behind a link: it is rewritten where it lives
+    planted = tmp_path / "planted.txt"
+    (tmp_path / "real.toml.bak-1").symlink_to(planted)  # a dangling link where a backup would go
+    emulator.command("push 3 100")
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(config)]) == 0
+    assert config.is_symlink() and "zero_offsets_rad = [0.0, 0.0, -0.1534" in real.read_text()
+    assert not planted.exists() and (tmp_path / "real.toml.bak-2").read_text() == original
+    assert not [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")], "temporary left behind"
+    capsys.readouterr()
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(fifo)]) == 1  # never read (blocks)
+    assert "is a FIFO" in one_error_line(capsys)

@@ -116,7 +116,8 @@ def test_cli_play_overload_is_one_clear_line(sim_lab_fast, tmp_path, capsys):
         tripper.join()
     err = capsys.readouterr().err.strip()
     assert code == 1
-    assert err.count("\n") == 0 and "servo 4 overload" in err and "Reboot" in err
+    assert err.count("\n") == 0 and "servo 4 overload: motion stopped" in err and "Reboot" in err
+    assert "sensnake servo reboot --id 4" in err  # the command line's own way to clear it
 
 
 def test_play_refusals(sim_lab_fast, tmp_path, capsys):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import replace
 
@@ -115,3 +116,14 @@ def test_a_scene_named_relative_to_the_config_file_is_found_beside_it(tmp_path):
     assert config.lab.scene == str(tmp_path / "my_scene.toml")
     (tmp_path / "lab2.toml").write_text('[lab]\nscene = "step"\n', encoding="utf-8")
     assert load_config(tmp_path / "lab2.toml").lab.scene == "step"  # a built-in scene's name is kept
+
+
+def test_a_servos_profile_that_would_cut_the_app_off_is_refused_with_the_reason(tmp_path):
+    for value in (0, 1):
+        with pytest.raises(ConfigError, match=f"servos.status_return_level = {value} would cut the app off"):
+            parse_config(f"[servos]\nstatus_return_level = {value}\n", source="lab.toml")
+    assert parse_config("[servos]\nstatus_return_level = 2\n").servos == (("Status Return Level", 2),)
+    fifo = tmp_path / "lab.toml"
+    os.mkfifo(fifo)  # never opened: reading it would block
+    with pytest.raises(ConfigError, match="is a FIFO, not a lab configuration"):
+        load_config(fifo)
