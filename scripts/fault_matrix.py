@@ -751,6 +751,60 @@ def symlink_loop_out(folder: Path) -> Outcome:
     return Outcome(ok and not leftovers, note if not leftovers else f"left behind: {leftovers}")
 
 
+def servo_reboot_clears_overload(folder: Path) -> Outcome:
+    emu = _servo_emulator()
+    try:
+        emu.command("overload 5")
+        run = sensnake("servo", "reboot", "--robot", emu.path, "--id", "5")
+        hw_error = emu.state(5)["hw_error"]
+    finally:
+        emu.close()
+    ok = run.code == 0 and not run.traceback and "32 (overload) → 0 (no error)" in run.out and hw_error == 0
+    return Outcome(ok, f"exit {run.code}: {(run.out + run.err).strip()[:110]}")
+
+
+def play_with_a_servo_in_error(folder: Path) -> Outcome:
+    emu = _servo_emulator()
+    shape = _shape(folder / "shape.json", [0.1] + [0.0] * 11)
+    try:
+        emu.command("overload 5")
+        run = sensnake("play", str(shape), "--robot", emu.path, "--speed", "1")
+        goals = emu.state(5)["goal_writes"]
+    finally:
+        emu.close()
+    ok, note = clean_failure(run, 1, "servo 5 overload", "nothing moved", "sensnake servo reboot --id 5")
+    if ok and ("motion stopped" in run.err or goals):
+        return Outcome(False, f"said 'motion stopped' or moved ({goals} goal writes): {note}")
+    return Outcome(ok, note)
+
+
+def restore_a_file_keyed_254(folder: Path) -> Outcome:
+    emu = _servo_emulator()
+    saved = folder / "servos.json"
+    try:
+        dump = sensnake("servo", "dump", "--robot", emu.path, "--id", "3", "--out", str(saved))
+        document = json.loads(saved.read_text()) if dump.code == 0 else {"servos": {}}
+        document["servos"] = {"254": document["servos"].get("3", {})}
+        saved.write_text(json.dumps(document))
+        writes = emu.counts()["write"]
+        run = sensnake("servo", "restore", str(saved), "--robot", emu.path)
+        writes = emu.counts()["write"] - writes
+    finally:
+        emu.close()
+    ok, note = clean_failure(run, 1, "'254'", "not a servo ID")
+    if ok and ("TxRxResult" in run.err or writes):
+        return Outcome(False, f"{writes} writes or the SDK's words: {note}")
+    return Outcome(ok, note)
+
+
+def dump_onto_a_fifo(folder: Path) -> Outcome:
+    fifo = folder / "servos.json"
+    os.mkfifo(fifo)
+    run = sensnake("servo", "dump", "--robot", "sim", "--out", str(fifo), timeout_s=30)
+    ok, note = clean_failure(run, 1, str(fifo), "FIFO")
+    return Outcome(ok and fifo.is_fifo(), note)
+
+
 CASES: dict[str, Callable[[Path], Outcome]] = {
     "board: clean stream": record_case(),
     "board: 5% garbage": record_case(garbage=0.05),
@@ -828,6 +882,12 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "record: --baud 99999999999": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out",
                                                       str(d / "r.h5"), "--baud", "99999999999"], 1, "--baud"),
     "message: a calibration with mu1 < 0, a 100 000-deep JSON, a ;-CSV": calibration_messages,
+    "servo: reboot clears servo 5's latched overload": servo_reboot_clears_overload,
+    "servo: play with servo 5 in error at connect (nothing moves)": play_with_a_servo_in_error,
+    "servo: restore a settings file keyed 254 (the broadcast ID)": restore_a_file_keyed_254,
+    "servo: dump onto a FIFO": dump_onto_a_fifo,
+    "robot: play with neither --robot nor --config": one_line(lambda d: ["play", str(_shape(d / "s.json", [0.0] * 12))],
+                                                             2, "no robot port", "--config"),
 }
 
 

@@ -39,10 +39,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"torque off on {robot.n_joints} joints: pose the robot by hand, then press Enter to capture")
             if sys.stdin.readline() == "":
                 raise RuntimeError("standard input closed before Enter: nothing captured (use --after SECONDS)")
-        pose = session.capture().result(timeout=BUS_TIMEOUT_S)
+        # Nothing moves while the robot is posed by hand: a hardware error then says so, never "motion stopped".
+        try:
+            pose = session.capture().result(timeout=BUS_TIMEOUT_S)
+        except ServoHardwareError as exc:
+            raise reworded(exc, "found at the capture, nothing moved, no shape written") from None
         try:
             session.hold().result(timeout=BUS_TIMEOUT_S)
-        except ServoHardwareError as exc:  # nothing moves while posed by hand: say so, not "motion stopped"
+        except ServoHardwareError as exc:
             raise reworded(exc, "its torque stays off, the pose is not held and the shape not written") from None
     finally:
         controller.close()

@@ -135,3 +135,25 @@ def test_the_latency_timer_is_named_with_its_fix():
     quiet = BusTiming(cycle_s=0.004, latency_timer_ms=1, latency_fix=None, return_delays_s={1: 0.0})
     line = describe_missed_ticks(3, 200, 50.0, quiet, 0.03, "normal scheduling")
     assert "latency" not in line and "Return Delay" not in line and "no single cause" in line
+
+
+def test_teach_with_a_servo_failing_while_posed_never_says_motion_stopped(emulator, tmp_path, capsys):
+    writes_before = emulator.counts()["write"]
+    posed = threading.Event()
+
+    def overload_once_limp() -> None:  # after teach's 12 torque-off writes: while the robot is posed by hand
+        while emulator.counts()["write"] < writes_before + 12:
+            if posed.wait(0.01):
+                return
+        emulator.command("overload 3")
+
+    trip = threading.Thread(target=overload_once_limp, name="test-overload")
+    trip.start()
+    try:
+        code = main(["teach", "--robot", emulator.path, "--after", "1", "--out", str(tmp_path / "t.json")])
+    finally:
+        posed.set()
+        trip.join()
+    line = one_error_line(capsys)
+    assert code == 1 and "servo 3 overload" in line and "motion" not in line, line
+    assert "sensnake servo reboot --id 3" in line and not (tmp_path / "t.json").exists()
