@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import stat
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -204,8 +206,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def is_recording(path: str) -> bool:
-    """An HDF5 file (by its signature, whatever its name)."""
+    """An HDF5 file (by its signature, whatever its name). Only a regular file is opened: a FIFO's open would wait
+    for a writer (the CSV reader then names what it is)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
         with open(path, "rb") as handle:
             return handle.read(8) == b"\x89HDF\r\n\x1a\n"
     except OSError:
@@ -223,6 +228,10 @@ def _run_recording(args: argparse.Namespace, document: dict) -> int:
         raise ValueError(f"--out {args.out}: a recording is re-estimated into a new recording (NEW.h5); for a "
                          "CSV, 'sensnake export' it first")
     recording = open_recording(args.input)
+    bad_times = np.flatnonzero(~np.isfinite(recording.time_s))
+    if bad_times.size:
+        raise ValueError(f"{args.input}: /daq/time_s row {int(bad_times[0])} is {float(recording.time_s[bad_times[0]])} "
+                         f"({bad_times.size} row(s) not finite): a damaged recording; expected a time in seconds")
     names = list(recording.channels)
     calibrated, passed = split_calibrated(names, document, str(args.input), args.cal)
     estimated = [names[k] for k in calibrated]

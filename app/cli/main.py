@@ -17,6 +17,8 @@ import threading
 from collections.abc import Sequence
 from typing import NoReturn
 
+from app.core.outputs import check_output
+
 # Errors a user can cause and fix. Every project error subclasses one of these builtins
 # (ConfigError(ValueError), NoReplyError(TimeoutError), CsvFormatError(ValueError), …).
 EXPECTED_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, LookupError, RuntimeError)
@@ -49,7 +51,8 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 
 
 def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
-    """Raise ValueError naming the file when an output of ``command`` is (or resolves to) one of its inputs."""
+    """Raise ValueError naming the file when an output of ``command`` is (or resolves to) one of its inputs, and
+    :class:`app.core.errors.OutputPathError` when it is no regular file to replace (:mod:`app.core.outputs`)."""
     inputs_, outputs = INPUTS_AND_OUTPUTS.get(command, ((), ()))
     read: dict[str, str] = {}
     for name in inputs_:
@@ -63,6 +66,8 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         if value and os.path.realpath(value) in read:
             raise ValueError(f"--{name} {value} is also an input ({read[os.path.realpath(value)]}): choose another "
                              f"file to write, the input would be destroyed before it is read")
+        if value and not (command == "experiment" and getattr(args, "name", None) == "sweep"):
+            check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
 
 
 class _OneLineErrorParser(argparse.ArgumentParser):

@@ -12,11 +12,11 @@ import argparse
 from pathlib import Path
 
 from app.core.errors import RecordingFormatError
-from app.core.recording import open_recording, repair_recording, write_recording
+from app.core.recording import check_input, open_recording, repair_recording, write_recording
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.recording)
+    path = check_input(args.recording)  # a link loop, a FIFO or a device is named as such, never "damaged"
     out = Path(args.out) if args.out else path.with_name(f"{path.stem}-repaired{path.suffix or '.h5'}")
     try:
         recording = open_recording(path)

@@ -8,14 +8,11 @@ state between calls.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import errno
 import json
 import math
 import os
-import secrets
-import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +20,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from app.core.errors import CalFileError
+from app.core.errors import CalFileError, OutputPathError
+from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
 
 try:  # Arrow's CSV reader and writer: the fast path for big estimate files (a dependency; numpy stays the fallback)
     import pyarrow as _arrow
@@ -300,8 +298,15 @@ def _check_text(path: Path) -> None:
 
 def _open_path(path: str | os.PathLike) -> Path:
     resolved = Path(path)
-    if not resolved.is_file():
-        raise CalFileError(f"{resolved}: no such file")
+    try:
+        kind = describe_kind(os.stat(resolved).st_mode)
+    except FileNotFoundError:
+        raise CalFileError(f"{resolved}: no such file") from None
+    except OSError as exc:
+        why = "a symbolic link loop (it leads back to itself)" if exc.errno == errno.ELOOP else exc.strerror
+        raise CalFileError(f"{resolved}: cannot be read: {why}") from None
+    if kind is not None:
+        raise CalFileError(f"{resolved}: is {kind}, not a file to read")
     _check_text(resolved)
     return resolved
 
@@ -448,46 +453,34 @@ def write_atomically(path: str | os.PathLike, write: Callable[[TextIO], object])
 
 
 def _atomic_write(path: Path, write: Callable[[TextIO], object]) -> None:
-    """Write through a temporary file in the same folder so a crash never leaves a half-written file.
+    """Write through a hidden temporary in the same folder so a crash never leaves a half-written file
+    (:mod:`app.core.outputs`: only a regular file is ever replaced; a device, FIFO or socket is refused).
 
     The file gets the permissions any new file of the user gets (0666 less the umask), or keeps those of the file
     it replaces; a failure is an ``OSError`` naming ``path`` (the user's file), never the hidden temporary one.
     """
     folder = path.parent if str(path.parent) else Path(".")
+    check_output(path)
     if not folder.is_dir():
         what = f"{folder} is not a folder" if folder.exists() else f"folder {folder} does not exist"
         raise CalFileError(f"{path}: {what}")
     try:
-        fd, temp_name = _create_temporary(folder, path.name)
+        fd, temp_path = create_temporary(path, ".tmp")
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     try:
-        # Replacing a file: keep its mode. A new file keeps the mode os.open gave it (from the umask).
-        with contextlib.suppress(FileNotFoundError):
-            mode = stat.S_IMODE(path.stat().st_mode)
-            os.chmod(fd if os.chmod in os.supports_fd else temp_name, mode)
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
             write(handle)
-        os.replace(temp_name, path)
+        move_into_place(temp_path, path)
+    except OutputPathError:
+        temp_path.unlink(missing_ok=True)
+        raise
     except OSError as exc:
-        Path(temp_name).unlink(missing_ok=True)
+        temp_path.unlink(missing_ok=True)
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
+        temp_path.unlink(missing_ok=True)
         raise
-
-
-def _create_temporary(folder: Path, name: str) -> tuple[int, str]:
-    """Create ``folder/.name.<random>.tmp`` exclusively with mode 0666 less the umask (the kernel applies it, so
-    the process's umask is never touched; ``tempfile.mkstemp`` would make it 0600)."""
-    for _attempt in range(100):
-        temp_name = str(folder / f".{name}.{secrets.token_hex(4)}.tmp")
-        try:
-            return os.open(temp_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666), \
-                temp_name
-        except FileExistsError:
-            continue
-    raise FileExistsError(errno.EEXIST, f"no free temporary name for {name} in {folder}")
 
 
 # --------------------------------------------------------------------------------------------------------- JSON

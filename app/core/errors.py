@@ -53,3 +53,8 @@ class SweepError(ValueError):
 # raised by app.core.shapes
 class ShapeFormatError(ValueError):
     """A shape file is unreadable, of an unknown format/version, or has a missing or bad key (named)."""
+
+
+# raised by app.core.outputs
+class OutputPathError(OSError):
+    """An output path no writer may replace: a device, FIFO, socket or folder, or a symbolic link loop (named)."""

@@ -30,9 +30,7 @@ import csv
 import errno
 import json
 import os
-import secrets
 import shutil
-import stat
 import time
 import traceback
 from collections.abc import Iterator, Sequence
@@ -46,7 +44,8 @@ import h5py
 import numpy as np
 
 from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
-from app.core.errors import RecordingError, RecordingFormatError
+from app.core.errors import OutputPathError, RecordingError, RecordingFormatError
+from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -167,33 +166,29 @@ class RecordingWriter:
         self._closed = False
         self.kept = False  # True once the file holds data at ``path``
         # An unpredictable hidden name, created here and nowhere else (O_EXCL, not through a symlink): in a shared
-        # folder nobody can make a recording write into (or truncate) someone else's file (issue 25).
-        self._work_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
+        # folder nobody can make a recording write into (or truncate) someone else's file (app.core.outputs).
+        self._work_path = self.path
         self._lock_fd: int | None = None
         n = len(self.channel_names)
         try:
-            if self.path.is_dir():
-                raise IsADirectoryError(f"{self.path} is a folder")
-            if os.path.islink(self.path):
-                try:
-                    os.stat(self.path)
-                except FileNotFoundError:
-                    pass  # a dangling link: the recording takes its place
-                except OSError as exc:  # ELOOP: the link leads back to itself; nothing could ever be moved there
-                    raise OSError(exc.errno, f"{self.path} is a symbolic link that leads nowhere "
-                                             f"({os.strerror(exc.errno or 0)}): remove it or choose another name"
-                                  ) from None
+            check_output(self.path)  # a device, FIFO, socket, folder or link loop is refused, never replaced
             if not self.path.parent.is_dir():
                 what = "is not a folder" if self.path.parent.exists() else "does not exist"
                 raise FileNotFoundError(f"the folder {self.path.parent} {what}")
             self._lock_fd = _lock_for_writing(self.path)
-            os.close(os.open(self._work_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))
+            fd, self._work_path = create_temporary(self.path, ".partial")
+            os.close(fd)
             f = h5py.File(self._work_path, "w", locking=False)
         except RecordingError:
             self._release_lock()
             raise
+        except OutputPathError as exc:
+            raise RecordingError(f"cannot create recording {self.path}: {exc}") from None
         except OSError as exc:
             self._release_lock()
+            if self._work_path != self.path:
+                with contextlib.suppress(OSError):
+                    self._work_path.unlink()
             raise RecordingError(f"cannot create recording {self.path}: {_os_reason(exc)}") from exc
         try:
             with f:
@@ -417,12 +412,12 @@ class RecordingWriter:
 
     def _move_into_place(self) -> None:
         try:
-            _keep_mode(self.path, self._work_path)
-            os.replace(self._work_path, self.path)
+            move_into_place(self._work_path, self.path)
         except OSError as exc:
             self._closed = True
+            why = str(exc) if isinstance(exc, OutputPathError) else _os_reason(exc)
             self._failed = RecordingError(f"recording stopped: cannot move the new recording onto {self.path} "
-                                          f"({_os_reason(exc)}); it is kept as {self._work_path}")
+                                          f"({why}); it is kept as {self._work_path}")
             self._release_lock()
             raise self._failed from exc
         self._work_path = self.path
@@ -471,10 +466,18 @@ class RecordingWriter:
         self._closed = True
         self._failed = RecordingError(
             f"recording {self.path} stopped: the disk is almost full ({free / 1e6:.1f} MB free, keeping "
-            f"{self.min_free_bytes / 1e6:.0f} MB spare). The file keeps the first {self._daq.rows} board samples; "
-            "free some space and record again")
+            f"{self.min_free_bytes / 1e6:.0f} MB spare). {self._what_is_kept()}; free some space and record again")
         self._discard_if_empty()
+        self._release_lock()
         raise self._failed
+
+    def _what_is_kept(self) -> str:
+        """What the file at ``path`` holds after a failure, in a user's words."""
+        if self.kept:
+            return f"The file keeps the first {self._daq.rows} board samples"
+        if os.path.lexists(self.path):
+            return f"Nothing was recorded; {self.path.name} was left as it was"
+        return f"Nothing was recorded; {self.path.name} was not created"
 
     def close(self) -> None:
         """Flush and close. Idempotent; after a failure it just releases the file. A recording that never held
@@ -517,9 +520,10 @@ class RecordingWriter:
         self._closed = True
         for table in self._tables:
             table.clear_pending()
+        kept = (f"The file keeps what was saved up to the last flush ({self._last_flushed_time_s:.1f} s) and opens "
+                "as it is") if self.kept else self._what_is_kept()
         self._failed = RecordingError(
-            f"recording {self.path} stopped: cannot write ({_os_reason(exc)}){_write_advice(exc)}. The file keeps "
-            f"what was saved up to the last flush ({self._last_flushed_time_s:.1f} s) and opens as it is")
+            f"recording {self.path} stopped: cannot write ({_os_reason(exc)}){_write_advice(exc)}. {kept}")
         self._discard_if_empty()
         self._release_lock()
         raise self._failed from exc
@@ -541,17 +545,27 @@ def _lock_for_writing(path: Path) -> int | None:
     except ImportError:  # pragma: no cover - Windows
         return None
     lock = _lock_path(path)
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT | _NOFOLLOW, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.read(fd, 32).decode("ascii", "replace").strip() or "?"
-        os.close(fd)
-        raise RecordingError(f"{path} is being recorded by another process (pid {holder}): choose another file, or "
-                             f"stop that recording first") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode("ascii"))
-    return fd
+    for _attempt in range(10):
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | _NOFOLLOW, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode("ascii", "replace").strip() or "?"
+            os.close(fd)
+            raise RecordingError(f"{path} is being recorded by another process (pid {holder}): choose another file, "
+                                 f"or stop that recording first") from None
+        try:
+            current = os.stat(lock, follow_symlinks=False)
+        except FileNotFoundError:
+            current = None
+        mine = os.fstat(fd)
+        if current is not None and (current.st_ino, current.st_dev) == (mine.st_ino, mine.st_dev):
+            # A lock file left by a writer that was killed is taken over here (its pid is stale) and removed at close.
+            os.ftruncate(fd, 0)
+            os.write(fd, str(os.getpid()).encode("ascii"))
+            return fd
+        os.close(fd)  # the writer before us removed that lock file as we opened it: take the new one
+    raise RecordingError(f"cannot lock {path} for recording: its lock file {lock.name} keeps changing")
 
 
 def _write_advice(exc: BaseException) -> str:
@@ -589,12 +603,6 @@ def _close_after_failure(f: h5py.File) -> None:
     file normally then crashes (HDF5 2.0 / h5py 3.16 segfault in the id clean-up): close the file id itself."""
     with contextlib.suppress(OSError, RuntimeError, ValueError):
         f.id.close()
-
-
-def _keep_mode(path: Path, work: Path) -> None:
-    """A recording that replaces a file keeps that file's permissions (a new one has the umask's, from h5py)."""
-    with contextlib.suppress(FileNotFoundError):
-        os.chmod(work, stat.S_IMODE(path.stat().st_mode))
 
 
 def _fsync(path: Path) -> None:
@@ -708,8 +716,7 @@ def open_recording(path: str | Path, recover: bool = False) -> Recording:
     otherwise the error says to run ``sensnake repair``.
     """
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"recording {path} does not exist")
+    check_input(path)
     salvageable = _stored_eof(path) is not None
     hint = " — 'sensnake repair' salvages what it can" if salvageable else ""
     try:
@@ -724,12 +731,44 @@ def open_recording(path: str | Path, recover: bool = False) -> Recording:
     try:
         with handle as f:
             return _read(f, path)
+    except RecordingFormatError:
+        raise
     except OSError as exc:  # a chunk that does not read: the chunks before it are whole
         if recover and salvageable:
             return recover_recording(path)[0]
-        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc}){hint}") from exc
-    except (KeyError, TypeError) as exc:
-        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({type(exc).__name__}: {exc})") from exc
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({_h5_reason(exc)}){hint}") from exc
+    except _DAMAGE_ERRORS as exc:  # HDF5's structure itself is damaged (a flipped byte in a header or a heap)
+        if recover and salvageable:
+            return recover_recording(path)[0]
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording ({_h5_reason(exc)}){hint}") from exc
+
+
+# What h5py raises on a file whose HDF5 structure is damaged, besides OSError.
+_DAMAGE_ERRORS = (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, UnicodeError,
+                  OverflowError)
+
+
+def check_input(path: str | Path) -> Path:
+    """``path`` if it is a regular file to read; otherwise an error naming it and the cause: missing
+    (FileNotFoundError), a symbolic link loop or one to a missing file, a folder, a device, FIFO or socket (whose
+    read would block or never end)."""
+    path = Path(path)
+    try:
+        status = os.stat(path)
+    except FileNotFoundError:
+        if os.path.islink(path):
+            raise FileNotFoundError(f"recording {path} is a symbolic link to {os.readlink(path)}, which does not "
+                                    "exist") from None
+        raise FileNotFoundError(f"recording {path} does not exist") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise RecordingFormatError(f"recording {path} is a symbolic link loop (it leads back to itself), not a "
+                                       "file") from None
+        raise OSError(exc.errno, f"cannot read recording {path}: {exc.strerror}") from None
+    kind = describe_kind(status.st_mode)
+    if kind is not None:
+        raise RecordingFormatError(f"recording {path} is {kind}, not a recording file")
+    return path
 
 
 def _open_h5(path: Path) -> h5py.File:
@@ -753,8 +792,10 @@ def _h5_reason(exc: BaseException) -> str:
         return "not an HDF5 file"
     if "error message = '" in text or "errno = " in text:
         return _os_reason(exc)
-    if text.startswith("Unable to") and "(" in text:
+    if (text.startswith("Unable to") or "synchronously" in text) and "(" in text:
         text = text.split("(", 1)[1].rsplit(")", 1)[0]  # the reason HDF5 gives inside its own report
+    elif isinstance(exc, KeyError) and text.startswith("'") and text.endswith("'"):
+        text = text[1:-1]
     return text.split(" (file name")[0][:160]
 
 
@@ -814,7 +855,7 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
     :class:`RecordingFormatError` when not even the file's structure survives."""
     import tempfile
 
-    path = Path(path)
+    path = check_input(path)
     claimed = _stored_eof(path)
     size = path.stat().st_size
     if claimed is None:
@@ -854,8 +895,10 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
                         claimed_rows[group_name] = min(lengths)
                         limits[group_name] = min(intact)
                 recording = _read(f, path, limits)
-        except (KeyError, OSError, TypeError, ValueError) as exc:
-            raise RecordingFormatError(f"{path} is damaged beyond repair ({type(exc).__name__}: {exc})") from exc
+        except RecordingFormatError:
+            raise
+        except (OSError, *_DAMAGE_ERRORS) as exc:
+            raise RecordingFormatError(f"{path} is damaged beyond repair ({_h5_reason(exc)})") from exc
     rows = {name: (limits[name], claimed_rows[name]) for name in claimed_rows}
     report = RecoveryReport(path=path, file_bytes=size, claimed_bytes=claimed, rows=rows,
                             duration_s=recording.duration_s)
@@ -962,79 +1005,178 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
 
 @contextlib.contextmanager
 def _written_into_place(out: Path) -> Iterator[Path]:
-    """A hidden work file beside ``out``, created here and nowhere else (O_EXCL, not through a symlink), that becomes
-    ``out`` (synced, with ``out``'s mode if it existed) when the block ends; on an OSError it is removed and a
-    :class:`RecordingError` names ``out`` and the reason."""
-    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
+    """A hidden work file beside ``out`` (:func:`app.core.outputs.create_temporary`: exclusive, never through a
+    symlink) that becomes ``out`` (synced, with ``out``'s mode if it existed) when the block ends; on an OSError it
+    is removed and a :class:`RecordingError` names ``out`` and the reason. ``out`` must be a regular file or new."""
+    check_output(out)
+    work: Path | None = None
     try:
-        os.close(os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))  # ours alone
+        fd, work = create_temporary(out, ".partial")
+        os.close(fd)
         yield work
         _fsync(work)
-        _keep_mode(out, work)
-        os.replace(work, out)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            work.unlink()
-        raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+        move_into_place(work, out)
+    except BaseException as exc:
+        if work is not None:
+            with contextlib.suppress(OSError):
+                work.unlink()
+        if isinstance(exc, OSError) and not isinstance(exc, OutputPathError):
+            raise RecordingError(f"cannot write {out}: {_os_reason(exc)}") from exc
+        raise
 
 
 def _attr_text(value: Any) -> str:
-    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+    """An attribute as text a user (and a UTF-8 file) can take: undecodable bytes become U+FFFD, never a surrogate
+    that would stop the text from being written again (a damaged ``config`` attribute in ``sensnake repair``)."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _attr_text(value.item())
+    text = str(value)
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "replace").decode("utf-8", "replace")
+
+
+# What each dataset a reader takes must be: (numpy kinds, dimensions, its columns in words). Anything else is refused
+# naming the file, the dataset and this, instead of failing later as numpy's or HDF5's words (or, for complex
+# numbers, as a warning and a silently wrong result).
+_FLOAT, _INTEGER, _TEXT = "f", "iu", "SO"
+_KIND_WORDS = {_FLOAT: "real numbers (float)", _INTEGER: "whole numbers (integer)", _TEXT: "text"}
+
+
+def _describe_dataset(dataset: h5py.Dataset) -> str:
+    kind = dataset.dtype
+    what = ("compound records" if kind.fields else "complex numbers" if kind.kind == "c" else
+            "text" if kind.kind in "SUO" else "real numbers" if kind.kind == "f" else
+            "whole numbers" if kind.kind in "iu" else f"{kind} values")
+    shape = ("a single value" if dataset.shape == () else f"{dataset.shape[0]} rows" if dataset.ndim == 1 else
+             " × ".join(str(n) for n in dataset.shape))
+    return f"{what}, {shape}"
+
+
+def _dataset(f: h5py.File, file: Path, name: str, kinds: str, ndim: int, columns: int | None = None,
+             columns_are: str = "") -> h5py.Dataset:
+    """The dataset ``name`` of ``f``, checked: a dataset in this file (not a group, not a link that loops or leads
+    out of the file), of one of numpy's ``kinds``, with ``ndim`` dimensions and ``columns`` columns when given.
+    :class:`RecordingFormatError` names the file, the dataset and what was expected."""
+    where = f"{file}: /{name}"
+    try:
+        link = f.get(name, getlink=True)
+    except (KeyError, RuntimeError, OSError, ValueError) as exc:
+        raise RecordingFormatError(f"{where} cannot be read ({_h5_reason(exc)}): a damaged recording") from exc
+    if link is None:
+        raise RecordingFormatError(f"{where} is missing: a damaged or incomplete recording")
+    if isinstance(link, h5py.ExternalLink):
+        raise RecordingFormatError(f"{where} is a link to another file ({link.filename}): a recording holds its own "
+                                   "data")
+    try:
+        dataset = f[name]
+    except (KeyError, RuntimeError, OSError, ValueError) as exc:
+        why = ("a link that leads nowhere or loops back on itself" if isinstance(link, h5py.SoftLink) else
+               _h5_reason(exc))
+        raise RecordingFormatError(f"{where} cannot be read: {why}") from exc
+    if not isinstance(dataset, h5py.Dataset):
+        raise RecordingFormatError(f"{where} is a group, expected a dataset")
+    shape_words = ("one value per row" if ndim == 1 else
+                   f"rows × {columns} columns{f' ({columns_are})' if columns_are else ''}" if columns is not None else
+                   "rows × columns")
+    expected = f"expected {_KIND_WORDS[kinds]}, {shape_words}"
+    if dataset.dtype.fields or dataset.dtype.kind not in kinds:
+        raise RecordingFormatError(f"{where} holds {_describe_dataset(dataset)}; {expected}")
+    if dataset.ndim != ndim or (columns is not None and dataset.shape[1] != columns):
+        raise RecordingFormatError(f"{where} holds {_describe_dataset(dataset)}; {expected}")
+    return dataset
+
+
+def _int_attr(attrs: h5py.AttributeManager, file: Path, where: str, key: str, default: int) -> int:
+    """A whole-number attribute (a link counter, the version); RecordingFormatError naming it otherwise."""
+    value = attrs.get(key, default)
+    if isinstance(value, np.ndarray) and value.shape == ():
+        value = value.item()
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise RecordingFormatError(f"{file}: {where} attribute '{key}' is {_attr_text(value)[:40]!r}, expected a "
+                                   "whole number")
+    return int(value)
+
+
+def _channel_names(daq: h5py.Group, file: Path) -> tuple[str, ...]:
+    raw = daq.attrs.get("channels")
+    if raw is None:
+        raise RecordingFormatError(f"{file}: /daq has no 'channels' attribute (the channel names)")
+    values = np.asarray(raw)
+    if values.ndim != 1 or values.dtype.kind not in "SUO":
+        raise RecordingFormatError(f"{file}: the 'channels' attribute of /daq is {_attr_text(raw)[:40]!r}; expected "
+                                   "a list of channel names")
+    return tuple(_attr_text(c) for c in values)
 
 
 def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Recording:
-    """The recording in ``f``; ``limits`` caps the rows read per group (salvage)."""
+    """The recording in ``f``; ``limits`` caps the rows read per group (salvage). Every dataset read is checked
+    (:func:`_dataset`), so a hostile or damaged file is refused naming the dataset, never read as numbers."""
     cap = limits or {}
+    big = np.iinfo(np.int64).max
     fmt = _attr_text(f.attrs.get("format", ""))
     if fmt != FORMAT:
         raise RecordingFormatError(f"{path} is not a SenSnake recording (format {fmt!r}, expected {FORMAT!r})")
-    version = int(f.attrs.get("version", -1))
+    version = _int_attr(f.attrs, path, "root", "version", -1)
     if version != VERSION:
         raise RecordingFormatError(f"{path} is a version-{version} recording; this program reads version {VERSION}"
                                    " — update SenSnake Studio")
-    if "daq" not in f:
+    daq_link = f.get("daq", getlink=True)
+    if daq_link is None or not isinstance(f.get("daq"), h5py.Group):
         raise RecordingFormatError(f"{path}: damaged SenSnake recording (no /daq group)")
     daq = f["daq"]
-    channels = tuple(_attr_text(c) for c in daq.attrs["channels"])
-    names = ["time_s", "seq", "counts", "conductance_S"]
+    channels = _channel_names(daq, path)
+    n_channels = len(channels)
+    per_channel = "one per channel name"
+    columns = {"time_s": _dataset(f, path, "daq/time_s", _FLOAT, 1),
+               "seq": _dataset(f, path, "daq/seq", _INTEGER, 1),
+               "counts": _dataset(f, path, "daq/counts", _INTEGER, 2, n_channels, per_channel),
+               "conductance_S": _dataset(f, path, "daq/conductance_S", _FLOAT, 2, n_channels, per_channel)}
     # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
-    n = min(min(daq[name].shape[0] for name in names), cap.get("daq", np.iinfo(np.int64).max))
+    n = min(min(d.shape[0] for d in columns.values()), cap.get("daq", big))
     forces = calibration = None
+    status = None
     if "forces" in f:
         calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
-        n_forces = min(f["forces/force_N"].shape[0], cap.get("forces", np.iinfo(np.int64).max))
-        forces = f["forces/force_N"][:min(n, n_forces)]
-    big = np.iinfo(np.int64).max
-    status = None
-    if forces is not None and "status" in f["forces"] and min(f["forces/status"].shape[0],
-                                                               cap.get("forces/status", big)) >= len(forces):
-        status = f["forces/status"][:len(forces)]
-    board_time = daq["board_time_s"][:n] if "board_time_s" in daq and cap.get("daq/board_time_s", big) >= n else None
-    segment = daq["clock_segment"][:n] if "clock_segment" in daq and cap.get("daq/clock_segment", big) >= n else None
+        force_set = _dataset(f, path, "forces/force_N", _FLOAT, 2, n_channels, per_channel)
+        forces = force_set[:min(n, force_set.shape[0], cap.get("forces", big))]
+        if "status" in f["forces"]:
+            status_set = _dataset(f, path, "forces/status", _INTEGER, 2, n_channels, per_channel)
+            if min(status_set.shape[0], cap.get("forces/status", big)) >= len(forces):
+                status = status_set[:len(forces)]
+    board_time = segment = None
+    if "board_time_s" in daq and cap.get("daq/board_time_s", big) >= n:
+        board_time = _dataset(f, path, "daq/board_time_s", _FLOAT, 1)[:n]
+    if "clock_segment" in daq and cap.get("daq/clock_segment", big) >= n:
+        segment = _dataset(f, path, "daq/clock_segment", _INTEGER, 1)[:n]
     robot = None
     if "robot" in f:
-        group = f["robot"]
-        m = min(min(group[name].shape[0] for name in ("time_s", "goal_rad", "present_rad", "current_mA")),
-                cap.get("robot", np.iinfo(np.int64).max))
-        robot = RobotRecord(time_s=group["time_s"][:m], goal_rad=group["goal_rad"][:m],
-                            present_rad=group["present_rad"][:m], current_ma=group["current_mA"][:m])
+        robot_sets = {"time_s": _dataset(f, path, "robot/time_s", _FLOAT, 1)}
+        goal = _dataset(f, path, "robot/goal_rad", _FLOAT, 2)
+        for name in ("goal_rad", "present_rad", "current_mA"):
+            robot_sets[name] = _dataset(f, path, f"robot/{name}", _FLOAT, 2, goal.shape[1], "one per joint")
+        m = min(min(d.shape[0] for d in robot_sets.values()), cap.get("robot", big))
+        robot = RobotRecord(time_s=robot_sets["time_s"][:m], goal_rad=robot_sets["goal_rad"][:m],
+                            present_rad=robot_sets["present_rad"][:m], current_ma=robot_sets["current_mA"][:m])
     events: tuple[RecordingEvent, ...] = ()
     if "events" in f:
-        group = f["events"]
-        m = min(min(group[name].shape[0] for name in ("time_s", "kind", "text")),
-                cap.get("events", np.iinfo(np.int64).max))
-        events = tuple(RecordingEvent(float(t), k.decode("utf-8", "replace"), x.decode("utf-8", "replace"))
-                       for t, k, x in zip(group["time_s"][:m], group["kind"][:m], group["text"][:m]))
-    counts = daq["counts"][:n]
-    if counts.ndim != 2 or counts.shape[1] != len(channels):
-        raise RecordingFormatError(f"{path}: /daq/counts has {counts.shape[1:]} columns but {len(channels)} "
-                                   "channel names")
+        event_sets = {"time_s": _dataset(f, path, "events/time_s", _FLOAT, 1),
+                      "kind": _dataset(f, path, "events/kind", _TEXT, 1),
+                      "text": _dataset(f, path, "events/text", _TEXT, 1)}
+        m = min(min(d.shape[0] for d in event_sets.values()), cap.get("events", big))
+        events = tuple(RecordingEvent(float(t), _attr_text(k), _attr_text(x)) for t, k, x in
+                       zip(event_sets["time_s"][:m], event_sets["kind"][:m], event_sets["text"][:m]))
     return Recording(
         path=path, version=version, started=_attr_text(f.attrs.get("started", "")),
         config_text=_attr_text(f.attrs.get("config", "")), channels=channels,
-        time_s=daq["time_s"][:n], seq=daq["seq"][:n], counts=counts, conductance_s=daq["conductance_S"][:n],
-        board_time_s=board_time, clock_segment=segment, crc_errors=int(daq.attrs.get("crc_errors", 0)),
-        dropped_frames=int(daq.attrs.get("dropped_frames", 0)), resyncs=int(daq.attrs.get("resyncs", 0)),
+        time_s=columns["time_s"][:n], seq=columns["seq"][:n], counts=columns["counts"][:n],
+        conductance_s=columns["conductance_S"][:n], board_time_s=board_time, clock_segment=segment,
+        crc_errors=_int_attr(daq.attrs, path, "/daq", "crc_errors", 0),
+        dropped_frames=_int_attr(daq.attrs, path, "/daq", "dropped_frames", 0),
+        resyncs=_int_attr(daq.attrs, path, "/daq", "resyncs", 0),
         robot=robot, forces_n=forces, calibration_json=calibration, events=events, forces_status=status)
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from app.core import user_folders
-from app.core.errors import ShapeFormatError
+from app.core.errors import OutputPathError, ShapeFormatError
+from app.core.outputs import check_output, move_into_place, temporary_beside
 
 SHAPE_FORMAT = "sensnake-shape"
 SHAPE_VERSION = 1
@@ -142,14 +143,18 @@ def read_shape(path: str | Path) -> Shape:
 
 
 def write_shape(shape: Shape, path: str | Path) -> Path:
-    """Write atomically (temporary file then rename), so a crash never leaves half a shape."""
-    path = Path(path)
+    """Write atomically (a hidden temporary moved into place, :mod:`app.core.outputs`), so a crash never leaves half
+    a shape; only a regular file is ever replaced (a device, FIFO or socket at ``path`` is refused)."""
+    path = check_output(path)
     text = json.dumps(shape_to_dict(shape), indent=2) + "\n"
-    tmp = path.with_name(path.name + ".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
+        with temporary_beside(path, ".tmp") as (fd, work):
+            with os.fdopen(fd, "w", encoding="utf-8") as handle:
+                handle.write(text)
+            move_into_place(work, path)
+    except OutputPathError:
+        raise
     except OSError as exc:
         raise OSError(f"cannot write shape file {path}: {exc.strerror or exc}") from exc
     return path

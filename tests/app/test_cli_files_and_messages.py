@@ -106,11 +106,11 @@ def test_a_write_error_names_the_users_path_not_the_temporary_file(fitted, tmp_p
     force = tmp_path / "force.csv"
     _force_csv(force, np.full(20, 1.0))
     out = tmp_path / "out.csv"
-    out.mkdir()  # the output path is a folder: the final rename fails
+    out.mkdir()  # the output path is a folder: refused before anything is written
     code = main(["forward", str(force), "--cal", str(cal), "--out", str(out)])
     err = capsys.readouterr().err
     assert code != 0 and str(out) in err and ".tmp" not in err and "[Errno" not in err, err
-    assert "Is a directory" in err
+    assert "is a folder" in err  # refused before anything is written (app.core.outputs)
     assert len(err.strip().splitlines()) == 1
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")], "temporary file left behind"
 

@@ -208,7 +208,7 @@ def test_an_out_that_is_a_symlink_loop_is_refused_before_recording_leaving_nothi
     (tmp_path / "b.h5").symlink_to(tmp_path / "a.h5")
     assert main(["record", "--daq", "sim", "--seconds", "5", "--out", str(tmp_path / "a.h5")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len([line for line in err if "error" in line]) == 1 and "a.h5" in err[-1] and "symbolic links" in err[-1]
+    assert len([line for line in err if "error" in line]) == 1 and "a.h5" in err[-1] and "symbolic link loop" in err[-1]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]  # no hidden temporary, no lock left
 
 

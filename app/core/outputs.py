@@ -1,0 +1,155 @@
+"""Output files: the one rule every writer follows, and the hidden temporaries outputs are built in.
+
+The rule: **an output only ever replaces a regular file.** A path that exists and is — or, through symbolic links,
+leads to — a device (``/dev/null``), a FIFO, a socket or a folder is refused with one line saying what it is, before
+anything is written and again just before the finished file is moved into place; a symbolic link loop is named as
+one. (Writing *into* a device or a pipe cannot be all or nothing, and a rename would replace the device node itself:
+as root, ``--out /dev/null`` used to turn /dev/null into a regular file.)
+
+Every output is built in a hidden temporary beside it, created here and nowhere else: exclusively
+(``O_CREAT | O_EXCL | O_NOFOLLOW``: never through a planted symbolic link, never someone else's file) under an
+unpredictable name that carries the writer's pid (``.NAME.<pid>.<random>.partial``). It is moved onto the output only
+when complete. A temporary left by a writer that was killed (``kill -9``, a power cut) is removed by the next writer
+of the same output once it is provably stale: the pid in its name is no process on this machine. The writers:
+:func:`app.core.calfiles.write_atomically` (CSV and JSON), :mod:`app.core.recording` (recordings, re-estimated and
+repaired copies), :func:`app.core.shapes.write_shape`, :func:`app.core.servo_settings.write_document`.
+
+Any thread; no state.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import re
+import secrets
+import stat
+from collections.abc import Iterator
+from pathlib import Path
+
+from app.core.errors import OutputPathError
+
+NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+TEMPORARY_SUFFIXES = (".partial", ".tmp")
+_CREATE_ATTEMPTS = 100
+
+
+def describe_kind(mode: int) -> str | None:
+    """What a file of ``mode`` is in a user's words, or None for a regular file."""
+    if stat.S_ISREG(mode):
+        return None
+    for test, words in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                        (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                        (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return words
+    return "not a regular file"
+
+
+def check_output(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a :class:`Path` if a writer may create or replace it; :class:`OutputPathError` naming it and the
+    cause otherwise (a device, FIFO, socket or folder there or at the end of its symbolic links; a link loop).
+    A missing path, or a dangling link, is fine here: the folder it would go into is the writer's to check."""
+    out = Path(path)
+    try:
+        status = os.stat(out)
+    except FileNotFoundError:
+        return out
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputPathError(f"{out} is a symbolic link loop (it leads back to itself): remove it or choose "
+                                  "another name") from None
+        return out  # ENOTDIR, EACCES, …: the writer's own attempt names the cause
+    kind = describe_kind(status.st_mode)
+    if kind is None:
+        return out
+    what = f"a symbolic link to {os.path.realpath(out)}, {kind}" if os.path.islink(out) else kind
+    if kind == "a folder":
+        raise OutputPathError(f"{out} is {what}: give a file name to write")
+    raise OutputPathError(f"{out} is {what}, not a regular file: outputs only ever replace regular files, choose a "
+                          "file name")
+
+
+def _host_pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # it exists (another user's): not ours to judge
+    return True
+
+
+def _temporary_pattern(name: str) -> re.Pattern[str]:
+    suffixes = "|".join(re.escape(s) for s in TEMPORARY_SUFFIXES)
+    return re.compile(rf"^\.{re.escape(name)}\.(\d+)\.[0-9a-f]+(?:{suffixes})$")
+
+
+def remove_stale_temporaries(out: str | os.PathLike[str]) -> list[Path]:
+    """Remove the hidden temporaries of ``out`` that a killed writer left (``.NAME.<pid>.<random>.partial|.tmp``
+    whose pid is no running process here); returns what was removed. Only regular files are touched."""
+    out = Path(out)
+    folder = out.parent if str(out.parent) else Path(".")
+    pattern = _temporary_pattern(out.name)
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = pattern.match(entry.name)
+        if match is None or _host_pid_alive(int(match.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            if entry.is_file(follow_symlinks=False):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
+def create_temporary(out: str | os.PathLike[str], suffix: str = ".partial", mode: int = 0o666) -> tuple[int, Path]:
+    """Create the hidden temporary for ``out`` (see the module docstring) and return (its open descriptor for
+    writing, its path). ``mode`` less the umask is its permission (the kernel applies the umask). Stale
+    temporaries of ``out`` are removed first. OSError when the folder cannot take it."""
+    out = Path(out)
+    folder = out.parent if str(out.parent) else Path(".")
+    remove_stale_temporaries(out)
+    for _attempt in range(_CREATE_ATTEMPTS):
+        work = folder / f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}{suffix}"
+        try:
+            fd = os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | NOFOLLOW | getattr(os, "O_BINARY", 0), mode)
+        except FileExistsError:
+            continue
+        return fd, work
+    raise FileExistsError(errno.EEXIST, f"no free temporary name for {out.name} in {folder}")
+
+
+def keep_mode(out: Path, work: Path) -> None:
+    """A file that replaces ``out`` keeps ``out``'s permissions (a new one has the umask's)."""
+    with contextlib.suppress(FileNotFoundError):
+        os.chmod(work, stat.S_IMODE(out.stat().st_mode))
+
+
+def move_into_place(work: Path, out: Path) -> None:
+    """Replace ``out`` by the finished ``work`` (same folder), keeping ``out``'s mode; the output rule is checked
+    again here, at the last moment (a FIFO made at ``out`` while the work ran is refused, never replaced)."""
+    check_output(out)
+    keep_mode(out, work)
+    os.replace(work, out)
+
+
+@contextlib.contextmanager
+def temporary_beside(out: str | os.PathLike[str], suffix: str = ".partial") -> Iterator[tuple[int, Path]]:
+    """A hidden temporary for ``out`` (descriptor, path) that is removed when the block fails; the caller moves it
+    into place (:func:`move_into_place`) before the block ends. The output rule is checked first."""
+    target = check_output(out)
+    fd, work = create_temporary(target, suffix)
+    try:
+        yield fd, work
+    except BaseException:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise
