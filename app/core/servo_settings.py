@@ -1,4 +1,4 @@
-"""Reading and writing servos' control tables without Dynamixel Wizard (issue 26): every item of a servo in one read,
+"""Reading and writing servos' control tables without Dynamixel Wizard: every item of a servo in one read,
 a checked write of one item, and a settings file to back servos up and restore them. Qt-free; the ``sensnake servo``
 commands run it on a :class:`devices.servo_chain.ServoChain` they own.
 
