@@ -287,6 +287,9 @@ def build_parser() -> argparse.ArgumentParser:
                             help="run: a constant backward force on the tail (N), from the capture on")
     experiment.add_argument("--seconds", type=float, default=None, metavar="S",
                             help="stop playing after S simulated seconds (default: the whole motion)")
+    experiment.add_argument("--rest-cap", type=float, default=None, metavar="S",
+                            help="run, obstacle: after the motion, wait up to S simulated seconds for the body to "
+                                 "come to rest, where the outcome is judged (default 30; 0: no wait, undecided)")
     experiment.add_argument("--height-ratio", type=float, default=0.28, metavar="R",
                             help="obstacle: its height × body length (default 0.28, the paper's)")
     experiment.add_argument("--speed", type=float, default=0.034, metavar="RAD_S",
