@@ -98,10 +98,12 @@ def test_a_writer_stopped_mid_write_never_stops_the_reader(tmp_path: Path) -> No
         last = -math.inf
         deadline = time.monotonic() + 60.0
         while mid_write < 20 and time.monotonic() < deadline:
+            # Deliberate: the writer runs for a random moment, so the stop lands anywhere in its loop
             time.sleep(float(rng.uniform(0.0, 0.002)))
             os.kill(writer.pid, signal.SIGSTOP)
             # wait until the kernel has really stopped it (state T), so what we read is a frozen page
             while _state(writer.pid) not in ("T", "t"):
+                # Deliberate: a short poll of /proc until the kernel has stopped the writer
                 time.sleep(0.0005)
             stops += 1
             caught = reader.being_written

@@ -218,6 +218,7 @@ def test_a_loop_held_off_the_cpu_is_not_a_silent_servo(controller, monkeypatch):
     def held_then_late(*args, **kwargs):
         upsets[0] += 1
         if upsets[0] == 1:
+            # Deliberate: the bus thread held 0.6 s, as a busy machine holds it off the CPU
             time.sleep(0.6)
         if upsets[0] <= 2:
             raise NoReplyError(3, "late reply")

@@ -292,6 +292,7 @@ def test_a_loop_descheduled_mid_play_is_named_as_the_loop_not_as_a_servo(child, 
     playing = process.play(wave(robot, 0.3, 0.5), "wave")
     assert wait_until(lambda: emulator.counts()["sync_write"] >= 5, WAIT_S)
     os.kill(process.pid, signal.SIGSTOP)
+    # Deliberate: the loop process stays descheduled for 300 ms
     time.sleep(0.3)
     os.kill(process.pid, signal.SIGCONT)
     assert wait_until(lambda: any("ticks again" in e for e in list(recorder.events)), WAIT_S)
