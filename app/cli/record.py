@@ -97,11 +97,11 @@ def run(args: argparse.Namespace) -> int:
     return _report(outcome, out, board.n_channels)
 
 
-def _close(live: LiveSession, reader: BoardReader) -> None:
+def _close(live: LiveSession, reader: BoardReader, exit_status: str = "success", reason: str = "") -> None:
     reader.close()
     live.pending_statuses()
     live.handle_stats(reader.stats)
-    live.stop_recording()
+    live.stop_recording(exit_status, reason)
 
 
 def _interrupted(live: LiveSession, reader: BoardReader, progress: _Progress, out: Path, code: int,
@@ -110,7 +110,7 @@ def _interrupted(live: LiveSession, reader: BoardReader, progress: _Progress, ou
     for s in (signal.SIGINT, *STOP_SIGNALS):
         signal.signal(s, signal.SIG_IGN)
     progress.finish()
-    _close(live, reader)
+    _close(live, reader, "abort", why)
     recorder = live.recorder
     frames = recorder.n_daq_samples if recorder is not None else 0
     where = f"kept {frames} frames in {out}" if recorder is not None and recorder.kept else \

@@ -274,12 +274,13 @@ class LiveSession:
             recorder.mark_gap(time.monotonic(), "board not connected when the recording started")
         recorder.update_stats(self.stats)
 
-    def stop_recording(self) -> Recorder | None:
-        """Flush and close the running recording (joins its writer thread); returns it."""
+    def stop_recording(self, exit_status: str = "success", reason: str = "") -> Recorder | None:
+        """Flush and close the running recording (joins its writer thread); returns it. ``exit_status`` and
+        ``reason``: how the run ended, for its ``run_stop`` (``abort`` when stopped early)."""
         recorder = self.recorder
         if recorder is not None:
             recorder.update_stats(self.stats)
-            recorder.stop()
+            recorder.stop(exit_status, reason)
         return recorder
 
     def add_robot_states(self, states: Sequence[Any]) -> None:

@@ -21,13 +21,14 @@ import dataclasses
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
+from app.core.run_documents import finish_run, live_run_start
 
 FLUSH_INTERVAL_S = 0.5
 _STOP = object()
@@ -41,8 +42,12 @@ class Recorder:
     def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
                  calibration_json: str | None = None, with_robot: bool = False, n_joints: int = 12,
                  min_free_bytes: int = DEFAULT_MIN_FREE_BYTES, t0_monotonic_s: float | None = None,
-                 on_failed: Callable[[str], None] | None = None) -> None:
+                 on_failed: Callable[[str], None] | None = None, run_start: Mapping[str, Any] | None = None) -> None:
+        """``run_start``: the run's RunStart document (:mod:`app.core.run_documents`; a plan that knows its
+        condition passes it), by default a ``record`` run with what a recording knows of its condition."""
         self.path = Path(path)
+        self.run_start = dict(run_start) if run_start is not None else live_run_start(config_text, calibration_json)
+        self._stop_status = ("success", "")
         self.channel_names = tuple(channel_names)
         self.with_robot = with_robot
         self.with_forces = calibration_json is not None
@@ -50,7 +55,7 @@ class Recorder:
         self._writer_args = dict(config_text=config_text, channel_names=self.channel_names,
                                  calibration_json=calibration_json, with_robot=with_robot, n_joints=n_joints,
                                  flush_interval_s=FLUSH_INTERVAL_S, t0_monotonic_s=self.t0_monotonic_s,
-                                 min_free_bytes=min_free_bytes)
+                                 min_free_bytes=min_free_bytes, run_start=self.run_start)
         self._on_failed = on_failed
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._thread: threading.Thread | None = None
@@ -95,11 +100,13 @@ class Recorder:
         self._thread = threading.Thread(target=self._run, name=f"recording:{self.path.name}", daemon=True)
         self._thread.start()
 
-    def stop(self) -> None:
-        """Write what is queued, close the file and join the writer thread. Safe to call twice."""
+    def stop(self, exit_status: str = "success", reason: str = "") -> None:
+        """Write what is queued, close the file and join the writer thread. Safe to call twice. ``exit_status``
+        (``success``, ``abort``: stopped early, e.g. Ctrl-C) and ``reason`` go into the file's ``run_stop``."""
         thread = self._thread
         if thread is None:
             return
+        self._stop_status = (exit_status, reason)
         self._active = False
         if self.stop_time_s is None:
             self.stop_time_s = time.monotonic()
@@ -177,6 +184,8 @@ class Recorder:
                 writer.close()
             self.kept = writer.kept
             self._writer = None
+            if self.kept:  # closed: the run's stop document, then the catalog (off the data path, files stay truth)
+                finish_run(self.path, self.run_start, *(("fail", self.error) if self.error else self._stop_status))
 
     def _write_loop(self, writer: RecordingWriter) -> None:
         last_flush = time.monotonic()

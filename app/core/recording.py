@@ -33,7 +33,7 @@ import os
 import shutil
 import time
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from functools import cached_property
@@ -46,6 +46,7 @@ import numpy as np
 from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
 from app.core.errors import OutputPathError, RecordingError, RecordingFormatError
 from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
+from app.core.run_documents import RUN_START, document_text
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -153,7 +154,7 @@ class RecordingWriter:
     def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
                  calibration_json: str | None = None, with_robot: bool = False, n_joints: int = 12,
                  flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, t0_monotonic_s: float | None = None,
-                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> None:
+                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES, run_start: Mapping[str, Any] | None = None) -> None:
         self.path = Path(path)
         self.min_free_bytes = int(min_free_bytes)
         self.channel_names = tuple(channel_names)
@@ -197,6 +198,8 @@ class RecordingWriter:
                 f.attrs["started"] = self.started.isoformat(timespec="milliseconds")
                 f.attrs["config"] = config_text
                 f.attrs["duration_s"] = 0.0
+                if run_start is not None:  # the run's RunStart document (app.core.run_documents)
+                    f.attrs[RUN_START] = document_text(run_start)
                 daq = f.create_group("daq")
                 daq.attrs["channels"] = np.array(self.channel_names, dtype=h5py.string_dtype())
                 for key in STAT_KEYS:

@@ -24,6 +24,7 @@ from PySide6.QtCore import QObject, Signal
 
 from app.core.recorder import Recorder
 from app.core.recording import DEFAULT_MIN_FREE_BYTES
+from app.core.run_documents import live_run_start
 from app.gui.thread_bridge import ThreadBridge
 
 
@@ -43,7 +44,8 @@ class RecordingSession(QObject):
         self.recorder = Recorder(path, config_text, channel_names, calibration_json=calibration_json,
                                  with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
                                  t0_monotonic_s=t0_monotonic_s,
-                                 on_failed=lambda message: self._bridge.post(self._fail, message))
+                                 on_failed=lambda message: self._bridge.post(self._fail, message),
+                                 run_start=live_run_start(config_text, calibration_json, plan_name="forces tab"))
         self.path = self.recorder.path
         self.channel_names = self.recorder.channel_names
         self.with_robot = with_robot
