@@ -34,7 +34,7 @@ import numpy as np
 from app.cli._robot import BUS_TIMEOUT_S, reworded, robot_config, start_controller
 from app.core.play import build_source
 from app.core.shapes import read_shape
-from devices.errors import ServoHardwareError
+from devices.errors import DeviceError, ServoHardwareError
 from models.trajectory import PlannedMotion
 
 PROGRESS_INTERVAL_S = 2.0
@@ -152,7 +152,10 @@ def missed_ticks_cause(controller: Any, missed: int, slots: int, periods_s: np.n
         return BusTiming(chain.measure_cycle_s(CYCLES_MEASURED), chain.latency_timer_ms(), chain.latency_warning(),
                          chain.return_delays_s)
 
-    timing = controller.submit(measure).result(timeout=BUS_TIMEOUT_S)
+    try:
+        timing = controller.submit(measure).result(timeout=BUS_TIMEOUT_S)
+    except (DeviceError, TimeoutError):  # the bus is gone or busy: say what the ticks alone tell
+        timing = BusTiming(math.nan, None, None, {})
     longest_s = float(periods_s.max()) if periods_s.size else math.nan
     return describe_missed_ticks(missed, slots, rate_hz, timing, longest_s, controller.scheduling)
 
@@ -176,17 +179,20 @@ def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTi
         fastest_hz = math.floor(BUS_SHARE_LIMIT / timing.cycle_s)
         causes.append(f"the bus cycle fills {timing.cycle_s / period_s:.0%} of a tick — fix: --rate {fastest_hz} "
                       "or lower, or a faster baud rate")
-    if math.isfinite(longest_period_s) and longest_period_s > max(2 * period_s, 3 * timing.cycle_s):
+    cycle_s = timing.cycle_s if math.isfinite(timing.cycle_s) else 0.0
+    if math.isfinite(longest_period_s) and longest_period_s > max(2 * period_s, 3 * cycle_s):
         priority = "" if scheduling.startswith("real-time") else ", give the loop real-time priority (docs/REALTIME.md)"
         causes.append(f"the longest tick took {longest_period_s * 1e3:.0f} ms, "
-                      f"{longest_period_s / max(timing.cycle_s, 1e-6):.0f}× a bus cycle: replies came late or this "
+                      f"{longest_period_s / max(cycle_s, period_s):.0f}× a tick's period: replies came late or this "
                       f"machine held the loop back (bus thread: {scheduling}) — fix: close other busy programs"
                       f"{priority}, or lower --rate")
     if not causes:
         causes.append(f"no single cause stands out (bus thread: {scheduling}) — fix: lower --rate")
+    cycle = f"a bus cycle measured {timing.cycle_s * 1e3:.1f} ms" if math.isfinite(timing.cycle_s) else \
+        "the bus cycle could not be measured"
     return (f"{missed} of {slots} control ticks missed ({missed / slots:.1%}, more than "
-            f"{MISSED_TICKS_LIMIT:.0%}) at {rate_hz:g} Hz ({period_s * 1e3:.1f} ms a tick; a bus cycle measured "
-            f"{timing.cycle_s * 1e3:.1f} ms): " + "; ".join(causes))
+            f"{MISSED_TICKS_LIMIT:.0%}) at {rate_hz:g} Hz ({period_s * 1e3:.1f} ms a tick; {cycle}): "
+            + "; ".join(causes))
 
 
 def _ids(ids: list[int]) -> str:

@@ -244,14 +244,17 @@ def write_document(path: str | os.PathLike[str], document: dict[str, Any]) -> Pa
     path = Path(path)
     text = json.dumps(document, indent=1, sort_keys=False) + "\n"
     check_new_file(path)
-    temporary = _temporary_beside(path)
+    try:
+        temporary = _temporary_beside(path)
+    except OSError as exc:  # the user's path in the message, never the hidden temporary's
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     try:
         with os.fdopen(temporary.fd, "w", encoding="utf-8") as file:
             file.write(text)
         try:
             os.link(temporary.path, path)  # atomic, and fails if a file appeared at ``path`` meanwhile
         except FileExistsError:
-            raise SettingsError(_exists_message(path)) from None
+            raise FileExistsError(errno.EEXIST, _exists_message(path)) from None
         except OSError as exc:
             if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
                 raise
@@ -306,17 +309,22 @@ def _special_kind(mode: int) -> str | None:
 
 
 def check_new_file(path: str | os.PathLike[str]) -> None:
-    """SettingsError when something is at ``path`` (a file, a symbolic link, a device, …): a settings file is only
-    ever written as a new file (:func:`write_document`)."""
+    """OSError (the message naming ``path``) when something is at ``path`` (a file, a symbolic link, a device, …:
+    FileExistsError) or its folder is missing (FileNotFoundError): a settings file is only ever written as a new file
+    (:func:`write_document`). OSErrors, so a caller handling a failed write handles these too."""
     path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise FileNotFoundError(errno.ENOENT, f"cannot write {path}: the folder {folder} {what}")
     try:
         info = os.lstat(path)
     except FileNotFoundError:
         return
     kind = None if stat.S_ISLNK(info.st_mode) else _special_kind(info.st_mode)
     if kind is not None:
-        raise SettingsError(f"{path} is {kind}, not a file to write: nothing written")
-    raise SettingsError(_exists_message(path))
+        raise FileExistsError(errno.EEXIST, f"{path} is {kind}, not a file to write: nothing written")
+    raise FileExistsError(errno.EEXIST, _exists_message(path))
 
 
 def _exists_message(path: Path) -> str:
