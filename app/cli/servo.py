@@ -28,7 +28,6 @@ if TYPE_CHECKING:
     from devices.servo_chain import ServoChain
 
 ONE_SERVO = ("get", "set", "reset")
-SWITCHES = ("reboot", "torque", "led")  # --id N … or --all
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     action = args.servo_command
     for sid in args.ids or ():
         if not 0 <= sid <= ct.MAX_ID:
-            why = " (the broadcast ID: every servo hears it, none answers as it)" if sid == ct.BROADCAST_ID else ""
+            why = " (the broadcast ID: every servo hears it, none answers to it as its own)" if sid == ct.BROADCAST_ID else ""
             raise ValueError(f"--id {sid} is not a servo ID: IDs are 0 … {ct.MAX_ID}{why}")
     if action == "zero":
         if not args.config:
@@ -64,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                          "its ID and baud rate are kept): save them first with 'sensnake servo dump', then add --yes")
     with ServoChain(robot, device="robot") as chain:
         if action == "restore":
-            return _restore(chain, document, list(args.ids) if args.ids else None, args.settings)
+            return _restore(chain, document, ids if args.ids else None, args.settings)
         return _act(args, chain, ids)
 
 
