@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from devices.errors import ConfigError
+from devices.toml_files import parse_toml_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -193,10 +194,8 @@ def load_config(path: str | Path | None = None) -> LabConfig:
 
 
 def parse_config(text: str, source: str = "<config>") -> LabConfig:
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    # Invalid TOML, nesting deeper than the parser goes or an integer no float holds: one line naming the file.
+    data = parse_toml_text(text, source, "lab configuration", ConfigError)
     unknown = set(data) - {"robot", "board", "rig", "lab", "servos"}
     if unknown:
         raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab, "

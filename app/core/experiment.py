@@ -468,19 +468,20 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
-    """A gains file: TOML with the keys of :class:`FeedbackGains` at the top level (or in a ``[feedback]`` table);
-    unknown keys and values outside the safe ranges refused, naming the file and the key."""
-    import tomllib
+    """A gains file: TOML with the keys of :class:`FeedbackGains` at the top level or in a ``[feedback]`` table (not
+    both); unknown keys and values outside the safe ranges refused, naming the file and the key. Only a regular file
+    of at most 1 MB is read (:func:`devices.toml_files.read_toml_file`)."""
+    from devices.toml_files import read_toml_file
+    from models.errors import GainsError
 
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"{path}: gains file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a TOML gains file ({exc})") from None
+    _text, data = read_toml_file(path, "gains file", GainsError)
     table = data.get("feedback", data)
     if not isinstance(table, dict):
-        raise ValueError(f"{path}: [feedback] must be a table")
+        raise GainsError(f"{path}: [feedback] must be a table")
+    if "feedback" in data and len(data) > 1:
+        top = ", ".join(sorted(key for key in data if key != "feedback"))
+        raise GainsError(f"{path}: gains both at the top level ({top}) and in [feedback]; one of them would be "
+                         "ignored: put them all in one place")
     return FeedbackGains.from_mapping(table, str(path))
 
 

@@ -48,9 +48,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomllib
 
 from app.core.errors import SweepError
+from devices.toml_files import read_toml_file
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
 
@@ -88,12 +88,8 @@ class SweepPlan:
 
 def read_sweep(path: str | Path) -> SweepPlan:
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SweepError(f"{path}: sweep file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SweepError(f"{path}: not a TOML sweep file ({exc})") from None
+    # Only a regular file of at most 1 MB, numbers a float can hold (devices.toml_files): one line naming the file.
+    _text, data = read_toml_file(path, "sweep file", SweepError)
     for key in data:
         if key not in SWEEP_KEYS:
             raise SweepError(f"{path}: unknown key '{key}' (known: {', '.join(sorted(SWEEP_KEYS))})")
