@@ -184,11 +184,15 @@ def _zero(args: argparse.Namespace, robot: RobotConfig) -> int:
     ``zero_offsets_rad`` into ``--config`` (the old file kept as ``<name>.bak-N``), then checks the file loads."""
     from app.core import servo_settings as ss
     from devices.config import load_config
+    from devices.errors import ServoHardwareError
     from devices.servo_chain import ServoChain
 
     with ServoChain(robot, device="robot") as chain:
         chain.check_models()
-        present = [float(a) for a in chain.read_state().position_rad]
+        try:
+            present = [float(a) for a in chain.read_state().position_rad]
+        except ServoHardwareError as exc:  # nothing moves here: never "motion stopped"
+            raise reworded(exc, "found while reading the pose, nothing written") from None
     offsets = ss.zero_offsets(robot.zero_offsets_rad, present)
     print("joint  ID  present (rad)  → after   offset (rad) old → new")
     for k, (sid, now, old, new) in enumerate(zip(robot.joint_ids, present, robot.zero_offsets_rad, offsets)):

@@ -124,6 +124,11 @@ def test_zero_makes_the_present_pose_read_zero_and_keeps_the_old_config(emulator
     assert (tmp_path / "lab.toml.bak-2").exists() and backup.exists()  # a second backup, never over the first
     assert main(["servo", "zero", "--robot", emulator.path]) == 1
     assert "needs --config" in capsys.readouterr().err
+    emulator.command("overload 4")  # found while nothing moves: never "motion stopped"
+    assert main(["servo", "zero", "--robot", emulator.path, "--config", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert "servo 4 overload: found while reading the pose" in err and "motion" not in err
+    assert not (tmp_path / "lab.toml.bak-3").exists()
 
 
 def test_an_id_change_refuses_an_id_already_on_the_bus_and_moves_the_servo_otherwise(emulator, capsys):
