@@ -18,3 +18,13 @@ class TrajectoryError(ValueError):
 # raised by models.force_feedback
 class GainsError(ValueError):
     """Gains out of their safe ranges; the message names the gain."""
+
+
+# raised by models.mocap
+class MocapLayoutError(ValueError):
+    """A marker layout that cannot give a segment's pose (fewer than 3 markers, three on one line); names why."""
+
+
+class OffsetRefusedError(ValueError):
+    """The motion cannot fix where a motion-capture take sits on a recording's clock (no motion, too little
+    overlap, an ambiguous or poor match); the message says which, with the numbers."""
