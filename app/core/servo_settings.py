@@ -260,6 +260,10 @@ def write_document(path: str | os.PathLike[str], document: dict[str, Any]) -> Pa
                 raise
             check_new_file(path)  # a file system without hard links (FAT, some shares): the check, then a move
             os.replace(temporary.path, path)
+    except FileExistsError:
+        raise
+    except OSError as exc:  # a full disk, a quota: the user's path in the message
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(temporary.path)
