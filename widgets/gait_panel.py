@@ -242,16 +242,22 @@ class GaitPanel(QWidget):
             spin.valueChanged.connect(lambda _v: self.gains_changed.emit(self.gains()))
             self.gain_spins[key] = spin
             controller_form.addRow(label, spin)
-        self.feedback_label = QLabel("")
-        self.feedback_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
-        self.feedback_label.setWordWrap(True)
-        self.feedback_label.setToolTip("Per node (the pitch joint between two segments): the force it should push "
-                                       "with, the force measured on its two bottom sheets, and the correction "
-                                       "applied to that joint; 'ff' where it is on feedforward, and why")
-        controller_form.addRow(self.feedback_label)
         self.controller_combo.currentIndexChanged.connect(lambda _i: self._controller_changed())
         column.addWidget(self.controller_box)
+        column.addStretch(1)
+        # A safety net for windows smaller than 1280×800 (down to the 960×600 minimum): at 1280×800 every mode's
+        # settings fit without scrolling.
+        scroll = QScrollArea()
+        scroll.setWidget(controls)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setMaximumWidth(controls.maximumWidth() + scroll.verticalScrollBar().sizeHint().width() + 2)
+        self.settings_scroll = scroll
 
+        # -- the motion: transport, progress and what happened, above the drawing ----------------------------------
+        # Nothing the settings column shows or hides (a mode's form, the feedback gains) moves Play or the progress
+        # line: they head the drawing's column, and what grows (the status line, the readouts) grows below them.
         transport = QHBoxLayout()
         self.play_button = QPushButton("▶ Play")
         self.play_button.setStyleSheet("font-weight: bold;")
@@ -264,26 +270,24 @@ class GaitPanel(QWidget):
                                     "any tab")
         for b in (self.play_button, self.pause_button, self.resume_button, self.stop_button):
             transport.addWidget(b)
-        column.addLayout(transport)
         self.progress_bar = QProgressBar()
         self.progress_bar.setRange(0, 1000)
         self.progress_bar.setTextVisible(False)
-        column.addWidget(self.progress_bar)
+        transport.addWidget(self.progress_bar, 1)
         self.progress_label = QLabel("idle")
         self.progress_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
         # The column's width decides, not the text (a long motion's line would widen the column to the window's
         # edge); set_progress shortens the line to what fits and the tooltip holds all of it.
         self.progress_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
-        column.addWidget(self.progress_label)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
         self.status_label.setVisible(False)  # no blank line while there is nothing to say
-        column.addWidget(self.status_label)
+
+        self.body_view = BodyView(axes, segment_length_m)
         legend = QLabel(f"drawing: <span style='color:{theme.PRESENT_COLOR}'>━ present</span> &nbsp; "
                         f"<span style='color:{theme.GOAL_COLOR}'>╌ goal</span>")
         legend.setToolTip("Solid: where the robot is. Dashed: where it is told to go (the chosen shape before "
                           "Play). Esc is STOP from any tab.")
-        column.addWidget(legend)
         self.joint_table = QTableWidget(len(axes), 3)
         self.joint_table.setHorizontalHeaderLabels(["goal (rad)", "present (rad)", "current (mA)"])
         self.joint_table.setVerticalHeaderLabels([f"J{i + 1}" for i in range(len(axes))])
@@ -299,21 +303,35 @@ class GaitPanel(QWidget):
                 self.joint_table.setItem(r, c, item)
         header_px = self.joint_table.horizontalHeader().sizeHint().height()
         self.joint_table.setFixedHeight(header_px + JOINT_ROW_PX * len(axes) + 4)
-        column.addWidget(self.joint_table)
-        column.addStretch(1)
-        # The sidewinding form is the tallest: at 1280×800 the column would clip the joint table, so it scrolls.
-        scroll = QScrollArea()
-        scroll.setWidget(controls)
-        scroll.setWidgetResizable(True)
-        scroll.setFrameShape(QFrame.Shape.NoFrame)
-        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-        scroll.setMaximumWidth(controls.maximumWidth() + scroll.verticalScrollBar().sizeHint().width() + 2)
+        self.joint_table.setMaximumWidth(420)
+        self.feedback_box = QGroupBox("Feedback per node")
+        feedback_layout = QVBoxLayout(self.feedback_box)
+        self.feedback_label = QLabel("")
+        self.feedback_label.setStyleSheet(f"font-family: {theme.MONOSPACE_FAMILY};")
+        self.feedback_label.setWordWrap(True)
+        self.feedback_label.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
+        self.feedback_label.setToolTip("Per node (the pitch joint between two segments): the force it should push "
+                                       "with, the force measured on its two bottom sheets, and the correction "
+                                       "applied to that joint; 'ff' where it is on feedforward, and why")
+        feedback_layout.addWidget(self.feedback_label, 1)
+        self.feedback_box.setFixedHeight(self.joint_table.height())
+        readouts = QHBoxLayout()
+        readouts.addWidget(self.joint_table, 1)
+        readouts.addWidget(self.feedback_box, 1)
 
-        self.body_view = BodyView(axes, segment_length_m)
+        motion = QVBoxLayout()
+        motion.setContentsMargins(0, 0, 0, 0)
+        motion.addLayout(transport)
+        motion.addWidget(self.progress_label)
+        motion.addWidget(self.status_label)
+        motion.addWidget(self.body_view, 1)
+        motion.addWidget(legend)
+        motion.addLayout(readouts)
+
         layout = QHBoxLayout(self)
         layout.setContentsMargins(6, 6, 6, 6)
         layout.addWidget(scroll)
-        layout.addWidget(self.body_view, 1)
+        layout.addLayout(motion, 1)
 
         self.mode_combo.currentIndexChanged.connect(self._mode_changed)
         self.play_button.clicked.connect(lambda: self.play_requested.emit(self.request()))
@@ -462,7 +480,7 @@ class GaitPanel(QWidget):
         feedback = self.controller == "feedback"
         for spin in self.gain_spins.values():
             spin.setEnabled(feedback)
-        self.feedback_label.setVisible(feedback)
+        self.feedback_box.setVisible(feedback)
 
     def _play_blocker(self) -> str:
         """Why Play cannot work now ('' if it can)."""

@@ -42,6 +42,11 @@ UNDO_SHORTCUTS = ("Ctrl+Z",)
 REDO_SHORTCUTS = ("Ctrl+Shift+Z", "Ctrl+Y")
 
 
+def joints_text(ids: Sequence[int]) -> str:
+    """``joint 3`` or ``joints 3, 5``: servo IDs as a person reads them."""
+    return f"joint {ids[0]}" if len(ids) == 1 else "joints " + ", ".join(str(i) for i in ids)
+
+
 class TeachPanel(QWidget):
     # posing
     torque_off_requested = Signal(object)  # list of servo IDs, or None for all
@@ -286,8 +291,7 @@ class TeachPanel(QWidget):
         elif n_limp == len(limp):
             self.torque_label.setText("torque: OFF for every joint — pose the robot by hand")
         else:
-            ids = ", ".join(str(sid) for sid, x in zip(self._ids, limp) if x)
-            self.torque_label.setText(f"torque: OFF for joints {ids}")
+            self.torque_label.setText(f"torque: OFF for {joints_text([sid for sid, x in zip(self._ids, limp) if x])}")
 
     def set_keyframes(self, rows: Sequence[tuple[str, float]], current: int = -1) -> None:
         """Show the keyframe list ``[(name, t_s), …]`` and select row ``current``."""

@@ -2,8 +2,8 @@
 
 Tabs are built from ``app/gui/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
-do. STOP (the red button, or Esc anywhere in the app) calls ``lab.emergency_stop()``: the robot halts and the
-calibration rig releases its load.
+do. STOP (the red button, or Esc anywhere in the window; in a dialog Esc only closes the dialog) calls
+``lab.emergency_stop()``: the robot halts and the calibration rig releases its load.
 GUI thread only.
 """
 
@@ -15,10 +15,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt, QTimer
-from PySide6.QtGui import QAction, QCloseEvent, QKeyEvent, QKeySequence, QShortcut
+from PySide6.QtCore import QByteArray, QSettings, Qt, QTimer
+from PySide6.QtGui import QAction, QCloseEvent, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
-    QApplication,
     QFileDialog,
     QMainWindow,
     QMessageBox,
@@ -69,7 +68,8 @@ TABS: tuple[TabSpec, ...] = (
 
 SHORTCUTS_TEXT = (
     "<table cellspacing=6>"
-    "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on)</td></tr>"
+    "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on); in a dialog, Esc "
+    "closes the dialog only</td></tr>"
     "<tr><td><b>Ctrl+Enter</b></td><td>Teach: capture the present pose as a keyframe</td></tr>"
     "<tr><td><b>Ctrl+Z / Ctrl+Shift+Z</b></td><td>Teach: undo / redo a keyframe edit (Ctrl+Y also redoes)</td></tr>"
     "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
@@ -133,20 +133,13 @@ class MainWindow(QMainWindow):
         self.status = LabStatusBar()
         self.setStatusBar(self.status)
         self.status.stop_requested.connect(self.emergency_stop)
-        # Esc must reach STOP whatever has focus (a table, a dialog-less tab, a plot), hence application-wide.
+        # Esc reaches STOP whatever has focus in this window (a table, a tab, a plot). In a dialog (a file chooser, a
+        # question, a preview) Esc is the dialog's own key: it closes that dialog and nothing else — a person
+        # dismissing a question must not be told the robot was stopped. Hence the window's shortcut, not the
+        # application's: a dialog is a window of its own.
         self.stop_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
-        self.stop_shortcut.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self.stop_shortcut.setContext(Qt.ShortcutContext.WindowShortcut)
         self.stop_shortcut.activated.connect(self.emergency_stop)
-        # Qt blocks application shortcuts while a modal dialog (file chooser, message box) is up; the dialog would
-        # swallow Esc. An application-wide filter sees those Esc presses too (and lets the dialog close as usual).
-        # It is installed only while a modal dialog is up: every event of the application passes through it
-        # (~1200/s with the Forces tab live), ~1 % of a core spent in Python for nothing the rest of the time.
-        self._app = QApplication.instance()
-        self._filtering_for_modal = False
-        self._watching_modal = isinstance(self._app, QApplication)
-        if isinstance(self._app, QApplication):
-            self._app.focusWindowChanged.connect(self._watch_modal)
-            self._watch_modal()
 
         self._build_menus()
         self._attach_lab()
@@ -358,26 +351,6 @@ class MainWindow(QMainWindow):
         self.status.show_message(text, theme.IDLE)
 
     # -- STOP ------------------------------------------------------------------------------------------------------
-    def _watch_modal(self, *_window: object) -> None:
-        """Filter the application's events while a modal dialog is up (Esc there still stops), not otherwise."""
-        app = self._app
-        if not isinstance(app, QApplication):
-            return
-        wanted = QApplication.activeModalWidget() is not None
-        if wanted != self._filtering_for_modal:
-            if wanted:
-                app.installEventFilter(self)
-            else:
-                app.removeEventFilter(self)
-            self._filtering_for_modal = wanted
-
-    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
-        if (event.type() == QEvent.Type.KeyPress and isinstance(event, QKeyEvent)
-                and event.key() == Qt.Key.Key_Escape and not event.isAutoRepeat()
-                and QApplication.activeModalWidget() is not None):
-            self.emergency_stop()
-        return False  # never consume: the dialog still gets its Esc
-
     def emergency_stop(self) -> None:
         """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present; the rig
         releases its load (``LabContext.emergency_stop``)."""
@@ -402,11 +375,6 @@ class MainWindow(QMainWindow):
         self.settings.sync()
 
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
-        if isinstance(self._app, QApplication) and self._watching_modal:
-            self._watching_modal = False
-            self._app.focusWindowChanged.disconnect(self._watch_modal)
-            self._app.removeEventFilter(self)
-            self._filtering_for_modal = False
         self.save_settings()
         self._shutdown_tabs()
         self.status.shutdown()

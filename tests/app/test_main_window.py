@@ -93,12 +93,12 @@ def test_stop_button_and_escape_reach_emergency_stop(window, qtbot):
     qtbot.mouseClick(window.status.stop_button, Qt.MouseButton.LeftButton)
     assert events and events[-1].startswith("STOP")
     events.clear()
-    # Esc is an application-wide shortcut: it works whatever widget has focus.
+    # Esc is the window's shortcut: it works whatever widget of the window has focus.
     focus = window.tabs.currentWidget()
     focus.setFocus()
     qtbot.keyClick(focus, Qt.Key.Key_Escape)
     assert events and events[-1].startswith("STOP")
-    assert window.stop_shortcut.context() == Qt.ShortcutContext.ApplicationShortcut
+    assert window.stop_shortcut.context() == Qt.ShortcutContext.WindowShortcut
     assert window.stop_shortcut.key().toString() == "Esc"
     assert "not connected" in window.status.message
 
@@ -179,18 +179,36 @@ def test_open_config_restarts_the_lab_on_it(window, qtbot, tmp_path):
     assert "/dev/sensnake-test-robot" in window.status.message
 
 
-def test_escape_stops_even_while_a_modal_dialog_is_open(window, qtbot):
+@pytest.mark.parametrize("modal", [True, False])
+def test_escape_in_a_dialog_only_closes_the_dialog(window, qtbot, modal):
+    """Esc in a dialog (modal or not) closes it and says nothing of a STOP; back in the window Esc stops again, and
+    the STOP button always does."""
     from PySide6.QtWidgets import QMessageBox
 
     window.show()
     events: list[str] = []
     window.lab.robot.event.connect(events.append)
-    box = QMessageBox(QMessageBox.Icon.Information, "About", "text", QMessageBox.StandardButton.Ok, window)
-    box.open()  # window-modal, without a nested event loop
+    box = QMessageBox(QMessageBox.Icon.Question, "Reboot servo", "Reboot?", QMessageBox.StandardButton.Yes
+                      | QMessageBox.StandardButton.No, window)
+    if modal:
+        box.open()  # window-modal, without a nested event loop
+    else:
+        box.setModal(False)
+        box.show()
+    box.activateWindow()
     qtbot.waitUntil(box.isActiveWindow)
     qtbot.keyClick(box, Qt.Key.Key_Escape)
+    qtbot.waitUntil(lambda: not box.isVisible())
+    assert not any(e.startswith("STOP") for e in events), events
+    assert "STOP" not in window.status.message
+
+    window.activateWindow()
+    qtbot.waitUntil(window.isActiveWindow)
+    qtbot.keyClick(window.focusWidget() or window, Qt.Key.Key_Escape)
     assert events and events[-1].startswith("STOP")
-    qtbot.waitUntil(lambda: not box.isVisible())  # and the dialog still closed on Esc
+    events.clear()
+    qtbot.mouseClick(window.status.stop_button, Qt.MouseButton.LeftButton)
+    assert events and events[-1].startswith("STOP")
 
 
 def test_gui_with_a_missing_config_fails_in_one_line(tmp_path, capsys):

@@ -107,3 +107,35 @@ def test_gait_idle_shows_no_goal_and_every_joint_row_whole(window, qtbot):
     assert table.verticalHeaderItem(11) is None or table.verticalHeaderItem(11).text() == "J12"
     assert viewport.contains(last), f"J12's row {last} is cut by the table's viewport {viewport}"
     assert panel.progress_label.text() == "idle"
+
+
+def test_gait_controls_fit_1280x800_and_feedback_moves_neither_play_nor_the_progress_line(window, qtbot):
+    window.resize(1280, 800)
+    panel = window.show_tab("gait").panel
+    panel.set_mode("follow")
+    qtbot.waitUntil(lambda: window.size().width() == 1280 and panel.play_button.isVisible())
+
+    def places() -> tuple:
+        for widget in (panel.play_button, panel.progress_label):
+            assert widget.isVisible() and not widget.visibleRegion().isEmpty()
+            box = widget.rect().translated(widget.mapTo(window, widget.rect().topLeft()))
+            assert window.rect().contains(box), f"{widget.objectName() or widget.text()} at {box} is off the window"
+        return (panel.play_button.mapTo(window, panel.play_button.rect().topLeft()),
+                panel.progress_label.mapTo(window, panel.progress_label.rect().topLeft()))
+
+    before = places()
+    assert panel.settings_scroll.verticalScrollBar().maximum() == 0  # no scrolling at 1280×800
+    panel.controller_combo.setCurrentIndex(panel.controller_combo.findData("feedback"))
+    # what a feedback play shows: every node's line, some on feedforward with the reason, and a long status
+    panel.set_feedback_readout([(f"J{j}", 8.0, 3.0, 0.01, "S05B: uncalibrated") for j in (3, 5, 7, 9, 11)],
+                               lead=(1.0, 0.1))
+    panel.set_status("follow bump (feedback) stopped: servo 5 overload: reboot it from the Hardware tab; it comes "
+                     "back with torque off, so support the robot first", "error")
+    qtbot.waitUntil(lambda: panel.feedback_box.isVisible())
+    assert places() == before
+    assert panel.settings_scroll.verticalScrollBar().maximum() == 0
+    scroll = panel.settings_scroll
+    for mode in ("follow", "keyframes", "serpenoid", "sidewinding"):
+        panel.set_mode(mode)
+        needed = scroll.widget().minimumSizeHint().height()
+        assert needed <= scroll.viewport().height(), f"{mode}: {needed} px of settings in {scroll.viewport().height()}"

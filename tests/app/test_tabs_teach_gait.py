@@ -230,3 +230,44 @@ def test_a_refused_gait_clears_the_previous_runs_progress(qtbot, lab, library, s
     assert "exceeds" in panel.status_label.text()
     tab.refresh()
     assert panel.progress_bar.value() == 0 and panel.progress_label.text() == "idle"
+
+
+def test_gait_progress_says_stopped_after_stop_not_the_time_left(qtbot, lab, library):
+    tab, panel = _bump_tab(qtbot, lab, library)
+    panel.set_mode("follow")  # at the lab's 0.034 rad/s: tens of seconds, stopped long before its end
+    panel.play_button.click()
+    qtbot.waitUntil(lambda: tab.source is not None and tab.source.progress.elapsed_s > 0
+                    and "s left" in panel.progress_label.text(), timeout=WAIT_MS)
+    lab.emergency_stop()  # what STOP and Esc call
+    qtbot.waitUntil(lambda: panel.progress_label.text().endswith("stopped"), timeout=WAIT_MS)
+    assert "s left" not in panel.progress_label.text() and "s left" not in panel.progress_label.toolTip()
+    assert "stopped" in panel.status_label.text()
+
+
+def test_a_fault_after_the_gait_started_says_stopped_not_cannot_start(qtbot, lab, library, sim_lab_fast):
+    tab, panel = _bump_tab(qtbot, lab, library)
+    panel.set_mode("follow")
+    panel.play_button.click()
+    qtbot.waitUntil(lambda: tab.source is not None and tab.source.progress.elapsed_s > 0, timeout=WAIT_MS)
+    sim_lab_fast.chain.inject_overload(5)
+    qtbot.waitUntil(lambda: "stopped:" in panel.status_label.text() and panel.play_button.isEnabled(),
+                    timeout=WAIT_MS)
+    text = panel.status_label.text()
+    assert "cannot start" not in text and "servo 5" in text and "overload" in text, text
+    assert panel.progress_label.text().endswith("stopped by a fault")
+
+
+def test_teach_undo_says_what_was_undone(qtbot, library):
+    tab = TeachTab(LabContext(LabConfig()), library)  # keyframe edits need no robot
+    qtbot.addWidget(tab)
+    panel = tab.panel
+    pose = tuple(0.1 * (i % 3) for i in range(len(AXES)))
+    tab.apply_frames([Keyframe(0.0, pose, "a"), Keyframe(2.0, pose, "b")], 0)
+    panel.shift_spin.setValue(1)
+    panel.shift_button.click()
+    assert panel.status_label.text().startswith("shift +1: applied")
+    panel.undo_button.click()
+    assert panel.status_label.text() == "undone: shift +1"
+    panel.redo_button.click()
+    assert panel.status_label.text() == "redone: shift +1"
+    tab.lab.close()

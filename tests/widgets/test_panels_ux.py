@@ -195,6 +195,10 @@ def test_gait_progress_line_fits_its_column_and_keeps_the_time_left(qtbot):
     assert label.text() == short  # fits: shown as is
     long = "shift 11/12   move 100%   12345.6 / 23456.7 s   11111.1 s left"
     panel.set_progress(long, 0.5)
+    assert label.text() == long  # the line heads the drawing's column, wide at 1280×800
+    panel.resize(800, 800)  # a narrow window: the line no longer fits
+    qtbot.waitUntil(lambda: label.contentsRect().width() < label.fontMetrics().horizontalAdvance(long))
+    panel.set_progress(long, 0.5)
     metrics = label.fontMetrics()
     assert metrics.horizontalAdvance(label.text()) <= label.contentsRect().width(), label.text()
     assert label.text() != long, "the column is narrower than this line: it must be shortened, not widen the column"
@@ -225,3 +229,15 @@ def test_the_feedback_readout_shows_the_lead_only_when_it_is_on(qtbot):
     assert "lead front      —" in panel.feedback_label.text()  # not sensed: a dash, never a number
     panel.set_feedback_readout(rows)
     assert "lead" not in panel.feedback_label.text()
+
+
+def test_the_torque_line_names_one_joint_or_several(qtbot):
+    from widgets.teach_panel import TeachPanel
+
+    panel = TeachPanel(ROBOT.joint_ids, ROBOT.axes, ROBOT.joint_min_rad, ROBOT.joint_max_rad)
+    qtbot.addWidget(panel)
+    n = len(ROBOT.joint_ids)
+    panel.set_limp([i == 2 for i in range(n)], posable=True)
+    assert panel.torque_label.text() == f"torque: OFF for joint {ROBOT.joint_ids[2]}"
+    panel.set_limp([i in (2, 4) for i in range(n)], posable=True)
+    assert panel.torque_label.text() == f"torque: OFF for joints {ROBOT.joint_ids[2]}, {ROBOT.joint_ids[4]}"

@@ -34,6 +34,7 @@ from app.gui.lab import LabContext
 from app.gui.robot_bridge import (
     MOTION_FAULT,
     MOTION_FINISHED,
+    MOTION_IDLE,
     MOTION_PAUSED,
     MOTION_RUNNING,
     MOTION_STOPPED,
@@ -199,7 +200,13 @@ class GaitTab(QWidget):
 
         def failed(exc: BaseException) -> None:
             self.panel.set_motion_state(self.robot.motion_state)
-            self.panel.set_status(f"cannot start {name}: {describe_error(exc)}", theme.ERROR)
+            # One Future carries both a refusal before the first goal and a fault (overload, lost link, a silent
+            # servo) after the motion ran: said apart, by whether the motion got anywhere.
+            if motion_started(source):
+                self.panel.set_status(f"{name} stopped: {describe_error(exc)}", theme.ERROR)
+            else:
+                self.panel.set_status(f"cannot start {name}: {describe_error(exc)}", theme.ERROR)
+            self.refresh()
 
         # One bus-thread command: limp joints (after teaching) hold where they are, the plan from the present pose
         # is checked against the joint limits and speed, then the motion starts.
@@ -255,7 +262,10 @@ class GaitTab(QWidget):
         source = self.source
         if source is not None and hasattr(source, "progress"):
             p = source.progress
-            self.panel.set_progress(progress_text(p), p.fraction)
+            ended = ENDED_TEXT.get(self.robot.motion_state, "")
+            if ended and not motion_started(source):
+                ended = "not started"
+            self.panel.set_progress(progress_text(p, ended), p.fraction)
             if isinstance(p, FeedbackProgress) and p.node_joints:
                 why = dict(p.fallback)
                 if p.gains_json != self._lead_on[0]:
@@ -267,11 +277,22 @@ class GaitTab(QWidget):
                     lead=(p.front_load_n, p.lead_rad) if lead_on else None)
 
 
-def progress_text(p: Any) -> str:
+# How the progress line ends once the motion has ended without finishing (by motion state): never a time left.
+ENDED_TEXT: dict[str, str] = {MOTION_STOPPED: "stopped", MOTION_FAULT: "stopped by a fault", MOTION_IDLE: "stopped"}
+
+
+def motion_started(source: Any) -> bool:
+    """Whether ``source`` has been played from at all (its progress moved past the start)."""
+    p = getattr(source, "progress", None)
+    return p is not None and (p.elapsed_s > 0.0 or p.index > 0 or p.fraction > 0.0)
+
+
+def progress_text(p: Any, ended: str = "") -> str:
     """One line for a :class:`models.trajectory.Progress`: where the motion is, and the time left (s).
 
     Shifts count k = 0 … K as SPEC §5 numbers them (shift 0 is the approach to the first pose); keyframes and
-    cycles count from 1, as a person counts them.
+    cycles count from 1, as a person counts them. ``ended``: how a motion that ended before its end did (STOP,
+    Stop, a fault), said instead of the time that was left.
     """
     if p.kind == "shift":
         where = f"shift {p.index}/{max(p.count - 1, 0)}   move {p.move_fraction * 100:3.0f}%"
@@ -283,6 +304,8 @@ def progress_text(p: Any) -> str:
     tail = "done" if p.done else f"{left_s:.1f} s left"
     if getattr(p, "handing_back", False):
         tail = "easing the correction back to the taught pose"
+    if ended and not p.done:
+        tail = ended
     return f"{where}   {p.elapsed_s:.1f} / {p.total_s:.1f} s   {tail}"
 
 

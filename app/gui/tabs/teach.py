@@ -24,7 +24,7 @@ from app.core.teach import SimHand, TeachSession, sim_hand_for
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from widgets import theme
-from widgets.teach_panel import TeachPanel
+from widgets.teach_panel import TeachPanel, joints_text
 
 REFRESH_INTERVAL_MS = 50  # 20 Hz: smooth enough to watch a joint being bent
 DEFAULT_KEYFRAME_SPACING_S = 2.0
@@ -79,8 +79,8 @@ class TeachTab(QWidget):
         p.rename_requested.connect(self.rename_keyframe)
         p.time_edited.connect(self.set_keyframe_time)
         p.angle_edited.connect(self.set_keyframe_angle)
-        p.undo_requested.connect(self.undo_stack.undo)
-        p.redo_requested.connect(self.undo_stack.redo)
+        p.undo_requested.connect(self.undo)
+        p.redo_requested.connect(self.redo)
         p.clear_requested.connect(self.clear_keyframes)
         p.save_requested.connect(self.save_shape)
         p.load_requested.connect(self.load_shape)
@@ -158,7 +158,8 @@ class TeachTab(QWidget):
             self.limp = [sid in chosen or limp for sid, limp in zip(self.config.joint_ids, self.limp)]
             self.panel.set_limp(self.limp, self._posable())
             how = "drag the drawing or the sliders" if self._posable() else "bend the robot by hand"
-            self.panel.set_status(f"torque off for {len(chosen)} joint(s): {how}, then Capture", theme.OK)
+            which = "every joint" if len(chosen) == self.config.n_joints else joints_text(sorted(chosen))
+            self.panel.set_status(f"torque off for {which}: {how}, then Capture", theme.OK)
 
         self.robot.when_done(future, done, self._failed("torque off"))
 
@@ -283,6 +284,21 @@ class TeachTab(QWidget):
         angles[joint_index] = float(angle_rad)
         frames[row] = Keyframe(frames[row].t_s, tuple(angles), frames[row].name)
         self._edit(frames, f"J{self.config.joint_ids[joint_index]} of {frames[row].name}", row)
+
+    def undo(self) -> None:
+        """Undo the last keyframe edit; the status line says what was undone (not what the edit had said)."""
+        text = self.undo_stack.undoText()
+        if not self.undo_stack.canUndo():
+            return
+        self.undo_stack.undo()
+        self.panel.set_status(f"undone: {text}", theme.IDLE)
+
+    def redo(self) -> None:
+        text = self.undo_stack.redoText()
+        if not self.undo_stack.canRedo():
+            return
+        self.undo_stack.redo()
+        self.panel.set_status(f"redone: {text}", theme.IDLE)
 
     def _undo_changed(self, *_args: Any) -> None:
         s = self.undo_stack
