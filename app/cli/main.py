@@ -301,7 +301,53 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="print the benchmark tables")
     bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")
+    _add_report_and_runs(sub)
     return parser
+
+
+def _add_report_and_runs(sub: argparse._SubParsersAction) -> None:
+    """``sensnake report repeatability …`` (app/cli/report.py) and ``sensnake runs list|show|reindex``
+    (app/cli/runs.py); ``experiment trials`` takes the report's alignment options too."""
+    report = sub.add_parser("report", help="reports over recordings: repeatability of trials (the paper's Fig. 7)")
+    report.add_argument("kind", choices=("repeatability",), help="repeatability: trials aligned on an event, the "
+                        "mean and s.d. of each bottom force and segment position over time")
+    report.add_argument("recordings", nargs="+", metavar="REC.h5", help="two or more recordings of one condition")
+    report.add_argument("--out", required=True, metavar="DIR", help="the report's folder (created if needed)")
+    report.add_argument("--mixed", action="store_true",
+                        help="compare recordings of different conditions anyway (the differences are named)")
+    report.add_argument("--step", type=float, default=None, metavar="S",
+                        help="the common grid's step in s (default: the forces' sample period)")
+    add_align_options(report)
+
+    runs = sub.add_parser("runs", help="the run catalog: every recording's run metadata, searchable")
+    runs_sub = runs.add_subparsers(dest="runs_command", metavar="ACTION", required=True)
+    runs_list = runs_sub.add_parser("list", help="recordings matching --where/--since (the files are read again "
+                                    "where they changed)")
+    runs_list.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                           help="keep runs whose KEY is VALUE (repeatable; e.g. scene=paper_obstacle, outcome=traversed)")
+    runs_list.add_argument("--since", metavar="DATE", help="runs started on or after DATE (YYYY-MM-DD or ISO 8601)")
+    runs_list.add_argument("--format", choices=("table", "csv", "json"), default="table")
+    runs_show = runs_sub.add_parser("show", help="one recording's run documents and what the catalog holds of it")
+    runs_show.add_argument("file", metavar="FILE")
+    runs_reindex = runs_sub.add_parser("reindex", help="read every recording under the folder again")
+    for action in (runs_list, runs_reindex):
+        action.add_argument("--dir", metavar="DIR", help="the folder of recordings (default: the data folder's "
+                            "recordings)")
+
+
+def add_align_options(parser: argparse.ArgumentParser) -> None:
+    """The repeatability report's alignment options (``report repeatability``, ``experiment trials``)."""
+    parser.add_argument("--align", choices=("onset", "contact", "mocap"), default="onset",
+                        help="the event trials are aligned on: onset (first goal change, default), contact (first "
+                             "bottom force past --contact-force), mocap (a segment's position from /mocap or /sim)")
+    parser.add_argument("--contact-force", type=float, default=1.0, metavar="N",
+                        help="contact: the force a bottom sensor rises past (default 1 N)")
+    parser.add_argument("--contact-sensor", metavar="NAME", help="contact: only this bottom sensor (e.g. S01B)")
+    parser.add_argument("--segment", type=int, default=1, metavar="K", help="mocap: the segment (1 = head)")
+    parser.add_argument("--position-x", type=float, default=None, metavar="X_M",
+                        help="mocap: the x (m) the segment passes (default: --position-move past its start)")
+    parser.add_argument("--position-move", type=float, default=0.01, metavar="M",
+                        help="mocap: how far past its start (default 0.01 m)")
 
 
 def _add_gui_options(parser: argparse.ArgumentParser) -> None:

@@ -1,0 +1,48 @@
+"""A figure's SVG text rasterised to a PNG with Qt's SVG renderer, offscreen (the command line's reports: the
+figure itself is drawn Qt-free in ``app.core``; only its pixels come from Qt).
+
+Any thread that may create a ``QGuiApplication`` (the main thread of a command); in the GUI, the GUI thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+from app.core.outputs import check_output, create_temporary, move_into_place
+
+
+def svg_to_png(svg_text: str, out: str | os.PathLike[str], scale: float = 1.5) -> Path:
+    """Write ``svg_text`` as a PNG at ``out`` (``scale`` × its size, on white), whole or not at all; OSError naming
+    ``out`` when it cannot be written."""
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # a report needs no display
+    from PySide6.QtCore import QByteArray
+    from PySide6.QtGui import QColor, QGuiApplication, QImage, QPainter
+    from PySide6.QtSvg import QSvgRenderer
+
+    out = check_output(out)
+    _app = QGuiApplication.instance() or QGuiApplication([])
+    renderer = QSvgRenderer(QByteArray(svg_text.encode("utf-8")))
+    if not renderer.isValid():
+        raise ValueError(f"{out}: the figure's SVG did not parse")
+    size = renderer.defaultSize() * scale
+    image = QImage(size, QImage.Format.Format_RGB32)
+    image.fill(QColor("white"))
+    painter = QPainter(image)
+    painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+    renderer.render(painter)
+    painter.end()
+    fd, work = create_temporary(out, ".partial")
+    os.close(fd)
+    try:
+        # The temporary's name says nothing of PNG, so the format is named; PySide6 takes it as str at run time
+        # (its stubs say bytes, which it refuses).
+        if not image.save(str(work), "PNG"):  # type: ignore[call-overload]
+            raise OSError(f"cannot write {out}")
+        move_into_place(work, out)
+    except OSError:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise
+    return out
