@@ -9,12 +9,14 @@ set ``SENSNAKE_DEBUG=1`` to see the traceback instead.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import select
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import NoReturn
 
 from app.core.outputs import check_output
@@ -22,6 +24,9 @@ from app.core.outputs import check_output
 # Errors a user can cause and fix. Every project error subclasses one of these builtins
 # (ConfigError(ValueError), NoReplyError(TimeoutError), CsvFormatError(ValueError), …).
 EXPECTED_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, LookupError, RuntimeError)
+
+# What main() turns into one line: those, a MemoryError, and a library that could not be loaded into memory.
+HANDLED_ERRORS: tuple[type[BaseException], ...] = (MemoryError, ImportError, *EXPECTED_ERRORS)
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -371,18 +376,101 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     command = args.command or "gui"
     _write_errors_not_signals()
+    bound_numeric_threads()
     try:
         refuse_outputs_onto_inputs(command, args)
-        module = importlib.import_module(f"app.cli.{command}")
+        with _import_watchdog(command, float(os.environ.get(IMPORT_WATCHDOG_ENV, "") or IMPORT_WATCHDOG_S)):
+            module = importlib.import_module(f"app.cli.{command}")
         return int(module.run(args) or EXIT_OK)
     except KeyboardInterrupt:
         print(f"sensnake {command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except EXPECTED_ERRORS as exc:
-        if os.environ.get("SENSNAKE_DEBUG"):
-            raise
-        print(f"sensnake {command}: error: {_one_line(exc)}", file=sys.stderr)
+    except HANDLED_ERRORS as exc:
+        if os.environ.get("SENSNAKE_DEBUG") or (isinstance(exc, ImportError) and not _memory_failure(exc)):
+            raise  # SENSNAKE_DEBUG=1 keeps the traceback; a missing module is a broken install, shown as it is
+        text = _memory_words() if _memory_failure(exc) else _one_line(exc)
+        print(f"sensnake {command}: error: {text}", file=sys.stderr)
         return EXIT_FAILURE
+
+
+# -- memory and threads ----------------------------------------------------------------------------------------------
+# One BLAS/OpenMP thread per process. Under an address-space limit (`ulimit -v` 300 MB or 2 GB) a pool of OpenBLAS
+# threads could not allocate its buffers and OpenBLAS retried for minutes with nothing printed, where the same fit
+# takes 3 s in one thread; the numerical work here is on small matrices, where threads gain little, and a sweep
+# already runs its runs in processes. Set before numpy is first imported (each command's module imports it): a value
+# the user set wins, and a caller that already imported numpy (a test calling main()) keeps its pools.
+NUMERIC_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+# OpenBLAS can also spin in its allocator while a library is being loaded under a tight limit (measured at 150 and
+# 250 MB: nothing printed for minutes). A loading that takes this long is that, not a slow disk.
+IMPORT_WATCHDOG_S = 60.0
+IMPORT_WATCHDOG_ENV = "SENSNAKE_IMPORT_WATCHDOG_S"  # another time in seconds (the fault matrix waits 5 s)
+
+
+def bound_numeric_threads() -> None:
+    """Bound the numerical libraries' thread pools to one thread (see :data:`NUMERIC_THREAD_VARIABLES`)."""
+    for name in NUMERIC_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
+
+
+def address_space_limit() -> int | None:
+    """The process's address-space limit in bytes (``ulimit -v``), or None when there is none (or no such limit on
+    this platform)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - Windows
+        return None
+    soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def _memory_failure(exc: BaseException) -> bool:
+    """A MemoryError, or a library that could not be mapped into memory under an address-space limit (the loader
+    says "failed to map segment", llvmlite "could not find/load shared object")."""
+    if isinstance(exc, MemoryError):
+        return True
+    text = str(exc).lower()
+    return isinstance(exc, ImportError | OSError) and address_space_limit() is not None and (
+        "failed to map segment" in text or "cannot allocate memory" in text or "shared object" in text)
+
+
+def _memory_words() -> str:
+    limit = address_space_limit()
+    if limit is None:
+        return ("out of memory: the machine's memory is used up; close other programs or give the command a smaller "
+                "input")
+    return (f"out of memory: this process may use only {limit / 2**20:.0f} MB of address space (ulimit -v "
+            f"{limit // 1024}), less than the numerical libraries need to load and run (about 2 GB for fit): raise "
+            "the limit (ulimit -v unlimited)")
+
+
+@contextlib.contextmanager
+def _import_watchdog(command: str, timeout_s: float = IMPORT_WATCHDOG_S) -> Iterator[None]:
+    """Under an address-space limit, end the process with one line if loading ``command``'s libraries does not
+    finish within ``timeout_s`` (OpenBLAS spinning in its allocator holds the interpreter's lock, so no thread of
+    this process could say it: a forked watcher does, then kills this process). Without a limit, nothing."""
+    if address_space_limit() is None or not hasattr(os, "fork") or threading.active_count() > 1:
+        yield  # a process with threads is not forked (a test calling main() in-process)
+        return
+    done_read, done_write = os.pipe()
+    parent = os.getpid()
+    watcher = os.fork()
+    if watcher == 0:  # pragma: no cover - the watcher process: covered by the fault matrix's ulimit -v case
+        os.close(done_write)
+        ready, _, _ = select.select([done_read], [], [], timeout_s)
+        if not ready and os.getppid() == parent:  # never another process, should this one be gone
+            limit = address_space_limit() or 0
+            os.write(2, (f"sensnake {command}: error: the numerical libraries did not load in {timeout_s:.0f} s "
+                         f"within this process's {limit / 2**20:.0f} MB of address space (ulimit -v {limit // 1024}): "
+                         "OpenBLAS keeps retrying an allocation the limit refuses; raise the limit (ulimit -v "
+                         "unlimited)\n").encode())
+            os.kill(os.getppid(), signal.SIGKILL)
+        os._exit(0)
+    os.close(done_read)
+    try:
+        yield
+    finally:
+        os.close(done_write)  # the watcher sees the end of the pipe and exits
+        os.waitpid(watcher, 0)
 
 
 def _one_line(exc: BaseException) -> str:
