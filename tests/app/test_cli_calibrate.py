@@ -39,11 +39,11 @@ def lab_config(tmp_path):
     return path
 
 
-def test_short_protocol_at_60x_recovers_the_simulated_sensor(tmp_path, lab_config, capsys):
+def test_short_protocol_at_150x_recovers_the_simulated_sensor(tmp_path, lab_config, capsys):
     out = tmp_path / "cal.json"
     code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
                  "--forces", "1.75,3,4,5.25", "--trials", "1", "--hold", "370", "--rest", "500",
-                 "--time-scale", "60", "--out", str(out)])
+                 "--time-scale", "150", "--out", str(out)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     truth = SimLab(load_config(lab_config), seed=0).rig_sensor_truth()
@@ -76,7 +76,7 @@ def _digest(path: Path) -> str:
 def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_path, lab_config):
     out = tmp_path / "cal.json"
     command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
-               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "150", "--rest", "200", "--time-scale", "60",
+               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "150", "--rest", "200", "--time-scale", "150",
                "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
@@ -103,7 +103,7 @@ def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_pat
     assert not out.exists()
 
     resumed = subprocess.run([sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim",
-                              "--daq", "sim", "--time-scale", "60", "--resume", str(session), "--out", str(out)],
+                              "--daq", "sim", "--time-scale", "150", "--resume", str(session), "--out", str(out)],
                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "2 of 3 trial(s) kept" in resumed.stderr
@@ -250,7 +250,7 @@ def test_conditioning_runs_before_the_trials_is_logged_and_not_repeated_on_resum
 
     out = tmp_path / "cal.json"
     code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--forces", "1.75,5.25",
-                 "--trials", "1", "--hold", "120", "--rest", "60", "--condition", "2@4", "--time-scale", "60",
+                 "--trials", "1", "--hold", "120", "--rest", "60", "--condition", "2@4", "--time-scale", "150",
                  "--save-anyway", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 0, err
@@ -268,7 +268,7 @@ def test_conditioning_runs_before_the_trials_is_logged_and_not_repeated_on_resum
     assert len(json.loads(out.read_text())["sensors"]["S06B"]["trials"]) == 2  # conditioning is not a trial
 
     reject_trial(finished_trials(session, settings)[1])
-    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--time-scale", "60",
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--time-scale", "150",
                  "--resume", str(session), "--save-anyway", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 0, err
