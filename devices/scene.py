@@ -28,8 +28,17 @@ from devices.toml_files import parse_toml_text, read_text_file
 SIDES = ("B", "L", "R")  # a segment's sheets: row order of the physics lab's loads (the scripted ContactModel's too)
 SHAPES = ("half_cylinder", "box", "wedge")
 STARTS = ("settle", "flat")
-MIN_SIZE_M = 0.001  # an obstacle's smallest radius, length or height: below 1 mm nothing the 36 mm-radius robot meets
-# (and MuJoCo refuses a geom whose size rounds to 0 in the model's text)
+# The depth the physics lab's contact model resolves (devices.sim.physics.validity, where a contact held deeper than
+# this ends a run as invalid): a loaded shell sinks < 1 mm into what it rests on and a landing several mm for a few
+# ms (MuJoCo's soft contact), the shell travels 3 mm before it bottoms out on its housing, and a shell at 2.5 m/s (a
+# fall off the paper's obstacle) moves 5 mm in one 2 ms step. A feature thinner than this — a 1 mm plate — is inside
+# what the contact model blurs: the shell sinks through it or steps over it, and a run on it would measure nothing.
+RESOLVED_DEPTH_M = 0.005
+RESOLVED_ONSETS = 3.0  # with [ground] contact_onset_m a shell sinks deeper by design: at least this many onsets
+# What the robot weighs on the scene's surfaces (SceneParams.robot_mass_kg, model.GRAVITY_M_S2: the same numbers; this
+# module does not load MuJoCo): friction can hold at most mass × g × the largest friction coefficient of the scene.
+ROBOT_MASS_KG = 2.4
+GRAVITY_M_S2 = 9.81
 SHELL_RADIUS_M = 0.036  # the paper's segment radius (SceneParams.segment_radius_m)
 # Half the width of a loaded shell's flattened contact patch, sqrt(2 R d) for the shell deflecting d = 1 mm under a
 # segment's share of the weight (ShellParams' assumed stiffness; docs/PHYSICS_LAB.md): the ground's default roll
@@ -111,6 +120,32 @@ class Scene:
         return max(self.height_at(lo + (hi - lo) * k / (n - 1)) for k in range(n))
 
     @property
+    def max_friction(self) -> tuple[float, str]:
+        """The largest friction coefficient of the scene's surfaces and which surface has it."""
+        best = (self.ground_friction, "the ground's")
+        for k, o in enumerate(self.obstacles, start=1):
+            if o.friction > best[0]:
+                best = (o.friction, f"obstacle #{k}'s")
+        return best
+
+    def holdable_load_n(self, mass_kg: float = ROBOT_MASS_KG) -> float:
+        """The largest backward pull (N) friction can hold the robot against on this scene: mass × g × the largest
+        friction coefficient (the whole weight on the grippiest surface; a tail load beyond it drags the robot
+        backward whatever it does)."""
+        return mass_kg * GRAVITY_M_S2 * self.max_friction[0]
+
+    def refuse_unholdable_load(self, load_n: float, what: str, mass_kg: float = ROBOT_MASS_KG) -> None:
+        """Raise :class:`SceneError` (a ValueError) when ``load_n`` is more than :meth:`holdable_load_n`, naming
+        ``what`` (the option or key), the scene and the formula."""
+        limit = self.holdable_load_n(mass_kg)
+        if load_n > limit:
+            mu, surface = self.max_friction
+            raise SceneError(
+                f"{what} {load_n:g} N is more than friction can hold on scene {self.name}: {mass_kg:g} kg × "
+                f"{GRAVITY_M_S2:g} m/s² × μ {mu:g} (the largest friction coefficient of the scene, {surface}) = "
+                f"{limit:.2f} N; beyond it the robot is dragged backward whatever it does")
+
+    @property
     def far_edge_m(self) -> float:
         """The x of the far (+x) edge of the last obstacle (what a traversal must pass); −inf on flat ground."""
         return max((o.x_range_m[1] for o in self.obstacles), default=-math.inf)
@@ -167,6 +202,15 @@ def _number(where: str, table: dict[str, Any], key: str, *, low: float, high: fl
     return value
 
 
+def _size(where: str, table: dict[str, Any], key: str, high: float, thinnest: float) -> float:
+    """An obstacle's size (m): positive, at most ``high``, and no thinner than the contact model resolves."""
+    value = _number(where, table, key, low=0.0, high=high, low_open=True)
+    if value < thinnest:
+        raise SceneError(f"{where}: '{key}' = {value:g} m is thinner than the physics lab's contact model resolves "
+                         f"(at least {thinnest:g} m: a shell sinks, travels or steps that deep into what it meets)")
+    return value
+
+
 def _only(where: str, table: dict[str, Any], allowed: set[str]) -> None:
     for key in table:
         if key not in allowed:
@@ -208,12 +252,13 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
         roll = _number(where, table, "roll_resistance_m", low=0.0, high=MAX_ROLL_M, default=ground_roll)
         if onset is not None and roll == 0.0 and shape != "wedge":
             raise SceneError(f"{where}: 'roll_resistance_m' = 0 leaves it without the ground's 'contact_onset_m'")
+        thinnest = max(RESOLVED_DEPTH_M, RESOLVED_ONSETS * (onset or 0.0))
         if shape == "half_cylinder":
-            radius = _number(where, table, "radius_m", low=MIN_SIZE_M, high=5.0)
+            radius = _size(where, table, "radius_m", 5.0, thinnest)
             obstacles.append(Obstacle(shape, x_m, friction, radius_m=radius, roll_resistance_m=roll))
         else:
-            length = _number(where, table, "length_m", low=MIN_SIZE_M, high=50.0)
-            height = _number(where, table, "height_m", low=MIN_SIZE_M, high=5.0)
+            length = _size(where, table, "length_m", 50.0, thinnest)
+            height = _size(where, table, "height_m", 5.0, thinnest)
             obstacles.append(Obstacle(shape, x_m, friction, length_m=length, height_m=height,
                                       roll_resistance_m=roll))
     robot = data.get("robot", {})

@@ -17,6 +17,21 @@ A run is a plan of four steps, executed by :func:`run_experiment`:
    force on each sheet in the board's channel order, ``bottom_true_N`` T×n the bottom sheets' columns of it), with
    the scene file's text (attribute ``scene``) and the robot's weight (``weight_N``).
 
+5. **Come to rest**: once the motion is over (played out, or ``seconds`` reached) the servos hold its last goals and
+   the run goes on, recorded, until the body is at rest — its centroid slower than ``REST_SPEED_M_S`` for
+   ``REST_HOLD_S`` — or ``rest_cap_s`` of simulated time has passed. The outcome is judged at rest
+   (:func:`judge_at_rest`): *traversed* (the whole body past the last obstacle's far edge, and staying there, with
+   the margin by which its rearmost point is past it), *not traversed*, or *undecided* (still moving at the cap).
+
+A run checks itself: the world stops at the first sign that its state is not physics (MuJoCo's warnings, a
+contact deeper than it resolves, a point faster or an energy higher than anything can make them:
+``devices.sim.physics.validity``). The run then ends there, invalid: the recording so far is kept with ``/sim``
+attributes ``valid`` = 0 and ``invalid_reason`` (what and when), and the result says so (``valid``,
+``invalid_reason``), its measured numbers NaN — never data. A run that fails before the capture (in the settle)
+raises :class:`InvalidRunError`. Inputs no physics can honour are refused before anything runs: a tail load beyond
+what friction can hold on the scene (``Scene.refuse_unholdable_load``; scene features thinner than the contact
+model resolves are refused when the scene is read). MuJoCo's log lines go to the recording's events (``physics``).
+
 The robot and the board are reached through their wire protocol on a manual clock (``devices.factory.
 headless_physics_lab``), so the run takes as long as the machine needs, not as long as the motion. Servo errors
 (overload from physics) are logged as recording events and the run goes on with that servo limp, as on the robot.
@@ -35,10 +50,11 @@ Called from one thread (the CLI's main thread).
 from __future__ import annotations
 
 import json
+import logging
 import math
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -50,6 +66,7 @@ from app.core.force_control import ForceFeedbackMotion
 from app.core.forces_pipeline import ForcesPipeline
 from app.core.play import check_shape_fits
 from app.core.recording import RecordingWriter
+from app.core.run_documents import condition, finish_run, run_start_document, with_calibration, with_metadata
 from devices import factory
 from devices.board import FrameParser, conductance_from_counts
 from devices.board_wire import saturated_from_counts
@@ -62,6 +79,17 @@ from models.trajectory import FollowTheLeader, Keyframes, serpenoid, sidewinding
 
 SETTLE_S = 6.0
 PAPER_HEIGHT_RATIO = 0.28
+# At rest: the body's centroid slower than this for REST_HOLD_S. 1 mm/s is a tenth of the slowest gait's advance
+# (follow-the-leader at the paper's 0.034 rad/s moves the body ~1 cm/s) and ten times the creep a body held by its
+# servos shows lying still (MuJoCo's soft contacts); 2 s is two of the gaits' slowest wave periods at the paper's speed.
+REST_SPEED_M_S = 0.001
+REST_HOLD_S = 2.0
+REST_CAP_S = 30.0  # how long (simulated s) a run goes on after the motion for the body to come to rest, by default
+OUTCOMES = ("traversed", "not traversed", "undecided", "invalid")
+
+
+class InvalidRunError(RuntimeError):
+    """The physics stopped being physics before the capture (in the settle): there is no run to record."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +162,15 @@ class ExperimentResult:
     median_support_n: float = math.nan  # … of every contact force on the robot: the weight when nothing accelerates
     tail_advance_m: float = math.nan  # how far the tail point moved forward (+x) while playing (see end_pose)
     end_extent_m: float = math.nan  # head tip x − tail end x at the end: ~0.96 m lying straight along the path
+    valid: bool = True  # False: the physics stopped being physics (invalid_reason); every measured number is NaN
+    invalid_reason: str = ""  # what and when, e.g. "MuJoCo: bad QACC … at DOF 29 (joint seg08_sz) at t=12.34 s"
+    outcome: str = "undecided"  # judged at rest (OUTCOMES, judge_at_rest)
+    motion_end_s: float = math.nan  # when the motion was over (played out or the seconds cap), recording clock
+    at_rest_s: float = math.nan  # when the body was judged at rest (NaN: undecided or invalid)
+    rest_margin_m: float = math.nan  # how far the rearmost body point was past the last far edge at rest (<0: short)
+    advance_at_rest_m: float = math.nan  # the centroid's advance from the capture to rest
+    slide_back_m: float = math.nan  # how far the centroid ended at rest behind the farthest it had been
+    rest_cap_s: float = math.nan  # how long the run could go on after the motion for the body to come to rest
 
     @property
     def crawled_traverse(self) -> bool:
@@ -171,13 +208,15 @@ def vertical_support_n(sheet_n: np.ndarray, frames: np.ndarray, rows: np.ndarray
 
 def run_obstacle_experiment(out: str | Path, config: LabConfig | None = None, *, seconds: float | None = None,
                             height_ratio: float = PAPER_HEIGHT_RATIO, speed_rad_s: float = 0.034,
-                            settle_s: float = SETTLE_S, seed: int = 0,
+                            settle_s: float = SETTLE_S, seed: int = 0, rest_cap_s: float = REST_CAP_S,
                             progress: Callable[[str], None] | None = None) -> ExperimentResult:
     """The paper's Sec. III-C experiment: :func:`run_experiment` on its half cylinder of ``height_ratio`` × body
     length (the lab config's legacy keys), the settled drape played follow-the-leader."""
     config = experiment_config(config or LabConfig(), height_ratio)
     return run_experiment(out, config, seconds=seconds, speed_rad_s=speed_rad_s, settle_s=settle_s, seed=seed,
-                          progress=progress, header=f"# sensnake experiment obstacle: height_ratio = {height_ratio}")
+                          rest_cap_s=rest_cap_s, progress=progress,
+                          header=f"# sensnake experiment obstacle: height_ratio = {height_ratio}",
+                          md={"plan_name": "experiment obstacle"})
 
 
 def _motion(mode: str, shape: np.ndarray, keyframes: Any, config: LabConfig, speed_rad_s: float,
@@ -218,19 +257,30 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
                    shape: Any = None, mode: str = "follow", seconds: float | None = None,
                    speed_rad_s: float = 0.034, settle_s: float = SETTLE_S, seed: int = 0,
                    controller: str = "feedforward", gains: FeedbackGains | None = None, tail_load_n: float = 0.0,
-                   repeat: int = 1, progress: Callable[[str], None] | None = None,
-                   header: str = "") -> ExperimentResult:
+                   repeat: int = 1, rest_cap_s: float = REST_CAP_S, progress: Callable[[str], None] | None = None,
+                   header: str = "", md: Mapping[str, Any] | None = None) -> ExperimentResult:
     """Run a plan (see the module docstring) and write its recording to ``out``. ``scene``: a scene file or a
     built-in scene's name (default: the config's ``[lab] scene``, else its legacy half cylinder); ``shape``: an
     :class:`app.core.shapes.Shape` (default: the settled pose); ``seconds`` caps the played part (default: the whole
     motion); ``controller``: ``feedforward`` (the motion as planned) or ``feedback``
     (:class:`app.core.force_control.ForceFeedbackMotion` with ``gains`` on the live estimated forces);
     ``tail_load_n``: a constant backward force on the tail from the capture on; ``repeat``: how many times a
-    follow-the-leader play runs (each re-forms the shape at the head and propagates it again, as ``play --repeat``).
-    ``progress`` gets a one-line status about once a wall second."""
+    follow-the-leader play runs (each re-forms the shape at the head and propagates it again, as ``play --repeat``);
+    ``rest_cap_s``: how long the run may go on after the motion for the body to come to rest (0: not at all, the
+    outcome is then undecided). ``progress`` gets a one-line status about once a wall second. An invalid run returns
+    a result with ``valid`` False (see the module docstring); one invalid before the capture raises
+    :class:`InvalidRunError`."""
     config = config or LabConfig()
     config = replace(config, lab=replace(config.lab, physics="mujoco", scene=scene if scene else config.lab.scene))
     terrain = load_scene(config.lab.scene) if config.lab.scene else None
+    # The run's RunStart (app.core.run_documents): its condition is the scene before a seed's jitter; ``md`` adds
+    # the caller's metadata (plan_name, trial, series_uid, note), as a bluesky plan's.
+    base_scene = terrain or _legacy_terrain(config)
+    run_start = with_metadata(run_start_document("experiment run", condition(
+        scene=base_scene.name, scene_text=base_scene.text or scene_to_toml(base_scene),
+        shape="settled" if shape is None else shape.name, mode=mode, speed_rad_s=speed_rad_s, controller=controller,
+        gains=(gains or FeedbackGains()) if controller == "feedback" else None, tail_load_n=tail_load_n,
+        config_text=config.source_text or ""), seed=seed), md)
     scratch_scene: tempfile.TemporaryDirectory | None = None
     if seed > 0:  # a seed other than 0 also varies the start and the frictions (SEED_SPREAD), not only the sensors
         base = terrain or _legacy_terrain(config)
@@ -242,7 +292,7 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     try:
         return _run(out, config, terrain, shape=shape, mode=mode, seconds=seconds, speed_rad_s=speed_rad_s,
                     settle_s=settle_s, seed=seed, controller=controller, gains=gains, tail_load_n=tail_load_n,
-                    repeat=repeat, progress=progress, header=header)
+                    repeat=repeat, rest_cap_s=rest_cap_s, progress=progress, header=header, run_start=run_start)
     finally:
         if scratch_scene is not None:
             scratch_scene.cleanup()
@@ -275,7 +325,8 @@ def jittered_scene(scene: Scene, seed: int) -> Scene:
 
 def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: Any, mode: str, seconds: float | None,
          speed_rad_s: float, settle_s: float, seed: int, controller: str, gains: FeedbackGains | None,
-         tail_load_n: float, repeat: int, progress: Callable[[str], None] | None, header: str) -> ExperimentResult:
+         tail_load_n: float, repeat: int, rest_cap_s: float, progress: Callable[[str], None] | None,
+         header: str, run_start: dict[str, Any] | None = None) -> ExperimentResult:
     if mode not in MODES:
         raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
     if controller not in CONTROLLERS:
@@ -292,10 +343,53 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
         raise ValueError(f"--repeat must be 1 … 100, got {repeat}")
     if not (math.isfinite(tail_load_n) and 0.0 <= tail_load_n <= MAX_TAIL_LOAD_N):
         raise ValueError(f"--tail-load must be in [0, {MAX_TAIL_LOAD_N:g}] N, got {tail_load_n}")
+    if not (math.isfinite(rest_cap_s) and rest_cap_s >= 0):
+        raise ValueError(f"--rest-cap must be 0 s or more, got {rest_cap_s}")
     robot = config.robot
     if shape is not None:  # as `sensnake play` refuses it: another joint count, other axes, beyond a joint limit
         check_shape_fits(shape, robot)
     lab = factory.headless_physics_lab(config, seed=seed)
+    world = lab.physics.world
+    scene_terrain = world.scene.terrain
+    scene_terrain.refuse_unholdable_load(tail_load_n, "--tail-load", world.scene.robot_mass_kg)
+    physics_log = _PhysicsLog()
+    try:
+        return _run_lab(out, config, lab, shape=shape, mode=mode, seconds=seconds, speed_rad_s=speed_rad_s,
+                        settle_s=settle_s, controller=controller, gains=gains, tail_load_n=tail_load_n,
+                        repeat=repeat, rest_cap_s=rest_cap_s, progress=progress, header=header,
+                        physics_log=physics_log, terrain_text=terrain.text if terrain is not None else "",
+                        run_start=run_start)
+    finally:
+        physics_log.close()
+
+
+class _PhysicsLog(logging.Handler):
+    """MuJoCo's log lines and the physics lab's (``devices.sim.physics``) while a run goes on, kept for the
+    recording's events (and so not printed: the run reports an invalid state itself, in one line)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: list[str] = []
+        self._logger = logging.getLogger("devices.sim.physics")
+        self._logger.addHandler(self)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+    def take(self) -> list[str]:
+        lines, self.lines = self.lines, []
+        return lines
+
+    def close(self) -> None:
+        self._logger.removeHandler(self)
+        super().close()
+
+
+def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: str, seconds: float | None,
+             speed_rad_s: float, settle_s: float, controller: str, gains: FeedbackGains | None, tail_load_n: float,
+             repeat: int, rest_cap_s: float, progress: Callable[[str], None] | None, header: str,
+             physics_log: _PhysicsLog, terrain_text: str, run_start: dict[str, Any] | None = None) -> ExperimentResult:
+    robot = config.robot
     world = lab.physics.world
     names = config.board.channel_names
     rows, segments = channel_map(names, robot.n_joints)
@@ -339,6 +433,9 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     while tick * period_s < settle_s:
         tick += 1
         lab.advance_to(tick * period_s)
+        if world.invalid is not None:
+            raise InvalidRunError(f"invalid run: {world.invalid.describe()} in the {settle_s:g} s settle, before the "
+                                  f"capture; nothing recorded")
         read_board()
     # 2. Shape.
     present = lab.read_robot().position_rad
@@ -358,9 +455,10 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     host0 = time.monotonic()  # recording time = simulated time since capture; host stamps are host0 + that
     config_text = (header or f"# sensnake experiment run: scene {world.scene.terrain.name}, mode {mode}, "
                              f"controller {controller}, tail load {tail_load_n:g} N") + "\n"
+    run_start = None if run_start is None else with_calibration(run_start, calibration)  # the calibration now known
     writer = RecordingWriter(out, config_text + (config.source_text or ""), names, calibration_json=calibration,
                              with_robot=True, n_joints=robot.n_joints, t0_monotonic_s=host0,
-                             flush_interval_s=math.inf)
+                             flush_interval_s=math.inf, run_start=run_start)
     sim_times: list[float] = []
     sim_points: list[np.ndarray] = []
     sim_sheets: list[np.ndarray] = []
@@ -378,10 +476,17 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
     far_edge = world.scene.terrain.far_edge_m
     traverse_s = math.nan
     motion = feedback if feedback is not None else source
+    held_goal = present  # once the motion is over, the servos hold its last goals
+    motion_end_s = math.nan
+    played = Played(0, 0, 0, start_centroid)  # the play part of the lists (before the motion was over)
+    rest = RestWatch()
+    invalid_reason = ""
     try:
         what = "the settled shape" if shape is None else f"shape {shape.name!r}"
         writer.log_event(f"scene {world.scene.terrain.name}: {what} after {settle_s:g} s ({start}); playing {mode} "
                          f"at {speed_rad_s:g} rad/s, {controller}, tail load {tail_load_n:g} N", host0)
+        for line in physics_log.take():
+            writer.log_event(line, host0, kind="physics")
         k = 0
         while True:
             t = k * period_s
@@ -391,9 +496,25 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             loads = lab.segment_loads_n()
             support, support_total = lab.contact_support_n()
             reading = lab.read_robot()
-            goal = motion.goal_at(t, reading.position_rad)
-            if goal is None or (seconds is not None and t > seconds):
+            if world.invalid is not None:  # the world stopped at its last good state: the run ends there
                 break
+            goal = None
+            if math.isnan(motion_end_s):
+                goal = motion.goal_at(t, reading.position_rad)
+                if goal is None or (seconds is not None and t > seconds):
+                    goal = None
+                    motion_end_s = t
+                    played = Played(len(sim_times), len(bottom_totals), len(vertical),
+                                    float(lab.body_state().points_m[:, 0].mean()))
+                    writer.log_event(f"the motion is over at t = {t:.2f} s: the servos hold its last goals until "
+                                     f"the body is at rest (at most {rest_cap_s:g} s)", host0 + t)
+                    if rest_cap_s <= 0:
+                        break
+            if goal is None:
+                if t - motion_end_s > rest_cap_s + 1e-9:
+                    break
+                goal = held_goal
+            held_goal = goal
             lab.write_goals(goal)
             for servo_id in reading.alert_ids:
                 if servo_id not in limp:
@@ -406,7 +527,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             corrections.append(feedback.correction_rad if feedback is not None else np.zeros(robot.n_joints))
             sim_times.append(t)
             sim_points.append(body.points_m)
-            if math.isnan(traverse_s) and float(body.points_m[-1, 0]) > far_edge:
+            if math.isnan(traverse_s) and math.isnan(motion_end_s) and float(body.points_m[-1, 0]) > far_edge:
                 traverse_s = t
             sheet = np.zeros(len(names))
             known = rows >= 0
@@ -416,8 +537,14 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
             support_row[known] = support[rows[known], segments[known]]
             sim_support.append(support_row)
             sim_support_total.append(support_total)
+            if not math.isnan(motion_end_s) and rest.add(t, body.points_m):
+                break  # at rest: the outcome can be judged
             k += 1
             lab.advance_to(t_capture + k * period_s)
+            for line in physics_log.take():
+                writer.log_event(line, host0 + t, kind="physics")
+            if world.invalid is not None:
+                break
             counts, conductance, board_time, seq, forces, status = read_board()
             if forces is not None:
                 writer.append_daq(DaqRows(counts, conductance, host0 + (board_time - t_capture), board_time, seq))
@@ -431,40 +558,155 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                 last_report = now
                 total = source.progress.total_s if seconds is None else min(seconds, source.progress.total_s)
                 rate = (settle_s + t) / (now - wall0)
-                left_s = max(total - t, 0.0) / rate if rate > 0 else math.inf
-                progress(f"t = {t:6.1f} / {total:.1f} s simulated  ({rate:4.1f}× real time, about {left_s:.0f} s "
-                         f"left)  {source.progress.describe()}")
+                if math.isnan(motion_end_s):
+                    left_s = max(total - t, 0.0) / rate if rate > 0 else math.inf
+                    progress(f"t = {t:6.1f} / {total:.1f} s simulated  ({rate:4.1f}× real time, about {left_s:.0f} "
+                             f"s left)  {source.progress.describe()}")
+                else:
+                    progress(f"t = {t:6.1f} s simulated  ({rate:4.1f}× real time): the motion is over, waiting "
+                             f"for the body to come to rest (at most until t = {motion_end_s + rest_cap_s:.1f} s)")
+        if world.invalid is not None:
+            invalid_reason = f"invalid run: {world.invalid.describe(t_capture)}"
+            writer.log_event(invalid_reason, host0 + world.invalid.time_s - t_capture, kind="physics")
         writer.flush()
     finally:
         writer.close()
-    final = lab.body_state().points_m
-    end_centroid = float(final[:, 0].mean())
+    if math.isnan(motion_end_s):  # the run ended invalid while playing
+        played = Played(len(sim_times), len(bottom_totals), len(vertical),
+                        float(lab.body_state().points_m[:, 0].mean()))
     times, points, sheets = np.array(sim_times), np.array(sim_points), np.array(sim_sheets)
-    _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain.text if terrain is not None else "",
-                 support=(np.array(sim_support).reshape(len(times), -1), np.array(sim_support_total)))
+    judged = judge_at_rest(times, points, motion_end_s, far_edge) if not invalid_reason else \
+        RestOutcome("invalid", math.nan, math.nan, math.nan, math.nan)
+    _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain_text,
+                 support=(np.array(sim_support).reshape(len(times), -1), np.array(sim_support_total)),
+                 judged=judged, motion_end_s=motion_end_s, rest_cap_s=rest_cap_s, invalid_reason=invalid_reason)
     if controller != "feedforward":  # SPEC §3.5: /control when a controller other than feedforward ran
         _append_control(out, times, np.array(corrections), controller, gains or FeedbackGains(), tail_load_n)
-    totals = np.concatenate(bottom_totals) if bottom_totals else np.array([np.nan])
+    finish_run(out, run_start, "fail" if invalid_reason else "success", invalid_reason, judged.outcome)
     wall_s = time.perf_counter() - wall0
     simulated_s = settle_s + (sim_times[-1] if sim_times else 0.0)
     scene_terrain = world.scene.terrain
+    if invalid_reason:  # nothing measured on a run that stopped being physics is data
+        return ExperimentResult(Path(out), taught, simulated_s, wall_s, math.nan, math.nan, math.nan,
+                                world.weight_n, tuple(overloads), scene_terrain.name, False,
+                                controller=controller, tail_load_n=tail_load_n, valid=False,
+                                invalid_reason=invalid_reason, outcome="invalid", motion_end_s=motion_end_s,
+                                rest_cap_s=rest_cap_s)
+    # The play's figures (as before the run went on to rest): over the ticks before the motion was over.
+    n = played.ticks
+    play_times, play_points, play_sheets = times[:n], points[:n], sheets[:n]
+    totals = np.concatenate(bottom_totals[:played.board_blocks]) if played.board_blocks else np.array([np.nan])
+    play_vertical = vertical[:played.vertical]
+    play_support = np.array(sim_support[:n])
     traversed = bool(scene_terrain.obstacles) and not math.isnan(traverse_s)
-    peak_ma = float(np.nanmax(np.abs(np.array(currents)))) if currents else math.nan
-    lost_ground_s, rolled_s = body_upsets(times, sheets, rows, world.weight_n)
-    tail_advance_m, end_extent_m = end_pose(points)
-    return ExperimentResult(Path(out), taught, simulated_s, wall_s, end_centroid - start_centroid,
-                            float(np.nanmedian(totals)), float(np.median(vertical)) if vertical else math.nan,
+    peak_ma = float(np.nanmax(np.abs(np.array(currents[:n])))) if n else math.nan
+    lost_ground_s, rolled_s = body_upsets(play_times, play_sheets, rows, world.weight_n)
+    tail_advance_m, end_extent_m = end_pose(play_points)
+    return ExperimentResult(Path(out), taught, simulated_s, wall_s, played.end_centroid_x - start_centroid,
+                            float(np.nanmedian(totals)), float(np.median(play_vertical)) if play_vertical else math.nan,
                             world.weight_n, tuple(overloads), scene_terrain.name, traversed,
                             controller=controller, tail_load_n=tail_load_n, traverse_s=traverse_s,
                             peak_current_ma=peak_ma,
-                            front_face_cv=front_face_cv(times, points, sheets[:, bottom] if len(sheets) else sheets,
-                                                        scene_terrain),
+                            front_face_cv=front_face_cv(play_times, play_points,
+                                                        play_sheets[:, bottom] if n else play_sheets, scene_terrain),
                             lost_ground_s=lost_ground_s, rolled_s=rolled_s,
-                            crawl_m=crawl_m(times, points, (lost_ground_s, rolled_s)),
-                            median_bottom_support_n=float(np.median(np.array(sim_support)[:, bottom].sum(axis=1)))
-                            if sim_support else math.nan,
-                            median_support_n=float(np.median(sim_support_total)) if sim_support_total else math.nan,
-                            tail_advance_m=tail_advance_m, end_extent_m=end_extent_m)
+                            crawl_m=crawl_m(play_times, play_points, (lost_ground_s, rolled_s)),
+                            median_bottom_support_n=float(np.median(play_support[:, bottom].sum(axis=1)))
+                            if n else math.nan,
+                            median_support_n=float(np.median(sim_support_total[:n])) if n else math.nan,
+                            tail_advance_m=tail_advance_m, end_extent_m=end_extent_m,
+                            outcome=judged.outcome, motion_end_s=motion_end_s, at_rest_s=judged.at_rest_s,
+                            rest_margin_m=judged.margin_m, advance_at_rest_m=judged.advance_m,
+                            slide_back_m=judged.slide_back_m, rest_cap_s=rest_cap_s)
+
+
+@dataclass(frozen=True)
+class Played:
+    """Where the play part of a run's lists ends (the motion over): ticks, board blocks, vertical-support values,
+    and the centroid's x then."""
+
+    ticks: int
+    board_blocks: int
+    vertical: int
+    end_centroid_x: float
+
+
+class RestWatch:
+    """At rest, tick by tick: the body's centroid slower than ``speed_m_s`` over every tick for ``hold_s`` (the
+    ticks fed from the moment the motion was over). :meth:`add` returns True once at rest (:attr:`at_rest_s`)."""
+
+    def __init__(self, speed_m_s: float = REST_SPEED_M_S, hold_s: float = REST_HOLD_S) -> None:
+        self.speed_m_s, self.hold_s = speed_m_s, hold_s
+        self.at_rest_s = math.nan
+        self._last: tuple[float, np.ndarray] | None = None
+        self._still_since = math.nan
+
+    def add(self, t_s: float, points_m: np.ndarray) -> bool:
+        centroid = np.asarray(points_m, dtype=float).mean(axis=0)
+        if self._last is None:
+            self._still_since = t_s
+        else:
+            last_t, last_c = self._last
+            if t_s > last_t and float(np.linalg.norm(centroid - last_c)) / (t_s - last_t) >= self.speed_m_s:
+                self._still_since = t_s
+        self._last = (t_s, centroid)
+        if math.isnan(self.at_rest_s) and t_s - self._still_since >= self.hold_s - 1e-9:
+            self.at_rest_s = t_s
+        return not math.isnan(self.at_rest_s)
+
+
+@dataclass(frozen=True)
+class RestOutcome:
+    """A run's outcome judged at rest (:func:`judge_at_rest`). Lengths in m along +x, times on the recording's clock."""
+
+    outcome: str  # one of OUTCOMES
+    at_rest_s: float  # NaN: never at rest (undecided)
+    margin_m: float  # rearmost body point − the last obstacle's far edge, its least over the rest window
+    advance_m: float  # the centroid's advance from the first tick to rest
+    slide_back_m: float  # the farthest the centroid had been − where it rests
+
+
+def judge_at_rest(times: np.ndarray, points: np.ndarray, motion_end_s: float, far_edge_m: float,
+                  speed_m_s: float = REST_SPEED_M_S, hold_s: float = REST_HOLD_S) -> RestOutcome:
+    """The outcome of a run from its body points (T × (n+1) × 3, head tip first, at ``times``): the first moment
+    after ``motion_end_s`` at which the centroid has been slower than ``speed_m_s`` for ``hold_s``
+    (:class:`RestWatch`); then *traversed* if every body point stayed past ``far_edge_m`` (the last obstacle's far
+    edge) through that rest window, else *not traversed* (always on flat ground: ``far_edge_m`` −inf); *undecided*
+    if the body never came to rest (or ``motion_end_s`` is NaN: the motion never ended)."""
+    times = np.asarray(times, dtype=float)
+    points = np.asarray(points, dtype=float)
+    undecided = RestOutcome("undecided", math.nan, math.nan, math.nan, math.nan)
+    if math.isnan(motion_end_s) or not len(times):
+        return undecided
+    watch = RestWatch(speed_m_s, hold_s)
+    for tick in np.flatnonzero(times >= motion_end_s - 1e-9):
+        if watch.add(float(times[tick]), points[tick]):
+            break
+    if math.isnan(watch.at_rest_s):
+        return undecided
+    k = int(np.searchsorted(times, watch.at_rest_s - 1e-9))
+    window = (times >= watch.at_rest_s - hold_s - 1e-9) & (times <= watch.at_rest_s + 1e-9)
+    rearmost = points[window, :, 0].min(axis=1)
+    margin = float(rearmost.min() - far_edge_m) if math.isfinite(far_edge_m) else math.nan
+    centroid_x = points[:, :, 0].mean(axis=1)
+    return RestOutcome("traversed" if margin > 0 else "not traversed", watch.at_rest_s, margin,
+                       float(centroid_x[k] - centroid_x[0]), float(centroid_x[:k + 1].max() - centroid_x[k]))
+
+
+def outcome_from_recording(path: str | Path) -> tuple[bool, str, RestOutcome]:
+    """(valid, invalid_reason, the outcome judged at rest again) of a recording of :func:`run_experiment`, from its
+    ``/sim`` group alone; a recording from before these attributes reads as valid, its outcome undecided unless its
+    motion's end is known."""
+    with h5py.File(path, "r") as f:
+        group = f["sim"]
+        valid = bool(int(group.attrs.get("valid", 1)))
+        reason = str(group.attrs.get("invalid_reason", ""))
+        times, points = group["time_s"][:], group["points_m"][:]
+        motion_end_s = float(group.attrs.get("motion_end_s", math.nan))
+        far_edge = float(group.attrs.get("far_edge_m", -math.inf))
+    if not valid:
+        return False, reason, RestOutcome("invalid", math.nan, math.nan, math.nan, math.nan)
+    return True, "", judge_at_rest(times, points, motion_end_s, far_edge)
 
 
 def read_gains(path: str | Path) -> FeedbackGains:
@@ -549,9 +791,10 @@ def upsets_from_recording(path: str | Path) -> tuple[float, float, float]:
     """(lost the ground, rolled, crawled m) of a recording of :func:`run_experiment`: :func:`body_upsets` and
     :func:`crawl_m` from its ``/sim`` group and the board's channels."""
     with h5py.File(path, "r") as f:
-        times = f["sim/time_s"][:]
-        sheets = f["sim/sheet_true_N"][:]
-        points = f["sim/points_m"][:]
+        play = _played_ticks(f)
+        times = f["sim/time_s"][play]
+        sheets = f["sim/sheet_true_N"][play]
+        points = f["sim/points_m"][play]
         weight = float(f["sim"].attrs["weight_N"])
         names = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
     rows, _ = channel_map(names, points.shape[1] - 1)
@@ -573,7 +816,16 @@ def end_pose(points: np.ndarray) -> tuple[float, float]:
 def pose_from_recording(path: str | Path) -> tuple[float, float]:
     """:func:`end_pose` of a recording of :func:`run_experiment` (its ``/sim/points_m``)."""
     with h5py.File(path, "r") as f:
-        return end_pose(f["sim/points_m"][:])
+        return end_pose(f["sim/points_m"][_played_ticks(f)])
+
+
+def _played_ticks(f: h5py.File) -> slice:
+    """The ``/sim`` rows of a recording's play, before the motion was over (``motion_end_s``; a recording from
+    before the run went on to rest: all of them), which the play's figures are computed on."""
+    end = float(f["sim"].attrs.get("motion_end_s", math.nan))
+    if math.isnan(end):
+        return slice(None)
+    return slice(0, int(np.searchsorted(f["sim/time_s"][:], end - 1e-9)))
 
 
 def front_face_cv(times: np.ndarray, points: np.ndarray, bottom_n: np.ndarray, terrain: Any) -> float:
@@ -607,13 +859,20 @@ def _append_control(out: str | Path, times: np.ndarray, corrections: np.ndarray,
 
 
 def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_n: np.ndarray, bottom: np.ndarray,
-                 lab: Any, terrain_text: str, support: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 lab: Any, terrain_text: str, support: tuple[np.ndarray, np.ndarray] | None = None,
+                 judged: RestOutcome | None = None, motion_end_s: float = math.nan, rest_cap_s: float = math.nan,
+                 invalid_reason: str = "") -> None:
     """The simulated body as the extra ``/sim`` group (after the recording is closed: readers ignore it);
     ``support``: (T×C, T) the upward part of each sheet's whole contact force and of every contact force on the
-    robot (``PhysicsWorld.contact_support_n``)."""
+    robot (``PhysicsWorld.contact_support_n``); ``judged``: the outcome at rest; ``invalid_reason``: why the run is
+    invalid ("" for a valid one)."""
     world = lab.physics.world
     scene = world.scene
     terrain = scene.terrain
+    if not len(times):  # a run invalid at its first tick: empty datasets of the right shapes
+        points = np.zeros((0, scene.n_segments + 1, 3))
+        sheets_n = np.zeros((0, len(lab.config.board.channel_names)))
+        support = (sheets_n.copy(), np.zeros(0))
     with h5py.File(out, "a") as f:
         group = f.create_group("sim")
         group.create_dataset("time_s", data=times)
@@ -634,4 +893,19 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
                                "end of segment i; sheet_true_N the normal force on each sheet (board channel "
                                "order); sheet_support_N the upward part of each sheet's whole contact force "
                                "(normal and friction), support_N that of every contact force on the robot (the "
-                               "weight when nothing accelerates); the obstacles span y, the robot heads toward +x")
+                               "weight when nothing accelerates); the obstacles span y, the robot heads toward +x; "
+                               "valid 0: the physics stopped being physics (invalid_reason), nothing here is data; "
+                               "outcome judged at rest (at_rest_s; rest_margin_m: the rearmost point past "
+                               "far_edge_m), after the motion was over at motion_end_s")
+        # validity and the outcome at rest (SPEC §7: valid, invalid_reason)
+        group.attrs["valid"] = 0 if invalid_reason else 1
+        group.attrs["invalid_reason"] = invalid_reason
+        group.attrs["motion_end_s"] = motion_end_s
+        group.attrs["rest_cap_s"] = rest_cap_s
+        group.attrs["far_edge_m"] = terrain.far_edge_m
+        if judged is not None:
+            group.attrs["outcome"] = judged.outcome
+            group.attrs["at_rest_s"] = judged.at_rest_s
+            group.attrs["rest_margin_m"] = judged.margin_m
+            group.attrs["advance_at_rest_m"] = judged.advance_m
+            group.attrs["slide_back_m"] = judged.slide_back_m

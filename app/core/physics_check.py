@@ -21,6 +21,14 @@
   ``READOUT_SATURATED`` (``/forces/status``: the readout at its ceiling, the force only a lower bound) is left out
   of the error and counted apart (``estimated_saturated_frames``).
 
+The checks cover the play — the ticks before the motion was over (``/sim`` ``motion_end_s``), where the tables of
+docs/PHYSICS_LAB.md come from — unless asked for the whole recording, the run's wait for the body to come to rest
+included (``whole=True``).
+
+A recording of a run whose physics stopped being physics (``/sim`` attribute ``valid`` = 0, ``invalid_reason``) is
+refused (:class:`InvalidRecordingError`): its forces are not data. ``allow_invalid=True`` reads it anyway, and the
+check then says so (``valid``, ``invalid_reason``).
+
 Pure numpy and h5py; any thread.
 """
 
@@ -42,6 +50,10 @@ BOARD_PERIOD_S = 1.0 / 30.0
 # A body point faster than this is falling, tipping over or sliding away: the gaits' fastest point moves at under
 # 0.1 m/s on every built-in scene and five others while nothing falls (0.3 rad/s), a fall or a tip at 0.3–1.5 m/s.
 FAST_M_S = 0.2
+
+
+class InvalidRecordingError(ValueError):
+    """The recording is of a run whose physics stopped being physics (``/sim`` ``valid`` = 0): no check of it is data."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +80,8 @@ class PhysicsCheck:
     fast_frames: float = math.nan  # fraction of 30 Hz frames in which some body point moves faster than FAST_M_S
     true_jump_frames_slow: float = math.nan  # fraction of frames with a > jump_n change while the body moves slowly
     true_reversal_frames_slow: float = math.nan  # … of which reversing (chatter while nothing falls)
+    valid: bool = True  # False only with allow_invalid: the run's physics stopped being physics (invalid_reason)
+    invalid_reason: str = ""
 
 
 def _nan_or(reduce: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
@@ -113,22 +127,35 @@ def _fast_steps(sim_t: np.ndarray, points: np.ndarray, frames_at: np.ndarray) ->
     return np.array([b > a and speed[a:b].max() > FAST_M_S for a, b in zip(start, stop)], dtype=bool)
 
 
-def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
-    """See the module docstring. Raises ``KeyError`` naming what a recording without ``/sim`` lacks."""
+def check_recording(path: str | Path, jump_n: float = 1.0, allow_invalid: bool = False,
+                    whole: bool = False) -> PhysicsCheck:
+    """See the module docstring. Over the play (the ticks before ``/sim`` ``motion_end_s``, as before runs went on
+    to rest after it), or with ``whole`` the whole recording, the wait for rest included. Raises ``KeyError`` naming
+    what a recording without ``/sim`` lacks, and :class:`InvalidRecordingError` for an invalid run's recording
+    unless ``allow_invalid``."""
     with h5py.File(path, "r") as f:
         if "sim" not in f or "sheet_true_N" not in f["sim"]:
             raise KeyError(f"{path}: no /sim/sheet_true_N (not a recording of sensnake experiment run)")
+        valid = bool(int(f["sim"].attrs.get("valid", 1)))  # a recording from before the attribute: as it was read
+        invalid_reason = str(f["sim"].attrs.get("invalid_reason", ""))
+        if not valid and not allow_invalid:
+            raise InvalidRecordingError(f"{path}: the run is marked invalid ({invalid_reason}); its forces are not "
+                                        f"data")
         sim_t = f["sim/time_s"][:]
-        true = f["sim/sheet_true_N"][:]
-        points = f["sim/points_m"][:]
+        motion_end_s = float(f["sim"].attrs.get("motion_end_s", math.nan))
+        played = slice(None) if whole or math.isnan(motion_end_s) else \
+            slice(0, max(int(np.searchsorted(sim_t, motion_end_s - 1e-9)), 2))
+        sim_t = sim_t[played]
+        true = f["sim/sheet_true_N"][played]
+        points = f["sim/points_m"][played]
         weight = float(f["sim"].attrs["weight_N"])
         robot_t = f["robot/time_s"][:]
         channels = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
         daq_t = f["daq/time_s"][:]
         estimated = f["forces/force_N"][:] if "forces" in f else None
         status = f["forces/status"][:] if "forces" in f and "status" in f["forces"] else None
-        support = f["sim/support_N"][:] if "support_N" in f["sim"] else None
-        sheet_support = f["sim/sheet_support_N"][:] if "sheet_support_N" in f["sim"] else None
+        support = f["sim/support_N"][played] if "support_N" in f["sim"] else None
+        sheet_support = f["sim/sheet_support_N"][played] if "sheet_support_N" in f["sim"] else None
     rows, segments = channel_map(channels, points.shape[1] - 1)
     bottom = rows == 0
     bottom_sum = true[:, bottom].sum(axis=1)
@@ -187,4 +214,5 @@ def check_recording(path: str | Path, jump_n: float = 1.0) -> PhysicsCheck:
         len(bottom_support) else math.nan,
         fast_frames=float(np.mean(fast)) if len(fast) else 0.0,
         true_jump_frames_slow=slow_jump, true_reversal_frames_slow=slow_reversal,
+        valid=valid, invalid_reason=invalid_reason,
     )

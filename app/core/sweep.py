@@ -13,6 +13,7 @@ A sweep file (TOML; unknown keys refused, naming the key)::
     settle_s = 6.0
     mode = "follow"
     repeat = 1                                     # follow-the-leader passes per run
+    rest_cap_s = 30.0                              # how long a run waits after the motion for the body to rest
     [[gains]]                                      # feedback gain sets (default: one, the law's defaults)
     push_gain = 0.1
     [[gains]]
@@ -26,7 +27,15 @@ ground and first rolled onto its side, how far its centroid had crawled when the
 traversed *crawling* (at least ``CRAWLED_M`` before the first; else it fell off a crest)
 (:func:`app.core.experiment.body_upsets`), and how far the tail point advanced and how long the body lay along the
 path at the end (:func:`app.core.experiment.end_pose`); :func:`with_upsets` computes those again for an older
-summary. The
+summary. Then
+``valid`` (1, or 0 for a run whose physics stopped being physics, ``invalid_reason`` saying what and when: its
+measured columns are left empty, never data) and the outcome judged once the body is at rest after the motion
+(:func:`app.core.experiment.judge_at_rest`): ``outcome`` (traversed, not traversed, undecided, invalid),
+``at_rest_s``, ``rest_margin_m`` (how far the rearmost body point rests past the last far edge), ``advance_at_rest_m``,
+``slide_back_m``. Every statistic (:func:`summary_table`, :func:`compare`, the figure) leaves invalid runs out and
+counts them apart; the at-rest traversal rate leaves undecided runs out and counts them apart. Tail loads beyond what
+friction can hold on a scene (``Scene.refuse_unholdable_load``, at every seed's friction) are refused before any
+run. The
 analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``):
 success rate, crawled rate and median advance against tail load, one line per scene × controller.
 
@@ -55,10 +64,16 @@ from models.errors import GainsError
 from models.force_feedback import FeedbackGains
 
 SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains",
-              "repeat"}
+              "repeat", "rest_cap_s"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file",
-                   "lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m")
+                   "lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m",
+                   "valid", "invalid_reason", "outcome", "at_rest_s", "rest_margin_m", "advance_at_rest_m",
+                   "slide_back_m")
+# What an invalid run leaves empty: everything it measured (its physics stopped being physics).
+MEASURED_COLUMNS = ("traversed", "traverse_s", "advance_m", "front_face_cv", "lost_ground_s", "rolled_s", "crawl_m",
+                    "crawled", "tail_advance_m", "end_extent_m", "at_rest_s", "rest_margin_m", "advance_at_rest_m",
+                    "slide_back_m")
 
 
 @dataclass(frozen=True)
@@ -73,6 +88,7 @@ class SweepPlan:
     mode: str = "follow"
     repeat: int = 1
     gains: tuple[FeedbackGains, ...] = field(default_factory=lambda: (FeedbackGains(),))
+    rest_cap_s: float | None = None  # None: the experiment's default (app.core.experiment.REST_CAP_S)
 
     def runs(self) -> list[dict[str, Any]]:
         """One dict of arguments per run (feedforward runs once per load and seed, not once per gain set)."""
@@ -115,7 +131,10 @@ def read_sweep(path: str | Path) -> SweepPlan:
     except GainsError as exc:
         raise SweepError(str(exc)) from None
     scalars = {}
-    for key, default, positive in (("seconds", 60.0, True), ("speed_rad_s", 0.1, True), ("settle_s", 6.0, False)):
+    for key, default, positive in (("seconds", 60.0, True), ("speed_rad_s", 0.1, True), ("settle_s", 6.0, False),
+                                   ("rest_cap_s", None, False)):
+        if default is None and key not in data:
+            continue
         value = data.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0 \
                 or (positive and value == 0):
@@ -130,6 +149,7 @@ def read_sweep(path: str | Path) -> SweepPlan:
     seeds = numbers("seeds", (0,), int)
     if any(s < 0 for s in seeds):
         raise SweepError(f"{path}: 'seeds' must be 0 or more")
+    _refuse_unholdable_loads(path, [str(s) for s in data["scenes"]], max(tail_loads), seeds)
     repeat = data.get("repeat", 1)
     if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= 100:
         raise SweepError(f"{path}: 'repeat' must be a whole number 1 … 100, got {repeat!r}")
@@ -138,25 +158,58 @@ def read_sweep(path: str | Path) -> SweepPlan:
                      mode=str(data.get("mode", "follow")), gains=gains, **scalars)
 
 
+def _refuse_unholdable_loads(path: Path, scenes: list[str], load_n: float, seeds: tuple[int, ...]) -> None:
+    """A tail load no scene × seed of the sweep can hold (friction: ``Scene.refuse_unholdable_load``, on the
+    friction each seed gives the scene) is refused before any run, naming the file, the scene and the formula."""
+    from app.core.experiment import jittered_scene
+    from devices.errors import SceneError
+    from devices.scene import load_scene
+
+    for name in scenes:
+        try:
+            base = load_scene(name)
+        except SceneError as exc:
+            raise SweepError(f"{path}: 'scenes': {exc}") from None
+        for seed in seeds:
+            scene = jittered_scene(base, seed) if seed > 0 else base
+            try:
+                scene.refuse_unholdable_load(load_n, "'tail_loads_n'" + (f" (seed {seed})" if seed > 0 else ""))
+            except SceneError as exc:
+                raise SweepError(f"{path}: {exc}") from None
+
+
 def _one(args: dict[str, Any]) -> dict[str, Any]:
     """One run (in a worker process): the recording written, its summary row returned."""
-    from app.core.experiment import run_experiment
+    from app.core.experiment import REST_CAP_S, InvalidRunError, run_experiment
 
     started = time.perf_counter()
-    result = run_experiment(args["out"], scene=args["scene"], mode=args["mode"], seconds=args["seconds"],
-                            speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
-                            controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"],
-                            repeat=args.get("repeat", 1))
-    return {"run": args["run"], "scene": args["scene"], "controller": args["controller"],
-            "gains_index": args["gains_index"],
-            "gains": json.dumps(asdict(args["gains"])) if args["gains"] is not None else "",
-            "tail_load_N": args["tail_load_n"], "seed": args["seed"], "traversed": int(result.traversed),
-            "traverse_s": result.traverse_s, "advance_m": result.advance_m, "overloads": len(result.overloads),
-            "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
-            "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name,
-            "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "crawl_m": result.crawl_m,
-            "crawled": int(result.crawled_traverse), "tail_advance_m": result.tail_advance_m,
-            "end_extent_m": result.end_extent_m}
+    row = {"run": args["run"], "scene": args["scene"], "controller": args["controller"],
+           "gains_index": args["gains_index"],
+           "gains": json.dumps(asdict(args["gains"])) if args["gains"] is not None else "",
+           "tail_load_N": args["tail_load_n"], "seed": args["seed"]}
+    rest_cap_s = args.get("rest_cap_s")
+    try:
+        result = run_experiment(args["out"], scene=args["scene"], mode=args["mode"], seconds=args["seconds"],
+                                speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
+                                controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"],
+                                repeat=args.get("repeat", 1), rest_cap_s=REST_CAP_S if rest_cap_s is None
+                                else rest_cap_s)
+    except InvalidRunError as exc:  # invalid before the capture: no recording
+        return {**dict.fromkeys(SUMMARY_COLUMNS, ""), **row, "overloads": "", "wall_s": time.perf_counter() - started,
+                "file": "", "valid": 0, "invalid_reason": str(exc), "outcome": "invalid"}
+    row.update({"traversed": int(result.traversed),
+                "traverse_s": result.traverse_s, "advance_m": result.advance_m, "overloads": len(result.overloads),
+                "peak_current_mA": result.peak_current_ma, "front_face_cv": result.front_face_cv,
+                "wall_s": time.perf_counter() - started, "file": Path(args["out"]).name,
+                "lost_ground_s": result.lost_ground_s, "rolled_s": result.rolled_s, "crawl_m": result.crawl_m,
+                "crawled": int(result.crawled_traverse), "tail_advance_m": result.tail_advance_m,
+                "end_extent_m": result.end_extent_m, "valid": int(result.valid),
+                "invalid_reason": result.invalid_reason, "outcome": result.outcome, "at_rest_s": result.at_rest_s,
+                "rest_margin_m": result.rest_margin_m, "advance_at_rest_m": result.advance_at_rest_m,
+                "slide_back_m": result.slide_back_m})
+    if not result.valid:
+        row.update(dict.fromkeys(MEASURED_COLUMNS, ""))
+    return row
 
 
 def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
@@ -174,7 +227,8 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
         name += f"_g{run['gains_index']}" if run["gains_index"] >= 0 else ""
         name += f"_load{run['tail_load_n']:g}_seed{run['seed']}.h5"
         tasks.append({**run, "run": k, "out": str(out / name), "mode": plan.mode, "seconds": plan.seconds,
-                      "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s, "repeat": plan.repeat})
+                      "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s, "repeat": plan.repeat,
+                      "rest_cap_s": plan.rest_cap_s})
     rows: dict[int, dict[str, Any]] = {}
     started = time.monotonic()
     jobs = max(1, jobs or os.cpu_count() or 1)
@@ -228,10 +282,18 @@ def with_upsets(rows: list[dict[str, Any]], folder: str | Path) -> list[dict[str
     return out
 
 
+def is_invalid(row: dict[str, Any]) -> bool:
+    """A summary row of a run whose physics stopped being physics (``valid`` 0; a summary from before the column
+    has none)."""
+    return str(row.get("valid", "")).strip() in ("0", "0.0", "False")
+
+
 def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, list[dict[str, Any]]]]:
+    """Rows by (scene, controller label) and tail load: the runs that finished (valid or not; a failed run, which
+    has no result, is left out)."""
     groups: dict[tuple[str, str], dict[float, list[dict[str, Any]]]] = {}
     for row in rows:
-        if row.get("traversed", "") == "":
+        if row.get("traversed", "") == "" and not is_invalid(row):
             continue
         label = row["controller"] + (f" g{row['gains_index']}" if int(row["gains_index"]) >= 0 else "")
         key = (Path(str(row["scene"])).stem, label)
@@ -240,16 +302,26 @@ def _groups(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[float, lis
 
 
 def summary_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per scene × controller (× gain set) × tail load: runs, success rate, median advance (m), overload events, and
-    the rate of crawled traversals (NaN for a summary without that column)."""
+    """Per scene × controller (× gain set) × tail load, over the valid runs (``runs``): success rate, median advance
+    (m), overload events, the rate of crawled traversals (NaN for a summary without that column), and the outcome at
+    rest — ``at_rest_success`` the share traversed among the runs decided at rest (NaN: none, or a summary without the
+    column), ``undecided`` how many were still moving at the cap; ``invalid`` counts the runs left out as no data."""
     table = []
     for (scene, label), by_load in sorted(_groups(rows).items()):
-        for load, group in sorted(by_load.items()):
+        for load, every in sorted(by_load.items()):
+            group = [r for r in every if not is_invalid(r)]
+            outcomes = [str(r.get("outcome", "")) for r in group]
+            decided = [o for o in outcomes if o in ("traversed", "not traversed")]
             table.append({"scene": scene, "controller": label, "tail_load_N": load, "runs": len(group),
-                          "success": float(np.mean([int(r["traversed"]) for r in group])),
-                          "median_advance_m": float(np.median([float(r["advance_m"]) for r in group])),
+                          "success": float(np.mean([int(r["traversed"]) for r in group])) if group else math.nan,
+                          "median_advance_m": float(np.median([float(r["advance_m"]) for r in group]))
+                          if group else math.nan,
                           "overloads": int(sum(int(r["overloads"]) for r in group)),
-                          "crawled": _crawled_rate(group)})
+                          "crawled": _crawled_rate(group),
+                          "at_rest_success": float(np.mean([o == "traversed" for o in decided])) if decided
+                          else math.nan,
+                          "undecided": outcomes.count("undecided"),
+                          "invalid": len(every) - len(group)})
     return table
 
 
@@ -275,6 +347,7 @@ class Comparison:
     # the body lay down (end_pose). NaN for a summary without the columns.
     median_tail_advance_ratio: float = math.nan
     median_advance_ratio_both_traversed: float = math.nan
+    invalid_runs: int = 0  # runs of either controller left out as invalid (their pairs with them)
 
 
 def _crawled_rate(rows: list[dict[str, Any]]) -> float:
@@ -289,7 +362,9 @@ def _median_of(rows: list[dict[str, Any]], key: str) -> float:
 
 def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
     """The issue's yardsticks for feedback gain set ``candidate_gains`` against feedforward."""
-    done = [r for r in rows if r.get("traversed", "") != ""]
+    done = [r for r in rows if r.get("traversed", "") != "" and not is_invalid(r)]
+    invalid = sum(1 for r in rows if is_invalid(r) and (r["controller"] == "feedforward" or (
+        r["controller"] == "feedback" and int(r["gains_index"]) == candidate_gains)))
     ff = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
           if r["controller"] == "feedforward"}
     fb = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
@@ -320,7 +395,8 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
         fb_overloads=int(sum(int(fb[k]["overloads"]) for k in keys)),
         slower_where_ff_succeeds=float(np.median(slower)) if slower else math.nan,
         median_tail_advance_ratio=float(np.median(tail_ratios)) if tail_ratios else math.nan,
-        median_advance_ratio_both_traversed=float(np.median(both_ratios)) if both_ratios else math.nan)
+        median_advance_ratio_both_traversed=float(np.median(both_ratios)) if both_ratios else math.nan,
+        invalid_runs=invalid)
 
 
 def _number(row: dict[str, Any], key: str) -> float:
@@ -345,7 +421,7 @@ def summary_svg(rows: list[dict[str, Any]], width: int | None = None, height: in
     off a crest), median advance — one colour per scene, solid for feedforward, dashed for feedback (a dash pattern per
     gain set: g0 dashed, g1 dotted, g2 dash-dot, …); the legend on the right. In the rate panels the series are drawn a few pixels apart (at most ±6 px),
     so that equal rates stay visible."""
-    table = summary_table(rows)
+    table = [e for e in summary_table(rows) if e["runs"]]  # a load whose every run was invalid has no point
     series: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for entry in table:
         series.setdefault((entry["scene"], entry["controller"]), []).append(entry)

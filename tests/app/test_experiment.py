@@ -108,6 +108,10 @@ def test_a_short_run_prints_progress_and_a_summary(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert any(line.startswith("t = ") and "real time" in line and "shift" in line for line in lines)  # progress
     summary = "\n".join(lines)
-    assert "simulated 2." in summary and "real time" in summary  # 1 s settle + 1 s played
+    assert "real time" in summary and "while playing (until 1.0 s)" in summary  # 1 s settle + 1 s played, …
+    assert "at rest from " in summary  # … then held until the body rested, the outcome judged there
     assert "median total bottom force" in summary and f"wrote {out}" in summary
-    assert open_recording(out).time_s[-1] == pytest.approx(1.0, abs=0.1)
+    with h5py.File(out, "r") as f:
+        at_rest_s = float(f["sim"].attrs["at_rest_s"])
+    assert 1.0 + 2.0 <= at_rest_s <= 1.0 + 30.0  # still for 2 s after the motion, within the 30 s cap
+    assert open_recording(out).time_s[-1] == pytest.approx(at_rest_s, abs=0.1)

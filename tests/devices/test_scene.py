@@ -108,9 +108,14 @@ def test_the_height_profile_follows_each_shape():
     ("[[obstacle]]\nshape = 'cone'\nx_m = 0\n", ["'shape' must be one of", "'cone'"]),
     ("[[obstacle]]\nshape = 'box'\nx_m = 0\nheight_m = 0.1\n", ["missing key 'length_m'"]),
     ("[[obstacle]]\nshape = 'half_cylinder'\nx_m = 0\nradius_m = -1\n", ["'radius_m' = -1 is outside"]),
-    # a size that rounds to 0 in the model's text made MuJoCo fail with "size 0 must be positive in geom"
+    # a size that rounds to 0 in the model's text made MuJoCo fail with "size 0 must be positive in geom"; a plate
+    # thinner than the contact model resolves is no terrain a run can measure on (devices.scene.RESOLVED_DEPTH_M)
     ("[[obstacle]]\nshape = 'box'\nx_m = 0\nlength_m = 1e-9\nheight_m = 5\n",
-     ["'length_m' = 1e-09 is outside [0.001, 50]"]),
+     ["'length_m' = 1e-09 m is thinner than the physics lab's contact model resolves (at least 0.005 m"]),
+    ("[[obstacle]]\nshape = 'box'\nx_m = 0.3\nlength_m = 0.5\nheight_m = 0.001\n",
+     ["'height_m' = 0.001 m is thinner than the physics lab's contact model resolves (at least 0.005 m"]),
+    ("[ground]\ncontact_onset_m = 0.003\n[[obstacle]]\nshape = 'half_cylinder'\nx_m = 0\nradius_m = 0.008\n",
+     ["'radius_m' = 0.008 m is thinner", "(at least 0.009 m"]),  # 3 × the onset a shell sinks by design
     ("[[obstacle]]\nshape = 'wedge'\nx_m = 0\nlength_m = 0.3\nheight_m = 0\n", ["'height_m' = 0 is outside"]),
     ("[[obstacle]]\nshape = 'half_cylinder'\nx_m = 'left'\nradius_m = 1\n", ["'x_m' must be a number"]),
     ("[ground]\nfriction = nan\n", ["'friction' = nan is outside"]),

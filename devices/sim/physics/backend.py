@@ -7,11 +7,17 @@ force (:meth:`forces_n`), which the board's sensor models turn into conductance 
 lazily to the simulated time of their event; :meth:`start` adds a thread that keeps it at the clock between events
 (the GUI's lab), so a plot or a 3-D view sees the robot move even when no driver asks.
 
+A world whose state stopped being physics (``PhysicsWorld.invalid``: MuJoCo's warnings, a contact not resolved, a
+speed or an energy no physics gives) stops at its last good state. A batch run reads that and ends the run as
+invalid; the app's lab (:meth:`start`) says so in its log — what and when — and puts the robot back at the scene's
+start (:attr:`invalid_states` keeps what happened), instead of MuJoCo silently resetting it.
+
 Threads: all methods may be called from any thread (the world locks).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -24,10 +30,13 @@ from devices.config import LabConfig
 from devices.scene import load_scene
 from devices.sim.clock import SimClock
 from devices.sim.physics.model import SceneParams
+from devices.sim.physics.validity import InvalidState
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.sim.physics.render import ThreadRenderers
+
+log = logging.getLogger(__name__)
 
 SAMPLE_HISTORY = 64  # board instants whose sheet loads are kept (~2 s at 30 Hz): a board catches up a few frames
 STEP_INTERVAL_S = 0.02  # the background thread catches up every 20 ms of wall time (the 3-D view draws <= 10/s;
@@ -66,6 +75,8 @@ class PhysicsBackend:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._renderers: ThreadRenderers | None = None  # one per rendering thread, made on first use
+        self._restart_invalid = False  # the app's lab (start): an invalid world is reported and restarted
+        self.invalid_states: list[InvalidState] = []  # each time the app's lab restarted an invalid world
 
     # -- joints (the chain) ----------------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
@@ -85,6 +96,18 @@ class PhysicsBackend:
                 self._samples.append((self._next_sample, self.world.segment_loads_n()))
                 self._next_sample += 1
             self.world.advance_to(sim_s - self._time0_s)
+            if self._restart_invalid and self.world.invalid is not None:
+                self._restart()
+
+    def _restart(self) -> None:
+        """The app's lab: say that the world stopped being physics (what, when) and put the robot back at the
+        scene's start."""
+        invalid = self.world.invalid
+        assert invalid is not None
+        self.invalid_states.append(invalid)
+        log.error("physics lab: the simulation stopped being physics (%s); the robot is put back at the scene's "
+                  "start", invalid.describe())
+        self.world.place()
 
     def _loads_at(self, t_s: float) -> np.ndarray:
         """The sheet loads (3, n) at ``t_s``: those kept for that board instant, else the present ones."""
@@ -151,6 +174,7 @@ class PhysicsBackend:
         if self._thread is not None:
             return
         self.world.rest_enabled = True
+        self._restart_invalid = True
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="physics-lab", daemon=True)
         self._thread.start()

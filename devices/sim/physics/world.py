@@ -31,6 +31,11 @@ or an external torque wakes it. Besides saving the machine, this removes the slo
 (a limp robot draped on PTFE creeps at ~2e-3 rad/s forever; with no-slip iterations it stops, i.e. it is an artefact,
 not a slide).
 
+Validity (:mod:`.validity`): MuJoCo's automatic reset of a blown-up state is off (``mjDSBL_AUTORESET``); after every
+batch of steps the world checks MuJoCo's warnings, the state's finiteness, the contacts' depth, the body's speed and
+its energy. The first failure stops the world at its last good state (it steps no more; its clock moves on, the body
+frozen) and :attr:`invalid` says what and when; :meth:`place` starts it afresh. MuJoCo's log goes to logging.
+
 Threads: every public method takes the world's lock, so the chain (the robot port's thread), the board (its port's
 thread) and a stepping thread may all call; :meth:`advance_to` steps until the world's clock reaches a time.
 """
@@ -49,6 +54,7 @@ import numpy as np
 
 from devices.scene import SIDES, channel_map  # noqa: F401 - channel_map: callers import it from here too
 from devices.sim.physics.model import (
+    GRAVITY_M_S2,
     SceneParams,
     build_mjcf,
     hand_name,
@@ -56,6 +62,16 @@ from devices.sim.physics.model import (
     segment_name,
     shell_joint_names,
 )
+from devices.sim.physics.validity import (
+    MAX_PENETRATION_M,
+    MAX_PENETRATION_ONSETS,
+    InvalidState,
+    ValidityMonitor,
+    route_mujoco_log,
+    speed_limit_m_s,
+)
+
+route_mujoco_log()  # MuJoCo's warnings to logging, never to a MUJOCO_LOG.TXT in the working folder
 
 SHEET_HALF_ARC_DEG = 28.0  # a 3.5 cm wide sheet on the 3.6 cm radius shell (paper, Sec. III-A): 55.7° of arc
 TOP_FADE_DEG = 152.0  # from the side sheets' edge (118°) the share fades to 0 here: the PLA top carries the rest
@@ -94,7 +110,10 @@ class PhysicsWorld:
     def __init__(self, scene: SceneParams | None = None) -> None:
         self.scene = scene or SceneParams()
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.scene))
+        # a blown-up state stays as it is, for the validity checks to see, instead of MuJoCo silently resetting it
+        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         self.data = mujoco.MjData(self.model)
+        self._warned = self.data.warning.number  # a live view of MuJoCo's warning counts (0 until one is raised)
         self._lock = threading.RLock()
         n = self.scene.n_segments
         self.n_joints = n
@@ -139,7 +158,23 @@ class PhysicsWorld:
         self.rested_s = 0.0  # simulated time the world spent resting (not stepped, body frozen)
         self._loads_at_rest: np.ndarray | None = None
         self._state_at_rest: JointState | None = None
+        self._tail_load_n = 0.0
+        self.invalid: InvalidState | None = None  # why the world stopped (see the module docstring), None: it is fine
+        terrain = self.scene.terrain
+        onset = terrain.contact_onset_m or 0.0
+        robot_bodies = np.concatenate([[self.model.body("head").id], self._seg_body])
+        self.validity = ValidityMonitor(
+            self.model, self.data, robot_bodies, int(self._seg_body[-1]), speed_limit_m_s=self._speed_limit(0.0),
+            servo_peak_w=servo.stall_torque_nm * servo.no_load_speed_rad_s / 4.0,
+            penetration_m=max(MAX_PENETRATION_M, MAX_PENETRATION_ONSETS * onset),
+            shell_radius_m=self.scene.segment_radius_m)
         self.place()
+
+    def _speed_limit(self, tail_load_n: float) -> float:
+        scene = self.scene
+        top = max((o.top_m for o in scene.terrain.obstacles), default=0.0)
+        return speed_limit_m_s(scene.body_length_m, top, scene.servo.no_load_speed_rad_s, scene.robot_mass_kg,
+                               tail_load_n, GRAVITY_M_S2)
 
     # -- set-up ------------------------------------------------------------------------------------------------------
     def place(self, head_x_m: float | None = None, height_m: float | None = None,
@@ -151,7 +186,10 @@ class PhysicsWorld:
         with self._lock:
             scene = self.scene
             terrain = scene.terrain
+            clock_s = self.time_s  # the world's clock runs on through a new start
             mujoco.mj_resetData(self.model, self.data)
+            self._offset_s = clock_s
+            self.data.xfrc_applied[self._seg_body[-1], 0] = -self._tail_load_n  # the load stays on
             if head_x_m is None:
                 head_x_m = terrain.head_x_m
             if head_x_m is None:
@@ -169,8 +207,10 @@ class PhysicsWorld:
             self._held[:] = False
             self.data.eq_active[self._hand_eq] = False
             self._share_time[:] = -math.inf
+            self.invalid = None
             self._wake()
             mujoco.mj_forward(self.model, self.data)
+            self.validity.rebase()
 
     # -- commands (any thread) ---------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray | None = None) -> None:
@@ -207,6 +247,7 @@ class PhysicsWorld:
             self._wake()
             mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
             # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
+            self.validity.rebase()  # a pose set by hand is no motion of the physics
 
     def release_hand(self, joints: Sequence[int] | None = None) -> None:
         """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
@@ -243,6 +284,10 @@ class PhysicsWorld:
                 self._wake()
             self.data.xfrc_applied[body, :] = 0.0
             self.data.xfrc_applied[body, 0] = -float(force_n)
+            if float(force_n) != self._tail_load_n:
+                self._tail_load_n = float(force_n)
+                self.validity.speed_limit_m_s = self._speed_limit(self._tail_load_n)
+                self.validity.rebase()  # the load's potential is measured from here
 
     # -- rest ------------------------------------------------------------------------------------------------------------
     @property
@@ -281,8 +326,14 @@ class PhysicsWorld:
     def step(self, n: int = 1) -> None:
         """``n`` physics steps of ``scene.timestep_s``, each with one servo-loop update."""
         with self._lock:
+            if self.invalid is not None:  # stopped at its last good state (see the module docstring)
+                return
             started = time.perf_counter()
             data, model = self.data, self.model
+            good = (float(data.time), data.qpos.copy(), data.qvel.copy(), data.act.copy(),
+                    data.qacc_warmstart.copy())
+            warned = self._warned
+            stepped = 0
             qadr, dadr = self._qadr, self._dadr
             if not self._torque_on.any():  # all limp (Teach, the app at power-up): no servo loop to run
                 self._applied[:] = 0.0
@@ -292,6 +343,9 @@ class PhysicsWorld:
                 data.qfrc_applied[dadr] = self._external
                 for _ in range(n):
                     mujoco.mj_step(model, data)
+                    stepped += 1
+                    if warned.any():  # stop at the step MuJoCo found bad: what and when are exact
+                        break
                 n_loop = 0
             else:
                 n_loop = n
@@ -312,10 +366,28 @@ class PhysicsWorld:
                 data.ctrl[:] = applied
                 data.qfrc_applied[dadr] = self._external
                 mujoco.mj_step(model, data)
-            self.steps += n
-            if self.rest_enabled:
-                self._note_stillness(n * self._dt)
+                stepped += 1
+                if warned.any():
+                    break
+            self.steps += stepped
+            self._check_validity(stepped, good)
+            if self.rest_enabled and self.invalid is None:
+                self._note_stillness(stepped * self._dt)
             self.stepping_s += time.perf_counter() - started
+
+    def _check_validity(self, n: int, good: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """After ``n`` steps from the state ``good``: the validity checks (:mod:`.validity`); on the first failure
+        the world goes back to ``good`` and stops there (:attr:`invalid`)."""
+        what = self.validity.check(n * self._dt, int(self._torque_on.sum()), self._tail_load_n,
+                                   energy_checked=not (self._held.any() or np.any(self._external)))
+        if what is None:
+            return
+        data = self.data
+        # a warning stopped the steps at the bad one, which MuJoCo dates at its start (its log's "Time = ")
+        when = float(data.time) - (self._dt if self._warned.any() else 0.0)
+        self.invalid = InvalidState(what, when + self._offset_s)
+        data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:] = good
+        mujoco.mj_forward(self.model, data)
 
     def advance_to(self, t_s: float) -> None:
         """Step until the world's clock reaches ``t_s`` (s); if that is more than ``MAX_CATCH_UP_S`` ahead, skip the
@@ -323,10 +395,10 @@ class PhysicsWorld:
         with self._lock:
             self.limit_lag(t_s)
             behind = t_s - self.time_s
-            if self._resting:  # nothing moves: the clock moves on without stepping
+            if self._resting or self.invalid is not None:  # nothing moves: the clock moves on without stepping
                 if behind > 0.0:
                     self._offset_s += behind
-                    self.rested_s += behind
+                    self.rested_s += behind if self.invalid is None else 0.0
                 return
             n = int(math.floor(behind / self._dt))
             if n > 0:
@@ -337,7 +409,7 @@ class PhysicsWorld:
         ``MAX_CATCH_UP_S`` ahead of the world's clock; a resting world skips nothing (it rests through any gap)."""
         with self._lock:
             behind = t_s - self.time_s
-            if not self._resting and behind > MAX_CATCH_UP_S:
+            if not self._resting and self.invalid is None and behind > MAX_CATCH_UP_S:
                 skip = behind - MAX_CATCH_UP_S
                 self._offset_s += skip
                 self.lagged_s += skip
