@@ -72,6 +72,7 @@ from devices.board import FrameParser, conductance_from_counts
 from devices.board_wire import saturated_from_counts
 from devices.config import LabConfig
 from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
+from devices.sim.physics.validity import ENERGY_MARGIN_J
 from models.force_feedback import FeedbackGains
 from models.health import HealthMonitor
 from models.health import trusted as health_trusted
@@ -461,6 +462,7 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
                              flush_interval_s=math.inf, run_start=run_start)
     sim_times: list[float] = []
     sim_points: list[np.ndarray] = []
+    sim_rotations: list[np.ndarray] = []  # each segment's orientation: what a motion-capture take is made from
     sim_sheets: list[np.ndarray] = []
     sim_support: list[np.ndarray] = []
     sim_support_total: list[float] = []
@@ -527,6 +529,7 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
             corrections.append(feedback.correction_rad if feedback is not None else np.zeros(robot.n_joints))
             sim_times.append(t)
             sim_points.append(body.points_m)
+            sim_rotations.append(body.frames)
             if math.isnan(traverse_s) and math.isnan(motion_end_s) and float(body.points_m[-1, 0]) > far_edge:
                 traverse_s = t
             sheet = np.zeros(len(names))
@@ -579,7 +582,8 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
         RestOutcome("invalid", math.nan, math.nan, math.nan, math.nan)
     _append_body(out, times, points, sheets, bottom, lab, terrain_text=terrain_text,
                  support=(np.array(sim_support).reshape(len(times), -1), np.array(sim_support_total)),
-                 judged=judged, motion_end_s=motion_end_s, rest_cap_s=rest_cap_s, invalid_reason=invalid_reason)
+                 judged=judged, motion_end_s=motion_end_s, rest_cap_s=rest_cap_s, invalid_reason=invalid_reason,
+                 rotations=np.array(sim_rotations))
     if controller != "feedforward":  # SPEC §3.5: /control when a controller other than feedforward ran
         _append_control(out, times, np.array(corrections), controller, gains or FeedbackGains(), tail_load_n)
     finish_run(out, run_start, "fail" if invalid_reason else "success", invalid_reason, judged.outcome)
@@ -861,8 +865,9 @@ def _append_control(out: str | Path, times: np.ndarray, corrections: np.ndarray,
 def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_n: np.ndarray, bottom: np.ndarray,
                  lab: Any, terrain_text: str, support: tuple[np.ndarray, np.ndarray] | None = None,
                  judged: RestOutcome | None = None, motion_end_s: float = math.nan, rest_cap_s: float = math.nan,
-                 invalid_reason: str = "") -> None:
+                 invalid_reason: str = "", rotations: np.ndarray | None = None) -> None:
     """The simulated body as the extra ``/sim`` group (after the recording is closed: readers ignore it);
+    ``rotations``: (T, n, 3, 3) each segment's orientation (``segment_rotation``);
     ``support``: (T×C, T) the upward part of each sheet's whole contact force and of every contact force on the
     robot (``PhysicsWorld.contact_support_n``); ``judged``: the outcome at rest; ``invalid_reason``: why the run is
     invalid ("" for a valid one)."""
@@ -877,6 +882,8 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group = f.create_group("sim")
         group.create_dataset("time_s", data=times)
         group.create_dataset("points_m", data=points)
+        if rotations is not None:  # columns: the segment's x (to the head), y (left), z (up) in the world
+            group.create_dataset("segment_rotation", data=rotations.reshape(len(times), scene.n_segments, 3, 3))
         group.create_dataset("sheet_true_N", data=sheets_n.reshape(len(times), -1))
         group.create_dataset("bottom_true_N", data=sheets_n.reshape(len(times), -1)[:, bottom])
         if support is not None:
@@ -903,6 +910,14 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["motion_end_s"] = motion_end_s
         group.attrs["rest_cap_s"] = rest_cap_s
         group.attrs["far_edge_m"] = terrain.far_edge_m
+        # how near the run came to each validity limit (devices.sim.physics.validity), whole run, settle included
+        validity = world.validity
+        group.attrs["peak_depth_m"] = validity.peak_depth_m
+        group.attrs["peak_speed_m_s"] = validity.peak_speed_m_s
+        group.attrs["peak_energy_gain_J"] = validity.peak_energy_gain_j
+        group.attrs["limits"] = json.dumps({"depth_m": validity.penetration_m, "deepest_m": validity.deepest_m,
+                                            "speed_m_s": validity.speed_limit_m_s,
+                                            "energy_margin_J": ENERGY_MARGIN_J})
         if judged is not None:
             group.attrs["outcome"] = judged.outcome
             group.attrs["at_rest_s"] = judged.at_rest_s
