@@ -72,7 +72,6 @@ from devices.board import FrameParser, conductance_from_counts
 from devices.board_wire import saturated_from_counts
 from devices.config import LabConfig
 from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
-from devices.sim.physics.validity import ENERGY_MARGIN_J
 from models.force_feedback import FeedbackGains
 from models.health import HealthMonitor
 from models.health import trusted as health_trusted
@@ -910,14 +909,6 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["motion_end_s"] = motion_end_s
         group.attrs["rest_cap_s"] = rest_cap_s
         group.attrs["far_edge_m"] = terrain.far_edge_m
-        # how near the run came to each validity limit (devices.sim.physics.validity), whole run, settle included
-        validity = world.validity
-        group.attrs["peak_depth_m"] = validity.peak_depth_m
-        group.attrs["peak_speed_m_s"] = validity.peak_speed_m_s
-        group.attrs["peak_energy_gain_J"] = validity.peak_energy_gain_j
-        group.attrs["limits"] = json.dumps({"depth_m": validity.penetration_m, "deepest_m": validity.deepest_m,
-                                            "speed_m_s": validity.speed_limit_m_s,
-                                            "energy_margin_J": ENERGY_MARGIN_J})
         if judged is not None:
             group.attrs["outcome"] = judged.outcome
             group.attrs["at_rest_s"] = judged.at_rest_s
