@@ -59,6 +59,7 @@ LIVE_COLUMNS: tuple[int, ...] = (COL_RAD, COL_DEG, COL_VEL, COL_CUR, COL_TEMP, C
 # 10 rad/s, current under 3.3 A, 80 °C shutdown). A longer text widens its column once (HardwarePanel._fit_column).
 LIVE_SAMPLE_TEXT: dict[int, str] = {COL_RAD: "+3.142", COL_DEG: "-180.0", COL_VEL: "+9.999", COL_CUR: "-3209",
                                     COL_TEMP: "100", COL_VOLT: "16.0"}
+UNKNOWN_TEXT = "?"  # a torque or LED button while the servo's state is unknown (link down, no reply)
 SCAN_COLUMNS: tuple[str, ...] = ("ID", "Model", "Firmware", "Baud")
 LINK_COLUMNS: tuple[str, ...] = ("ID", "RTT mean (ms)", "RTT max (ms)", "No reply", "CRC err", "Result")
 
@@ -142,6 +143,7 @@ class HardwarePanel(QWidget):
         self._errors_by_id: dict[int, tuple[str, ...]] = {}  # servo ID → hardware error names, as last reported
         self._error_advice: Callable[[tuple[str, ...]], str] | None = None
         self._column_chars: dict[int, int] = {}  # column → the longest text (characters) it was sized for
+        self._unknown_toggles: set[tuple[int, int]] = set()  # (row, column) of torque/LED buttons showing "?"
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(8, 8, 8, 8)
@@ -396,11 +398,13 @@ class HardwarePanel(QWidget):
         else:
             self.baud_combo.setEditText(str(baud))
 
-    def set_connection(self, connected: bool, text: str, busy: bool = False) -> None:
-        """Connection state: enables what makes sense (port/baud fixed while connected)."""
+    def set_connection(self, connected: bool, text: str, busy: bool = False, level: str | None = None) -> None:
+        """Connection state: enables what makes sense (port/baud fixed while connected). ``level`` overrides the
+        label's colour (a connected bus whose link is lost is not green)."""
         self._connected = connected
         self.connection_label.setText(text)
-        level = theme.OK if connected else (theme.WARN if busy else theme.IDLE)
+        if level is None:
+            level = theme.OK if connected else (theme.WARN if busy else theme.IDLE)
         self.connection_label.setStyleSheet(theme.status_style(level))
         self.connect_button.setEnabled(not connected and not busy)
         self.disconnect_button.setEnabled(connected and not busy)
@@ -450,6 +454,7 @@ class HardwarePanel(QWidget):
         self._shown_text.clear()
         self._shown_warn.clear()
         self._shown_errors.clear()
+        self._unknown_toggles.clear()
         # Size the columns once, for the widest live values and error names expected, then show the placeholders.
         if self.servo_ids:
             for col, sample in LIVE_SAMPLE_TEXT.items():
@@ -470,6 +475,39 @@ class HardwarePanel(QWidget):
         for row in range(self.servo_table.rowCount()):
             for col in LIVE_COLUMNS:
                 self._set_cell(row, col, "—", warn=False)
+
+    def set_unknown(self, servo_ids: Iterable[int], why: str, silent: Iterable[int] = ()) -> None:
+        """Nothing is known of these servos now (the link is down, or the bus's feedback stopped): their live values
+        show "—", their torque and LED "?" (never the last state seen), and the ``silent`` ones "no reply" in the
+        error colour; ``why`` goes into the tooltips. The next :meth:`set_state` / :meth:`set_health` shows values
+        again. GUI thread."""
+        silent = set(silent)
+        for servo_id in servo_ids:
+            row = self._row_of_id.get(int(servo_id))
+            if row is None:
+                continue
+            for col in LIVE_COLUMNS:
+                self._set_cell(row, col, "—", warn=False)
+            names = ("no reply",) if servo_id in silent else ("unknown",)
+            if self._shown_errors.get(row) != names:
+                self._shown_errors[row] = names
+                item = cell_item(self.servo_table, row, COL_ERR)
+                item.setText(names[0])
+                item.setToolTip(why)
+                level = theme.ERROR if servo_id in silent else theme.WARN
+                item.setForeground(QBrush(theme.qcolor(theme.STATUS_COLORS[level])))
+                item.setBackground(QBrush(theme.qcolor(theme.STATUS_BACKGROUNDS[level])))
+                item.setFont(QFont())
+            self._errors_by_id.pop(int(servo_id), None)
+            for col in (COL_TORQUE, COL_LED):
+                button = self.servo_table.cellWidget(row, col)
+                if isinstance(button, QPushButton) and button.text() != UNKNOWN_TEXT:
+                    button.blockSignals(True)
+                    button.setChecked(False)
+                    button.setText(UNKNOWN_TEXT)
+                    button.blockSignals(False)
+                    button.setToolTip(f"Servo {servo_id}: unknown — {why}")
+                    self._unknown_toggles.add((row, col))
 
     def _set_cell(self, row: int, col: int, text: str, warn: bool | None = None) -> bool:
         """Show ``text`` (and the warning colour if ``warn``; ``None`` leaves the colour) in a live cell, touching
@@ -569,12 +607,17 @@ class HardwarePanel(QWidget):
                 return
             del self._pending[(servo_id, col)]
         button = self.servo_table.cellWidget(row, col)
-        if isinstance(button, QPushButton) and button.isChecked() != on:
+        unknown = (row, col) in self._unknown_toggles
+        if isinstance(button, QPushButton) and (button.isChecked() != on or unknown):
             # Reflect the servo's real state without echoing a request back to it.
             button.blockSignals(True)
             button.setChecked(on)
             button.setText(button.property("text_on" if on else "text_off"))
             button.blockSignals(False)
+            if unknown:
+                self._unknown_toggles.discard((row, col))
+                what = "torque" if col == COL_TORQUE else "LED"
+                button.setToolTip(f"Servo {servo_id} {what}: shows the present state; click to switch it")
 
     def errors_text(self, servo_id: int) -> str:
         """The hardware-error cell of ``servo_id`` as shown."""
@@ -691,17 +734,21 @@ class HardwarePanel(QWidget):
         self.loop_label.setText("")
         self.loop_label.setStyleSheet("")
 
-    def set_timing_warnings(self, warnings: Sequence[str], checked: bool = True) -> None:
+    def set_timing_warnings(self, warnings: Sequence[str], checked: bool = True, notes: Sequence[str] = ()) -> None:
+        """``warnings``: problems a user can act on, each with its fix (counted, amber); ``notes``: findings said
+        below them but not counted (e.g. the simulated lab's factory settings)."""
         if not checked:
             self.timing_summary_label.setText("Latency timer and return delay checks run on connect.")
             self.timing_summary_label.setStyleSheet("")
             self.timing_text.setPlainText("")
             return
         if warnings:
-            self.timing_summary_label.setText(f"{len(warnings)} timing warning(s), each with its fix:")
+            n = len(warnings)
+            self.timing_summary_label.setText(f"{n} timing warning{'' if n == 1 else 's'}, each with its fix:")
             self.timing_summary_label.setStyleSheet(theme.status_style(theme.WARN))
-            self.timing_text.setPlainText("\n\n".join(f"• {w}" for w in warnings))
+            lines = [f"• {w}" for w in warnings]
         else:
             self.timing_summary_label.setText("No timing problems found.")
             self.timing_summary_label.setStyleSheet(theme.status_style(theme.OK))
-            self.timing_text.setPlainText("Latency timer and return delay time are fine for the control rate.")
+            lines = [] if notes else ["Latency timer and return delay time are fine for the control rate."]
+        self.timing_text.setPlainText("\n\n".join([*lines, *(f"Note: {n}" for n in notes)]))

@@ -13,13 +13,15 @@ The reader owns the port on its own thread and buffers frames in its ring. This 
 
 Signals: ``status(str)`` a sentence for the user, ``connected(bool)``, ``block(object)`` each drained
 :class:`SampleBlock`, ``board_status(object)`` the raw :class:`BoardStatus` (``state`` tells disconnected /
-reconnected / mismatch apart), ``stats_changed(object)`` the :class:`BoardStats` about once a second.
+reconnected / mismatch apart), ``stats_changed(object)`` the :class:`BoardStats` about once a second,
+``open_failed(str)`` each time the port cannot be opened (a board missing; retried).
 
 All public methods are for the GUI thread.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -60,6 +62,7 @@ class BoardBridge(QObject):
     block = Signal(object)
     board_status = Signal(object)
     stats_changed = Signal(object)
+    open_failed = Signal(str)  # the port could not be opened (a board missing): why, and that it is retried
 
     def __init__(self, config: BoardConfig, parent: QObject | None = None, drain_rate_hz: float | None = None,
                  history_budget_bytes: int = HISTORY_BUDGET_BYTES) -> None:
@@ -76,6 +79,7 @@ class BoardBridge(QObject):
         self._wanted = False
         self._is_connected = False
         self._last_status = BoardStatus("closed", f"board on {config.port} not started", False)
+        self.open_error = ""  # why the port could not be opened at the last try ("" once it is open)
         self._last_stats_s = 0.0
         self._bridge = ThreadBridge(self)  # reader/worker thread → GUI thread (queued, in order)
         if drain_rate_hz is None:
@@ -114,6 +118,13 @@ class BoardBridge(QObject):
     def stats(self) -> BoardStats:
         """The reader's cumulative counters (CRC errors, resyncs, gaps, reconnects, …)."""
         return self._reader.stats if self._reader is not None else BoardStats()
+
+    def newest_frame_host_s(self) -> float:
+        """``time.monotonic()`` of the newest frame the reader thread received, drained or not (−inf: none, or no
+        reader). Any thread: it tells a consumer whose blocks come late through a busy GUI thread that the board
+        still streams."""
+        reader = self._reader
+        return reader.newest_frame_host_s() if reader is not None else -math.inf
 
     def to_session_time(self, host_time_s: np.ndarray) -> np.ndarray:
         """``time.monotonic()`` readings → seconds since :attr:`t0_monotonic_s` (the plots' clock)."""
@@ -208,6 +219,7 @@ class BoardBridge(QObject):
             reader.close()
             return
         self._reader = reader
+        self.open_error = ""
         self._set_connected(_delivers_data(reader.status))
 
     def _open_failed(self, reader: BoardReader, exc: BaseException) -> None:
@@ -218,7 +230,10 @@ class BoardBridge(QObject):
         if not self._wanted:
             return
         self._set_connected(False)
-        self.status.emit(f"board: {exc} — retrying every {RETRY_OPEN_S:g} s")
+        text = f"board: {exc} — retrying every {RETRY_OPEN_S:g} s"
+        self.open_error = text
+        self.open_failed.emit(text)
+        self.status.emit(text)
         self._retry_timer.start()
 
     # -- reader callbacks (reader thread) --------------------------------------------------------------------------
@@ -231,10 +246,12 @@ class BoardBridge(QObject):
             self.status.emit(status.message)
             return
         self._last_status = status
-        self.board_status.emit(status)
-        self.status.emit(status.message)
+        # Connected state first: whoever shows the message colours it by ``is_connected`` ("board disconnected …"
+        # was drawn green, the bridge still counting the board as connected when the message arrived).
         if status.state != "closed" or not self._wanted:
             self._set_connected(_delivers_data(status))
+        self.board_status.emit(status)
+        self.status.emit(status.message)
 
     def _set_connected(self, connected: bool) -> None:
         if connected != self._is_connected:

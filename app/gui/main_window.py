@@ -292,6 +292,7 @@ class MainWindow(QMainWindow):
             self.status.set_board_state(f"Board: {lab.config.board.port}", theme.IDLE)
             board.connected.connect(self._board_connected)
             board.status.connect(self._board_status)
+            board.open_failed.connect(self._board_missing)
         source = f" — {self.config_path.name}" if self.config_path else (" — simulated lab" if lab.is_all_sim
                                                                        else "")
         self.setWindowTitle(f"{APP_NAME}{source}")
@@ -325,6 +326,10 @@ class MainWindow(QMainWindow):
 
     def _board_status(self, text: str) -> None:
         self.status.board_label.setToolTip(text)
+
+    def _board_missing(self, text: str) -> None:
+        """The board's port cannot be opened (at start-up or after a pull): a warning, not a grey port name."""
+        self.status.set_board_state(f"Board: missing on {self.lab.config.board.port} (retrying)", theme.WARN, text)
 
     def _update_recording_status(self, session: object) -> None:
         if session is None:

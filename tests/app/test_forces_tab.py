@@ -372,3 +372,28 @@ def test_simulated_truth_calibrates_every_sensor_and_says_it_is_the_simulations_
     assert tab.plots.units == "N"
     tab.controls.truth_calibration.click()  # the same truth again: the same file, no third one
     assert not (user_folders.calibrations_dir() / "simulated-lab-truth-3.json").exists()
+
+
+def test_a_pulled_board_is_amber_or_red_never_green_and_simulated_skips_are_not_lost_frames(qtbot, lab, tab,
+                                                                                             sim_lab_fast):
+    from widgets import theme
+
+    green = theme.STATUS_COLORS[theme.OK]
+    with qtbot.waitSignal(lab.board.connected, timeout=15_000):
+        lab.board.start()
+    qtbot.waitUntil(lambda: green in tab.controls.board_status.styleSheet(), timeout=15_000)
+    with qtbot.waitSignal(lab.board.connected, timeout=15_000):
+        sim_lab_fast.board.unplug()
+    status = tab.controls.board_status
+    assert "disconnected" in status.text()
+    assert green not in status.styleSheet()
+    assert theme.STATUS_COLORS[theme.WARN] in status.styleSheet() or theme.STATUS_COLORS[theme.ERROR] in \
+        status.styleSheet()
+    with qtbot.waitSignal(lab.board.connected, timeout=15_000):
+        sim_lab_fast.board.replug()
+    # frames the simulated lab dropped while nobody read them: said, but not as lost frames in amber
+    stats = dataclasses.replace(lab.board.stats, dropped_frames=21, seq_gaps=1, crc_errors=0)
+    tab._on_stats(stats)
+    counters = tab.controls.counters
+    assert "lost frames" not in counters.text() and "skipped frames 21" in counters.text()
+    assert theme.STATUS_COLORS[theme.WARN] not in counters.styleSheet()

@@ -219,3 +219,16 @@ def test_gui_with_a_missing_config_fails_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("sensnake gui: error:") and "nowhere.toml" in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_board_missing_at_start_is_a_warning_in_the_status_bar(window, qtbot, tmp_path):
+    from devices.config import BoardConfig
+
+    config = LabConfig(robot=NO_PORT_CONFIG.robot, board=BoardConfig(port="/dev/sensnake-test-no-such-board"))
+    window.replace_lab(LabContext(config))
+    label = window.status.board_label
+    assert label.level == theme.IDLE  # not tried yet
+    window.lab.board.start()
+    qtbot.waitUntil(lambda: label.level in (theme.WARN, theme.ERROR), timeout=10_000)
+    assert "missing" in label.text() and "/dev/sensnake-test-no-such-board" in label.text()
+    assert "retrying" in label.toolTip()

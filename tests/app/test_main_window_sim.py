@@ -235,3 +235,34 @@ def test_a_scan_from_the_hardware_tab_while_a_motion_plays_is_refused_with_the_r
     qtbot.mouseClick(panel.scan_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: panel.scan_button.isEnabled(), timeout=10_000)
     assert panel.scan_result_ids == list(range(1, 13))
+
+
+def test_hardware_rows_say_unknown_while_the_link_is_lost_or_a_servo_is_silent(window, qtbot, sim_lab_fast):
+    from widgets import theme
+    from widgets.hardware_panel import COL_ERR, UNKNOWN_TEXT
+
+    tab = window.show_tab("hardware")
+    panel = tab.panel
+    robot = window.lab.robot
+    robot.set_torque(True).result(timeout=30)
+    qtbot.waitUntil(lambda: panel.toggle(3, COL_TORQUE).text() == "On" and panel.cell_text(3, COL_RAD) != "—",
+                    timeout=CONNECT_TIMEOUT_MS)
+
+    sim_lab_fast.chain.disconnect()  # the cable pulled
+    qtbot.waitUntil(lambda: robot.is_link_lost and panel.cell_text(3, COL_RAD) == "—", timeout=CONNECT_TIMEOUT_MS)
+    assert all(panel.toggle(sid, COL_TORQUE).text() == UNKNOWN_TEXT for sid in robot.config.joint_ids)
+    label = panel.connection_label
+    assert "reconnecting" in label.text() and theme.STATUS_COLORS[theme.OK] not in label.styleSheet()
+    sim_lab_fast.chain.reconnect()
+    qtbot.waitUntil(lambda: not robot.is_link_lost and panel.cell_text(3, COL_RAD) != "—"
+                    and panel.toggle(3, COL_TORQUE).text() == "On", timeout=CONNECT_TIMEOUT_MS)
+    assert theme.STATUS_COLORS[theme.OK] in label.styleSheet()
+
+    sim_lab_fast.chain.set_no_reply(5)  # one servo goes silent
+    qtbot.waitUntil(lambda: panel.cell_text(5, COL_ERR) == "no reply", timeout=CONNECT_TIMEOUT_MS)
+    assert panel.cell_text(5, COL_RAD) == "—" and panel.cell_text(5, COL_DEG) == "—"
+    assert panel.toggle(5, COL_TORQUE).text() == UNKNOWN_TEXT
+    assert panel.cell_text(4, COL_RAD) == "—"  # the bus's sync read needs every servo: nothing is fresh
+    sim_lab_fast.chain.set_no_reply(5, False)
+    qtbot.waitUntil(lambda: panel.cell_text(5, COL_RAD) != "—" and panel.cell_text(5, COL_ERR) == "none"
+                    and panel.toggle(5, COL_TORQUE).text() == "On", timeout=CONNECT_TIMEOUT_MS)

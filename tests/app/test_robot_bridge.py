@@ -182,3 +182,22 @@ def test_a_rate_the_bus_cannot_keep_is_refused_on_connect_with_the_fix(qtbot, si
         assert "Traceback" not in errors[-1]
     finally:
         robot.close()
+
+
+def test_a_scan_asked_for_while_connecting_waits_for_the_loop_and_holds_the_bus(bridge, qtbot):
+    """A scan clicked while the robot connects used to open the port a second time beside the starting loop: the
+    two fought for the bus and the loop showed most of its ticks missed. It now runs on the loop, once it is up."""
+    bridge.connect()
+    assert bridge.is_connecting
+    future = bridge.scan(bauds=[1_000_000], ids=range(0, 20))
+    qtbot.waitUntil(future.done, timeout=CONNECT_TIMEOUT_MS)
+    assert [info.servo_id for info in future.result()] == list(range(1, 13))
+    assert bridge.is_connected
+    stats = bridge.loop_stats()
+    assert stats.held_ticks > 0  # on the loop, on purpose
+    assert stats.missed_ticks <= 0.1 * (stats.ticks + stats.missed_ticks), stats
+
+
+def test_the_simulated_labs_factory_return_delay_is_a_note_not_a_timing_warning(connected, qtbot):
+    assert connected.timing_warnings == []
+    assert any("Return Delay Time" in note for note in connected.timing_notes)

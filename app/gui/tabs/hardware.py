@@ -37,6 +37,9 @@ from widgets.servo_settings_view import LIVE_INTERVAL_MS, ServoSettingsView, Tab
 from widgets.zero_pose_dialog import ZeroPoseDialog
 
 REFRESH_INTERVAL_MS = 100  # 10 Hz: enough for a table a person reads
+# Feedback older than this is not shown as the servos' present state (the controller's watchdog calls a servo silent
+# after 0.2 s of unanswered polling; a busy GUI delivers states late but the newest is read when shown).
+STALE_FEEDBACK_S = 0.5
 LOOP_STATS_EVERY = 5  # refreshes between control-loop statistics updates (2 Hz; they sort 4096 periods)
 
 
@@ -111,7 +114,7 @@ class HardwareTab(QWidget):
         self.robot.connected.connect(self._connected_changed)
         self._connection_changed(self.robot.connection_text)
         if self.robot.is_connected:
-            self.panel.set_timing_warnings(self.robot.timing_warnings)
+            self.panel.set_timing_warnings(self.robot.timing_warnings, notes=self.robot.timing_notes)
         self.settings.set_enabled(self.robot.is_connected, "" if self.robot.is_connected else NOT_CONNECTED)
 
     # -- live view -------------------------------------------------------------------------------------------------
@@ -131,11 +134,28 @@ class HardwareTab(QWidget):
         if not self.isVisible() or not self.robot.is_connected:
             return
         self.refresh_count += 1
-        state = self.robot.latest_state
+        robot = self.robot
+        ids = robot.config.joint_ids
+        age_s = robot.feedback_age_s()
+        if robot.is_link_lost or (age_s is not None and age_s > STALE_FEEDBACK_S):
+            # Nothing is read now: every row says so, none keeps the last values (or Torque On) it showed.
+            silent = robot.silent_ids
+            if robot.is_link_lost:
+                why = f"the link to the servo bus on {robot.port} is lost (reconnecting)"
+            elif silent:
+                named = ", ".join(str(i) for i in sorted(silent))
+                why = (f"no feedback for {age_s:.1f} s: servo {named} does not answer, and the bus's sync read "
+                       "needs every servo")
+            else:
+                why = f"no feedback from the servos for {age_s:.1f} s"
+            self.panel.set_unknown(ids, why, silent)
+            self._shown_state = None
+            return
+        state = robot.latest_state
         if state is not None and state is not self._shown_state:
             self._shown_state = state
             self.panel.set_state(state.position_rad, state.velocity_rad_s, state.current_ma)
-        health = self.robot.latest_health
+        health = robot.latest_health
         if health:
             self.panel.set_health(health)
         if self.refresh_count % LOOP_STATS_EVERY == 1:
@@ -150,7 +170,11 @@ class HardwareTab(QWidget):
 
     def _connection_changed(self, text: str) -> None:
         robot = self.robot
-        self.panel.set_connection(robot.is_connected, text, busy=robot.is_connecting or text.endswith("…"))
+        level = theme.ERROR if robot.is_link_lost else None  # "link lost … reconnecting…" is never green
+        self.panel.set_connection(robot.is_connected, text, busy=robot.is_connecting or text.endswith("…"),
+                                  level=level)
+        if robot.is_link_lost:
+            self.refresh()  # the rows say unknown at once, not at the next tick of the timer
 
     def _connected_changed(self, connected: bool) -> None:
         self._connection_changed(self.robot.connection_text)
@@ -158,7 +182,7 @@ class HardwareTab(QWidget):
         self.settings.set_enabled(connected, "" if connected else NOT_CONNECTED)
         self._settings_page_shown()
         if connected:
-            self.panel.set_timing_warnings(self.robot.timing_warnings)
+            self.panel.set_timing_warnings(self.robot.timing_warnings, notes=self.robot.timing_notes)
             self.refresh()
         else:
             self.panel.set_timing_warnings([], checked=False)
@@ -238,9 +262,9 @@ class HardwareTab(QWidget):
     def _check_timing(self, fn: Any) -> None:
         future = self.robot.run_on_bus(fn, report_errors=False)
 
-        def done(warnings: list[str]) -> None:
-            self.robot.timing_warnings = warnings
-            self.panel.set_timing_warnings(warnings)
+        def done(findings: list[str]) -> None:
+            self.robot.set_timing_findings(findings)
+            self.panel.set_timing_warnings(self.robot.timing_warnings, notes=self.robot.timing_notes)
 
         def failed(exc: BaseException) -> None:
             self.panel.set_timing_warnings([*self.robot.timing_warnings, f"could not do that: {describe_error(exc)}"])
