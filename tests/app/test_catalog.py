@@ -1,0 +1,97 @@
+"""The run catalog: runs list/show/reindex over synthetic recordings; the files stay the truth."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+
+import h5py
+
+from app.cli.main import main
+from app.core.catalog import Catalog, catalog_path
+from app.core.recorder import Recorder
+from tests.app.synthetic_trials import CHANNELS, write_trial
+
+
+def _csv(capsys):
+    return list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+
+
+def test_where_lists_exactly_the_matching_recordings_as_csv(tmp_path, capsys):
+    folder = tmp_path / "runs"
+    (folder / "sub").mkdir(parents=True)
+    write_trial(folder / "a.h5", scene="paper_obstacle", duration_s=3)
+    write_trial(folder / "sub" / "b.h5", scene="paper_obstacle", outcome="not traversed", duration_s=3)
+    write_trial(folder / "c.h5", scene="step", duration_s=3)
+    write_trial(folder / ".hidden.h5.123.partial.h5", scene="paper_obstacle", duration_s=3)  # a writer's temporary
+    assert main(["runs", "list", "--dir", str(folder), "--where", "scene=paper_obstacle", "--format", "csv"]) == 0
+    out = capsys.readouterr().out
+    lines = out.strip().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("file,started,plan_name,scene")
+    rows = list(csv.DictReader(io.StringIO(out)))
+    assert sorted(os.path.basename(r["file"]) for r in rows) == ["a.h5", "b.h5"]
+    assert main(["runs", "list", "--dir", str(folder), "--where", "scene=paper_obstacle", "--where",
+                 "outcome=not traversed", "--format", "csv"]) == 0
+    assert [os.path.basename(r["file"]) for r in _csv(capsys)] == ["b.h5"]
+    # the files are the truth: a file removed or added is seen by the next listing
+    (folder / "a.h5").unlink()
+    write_trial(folder / "d.h5", scene="paper_obstacle", duration_s=3)
+    assert main(["runs", "list", "--dir", str(folder), "--where", "scene=paper_obstacle", "--format", "json"]) == 0
+    assert sorted(os.path.basename(r["file"]) for r in json.loads(capsys.readouterr().out)) == ["b.h5", "d.h5"]
+    assert main(["runs", "list", "--dir", str(folder), "--where", "colour=red"]) != 0
+    assert "colour" in capsys.readouterr().err
+
+
+def test_a_corrupt_catalog_is_rebuilt_and_old_recordings_are_indexed_with_what_they_say(tmp_path, capsys):
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    write_trial(folder / "new.h5", duration_s=3)
+    old = write_trial(folder / "old.h5", duration_s=3, with_documents=False)  # before run documents
+    with h5py.File(old, "a") as f:
+        f.attrs["config"] = "# sensnake experiment obstacle: height_ratio = 0.28\n[board]\n"
+        f["sim"].attrs["scene_name"] = "paper_obstacle (seed 3)"
+    (folder / "junk.h5").write_bytes(b"not a recording")
+    catalog_path().parent.mkdir(parents=True, exist_ok=True)
+    catalog_path().write_bytes(b"this is not an SQLite database" * 100)
+    assert main(["runs", "list", "--dir", str(folder), "--where", "scene=paper_obstacle", "--format", "csv"]) == 0
+    captured = capsys.readouterr()
+    assert "rebuilt" in captured.err
+    rows = list(csv.DictReader(io.StringIO(captured.out)))
+    assert sorted(os.path.basename(r["file"]) for r in rows) == ["new.h5", "old.h5"]
+    old_row = next(r for r in rows if r["file"].endswith("old.h5"))
+    assert old_row["plan_name"] == "experiment obstacle" and old_row["outcome"] == "traversed"
+    assert main(["runs", "show", str(folder / "junk.h5")]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "junk.h5" in err
+    assert main(["runs", "show", str(old)]) == 0
+    assert "run_start: none" in capsys.readouterr().out
+
+
+def test_a_recording_is_indexed_when_its_writer_closes_it(tmp_path, capsys):
+    path = tmp_path / "live.h5"
+    recorder = Recorder(path, "[board]\n", CHANNELS)
+    recorder.start()
+    from tests.app.test_run_documents import _block
+
+    recorder.add_block(_block(5, recorder.t0_monotonic_s + 0.01))
+    recorder.stop()
+    with Catalog() as catalog:
+        entry = catalog.get(path)
+    assert entry is not None and entry["plan_name"] == "record" and entry["exit_status"] == "success"
+    assert main(["runs", "list", "--where", "plan=record", "--format", "csv"]) == 0  # no --dir: all the app wrote
+    assert str(path.resolve()) in [r["file"] for r in _csv(capsys)]
+
+
+def test_since_and_numbers_filter(tmp_path, capsys):
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    write_trial(folder / "slow.h5", duration_s=2, speed_rad_s=0.034)
+    write_trial(folder / "fast.h5", duration_s=2, speed_rad_s=0.05)
+    assert main(["runs", "list", "--dir", str(folder), "--where", "speed=0.05", "--format", "csv"]) == 0
+    assert [os.path.basename(r["file"]) for r in _csv(capsys)] == ["fast.h5"]
+    tomorrow = time.strftime("%Y-%m-%d", time.localtime(time.time() + 86400))
+    assert main(["runs", "list", "--dir", str(folder), "--since", tomorrow, "--format", "csv"]) == 0
+    assert _csv(capsys) == []
