@@ -891,6 +891,302 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
 }
 
 
+# -- hostile inputs: outputs that are no regular file, stale temporaries, TOML, HDF5, memory limits -----------------
+# These run the command in this process (app.cli.main.main), as tests/app does: fast enough for tests/test_fault_matrix.py
+# to run every one of them; only the memory limits need a process of their own.
+def in_process(*args: str) -> Run:
+    """``sensnake ARGS`` called in this process: (exit code, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from app.cli.main import main as sensnake_main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = sensnake_main(list(args))
+        except SystemExit as exc:  # argparse's usage errors
+            code = int(exc.code or 0)
+        except Exception:  # noqa: BLE001 - an escaped exception is what a user would see as a traceback
+            import traceback
+
+            err.write(traceback.format_exc())
+            code = 1
+    return Run(code, out.getvalue(), err.getvalue())
+
+
+def _small_recording(path: Path, n: int = 40) -> Path:
+    """A valid recording of 36 channels (S06B among them) written in this process, no board needed."""
+    import numpy as np
+
+    from app.core.recording import RecordingWriter
+    from devices.config import BoardConfig
+
+    names = BoardConfig().channel_names
+    with RecordingWriter(path, "", names, flush_interval_s=0.0, min_free_bytes=0) as writer:
+        counts = np.full((n, len(names)), 2000, dtype=np.uint16)
+
+        class Block:
+            seq = np.arange(n, dtype=np.uint32)
+            host_time_s = writer.t0_monotonic_s + np.arange(n) / 30.0
+            conductance_s = np.full((n, len(names)), 1e-4)
+
+        Block.counts = counts  # type: ignore[attr-defined]
+        writer.append_daq(Block())  # type: ignore[arg-type]
+    return path
+
+
+def outputs_that_are_no_regular_file(folder: Path) -> Outcome:
+    """A FIFO, and a symbolic link to one, as every writer's output: refused in one line, the FIFO left a FIFO."""
+    import stat
+
+    rec = _small_recording(folder / "rec.h5")
+    data, cal = _series(folder), _calibration(folder)
+    fifo = folder / "pipe"
+    os.mkfifo(fifo)
+    link = folder / "link.out"
+    link.symlink_to(fifo)
+    commands = {"estimate CSV": ["estimate", str(data), "--cal", str(cal), "--out"],
+                "estimate REC.h5": ["estimate", str(rec), "--cal", str(cal), "--out"],
+                "export": ["export", str(rec), "--csv"], "repair": ["repair", str(rec), "--out"],
+                "record": ["record", "--daq", "sim", "--seconds", "1", "--out"],
+                "experiment run": ["experiment", "run", "--seconds", "0.1", "--out"]}
+    for name, argv in commands.items():
+        for target in (fifo, link):
+            ok, note = clean_failure(in_process(*argv, str(target)), 1, str(target), "FIFO", "regular file")
+            if not ok:
+                return Outcome(False, f"{name} --out {target.name}: {note}")
+            if not stat.S_ISFIFO(os.stat(fifo).st_mode) or not link.is_symlink():
+                return Outcome(False, f"{name} replaced {target.name}")
+    leftovers = _hidden(folder)
+    return Outcome(not leftovers, f"left behind: {leftovers}" if leftovers else
+                   f"{len(commands)} writers × (FIFO, link to it): one line each, the FIFO untouched")
+
+
+def stale_temporaries_removed(folder: Path) -> Outcome:
+    """A writer killed (kill -9) with its temporary open leaves it; the next writer of that output removes it (its
+    pid is dead), and keeps a live writer's."""
+    rec = _small_recording(folder / "rec.h5")
+    out = folder / "new.h5"
+    killed = subprocess.run([sys.executable, "-c", "import os, sys\nfrom app.core.outputs import create_temporary\n"
+                             "create_temporary(sys.argv[1])\nos.kill(os.getpid(), 9)", str(out)], cwd=REPO,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, timeout=60)
+    stale = _hidden(folder)
+    if killed.returncode != -signal.SIGKILL or len(stale) != 1:
+        return Outcome(False, f"the killed writer left {stale} (exit {killed.returncode})")
+    live = folder / f".{out.name}.{os.getpid()}.0123abcd.partial"  # this process: alive
+    live.write_bytes(b"")
+    run = in_process("estimate", str(rec), "--cal", str(_calibration(folder)), "--out", str(out))
+    left = _hidden(folder)
+    ok = run.code == 0 and left == [live.name]
+    return Outcome(ok, f"removed {stale[0]}, kept the live one" if ok else f"exit {run.code}; left {left}")
+
+
+def full_disk_record(folder: Path) -> Outcome:
+    """A disk too full for the first flush: one line that says the old file was left as it was (not "keeps the
+    first 0 board samples"), the old file untouched, no lock file or temporary left."""
+    import shutil
+    from unittest import mock
+
+    out = folder / "old.h5"
+    out.write_bytes(b"an earlier recording" * 100)
+    before = out.read_bytes()
+    real = shutil.disk_usage(folder)
+    full = type(real)(real.total, real.total, 1000)  # 1 kB free
+    with mock.patch.object(shutil, "disk_usage", return_value=full):
+        run = in_process("record", "--daq", "sim", "--seconds", "2", "--out", str(out))
+    ok, note = clean_failure(run, 1, "old.h5", "almost full", "left as it was")
+    if ok and ("first 0" in note or out.read_bytes() != before or _hidden(folder)):
+        return Outcome(False, f"{note}; file changed or left behind: {_hidden(folder)}")
+    return Outcome(ok, note)
+
+
+def hostile_toml(folder: Path) -> Outcome:
+    """Scene, sweep and gains files no reader should trust: one line each naming the file."""
+    huge = "9" * 400
+    files = {"int400.toml": f"[ground]\nfriction = {huge}\n", "int5000.toml": f"[ground]\nfriction = {'9' * 5000}\n",
+             "deep.toml": "x = " + "[" * 200_000 + "]" * 200_000 + "\n",
+             "crowd.toml": "[ground]\nfriction = 0.3\n" + "".join(
+                 f'[[obstacle]]\nshape = "box"\nx_m = {k * 0.0002:.4f}\nlength_m = 0.01\nheight_m = 0.01\n'
+                 for k in range(10_000)),
+             "both.toml": "push_gain = 0.3\n[feedback]\ntarget_n = 6.0\n",
+             "sweep.toml": f'scenes = ["flat"]\nseconds = {huge}\n'}
+    for name, text in files.items():
+        (folder / name).write_text(text, encoding="utf-8")
+    os.mkfifo(folder / "fifo.toml")
+    (folder / "zero.toml").symlink_to("/dev/zero")
+    out = str(folder / "r.h5")
+    checks: list[tuple[list[str], tuple[str, ...]]] = [
+        (["experiment", "run", "--scene", str(folder / name), "--out", out], (name, words))
+        for name, words in (("int400.toml", "400-digit"), ("int5000.toml", "digits"), ("deep.toml", "nested"),
+                            ("crowd.toml", "at most 64"), ("fifo.toml", "FIFO"), ("zero.toml", "character device"))]
+    checks += [(["experiment", "run", "--controller", "feedback", "--gains", str(folder / "both.toml"), "--out", out],
+                ("both.toml", "top level", "[feedback]")),
+               (["experiment", "run", "--controller", "feedback", "--gains", str(folder / "int400.toml"), "--out",
+                 out], ("int400.toml", "400-digit")),
+               (["experiment", "sweep", str(folder / "sweep.toml"), "--out", str(folder / "sweep")],
+                ("sweep.toml", "400-digit")),
+               (["experiment", "sweep", str(folder / "fifo.toml"), "--out", str(folder / "sweep")],
+                ("fifo.toml", "FIFO"))]
+    for argv, words in checks:
+        ok, note = clean_failure(in_process(*argv), 1, *words)
+        if not ok:
+            return Outcome(False, f"{' '.join(argv[:2])} {words[0]}: {note}")
+    return Outcome(True, f"{len(checks)} files, one line each naming the file and the cause")
+
+
+def _hostile_recordings(folder: Path) -> dict[str, tuple[Path, tuple[str, ...]]]:
+    """Recordings a reader must refuse: name → (file, words the message must hold)."""
+    import shutil
+
+    import h5py
+    import numpy as np
+
+    good = _small_recording(folder / "good.h5")
+    n = 40
+
+    def variant(name: str, change: Callable[[h5py.File], None], *words: str) -> tuple[Path, tuple[str, ...]]:
+        path = folder / f"{name}.h5"
+        shutil.copy(good, path)
+        with h5py.File(path, "r+") as f:
+            change(f)
+        return path, (path.name, *words)
+
+    def dataset(where: str, data: object) -> Callable[[h5py.File], None]:
+        def change(f: h5py.File) -> None:
+            del f[where]
+            f[where] = data
+        return change
+
+    def loop(f: h5py.File) -> None:
+        del f["daq/conductance_S"]
+        f["daq/conductance_S"] = h5py.SoftLink("/daq/loop")
+        f["daq/loop"] = h5py.SoftLink("/daq/conductance_S")
+
+    def version(f: h5py.File) -> None:
+        f.attrs["version"] = "abc"
+
+    cond = "/daq/conductance_S"
+    return {
+        "compound dtype": variant("compound", dataset("daq/conductance_S", np.zeros(
+            (n, 36), dtype=[("a", "f8"), ("b", "i4")])), cond, "compound"),
+        "1-D": variant("oned", dataset("daq/conductance_S", np.zeros(n)), cond, "36 columns"),
+        "5 columns": variant("five", dataset("daq/conductance_S", np.zeros((n, 5))), cond, "36 columns"),
+        "scalar": variant("scalar", dataset("daq/conductance_S", 1.0), cond, "single value"),
+        "strings": variant("strings", dataset("daq/conductance_S", np.array([b"abc"] * n)), cond, "text"),
+        "complex": variant("complex", dataset("daq/conductance_S", np.full((n, 36), 1e-4 + 1e-5j)), cond, "complex"),
+        "soft-link loop": variant("loop", loop, cond, "loops"),
+        "2-D time": variant("time2d", dataset("daq/time_s", np.zeros((n, 2))), "/daq/time_s", "one value per row"),
+        'version "abc"': variant("version", version, "version", "'abc'"),
+    }
+
+
+def hostile_recordings(folder: Path) -> Outcome:
+    """estimate REC.h5 and export on recordings of the wrong shape or type: one line naming the file, the dataset
+    and what was expected; never a traceback, a numpy warning or a silent exit 0."""
+    import warnings
+
+    cal = _calibration(folder)
+    for name, (path, words) in _hostile_recordings(folder).items():
+        for argv in (["estimate", str(path), "--cal", str(cal), "--out", str(folder / "o.h5")],
+                     ["export", str(path), "--csv", str(folder / "o.csv")]):
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # a leaked numpy warning fails the case
+                run = in_process(*argv)
+            ok, note = clean_failure(run, 1, *words)
+            if not ok:
+                return Outcome(False, f"{argv[0]} on {name}: {note}")
+    return Outcome(True, "9 hostile recordings × (estimate, export): each one line naming file, dataset, expectation")
+
+
+def repair_flipped_bytes(folder: Path) -> Outcome:
+    """200 flipped bytes at five random places: repair either salvages or says in one line why not (never a codec's
+    complaint or HDF5's report)."""
+    import numpy as np
+
+    data = _small_recording(folder / "good.h5").read_bytes()
+    notes = []
+    for seed in range(5):
+        damaged = bytearray(data)
+        rng = np.random.default_rng(seed)
+        for k in rng.choice(len(damaged), 200, replace=False):
+            damaged[k] ^= 0xFF
+        path = folder / f"flipped{seed}.h5"
+        path.write_bytes(bytes(damaged))
+        run = in_process("repair", str(path), "--out", str(folder / f"fixed{seed}.h5"))
+        if run.code == 0 and not run.traceback:
+            notes.append("salvaged")
+            continue
+        ok, note = clean_failure(run, 1, path.name)
+        if not ok:
+            return Outcome(False, f"seed {seed}: {note}")
+        notes.append("refused")
+    return Outcome(not _hidden(folder), f"{', '.join(notes)}; left behind: {_hidden(folder)}" if _hidden(folder)
+                   else ", ".join(notes))
+
+
+def symlink_loop_inputs(folder: Path) -> Outcome:
+    (folder / "a.h5").symlink_to(folder / "b.h5")
+    (folder / "b.h5").symlink_to(folder / "a.h5")
+    for argv in (["export", str(folder / "a.h5"), "--csv", str(folder / "o.csv")],
+                 ["repair", str(folder / "a.h5"), "--out", str(folder / "o.h5")],
+                 ["estimate", str(folder / "a.h5"), "--cal", str(_calibration(folder)), "--out", str(folder / "o.h5")]):
+        ok, note = clean_failure(in_process(*argv), 1, "a.h5", "symbolic link loop")
+        if not ok:
+            return Outcome(False, f"{argv[0]}: {note}")
+    return Outcome(True, "export, repair, estimate: 'symbolic link loop', not 'does not exist'")
+
+
+def fit_under_address_limits(folder: Path) -> Outcome:
+    """``fit`` under ``ulimit -v`` 150 MB, 300 MB and 2 GB: done, or one line naming the limit, within seconds —
+    never minutes of silence (OpenBLAS threads, or its allocator spinning while a library loads)."""
+    import resource
+
+    from app.core import calfiles
+    from models.physics import PhysicsConstants
+    from models.synthetic import TYPICAL_TRUTH, Readout, paper_protocol
+
+    trial = paper_protocol(TYPICAL_TRUTH, PhysicsConstants(), seed=5, repeats=1, noise_rel=0.001,
+                           readout=Readout())[0]
+    paths = [str(folder / "trial.csv")]
+    calfiles.write_trial_csv(paths[0], trial.time_s, trial.force_n, trial.conductance_s)
+    notes = []
+    for limit_mb in (150, 300, 2048):
+        limit = limit_mb << 20
+
+        def address_limit(limit: int = limit) -> None:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, resource.RLIM_INFINITY))
+
+        started = time.monotonic()
+        done = subprocess.run([sys.executable, "-m", "app", "fit", paths[0], "--sensor", "S06B", "--area", AREA,
+                               "--out", str(folder / f"cal{limit_mb}.json")], cwd=REPO, capture_output=True,
+                              text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO),
+                                                           "SENSNAKE_IMPORT_WATCHDOG_S": "3"},
+                              preexec_fn=address_limit)  # noqa: PLW1509
+        seconds = time.monotonic() - started
+        run = Run(done.returncode, done.stdout, done.stderr)
+        if run.traceback or seconds > 60:
+            return Outcome(False, f"{limit_mb} MB: {'traceback' if run.traceback else f'{seconds:.0f} s'}")
+        if run.code != 0:
+            lines = run.error_lines()
+            if len(lines) != 1 or "ulimit -v" not in lines[0]:
+                return Outcome(False, f"{limit_mb} MB: exit {run.code}: {run.err.strip()[-160:]}")
+        notes.append(f"{limit_mb} MB: {'fitted' if run.code == 0 else 'one line'} in {seconds:.1f} s")
+    return Outcome(True, "; ".join(notes))
+
+
+CASES.update({
+    "hostile: a FIFO or a link to one as every writer's output": outputs_that_are_no_regular_file,
+    "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
+    "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,
+    "hostile: TOML (400/5000 digits, deep nesting, 10 000 obstacles, FIFO, /dev/zero, gains twice)": hostile_toml,
+    "hostile: recordings of the wrong shape or type (compound, 1-D, complex, loops, …)": hostile_recordings,
+    "hostile: repair with 200 flipped bytes": repair_flipped_bytes,
+    "hostile: export/repair/estimate of a symlink loop": symlink_loop_inputs,
+    "hostile: fit under ulimit -v 150 MB, 300 MB, 2 GB": fit_under_address_limits,
+})
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", default="", help="run the cases whose name contains this word")

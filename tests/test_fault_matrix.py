@@ -81,3 +81,24 @@ def test_a_case_runs_end_to_end_and_the_figure_is_printed():
     assert done.returncode == 0, done.stdout + done.stderr
     assert "cases tried / handled cleanly: 1 / 1" in done.stdout
     assert done.stdout.startswith("ok ") and "cannot create recording" in done.stdout
+
+
+HOSTILE_WORDS = ("FIFO or a link to one", "killed writer's temporary", "full disk", "TOML", "wrong shape or type",
+                 "200 flipped bytes", "symlink loop", "ulimit -v")
+
+
+def test_every_hostile_input_case_is_handled_cleanly(matrix, tmp_path):
+    """The hostile-input cases (outputs that are no regular file, stale temporaries, a full disk, TOML and HDF5
+    files no reader should trust, a symlink loop as input, fit under address-space limits) run here in full: they
+    call the command in this process where they can, ~20 s in all."""
+    names = [name for name in matrix.CASES if name.startswith("hostile:")]
+    for words in HOSTILE_WORDS:
+        assert any(words in name for name in names), words
+    failures = []
+    for k, name in enumerate(names):
+        folder = tmp_path / f"case{k}"
+        folder.mkdir()
+        outcome = matrix.CASES[name](folder)
+        if not outcome.ok:
+            failures.append(f"{name}: {outcome.note}")
+    assert not failures, "\n".join(failures)
