@@ -138,12 +138,43 @@ class SimLabConfig:
         _validate_lab(self, "")
 
 
+MOCAP_LABEL_FIELDS = ("segment", "marker")
+
+
+@dataclass(frozen=True)
+class MocapConfig:
+    """Motion capture (docs/MOCAP.md): how the take's markers are labelled and where they sit on a segment.
+    ``labels`` is a Python format pattern with ``{segment}`` (1 = head … 12) and ``{marker}`` (1 … K);
+    ``marker_layout_m`` gives each marker's [x, y, z] (m) in its segment's frame (origin at the segment's centre on
+    its long axis, x toward the head, z up when the body lies straight and upright, y = z × x), the same for every
+    segment (the default: :func:`models.mocap.default_marker_layout_m`). A fit further than ``max_residual_m`` (RMS)
+    from the layout is not taken as the segment's pose."""
+
+    labels: str = "SEG{segment:02d}_{marker}"
+    marker_layout_m: tuple[tuple[float, ...], ...] = field(default_factory=lambda: _default_layout())
+    max_residual_m: float = 0.004
+
+    def __post_init__(self) -> None:
+        _validate_mocap(self, "")
+
+    def label(self, segment: int, marker: int) -> str:
+        """The label of ``marker`` (1-based) of ``segment`` (1-based)."""
+        return self.labels.format(segment=segment, marker=marker)
+
+
+def _default_layout() -> tuple[tuple[float, ...], ...]:
+    from models.mocap import DEFAULT_MARKER_LAYOUT_M
+
+    return tuple(tuple(float(v) for v in row) for row in DEFAULT_MARKER_LAYOUT_M)
+
+
 @dataclass(frozen=True)
 class LabConfig:
     robot: RobotConfig = field(default_factory=RobotConfig)
     board: BoardConfig = field(default_factory=BoardConfig)
     rig: RigConfig = field(default_factory=RigConfig)
     lab: SimLabConfig = field(default_factory=SimLabConfig)
+    mocap: MocapConfig = field(default_factory=MocapConfig)
     source_text: str = ""  # the TOML text this was loaded from, stored in recordings
     # [servos]: control-table items (name, raw value) every joint servo should hold; applied on connect where a
     # servo differs (app.core.servo_settings.apply_profile). Empty: the servos are left as they are.
@@ -196,17 +227,18 @@ def load_config(path: str | Path | None = None) -> LabConfig:
 def parse_config(text: str, source: str = "<config>") -> LabConfig:
     # Invalid TOML, nesting deeper than the parser goes or an integer no float holds: one line naming the file.
     data = parse_toml_text(text, source, "lab configuration", ConfigError)
-    unknown = set(data) - {"robot", "board", "rig", "lab", "servos"}
+    unknown = set(data) - {"robot", "board", "rig", "lab", "servos", "mocap"}
     if unknown:
         raise ConfigError(f"{source}: unknown section [{sorted(unknown)[0]}] (expected robot, board, rig, lab, "
-                          "servos)")
+                          "servos, mocap)")
     # Each section is validated as it is built (__post_init__); _build prefixes the file's name to any error.
     robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
     board = _build(BoardConfig, data.get("board", {}), "board", source)
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
     lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
     servos = _servo_profile(data.get("servos", {}), source)
-    return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text, servos=servos)
+    mocap = _build(MocapConfig, data.get("mocap", {}), "mocap", source)
+    return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text, servos=servos, mocap=mocap)
 
 
 # Items a [servos] profile may not set: the moment's state, and what would lose the servo on the bus.
@@ -380,3 +412,26 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(0.0 <= lab.sensor_spread <= 0.2, source, "lab.sensor_spread", "must be in [0, 0.2]")
     _require(math.isfinite(lab.noise_counts) and lab.noise_counts >= 0, source, "lab.noise_counts",
              "must be 0 or more (ADC counts)")
+
+
+def _validate_mocap(mocap: MocapConfig, source: str) -> None:
+    from models.errors import MocapLayoutError
+    from models.mocap import check_layout
+
+    try:
+        first, second = mocap.label(1, 1), mocap.label(2, 2)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise ConfigError(f"mocap.labels = {mocap.labels!r} is not a label pattern with {{segment}} and {{marker}} "
+                          f"({type(exc).__name__}: {exc})") from None
+    _require(first != second and all(f"{{{name}" in mocap.labels for name in MOCAP_LABEL_FIELDS), source,
+             "mocap.labels", f"= {mocap.labels!r} must name both {{segment}} and {{marker}}, e.g. "
+             "'SEG{segment:02d}_{marker}'")
+    rows = mocap.marker_layout_m
+    for i, row in enumerate(rows):
+        _require(len(row) == 3, source, f"mocap.marker_layout_m[{i}]", f"has {len(row)} numbers; give [x, y, z] (m)")
+    try:
+        check_layout(rows)
+    except MocapLayoutError as exc:
+        raise ConfigError(f"mocap.{exc}" if not source else f"{source}: mocap.{exc}") from None
+    _require(math.isfinite(mocap.max_residual_m) and 0 < mocap.max_residual_m <= 0.05, source, "mocap.max_residual_m",
+             "must be in (0, 0.05] m")

@@ -69,7 +69,7 @@ def _default(field: dataclasses.Field) -> str:
 
 
 def generate() -> str:
-    from devices.config import BoardConfig, RigConfig, RobotConfig, SimLabConfig
+    from devices.config import BoardConfig, MocapConfig, RigConfig, RobotConfig, SimLabConfig
 
     notes = _toml_notes()
     out = ["# Configuration: every key and switch",
@@ -79,7 +79,8 @@ def generate() -> str:
            "sections; leave a key out to keep its default; an unknown key, or a value out of range, is refused naming "
            "the key. Units are in the key names.",
            ""]
-    for section, cls in (("robot", RobotConfig), ("board", BoardConfig), ("rig", RigConfig), ("lab", SimLabConfig)):
+    for section, cls in (("robot", RobotConfig), ("board", BoardConfig), ("rig", RigConfig), ("lab", SimLabConfig),
+                         ("mocap", MocapConfig)):
         out += [f"## [{section}]", "", (cls.__doc__ or "").strip().splitlines()[0], "",
                 "| key | default | note |", "|---|---|---|"]
         for field in dataclasses.fields(cls):

@@ -52,6 +52,7 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "record": (("config",), ("out",)),
     "teach": (("config",), ("out",)),
     "servo": (("config", "settings"), ("out",)),
+    "mocap": (("take", "xdf", "rec", "config", "recording"), ("out",)),
 }
 
 
@@ -303,6 +304,29 @@ def build_parser() -> argparse.ArgumentParser:
                             help="seconds the robot settles on the scene before the capture")
     experiment.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors' spread and noise")
     experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] scene and frictions)")
+
+    mocap = sub.add_parser("mocap", help="motion capture: a take (C3D or XDF) added to a recording on its clock",
+                           description="Motion-capture takes beside recordings (docs/MOCAP.md): each segment's pose "
+                           "fitted to its markers, the take placed on the recording's clock, written to a copy of the "
+                           "recording as /mocap.")
+    mocap_sub = mocap.add_subparsers(dest="mocap_command", metavar="ACTION", required=True)
+    mocap_import = mocap_sub.add_parser("import", help="a take added to a copy of a recording as /mocap")
+    mocap_import.add_argument("take", nargs="?", metavar="TAKE.c3d", help="a C3D take (or give --xdf)")
+    mocap_import.add_argument("--xdf", metavar="FILE.xdf", help="instead of a C3D: the first stream of type MoCap in "
+                              "a LabRecorder file")
+    mocap_import.add_argument("--rec", required=True, metavar="REC.h5", help="the recording (only read)")
+    mocap_import.add_argument("--config", metavar="LAB.toml", help="lab config: [mocap] labels and marker_layout_m, "
+                              "the joint axes (default: the one stored in the recording)")
+    mocap_import.add_argument("--offset", type=float, metavar="S", help="the recording time (s) of the take's first "
+                              "frame (default: found from the motion, against /robot/present_rad)")
+    mocap_import.add_argument("--out", required=True, metavar="NEW.h5", help="the copy with /mocap (a new file)")
+    mocap_simulate = mocap_sub.add_parser("simulate", help="a C3D take of a physics-lab recording's simulated body")
+    mocap_simulate.add_argument("recording", metavar="REC.h5", help="a recording of 'sensnake experiment run'")
+    mocap_simulate.add_argument("--out", required=True, metavar="TAKE.c3d", help="the take (a new file)")
+    mocap_simulate.add_argument("--lead", type=float, default=1.5, metavar="S",
+                                help="the take starts this long before the recording (default 1.5 s)")
+    mocap_simulate.add_argument("--seed", type=int, default=0, help="seed of the noise and dropouts")
+    mocap_simulate.add_argument("--config", metavar="LAB.toml", help="lab config ([mocap] labels, layout)")
 
     bench = sub.add_parser("bench", help="print the benchmark tables")
     bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")

@@ -58,3 +58,9 @@ class ShapeFormatError(ValueError):
 # raised by app.core.outputs
 class OutputPathError(OSError):
     """An output path no writer may replace: a device, FIFO, socket or folder, or a symbolic link loop (named)."""
+
+
+# raised by app.core.mocap
+class MocapFileError(ValueError):
+    """A motion-capture take that cannot be read or placed (no layout labels, unknown units, too few markers a
+    segment, no MoCap stream), or an output that would replace a file; the message names the file and the cause."""
