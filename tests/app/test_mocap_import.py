@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import ezc3d
 import h5py
@@ -19,6 +22,7 @@ from devices.config import MocapConfig  # noqa: E402
 from models.mocap import markers_from_poses, resample_poses  # noqa: E402
 from tests.app.xdf_files import stream_xml, write_xdf  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[2]
 LEAD_S = 1.37  # the take starts this long before the recording
 WAVE = [0.0, 0.3, 0.2, -0.3, -0.2, 0.3, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]
 
@@ -77,6 +81,14 @@ def test_a_simulated_take_lands_on_the_recordings_clock_and_its_poses_on_the_sim
     assert np.sqrt(np.mean(error ** 2)) < 0.002
     hidden = (true_t >= take.hidden_s[0] + 0.001) & (true_t < take.hidden_s[1] - 0.001)
     assert hidden.sum() > 400 and not posed[hidden, take.hidden_segment].any()
+    # the paper's Fig. 7A beside 7B from it: drawn, and never over a file
+    figure = tmp_path / "kinematics.png"
+    script = [sys.executable, str(ROOT / "scripts" / "kinematics_figure.py"), str(out), str(figure)]
+    drawn = subprocess.run(script, capture_output=True, text=True, timeout=120)
+    assert drawn.returncode == 0 and "from motion capture" in drawn.stdout, drawn.stderr
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    again = subprocess.run(script, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 1 and "exists" in again.stderr
 
 
 def test_an_xdf_mocap_stream_on_the_lsl_clock_is_placed_too(run, tmp_path, capsys):
