@@ -412,6 +412,13 @@ class BoardReader:
         with self._lock:
             return self._write_total - self._read_total
 
+    def newest_frame_host_s(self) -> float:
+        """``time.monotonic()`` when the newest frame arrived, read or not (−inf before the first). Any thread."""
+        with self._lock:
+            if self._write_total == 0:
+                return -float("inf")
+            return float(self._host_time[(self._write_total - 1) % self._capacity])
+
     def wait_for_frames(self, n_frames: int = 1, timeout_s: float | None = None) -> bool:
         """Block until at least ``n_frames`` frames arrived since the last :meth:`read_block` (True), counting any
         the ring had to drop, or until ``timeout_s`` passes (False).

@@ -244,11 +244,11 @@ def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, t
     channel = config.board.channel_names.index(settings.sensor)
     sim = factory.is_sim(config.rig.port) and factory.is_sim(config.board.port)
     lab_clock = factory.sim_lab().clock.now if sim else None
-    feed = ConductanceFeed(time_scale=1.0 if sim else time_scale)
+    reader = BoardReader(config.board)
+    feed = ConductanceFeed(time_scale=1.0 if sim else time_scale, source_alive_s=reader.newest_frame_host_s)
     line = _ProgressLine(settings.n_trials, time_scale)
     runner = ProtocolRunner(settings, feed, folder, on_progress=line, time_scale=time_scale, done=done,
-                            clock=lab_clock)
-    reader = BoardReader(config.board)
+                            clock=lab_clock, simulated_board=factory.is_sim(config.board.port))
     reader.start()  # PortOpenError (an OSError) names the port
     stop_drain = threading.Event()
     drain = threading.Thread(target=_drain, args=(reader, feed, channel, stop_drain,

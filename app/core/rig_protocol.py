@@ -283,8 +283,12 @@ class ConductanceFeed:
     """Thread-safe store of the sensor's board samples: ``push`` from the thread that drains the board, ``window``
     and ``latest`` from the runner. A fixed ring (no per-sample append); times are host ``time.monotonic()`` (s)."""
 
-    def __init__(self, capacity: int = FEED_CAPACITY, time_scale: float = 1.0) -> None:
+    def __init__(self, capacity: int = FEED_CAPACITY, time_scale: float = 1.0,
+                 source_alive_s: Callable[[], float] | None = None) -> None:
         self.time_scale = float(time_scale)  # host times are stored × this (the runner's clock; see the module doc)
+        # ``time.monotonic()`` of the newest frame the board's reader thread has received, drained or not: frames
+        # waiting for a busy thread to push them here are late, not missing (see :meth:`last_alive_wall_s`).
+        self._source_alive_s = source_alive_s
         self._t = np.full(capacity, -np.inf)
         self._b = np.full(capacity, np.nan)
         self._c = np.full(capacity, np.nan)
@@ -309,6 +313,12 @@ class ConductanceFeed:
             self._b[idx] = b
             self._c[idx] = c
             self._n += t.size
+
+    def last_alive_wall_s(self) -> float:
+        """``time.monotonic()`` of the newest sign that the board streams: a push here, or a frame its reader has
+        received that the thread draining it has not pushed yet (a GUI thread starved by a busy machine)."""
+        alive = self._source_alive_s() if self._source_alive_s is not None else -math.inf
+        return max(self.last_push_wall_s, alive)
 
     def latest(self) -> tuple[float, float]:
         """(time s, conductance S) of the newest sample, or (−inf, nan) if none arrived yet."""
@@ -382,7 +392,8 @@ class ProtocolRunner:
                  on_sample: Callable[[Sample], None] | None = None,
                  on_trial: Callable[[TrialRecord], None] | None = None,
                  clock: Callable[[], float] | None = None, board_stale_s: float = BOARD_STALE_S,
-                 time_scale: float = 1.0, done: dict[int, Path] | None = None, contact_only: bool = False) -> None:
+                 time_scale: float = 1.0, done: dict[int, Path] | None = None, contact_only: bool = False,
+                 simulated_board: bool = False) -> None:
         if not (math.isfinite(time_scale) and time_scale > 0):
             raise ValueError(f"time scale must be positive, got {time_scale!r}")
         self.settings = settings
@@ -400,6 +411,9 @@ class ProtocolRunner:
         self._on_trial = on_trial or (lambda _t: None)
         self._clock = clock or (lambda: time.monotonic() * self.time_scale)
         self.board_stale_s = board_stale_s  # no board sample for this long (s) ends the run
+        # The board is the simulated lab's: messages name it, and its advice is the lab's, not a cable's.
+        self.simulated_board = simulated_board
+        self._board_words = "the simulated lab's board" if simulated_board else "the board"
         self._stop = threading.Event()
         self._resume = threading.Event()
         self._resume.set()
@@ -575,15 +589,18 @@ class ProtocolRunner:
     def _fresh_reading(self) -> float:
         """Median of the sensor's next few board samples taken after now (S)."""
         since = self._clock()
-        # Wall seconds; at least BOARD_STALE_S: a board that was just started may still be opening.
-        deadline = time.monotonic() + max(self.board_stale_s, BOARD_STALE_S)
+        # Wall seconds without any sign of the board streaming (at least BOARD_STALE_S: a board that was just
+        # started may still be opening); samples that keep arriving late (a lab behind its clock) wait a while longer.
+        patience_s = max(self.board_stale_s, BOARD_STALE_S)
+        started = time.monotonic()
         while True:
             _, values, _ = self.feed.snapshot(since)
             if values.size >= REFINE_SAMPLES:
                 return float(np.median(values[:REFINE_SAMPLES]))
-            if time.monotonic() > deadline:
-                raise BoardStreamError(f"no conductance from the board for sensor {self.settings.sensor} while "
-                                       "finding the contact")
+            now = time.monotonic()
+            if now - max(started, self.feed.last_alive_wall_s()) > patience_s or now - started > 12 * patience_s:
+                raise BoardStreamError(f"no conductance from {self._board_words} for sensor {self.settings.sensor} "
+                                       "while finding the contact")
             if self._stop.wait(0.01):
                 raise _Stopped
 
@@ -595,6 +612,9 @@ class ProtocolRunner:
         if isinstance(exc, DeviceError):
             todo = ("fix the cause (cable, power, then reboot the rig servo if it reports an error), then run again; "
                     "you can fit the kept trials now")
+        elif isinstance(exc, BoardStreamError) and self.simulated_board:
+            todo = ("check that the simulated board streams (Forces tab): a simulated unplug, or a machine too busy "
+                    f"for the lab at {self.time_scale:g}× real time (run again at a lower speed), then run again")
         elif isinstance(exc, BoardStreamError):
             todo = "check the board's cable and that it streams (Forces tab), then run again"
         elif isinstance(exc, ForceCollapsedError):
@@ -706,10 +726,11 @@ class ProtocolRunner:
             forces[row] = rig.applied_force_n()
             times[row] = now = 0.5 * (now + self._clock())  # the read takes a while; the force is its midpoint's
             board_t, board_c = self.feed.latest()
-            if time.monotonic() - self.feed.last_push_wall_s > self.board_stale_s:
+            if time.monotonic() - self.feed.last_alive_wall_s() > self.board_stale_s:
                 raise BoardStreamError(
-                    f"no conductance from the board for sensor {s.sensor} for {self.board_stale_s:g} s during {label}"
-                    if math.isfinite(board_t) else f"no conductance from the board for sensor {s.sensor}")
+                    f"no conductance from {self._board_words} for sensor {s.sensor} for {self.board_stale_s:g} s "
+                    f"during {label}" if math.isfinite(board_t)
+                    else f"no conductance from {self._board_words} for sensor {s.sensor}")
             elapsed = now - t0
             phase = "baseline" if not loaded else ("loading" if forces[row] < 0.95 * force else "hold")
             # The collapse check judges each board sample by its own time (board data may arrive late).

@@ -115,7 +115,7 @@ class RigSession(QObject):
             sim_clock = factory.sim_lab().clock
             clock, time_scale, self._lab_rate_hz = sim_clock.now, sim_clock.speed, config.board.rate_hz
         self.time_scale = time_scale
-        self._feed = ConductanceFeed()
+        self._feed = ConductanceFeed(source_alive_s=getattr(board, "newest_frame_host_s", None))
         self._board = board
         board.block.connect(self._on_block)
         if not board.is_running:
@@ -127,7 +127,7 @@ class RigSession(QObject):
                                 on_sample=self._bridge.emitter(self.sample),
                                 on_trial=self._bridge.emitter(self.trial_saved),
                                 board_stale_s=self.board_stale_s, clock=clock, time_scale=time_scale, done=done,
-                                contact_only=contact_only)
+                                contact_only=contact_only, simulated_board=factory.is_sim(config.board.port))
         self._runner = runner
         self.outcome = None
         self._thread = threading.Thread(target=self._worker, args=(runner,), name="calibration-rig", daemon=True)
