@@ -18,9 +18,11 @@ import csv
 import io
 import re
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
+from app.core import calfiles
 from app.core.recording import Recording
 
 MICRO = 1e6
@@ -85,10 +87,14 @@ def export_view_csv(recording: Recording, out: str | Path, t0_s: float | None = 
     buffer = io.StringIO()
     np.savetxt(buffer, table, delimiter=",", fmt="%.10g")
     body = _NAN_FIELD.sub("", buffer.getvalue())  # a missing value is an empty field, never a number
-    try:
-        with out.open("w", newline="", encoding="utf-8") as handle:
-            csv.writer(handle, lineterminator="\n").writerow(header)
-            handle.write(body)
-    except OSError as exc:
-        raise OSError(f"cannot write {out}: {exc.strerror or exc}") from exc
+    def write(handle: TextIO) -> None:
+        csv.writer(handle, lineterminator="\n").writerow(header)
+        handle.write(body)
+
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise FileNotFoundError(f"cannot write {out}: the folder {folder} "
+                                f"{'is not a folder' if folder.exists() else 'does not exist'}")
+    # All or nothing, and only ever over a regular file (app.core.outputs): a device or FIFO is refused.
+    calfiles.write_atomically(out, write)
     return out, int(rows.size)
