@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 import logging
+from concurrent.futures import Future
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,12 +18,42 @@ from PySide6.QtCore import QObject, Signal
 
 from app.gui.robot_bridge import RobotBridge
 from app.gui.thread_bridge import ThreadBridge
-from devices.config import LabConfig
+from devices.config import SIM_PORT, LabConfig
 from devices.errors import LabProcessUnavailable
 from devices.factory import is_sim
 
 BOARD_BRIDGE_MODULE = "app.gui.board_bridge"
 log = logging.getLogger(__name__)
+
+
+def _simulated_part(config: LabConfig) -> tuple:
+    """What a simulated lab is built from (its [lab] section, the robot, board and rig it simulates), ports aside."""
+    return (config.lab, replace(config.robot, port=SIM_PORT), replace(config.board, port=SIM_PORT),
+            replace(config.rig, port=SIM_PORT))
+
+
+def end_sim_lab_unless_it_simulates(config: LabConfig) -> bool:
+    """Before a :class:`LabContext` on ``config`` is made (GUI thread; the previous context closed): end the running
+    simulated lab if it simulates another lab (another ``[lab] scene`` or physics, another robot, board or rig), so
+    the new context starts one on ``config`` — a lab keeps the terrain it was built with. Returns True if it ended.
+    A config with no ``sim`` port leaves it alone (nothing will use it)."""
+    from devices import factory
+
+    running = factory.installed_sim_lab()
+    built_on = getattr(running, "config", None)
+    if running is None or not isinstance(built_on, LabConfig) or not _uses_sim(config):
+        return False
+    if _simulated_part(built_on) == _simulated_part(config):
+        return False
+    factory.install_sim_lab(None)
+    close = getattr(running, "close", None)
+    if callable(close):
+        close()
+    return True
+
+
+def _uses_sim(config: LabConfig) -> bool:
+    return any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port))
 
 
 def _make_sim_lab(config: LabConfig, in_own_process: bool) -> str:
@@ -46,6 +78,23 @@ def _make_sim_lab(config: LabConfig, in_own_process: bool) -> str:
         return f"the app's process ({why_not})"
     factory.sim_lab(config)
     return "the app's process"
+
+
+def _call_sim_lab(name: str) -> Any:
+    """Call ``name`` (a dotted path such as ``physics.world.place``) on the running simulated lab, in this process
+    or in its own."""
+    from devices import factory
+
+    lab = factory.installed_sim_lab()
+    if lab is None:
+        raise RuntimeError("no simulated lab is running")
+    call = getattr(lab, "call", None)  # the lab's own process (LabProcess)
+    if callable(call):
+        return call(name)
+    target: Any = lab
+    for part in name.split("."):
+        target = getattr(target, part)
+    return target()
 
 
 class LabContext(QObject):
@@ -79,7 +128,7 @@ class LabContext(QObject):
         self._recording: Any = None
         self._force_page: Any = None
         self._closed = False
-        if any(is_sim(port) for port in (config.robot.port, config.board.port, config.rig.port)):
+        if _uses_sim(config):
             self.lab_where = _make_sim_lab(config, lab_process)
             from devices.factory import installed_sim_lab
 
@@ -165,6 +214,43 @@ class LabContext(QObject):
         board = self.board
         if board is not None:
             board.start()
+
+    def reset_sim_robot(self) -> Future:
+        """Put the simulated robot back where the lab starts it: any motion stopped, torque off on every joint (limp,
+        as at start-up), the physics world's robot laid straight at its scene's start to settle there, servos that
+        latched a hardware error (an overload when it fell) rebooted. GUI thread; the Future gives one line saying
+        what was done, or fails with why not (a real robot, the scripted lab)."""
+        from devices import bus_commands
+        from devices.bus_commands import bus_command
+
+        done: Future = Future()
+        if not is_sim(self.config.robot.port):
+            done.set_exception(ValueError("Reset lab re-settles the simulated robot; this robot is real"))
+            return done
+        if self.config.lab.physics != "mujoco":
+            done.set_exception(ValueError("the scripted simulated lab has no scene to settle the robot on "
+                                          "([lab] physics = \"scripted\")"))
+            return done
+        robot = self.robot
+        robot.stop_motion()  # first: nothing drives the joints while the robot is put back
+        in_error = [h.servo_id for h in robot.latest_health if h.error_names]
+        torque_off = robot.run_on_bus(bus_command(bus_commands.set_torque, False), report_errors=False)
+
+        def place(_result: object) -> None:
+            try:
+                _call_sim_lab("physics.world.place")
+            except (RuntimeError, AttributeError, OSError) as exc:
+                done.set_exception(RuntimeError(f"the simulated lab could not be reset: {exc}"))
+                return
+            for servo_id in in_error if robot.is_connected else ():
+                robot.reboot(servo_id)
+            scene = self.config.lab.scene or "the built-in scene ([lab] obstacle keys)"
+            rebooted = f"; servo(s) {', '.join(map(str, in_error))} rebooted" if in_error else ""
+            done.set_result(f"lab reset: the simulated robot was laid straight at the start of {scene} and settles "
+                            f"there, torque off (limp) as at start-up{rebooted}")
+
+        robot.when_done(torque_off, place, done.set_exception)
+        return done
 
     def emergency_stop(self) -> None:
         """STOP (button or Esc, GUI thread): the robot halts within one control tick (torque stays on, goals frozen

@@ -28,8 +28,8 @@ from PySide6.QtWidgets import (
 
 from app.core import user_folders
 from app.gui.gui_gc import GuiThreadCollector
-from app.gui.lab import LabContext
-from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING
+from app.gui.lab import LabContext, end_sim_lab_unless_it_simulates
+from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING, describe_error
 from devices.config import load_config
 from devices.errors import ConfigError
 from devices.factory import is_sim
@@ -217,6 +217,13 @@ class MainWindow(QMainWindow):
         self.quit_action.triggered.connect(self.close)
         file_menu.addAction(self.quit_action)
 
+        lab_menu = self.menuBar().addMenu("&Lab")
+        self.reset_lab_action = QAction("&Reset lab (simulated robot back at its scene's start)", self)
+        self.reset_lab_action.setToolTip("Stops any motion, turns torque off and lays the simulated robot straight "
+                                         "at the start of its scene to settle, as when the app starts")
+        self.reset_lab_action.triggered.connect(self.reset_lab)
+        lab_menu.addAction(self.reset_lab_action)
+
         help_menu = self.menuBar().addMenu("&Help")
         self.shortcuts_action = QAction("&Keyboard shortcuts", self)
         self.shortcuts_action.triggered.connect(self._show_shortcuts)
@@ -256,22 +263,47 @@ class MainWindow(QMainWindow):
             QMessageBox.warning(self, "Configuration not loaded", str(exc))
             return False
         self.config_path = Path(path)
-        lab = LabContext(config, lab_process=getattr(self.lab, "lab_process", False))
+        lab_process = getattr(self.lab, "lab_process", False)
+        self.lab.robot.stop_motion()  # nothing keeps moving while the lab changes under it
+        index = self._close_lab()
+        # The simulated lab is built from the config (its scene, its robot, board and rig): another one ends the
+        # running lab and the new context starts one on it (a lab keeps the terrain it was built with).
+        restarted = end_sim_lab_unless_it_simulates(config)
+        lab = LabContext(config, lab_process=lab_process)
         lab.config_path = self.config_path
-        self.replace_lab(lab)
+        self._adopt_lab(lab, index)
         self.lab.connect_all()
+        if restarted:
+            scene = config.lab.scene or "the built-in scene ([lab] obstacle keys)"
+            self.show_event(f"simulated lab restarted for {self.config_path.name}: scene {scene}, "
+                            f"{config.lab.physics} physics, running in {lab.lab_where}")
         return True
 
     def replace_lab(self, lab: LabContext) -> None:
         """Close the current lab's devices and rebuild every tab on ``lab``."""
+        self._adopt_lab(lab, self._close_lab())
+
+    def _close_lab(self) -> int:
+        """Drop the tabs and close the lab's devices; returns the tab that was on screen."""
         index = self.tabs.currentIndex()
         self._drop_tabs()
         old = self.lab
         old.close()
         old.deleteLater()
+        return index
+
+    def _adopt_lab(self, lab: LabContext, index: int) -> None:
         self.lab = lab
         self._attach_lab()
         self._ensure_tab(index)
+
+    def reset_lab(self) -> None:
+        """Lab ▸ Reset lab: the simulated robot back at its scene's start (motion stopped first, torque off, laid
+        straight, servos with a latched error rebooted); the status bar says what was done or why not."""
+        lab = self.lab
+        self.status.show_message("resetting the simulated lab: motion stopped, torque off…", theme.IDLE)
+        lab.robot.when_done(lab.reset_sim_robot(), lambda text: self.status.show_message(str(text), theme.OK),
+                            lambda exc: self.show_error(f"lab not reset: {describe_error(exc)}"))
 
     # -- status ----------------------------------------------------------------------------------------------------
     def _attach_lab(self) -> None:
@@ -293,6 +325,7 @@ class MainWindow(QMainWindow):
             board.connected.connect(self._board_connected)
             board.status.connect(self._board_status)
             board.open_failed.connect(self._board_missing)
+        self.reset_lab_action.setEnabled(lab.robot.is_sim)  # the scripted lab says why it has no scene
         source = f" — {self.config_path.name}" if self.config_path else (" — simulated lab" if lab.is_all_sim
                                                                        else "")
         self.setWindowTitle(f"{APP_NAME}{source}")
