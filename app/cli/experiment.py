@@ -16,6 +16,8 @@ import sys
 
 from app.core.experiment import (
     REST_CAP_S,
+    REST_HOLD_S,
+    REST_SPEED_M_S,
     ExperimentResult,
     InvalidRunError,
     read_gains,
@@ -84,14 +86,18 @@ def _percent(fraction: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.name not in ("run", "obstacle", "sweep"):  # argparse's choices refuse others; kept for a direct call
-        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle, sweep")
+    if args.name not in ("run", "obstacle", "sweep", "trials"):  # argparse's choices refuse others; a direct call
+        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle, sweep, trials")
     try:
         import mujoco  # noqa: F401 - a clear message instead of an ImportError deep inside the lab
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
     if args.name == "sweep":
         return _sweep(args)
+    if args.name == "trials":  # a series of one condition and its repeatability report (app/cli/trials.py)
+        from app.cli.trials import run as run_trials
+
+        return run_trials(args)
     if args.plan:
         raise ValueError(f"a sweep file ({args.plan}) is for 'sensnake experiment sweep'")
     config = load_config(args.config) if args.config else LabConfig()
@@ -114,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                                     seconds=args.seconds, speed_rad_s=args.speed, settle_s=args.settle,
                                     seed=args.seed, controller=args.controller, gains=gains,
                                     tail_load_n=args.tail_load, repeat=args.repeat, rest_cap_s=rest_cap_s,
-                                    progress=_progress)
+                                    progress=_progress, md={"note": getattr(args, "note", "") or ""})
     except InvalidRunError as exc:
         if sys.stdout.isatty():
             print()
@@ -161,7 +167,9 @@ def _at_rest_line(result: ExperimentResult) -> str:
     """The outcome judged at rest, with the margin by which the whole body is past (or short of) the far edge."""
     if result.outcome == "undecided":
         return (f"at rest: undecided — the body was still moving {result.rest_cap_s:g} s after the motion was over "
-                f"(--rest-cap); no traversal, advance or slide-back judged")
+                f"(--rest-cap), its centroid at {result.final_speed_m_s * 1000:.2f} mm/s over the last "
+                f"{REST_HOLD_S:g} s (at rest: under {REST_SPEED_M_S * 1000:g} mm/s); no traversal, advance or "
+                f"slide-back judged")
     if math.isnan(result.rest_margin_m):
         judged = "no obstacle to traverse"
     elif result.outcome == "traversed":

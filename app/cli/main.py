@@ -72,7 +72,7 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         if value and os.path.realpath(value) in read:
             raise ValueError(f"--{name} {value} is also an input ({read[os.path.realpath(value)]}): choose another "
                              f"file to write, the input would be destroyed before it is read")
-        if value and not (command == "experiment" and getattr(args, "name", None) == "sweep"):
+        if value and not (command == "experiment" and getattr(args, "name", None) in ("sweep", "trials")):
             check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
 
 
@@ -269,9 +269,11 @@ def build_parser() -> argparse.ArgumentParser:
     repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
 
     experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
-    experiment.add_argument("name", choices=("run", "obstacle", "sweep"),
+    experiment.add_argument("name", choices=("run", "obstacle", "sweep", "trials"),
                             help="run: any scene and motion; obstacle: the paper's Sec. III-C experiment; sweep: "
-                                 "scenes × controllers × gains × tail loads × seeds from a sweep file")
+                                 "scenes × controllers × gains × tail loads × seeds from a sweep file; trials: one "
+                                 "condition --trials times (seeds --seed …), each its own recording, and the "
+                                 "repeatability report")
     experiment.add_argument("plan", nargs="?", metavar="SWEEP.toml", help="sweep: the sweep file")
     experiment.add_argument("--out", required=True, metavar="REC.h5|DIR", help="the recording (run, obstacle) or "
                                                                                "a new folder (sweep)")
@@ -304,6 +306,10 @@ def build_parser() -> argparse.ArgumentParser:
                             help="seconds the robot settles on the scene before the capture")
     experiment.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors' spread and noise")
     experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] scene and frictions)")
+    experiment.add_argument("--trials", type=int, default=None, metavar="N",
+                            help="trials: how many (trial k runs with seed --seed + k)")
+    experiment.add_argument("--note", default="", metavar="TEXT", help="the operator's note, kept in each run_start")
+    add_align_options(experiment)
 
     mocap = sub.add_parser("mocap", help="motion capture: a take (C3D or XDF) added to a recording on its clock",
                            description="Motion-capture takes beside recordings (docs/MOCAP.md): each segment's pose "

@@ -8,8 +8,8 @@ was indexed, and forgets those that are gone (:meth:`Catalog.sync`). So a catalo
 costs one re-read, never a wrong answer: a database SQLite cannot read is moved aside (``catalog.sqlite.corrupt``)
 and rebuilt; one that cannot be written at all is replaced by one in memory for that command.
 
-Recordings are indexed when their writer has closed them (:func:`index_quietly`, called by
-:func:`app.core.run_documents.finish_run` on the writer's thread, after the file is complete): never on the data
+Recordings are indexed when their writer has closed them (:func:`finish_run`, called on the writer's thread once the
+file is complete): never on the data
 path, and a catalog that is busy or broken is skipped silently (the next listing reads the file). Recordings from
 before the run documents are indexed with what can be read: the ``started`` attribute, the physics lab's ``/sim``
 attributes (scene, outcome, validity), ``/control``'s controller and the plan line the physics lab writes at the
@@ -27,7 +27,7 @@ import os
 import re
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -35,7 +35,7 @@ from typing import Any
 
 import h5py
 
-from app.core.run_documents import RUN_START, RUN_STOP, parse_document
+from app.core.run_documents import RUN_START, RUN_STOP, parse_document, write_run_stop
 from app.core.user_folders import data_dir
 
 CATALOG_FILE = "catalog.sqlite"
@@ -378,3 +378,14 @@ def index_quietly(path: str | Path) -> None:
     file is the truth; the next listing reads it). For writer threads: never raises."""
     with contextlib.suppress(sqlite3.Error, OSError, ValueError), Catalog(busy_timeout_s=QUIET_BUSY_TIMEOUT_S) as c:
         c.index(path)
+
+
+def finish_run(path: str | Path, start: Mapping[str, Any] | None, exit_status: str, reason: str = "",
+               outcome: str | None = None) -> None:
+    """What the owner of a run does once its file is closed: its ``run_stop`` written
+    (:func:`app.core.run_documents.write_run_stop`), then the catalog told (:func:`index_quietly`: a catalog that
+    is busy or broken is skipped; the file is the truth and the next ``runs list`` reads it). A file that cannot be
+    written keeps what it has (no ``run_stop``: read as cut short). Never raises an OSError or a catalog's error."""
+    with contextlib.suppress(OSError):
+        write_run_stop(path, start, exit_status, reason, outcome)
+    index_quietly(path)

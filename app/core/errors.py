@@ -64,3 +64,13 @@ class OutputPathError(OSError):
 class MocapFileError(ValueError):
     """A motion-capture take that cannot be read or placed (no layout labels, unknown units, too few markers a
     segment, no MoCap stream), or an output that would replace a file; the message names the file and the cause."""
+
+
+# raised by app.core.repeatability
+class RepeatabilityError(ValueError):
+    """Recordings that cannot be compared as trials (too few, invalid, of different conditions); names the file."""
+
+
+# raised by app.core.trials
+class TrialsError(ValueError):
+    """A trial series that cannot be run or resumed; the message names the folder or file and the cause."""

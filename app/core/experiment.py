@@ -62,11 +62,12 @@ from typing import Any
 import h5py
 import numpy as np
 
+from app.core.catalog import finish_run
 from app.core.force_control import ForceFeedbackMotion
 from app.core.forces_pipeline import ForcesPipeline
 from app.core.play import check_shape_fits
 from app.core.recording import RecordingWriter
-from app.core.run_documents import condition, finish_run, run_start_document, with_calibration, with_metadata
+from app.core.run_documents import condition, run_start_document, with_calibration, with_metadata
 from devices import factory
 from devices.board import FrameParser, conductance_from_counts
 from devices.board_wire import saturated_from_counts

@@ -27,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from app.core.catalog import finish_run
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
-from app.core.run_documents import finish_run, live_run_start
+from app.core.run_documents import live_run_start
 
 FLUSH_INTERVAL_S = 0.5
 _STOP = object()

@@ -44,6 +44,7 @@ import h5py
 import numpy as np
 
 from app.core.calfiles import write_atomically
+from app.core.errors import RepeatabilityError
 from app.core.run_documents import RUN_START, condition_differences, parse_document
 from devices.scene import channel_map
 
@@ -56,10 +57,6 @@ POSITION_MOVE_M = 0.01
 ICC_MIN_FORCE_SPREAD_N = 0.2  # the mean curve's s.d. over time below which a sensor is flat (noise, no contact)
 ICC_MIN_POSITION_SPREAD_M = 0.005
 MIN_TRIALS = 2
-
-
-class RepeatabilityError(ValueError):
-    """Recordings that cannot be compared; the message names the file and the cause."""
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,6 @@ Qt-free; any thread (no state).
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
@@ -162,19 +161,6 @@ def write_run_stop(path: str | Path, start: Mapping[str, Any] | None, exit_statu
     with h5py.File(path, "a", locking=False) as f:
         f.attrs[RUN_STOP] = document_text(document)
     return document
-
-
-def finish_run(path: str | Path, start: Mapping[str, Any] | None, exit_status: str, reason: str = "",
-               outcome: str | None = None) -> None:
-    """What the owner of a run does once its file is closed: the ``run_stop`` written, then the run catalog told
-    (:func:`app.core.catalog.index_quietly`: a catalog that is busy or broken is skipped, the file is the truth and
-    the next ``runs list`` reads it). A file that cannot be written keeps what it has (no ``run_stop``: read as cut
-    short)."""
-    with contextlib.suppress(OSError):
-        write_run_stop(path, start, exit_status, reason, outcome)
-    from app.core.catalog import index_quietly  # here: the catalog reads run documents (this module)
-
-    index_quietly(path)
 
 
 def condition_differences(first: Mapping[str, Any] | None, other: Mapping[str, Any] | None,
