@@ -26,10 +26,12 @@ BOARD_BRIDGE_MODULE = "app.gui.board_bridge"
 log = logging.getLogger(__name__)
 
 
-def _simulated_part(config: LabConfig) -> tuple:
-    """What a simulated lab is built from (its [lab] section, the robot, board and rig it simulates), ports aside."""
-    return (config.lab, replace(config.robot, port=SIM_PORT), replace(config.board, port=SIM_PORT),
-            replace(config.rig, port=SIM_PORT))
+def _simulated_part(config: LabConfig, wanted: LabConfig) -> tuple:
+    """What of ``config`` a simulated lab for ``wanted`` is built from: its [lab] section, and the robot, board and
+    rig that ``wanted`` puts on port ``sim`` (ports aside: a real robot's baud does not change the simulated rig)."""
+    sections = (("robot", config.robot, wanted.robot), ("board", config.board, wanted.board),
+                ("rig", config.rig, wanted.rig))
+    return (config.lab, *(replace(section, port=SIM_PORT) for _, section, want in sections if is_sim(want.port)))
 
 
 def end_sim_lab_unless_it_simulates(config: LabConfig) -> bool:
@@ -43,7 +45,7 @@ def end_sim_lab_unless_it_simulates(config: LabConfig) -> bool:
     built_on = getattr(running, "config", None)
     if running is None or not isinstance(built_on, LabConfig) or not _uses_sim(config):
         return False
-    if _simulated_part(built_on) == _simulated_part(config):
+    if _simulated_part(built_on, config) == _simulated_part(config, config):
         return False
     factory.install_sim_lab(None)
     close = getattr(running, "close", None)

@@ -166,8 +166,9 @@ def test_failed_connect_says_why_and_what_to_do(window, qtbot):
 
 def test_open_config_restarts_the_lab_on_it(window, qtbot, tmp_path):
     path = tmp_path / "bench_lab.toml"
+    # (the rig stays on the simulated lab the tests run, the scripted one: its lab is not restarted)
     path.write_text('[robot]\nport = "/dev/sensnake-test-robot"\nbaud = 57600\n'
-                    '[board]\nport = "/dev/sensnake-test-board"\n', encoding="utf-8")
+                    '[board]\nport = "/dev/sensnake-test-board"\n[lab]\nphysics = "scripted"\n', encoding="utf-8")
     old_lab = window.lab
     old_page = window.tab_widget(TABS[window.tabs.currentIndex()].name)
     assert window.open_config(path) is True
