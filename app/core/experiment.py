@@ -172,6 +172,7 @@ class ExperimentResult:
     advance_at_rest_m: float = math.nan  # the centroid's advance from the capture to rest
     slide_back_m: float = math.nan  # how far the centroid ended at rest behind the farthest it had been
     rest_cap_s: float = math.nan  # how long the run could go on after the motion for the body to come to rest
+    final_speed_m_s: float = math.nan  # the centroid's mean speed over the run's last REST_HOLD_S (RestOutcome)
 
     @property
     def crawled_traverse(self) -> bool:
@@ -621,7 +622,8 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
                             tail_advance_m=tail_advance_m, end_extent_m=end_extent_m,
                             outcome=judged.outcome, motion_end_s=motion_end_s, at_rest_s=judged.at_rest_s,
                             rest_margin_m=judged.margin_m, advance_at_rest_m=judged.advance_m,
-                            slide_back_m=judged.slide_back_m, rest_cap_s=rest_cap_s)
+                            slide_back_m=judged.slide_back_m, rest_cap_s=rest_cap_s,
+                            final_speed_m_s=judged.final_speed_m_s)
 
 
 @dataclass(frozen=True)
@@ -668,6 +670,8 @@ class RestOutcome:
     margin_m: float  # rearmost body point − the last obstacle's far edge, its least over the rest window
     advance_m: float  # the centroid's advance from the first tick to rest
     slide_back_m: float  # the farthest the centroid had been − where it rests
+    final_speed_m_s: float = math.nan  # the centroid's mean speed over the last REST_HOLD_S recorded (the creep of
+    # an undecided run; NaN for a recording shorter than that)
 
 
 def judge_at_rest(times: np.ndarray, points: np.ndarray, motion_end_s: float, far_edge_m: float,
@@ -679,7 +683,12 @@ def judge_at_rest(times: np.ndarray, points: np.ndarray, motion_end_s: float, fa
     if the body never came to rest (or ``motion_end_s`` is NaN: the motion never ended)."""
     times = np.asarray(times, dtype=float)
     points = np.asarray(points, dtype=float)
-    undecided = RestOutcome("undecided", math.nan, math.nan, math.nan, math.nan)
+    final_speed = math.nan
+    if len(times) > 1 and times[-1] - times[0] >= hold_s - 1e-9:
+        first = int(np.searchsorted(times, times[-1] - hold_s - 1e-9))
+        final_speed = float(np.linalg.norm(points[-1].mean(axis=0) - points[first].mean(axis=0))
+                            / (times[-1] - times[first]))
+    undecided = RestOutcome("undecided", math.nan, math.nan, math.nan, math.nan, final_speed)
     if math.isnan(motion_end_s) or not len(times):
         return undecided
     watch = RestWatch(speed_m_s, hold_s)
@@ -694,7 +703,8 @@ def judge_at_rest(times: np.ndarray, points: np.ndarray, motion_end_s: float, fa
     margin = float(rearmost.min() - far_edge_m) if math.isfinite(far_edge_m) else math.nan
     centroid_x = points[:, :, 0].mean(axis=1)
     return RestOutcome("traversed" if margin > 0 else "not traversed", watch.at_rest_s, margin,
-                       float(centroid_x[k] - centroid_x[0]), float(centroid_x[:k + 1].max() - centroid_x[k]))
+                       float(centroid_x[k] - centroid_x[0]), float(centroid_x[:k + 1].max() - centroid_x[k]),
+                       final_speed)
 
 
 def outcome_from_recording(path: str | Path) -> tuple[bool, str, RestOutcome]:
@@ -910,9 +920,18 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["motion_end_s"] = motion_end_s
         group.attrs["rest_cap_s"] = rest_cap_s
         group.attrs["far_edge_m"] = terrain.far_edge_m
+        # how near the run came to each validity limit (devices.sim.physics.validity), whole run, settle included
+        validity = world.validity
+        group.attrs["peak_depth_m"] = validity.peak_depth_m
+        group.attrs["peak_speed_m_s"] = validity.peak_speed_m_s
+        group.attrs["peak_energy_gain_J"] = validity.peak_energy_gain_j
+        group.attrs["limits"] = json.dumps({"depth_m": validity.penetration_m, "deepest_m": validity.deepest_m,
+                                            "speed_m_s": validity.speed_limit_m_s,
+                                            "energy_margin_J": validity.energy_margin_j})
         if judged is not None:
             group.attrs["outcome"] = judged.outcome
             group.attrs["at_rest_s"] = judged.at_rest_s
             group.attrs["rest_margin_m"] = judged.margin_m
             group.attrs["advance_at_rest_m"] = judged.advance_m
             group.attrs["slide_back_m"] = judged.slide_back_m
+            group.attrs["final_speed_m_s"] = judged.final_speed_m_s

@@ -118,6 +118,7 @@ class ValidityMonitor:
         self._tail = int(tail_body)
         self.speed_limit_m_s = speed_limit_m_s
         self.servo_peak_w = servo_peak_w
+        self.energy_margin_j = ENERGY_MARGIN_J
         self.penetration_m = penetration_m  # deeper than this for MAX_PENETRATION_S: not resolved
         self.deepest_m = PENETRATION_LIMIT_RADII * shell_radius_m  # deeper than this at any moment: not resolved
         self._deep_since = math.inf
@@ -195,7 +196,7 @@ class ValidityMonitor:
         level = energy - self._allowance_j
         if math.isfinite(self._floor_j):
             self.peak_energy_gain_j = max(self.peak_energy_gain_j, level - self._floor_j)
-        if level > self._floor_j + ENERGY_MARGIN_J:
+        if level > self._floor_j + self.energy_margin_j:
             return (f"energy from nowhere: +{level - self._floor_j:.3g} J more than the powered servos "
                     f"({servos_on} × {self.servo_peak_w:.1f} W at most) and the tail load can give")
         self._floor_j = min(self._floor_j, level)
