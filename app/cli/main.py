@@ -72,7 +72,8 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         if value and os.path.realpath(value) in read:
             raise ValueError(f"--{name} {value} is also an input ({read[os.path.realpath(value)]}): choose another "
                              f"file to write, the input would be destroyed before it is read")
-        if value and not (command == "experiment" and getattr(args, "name", None) in ("sweep", "trials")):
+        folder_wanted = command == "experiment" and getattr(args, "name", None) in ("sweep", "trials")
+        if value and not folder_wanted and not os.path.isdir(value):  # a folder: refused by the writer, in its words
             check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
 
 
