@@ -133,6 +133,7 @@ class SimLabConfig:
     sensor_area_m2: float = 1.4e-3
     sensor_spread: float = 0.05
     noise_counts: float = 0.5
+    mocap: str = ""  # the motion-capture stream a recording follows ("lsl:NAME"; "" none): docs/MOCAP.md
 
     def __post_init__(self) -> None:
         _validate_lab(self, "")
@@ -412,6 +413,8 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(0.0 <= lab.sensor_spread <= 0.2, source, "lab.sensor_spread", "must be in [0, 0.2]")
     _require(math.isfinite(lab.noise_counts) and lab.noise_counts >= 0, source, "lab.noise_counts",
              "must be 0 or more (ADC counts)")
+    _require(lab.mocap == "" or (lab.mocap.startswith("lsl:") and bool(lab.mocap[4:].strip())), source, "lab.mocap",
+             f"= {lab.mocap!r} must be 'lsl:NAME' (a Lab Streaming Layer stream) or empty")
 
 
 def _validate_mocap(mocap: MocapConfig, source: str) -> None:

@@ -222,6 +222,11 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--seconds", required=True, type=float, metavar="S")
     record.add_argument("--out", required=True, metavar="REC.h5")
     record.add_argument("--config", metavar="FILE", help="lab config (channel map, readout circuit)")
+    record.add_argument("--mocap", metavar="lsl:NAME", help="also record a motion-capture stream (Lab Streaming "
+                        "Layer: the stream named NAME, else the first of type MoCap), stamped at capture, as /mocap "
+                        "(default: the config's [lab] mocap)")
+    record.add_argument("--lsl-out", action="store_true", help="publish SenSnake-forces and SenSnake-events on the "
+                        "Lab Streaming Layer while recording")
 
     export = sub.add_parser("export", help="recording → CSV")
     export.add_argument("recording", metavar="REC.h5")

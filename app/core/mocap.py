@@ -88,7 +88,7 @@ def _key(label: str) -> str:
     return label.strip().rsplit(":", 1)[-1].strip().lower()
 
 
-def _place_markers(path: Path, labels_in_file: Sequence[str], xyz: np.ndarray, mocap: MocapConfig,
+def place_markers(path: Path, labels_in_file: Sequence[str], xyz: np.ndarray, mocap: MocapConfig,
                    n_segments: int) -> tuple[np.ndarray, tuple[str, ...], tuple[str, ...], int]:
     """The file's marker trajectories ``xyz`` (M, P, 3), named ``labels_in_file``, in the layout's order
     (M, S, K, 3). Refused (naming the file) when no layout label is there, or a segment has fewer than 3."""
@@ -167,7 +167,7 @@ def read_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
     residuals = c3d["data"].get("meta_points", {}).get("residuals")
     if residuals is not None and np.shape(residuals)[-2:] == points.shape[1:]:
         xyz[np.transpose(np.asarray(residuals)[0]) < 0] = np.nan
-    markers, flat, missing, ignored = _place_markers(path, labels, xyz, mocap, n_segments)
+    markers, flat, missing, ignored = place_markers(path, labels, xyz, mocap, n_segments)
     time_s = np.arange(xyz.shape[0]) / rate
     return Take(path, "C3D", time_s, markers, flat, rate, units, missing, ignored)
 
@@ -247,7 +247,7 @@ def read_xdf(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
     nominal = float(_xdf_text(stream["info"].get("nominal_srate")) or 0.0)
     effective = float(stream["info"].get("effective_srate") or 0.0)
     rate = nominal if nominal > 0 else effective
-    markers, flat, missing, ignored = _place_markers(path, names, xyz[order], mocap, n_segments)
+    markers, flat, missing, ignored = place_markers(path, names, xyz[order], mocap, n_segments)
     return Take(path, "XDF", stamps[order], markers, flat, rate, unit, missing, ignored, note=f"stream {name!r}")
 
 
@@ -263,8 +263,9 @@ class MocapResult:
     fit: SegmentFit
     joint_rad: np.ndarray  # (M, S)
     clock_offset_s: float  # recording time − source time
-    offset: ClockOffset | None  # how it was found (None: given)
+    offset: ClockOffset | None  # how it was found (None: given, or stamped at capture)
     max_residual_m: float
+    stamped: str = ""  # how the samples were stamped at capture on the recording's clock (live), else ""
 
     @property
     def time_s(self) -> np.ndarray:
@@ -277,6 +278,8 @@ class MocapResult:
 
     @property
     def how(self) -> str:
+        if self.stamped:
+            return self.stamped
         if self.offset is None:
             return f"given: the take's first frame at {self.take_start_s:+.4f} s on the recording's clock"
         return "found from the motion: " + self.offset.describe()
@@ -312,39 +315,47 @@ def place_take(take: Take, mocap: MocapConfig, axes: Sequence[str], robot_time_s
 def write_with_mocap(recording: str | Path, out: str | Path, result: MocapResult) -> Path:
     """A copy of ``recording`` at ``out`` with ``/mocap`` (replacing one it had). ``out`` must not exist;
     ``recording`` is only read."""
+    return write_copy_with(recording, out, lambda f: fill_mocap(f, result))
+
+
+def write_in_place(recording: str | Path, result: MocapResult) -> None:
+    """``/mocap`` written into ``recording`` itself: a live recording, closed, that the take was stamped into."""
+    with h5py.File(recording, "a") as f:
+        fill_mocap(f, result)
+
+
+def fill_mocap(f: h5py.File, result: MocapResult) -> None:
+    """The ``/mocap`` group of ``result`` in the open file ``f`` (one it had is replaced)."""
     take = result.take
     fit = result.fit
     m, s, k, _ = take.markers_m.shape
-
-    def fill(f: h5py.File) -> None:
-        if "mocap" in f:
-            del f["mocap"]
-        group = f.create_group("mocap")
-        group.create_dataset("time_s", data=result.time_s)
-        group.create_dataset("markers_m", data=take.markers_m.reshape(m, s * k, 3), chunks=True, compression="gzip")
-        group.create_dataset("segment_center_m", data=fit.center_m, chunks=True, compression="gzip")
-        group.create_dataset("segment_rotation", data=fit.rotation, chunks=True, compression="gzip")
-        group.create_dataset("residual_m", data=fit.residual_m, chunks=True, compression="gzip")
-        group.create_dataset("joint_angle_rad", data=result.joint_rad, chunks=True, compression="gzip")
-        group.create_dataset("fit_flag", data=fit.flag.astype(np.int8), chunks=True, compression="gzip")
-        group.create_dataset("markers_used", data=fit.n_used.astype(np.int8), chunks=True, compression="gzip")
-        attrs = group.attrs
-        attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
-        attrs["source"] = take.source
-        attrs["rate_hz"] = float(take.rate_hz)
-        attrs["clock_offset_s"] = float(result.clock_offset_s)
-        attrs["marker_layout_m"] = result.layout_m
-        attrs["take_start_s"] = result.take_start_s
-        attrs["clock_offset_how"] = result.how
-        found = result.offset
-        attrs["clock_offset_confidence"] = found.confidence if found is not None else np.nan
-        attrs["clock_offset_uncertainty_s"] = found.uncertainty_s if found is not None else np.nan
-        attrs["max_residual_m"] = float(result.max_residual_m)
-        attrs["units"] = take.units
-        attrs["fit_flags"] = FLAG_LEGEND
+    if "mocap" in f:
+        del f["mocap"]
+    group = f.create_group("mocap")
+    group.create_dataset("time_s", data=result.time_s)
+    group.create_dataset("markers_m", data=take.markers_m.reshape(m, s * k, 3), chunks=True, compression="gzip")
+    group.create_dataset("segment_center_m", data=fit.center_m, chunks=True, compression="gzip")
+    group.create_dataset("segment_rotation", data=fit.rotation, chunks=True, compression="gzip")
+    group.create_dataset("residual_m", data=fit.residual_m, chunks=True, compression="gzip")
+    group.create_dataset("joint_angle_rad", data=result.joint_rad, chunks=True, compression="gzip")
+    group.create_dataset("fit_flag", data=fit.flag.astype(np.int8), chunks=True, compression="gzip")
+    group.create_dataset("markers_used", data=fit.n_used.astype(np.int8), chunks=True, compression="gzip")
+    attrs = group.attrs
+    attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
+    attrs["source"] = take.source
+    attrs["rate_hz"] = float(take.rate_hz)
+    attrs["clock_offset_s"] = float(result.clock_offset_s)
+    attrs["marker_layout_m"] = result.layout_m
+    attrs["take_start_s"] = result.take_start_s
+    attrs["clock_offset_how"] = result.how
+    found = result.offset
+    attrs["clock_offset_confidence"] = found.confidence if found is not None else np.nan
+    attrs["clock_offset_uncertainty_s"] = found.uncertainty_s if found is not None else np.nan
+    attrs["max_residual_m"] = float(result.max_residual_m)
+    attrs["units"] = take.units
+    attrs["fit_flags"] = FLAG_LEGEND
+    if take.path.is_file():
         attrs["source_sha256"] = _sha256(take.path)
-
-    return write_copy_with(recording, out, fill)
 
 
 def _sha256(path: Path) -> str:
