@@ -13,6 +13,7 @@ from pathlib import Path
 
 from app.core.errors import RecordingFormatError
 from app.core.recording import check_input, open_recording, repair_recording, write_recording
+from app.core.run_documents import carry_documents
 
 
 def run(args: argparse.Namespace) -> int:
@@ -22,9 +23,11 @@ def run(args: argparse.Namespace) -> int:
         recording = open_recording(path)
     except RecordingFormatError:
         report = repair_recording(path, out)
+        carry_documents(path, out, salvaged=report.text)  # the run it was, and that it was cut short
         print(f"{report.text}; wrote {out}")
         return 0
     write_recording(recording, out)
+    carry_documents(path, out)
     print(f"{path.name} is not damaged: all {recording.n_samples} board samples ({recording.duration_s:.1f} s) "
           f"copied to {out}")
     return 0

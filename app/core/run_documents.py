@@ -191,3 +191,21 @@ def with_calibration(document: Mapping[str, Any], calibration_json: str | None) 
     merged = dict(document)
     merged["condition"] = {**dict(document.get("condition") or {}), "calibration_hash": text_hash(calibration_json)}
     return merged
+
+
+def carry_documents(source: str | Path, copy: str | Path, salvaged: str = "") -> None:
+    """Give a copy of a recording (``sensnake repair``'s) the source's run documents: its ``run_start`` as it was,
+    its ``run_stop`` when it had one; a run cut short (no ``run_stop``) and salvaged gets one saying so
+    (``fail``, ``salvaged``: what was recovered). A source whose documents cannot be read leaves the copy without."""
+    try:
+        start, stop = read_documents(source)
+    except OSError:
+        return
+    if start is None:
+        return
+    with h5py.File(copy, "a", locking=False) as f:
+        f.attrs[RUN_START] = document_text(start)
+        if stop is None and salvaged:
+            stop = run_stop_document(start, "fail", f"cut short; salvaged by sensnake repair: {salvaged}")
+        if stop is not None:
+            f.attrs[RUN_STOP] = document_text(stop)

@@ -8,6 +8,7 @@ Windows. Inside it::
     shapes/          the shape library (Teach saves, Gait and `play` load)
     calibrations/    calibration JSON files and the rig's run folders (trial CSVs + protocol.json)
     settings.ini     the window's settings (geometry, last tab, …)
+    catalog.sqlite   the run catalog (app.core.catalog): the recordings' run documents indexed; rebuilt from the files
 
 ``$SENSNAKE_DATA_DIR`` moves the whole tree (a shared lab disk, a test's temporary folder); the older per-kind
 variables ``$SENSNAKE_RECORDINGS_DIR`` and ``$SENSNAKE_SHAPES_DIR`` still move one kind. File dialogs start in these

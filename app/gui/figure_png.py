@@ -20,9 +20,12 @@ def svg_to_png(svg_text: str, out: str | os.PathLike[str], scale: float = 1.5) -
     from PySide6.QtCore import QByteArray
     from PySide6.QtGui import QColor, QGuiApplication, QImage, QPainter
     from PySide6.QtSvg import QSvgRenderer
+    from PySide6.QtWidgets import QApplication
 
     out = check_output(out)
-    _app = QGuiApplication.instance() or QGuiApplication([])
+    # A QApplication (not the lighter QGuiApplication): the process's one application may later be asked for
+    # widgets (a test session, the GUI) and Qt allows one application object per process.
+    _app = QGuiApplication.instance() or QApplication([])
     renderer = QSvgRenderer(QByteArray(svg_text.encode("utf-8")))
     if not renderer.isValid():
         raise ValueError(f"{out}: the figure's SVG did not parse")

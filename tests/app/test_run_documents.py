@@ -74,3 +74,16 @@ def test_documents_hold_no_nan_and_conditions_name_their_differences():
     assert condition_differences(first, None) == []
     with pytest.raises(ValueError, match="exit_status"):
         run_stop_document(None, "ok")
+
+
+def test_a_repaired_copy_keeps_the_run_it_was(tmp_path):
+    from app.cli.main import main
+    from app.core.recording import RecordingWriter
+
+    start = run_start_document("record", condition(config_text="x"), note="kept")
+    writer = RecordingWriter(tmp_path / "cut.h5", "x", CHANNELS, run_start=start)
+    writer.append_daq(_block(5, writer.t0_monotonic_s))
+    writer.flush()  # cut short: no run_stop
+    assert main(["repair", str(tmp_path / "cut.h5"), "--out", str(tmp_path / "fixed.h5")]) == 0
+    assert read_documents(tmp_path / "fixed.h5") == (start, None)
+    writer.close()
