@@ -222,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--seconds", required=True, type=float, metavar="S")
     record.add_argument("--out", required=True, metavar="REC.h5")
     record.add_argument("--config", metavar="FILE", help="lab config (channel map, readout circuit)")
+    record.add_argument("--note", default="", metavar="TEXT", help="the operator's note, kept in the run_start")
     record.add_argument("--mocap", metavar="lsl:NAME", help="also record a motion-capture stream (Lab Streaming "
                         "Layer: the stream named NAME, else the first of type MoCap), stamped at capture, as /mocap "
                         "(default: the config's [lab] mocap)")

@@ -81,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         links.resolve()  # before anything is recorded: a stream that does not answer ends the command
         started = time.monotonic()  # before the port opens: every frame is recorded, at time_s >= 0
         reader.start()  # PortOpenError (an OSError) ends the command with one line
-        recorder = live.start_recording(out, config.source_text, t0_monotonic_s=started)
+        recorder = live.start_recording(out, config.source_text, t0_monotonic_s=started,
+                                        note=getattr(args, "note", "") or "")
         links.start(recorder)
         try:
             outcome = record_timed(live, reader, args.seconds, on_progress=progress.show, on_message=progress.note,

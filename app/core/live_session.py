@@ -35,6 +35,7 @@ from app.core.errors import BoardSilentError
 from app.core.forces_pipeline import ForcesBlock, ForcesPipeline
 from app.core.recorder import Recorder
 from app.core.recording import DEFAULT_MIN_FREE_BYTES
+from app.core.run_documents import live_run_start
 from devices.board import BoardReader, BoardStats, BoardStatus, SampleBlock
 from devices.board_wire import PROTOCOL_VERSION
 from devices.config import BoardConfig
@@ -239,18 +240,19 @@ class LiveSession:
                         n_joints: int = 12, min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
                         calibration_json: str | None = None, with_forces: bool | None = None,
                         on_failed: Callable[[str], None] | None = None,
-                        t0_monotonic_s: float | None = None) -> Recorder:
+                        t0_monotonic_s: float | None = None, note: str = "") -> Recorder:
         """Start a recorder fed by this session. Forces are stored when a pipeline estimates them (with the
         calibration in force, see :meth:`recording_calibration_json`), unless ``with_forces`` is False.
         ``t0_monotonic_s`` (default: now) is the recording's ``started``; frames that arrived before it are not
-        recorded."""
+        recorded. ``note``: the operator's note, kept in the recording's ``run_start``."""
         if self.recorder is not None and self.recorder.running:
             raise RuntimeError(f"already recording to {self.recorder.path}")
         if calibration_json is None and with_forces is not False:
             calibration_json = self.recording_calibration_json()
         recorder = Recorder(path, config_text, self.channel_names, calibration_json=calibration_json,
                             with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
-                            t0_monotonic_s=t0_monotonic_s, on_failed=on_failed)
+                            t0_monotonic_s=t0_monotonic_s, on_failed=on_failed,
+                            run_start=live_run_start(config_text, calibration_json, note=note))
         recorder.start()
         self.attach_recorder(recorder)
         return recorder

@@ -335,6 +335,10 @@ def analyse(paths: Sequence[str | Path], options: AlignOptions | None = None, mi
             raise RepeatabilityError(f"{trial.path}: its bottom sensors ({', '.join(trial.bottom_names)}) are not "
                                      f"{trials[0].path.name}'s ({', '.join(names)})")
     differences = check_conditions(trials, mixed)
+    unknown = [t.path.name for t in trials if not t.run_start]
+    notes: list[str] = []
+    if unknown:
+        notes.append(f"condition not checked for {', '.join(unknown)}: no run_start (recorded before run documents)")
     offsets = [event_time(t, options) for t in trials]
     starts = [float(np.nanmin(t.force_time_s)) - o for t, o in zip(trials, offsets)]
     ends = [float(np.nanmax(t.force_time_s)) - o for t, o in zip(trials, offsets)]
@@ -351,7 +355,6 @@ def analyse(paths: Sequence[str | Path], options: AlignOptions | None = None, mi
     resampled = [_resample(t.force_time_s - o, t.bottom_force_n, grid) for t, o in zip(trials, offsets)]
     forces = tuple(_stack(name, "N", [r[:, c] for r in resampled]) for c, name in enumerate(names))
     positions: tuple[Quantity, ...] = ()
-    notes: list[str] = []
     with_positions = [t for t in trials if t.segment_x_m is not None and t.position_time_s is not None]
     sources = {t.position_source for t in with_positions}
     if len(with_positions) == len(trials) and len(sources) == 1:

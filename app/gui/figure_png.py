@@ -24,7 +24,7 @@ def svg_to_png(svg_text: str, out: str | os.PathLike[str], scale: float = 1.5) -
 
     out = check_output(out)
     # A QApplication (not the lighter QGuiApplication): the process's one application may later be asked for
-    # widgets (a test session, the GUI) and Qt allows one application object per process.
+    # widgets (a test run, the GUI) and Qt allows one application object per process.
     _app = QGuiApplication.instance() or QApplication([])
     renderer = QSvgRenderer(QByteArray(svg_text.encode("utf-8")))
     if not renderer.isValid():

@@ -87,3 +87,20 @@ def test_a_repaired_copy_keeps_the_run_it_was(tmp_path):
     assert main(["repair", str(tmp_path / "cut.h5"), "--out", str(tmp_path / "fixed.h5")]) == 0
     assert read_documents(tmp_path / "fixed.h5") == (start, None)
     writer.close()
+
+
+def test_sensnake_record_keeps_the_operators_note(install_sim_device, tmp_path):
+    from app.cli.main import main
+    from devices.config import LabConfig
+    from devices.sim.board import VirtualBoard
+    from devices.sim.clock import SimClock
+    from devices.sim.contact import ContactModel
+
+    config = LabConfig()
+    install_sim_device("board", VirtualBoard(config.board, SimClock(20.0), ContactModel(config, None, seed=5).forces_n,
+                                             seed=6))
+    out = tmp_path / "noted.h5"
+    assert main(["record", "--daq", "sim", "--seconds", "1", "--note", "S10B re-taped", "--out", str(out)]) == 0
+    start, stop = read_documents(out)
+    assert start["note"] == "S10B re-taped" and start["plan_name"] == "record"
+    assert stop["exit_status"] == "success"
