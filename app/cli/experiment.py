@@ -14,12 +14,12 @@ import argparse
 import math
 import sys
 
+from app.core.errors import InvalidRunError
 from app.core.experiment import (
     REST_CAP_S,
     REST_HOLD_S,
     REST_SPEED_M_S,
     ExperimentResult,
-    InvalidRunError,
     read_gains,
     run_experiment,
     run_obstacle_experiment,

@@ -74,3 +74,11 @@ class RepeatabilityError(ValueError):
 # raised by app.core.trials
 class TrialsError(ValueError):
     """A trial series that cannot be run or resumed; the message names the folder or file and the cause."""
+
+
+class InvalidRunError(RuntimeError):
+    """The physics stopped being physics before the capture (in the settle): there is no run to record."""
+
+
+class InvalidRecordingError(ValueError):
+    """The recording is of a run whose physics stopped being physics (``/sim`` ``valid`` = 0): no check of it is data."""

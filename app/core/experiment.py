@@ -63,6 +63,7 @@ import h5py
 import numpy as np
 
 from app.core.catalog import finish_run
+from app.core.errors import InvalidRunError
 from app.core.force_control import ForceFeedbackMotion
 from app.core.forces_pipeline import ForcesPipeline
 from app.core.play import check_shape_fits
@@ -87,10 +88,6 @@ REST_SPEED_M_S = 0.001
 REST_HOLD_S = 2.0
 REST_CAP_S = 30.0  # how long (simulated s) a run goes on after the motion for the body to come to rest, by default
 OUTCOMES = ("traversed", "not traversed", "undecided", "invalid")
-
-
-class InvalidRunError(RuntimeError):
-    """The physics stopped being physics before the capture (in the settle): there is no run to record."""
 
 
 @dataclass(frozen=True)

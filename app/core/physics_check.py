@@ -43,6 +43,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from app.core.errors import InvalidRecordingError
 from devices.scene import channel_map
 from models.sls import ForceStatus
 
@@ -50,10 +51,6 @@ BOARD_PERIOD_S = 1.0 / 30.0
 # A body point faster than this is falling, tipping over or sliding away: the gaits' fastest point moves at under
 # 0.1 m/s on every built-in scene and five others while nothing falls (0.3 rad/s), a fall or a tip at 0.3–1.5 m/s.
 FAST_M_S = 0.2
-
-
-class InvalidRecordingError(ValueError):
-    """The recording is of a run whose physics stopped being physics (``/sim`` ``valid`` = 0): no check of it is data."""
 
 
 @dataclass(frozen=True)

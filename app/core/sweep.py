@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from app.core.errors import SweepError
+from app.core.errors import InvalidRunError, SweepError
 from devices.toml_files import read_toml_file
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
@@ -180,7 +180,7 @@ def _refuse_unholdable_loads(path: Path, scenes: list[str], load_n: float, seeds
 
 def _one(args: dict[str, Any]) -> dict[str, Any]:
     """One run (in a worker process): the recording written, its summary row returned."""
-    from app.core.experiment import REST_CAP_S, InvalidRunError, run_experiment
+    from app.core.experiment import REST_CAP_S, run_experiment
 
     started = time.perf_counter()
     row = {"run": args["run"], "scene": args["scene"], "controller": args["controller"],

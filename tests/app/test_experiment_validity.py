@@ -23,9 +23,12 @@ import pytest
 pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from app.cli.main import main  # noqa: E402
-from app.core.errors import SweepError  # noqa: E402
+from app.core.errors import (
+    InvalidRecordingError,  # noqa: E402
+    SweepError,  # noqa: E402
+)
 from app.core.experiment import REST_HOLD_S, judge_at_rest, outcome_from_recording  # noqa: E402
-from app.core.physics_check import InvalidRecordingError, check_recording  # noqa: E402
+from app.core.physics_check import check_recording  # noqa: E402
 from app.core.sweep import compare, read_sweep, run_sweep, summary_table  # noqa: E402
 from devices.sim.physics import world as world_module  # noqa: E402
 
