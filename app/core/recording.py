@@ -880,20 +880,15 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
         try:
             with handle5 as f:
                 for group_name in ("daq", "robot", "forces", "events"):
-                    if group_name not in f:
+                    if not _present(f, group_name, salvage=group_name != "daq"):
                         continue
-                    group = f[group_name]
-                    lengths, intact = [], []
-                    for name in group:
-                        dataset = group[name]
-                        if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
-                            continue
-                        intact_rows = _intact_rows(dataset, min(size, claimed))
-                        limits[f"{group_name}/{name}"] = intact_rows
-                        if f"{group_name}/{name}" in OPTIONAL_COLUMNS:
-                            continue  # dropped below if shorter than the rest, never a reason to lose rows
-                        lengths.append(dataset.shape[0])
-                        intact.append(intact_rows)
+                    try:
+                        lengths, intact = _group_rows(f[group_name], group_name, min(size, claimed), limits)
+                    except (OSError, *_DAMAGE_ERRORS):
+                        if group_name == "daq":
+                            raise
+                        limits[group_name] = 0  # an optional group whose structure was lost: left out
+                        continue
                     if lengths:
                         claimed_rows[group_name] = min(lengths)
                         limits[group_name] = min(intact)
@@ -906,6 +901,34 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
     report = RecoveryReport(path=path, file_bytes=size, claimed_bytes=claimed, rows=rows,
                             duration_s=recording.duration_s)
     return replace(recording, recovery=report.text), report
+
+
+def _group_rows(group: h5py.Group, group_name: str, good_bytes: int,
+                limits: dict[str, int]) -> tuple[list[int], list[int]]:
+    """Each column's rows and intact rows in ``group`` (``limits`` gets every column's intact rows)."""
+    lengths, intact = [], []
+    for name in group:
+        dataset = group[name]
+        if not isinstance(dataset, h5py.Dataset) or dataset.shape == ():
+            continue
+        intact_rows = _intact_rows(dataset, good_bytes)
+        limits[f"{group_name}/{name}"] = intact_rows
+        if f"{group_name}/{name}" in OPTIONAL_COLUMNS:
+            continue  # dropped below if shorter than the rest, never a reason to lose rows
+        lengths.append(dataset.shape[0])
+        intact.append(intact_rows)
+    return lengths, intact
+
+
+def _present(parent: h5py.Group, name: str, salvage: bool) -> bool:
+    """``name in parent``. When salvaging, a link HDF5 cannot even check (its header lay in the part of the file that
+    was lost) is absent; otherwise that damage is raised."""
+    try:
+        return name in parent
+    except (OSError, *_DAMAGE_ERRORS):
+        if salvage:
+            return False
+        raise
 
 
 def _intact_rows(dataset: h5py.Dataset, good_bytes: int) -> int:
@@ -1119,6 +1142,7 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
     """The recording in ``f``; ``limits`` caps the rows read per group (salvage). Every dataset read is checked
     (:func:`_dataset`), so a hostile or damaged file is refused naming the dataset, never read as numbers."""
     cap = limits or {}
+    salvage = limits is not None
     big = np.iinfo(np.int64).max
     fmt = _attr_text(f.attrs.get("format", ""))
     if fmt != FORMAT:
@@ -1142,21 +1166,21 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
     n = min(min(d.shape[0] for d in columns.values()), cap.get("daq", big))
     forces = calibration = None
     status = None
-    if "forces" in f:
+    if _present(f, "forces", salvage) and cap.get("forces", big) > 0:
         calibration = _attr_text(f["forces"].attrs.get("calibration", ""))
         force_set = _dataset(f, path, "forces/force_N", _FLOAT, 2, n_channels, per_channel)
         forces = force_set[:min(n, force_set.shape[0], cap.get("forces", big))]
-        if "status" in f["forces"]:
+        if _present(f["forces"], "status", salvage):
             status_set = _dataset(f, path, "forces/status", _INTEGER, 2, n_channels, per_channel)
             if min(status_set.shape[0], cap.get("forces/status", big)) >= len(forces):
                 status = status_set[:len(forces)]
     board_time = segment = None
-    if "board_time_s" in daq and cap.get("daq/board_time_s", big) >= n:
+    if _present(daq, "board_time_s", salvage) and cap.get("daq/board_time_s", big) >= n:
         board_time = _dataset(f, path, "daq/board_time_s", _FLOAT, 1)[:n]
-    if "clock_segment" in daq and cap.get("daq/clock_segment", big) >= n:
+    if _present(daq, "clock_segment", salvage) and cap.get("daq/clock_segment", big) >= n:
         segment = _dataset(f, path, "daq/clock_segment", _INTEGER, 1)[:n]
     robot = None
-    if "robot" in f:
+    if _present(f, "robot", salvage) and cap.get("robot", big) > 0:
         robot_sets = {"time_s": _dataset(f, path, "robot/time_s", _FLOAT, 1)}
         goal = _dataset(f, path, "robot/goal_rad", _FLOAT, 2)
         for name in ("goal_rad", "present_rad", "current_mA"):
@@ -1165,7 +1189,7 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
         robot = RobotRecord(time_s=robot_sets["time_s"][:m], goal_rad=robot_sets["goal_rad"][:m],
                             present_rad=robot_sets["present_rad"][:m], current_ma=robot_sets["current_mA"][:m])
     events: tuple[RecordingEvent, ...] = ()
-    if "events" in f:
+    if _present(f, "events", salvage) and cap.get("events", big) > 0:
         event_sets = {"time_s": _dataset(f, path, "events/time_s", _FLOAT, 1),
                       "kind": _dataset(f, path, "events/kind", _TEXT, 1),
                       "text": _dataset(f, path, "events/text", _TEXT, 1)}
