@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from app.core.catalog import finish_run
+from app.core.catalog import finish_run, index_quietly
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, RecordingWriter
 from app.core.run_documents import live_run_start
 
@@ -185,8 +185,12 @@ class Recorder:
                 writer.close()
             self.kept = writer.kept
             self._writer = None
-            if self.kept:  # closed: the run's stop document, then the catalog (off the data path, files stay truth)
-                finish_run(self.path, self.run_start, *(("fail", self.error) if self.error else self._stop_status))
+            if self.kept and self.error:
+                # Nothing more is written into a file whose write failed (a full disk, a quota): it stays exactly as
+                # the last good flush left it, and its missing run_stop reads as a run cut short.
+                index_quietly(self.path)
+            elif self.kept:  # closed: the run's stop document, then the catalog (off the data path)
+                finish_run(self.path, self.run_start, *self._stop_status)
 
     def _write_loop(self, writer: RecordingWriter) -> None:
         last_flush = time.monotonic()
