@@ -480,7 +480,9 @@ class GaitPanel(QWidget):
         feedback = self.controller == "feedback"
         for spin in self.gain_spins.values():
             spin.setEnabled(feedback)
-        self.feedback_box.setVisible(feedback)
+        # Always there (the readouts below the drawing keep their places); in use with the feedback controller only
+        self.feedback_box.setEnabled(feedback)
+        self.feedback_box.setTitle("Feedback per node" if feedback else "Feedback per node (Controller → feedback)")
 
     def _play_blocker(self) -> str:
         """Why Play cannot work now ('' if it can)."""

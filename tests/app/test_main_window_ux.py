@@ -131,7 +131,7 @@ def test_gait_controls_fit_1280x800_and_feedback_moves_neither_play_nor_the_prog
                                lead=(1.0, 0.1))
     panel.set_status("follow bump (feedback) stopped: servo 5 overload: reboot it from the Hardware tab; it comes "
                      "back with torque off, so support the robot first", "error")
-    qtbot.waitUntil(lambda: panel.feedback_box.isVisible())
+    qtbot.waitUntil(lambda: panel.feedback_box.isEnabled())
     assert places() == before
     assert panel.settings_scroll.verticalScrollBar().maximum() == 0
     scroll = panel.settings_scroll
