@@ -46,7 +46,7 @@ import numpy as np
 from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
 from app.core.errors import OutputPathError, RecordingError, RecordingFormatError
 from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
-from app.core.run_documents import RUN_START, document_text
+from app.core.run_documents import RUN_START, document_text, reserve_run_stop
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -200,6 +200,7 @@ class RecordingWriter:
                 f.attrs["duration_s"] = 0.0
                 if run_start is not None:  # the run's RunStart document (app.core.run_documents)
                     f.attrs[RUN_START] = document_text(run_start)
+                    reserve_run_stop(f.attrs)  # its RunStop, written once the file is closed, goes here
                 daq = f.create_group("daq")
                 daq.attrs["channels"] = np.array(self.channel_names, dtype=h5py.string_dtype())
                 for key in STAT_KEYS:

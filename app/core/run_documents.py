@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import h5py
+import numpy as np
 
 RUN_START = "run_start"
 RUN_STOP = "run_stop"
@@ -153,13 +154,33 @@ def read_documents(path: str | Path) -> tuple[dict[str, Any] | None, dict[str, A
         return parse_document(f.attrs.get(RUN_START)), parse_document(f.attrs.get(RUN_STOP))
 
 
+RUN_STOP_RESERVED_BYTES = 4096  # room kept for the run_stop document when the file is made
+
+
+def reserve_run_stop(attrs: Any) -> None:
+    """Make room for the ``run_stop`` document among a new file's root attributes, empty (read as no run_stop: a
+    run cut short). Writing it later in that room changes no object header: a new attribute appended to a finished
+    file moves the root group's header to the file's end, where a truncated copy loses it and with it the whole
+    recording (``sensnake repair`` then salvages nothing)."""
+    attrs.create(RUN_STOP, np.bytes_(b""), dtype=h5py.string_dtype("utf-8", RUN_STOP_RESERVED_BYTES))
+
+
 def write_run_stop(path: str | Path, start: Mapping[str, Any] | None, exit_status: str, reason: str = "",
                    outcome: str | None = None) -> dict[str, Any]:
-    """Close a finished recording's run: write its ``run_stop`` (after the file is complete; the writer is closed).
-    Returns the document. Raises OSError when the file cannot be opened for writing."""
+    """Close a finished recording's run: write its ``run_stop`` (after the file is complete; the writer is closed),
+    into the room :func:`reserve_run_stop` kept when it has one (a long reason is shortened to fit), else as a new
+    attribute. Returns the document. Raises OSError when the file cannot be opened for writing."""
     document = run_stop_document(start, exit_status, reason, outcome)
+    text = document_text(document)
     with h5py.File(path, "a", locking=False) as f:
-        f.attrs[RUN_STOP] = document_text(document)
+        reserved = f.attrs.get_id(RUN_STOP).dtype.itemsize if RUN_STOP in f.attrs else 0
+        if reserved:
+            while len(text.encode("utf-8")) > reserved and document.get("reason"):
+                document["reason"] = str(document["reason"])[: max(len(document["reason"]) // 2 - 1, 0)] + "…"
+                text = document_text(document)
+            f.attrs.modify(RUN_STOP, np.bytes_(text.encode("utf-8")))
+        else:
+            f.attrs[RUN_STOP] = text
     return document
 
 
