@@ -334,15 +334,11 @@ def _stage_gait(page, pump, feedback: bool = False) -> None:
 
 
 def _load_simulated_sensors_calibration(page: Any, folder: Path) -> None:
-    """Without a calibration file the Forces tab shows conductance (µS), never forces. For the picture it loads the
-    simulated board's own sensor models (what a calibration of all 36 sensors would give) so it shows newtons."""
-    import json
-
-    from devices import factory
-
-    path = folder / "simulated-sensors.json"
-    path.write_text(json.dumps(factory.sim_lab().board.ground_truth_calibration()), encoding="utf-8")
-    if not page.load_calibration(path):
+    """Without a calibration file the Forces tab shows conductance (µS), never forces. For the picture it does what a
+    user does on the simulated lab: Simulated truth (every simulated sensor's true calibration), so it shows newtons.
+    ``folder`` is unused: the file goes to the (temporary) data folder's calibrations, as the button puts it."""
+    del folder
+    if not page.load_simulated_truth():
         raise SystemExit(f"screenshot: the simulated sensors' calibration did not load: {page.controls.message.text()}")
 
 
