@@ -315,7 +315,10 @@ class BodyView(QWidget):
                 self._envelope = {v: _union(self._envelope[v], needed[v]) for v in VIEWS}
             elif self._too_wide(current, needed, default):
                 self._envelope = needed
-                self.shrink_timer.start()
+                if self.isVisible():
+                    self.shrink_timer.start()
+                else:  # nobody sees it (a tab not shown, a closed window): settle now, no timer behind it
+                    self._shrink_ranges()
             return
         # The drawing left the range: move out the sides it crossed, with headroom, keep the others.
         grown = {}
