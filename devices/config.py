@@ -105,6 +105,80 @@ PHYSICS_KINDS = ("scripted", "mujoco")
 MAX_BAUD = 12_000_000  # no USB-serial adapter here runs faster (the U2D2 tops out at 6 Mbps)
 
 
+def _param(default: float, source: str) -> Any:
+    """A physical parameter's default and where it comes from (a datasheet, a measurement, an assumption): the
+    source goes into docs/CONFIG.md (scripts/config_doc.py) beside the key."""
+    return field(default=default, metadata={"source": source})
+
+
+@dataclass(frozen=True)
+class LabPhysicsConfig:
+    """The physics lab's physical parameters (``[lab.physics]``): the robot's compliant shell, its contact with the
+    terrain, the servos' loop and passive terms. Friction per surface lives in the scene files (SPEC §6), where each
+    surface names its own. Every default is the value the lab used before these were data; each key says where it
+    comes from. A ``[lab.physics]`` table selects the MuJoCo lab (``[lab] physics`` is then that table, not a kind)."""
+
+    timestep_s: float = _param(
+        0.002, "assumption, measured stable: a 2 ms implicit-fast step keeps the 60 g shell on 2000 N/m from "
+               "chattering (docs/PHYSICS_LAB.md)")
+    shell_stiffness_n_per_m: float = _param(
+        2000.0, "assumption: the hollow TPU shell deflects ~1 mm under a segment's share of the weight (2 N); not "
+                "measured (a rig force-deflection curve replaces it)")
+    shell_damping_n_s_per_m: float = _param(
+        30.0, "assumption: near-critical damping of a segment bouncing on the shell")
+    shell_mass_kg: float = _param(
+        0.06, "assumption: shell, sheets, rubber covers and holders of the 196 g segment (an XM430 alone is 82 g)")
+    shell_travel_m: float = _param(
+        0.003, "assumption: the shell's travel before it bottoms out on the servo's housing")
+    roll_resistance_m: float = _param(
+        0.0085, "assumption derived from the shell's stiffness: half the width of the loaded shell's flattened "
+                "contact patch, sqrt(2 R d) for R 36 mm, d 1 mm; the lever of the terrain's resistance to a shell's "
+                "roll wherever a scene names no roll_resistance_m of its own")
+    contact_time_constant_s: float = _param(
+        0.01, "assumption: near-rigid contacts (MuJoCo solref), the compliance being the shell's")
+    contact_damping_ratio: float = _param(
+        1.0, "assumption: critically damped contacts (MuJoCo solref)")
+    servo_position_gain_nm_per_rad: float = _param(
+        21.0, "published MuJoCo models of the XM430-W350; not measured on our servos")
+    servo_damping_nm_s_per_rad: float = _param(
+        1.08, "published MuJoCo models of the XM430-W350; not measured on our servos")
+    servo_armature_kg_m2: float = _param(
+        0.045, "published MuJoCo models of the XM430-W350 (the rotor's inertia through the 353.5:1 gear); not "
+               "measured on our servos")
+    servo_friction_loss_nm: float = _param(
+        0.03, "published MuJoCo models of the XM430-W350; not measured on our servos")
+    servo_stall_torque_nm: float = _param(
+        4.1, "datasheet: ROBOTIS e-manual, XM430-W350 at 12 V (4.1 N·m at 2.3 A)")
+    servo_no_load_speed_rad_s: float = _param(
+        46.0 * 2.0 * math.pi / 60.0, "datasheet: ROBOTIS e-manual, XM430-W350 at 12 V (46 rev/min)")
+
+    def __post_init__(self) -> None:
+        _validate_lab_physics(self, "")
+
+    def to_dict(self) -> dict[str, float]:
+        """The values in force, key by key (a recording's ``/sim`` stores them as JSON)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+
+
+# [lab.physics] key → (lowest, highest) it may take (both inclusive; a lowest of 0 with the flag: above 0)
+LAB_PHYSICS_RANGES: dict[str, tuple[float, float, bool]] = {
+    "timestep_s": (1e-4, 0.01, False),
+    "shell_stiffness_n_per_m": (0.0, 1e6, True),
+    "shell_damping_n_s_per_m": (0.0, 1e4, False),
+    "shell_mass_kg": (0.0, 0.19, True),
+    "shell_travel_m": (0.0, 0.018, True),
+    "roll_resistance_m": (0.0, 0.036, False),
+    "contact_time_constant_s": (0.002, 1.0, False),
+    "contact_damping_ratio": (0.0, 10.0, True),
+    "servo_position_gain_nm_per_rad": (0.0, 1e4, True),
+    "servo_damping_nm_s_per_rad": (0.0, 100.0, False),
+    "servo_armature_kg_m2": (0.0, 10.0, False),
+    "servo_friction_loss_nm": (0.0, 10.0, False),
+    "servo_stall_torque_nm": (0.0, 100.0, True),
+    "servo_no_load_speed_rad_s": (0.0, 100.0, True),
+}
+
+
 @dataclass(frozen=True)
 class SimLabConfig:
     """What the simulated lab (port ``sim``) simulates. ``physics = "mujoco"`` (the default): the robot, the ground
@@ -134,6 +208,8 @@ class SimLabConfig:
     sensor_spread: float = 0.05
     noise_counts: float = 0.5
     mocap: str = ""  # the motion-capture stream a recording follows ("lsl:NAME"; "" none): docs/MOCAP.md
+    # [lab.physics]: the physics lab's physical parameters (a TOML table where [lab] physics would name the kind)
+    physical: LabPhysicsConfig = field(default_factory=LabPhysicsConfig)
 
     def __post_init__(self) -> None:
         _validate_lab(self, "")
@@ -236,7 +312,7 @@ def parse_config(text: str, source: str = "<config>") -> LabConfig:
     robot = _build(RobotConfig, data.get("robot", {}), "robot", source)
     board = _build(BoardConfig, data.get("board", {}), "board", source)
     rig = _build(RigConfig, data.get("rig", {}), "rig", source)
-    lab = _build(SimLabConfig, data.get("lab", {}), "lab", source)
+    lab = _build_lab(data.get("lab", {}), source)
     servos = _servo_profile(data.get("servos", {}), source)
     mocap = _build(MocapConfig, data.get("mocap", {}), "mocap", source)
     return LabConfig(robot=robot, board=board, rig=rig, lab=lab, source_text=text, servos=servos, mocap=mocap)
@@ -300,11 +376,23 @@ def resolve_relative_scene(config: LabConfig, config_path: str | Path) -> LabCon
     return replace(config, lab=replace(config.lab, scene=str(beside))) if beside.exists() else config
 
 
+def _build_lab(table: Any, source: str) -> SimLabConfig:
+    """``[lab]``, whose ``physics`` is either the kind (``"mujoco"``, ``"scripted"``) or the ``[lab.physics]`` table
+    of physical parameters (which selects the MuJoCo lab)."""
+    if isinstance(table, dict) and isinstance(table.get("physics"), dict):
+        rest = {key: value for key, value in table.items() if key != "physics"}
+        physical = _build(LabPhysicsConfig, table["physics"], "lab.physics", source)
+        lab = _build(SimLabConfig, rest, "lab", source)
+        return replace(lab, physics="mujoco", physical=physical)
+    return _build(SimLabConfig, table, "lab", source)
+
+
 def _build(cls: type, table: Any, section: str, source: str) -> Any:
     if not isinstance(table, dict):
         raise ConfigError(f"{source}: [{section}] must be a table")
     defaults = cls()
-    known = {f.name: f for f in fields(cls)}
+    # a nested table (a field whose default is a dataclass: [lab.physics]) is read by its section's own builder
+    known = {f.name: f for f in fields(cls) if not hasattr(getattr(defaults, f.name), "__dataclass_fields__")}
     kwargs: dict[str, Any] = {}
     for key, value in table.items():
         if key not in known:
@@ -413,8 +501,18 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(0.0 <= lab.sensor_spread <= 0.2, source, "lab.sensor_spread", "must be in [0, 0.2]")
     _require(math.isfinite(lab.noise_counts) and lab.noise_counts >= 0, source, "lab.noise_counts",
              "must be 0 or more (ADC counts)")
+    _require(isinstance(lab.physical, LabPhysicsConfig), source, "lab.physics",
+             "must be a table of physical parameters ([lab.physics])")
     _require(lab.mocap == "" or (lab.mocap.startswith("lsl:") and bool(lab.mocap[4:].strip())), source, "lab.mocap",
              f"= {lab.mocap!r} must be 'lsl:NAME' (a Lab Streaming Layer stream) or empty")
+
+
+def _validate_lab_physics(physical: LabPhysicsConfig, source: str) -> None:
+    for key, (low, high, above) in LAB_PHYSICS_RANGES.items():
+        value = getattr(physical, key)
+        ok = isinstance(value, int | float) and math.isfinite(value) and (value > low if above else value >= low) \
+            and value <= high
+        _require(ok, source, f"lab.physics.{key}", f"= {value!r} must be in {'(' if above else '['}{low:g}, {high:g}]")
 
 
 def _validate_mocap(mocap: MocapConfig, source: str) -> None:

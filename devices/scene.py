@@ -171,10 +171,13 @@ def scene_to_toml(scene: Scene) -> str:
     return "\n".join(lines) + "\n"
 
 
-def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float, name: str = "") -> Scene:
-    """The paper's terrain (one half cylinder at x = 0) from the lab config's legacy keys; flat if ``radius_m`` is 0."""
-    obstacles = (Obstacle("half_cylinder", 0.0, friction, radius_m=radius_m),) if radius_m > 0 else ()
-    return Scene(ground_friction=ground_friction, obstacles=obstacles,
+def half_cylinder_scene(radius_m: float, friction: float, ground_friction: float, name: str = "",
+                        roll_m: float = GROUND_ROLL_M) -> Scene:
+    """The paper's terrain (one half cylinder at x = 0) from the lab config's legacy keys; flat if ``radius_m`` is 0.
+    ``roll_m``: the ground's and the obstacle's roll resistance (``[lab.physics] roll_resistance_m``)."""
+    obstacles = (Obstacle("half_cylinder", 0.0, friction, radius_m=radius_m, roll_resistance_m=roll_m),) \
+        if radius_m > 0 else ()
+    return Scene(ground_friction=ground_friction, obstacles=obstacles, ground_roll_m=roll_m,
                  name=name or (f"half cylinder r = {radius_m:.3f} m" if obstacles else "flat ground"))
 
 
@@ -217,8 +220,9 @@ def _only(where: str, table: dict[str, Any], allowed: set[str]) -> None:
             raise SceneError(f"{where}: unknown key '{key}' (known: {', '.join(sorted(allowed))})")
 
 
-def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scene:
-    """A :class:`Scene` from TOML ``text``; ``source`` names the file in every error."""
+def parse_scene(text: str, source: str = "<scene>", name: str = "scene", default_roll_m: float = GROUND_ROLL_M) -> Scene:
+    """A :class:`Scene` from TOML ``text``; ``source`` names the file in every error. ``default_roll_m``: the
+    ground's roll resistance when the file names none (the lab config's ``[lab.physics] roll_resistance_m``)."""
     data = parse_toml_text(text, source, "scene file", SceneError)
     _only(source, data, {"ground", "obstacle", "robot"})
     ground = data.get("ground", {})
@@ -227,7 +231,7 @@ def parse_scene(text: str, source: str = "<scene>", name: str = "scene") -> Scen
     _only(f"{source} [ground]", ground, {"friction", "roll_resistance_m", "contact_onset_m"})
     ground_friction = _number(f"{source} [ground]", ground, "friction", low=0.0, high=5.0, default=0.3)
     ground_roll = _number(f"{source} [ground]", ground, "roll_resistance_m", low=0.0, high=MAX_ROLL_M,
-                          default=GROUND_ROLL_M)
+                          default=default_roll_m)
     onset = _number(f"{source} [ground]", ground, "contact_onset_m", low=MIN_ONSET_M, high=MAX_ONSET_M) \
         if "contact_onset_m" in ground else None
     if onset is not None and ground_roll == 0.0:  # it acts through the roll resistance's contact pairs
@@ -281,13 +285,14 @@ def resolve_scene_path(value: str | Path) -> Path:
     return path
 
 
-def load_scene(value: str | Path) -> Scene:
-    """Read a scene file (a path or a built-in scene's name); :class:`SceneError` names what is wrong."""
+def load_scene(value: str | Path, default_roll_m: float = GROUND_ROLL_M) -> Scene:
+    """Read a scene file (a path or a built-in scene's name); :class:`SceneError` names what is wrong.
+    ``default_roll_m``: as :func:`parse_scene`'s."""
     path = resolve_scene_path(value)
     builtin = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
     # Only a regular file of at most 1 MB: a FIFO would hang the read, /dev/zero would fill the memory.
     text = read_text_file(path, "scene file", SceneError, not_found=f" (built-in scenes: {builtin})")
-    return parse_scene(text, str(path), name=path.stem)
+    return parse_scene(text, str(path), name=path.stem, default_roll_m=default_roll_m)
 
 
 def channel_map(channel_names: Sequence[str], n_segments: int) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,9 @@ ENVIRONMENT = {
     "SENSNAKE_TICK_TRACE": "a file: the control loop writes a trace of every tick there (late-tick hunting)",
     "SENSNAKE_REINSTALL": "1: scripts/run.sh runs pip even when nothing changed",
     "SENSNAKE_HARDWARE": "1: run the tests marked hardware (a real robot and board attached)",
+    "SENSNAKE_IMPORT_WATCHDOG_S": "under an address-space limit (`ulimit -v`), the seconds a command's numerical "
+                                  "libraries may take to load before it ends with one line naming the limit "
+                                  "(default 60)",
 }
 
 
@@ -69,7 +72,14 @@ def _default(field: dataclasses.Field) -> str:
 
 
 def generate() -> str:
-    from devices.config import BoardConfig, MocapConfig, RigConfig, RobotConfig, SimLabConfig
+    from devices.config import (
+        BoardConfig,
+        LabPhysicsConfig,
+        MocapConfig,
+        RigConfig,
+        RobotConfig,
+        SimLabConfig,
+    )
 
     notes = _toml_notes()
     out = ["# Configuration: every key and switch",
@@ -84,13 +94,28 @@ def generate() -> str:
         out += [f"## [{section}]", "", (cls.__doc__ or "").strip().splitlines()[0], "",
                 "| key | default | note |", "|---|---|---|"]
         for field in dataclasses.fields(cls):
+            if field.name == "physical":  # the [lab.physics] table, below
+                continue
             note = notes.get((section, field.name), "").replace("|", "\\|")
             out.append(f"| `{field.name}` | `{_default(field)}` | {note} |")
         out.append("")
+        if section == "lab":
+            out += _lab_physics_section(LabPhysicsConfig)
     out += _servos_section()
     out += ["## Environment switches", "", "| variable | what it does |", "|---|---|"]
     out += [f"| `{name}` | {text} |" for name, text in sorted(ENVIRONMENT.items())]
     return "\n".join(out) + "\n"
+
+
+def _lab_physics_section(cls: type) -> list[str]:
+    """[lab.physics]: each physical parameter with its default and where the default comes from."""
+    doc = " ".join(line.strip() for line in (cls.__doc__ or "").strip().splitlines())
+    out = ["## [lab.physics]", "", doc.replace("``", "`"), "",
+           "| key | default | where the default comes from |", "|---|---|---|"]
+    for field in dataclasses.fields(cls):
+        source = str(field.metadata.get("source", "")).replace("|", "\\|")
+        out.append(f"| `{field.name}` | `{_default(field)}` | {source} |")
+    return out + [""]
 
 
 def _servos_section() -> list[str]:

@@ -271,7 +271,8 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     :class:`InvalidRunError`."""
     config = config or LabConfig()
     config = replace(config, lab=replace(config.lab, physics="mujoco", scene=scene if scene else config.lab.scene))
-    terrain = load_scene(config.lab.scene) if config.lab.scene else None
+    terrain = load_scene(config.lab.scene, default_roll_m=config.lab.physical.roll_resistance_m) \
+        if config.lab.scene else None
     # The run's RunStart (app.core.run_documents): its condition is the scene before a seed's jitter; ``md`` adds
     # the caller's metadata (plan_name, trial, series_uid, note), as a bluesky plan's.
     base_scene = terrain or _legacy_terrain(config)
@@ -300,7 +301,7 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
 def _legacy_terrain(config: LabConfig) -> Scene:
     lab = config.lab
     return half_cylinder_scene(lab.obstacle_height_ratio * config.robot.n_joints * config.robot.segment_length_m,
-                               lab.obstacle_friction, lab.ground_friction)
+                               lab.obstacle_friction, lab.ground_friction, roll_m=lab.physical.roll_resistance_m)
 
 
 def jittered_scene(scene: Scene, seed: int) -> Scene:
@@ -903,6 +904,7 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["ground_friction"] = terrain.ground_friction
         group.attrs["segment_length_m"] = scene.segment_length_m
         group.attrs["weight_N"] = world.weight_n
+        group.attrs["physics"] = json.dumps(lab.config.lab.physical.to_dict())  # [lab.physics] in force
         group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
                                "end of segment i; sheet_true_N the normal force on each sheet (board channel "
                                "order); sheet_support_N the upward part of each sheet's whole contact force "

@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from devices.config import LabConfig
+from devices.config import LabConfig, LabPhysicsConfig
 from devices.scene import load_scene
 from devices.sim.clock import SimClock
-from devices.sim.physics.model import SceneParams
+from devices.sim.physics.model import SceneParams, ServoParams, ShellParams
 from devices.sim.physics.validity import InvalidState
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
 
@@ -48,11 +48,33 @@ def scene_from_config(config: LabConfig) -> SceneParams:
     file, the key and the problem) or, without one, the half cylinder of the ``[lab]`` legacy keys."""
     robot, lab = config.robot, config.lab
     body_length_m = robot.n_joints * robot.segment_length_m
+    physical = lab.physical
     return SceneParams(
         n_segments=robot.n_joints, axes=tuple(robot.axes), segment_length_m=robot.segment_length_m,
         obstacle_height_m=lab.obstacle_height_ratio * body_length_m, obstacle_friction=lab.obstacle_friction,
-        ground_friction=lab.ground_friction, terrain_scene=load_scene(lab.scene) if lab.scene else None,
+        ground_friction=lab.ground_friction,
+        terrain_scene=load_scene(lab.scene, default_roll_m=physical.roll_resistance_m) if lab.scene else None,
+        timestep_s=physical.timestep_s, servo=servo_params(physical), shell=shell_params(physical),
+        contact_solref=(physical.contact_time_constant_s, physical.contact_damping_ratio),
+        roll_resistance_m=physical.roll_resistance_m,
     )
+
+
+def servo_params(physical: LabPhysicsConfig) -> ServoParams:
+    """The servo model of ``[lab.physics]``."""
+    return ServoParams(stall_torque_nm=physical.servo_stall_torque_nm,
+                       no_load_speed_rad_s=physical.servo_no_load_speed_rad_s,
+                       position_gain_nm_per_rad=physical.servo_position_gain_nm_per_rad,
+                       damping_nm_s_per_rad=physical.servo_damping_nm_s_per_rad,
+                       armature_kg_m2=physical.servo_armature_kg_m2,
+                       friction_loss_nm=physical.servo_friction_loss_nm)
+
+
+def shell_params(physical: LabPhysicsConfig) -> ShellParams:
+    """The compliant shell of ``[lab.physics]``."""
+    return ShellParams(stiffness_n_per_m=physical.shell_stiffness_n_per_m,
+                       damping_n_s_per_m=physical.shell_damping_n_s_per_m, mass_kg=physical.shell_mass_kg,
+                       travel_m=physical.shell_travel_m)
 
 
 class PhysicsBackend:

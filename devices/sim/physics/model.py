@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from devices.scene import Obstacle, Scene, half_cylinder_scene
+from devices.scene import GROUND_ROLL_M, Obstacle, Scene, half_cylinder_scene
 
 GRAVITY_M_S2 = 9.81
 
@@ -75,6 +75,12 @@ class SceneParams:
     wall_offset_m: float | None = None
     servo: ServoParams = ServoParams()
     shell: ShellParams = ShellParams()
+    # MuJoCo's solref of every terrain contact: a time constant (s) and a damping ratio ([lab.physics]
+    # contact_time_constant_s, contact_damping_ratio): near rigid and critically damped, the compliance being the shell's
+    contact_solref: tuple[float, float] = (0.01, 1.0)
+    # the terrain's roll resistance lever (m) where a scene names none ([lab.physics] roll_resistance_m); the legacy
+    # half cylinder takes it
+    roll_resistance_m: float = GROUND_ROLL_M
     # A scene file's terrain (devices.sim.physics.scene); None: the one half cylinder of obstacle_height_m at x = 0
     # with obstacle_friction, on ground_friction (the lab config's legacy keys, the paper's obstacle by default).
     terrain_scene: Scene | None = None
@@ -84,7 +90,8 @@ class SceneParams:
         """The terrain in force: the scene file's, or the legacy half cylinder."""
         if self.terrain_scene is not None:
             return self.terrain_scene
-        return half_cylinder_scene(self.obstacle_height_m, self.obstacle_friction, self.ground_friction)
+        return half_cylinder_scene(self.obstacle_height_m, self.obstacle_friction, self.ground_friction,
+                                   roll_m=self.roll_resistance_m)
 
     @property
     def body_length_m(self) -> float:
@@ -161,6 +168,7 @@ def build_mjcf(scene: SceneParams) -> str:
     length, radius = scene.segment_length_m, scene.segment_radius_m
     servo, shell = scene.servo, scene.shell
     terrain = scene.terrain
+    solref = f"{scene.contact_solref[0]!r} {scene.contact_solref[1]!r}"
     # Capsules: MuJoCo collides capsules with planes and capsules analytically (a cylinder against the big obstacle
     # cylinder goes through the general convex solver, which lets a small body sink deep and then push thousands of
     # newtons). The rounded ends stand for the robot's rounded shells between the joints.
@@ -230,7 +238,7 @@ def build_mjcf(scene: SceneParams) -> str:
     solimp = f' solimp="{soft_onset_solimp(onset)}"' if onset is not None else ""
     ground_affinity = "0" if roll > 0 else "1"
     pairs = "".join(
-        f'<pair geom1="ground" geom2="{segment_name(i)}" condim="6" solref="0.01 1"{solimp} '
+        f'<pair geom1="ground" geom2="{segment_name(i)}" condim="6" solref="{solref}"{solimp} '
         f'friction="{terrain.ground_friction} {terrain.ground_friction} 0 {roll} 0"/>'
         for i in range(scene.n_segments)) if roll > 0 else ""
     # The obstacles' roll resistance (Obstacle.roll_resistance_m): every obstacle spans the width (y) and its surface
@@ -244,7 +252,7 @@ def build_mjcf(scene: SceneParams) -> str:
     # a capsule lying on a face one contact point that jumps from end to end, its depth with it: a force growing from
     # zero would jump with it (S01B ±3 N on the wedge's drape at 0.034 rad/s), so a wedge keeps MuJoCo's impedance.
     pairs += "".join(
-        f'<pair geom1="obstacle{k + 1}" geom2="{segment_name(i)}" condim="6" solref="0.01 1" '
+        f'<pair geom1="obstacle{k + 1}" geom2="{segment_name(i)}" condim="6" solref="{solref}" '
         + ('' if obstacle.shape == "wedge" else solimp)
         + f' friction="{obstacle.friction} {obstacle.friction} 0 0 {obstacle.roll_resistance_m}"/>'
         for k, obstacle in enumerate(terrain.obstacles) if obstacle.roll_resistance_m > 0
@@ -257,7 +265,7 @@ def build_mjcf(scene: SceneParams) -> str:
            frictionloss="{servo.friction_loss_nm}"/>
     <!-- Contacts are near rigid (MuJoCo's default 20 ms, critically damped): the compliance that spreads a load
          is the shell's springs (ShellParams), a physical N/m, not a mass-scaled contact softness. -->
-    <geom solref="0.01 1"/>
+    <geom solref="{solref}"/>
   </default>
   <visual><global offwidth="640" offheight="480"/><quality shadowsize="0"/></visual>
   <asset>
