@@ -2,7 +2,7 @@
 
 Tabs are built from ``app/gui/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) the first time they are shown, so start-up
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
-do. STOP (the red button, or Esc anywhere in the window; in a dialog Esc only closes the dialog) calls
+do. STOP (the red button, or Esc anywhere in the window; in a dialog Esc closes the dialog and stops what moves) calls
 ``lab.emergency_stop()``: the robot halts and the calibration rig releases its load.
 GUI thread only.
 """
@@ -15,9 +15,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from PySide6.QtCore import QByteArray, QSettings, Qt, QTimer
-from PySide6.QtGui import QAction, QCloseEvent, QKeySequence, QShortcut
+from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt, QTimer
+from PySide6.QtGui import QAction, QCloseEvent, QKeyEvent, QKeySequence, QShortcut, QWindow
 from PySide6.QtWidgets import (
+    QApplication,
     QFileDialog,
     QMainWindow,
     QMessageBox,
@@ -66,10 +67,12 @@ TABS: tuple[TabSpec, ...] = (
             "ground and the obstacle; the 2-D body drawing otherwise."),
 )
 
+DIALOG_STOP_DEBOUNCE_S = 0.2  # one Esc press in a dialog is one STOP, however many objects it passes
+
 SHORTCUTS_TEXT = (
     "<table cellspacing=6>"
     "<tr><td><b>Esc</b></td><td>STOP: halt all motion within one control tick (torque stays on); in a dialog, Esc "
-    "closes the dialog only</td></tr>"
+    "closes the dialog, and stops a gait or a calibration run that moves</td></tr>"
     "<tr><td><b>Ctrl+Enter</b></td><td>Teach: capture the present pose as a keyframe</td></tr>"
     "<tr><td><b>Ctrl+Z / Ctrl+Shift+Z</b></td><td>Teach: undo / redo a keyframe edit (Ctrl+Y also redoes)</td></tr>"
     "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
@@ -134,12 +137,22 @@ class MainWindow(QMainWindow):
         self.setStatusBar(self.status)
         self.status.stop_requested.connect(self.emergency_stop)
         # Esc reaches STOP whatever has focus in this window (a table, a tab, a plot). In a dialog (a file chooser, a
-        # question, a preview) Esc is the dialog's own key: it closes that dialog and nothing else — a person
-        # dismissing a question must not be told the robot was stopped. Hence the window's shortcut, not the
-        # application's: a dialog is a window of its own.
+        # question, a preview) Esc is first the dialog's own key: it closes that dialog, and stops only what is
+        # moving (a gait, a calibration run) — a person dismissing a question while nothing moves is not told the
+        # robot was stopped, yet a modal dialog never leaves a moving robot without its STOP (Qt blocks clicks on
+        # the STOP button while one is up).
         self.stop_shortcut = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)
         self.stop_shortcut.setContext(Qt.ShortcutContext.WindowShortcut)
         self.stop_shortcut.activated.connect(self.emergency_stop)
+        # A dialog is a window of its own: the window's shortcut does not see its Esc. An application-wide filter
+        # does, installed only while a dialog has the focus (every event of the application passes through a filter,
+        # ~1200/s with the Forces tab live).
+        self._app = QApplication.instance()
+        self._filtering_dialog = False
+        self._dialog_stop_s = -1.0  # time.monotonic() of the last STOP from Esc in a dialog
+        self._watching_dialogs = isinstance(self._app, QApplication)
+        if isinstance(self._app, QApplication):
+            self._app.focusWindowChanged.connect(self._watch_dialogs)
 
         self._build_menus()
         self._attach_lab()
@@ -389,6 +402,41 @@ class MainWindow(QMainWindow):
         self.status.show_message(text, theme.IDLE)
 
     # -- STOP ------------------------------------------------------------------------------------------------------
+    def _watch_dialogs(self, *_window: object) -> None:
+        """Filter the application's events while a dialog (a window other than this one) has the focus."""
+        app = self._app
+        if not isinstance(app, QApplication):
+            return
+        focus = app.focusWindow()
+        wanted = focus is not None and focus is not self.windowHandle()
+        if wanted != self._filtering_dialog:
+            if wanted:
+                app.installEventFilter(self)
+            else:
+                app.removeEventFilter(self)
+            self._filtering_dialog = wanted
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
+        if (event.type() == QEvent.Type.KeyPress and isinstance(event, QKeyEvent)
+                and event.key() == Qt.Key.Key_Escape and not event.isAutoRepeat() and self._in_a_dialog(watched)
+                and time.monotonic() - self._dialog_stop_s > DIALOG_STOP_DEBOUNCE_S and self.something_moves()):
+            # one press reaches the filter once per object it passes (window, focus widget, its parents): one STOP
+            self._dialog_stop_s = time.monotonic()
+            self.emergency_stop()
+        return False  # never consume: the dialog still gets its Esc and closes
+
+    def _in_a_dialog(self, watched: QObject) -> bool:
+        if isinstance(watched, QWindow):
+            return watched is not self.windowHandle()
+        return isinstance(watched, QWidget) and watched.window() is not self
+
+    def something_moves(self) -> bool:
+        """A gait is running or paused, or a calibration run holds the rig (what Esc in a dialog stops)."""
+        if self.lab.robot.motion_state in (MOTION_RUNNING, MOTION_PAUSED):
+            return True
+        session = getattr(self._built.get("calibration"), "rig_session", None)
+        return bool(getattr(session, "is_running", False))
+
     def emergency_stop(self) -> None:
         """STOP button / Esc: halt motion within one tick, torque stays on, goals frozen at present; the rig
         releases its load (``LabContext.emergency_stop``)."""
@@ -413,6 +461,11 @@ class MainWindow(QMainWindow):
         self.settings.sync()
 
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
+        if isinstance(self._app, QApplication) and self._watching_dialogs:
+            self._watching_dialogs = False
+            self._app.focusWindowChanged.disconnect(self._watch_dialogs)
+            self._app.removeEventFilter(self)
+            self._filtering_dialog = False
         self.save_settings()
         self._shutdown_tabs()
         self.status.shutdown()

@@ -212,6 +212,30 @@ def test_escape_in_a_dialog_only_closes_the_dialog(window, qtbot, modal):
     assert events and events[-1].startswith("STOP")
 
 
+@pytest.mark.parametrize("modal", [True, False], ids=["modal", "non-modal"])
+def test_escape_in_a_dialog_while_something_moves_stops_it_and_closes_the_dialog(window, qtbot, modal, monkeypatch):
+    """A modal dialog blocks clicks on STOP: while a gait or a calibration run moves, Esc in any dialog still stops
+    it (and the dialog closes as usual)."""
+    from PySide6.QtWidgets import QMessageBox
+
+    window.show()
+    stops: list[bool] = []
+    monkeypatch.setattr(window, "something_moves", lambda: True)
+    monkeypatch.setattr(window.lab, "emergency_stop", lambda: stops.append(True))
+    box = QMessageBox(QMessageBox.Icon.Question, "Save", "Save the shape?", QMessageBox.StandardButton.Yes
+                      | QMessageBox.StandardButton.No, window)
+    if modal:
+        box.open()
+    else:
+        box.setModal(False)
+        box.show()
+    box.activateWindow()
+    qtbot.waitUntil(box.isActiveWindow)
+    qtbot.keyClick(box, Qt.Key.Key_Escape)
+    qtbot.waitUntil(lambda: not box.isVisible())
+    assert stops == [True]
+
+
 def test_gui_with_a_missing_config_fails_in_one_line(tmp_path, capsys):
     from app.cli import main
 
