@@ -1,14 +1,16 @@
-"""The main window's status bar: robot, board and recording state, a message area and the STOP button.
+"""The main window's status bar: robot, board and recording state, a message area, the event log's button and STOP.
 
-Passive view: the app sets texts and levels and listens to :attr:`LabStatusBar.stop_requested`. The STOP button is
-always visible (a permanent widget, never hidden behind a message). GUI thread only.
+Passive view: the app sets texts and levels and listens to :attr:`LabStatusBar.stop_requested` and
+:attr:`LabStatusBar.log_requested` (the message area or the **Log** button clicked: the app shows that message whole
+in the event log). The STOP button is always visible (a permanent widget, never hidden behind a message). GUI thread
+only.
 """
 
 from __future__ import annotations
 
 from PySide6.QtCore import Qt, QTimer, Signal
-from PySide6.QtGui import QResizeEvent
-from PySide6.QtWidgets import QLabel, QPushButton, QSizePolicy, QStatusBar, QWidget
+from PySide6.QtGui import QMouseEvent, QResizeEvent
+from PySide6.QtWidgets import QLabel, QPushButton, QSizePolicy, QStatusBar, QToolButton, QWidget
 
 from widgets import theme
 
@@ -31,12 +33,20 @@ class StateLabel(QLabel):
 
 
 class ElidedLabel(QLabel):
-    """A one-line label that ends in "…" when its text does not fit; the full text is in the tooltip."""
+    """A one-line label that ends in "…" when its text does not fit; the full text is in the tooltip. A click on it
+    emits :attr:`clicked`."""
+
+    clicked = Signal()
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.full_text = ""
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+
+    def mousePressEvent(self, event: QMouseEvent) -> None:  # noqa: N802 - Qt override
+        if event.button() == Qt.MouseButton.LeftButton:
+            self.clicked.emit()
+        super().mousePressEvent(event)
 
     def set_full_text(self, text: str) -> None:
         self.full_text = text
@@ -56,6 +66,7 @@ class LabStatusBar(QStatusBar):
     """Status of the lab's devices, the latest message and STOP."""
 
     stop_requested = Signal()
+    log_requested = Signal()  # the message or the Log button was clicked: show the event log (at that message)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -67,7 +78,17 @@ class LabStatusBar(QStatusBar):
         self._message_timer = QTimer(self)
         self._message_timer.setSingleShot(True)
         self._message_timer.timeout.connect(self.clear_message)
+        self.message_label.setCursor(Qt.CursorShape.PointingHandCursor)
+        self.message_label.clicked.connect(self.log_requested)
         self.addWidget(self.message_label, 1)
+        self.log_button = QToolButton()
+        self.log_button.setObjectName("status_log")
+        self.log_button.setText("Log")
+        self.log_button.setToolTip("The event log: every message, warning, fault and operator action with its time "
+                                   "(a click on the message shows it there, whole)")
+        self.log_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
+        self.log_button.clicked.connect(self.log_requested)
+        self.addWidget(self.log_button)
 
         self.robot_label = StateLabel("Robot: not connected")
         self.robot_label.setObjectName("status_robot")
@@ -101,6 +122,16 @@ class LabStatusBar(QStatusBar):
 
     def set_recording_state(self, text: str, active: bool) -> None:
         self.recording_label.set_state(text, theme.ERROR if active else theme.IDLE)
+
+    def set_log_count(self, faults: int, warnings: int) -> None:
+        """The Log button's badge: faults (red) and warnings not yet looked at."""
+        parts = [f"{faults} fault{'s' * (faults != 1)}" if faults else "",
+                 f"{warnings} warning{'s' * (warnings != 1)}" if warnings else ""]
+        badge = ", ".join(p for p in parts if p)
+        self.log_button.setText(f"Log · {badge}" if badge else "Log")
+        level = theme.ERROR if faults else theme.WARN if warnings else None
+        self.log_button.setStyleSheet(f"QToolButton {{ color: {theme.STATUS_COLORS[level]}; font-weight: bold; }}"
+                                      if level else "")
 
     def show_message(self, text: str, level: str = theme.IDLE) -> None:
         """Show ``text`` in the message area; errors stay until replaced, others fade after a few seconds."""

@@ -16,6 +16,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
+from app.core.event_log import EventLog
 from app.gui.robot_bridge import RobotBridge
 from app.gui.thread_bridge import ThreadBridge
 from devices.config import SIM_PORT, LabConfig
@@ -130,6 +131,8 @@ class LabContext(QObject):
         self._recording: Any = None
         self._force_page: Any = None
         self._closed = False
+        # Messages, faults and actions of this lab's tabs; the main window puts its own log here (it outlives labs).
+        self.event_log = EventLog()
         if _uses_sim(config):
             self.lab_where = _make_sim_lab(config, lab_process)
             from devices.factory import installed_sim_lab

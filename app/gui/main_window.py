@@ -4,6 +4,11 @@ Tabs are built from ``app/gui/tabs/<name>.py`` (``create_tab(lab) -> QWidget``) 
 only pays for the tab on screen. A tab whose module is not part of the build shows a placeholder saying what it will
 do. STOP (the red button, or Esc anywhere in the window; in a dialog Esc closes the dialog and stops what moves) calls
 ``lab.emergency_stop()``: the robot halts and the calibration rig releases its load.
+
+Every message the status bar shows, every warning and fault and every operator action also goes into the event log
+(:mod:`app.core.event_log`, kept by the window across lab changes and handed to each lab as ``lab.event_log``), shown
+in the **Event log** dock (View ▸ Event log, Ctrl+L): a click on the status bar's message opens the dock at that
+message, whole.
 GUI thread only.
 """
 
@@ -19,6 +24,7 @@ from PySide6.QtCore import QByteArray, QEvent, QObject, QSettings, Qt, QTimer
 from PySide6.QtGui import QAction, QCloseEvent, QKeyEvent, QKeySequence, QShortcut, QWindow
 from PySide6.QtWidgets import (
     QApplication,
+    QDockWidget,
     QFileDialog,
     QMainWindow,
     QMessageBox,
@@ -27,7 +33,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.core import user_folders
+from app.core import event_log, user_folders
 from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext, end_sim_lab_unless_it_simulates
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING, describe_error
@@ -35,6 +41,7 @@ from devices.config import load_config
 from devices.errors import ConfigError
 from devices.factory import is_sim
 from widgets import theme
+from widgets.event_log_view import EventLogView
 from widgets.placeholder import PlaceholderPage
 from widgets.status_bar import LabStatusBar
 
@@ -43,6 +50,8 @@ ORGANIZATION = "SenSnake"
 DEFAULT_SIZE = (1280, 800)  # the lab's laptops; every tab is laid out for it (and for 1920×1080)
 MINIMUM_SIZE = (960, 600)
 EVENT_KEEPS_ERROR_S = 8.0  # an informational message does not hide an error younger than this
+LOG_KINDS = {theme.ERROR: event_log.FAULT, theme.WARN: event_log.WARNING, theme.OK: event_log.INFO,
+             theme.IDLE: event_log.INFO}
 
 
 @dataclass(frozen=True)
@@ -78,6 +87,7 @@ SHORTCUTS_TEXT = (
     "<tr><td><b>Space</b></td><td>Gait: pause / resume the motion &nbsp;·&nbsp; Forces: pause / follow the "
     "plots</td></tr>"
     "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
+    "<tr><td><b>Ctrl+L</b></td><td>Show / hide the event log (every message, warning, fault and action)</td></tr>"
     "<tr><td><b>Ctrl+1 … Ctrl+5</b></td><td>Teach, Gait, Calibration, Forces, Hardware</td></tr>"
     "<tr><td><b>Ctrl+Q</b></td><td>Quit (devices are shut down cleanly)</td></tr>"
     "</table>"
@@ -136,6 +146,21 @@ class MainWindow(QMainWindow):
         self.status = LabStatusBar()
         self.setStatusBar(self.status)
         self.status.stop_requested.connect(self.emergency_stop)
+        self.status.log_requested.connect(self.show_log)
+        # The event log outlives any one lab (File ▸ Open config replaces the lab, not the history).
+        self.event_log = event_log.EventLog()
+        self._status_entry = 0  # number of the log entry the status bar shows (0: none)
+        self._log_seen = 0  # entries up to this number were on screen in the log: not counted on the Log button
+        self.log_view = EventLogView(event_log.KINDS)
+        self.log_view.save_requested.connect(self._save_log)
+        self.log_dock = QDockWidget("Event log", self)
+        self.log_dock.setObjectName("event_log_dock")
+        self.log_dock.setWidget(self.log_view)
+        self.log_dock.setAllowedAreas(Qt.DockWidgetArea.BottomDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
+        self.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, self.log_dock)
+        self.log_dock.hide()  # the tabs keep the height until the user asks for the log
+        self.log_dock.visibilityChanged.connect(lambda _visible: self._update_log_badge())
+        self.event_log.subscribe(self._log_changed)
         # Esc reaches STOP whatever has focus in this window (a table, a tab, a plot). In a dialog (a file chooser, a
         # question, a preview) Esc is first the dialog's own key: it closes that dialog, and stops only what is
         # moving (a gait, a calibration run) — a person dismissing a question while nothing moves is not told the
@@ -200,7 +225,7 @@ class MainWindow(QMainWindow):
             return module.create_tab(self.lab)
         except (ValueError, OSError, LookupError, RuntimeError) as exc:
             # A tab failing to build (bad shape library file, missing resource) must not take the window down.
-            self.status.show_message(f"{spec.title} tab: {exc}", theme.ERROR)
+            self.say(f"{spec.title} tab: {exc}", theme.ERROR, spec.title)
             return PlaceholderPage(spec.title, spec.description, f"This tab failed to start: {exc}")
 
     def _shutdown_tabs(self) -> None:
@@ -237,6 +262,12 @@ class MainWindow(QMainWindow):
         self.reset_lab_action.triggered.connect(self.reset_lab)
         lab_menu.addAction(self.reset_lab_action)
 
+        view_menu = self.menuBar().addMenu("&View")
+        self.log_action = self.log_dock.toggleViewAction()
+        self.log_action.setText("&Event log")
+        self.log_action.setShortcut(QKeySequence("Ctrl+L"))
+        view_menu.addAction(self.log_action)
+
         help_menu = self.menuBar().addMenu("&Help")
         self.shortcuts_action = QAction("&Keyboard shortcuts", self)
         self.shortcuts_action.triggered.connect(self._show_shortcuts)
@@ -269,10 +300,11 @@ class MainWindow(QMainWindow):
 
     def open_config(self, path: str | Path) -> bool:
         """Load a lab config and restart the devices on it; a bad file is reported and the lab kept."""
+        self.log_action_taken(f"open lab config {path}")
         try:
             config = load_config(path)
         except ConfigError as exc:
-            self.status.show_message(str(exc), theme.ERROR)
+            self.say(str(exc), theme.ERROR, "config")
             QMessageBox.warning(self, "Configuration not loaded", str(exc))
             return False
         self.config_path = Path(path)
@@ -314,19 +346,22 @@ class MainWindow(QMainWindow):
         """Lab ▸ Reset lab: the simulated robot back at its scene's start (motion stopped first, torque off, laid
         straight, servos with a latched error rebooted); the status bar says what was done or why not."""
         lab = self.lab
-        self.status.show_message("resetting the simulated lab: motion stopped, torque off…", theme.IDLE)
-        lab.robot.when_done(lab.reset_sim_robot(), lambda text: self.status.show_message(str(text), theme.OK),
+        self.log_action_taken("Lab ▸ Reset lab")
+        self.say("resetting the simulated lab: motion stopped, torque off…", theme.IDLE, "lab")
+        lab.robot.when_done(lab.reset_sim_robot(), lambda text: self.say(str(text), theme.OK, "lab"),
                             lambda exc: self.show_error(f"lab not reset: {describe_error(exc)}"))
 
     # -- status ----------------------------------------------------------------------------------------------------
     def _attach_lab(self) -> None:
         lab = self.lab
+        lab.event_log = self.event_log  # tabs (built after this) log into the window's log
         robot = lab.robot
+        robot.action.connect(lambda text: self.log_action_taken(text, "robot"))
         robot.connection_changed.connect(self._update_robot_status)
         robot.motion_changed.connect(self._update_robot_status)
-        robot.error.connect(self.show_error)
-        robot.event.connect(self.show_event)
-        lab.sim_lab_died.connect(self.show_error)
+        robot.error.connect(lambda text: self.show_error(text, "robot"))
+        robot.event.connect(lambda text: self.show_event(text, "robot"))
+        lab.sim_lab_died.connect(lambda text: self.show_error(text, "simulated lab"))
         lab.recording_changed.connect(self._update_recording_status)
         self._update_robot_status()
         self._update_recording_status(lab.recording)
@@ -364,6 +399,8 @@ class MainWindow(QMainWindow):
     def _board_connected(self, ok: bool) -> None:
         port = self.lab.config.board.port
         kind = "simulated" if is_sim(port) else "real"
+        self.event_log.add(event_log.INFO if ok else event_log.WARNING,
+                           f"board {'connected' if ok else 'not connected'} on {port} ({kind})", "board")
         if ok:
             self.status.set_board_state(f"Board: {self.lab.config.board.n_channels} ch on {port} ({kind})",
                                         theme.OK)
@@ -375,31 +412,96 @@ class MainWindow(QMainWindow):
 
     def _board_missing(self, text: str) -> None:
         """The board's port cannot be opened (at start-up or after a pull): a warning, not a grey port name."""
+        self.event_log.add(event_log.WARNING, f"board missing on {self.lab.config.board.port} (retrying): {text}",
+                           "board")
         self.status.set_board_state(f"Board: missing on {self.lab.config.board.port} (retrying)", theme.WARN, text)
 
     def _update_recording_status(self, session: object) -> None:
         if session is None:
+            if self.status.recording_label.level == theme.ERROR:
+                self.event_log.add(event_log.INFO, "recording stopped", "recording")
             self.status.set_recording_state("Not recording", False)
             return
         path = getattr(session, "path", None)
         name = Path(str(path)).name if path is not None else "recording"
+        self.event_log.add(event_log.INFO, f"recording to {path}", "recording")
         self.status.set_recording_state(f"● REC {name}", True)
 
-    def show_error(self, text: str) -> None:
-        """Show a device error in the message area (stays until replaced). Once the simulated lab's own process has
-        ended, every later device error (its robot's link, its board) says that cause first."""
+    def say(self, text: str, level: str = theme.IDLE, source: str = "app") -> None:
+        """Log ``text`` (a fault, warning or information by ``level``) and show it in the status bar."""
+        entry = self.event_log.add(LOG_KINDS.get(level, event_log.INFO), text, source)
+        self.status.show_message(text, level)
+        self._status_entry = entry.number
+
+    def log_action_taken(self, text: str, source: str = "operator") -> None:
+        """An operator action, into the log (the status bar keeps its message)."""
+        self.event_log.add(event_log.ACTION, text, source)
+
+    def show_error(self, text: str, source: str = "app") -> None:
+        """Show a device error in the message area (stays until replaced) and log it as a fault. Once the simulated
+        lab's own process has ended, every later device error (its robot's link, its board) says that cause first."""
         self._last_error_s = time.monotonic()
         gone = getattr(self.lab, "sim_lab_gone", "")
         if gone and text != gone:
             text = f"{gone}. Then: {text}"
-        self.status.show_message(text, theme.ERROR)
+        self.say(text, theme.ERROR, source)
 
-    def show_event(self, text: str) -> None:
-        """Show an informational message, unless it would hide a fresh error."""
+    def show_event(self, text: str, source: str = "app") -> None:
+        """Log an informational message and show it, unless it would hide a fresh error (it is in the log)."""
         if (self.status.message_level == theme.ERROR
                 and time.monotonic() - self._last_error_s < EVENT_KEEPS_ERROR_S):
+            self.event_log.add(event_log.INFO, text, source)
             return
-        self.status.show_message(text, theme.IDLE)
+        self.say(text, theme.IDLE, source)
+
+    # -- event log -------------------------------------------------------------------------------------------------
+    def _log_changed(self, new: object, reset: bool) -> None:
+        if reset:
+            self.log_view.reset(self.event_log.entries)
+        else:
+            self.log_view.append(list(new))  # type: ignore[call-overload]  # a sequence of LogEntry
+        self._update_log_badge()
+
+    def _update_log_badge(self) -> None:
+        if self.log_dock.isVisible():
+            latest = self.event_log.latest()
+            self._log_seen = latest.number if latest is not None else 0
+        unseen = [e for e in self.event_log.entries[-200:] if e.number > self._log_seen]
+        self.status.set_log_count(sum(e.kind == event_log.FAULT for e in unseen),
+                                  sum(e.kind == event_log.WARNING for e in unseen))
+
+    def show_log(self) -> None:
+        """Open the event log at the message the status bar shows, else at the newest fault, else the newest
+        entry: a fault's whole text is one click away."""
+        self.log_dock.show()
+        self.log_dock.raise_()
+        shown = self._status_entry if self.status.message else 0
+        for number in (shown, getattr(self.event_log.latest(event_log.FAULT), "number", 0),
+                       getattr(self.event_log.latest(), "number", 0)):
+            if number and self.log_view.select_number(number):
+                break
+        self._update_log_badge()
+
+    def _save_log(self, entries: list[event_log.LogEntry]) -> None:
+        folder = user_folders.dialog_folder(user_folders.data_dir())
+        name = f"events-{time.strftime('%Y%m%d-%H%M%S')}.csv"
+        path, _filter = QFileDialog.getSaveFileName(self, "Save the event log as CSV",
+                                                    str(Path(folder) / name) if folder else name,
+                                                    "CSV (*.csv);;All files (*)",
+                                                    options=QFileDialog.Option.DontConfirmOverwrite)
+        if path:
+            self.save_log(path, entries)
+
+    def save_log(self, path: str | Path, entries: list[event_log.LogEntry] | None = None) -> Path | None:
+        """Write ``entries`` (default: the ones the log shows) to a new CSV file; an existing file is refused."""
+        chosen = self.log_view.visible_entries() if entries is None else entries
+        try:
+            written = event_log.write_csv(chosen, path)
+        except OSError as exc:
+            self.say(f"event log not saved: {exc.strerror or exc}", theme.ERROR, "event log")
+            return None
+        self.say(f"event log saved: {len(chosen)} entries in {written}", theme.OK, "event log")
+        return written
 
     # -- STOP ------------------------------------------------------------------------------------------------------
     def _watch_dialogs(self, *_window: object) -> None:
@@ -467,6 +569,7 @@ class MainWindow(QMainWindow):
             self._app.removeEventFilter(self)
             self._filtering_dialog = False
         self.save_settings()
+        self.event_log.unsubscribe(self._log_changed)
         self._shutdown_tabs()
         self.status.shutdown()
         self.lab.close()

@@ -9,6 +9,8 @@ them into Qt signals delivered on the GUI thread, so views never touch the port 
 - ``health(object)``: ``list[ServoHealth]`` as polled by the controller
 - ``error(str)``: a readable message (what happened, which servo or port, what to do) — never a traceback
 - ``event(str)``: informational messages; ``motion_changed(str)``: one of the ``MOTION_*`` states below
+- ``action(str)``: what the operator asked of the robot, in words, as it is asked (connect, torque, reboot, a motion
+  started, paused, stopped, STOP): the event log's operator actions
 
 Opening and closing the port happen on a worker thread. Bus operations return ``concurrent.futures.Future`` objects;
 :meth:`RobotBridge.when_done` delivers their results on the GUI thread, and a failed future is reported through
@@ -98,6 +100,7 @@ class RobotBridge(QObject):
     # kept because every subscriber uses it.
     event = Signal(str)  # type: ignore[assignment]
     motion_changed = Signal(str)
+    action = Signal(str)
     profile_applied = Signal(object)  # list[servo_settings.Change]: the lab's [servos] profile, applied on connect
 
     def __init__(self, config: RobotConfig, parent: QObject | None = None) -> None:
@@ -220,6 +223,7 @@ class RobotBridge(QObject):
         self._config = replace(self._config, port=(port or self._config.port).strip(),
                                baud=int(baud or self._config.baud))
         config = self._config
+        self.action.emit(f"connect the robot on {config.port} at {config.baud} baud")
         self._set_connection(f"connecting to {config.port} at {config.baud} baud…")
         future = self._executor.submit(self._open_controller, config)
         self._pending_connect = future
@@ -238,6 +242,7 @@ class RobotBridge(QObject):
         self._states.stop()
         if controller is None:
             return _done_future(None)
+        self.action.emit(f"disconnect the robot ({self.port})")
         self._motion_token += 1
         self._set_motion(MOTION_IDLE, "")
         self._set_connection("disconnecting…")
@@ -328,6 +333,8 @@ class RobotBridge(QObject):
         controller = self._controller
         if controller is None:
             return self._not_connected()
+        which = "every joint" if ids is None else "servo " + ", ".join(str(i) for i in ids)
+        self.action.emit(f"torque {'on' if enabled else 'off'}: {which}")
         future = controller.set_torque(enabled, None if ids is None else list(ids))
         self.when_done(future, None)
         return future
@@ -336,6 +343,7 @@ class RobotBridge(QObject):
         controller = self._controller
         if controller is None:
             return self._not_connected()
+        self.action.emit(f"LED {'on' if on else 'off'}: servo {servo_id}")
         future = controller.set_led(servo_id, on)
         self.when_done(future, None)
         return future
@@ -345,6 +353,7 @@ class RobotBridge(QObject):
         controller = self._controller
         if controller is None:
             return self._not_connected()
+        self.action.emit(f"reboot servo {servo_id}")
         future = controller.reboot(servo_id)
         self.when_done(future, lambda _r: self.event.emit(f"servo {servo_id} rebooted (torque is off)"))
         return future
@@ -360,6 +369,7 @@ class RobotBridge(QObject):
         if controller is None:
             self.error.emit(f"cannot start {name}: {NOT_CONNECTED_MESSAGE}")
             return _failed_future(ConnectionError(NOT_CONNECTED_MESSAGE))
+        self.action.emit(f"start {name}")
         self._motion_token += 1
         token = self._motion_token
         future = controller.play(source, name) if play else controller.run_motion(source, name)
@@ -376,15 +386,19 @@ class RobotBridge(QObject):
 
     def pause_motion(self) -> None:
         if self._controller is not None and self._motion_state == MOTION_RUNNING:
+            self.action.emit(f"pause {self._motion_name}".rstrip())
             self._controller.pause()
             self._set_motion(MOTION_PAUSED, self._motion_name)
 
     def resume_motion(self) -> None:
         if self._controller is not None and self._motion_state == MOTION_PAUSED:
+            self.action.emit(f"resume {self._motion_name}".rstrip())
             self._controller.resume()
             self._set_motion(MOTION_RUNNING, self._motion_name)
 
     def stop_motion(self) -> None:
+        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED):
+            self.action.emit(f"stop {self._motion_name}".rstrip())
         if self._controller is not None:
             self._controller.stop_motion()
         if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED):
@@ -397,6 +411,7 @@ class RobotBridge(QObject):
 
     def emergency_stop(self) -> None:
         """STOP: within one control tick the goals freeze at the present position; torque stays on."""
+        self.action.emit("STOP (button or Esc)")
         controller = self._controller
         if controller is None:
             self.event.emit("STOP: the robot is not connected, nothing is moving")

@@ -178,6 +178,14 @@ class ForcesTab(QWidget):
         else:
             self._on_board_connected(self.board.is_connected)
 
+    def say(self, text: str, level: str = "warn") -> None:
+        """Show ``text`` on the tab's message line and put it in the event log (a fault when ``level`` is
+        "error", a warning when "warn", information otherwise)."""
+        self.controls.set_message(text, level)
+        log = getattr(self.lab, "event_log", None)
+        if log is not None and text:
+            log.add({"error": "fault", "warn": "warning"}.get(level, "info"), text, "Forces")
+
     # -- layout ----------------------------------------------------------------------------------------------------
     def _build_layout(self) -> None:
         layout = QVBoxLayout(self)
@@ -309,7 +317,7 @@ class ForcesTab(QWidget):
         """The live session's subscriber: keep the forces for the plots and show health changes (GUI thread)."""
         block = update.block
         if update.problem:
-            self.controls.set_message(update.problem, "warn")
+            self.say(update.problem, "warn")
         if update.forces is not None:
             append_with_gaps(self.force_history, self.live.session_time_s(block.host_time_s), update.forces.display,
                              block.gap_before)
@@ -336,11 +344,11 @@ class ForcesTab(QWidget):
         """Use the present window's median conductance as every sensor's resting level (the robot at rest)."""
         report = self.health.report
         if report is None:
-            self.controls.set_message("no data yet to take a baseline from: wait until the board status above "
+            self.say("no data yet to take a baseline from: wait until the board status above "
                                       "says it is connected and readings arrive", "warn")
             return
         self.health.set_baseline(report.level_s)
-        self.controls.set_message("rest baseline set from the last readings", "ok")
+        self.say("rest baseline set from the last readings", "ok")
 
     def refresh_body(self) -> None:
         """Redraw the body map if the shape, the forces or the health changed (timer, ≤ 10 Hz). Live it shows the
@@ -434,11 +442,11 @@ class ForcesTab(QWidget):
         try:
             self.pipeline.load_calibration(path)
         except (OSError, ValueError) as exc:
-            self.controls.set_message(f"calibration not loaded: {exc}", "error")
+            self.say(f"calibration not loaded: {exc}", "error")
             return False
         self._reestimate_history()
         self._apply_calibration_labels()
-        self.controls.set_message("; ".join(self.pipeline.problems), "warn")
+        self.say("; ".join(self.pipeline.problems), "warn")
         return True
 
     def _apply_calibration_labels(self) -> None:
@@ -473,7 +481,7 @@ class ForcesTab(QWidget):
         self._replay_cursor_s = None
         self._body_key = None
         self.controls.set_viewing_file(None)
-        self.controls.set_message("")
+        self.say("")
         self._show_live()
         self.plots.set_paused(False)
 
@@ -490,7 +498,7 @@ class ForcesTab(QWidget):
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            self.controls.set_message(f"cannot create folder {path.parent}: {exc.strerror or exc}; choose another "
+            self.say(f"cannot create folder {path.parent}: {exc.strerror or exc}; choose another "
                                       "place with … beside the file name", "error")
             self.controls.set_recording(False, "not recording")
             return None
@@ -529,15 +537,15 @@ class ForcesTab(QWidget):
             self.stop_recording()
 
     def _on_recording_failed(self, message: str) -> None:
-        self.controls.set_message(message, "error")
+        self.say(message, "error")
 
     def _on_recording_stopped(self, summary: str) -> None:
         session = self.session
         self.controls.set_recording(False, "not recording")
         if session is not None and session.error:
-            self.controls.set_message(session.error + f" (kept: {session.path})", "error")
+            self.say(session.error + f" (kept: {session.path})", "error")
         else:
-            self.controls.set_message(f"{summary} · Open recording… shows it", "ok")
+            self.say(f"{summary} · Open recording… shows it", "ok")
         if self.lab.recording is session:
             self.lab.recording = None
         if session is not None:
@@ -557,14 +565,14 @@ class ForcesTab(QWidget):
     def _on_board_status(self, status: Any) -> None:
         self.live.handle_status(status)  # gaps, reconnects and segments go into the recording there
         if status.state == "stall":  # an event: the board goes on; said once, and logged in a recording
-            self.controls.set_message(status.message, "warn")
+            self.say(status.message, "warn")
             return
         level = {"connected": "ok", "reconnected": "ok", "closed": "idle"}.get(status.state, "error")
         self.controls.set_board_status(status.message, level)
         if status.state in ("disconnected", "mismatch", "error"):
-            self.controls.set_message(status.message, "error")
+            self.say(status.message, "error")
         elif status.state == "reconnected":
-            self.controls.set_message(f"{status.message} (plots and recording)", "warn")
+            self.say(f"{status.message} (plots and recording)", "warn")
 
     def _on_stats(self, stats: Any) -> None:
         warning = self.live.handle_stats(stats)  # counted into the recording; never stops it
@@ -594,7 +602,7 @@ class ForcesTab(QWidget):
             level = "error"
         self.controls.set_counters(text, level)
         if warning:
-            self.controls.set_message(warning, "error")
+            self.say(warning, "error")
 
     def _refresh_status(self) -> None:
         session = self.session
@@ -611,15 +619,19 @@ class ForcesTab(QWidget):
             with busy_cursor():
                 recording = open_recording(Path(path), recover=True)
         except (OSError, ValueError) as exc:
-            self.controls.set_message(f"cannot open recording: {exc}", "error")
+            self.say(f"cannot open recording: {exc}", "error")
             return None
         if recording.channels != self.channel_names:
-            self.controls.set_message(
+            self.say(
                 f"{Path(path).name} has {len(recording.channels)} channels "
                 f"({', '.join(recording.channels[:3])}…), this lab {len(self.channel_names)}: open it with the "
                 "matching config", "error")
             return None
         self.viewed = recording
+        log = getattr(self.lab, "event_log", None)
+        if log is not None:  # the recording's own /events (gaps, health, link warnings) join the event log
+            log.add("action", f"open recording {path}", "Forces")
+            log.add_recorded(recording.path, recording.started, recording.events)
         self._replay_cursor_s = None
         self._body_key = None
         with busy_cursor():
@@ -627,13 +639,13 @@ class ForcesTab(QWidget):
         self.controls.set_viewing_file(Path(path).name)
         gaps = len(recording.gaps)
         if recording.recovery:
-            self.controls.set_message(f"{recording.recovery} — showing what survives; 'sensnake repair' writes a "
+            self.say(f"{recording.recovery} — showing what survives; 'sensnake repair' writes a "
                                       "clean copy", "warn")
         elif recording.forces_from_defaults:
-            self.controls.set_message(f"{Path(path).name}: its forces were estimated without a calibration "
+            self.say(f"{Path(path).name}: its forces were estimated without a calibration "
                                       "(typical-sensor defaults of an older version): shown as conductance (µS)", "warn")
         elif gaps:
-            self.controls.set_message(f"showing {Path(path).name}: {gaps} gap(s) marked", "warn")
+            self.say(f"showing {Path(path).name}: {gaps} gap(s) marked", "warn")
         return recording
 
     def _show_recording(self, recording: Recording) -> None:
@@ -671,17 +683,17 @@ class ForcesTab(QWidget):
         """The recording shown to CSV (app.core.view_export: units in the header, the robot beside the forces), all
         of it or only the time range the plots show. None and a message when it cannot be written."""
         if self.viewed is None:
-            self.controls.set_message("open a recording first, then export it", "warn")
+            self.say("open a recording first, then export it", "warn")
             return None
         t0, t1 = self.plots.visible_range() if visible_only else (None, None)
         try:
             with busy_cursor():
                 written, rows = export_view_csv(self.viewed, Path(out), t0, t1, list(self.lab.config.robot.joint_ids))
         except (OSError, ValueError) as exc:
-            self.controls.set_message(f"not exported: {exc}", "error")
+            self.say(f"not exported: {exc}", "error")
             return None
         span = f" ({t0:.1f}–{t1:.1f} s)" if visible_only else ""
-        self.controls.set_message(f"exported {rows} rows{span} to {written}", "ok")
+        self.say(f"exported {rows} rows{span} to {written}", "ok")
         return written
 
     def add_overlay_files(self, paths: Sequence[str | os.PathLike]) -> int:
@@ -692,7 +704,7 @@ class ForcesTab(QWidget):
                 with busy_cursor():
                     recording = open_recording(Path(path))
             except (OSError, ValueError) as exc:
-                self.controls.set_message(f"cannot open {path}: {exc}", "error")
+                self.say(f"cannot open {path}: {exc}", "error")
                 continue
             self.overlay_recordings.append(recording)
             added += 1
@@ -759,7 +771,7 @@ class ForcesTab(QWidget):
         truth. Returns success."""
         document = self.lab.simulated_sensors_calibration()
         if document is None:
-            self.controls.set_message("the board is not simulated: calibrate its sensors on the rig", "error")
+            self.say("the board is not simulated: calibrate its sensors on the rig", "error")
             return False
         text = json.dumps(document, indent=1)
         folder = user_folders.calibrations_dir()
@@ -773,11 +785,11 @@ class ForcesTab(QWidget):
                 folder.mkdir(parents=True, exist_ok=True)
                 write_atomically(path, lambda handle: handle.write(text))
             except (OSError, ValueError) as exc:
-                self.controls.set_message(f"simulated calibration not saved: {exc}", "error")
+                self.say(f"simulated calibration not saved: {exc}", "error")
                 return False
         if not self.load_calibration(path):
             return False
-        self.controls.set_message(f"{path.name}: {len(document['sensors'])} sensors, {SIMULATED_TRUTH_NOTE}", "warn")
+        self.say(f"{path.name}: {len(document['sensors'])} sensors, {SIMULATED_TRUTH_NOTE}", "warn")
         return True
 
     def _choose_calibration(self) -> None:
@@ -828,9 +840,9 @@ class ForcesTab(QWidget):
             else:
                 written = self.plots.export_image(index, Path(path))
         except (OSError, ValueError) as exc:
-            self.controls.set_message(f"image not saved: {exc}", "error")
+            self.say(f"image not saved: {exc}", "error")
             return None
-        self.controls.set_message(f"saved {written}", "ok")
+        self.say(f"saved {written}", "ok")
         return written
 
     def _choose_image(self, index: int, kind: str) -> None:

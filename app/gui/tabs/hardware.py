@@ -273,6 +273,13 @@ class HardwareTab(QWidget):
 
 
     # -- servo settings --------------------------------------------------------------------------------------------
+    def _settings_message(self, text: str, level: str = theme.IDLE) -> None:
+        """The settings page's message line, also in the event log (source "Servo settings")."""
+        self.settings.set_message(text, level)
+        log = getattr(self.lab, "event_log", None)
+        if log is not None and text:
+            log.add({theme.ERROR: "fault", theme.WARN: "warning"}.get(level, "info"), text, "Servo settings")
+
     def _settings_page_shown(self) -> None:
         """Read the shown servo when the page comes up; poll it while "Live" is on and the page is on screen."""
         on_page = self.pages.currentWidget() is self.settings and self.isVisible() and self.robot.is_connected
@@ -306,7 +313,7 @@ class HardwareTab(QWidget):
 
         def failed(exc: BaseException) -> None:
             self._reading = False
-            self.settings.set_message(f"servo {servo_id}: could not read its table: {describe_error(exc)}",
+            self._settings_message(f"servo {servo_id}: could not read its table: {describe_error(exc)}",
                                       theme.ERROR)
 
         self.robot.when_done(future, done, failed)
@@ -318,7 +325,7 @@ class HardwareTab(QWidget):
                 f"Move servo {servo_id} to {ct.BAUD_RATES_BPS.get(value, value)} bps? It leaves this bus's "
                 f"{self.robot.baud} bps at once: the robot loses it (torque off) until the other servos and the app "
                 "use the same rate. Dynamixel Wizard does the same.", "Change a servo's baud rate"):
-            self.settings.set_message("Baud Rate not written", theme.IDLE)
+            self._settings_message("Baud Rate not written", theme.IDLE)
             self.settings.restore_value(name)
             self.read_table(servo_id)  # and what the servo holds, read again
             return
@@ -326,29 +333,29 @@ class HardwareTab(QWidget):
                 f"{name} lives in EEPROM: servo {servo_id} accepts the write only with its torque off. Turn its "
                 "torque off, write, and turn it back on? The joint goes limp for a moment: support the robot.",
                 "Write an EEPROM item"):
-            self.settings.set_message(f"{name} not written (torque stays on)", theme.WARN)
+            self._settings_message(f"{name} not written (torque stays on)", theme.WARN)
             self.settings.restore_value(name)  # the cell shows the servo's value again, at once
             self.read_table(servo_id)  # and what the servo holds, read again
             return
-        self.settings.set_message(f"writing {name} = {value} on servo {servo_id}…", theme.WARN)
+        self._settings_message(f"writing {name} = {value} on servo {servo_id}…", theme.WARN)
         future = self.robot.run_on_bus(bus_command(servo_settings.set_item, servo_id, name, value),
                                        report_errors=False)
 
         def done(change: servo_settings.Change) -> None:
             if change.written:
-                self.settings.set_message(f"servo {servo_id}: {name} {change.before} → {change.after}, read back "
+                self._settings_message(f"servo {servo_id}: {name} {change.before} → {change.after}, read back "
                                           "✔" + ("; put the new ID into the lab config's [robot] joint_ids"
                                                  if name == "ID" else ""), theme.OK)
             else:
-                self.settings.set_message(f"servo {servo_id}: {name} already held {value}: not written", theme.IDLE)
+                self._settings_message(f"servo {servo_id}: {name} already held {value}: not written", theme.IDLE)
             self.settings.show_changes(f"Last write (servo {servo_id})", [change])
             if servo_settings.baud_note(change):
-                self.settings.set_message(servo_settings.baud_note(change), theme.WARN)
+                self._settings_message(servo_settings.baud_note(change), theme.WARN)
                 return  # it no longer answers at this bus's rate: nothing to read back here
             self.read_table(servo_id)
 
         def failed(exc: BaseException) -> None:
-            self.settings.set_message(f"servo {servo_id}: {name} not written: {describe_error(exc)}", theme.ERROR)
+            self._settings_message(f"servo {servo_id}: {name} not written: {describe_error(exc)}", theme.ERROR)
             self.read_table(servo_id)
 
         self.robot.when_done(future, done, failed)
@@ -359,22 +366,22 @@ class HardwareTab(QWidget):
         if not path:
             return
         if Path(path).exists():
-            self.settings.set_message(f"{path} exists: choose a new name (a backup is never written over)",
+            self._settings_message(f"{path} exists: choose a new name (a backup is never written over)",
                                       theme.ERROR)
             return
         ids = list(self.robot.config.joint_ids)
-        self.settings.set_message(f"reading {len(ids)} servos…", theme.WARN)
+        self._settings_message(f"reading {len(ids)} servos…", theme.WARN)
         future = self.robot.run_on_bus(bus_command(servo_settings.dump, ids), report_errors=False, holds_bus=True)
 
         def done(document: dict[str, Any]) -> None:
             try:
                 written = servo_settings.write_document(path, document)
             except OSError as exc:
-                self.settings.set_message(f"{path}: not written: {exc.strerror or exc}", theme.ERROR)
+                self._settings_message(f"{path}: not written: {exc.strerror or exc}", theme.ERROR)
                 return
-            self.settings.set_message(f"{len(ids)} servos' settings saved to {written}", theme.OK)
+            self._settings_message(f"{len(ids)} servos' settings saved to {written}", theme.OK)
 
-        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+        self.robot.when_done(future, done, lambda exc: self._settings_message(
             f"settings not saved: {describe_error(exc)}", theme.ERROR))
 
     def restore_settings(self, servo_id: int) -> None:
@@ -385,21 +392,21 @@ class HardwareTab(QWidget):
         try:
             document = servo_settings.read_document(path)
         except (SettingsError, OSError, ValueError) as exc:
-            self.settings.set_message(str(exc), theme.ERROR)
+            self._settings_message(str(exc), theme.ERROR)
             return
         ids = [servo_id] if servo_id else None
         who = f"servo {servo_id}" if servo_id else f"{len(document['servos'])} servo(s)"
-        self.settings.set_message(f"restoring {who} from {Path(path).name}…", theme.WARN)
+        self._settings_message(f"restoring {who} from {Path(path).name}…", theme.WARN)
         future = self.robot.run_on_bus(bus_command(servo_settings.restore, document, ids), report_errors=False,
                                        holds_bus=True)
 
         def done(changes: list[servo_settings.Change]) -> None:
             self.settings.show_changes(f"Restore of {who} from {Path(path).name}", changes)
-            self.settings.set_message(servo_settings.describe_changes(changes), theme.OK)
+            self._settings_message(servo_settings.describe_changes(changes), theme.OK)
             if self.settings.servo_id is not None:
                 self.read_table(self.settings.servo_id)
 
-        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+        self.robot.when_done(future, done, lambda exc: self._settings_message(
             f"restore stopped: {describe_error(exc)} (items before it were written; see the table)", theme.ERROR))
 
     def factory_reset(self, servo_id: int) -> None:
@@ -407,18 +414,18 @@ class HardwareTab(QWidget):
         if not self.confirm(f"Factory reset servo {servo_id}? Its gains, limits, Return Delay Time and every other "
                             "setting go back to the factory's (its ID and baud rate are kept); it restarts with torque "
                             "OFF. Save servo settings first to be able to go back.", "Factory reset"):
-            self.settings.set_message("factory reset not done", theme.IDLE)
+            self._settings_message("factory reset not done", theme.IDLE)
             return
-        self.settings.set_message(f"factory reset of servo {servo_id}…", theme.WARN)
+        self._settings_message(f"factory reset of servo {servo_id}…", theme.WARN)
         future = self.robot.run_on_bus(bus_command(servo_settings.factory_reset, servo_id), report_errors=False,
                                        holds_bus=True)
 
         def done(values: dict[str, int]) -> None:
             self.settings.set_values(servo_id, values)
-            self.settings.set_message(f"servo {servo_id}: factory settings restored (ID and baud rate kept); it "
+            self._settings_message(f"servo {servo_id}: factory settings restored (ID and baud rate kept); it "
                                       "answers again, torque off", theme.OK)
 
-        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+        self.robot.when_done(future, done, lambda exc: self._settings_message(
             f"factory reset of servo {servo_id} failed: {describe_error(exc)}", theme.ERROR))
 
     def _profile_applied(self, changes: list[servo_settings.Change]) -> None:
@@ -429,7 +436,7 @@ class HardwareTab(QWidget):
         """Make the present pose read 0 rad on every joint: preview, then the offsets into the lab config."""
         state = self.robot.latest_state
         if state is None:
-            self.settings.set_message("no joint angles yet: connect the robot first", theme.ERROR)
+            self._settings_message("no joint angles yet: connect the robot first", theme.ERROR)
             return
         config = self.robot.config
         present = [float(a) for a in state.position_rad]
@@ -441,7 +448,7 @@ class HardwareTab(QWidget):
         else:
             target_text = str(target)
         if not self.ask_zero(ZeroPoseDialog(config.joint_ids, config.axes, present, old, new, target_text, self)):
-            self.settings.set_message("zero pose not written", theme.IDLE)
+            self._settings_message("zero pose not written", theme.IDLE)
             return
         self._write_config("zero offsets", "the zero pose", lambda path: servo_settings.write_zero_offsets(path, new))
 
@@ -455,7 +462,7 @@ class HardwareTab(QWidget):
                 return
             target = Path(chosen)
             if target.exists():
-                self.settings.set_message(f"{target} exists: choose a new name (a config is never written over)",
+                self._settings_message(f"{target} exists: choose a new name (a config is never written over)",
                                           theme.ERROR)
                 return
             target.write_text(self.lab.config.source_text or default_config_path().read_text(encoding="utf-8"),
@@ -463,9 +470,9 @@ class HardwareTab(QWidget):
         try:
             backup = write(target)
         except (SettingsError, OSError) as exc:
-            self.settings.set_message(f"{what} not written: {exc}", theme.ERROR)
+            self._settings_message(f"{what} not written: {exc}", theme.ERROR)
             return
-        self.settings.set_message(f"{what} written into {target} (the file before kept as {backup.name}); they "
+        self._settings_message(f"{what} written into {target} (the file before kept as {backup.name}); they "
                                   "apply when that config is loaded: File ▸ Open config…", theme.OK)
 
     def check_direction(self, servo_id: int) -> None:
@@ -473,33 +480,33 @@ class HardwareTab(QWidget):
         "no" flips that joint's sign in the lab config."""
         config = self.robot.config
         if servo_id not in config.joint_ids:
-            self.settings.set_message(f"servo {servo_id} is not a joint of the robot ([robot] joint_ids)", theme.ERROR)
+            self._settings_message(f"servo {servo_id} is not a joint of the robot ([robot] joint_ids)", theme.ERROR)
             return
         if self.robot.motion_state in ("running", "paused"):
-            self.settings.set_message("a motion is playing: stop it first (the check moves one joint)", theme.ERROR)
+            self._settings_message("a motion is playing: stop it first (the check moves one joint)", theme.ERROR)
             return
         joint = list(config.joint_ids).index(servo_id)
         axis = config.axes[joint]
-        self.settings.set_message(f"moving joint {joint + 1} (servo {servo_id}) by +{direction_check.NUDGE_RAD:g} rad "
+        self._settings_message(f"moving joint {joint + 1} (servo {servo_id}) by +{direction_check.NUDGE_RAD:g} rad "
                                   "and back — watch which way it goes…", theme.WARN)
         future = self.robot.run_motion(direction_check.JointNudge(joint), f"direction check J{joint + 1}", play=True)
 
         def done(outcome: str) -> None:
             if outcome != "finished":
-                self.settings.set_message(f"direction check {outcome}: nothing asked, nothing written", theme.WARN)
+                self._settings_message(f"direction check {outcome}: nothing asked, nothing written", theme.WARN)
                 return
             answer = self.ask_direction(direction_check.question(joint, servo_id, axis))
             if answer is None:
-                self.settings.set_message("direction check: no answer, nothing written", theme.IDLE)
+                self._settings_message("direction check: no answer, nothing written", theme.IDLE)
             elif answer:
-                self.settings.set_message(f"joint {joint + 1} (servo {servo_id}) moves the way the app expects",
+                self._settings_message(f"joint {joint + 1} (servo {servo_id}) moves the way the app expects",
                                           theme.OK)
             else:
                 signs = direction_check.flipped_signs(config.signs, joint)
                 self._write_config(f"joint {joint + 1}'s sign ({config.signs[joint]:+d} → {signs[joint]:+d})",
                                    "the joint signs", lambda path: direction_check.write_signs(path, signs))
 
-        self.robot.when_done(future, done, lambda exc: self.settings.set_message(
+        self.robot.when_done(future, done, lambda exc: self._settings_message(
             f"direction check stopped: {describe_error(exc)}", theme.ERROR))
 
     # -- questions (tests replace these) ---------------------------------------------------------------------------
