@@ -31,6 +31,7 @@ from models.creep_arms import SecondArm, check_second_arm
 from models.errors import FlatSensorError
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
+    DRIFT_BOUND_S_PER_S,
     PARAM_NAMES,
     FitTrial,
     OutputFit,
@@ -269,8 +270,10 @@ class SensorCalibration:
     # A baseline drift found and separated from the creep (S/s; :func:`calibrate_with_drift`): 0.0 when looked for
     # and not found, None when not looked for. The parameters are those of the trials with it removed.
     drift_s_per_s: float | None = None
-    # The two-arm creep check (models.creep_arms; run by calibrate_with_drift): None when not run.
+    # The two-arm creep check (models.creep_arms; run by calibrate_with_drift): None when not run, or when it could
+    # not be made (then ``second_arm_note`` says why, and the file says so).
     second_arm: SecondArm | None = None
+    second_arm_note: str | None = None
 
     @property
     def degenerate(self) -> bool:
@@ -304,6 +307,8 @@ class SensorCalibration:
             entry["drift_S_per_s"] = self.drift_s_per_s
         if self.second_arm is not None:
             entry["creep_second_arm"] = self.second_arm.to_dict()
+        elif self.second_arm_note is not None:
+            entry["creep_second_arm"] = {"resolved": None, "checked": False, "reason": self.second_arm_note}
         return entry
 
 
@@ -573,7 +578,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                      window_s: tuple[float, float] = DEFAULT_WINDOW_S, saturation_s: float | None = None,
                      solver: str = DEFAULT_SOLVER, fit_trend: bool = True,
                      subtract_baseline: bool = False,
-                     fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ) -> SensorCalibration:
+                     fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ,
+                     drift_s_per_s: float = 0.0) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
     largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: a CasADi solver
     of :func:`models.fit_output.fit_output_casadi` (``"gauss-newton"``, the default, see :data:`DEFAULT_SOLVER`;
@@ -584,6 +590,10 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     ``fit_rate_hz``: trials sampled faster are block-averaged to this rate first (:func:`decimate_trial`; None or 0
     fits every sample).
 
+    ``drift_s_per_s``: a baseline drift (S/s, from each trial's start) already measured (:func:`calibrate_with_drift`):
+    the model is fitted to the readings with it added, so a sample at the readout's ceiling stays censored at the
+    ceiling the board had; the paper's procedure, the linear model and the misfit see the readings without it.
+
     Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
     trials (no force, too few samples), each naming the trial.
     """
@@ -591,11 +601,14 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         raise ValueError("no trials given")
     if fit_rate_hz:
         trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
+    readings = list(trials)  # as read (a drift in them): what the output-error fits compare with
+    if drift_s_per_s:
+        trials = [_drift_removed(trial, drift_s_per_s, saturation_s) for trial in readings]
     if not (area_m2 > 0 and math.isfinite(area_m2)):
         raise ValueError(f"sensor area must be a positive number of m², got {area_m2!r}")
     fit_trials: list[FitTrial] = []
     prelim: list[dict] = []
-    for trial in trials:
+    for trial, reading in zip(trials, readings, strict=True):
         try:
             hold, hold_n = hold_segment(trial.force_n)
         except ValueError as exc:
@@ -630,8 +643,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         hold_c = trial.conductance_s[hold]
         sat_fraction = (float(np.count_nonzero(hold_c >= saturation_s * (1 - 1e-12))) / max(hold_c.size, 1)
                         if saturation_s else 0.0)
-        fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, trial.conductance_s, hold_n,
-                                   counts=trial.counts))
+        fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, reading.conductance_s, hold_n,
+                                   counts=trial.counts, offset_s=_drift_offset(trial, drift_s_per_s)))
         prelim.append({"hold": hold, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
                        "sat": n_sat, "sat_fraction": sat_fraction, "noise": _hold_noise(trial.conductance_s[hold], saturation_s,
@@ -809,28 +822,43 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
 
 
 # -- a drifting baseline -----------------------------------------------------------------------------------------
-DRIFT_BOUND_S_PER_S = 2e-6  # the drift rates searched (±; 2 µS/s moves a 370 s record by 740 µS)
 DRIFT_STATISTIC = 25.0  # N·ln(SSE0/SSE1), a likelihood ratio (χ², 1 dof): 25 ≈ 5 σ; below it no drift is claimed
-DRIFT_TOLERANCE_S_PER_S = 1e-9  # the search stops within 0.001 µS/s
 
 
 def without_drift(trial: TrialInput, rate_s_per_s: float) -> TrialInput:
-    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out (the drift search
-    passes trials whose samples at the readout's ceiling are left out: they are censored, not measured)."""
+    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out."""
     if rate_s_per_s == 0.0:
         return trial
     corrected = trial.conductance_s - rate_s_per_s * (trial.time_s - trial.time_s[0])
     return TrialInput(trial.name, trial.time_s, trial.force_n, corrected, counts=trial.counts)
 
 
-def _below_ceiling(trial: TrialInput, saturation_s: float | None) -> TrialInput:
+def _drift_offset(trial: TrialInput, rate_s_per_s: float) -> np.ndarray | None:
+    """The drift's part of each reading (S), for :class:`models.fit_output.FitTrial` (None without a drift)."""
+    if not rate_s_per_s:
+        return None
+    return rate_s_per_s * (np.asarray(trial.time_s, dtype=np.float64) - float(trial.time_s[0]))
+
+
+def _drift_removed(trial: TrialInput, rate_s_per_s: float, saturation_s: float | None) -> TrialInput:
+    """``trial`` without its drift, for what reads the conductance directly (the paper's procedure, the linear model,
+    starting values, misfit): a sample at the ceiling stays at it (censored: only a lower bound), the others are kept
+    below it (taking the drift out cannot make a reading censored)."""
+    corrected = without_drift(trial, rate_s_per_s)
     if saturation_s is None:
-        return trial
-    keep = trial.conductance_s < saturation_s * (1.0 - 1e-9)
-    if keep.all():
-        return trial
-    return TrialInput(trial.name, trial.time_s[keep], trial.force_n[keep], trial.conductance_s[keep],
-                      counts=None if trial.counts is None else trial.counts[keep])
+        return corrected
+    censored = trial.conductance_s >= saturation_s * (1 - 1e-12)
+    c = np.where(censored, saturation_s, np.minimum(corrected.conductance_s, saturation_s * (1 - 1e-9)))
+    return TrialInput(trial.name, trial.time_s, trial.force_n, c, counts=trial.counts)
+
+
+def _check_arm(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams,
+               saturation_s: float | None) -> tuple[SecondArm | None, str | None]:
+    """The two-arm check, or why it could not be made (never silent: the reason is stored instead)."""
+    try:
+        return check_second_arm(trials, area_m2, phys, start, saturation_s=saturation_s), None
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return None, f"the two-arm check could not be made: {exc}"
 
 
 def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: PhysicsConstants, *,
@@ -841,73 +869,72 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
     A drift (temperature, a relaxing shell) adds ``d·t`` to every trial; fitted as creep it makes τ too long and E1
     too low with no other sign. The SLS parameters are shared by the trials at every force while the creep they
     describe scales with the force and levels off after a few τ; a drift does neither, so one rate ``d`` common to
-    all trials can be told apart: the joint fit's cost is profiled over ``d`` (a bounded scalar search, each step a
-    joint fit of the trials with ``d·t`` removed). When removing the best ``d`` lowers the cost by more than chance
-    (likelihood ratio > :data:`DRIFT_STATISTIC`), the calibration is that of the trials without it, ``drift_s_per_s``
-    says the rate and a warning says what was done; otherwise it is the plain fit with ``drift_s_per_s = 0``. One
-    force level only, or τ near the hold's length: the two cannot be separated (docs/NUMERICS.md)."""
+    all trials can be told apart: the force-trend model (parameters linear in force) is fitted with and without
+    ``d`` as a parameter, the samples at the readout's ceiling censored against the model plus the drift (the
+    ceiling does not move with a drift: leaving them out picks the samples the noise kept below it, which reads as a
+    false drift). When ``d`` lowers the cost by more than chance (likelihood ratio > :data:`DRIFT_STATISTIC`), the
+    calibration is fitted with it (:func:`calibrate_sensor` ``drift_s_per_s``), ``drift_s_per_s`` says the rate and
+    a warning what was done; otherwise it is the plain fit with ``drift_s_per_s = 0``. One force level only, or τ
+    near the hold's length: the two cannot be separated (docs/NUMERICS.md). A second, slower creep arm
+    (:mod:`models.creep_arms`) is checked with and without a drift; its result is always stored."""
     if fit_rate_hz:
         trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
-    # The search compares fits of the same samples: those at the readout's ceiling are left out of it (their
-    # censoring level would move with the drift removed).
-    measured = [_below_ceiling(trial, saturation_s) for trial in trials]
-    n_samples = sum(int(trial.time_s.size) for trial in measured)
-    solver = options.get("solver", DEFAULT_SOLVER)
     plain = calibrate_sensor(trials, area_m2, phys, saturation_s=saturation_s, fit_rate_hz=None, **options)
-    holds = [hold_segment(trial.force_n)[1] for trial in measured]
-
-    def cost(rate: float) -> float:
-        """Mean squared residual of the best-specified model for the trials with ``rate`` removed: the force trend
-        (parameters that grow with force, as the paper's sensors' do: one shared set would misfit, and a drift
-        would soak the misfit up), fitted from the plain fit's joint parameters — a local refit, not the whole
-        multi-start calibration."""
-        fit_trials = [FitTrial(t.name, t.time_s, t.force_n, without_drift(t, rate).conductance_s, hold, counts=t.counts)
-                      for t, hold in zip(measured, holds, strict=True)]
-        try:
-            joint = _fit(fit_trials, area_m2, phys, plain.sls, "joint", saturation_s, solver)
-            assert joint.ref is not None
-            trend = _fit(fit_trials, area_m2, phys, joint.ref, "trend", saturation_s, solver)
-        except (ValueError, ArithmeticError):
-            return math.inf  # a rate that leaves nothing an SLS can describe
-        return float(np.sum(np.square(trend.rmse_s) * np.array(trend.n_used)) / max(sum(trend.n_used), 1))
-
-    # A slow change that scales with the force is a second creep arm, not a drift (models.creep_arms): when the
-    # records resolve one, it is reported and no drift is removed.
-    try:
-        arm: SecondArm | None = check_second_arm(
-            [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, hold_segment(t.force_n)[1], counts=t.counts)
-             for t in trials],
-            area_m2, phys, plain.sls, saturation_s=saturation_s)
-    except (ValueError, ArithmeticError):
-        arm = None  # too few samples below the ceiling to judge
-    plain = replace(plain, second_arm=arm)
+    fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, hold_segment(t.force_n)[1], counts=t.counts)
+                  for t in trials]
+    arm, arm_note = _check_arm(fit_trials, area_m2, phys, plain.sls, saturation_s)
+    plain = replace(plain, second_arm=arm, second_arm_note=arm_note)
+    if arm_note:
+        plain = replace(plain, warnings=(*plain.warnings, arm_note))
     forces = np.array([float(r.force_n) for r in plain.trials])
     if not np.ptp(forces) > 0.05 * float(np.mean(forces)):  # the force trend's own criterion (calibrate_sensor)
         return replace(plain, warnings=(*plain.warnings, "one force level: a baseline drift cannot be told apart "
                                         "from creep (not looked for)"))
-    if arm is not None and arm.resolved:
+    if arm is not None and arm.resolved and not arm.drift_too:
         return replace(plain, drift_s_per_s=0.0, warnings=(
             *plain.warnings, f"{arm.message()} (a slow change that scales with the force: a second creep arm, not a "
             "baseline drift; none removed)"))
-    base = cost(0.0)
-    best = minimize_scalar(lambda rate: min(cost(rate), 1e6 * base), bounds=(-DRIFT_BOUND_S_PER_S,
-                           DRIFT_BOUND_S_PER_S), method="bounded", options={"xatol": DRIFT_TOLERANCE_S_PER_S})
-    rate, lowest = float(best.x), float(best.fun)
-    usable = math.isfinite(base) and math.isfinite(lowest) and lowest > 0
-    statistic = n_samples * math.log(base / lowest) if usable else 0.0  # no comparable fits: nothing claimed
+    # The drift as a parameter of the force-trend fit (the paper's sensors' parameters grow with force: one shared
+    # set would misfit, and a drift would soak the misfit up), from the plain fit's joint parameters. Always scipy:
+    # a local fit with one more parameter (the CasADi paths reach the same optimum).
+    try:
+        base = fit_output_scipy(fit_trials, area_m2, phys, plain.sls, "trend", saturation_s=saturation_s,
+                                min_force_fraction=MIN_FORCE_FRACTION)
+        drifting = fit_output_scipy(fit_trials, area_m2, phys, plain.sls, "trend", saturation_s=saturation_s,
+                                    min_force_fraction=MIN_FORCE_FRACTION, drift=True)
+    except (ValueError, ArithmeticError):
+        return replace(plain, drift_s_per_s=0.0)  # no comparable fits: nothing claimed
+    sse0, sse1 = float(sum(base.cost_per_trial)), float(sum(drifting.cost_per_trial))
+    n_samples = int(sum(drifting.n_used))
+    usable = math.isfinite(sse0) and math.isfinite(sse1) and sse1 > 0
+    statistic = n_samples * math.log(sse0 / sse1) if usable and sse0 > sse1 else 0.0
     if statistic < DRIFT_STATISTIC:
         return replace(plain, drift_s_per_s=0.0)
-    at_bound = abs(rate) > 0.95 * DRIFT_BOUND_S_PER_S
-    fitted = replace(calibrate_sensor([without_drift(t, rate) for t in measured], area_m2, phys,
-                                      saturation_s=saturation_s, fit_rate_hz=None, **options), second_arm=arm)
-    censored = sum(int(t.time_s.size) for t in trials) - n_samples
-    note = (f"baseline drift of {rate * 1e6:+.3g} µS/s found and separated from the creep (the parameters are those "
-            f"of the trials with it removed; without that, τ would read {float(plain.sls.tau_s):.3g} s instead of "
-            f"{float(fitted.sls.tau_s):.3g} s)" + (f"; {censored} sample(s) at the readout's ceiling left out" if
-                                                   censored else "") + ": check the sensor's temperature and settling")
-    if at_bound:
+    rate = drifting.drift_s_per_s
+    fitted = replace(calibrate_sensor(trials, area_m2, phys, saturation_s=saturation_s, fit_rate_hz=None,
+                                      drift_s_per_s=rate, **options), second_arm=arm, second_arm_note=arm_note)
+    censored = sum(_n_censored(t, saturation_s) for t in trials)
+    lo, hi = drifting.drift_ci95
+    note = (f"baseline drift of {rate * 1e6:+.3g} µS/s (95 % [{lo * 1e6:+.3g}, {hi * 1e6:+.3g}]) found and "
+            f"separated from the creep (the parameters are fitted with it; without that, τ would read "
+            f"{float(plain.sls.tau_s):.3g} s instead of {float(fitted.sls.tau_s):.3g} s)"
+            + (f"; {censored} sample(s) at the readout's ceiling censored against it" if censored else "")
+            + ": check the sensor's temperature and settling")
+    warnings = [*fitted.warnings, note]
+    if arm_note:
+        warnings.append(arm_note)
+    if arm is not None and arm.resolved:
+        warnings.append(f"{arm.message()} (besides the drift)")
+    if drifting.at_bound:
         note = (f"a baseline drift beyond ±{DRIFT_BOUND_S_PER_S * 1e6:g} µS/s (best {rate * 1e6:+.3g} µS/s at the "
                 "search's edge): the trials are not usable as they are")
-        return replace(fitted, drift_s_per_s=rate, warnings=(*fitted.warnings, note),
+        return replace(fitted, drift_s_per_s=rate, warnings=(*warnings, note),
                        degenerate_reasons=(*fitted.degenerate_reasons, note))
-    return replace(fitted, drift_s_per_s=rate, warnings=(*fitted.warnings, note))
+    return replace(fitted, drift_s_per_s=rate, warnings=tuple(warnings))
+
+
+def _n_censored(trial: TrialInput, saturation_s: float | None) -> int:
+    """Samples of ``trial`` at the readout's ceiling (censored)."""
+    if saturation_s is None:
+        return 0
+    return int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12)))

@@ -65,6 +65,16 @@ class FitTrial:
     conductance_s: np.ndarray
     hold_force_n: float
     counts: np.ndarray | None = None  # raw samples each sample averages (weighted by √count); None: one each
+    # A known additive part of the reading (S, per sample), e.g. a baseline drift d·t already measured: the model's
+    # conductance plus it is what is compared with the reading and with the readout's ceiling (so a censored sample
+    # stays censored at the ceiling the board had, whatever the drift). None: nothing added.
+    offset_s: np.ndarray | None = None
+
+
+# A baseline drift fitted with the force trend (fit_output_scipy(drift=True)): θ's last entry in units of this rate
+# (S/s), bounded to ±DRIFT_BOUND_S_PER_S.
+DRIFT_SCALE_S_PER_S = 1e-7
+DRIFT_BOUND_S_PER_S = 2e-6
 
 
 @dataclass(frozen=True)
@@ -97,6 +107,8 @@ class OutputFit:
     at_bound: bool = False
     warnings: tuple[str, ...] = field(default_factory=tuple)
     cost_per_trial: tuple[float, ...] = ()  # weighted residual sum of squares per trial (see trial_costs)
+    drift_s_per_s: float = 0.0  # the baseline drift fitted with the parameters (S/s; drift=True), else 0
+    drift_ci95: tuple[float, float] = (0.0, 0.0)  # its 95 % interval (S/s)
 
 
 def _start_scale(start: SLSParams | Sequence[SLSParams], n_trials: int, mode: str) -> np.ndarray:
@@ -235,9 +247,11 @@ class _Problem:
 
     def __init__(self, trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams
                  | Sequence[SLSParams], mode: str, saturation_s: float | None, min_force_fraction: float,
-                 interp: str) -> None:
+                 interp: str, fit_drift: bool = False) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if fit_drift and mode == "per_trial":
+            raise ValueError("a common baseline drift is fitted with the joint or trend parameters, not per trial")
         if not trials:
             raise ValueError("no trials to fit")
         self.trials = list(trials)
@@ -250,6 +264,14 @@ class _Problem:
         self.ref_force_n = float(np.mean(self.hold_n))
         self.n_params, self.groups = _theta_layout(mode, len(self.trials), self.hold_n, self.ref_force_n)
         self.bounds = _theta_bounds(mode, self.n_params, self.hold_n, self.ref_force_n)
+        # A common baseline drift d·t (t from each trial's start) as θ's last entry: it moves no model state, so its
+        # Jacobian column comes from the residuals alone (no model run).
+        self.fit_drift = fit_drift
+        if fit_drift:
+            self.n_params += 1
+            limit = DRIFT_BOUND_S_PER_S / DRIFT_SCALE_S_PER_S
+            self.bounds = (np.append(self.bounds[0], -limit), np.append(self.bounds[1], limit))
+        self.elapsed_s = [np.asarray(t.time_s, dtype=np.float64) - float(t.time_s[0]) for t in self.trials]
         self.masks, self.censored, self.weights = _residual_masks(self.trials, saturation_s, min_force_fraction)
         self.saturation_s = saturation_s
         # A dropped force sample is held at the last valid value (what models.sls does with NaN), so the creep state
@@ -307,12 +329,21 @@ class _Problem:
                 out[i] = c[:, j, :]
         return out
 
-    def residual_blocks(self, model: list[np.ndarray]) -> list[np.ndarray]:
-        """Weighted residual per trial for the model columns (N_used, K)."""
+    def drift_of(self, theta: np.ndarray) -> float:
+        """The baseline drift (S/s) θ holds (0 unless ``fit_drift``)."""
+        return float(theta[-1]) * DRIFT_SCALE_S_PER_S if self.fit_drift else 0.0
+
+    def residual_blocks(self, model: list[np.ndarray], drift_s_per_s: float = 0.0) -> list[np.ndarray]:
+        """Weighted residual per trial for the model columns (N_used, K), the trial's known offset and a drift
+        ``drift_s_per_s`` added to the model (it is the reading, ceiling included, that they are part of)."""
         blocks = []
         for i, trial in enumerate(self.trials):
             mask = self.masks[i]
             m = model[i][mask]
+            if trial.offset_s is not None:
+                m = m + np.asarray(trial.offset_s, dtype=np.float64)[mask][:, None]
+            if drift_s_per_s:
+                m = m + drift_s_per_s * self.elapsed_s[i][mask][:, None]
             y = trial.conductance_s[mask][:, None]
             r = m - y
             sat = self.censored[i][mask]
@@ -324,7 +355,7 @@ class _Problem:
 
     def residual(self, theta: np.ndarray) -> np.ndarray:
         model = self.conductance(self.params_array(theta)[:, None, :])
-        return np.concatenate([b[:, 0] for b in self.residual_blocks(model)])
+        return np.concatenate([b[:, 0] for b in self.residual_blocks(model, self.drift_of(theta))])
 
     def residual_and_jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its forward-difference Jacobian from 1 + len(groups) batched model columns."""
@@ -333,10 +364,16 @@ class _Problem:
             shifted = theta.copy()
             shifted[group] += _FD_STEP
             columns.append(self.params_array(shifted))
-        blocks = self.residual_blocks(self.conductance(np.stack(columns, axis=1)))
+        drift = self.drift_of(theta)
+        model = self.conductance(np.stack(columns, axis=1))
+        blocks = self.residual_blocks(model, drift)
         offsets = np.concatenate([[0], np.cumsum([b.shape[0] for b in blocks])])
         residual = np.concatenate([b[:, 0] for b in blocks])
         jac = np.zeros((residual.size, self.n_params))
+        if self.fit_drift:
+            step = _FD_STEP * max(1.0, abs(float(theta[-1])))
+            shifted_blocks = self.residual_blocks([m[:, :1] for m in model], drift + step * DRIFT_SCALE_S_PER_S)
+            jac[:, -1] = (np.concatenate([b[:, 0] for b in shifted_blocks]) - residual) / step
         for g, group in enumerate(self.groups):
             for index in group:
                 for i in self.touches(index):
@@ -406,9 +443,14 @@ class _Problem:
         if at_bound:
             warnings.append("a force-trend slope hit its bound (a parameter would turn non-positive inside the "
                             "calibrated force range): the linear trend does not describe this sensor")
+        drift, drift_ci = 0.0, (0.0, 0.0)
+        if self.fit_drift:
+            drift = self.drift_of(theta)
+            half = t_crit * float(np.sqrt(cov[-1, -1])) * DRIFT_SCALE_S_PER_S
+            drift_ci = (drift - half, drift + half) if math.isfinite(half) else (-math.inf, math.inf)
         return OutputFit(self.mode, per_trial, ref, self.ref_force_n, trend, ci, tuple(ci_trials), rmse,
                          self.n_used, int(sum(int(c.sum()) for c in self.censored)), iterations, success, message,
-                         solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks))
+                         solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks), drift, drift_ci)
 
 
 def _hold_last_valid(values: np.ndarray) -> np.ndarray:
@@ -532,15 +574,18 @@ def trial_costs(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstan
 def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,
                      start: SLSParams | Sequence[SLSParams], mode: str = "joint", *,
                      saturation_s: float | None = None, min_force_fraction: float = 0.05, interp: str = "hold",
-                     max_nfev: int = 100) -> OutputFit:
+                     max_nfev: int = 100, drift: bool = False) -> OutputFit:
     """Output-error fit with ``scipy.optimize.least_squares`` (trust-region reflective, bounded for ``trend``);
     ``per_trial`` runs a block Levenberg–Marquardt instead (independent 3×3 steps per trial, one batched model run
     per iteration), which is ~10× faster than a dense trust-region solve of the block-diagonal problem.
 
     ``start``: one starting :class:`SLSParams` (or one per trial for ``per_trial``), e.g. from the derivative-free
-    estimate; it also sets the O(1) scaling. ``area_m2`` in m². Returns an :class:`OutputFit`.
+    estimate; it also sets the O(1) scaling. ``area_m2`` in m². ``drift``: a baseline drift ``d·t`` common to all
+    trials is fitted with the parameters (joint or trend; ``drift_s_per_s`` and its interval in the result; a
+    censored sample is judged against the ceiling with the drift added to the model). Returns an
+    :class:`OutputFit`.
     """
-    problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, interp)
+    problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, interp, drift)
     cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def evaluate(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -601,6 +646,10 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
     cens = np.concatenate(censored)
     selected = index.tolist()
     model = ca.vec(conductance)[selected]
+    if any(t.offset_s is not None for t in problem.trials):  # a known offset is part of the reading (FitTrial)
+        model = model + ca.DM(np.concatenate([
+            np.zeros(int(problem.masks[i].sum())) if t.offset_s is None
+            else np.asarray(t.offset_s, dtype=np.float64)[problem.masks[i]] for i, t in enumerate(problem.trials)]))
     residual = weight * (model - target)
     jac = ca.horzcat(*[weight * ca.vec(d)[selected] for d in derivatives])
     if cens.any():

@@ -113,16 +113,18 @@ def _gram(trial: FitTrial, area_m2: float, phys: PhysicsConstants, taus: np.ndar
     """Weighted sums for one trial, one row per τ: [Sσσ, Sσg, Sgg, Sσε, Sgε, Sεε] (K, 6), and the samples used."""
     t = np.asarray(trial.time_s, dtype=np.float64)
     force = _hold_last_valid(np.asarray(trial.force_n, dtype=np.float64))
-    c = np.asarray(trial.conductance_s, dtype=np.float64)
+    read = np.asarray(trial.conductance_s, dtype=np.float64)
+    # The strain is that of the reading less its known offset (a drift); censoring is the reading's own.
+    c = read if trial.offset_s is None else read - np.asarray(trial.offset_s, dtype=np.float64)
     stride = max(1, int(math.ceil(t.size / PROFILE_MAX_SAMPLES)))
     if stride > 1:
         # Thinned: the force is held over the coarser step (exact for the hold recursion on the thinned record).
-        t, force, c = t[::stride], force[::stride], c[::stride]
+        t, force, c, read = t[::stride], force[::stride], c[::stride], read[::stride]
     raw_force = np.asarray(trial.force_n, dtype=np.float64)[::stride]
     usable = (np.isfinite(c) & (c > 0) & np.isfinite(raw_force)
               & (raw_force >= PROFILE_FORCE_FRACTION * trial.hold_force_n))
     if saturation_s is not None:
-        usable &= c < saturation_s * (1 - 1e-12)
+        usable &= read < saturation_s * (1 - 1e-12)
     rows = np.flatnonzero(usable)
     empty = np.zeros((taus.size, 6))
     if rows.size < 5:
