@@ -47,7 +47,6 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -80,6 +79,8 @@ REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body co
 STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
 CONTACT_MEMORY_S = 0.05  # a shell off the ground for less than this still shares its load as its last contacts did
 REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
+# a joint limit's constraint rows (as an int: comparing an array with MuJoCo's enum object costs 20 µs a call)
+_LIMIT_JOINT = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,8 @@ class PhysicsWorld:
         self._shell_qadr = np.array([int(j.qposadr[0]) for j in shell]).reshape(n, 2)
         self._shell_dadr = np.array([int(j.dofadr[0]) for j in shell]).reshape(n, 2)
         self._shell_joint_ids = np.array([j.id for j in shell])
+        self._is_shell_joint = np.zeros(self.model.njnt, dtype=bool)
+        self._is_shell_joint[self._shell_joint_ids] = True
         self._sheet_share = np.zeros((n, 3))  # last contacts' sheet loads per newton of their resultant
         self._share_time = np.full(n, -math.inf)
         self._last_push = np.zeros((n, 2))
@@ -150,6 +153,10 @@ class PhysicsWorld:
         self.steps = 0
         self.stepping_s = 0.0  # wall time spent inside step() (any thread): the world's share of the machine
         self._force_buf = np.zeros(6)
+        # what changed the world's state last (a step, a placing, a pose by hand): the contacts read for one state
+        # serve every reading of that state
+        self._state_version = 0
+        self._contacts_of: tuple[tuple[int, float, bytes, bytes, int], _Contacts] | None = None
         self._hand_eq = np.array([self.model.equality(hand_name(i)).id for i in range(n)])
         self._held = np.zeros(n, dtype=bool)
         self.rest_enabled = False  # the app's lab turns it on (PhysicsBackend.start); batch runs step every step
@@ -210,6 +217,7 @@ class PhysicsWorld:
             self.invalid = None
             self._wake()
             mujoco.mj_forward(self.model, self.data)
+            self._state_version += 1
             self.validity.rebase()
 
     # -- commands (any thread) ---------------------------------------------------------------------------------------
@@ -245,6 +253,7 @@ class PhysicsWorld:
             self.data.eq_active[self._hand_eq[joint]] = not self._torque_on[joint]
             self._held[joint] = not self._torque_on[joint]
             self._wake()
+            self._state_version += 1
             mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
             # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
             self.validity.rebase()  # a pose set by hand is no motion of the physics
@@ -334,46 +343,83 @@ class PhysicsWorld:
                     data.qacc_warmstart.copy())
             warned = self._warned
             stepped = 0
-            qadr, dadr = self._qadr, self._dadr
+            data.qfrc_applied[self._dadr] = self._external
             if not self._torque_on.any():  # all limp (Teach, the app at power-up): no servo loop to run
                 self._applied[:] = 0.0
                 self._demand[:] = 0.0
                 self._saturated_s[:] = 0.0
                 data.ctrl[:] = 0.0
-                data.qfrc_applied[dadr] = self._external
-                for _ in range(n):
-                    mujoco.mj_step(model, data)
-                    stepped += 1
-                    if warned.any():  # stop at the step MuJoCo found bad: what and when are exact
-                        break
-                n_loop = 0
-            else:
-                n_loop = n
-            for _ in range(n_loop):
-                q = data.qpos[qadr]
-                qd = data.qvel[dadr]
-                slew = self._speed * self._dt
-                self._setpoint += np.clip(self._goal - self._setpoint, -slew, slew)
-                demand = self._kp * (self._setpoint - q)
-                # A DC motor's torque–speed line: turning at ω in the torque's direction leaves τ_stall·(1 − ω/ω0).
-                along = np.where(demand * qd > 0.0, np.abs(qd), 0.0)
-                limit = self._stall * np.clip(1.0 - along / self._w0, 0.0, 1.0)
-                applied = np.where(self._torque_on, np.clip(demand, -limit, limit), 0.0)
-                over = self._torque_on & (np.abs(demand) > self._stall)
-                self._saturated_s = np.where(over, self._saturated_s + self._dt, 0.0)
-                self._demand = np.where(self._torque_on, demand, 0.0)
-                self._applied = applied
-                data.ctrl[:] = applied
-                data.qfrc_applied[dadr] = self._external
-                mujoco.mj_step(model, data)
-                stepped += 1
+                # Nothing to compute between steps: MuJoCo takes them all in one call. A warning raised on the way
+                # (the world then is invalid) sends it back to the batch's start to take them one by one again and
+                # stop at the step MuJoCo found bad, so what and when stay exact (the same steps: the state, the
+                # warm start and the inputs are restored).
+                counts, infos = data.warning.number.copy(), data.warning.lastinfo.copy()
+                mujoco.mj_step(model, data, nstep=n)
+                stepped = n
                 if warned.any():
-                    break
+                    # the warnings too: those of the steps after the bad one would hide which came first
+                    self._restore(good)
+                    data.warning.number[:], data.warning.lastinfo[:] = counts, infos
+                    for stepped in range(1, n + 1):  # noqa: B007 - how many were taken, after the loop
+                        mujoco.mj_step(model, data)
+                        if warned.any():
+                            break
+            else:
+                stepped = self._servo_steps(n)
             self.steps += stepped
+            self._state_version += 1
             self._check_validity(stepped, good)
             if self.rest_enabled and self.invalid is None:
                 self._note_stillness(stepped * self._dt)
             self.stepping_s += time.perf_counter() - started
+
+    def _servo_steps(self, n: int) -> int:
+        """Up to ``n`` steps, each with one servo-loop update (see the module docstring), stopping after a step that
+        raised a MuJoCo warning; how many were taken. The arithmetic is the loop's, in the same order (the results
+        to the bit): only what does not change within the batch is computed once (the slew per step, the external
+        torques) and what only the last step leaves (demand, applied) is kept from it."""
+        data, model = self.data, self.model
+        warned = self._warned
+        qadr, dadr = self._qadr, self._dadr
+        torque_on, goal, setpoint = self._torque_on, self._goal, self._setpoint
+        every_on = bool(torque_on.all())
+        kp, stall, w0, dt = self._kp, self._stall, self._w0, self._dt
+        slew = self._speed * dt
+        at_goal = bool(np.array_equal(setpoint, goal))  # the set point moves no more: adding 0 changes nothing
+        saturated = self._saturated_s
+        demand = applied = np.zeros(self.n_joints)
+        stepped = 0
+        for _ in range(n):
+            q = data.qpos[qadr]
+            qd = data.qvel[dadr]
+            if not at_goal:
+                setpoint += np.clip(goal - setpoint, -slew, slew)
+                at_goal = bool(np.array_equal(setpoint, goal))
+            demand = kp * (setpoint - q)
+            # A DC motor's torque–speed line: turning at ω in the torque's direction leaves τ_stall·(1 − ω/ω0).
+            along = np.where(demand * qd > 0.0, np.abs(qd), 0.0)
+            limit = stall * np.minimum(np.maximum(1.0 - along / w0, 0.0), 1.0)
+            applied = np.minimum(np.maximum(demand, -limit), limit)
+            if not every_on:
+                applied = np.where(torque_on, applied, 0.0)
+            over = np.abs(demand) > stall
+            if not every_on:
+                over &= torque_on
+            saturated = np.where(over, saturated + dt, 0.0)
+            data.ctrl[:] = applied
+            mujoco.mj_step(model, data)
+            stepped += 1
+            if warned.any():
+                break
+        self._saturated_s = saturated
+        self._demand = np.where(torque_on, demand, 0.0) if stepped else self._demand
+        self._applied = applied if stepped else self._applied
+        return stepped
+
+    def _restore(self, good: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Back to the state ``good`` (time, qpos, qvel, act, the solver's warm start) taken before a batch."""
+        data = self.data
+        data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:] = good
 
     def _check_validity(self, n: int, good: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
         """After ``n`` steps from the state ``good``: the validity checks (:mod:`.validity`); on the first failure
@@ -388,6 +434,7 @@ class PhysicsWorld:
         self.invalid = InvalidState(what, when + self._offset_s)
         data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:] = good
         mujoco.mj_forward(self.model, data)
+        self._state_version += 1
 
     def advance_to(self, t_s: float) -> None:
         """Step until the world's clock reaches ``t_s`` (s); if that is more than ``MAX_CATCH_UP_S`` ahead, skip the
@@ -451,66 +498,92 @@ class PhysicsWorld:
             transmitted = self._shell_force()  # (n, 2): y (left), z (up) in each segment's frame, N
             now = float(self.data.time)
             loads = np.zeros((3, self.n_joints))
-            for segment in range(self.n_joints):
-                resultant = math.hypot(*push[segment])
-                if resultant > 1e-6:
-                    self._sheet_share[segment] = sheets[:, segment] / resultant
-                    self._share_time[segment] = now
-                    direction = push[segment] / resultant
-                elif now - self._share_time[segment] <= CONTACT_MEMORY_S:
-                    direction = self._last_push[segment]
-                else:
-                    continue
-                self._last_push[segment] = direction
-                # the shell's load along the direction the contacts push it (never negative: a sheet only presses)
-                along = float(transmitted[segment] @ direction)
-                if along > 0.0:
-                    loads[:, segment] = self._sheet_share[segment] * along
+            resultant = np.array([math.hypot(y, z) for y, z in push.tolist()])
+            pushed = resultant > 1e-6  # segments with contacts now: shared as they are
+            direction = np.zeros((self.n_joints, 2))
+            if pushed.any():
+                self._sheet_share[pushed] = sheets[:, pushed].T / resultant[pushed, None]
+                self._share_time[pushed] = now
+                direction[pushed] = push[pushed] / resultant[pushed, None]
+            # a shell off the ground for a moment: shared as its last contacts were
+            remembered = ~pushed & (now - self._share_time <= CONTACT_MEMORY_S)
+            direction[remembered] = self._last_push[remembered]
+            loaded = pushed | remembered
+            self._last_push[loaded] = direction[loaded]
+            # the shell's load along the direction the contacts push it (never negative: a sheet only presses)
+            along = np.array([ty * dy + tz * dz for (ty, tz), (dy, dz) in zip(transmitted.tolist(),
+                                                                             direction.tolist())])
+            pressed = loaded & (along > 0.0)
+            loads[:, pressed] = (self._sheet_share[pressed] * along[pressed, None]).T
             if self._resting:
                 self._loads_at_rest = loads.copy()
             return loads
+
+    def _contacts(self) -> _Contacts:
+        """This step's contacts, as arrays (see :class:`_Contacts`), read once per state of the world (the sheets'
+        loads and the weight check at one instant share them). One read of MuJoCo's arrays for them all, not a
+        Python loop over ``mj_contactForce``: with the elliptic cone MuJoCo keeps a contact's force in its frame as
+        ``efc_force[efc_address : efc_address + dim]`` (normal, then the tangents), which is what
+        ``mj_contactForce`` copies; a contact without rows (excluded) has none."""
+        data = self.data
+        # the state: a step, a placing, a pose by hand bump the version; the time and the state's bytes catch a caller
+        # stepping MuJoCo itself (mj_step2) or setting a state (tests, a hand)
+        key = (self._state_version, float(data.time), data.qpos.tobytes(), data.qvel.tobytes(), data.ncon)
+        if self._contacts_of is not None and self._contacts_of[0] == key:
+            return self._contacts_of[1]
+        found = self._read_contacts()
+        self._contacts_of = (key, found)
+        return found
+
+    def _read_contacts(self) -> _Contacts:
+        data = self.data
+        ncon = data.ncon
+        if ncon == 0:
+            return _NO_CONTACTS
+        contact = data.contact
+        geom1, geom2 = contact.geom1.copy(), contact.geom2.copy()
+        first, second = self._segment_of_geom[geom1], self._segment_of_geom[geom2]
+        address, dim = contact.efc_address, contact.dim
+        local = np.zeros((ncon, 3))  # in the contact's frame: normal, first and second tangent
+        rows = address >= 0
+        local[rows, 0] = data.efc_force[address[rows]]
+        tangents = rows & (dim >= 3)
+        local[tangents, 1] = data.efc_force[address[tangents] + 1]
+        local[tangents, 2] = data.efc_force[address[tangents] + 2]
+        frames = contact.frame.reshape(ncon, 3, 3)  # rows: the frame's axes
+        force = np.einsum("kji,kj->ki", frames, local)  # on geom2 from geom1, world frame
+        segment = np.where(first >= 0, first, second)
+        on_robot = segment >= 0
+        radial = np.zeros((ncon, 2))
+        share = np.zeros((ncon, 3))
+        placed = np.zeros(ncon, dtype=bool)
+        if on_robot.any():
+            seg = segment[on_robot]
+            # the whole force on the segment: on geom2 as MuJoCo gives it, the opposite where the segment is geom1
+            on_segment = np.where((second[on_robot] == seg)[:, None], force[on_robot], -force[on_robot])
+            rotations = data.xmat[self._seg_body[seg]].reshape(-1, 3, 3)
+            radial[on_robot] = np.einsum("kji,kj->ki", rotations, on_segment)[:, 1:3]  # axial: to the housing
+            where = np.einsum("kji,kj->ki", rotations, contact.pos[on_robot] - data.geom_xpos[self._seg_geom[seg]])
+            pairs = where[:, 1:3].tolist()
+            placed[on_robot] = [math.hypot(y, z) >= 1e-9 for y, z in pairs]  # False: on the axis, no angle
+            share[on_robot] = sheet_weights_many(np.array([math.degrees(math.atan2(y, -z)) for y, z in pairs]))
+        return _Contacts(geom1, geom2, first, second, local[:, 0], force, segment, radial, share, placed)
 
     def _contact_sheets(self) -> tuple[np.ndarray, np.ndarray]:
         """Per segment, the part of its contact forces normal to its sheets — the radial part (y, z in the segment's
         frame) of each contact's whole force, normal and friction, as a sheet only feels pressure — shared among its
         sheets (3, n) by where each contact is, and their resultant (n, 2), from MuJoCo's contacts this step."""
-        sheets = np.zeros((3, self.n_joints))
-        push = np.zeros((self.n_joints, 2))
-        data, model = self.data, self.model
-        buf = self._force_buf
-        for i in range(data.ncon):
-            contact = data.contact[i]
-            segment = self._segment_of_geom[contact.geom1]
-            if segment < 0:
-                segment = self._segment_of_geom[contact.geom2]
-            if segment < 0:
-                continue
-            mujoco.mj_contactForce(model, data, i, buf)
-            if buf[0] <= 0.0:
-                continue
-            share = self._contact_share(contact, segment)
-            if share is None:
-                continue
-            # the contact's whole force on geom2, from its frame (rows: normal, tangents) to the world, on the segment
-            force = contact.frame.reshape(3, 3).T @ buf[:3]
-            if self._segment_of_geom[contact.geom2] != segment:
-                force = -force
-            rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
-            radial = (rotation.T @ force)[1:3]  # its axial part goes to the housing through the shell's rigid x
-            sheets[:, segment] += float(math.hypot(*radial)) * share
-            push[segment] += radial
-        return sheets, push
-
-    def _contact_share(self, contact: Any, segment: int) -> np.ndarray | None:
-        """How ``contact`` on ``segment`` is shared by its (bottom, left, right) sheets (:func:`sheet_weights` of the
-        contact's angle around the segment); None for a contact on the segment's axis (no angle)."""
-        data = self.data
-        rotation = data.xmat[self._seg_body[segment]].reshape(3, 3)
-        local = rotation.T @ (contact.pos - data.geom_xpos[self._seg_geom[segment]])
-        ly, lz = float(local[1]), float(local[2])
-        if math.hypot(ly, lz) < 1e-9:
-            return None
-        return sheet_weights(math.degrees(math.atan2(ly, -lz)))
+        n = self.n_joints
+        sheets = np.zeros((n, 3))
+        push = np.zeros((n, 2))
+        found = self._contacts()
+        used = (found.segment >= 0) & (found.normal_n > 0.0) & found.placed
+        if used.any():
+            segment, radial = found.segment[used], found.radial_n[used]
+            magnitude = np.array([math.hypot(y, z) for y, z in radial.tolist()])
+            np.add.at(sheets, segment, magnitude[:, None] * found.share[used])
+            np.add.at(push, segment, radial)
+        return sheets.T.copy(), push
 
     def _shell_force(self) -> np.ndarray:
         """(n, 2) the force (N) each shell passes to its segment's housing (y, z in the segment's frame) through its
@@ -519,10 +592,11 @@ class PhysicsWorld:
         shell = self.scene.shell
         qadr, dadr = self._shell_qadr, self._shell_dadr
         elastic = shell.stiffness_n_per_m * data.qpos[qadr] + shell.damping_n_s_per_m * data.qvel[dadr]
-        limit_rows = (data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & np.isin(data.efc_id,
-                                                                                          self._shell_joint_ids)
-        if limit_rows.any():
-            forces = np.where(limit_rows, data.efc_force, 0.0)
+        limits = np.flatnonzero(data.efc_type == _LIMIT_JOINT)
+        limits = limits[self._is_shell_joint[data.efc_id[limits]]]
+        if limits.size:
+            forces = np.zeros(data.nefc)
+            forces[limits] = data.efc_force[limits]
             generalized = np.zeros(model.nv)
             mujoco.mj_mulJacTVec(model, data, generalized, forces)
             elastic = elastic - generalized[dadr]  # a stop pushing the shell back pushes the housing forward
@@ -534,16 +608,10 @@ class PhysicsWorld:
     def total_contact_normal_n(self) -> float:
         """Sum of the normal forces of every robot contact, sensed or not (N): the weight check's reference."""
         with self._lock:
-            total = 0.0
-            for i in range(self.data.ncon):
-                contact = self.data.contact[i]
-                head = self._head_geom
-                robot = self._segment_of_geom[contact.geom1] >= 0 or self._segment_of_geom[contact.geom2] >= 0 \
-                    or head in (contact.geom1, contact.geom2)
-                if robot:
-                    mujoco.mj_contactForce(self.model, self.data, i, self._force_buf)
-                    total += float(self._force_buf[0])
-            return total
+            found = self._contacts()
+            robot = (found.first >= 0) | (found.second >= 0) | (found.geom1 == self._head_geom) \
+                | (found.geom2 == self._head_geom)
+            return float(sum(found.normal_n[robot].tolist(), 0.0))
 
     def vertical_contact_force_n(self) -> float:
         """The upward part (N) of every contact force on the robot (normal and friction): the weight when nothing
@@ -559,25 +627,21 @@ class PhysicsWorld:
         is that less what lands on no sheet. A sheet's *reading* is only the pressure part of its force
         (:meth:`segment_loads_n`); on a slope friction holds up some weight no sheet reads."""
         with self._lock:
-            sheets = np.zeros((3, self.n_joints))
-            total = 0.0
-            data, model, buf = self.data, self.model, self._force_buf
-            for i in range(data.ncon):
-                contact = data.contact[i]
-                first, second = self._segment_of_geom[contact.geom1], self._segment_of_geom[contact.geom2]
-                robot_first = first >= 0 or contact.geom1 == self._head_geom
-                robot_second = second >= 0 or contact.geom2 == self._head_geom
-                if robot_first == robot_second:  # not the robot's, or the robot on itself (no net force)
-                    continue
-                mujoco.mj_contactForce(model, data, i, buf)
-                # the force in the contact frame acts on geom2 from geom1; rows of frame are the frame's axes
-                up = float((contact.frame.reshape(3, 3).T @ buf[:3])[2]) * (1.0 if robot_second else -1.0)
-                total += up
-                segment = second if robot_second else first
-                share = self._contact_share(contact, segment) if segment >= 0 else None  # the nose: no sheet
-                if share is not None:
-                    sheets[:, segment] += up * share
-            return sheets, total
+            sheets = np.zeros((self.n_joints, 3))
+            found = self._contacts()
+            robot_first = (found.first >= 0) | (found.geom1 == self._head_geom)
+            robot_second = (found.second >= 0) | (found.geom2 == self._head_geom)
+            robot = robot_first != robot_second  # not the robot's, or the robot on itself (no net force): left out
+            if not robot.any():
+                return sheets.T.copy(), 0.0
+            # the force in the contact frame acts on geom2 from geom1
+            up = found.force_n[:, 2] * np.where(robot_second, 1.0, -1.0)
+            total = float(sum(up[robot].tolist(), 0.0))  # in the contacts' order, as a sum over them one by one
+            # on a segment (the nose carries no sheet), at an angle around it: shared by its sheets
+            shared = robot & (found.segment >= 0) & found.placed
+            if shared.any():
+                np.add.at(sheets, found.segment[shared], up[shared, None] * found.share[shared])
+            return sheets.T.copy(), total
 
     def body_state(self) -> BodyState:
         with self._lock:
@@ -596,6 +660,50 @@ class PhysicsWorld:
     @property
     def weight_n(self) -> float:
         return self.scene.robot_mass_kg * abs(float(self.model.opt.gravity[2]))
+
+
+@dataclass(frozen=True)
+class _Contacts:
+    """A step's contacts as arrays (k contacts): their geoms, the robot segment of each geom (−1: none), the normal
+    force (N) and the whole force (k, 3; on geom2 from geom1, world frame, N); and for a contact on a segment
+    (``segment`` ≥ 0: geom1's segment, else geom2's) the radial part of the force on it (k, 2; y, z in its frame),
+    how its sheets share it (k, 3) and whether it has an angle around the segment at all (``placed``)."""
+
+    geom1: np.ndarray
+    geom2: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    normal_n: np.ndarray
+    force_n: np.ndarray
+    segment: np.ndarray
+    radial_n: np.ndarray
+    share: np.ndarray
+    placed: np.ndarray
+
+
+_NO_CONTACTS = _Contacts(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
+                         np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 3)),
+                         np.zeros(0, dtype=bool))
+
+
+def sheet_weights_many(angles_deg: np.ndarray) -> np.ndarray:
+    """:func:`sheet_weights` of every angle in ``angles_deg`` (k,), as rows (k, 3); the same numbers."""
+    angles = np.asarray(angles_deg, dtype=float)
+    a = np.abs(angles)
+    side = np.where(angles > 0, 1, 2)
+    rows = np.arange(a.size)
+    weights = np.zeros((a.size, 3))
+    edge_b, edge_s0, edge_s1 = SHEET_HALF_ARC_DEG, 90.0 - SHEET_HALF_ARC_DEG, 90.0 + SHEET_HALF_ARC_DEG
+    weights[a <= edge_b, 0] = 1.0
+    gap = (a > edge_b) & (a < edge_s0)
+    f = (a[gap] - edge_b) / (edge_s0 - edge_b)
+    weights[gap, 0] = 1.0 - f
+    weights[rows[gap], side[gap]] = f
+    on_side = (a >= edge_s0) & (a <= edge_s1)
+    weights[rows[on_side], side[on_side]] = 1.0
+    fade = (a > edge_s1) & (a < TOP_FADE_DEG)
+    weights[rows[fade], side[fade]] = 1.0 - (a[fade] - edge_s1) / (TOP_FADE_DEG - edge_s1)
+    return weights
 
 
 def sheet_weights(angle_deg: float) -> np.ndarray:
