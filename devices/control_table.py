@@ -186,6 +186,174 @@ def cut_off_reason(name: str, value: int) -> str | None:
     return None
 
 
+# -- what each item's value means (XM430-W350 e-manual, "Control Table": each item's section) -------------------
+# Dynamixel Wizard 2.0 shows these beside the raw number; the Hardware tab's Servo settings page does the same.
+@dataclass(frozen=True)
+class Decoding:
+    """How an item's raw value reads: ``names`` (value → name) for an enumeration, ``bits`` (bit → name) for a bit
+    field, else ``scale`` physical units of ``unit`` per raw unit (0: a plain number). ``notes``: the e-manual's
+    remark shown with the item (e.g. which profile the units hold in)."""
+
+    unit: str = ""
+    scale: float = 0.0
+    names: tuple[tuple[int, str], ...] = ()
+    bits: tuple[tuple[int, str], ...] = ()
+    notes: str = ""
+
+    @property
+    def kind(self) -> str:
+        """"enum", "bits", "scaled" or "plain"."""
+        return "enum" if self.names else "bits" if self.bits else "scaled" if self.scale else "plain"
+
+    @property
+    def bit_mask(self) -> int:
+        return sum(1 << bit for bit, _name in self.bits)
+
+
+DEGREES_PER_TICK = 360.0 / TICKS_PER_REV  # 0.088° in the e-manual
+OFF_ON = ((0, "Off"), (1, "On"))
+# Baud Rate (8): the e-manual's names for each value.
+BAUD_RATE_NAMES: tuple[tuple[int, str], ...] = (
+    (0, "9,600 bps"), (1, "57,600 bps"), (2, "115,200 bps"), (3, "1 Mbps"), (4, "2 Mbps"), (5, "3 Mbps"),
+    (6, "4 Mbps"), (7, "4.5 Mbps"))
+OPERATING_MODE_NAMES: tuple[tuple[int, str], ...] = (
+    (0, "Current Control"), (1, "Velocity Control"), (3, "Position Control"),
+    (4, "Extended Position Control (Multi-turn)"), (5, "Current-based Position Control"),
+    (16, "PWM Control (Voltage Control)"))
+# Shutdown (63) and Hardware Error Status (70): the same bits, the e-manual's names.
+ERROR_BIT_NAMES: tuple[tuple[int, str], ...] = (
+    (0, "Input Voltage Error"), (2, "Overheating Error"), (3, "Motor Encoder Error"), (4, "Electrical Shock Error"),
+    (5, "Overload Error"))
+DECODINGS: dict[str, Decoding] = {
+    "Model Number": Decoding(names=tuple(sorted(MODEL_NAMES.items()))),
+    "Baud Rate": Decoding(names=BAUD_RATE_NAMES),
+    "Return Delay Time": Decoding("µs", RETURN_DELAY_S_PER_LSB * 1e6),
+    "Drive Mode": Decoding(bits=((0, "Reverse Mode"), (2, "Time-based Profile"), (3, "Torque On by Goal Update")),
+                           notes="bit 0 clear: counter-clockwise is positive; bit 2 clear: velocity-based profile"),
+    "Operating Mode": Decoding(names=OPERATING_MODE_NAMES),
+    "Secondary ID": Decoding(notes="253 or more: no Secondary ID"),
+    "Protocol Type": Decoding(names=((1, "Protocol 1.0"), (2, "Protocol 2.0"))),
+    "Homing Offset": Decoding("°", DEGREES_PER_TICK),
+    "Moving Threshold": Decoding("rpm", VELOCITY_RPM_PER_LSB),
+    "Temperature Limit": Decoding("°C", 1.0),
+    "Max Voltage Limit": Decoding("V", VOLTAGE_V_PER_LSB),
+    "Min Voltage Limit": Decoding("V", VOLTAGE_V_PER_LSB),
+    "PWM Limit": Decoding("%", 100.0 / 885),
+    "Current Limit": Decoding("mA", CURRENT_MA_PER_LSB),
+    "Velocity Limit": Decoding("rpm", VELOCITY_RPM_PER_LSB),
+    "Max Position Limit": Decoding("°", DEGREES_PER_TICK),
+    "Min Position Limit": Decoding("°", DEGREES_PER_TICK),
+    "Startup Configuration": Decoding(bits=((0, "Startup Torque On"), (1, "RAM Restore"))),
+    "Shutdown": Decoding(bits=ERROR_BIT_NAMES),
+    "Torque Enable": Decoding(names=OFF_ON),
+    "LED": Decoding(names=OFF_ON),
+    "Status Return Level": Decoding(names=((0, "PING Instruction"), (1, "PING and READ Instructions"),
+                                           (2, "All Instructions"))),
+    "Registered Instruction": Decoding(names=((0, "None"), (1, "REG_WRITE received"))),
+    "Hardware Error Status": Decoding(bits=ERROR_BIT_NAMES),
+    "Bus Watchdog": Decoding("ms", 20.0, notes="0: off"),
+    "Goal PWM": Decoding("%", 100.0 / 885),
+    "Goal Current": Decoding("mA", CURRENT_MA_PER_LSB),
+    "Goal Velocity": Decoding("rpm", VELOCITY_RPM_PER_LSB),
+    "Profile Acceleration": Decoding("rev/min²", ACCELERATION_RPM2_PER_LSB,
+                                     notes="velocity-based profile (Drive Mode bit 2 clear); time-based: ms"),
+    "Profile Velocity": Decoding("rpm", VELOCITY_RPM_PER_LSB,
+                                 notes="velocity-based profile (Drive Mode bit 2 clear); time-based: ms"),
+    "Goal Position": Decoding("°", DEGREES_PER_TICK),
+    "Realtime Tick": Decoding("ms", 1.0),
+    "Moving": Decoding(names=((0, "Not moving"), (1, "Moving"))),
+    "Moving Status": Decoding(bits=((0, "In-Position"), (1, "Profile Ongoing"), (3, "Following Error"),
+                                    (4, "Profile type bit 0"), (5, "Profile type bit 1")),
+                              notes="profile type (bits 5-4): 00 step, 01 rectangular, 10 triangular, "
+                                    "11 trapezoidal"),
+    "Present PWM": Decoding("%", 100.0 / 885),
+    "Present Current": Decoding("mA", CURRENT_MA_PER_LSB),
+    "Present Velocity": Decoding("rpm", VELOCITY_RPM_PER_LSB),
+    "Present Position": Decoding("°", DEGREES_PER_TICK),
+    "Velocity Trajectory": Decoding("rpm", VELOCITY_RPM_PER_LSB),
+    "Position Trajectory": Decoding("°", DEGREES_PER_TICK),
+    "Present Input Voltage": Decoding("V", VOLTAGE_V_PER_LSB),
+    "Present Temperature": Decoding("°C", 1.0),
+    "Backup Ready": Decoding(names=((0, "No backup"), (1, "Backup ready"))),
+}
+PLAIN = Decoding()
+
+
+def decoding(name: str) -> Decoding:
+    """How item ``name``'s value reads (a plain number for an item the e-manual gives no meaning or unit)."""
+    return DECODINGS.get(name, PLAIN)
+
+
+def describe(name: str, raw: int) -> str:
+    """Item ``name``'s raw value in words: its name ("1 Mbps", "Position Control"), the bits set ("Overheating
+    Error, Electrical Shock Error, Overload Error"; "none"), or the value in its unit ("180.0 °"); a value an
+    enumeration does not name, or a bit it does not know, is said as such."""
+    how = decoding(name)
+    if how.names:
+        return dict(how.names).get(raw, f"{raw}: not a value of {name}")
+    if how.bits:
+        named = [label for bit, label in how.bits if raw & (1 << bit)]
+        unknown = raw & ~how.bit_mask
+        if unknown:
+            named.append(f"unknown bits 0x{unknown:02X}")
+        return ", ".join(named) if named else "none"
+    if how.scale:
+        return f"{raw * how.scale:.{_decimals(how.scale)}f} {how.unit}"
+    return str(raw)
+
+
+def physical(name: str, raw: int) -> float | None:
+    """The raw value in the item's unit (None for an item without one)."""
+    how = decoding(name)
+    return raw * how.scale if how.scale else None
+
+
+def raw_from_physical(name: str, value: float) -> int:
+    """The raw value nearest ``value`` given in the item's unit (ValueError for an item without one)."""
+    how = decoding(name)
+    if not how.scale:
+        raise ValueError(f"{name} has no unit to convert from")
+    return int(round(value / how.scale))
+
+
+def raw_from_name(name: str, label: str) -> int:
+    """The value an enumeration item ``name`` calls ``label`` (any case); ValueError listing the names."""
+    how = decoding(name)
+    wanted = " ".join(label.split()).lower()
+    for value, text in how.names:
+        if text.lower() == wanted:
+            return value
+    names = ", ".join(f"{v} {t!r}" for v, t in how.names) or "none"
+    raise ValueError(f"{name} has no value called {label!r} (its values: {names})")
+
+
+def raw_with_bit(name: str, raw: int, bit: int, on: bool) -> int:
+    """``raw`` with bit ``bit`` of bit-field item ``name`` set (``on``) or cleared."""
+    if bit not in dict(decoding(name).bits):
+        raise ValueError(f"{name} has no bit {bit}")
+    return raw | (1 << bit) if on else raw & ~(1 << bit)
+
+
+def invalid_reason(name: str, raw: int) -> str | None:
+    """Why ``raw`` is no value of item ``name`` although it may lie in its range (an enumeration's unnamed value, a
+    bit field's unknown bit), or None."""
+    how = decoding(name)
+    if how.names and raw not in dict(how.names):
+        names = ", ".join(f"{v} ({t})" for v, t in how.names)
+        return f"{name} = {raw} is not one of its values: {names}"
+    if how.bits and raw & ~how.bit_mask:
+        bits = ", ".join(f"bit {b} ({t})" for b, t in how.bits)
+        return f"{name} = {raw} sets a bit it does not have (its bits: {bits})"
+    return None
+
+
+def _decimals(scale: float) -> int:
+    """Decimals that tell one raw step from the next: 0.088 → 2, 0.1 → 1, 2.69 → 0."""
+    if scale >= 1:
+        return 0
+    return min(3, int(math.ceil(-math.log10(scale) - 1e-9)))
+
+
 ADDR_MODEL_NUMBER = 0
 ADDR_FIRMWARE_VERSION = 6
 ADDR_ID = 7

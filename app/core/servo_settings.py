@@ -132,6 +132,9 @@ def check_value(entry: ct.Item, value: int) -> None:
     if not entry.minimum <= value <= entry.maximum:
         unit = f" ({UNITS[entry.name]} units)" if entry.name in UNITS else ""
         raise SettingsError(f"{entry.name} = {value} is out of its range {entry.minimum} … {entry.maximum}{unit}")
+    meaningless = ct.invalid_reason(entry.name, value)  # in range, yet no value of it (Operating Mode 2)
+    if meaningless:
+        raise SettingsError(meaningless)
     cut_off = ct.cut_off_reason(entry.name, value)
     if cut_off:
         raise SettingsError(f"{entry.name} = {value} would cut the app off from the servo: {cut_off}")

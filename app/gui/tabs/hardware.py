@@ -535,10 +535,15 @@ NOT_CONNECTED = "Connect the robot (Bus and servos) to read and change its servo
 
 
 def table_rows() -> list[TableRow]:
-    """The XM430-W350's control table as the settings page lists it (units from the e-manual)."""
-    return [TableRow(item.address, item.name, item.size, item.writable, item.eeprom,
-                     servo_settings.UNITS.get(item.name, ""), item.minimum, item.maximum)
-            for item in ct.XM430_W350_ITEMS]
+    """The XM430-W350's control table as the settings page lists it, each item with its decoding (names, bits, unit:
+    :data:`devices.control_table.DECODINGS`, from the e-manual)."""
+    rows = []
+    for item in ct.XM430_W350_ITEMS:
+        how = ct.decoding(item.name)
+        rows.append(TableRow(item.address, item.name, item.size, item.writable, item.eeprom,
+                             servo_settings.UNITS.get(item.name, ""), item.minimum, item.maximum, names=how.names,
+                             bits=how.bits, scale=how.scale, quantity_unit=how.unit, notes=how.notes))
+    return rows
 
 
 def create_tab(lab: LabContext) -> QWidget:
