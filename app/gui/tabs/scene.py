@@ -5,26 +5,47 @@ most ``FRAME_RATE_HZ`` and only while the tab is visible; frames reach the GUI t
 :class:`app.gui.thread_bridge.ThreadBridge`. Without a physics lab (a real robot, ``[lab] physics = "scripted"``) or
 without OpenGL it shows the 2-D body drawing of the robot's present joint angles and says why. A line above the
 picture names the scene (``[lab] scene``) and its obstacles.
+
+**Replay** (Open recording…): a recording on a timeline (:class:`widgets.replay_view.ReplayView`) — the simulated body
+from ``/sim``, the motion-captured one from ``/mocap`` when present, else the commanded pose from ``/robot`` — with
+the contact forces drawn on the body; scrub, play, pause, speed 0.1–10×, step frame by frame. The data are read by
+:mod:`app.core.replay`; one timer, running only while the replay plays and the tab is visible, advances the time and
+draws the frame there. The live picture pauses meanwhile; **Live** goes back to it.
 """
 
 from __future__ import annotations
 
 import threading
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QTimer
 from PySide6.QtGui import QHideEvent, QShowEvent
-from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
+from PySide6.QtWidgets import (
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QStackedWidget,
+    QVBoxLayout,
+    QWidget,
+)
 
+from app.core import replay as replays
+from app.core import user_folders
 from app.gui.thread_bridge import ThreadBridge
 from devices.errors import SceneError
 from devices.scene import half_cylinder_scene, load_scene
+from widgets import theme
+from widgets.replay_view import ReplayView
 from widgets.scene_view import SceneView
 
 FRAME_RATE_HZ = 10.0
 FRAME_SIZE = (640, 480)
 BODY_RATE_MS = 100
+REPLAY_FRAME_MS = 33  # the replay draws at ~30 frames/s while it plays
 
 
 def _physics_of(lab: Any) -> tuple[Any, str]:
@@ -74,10 +95,39 @@ class SceneTab(QWidget):
         robot = lab.config.robot
         self.view = SceneView(robot.axes, robot.segment_length_m)
         layout = QVBoxLayout(self)
+        bar = QHBoxLayout()
         self.scene_label = QLabel(scene_description(lab.config))
         self.scene_label.setWordWrap(True)
-        layout.addWidget(self.scene_label)
-        layout.addWidget(self.view)
+        bar.addWidget(self.scene_label, 1)
+        self.open_button = QPushButton("Open recording…")
+        self.open_button.setToolTip("Replay a recording in 3-D: the simulated body (/sim), the motion-captured one "
+                                    "(/mocap) or the commanded pose (/robot), with its contact forces")
+        self.open_button.clicked.connect(self._choose_replay)
+        bar.addWidget(self.open_button)
+        self.live_button = QPushButton("Live")
+        self.live_button.setToolTip("Back to the live lab")
+        self.live_button.clicked.connect(self.show_live)
+        self.live_button.setVisible(False)
+        bar.addWidget(self.live_button)
+        layout.addLayout(bar)
+        self.replay_view = ReplayView()
+        self.pages = QStackedWidget()
+        self.pages.addWidget(self.view)
+        self.pages.addWidget(self.replay_view)
+        layout.addWidget(self.pages, 1)
+        self.replay: replays.Replay | None = None
+        self.replay_time_s = 0.0
+        self.replay_frame: replays.ReplayFrame | None = None
+        self._replay_speed = 1.0
+        self._replay_clock: tuple[float, float] | None = None  # (monotonic, replay time) when play last started
+        self._replay_timer = QTimer(self)
+        self._replay_timer.setInterval(REPLAY_FRAME_MS)
+        self._replay_timer.timeout.connect(self._replay_tick)
+        rv = self.replay_view
+        rv.time_requested.connect(self.seek)
+        rv.play_toggled.connect(lambda on: self.play() if on else self.pause())
+        rv.step_requested.connect(self.step)
+        rv.speed_changed.connect(self.set_speed)
         self._bridge = ThreadBridge(self)
         self._physics, note = _physics_of(lab)
         self._visible = threading.Event()
@@ -100,6 +150,11 @@ class SceneTab(QWidget):
     # -- visibility drives the work ----------------------------------------------------------------------------------
     def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt's name
         super().showEvent(event)
+        if self.replay is not None:
+            if self._replay_clock is not None:
+                self._replay_clock = (time.monotonic(), self.replay_time_s)
+                self._replay_timer.start()
+            return
         if self._physics is not None and not self.render_error:
             self._visible.set()
             if self._thread is None:
@@ -113,6 +168,7 @@ class SceneTab(QWidget):
         super().hideEvent(event)
         self._visible.clear()
         self._body_timer.stop()
+        self._replay_timer.stop()  # a playing replay resumes where it was when the tab comes back
 
     def shutdown(self) -> None:
         self._stop.set()
@@ -121,6 +177,7 @@ class SceneTab(QWidget):
             self._thread.join(timeout=3.0)
             self._thread = None
         self._body_timer.stop()
+        self._replay_timer.stop()
         self._bridge.close()
 
     # -- render thread -------------------------------------------------------------------------------------------------
@@ -150,6 +207,122 @@ class SceneTab(QWidget):
         state = self.lab.robot.latest_state
         if state is not None:
             self.view.body.set_angles(np.asarray(state.position_rad))
+
+
+    # -- replay ------------------------------------------------------------------------------------------------------
+    def _choose_replay(self) -> None:
+        folder = user_folders.dialog_folder(user_folders.recordings_dir())
+        path, _filter = QFileDialog.getOpenFileName(self, "Replay a recording in 3-D", folder,
+                                                    "Recordings (*.h5 *.hdf5);;All files (*)")
+        if path:
+            self.open_replay(path)
+
+    def open_replay(self, path: str | Path) -> bool:
+        """Open ``path`` on the timeline at its start, paused; False (and the reason above the picture) when it has
+        nothing to replay."""
+        robot = self.lab.config.robot
+        try:
+            replay = replays.open_replay(path, tuple(robot.axes), robot.segment_length_m)
+        except (OSError, ValueError) as exc:
+            self.scene_label.setText(f"cannot replay: {exc}")
+            self.scene_label.setStyleSheet(theme.status_style(theme.ERROR))
+            return False
+        self.pause()
+        self.replay = replay
+        self._visible.clear()  # the live picture rests while a recording is shown
+        self._body_timer.stop()
+        sources = " and ".join(replays.SOURCE_TITLES[t.source] for t in replay.tracks)
+        forces = f"; contact forces {replay.forces_source}" if replay.forces_source else "; no contact forces"
+        self.scene_label.setText(f"Replay of {replay.path.name} ({replay.duration_s:.1f} s)")
+        self.scene_label.setStyleSheet("")
+        self.replay_view.set_timeline(replay.start_s, replay.end_s, f"{sources}{forces}")
+        self.pages.setCurrentWidget(self.replay_view)
+        self.live_button.setVisible(True)
+        log = getattr(self.lab, "event_log", None)
+        if log is not None:
+            log.add("action", f"replay {replay.path} in 3-D", "3-D lab")
+        self.seek(replay.start_s, refit=True)
+        return True
+
+    def show_live(self) -> None:
+        """Leave the replay: the live lab again."""
+        self.pause()
+        self.replay = None
+        self.replay_frame = None
+        self.pages.setCurrentWidget(self.view)
+        self.live_button.setVisible(False)
+        self.scene_label.setText(scene_description(self.lab.config))
+        if self.isVisible():
+            if self._physics is not None and not self.render_error:
+                self._visible.set()
+            else:
+                self._body_timer.start()
+
+    def seek(self, t_s: float, refit: bool = False) -> None:
+        """Show the recording's frame at ``t_s`` (the last recorded at or before it)."""
+        replay = self.replay
+        if replay is None:
+            return
+        t_s = min(max(float(t_s), replay.start_s), replay.end_s)
+        self.replay_time_s = t_s
+        if self._replay_clock is not None:
+            self._replay_clock = (time.monotonic(), t_s)
+        frame = replay.frame_at(t_s)
+        self.replay_frame = frame
+        body = frame.bodies[0]
+        forces = frame.forces_n if frame.forces_n is not None and len(frame.forces_n) == len(body.sensors_m) else None
+        self.replay_view.show_frame([(b.source, b.points_m) for b in frame.bodies], body.sensors_m, forces,
+                                    refit=refit)
+        self.replay_view.set_time(t_s)
+
+    def step(self, frames: int) -> None:
+        """One frame (or ``frames``) forward or back; pauses a playing replay."""
+        if self.replay is None:
+            return
+        self.pause()
+        self.seek(self.replay.step(self.replay_time_s, frames))
+
+    def set_speed(self, speed: float) -> None:
+        """Playback speed (0.1–10× real time)."""
+        self._replay_speed = float(speed)
+        if self._replay_clock is not None:
+            self._replay_clock = (time.monotonic(), self.replay_time_s)
+        if self.replay_view.speed != speed:
+            self.replay_view.set_speed(speed)
+
+    def play(self) -> None:
+        replay = self.replay
+        if replay is None:
+            self.replay_view.set_playing(False)
+            return
+        if self.replay_time_s >= replay.end_s:
+            self.seek(replay.start_s)
+        self._replay_clock = (time.monotonic(), self.replay_time_s)
+        self.replay_view.set_playing(True)
+        if self.isVisible():
+            self._replay_timer.start()
+
+    def pause(self) -> None:
+        self._replay_clock = None
+        self._replay_timer.stop()
+        self.replay_view.set_playing(False)
+
+    @property
+    def playing(self) -> bool:
+        return self._replay_clock is not None
+
+    def _replay_tick(self) -> None:
+        replay, clock = self.replay, self._replay_clock
+        if replay is None or clock is None:
+            self._replay_timer.stop()
+            return
+        started_s, from_s = clock
+        t_s = from_s + (time.monotonic() - started_s) * self._replay_speed
+        if t_s >= replay.end_s:
+            self.seek(replay.end_s)
+            self.pause()
+            return
+        self.seek(t_s)
 
 
 def create_tab(lab: Any) -> QWidget:
