@@ -13,8 +13,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 
-from app.core.errors import InvalidRunError
+from app.core.errors import InvalidRunError, RunsInterrupted
 from app.core.experiment import (
     REST_CAP_S,
     REST_HOLD_S,
@@ -44,7 +45,11 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise ValueError(f"--jobs must be 1 or more, got {args.jobs}")
     plan = read_sweep(args.plan)
-    rows = run_sweep(plan, args.out, jobs=args.jobs, progress=_progress)
+    try:
+        rows = run_sweep(plan, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
+                         progress=_progress, say=print)
+    except RunsInterrupted as stop:
+        return interrupted(stop, args.out)
     if sys.stdout.isatty():
         print()
     failed = [r for r in rows if str(r["file"]).startswith("failed")]
@@ -57,11 +62,12 @@ def _sweep(args: argparse.Namespace) -> int:
         print(f"{entry['scene']:<18} {entry['controller']:<16} {entry['tail_load_N']:6g} {entry['runs']:4d} "
               f"{_percent(entry['success']):>9} {_percent(entry['at_rest_success']):>7} {entry['undecided']:9d} "
               f"{entry['median_advance_m']:9.3f} {entry['overloads']:9d} {entry['invalid']:7d}")
-    indices = sorted({int(r["gains_index"]) for r in rows if r["controller"] == "feedback" and r["traversed"] != ""})
+    candidates = sorted({(str(r["controller"]), int(r["gains_index"])) for r in rows
+                         if r["controller"] != "feedforward" and r["traversed"] != ""})
     if "feedforward" in plan.controllers:
-        for index in indices:
-            c = compare(rows, index)
-            print(f"feedback g{index} against feedforward over {c.pairs} paired runs: where feedforward fails "
+        for controller, index in candidates:
+            c = compare(rows, index, controller)
+            print(f"{controller} g{index} against feedforward over {c.pairs} paired runs: where feedforward fails "
                   f"({c.ff_fail_cases} scene × load cases) it traverses {100 * c.fb_success_in_those:.0f}% against "
                   f"{100 * c.ff_success_in_those:.0f}% (crawling, not falling off a crest: "
                   f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%; median crawl before "
@@ -81,19 +87,36 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if failed else EXIT_INVALID if invalid else 0
 
 
+def interrupted(stop: RunsInterrupted, out: str) -> int:
+    """One line for runs cut short by Ctrl-C, SIGTERM or SIGHUP: what was kept, how to resume; exit 130."""
+    if sys.stdout.isatty():
+        print()
+    print(f"sensnake experiment: interrupted ({stop.signal_name}): pending runs cancelled, workers stopped; "
+          f"{stop.finished} of {stop.total} runs finished and kept in {out}; the same command resumes",
+          file=sys.stderr)
+    return 130
+
+
 def _percent(fraction: float) -> str:
     return "—" if math.isnan(fraction) else f"{100 * fraction:.0f}%"
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.name not in ("run", "obstacle", "sweep", "trials"):  # argparse's choices refuse others; a direct call
-        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle, sweep, trials")
+    if args.name not in ("run", "obstacle", "sweep", "trials", "evaluate", "tune"):  # argparse refuses others
+        raise ValueError(f"unknown experiment {args.name!r}; known: run, obstacle, sweep, trials, evaluate, tune")
     try:
         import mujoco  # noqa: F401 - a clear message instead of an ImportError deep inside the lab
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
     if args.name == "sweep":
+        if getattr(args, "ideal_sensing", False):
+            raise ValueError("--ideal-sensing is for 'experiment run' and 'obstacle' (a sweep's runs sense as a robot "
+                             "does: a rig calibration's errors, the board's noise, the creep)")
         return _sweep(args)
+    if args.name in ("evaluate", "tune"):  # app/cli/evaluate.py, app/cli/tune.py
+        from app.cli import evaluate, tune
+
+        return evaluate.run(args) if args.name == "evaluate" else tune.run(args)
     if args.name == "trials":  # a series of one condition and its repeatability report (app/cli/trials.py)
         from app.cli.trials import run as run_trials
 
@@ -101,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plan:
         raise ValueError(f"a sweep file ({args.plan}) is for 'sensnake experiment sweep'")
     config = load_config(args.config) if args.config else LabConfig()
+    if getattr(args, "ideal_sensing", False):  # the controller reads the sensors' true calibration
+        config = replace(config, lab=replace(config.lab, sensing="ideal"))
     rest_cap_s = getattr(args, "rest_cap", None)
     rest_cap_s = REST_CAP_S if rest_cap_s is None else rest_cap_s
     try:
@@ -114,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             shape = read_shape(args.shape) if args.shape else None
             gains = read_gains(args.gains) if args.gains else None
-            if gains is not None and args.controller != "feedback":
-                raise ValueError("--gains is for --controller feedback")
+            if gains is not None and args.controller == "feedforward":
+                raise ValueError("--gains is for --controller feedback (or one of its variants)")
             result = run_experiment(args.out, config, scene=args.scene, shape=shape, mode=args.mode,
                                     seconds=args.seconds, speed_rad_s=args.speed, settle_s=args.settle,
                                     seed=args.seed, controller=args.controller, gains=gains,

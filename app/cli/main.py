@@ -72,7 +72,8 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         if value and os.path.realpath(value) in read:
             raise ValueError(f"--{name} {value} is also an input ({read[os.path.realpath(value)]}): choose another "
                              f"file to write, the input would be destroyed before it is read")
-        folder_wanted = command == "experiment" and getattr(args, "name", None) in ("sweep", "trials")
+        folder_wanted = command == "experiment" and getattr(args, "name", None) in ("sweep", "trials", "evaluate",
+                                                                                    "tune")
         if value and not folder_wanted and not os.path.isdir(value):  # a folder: refused by the writer, in its words
             check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
 
@@ -276,16 +277,25 @@ def build_parser() -> argparse.ArgumentParser:
     repair.add_argument("--out", metavar="FIXED.h5", help="where to write it (default: REC-repaired.h5)")
 
     experiment = sub.add_parser("experiment", help="run a simulated experiment in the physics lab (MuJoCo)")
-    experiment.add_argument("name", choices=("run", "obstacle", "sweep", "trials"),
+    experiment.add_argument("name", choices=("run", "obstacle", "sweep", "trials", "evaluate", "tune"),
                             help="run: any scene and motion; obstacle: the paper's Sec. III-C experiment; sweep: "
                                  "scenes × controllers × gains × tail loads × seeds from a sweep file; trials: one "
                                  "condition --trials times (seeds --seed …), each its own recording, and the "
-                                 "repeatability report")
-    experiment.add_argument("plan", nargs="?", metavar="SWEEP.toml", help="sweep: the sweep file")
+                                 "repeatability report; evaluate: a pre-registered evaluation file (conditions drawn "
+                                 "from scene families, controllers paired with feedforward); tune: the law's gains "
+                                 "searched by Optuna on training scenes, scored once on test scenes")
+    experiment.add_argument("plan", nargs="?", metavar="SWEEP.toml|EVAL.toml|TUNE.toml",
+                            help="sweep, evaluate, tune: the plan file")
+    experiment.add_argument("--engine", choices=("local", "dask"), default="local",
+                            help="sweep, evaluate, tune: local processes (default) or Dask (an embedded cluster on "
+                                 "127.0.0.1, or --scheduler's)")
+    experiment.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                            help="with --engine dask: an existing Dask scheduler (default: start one here)")
     experiment.add_argument("--out", required=True, metavar="REC.h5|DIR", help="the recording (run, obstacle) or "
                                                                                "a new folder (sweep)")
     experiment.add_argument("--jobs", type=int, default=None, metavar="N",
-                            help="sweep: runs at a time (default: the machine's cores)")
+                            help="sweep, evaluate, tune: runs at a time (default and at most: the machine's cores, "
+                                 "and no more than the runs)")
     experiment.add_argument("--scene", metavar="SCENE.toml",
                             help="run: a scene file or a built-in scene (paper_obstacle, flat, step, wedge, "
                                  "two_obstacles); default: the config's [lab] scene, else the paper's obstacle")
@@ -293,8 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
                             help="run: the shape to play (default: the settled pose, captured as the paper does)")
     experiment.add_argument("--mode", choices=("follow", "keyframes", "serpenoid", "sidewinding"), default="follow",
                             help="run: how to play it (default follow-the-leader)")
-    experiment.add_argument("--controller", choices=("feedforward", "feedback"), default="feedforward",
-                            help="run: feedforward (the motion as planned) or feedback (force-feedback body bending)")
+    experiment.add_argument("--controller", choices=("feedforward", "feedback", "conform_only", "push_only"),
+                            default="feedforward",
+                            help="run: feedforward (the motion as planned), feedback (force-feedback body bending), "
+                                 "or the law's conform_only or push_only variant (models/controllers.py)")
     experiment.add_argument("--gains", metavar="FILE.toml", help="run: the feedback controller's gains")
     experiment.add_argument("--repeat", type=int, default=1, metavar="K",
                             help="run: play a follow-the-leader shape K times (each re-forms it at the head)")
@@ -314,8 +326,13 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors' spread and noise")
     experiment.add_argument("--config", metavar="FILE", help="lab config (robot, board, [lab] scene and frictions)")
     experiment.add_argument("--trials", type=int, default=None, metavar="N",
-                            help="trials: how many (trial k runs with seed --seed + k)")
+                            help="trials: how many (trial k runs with seed --seed + k); tune: how many Optuna trials "
+                                 "the study in --out holds when done (it resumes)")
     experiment.add_argument("--note", default="", metavar="TEXT", help="the operator's note, kept in each run_start")
+    experiment.add_argument("--ideal-sensing", action="store_true",
+                            help="run, obstacle: the controller's forces through the sensors' true calibration "
+                                 "(default: as a robot senses them, through a rig calibration's errors, the "
+                                 "board's noise and the creep; [lab] sensing)")
     add_align_options(experiment)
 
     mocap = sub.add_parser("mocap", help="motion capture: a take (C3D or XDF) added to a recording on its clock",

@@ -36,8 +36,8 @@ def series_options(args: argparse.Namespace) -> SeriesOptions:
     if args.plan:
         raise ValueError(f"a sweep file ({args.plan}) is for 'sensnake experiment sweep'")
     gains = read_gains(args.gains) if args.gains else None
-    if gains is not None and args.controller != "feedback":
-        raise ValueError("--gains is for --controller feedback")
+    if gains is not None and args.controller == "feedforward":
+        raise ValueError("--gains is for --controller feedback (or one of its variants)")
     rest_cap = getattr(args, "rest_cap", None)
     return SeriesOptions(scene=args.scene, trials=args.trials, seed=args.seed, mode=args.mode,
                          speed_rad_s=args.speed, seconds=args.seconds, settle_s=args.settle,

@@ -82,3 +82,33 @@ class InvalidRunError(RuntimeError):
 
 class InvalidRecordingError(ValueError):
     """The recording is of a run whose physics stopped being physics (``/sim`` ``valid`` = 0): no check of it is data."""
+
+
+# raised by app.core.engines
+class EngineError(ConnectionError):
+    """The runs' engine cannot start or be reached (a Dask scheduler that does not answer); names the address."""
+
+
+# raised by app.core.engines
+class FolderBusyError(RuntimeError):
+    """Another sweep, evaluation or tuning is writing into the folder (its lock is held); names the folder."""
+
+
+# raised by app.core.engines
+class RunsInterrupted(KeyboardInterrupt):
+    """Ctrl-C, SIGTERM or SIGHUP while runs were going on: pending runs cancelled, workers stopped; what finished is
+    kept (``finished`` of ``total``) and the same command resumes."""
+
+    def __init__(self, finished: int = 0, total: int = 0, signal_name: str = "SIGINT") -> None:
+        super().__init__(f"{signal_name}: {finished} of {total} runs finished")
+        self.finished, self.total, self.signal_name = finished, total, signal_name
+
+
+# raised by app.core.evaluate
+class EvaluationError(ValueError):
+    """An evaluation file that cannot be run, or a folder that holds another evaluation; names the file and key."""
+
+
+# raised by app.core.tune
+class TuneError(ValueError):
+    """A tuning file that cannot be run, or a folder that holds another study; names the file and key."""

@@ -69,11 +69,13 @@ from app.core.forces_pipeline import ForcesPipeline
 from app.core.play import check_shape_fits
 from app.core.recording import RecordingWriter
 from app.core.run_documents import condition, run_start_document, with_calibration, with_metadata
+from app.core.sensing import sensing_calibration
 from devices import factory
 from devices.board import FrameParser, conductance_from_counts
 from devices.board_wire import saturated_from_counts
 from devices.config import LabConfig
 from devices.scene import Scene, channel_map, half_cylinder_scene, load_scene, scene_to_toml
+from models.controllers import CONTROLLERS, law_gains, uses_law
 from models.force_feedback import FeedbackGains
 from models.health import HealthMonitor
 from models.health import trusted as health_trusted
@@ -129,7 +131,6 @@ class BoardStream:
 
 
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
-CONTROLLERS = ("feedforward", "feedback")
 SEED_SPREAD = {"start_m": 0.01, "friction": 0.05}
 MAX_TAIL_LOAD_N = 30.0
 
@@ -257,7 +258,7 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
                    speed_rad_s: float = 0.034, settle_s: float = SETTLE_S, seed: int = 0,
                    controller: str = "feedforward", gains: FeedbackGains | None = None, tail_load_n: float = 0.0,
                    repeat: int = 1, rest_cap_s: float = REST_CAP_S, progress: Callable[[str], None] | None = None,
-                   header: str = "", md: Mapping[str, Any] | None = None) -> ExperimentResult:
+                   header: str = "", md: Mapping[str, Any] | None = None, shape_scale: float = 1.0) -> ExperimentResult:
     """Run a plan (see the module docstring) and write its recording to ``out``. ``scene``: a scene file or a
     built-in scene's name (default: the config's ``[lab] scene``, else its legacy half cylinder); ``shape``: an
     :class:`app.core.shapes.Shape` (default: the settled pose); ``seconds`` caps the played part (default: the whole
@@ -266,7 +267,9 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     ``tail_load_n``: a constant backward force on the tail from the capture on; ``repeat``: how many times a
     follow-the-leader play runs (each re-forms the shape at the head and propagates it again, as ``play --repeat``);
     ``rest_cap_s``: how long the run may go on after the motion for the body to come to rest (0: not at all, the
-    outcome is then undecided). ``progress`` gets a one-line status about once a wall second. An invalid run returns
+    outcome is then undecided); ``shape_scale``: the settled pose's angles times this before it is played (an
+    evaluation's taught-shape scaling; 1 with a ``shape``); ``controller`` may also be a variant of the law
+    (:mod:`models.controllers`). ``progress`` gets a one-line status about once a wall second. An invalid run returns
     a result with ``valid`` False (see the module docstring); one invalid before the capture raises
     :class:`InvalidRunError`."""
     config = config or LabConfig()
@@ -278,8 +281,9 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     base_scene = terrain or _legacy_terrain(config)
     run_start = with_metadata(run_start_document("experiment run", condition(
         scene=base_scene.name, scene_text=base_scene.text or scene_to_toml(base_scene),
-        shape="settled" if shape is None else shape.name, mode=mode, speed_rad_s=speed_rad_s, controller=controller,
-        gains=(gains or FeedbackGains()) if controller == "feedback" else None, tail_load_n=tail_load_n,
+        shape=("settled" if shape_scale == 1.0 else f"settled × {shape_scale:g}") if shape is None else shape.name,
+        mode=mode, speed_rad_s=speed_rad_s, controller=controller,
+        gains=(gains or FeedbackGains()) if uses_law(controller) else None, tail_load_n=tail_load_n,
         config_text=config.source_text or ""), seed=seed), md)
     scratch_scene: tempfile.TemporaryDirectory | None = None
     if seed > 0:  # a seed other than 0 also varies the start and the frictions (SEED_SPREAD), not only the sensors
@@ -292,7 +296,8 @@ def run_experiment(out: str | Path, config: LabConfig | None = None, *, scene: s
     try:
         return _run(out, config, terrain, shape=shape, mode=mode, seconds=seconds, speed_rad_s=speed_rad_s,
                     settle_s=settle_s, seed=seed, controller=controller, gains=gains, tail_load_n=tail_load_n,
-                    repeat=repeat, rest_cap_s=rest_cap_s, progress=progress, header=header, run_start=run_start)
+                    repeat=repeat, rest_cap_s=rest_cap_s, progress=progress, header=header, run_start=run_start,
+                    shape_scale=shape_scale)
     finally:
         if scratch_scene is not None:
             scratch_scene.cleanup()
@@ -326,7 +331,7 @@ def jittered_scene(scene: Scene, seed: int) -> Scene:
 def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: Any, mode: str, seconds: float | None,
          speed_rad_s: float, settle_s: float, seed: int, controller: str, gains: FeedbackGains | None,
          tail_load_n: float, repeat: int, rest_cap_s: float, progress: Callable[[str], None] | None,
-         header: str, run_start: dict[str, Any] | None = None) -> ExperimentResult:
+         header: str, run_start: dict[str, Any] | None = None, shape_scale: float = 1.0) -> ExperimentResult:
     if mode not in MODES:
         raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
     if controller not in CONTROLLERS:
@@ -345,6 +350,8 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
         raise ValueError(f"--tail-load must be in [0, {MAX_TAIL_LOAD_N:g}] N, got {tail_load_n}")
     if not (math.isfinite(rest_cap_s) and rest_cap_s >= 0):
         raise ValueError(f"--rest-cap must be 0 s or more, got {rest_cap_s}")
+    if not (math.isfinite(shape_scale) and 0.0 < shape_scale <= 2.0) or (shape is not None and shape_scale != 1.0):
+        raise ValueError(f"shape_scale must be in (0, 2] and scales only the settled pose, got {shape_scale}")
     robot = config.robot
     if shape is not None:  # as `sensnake play` refuses it: another joint count, other axes, beyond a joint limit
         check_shape_fits(shape, robot)
@@ -358,7 +365,7 @@ def _run(out: str | Path, config: LabConfig, terrain: Scene | None, *, shape: An
                         settle_s=settle_s, controller=controller, gains=gains, tail_load_n=tail_load_n,
                         repeat=repeat, rest_cap_s=rest_cap_s, progress=progress, header=header,
                         physics_log=physics_log, terrain_text=terrain.text if terrain is not None else "",
-                        run_start=run_start)
+                        run_start=run_start, shape_scale=shape_scale)
     finally:
         physics_log.close()
 
@@ -388,7 +395,8 @@ class _PhysicsLog(logging.Handler):
 def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: str, seconds: float | None,
              speed_rad_s: float, settle_s: float, controller: str, gains: FeedbackGains | None, tail_load_n: float,
              repeat: int, rest_cap_s: float, progress: Callable[[str], None] | None, header: str,
-             physics_log: _PhysicsLog, terrain_text: str, run_start: dict[str, Any] | None = None) -> ExperimentResult:
+             physics_log: _PhysicsLog, terrain_text: str, run_start: dict[str, Any] | None = None,
+             shape_scale: float = 1.0) -> ExperimentResult:
     robot = config.robot
     world = lab.physics.world
     names = config.board.channel_names
@@ -398,7 +406,8 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
     pipeline = ForcesPipeline(names)
     pipeline.set_readout(config.board.r_c_ohm)
     health = HealthMonitor(len(names), config.board.rate_hz)
-    calibration = json.dumps(lab.ground_truth_calibration())
+    # what the controller senses (app.core.sensing): a rig calibration's errors by default, the truth if ideal
+    calibration = json.dumps(sensing_calibration(lab.ground_truth_calibration(), config.lab.sensing, lab.seed)[0])
     with tempfile.TemporaryDirectory() as scratch:
         cal_path = Path(scratch) / "board_truth.json"
         cal_path.write_text(calibration, encoding="utf-8")
@@ -441,11 +450,12 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
     present = lab.read_robot().position_rad
     if not np.all(np.isfinite(present)):
         raise RuntimeError("the simulated robot did not answer the capture read")
-    taught = present if shape is None else np.asarray(shape.angles_rad, dtype=float)
+    taught = present * shape_scale if shape is None else np.asarray(shape.angles_rad, dtype=float)
     source = _motion(mode, taught, None if shape is None else shape.keyframes, config, speed_rad_s, repeat)
     feedback: ForceFeedbackMotion | None = None
-    if controller == "feedback":
-        feedback = ForceFeedbackMotion(source, tuple(robot.axes), tuple(names), gains or FeedbackGains(),
+    if uses_law(controller):  # the law, or a variant of it with some of its gains zeroed (models.controllers)
+        feedback = ForceFeedbackMotion(source, tuple(robot.axes), tuple(names),
+                                       law_gains(controller, gains or FeedbackGains()),
                                        rate_hz=robot.control_rate_hz, page=page, clock=lambda: lab.time_s)
     # 3. Play, and 4. record from here on.
     lab.write_goals(present)
@@ -584,7 +594,8 @@ def _run_lab(out: str | Path, config: LabConfig, lab: Any, *, shape: Any, mode: 
                  judged=judged, motion_end_s=motion_end_s, rest_cap_s=rest_cap_s, invalid_reason=invalid_reason,
                  rotations=np.array(sim_rotations))
     if controller != "feedforward":  # SPEC §3.5: /control when a controller other than feedforward ran
-        _append_control(out, times, np.array(corrections), controller, gains or FeedbackGains(), tail_load_n)
+        _append_control(out, times, np.array(corrections), controller,
+                        law_gains(controller, gains or FeedbackGains()), tail_load_n)
     finish_run(out, run_start, "fail" if invalid_reason else "success", invalid_reason, judged.outcome)
     wall_s = time.perf_counter() - wall0
     simulated_s = settle_s + (sim_times[-1] if sim_times else 0.0)
@@ -905,6 +916,8 @@ def _append_body(out: str | Path, times: np.ndarray, points: np.ndarray, sheets_
         group.attrs["segment_length_m"] = scene.segment_length_m
         group.attrs["weight_N"] = world.weight_n
         group.attrs["physics"] = json.dumps(lab.config.lab.physical.to_dict())  # [lab.physics] in force
+        group.attrs["sensing"] = json.dumps(sensing_calibration(lab.ground_truth_calibration(), lab.config.lab.sensing,
+                                                                lab.seed)[1])  # what the controller sensed
         group.attrs["note"] = ("simulated body (MuJoCo): points_m[:, 0] is the head tip, points_m[:, i] the back "
                                "end of segment i; sheet_true_N the normal force on each sheet (board channel "
                                "order); sheet_support_N the upward part of each sheet's whole contact force "

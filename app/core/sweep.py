@@ -39,13 +39,26 @@ run. The
 analysis reads only the recordings' results, so any run can be re-analysed later. The figure (``summary.svg``):
 success rate, crawled rate and median advance against tail load, one line per scene × controller.
 
-Qt-free; the runs are processes (``concurrent.futures.ProcessPoolExecutor``), the caller's thread waits.
+Controllers: ``feedforward``, ``feedback`` and the law's variants (:mod:`models.controllers`); every controller but
+feedforward runs once per gain set. A sweep is checked whole before its first run — scenes, mode, seeds (whole
+numbers ≥ 0), gain sets (at least one), tail loads, and the run count (at most
+:data:`app.core.engines.MAX_RUNS`) — and stated (``N runs``) when it starts.
+
+Where the runs go (:mod:`app.core.engines`): local processes (default, ``jobs`` at most the cores and the runs) or a
+Dask cluster; each run a task writing its recording into the folder and returning its row. The folder is locked
+while a sweep writes into it (a second one is refused). Each finished run is journaled (``finished.jsonl``) as it
+finishes: Ctrl-C, SIGTERM or SIGHUP cancel what is pending, stop the workers and write ``summary.csv`` of the
+finished runs; after that, or after a kill, the same command resumes (finished runs kept, the others run again). A
+run that raised is a row whose ``file`` says ``failed: …`` and a row of ``failures.csv`` with its traceback; it runs
+again on resume. ``sweep.json`` holds what the folder's sweep is (its runs' hash): another sweep into it is refused.
+
+Qt-free; the caller's thread waits.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 import csv
+import hashlib
 import itertools
 import json
 import math
@@ -58,8 +71,20 @@ from typing import Any
 
 import numpy as np
 
-from app.core.errors import InvalidRunError, SweepError
+from app.core.engines import (
+    MAX_RUNS,
+    Engine,
+    FolderLock,
+    Row,
+    RunJournal,
+    Task,
+    capped_jobs,
+    interruptible,
+    open_engine,
+)
+from app.core.errors import InvalidRunError, RunsInterrupted, SweepError
 from devices.toml_files import read_toml_file
+from models.controllers import CONTROLLERS, uses_law
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
 
@@ -70,6 +95,7 @@ SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_l
                    "lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m",
                    "valid", "invalid_reason", "outcome", "at_rest_s", "rest_margin_m", "advance_at_rest_m",
                    "slide_back_m")
+FAILURE_COLUMNS = ("run", "scene", "controller", "gains_index", "tail_load_N", "seed", "error")
 # What an invalid run leaves empty: everything it measured (its physics stopped being physics).
 MEASURED_COLUMNS = ("traversed", "traverse_s", "advance_m", "front_face_cv", "lost_ground_s", "rolled_s", "crawl_m",
                     "crawled", "tail_advance_m", "end_extent_m", "at_rest_s", "rest_margin_m", "advance_at_rest_m",
@@ -95,7 +121,7 @@ class SweepPlan:
         out = []
         for scene, controller, load, seed in itertools.product(self.scenes, self.controllers, self.tail_loads_n,
                                                                self.seeds):
-            gain_sets = list(enumerate(self.gains)) if controller == "feedback" else [(-1, None)]
+            gain_sets = list(enumerate(self.gains)) if uses_law(controller) else [(-1, None)]
             for index, gains in gain_sets:
                 out.append({"scene": scene, "controller": controller, "gains_index": index, "gains": gains,
                             "tail_load_n": float(load), "seed": int(seed)})
@@ -117,15 +143,26 @@ def read_sweep(path: str | Path) -> SweepPlan:
         if not isinstance(value, list) or not value or not all(
                 isinstance(v, int | float) and not isinstance(v, bool) for v in value):
             raise SweepError(f"{path}: '{key}' must be a non-empty list of numbers")
+        if kind is int and not all(isinstance(v, int) for v in value):  # seeds = [1.5] is no seed, not seed 1
+            raise SweepError(f"{path}: '{key}' must be whole numbers, got {value!r}")
         return tuple(kind(v) for v in value)
 
     controllers = data.get("controllers", ["feedforward", "feedback"])
-    if not isinstance(controllers, list) or not controllers or any(
-            c not in ("feedforward", "feedback") for c in controllers):
-        raise SweepError(f"{path}: 'controllers' must list feedforward and/or feedback, got {controllers!r}")
+    if not isinstance(controllers, list) or not controllers or any(c not in CONTROLLERS for c in controllers) \
+            or len(set(controllers)) != len(controllers):
+        raise SweepError(f"{path}: 'controllers' must list some of {', '.join(CONTROLLERS)} (each once), got "
+                         f"{controllers!r}")
+    from app.core.experiment import MODES  # here, not at import: the experiment module loads MuJoCo
+
+    mode = data.get("mode", "follow")
+    if mode not in MODES:
+        raise SweepError(f"{path}: 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
     gains_tables = data.get("gains", [{}])
     if not isinstance(gains_tables, list) or not all(isinstance(g, dict) for g in gains_tables):
         raise SweepError(f"{path}: gain sets are written [[gains]] (an array of tables)")
+    if not gains_tables:
+        raise SweepError(f"{path}: 'gains' is empty: give at least one [[gains]] table (an empty one is the law's "
+                         "defaults)")
     try:
         gains = tuple(FeedbackGains.from_mapping(g, f"{path} [[gains]] #{k + 1}") for k, g in enumerate(gains_tables))
     except GainsError as exc:
@@ -140,7 +177,7 @@ def read_sweep(path: str | Path) -> SweepPlan:
                 or (positive and value == 0):
             raise SweepError(f"{path}: '{key}' must be a number {'>' if positive else '≥'} 0, got {value!r}")
         scalars[key] = float(value)
-    from app.core.experiment import MAX_TAIL_LOAD_N  # here, not at import: the experiment module loads MuJoCo
+    from app.core.experiment import MAX_TAIL_LOAD_N
 
     tail_loads = numbers("tail_loads_n", (0.0,), float)
     if any(not 0.0 <= load <= MAX_TAIL_LOAD_N for load in tail_loads):
@@ -153,9 +190,13 @@ def read_sweep(path: str | Path) -> SweepPlan:
     repeat = data.get("repeat", 1)
     if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= 100:
         raise SweepError(f"{path}: 'repeat' must be a whole number 1 … 100, got {repeat!r}")
-    return SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers), repeat=repeat,
-                     tail_loads_n=tail_loads, seeds=seeds,
-                     mode=str(data.get("mode", "follow")), gains=gains, **scalars)
+    plan = SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers), repeat=repeat,
+                     tail_loads_n=tail_loads, seeds=seeds, mode=str(mode), gains=gains, **scalars)
+    count = len(plan.runs())
+    if count > MAX_RUNS:
+        raise SweepError(f"{path}: {count} runs (scenes × controllers × gain sets × tail loads × seeds); a sweep holds "
+                         f"at most {MAX_RUNS}: split it")
+    return plan
 
 
 def _refuse_unholdable_loads(path: Path, scenes: list[str], load_n: float, seeds: tuple[int, ...]) -> None:
@@ -183,17 +224,19 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
     from app.core.experiment import REST_CAP_S, run_experiment
 
     started = time.perf_counter()
+    Path(args["out"]).unlink(missing_ok=True)  # a run cut short before (a kill, Ctrl-C) left its recording behind
     row = {"run": args["run"], "scene": args["scene"], "controller": args["controller"],
            "gains_index": args["gains_index"],
            "gains": json.dumps(asdict(args["gains"])) if args["gains"] is not None else "",
            "tail_load_N": args["tail_load_n"], "seed": args["seed"]}
     rest_cap_s = args.get("rest_cap_s")
     try:
-        result = run_experiment(args["out"], scene=args["scene"], mode=args["mode"], seconds=args["seconds"],
+        result = run_experiment(args["out"], scene=args.get("scene_path", args["scene"]), mode=args["mode"], seconds=args["seconds"],
                                 speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
                                 controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"],
                                 repeat=args.get("repeat", 1), rest_cap_s=REST_CAP_S if rest_cap_s is None
-                                else rest_cap_s)
+                                else rest_cap_s, shape_scale=args.get("shape_scale", 1.0),
+                                md={"plan_name": args["plan_name"]} if args.get("plan_name") else None)
     except InvalidRunError as exc:  # invalid before the capture: no recording
         return {**dict.fromkeys(SUMMARY_COLUMNS, ""), **row, "overloads": "", "wall_s": time.perf_counter() - started,
                 "file": "", "valid": 0, "invalid_reason": str(exc), "outcome": "invalid"}
@@ -212,50 +255,152 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None,
-              progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
-    """Run every run of ``plan`` into ``out_dir`` (created; an existing ``summary.csv`` there is refused, never
-    overwritten), ``jobs`` at a time (default: the machine's cores). Returns the summary rows in run order."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if (out / "summary.csv").exists():
-        raise SweepError(f"{out}: holds a sweep already (summary.csv); choose another --out folder")
-    runs = plan.runs()
+def sweep_tasks(plan: SweepPlan, out: Path) -> list[Task]:
+    """The tasks of ``plan``'s runs, each with its recording's path in ``out``."""
     tasks = []
-    for k, run in enumerate(runs):
+    for k, run in enumerate(plan.runs()):
         name = f"{k:03d}_{Path(run['scene']).stem}_{run['controller']}"
         name += f"_g{run['gains_index']}" if run["gains_index"] >= 0 else ""
         name += f"_load{run['tail_load_n']:g}_seed{run['seed']}.h5"
-        tasks.append({**run, "run": k, "out": str(out / name), "mode": plan.mode, "seconds": plan.seconds,
+        tasks.append({**run, "run": k, "out": str(out.resolve() / name), "scene_path": scene_path(run["scene"]),
+                      "mode": plan.mode, "seconds": plan.seconds,
                       "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s, "repeat": plan.repeat,
                       "rest_cap_s": plan.rest_cap_s})
-    rows: dict[int, dict[str, Any]] = {}
+    return tasks
+
+
+def scene_path(scene: str) -> str:
+    """A scene's file as an absolute path (a worker of another engine may run in another folder)."""
+    from devices.scene import resolve_scene_path
+
+    return str(resolve_scene_path(scene).resolve())
+
+
+def tasks_identity(tasks: list[Task]) -> str:
+    """SHA-256 of what the tasks run (every argument but where the recording is written, beyond its name)."""
+    plain = [{k: (asdict(v) if isinstance(v, FeedbackGains) else Path(v).name if k == "out" else v)
+              for k, v in sorted(task.items())} for task in tasks]
+    return hashlib.sha256(json.dumps(plain, sort_keys=True, default=str).encode("utf-8")).hexdigest()
+
+
+def claim_folder(out: Path, kind: str, identity: str, runs: int, refuse: type[ValueError] = SweepError,
+                 extra: dict[str, Any] | None = None) -> bool:
+    """Make ``out`` this ``kind``'s folder (``<kind>.json``: its identity and run count), or check that it is: one
+    of another identity is refused, one whose every run finished and was summarised is refused as done. Returns
+    True when it resumes an earlier start. The caller holds the folder's lock."""
+    state = out / f"{kind}.json"
+    if not state.exists():
+        if (out / "summary.csv").exists():
+            raise refuse(f"{out}: holds a sweep already (summary.csv); choose another --out folder")
+        state.write_text(json.dumps({"kind": kind, "identity": identity, "runs": runs, **(extra or {})}, indent=1),
+                         encoding="utf-8")
+        return False
+    try:
+        held = json.loads(state.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise refuse(f"{state}: not a {kind} folder's record; choose another --out folder") from None
+    if held.get("identity") != identity:
+        raise refuse(f"{out}: holds another {kind} (its runs differ from these: another file or options); choose "
+                     "another --out folder")
+    if (out / "summary.csv").exists() and len(RunJournal(out).load()) >= runs:
+        raise refuse(f"{out}: holds a {kind} already, finished (all {runs} runs, summary.csv); choose another --out "
+                     "folder")
+    return True
+
+
+def execute(tasks: list[Task], engine: Engine, journal: RunJournal | None,
+            progress: Callable[[str], None] | None = None) -> tuple[dict[int, Row], dict[int, str]]:
+    """Run the tasks not yet in ``journal`` on ``engine``: (every row by run index, finished before or now, a failed
+    run's row saying so; the traceback of each failed run by index). Each finished run is journaled as it finishes.
+    :class:`RunsInterrupted` propagates (what finished is in the journal)."""
+    done = journal.load() if journal is not None else {}
+    rows: dict[int, Row] = {k: v for k, v in done.items() if k in {t["run"] for t in tasks}}
+    todo = [task for task in tasks if task["run"] not in rows]
+    failures: dict[int, str] = {}
     started = time.monotonic()
-    jobs = max(1, jobs or os.cpu_count() or 1)
-    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs) as pool:
-        pending = {pool.submit(_one, task): task for task in tasks}
-        for future in concurrent.futures.as_completed(pending):
-            task = pending[future]
-            try:
-                rows[task["run"]] = future.result()
-            except Exception as exc:  # noqa: BLE001 - one failed run is a row that says why, not a lost sweep
-                rows[task["run"]] = {**dict.fromkeys(SUMMARY_COLUMNS, ""), "run": task["run"], "scene": task["scene"],
-                                     "controller": task["controller"], "gains_index": task["gains_index"],
-                                     "tail_load_N": task["tail_load_n"], "seed": task["seed"],
-                                     "file": f"failed: {exc}"}
-            if progress is not None:
-                done = len(rows)
-                elapsed = time.monotonic() - started
-                left = elapsed / done * (len(tasks) - done)
-                bar = "#" * int(30 * done / len(tasks))
-                progress(f"[{bar:<30}] {done}/{len(tasks)} runs, {elapsed:.0f} s, about {left:.0f} s left")
-    ordered = [rows[k] for k in sorted(rows)]
-    with open(out / "summary.csv", "x", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
-        writer.writeheader()
-        writer.writerows(ordered)
-    (out / "summary.svg").write_text(summary_svg(ordered), encoding="utf-8")
+    total = len(tasks)
+
+    def on_done(k: int, row: Row | None, error: str) -> None:
+        task = todo[k]
+        if row is None:
+            failures[task["run"]] = error
+            last = error.strip().splitlines()[-1] if error.strip() else "failed"
+            row = {**dict.fromkeys(SUMMARY_COLUMNS, ""), "run": task["run"], "scene": task["scene"],
+                   "controller": task["controller"], "gains_index": task["gains_index"],
+                   "tail_load_N": task["tail_load_n"], "seed": task["seed"], "file": f"failed: {last}"}
+        elif journal is not None:
+            journal.add(row)
+        rows[task["run"]] = row
+        if progress is not None:
+            now_done = len(rows)
+            elapsed = time.monotonic() - started
+            fresh = now_done - (total - len(todo))
+            left = elapsed / max(fresh, 1) * (total - now_done)
+            bar = "#" * int(30 * now_done / max(total, 1))
+            progress(f"[{bar:<30}] {now_done}/{total} runs, {elapsed:.0f} s, about {left:.0f} s left")
+
+    with interruptible():
+        engine.run(_one, todo, on_done)
+    return rows, failures
+
+
+def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None, engine: str = "local",
+              scheduler: str | None = None, progress: Callable[[str], None] | None = None,
+              say: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Run every run of ``plan`` into ``out_dir`` (created) on ``engine`` (:func:`app.core.engines.open_engine`;
+    ``jobs`` at a time, at most the cores and the runs). A folder holding another sweep, or this one finished, is
+    refused; one holding this sweep cut short resumes it. ``say`` gets the one-line statements (run count, engine,
+    resuming). Returns the summary rows in run order; on :class:`RunsInterrupted` the summary of the finished runs
+    is written before it propagates."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = sweep_tasks(plan, out)
+    with FolderLock(out, "sweep"):
+        resumed = claim_folder(out, "sweep", tasks_identity(tasks), len(tasks))
+        journal = RunJournal(out)
+        finished = len(journal.load())
+        jobs = capped_jobs(jobs, len(tasks) - finished)
+        runner = open_engine(engine, jobs, scheduler)
+        if say is not None:
+            say(f"{len(tasks)} runs" + (f", {finished} finished before (resuming)" if resumed else "") +
+                f", on {runner.description}")
+        try:
+            rows, failures = execute(tasks, runner, journal, progress)
+        except RunsInterrupted as stop:
+            done = journal.load()
+            write_summary(out, [done[k] for k in sorted(done)], {})
+            stop.finished, stop.total = len(done), len(tasks)
+            raise
+        finally:
+            runner.close()
+        ordered = [rows[k] for k in sorted(rows)]
+        write_summary(out, ordered, failures, tasks)
     return ordered
+
+
+def write_summary(out: Path, rows: list[Row], failures: dict[int, str], tasks: list[Task] | None = None) -> None:
+    """``summary.csv`` (replaced whole, never half-written), ``failures.csv`` (one row per failed run, with its
+    traceback; removed when none failed) and ``summary.svg`` of ``rows``."""
+    work = out / "summary.csv.partial"
+    with open(work, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(work, out / "summary.csv")
+    by_run = {t["run"]: t for t in tasks or []}
+    if failures:
+        with open(out / "failures.csv", "w", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, fieldnames=FAILURE_COLUMNS)
+            writer.writeheader()
+            for k in sorted(failures):
+                task = by_run.get(k, {})
+                writer.writerow({"run": k, "scene": task.get("scene", ""), "controller": task.get("controller", ""),
+                                 "gains_index": task.get("gains_index", ""),
+                                 "tail_load_N": task.get("tail_load_n", ""), "seed": task.get("seed", ""),
+                                 "error": failures[k]})
+    else:
+        (out / "failures.csv").unlink(missing_ok=True)
+    (out / "summary.svg").write_text(summary_svg(rows), encoding="utf-8")
 
 
 def read_summary(path: str | Path) -> list[dict[str, Any]]:
@@ -360,15 +505,16 @@ def _median_of(rows: list[dict[str, Any]], key: str) -> float:
     return float(np.median(known)) if rows and len(known) == len(rows) else math.nan
 
 
-def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
-    """The issue's yardsticks for feedback gain set ``candidate_gains`` against feedforward."""
+def compare(rows: list[dict[str, Any]], candidate_gains: int = 0, controller: str = "feedback") -> Comparison:
+    """The yardsticks of ``controller`` (the law or a variant) with gain set ``candidate_gains`` against
+    feedforward."""
     done = [r for r in rows if r.get("traversed", "") != "" and not is_invalid(r)]
     invalid = sum(1 for r in rows if is_invalid(r) and (r["controller"] == "feedforward" or (
-        r["controller"] == "feedback" and int(r["gains_index"]) == candidate_gains)))
+        r["controller"] == controller and int(r["gains_index"]) == candidate_gains)))
     ff = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
           if r["controller"] == "feedforward"}
     fb = {(Path(str(r["scene"])).stem, float(r["tail_load_N"]), int(r["seed"])): r for r in done
-          if r["controller"] == "feedback" and int(r["gains_index"]) == candidate_gains}
+          if r["controller"] == controller and int(r["gains_index"]) == candidate_gains}
     keys = sorted(set(ff) & set(fb))
     cases: dict[tuple[str, float], list[tuple[str, float, int]]] = {}
     for key in keys:
@@ -383,7 +529,7 @@ def compare(rows: list[dict[str, Any]], candidate_gains: int = 0) -> Comparison:
     tail_ratios = [b / a for a, b in tails if a > 0.01] if all(math.isfinite(a) for a, _ in tails) else []
     both_ratios = [float(fb[k]["advance_m"]) / float(ff[k]["advance_m"]) for k in both if k in ratioed]
     return Comparison(
-        candidate=f"feedback g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
+        candidate=f"{controller} g{candidate_gains}", pairs=len(keys), ff_fail_cases=len(failing),
         ff_success_in_those=float(np.mean([int(ff[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
         fb_success_in_those=float(np.mean([int(fb[k]["traversed"]) for k in in_failing])) if in_failing else math.nan,
         ff_crawled_in_those=_crawled_rate([ff[k] for k in in_failing]),

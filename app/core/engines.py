@@ -1,0 +1,323 @@
+"""Where a sweep's, an evaluation's and a tuning's runs execute: local processes (default) or a Dask cluster.
+
+An engine takes a picklable function and a list of tasks (each a dict of arguments, each one run of the physics lab
+writing its own recording) and reports each task's result as it finishes: the summary row the function returned,
+or the traceback of what it raised. Both engines run one task per single-threaded worker process:
+
+* :class:`LocalEngine` — ``concurrent.futures.ProcessPoolExecutor``. Its workers ignore SIGINT (the terminal sends
+  Ctrl-C to the whole process group: the parent decides), take SIGTERM's default, watch their parent (a worker whose
+  parent died, even by SIGKILL, exits within half a second: no orphan keeps running a run nobody will read) and do
+  not keep the folder's lock open.
+* :class:`DaskEngine` — ``dask.distributed``: without a scheduler address an embedded
+  ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job; with one, that cluster (whose
+  workers must see the output folder at the same path). A worker that dies takes its task to another worker (the
+  scheduler's ``allowed-failures``); an address that does not answer is one line naming it within
+  :data:`CONNECT_TIMEOUT_S`.
+
+Ctrl-C, and SIGTERM or SIGHUP while :func:`interruptible` guards the wait, cancel the pending tasks and stop the
+workers (their runs in progress are abandoned; their recordings are not in the folder's journal and run again on
+resume); the engine then raises :class:`RunsInterrupted`. :class:`FolderLock` keeps a second command out of a folder
+being written (``fcntl.flock``: the kernel releases it when the process dies, however it dies). :class:`RunJournal`
+is the folder's record of finished runs, one JSON line each, written as each finishes (a line cut short by a kill is
+ignored), so the same command resumes a folder without running a finished run again.
+
+Qt-free. Called from the command's main thread.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import fcntl
+import json
+import math
+import os
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from app.core.errors import EngineError, FolderBusyError, RunsInterrupted
+
+ENGINES = ("local", "dask")
+CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
+PARENT_WATCH_S = 0.5  # how often a local worker checks that its parent is alive
+MAX_RUNS = 10_000  # more runs than this in one command is a mistake in the file, not a plan (refused before any run)
+
+Task = dict[str, Any]
+Row = dict[str, Any]
+# (task index, the row the function returned or None, the traceback of what it raised or "")
+DoneCallback = Callable[[int, "Row | None", str], None]
+
+
+def cores() -> int:
+    """The cores this process may run on (its affinity, else the machine's)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def capped_jobs(jobs: int | None, runs: int) -> int:
+    """Runs at a time: ``jobs`` (default: every core), never more than the cores nor than the runs, at least 1."""
+    if jobs is not None and jobs < 1:
+        raise ValueError(f"--jobs must be 1 or more, got {jobs}")
+    return max(1, min(jobs or cores(), cores(), max(runs, 1)))
+
+
+class Engine(Protocol):
+    """Runs ``fn(task)`` for every task, calling ``on_done`` in the caller's thread as each finishes."""
+
+    description: str
+
+    def run(self, fn: Callable[[Task], Row], tasks: Sequence[Task], on_done: DoneCallback) -> None: ...
+
+    def close(self) -> None: ...
+
+
+# -- the local process pool ------------------------------------------------------------------------------------------
+_INHERITED_FDS: set[int] = set()  # lock files a forked worker must not keep open
+
+
+def _watch_parent(parent_pid: int) -> None:
+    # Deliberate polling: a dead parent sends no message. getppid changes (to init or a subreaper) once it is gone.
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_WATCH_S)
+    os._exit(1)
+
+
+def _local_worker_init(parent_pid: int, lock_fds: tuple[int, ...]) -> None:
+    """A local worker: Ctrl-C is the parent's to handle, SIGTERM/SIGHUP end it, its parent's death ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_DFL)
+    for fd in lock_fds:  # the parent's lock stays the parent's: released when it dies, whatever the workers do
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
+
+
+class LocalEngine:
+    """``jobs`` worker processes on this machine (``concurrent.futures.ProcessPoolExecutor``)."""
+
+    def __init__(self, jobs: int) -> None:
+        self.jobs = max(1, jobs)
+        self.description = f"{self.jobs} local process{'es' if self.jobs > 1 else ''}"
+
+    def run(self, fn: Callable[[Task], Row], tasks: Sequence[Task], on_done: DoneCallback) -> None:
+        if not tasks:
+            return
+        pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=min(self.jobs, len(tasks)), initializer=_local_worker_init,
+            initargs=(os.getpid(), tuple(sorted(_INHERITED_FDS))))
+        finished = 0
+        try:
+            pending = {pool.submit(fn, task): k for k, task in enumerate(tasks)}
+            for future in concurrent.futures.as_completed(pending):
+                k = pending[future]
+                try:
+                    row: Row | None = future.result()
+                    error = ""
+                except Exception as exc:  # noqa: BLE001 - a run that raised is a failure with its traceback
+                    row, error = None, "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+                finished += 1
+                on_done(k, row, error)
+        except KeyboardInterrupt as exc:
+            _stop_pool(pool)
+            raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
+        except BaseException:
+            _stop_pool(pool)
+            raise
+        pool.shutdown(wait=True)
+
+    def close(self) -> None:
+        return None
+
+
+def _stop_pool(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """Cancel what has not started and kill the workers (a run in progress is abandoned)."""
+    # The executor has no public way to stop a running task: its worker processes are killed by hand (the
+    # ``_processes`` map is CPython's, stable since 3.2), before shutdown so none picks up another task.
+    processes = list(getattr(pool, "_processes", {}).values())
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(timeout=5.0)
+
+
+# -- Dask ------------------------------------------------------------------------------------------------------------
+class DaskEngine:
+    """Runs on a Dask cluster: an embedded ``LocalCluster`` on 127.0.0.1 (``scheduler`` None) or the one at
+    ``scheduler`` (``tcp://HOST:PORT``)."""
+
+    def __init__(self, jobs: int, scheduler: str | None = None) -> None:
+        from distributed import Client, LocalCluster
+
+        self._cluster: Any = None
+        if scheduler is None:
+            self._cluster = LocalCluster(host="127.0.0.1", n_workers=max(1, jobs), threads_per_worker=1,
+                                         processes=True, dashboard_address=None, silence_logs=50)
+            self.client = Client(self._cluster, timeout=CONNECT_TIMEOUT_S)
+            self.description = f"Dask, an embedded cluster of {max(1, jobs)} worker process(es) on 127.0.0.1"
+        else:
+            try:
+                self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, TimeoutError, ValueError) as exc:
+                text = " ".join(str(exc).split()) or type(exc).__name__
+                raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within "
+                                  f"{CONNECT_TIMEOUT_S:g} s ({text[:160]})") from None
+            workers = len(self.client.scheduler_info().get("workers", {}))
+            self.description = f"Dask, the cluster at {scheduler} ({workers} worker(s))"
+
+    def run(self, fn: Callable[[Task], Row], tasks: Sequence[Task], on_done: DoneCallback) -> None:
+        from distributed import as_completed
+
+        if not tasks:
+            return
+        futures = [self.client.submit(fn, task, pure=False, key=f"run-{k}-{os.getpid()}-{time.monotonic_ns()}")
+                   for k, task in enumerate(tasks)]
+        index = {future.key: k for k, future in enumerate(futures)}
+        finished = 0
+        try:
+            for future in as_completed(futures):
+                k = index[future.key]
+                if future.status == "finished":
+                    row, error = future.result(), ""
+                else:  # an error raised in the run (or a task lost beyond the scheduler's retries)
+                    exc = future.exception()
+                    tb = future.traceback()
+                    error = "".join(traceback.format_exception(type(exc), exc, tb)) if exc is not None else \
+                        f"the task ended {future.status}"
+                    row = None
+                finished += 1
+                on_done(k, row, error)
+        except KeyboardInterrupt as exc:
+            self.client.cancel(futures, force=True)
+            self.close()
+            raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):  # noqa: BLE001 - closing what may already be gone
+            self.client.close(timeout=10)
+        if self._cluster is not None:
+            with contextlib.suppress(Exception):  # noqa: BLE001
+                self._cluster.close(timeout=10)
+            self._cluster = None
+
+
+def open_engine(name: str, jobs: int, scheduler: str | None = None) -> Engine:
+    """The engine ``name`` (:data:`ENGINES`) for ``jobs`` runs at a time; ``scheduler`` only with ``dask``."""
+    if name not in ENGINES:
+        raise ValueError(f"--engine must be one of {', '.join(ENGINES)}, got {name!r}")
+    if scheduler and name != "dask":
+        raise ValueError("--scheduler is for --engine dask")
+    if name == "dask":
+        if scheduler is not None and not scheduler.strip():
+            raise ValueError("--scheduler needs an address, tcp://HOST:PORT")
+        return DaskEngine(jobs, scheduler)
+    return LocalEngine(jobs)
+
+
+# -- signals ---------------------------------------------------------------------------------------------------------
+class _Terminate(KeyboardInterrupt):
+    def __init__(self, signal_name: str) -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """While in the block, SIGTERM and SIGHUP interrupt the main thread as Ctrl-C does (so the engine stops its
+    workers and what finished is written), instead of ending the process with its workers left running."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous: dict[int, Any] = {}
+
+    def interrupt(signum: int, _frame: object) -> None:
+        raise _Terminate(signal.Signals(signum).name)
+
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            number = getattr(signal, name)
+            previous[number] = signal.signal(number, interrupt)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+# -- the folder's lock and journal -----------------------------------------------------------------------------------
+class FolderLock:
+    """An exclusive lock on ``folder`` (``folder/.lock``, ``fcntl.flock``) for the life of a command writing into it;
+    :class:`FolderBusyError` names the folder and the holder's process when another command holds it."""
+
+    def __init__(self, folder: str | Path, what: str) -> None:
+        self.folder, self.what = Path(folder), what
+        self._fd: int | None = None
+
+    def __enter__(self) -> FolderLock:
+        path = self.folder / ".lock"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode("ascii", "replace").strip() or "?"
+            os.close(fd)
+            raise FolderBusyError(f"{self.folder}: another command is writing into it (process {holder}); wait for "
+                                  f"it to end, or choose another --out folder") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()} {self.what}\n".encode("ascii"))
+        self._fd = fd
+        _INHERITED_FDS.add(fd)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fd is not None:
+            _INHERITED_FDS.discard(self._fd)
+            os.close(self._fd)  # closing the last descriptor of the open file releases the lock
+            self._fd = None
+
+
+class RunJournal:
+    """``folder/name``: one JSON line per finished run (its summary row), appended and synced as each finishes."""
+
+    def __init__(self, folder: str | Path, name: str = "finished.jsonl") -> None:
+        self.path = Path(folder) / name
+
+    def load(self) -> dict[int, Row]:
+        """The finished runs by index (a line cut short by a kill, or not JSON, is not a finished run)."""
+        rows: dict[int, Row] = {}
+        if not self.path.exists():
+            return rows
+        for line in self.path.read_text(encoding="utf-8").splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict) and isinstance(row.get("run"), int):
+                rows[int(row["run"])] = row
+        return rows
+
+    def add(self, row: Row) -> None:
+        text = json.dumps(row, allow_nan=True, default=_plain)
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(text + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def _plain(value: Any) -> Any:
+    if hasattr(value, "item"):  # numpy scalars
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return value
+    return str(value)
