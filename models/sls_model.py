@@ -212,6 +212,8 @@ class ForceStatus(enum.IntEnum):
     ABOVE_CEILING = 8  # reading above the readout's ceiling 1/R_C: impossible, rejected (gap, force NaN)
     FLAT = 9  # the same reading for flat_s seconds: a stuck channel, rejected (gap, force NaN)
     READOUT_SATURATED = 10  # reading at the ceiling 1/R_C (counts = 0): the force is a lower bound
+    UNCHANGED = 11  # identical for flat_max_s on a sensor too quiet to tell a stuck line from a still one: kept
+    OPEN_UNDER_LOAD = 12  # 0 S straight after a clear load (an open circuit, not a release): rejected (gap)
 
 
 FORCE_STATUS_TEXT = {
@@ -228,6 +230,10 @@ FORCE_STATUS_TEXT = {
     ForceStatus.ABOVE_CEILING: "reading above the readout's ceiling 1/R_C is impossible: rejected (gap, force NaN)",
     ForceStatus.FLAT: "reading frozen (flat-lined channel): rejected, no force claimed (gap, force NaN)",
     ForceStatus.READOUT_SATURATED: "readout saturated (at 1/R_C): force is a lower bound",
+    ForceStatus.UNCHANGED: "reading unchanged for over a minute on a sensor too quiet to tell a stuck line from a "
+    "still one: force kept, check the channel",
+    ForceStatus.OPEN_UNDER_LOAD: "reading 0 S straight after a clear load (open circuit, loose wire): rejected (gap, "
+    "force NaN, last force held)",
 }
 
 
