@@ -83,6 +83,11 @@ def main(argv: list[str] | None = None) -> int:
                              "sensors' calibration first); saved as gait-feedback.png")
     parser.add_argument("--no-calibration", action="store_true",
                         help="Forces as the app opens, with no calibration file: conductance in µS")
+    parser.add_argument("--log", action="store_true",
+                        help="after the tabs, the Event log dock open at a fault (a reboot asked of a servo that is "
+                             "not on the bus): event-log.png")
+    parser.add_argument("--replay", default=None, metavar="REC.h5",
+                        help="the 3-D tab replaying this recording, scrubbed to its middle: scene-replay.png")
     args = parser.parse_args(argv)
     code = _on_x(sys.argv[1:] if argv is None else list(argv))
     if code is not None:
@@ -187,9 +192,49 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"saved {extra}")  # noqa: T201
                     if out.resolve() == SCREENSHOTS.resolve():
                         record_sources(extra.name)
+        if args.replay:
+            import numpy as np
+
+            page = window.show_tab("scene")
+            if not page.open_replay(args.replay):
+                print(f"screenshot: {page.scene_label.text()}", file=sys.stderr)  # noqa: T201
+                return 1
+            replay = page.replay
+            page.replay_view.set_speed(0.5)
+            busiest = replay.start_s
+            if replay.forces_n is not None and replay.force_time_s is not None:  # where the body presses most
+                busiest = float(replay.force_time_s[int(np.nanargmax(np.nansum(replay.forces_n, axis=1)))])
+            page.replay_view.slider.setValue(int((busiest - replay.start_s) * 1000))
+            page.replay_view.set_camera(-60.0, 30.0)
+            pump(args.settle_ms)
+            saved = _save(window, out / "scene-replay.png", pump)
+            if saved is None:
+                return 1
+        if args.log:
+            lab.robot.reboot(99)  # no servo 99 on the bus: a real fault, with its whole text
+            pump(5_000, until=lambda: window.event_log.count("fault") > 0)
+            window.show_log()
+            window.log_dock.setMinimumHeight(360)  # a picture with a dozen entries in view
+            pump(300)
+            pump(args.settle_ms)
+            if _save(window, out / "event-log.png", pump) is None:
+                return 1
         window.close()
         app.processEvents()
     return 0
+
+
+def _save(window: Any, path: Path, pump: Any) -> Path | None:
+    """Grab ``window`` into ``path`` and note its sources (the README's pictures); None if it cannot be written."""
+    window.raise_()
+    pump(200)  # the X server has the last frame
+    if not _grab(window).save(str(path)):
+        print(f"screenshot: cannot write {path}", file=sys.stderr)  # noqa: T201
+        return None
+    print(f"saved {path}")  # noqa: T201 - a command-line script reports what it wrote
+    if path.parent.resolve() == SCREENSHOTS.resolve():
+        record_sources(path.name)
+    return path
 
 
 SCREENSHOTS = ROOT / "docs" / "screenshots"
@@ -214,6 +259,15 @@ def _hardware_extras(window: Any, page: Any, lab: Any, out: Path, pump: Any) -> 
     page.settings.table.selectRow(next(k for k, row in enumerate(page.settings.rows) if row.name == "Position P Gain"))
     pump(1_000)
     path = out / "hardware-settings.png"
+    window.raise_()
+    pump(200)
+    if _grab(window).save(str(path)):
+        saved.append(path)
+    # The control table decoded (Wizard's view): names, units, and the Shutdown item's named bits in the item panel.
+    page.settings.table.scrollToTop()
+    page.settings.select_item("Shutdown")
+    pump(1_000)
+    path = out / "hardware-control-table.png"
     window.raise_()
     pump(200)
     if _grab(window).save(str(path)):

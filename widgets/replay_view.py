@@ -34,6 +34,7 @@ from widgets import theme
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0)
 SLIDER_STEPS_PER_S = 1000  # the time slider's resolution: 1 ms
 BODY_COLORS = {"sim": "#222222", "mocap": "#0072B2", "commanded": "#7F7F7F"}
+BODY_WIDTHS = {"sim": 7, "mocap": 3, "commanded": 5}  # the motion-captured body drawn thin over the simulated one
 BODY_LABELS = {"sim": "simulated", "mocap": "motion capture", "commanded": "commanded"}
 VIEW_PRESETS = {"3/4": (-60.0, 25.0), "Side": (-90.0, 0.0), "Top": (-90.0, 89.0), "Front": (0.0, 10.0)}
 ARROW_M_PER_N = 0.01  # an arrow 1 cm long per newton (the scale bar says so)
@@ -99,7 +100,8 @@ class ReplayView(QWidget):
         self.plot.addItem(self._arrows)
         self._bodies: dict[str, pg.PlotDataItem] = {}
         for source, color in BODY_COLORS.items():
-            item = pg.PlotDataItem(pen=pg.mkPen(color, width=5), symbol="o", symbolSize=6,
+            item = pg.PlotDataItem(pen=pg.mkPen(color, width=BODY_WIDTHS[source]), symbol="o", symbolSize=6,
+                                   connect="finite",
                                    symbolBrush=pg.mkBrush(color), symbolPen=None,
                                    name=BODY_LABELS[source])
             self.plot.addItem(item)
@@ -107,6 +109,8 @@ class ReplayView(QWidget):
         self._sensors = pg.ScatterPlotItem(size=9, pen=pg.mkPen("#555555", width=0.5))
         self.plot.addItem(self._sensors)
         self.legend = QLabel("")
+        self.bodies_legend = QLabel("")
+        layout.addWidget(self.bodies_legend)
         layout.addWidget(self.plot, 1)
 
         camera = QHBoxLayout()
@@ -238,6 +242,10 @@ class ReplayView(QWidget):
         for source, item in self._bodies.items():
             if source not in shown:
                 item.setData([], [])
+        legend = " ".join(f'<span style="color:{BODY_COLORS[s]}">━━</span> {BODY_LABELS[s]}'
+                          for s in BODY_COLORS if s in shown)
+        if self.bodies_legend.text() != legend:
+            self.bodies_legend.setText(legend)
         if sensors is not None and forces is not None and len(sensors) == len(forces) and bodies:
             sensors = np.asarray(sensors, float)
             forces = np.nan_to_num(np.asarray(forces, float))
@@ -271,6 +279,9 @@ class ReplayView(QWidget):
         if not bodies:
             return None
         stacked = np.concatenate(bodies)
+        stacked = stacked[np.isfinite(stacked).all(axis=1)]  # a motion-capture frame may lack a segment
+        if not stacked.size:
+            return None
         x0, x1 = math.floor(stacked[:, 0].min() * 10 - 2) / 10, math.ceil(stacked[:, 0].max() * 10 + 2) / 10
         y0, y1 = math.floor(stacked[:, 1].min() * 10 - 2) / 10, math.ceil(stacked[:, 1].max() * 10 + 2) / 10
         lines = [((x, y0, 0.0), (x, y1, 0.0)) for x in np.arange(x0, x1 + 1e-9, 0.1)]

@@ -202,7 +202,7 @@ class ServoSettingsView(QWidget):
         header = self.table.horizontalHeader()
         for col in range(len(COLUMNS)):
             header.setSectionResizeMode(col, QHeaderView.ResizeMode.ResizeToContents)
-        header.setSectionResizeMode(COL_NAME, QHeaderView.ResizeMode.Stretch)
+        header.setSectionResizeMode(COL_MEANING, QHeaderView.ResizeMode.Stretch)  # the long one: gets what is left
         self.table.itemChanged.connect(self._edited)
         self.table.currentCellChanged.connect(lambda row, _c, _pr, _pc: self._select_row(row))
         splitter.addWidget(self.table)
@@ -228,8 +228,9 @@ class ServoSettingsView(QWidget):
         changes_layout.addWidget(self.changes)
         side_layout.addWidget(changes_box, 1)
         splitter.addWidget(side)
-        splitter.setStretchFactor(0, 3)
-        splitter.setStretchFactor(1, 2)
+        splitter.setStretchFactor(0, 2)
+        splitter.setStretchFactor(1, 1)
+        splitter.setSizes([880, 400])
         layout.addWidget(splitter, 1)
 
         self.message = QLabel("Double-click a value or its meaning to change it, or edit the selected item by name, "
@@ -308,6 +309,7 @@ class ServoSettingsView(QWidget):
             described = self.rows[k].meaning(value)
             if meaning.text() != described:
                 meaning.setText(described)
+                meaning.setToolTip(described)
         self._filling = False
         if not self._panel_touched:
             self._show_item_value()
