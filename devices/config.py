@@ -100,6 +100,7 @@ class RigConfig:
 
 
 PHYSICS_KINDS = ("scripted", "mujoco")
+SENSING_KINDS = ("robot", "ideal")  # [lab] sensing (app.core.sensing)
 
 
 MAX_BAUD = 12_000_000  # no USB-serial adapter here runs faster (the U2D2 tops out at 6 Mbps)
@@ -208,6 +209,9 @@ class SimLabConfig:
     sensor_spread: float = 0.05
     noise_counts: float = 0.5
     mocap: str = ""  # the motion-capture stream a recording follows ("lsl:NAME"; "" none): docs/MOCAP.md
+    # What a physics-lab run's controller senses (app.core.sensing): "robot", the forces through a rig calibration's
+    # errors, the board's noise and the sensors' creep; "ideal", through the sensors' true calibration
+    sensing: str = "robot"
     # [lab.physics]: the physics lab's physical parameters (a TOML table where [lab] physics would name the kind)
     physical: LabPhysicsConfig = field(default_factory=LabPhysicsConfig)
 
@@ -501,6 +505,7 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(0.0 <= lab.sensor_spread <= 0.2, source, "lab.sensor_spread", "must be in [0, 0.2]")
     _require(math.isfinite(lab.noise_counts) and lab.noise_counts >= 0, source, "lab.noise_counts",
              "must be 0 or more (ADC counts)")
+    _require(lab.sensing in SENSING_KINDS, source, "lab.sensing", f"= {lab.sensing!r} must be one of {SENSING_KINDS}")
     _require(isinstance(lab.physical, LabPhysicsConfig), source, "lab.physics",
              "must be a table of physical parameters ([lab.physics])")
     _require(lab.mocap == "" or (lab.mocap.startswith("lsl:") and bool(lab.mocap[4:].strip())), source, "lab.mocap",

@@ -69,6 +69,7 @@ class HeadlessPhysicsLab:
 
     def __init__(self, config: LabConfig, seed: int = 0) -> None:
         self.config = config
+        self.seed = seed
         self.clock = ManualClock()
         rng = np.random.default_rng(seed)
         robot = config.robot
@@ -76,8 +77,12 @@ class HeadlessPhysicsLab:
         self.physics = PhysicsBackend(config, clock)  # type: ignore[arg-type]
         self.chain = VirtualChain(robot.joint_ids, robot.baud, clock, seed=int(rng.integers(2**31)),  # type: ignore[arg-type]
                                   physics=self.physics)
+        sim = config.lab  # the simulated sensors and the readout's noise as the app's lab has them (devices.sim.lab)
+        nominal = {"e0_pa": sim.sensor_E0_Pa, "e1_pa": sim.sensor_E1_Pa, "tau_s": sim.sensor_tau_s,
+                   "area_m2": sim.sensor_area_m2, "spread": sim.sensor_spread}
         self.board = VirtualBoard(config.board, clock, force_source=self.physics.forces_n,  # type: ignore[arg-type]
-                                  seed=int(rng.integers(2**31)))
+                                  seed=int(rng.integers(2**31)), noise_counts=sim.noise_counts,
+                                  sensor_nominal=nominal)
         self.chain.host_opened(robot.baud)
         self.board.host_opened(config.board.baud)
         self._servo_parser = wire.PacketParser()
