@@ -158,9 +158,14 @@ class DaskEngine:
     ``scheduler`` (``tcp://HOST:PORT``)."""
 
     def __init__(self, jobs: int, scheduler: str | None = None) -> None:
+        import dask
         from distributed import Client, LocalCluster
 
         self._cluster: Any = None
+        # No statistical profiler on the workers: it holds the frames of a running task, and with them the buffers a
+        # run's wire parsers have lent out, which then cannot be resized ("BufferError: Existing exports of data").
+        # An external cluster's workers need the same (DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False).
+        dask.config.set({"distributed.worker.profile.enabled": False})
         if scheduler is None:
             self._cluster = LocalCluster(host="127.0.0.1", n_workers=max(1, jobs), threads_per_worker=1,
                                          processes=True, dashboard_address=None, silence_logs=50)

@@ -232,10 +232,13 @@ def draw_conditions(plan: EvaluationPlan) -> tuple[Condition, ...]:
                 low, high = family.ranges[key]
                 values[key] = float(rng.integers(int(low), int(high) + 1)) if key == "count" else \
                     float(round(rng.uniform(low, high), 6))
-            seeds = tuple(int(s) for s in rng.choice(np.arange(1, 2**31 - 1), size=plan.seeds_per_condition,
-                                                     replace=False))
+            seeds: list[int] = []
+            while len(seeds) < plan.seeds_per_condition:  # distinct run seeds ≥ 1
+                seed = int(rng.integers(1, 2**31 - 1))
+                if seed not in seeds:
+                    seeds.append(seed)
             out.append(Condition(len(out), family.name, family.kind, values, scene_text(family.kind, values),
-                                 values["tail_load_n"], values["shape_scale"], seeds))
+                                 values["tail_load_n"], values["shape_scale"], tuple(seeds)))
     return tuple(out)
 
 
