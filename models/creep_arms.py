@@ -14,14 +14,21 @@ up):
 
 Each is judged by its likelihood ratio over the one-arm fit, ``N·ln(SSE₁/SSE)``. The second arm is resolved when
 its ratio exceeds :data:`RESOLVED_LR` (≈ 5 σ, the drift search's threshold) *and* it explains the records better
-than a drift does by more than its one extra parameter's worth (``ln N``, the BIC's price): that is how
-:func:`models.calibration.calibrate_with_drift` tells a slow creep from a drift.
+than a drift does by more than its one extra parameter's worth (``ln N``, the BIC's price) — or, when both explain
+part of the change, the two-arm model *with* a drift beats the drift alone by more than :data:`RESOLVED_LR`: that
+is how :func:`models.calibration.calibrate_with_drift` tells a slow creep from a drift, and sees both when both are
+there (then :attr:`SecondArm.drift_too`: the drift is removed as well and the arm's figures are those fitted with
+it; before, such a sensor's drift was removed and its arm dropped).
 
 When resolved, the check says what ignoring it costs, in newtons: the one-arm fit's force (the exact inverse
 ``estimate`` runs) against the rig's force on these holds, and, taking the two-arm fit as the truth, the one-arm
-estimate's error after an hour's hold at the level nearest the mean hold force. A τ2 much longer than the records
-is not resolved (the arm was still creeping linearly; the fit tends to a dashpot): the arm is reported as slower
-than the records can say, and the hour's error is then an upper bound (a linear creep never levels off).
+estimate's error after an hour's hold at the level nearest the mean hold force. τ2 itself is resolved only when the
+records bound it: refitted with τ2 held at three times the longest record, and at a pure linear creep (a dashpot),
+the fit must be worse beyond the 95 % likelihood bound (χ²₁). Otherwise (the arm was still creeping nearly linearly;
+a 2000 s arm over 370 s holds could fit at ~530 s) the arm is reported as slower than the records can say, and the
+hour's error is the largest of the three fits' — an upper bound (a linear creep never levels off).
+
+Every log-parameter is held within e^±:data:`_THETA_BOUND` of its scale, so no optimiser step can overflow.
 
 Samples: those under load (≥ 5 % of the hold force), finite, below the readout's ceiling; each trial weighted by
 its typical conductance (as in :mod:`models.fit_output`). Pure numerics: any thread may call this.
@@ -84,9 +91,8 @@ class SecondArm:
         part of the change too, by more than :data:`RESOLVED_LR`."""
         if not self.lr > RESOLVED_LR:
             return False
-        if math.isfinite(self.both_lr):
-            return self.both_lr - self.drift_lr > RESOLVED_LR
-        return self.lr - math.log(max(self.n_samples, 2)) > self.drift_lr
+        beyond_drift = math.isfinite(self.both_lr) and self.both_lr - self.drift_lr > RESOLVED_LR
+        return beyond_drift or self.lr - math.log(max(self.n_samples, 2)) > self.drift_lr
 
     @property
     def drift_too(self) -> bool:
