@@ -45,6 +45,8 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise ValueError(f"--jobs must be 1 or more, got {args.jobs}")
     plan = read_sweep(args.plan)
+    if getattr(args, "ideal_sensing", False):  # the sweep file's ideal_sensing, from the command line
+        plan = replace(plan, ideal_sensing=True)
     try:
         rows = run_sweep(plan, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
                          progress=_progress, say=print)
@@ -109,9 +111,6 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
     if args.name == "sweep":
-        if getattr(args, "ideal_sensing", False):
-            raise ValueError("--ideal-sensing is for 'experiment run' and 'obstacle' (a sweep's runs sense as a robot "
-                             "does: a rig calibration's errors, the board's noise, the creep)")
         return _sweep(args)
     if args.name in ("evaluate", "tune"):  # app/cli/evaluate.py, app/cli/tune.py
         from app.cli import evaluate, tune

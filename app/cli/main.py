@@ -330,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "the study in --out holds when done (it resumes)")
     experiment.add_argument("--note", default="", metavar="TEXT", help="the operator's note, kept in each run_start")
     experiment.add_argument("--ideal-sensing", action="store_true",
-                            help="run, obstacle: the controller's forces through the sensors' true calibration "
+                            help="run, obstacle, sweep: the controller's forces through the sensors' true calibration "
                                  "(default: as a robot senses them, through a rig calibration's errors, the "
                                  "board's noise and the creep; [lab] sensing)")
     add_align_options(experiment)

@@ -14,6 +14,7 @@ A sweep file (TOML; unknown keys refused, naming the key)::
     mode = "follow"
     repeat = 1                                     # follow-the-leader passes per run
     rest_cap_s = 30.0                              # how long a run waits after the motion for the body to rest
+    ideal_sensing = false                          # true: the controller reads the sensors' true calibration
     [[gains]]                                      # feedback gain sets (default: one, the law's defaults)
     push_gain = 0.1
     [[gains]]
@@ -65,7 +66,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -83,13 +84,14 @@ from app.core.engines import (
     open_engine,
 )
 from app.core.errors import InvalidRunError, RunsInterrupted, SweepError
+from devices.config import LabConfig
 from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, uses_law
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
 
 SWEEP_KEYS = {"scenes", "controllers", "tail_loads_n", "seeds", "seconds", "speed_rad_s", "settle_s", "mode", "gains",
-              "repeat", "rest_cap_s"}
+              "repeat", "rest_cap_s", "ideal_sensing"}
 SUMMARY_COLUMNS = ("run", "scene", "controller", "gains_index", "gains", "tail_load_N", "seed", "traversed",
                    "traverse_s", "advance_m", "overloads", "peak_current_mA", "front_face_cv", "wall_s", "file",
                    "lost_ground_s", "rolled_s", "crawl_m", "crawled", "tail_advance_m", "end_extent_m",
@@ -115,6 +117,7 @@ class SweepPlan:
     repeat: int = 1
     gains: tuple[FeedbackGains, ...] = field(default_factory=lambda: (FeedbackGains(),))
     rest_cap_s: float | None = None  # None: the experiment's default (app.core.experiment.REST_CAP_S)
+    ideal_sensing: bool = False  # the controller's forces through the true calibration ([lab] sensing "ideal")
 
     def runs(self) -> list[dict[str, Any]]:
         """One dict of arguments per run (feedforward runs once per load and seed, not once per gain set)."""
@@ -167,7 +170,7 @@ def read_sweep(path: str | Path) -> SweepPlan:
         gains = tuple(FeedbackGains.from_mapping(g, f"{path} [[gains]] #{k + 1}") for k, g in enumerate(gains_tables))
     except GainsError as exc:
         raise SweepError(str(exc)) from None
-    scalars = {}
+    scalars: dict[str, Any] = {}  # SweepPlan's numbers (its other fields are not all floats)
     for key, default, positive in (("seconds", 60.0, True), ("speed_rad_s", 0.1, True), ("settle_s", 6.0, False),
                                    ("rest_cap_s", None, False)):
         if default is None and key not in data:
@@ -192,6 +195,10 @@ def read_sweep(path: str | Path) -> SweepPlan:
         raise SweepError(f"{path}: 'repeat' must be a whole number 1 … 100, got {repeat!r}")
     plan = SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers), repeat=repeat,
                      tail_loads_n=tail_loads, seeds=seeds, mode=str(mode), gains=gains, **scalars)
+    ideal = data.get("ideal_sensing", False)
+    if not isinstance(ideal, bool):
+        raise SweepError(f"{path}: 'ideal_sensing' must be true or false, got {ideal!r}")
+    plan = replace(plan, ideal_sensing=ideal)
     count = len(plan.runs())
     if count > MAX_RUNS:
         raise SweepError(f"{path}: {count} runs (scenes × controllers × gain sets × tail loads × seeds); a sweep holds "
@@ -219,6 +226,12 @@ def _refuse_unholdable_loads(path: Path, scenes: list[str], load_n: float, seeds
                 raise SweepError(f"{path}: {exc}") from None
 
 
+def _lab_config(args: dict[str, Any]) -> LabConfig:
+    """The lab config of a run: the default one, sensing ideally when the sweep says so (``ideal_sensing``)."""
+    config = LabConfig()
+    return replace(config, lab=replace(config.lab, sensing="ideal")) if args.get("ideal_sensing") else config
+
+
 def _one(args: dict[str, Any]) -> dict[str, Any]:
     """One run (in a worker process): the recording written, its summary row returned."""
     from app.core.experiment import REST_CAP_S, run_experiment
@@ -231,7 +244,7 @@ def _one(args: dict[str, Any]) -> dict[str, Any]:
            "tail_load_N": args["tail_load_n"], "seed": args["seed"]}
     rest_cap_s = args.get("rest_cap_s")
     try:
-        result = run_experiment(args["out"], scene=args.get("scene_path", args["scene"]), mode=args["mode"], seconds=args["seconds"],
+        result = run_experiment(args["out"], _lab_config(args), scene=args.get("scene_path", args["scene"]), mode=args["mode"], seconds=args["seconds"],
                                 speed_rad_s=args["speed_rad_s"], settle_s=args["settle_s"], seed=args["seed"],
                                 controller=args["controller"], gains=args["gains"], tail_load_n=args["tail_load_n"],
                                 repeat=args.get("repeat", 1), rest_cap_s=REST_CAP_S if rest_cap_s is None
@@ -265,7 +278,9 @@ def sweep_tasks(plan: SweepPlan, out: Path) -> list[Task]:
         tasks.append({**run, "run": k, "out": str(out.resolve() / name), "scene_path": scene_path(run["scene"]),
                       "mode": plan.mode, "seconds": plan.seconds,
                       "speed_rad_s": plan.speed_rad_s, "settle_s": plan.settle_s, "repeat": plan.repeat,
-                      "rest_cap_s": plan.rest_cap_s})
+                      "rest_cap_s": plan.rest_cap_s,
+                      # only when set: a sweep folder of before the key resumes as the same tasks
+                      **({"ideal_sensing": True} if plan.ideal_sensing else {})})
     return tasks
 
 

@@ -76,3 +76,21 @@ def test_a_run_records_what_its_controller_sensed(tmp_path: Path, sensing: str) 
     assert record["sensing"] == sensing
     assert physics["shell_stiffness_n_per_m"] == 2000.0
     assert used is not None and ("source" in used) == (sensing == "robot")
+
+
+def test_a_sweep_file_may_ask_for_ideal_sensing(tmp_path: Path) -> None:
+    from app.core.errors import SweepError
+    from app.core.sweep import _lab_config, read_sweep, sweep_tasks
+
+    path = tmp_path / "sweep.toml"
+    path.write_text('scenes = ["flat"]\ncontrollers = ["feedback"]\nideal_sensing = true\n', encoding="utf-8")
+    plan = read_sweep(path)
+    assert plan.ideal_sensing
+    task = sweep_tasks(plan, tmp_path)[0]
+    assert task["ideal_sensing"] is True and _lab_config(task).lab.sensing == "ideal"
+    path.write_text('scenes = ["flat"]\ncontrollers = ["feedback"]\n', encoding="utf-8")
+    task = sweep_tasks(read_sweep(path), tmp_path)[0]
+    assert "ideal_sensing" not in task and _lab_config(task).lab.sensing == "robot"  # a folder of before resumes
+    path.write_text('scenes = ["flat"]\nideal_sensing = "yes"\n', encoding="utf-8")
+    with pytest.raises(SweepError, match="ideal_sensing"):
+        read_sweep(path)
