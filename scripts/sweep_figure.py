@@ -1,7 +1,7 @@
 """Draw a sweep's figure (what ``sensnake experiment sweep`` writes as ``summary.svg``) from its ``summary.csv`` as a
 PNG, for the docs and the README:
 
-    python scripts/sweep_figure.py docs/feedback_heldout13_summary.csv docs/screenshots/feedback_heldout13.png
+    python scripts/sweep_figure.py benchmarks/results/feedback/feedback_heldout13_summary.csv docs/screenshots/feedback_heldout13.png
 
 The figure is :func:`app.core.sweep.summary_svg` of the summary's rows, rasterised at twice its size on white with
 Qt's SVG renderer, offscreen. An existing OUT is replaced only with ``--force`` (one line, exit 2, otherwise).

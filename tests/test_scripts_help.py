@@ -38,11 +38,11 @@ def test_help_and_bad_arguments_give_a_usage_line(script):
 
 def test_the_sweep_figure_is_drawn_from_a_summary_and_never_clobbers_a_file(tmp_path):
     out = tmp_path / "figure.png"
-    done = _run(ROOT / "scripts" / "sweep_figure.py", "docs/feedback_heldout13_summary.csv", str(out))
+    done = _run(ROOT / "scripts" / "sweep_figure.py", "benchmarks/results/feedback/feedback_heldout13_summary.csv", str(out))
     assert done.returncode == 0, done.stderr[-1000:]
     assert out.stat().st_size > 10_000 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     before = out.read_bytes()
-    again = _run(ROOT / "scripts" / "sweep_figure.py", "docs/feedback_heldout13_summary.csv", str(out))
+    again = _run(ROOT / "scripts" / "sweep_figure.py", "benchmarks/results/feedback/feedback_heldout13_summary.csv", str(out))
     assert again.returncode == 2 and "exists" in again.stderr and "Traceback" not in again.stderr
     assert out.read_bytes() == before
     empty = tmp_path / "empty.csv"
