@@ -15,6 +15,9 @@ code (ForceStatus)     condition                                               w
                        bit)                                                    lower bound, "saturated: force ≥ X N"
 ``FLAT``               the same non-zero reading, bit for bit, for longer      rejected: a gap, force NaN (no force is
                        than the sensor's own history makes likely (below)     claimed for a frozen line)
+``OPEN_UNDER_LOAD``    0 S straight after a clear load (below)                 rejected: a gap, force NaN
+``UNCHANGED``          identical for ``flat_max_s`` where the history cannot   kept, flagged
+                       judge (below)
 =====================  ======================================================  ========================================
 
 After the inverse, a force below the smallest (or above the largest) calibrated force is flagged ``EXTRAPOLATED``
@@ -26,18 +29,26 @@ exact "hold" update with the gap's length). Time therefore passes: after a gap t
 had the force stayed at its last good value. A single rejected glitch thus changes the state by no more than one
 sample of that hold; it never feeds an impossible value into the state.
 
-**When a repeated reading is a stuck channel.** A healthy sensor's reading changes from one sample to the next with a
-rate ``p`` of its own (readout noise against the ADC step: ~0.5 at the simulated board's 0.5-count noise, lower for a
-quieter sensor). A healthy sensor repeats its present value with probability at most ``sqrt(1 − p)`` per sample (the
-most frequent of values at frequencies ``f_i`` has ``f_1² ≤ Σ f_i² = 1 − p``; a two-level sensor on its usual level
-reaches it), so a run of ``L`` identical samples has probability at most ``(1 − p)^(L/2)``; the run is called flat once
-that falls below ``flat_false_alarm`` (1e-6): ``L = 2 ln(1e-6) / ln(1 − p)`` samples, with ``p`` a low
-estimate (3 σ below the count) of the rate seen on the sensor's samples before the run began — never before
-``flat_min_s`` (1 s), never later than ``flat_max_s`` (60 s). A sensor with fewer than ``FLAT_MIN_HISTORY``
-comparisons before the run, or none of them changes (stuck from the start), waits ``flat_s`` (10 s). Measured at 30
-Hz on a resting sensor after 20 s of history (tests/models/test_validation.py, benchmarks/bench_flat_line.py): at the
-simulated board's 0.5-count noise a stuck channel is flagged 1.0 s after it froze, at 0.3 counts ~1.3 s; a healthy
-sensor at 0.15–0.5 counts is never flagged in an hour.
+**When a repeated reading is a stuck channel.** Two pieces of the sensor's recent history say how soon a healthy
+reading must change: its noise — the rate ``p`` at which it changes from sample to sample (a healthy sensor repeats
+its present value with probability at most ``sqrt(1 − p)`` per sample: the most frequent of values at frequencies
+``f_i`` has ``f_1² ≤ Σ f_i² = 1 − p``), so a run of ``L`` identical samples is unlikely below ``flat_false_alarm``
+(1e-6) once ``(1 − p)^(L/2)`` is, ``p`` a low estimate (3 σ of the count below) weighted towards the last
+:data:`HISTORY_COMPARISONS` comparisons — and its trend (a creep after a load moves the level by a steady number of
+ADC steps: :data:`TREND_ROWS`). Only readings that can move count (an open line and a readout at its ceiling repeat
+themselves whatever the sensor does), and a change of more than :data:`MOVING_STEPS` ADC steps is the load moving,
+not noise. Whatever those say, a run is not flat before :data:`GUARD_FACTOR` × the longest recent pause of the
+reading, nor before ``flat_min_s`` (1 s). A sensor that never changed (stuck from the start) waits ``flat_s`` (10
+s); a run that reaches its threshold only after ``flat_max_s`` (60 s) is ``UNCHANGED`` (force kept, flagged): its
+history cannot tell a stuck line from a still one. Measured at 30 Hz (tests/models/test_validation.py,
+tests/models/test_validation_loaded.py, new seeds): a line that freezes 1.5 s after a 3 N load is flagged within 2 s
+at 0.1–0.5 counts of noise, on a resting sensor at 0.5 counts 1.0–2.0 s; healthy loaded sensors at 0.1–0.3 counts
+held 400–600 s and resting ones at 0.15–0.5 counts for 20 minutes: no sample rejected (one of 64 loaded sensors
+lost 1.8 % of its samples late in a quiet hold: docs/NUMERICS.md).
+
+**An open line under load.** A reading at or below ``open_s`` (1e-9 S) straight after one above ``open_jump_s``
+(100 µS) is ``OPEN_UNDER_LOAD`` (a gap) for up to ``open_release_s`` (0.5 s); a longer one, or one reached through
+smaller readings, is an open circuit at rest (0 N). Other readings at or below ``open_s`` read as 0 S.
 
 A validator carries the flat-line run of each sensor across blocks (a stream split into blocks is judged exactly
 like the whole record). Not thread-safe: use it from the thread that feeds the estimator.
