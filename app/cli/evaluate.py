@@ -12,7 +12,7 @@ import math
 import sys
 from pathlib import Path
 
-from app.cli.experiment import EXIT_INVALID, _progress, interrupted
+from app.cli.run_progress import EXIT_INVALID, interrupted, progress_line
 from app.core.errors import RunsInterrupted
 from app.core.evaluate import read_evaluation, run_evaluation
 from app.core.sweep import is_invalid, read_summary
@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     plan = read_evaluation(args.plan)
     try:
         table = run_evaluation(plan, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
-                               progress=_progress, say=print)
+                               progress=progress_line, say=print)
     except RunsInterrupted as stop:
         return interrupted(stop, args.out)
     if sys.stdout.isatty():

@@ -15,6 +15,7 @@ import math
 import sys
 from dataclasses import replace
 
+from app.cli.run_progress import interrupted
 from app.core.errors import InvalidRunError, RunsInterrupted
 from app.core.experiment import (
     REST_CAP_S,
@@ -87,16 +88,6 @@ def _sweep(args: argparse.Namespace) -> int:
               f"{row['invalid_reason']}: left out of every figure", file=sys.stderr)
     print(f"wrote {len(rows)} runs, summary.csv and summary.svg in {args.out}")
     return 1 if failed else EXIT_INVALID if invalid else 0
-
-
-def interrupted(stop: RunsInterrupted, out: str) -> int:
-    """One line for runs cut short by Ctrl-C, SIGTERM or SIGHUP: what was kept, how to resume; exit 130."""
-    if sys.stdout.isatty():
-        print()
-    print(f"sensnake experiment: interrupted ({stop.signal_name}): pending runs cancelled, workers stopped; "
-          f"{stop.finished} of {stop.total} runs finished and kept in {out}; the same command resumes",
-          file=sys.stderr)
-    return 130
 
 
 def _percent(fraction: float) -> str:

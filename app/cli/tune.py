@@ -12,7 +12,7 @@ import math
 import sys
 from pathlib import Path
 
-from app.cli.experiment import _progress, interrupted
+from app.cli.run_progress import interrupted, progress_line
 from app.core.errors import RunsInterrupted
 from app.core.tune import read_tune, run_tune
 
@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     plan = read_tune(args.plan)
     try:
         report = run_tune(plan, args.out, args.trials, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
-                          progress=_progress, say=print)
+                          progress=progress_line, say=print)
     except RunsInterrupted as stop:
         return interrupted(stop, args.out)
     if sys.stdout.isatty():
