@@ -670,7 +670,9 @@ def tune_svg(study: Any, plan: TunePlan, baselines: dict[str, dict[str, Any]]) -
             best_line.append(f"{x_of(t.number):.1f},{y_of(best):.1f}")
     if best_line:
         parts.append(f'<polyline points="{" ".join(best_line)}" fill="none" stroke="#ff7f0e" stroke-width="2"/>')
-    parts.append(f'<text x="{left + w / 2}" y="{bottom + 30}" text-anchor="middle">trial</text>')
+    for k in range(0, n, max(1, n // 10)):
+        parts.append(f'<text x="{x_of(k):.1f}" y="{bottom + 15}" text-anchor="middle">{k}</text>')
+    parts.append(f'<text x="{left + w / 2}" y="{bottom + 32}" text-anchor="middle">trial (×: pruned or failed)</text>')
     complete = [t for t in trials if t.state == TrialState.COMPLETE]
     x0 = left + w + 90
     parts.append(f'<rect x="{x0}" y="{top}" width="{w}" height="{h}" fill="none" stroke="black"/>')
@@ -682,6 +684,10 @@ def tune_svg(study: Any, plan: TunePlan, baselines: dict[str, dict[str, Any]]) -
         mine = [per[k]["advance_at_rest_m"] for k in keys]
         finite = [v for v in advances + mine if v is not None and math.isfinite(v)]
         a_lo, a_hi = min(finite + [0.0]), max(finite + [0.1])
+        a_lo, a_hi = a_lo - 0.1 * (a_hi - a_lo), a_hi + 0.1 * (a_hi - a_lo)
+        for frac in (0.0, 0.5, 1.0):
+            v = a_lo + frac * (a_hi - a_lo)
+            parts.append(f'<text x="{x0 - 5}" y="{bottom - frac * h + 4:.1f}" text-anchor="end">{v:.2f}</text>')
         parts.append(f'<text x="{x0 + w / 2}" y="{top - 8}" text-anchor="middle">advance at rest (m), best trial '
                      f'{best_trial.number} (orange) against feedforward (grey)</text>')
         slot = w / max(len(keys), 1)
