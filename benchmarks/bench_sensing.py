@@ -52,7 +52,8 @@ def _run(task: dict[str, Any]) -> dict[str, Any]:
         names = [c.decode() if isinstance(c, bytes) else str(c) for c in f["daq"].attrs["channels"]]
         bottom = [k for k, name in enumerate(names) if name.endswith("B")]
         forces = f["forces/force_N"][:][:, bottom]
-        daq_t = f["daq/time_s"][:] - float(f["daq/time_s"][0]) if f["daq/time_s"].size else np.zeros(0)
+        # the recording's clock: /robot's first row is the capture, /sim's time 0
+        daq_t = f["daq/time_s"][:] - float(f["robot/time_s"][0])
     # the estimate at each /sim tick: the last frame at or before it
     index = np.clip(np.searchsorted(daq_t, sim_t[play], side="right") - 1, 0, max(len(daq_t) - 1, 0))
     error = forces[index] - true_bottom if len(daq_t) else np.full_like(true_bottom, np.nan)
