@@ -101,6 +101,9 @@ def run(args: argparse.Namespace) -> int:
         import mujoco  # noqa: F401 - a clear message instead of an ImportError deep inside the lab
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
+    if getattr(args, "ideal_sensing", False) and args.name not in ("run", "obstacle", "sweep"):
+        raise ValueError(f"--ideal-sensing is for 'experiment run', 'obstacle' and 'sweep', not {args.name!r} (its "
+                         "runs sense as a robot does: a rig calibration's errors, the board's noise, the creep)")
     if args.name == "sweep":
         return _sweep(args)
     if args.name in ("evaluate", "tune"):  # app/cli/evaluate.py, app/cli/tune.py
