@@ -478,7 +478,8 @@ def _paired_values(pairs: list[Pair], metric: str) -> tuple[list[tuple[int, floa
 def _interval(values: list[tuple[int, float, float]], resamples: int, confidence: float, seed: int
               ) -> dict[str, float]:
     """Means of feedforward and the candidate, the mean paired difference, and its percentile interval over
-    ``resamples`` bootstrap resamples of the conditions (with replacement; the pairs of a drawn condition all)."""
+    ``resamples`` bootstrap resamples of the conditions (with replacement; the pairs of a drawn condition all). With
+    fewer than two conditions there is no interval (NaN): the seeds of one condition are not independent."""
     if not values:
         return dict.fromkeys(("feedforward", "candidate", "difference", "ci_low", "ci_high"), math.nan)
     conditions = sorted({c for c, _, _ in values})
@@ -492,6 +493,10 @@ def _interval(values: list[tuple[int, float, float]], resamples: int, confidence
     draws = rng.integers(0, len(conditions), size=(resamples, len(conditions)))
     means = sums[draws].sum(axis=1) / counts[draws].sum(axis=1)
     tail = (1.0 - confidence) / 2.0
+    if len(conditions) < 2:  # one condition: resampling conditions says nothing about its spread (no interval)
+        return {"feedforward": float(np.mean([ff for _, ff, _ in values])),
+                "candidate": float(np.mean([cand for _, _, cand in values])),
+                "difference": float(sums.sum() / counts.sum()), "ci_low": math.nan, "ci_high": math.nan}
     return {"feedforward": float(np.mean([ff for _, ff, _ in values])),
             "candidate": float(np.mean([cand for _, _, cand in values])),
             "difference": float(sums.sum() / counts.sum()),

@@ -4,6 +4,7 @@ reliability: tiny runs of a few simulated seconds."""
 from __future__ import annotations
 
 import csv
+import math
 import os
 import signal
 import subprocess
@@ -239,6 +240,8 @@ def test_the_bootstrap_interval_resamples_conditions_and_covers_the_difference()
     assert entry["difference"] == pytest.approx(0.25)
     assert entry["ci_low"] < 0.25 < entry["ci_high"]
     assert entry["ci_low"] >= 0.0 and entry["ci_high"] <= 0.5
+    alone = _interval([(3, 0.0, 0.1), (3, 0.0, 0.3)], 500, 0.95, seed=1)  # one condition: no interval
+    assert alone["difference"] == pytest.approx(0.2) and math.isnan(alone["ci_low"]) and math.isnan(alone["ci_high"])
 
 
 TUNE = '''train_scenes = ["flat"]
