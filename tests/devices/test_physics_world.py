@@ -109,6 +109,20 @@ def test_a_joint_posed_by_hand_stays_while_held_and_falls_back_when_let_go():
     assert not world.held.any()
 
 
+def test_a_hand_bending_a_front_joint_lifts_the_head_end_and_never_pushes_the_body_through_the_floor():
+    """Bending a joint near the head of a robot lying on the ground moves its lighter end: the long part behind the
+    joint stays where it lies. A pose that would swing a segment into the floor lifts the body instead, so the world
+    stays physical (it was ended invalid: a contact 0.2 m deep)."""
+    world = _limp_on_flat_ground()
+    tail = world.body_state().points_m[-1].copy()
+    world.set_joint_angle(2, 0.6)  # joint 3 bent up: the head end rises, the tail stays
+    assert np.abs(world.body_state().points_m[-1] - tail).max() < 1e-6
+    world.set_joint_angle(0, -0.5)  # joint 1 bent down: the head would dig into the floor
+    world.step(500)
+    assert world.invalid is None, world.invalid
+    assert world.body_state().points_m[:, 2].min() > -0.002
+
+
 def test_torque_on_takes_the_posed_joint_over_from_the_hand():
     world = _limp_on_flat_ground()
     world.set_joint_angle(4, 0.5)

@@ -76,6 +76,7 @@ SHEET_HALF_ARC_DEG = 28.0  # a 3.5 cm wide sheet on the 3.6 cm radius shell (pap
 TOP_FADE_DEG = 152.0  # from the side sheets' edge (118°) the share fades to 0 here: the PLA top carries the rest
 MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
 REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body counts as still
+HAND_LIFT_TOLERANCE_M = 0.001  # a pose by hand deeper into the terrain than this lifts the body (a resting shell: 0.1 mm)
 STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
 CONTACT_MEMORY_S = 0.05  # a shell off the ground for less than this still shares its load as its last contacts did
 REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
@@ -121,6 +122,7 @@ class PhysicsWorld:
         joints = [self.model.joint(joint_name(i)) for i in range(n)]
         self._qadr = np.array([int(j.qposadr[0]) for j in joints])
         self._dadr = np.array([int(j.dofadr[0]) for j in joints])
+        self._joint_body = np.array([int(j.bodyid[0]) for j in joints])  # the body each joint turns (tail side)
         self._seg_body = np.array([self.model.body(segment_name(i)).id for i in range(n)])
         self._seg_geom = np.array([self.model.geom(segment_name(i)).id for i in range(n)])
         self._segment_of_geom = np.full(self.model.ngeom, -1)
@@ -247,7 +249,16 @@ class PhysicsWorld:
         """Pose a limp joint by hand (the teach "hand"): sets its angle, stops it and holds it there until the
         servo takes over (torque on) or :meth:`release_hand`."""
         with self._lock:
+            # A person bending a joint of a robot that lies on the ground moves its lighter end: the part behind the
+            # joint (toward the tail) stays where it lies when it is the longer one. MuJoCo's body hangs from the
+            # head, so that part is put back where it was by moving the whole body (the head end swings instead).
+            keep = self._joint_body[joint] if joint < self.n_joints // 2 else None
+            if keep is not None:
+                kept_pos, kept_quat = self.data.xpos[keep].copy(), self.data.xquat[keep].copy()
             self.data.qpos[self._qadr[joint]] = angle_rad
+            if keep is not None:
+                mujoco.mj_kinematics(self.model, self.data)
+                self._put_back(keep, kept_pos, kept_quat)
             self.data.qvel[self._dadr[joint]] = 0.0
             self._setpoint[joint] = angle_rad
             self.model.eq_data[self._hand_eq[joint], 0] = angle_rad
@@ -257,7 +268,39 @@ class PhysicsWorld:
             self._state_version += 1
             mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
             # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
+            self._lift_out_of_the_terrain()
             self.validity.rebase()  # a pose set by hand is no motion of the physics
+
+    def _put_back(self, body: int, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Move the whole robot (its free base) rigidly so that ``body`` is at ``pos``/``quat`` again (world frame)."""
+        turn, inverse = np.zeros(4), np.zeros(4)
+        mujoco.mju_negQuat(inverse, self.data.xquat[body])
+        mujoco.mju_mulQuat(turn, quat, inverse)  # from where the body is now to where it was
+        base_quat, base_pos, moved = np.zeros(4), np.zeros(3), np.zeros(3)
+        mujoco.mju_mulQuat(base_quat, turn, self.data.qpos[3:7].copy())
+        mujoco.mju_rotVecQuat(moved, self.data.xpos[body].copy(), turn)
+        mujoco.mju_rotVecQuat(base_pos, self.data.qpos[0:3].copy(), turn)
+        mujoco.mju_normalize4(base_quat)
+        self.data.qpos[0:3] = base_pos + (pos - moved)
+        self.data.qpos[3:7] = base_quat
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def _lift_out_of_the_terrain(self) -> None:
+        """A hand bending a joint of a robot lying on the ground lifts the body; it cannot push a segment through the
+        floor or an obstacle. The pose just set may have: raise the whole body by the deepest penetration (a few
+        times, as raising can bring another part into contact), so the contacts start where the shell touches. Left
+        in, a segment 0.2 m into the ground is no contact the model resolves: the world would end invalid."""
+        for _ in range(4):
+            mujoco.mj_collision(self.model, self.data)
+            contacts = self.data.contact[:self.data.ncon] if self.data.ncon else None
+            if contacts is None:
+                return
+            terrain = (self.model.geom_bodyid[contacts.geom1] == 0) | (self.model.geom_bodyid[contacts.geom2] == 0)
+            depth = -float(np.min(contacts.dist[terrain])) if np.any(terrain) else 0.0
+            if depth <= HAND_LIFT_TOLERANCE_M:
+                return
+            self.data.qpos[2] += depth
+            mujoco.mj_kinematics(self.model, self.data)
 
     def release_hand(self, joints: Sequence[int] | None = None) -> None:
         """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
