@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
@@ -41,6 +42,7 @@ from models.synthetic import (
 PHYS = PhysicsConstants()
 READOUT = Readout()
 TARGET = (0.93, 0.97)
+PAPER_TRIALS = 12  # the paper's protocol: 4 forces × 3 trials per sensor
 
 
 def wilson(hits: int, n: int) -> tuple[float, float]:
@@ -54,57 +56,194 @@ def wilson(hits: int, n: int) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def one_sensor(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ) -> dict[str, list[bool]]:
+PIPELINES = ("fit", "sensor")  # fit: what `sensnake fit` runs by default; sensor: calibrate_sensor, no drift search
+RESULTS_CSV = Path(__file__).resolve().parent / "results" / "coverage.csv"
+
+
+def one_sensor(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ,
+               pipeline: str = "sensor") -> dict[str, list[bool]]:
     """Fit one fresh sensor; per interval name, whether each of its intervals held the truth."""
+    return sensor_record(seed, noise_rel, trend, rate_hz, pipeline)[0]
+
+
+def sensor_record(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ,
+                  pipeline: str = "sensor") -> tuple[dict[str, list[bool]], dict[str, float]]:
+    """Fit one fresh sensor: (per interval name, whether each interval held the truth; what else was seen —
+    whether it reached the readout's ceiling, the drift claimed (µS/s), the fit's CPU seconds).
+
+    ``pipeline`` ``"fit"``: what ``sensnake fit`` runs by default (:func:`models.calibration.calibrate_with_drift`,
+    force trend on, block-averaging to 5 Hz); ``"sensor"``: :func:`models.calibration.calibrate_sensor` with the force
+    trend only on trend sensors (the figures before the drift search was the default)."""
     rng = np.random.default_rng(seed)
     truth = random_sensor(rng, trend)
     trials = paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=noise_rel, readout=READOUT,
                             rate_hz=rate_hz)
     inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
-    cal = calibrate_sensor(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s, fit_trend=trend)
+    start = time.process_time()
+    if pipeline == "fit":
+        cal = calibrate_with_drift(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s)
+    else:
+        cal = calibrate_sensor(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s, fit_trend=trend)
+    cpu_s = time.process_time() - start
     hits = {f"trial {name}": values for name, values in trial_interval_hits(cal.trials, truth).items()}
-    if trend:
+    if cal.trend_ci95:
         for k, name in enumerate(PARAM_NAMES):
             intercept, slope = (truth.E0_Pa, truth.E1_Pa, truth.mu1_Pa_s)[k]
             for part, value in (("intercept", intercept), ("slope", slope)):
                 lo, hi = cal.trend_ci95.get(f"{name}.{part}", (math.nan, math.nan))
                 hits.setdefault(f"trend {name}.{part}", []).append(bool(lo <= value <= hi))
-    else:
+    if not trend:
         exact = truth.params_at(0.0)
         for name in PARAM_NAMES:
             lo, hi = cal.sls_ci95[name]
             hits.setdefault(f"joint {name}", []).append(bool(lo <= float(getattr(exact, name)) <= hi))
-    return hits
+    info = {"ceiling": float(any(t.saturated.any() for t in trials)),
+            "drift_uS_per_s": float((cal.drift_s_per_s or 0.0) * 1e6), "cpu_s": cpu_s, "trials": float(len(trials))}
+    return hits, info
 
 
 def coverage(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
-             rate_hz: float = PAPER_RATE_HZ) -> dict[str, list[bool]]:
+             rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor") -> dict[str, list[bool]]:
     """Pooled hits over ``sensors`` fresh sensors (seeded from ``seed``), fitted in ``jobs`` processes."""
-    seeds = [int(s) for s in np.random.SeedSequence(seed).generate_state(sensors)]
-    pooled: dict[str, list[bool]] = {}
+    return pooled_hits(records(noise_rel, sensors, seed, trend, jobs, rate_hz, pipeline))
+
+
+def sensor_seeds(seed: int, sensors: int) -> list[int]:
+    """The sensors' seeds drawn from ``seed`` (the i-th sensor of a run is the same whatever the count)."""
+    return [int(s) for s in np.random.SeedSequence(seed).generate_state(sensors)]
+
+
+def records(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
+            rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor",
+            ) -> list[tuple[dict[str, list[bool]], dict[str, float]]]:
+    """:func:`sensor_record` of ``sensors`` fresh sensors, in seed order."""
+    seeds = sensor_seeds(seed, sensors)
     with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for hits in pool.map(one_sensor, seeds, [noise_rel] * sensors, [trend] * sensors, [rate_hz] * sensors):
-            for key, values in hits.items():
-                pooled.setdefault(key, []).extend(values)
+        return list(pool.map(sensor_record, seeds, [noise_rel] * sensors, [trend] * sensors, [rate_hz] * sensors,
+                             [pipeline] * sensors))
+
+
+def pooled_hits(rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]],
+                ceiling: bool | None = None) -> dict[str, list[bool]]:
+    """The hits of ``rows`` pooled per interval name (``ceiling``: only sensors that reached / did not reach the
+    readout's ceiling; None: all)."""
+    pooled: dict[str, list[bool]] = {}
+    for hits, info in rows:
+        if ceiling is not None and bool(info["ceiling"]) != ceiling:
+            continue
+        for key, values in hits.items():
+            pooled.setdefault(key, []).extend(values)
     return pooled
 
 
+def summary_rows(rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]]) -> list[tuple[str, int, int]]:
+    """(label, hits, n) per interval name, then the pooled per-trial and force-trend figures and the per-trial
+    figure of the sensors that did / did not reach the ceiling: the lines of the printed table and of
+    docs/NUMERICS.md."""
+    out: list[tuple[str, int, int]] = []
+    pooled = pooled_hits(rows)
+    for key, values in pooled.items():
+        out.append((key, int(sum(values)), len(values)))
+    for label, prefix, subset in (("per trial, all", "trial ", None), ("per trial, ceiling sensors", "trial ", True),
+                                  ("per trial, no ceiling", "trial ", False), ("trend, all", "trend ", None)):
+        values = [h for key, v in pooled_hits(rows, subset).items() if key.startswith(prefix) for h in v]
+        if values:
+            out.append((label, int(sum(values)), len(values)))
+    # A refused trial (more than half its hold at the ceiling, or τ unresolved alone) has no interval: counted as a
+    # miss, the share of all trials whose three intervals hold the truth.
+    trials = sum(int(info.get("trials", PAPER_TRIALS)) for _, info in rows)
+    given = sum(len(hits.get("trial E0_Pa", [])) for hits, _ in rows)
+    held = sum(int(sum(v)) for hits, _ in rows for key, v in hits.items() if key.startswith("trial "))
+    out.append(("trials refused (no interval)", trials - given, trials))
+    out.append(("per trial, refused = miss", held, 3 * trials))
+    return out
+
+
 def print_coverage(noise_levels: Sequence[float], sensors: int, seed: int, trend: bool, jobs: int,
-                   rate_hz: float = PAPER_RATE_HZ) -> None:
+                   rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor", csv_path: Path | None = None) -> None:
     kind = "force-trend sensors" if trend else "constant sensors"
-    print(f"\n95 % interval coverage on fresh {kind} ({sensors} per noise level, seed {seed}, {rate_hz:g} Hz; target "
-          f"{100 * TARGET[0]:.0f}–{100 * TARGET[1]:.0f} %)")
-    print(f"{'noise':>6}  {'interval':<24} {'n':>5} {'coverage':>9}  {'95 % Wilson':>13}  {'time':>6}")
+    what = "`sensnake fit` (drift search, force trend)" if pipeline == "fit" else "calibrate_sensor (no drift search)"
+    print(f"\n95 % interval coverage on fresh {kind} ({sensors} per noise level, seed {seed}, {rate_hz:g} Hz, "
+          f"{what}; target {100 * TARGET[0]:.0f}–{100 * TARGET[1]:.0f} %)")
+    print(f"{'noise':>6}  {'interval':<28} {'n':>5} {'coverage':>9}  {'95 % Wilson':>13}")
+    lines: list[str] = []
     for noise in noise_levels:
-        start = time.perf_counter()
-        pooled = coverage(noise, sensors, seed, trend, jobs, rate_hz)
+        start, cpu_start = time.perf_counter(), time.process_time()
+        rows = records(noise, sensors, seed, trend, jobs, rate_hz, pipeline)
         took = time.perf_counter() - start
-        for key, values in pooled.items():
-            n, hit = len(values), int(sum(values))
-            lo, hi = wilson(hit, n)
-            print(f"{100 * noise:>5.2g}%  {key:<24} {n:>5} {100 * hit / n:>8.1f}%  {100 * lo:>5.1f}–{100 * hi:<5.1f}%"
-                  f"  {took:>5.0f}s")
-            took = 0.0
+        print_rows(noise, rows)
+        print(f"{100 * noise:>5.2g}%  {took:.0f} s wall ({time.process_time() - cpu_start:.0f} s CPU in this process)")
+        for i, (hits, info) in enumerate(rows):
+            cells = ";".join(f"{key}={int(sum(v))}/{len(v)}" for key, v in hits.items())
+            lines.append(f"{pipeline},{int(trend)},{rate_hz:g},{noise:g},{seed},{i},{int(info['ceiling'])},"
+                         f"{info['drift_uS_per_s']:.6g},{info['cpu_s']:.3f},{cells}")
+    if csv_path is not None:
+        csv_path.parent.mkdir(parents=True, exist_ok=True)
+        header = "pipeline,trend,rate_hz,noise_rel,seed,sensor,ceiling,drift_uS_per_s,cpu_s,hits\n"
+        csv_path.write_text(header + "".join(line + "\n" for line in lines))
+        print(f"per-sensor hits written to {csv_path}")
+
+
+def print_rows(noise: float, rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]]) -> None:
+    """The table's lines of one noise level (:func:`summary_rows`, with Wilson intervals) and what else was seen."""
+    for label, hit, n in summary_rows(rows):
+        lo, hi = wilson(hit, n)
+        print(f"{100 * noise:>5.2g}%  {label:<28} {n:>5} {100 * hit / n:>8.1f}%  {100 * lo:>5.1f}–{100 * hi:<5.1f}%")
+    ceiling = sum(int(info["ceiling"]) for _, info in rows)
+    drift = sum(abs(info["drift_uS_per_s"]) > 0 for _, info in rows)
+    cpu = [info["cpu_s"] for _, info in rows]
+    print(f"{100 * noise:>5.2g}%  {ceiling} of {len(rows)} sensors reach the ceiling; a drift claimed on {drift} "
+          f"(none drifts); fit CPU {np.median(cpu):.2f} s median, {max(cpu):.2f} s max per sensor")
+
+
+def docs_table(runs: dict[tuple[str, int, float, float], list[tuple[dict[str, list[bool]], dict[str, float]]]]
+               ) -> list[str]:
+    """The coverage table of docs/NUMERICS.md, one row per run of a CSV written by ``--csv`` (tests/test_fit_figures.py
+    checks the page holds these lines)."""
+    lines = ["| sensors, rate | noise | sensors (at the ceiling) | trials refused | per trial E0 / E1 / μ1 | per trial "
+             "pooled (95 % Wilson) | ceiling sensors / the rest | refused counted as misses | force trend pooled | "
+             "joint E0 / E1 / μ1 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def pct(hit: int, n: int) -> str:
+        return f"{100 * hit / n:.1f}" if n else "—"
+
+    for (pipeline, trend, rate, noise), rows in runs.items():
+        figures = {label: (hit, n) for label, hit, n in summary_rows(rows)}
+
+        def share(label: str, figures: dict[str, tuple[int, int]] = figures) -> str:
+            return pct(*figures.get(label, (0, 0)))
+
+        pooled = figures["per trial, all"]
+        lo, hi = wilson(*pooled)
+        joint = " / ".join(share(f"joint {n}") for n in PARAM_NAMES) + " %" if f"joint {PARAM_NAMES[0]}" in figures \
+            else "—"
+        kind = ("trend" if trend else "constant") + ("" if pipeline == "fit" else f" ({pipeline})")
+        refused, trials = figures["trials refused (no interval)"]
+        lines.append(
+            f"| {kind}, {rate:g} Hz | {100 * noise:g} % | {len(rows)} ({sum(int(i['ceiling']) for _, i in rows)}) | "
+            f"{refused} of {trials} | {' / '.join(share(f'trial {n}') for n in PARAM_NAMES)} % | "
+            f"**{pct(*pooled)} %** ({100 * lo:.1f}–{100 * hi:.1f}) | {share('per trial, ceiling sensors')} / "
+            f"{share('per trial, no ceiling')} % | {share('per trial, refused = miss')} % | {share('trend, all')} % | "
+            f"{joint} |")
+    return lines
+
+
+def read_records(csv_path: Path = RESULTS_CSV) -> dict[tuple[str, int, float, float], list[
+        tuple[dict[str, list[bool]], dict[str, float]]]]:
+    """The per-sensor rows of a CSV written by ``--csv``, keyed by (pipeline, trend, rate, noise), as
+    :func:`records` returns them (hits as counts expanded to booleans)."""
+    out: dict[tuple[str, int, float, float], list[tuple[dict[str, list[bool]], dict[str, float]]]] = {}
+    for line in csv_path.read_text().splitlines()[1:]:
+        pipeline, trend, rate, noise, _seed, _i, ceiling, drift, cpu, cells = line.split(",", 9)
+        hits: dict[str, list[bool]] = {}
+        for cell in cells.split(";"):
+            key, counts = cell.split("=")
+            hit, n = (int(x) for x in counts.split("/"))
+            hits[key] = [True] * hit + [False] * (n - hit)
+        info = {"ceiling": float(ceiling), "drift_uS_per_s": float(drift), "cpu_s": float(cpu)}
+        out.setdefault((pipeline, int(trend), float(rate), float(noise)), []).append((hits, info))
+    return out
 
 
 def print_drift(seed: int) -> None:
@@ -127,11 +266,12 @@ def print_drift(seed: int) -> None:
 
 
 def run(noise_levels: Sequence[float] = (0.002, 0.01), sensors: int = 24, seed: int = 29, trend: bool = False,
-        drift: bool = False, jobs: int = 2, rate_hz: float = PAPER_RATE_HZ) -> None:
+        drift: bool = False, jobs: int = 2, rate_hz: float = PAPER_RATE_HZ, pipeline: str = "fit",
+        csv_path: Path | None = None) -> None:
     if drift:
         print_drift(seed)
         return
-    print_coverage(noise_levels, sensors, seed, trend, jobs, rate_hz)
+    print_coverage(noise_levels, sensors, seed, trend, jobs, rate_hz, pipeline, csv_path)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -146,10 +286,25 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--rate", type=float, default=PAPER_RATE_HZ,
                         help="sample rate of the trials (Hz; the paper's 6 by default; faster ones are block-averaged "
                              "to 5 Hz by the fit)")
+    parser.add_argument("--pipeline", choices=PIPELINES, default="fit",
+                        help="fit: what `sensnake fit` runs by default (drift search, force trend; the default); "
+                             "sensor: calibrate_sensor alone")
+    parser.add_argument("--csv", type=Path, default=None,
+                        help=f"write every sensor's hits here (the docs' figures: {RESULTS_CSV.name} in "
+                             "benchmarks/results/)")
+    parser.add_argument("--from-csv", type=Path, default=None,
+                        help="print the tables of a CSV written by --csv instead of fitting")
     args = parser.parse_args(argv)
+    if args.from_csv is not None:
+        for (pipeline, trend, rate, noise), rows in read_records(args.from_csv).items():
+            print(f"\n{pipeline}, {'force-trend' if trend else 'constant'} sensors, {rate:g} Hz, {len(rows)} sensors")
+            print_rows(noise, rows)
+        print("\nThe table of docs/NUMERICS.md:")
+        print("\n".join(docs_table(read_records(args.from_csv))))
+        return
     if args.sensors < 1 or args.jobs < 1 or not args.rate > 0:
         parser.error("--sensors and --jobs must be at least 1, --rate positive")
-    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate)
+    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate, args.pipeline, args.csv)
 
 
 if __name__ == "__main__":

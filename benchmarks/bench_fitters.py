@@ -14,7 +14,8 @@ Data: the paper's protocol (4 forces × 3 trials, 370 s at 6 Hz, loading ramp) f
 
 then the 95 % intervals' coverage on fresh sensors and the drift figures (:mod:`benchmarks.bench_coverage`).
 
-Run: ``python -m benchmarks.bench_fitters [--quick]`` or ``sensnake bench``.
+Run: ``python -m benchmarks.bench_fitters [--quick] [--no-coverage]`` or ``sensnake bench``. `sensnake fit` end to
+end on 1 kHz trials (CPU, wall, memory): :mod:`benchmarks.bench_fit_cli`.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def _one_seed(rows: dict, calibration_times: list, seed: int, options: dict, sta
             (dt, _errors(_params_tuple(cal.sls)), "full pipeline incl. trend + per-trial; best of 3"))
 
 
-def run(quick: bool) -> None:
+def run(quick: bool, coverage: bool = True) -> None:
     seeds = [1] if quick else [1, 2, 3, 4, 5]
     start_guess = SLSParams(4.5e5, 6.5e5, 5e7)  # ~30 % off, like a derivative-free estimate on noisy data
     saturation_s = Readout().saturation_s
@@ -163,6 +164,8 @@ def run(quick: bool) -> None:
         verdict = "meets" if max(times) <= TARGET_CALIBRATION_S else "MISSES"
         print(f"full 12-trial calibration of one sensor ({solver}): median {np.median(times):.2f} s, "
               f"max {max(times):.2f} s — {verdict} the {TARGET_CALIBRATION_S:g} s target")
+    if not coverage:
+        return
     # What the intervals are worth and what a drifting baseline does (benchmarks/bench_coverage.py has the options).
     bench_coverage.run(sensors=8 if quick else 40)
     bench_coverage.run(drift=True)
@@ -171,4 +174,7 @@ def run(quick: bool) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    run(parser.parse_args().quick)
+    parser.add_argument("--no-coverage", action="store_true",
+                        help="the fitters' table only (the coverage: python -m benchmarks.bench_coverage)")
+    arguments = parser.parse_args()
+    run(arguments.quick, not arguments.no_coverage)
