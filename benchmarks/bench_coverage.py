@@ -267,7 +267,10 @@ def print_drift(seed: int) -> None:
 
 def run(noise_levels: Sequence[float] = (0.002, 0.01), sensors: int = 24, seed: int = 29, trend: bool = False,
         drift: bool = False, jobs: int = 2, rate_hz: float = PAPER_RATE_HZ, pipeline: str = "fit",
-        csv_path: Path | None = None) -> None:
+        csv_path: Path | None = None, quick: bool | None = None) -> None:
+    """The coverage table (or the drift figures); ``quick`` (``sensnake bench``): 8 sensors per noise level."""
+    if quick is not None:
+        sensors = 8 if quick else sensors
     if drift:
         print_drift(seed)
         return

@@ -43,6 +43,7 @@ CONFIGS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("--drift off (scipy)", ("--drift", "off")),
     ("--drift off --solver gauss-newton", ("--drift", "off", "--solver", "gauss-newton")),
 )
+DEFAULT_DIR = Path(tempfile.gettempdir()) / "sensnake_bench_fit_cli"
 EVERY_SAMPLE: tuple[str, tuple[str, ...]] = ("--fit-rate 0 (every sample)", ("--fit-rate", "0"))
 
 
@@ -101,7 +102,10 @@ def breakdown(paths: Sequence[Path]) -> tuple[float, float]:
     return read, time.process_time() - start
 
 
-def run(noise_rel: float, seed: int, repeats: int, every_sample: bool, folder: Path) -> None:
+def run(quick: bool = False, noise_rel: float = 0.002, seed: int = 1, repeats: int = 2, every_sample: bool = False,
+        folder: Path = DEFAULT_DIR) -> None:
+    """The table (``sensnake bench`` calls ``run(quick=…)``: one run of each configuration when quick)."""
+    repeats = 1 if quick else repeats
     paths = write_trials(folder, noise_rel, seed)
     print(f"`sensnake fit` end to end: 12 trials × 370 s at {RATE_HZ:g} Hz (370 001 rows each), typical sensor, "
           f"{100 * noise_rel:g} % noise, 12-bit readout, seed {seed}; {repeats} run(s) each, {os.cpu_count()} cores, "
@@ -164,12 +168,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--all", action="store_true", help="also --fit-rate 0 (every sample; minutes)")
-    parser.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()) / "sensnake_bench_fit_cli",
+    parser.add_argument("--dir", type=Path, default=DEFAULT_DIR,
                         help="where the trial CSVs are written (and reused)")
     args = parser.parse_args(argv)
     if args.repeats < 1 or not (math.isfinite(args.noise) and args.noise >= 0):
         parser.error("--repeats must be at least 1 and --noise ≥ 0")
-    run(args.noise, args.seed, args.repeats, args.all, args.dir)
+    run(False, args.noise, args.seed, args.repeats, args.all, args.dir)
 
 
 if __name__ == "__main__":
