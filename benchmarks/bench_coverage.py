@@ -10,7 +10,7 @@ through the whole pipeline ``sensnake fit`` runs (:func:`models.calibration.cali
 Printed per noise level: the share of per-trial intervals (E0, E1, μ1 of each trial's own fit) that hold the truth
 at the trial's force, with a 95 % Wilson interval for that share (so a figure from a few hundred trials is read
 with its own uncertainty); the joint fit's (constant sensors) or the force trend's slope and intercept (``--trend``).
-Target (issue 29): 93–97 %. With ``--drift`` the drift figures instead: the fitted rate, τ and E1 of the plain fit
+Target: 93–97 %. With ``--drift`` the drift figures instead: the fitted rate, τ and E1 of the plain fit
 and of the drift-separating one (:func:`models.calibration.calibrate_with_drift`) for a few rates.
 
 Run: ``python -m benchmarks.bench_coverage [--noise 0.002 0.01] [--sensors 24] [--trend] [--drift] [--jobs 2]``.

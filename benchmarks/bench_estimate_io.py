@@ -2,7 +2,7 @@
 
 Data: 36 sensors × 370 s × 100 Hz (37 001 rows, ~31 MB), forces 1–4 N as slow sines with random phases, the
 typical sensor (contact term on), 0.1 % conductance noise; one calibration file with both a linear and an SLS
-model per sensor. Printed: wall time of each model (best of ``--repeats``), the sls/linear ratio (issue 29 target
+model per sensor. Printed: wall time of each model (best of ``--repeats``), the sls/linear ratio (target
 ≤ 1.5×), throughput in sensor-samples/s including I/O, the RMS force error against the applied force; then the CSV
 reader and writer alone, numpy's loadtxt/savetxt against the Arrow path `app.core.calfiles` uses (target: the CSV
 path ≥ 2× faster than numpy's).

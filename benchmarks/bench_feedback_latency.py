@@ -1,7 +1,7 @@
 """Force-feedback latency in the app as ``sensnake gui`` runs it: the simulated lab in its own process, the control
 loop in another, the GUI (Forces tab estimating, Gait tab playing with feedback) in neither.
 
-The latency (issue 24's figure): from a board frame's arrival at the host to the goal it changes, i.e. to the first
+The latency: from a board frame's arrival at the host to the goal it changes, i.e. to the first
 control tick that uses it (``FeedbackProgress.frame_latency_s``; the goal is written in that tick). Target: at most
 one board period plus one control tick (33 + 20 = 53 ms at 30 Hz and 50 Hz). It includes the GUI's drain of the
 board (every 17 ms for a 30 Hz board, ``board_bridge``), the estimate and the wait for the tick. Also printed: how

@@ -1,7 +1,7 @@
 """Sensor-health soak on the physics lab: the app as ``sensnake gui`` runs it (lab and loop in their own processes),
-the issue's walk — J2, J4, J6 bent (yaw) on flat ground, captured, played follow-the-leader, over and over — or any
+a walk — J2, J4, J6 bent (yaw) on flat ground, captured, played follow-the-leader, over and over — or any
 other scene and shape, the Forces tab's health monitor watching all 36 healthy simulated sensors. Every alarm is printed with its time, sensor and words; a healthy lab raises none
-(issue 23). ``saturated`` is a true flag, not a false alarm: it means the force is above the readout's ceiling.
+``saturated`` is a true flag, not a false alarm: it means the force is above the readout's ceiling.
 
 ``python -m benchmarks.bench_health_soak [--seconds 600] [--speed 0.034] [--scene flat] [--pitch]`` (offscreen Qt;
 the lab's processes are real). ``--pitch`` adds pitch bends (J3, J5) to the shape.

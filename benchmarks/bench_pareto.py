@@ -1,5 +1,5 @@
 """Run time against error, as a table, for every estimation and fitting mode the CLI exposes; the default of each is
-the fastest mode within 1 % of the best error. Also the issue's speed targets: the contact-term inverse at 36 and
+the fastest mode within 1 % of the best error. Also the speed targets: the contact-term inverse at 36 and
 1024 sensors (≥ 10 M sensor-samples/s).
 
 Estimation (``sensnake estimate --engine/--interp/--no-contact/--float32``): 36 sensors, 1 kHz, sine forces

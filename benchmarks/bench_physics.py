@@ -21,7 +21,7 @@
     jumps split by what the body was doing: falling, tipping or landing (a point faster than 0.2 m/s) or creeping.
 (g) Scenes no built-in has and nothing was tuned on (``benchmarks/scenes/terrain/``: a 12 cm step, a step down, a
     27° ramp, three bumps, a ramp then a cylinder), the settled drape at 0.034 and 0.3 rad/s: the checks of (f).
-Targets (issues 13, 23): the simulation at least at real time on 2 cores while the GUI plots; forces summing to the
+Targets: the simulation at least at real time on 2 cores while the GUI plots; forces summing to the
 weight within ±10 % in ≥ 95 % of frames, < 1 % of frames with a > 1 N jump, median per-sheet RMS ≤ 0.3 N.
 
 Wall-clock figures depend on the machine's load (the lab's 2 cores are shared): compare rows of one run.

@@ -139,7 +139,7 @@ def bench_rates(seconds: float) -> None:
         _print_stats(rate, stats, writes)
 
 
-GUI_CASES = ((50.0, 250), (100.0, 0))  # (rate Hz, Return Delay Time register): the issue's two in-app targets
+GUI_CASES = ((50.0, 250), (100.0, 0))  # (rate Hz, Return Delay Time register): the two in-app targets
 GUI_TABS = ("forces", "gait", "hardware")
 # Not a tab but a page: the Hardware tab's Servo settings page with "Live" on (the control table re-read at 2 Hz).
 SETTINGS_LIVE = "servo-settings"
@@ -402,7 +402,7 @@ def _print_window(rate: float, delay_us: int, name: str, ticks: int, missed: int
 
 
 def _bursts(periods_s: np.ndarray, rate_hz: float, run: int = 5) -> int:
-    """Runs of ``run`` or more consecutive periods longer than 1.25 periods: the issue's bursts (~32 ticks of ~28 ms
+    """Runs of ``run`` or more consecutive periods longer than 1.25 periods: bursts (~32 ticks of ~28 ms
     at 50 Hz), as opposed to isolated late ticks."""
     long_ = np.concatenate(([False], periods_s > 1.25 / rate_hz, [False])).astype(np.int8)
     edges = np.flatnonzero(np.diff(long_))

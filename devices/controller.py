@@ -153,7 +153,7 @@ class _WakeupLatencyHold:
         if self.only_while_moving:
             if self._refused is not None:
                 return ""
-            # Say now whether it will be obtained (issue 27): the device is opened once to see, then let go.
+            # Say now whether it will be obtained: the device is opened once to see, then let go.
             try:
                 os.close(os.open(CPU_LATENCY_DEVICE, os.O_WRONLY))
             except OSError as exc:

@@ -100,7 +100,7 @@ class Scene:
     obstacles: tuple[Obstacle, ...] = ()
     # The ground's resistance to a shell rolling about its own axis, as a lever arm (m): a torque up to N times this
     # (a tipping box's half width). Default: half the width of the shell's flattened contact patch (GROUND_ROLL_M);
-    # 0: round shells roll freely (the physics lab until stop 42).
+    # 0: round shells roll freely.
     ground_roll_m: float = GROUND_ROLL_M
     # The penetration (m) over which a terrain contact's force grows from zero to full, on the ground, half cylinders
     # and boxes (devices.sim.physics.model.soft_onset_solimp); None: MuJoCo's default impedance, 90 % at touching.

@@ -752,7 +752,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                             "slipping probe, drift?)")
         # The paper's LS comparison is information (stored under the trial's "paper" with its own notes), not a
         # warning: it is "not identified" on most good trials, and a warning that is always there teaches users to
-        # ignore warnings (issue 27).
+        # ignore warnings.
         reports.append(TrialReport(trial.name, p["hold_n"], float(trial.time_s[p["hold"].start]),
                                    float(trial.time_s[p["hold"].stop - 1]), p["exp"], p["paper"],
                                    p["dfree"], per_trial.params[i], per_trial.ci95_per_trial[i], rmse, p["noise"],

@@ -13,8 +13,8 @@ pseudo-terminals and written from SPEC §4 / the XM430 e-manual, and judges the 
   sent (no corrupt frame kept, no good frame lost between the first and the last one recorded); a file left by a
   crash or a signal opens in plain ``h5py.File(path, "r")`` in another process.
 
-The cases cover every item of issue 15 (board, recording, file, output-file and message faults; the servo chain's
-reboots, limits and a killed bus) and of issue 25 (an output onto an input, two writers on one file, a file-size limit
+The cases cover every fault docs/RELIABILITY.md lists (board, recording, file, output-file and message faults; the servo chain's
+reboots, limits and a killed bus) and every way a user could lose data (an output onto an input, two writers on one file, a file-size limit
 mid-recording, a 2 GB sparse CSV, NUL bytes and endless lines, a symlink-loop ``--out``, a board repeating frames,
 its clock stepping back, another protocol version, a stopped recorder, two servos on one ID, messages naming the
 file, sensor and key). Run from the repository root (the emulators are started as
@@ -353,7 +353,7 @@ def _hidden(folder: Path) -> list[str]:
     return [p.name for p in folder.iterdir() if p.name.startswith(".")]
 
 
-# -- output files and messages (issue 15 items 10, 11) -------------------------------------------------------------
+# -- output files and messages ----------------------------------------------------------------------------------------
 AREA = "1.4e-3"
 BINARY = bytes(range(256)) * 4  # not UTF-8 from byte 128 on
 
@@ -542,7 +542,7 @@ def teach_silent_servo(folder: Path) -> Outcome:
     return Outcome(ok and not (folder / "t.json").exists(), note)
 
 
-# -- issue 25: nothing a user does loses, mixes or invents data ------------------------------------------------------
+# -- nothing a user does loses, mixes or invents data ---------------------------------------------------------------
 def _calibration(folder: Path) -> Path:
     from tests.calibration_files import write_typical_calibration
 
@@ -867,7 +867,7 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "servo: servo 3 overload mid-play": play_case("overload 3", [0.5 * (-1) ** i for i in range(12)],
                                                   ("servo 3",)),
     "servo: bus killed mid-play": play_case("kill", [0.5 * (-1) ** i for i in range(12)], ("servo bus",)),
-    # issue 25
+    # nothing a user does loses, mixes or invents data
     "data: estimate --out onto its input": output_onto_input,
     "data: two recorders on one --out": two_writers_one_file,
     "data: a file-size limit mid-recording (ulimit -f)": file_size_limit,

@@ -38,7 +38,7 @@ def test_type_checker_is_clean_on_every_package():
 # The modules mypy still excepts (pyproject's [[tool.mypy.overrides]] ignore_errors). This number only goes down:
 # fix a module's errors and take it off the list, never add one (napari's rule).
 MAX_MYPY_EXCEPTED_MODULES = 0  # every module is checked; keep it so
-# The modules still excepted from disallow_untyped_defs / check_untyped_defs (issue 28): this number only goes down.
+# The modules still excepted from disallow_untyped_defs / check_untyped_defs: this number only goes down.
 MAX_MYPY_UNTYPED_MODULES = 28
 
 

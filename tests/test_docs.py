@@ -1,4 +1,4 @@
-"""The README is a user's page (≤ 250 lines) and every link or picture in it and in docs/ resolves (issue 27)."""
+"""The README is a user's page (≤ 250 lines) and every link or picture in it and in docs/ resolves."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""scripts/fault_matrix.py: its judge can fail a case, it covers every item of issue 15, and one real case runs
+"""scripts/fault_matrix.py: its judge can fail a case, it covers every fault docs/RELIABILITY.md lists, and one real case runs
 end to end (the whole matrix takes minutes of real-time recordings; the tests it mirrors are in tests/app and
 tests/devices)."""
 
@@ -60,7 +60,7 @@ def test_every_item_of_issue_15_has_cases(matrix):
                   ["umask"],  # 10
                   ["binary shape", "binary config", "write error", "S99Z", "negative force",
                    "--out in a missing folder"],  # 11
-                  ["5% garbage + 5% CRC flips + 2% drops"]):  # issue 14
+                  ["5% garbage + 5% CRC flips + 2% drops"]):
         for word in words:
             assert word in names, word
 
@@ -71,7 +71,7 @@ def test_every_item_of_issue_25_has_cases(matrix):
                  "symlink loop", "sent twice (same seq)", "clock steps back", "protocol version 2", "SIGSTOP",
                  "two servos on ID 1", "--baud 99999999999", "mu1 < 0"):
         assert word in names, word
-    assert len(matrix.CASES) >= 46 + 13  # issue 15's 46 kept
+    assert len(matrix.CASES) >= 46 + 13  # the board, recording, file and servo faults' 46 kept
 
 
 def test_a_case_runs_end_to_end_and_the_figure_is_printed():

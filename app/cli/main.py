@@ -40,7 +40,7 @@ UNITS_HELP = ("bare (default, SPEC §3.2): sensor names as in the calibration, f
 
 
 # Per command: the arguments that name files it reads, and those that name files it writes. A write onto a file the
-# command is reading destroys the input before it has been read (issue 25): refused before anything runs.
+# command is reading destroys the input before it has been read: refused before anything runs.
 INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "estimate": (("input", "cal", "config"), ("out", "flags")),
     "forward": (("input", "cal"), ("out",)),

@@ -1,4 +1,4 @@
-"""The joint-direction check (issue 26): move one joint a little the positive way and back, and ask the user whether
+"""The joint-direction check: move one joint a little the positive way and back, and ask the user whether
 it went the way the app's convention says; a "no" flips that joint's sign in the lab config.
 
 The convention (:mod:`models.kinematics`): a positive pitch angle lifts what is behind the joint (toward the tail); a

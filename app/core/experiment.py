@@ -754,8 +754,8 @@ LOST_GROUND_SHARE = 0.25  # the sheets together carry less than this share of th
 LOST_GROUND_S = 0.1  # … for this long: the body is in the air or lies on what no sheet covers (its top, its ends)
 ROLLED_SHARE = 0.5  # the side sheets carry more than this share of what all the sheets carry …
 ROLLED_S = 0.5  # … for this long: the body lies on its side
-# A traversal is a crawl if the centroid had advanced this far before the first upset. Measured on held-out sets 4 and
-# 5 (112 traversals): the advances fall apart, 0.03-0.09 m (the body balanced on the crest with both ends up, then
+# A traversal is a crawl if the centroid had advanced this far before the first upset. Measured on 112 traversals of
+# benchmarks/sweep_heldout4.toml and sweep_heldout5.toml: the advances fall apart, 0.03-0.09 m (the body balanced on the crest with both ends up, then
 # falling off it) or 0.34-0.81 m (the body crawled on until its tail tipped over the crest or it rolled).
 CRAWLED_M = 0.2
 

@@ -1,7 +1,7 @@
 """Playing a taught shape: the MotionSource for a shape, built and checked the same way for ``sensnake play`` and
 the Gait tab (SPEC §5). Qt-free; any thread may call.
 
-Where each limit is checked (issue 14: once, not three times):
+Where each limit is checked (once, not three times):
 - here, before the robot is touched: the request's own arguments (``--speed`` positive and at most the robot's
   ``max_joint_speed_rad_s``, ``--shifts``, joint count and axes) and every angle of the shape and its keyframes
   against its joint's limits (:func:`devices.controller.joint_limit_error`, the one limit check);

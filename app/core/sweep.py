@@ -502,7 +502,7 @@ class Comparison:
     ff_overloads: int
     fb_overloads: int
     slower_where_ff_succeeds: float  # median of (feedback's time to traverse / feedforward's − 1), both traversed
-    # Read beside the advance ratio (not a yardstick of the issue): the tail point's advance ratio over the same pairs,
+    # Read beside the advance ratio (not one of the four yardsticks): the tail point's advance ratio over the same pairs,
     # and the centroid's over the pairs both traverse, where the tail ends alike and the centroid's ratio is mostly how
     # the body lay down (end_pose). NaN for a summary without the columns.
     median_tail_advance_ratio: float = math.nan

@@ -166,7 +166,7 @@ def test_refusal_reasons_name_what_makes_a_fit_unusable():
     reasons = calibration_fit.refusal_reasons(_fake_cal(("τ → 0",)), forces, rising, 1e-7)
     assert reasons == ["degenerate SLS fit: τ → 0"]
     assert "non-physical" in calibration_fit.refusal_reasons(_fake_cal(e0=-1.0), forces, rising, 1e-7)[0]
-    falling = [3.2e-4, 2.9e-4, 3.5e-4, 3.6e-4]  # the run: the 1.75 N plateau below the 0 N baseline
+    falling = [3.2e-4, 2.9e-4, 3.5e-4, 3.6e-4]  # a reported run: the 1.75 N plateau below the 0 N baseline
     texts = calibration_fit.refusal_reasons(_fake_cal(), forces, falling, 3.1e-4)
     assert any("does not rise with force" in t for t in texts) and any("unloaded level" in t for t in texts)
 

@@ -1,4 +1,4 @@
-"""Re-analysis (issue 29): ``sensnake estimate REC.h5 --cal CAL.json --out NEW.h5`` re-estimates a recording's forces
+"""Re-analysis: ``sensnake estimate REC.h5 --cal CAL.json --out NEW.h5`` re-estimates a recording's forces
 with a new calibration (everything else kept, the input untouched), and a channel without a calibration is passed
 through in µS with a note — in a recording and in a CSV — instead of refusing the file."""
 

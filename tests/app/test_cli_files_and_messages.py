@@ -1,4 +1,4 @@
-"""Issue 15 items 10-11, through the CLI in-process (``main([...])``): output files get the user's usual
+"""Output files and messages, through the CLI in-process (``main([...])``): output files get the user's usual
 permissions (umask) or keep those of the file they replace; a binary shape or config names the file; a write error
 names the user's path, not the hidden temporary file; ``fit --sensor`` refuses a sensor the board does not carry;
 ``forward`` refuses a negative force (or reads it as 0 N, saying so, with ``--clip-negative``)."""

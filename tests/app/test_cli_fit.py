@@ -315,7 +315,7 @@ def test_several_sensor_columns_round_trip(lab, tmp_path, capsys):
 
 
 def test_estimate_treats_an_empty_cell_as_a_gap_and_writes_flags(lab, tmp_path, capsys):
-    """Issue 10: one empty/NaN sample in a 6000-row file is a gap (NaN out, flagged), not a refusal of the file."""
+    """One empty/NaN sample in a 6000-row file is a gap (NaN out, flagged), not a refusal of the file."""
     folder, _ = lab
     cal = str(folder / "cal.json")
     t = np.arange(6000) / 6.0
@@ -383,7 +383,7 @@ def test_estimate_modes_from_the_pareto_table(lab, tmp_path, capsys):
 
 
 def test_slow_creep_sensor_fits_and_estimates_right_end_to_end(tmp_path, capsys):
-    """Issue 10's first row on the CLI: τ = 1600 s under 370 s holds, 0.2 % noise. The fit once collapsed to
+    """A slow-creep sensor on the CLI: τ = 1600 s under 370 s holds, 0.2 % noise. The fit once collapsed to
     τ ≈ 1e-17 s and estimate then erred 0.11 N RMS with exit 0; now: not degenerate, τ's interval holds the truth,
     and a held-out record comes back within a few mN."""
     from models.sls import conductance_from_force
@@ -416,7 +416,7 @@ def test_slow_creep_sensor_fits_and_estimates_right_end_to_end(tmp_path, capsys)
 
 
 def test_the_readout_travels_with_the_calibration_and_estimate_says_which_it_used(lab, tmp_path, capsys):
-    """Issue 29: `estimate` without --config used the default 900 Ω ceiling and rejected most samples of a sensor
+    """`estimate` without --config once used the default 900 Ω ceiling and rejected most samples of a sensor
     calibrated on a 500 Ω readout. Now `fit --config` stores the readout with the sensor, and `estimate` uses it
     unless --config overrides, saying which."""
     folder, paths = lab

@@ -1,4 +1,4 @@
-"""Nothing a user types loses data (issue 25): an output onto one of the command's inputs is refused before
+"""Nothing a user types loses data: an output onto one of the command's inputs is refused before
 anything runs (the input untouched), and a baud rate no port can take is one usage line, never a traceback."""
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ def _peak_rss_and_time(argv: list[str]) -> tuple[int, float, str, float]:
 
 
 def test_a_2_gb_sparse_csv_is_refused_in_bounded_memory_and_time(tmp_path):
-    """`truncate -s 2G` after a header (issue 25: estimate grew to 24 GB and was killed): refused as not text, peak
+    """`truncate -s 2G` after a header (estimate once grew to 24 GB and was killed): refused as not text, peak
     RSS ≤ 500 MB, ≤ 10 s, one line naming the file."""
     from tests.calibration_files import write_typical_calibration
 
@@ -178,7 +178,7 @@ def test_a_line_too_long_to_be_a_row_and_a_nul_in_the_middle_are_one_line_each(t
 
 
 def test_record_under_a_file_size_limit_stops_with_one_line_and_a_file_that_opens(tmp_path):
-    """`ulimit -f` standing in for a quota, a full network disk or an I/O error (issue 25: exit 139 after four h5py
+    """`ulimit -f` standing in for a quota, a full network disk or an I/O error (once: exit 139 after four h5py
     tracebacks, and a file that no longer opened): exit 1, one error line naming the cause, no traceback, and the
     file opens with plain h5py holding what was flushed."""
     import resource
@@ -213,7 +213,7 @@ def test_an_out_that_is_a_symlink_loop_is_refused_before_recording_leaving_nothi
 
 
 def test_a_non_numeric_cell_is_a_flagged_gap_not_a_refused_file(tmp_path, capsys):
-    """Issue 29: one `ERR` cell refused the whole estimate file (a NaN in its place was handled per sample)."""
+    """One `ERR` cell once refused the whole estimate file (a NaN in its place was handled per sample)."""
     import csv
 
     from tests.calibration_files import write_typical_calibration

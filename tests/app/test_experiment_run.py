@@ -107,7 +107,7 @@ def _assert_refused_in_one_line(tmp_path, capsys, args, words):
     (["yaw", "pitch"] * 6, [0.0, 0.1] + [0.0] * 10, ["joint axes differ from the robot's"]),
 ])
 def test_a_shape_the_robot_cannot_play_is_refused_before_anything_runs(tmp_path, capsys, axes, angles, words):
-    """As `sensnake play` refuses them: until stop 40 `experiment run` played such shapes (clamped or misread)."""
+    """As `sensnake play` refuses them, so does `experiment run` (not played clamped or misread)."""
     shape = tmp_path / "s.json"
     shape.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": "s", "axes": axes,
                                  "angles_rad": angles}), encoding="utf-8")
@@ -127,6 +127,6 @@ def test_the_estimated_forces_follow_the_true_ones_on_the_fastest_ramp_of_the_pa
     run_experiment(out, scene="paper_obstacle", speed_rad_s=0.3, seconds=30.0, settle_s=6.0)
     check = check_recording(out)
     assert check.true_jump_frames < 0.01
-    assert check.estimated_jump_frames < 0.01  # issue 23's target, on the estimate too
+    assert check.estimated_jump_frames < 0.01  # the physics lab's jump target, on the estimate too
     assert check.median_rms_n < 0.012
     assert check.worst_p99_n < 0.2

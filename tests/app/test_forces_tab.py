@@ -169,7 +169,7 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     # robot never had, first and second half, and move the cursor across it.
     # The times are taken from the distinct time stamps: rows can share one (the reader clamps arrival times so they
     # never go backwards; a backlog drained at the start can give dozens of rows one time), and taking rows 1 and
-    # N/2 was this test's intermittent failure (issue 14): row 1's time could equal row N/2's (then the cursor is at
+    # N/2 was this test's intermittent failure: row 1's time could equal row N/2's (then the cursor is at
     # the second pose) or row 0's (then the hover lands a rounding error left of the first sample: no readout).
     n_joints = len(LabConfig().robot.joint_ids)
     distinct = np.unique(recording.time_s)
@@ -188,7 +188,7 @@ def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, 
     forces = tab.recorded_body(t3)[1]
     # The newest row at or before t3, which is not always row 3: rows can share a host time stamp (the reader never
     # lets arrival times go backwards, it clamps them to the previous chunk's), and comparing with row 3 was this
-    # test's intermittent failure (issue 14).
+    # test's intermittent failure.
     newest = int(np.flatnonzero(recording.time_s <= t3)[-1])
     assert newest >= 3
     assert forces is not None and np.allclose(forces, np.nan_to_num(recording.forces_n[newest]))

@@ -1,4 +1,4 @@
-"""``sensnake gui``: SIGTERM, SIGHUP and Ctrl-C close the window like its close button (issue 15 item 3 for the
+"""``sensnake gui``: SIGTERM, SIGHUP and Ctrl-C close the window like its close button (the signal fault for the
 GUI face): a recording in progress is closed, kept whole and opens in plain h5py; the previous handlers come back."""
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ def moving_then_stop(qtbot, window, sim_lab_fast, press_stop) -> None:
     before = chain.goal_positions_ticks()[2]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[2] - before) > 20, timeout=15_000)
     # The controller announces the freeze after writing it. (Waiting for "2 more states" instead was the flaky
-    # STOP test of issue 14: the first states delivered after the press can all predate the freeze tick when the
+    # flaky STOP test: the first states delivered after the press can all predate the freeze tick when the
     # GUI thread is slow, so `frozen` was sometimes read before the freeze was written.)
     with qtbot.waitSignal(robot.event, timeout=10_000, check_params_cb=lambda text: "goals frozen" in text):
         press_stop()

@@ -192,7 +192,7 @@ def test_ctrl_c_keeps_the_file(tmp_path):
 
 @pytest.mark.parametrize("where", ["missing folder", "file as folder", "a folder"])
 def test_an_out_path_that_cannot_be_written_is_one_line_naming_it(fast_board, tmp_path, capsys, where):
-    """Issue 15 item 11: no HDF5 internals (``flags = 13, o_flags = 242``), no hidden work file in the message."""
+    """No HDF5 internals (``flags = 13, o_flags = 242``), no hidden work file in the message."""
     blocker = tmp_path / "blocker"
     blocker.write_text("x")
     out = {"missing folder": tmp_path / "nope" / "r.h5", "file as folder": blocker / "r.h5",
@@ -207,7 +207,7 @@ def test_an_out_path_that_cannot_be_written_is_one_line_naming_it(fast_board, tm
 
 
 def test_a_recording_gets_the_umask_or_keeps_the_mode_of_the_file_it_replaces(fast_board, tmp_path, capsys):
-    """Issue 15 item 10 for recordings (record and repair): never a surprise 0600, never a lost 0640."""
+    """Output-file permissions for recordings (record and repair): never a surprise 0600, never a lost 0640."""
     import os
     import stat
 

@@ -255,7 +255,7 @@ def test_kill_9_leaves_a_file_plain_h5py_opens(tmp_path, config_file):
     assert_exact_and_complete(rec, log)
 
 
-# -- issue 25: a board in another protocol version, a board clock stepping back, a stopped recorder -----------------
+# -- a board in another protocol version, a board clock stepping back, a stopped recorder -----------------
 def test_a_board_in_another_protocol_version_is_named_for_it(tmp_path, config_file, capsys):
     out = tmp_path / "v2.h5"
     with EmulatedBoard(tmp_path, rate_hz=RATE_HZ, version=2) as emu:
@@ -283,7 +283,7 @@ def test_a_board_clock_stepping_back_is_no_gap_and_no_new_segment(tmp_path, conf
 
 
 def test_a_stopped_recorder_times_the_waiting_frames_by_the_board_clock_and_logs_the_stall(tmp_path):
-    """SIGSTOP for 2 s then SIGCONT (issue 25: the frames buffered meanwhile all got the same time_s, a hole then a
+    """SIGSTOP for 2 s then SIGCONT (once: the frames buffered meanwhile all got the same time_s, a hole then a
     vertical burst, and nothing marked the stall)."""
     config = tmp_path / "lab30.toml"
     config.write_text("[board]\nrate_hz = 30.0\n")  # 2 s of frames fit the pty's buffer: none is lost

@@ -307,7 +307,7 @@ CHILD_HARD_FAILURE = textwrap.dedent("""
 @pytest.mark.slow
 def test_a_write_error_stops_the_recording_and_the_file_still_opens_with_everything_flushed(tmp_path):
     """A write that would fail (here EFBIG from a file-size limit; ENOSPC and EDQUOT alike) fails while the flush
-    reserves its room, before HDF5 touches the file (issue 25: the file no longer opened, `truncated file`): a
+    reserves its room, before HDF5 touches the file (once the file no longer opened: `truncated file`): a
     RecordingError naming the cause, and the file opens with plain h5py holding every row of the last good flush."""
     import h5py
 

@@ -105,7 +105,7 @@ def test_emergency_stop_freezes_goals_and_keeps_torque(connected, qtbot, sim_lab
     start_goal = chain.goal_positions_ticks()[0]
     qtbot.waitUntil(lambda: abs(chain.goal_positions_ticks()[0] - start_goal) > 20, timeout=15_000)
     # Wait for the controller's own word that the goals are frozen (it writes them first), not for "2 more
-    # states": those can predate the freeze tick when the GUI thread is slow (issue 14's flaky STOP test).
+    # states": those can predate the freeze tick when the GUI thread is slow (a once-flaky STOP test).
     with qtbot.waitSignal(connected.event, timeout=15_000, check_params_cb=lambda text: "goals frozen" in text):
         connected.emergency_stop()
     assert motions[-1] == MOTION_STOPPED

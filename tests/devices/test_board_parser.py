@@ -232,7 +232,7 @@ def test_truncated_frame_is_never_delivered_and_the_frames_after_it_are(specs, c
 
 def test_a_repeated_frame_is_stored_once_counted_and_not_taken_for_a_gap():
     """A board (or an adapter) that sends every frame twice: each sample once, duplicate_frames counts the repeats,
-    no seq gap and no dropped frame is invented (issue 25)."""
+    no seq gap and no dropped frame is invented."""
     from devices.board import FrameParser
     from devices.board_wire import encode_frame
 

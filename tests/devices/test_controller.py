@@ -103,7 +103,7 @@ def test_idle_loop_reads_state_and_sends_nothing(controller, sim_chain):
 
 
 def test_motion_goals_beyond_the_limits_are_refused_not_clamped(controller, sim_chain):
-    # Issue 15 item 6: a clamped goal is a silently different motion.
+    # A clamped goal is a silently different motion.
     ctl, rec = controller
     writes = sim_chain.count(wire.SYNC_WRITE)
     future = ctl.run_motion(HoldPose(np.full(12, 3.0)), "beyond the limits")
@@ -149,7 +149,7 @@ def test_emergency_stop_freezes_goals_within_one_tick(controller, sim_chain):
     # Within one tick: a tick reads, then checks for STOP, so the first tick whose read ends after the request
     # freezes. Count the ticks read after the request up to the freeze (its event follows its state): at most
     # that one. (This used to count states from *before* the request was made, so a test thread descheduled
-    # between counting and pressing STOP saw extra ticks: the flaky STOP test of issue 14.)
+    # between counting and pressing STOP saw extra ticks: the once-flaky STOP test.)
     stop_event = next(i for i, e in enumerate(rec.events) if "emergency stop" in e)
     up_to_freeze = rec.states[:rec.states_before_event[stop_event]]
     assert sum(state.host_time_s > requested_s for state in up_to_freeze) <= 1
@@ -333,7 +333,7 @@ def test_resumed_and_new_motions_start_from_the_present_pose_not_an_old_goal(con
 
 
 def test_on_sim_the_start_message_says_whether_idle_states_will_be_held(tmp_path, monkeypatch):
-    """Issue 27: 'CPU idle states to be held shallow' said nothing about whether they would be; now the device is
+    """'CPU idle states to be held shallow' once said nothing about whether they would be; now the device is
     tried at start and the message says which."""
     import sys
 

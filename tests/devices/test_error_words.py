@@ -1,4 +1,4 @@
-"""devices.errors.os_words: the OS's reason once, in words (issue 15 item 11) — from pyserial's echo, from
+"""devices.errors.os_words: the OS's reason once, in words — from pyserial's echo, from
 termios.error (no OSError) and from a plain OSError."""
 
 from __future__ import annotations

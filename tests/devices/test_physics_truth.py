@@ -1,4 +1,4 @@
-"""The physics lab's contact forces against cases with a known answer (issue 23).
+"""The physics lab's contact forces against cases with a known answer.
 
 A straight body on flat ground carries its weight segment by segment; the contact forces' vertical part equals the
 weight when nothing accelerates, on any terrain; a shape played follow-the-leader moves load smoothly from sheet to
@@ -235,8 +235,8 @@ def _held_then_nudged(world: PhysicsWorld, shape: np.ndarray, seconds: float) ->
 
 @pytest.mark.parametrize("sign", [1.0, -1.0], ids=["arch", "sag"])
 def test_a_body_bent_in_pitch_on_a_floor_rolls_onto_its_side_at_a_nudge_as_statics_says(sign):
-    """Round segments on a floor that does not resist their roll (``roll_resistance_m = 0``, the physics lab until
-    stop 42): a body bent in pitch, held rigid, has its centre of mass above the line it rolls about (an arch's
+    """Round segments on a floor that does not resist their roll (``roll_resistance_m = 0``): a
+    body bent in pitch, held rigid, has its centre of mass above the line it rolls about (an arch's
     middle, a sag's ends), so it is in an unstable equilibrium — the smallest sideways nudge lays it on its side;
     held straight it is neutral and stays."""
     from devices.scene import Scene

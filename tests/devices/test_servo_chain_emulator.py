@@ -112,7 +112,7 @@ def test_scan_teach_and_play_commands_on_the_independent_chain(emulator, tmp_pat
         assert (state["goal"] - 2048) * 2 * np.pi / 4096 == pytest.approx(last[1 + k], abs=2e-3)
 
 
-# -- faults (issue 15 items 5, 6, 8), each against the emulator in its own process ------------------------------------
+# -- faults (reboots, limits, a killed bus), each against the emulator in its own process ------------------------------------
 def _write_shape(path: Path, angles: list[float]) -> Path:
     path.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": path.stem,
                                 "axes": ["pitch", "yaw"] * 6, "angles_rad": angles}))
@@ -387,7 +387,7 @@ def test_on_sim_the_cpus_wakeup_latency_is_held_only_while_a_motion_plays(monkey
 
 @pytest.mark.parametrize("skew_bits", ["3", "400"], ids=["colliding", "one-after-the-other"])
 def test_two_servos_on_one_id_are_named_by_scan_and_refused_at_connect_and_play(tmp_path, capsys, skew_bits):
-    """The emulator's second servo set to ID 1 (issue 25: scan exited 0 listing 11 servos, silent about it; play
+    """The emulator's second servo set to ID 1 (once: scan exited 0 listing 11 servos, silent about it; play
     blamed "corrupt packet … check the bus wiring"). Its replies and its twin's collide on the wire (3 bits apart),
     or arrive whole one after the other (400 bits apart: the twin's Return Delay Time is longer)."""
     from devices.errors import DuplicateIdError

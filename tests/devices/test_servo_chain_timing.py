@@ -110,7 +110,7 @@ def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_spe
     assert max(planned, default=0.0) <= 1.5 * cycle_s
     if clock_speed == 1.0:
         # At real speed a missing reply is slept through, not polled: every wait sleeps, once or twice. This used
-        # to assert ≥ 20 sleeps in 20 reads, which failed now and then on a loaded machine (issue 14): a bus thread
+        # to assert ≥ 20 sleeps in 20 reads, which failed now and then on a loaded machine: a bus thread
         # descheduled for the ~2 ms of a sync read between writing the instruction and looking for the reply finds
         # it complete and rightly does not sleep at all. So count the sleeps per wait the driver actually entered.
         assert sleeps_per_wait, "no read ever waited for its reply: the simulated chain answered before the wire could"
@@ -120,7 +120,7 @@ def test_no_sleep_is_planned_longer_than_the_replies_take(monkeypatch, clock_spe
 
 
 def test_one_late_reply_costs_only_its_own_read(servos, monkeypatch):
-    """The cause of the in-app bursts (issue 11): one late reply taught the old driver a 2 ms per-reply gap that it
+    """The cause of in-app bursts of late ticks: one late reply taught the old driver a 2 ms per-reply gap that it
     slept through on each of the next ~32 sync reads (12 × 2 ms: ~28 ms ticks). Now no read after it plans a sleep
     longer than the bus time of a sync read."""
     chain, sim = servos

@@ -1,4 +1,4 @@
-"""A drifting baseline (issue 29) is found and separated from the creep, on draws the code was not tuned on: the paper
+"""A drifting baseline is found and separated from the creep, on draws the code was not tuned on: the paper
 protocol (4 forces × 3 trials, 0.2 % noise, the 12-bit readout) with an additive drift of 0.2 and 0.02 µS/s, none,
 and a sensor whose parameters grow with force (where a shared-parameter fit misfits and must not be read as drift)."""
 

@@ -1,4 +1,4 @@
-"""Issue 10's fitting rows: the fitter finds the optimum or says why not — degenerate fits are marked, mostly-censored
+"""Fitting honestly: the fitter finds the optimum or says why not — degenerate fits are marked, mostly-censored
 trials refused with the reason, τ → 0 / τ → ∞ named as such, no false 'no loading ramp' warnings."""
 
 from __future__ import annotations

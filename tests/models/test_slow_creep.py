@@ -1,4 +1,4 @@
-"""Issue 10, first row: slow-creep sensors (τ = mu1/E1 of 800, 1600, 3000 s under 370 s holds) at 0, 0.2 and 1 %
+"""Slow-creep sensors (τ = mu1/E1 of 800, 1600, 3000 s under 370 s holds) at 0, 0.2 and 1 %
 conductance noise. Each fit must reach the optimum (a cost no worse than the truth's), hold the truth inside its
 95 % intervals, and estimate a held-out record to a few mN; never collapse to τ → 0 as it once did (τ ≈ 1e-17 s,
 0.11 N RMS, exit 0). Trials that alone cannot resolve τ are refused for the per-trial table with the reason."""
@@ -92,7 +92,7 @@ def test_profile_interval_for_tau_is_bounded_when_the_records_bound_it_and_open_
 
 @pytest.mark.parametrize("seed", [3, 7, 11])
 def test_a_tau_interval_always_holds_its_own_estimate_and_a_disagreement_is_said(seed):
-    """Issue 29: with a baseline drift of +0.2 µS/s the fit printed τ 321.89 s with a 95 % interval [305.92, 316.03]
+    """With a baseline drift of +0.2 µS/s the fit once printed τ 321.89 s with a 95 % interval [305.92, 316.03]
     — the estimate outside its own interval, silently. Now the interval always holds the estimate, and when the
     profile put it elsewhere the fit says so."""
     truth = _truth(100.0)

@@ -1,4 +1,4 @@
-"""The one sample-validation rule (models.validation) on the issue-10 stress rows: each ends in a correct number, a
+"""The one sample-validation rule (models.validation) on the fitting stress cases: each ends in a correct number, a
 named flag or a named refusal."""
 
 from __future__ import annotations

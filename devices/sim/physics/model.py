@@ -9,7 +9,7 @@ thinner than a segment, so on flat ground it does not touch and every newton of 
 Servos (XM430-W350 at 12 V, ROBOTIS e-manual): stall torque 4.1 N·m at 2.3 A (1.78 N·m/A), no-load speed 46 rev/min
 (4.82 rad/s), gear ratio 353.5. The joint's passive terms (damping 1.08 N·m·s/rad, reflected rotor inertia
 0.045 kg·m², friction loss 0.03 N·m) and the position gain (21 N·m/rad) are the published MuJoCo models of this
-servo, not measured on our robot: a starting point (issue 13). The position loop itself runs in :mod:`.world`.
+servo, not measured on our robot: a starting point. The position loop itself runs in :mod:`.world`.
 
 Obstacle: a cylinder of radius ``height`` lying across the path with its axis on the ground, so what shows above
 the ground is the paper's half cylinder; PTFE-covered (low friction, configurable). Ground friction is configurable.
@@ -158,8 +158,8 @@ def soft_onset_solimp(onset_m: float) -> str:
     as it lifts off, as a compliant cover's does (a scene's ``[ground] contact_onset_m``). MuJoCo's default (0.9 at
     zero penetration) holds a contact near full strength until the geometry separates, then drops it in one step: a
     loaded shell lifting slowly (an end dragged or pushed along the floor) loses its contact for one 2 ms step every
-    20-35 ms (220 times in 30 s of the two obstacles' drape at 0.3 rad/s; 0 with 0.3 mm). Not the default: measured
-    at stop 45, it moves issue 24's traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips")."""
+    20-35 ms (220 times in 30 s of the two obstacles' drape at 0.3 rad/s; 0 with 0.3 mm). Not the default: it moves
+    the force-feedback traversal yardstick (docs/PHYSICS_LAB.md, "A dragged end stick-slips")."""
     return f"0 0.95 {onset_m!r}"
 
 
