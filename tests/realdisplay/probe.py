@@ -190,7 +190,7 @@ def scenario_forces(window, page, seconds: float) -> dict:
 
 
 def scenario_forces_cost(window, page, seconds: float) -> dict:
-    """The issue's cost case: 36 channels at 30 Hz, Forces tab visible, robot at rest, nobody reading pixels."""
+    """The cost case: 36 channels at 30 Hz, Forces tab visible, robot at rest, nobody reading pixels."""
     pump_until(lambda: len(page.force_history) > 0 and page.force_history.span()[1] > 1.0, what="board data")
     pump(1000)
     viewport = page.plots.scroll_area.viewport()
