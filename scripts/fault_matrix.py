@@ -810,7 +810,7 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "board: 5% garbage": record_case(garbage=0.05),
     "board: 5% CRC flips": record_case(crc_flip=0.05),
     "board: 2% dropped frames": record_case(drop=0.02),
-    "board: 5% garbage + 5% CRC flips + 2% drops (issue 14)": record_case(seconds=3.0, garbage=0.05, crc_flip=0.05,
+    "board: 5% garbage + 5% CRC flips + 2% drops": record_case(seconds=3.0, garbage=0.05, crc_flip=0.05,
                                                                            drop=0.02, seed=14),
     "board: 30% garbage": record_case(garbage=0.3, seed=2),
     "board: 30% CRC flips (a storm: warn, keep going)": record_case(crc_flip=0.3, seed=3),
