@@ -151,8 +151,11 @@ def test_linear_estimate_clips_below_baseline_like_sls_and_says_so(lab, tmp_path
     folder, _ = lab
     cal = str(folder / "cal.json")
     t = np.arange(0.0, 10.0, 1 / 6)
-    # Below the linear model's offset d (0 S and a tiny reading): the line would give negative forces.
-    conductance = np.where(t < 5, 0.0, 1e-9)
+    # Below the linear model's offset d (0 S, then a small reading above an open line's 1e-9 S but under d): the line
+    # would give negative forces.
+    d = json.loads((folder / "cal.json").read_text())["sensors"]["S06B"]["linear"]["d_S"]
+    assert d > 1e-8
+    conductance = np.where(t < 5, 0.0, d / 2)
     calfiles.write_series_csv(tmp_path / "low.csv", t, ("S06B",), conductance[:, None])
     code, _, err = _run(["estimate", str(tmp_path / "low.csv"), "--cal", cal, "--model", "linear",
                          "--out", str(tmp_path / "f.csv")], capsys)
