@@ -10,9 +10,8 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from pathlib import Path
 
-from app.cli.run_progress import EXIT_INVALID, interrupted, progress_line
+from app.cli.run_progress import EXIT_INVALID, finished, interrupted, progress_line
 from app.core.errors import RunsInterrupted
 from app.core.evaluate import read_evaluation, run_evaluation
 from app.core.sweep import is_invalid, read_summary
@@ -27,12 +26,7 @@ def run(args: argparse.Namespace) -> int:
                                progress=progress_line, say=print)
     except RunsInterrupted as stop:
         return interrupted(stop, args.out)
-    if sys.stdout.isatty():
-        print()
-    out = Path(args.out)
-    from app.gui.figure_png import svg_to_png  # the figure's pixels only: Qt's SVG renderer, loaded here
-
-    svg_to_png((out / "evaluation.svg").read_text(encoding="utf-8"), out / "evaluation.png")
+    out = finished(args.out, "evaluation")
     print(f"{'family':<16} {'controller':<14} {'metric':<16} {'pairs':>5} {'feedforward':>11} {'controller':>10} "
           f"{'difference':>10}  {100 * plan.confidence:g} % interval  invalid undecided")
     for e in table:

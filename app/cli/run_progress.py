@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from app.core.errors import RunsInterrupted
 
@@ -25,3 +26,15 @@ def interrupted(stop: RunsInterrupted, out: str) -> int:
           f"{stop.finished} of {stop.total} runs finished and kept in {out}; the same command resumes",
           file=sys.stderr)
     return EXIT_INTERRUPTED
+
+
+def finished(out: str, figure: str) -> Path:
+    """A run set that went to its end: close the progress line and render ``out/<figure>.svg`` as a PNG beside it;
+    returns the folder."""
+    if sys.stdout.isatty():
+        print()
+    folder = Path(out)
+    from app.gui.figure_png import svg_to_png  # the figure's pixels only: Qt's SVG renderer, loaded here
+
+    svg_to_png((folder / f"{figure}.svg").read_text(encoding="utf-8"), folder / f"{figure}.png")
+    return folder

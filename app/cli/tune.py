@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
-from pathlib import Path
 
-from app.cli.run_progress import interrupted, progress_line
+from app.cli.run_progress import finished, interrupted, progress_line
 from app.core.errors import RunsInterrupted
 from app.core.tune import read_tune, run_tune
 
@@ -28,12 +26,7 @@ def run(args: argparse.Namespace) -> int:
                           progress=progress_line, say=print)
     except RunsInterrupted as stop:
         return interrupted(stop, args.out)
-    if sys.stdout.isatty():
-        print()
-    out = Path(args.out)
-    from app.gui.figure_png import svg_to_png  # the figure's pixels only: Qt's SVG renderer, loaded here
-
-    svg_to_png((out / "tune.svg").read_text(encoding="utf-8"), out / "tune.png")
+    out = finished(args.out, "tune")
     print(f"{'gains':<6} {'trial':>5} {'split':<6} {'decided':>9} {'objective m':>11} {'advance Δ m':>11} "
           f"{'traversal ff → ctl':>19} {'overloads ff → ctl':>19}")
     for r in report:

@@ -86,7 +86,7 @@ def test_an_edit_is_range_checked_written_once_and_read_back(window, qtbot, sim_
 
 def _type_into_cell(qtbot, page, name: str, text: str) -> None:
     from PySide6.QtCore import Qt
-    from PySide6.QtWidgets import QApplication, QLineEdit
+    from PySide6.QtWidgets import QAbstractItemView, QLineEdit
 
     from widgets.servo_settings_view import COL_VALUE
 
@@ -98,7 +98,7 @@ def _type_into_cell(qtbot, page, name: str, text: str) -> None:
     editor = page.table.findChild(QLineEdit)
     editor.setText(text)
     qtbot.keyClick(editor, Qt.Key.Key_Return)
-    QApplication.processEvents()
+    qtbot.waitUntil(lambda: page.table.state() != QAbstractItemView.State.EditingState, timeout=5_000)
 
 
 def test_an_eeprom_write_on_a_servo_with_torque_on_asks_and_restores_torque(window, qtbot, sim_lab_fast):
