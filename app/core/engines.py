@@ -186,12 +186,16 @@ class DaskEngine:
 
         if not tasks:
             return
-        futures = [self.client.submit(fn, task, pure=False, key=f"run-{k}-{os.getpid()}-{time.monotonic_ns()}")
-                   for k, task in enumerate(tasks)]
-        index = {future.key: k for k, future in enumerate(futures)}
+        # Held by key until its result is taken, then released: a worker that dies takes only its pending and
+        # running tasks with it (a finished run whose result the client still held would be run again elsewhere).
+        pending: dict[Any, Any] = {}
+        index: dict[Any, int] = {}
+        for k, task in enumerate(tasks):
+            future = self.client.submit(fn, task, pure=False, key=f"run-{k}-{os.getpid()}-{time.monotonic_ns()}")
+            pending[future.key], index[future.key] = future, k
         finished = 0
         try:
-            for future in as_completed(futures):
+            for future in as_completed(list(pending.values())):
                 k = index[future.key]
                 if future.status == "finished":
                     row, error = future.result(), ""
@@ -201,10 +205,12 @@ class DaskEngine:
                     error = "".join(traceback.format_exception(type(exc), exc, tb)) if exc is not None else \
                         f"the task ended {future.status}"
                     row = None
+                pending.pop(future.key, None)
+                future.release()
                 finished += 1
                 on_done(k, row, error)
         except KeyboardInterrupt as exc:
-            self.client.cancel(futures, force=True)
+            self.client.cancel(list(pending.values()), force=True)
             self.close()
             raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
 
