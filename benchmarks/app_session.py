@@ -63,6 +63,7 @@ def app_session(who: str, config: Any, shape: Any) -> Iterator[tuple[Any, Any, A
             cal.write_text(json.dumps(factory.sim_lab().board.ground_truth_calibration()), encoding="utf-8")
             if not forces.load_calibration(cal):
                 raise SystemExit(f"{who}: the simulated sensors' calibration did not load")
+            pump(30_000, until=lambda: not forces.is_loading_calibration)
             yield lab, forces, gait, pump
             lab.robot.stop_motion()
             pump(2_000)

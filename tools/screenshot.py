@@ -394,6 +394,11 @@ def _load_simulated_sensors_calibration(page: Any, folder: Path) -> None:
     del folder
     if not page.load_simulated_truth():
         raise SystemExit(f"screenshot: the simulated sensors' calibration did not load: {page.controls.message.text()}")
+    from PySide6.QtCore import QCoreApplication
+
+    while page.is_loading_calibration:  # the history is estimated again on a worker thread first
+        QCoreApplication.processEvents()
+        time.sleep(0.01)  # a script, not a test
 
 
 def _load_demo_trials(page, folder: Path) -> None:

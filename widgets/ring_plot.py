@@ -43,10 +43,12 @@ class _Ring:
         self.capacity = capacity
         # np.zeros maps pages lazily: the process's memory then grew for hours as the ring filled (170 → 312 MB
         # seen in a long session, read as a leak). Writing the arrays once commits the whole budget up front, so
-        # memory is fixed from the start and stays flat (benchmarks/bench_soak.py).
-        self.t = np.zeros(capacity)
-        self.low = np.zeros((capacity, n_channels), dtype=dtype)
-        self.high = np.zeros((capacity, n_channels), dtype=dtype) if with_high else self.low
+        # memory is fixed from the start and stays flat (benchmarks/bench_soak.py). np.empty, not np.zeros: numpy
+        # asks the kernel for huge pages on a large np.empty array (not on np.zeros' calloc), so committing a 96 MB
+        # history takes ~10 ms instead of ~0.5 s of 4 kB page faults on the GUI thread (a tab opening froze on it).
+        self.t = np.empty(capacity)
+        self.low = np.empty((capacity, n_channels), dtype=dtype)
+        self.high = np.empty((capacity, n_channels), dtype=dtype) if with_high else self.low
         for array in (self.t, self.low, self.high):
             array.fill(0)
         self.write = 0
@@ -75,6 +77,11 @@ class _Ring:
         if self.count < self.capacity:
             return [slice(0, self.count)]
         return [slice(self.write, self.capacity), slice(0, self.write)]
+
+    def oldest_first(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of (t, low) of every row held, oldest first."""
+        segments = self._segments()
+        return np.concatenate([self.t[s] for s in segments]), np.concatenate([self.low[s] for s in segments])
 
     def oldest_t(self) -> float:
         if self.count == 0:
@@ -228,6 +235,11 @@ class TraceHistory:
             return (np.nan, np.nan)
         oldest = min([self._level0.oldest_t()] + [lv.ring.oldest_t() for lv in self._levels])
         return (oldest, self._level0.newest_t())
+
+    def full_rate(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of every sample still held at full rate (level 0), oldest first: (t (N,), values (N×C)); what is
+        older is held only as min/max buckets."""
+        return self._level0.oldest_first()
 
     def latest(self) -> tuple[float, np.ndarray] | None:
         """(t, values (C,)) of the newest sample."""

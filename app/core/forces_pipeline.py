@@ -110,6 +110,27 @@ class ForcesPipeline:
         self.calibration, self.calibration_source, self.physics = document, str(path), physics
         self._build()
 
+    def fresh_copy(self, estimator: str | None = None) -> ForcesPipeline:
+        """A pipeline for the same channels and readout rule with this one's calibration and ``estimator`` (default:
+        this one's), its state at rest: run it over the past on a worker thread, then hand it to :meth:`adopt`."""
+        copy = ForcesPipeline(self.channel_names, estimator or self._estimator_kind)
+        copy._rule = self._rule
+        copy.calibration, copy.calibration_source, copy.physics = (self.calibration, self.calibration_source,
+                                                                   self.physics)
+        copy._build()
+        return copy
+
+    def adopt(self, other: ForcesPipeline) -> None:
+        """Take over ``other``'s calibration, estimator and estimator state (a :meth:`fresh_copy` that was run over
+        the history up to now), so whoever holds this pipeline (the live session) goes on from there. ``other``
+        must not be used afterwards."""
+        if other.channel_names != self.channel_names:
+            raise ValueError(f"cannot adopt a pipeline of {len(other.channel_names)} channels into one of "
+                             f"{len(self.channel_names)}")
+        for name in ("_estimator_kind", "calibration", "calibration_source", "physics", "_estimator", "_columns",
+                     "status", "problems", "last_block_problem", "_t_last_s", "_rule"):
+            setattr(self, name, getattr(other, name))
+
     def clear_calibration(self) -> None:
         self.calibration, self.calibration_source, self.physics = None, "", DEFAULT_PHYSICS
         self._build()

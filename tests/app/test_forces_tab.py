@@ -87,7 +87,8 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"format": "sensnake-calibration", "version": 1,
                                "physics": DEFAULT_PHYSICS.to_dict(), "sensors": {"S06B": entry}}))
-    assert tab.load_calibration(cal)
+    with qtbot.waitSignal(tab.calibration_applied):  # once the history is estimated again (a worker thread)
+        assert tab.load_calibration(cal)
     assert tab.pipeline.estimated.sum() == 1
     labels = set(tab.plots.plots[5].legend.labels())
     assert "S06B" in labels and "S06L (µS, uncal.)" in labels
@@ -101,7 +102,8 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
     assert "unknown format" in tab.controls.message.text()
     assert tab.pipeline.estimated.sum() == 1  # the good calibration stays
 
-    tab.controls.estimator.setCurrentIndex(tab.controls.estimator.findData("linear"))
+    with qtbot.waitSignal(tab.calibration_applied):
+        tab.controls.estimator.setCurrentIndex(tab.controls.estimator.findData("linear"))
     assert tab.pipeline.estimator_kind == "linear" and tab.pipeline.estimated.sum() == 1
     count = len(tab.force_history)
     qtbot.waitUntil(lambda: len(tab.force_history) > count + 3, timeout=10_000)
@@ -112,7 +114,9 @@ def test_tab_shows_36_live_traces_pause_legend_cursor_and_calibration(qtbot, lab
 
 
 def test_record_unplug_reopen_export_and_overlay(qtbot, lab, tab, sim_lab_fast, tmp_path):
-    assert tab.load_calibration(write_typical_calibration(tmp_path / "typical.json", lab.config.board.channel_names))
+    with qtbot.waitSignal(tab.calibration_applied):
+        assert tab.load_calibration(write_typical_calibration(tmp_path / "typical.json",
+                                                              lab.config.board.channel_names))
     with qtbot.waitSignal(lab.robot.connected, timeout=15_000):
         lab.robot.connect_robot()
     with qtbot.waitSignal(lab.board.connected, timeout=15_000):
@@ -345,7 +349,8 @@ def test_a_new_calibration_reestimates_the_history_so_no_microsiemens_sit_on_a_n
     from tests.calibration_files import typical_sensor_entry, write_calibration
 
     write_calibration(cal, {"S06B": typical_sensor_entry()})
-    assert tab.load_calibration(cal)
+    with qtbot.waitSignal(tab.calibration_applied):
+        assert tab.load_calibration(cal)
     assert tab.plots.channel_unit(17) == "N"
     _t, after = tab.force_history.value_at(t_mid)  # the same past, estimated with the calibration
     assert after[17] != pytest.approx(micro[17]) and np.isfinite(after[17])
@@ -361,7 +366,8 @@ def test_simulated_truth_calibrates_every_sensor_and_says_it_is_the_simulations_
     other = user_folders.calibrations_dir() / "simulated-lab-truth.json"
     other.parent.mkdir(parents=True, exist_ok=True)
     other.write_text("{}")  # someone's file of that name: kept
-    tab.controls.truth_calibration.click()
+    with qtbot.waitSignal(tab.calibration_applied):
+        tab.controls.truth_calibration.click()
     assert other.read_text() == "{}"
     saved = user_folders.calibrations_dir() / "simulated-lab-truth-2.json"
     assert json.loads(saved.read_text())["source"].startswith("the simulated lab's sensors' true parameters")
@@ -396,3 +402,59 @@ def test_a_pulled_board_is_amber_or_red_never_green_and_simulated_skips_are_not_
     counters = tab.controls.counters
     assert "lost frames" not in counters.text() and "skipped frames 21" in counters.text()
     assert theme.STATUS_COLORS[theme.WARN] not in counters.styleSheet()
+
+
+def test_a_calibration_is_applied_off_the_gui_thread_and_the_whole_history_stays(qtbot, lab, tab, tmp_path,
+                                                                                  monkeypatch):
+    """Loading a calibration does not stop the window: the past is estimated again on a worker thread while the
+    event loop runs, and afterwards all of it is there in the new units — not only the board's last minute."""
+    import threading
+
+    from PySide6.QtCore import QTimer
+
+    from app.core.forces_pipeline import ForcesPipeline
+
+    lab.board.start()
+    # more than the board's recent blocks (a minute at its rate): what the tab used to start again from
+    qtbot.waitUntil(lambda: len(lab.board.history) > 1.5 * lab.board.recent_max_samples, timeout=60_000)
+    live = tab.pipeline
+    gate = threading.Event()
+    calls: list[tuple[bool, int]] = []  # (on the GUI thread, samples) of the copy that re-estimates the past
+    process = ForcesPipeline.process
+
+    def held(self, t_s, *args, **kwargs):
+        if self is not live:  # (the live one goes on with each block meanwhile)
+            on_gui = threading.current_thread() is threading.main_thread()
+            calls.append((on_gui, len(t_s)))
+            # the blocks that arrived while the past was estimated are caught up on the GUI thread, in one call
+            assert on_gui or gate.wait(20), "the worker was not let go"
+        return process(self, t_s, *args, **kwargs)
+
+    monkeypatch.setattr(ForcesPipeline, "process", held)
+    oldest = lab.board.history.span()[0]
+    before = tab.force_history
+    assert tab.load_calibration(write_typical_calibration(tmp_path / "typical.json", lab.config.board.channel_names))
+    assert tab.is_loading_calibration and tab.force_history is before  # returned at once; not applied yet
+    assert "estimating" in tab.controls.calibration_label.text()
+    ticks: list[int] = []
+    timer = QTimer()
+    timer.timeout.connect(lambda: ticks.append(1))
+    timer.start(5)
+    try:
+        qtbot.waitUntil(lambda: len(ticks) >= 20 and bool(calls))  # the event loop runs while the worker is held
+    finally:
+        timer.stop()
+    count = len(tab.force_history)
+    qtbot.waitUntil(lambda: len(tab.force_history) > count)  # live blocks still drawn (with the old calibration)
+    with qtbot.waitSignal(tab.calibration_applied):
+        gate.set()
+    on_worker = sum(n for on_gui, n in calls if not on_gui)
+    assert on_worker >= 1.5 * lab.board.recent_max_samples  # the past: estimated on the worker thread
+    assert sum(on_gui for on_gui, _n in calls) <= 1  # only the catch-up, one call, on the GUI thread
+    assert tab.pipeline is live and tab.pipeline.estimated.all()  # the live session's pipeline, now calibrated
+    assert tab.force_history is not before
+    assert tab.force_history.span()[0] == pytest.approx(oldest, abs=0.2)  # the whole history, not the last minute
+    assert len(tab.force_history) >= 1.5 * lab.board.recent_max_samples
+    _t, values = tab.force_history.value_at(oldest + 0.5)
+    assert np.all(np.isfinite(values)) and np.all(values < 50)  # newtons, not µS (~100s)
+    assert "history estimated again" in tab.controls.message.text()

@@ -75,7 +75,8 @@ def test_with_calibrated_sensors_the_loop_corrects_from_fresh_forces_and_stops_o
     forces, gait = _tabs(qtbot, lab, tmp_path)
     path = tmp_path / "sim.json"
     path.write_text(json.dumps(sim_lab_fast.board.ground_truth_calibration()), encoding="utf-8")
-    assert forces.load_calibration(path)
+    with qtbot.waitSignal(forces.calibration_applied, timeout=WAIT_MS):
+        assert forces.load_calibration(path)
     qtbot.waitUntil(lambda: math.isfinite(lab.force_page.read()[0]), timeout=WAIT_MS)
     gait.panel.gain_spins["push_gain"].setValue(0.3)
     gait.panel.gain_spins["lead_reach"].setValue(2)

@@ -306,6 +306,7 @@ def scenario_forces_layout(window, page, seconds: float) -> dict:
 
     cal = write_calibration(Path(tempfile.mkdtemp()) / "one.json", {"S06B": typical_sensor_entry()})
     forces.load_calibration(cal)
+    pump_until(lambda: not forces.is_loading_calibration, what="the calibration applied")
     pump(1500)
     plots = []
     for plot in forces.plots.plots:
