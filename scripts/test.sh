@@ -7,8 +7,10 @@
 set -euo pipefail
 case "${1:-}" in -h|--help)
     echo "usage: scripts/test.sh [PYTEST ARGS...]"
-    echo "Install the test dependencies, run ruff, mypy and the import contracts, then pytest (with PYTEST ARGS,"
-    echo "e.g. tests/widgets -k legend). Real-display tests need Xvfb (installed here when root with apt)."
+    echo "Install the test dependencies, run ruff, mypy and the import contracts, then pytest: without arguments the"
+    echo "whole suite (on one worker per core, then the tests that measure time alone); with PYTEST ARGS (e.g."
+    echo "tests/widgets -k legend) one plain pytest run of those. Real-display tests need Xvfb (installed here when"
+    echo "root with apt)."
     exit 0 ;;
 esac
 cd "$(dirname "$0")/.."
@@ -27,5 +29,25 @@ python3 -m mypy
 echo "== import contracts (lint-imports; [tool.importlinter] in pyproject.toml)"
 # (through this python3, like ruff and mypy, so a console-script directory missing from PATH does not matter)
 python3 -c 'import sys; from importlinter.cli import lint_imports; sys.exit(lint_imports(no_logo=True))'
-echo "== tests"
-python3 -m pytest -q "$@"
+# pytest's "no tests collected" (exit 5) counts as a pass here; any other exit code is the run's.
+run_pytest() {
+    local rc=0
+    python3 -m pytest -q -p no:benchmark "$@" || rc=$?
+    [ "$rc" -eq 5 ] && rc=0
+    return "$rc"
+}
+if [ "$#" -gt 0 ]; then
+    echo "== tests (as asked: $*)"
+    run_pytest "$@"
+    exit $?
+fi
+# Tests that measure wall-clock behaviour or share a machine-wide resource are marked `serial` (tests/conftest.py):
+# the rest runs first on one worker per core (up to 4; a module's tests stay on one worker), then the serial ones
+# alone, so their timings are taken on a machine this run does not load.
+workers=$(python3 -c 'import os; print(max(1, min(4, len(os.sched_getaffinity(0)))))')
+echo "== tests ($workers workers; those that measure time run after, alone)"
+rc=0
+run_pytest -n "$workers" --dist loadfile -m "not serial" || rc=$?
+echo "== tests that measure time or share the machine (alone)"
+run_pytest -m serial || rc=$?
+exit "$rc"

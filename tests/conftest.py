@@ -52,6 +52,25 @@ def user_data_folder_of_the_test_run(tmp_path_factory):
         os.environ["SENSNAKE_DATA_DIR"] = previous
 
 
+LSL_LOOPBACK_CONFIG = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\n"
+                       "IPv6 = disable\n\n[lab]\nKnownPeers = {127.0.0.1}\n")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def lsl_on_this_machine_only(tmp_path_factory):
+    """Lab Streaming Layer traffic of the whole run (and of the processes it starts: the app's simulated lab, the
+    real-display probes) stays on this machine: liblsl reads LSLAPICFG once, when first used."""
+    config = tmp_path_factory.mktemp("lsl") / "lsl_api.cfg"
+    config.write_text(LSL_LOOPBACK_CONFIG, encoding="utf-8")
+    previous = os.environ.get("LSLAPICFG")
+    os.environ["LSLAPICFG"] = str(config)
+    yield
+    if previous is None:
+        os.environ.pop("LSLAPICFG", None)
+    else:
+        os.environ["LSLAPICFG"] = previous
+
+
 @pytest.fixture(autouse=True)
 def no_thread_left_running():
     before = set(threading.enumerate())
@@ -205,7 +224,32 @@ def install_sim_device():
         factory.install_sim_lab(previous[0])
 
 
+# Modules whose tests measure wall-clock behaviour (paint rates on a real display, loop periods, a rig or a board
+# paced in real time), or share something machine-wide (LSL discovery on the loopback, a Dask scheduler): they run
+# alone, after the rest has run on several workers (scripts/test.sh). A single test elsewhere can ask for the same
+# with ``@pytest.mark.serial``.
+SERIAL_MODULES = (
+    "tests/realdisplay/",
+    "tests/app/test_mocap_gui.py",
+    "tests/app/test_mocap_lsl.py",
+    "tests/devices/test_sim_mocap_stream.py",
+    "tests/app/test_controller_science.py",
+    "tests/app/test_dask_worker_kill.py",
+    "tests/devices/test_controller_timing.py",
+    "tests/devices/test_loop_process.py",
+    "tests/devices/test_servo_chain.py",
+    "tests/devices/test_dxl_pty.py",
+    "tests/app/test_play_pty.py",
+    "tests/app/test_force_page.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
+    serial = pytest.mark.serial
+    for item in items:
+        path = item.nodeid.split("::", 1)[0]
+        if path.startswith(SERIAL_MODULES):
+            item.add_marker(serial)
     if os.environ.get("SENSNAKE_HARDWARE") == "1":
         return
     skip = pytest.mark.skip(reason="needs real hardware (set SENSNAKE_HARDWARE=1)")
