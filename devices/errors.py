@@ -114,6 +114,30 @@ class ServoHardwareError(DeviceError):
         )
 
 
+STATUS_RETURN_LEVEL_MEANING = {
+    0: "answers pings only: it carries out reads and writes but sends no status packet, so its position, its errors "
+       "and whether a command arrived cannot be read",
+    1: "answers pings and reads, never a write: whether a command (torque, goal, reboot) arrived cannot be known",
+}
+
+
+def status_return_level_words(servo_id: int, level: int) -> str:
+    """What a Status Return Level below 2 means for servo ``servo_id`` and the fix, one sentence."""
+    meaning = STATUS_RETURN_LEVEL_MEANING.get(level, "does not answer every instruction")
+    return (f"servo {servo_id} has Status Return Level {level}: it {meaning}. The app needs 2; the level lives in "
+            f"RAM, so a restart brings 2 back: `sensnake servo reboot --id {servo_id}` or power-cycle the robot "
+            "(if another tool sets it again at start-up, change that tool)")
+
+
+class StatusReturnLevelError(DeviceError):
+    """A servo answers pings but not every instruction (Status Return Level below 2): it cannot be controlled."""
+
+    def __init__(self, servo_id: int, level: int) -> None:
+        self.servo_id = servo_id
+        self.level = level
+        super().__init__(status_return_level_words(servo_id, level))
+
+
 class ModelMismatchError(DeviceError, ValueError):
     """A servo answered with a model number other than the one the driver is written for."""
 

@@ -57,7 +57,9 @@ from devices.errors import (
     RateError,
     ServoCommandError,
     ServoHardwareError,
+    StatusReturnLevelError,
     os_words,
+    status_return_level_words,
 )
 from devices.factory import is_sim, open_serial, sim_serial_path
 from devices.reply_pacing import READ_POLL_S, ReplyPacing
@@ -73,6 +75,7 @@ FACTORY_RESET_KEEP_ID_AND_BAUD = 0x02  # Protocol 2.0 factory reset option: ever
 # Protocol 2.0 status packet layout (as dynamixel-sdk indexes it): the length field counts instruction, error,
 # parameters and CRC.
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
+INST_PING = 0x01  # at index 7 of an instruction packet
 _STATUS_OVERHEAD = 4
 PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruction, error, model 2, firmware, CRC 2
 SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
@@ -96,6 +99,9 @@ class ServoInfo:
     firmware: int
     baud: int
     collided: bool = False  # its replies arrive garbled or twice, every time: two servos answer to this ID
+    # Its Status Return Level (0: answers PING only, 1: PING and READ, 2: every instruction), read when it pings;
+    # 0 when a ping is answered and a read is not (a read that times out twice); None when not known.
+    status_return_level: int | None = None
 
 
 @dataclass(frozen=True)
@@ -575,14 +581,39 @@ class ServoChain:
         return self._ping_at(servo_id, self._baud)
 
     def _ping_at(self, servo_id: int, baud: int) -> ServoInfo:
+        """One PING (a servo answers it whatever its Status Return Level: model and firmware come in the reply), a
+        check for a second reply, then a read of the Status Return Level: a servo whose reads go unanswered after an
+        answered ping (twice) answers pings only, level 0 (it is listed so, not hidden)."""
         port = self._require_port()
-        model, result, error = self._io(self._ph.ping, port, servo_id)
+        model, firmware, result = self._ping_reply(port, servo_id)
         self._check_comm(result, servo_id, "ping")
-        twice = self._second_reply(port) and self._io(self._ph.ping, port, servo_id)[1] == COMM_SUCCESS \
+        twice = self._second_reply(port) and self._ping_reply(port, servo_id)[2] == COMM_SUCCESS \
             and self._second_reply(port)
-        firmware, result, error = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_FIRMWARE_VERSION)
-        self._check_comm(result, servo_id, "reading the firmware version")
-        return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud, collided=twice)
+        level: int | None = None
+        for _ in range(2):  # one lost reply is noise, not a level
+            value, result, _error = self._io(self._ph.read1ByteTxRx, port, servo_id, ct.ADDR_STATUS_RETURN_LEVEL)
+            if result == COMM_SUCCESS:
+                level = value
+                break
+            if result != COMM_RX_TIMEOUT:
+                self._check_comm(result, servo_id, "reading the Status Return Level")
+            if self._ping_reply(port, servo_id)[2] != COMM_SUCCESS:  # gone altogether: silent, not level 0
+                self._check_comm(COMM_RX_TIMEOUT, servo_id, "ping")
+        else:
+            level = 0
+        return ServoInfo(servo_id, model, ct.model_name(model), firmware, baud, collided=twice,
+                         status_return_level=level)
+
+    def _ping_reply(self, port: _FactoryPortHandler, servo_id: int) -> tuple[int, int, int]:
+        """(model number, firmware version, SDK result) of one PING: dynamixel-sdk's ``ping`` drops the firmware
+        byte of the reply, so the packet is sent here as the SDK sends it."""
+        packet = [0] * 10
+        packet[_PKT_ID], packet[_PKT_LENGTH_L], packet[_PKT_LENGTH_H], packet[7] = servo_id, 3, 0, INST_PING
+        reply, result, _error = self._io(self._ph.txRxPacket, port, packet)
+        if result != COMM_SUCCESS:
+            return 0, 0, result
+        p0 = _PKT_PARAMETER0 + 1
+        return reply[p0] | reply[p0 + 1] << 8, reply[p0 + 2], result
 
     def _second_reply(self, port: _FactoryPortHandler) -> bool:
         """After a ping's reply: did a second one follow (two servos on one ID, the second answering after its own
@@ -630,6 +661,10 @@ class ServoChain:
             raise CorruptPacketError(collided[0], "no servo answers cleanly")
         if missing:
             raise NoReplyError(missing[0], "ping")
+        for sid, info in infos.items():
+            if info.status_return_level is not None and info.status_return_level < ct.STATUS_RETURN_ALL:
+                # It answered the ping: its cable, power, ID and baud rate are fine, it only keeps quiet.
+                raise StatusReturnLevelError(sid, info.status_return_level)
         for sid, info in infos.items():
             if info.model_number != ct.MODEL_NUMBER_XM430_W350:
                 # Asked once more before refusing: a stale status packet from this servo (CI once read "model 120",
@@ -1094,7 +1129,8 @@ class ServoChain:
 
 def scan_problems(found: Sequence[ServoInfo], expected: Iterable[int], scanned: Iterable[int]) -> list[str]:
     """What a scan's result says is wrong with the IDs, one sentence each: an ID two servos answer to (its replies
-    collide), and configured joints (``expected``) among the ``scanned`` IDs that did not answer."""
+    collide), configured joints (``expected``) among the ``scanned`` IDs that did not answer, and servos that answer
+    pings but not every instruction (Status Return Level below 2: what it means and the fix)."""
     scanned = set(scanned)
     collided = sorted({info.servo_id for info in found if info.collided})
     heard = {info.servo_id for info in found if not info.collided}
@@ -1105,6 +1141,11 @@ def scan_problems(found: Sequence[ServoInfo], expected: Iterable[int], scanned: 
     elif missing:
         problems.append(f"configured joint ID(s) {_id_list(missing)} did not answer: check their cables and power, "
                         "or whether one was set to another ID")
+    for info in found:
+        if not info.collided and info.status_return_level is not None \
+                and info.status_return_level < ct.STATUS_RETURN_ALL:
+            problems.append(status_return_level_words(info.servo_id, info.status_return_level) +
+                            "; the app refuses to connect until then")
     return problems
 
 

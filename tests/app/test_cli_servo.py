@@ -14,6 +14,7 @@ import pytest
 
 from app.cli.main import main
 from devices.config import RobotConfig
+from devices.errors import StatusReturnLevelError
 from devices.servo_chain import ServoChain
 from tests.emulators.xm430_emulator import EmulatorProcess
 
@@ -223,6 +224,10 @@ def test_reboot_torque_and_led_with_the_port_from_the_config(tmp_path, capsys):
     try:
         config = tmp_path / "lab.toml"
         config.write_text(TWO_JOINTS.format(port=process.path))  # no --robot below: the config's port
+        assert main(["scan", "--config", str(config)]) == 0
+        scanned = capsys.readouterr()
+        assert [line.split()[:2] for line in scanned.out.splitlines()] == [["ID", "1"], ["ID", "2"]], scanned
+        assert scanned.err == ""
         process.command("overload 2")
         reboots = process.counts()["reboot"]
         assert main(["servo", "reboot", "--all", "--config", str(config)]) == 0
@@ -265,6 +270,38 @@ def test_a_servo_answering_only_pings_is_brought_back_by_reset_and_never_set_so(
     assert main(["servo", "reset", "--robot", emulator.path, "--id", "4", "--yes"]) == 0  # no status packet: fine
     assert main(["servo", "get", "--robot", emulator.path, "--id", "4", "Status Return Level"]) == 0
     assert " 2 " in capsys.readouterr().out
+
+
+def test_scan_finds_a_servo_answering_only_pings_and_says_what_its_level_means(emulator, capsys):
+    robot = dataclasses.replace(RobotConfig(), port=emulator.path)
+    with ServoChain(robot) as chain:  # as another tool could leave them
+        chain.write_item(4, "Status Return Level", 0)  # answers PING only
+        chain.write_item(6, "Status Return Level", 1)  # PING and READ
+    assert main(["scan", "--robot", emulator.path]) == 0  # a broadcast ping, then each servo found on its own
+    out = capsys.readouterr()
+    lines = {int(line.split()[1]): line for line in out.out.splitlines() if line.startswith("ID")}
+    assert sorted(lines) == list(range(1, 13))  # none hidden
+    assert lines[4].endswith("Status Return Level 0: pings only") and "firmware 48" in lines[4]
+    assert lines[6].endswith("Status Return Level 1: pings and reads only")
+    assert "Status Return Level" not in lines[5]
+    warnings = out.err.splitlines()
+    assert len(warnings) == 2, warnings
+    assert "servo 4 has Status Return Level 0: it answers pings only" in warnings[0]
+    assert "sensnake servo reboot --id 4" in warnings[0] and "refuses to connect" in warnings[0]
+    assert "servo 6 has Status Return Level 1" in warnings[1]
+    with ServoChain(robot) as chain:
+        found = chain.scan(ids=range(1, 13))  # the short list: a ping per ID
+        assert [(i.servo_id, i.status_return_level) for i in found] == [
+            (i, {4: 0, 6: 1}.get(i, 2)) for i in range(1, 13)]
+        with pytest.raises(StatusReturnLevelError) as refused:  # connecting: the level, never "check its cable"
+            chain.check_models()
+    assert "servo 4 has Status Return Level 0" in str(refused.value) and "cable" not in str(refused.value)
+    for sid in (4, 6):  # the level lives in RAM: a restart brings 2 back
+        assert main(["servo", "reboot", "--robot", emulator.path, "--id", str(sid)]) == 0
+    capsys.readouterr()
+    assert main(["scan", "--robot", emulator.path]) == 0
+    out = capsys.readouterr()
+    assert "Status Return Level" not in out.out + out.err and len(out.out.splitlines()) == 12
 
 
 def changed(document: dict, sid: str = "3", **items: int) -> dict:
