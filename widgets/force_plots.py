@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QEvent, QPointF, QRectF, Qt, QTimer, Signal
-from PySide6.QtGui import QFont, QPainterPath, QPolygonF, QTextDocument
+from PySide6.QtGui import QFont, QPainterPath, QPolygonF, QShowEvent, QTextDocument
 from PySide6.QtWidgets import (
     QGraphicsItem,
     QGraphicsWidget,
@@ -583,8 +583,10 @@ class ForcePlotGrid(QWidget):
     image_requested = Signal(int, str)  # plot index, "png" or "svg": the owner asks where and calls export_image
 
     def __init__(self, channel_names: Sequence[str], columns: int | None = None,
-                 parent: QWidget | None = None) -> None:
-        """``columns``: a fixed number of columns; None (default) chooses them from the view's width."""
+                 parent: QWidget | None = None, build_plots: bool = True) -> None:
+        """``columns``: a fixed number of columns; None (default) chooses them from the view's width.
+        ``build_plots=False``: no plot yet; :meth:`add_next_plot` builds them one at a time (~40 ms each), each
+        taking on what the grid was told before it existed (units, labels, notes, warnings, hidden sides)."""
         super().__init__(parent)
         self.channel_names = tuple(channel_names)
         self.groups = groups_from_names(self.channel_names)
@@ -610,6 +612,10 @@ class ForcePlotGrid(QWidget):
         self.columns = 0  # set by _fit_layout
         self.plot_height = PLOT_HEIGHT_PX
         self.fits_view = False  # every plot on screen at once (no scrolling)
+        # What the grid was told per channel, for plots built after (add_next_plot).
+        self._channel_labels: tuple[str, ...] | None = None
+        self._channel_notes: tuple[str, ...] | None = None
+        self._channel_warnings: tuple[str, ...] | None = None
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -617,22 +623,14 @@ class ForcePlotGrid(QWidget):
         self.scroll_area.setWidgetResizable(True)
         self.scroll_area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         inner = QWidget(self.scroll_area)
+        self._inner = inner
         self._grid = QGridLayout(inner)
         self._grid.setContentsMargins(4, 4, 4, 4)
         self._grid.setHorizontalSpacing(6)
         self._grid.setVerticalSpacing(2)
         self.plots: list[_SegmentPlot] = []
-        for i, group in enumerate(self.groups):
-            plot = _SegmentPlot(group, inner)
-            self.plots.append(plot)
-            plot.collapsed_changed.connect(self._on_collapsed_changed)
-            plot.image_requested.connect(lambda kind, index=i: self.image_requested.emit(index, kind))
-            plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
-            for trace in plot.curves:  # a legend click shows/hides a trace: redraw at the next tick
-                trace.visibleChanged.connect(self._forget_drawn)
-            plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
-            if i:
-                plot.plot_widget.setXLink(self.plots[0].plot_widget)
+        for _group in self.groups if build_plots else ():
+            self._create_plot()
         self._place(columns or 3)
         self.scroll_area.setWidget(inner)
         # Plots scrolled into view are shown and drawn now (hidden ones are not redrawn); a resized view refits.
@@ -654,6 +652,51 @@ class ForcePlotGrid(QWidget):
         self._timer = QTimer(self)
         self._timer.setInterval(int(1000 / DEFAULT_REDRAW_HZ))
         self._timer.timeout.connect(self.refresh)
+
+    def _create_plot(self) -> _SegmentPlot:
+        """The next segment's plot, connected to the grid (its x axis linked to the first plot's)."""
+        i = len(self.plots)
+        plot = _SegmentPlot(self.groups[i], self._inner)
+        self.plots.append(plot)
+        plot.collapsed_changed.connect(self._on_collapsed_changed)
+        plot.image_requested.connect(lambda kind, index=i: self.image_requested.emit(index, kind))
+        plot.viewbox.sigRangeChangedManually.connect(lambda mask, p=plot: self._on_user_range(p, mask))
+        for trace in plot.curves:  # a legend click shows/hides a trace: redraw at the next tick
+            trace.visibleChanged.connect(self._forget_drawn)
+        plot.plot_widget.scene().sigMouseMoved.connect(lambda pos, p=plot: self._on_mouse(p, pos))
+        if i:
+            plot.plot_widget.setXLink(self.plots[0].plot_widget)
+        return plot
+
+    @property
+    def plots_pending(self) -> int:
+        """Plots not built yet (a grid made with ``build_plots=False``)."""
+        return len(self.groups) - len(self.plots)
+
+    def add_next_plot(self) -> bool:
+        """Build the next plot of a grid made with ``build_plots=False``, placed and told what the grid was told;
+        returns whether plots remain to be built. GUI thread: the Forces tab builds one per turn of the event loop,
+        so opening it never holds the window for the whole grid (~0.5 s for 12 plots)."""
+        if not self.plots_pending:
+            return False
+        plot = self._create_plot()
+        plot.plot_widget.setLabel("bottom", "time" if self._paused else LIVE_TIME_LABEL, units="s")
+        plot.plot_widget.setFixedHeight(self.plot_height)
+        channel_units = self._channel_units
+        self.set_units(self._units)
+        if channel_units is not None:
+            self.set_channel_units(channel_units)
+        for curve, name in zip(plot.curves, plot.group.names):
+            curve.setVisible(side_of(name) not in self._hidden_sides)
+        for told, apply in ((self._channel_labels, self.set_channel_labels),
+                            (self._channel_notes, self.set_channel_notes),
+                            (self._channel_warnings, self.set_channel_warnings)):
+            if told is not None:
+                apply(told)
+        self._place(self.columns or 3)
+        self._fit_layout()
+        self.invalidate()
+        return bool(self.plots_pending)
 
     # -- layout ----------------------------------------------------------------------------------------------------
     def _place(self, columns: int) -> None:
@@ -864,17 +907,20 @@ class ForcePlotGrid(QWidget):
 
     def set_channel_labels(self, labels: Sequence[str]) -> None:
         """Legend text per channel (e.g. ``"S06B · calibrated"``), in ``channel_names`` order."""
+        self._channel_labels = tuple(labels)
         for plot in self.plots:
             plot.set_labels([labels[i] for i in plot.group.channels])
 
     def set_channel_notes(self, notes: Sequence[str]) -> None:
         """A note per channel (e.g. its calibration status), listed in the tooltip of its plot's header."""
+        self._channel_notes = tuple(notes)
         for plot in self.plots:
             lines = [f"{plot.group.names[k]}: {notes[i]}" for k, i in enumerate(plot.group.channels) if notes[i]]
             plot.toggle.setToolTip("\n".join(lines))
 
     def set_channel_warnings(self, warnings: Sequence[str]) -> None:
         """A warning per channel (empty = fine) shown in red on the plot's header and as the trace style."""
+        self._channel_warnings = tuple(warnings)
         for plot in self.plots:
             parts = [f"{plot.group.names[k]}: {warnings[i]}" for k, i in enumerate(plot.group.channels)
                      if warnings[i]]
@@ -1133,22 +1179,42 @@ class ForcePlotGrid(QWidget):
 
 
 class TrialOverlayPlot(QWidget):
-    """Several trials of one sensor drawn on a common time zero (the paper's repeatability figure). GUI thread."""
+    """Several trials of one sensor drawn on a common time zero (the paper's repeatability figure). GUI thread.
+
+    Its plot is made when first needed (shown, given trials, or asked for): it sits on a page the Forces tab does not
+    show at first, and a plot costs ~30 ms of the tab's first opening."""
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
-        layout = QVBoxLayout(self)
-        layout.setContentsMargins(0, 0, 0, 0)
-        self.plot_widget = pg.PlotWidget(self, background="w")
-        item = self.plot_widget.getPlotItem()
-        item.setClipToView(True)
-        item.setDownsampling(auto=True, mode="peak")
-        item.showGrid(x=True, y=True, alpha=0.2)
-        item.setLabel("bottom", "time from zero", units="s")
-        # Bottom right: overlaid trials rise to a plateau, so the top right is where the traces are.
-        self.legend = item.addLegend(offset=(-4, -4), labelTextSize="8pt")
-        layout.addWidget(self.plot_widget)
+        self._layout = QVBoxLayout(self)
+        self._layout.setContentsMargins(0, 0, 0, 0)
+        self._plot_widget: pg.PlotWidget | None = None
+        self._legend: pg.LegendItem | None = None
         self.curves: list[pg.PlotDataItem] = []
+
+    @property
+    def plot_widget(self) -> pg.PlotWidget:
+        if self._plot_widget is None:
+            self._plot_widget = pg.PlotWidget(self, background="w")
+            item = self._plot_widget.getPlotItem()
+            item.setClipToView(True)
+            item.setDownsampling(auto=True, mode="peak")
+            item.showGrid(x=True, y=True, alpha=0.2)
+            item.setLabel("bottom", "time from zero", units="s")
+            # Bottom right: overlaid trials rise to a plateau, so the top right is where the traces are.
+            self._legend = item.addLegend(offset=(-4, -4), labelTextSize="8pt")
+            self._layout.addWidget(self._plot_widget)
+        return self._plot_widget
+
+    @property
+    def legend(self) -> pg.LegendItem:
+        self.plot_widget  # noqa: B018 - made with the plot
+        assert self._legend is not None
+        return self._legend
+
+    def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt override
+        self.plot_widget  # noqa: B018 - made when first shown
+        super().showEvent(event)
 
     def set_trials(self, trials: Sequence[tuple[str, np.ndarray, np.ndarray]], units: str) -> None:
         """Draw ``(label, t_s (N,) already shifted to the common zero, values (N,))`` per trial."""

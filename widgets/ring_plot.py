@@ -6,14 +6,56 @@ stays fixed. A query asks for a time range and a point budget and is answered fr
 range within that budget, then peak-decimated, so drawing cost depends on the plot's width, not on how long the
 session has run.
 
-Thread use: one writer and its readers on the same thread (the GUI thread in the Forces tab).
+Thread use: one writer and its readers on the same thread (the GUI thread in the Forces tab); the memory is
+committed by a thread of its own (:func:`commit_memory`), which never touches the data.
 """
 
 from __future__ import annotations
 
+import ctypes
+import mmap
+import sys
+import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+MADV_POPULATE_WRITE = 23  # Linux ≥ 5.14: fault pages in as if written, without writing them
+
+
+def _populate_writable(arrays: Sequence[np.ndarray]) -> bool:
+    """Ask the kernel to commit the arrays' pages (MADV_POPULATE_WRITE); False where it cannot (not Linux, an
+    older kernel). ctypes lets go of the GIL meanwhile; the data are not touched, so another thread may write them."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        madvise = ctypes.CDLL(None, use_errno=True).madvise
+    except (OSError, AttributeError):
+        return False
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    page = mmap.PAGESIZE
+    for array in arrays:
+        start = array.ctypes.data & ~(page - 1)
+        if madvise(start, array.ctypes.data + array.nbytes - start, MADV_POPULATE_WRITE) != 0:
+            return False
+    return True
+
+
+def commit_memory(arrays: Sequence[np.ndarray]) -> threading.Thread | None:
+    """Make the arrays' memory the process's now, not as they fill: np.empty maps pages lazily, and the process's
+    memory then grew for hours as a history filled (170 → 312 MB seen in a long session, read as a leak). On Linux
+    a daemon thread asks the kernel to commit them (returned; ~10-300 ms for 96 MB, the calling thread — the GUI's —
+    does not wait); elsewhere they are written once here."""
+    probe = np.empty(1, dtype=np.uint8)
+    if _populate_writable([probe]):
+        thread = threading.Thread(target=_populate_writable, args=(list(arrays),), name="history-commit",
+                                  daemon=True)
+        thread.start()
+        return thread
+    for array in arrays:
+        array.fill(0)
+    return None
 
 
 @dataclass(frozen=True)
@@ -41,16 +83,13 @@ class _Ring:
 
     def __init__(self, capacity: int, n_channels: int, dtype, with_high: bool) -> None:
         self.capacity = capacity
-        # np.zeros maps pages lazily: the process's memory then grew for hours as the ring filled (170 → 312 MB
-        # seen in a long session, read as a leak). Writing the arrays once commits the whole budget up front, so
-        # memory is fixed from the start and stays flat (benchmarks/bench_soak.py). np.empty, not np.zeros: numpy
-        # asks the kernel for huge pages on a large np.empty array (not on np.zeros' calloc), so committing a 96 MB
-        # history takes ~10 ms instead of ~0.5 s of 4 kB page faults on the GUI thread (a tab opening froze on it).
+        # np.empty: rows are read only once written (below ``count``). The memory is committed by the history
+        # (commit_memory), so it is fixed from the start and stays flat (benchmarks/bench_soak.py). Not np.zeros:
+        # numpy asks the kernel for huge pages on a large np.empty array (not on np.zeros' calloc), and writing
+        # 96 MB of np.zeros in 4 kB page faults held the GUI thread ~0.5 s (a tab's first opening froze on it).
         self.t = np.empty(capacity)
         self.low = np.empty((capacity, n_channels), dtype=dtype)
         self.high = np.empty((capacity, n_channels), dtype=dtype) if with_high else self.low
-        for array in (self.t, self.low, self.high):
-            array.fill(0)
         self.write = 0
         self.count = 0
 
@@ -77,6 +116,9 @@ class _Ring:
         if self.count < self.capacity:
             return [slice(0, self.count)]
         return [slice(self.write, self.capacity), slice(0, self.write)]
+
+    def arrays(self) -> list[np.ndarray]:
+        return [self.t, self.low] if self.high is self.low else [self.t, self.low, self.high]
 
     def oldest_first(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of (t, low) of every row held, oldest first."""
@@ -189,6 +231,8 @@ class TraceHistory:
         self._levels = [_Level(max(16, capacity // 4), self.n_channels, self._factor, self.dtype)
                         for _ in range(levels)]
         self.total_samples = 0
+        rings = [self._level0] + [level.ring for level in self._levels]
+        commit_memory([array for ring in rings for array in ring.arrays()])
 
     @classmethod
     def for_budget(cls, n_channels: int, budget_bytes: int, levels: int = 3, factor: int = 16) -> TraceHistory:

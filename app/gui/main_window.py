@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,8 @@ from app.core import event_log, user_folders
 from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext, end_sim_lab_unless_it_simulates
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING, describe_error
+from app.gui.tab_loader import ModuleLoader
+from app.gui.thread_bridge import ThreadBridge
 from devices.config import load_config
 from devices.errors import ConfigError
 from devices.factory import is_sim
@@ -92,6 +95,10 @@ SHORTCUTS_TEXT = (
     "<tr><td><b>Ctrl+Q</b></td><td>Quit (devices are shut down cleanly)</td></tr>"
     "</table>"
 )
+
+
+def _tab_module(spec: TabSpec) -> str:
+    return f"app.gui.tabs.{spec.name}"
 
 
 def tab_index(name: str) -> int:
@@ -182,8 +189,24 @@ class MainWindow(QMainWindow):
         self._build_menus()
         self._attach_lab()
         self._restore_settings()
-        self.tabs.currentChanged.connect(self._ensure_tab)
+        # The other tabs' modules are imported on a worker thread once the window is up (app/gui/tab_loader.py): a
+        # tab chosen before its module is there says "Opening…" and is built when it arrives; the window never
+        # waits for an import (the Calibration tab's took 2-3 s).
+        self._tab_bridge = ThreadBridge(self)
+        self._opening: dict[int, QWidget] = {}  # "Opening…" labels of tabs waiting for their module
+        # A tab module may build its page in steps (create_tab_in_steps): the user's click gets the page at once and
+        # the rest follows one step per turn of the event loop; show_tab() (a caller that needs the whole page)
+        # finishes the steps at once.
+        self._steps: dict[str, Iterator[None]] = {}
+        self._stepwise = False  # set while a tab the user chose is built
+        self._step_timer = QTimer(self)
+        self._step_timer.setInterval(0)
+        self._step_timer.timeout.connect(self._run_step)
+        self._tab_loader = ModuleLoader([_tab_module(spec) for spec in TABS],
+                                        self._tab_bridge.emitter(self._tab_module_ready))
+        self.tabs.currentChanged.connect(self._open_tab)
         self._ensure_tab(self.tabs.currentIndex())  # (settles the collector once the window is up)
+        self._tab_loader.start()
 
     # -- tabs ------------------------------------------------------------------------------------------------------
     def tab_widget(self, name: str) -> QWidget | None:
@@ -195,7 +218,62 @@ class MainWindow(QMainWindow):
         index = tab_index(name)
         self.tabs.setCurrentIndex(index)
         self._ensure_tab(index)
+        self._finish_steps(name)
         return self._built[name]
+
+    def tab_is_complete(self, name: str) -> bool:
+        """Tab ``name`` is built, none of its steps left."""
+        return name in self._built and name not in self._steps
+
+    def _run_step(self) -> None:
+        """One step of a tab being built in steps (the step timer, one per turn of the event loop)."""
+        for name in list(self._steps)[:1]:
+            self._next_step(name)
+        if not self._steps:
+            self._step_timer.stop()
+
+    def _next_step(self, name: str) -> bool:
+        """Run one step of tab ``name``; False when it has none left."""
+        steps = self._steps.get(name)
+        if steps is None:
+            return False
+        try:
+            next(steps)
+            return True
+        except StopIteration:
+            QTimer.singleShot(0, self._collector, self._collector.settle)  # the page is whole: settle it (gui_gc)
+        except (ValueError, OSError, LookupError, RuntimeError) as exc:
+            self.say(f"{name} tab: {exc}", theme.ERROR, name)
+        del self._steps[name]
+        return False
+
+    def _finish_steps(self, name: str) -> None:
+        while self._next_step(name):
+            pass
+
+    def _open_tab(self, index: int) -> None:
+        """A tab the user chose: built now if its module is imported, else "Opening…" until it is."""
+        if 0 <= index < len(TABS) and TABS[index].name not in self._built \
+                and not self._tab_loader.is_ready(_tab_module(TABS[index])):
+            if index not in self._opening:
+                label = PlaceholderPage(TABS[index].title, TABS[index].description, "Opening…")
+                self._opening[index] = label
+                self._container_layouts[index].addWidget(label)
+            return
+        self._ensure_tab_stepwise(index)
+
+    def _ensure_tab_stepwise(self, index: int) -> None:
+        self._stepwise = True
+        try:
+            self._ensure_tab(index)
+        finally:
+            self._stepwise = False
+
+    def _tab_module_ready(self, module: str) -> None:
+        """The loader imported ``module`` (posted to the GUI thread): build its tab if the user is waiting for it."""
+        index = self.tabs.currentIndex()
+        if index in self._opening and _tab_module(TABS[index]) == module:
+            self._ensure_tab_stepwise(index)
 
     def _ensure_tab(self, index: int) -> None:
         if index < 0:
@@ -205,13 +283,18 @@ class MainWindow(QMainWindow):
             return
         page = self._create_page(spec)
         self._built[spec.name] = page
+        opening = self._opening.pop(index, None)
+        if opening is not None:
+            opening.setParent(None)
+            opening.deleteLater()
         self._container_layouts[index].addWidget(page)
         # Once the page is up (the next turn of the event loop), its objects live as long as the window: later
         # garbage collections skip them (app/gui/gui_gc.py).
         QTimer.singleShot(0, self._collector, self._collector.settle)
 
     def _create_page(self, spec: TabSpec) -> QWidget:
-        module_name = f"app.gui.tabs.{spec.name}"
+        module_name = _tab_module(spec)
+        self._tab_loader.wait(module_name)  # not imported on two threads at once
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
@@ -221,7 +304,12 @@ class MainWindow(QMainWindow):
             return PlaceholderPage(spec.title, spec.description, "This tab is not part of this build yet.")
         except ImportError as exc:
             return PlaceholderPage(spec.title, spec.description, f"This tab could not be loaded: {exc}")
+        in_steps = getattr(module, "create_tab_in_steps", None) if self._stepwise else None
         try:
+            if callable(in_steps):
+                page, self._steps[spec.name] = in_steps(self.lab)
+                self._step_timer.start()
+                return page
             return module.create_tab(self.lab)
         except (ValueError, OSError, LookupError, RuntimeError) as exc:
             # A tab failing to build (bad shape library file, missing resource) must not take the window down.
@@ -236,6 +324,7 @@ class MainWindow(QMainWindow):
                 shutdown()
 
     def _drop_tabs(self) -> None:
+        self._steps.clear()
         self._shutdown_tabs()
         for name, page in list(self._built.items()):
             page.setParent(None)
@@ -570,6 +659,9 @@ class MainWindow(QMainWindow):
             self._filtering_dialog = False
         self.save_settings()
         self.event_log.unsubscribe(self._log_changed)
+        self._tab_loader.close()
+        self._steps.clear()
+        self._step_timer.stop()
         self._shutdown_tabs()
         self.status.shutdown()
         self.lab.close()

@@ -257,3 +257,68 @@ def test_a_board_missing_at_start_is_a_warning_in_the_status_bar(window, qtbot, 
     qtbot.waitUntil(lambda: label.level in (theme.WARN, theme.ERROR), timeout=10_000)
     assert "missing" in label.text() and "/dev/sensnake-test-no-such-board" in label.text()
     assert "retrying" in label.toolTip()
+
+
+def test_a_tab_whose_module_is_still_importing_says_opening_and_the_window_keeps_running(qtbot, settings,
+                                                                                         monkeypatch):
+    """The tabs' modules are imported on a worker thread once the window is up: a tab chosen before its module is
+    there says "Opening…" (the event loop runs meanwhile) and is built as soon as the module arrives."""
+    import sys
+    import threading
+
+    from PySide6.QtCore import QTimer
+
+    import app.gui.main_window as main_window
+    from tests.app import slow_tab_gate
+
+    sys.modules.pop("tests.app.slow_tab", None)
+    slow_tab_gate.GATE.clear()
+    slow_tab_gate.IMPORTED_ON.clear()
+    slow = TabSpec("slow", "Slow", "A tab whose module takes long to import.")
+    monkeypatch.setattr(main_window, "TABS", (*TABS, slow))
+    monkeypatch.setattr(main_window, "_tab_module",
+                        lambda spec: "tests.app.slow_tab" if spec is slow else f"app.gui.tabs.{spec.name}")
+    lab = LabContext(NO_PORT_CONFIG)
+    win = MainWindow(lab, settings=settings)
+    qtbot.addWidget(win)
+    try:
+        qtbot.waitUntil(lambda: bool(slow_tab_gate.IMPORTED_ON))  # the loader reached it
+        win.tabs.setCurrentIndex(len(TABS))  # the user clicks it
+        assert win.tab_widget("slow") is None
+        container = win.tabs.currentWidget()
+        notes = [p.note_label.text() for p in container.findChildren(PlaceholderPage)]
+        assert notes == ["Opening…"]
+        ticks: list[int] = []
+        timer = QTimer()
+        timer.timeout.connect(lambda: ticks.append(1))
+        timer.start(5)
+        try:
+            qtbot.waitUntil(lambda: len(ticks) >= 10)  # the window answers while the import goes on
+        finally:
+            timer.stop()
+        slow_tab_gate.GATE.set()
+        qtbot.waitUntil(lambda: win.tab_widget("slow") is not None)
+        assert win.tab_widget("slow").text() == "the slow tab"
+        assert not container.findChildren(PlaceholderPage)  # "Opening…" is gone
+        assert slow_tab_gate.IMPORTED_ON and threading.main_thread() not in slow_tab_gate.IMPORTED_ON  # a worker's
+    finally:
+        slow_tab_gate.GATE.set()
+        win.close()
+        sys.modules.pop("tests.app.slow_tab", None)
+
+
+def test_the_forces_tab_opened_by_a_click_builds_its_plots_one_step_at_a_time(qtbot, window):
+    """A click gets the Forces tab at once and its 12 segment plots follow, one per turn of the event loop, each
+    told what the grid was told before it existed; show_tab() (a caller that needs the whole page) gets it whole."""
+    window.tabs.setCurrentIndex(tab_index("forces"))
+    qtbot.waitUntil(lambda: window.tab_widget("forces") is not None)
+    page = window.tab_widget("forces")
+    assert page.plots.plots_pending > 0 and not window.tab_is_complete("forces")
+    qtbot.waitUntil(lambda: window.tab_is_complete("forces"))
+    assert page.plots.plots_pending == 0 and len(page.plots.plots) == 12
+    legends = [label for plot in page.plots.plots for label in plot.legend.labels()]
+    assert legends.count("S06B (µS, uncal.)") == 1 and all("uncal." in label for label in legends)
+    assert all(plot.units == "µS" for plot in page.plots.plots)
+    calibration = window.show_tab("calibration")
+    assert window.tab_is_complete("calibration")  # whole at once: its review views are there
+    assert calibration.view_tabs.count() == 5 and calibration.mean_plot is not None

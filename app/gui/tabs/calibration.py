@@ -21,6 +21,7 @@ import contextlib
 import multiprocessing
 import threading
 import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,9 +138,12 @@ class CalibrationTab(QWidget):
     # A fit of the trials so far runs after a trial when the next one takes at least this long (wall s).
     LIVE_FIT_MIN_WALL_S = 30.0
 
-    def __init__(self, lab: LabContext, parent: QWidget | None = None) -> None:
+    def __init__(self, lab: LabContext, parent: QWidget | None = None, views_in_steps: bool = False) -> None:
+        """``views_in_steps``: the review views not shown at first (Live trial, Mean vs force, Parameters vs force,
+        History) are built later, one a step (:func:`create_tab_in_steps`)."""
         super().__init__(parent)
         self.lab = lab
+        self._views_in_steps = views_in_steps
         self.trials: list[LoadedTrial] = []
         self.physics = PhysicsConstants()
         self.physics_source = "paper defaults"
@@ -467,24 +471,54 @@ class CalibrationTab(QWidget):
         header.setSectionResizeMode(len(headers) - 1, QHeaderView.ResizeMode.Stretch)
         layout.addWidget(self.trial_table, 2)
         self.view_tabs.addTab(fit_page, "Fit")
-        self.live_plot = LiveTrialPlot()
-        self.view_tabs.addTab(self.live_plot, "Live trial")
-        self.mean_plot = _review_plot("force (N)", "mean conductance (µS)",
-                                      "window mean vs force, linear fit dashed (paper Fig. 9ii)")
-        self.view_tabs.addTab(self.mean_plot, "Mean vs force")
-        self.param_plot = _review_plot("force (N)", "parameter (Pa, Pa·s)",
-                                       "E0, E1, μ1 per trial vs force, trend dashed (paper Fig. 9iii)")
-        self.param_plot.setLogMode(y=True)
-        self.param_plot.addLegend(offset=(-10, 10), labelTextSize="8pt")
-        self.view_tabs.addTab(self.param_plot, "Parameters vs force")
-        headers = ["Saved", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "m (µS/N)", "unloaded (µS)", "Δ E0 vs previous"]
-        self.history_table = QTableWidget(0, len(headers))
-        self.history_table.setHorizontalHeaderLabels(headers)
-        self.history_table.verticalHeader().setVisible(False)
-        self.history_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.history_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        self.view_tabs.addTab(self.history_table, "History")
+        self._pending_views = self.review_view_steps()
+        if not self._views_in_steps:
+            self.build_pending_views()
         return self.view_tabs
+
+    def build_next_view(self) -> bool:
+        """Build the next review view still to be built; returns whether one was."""
+        if not self._pending_views:
+            return False
+        self._pending_views.pop(0)()
+        return True
+
+    def build_pending_views(self) -> None:
+        """Every review view not built yet, now (whatever needs one calls this first)."""
+        while self.build_next_view():
+            pass
+
+    def review_view_steps(self) -> list[Callable[[], None]]:
+        """The views after Fit, each a step (~10-30 ms: a plot each): built at once, or one per turn of the event
+        loop when the tab opens in steps (nothing reaches them before a run or a fit, seconds later)."""
+
+        def live() -> None:
+            self.live_plot = LiveTrialPlot()
+            self.view_tabs.addTab(self.live_plot, "Live trial")
+
+        def means() -> None:
+            self.mean_plot = _review_plot("force (N)", "mean conductance (µS)",
+                                          "window mean vs force, linear fit dashed (paper Fig. 9ii)")
+            self.view_tabs.addTab(self.mean_plot, "Mean vs force")
+
+        def params() -> None:
+            self.param_plot = _review_plot("force (N)", "parameter (Pa, Pa·s)",
+                                           "E0, E1, μ1 per trial vs force, trend dashed (paper Fig. 9iii)")
+            self.param_plot.setLogMode(y=True)
+            self.param_plot.addLegend(offset=(-10, 10), labelTextSize="8pt")
+            self.view_tabs.addTab(self.param_plot, "Parameters vs force")
+
+        def history() -> None:
+            headers = ["Saved", "E0 (Pa)", "E1 (Pa)", "μ1 (Pa·s)", "τ (s)", "m (µS/N)", "unloaded (µS)",
+                       "Δ E0 vs previous"]
+            self.history_table = QTableWidget(0, len(headers))
+            self.history_table.setHorizontalHeaderLabels(headers)
+            self.history_table.verticalHeader().setVisible(False)
+            self.history_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+            self.history_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+            self.view_tabs.addTab(self.history_table, "History")
+
+        return [live, means, params, history]
 
     # -- trials and physics ----------------------------------------------------------------------------------------
     def add_trial_files(self, paths: list[str] | list[Path]) -> int:
@@ -629,6 +663,7 @@ class CalibrationTab(QWidget):
             self.fit_failed.emit(outcome)
 
     def _show_result(self, result: FitResult) -> None:
+        self.build_pending_views()
         self.result = result
         cal = result.calibration
         self._plot(result.trials, result.fitted_s)
@@ -733,6 +768,7 @@ class CalibrationTab(QWidget):
         a session folder whose protocol the form already shows (:meth:`resume_run`)."""
         if self.rig_session.is_running or self.is_fitting:
             return False
+        self.build_pending_views()
         try:
             settings = self.protocol_settings()
             check = check_protocol(settings, self.lab.config.rig, self.lab.config.board,
@@ -959,6 +995,7 @@ class CalibrationTab(QWidget):
 
     def show_history(self, sensor: str) -> None:
         """The saved calibrations of ``sensor`` (History view): parameters and the change of E0 between them."""
+        self.build_pending_views()
         records = calibration_fit.read_history(user_folders.calibrations_dir(), sensor)
         self.history_table.setRowCount(len(records))
         previous = None
@@ -1058,6 +1095,7 @@ class CalibrationTab(QWidget):
     # -- the wizard's steps ----------------------------------------------------------------------------------------
     def go_to_step(self, step: int) -> None:
         """Show step ``step`` (SETUP … SAVE, clamped) and the view that goes with it."""
+        self.build_pending_views()
         self.wizard.go_to(step)
         step = self.wizard.step
         view = {PROTOCOL: self.live_plot, REVIEW: self.view_tabs.widget(0), SAVE: self.history_table}.get(step)
@@ -1293,3 +1331,15 @@ def _escape(text: str) -> str:
 
 def create_tab(lab: LabContext) -> QWidget:
     return CalibrationTab(lab)
+
+
+def create_tab_in_steps(lab: LabContext) -> tuple[QWidget, Iterator[None]]:
+    """The tab with its wizard and Fit view, and the steps that add the other views (the main window runs one per
+    turn of the event loop, so opening the tab holds the window for none of them)."""
+    tab = CalibrationTab(lab, views_in_steps=True)
+
+    def steps() -> Iterator[None]:
+        while tab.build_next_view():
+            yield
+
+    return tab, steps()

@@ -116,7 +116,8 @@ class ForcesTab(QWidget):
 
     calibration_applied = Signal(str)  # a calibration (its file) or estimator is in force, the history re-estimated
 
-    def __init__(self, lab: Any, parent: QWidget | None = None) -> None:
+    def __init__(self, lab: Any, parent: QWidget | None = None, plots_in_steps: bool = False) -> None:
+        """``plots_in_steps``: the segment plots are built later, one a step (:func:`create_tab_in_steps`)."""
         super().__init__(parent)
         self.lab = lab
         # A calibration or estimator being applied: the history is estimated again on a worker thread
@@ -155,7 +156,7 @@ class ForcesTab(QWidget):
         self._planned_s: float | None = None  # length of a timed recording (s)  # until the user picks one, the overlay shows the liveliest sensor
 
         self.controls = ForcesControls(self)
-        self.plots = ForcePlotGrid(self.channel_names, parent=self)
+        self.plots = ForcePlotGrid(self.channel_names, parent=self, build_plots=not plots_in_steps)
         self.overlay = TrialOverlayPlot(self)
         self.body = None
         if n_channels == 3 * config.robot.n_joints:
@@ -938,3 +939,15 @@ def create_tab(lab: Any) -> QWidget:
     """The main window's entry point (``app/gui/tabs/<name>.py`` contract)."""
     # LabContext.close() stops lab.recording, so a running recording is closed cleanly with the window.
     return ForcesTab(lab)
+
+
+def create_tab_in_steps(lab: Any) -> tuple[QWidget, Iterator[None]]:
+    """The tab, and the steps that finish it: its 12 segment plots, one per step (~40 ms each; the main window runs
+    one per turn of the event loop, so opening the tab never holds the window for the whole grid)."""
+    tab = ForcesTab(lab, plots_in_steps=True)
+
+    def steps() -> Iterator[None]:
+        while tab.plots.add_next_plot():
+            yield
+
+    return tab, steps()
