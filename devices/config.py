@@ -101,6 +101,10 @@ class RigConfig:
 
 PHYSICS_KINDS = ("scripted", "mujoco")
 SENSING_KINDS = ("robot", "ideal")  # [lab] sensing (app.core.sensing)
+# [lab] mocap = true: the physics lab publishes a simulated motion-capture stream of this name (Lab Streaming Layer,
+# type MoCap; devices.sim.mocap_stream) and recordings follow it. Kept in the config as SIM_MOCAP.
+SIM_MOCAP = "sim"
+SIM_MOCAP_STREAM = "SenSnake-lab-mocap"
 
 
 MAX_BAUD = 12_000_000  # no USB-serial adapter here runs faster (the U2D2 tops out at 6 Mbps)
@@ -208,7 +212,9 @@ class SimLabConfig:
     sensor_area_m2: float = 1.4e-3
     sensor_spread: float = 0.05
     noise_counts: float = 0.5
-    mocap: str = ""  # the motion-capture stream a recording follows ("lsl:NAME"; "" none): docs/MOCAP.md
+    # the motion-capture stream a recording follows: "lsl:NAME", "sim" (TOML true: the physics lab's own simulated
+    # stream, SIM_MOCAP_STREAM) or "" (none): docs/MOCAP.md
+    mocap: str = ""
     # What a physics-lab run's controller senses (app.core.sensing): "robot", the forces through a rig calibration's
     # errors, the board's noise and the sensors' creep; "ideal", through the sensors' true calibration
     sensing: str = "robot"
@@ -241,6 +247,12 @@ class MocapConfig:
     def label(self, segment: int, marker: int) -> str:
         """The label of ``marker`` (1-based) of ``segment`` (1-based)."""
         return self.labels.format(segment=segment, marker=marker)
+
+
+def mocap_stream_spec(mocap: str) -> str:
+    """``[lab] mocap`` as the stream a recording follows: ``lsl:NAME`` as it is, the simulated lab's
+    (:data:`SIM_MOCAP`) as ``lsl:`` + :data:`SIM_MOCAP_STREAM`, "" for none."""
+    return f"lsl:{SIM_MOCAP_STREAM}" if mocap == SIM_MOCAP else mocap
 
 
 def _default_layout() -> tuple[tuple[float, ...], ...]:
@@ -388,6 +400,8 @@ def _build_lab(table: Any, source: str) -> SimLabConfig:
         physical = _build(LabPhysicsConfig, table["physics"], "lab.physics", source)
         lab = _build(SimLabConfig, rest, "lab", source)
         return replace(lab, physics="mujoco", physical=physical)
+    if isinstance(table, dict) and isinstance(table.get("mocap"), bool):  # mocap = true: the lab's simulated stream
+        table = {**table, "mocap": SIM_MOCAP if table["mocap"] else ""}
     return _build(SimLabConfig, table, "lab", source)
 
 
@@ -508,8 +522,9 @@ def _validate_lab(lab: SimLabConfig, source: str) -> None:
     _require(lab.sensing in SENSING_KINDS, source, "lab.sensing", f"= {lab.sensing!r} must be one of {SENSING_KINDS}")
     _require(isinstance(lab.physical, LabPhysicsConfig), source, "lab.physics",
              "must be a table of physical parameters ([lab.physics])")
-    _require(lab.mocap == "" or (lab.mocap.startswith("lsl:") and bool(lab.mocap[4:].strip())), source, "lab.mocap",
-             f"= {lab.mocap!r} must be 'lsl:NAME' (a Lab Streaming Layer stream) or empty")
+    _require(lab.mocap in ("", SIM_MOCAP) or (lab.mocap.startswith("lsl:") and bool(lab.mocap[4:].strip())), source,
+             "lab.mocap", f"= {lab.mocap!r} must be 'lsl:NAME' (a Lab Streaming Layer stream), true (the physics "
+             "lab's simulated motion capture) or empty")
 
 
 def _validate_lab_physics(physical: LabPhysicsConfig, source: str) -> None:

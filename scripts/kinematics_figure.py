@@ -1,8 +1,8 @@
 """Draw the kinematics beside the forces, as the paper's Fig. 6D/7A with 6E/7B: every segment's position along x (or
-its height z) against time on the left, the bottom sensors' forces against time on the right, one colour per segment
+y, or its height z) against time on the left, the bottom sensors' forces against time on the right, one colour per segment
 (head dark, tail light), one clock.
 
-    python scripts/kinematics_figure.py REC.h5 OUT.png [--coord x|z] [--source mocap|sim]
+    python scripts/kinematics_figure.py REC.h5 OUT.png [--coord x|y|z] [--source mocap|sim]
 
 Positions come from the recording's motion capture (``/mocap/segment_center_m``, added by ``sensnake mocap
 import``), or else from the physics lab's simulated body (``/sim``, the truth; ``--source`` chooses). A segment
@@ -21,36 +21,14 @@ from pathlib import Path
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 
-import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+# The segments' colours are those of the app's kinematics panel (widgets.kinematics_view.segment_colour); the
+# positions are read as the app reads them (app.core.mocap.segment_positions).
 WIDTH_PX = 1400
 HEIGHT_PX = 760
-
-
-def segment_colour(k: int, n: int) -> tuple[int, int, int]:
-    """Head (k = 0) dark purple through viridis to tail yellow-green (its palest yellow left out: white paper)."""
-    import pyqtgraph as pg
-
-    rgba = pg.colormap.get("viridis").map(0.88 * k / max(n - 1, 1), mode="byte")
-    return (int(rgba[0]), int(rgba[1]), int(rgba[2]))
-
-
-def read_positions(path: str, source: str) -> tuple[np.ndarray, np.ndarray, str]:
-    """(T,), (T, S, 3) segment centres and where they came from."""
-    with h5py.File(path, "r") as f:
-        if source in ("auto", "mocap") and "mocap" in f:
-            group = f["mocap"]
-            what = f"motion capture ({group.attrs.get('source', '?')}, {group.attrs.get('rate_hz', 0):g} Hz)"
-            return group["time_s"][:], group["segment_center_m"][:], what
-        if source == "mocap":
-            raise ValueError("no /mocap group: add a take with 'sensnake mocap import', or use --source sim")
-        if "sim" in f:
-            points = f["sim/points_m"][:]
-            return f["sim/time_s"][:], 0.5 * (points[:, :-1] + points[:, 1:]), "the simulated body (/sim, truth)"
-    raise ValueError("neither /mocap nor /sim: no segment positions to draw")
 
 
 def read_bottom_forces(path: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -69,15 +47,18 @@ def draw(path: str, out: str, coord: str, source: str) -> str:
     import pyqtgraph.exporters  # noqa: F401
     from PySide6.QtWidgets import QApplication
 
-    time_s, centers, what = read_positions(path, source)
+    from app.core.mocap import segment_positions
+    from widgets.kinematics_view import segment_colour
+
+    time_s, centers, what = segment_positions(path, source)
     force_t, forces, names = read_bottom_forces(path)
     app = QApplication.instance() or QApplication([])
     pg.setConfigOptions(antialias=True, background="w", foreground="k")
     layout = pg.GraphicsLayoutWidget()
     layout.resize(WIDTH_PX, HEIGHT_PX)
-    axis = {"x": 0, "z": 2}[coord]
+    axis = "xyz".index(coord)
     n = centers.shape[1]
-    word = "forward position x" if coord == "x" else "height z"
+    word = {"x": "forward position x", "y": "lateral position y", "z": "height z"}[coord]
     left = layout.addPlot(row=0, col=0, title=f"each segment's {word} — from {what}")
     t0 = float(min(time_s[0], force_t[0]))
     t1 = float(max(time_s[-1], force_t[-1]))
@@ -140,9 +121,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recording", metavar="REC.h5", help="a recording with /mocap (or a physics-lab run's /sim)")
     parser.add_argument("png", metavar="OUT.png", help="the figure to write (a new file)")
-    parser.add_argument("--coord", choices=("x", "z"), default="x",
-                        help="x: forward position (the paper's Fig. 7A, default); z: height (the side view's other "
-                             "axis)")
+    parser.add_argument("--coord", choices=("x", "y", "z"), default="x",
+                        help="x: forward position (the paper's Fig. 7A, default); y: lateral position (a serpenoid's "
+                             "sway); z: height (the side view's other axis)")
     parser.add_argument("--source", choices=("auto", "mocap", "sim"), default="auto",
                         help="where the positions come from (default: /mocap if there, else /sim)")
     args = parser.parse_args()

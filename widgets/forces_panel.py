@@ -209,6 +209,7 @@ class ForcesControls(QWidget):
         self.live.setVisible(False)
         record_row.addWidget(self.live)
         outer.addLayout(record_row)
+        self._record_row = record_row
 
         status_row = QHBoxLayout()
         self.board_status = QLabel("board: not started", self)
@@ -229,6 +230,10 @@ class ForcesControls(QWidget):
     def _on_record(self, start: bool) -> None:
         self.record.setText(STOP_RECORDING_TEXT if start else RECORD_TEXT)
         self.record_toggled.emit(start)
+
+    def add_beside_record(self, widget: QWidget) -> None:
+        """Put ``widget`` (the motion-capture source) right after the Record button."""
+        self._record_row.insertWidget(self._record_row.indexOf(self.record) + 1, widget)
 
     # -- state shown ----------------------------------------------------------------------------------------------
     def set_paused(self, paused: bool) -> None:

@@ -24,17 +24,14 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from app.cli._robot import lab_config, port_from
 from app.core import live_session
 from app.core.errors import BoardGoneError, BoardSilentError
-from app.core.live_session import LiveSession, LiveUpdate, TimedOutcome, describe_stats, record_timed
-from app.core.lsl_link import Dropout, LslPublisher, MocapInlet, append_live_mocap
-from app.core.recorder import Recorder
+from app.core.live_session import LiveSession, TimedOutcome, describe_stats, record_timed
+from app.core.lsl_link import LiveTake, LslLinks
 from devices import factory
 from devices.board import BoardReader, BoardStats
-from devices.config import MAX_BAUD, LabConfig, load_config
+from devices.config import MAX_BAUD, LabConfig, load_config, mocap_stream_spec
 from devices.errors import BoardProtocolError
 from models.health import HealthMonitor
 
@@ -74,11 +71,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     live = LiveSession(board, health=HealthMonitor(board.n_channels, board.rate_hz))
     reader = BoardReader(board, on_status=live.post_status)
-    links = _LslLinks(getattr(args, "mocap", None) or config.lab.mocap, getattr(args, "lsl_out", False), live)
+    links = LslLinks(live, config.mocap, config.robot.axes)
+    spec = mocap_stream_spec(getattr(args, "mocap", None) or config.lab.mocap)
     previous = {s: signal.signal(s, _raise_stop) for s in STOP_SIGNALS}
     progress = _Progress(out, args.seconds)
     try:
-        links.resolve()  # before anything is recorded: a stream that does not answer ends the command
+        if spec:  # before anything is recorded: a stream that does not answer ends the command
+            links.adopt(links.open_inlet(spec))
+            inlet = links.inlet
+            assert inlet is not None
+            print(f"sensnake record: motion capture from LSL stream {inlet.stream_name!r} ({len(inlet.channels)} "
+                  f"channels, {inlet.rate_hz:g} Hz)", file=sys.stderr)
+        links.publish(getattr(args, "lsl_out", False))
         started = time.monotonic()  # before the port opens: every frame is recorded, at time_s >= 0
         reader.start()  # PortOpenError (an OSError) ends the command with one line
         recorder = live.start_recording(out, config.source_text, t0_monotonic_s=started,
@@ -88,20 +92,20 @@ def run(args: argparse.Namespace) -> int:
             outcome = record_timed(live, reader, args.seconds, on_progress=progress.show, on_message=progress.note,
                                    no_frames_timeout_s=NO_FRAMES_TIMEOUT_S)
         except StopSignal as stop:
-            links.stop(recorder)
+            take = links.stop(recorder, close_inlet=True)
             code = _interrupted(live, reader, progress, out, 128 + stop.signum, f"terminated by {stop}")
-            links.finish(out, config, started, recorder.kept)
+            _write_take(take, out, config, started, recorder.kept)
             return code
         except KeyboardInterrupt:
-            links.stop(recorder)
+            take = links.stop(recorder, close_inlet=True)
             code = _interrupted(live, reader, progress, out, EXIT_INTERRUPTED, "interrupted")
-            links.finish(out, config, started, recorder.kept)
+            _write_take(take, out, config, started, recorder.kept)
             return code
         except (BoardProtocolError, BoardSilentError):
             progress.finish()
             _close(live, reader)
             raise
-        links.stop(recorder)
+        take = links.stop(recorder, close_inlet=True)  # the take ends before the recording closes
         _close(live, reader)
     finally:
         reader.close()
@@ -111,76 +115,16 @@ def run(args: argparse.Namespace) -> int:
     progress.finish()
     outcome = replace(outcome, kept=recorder.kept, error=recorder.error)
     code = _report(outcome, out, board.n_channels)
-    links.finish(out, config, started, recorder.kept)
+    _write_take(take, out, config, started, recorder.kept)
     return code
 
 
-class _LslLinks:
-    """``--mocap lsl:NAME`` and ``--lsl-out`` around a recording (app.core.lsl_link)."""
-
-    def __init__(self, mocap: str, publish: bool, live: LiveSession) -> None:
-        self.spec = mocap
-        self.inlet: MocapInlet | None = None
-        self.publisher: LslPublisher | None = None
-        self.live = live
-        self.publish = publish
-        self._recorder: Recorder | None = None
-
-    def resolve(self) -> None:
-        if self.spec:
-            self.inlet = MocapInlet(self.spec, on_dropout=self._dropout)
-            self.inlet.start()
-            print(f"sensnake record: motion capture from LSL stream {self.inlet.stream_name!r} "
-                  f"({len(self.inlet.channels)} channels, {self.inlet.rate_hz:g} Hz)", file=sys.stderr)
-        if self.publish:
-            names = self.live.channel_names
-            self.publisher = LslPublisher(names, ["uS"] * len(names), self.live.board.rate_hz)
-            self.live.subscribe(self._publish)
-
-    def _dropout(self, dropout: Dropout) -> None:
-        recorder = self._recorder
-        if recorder is not None:
-            recorder.log_event(f"mocap dropout: {dropout.missing} sample(s) missing", dropout.host_time_s,
-                               kind="mocap")
-
-    def _publish(self, update: LiveUpdate) -> None:
-        """Each board sample's conductance in µS (``sensnake record`` estimates no forces; the outlet's channel
-        units say µS)."""
-        if self.publisher is not None:
-            self.publisher.push_forces(update.block.host_time_s, update.block.conductance_s * 1e6)
-
-    def start(self, recorder: Recorder) -> None:
-        self._recorder = recorder
-        if self.publisher is not None:
-            self.publisher.push_event(f"recording started: {recorder.path.name}")
-
-    def stop(self, recorder: Recorder) -> None:
-        """The inlet stops before the recording closes, its dropouts counted in /events."""
-        if self.inlet is not None:
-            self.inlet.close()
-            recorder.log_event(f"mocap: {self.inlet.dropouts} dropout(s), {self.inlet.missing} sample(s) missing "
-                               f"from LSL stream {self.inlet.stream_name!r}", kind="mocap")
-        if self.publisher is not None:
-            self.publisher.push_event(f"recording stopped: {recorder.path.name}")
-
-    def close(self) -> None:
-        if self.inlet is not None:
-            self.inlet.close()
-        if self.publisher is not None:
-            self.live.unsubscribe(self._publish)
-            self.publisher.close()
-            self.publisher = None
-
-    def finish(self, out: Path, config: LabConfig, started: float, kept: bool) -> None:
-        """``/mocap`` written into the closed recording from what the inlet received."""
-        if self.inlet is None or not kept:
-            return
-        take = self.inlet.take(config.mocap, config.robot.n_joints, started)
-        result = append_live_mocap(out, take, config.mocap, config.robot.axes)
-        posed = np.isfinite(result.fit.center_m[..., 0]).mean()
-        print(f"mocap: {len(take.time_s)} samples from LSL stream {self.inlet.stream_name!r} written to {out} as "
-              f"/mocap ({posed:.1%} of segment-frames posed; {self.inlet.dropouts} dropout(s), {self.inlet.missing} "
-              "sample(s) missing)")
+def _write_take(take: LiveTake | None, out: Path, config: LabConfig, started: float, kept: bool) -> None:
+    """``/mocap`` written into the closed recording from what the inlet received."""
+    if take is None or not kept:
+        return
+    result = take.write(out, started, config.mocap, config.robot.axes)
+    print(take.summary(result, out))
 
 
 def _close(live: LiveSession, reader: BoardReader, exit_status: str = "success", reason: str = "") -> None:

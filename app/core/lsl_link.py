@@ -1,20 +1,31 @@
-"""Lab Streaming Layer, in and out, for a live recording (docs/MOCAP.md, "Live").
+"""Lab Streaming Layer, in and out, around a live session (docs/MOCAP.md, "Live"): what ``sensnake record --mocap
+lsl:NAME --lsl-out`` and the app's Forces tab (its motion-capture source and LSL switch) share.
 
 In: :class:`MocapInlet` follows one motion-capture stream (``lsl:NAME``: the stream of that name, else the first of
 type MoCap) on its own thread. Its channels are named by their metadata (``label`` ending in X/Y/Z, or ``marker`` +
 ``type`` PositionX/Y/Z) in their ``unit``; every sample is stamped at capture on this machine's LSL clock
-(``time_correction()``, refreshed every :data:`CORRECTION_EVERY_S`) and so on the recording's (the LSL clock and
-``time.monotonic()`` are related by one reading of both at the start). A gap in the stream longer than 2.5 sample
-periods is a dropout: counted, and an event (kind ``mocap``) in the recording. When the recording is closed,
-:func:`append_live_mocap` fits the segments and writes ``/mocap`` into it, ``clock_offset_how`` saying the samples
-were stamped at capture.
+(``time_correction()``, refreshed every :data:`CORRECTION_EVERY_S`) and so on ``time.monotonic()`` (the two are
+related by one reading of both at the start). A gap in the stream longer than :data:`GAP_PERIODS` sample periods is
+a dropout: counted, and an event (kind ``mocap``) in the recording. While a take is being collected
+(:meth:`MocapInlet.begin_take` … :meth:`MocapInlet.end_take`) every sample is kept; with ``live_rate_hz`` the reader
+also fits the segments' poses of a few samples a second (:class:`LivePoses`: the newest markers and a bounded
+history of the segment centres) for the app's 3-D view and kinematics plot.
 
 Out: :class:`LslPublisher` publishes ``SenSnake-forces`` (type ``Force``: each board sample's forces in N, or its
-conductance in µS for a channel without a calibration; the channel's ``unit`` says which), ``SenSnake-joints``
-(type ``Position``, rad, when a robot's states are given) and ``SenSnake-events`` (type ``Markers``, strings), each
-sample stamped with its host time on the LSL clock.
+conductance in µS for a channel without a calibration; each channel's ``unit`` says which, and the stream is
+published again when that changes), ``SenSnake-joints`` (type ``Position``, the present angles in rad at the control
+rate) and ``SenSnake-events`` (type ``Markers``, strings), each sample stamped with the time its board frame
+arrived or its servo read was sent, on the LSL clock.
 
-Threads: the inlet's reader thread; everything else on the controlling thread.
+:class:`LslLinks` ties both to a :class:`app.core.live_session.LiveSession` and a recording: a take collected from
+the recording's start to its stop (:meth:`LslLinks.start`, :meth:`LslLinks.stop`), a :class:`LiveTake` written into
+the closed recording as ``/mocap`` (:meth:`LiveTake.write`, ``clock_offset_how`` saying the samples were stamped at
+capture), the robot's states published as they come (:meth:`LslLinks.push_robot_states`).
+
+Threads: the inlet's reader thread (:attr:`MocapInlet.on_dropout` is called there); :meth:`MocapInlet.start` blocks
+up to the resolve timeout (the app calls it on a worker); :meth:`LivePoses` snapshots may be read from any thread;
+everything else on the controlling thread (the CLI's main thread, the GUI thread). :meth:`LiveTake.write` on any
+one thread (the app writes on a worker).
 """
 
 from __future__ import annotations
@@ -22,19 +33,24 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from app.core.errors import MocapFileError
+from app.core.live_session import LiveSession, LiveUpdate
 from app.core.mocap import UNITS_TO_M, MocapResult, Take, fit_take, place_markers, write_in_place
+from app.core.recorder import Recorder
 from devices.config import MocapConfig
+from models.mocap import SegmentFit, check_layout, fit_segments, joint_angles
 
 CORRECTION_EVERY_S = 2.0
 RESOLVE_TIMEOUT_S = 5.0
 GAP_PERIODS = 2.5  # a gap longer than this many sample periods is a dropout
+PULL_TIMEOUT_S = 0.05
+LIVE_WINDOW_S = 120.0  # segment centres kept for the kinematics plot
 
 
 def lsl_name(spec: str) -> str:
@@ -61,21 +77,83 @@ class Dropout:
     missing: int  # samples missing
 
 
+@dataclass(frozen=True)
+class LiveSnapshot:
+    """What the reader fitted last: segment centres (N, S, 3) at ``time_s`` (N,) (``time.monotonic()``), oldest
+    first, NaN where a segment had no pose; the newest sample's markers (S, K, 3) and centres (S, 3), and its time."""
+
+    time_s: np.ndarray
+    center_m: np.ndarray
+    markers_m: np.ndarray
+    newest_center_m: np.ndarray
+    newest_time_s: float
+
+
+class LivePoses:
+    """A ring of segment centres (preallocated, ``window_s`` at ``rate_hz``) and the newest markers; written by the
+    inlet's reader thread, read by any thread (:meth:`snapshot`)."""
+
+    def __init__(self, n_segments: int, n_markers: int, rate_hz: float, window_s: float = LIVE_WINDOW_S) -> None:
+        self.capacity = max(16, int(np.ceil(window_s * rate_hz)))
+        self._time = np.full(self.capacity, np.nan)
+        self._center = np.full((self.capacity, n_segments, 3), np.nan)
+        self._markers = np.full((n_segments, n_markers, 3), np.nan)
+        self._count = 0
+        self._lock = threading.Lock()
+
+    def append(self, time_s: np.ndarray, center_m: np.ndarray, newest_markers_m: np.ndarray) -> None:
+        with self._lock:
+            for t, c in zip(time_s, center_m):
+                slot = self._count % self.capacity
+                self._time[slot] = t
+                self._center[slot] = c
+                self._count += 1
+            self._markers[:] = newest_markers_m
+
+    def snapshot(self) -> LiveSnapshot | None:
+        """Copies, oldest first; None before the first pose."""
+        with self._lock:
+            n = min(self._count, self.capacity)
+            if n == 0:
+                return None
+            order = (np.arange(self._count - n, self._count)) % self.capacity
+            times, centers = self._time[order], self._center[order]
+            return LiveSnapshot(times, centers, self._markers.copy(), centers[-1].copy(), float(times[-1]))
+
+    def __len__(self) -> int:
+        return min(self._count, self.capacity)
+
+
 class MocapInlet:
-    """One LSL motion-capture stream followed on a reader thread; see the module docstring."""
+    """One LSL motion-capture stream followed on a reader thread; see the module docstring. ``mocap`` (the lab's
+    ``[mocap]``) lets :meth:`start` check the stream's labels against the layout at once, and is needed for the
+    live poses (``live_rate_hz`` > 0). ``collect``: keep every sample from the start (``sensnake record``); else
+    only between :meth:`begin_take` and :meth:`end_take` (the app follows a stream for hours)."""
 
     def __init__(self, spec: str, resolve_timeout_s: float | None = None,
-                 on_dropout: Callable[[Dropout], None] | None = None) -> None:
+                 on_dropout: Callable[[Dropout], None] | None = None, *, mocap: MocapConfig | None = None,
+                 n_segments: int = 12, collect: bool = True, live_rate_hz: float = 0.0) -> None:
         self.name = lsl_name(spec)
         self.resolve_timeout_s = RESOLVE_TIMEOUT_S if resolve_timeout_s is None else resolve_timeout_s
         self.on_dropout = on_dropout
+        self.mocap = mocap
+        self.n_segments = n_segments
         self.channels: list[tuple[str, str, str]] = []  # (marker, axis, unit) per channel
         self.rate_hz = 0.0
         self.stream_name = ""
+        self.unit = ""
         self.dropouts = 0
         self.missing = 0
+        self.received = 0
+        self.last_host_s = np.nan  # time.monotonic() of the newest sample's capture
+        self.live: LivePoses | None = None
+        self._live_rate_hz = float(live_rate_hz)
+        self._columns: np.ndarray | None = None  # (S, K, 3) channel of each layout marker's coordinate, -1 none
+        self._layout: np.ndarray | None = None
         self._inlet: Any = None
-        self._chunks: list[tuple[np.ndarray, np.ndarray]] = []  # (host monotonic (n,), values (n, C))
+        # (host monotonic (n,), values (n, C) float32, the segments' poses (None without ``mocap``)) per chunk
+        self._chunks: list[tuple[np.ndarray, np.ndarray, SegmentFit | None]] = []
+        self._collecting = collect
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -83,7 +161,9 @@ class MocapInlet:
 
     def start(self) -> None:
         """Resolve the stream (by name, else by type MoCap), read its channels and start following it. Raises
-        ConnectionError naming what was looked for when no stream answers within ``resolve_timeout_s``."""
+        ConnectionError naming what was looked for when no stream answers within ``resolve_timeout_s``, and
+        :class:`MocapFileError` when its channels do not say which marker and unit they carry (or, with ``mocap``,
+        do not carry the layout's markers)."""
         import pylsl
 
         found = pylsl.resolve_byprop("name", self.name, 1, self.resolve_timeout_s)
@@ -92,8 +172,19 @@ class MocapInlet:
         if not found:
             raise ConnectionError(f"--mocap lsl:{self.name}: no Lab Streaming Layer stream named {self.name!r} nor "
                                   f"of type MoCap answered within {self.resolve_timeout_s:g} s")
-        self._inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=True)
-        info = self._inlet.info(self.resolve_timeout_s)
+        inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=True)
+        try:
+            self._describe(inlet.info(self.resolve_timeout_s))
+            inlet.open_stream(self.resolve_timeout_s)
+        except BaseException:
+            inlet.close_stream()
+            raise
+        self._inlet = inlet
+        self._lsl_minus_mono = lsl_minus_monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"lsl-mocap:{self.stream_name}", daemon=True)
+        self._thread.start()
+
+    def _describe(self, info: Any) -> None:
         self.stream_name = info.name()
         self.rate_hz = float(info.nominal_srate())
         channel = info.desc().child("channels").child("channel")
@@ -115,24 +206,42 @@ class MocapInlet:
         if len(units) != 1 or next(iter(units)).strip().lower() not in UNITS_TO_M:
             raise MocapFileError(f"--mocap lsl:{self.name}: stream {self.stream_name!r} gives units {sorted(units)}:"
                                  " one length unit (mm, cm or m) is needed")
-        self._inlet.open_stream(self.resolve_timeout_s)
-        self._lsl_minus_mono = lsl_minus_monotonic()
-        self._thread = threading.Thread(target=self._run, name=f"lsl-mocap:{self.stream_name}", daemon=True)
-        self._thread.start()
+        self.unit = next(iter(units)).strip()
+        if self.mocap is not None:
+            names, columns = self._coordinates()
+            index = np.arange(len(names) * 3, dtype=float).reshape(1, len(names), 3) + 1.0  # (0, 0, 0) reads unseen
+            placed, *_ = place_markers(Path(f"lsl:{self.stream_name}"), names, index, self.mocap, self.n_segments)
+            flat = np.nan_to_num(placed[0], nan=0.0).astype(int) - 1  # (S, K, 3): a position in ``columns``
+            self._columns = np.where(flat >= 0, np.asarray(columns).reshape(-1)[np.maximum(flat, 0)], -1)
+            self._layout = check_layout(self.mocap.marker_layout_m, self.n_segments)
+            if self._live_rate_hz > 0:
+                self.live = LivePoses(self.n_segments, self._layout.shape[1], self._live_rate_hz)
+
+    def _coordinates(self) -> tuple[list[str], list[list[int]]]:
+        """Every marker with X, Y and Z channels, and its three channel numbers."""
+        coordinates: dict[str, dict[str, int]] = {}
+        for i, (marker, axis, _unit) in enumerate(self.channels):
+            if marker:
+                coordinates.setdefault(marker, {})[axis] = i
+        whole = {m: c for m, c in coordinates.items() if set(c) == {"X", "Y", "Z"}}
+        return list(whole), [[c["X"], c["Y"], c["Z"]] for c in whole.values()]
 
     def _run(self) -> None:
         correction = self._inlet.time_correction(1.0)
         corrected_at = time.monotonic()
         last = np.nan
         period = 1.0 / self.rate_hz if self.rate_hz > 0 else np.nan
+        live_step = 1.0 / self._live_rate_hz if self.live is not None else 0.0
+        live_cell = -np.inf  # the live grid's cell (of ``live_step``) of the newest sample fitted
         while not self._stop.is_set():
-            values, stamps = self._inlet.pull_chunk(timeout=0.05)
-            if not stamps:
+            values, stamps = self._inlet.pull_chunk(timeout=PULL_TIMEOUT_S, as_numpy=True)
+            if not len(stamps):
                 continue
             if time.monotonic() - corrected_at > CORRECTION_EVERY_S:
                 correction = self._inlet.time_correction(1.0)
                 corrected_at = time.monotonic()
             host = np.asarray(stamps, dtype=float) + correction - self._lsl_minus_mono
+            values = np.asarray(values, dtype=np.float32)
             steps = np.diff(np.concatenate([[last], host]))
             for k in np.flatnonzero(steps > GAP_PERIODS * period):
                 missing = int(round(steps[k] / period)) - 1
@@ -141,8 +250,52 @@ class MocapInlet:
                 if self.on_dropout is not None:
                     self.on_dropout(Dropout(float(host[k]), missing))
             last = host[-1]
-            with self._lock:
-                self._chunks.append((host, np.asarray(values, dtype=float)))
+            if self._collecting:  # fitted as it comes (a minute at 960 Hz fitted at the end took 10-20 s)
+                fit = self._fit(values) if self._layout is not None else None
+                with self._lock:
+                    if self._collecting:
+                        self._chunks.append((host, values, fit))
+            self.last_host_s = float(last)
+            self.received += len(host)  # counted once kept: a reader of both never sees more received than kept
+            if live_step:  # the first sample of each new cell of the live grid is fitted
+                cells = np.floor(host / live_step)
+                picked = np.flatnonzero(np.diff(cells, prepend=live_cell) > 0)
+                if picked.size:
+                    self._fit_live(host[picked], values[picked])
+                    live_cell = cells[-1]
+
+    def markers_m(self, values: np.ndarray) -> np.ndarray:
+        """Channel values (N, C) as the layout's markers (N, S, K, 3) in metres, NaN unseen (needs ``mocap``)."""
+        assert self._columns is not None
+        columns = self._columns
+        picked = np.asarray(values, dtype=float)[:, np.maximum(columns, 0)]
+        picked[:, columns < 0] = np.nan
+        picked[np.all(picked == 0.0, axis=-1)] = np.nan
+        return picked * UNITS_TO_M[self.unit.lower()]
+
+    def _fit(self, values: np.ndarray) -> SegmentFit:
+        assert self._layout is not None and self.mocap is not None
+        return fit_segments(self.markers_m(values), self._layout, self.mocap.max_residual_m)
+
+    def _fit_live(self, host: np.ndarray, values: np.ndarray) -> None:
+        assert self.live is not None
+        self.live.append(host, self._fit(values).center_m, self.markers_m(values[-1:])[0])
+
+    def begin_take(self) -> None:
+        """Keep every sample from now on (what came before is forgotten)."""
+        with self._lock:
+            self._chunks = []
+            self._collecting = True
+
+    def end_take(self) -> tuple[np.ndarray, np.ndarray, SegmentFit | None]:
+        """Stop keeping samples; what was kept (as :meth:`samples`) and the segments' poses in each sample (None
+        without ``mocap``), forgotten here."""
+        with self._lock:
+            self._collecting = False
+            chunks, self._chunks = self._chunks, []
+        fits = [c[2] for c in chunks]
+        fit = _joined_fits(fits) if fits and all(f is not None for f in fits) else None  # type: ignore[arg-type]
+        return (*_joined(chunks, len(self.channels)), fit)
 
     def close(self) -> None:
         """Stop following (joins the reader thread) and close the inlet."""
@@ -154,19 +307,63 @@ class MocapInlet:
             self._inlet.close_stream()
             self._inlet = None
 
+    @property
+    def following(self) -> bool:
+        return self._thread is not None
+
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every sample so far: host times (M,) on ``time.monotonic()`` and values (M, C)."""
+        """Every sample kept so far: host times (M,) on ``time.monotonic()`` and values (M, C)."""
         with self._lock:
             chunks = list(self._chunks)
-        if not chunks:
-            return np.zeros(0), np.zeros((0, len(self.channels)))
-        return np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks])
+        return _joined(chunks, len(self.channels))
 
     def take(self, mocap: MocapConfig, n_segments: int, t0_monotonic_s: float) -> Take:
-        """The samples as a :class:`Take` whose source clock is the recording's (``t0_monotonic_s`` = its start)."""
+        """The samples kept so far as a :class:`Take` on the recording's clock (``t0_monotonic_s`` = its start)."""
         host, values = self.samples()
-        if len(host) < 2:
-            raise MocapFileError(f"--mocap lsl:{self.name}: fewer than two samples arrived from stream "
+        return self.live_take(host, values).as_take(mocap, n_segments, t0_monotonic_s)
+
+    def live_take(self, host: np.ndarray, values: np.ndarray, dropouts: int | None = None,
+                  missing: int | None = None, fit: SegmentFit | None = None) -> LiveTake:
+        """``host``/``values`` (and their poses, when fitted already) with what is needed to make a take of them,
+        apart from this inlet."""
+        return LiveTake(self.name, self.stream_name, tuple(self.channels), self.rate_hz, host, values,
+                        self.dropouts if dropouts is None else dropouts, self.missing if missing is None else missing,
+                        fit)
+
+
+def _joined(chunks: list[tuple[np.ndarray, np.ndarray, SegmentFit | None]],
+            n_channels: int) -> tuple[np.ndarray, np.ndarray]:
+    if not chunks:
+        return np.zeros(0), np.zeros((0, n_channels), np.float32)
+    return np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks])
+
+
+def _joined_fits(fits: Sequence[SegmentFit]) -> SegmentFit:
+    return SegmentFit(*(np.concatenate([getattr(f, field.name) for f in fits]) for field in fields(SegmentFit)))
+
+
+def _kept(fit: SegmentFit, keep: np.ndarray) -> SegmentFit:
+    return SegmentFit(*(getattr(fit, field.name)[keep] for field in fields(SegmentFit)))
+
+
+@dataclass(frozen=True)
+class LiveTake:
+    """The samples one recording received from a stream, stamped at capture (``host_s``: ``time.monotonic()``)."""
+
+    spec_name: str
+    stream_name: str
+    channels: tuple[tuple[str, str, str], ...]
+    rate_hz: float
+    host_s: np.ndarray
+    values: np.ndarray
+    dropouts: int
+    missing: int
+    fit: SegmentFit | None = None  # each sample's segment poses, fitted as they came (None: fitted when written)
+
+    def as_take(self, mocap: MocapConfig, n_segments: int, t0_monotonic_s: float) -> Take:
+        """A :class:`Take` whose source clock is the recording's (``t0_monotonic_s`` = its start)."""
+        if len(self.host_s) < 2:
+            raise MocapFileError(f"--mocap lsl:{self.spec_name}: fewer than two samples arrived from stream "
                                  f"{self.stream_name!r}")
         coordinates: dict[str, dict[str, int]] = {}
         unit = ""
@@ -176,20 +373,40 @@ class MocapInlet:
                 unit = channel_unit
         whole = {m: c for m, c in coordinates.items() if set(c) == {"X", "Y", "Z"}}
         names = list(whole)
+        values = np.asarray(self.values, dtype=float)
         xyz = np.stack([values[:, [whole[m]["X"], whole[m]["Y"], whole[m]["Z"]]] for m in names], axis=1)
         xyz = xyz * UNITS_TO_M[unit.strip().lower()]
         where = Path(f"lsl:{self.stream_name}")
         markers, flat, missing, ignored = place_markers(where, names, xyz, mocap, n_segments)
-        return Take(where, "LSL", host - t0_monotonic_s, markers, flat, self.rate_hz, unit, missing, ignored,
+        return Take(where, "LSL", self.host_s - t0_monotonic_s, markers, flat, self.rate_hz, unit, missing, ignored,
                     note=f"stamped at capture, {self.dropouts} dropouts, {self.missing} samples missing")
 
+    def write(self, recording: str | Path, t0_monotonic_s: float, mocap: MocapConfig,
+              axes: Sequence[str]) -> MocapResult:
+        """Fit the take (unless it was as it came) and write ``/mocap`` into the closed ``recording``."""
+        fit = self.fit if self.fit is not None and len(self.fit.center_m) == len(self.host_s) else None
+        return append_live_mocap(recording, self.as_take(mocap, len(axes), t0_monotonic_s), mocap, axes, fit)
 
-def append_live_mocap(recording: str | Path, take: Take, mocap: MocapConfig, axes: Sequence[str]) -> MocapResult:
-    """Fit ``take`` (already on the recording's clock) and write ``/mocap`` into the closed ``recording``."""
-    layout, fit, angles = fit_take(take, mocap, axes)
+    def summary(self, result: MocapResult, out: str | Path) -> str:
+        """One line for the user."""
+        posed = np.isfinite(result.fit.center_m[..., 0]).mean()
+        return (f"mocap: {len(self.host_s)} samples from LSL stream {self.stream_name!r} written to {out} as /mocap "
+                f"({posed:.1%} of segment-frames posed; {self.dropouts} dropout(s), {self.missing} sample(s) "
+                "missing)")
+
+
+def append_live_mocap(recording: str | Path, take: Take, mocap: MocapConfig, axes: Sequence[str],
+                      fit: SegmentFit | None = None) -> MocapResult:
+    """Fit ``take`` (already on the recording's clock; ``fit``: its poses, fitted already) and write ``/mocap`` into
+    the closed ``recording``, uncompressed (compressing a minute at 960 Hz took 10-20 s for ~12 % less)."""
+    if fit is None:
+        layout, fit, angles = fit_take(take, mocap, axes)
+    else:
+        layout = check_layout(mocap.marker_layout_m, len(axes))
+        angles, _ = joint_angles(fit.rotation, axes)
     result = MocapResult(take, layout, fit, angles, 0.0, None, mocap.max_residual_m,
                          stamped="stamped at capture on the recording's clock (LSL time_correction())")
-    write_in_place(recording, result)
+    write_in_place(recording, result, compression=None)
     return result
 
 
@@ -197,17 +414,23 @@ class LslPublisher:
     """Outlets ``SenSnake-forces``, ``SenSnake-joints`` and ``SenSnake-events``; see the module docstring."""
 
     def __init__(self, channel_names: Sequence[str], forces_unit: Sequence[str], rate_hz: float,
-                 joint_count: int = 12) -> None:
+                 joint_count: int = 12, joint_rate_hz: float = 0.0) -> None:
         import pylsl
 
+        self._pylsl = pylsl
         self._lsl_minus_mono = lsl_minus_monotonic()
-        self.forces = pylsl.StreamOutlet(self._info("SenSnake-forces", "Force", list(channel_names),
-                                                    list(forces_unit), rate_hz, pylsl))
+        self.channel_names = tuple(channel_names)
+        self.rate_hz = float(rate_hz)
+        self.forces_unit = tuple(forces_unit)
+        self.forces = pylsl.StreamOutlet(self._info("SenSnake-forces", "Force", list(self.channel_names),
+                                                    list(self.forces_unit), rate_hz, pylsl))
         self.joints = pylsl.StreamOutlet(self._info("SenSnake-joints", "Position",
                                                     [f"joint{j:02d}" for j in range(1, joint_count + 1)],
-                                                    ["rad"] * joint_count, 0.0, pylsl))
+                                                    ["rad"] * joint_count, joint_rate_hz, pylsl))
         events = pylsl.StreamInfo("SenSnake-events", "Markers", 1, 0.0, "string", "sensnake-events")
         self.events = pylsl.StreamOutlet(events)
+        self.joint_samples = 0
+        self.force_samples = 0
 
     @staticmethod
     def _info(name: str, kind: str, labels: list[str], units: list[str], rate_hz: float, pylsl: Any) -> Any:
@@ -219,13 +442,27 @@ class LslPublisher:
             channel.append_child_value("unit", unit)
         return info
 
+    def set_forces_unit(self, units: Sequence[str]) -> None:
+        """Each channel's unit ("N" or "uS"); a change publishes ``SenSnake-forces`` again (its metadata is fixed
+        for the life of an outlet)."""
+        units = tuple(units)
+        if units == self.forces_unit:
+            return
+        self.forces_unit = units
+        self.forces = None  # the old outlet goes first: two outlets of one name would confuse a resolver
+        self.forces = self._pylsl.StreamOutlet(self._info("SenSnake-forces", "Force", list(self.channel_names),
+                                                          list(units), self.rate_hz, self._pylsl))
+
     def push_forces(self, host_time_s: np.ndarray, values: np.ndarray) -> None:
         """Board samples (N, C) at their host times (``time.monotonic()``)."""
-        for t, row in zip(host_time_s, values):
-            self.forces.push_sample(np.asarray(row, dtype=float).tolist(), float(t) + self._lsl_minus_mono)
+        stamps = np.asarray(host_time_s, dtype=float) + self._lsl_minus_mono
+        if len(stamps):
+            self.forces.push_chunk(np.asarray(values, dtype=float), timestamp=stamps.tolist())
+            self.force_samples += len(stamps)
 
     def push_joints(self, host_time_s: float, angles_rad: np.ndarray) -> None:
         self.joints.push_sample(np.asarray(angles_rad, dtype=float).tolist(), host_time_s + self._lsl_minus_mono)
+        self.joint_samples += 1
 
     def push_event(self, text: str, host_time_s: float | None = None) -> None:
         when = time.monotonic() if host_time_s is None else host_time_s
@@ -233,4 +470,127 @@ class LslPublisher:
 
     def close(self) -> None:
         """Withdraw the streams (an outlet ends when the last reference to it goes)."""
-        del self.forces, self.joints, self.events
+        self.forces = self.joints = self.events = None
+
+
+class LslLinks:
+    """The motion-capture inlet and the published streams around ``live`` and its recordings; see the module
+    docstring. Controlling thread only (the inlet's own reader aside)."""
+
+    def __init__(self, live: LiveSession | None, mocap: MocapConfig, axes: Sequence[str],
+                 joint_rate_hz: float = 0.0) -> None:
+        self.live = live
+        self.mocap = mocap
+        self.axes = tuple(axes)
+        self.joint_rate_hz = joint_rate_hz
+        self.inlet: MocapInlet | None = None
+        self.publisher: LslPublisher | None = None
+        self._recorder: Recorder | None = None
+        self._take_counts = (0, 0)  # the inlet's dropouts and missing samples when the take began
+
+    # -- motion capture ----------------------------------------------------------------------------------------
+    def open_inlet(self, spec: str, *, collect: bool = True, live_rate_hz: float = 0.0,
+                   resolve_timeout_s: float | None = None) -> MocapInlet:
+        """Resolve and start following ``spec`` (blocks up to the resolve timeout; any thread). Not yet this
+        session's: :meth:`adopt` it."""
+        inlet = MocapInlet(spec, resolve_timeout_s, on_dropout=self._dropout, mocap=self.mocap,
+                           n_segments=len(self.axes), collect=collect, live_rate_hz=live_rate_hz)
+        inlet.start()
+        return inlet
+
+    def adopt(self, inlet: MocapInlet | None) -> None:
+        """Follow ``inlet`` from now on (None: none), closing the one followed before."""
+        previous, self.inlet = self.inlet, inlet
+        if previous is not None and previous is not inlet:
+            previous.close()
+        if inlet is not None and self._recorder is not None:  # picked up while a recording runs
+            self._take_counts = (inlet.dropouts, inlet.missing)
+            inlet.begin_take()
+
+    def _dropout(self, dropout: Dropout) -> None:  # the inlet's reader thread
+        recorder = self._recorder
+        if recorder is not None:
+            recorder.log_event(f"mocap dropout: {dropout.missing} sample(s) missing", dropout.host_time_s,
+                               kind="mocap")
+
+    # -- publishing --------------------------------------------------------------------------------------------
+    def publish(self, on: bool) -> None:
+        """Publish ``SenSnake-forces``, ``-joints`` and ``-events`` (True) or withdraw them (False)."""
+        live = self.live
+        if on and self.publisher is None:
+            if live is None:
+                raise RuntimeError("no live board session to publish the forces of")
+            names = live.channel_names
+            self.publisher = LslPublisher(names, self._forces_unit(live), live.board.rate_hz, len(self.axes),
+                                          self.joint_rate_hz)
+            live.subscribe(self._publish)
+            if self._recorder is not None:
+                self.publisher.push_event(f"recording running: {self._recorder.path.name}")
+        elif not on and self.publisher is not None:
+            if live is not None:
+                live.unsubscribe(self._publish)
+            self.publisher.close()
+            self.publisher = None
+
+    @staticmethod
+    def _forces_unit(live: LiveSession) -> list[str]:
+        pipeline = live.pipeline
+        estimated = pipeline.estimated if pipeline is not None else np.zeros(len(live.channel_names), bool)
+        return ["N" if e else "uS" for e in estimated]
+
+    def _publish(self, update: LiveUpdate) -> None:
+        """Each board sample's forces in N where a calibration gives them, else its conductance in µS."""
+        publisher, live = self.publisher, self.live
+        if publisher is None or live is None:
+            return
+        if update.forces is not None:
+            publisher.set_forces_unit(self._forces_unit(live))
+            values = update.forces.display
+        else:
+            values = update.block.conductance_s * 1e6
+        publisher.push_forces(update.block.host_time_s, values)
+
+    def push_robot_states(self, states: Sequence[Any]) -> None:
+        """The control loop's states (each with ``host_time_s`` and ``position_rad``) on ``SenSnake-joints``."""
+        publisher = self.publisher
+        if publisher is not None:
+            for state in states:
+                publisher.push_joints(state.host_time_s, state.position_rad)
+
+    def push_event(self, text: str) -> None:
+        if self.publisher is not None:
+            self.publisher.push_event(text)
+
+    # -- a recording -------------------------------------------------------------------------------------------
+    def start(self, recorder: Recorder) -> None:
+        """A recording starts: its take begins, dropouts go into its events."""
+        self._recorder = recorder
+        if self.inlet is not None:
+            self._take_counts = (self.inlet.dropouts, self.inlet.missing)
+            self.inlet.begin_take()
+        self.push_event(f"recording started: {recorder.path.name}")
+
+    def stop(self, recorder: Recorder, close_inlet: bool = False) -> LiveTake | None:
+        """The recording stops (before it is closed): its take ends, its dropouts are counted in its events, and
+        the take is returned (None without an inlet). ``close_inlet``: stop following the stream too."""
+        take = None
+        inlet = self.inlet
+        if inlet is not None:
+            host, values, fit = inlet.end_take()
+            keep = host >= recorder.t0_monotonic_s  # captured before the recording began: not its (as the board's)
+            host, values, fit = host[keep], values[keep], None if fit is None else _kept(fit, keep)
+            if close_inlet:
+                inlet.close()
+            dropouts, missing = inlet.dropouts - self._take_counts[0], inlet.missing - self._take_counts[1]
+            silent = time.monotonic() - inlet.last_host_s if np.isfinite(inlet.last_host_s) else np.inf
+            quiet = f"; silent for the last {silent:.1f} s" if silent > 1.0 else ""
+            recorder.log_event(f"mocap: {dropouts} dropout(s), {missing} sample(s) missing from LSL stream "
+                               f"{inlet.stream_name!r}{quiet}", kind="mocap")
+            take = inlet.live_take(host, values, dropouts, missing, fit)
+        self.push_event(f"recording stopped: {recorder.path.name}")
+        self._recorder = None
+        return take
+
+    def close(self) -> None:
+        self.adopt(None)
+        self.publish(False)

@@ -318,14 +318,15 @@ def write_with_mocap(recording: str | Path, out: str | Path, result: MocapResult
     return write_copy_with(recording, out, lambda f: fill_mocap(f, result))
 
 
-def write_in_place(recording: str | Path, result: MocapResult) -> None:
+def write_in_place(recording: str | Path, result: MocapResult, compression: str | None = "gzip") -> None:
     """``/mocap`` written into ``recording`` itself: a live recording, closed, that the take was stamped into."""
     with h5py.File(recording, "a") as f:
-        fill_mocap(f, result)
+        fill_mocap(f, result, compression)
 
 
-def fill_mocap(f: h5py.File, result: MocapResult) -> None:
-    """The ``/mocap`` group of ``result`` in the open file ``f`` (one it had is replaced)."""
+def fill_mocap(f: h5py.File, result: MocapResult, compression: str | None = "gzip") -> None:
+    """The ``/mocap`` group of ``result`` in the open file ``f`` (one it had is replaced); its arrays compressed
+    with ``compression`` (an h5py filter name, None for none)."""
     take = result.take
     fit = result.fit
     m, s, k, _ = take.markers_m.shape
@@ -333,13 +334,13 @@ def fill_mocap(f: h5py.File, result: MocapResult) -> None:
         del f["mocap"]
     group = f.create_group("mocap")
     group.create_dataset("time_s", data=result.time_s)
-    group.create_dataset("markers_m", data=take.markers_m.reshape(m, s * k, 3), chunks=True, compression="gzip")
-    group.create_dataset("segment_center_m", data=fit.center_m, chunks=True, compression="gzip")
-    group.create_dataset("segment_rotation", data=fit.rotation, chunks=True, compression="gzip")
-    group.create_dataset("residual_m", data=fit.residual_m, chunks=True, compression="gzip")
-    group.create_dataset("joint_angle_rad", data=result.joint_rad, chunks=True, compression="gzip")
-    group.create_dataset("fit_flag", data=fit.flag.astype(np.int8), chunks=True, compression="gzip")
-    group.create_dataset("markers_used", data=fit.n_used.astype(np.int8), chunks=True, compression="gzip")
+    group.create_dataset("markers_m", data=take.markers_m.reshape(m, s * k, 3), chunks=True, compression=compression)
+    group.create_dataset("segment_center_m", data=fit.center_m, chunks=True, compression=compression)
+    group.create_dataset("segment_rotation", data=fit.rotation, chunks=True, compression=compression)
+    group.create_dataset("residual_m", data=fit.residual_m, chunks=True, compression=compression)
+    group.create_dataset("joint_angle_rad", data=result.joint_rad, chunks=True, compression=compression)
+    group.create_dataset("fit_flag", data=fit.flag.astype(np.int8), chunks=True, compression=compression)
+    group.create_dataset("markers_used", data=fit.n_used.astype(np.int8), chunks=True, compression=compression)
     attrs = group.attrs
     attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
     attrs["source"] = take.source
@@ -437,6 +438,23 @@ def read_mocap(path: str | Path) -> MocapRecord | None:
         group = f["mocap"]
         return MocapRecord(group["time_s"][:], group["segment_center_m"][:], group["segment_rotation"][:],
                            group["residual_m"][:], group["markers_m"][:], dict(group.attrs))
+
+
+def segment_positions(path: str | Path, source: str = "auto") -> tuple[np.ndarray, np.ndarray, str]:
+    """Each segment's centre in a recording: times (T,), centres (T, S, 3) and where they came from, in words.
+    ``source``: "mocap" (``/mocap``, refused without one), "sim" (the physics lab's simulated body, the truth) or
+    "auto" (``/mocap`` when there, else ``/sim``). ValueError naming what is missing."""
+    with h5py.File(path, "r") as f:
+        if source in ("auto", "mocap") and "mocap" in f:
+            group = f["mocap"]
+            what = f"motion capture ({group.attrs.get('source', '?')}, {group.attrs.get('rate_hz', 0):g} Hz)"
+            return group["time_s"][:], group["segment_center_m"][:], what
+        if source == "mocap":
+            raise ValueError("no /mocap group: add a take with 'sensnake mocap import', or use --source sim")
+        if "sim" in f:
+            points = f["sim/points_m"][:]
+            return f["sim/time_s"][:], 0.5 * (points[:, :-1] + points[:, 1:]), "the simulated body (/sim, truth)"
+    raise ValueError("neither /mocap nor /sim: no segment positions to draw")
 
 
 def sim_segment_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

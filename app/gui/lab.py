@@ -130,6 +130,7 @@ class LabContext(QObject):
         self.board_unavailable_reason = ""
         self._recording: Any = None
         self._force_page: Any = None
+        self._mocap: Any = None
         self._closed = False
         # Messages, faults and actions of this lab's tabs; the main window puts its own log here (it outlives labs).
         self.event_log = EventLog()
@@ -183,6 +184,17 @@ class LabContext(QObject):
 
             self._force_page = ForcePage.create(len(self.config.board.channel_names))
         return self._force_page
+
+    # -- motion capture ------------------------------------------------------------------------------------------
+    @property
+    def mocap(self) -> Any:
+        """The motion capture and LSL streams (:class:`app.gui.mocap_link.MocapLink`): made on first use (the
+        Forces tab's picker, the 3-D tab), following ``[lab] mocap`` from then on; closed on :meth:`close`."""
+        if self._mocap is None and not self._closed:
+            from app.gui.mocap_link import MocapLink
+
+            self._mocap = MocapLink(self, self)
+        return self._mocap
 
     # -- recording -------------------------------------------------------------------------------------------------
     @property
@@ -274,6 +286,8 @@ class LabContext(QObject):
         recording = self._recording
         if recording is not None and hasattr(recording, "stop"):
             recording.stop()
+        if self._mocap is not None:
+            self._mocap.close()
         self.robot.close()
         if self._force_page is not None:
             self._force_page.close()

@@ -8,6 +8,10 @@ writer thread) into signals on the GUI thread through the one :class:`app.gui.th
 
 Signals: ``started(str)`` the path; ``failed(str)`` what went wrong and what to do (disk full, file removed; what
 was flushed stays readable); ``stopped(str)`` once, with a summary, after :meth:`RecordingSession.stop` or a failure.
+
+With ``mocap`` (the lab's :class:`app.gui.mocap_link.MocapLink`) the motion capture followed meanwhile is collected
+from start to stop and written into the closed file as ``/mocap`` on a worker thread (fitting a minute of 960 Hz
+takes seconds); ``stopped`` follows once it is written, its summary saying so.
 The data methods (:meth:`add_block` …) forward to the recorder, for callers without a live session (tests, tools).
 
 Public methods are for the GUI thread; signals are delivered on the GUI thread.
@@ -15,6 +19,7 @@ Public methods are for the GUI thread; signals are delivered on the GUI thread.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +27,7 @@ from typing import Any
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 
+from app.core.errors import MocapFileError
 from app.core.recorder import Recorder
 from app.core.recording import DEFAULT_MIN_FREE_BYTES
 from app.core.run_documents import live_run_start
@@ -38,7 +44,7 @@ class RecordingSession(QObject):
     def __init__(self, path: str | Path, config_text: str, channel_names: Sequence[str],
                  calibration_json: str | None = None, with_robot: bool = False, n_joints: int = 12,
                  min_free_bytes: int = DEFAULT_MIN_FREE_BYTES, t0_monotonic_s: float | None = None,
-                 parent: QObject | None = None) -> None:
+                 mocap: Any = None, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self._bridge = ThreadBridge(self)
         self.recorder = Recorder(path, config_text, channel_names, calibration_json=calibration_json,
@@ -52,6 +58,9 @@ class RecordingSession(QObject):
         self.with_forces = calibration_json is not None
         self.t0_monotonic_s = self.recorder.t0_monotonic_s
         self._finished = False
+        self.mocap = mocap
+        self.mocap_summary = ""  # what the motion capture came to (written, or why not)
+        self._mocap_writer: threading.Thread | None = None
 
     # -- state -----------------------------------------------------------------------------------------------------
     @property
@@ -89,13 +98,34 @@ class RecordingSession(QObject):
     def start(self) -> None:
         """Start the recorder (its writer thread creates the file; ``failed`` if it cannot)."""
         self.recorder.start()
+        if self.mocap is not None:
+            self.mocap.recording_started(self.recorder)
         self.started.emit(str(self.path))
 
     def stop(self) -> None:
-        """Write what is queued, close the file and join the writer thread. Safe to call twice."""
+        """Write what is queued, close the file and join the writer thread; the motion capture is then written on a
+        worker. Safe to call twice: a second call waits for that worker."""
         if not self.recorder.running:
+            if self._mocap_writer is not None:
+                self._mocap_writer.join()
             return
+        take = self.mocap.recording_stopping(self.recorder) if self.mocap is not None else None
         self.recorder.stop()
+        if take is None or not self.recorder.kept or self.recorder.error:
+            self._finish()
+            return
+        self._mocap_writer = threading.Thread(target=self._write_mocap, args=(take,), name="recording-mocap")
+        self._mocap_writer.start()
+
+    def _write_mocap(self, take: Any) -> None:  # worker thread
+        try:
+            summary = self.mocap.write_take(take, self.path, self.t0_monotonic_s)
+        except (MocapFileError, OSError, ValueError) as exc:
+            summary = f"mocap not written: {exc}"
+        self._bridge.post(self._mocap_written, summary)
+
+    def _mocap_written(self, summary: str) -> None:
+        self.mocap_summary = summary
         self._finish()
 
     # -- data (forwarded; the Forces tab's live session feeds the recorder directly) -------------------------------
@@ -117,6 +147,8 @@ class RecordingSession(QObject):
     # -- GUI thread ------------------------------------------------------------------------------------------------
     def _fail(self, message: str) -> None:
         self.failed.emit(message)
+        if self.mocap is not None and self.recorder.running:
+            self.mocap.recording_stopping(self.recorder)  # the take ends with the file; nothing to write it into
         self.recorder.stop()
         self._finish()
 
@@ -131,5 +163,6 @@ class RecordingSession(QObject):
             state = "empty (no data arrived; nothing written)"
         else:
             state = "saved"
+        mocap = f"; {self.mocap_summary}" if self.mocap_summary else ""
         self.stopped.emit(f"recording {state}: {self.path} ({recorder.n_daq_samples} board samples, "
-                          f"{recorder.elapsed_s:.1f} s)")
+                          f"{recorder.elapsed_s:.1f} s){mocap}")

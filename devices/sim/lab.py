@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from devices.config import LabConfig
+from devices.config import SIM_MOCAP, LabConfig
 from devices.sim.board import VirtualBoard
 from devices.sim.clock import SimClock
 from devices.sim.contact import ContactModel
@@ -19,6 +19,7 @@ from devices.sim.rig import VirtualRig
 from devices.sim.transport import SimEndpoint
 
 if TYPE_CHECKING:  # pragma: no cover
+    from devices.sim.mocap_stream import SimulatedMocapStream
     from devices.sim.physics.backend import PhysicsBackend
 
 
@@ -58,6 +59,7 @@ class SimLab:
             # The probe covers the whole sensor: the rig's sensor is pressed over the documented area exactly.
             self.board.sensors.area_m2[self._rig_channel] = sim.sensor_area_m2
         self._on_beam = False
+        self.mocap_stream: SimulatedMocapStream | None = None
 
     def forces_n(self, t_s: float) -> np.ndarray:
         """Force on every board channel from the robot's contacts — except the channel of ``rig.sensor`` while the
@@ -87,11 +89,32 @@ class SimLab:
 
     def start_background(self) -> None:
         """Keep the physics world stepping with the clock between driver events (the app's lab); no-op when the
-        lab is scripted. Daemon thread; :meth:`close` stops it."""
+        lab is scripted. Daemon thread; :meth:`close` stops it. With ``[lab] mocap = true`` the simulated motion
+        capture starts too."""
         if self.physics is not None:
             self.physics.start()
+            if self.config.lab.mocap == SIM_MOCAP:
+                self.start_mocap_stream()
+
+    def start_mocap_stream(self) -> str:
+        """Publish the simulated body's motion capture (:mod:`devices.sim.mocap_stream`) if not yet; returns the
+        stream's name. ValueError on the scripted lab (no body in a world to film)."""
+        if self.physics is None:
+            raise ValueError("the scripted simulated lab has no body to film: motion capture needs the physics lab "
+                             "([lab] physics = \"mujoco\")" + (f"; {self.physics_note}" if self.physics_note else ""))
+        if self.mocap_stream is None:
+            from devices.sim.mocap_stream import SimulatedMocapStream
+
+            physics, clock = self.physics, self.clock
+            self.mocap_stream = SimulatedMocapStream(
+                physics.body_state, lambda world_s: clock.wall_from_sim(world_s + physics.time0_s), self.config.mocap,
+                self.config.robot.n_joints, physics.world.scene.terrain.height_at)
+        self.mocap_stream.start()
+        return self.mocap_stream.name
 
     def close(self) -> None:
+        if self.mocap_stream is not None:
+            self.mocap_stream.close()
         if self.physics is not None:
             self.physics.close()
 

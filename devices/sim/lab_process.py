@@ -315,7 +315,7 @@ class MirrorPhysics:
         """The lab world's time of the pose drawn last (None before the first)."""
         return self.posed.shown_time_s
 
-    def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
+    def render_rgb(self, width: int = 640, height: int = 480, marks: Sequence[Any] = ()) -> np.ndarray:
         from devices.sim.physics.render import ThreadRenderers
 
         why = self._gone()
@@ -323,7 +323,7 @@ class MirrorPhysics:
             raise RuntimeError(why)  # the 3-D tab says it and draws the 2-D body instead
         if self._renderers is None:
             self._renderers = ThreadRenderers(self.posed)  # type: ignore[arg-type]
-        return self._renderers.render(width, height)
+        return self._renderers.render(width, height, marks)
 
     def release_renderer(self) -> None:
         if self._renderers is not None:

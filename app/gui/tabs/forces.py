@@ -53,6 +53,7 @@ from app.core.live_session import LiveSession, LiveUpdate
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
 from app.gui.forces_history import RESET, Reestimation, joined, snapshot
+from app.gui.mocap_link import install_mocap_picker
 from app.gui.recording_session import RecordingSession
 from app.gui.thread_bridge import ThreadBridge
 from devices.factory import SIMULATED_TRUTH_NOTE, is_sim
@@ -163,6 +164,7 @@ class ForcesTab(QWidget):
             self.body = BodyView(config.robot.axes, config.robot.segment_length_m, self)
         self._build_layout()
         self._connect()
+        self.mocap_picker = install_mocap_picker(self)  # beside Record: the motion capture recorded with the forces
         self._apply_calibration_labels()
         self.controls.path.setText(str(default_recording_path()))
         self._show_live()

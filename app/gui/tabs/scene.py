@@ -6,6 +6,13 @@ most ``FRAME_RATE_HZ`` and only while the tab is visible; frames reach the GUI t
 without OpenGL it shows the 2-D body drawing of the robot's present joint angles and says why. A line above the
 picture names the scene (``[lab] scene``) and its obstacles.
 
+**Live motion capture** (a source picked beside the Forces tab's Record, or ``[lab] mocap``): the motion-captured
+markers and segment centres are drawn into the 3-D picture over the simulated body, and a panel beside it
+(:class:`widgets.kinematics_view.KinematicsView`) shows the motion-captured body from the side and each segment's
+position against time (the paper's Fig. 6D) over the last ``KINEMATICS_WINDOW_S``, on the Forces tab's clock. Both
+read the poses the stream's reader fits (:meth:`app.gui.mocap_link.MocapLink.live_snapshot`); the panel redraws
+at ``KINEMATICS_RATE_HZ`` while the tab is visible.
+
 **Replay** (Open recording…): a recording on a timeline (:class:`widgets.replay_view.ReplayView`) — the simulated body
 from ``/sim``, the motion-captured one from ``/mocap`` when present, else the commanded pose from ``/robot`` — with
 the contact forces drawn on the body; scrub, play, pause, speed 0.1–10×, step frame by frame. The data are read by
@@ -28,6 +35,7 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QSplitter,
     QStackedWidget,
     QVBoxLayout,
     QWidget,
@@ -39,6 +47,7 @@ from app.gui.thread_bridge import ThreadBridge
 from devices.errors import SceneError
 from devices.scene import half_cylinder_scene, load_scene
 from widgets import theme
+from widgets.kinematics_view import MOCAP_COLOR, KinematicsView
 from widgets.replay_view import ReplayView
 from widgets.scene_view import SceneView
 
@@ -46,6 +55,10 @@ FRAME_RATE_HZ = 10.0
 FRAME_SIZE = (640, 480)
 BODY_RATE_MS = 100
 REPLAY_FRAME_MS = 33  # the replay draws at ~30 frames/s while it plays
+KINEMATICS_RATE_HZ = 15.0
+KINEMATICS_WINDOW_S = 30.0
+MARKER_RADIUS_M = 0.006  # the motion-captured markers and segment centres as drawn into the 3-D picture
+CENTRE_RADIUS_M = 0.011
 
 
 def _physics_of(lab: Any) -> tuple[Any, str]:
@@ -112,7 +125,13 @@ class SceneTab(QWidget):
         layout.addLayout(bar)
         self.replay_view = ReplayView()
         self.pages = QStackedWidget()
-        self.pages.addWidget(self.view)
+        self.live_page = QSplitter()
+        self.live_page.addWidget(self.view)
+        self.kinematics = KinematicsView(robot.n_joints)
+        self.live_page.addWidget(self.kinematics)
+        self.live_page.setStretchFactor(0, 3)
+        self.live_page.setStretchFactor(1, 2)
+        self.pages.addWidget(self.live_page)
         self.pages.addWidget(self.replay_view)
         layout.addWidget(self.pages, 1)
         self.replay: replays.Replay | None = None
@@ -137,6 +156,16 @@ class SceneTab(QWidget):
         self._body_timer = QTimer(self)
         self._body_timer.setInterval(BODY_RATE_MS)
         self._body_timer.timeout.connect(self._draw_body)
+        self.mocap = getattr(lab, "mocap", None)
+        self._kinematics_timer = QTimer(self)
+        self._kinematics_timer.setInterval(int(1000 / KINEMATICS_RATE_HZ))
+        self._kinematics_timer.timeout.connect(self.draw_kinematics)
+        self.kinematics.setVisible(False)
+        if self.mocap is not None:
+            self.mocap.source_changed.connect(self._on_mocap_source)
+            self.mocap.status_changed.connect(self.kinematics.set_status)
+            self.kinematics.set_status(self.mocap.status, self.mocap.level)
+            self._on_mocap_source(self.mocap.source)
         if self._physics is None:
             why = (f"No physics lab: {note}." if note else "No physics lab: this is a real robot or the scripted "
                    "simulated lab ([lab] physics = \"scripted\").")
@@ -163,11 +192,14 @@ class SceneTab(QWidget):
                 self._thread.start()
         else:
             self._body_timer.start()
+        if self.kinematics.isVisibleTo(self):
+            self._kinematics_timer.start()
 
     def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt's name
         super().hideEvent(event)
         self._visible.clear()
         self._body_timer.stop()
+        self._kinematics_timer.stop()
         self._replay_timer.stop()  # a playing replay resumes where it was when the tab comes back
 
     def shutdown(self) -> None:
@@ -177,6 +209,7 @@ class SceneTab(QWidget):
             self._thread.join(timeout=3.0)
             self._thread = None
         self._body_timer.stop()
+        self._kinematics_timer.stop()
         self._replay_timer.stop()
         self._bridge.close()
 
@@ -188,7 +221,7 @@ class SceneTab(QWidget):
                 self._visible.wait()
                 if self._stop.is_set():
                     break
-                frame = self._physics.render_rgb(*FRAME_SIZE)
+                frame = self._physics.render_rgb(*FRAME_SIZE, self.mocap_marks())
                 self._bridge.post(self.view.set_frame, frame)
                 self._stop.wait(period)
         except RuntimeError as exc:  # RenderUnavailable (no EGL/OSMesa here), or the world went away
@@ -201,6 +234,37 @@ class SceneTab(QWidget):
         self.view.show_fallback(f"{message}; showing the 2-D body drawing instead.")
         if self.isVisible():
             self._body_timer.start()
+
+    def mocap_marks(self) -> list[tuple[np.ndarray, float, tuple[float, float, float, float]]]:
+        """The newest motion-captured markers and segment centres, as spheres for the 3-D picture (render thread)."""
+        snapshot = self.mocap.live_snapshot() if self.mocap is not None and self.mocap.source else None
+        if snapshot is None:
+            return []
+        colour = theme.qcolor(MOCAP_COLOR)
+        rgba = (colour.redF(), colour.greenF(), colour.blueF(), 1.0)
+        return [(snapshot.markers_m.reshape(-1, 3), MARKER_RADIUS_M, rgba),
+                (snapshot.newest_center_m, CENTRE_RADIUS_M, (rgba[0], rgba[1], rgba[2], 0.55))]
+
+    # -- live motion capture -------------------------------------------------------------------------------------------
+    def _on_mocap_source(self, source: str) -> None:
+        self.kinematics.setVisible(bool(source))
+        if source and self.isVisible():
+            self._kinematics_timer.start()
+        elif not source:
+            self._kinematics_timer.stop()
+
+    def draw_kinematics(self) -> None:
+        """The kinematics panel from the newest poses (timer, while the tab is visible)."""
+        snapshot = self.mocap.live_snapshot() if self.mocap is not None else None
+        if snapshot is None:
+            self.kinematics.show_body(None, None)
+            return
+        board = getattr(self.lab, "board_if_created", None)
+        t0 = getattr(board, "t0_monotonic_s", None)
+        t0 = float(snapshot.time_s[0]) if t0 is None else float(t0)
+        recent = snapshot.time_s >= snapshot.newest_time_s - KINEMATICS_WINDOW_S
+        self.kinematics.show_body(snapshot.newest_center_m, snapshot.markers_m)
+        self.kinematics.show_positions(snapshot.time_s[recent] - t0, snapshot.center_m[recent])
 
     # -- 2-D fallback --------------------------------------------------------------------------------------------------
     def _draw_body(self) -> None:
@@ -249,7 +313,7 @@ class SceneTab(QWidget):
         self.pause()
         self.replay = None
         self.replay_frame = None
-        self.pages.setCurrentWidget(self.view)
+        self.pages.setCurrentWidget(self.live_page)
         self.live_button.setVisible(False)
         self.scene_label.setText(scene_description(self.lab.config))
         if self.isVisible():

@@ -22,6 +22,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,7 +35,7 @@ from devices.sim.physics.validity import InvalidState
 from devices.sim.physics.world import BodyState, JointState, PhysicsWorld, channel_map
 
 if TYPE_CHECKING:  # pragma: no cover
-    from devices.sim.physics.render import ThreadRenderers
+    from devices.sim.physics.render import Mark, ThreadRenderers
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +100,11 @@ class PhysicsBackend:
         self._renderers: ThreadRenderers | None = None  # one per rendering thread, made on first use
         self._restart_invalid = False  # the app's lab (start): an invalid world is reported and restarted
         self.invalid_states: list[InvalidState] = []  # each time the app's lab restarted an invalid world
+
+    @property
+    def time0_s(self) -> float:
+        """The clock's simulated time at which the world's clock read 0 (world time = clock time − this)."""
+        return self._time0_s
 
     # -- joints (the chain) ----------------------------------------------------------------------------------------------
     def command(self, torque_on: np.ndarray, goal_rad: np.ndarray, speed_rad_s: np.ndarray) -> None:
@@ -172,7 +178,7 @@ class PhysicsBackend:
         return self.world.body_state()
 
     # -- pictures (each rendering thread has its own OpenGL context) ------------------------------------------------
-    def render_rgb(self, width: int = 640, height: int = 480) -> np.ndarray:
+    def render_rgb(self, width: int = 640, height: int = 480, marks: Sequence[Mark] = ()) -> np.ndarray:
         """A (height, width, 3) uint8 picture of the scene; raises ``RenderUnavailable`` (a RuntimeError) when this
         machine cannot render offscreen. The calling thread's renderer (an OpenGL context current in that thread)
         is made on its first call, and again when the size changes; the thread must :meth:`release_renderer` before
@@ -181,7 +187,7 @@ class PhysicsBackend:
 
         if self._renderers is None:
             self._renderers = ThreadRenderers(self.world)
-        return self._renderers.render(width, height)
+        return self._renderers.render(width, height, marks)
 
     def release_renderer(self) -> None:
         """Close the calling thread's renderer, if it has one (call it from that thread; :meth:`close` does for

@@ -8,6 +8,8 @@ outside it, so the physics thread is held up only for the scene update.
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -17,6 +19,34 @@ from devices.sim.physics.world import PhysicsWorld
 CAMERA_DISTANCE_M = 1.7
 CAMERA_AZIMUTH_DEG = 60.0  # from the robot's right, a little from behind; the obstacle is drawn see-through
 CAMERA_ELEVATION_DEG = -25.0
+
+
+class Mark(NamedTuple):
+    """Points to draw as spheres: ``points_m`` (N, 3) in the world's frame (NaN rows left out), ``radius_m``,
+    ``rgba`` (four numbers 0…1). A plain 3-tuple does as well (the app passes those: it does not import the
+    simulated lab)."""
+
+    points_m: np.ndarray
+    radius_m: float
+    rgba: tuple[float, float, float, float]
+
+
+def add_marks(scene: mujoco.MjvScene, marks: Sequence[Mark]) -> int:
+    """Append ``marks`` to a scene already updated from the world (as many as it has room for); returns how many
+    spheres were added."""
+    added = 0
+    eye = np.eye(3).reshape(-1)
+    for points_m, radius_m, colour in marks:
+        points = np.asarray(points_m, dtype=float).reshape(-1, 3)
+        size = np.array([radius_m, 0.0, 0.0])
+        rgba = np.asarray(colour, dtype=np.float32)
+        for point in points[np.isfinite(points).all(axis=1)]:
+            if scene.ngeom >= scene.maxgeom:
+                return added
+            mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, size, point, eye, rgba)
+            scene.ngeom += 1
+            added += 1
+    return added
 
 
 class RenderUnavailable(RuntimeError):
@@ -39,9 +69,11 @@ class SceneRenderer:
         self._camera.elevation = CAMERA_ELEVATION_DEG
         self.frames = 0
 
-    def render(self) -> np.ndarray:
-        """One frame, (height, width, 3) uint8 RGB."""
+    def render(self, marks: Sequence[Mark] = ()) -> np.ndarray:
+        """One frame, (height, width, 3) uint8 RGB, with ``marks`` drawn into the scene (spheres at given points:
+        the motion-captured markers, drawn over the simulated body)."""
         self.world.update_scene(self._renderer, self._camera)
+        add_marks(self._renderer.scene, marks)
         frame = self._renderer.render()
         self.frames += 1
         return frame
@@ -58,7 +90,7 @@ class ThreadRenderers:
         self.world = world
         self._renderers: dict[int, tuple[tuple[int, int], SceneRenderer]] = {}
 
-    def render(self, width: int, height: int) -> np.ndarray:
+    def render(self, width: int, height: int, marks: Sequence[Mark] = ()) -> np.ndarray:
         thread = threading.get_ident()
         entry = self._renderers.get(thread)
         if entry is None or entry[0] != (width, height):
@@ -66,7 +98,7 @@ class ThreadRenderers:
                 entry[1].close()
             entry = ((width, height), SceneRenderer(self.world, width, height))
             self._renderers[thread] = entry
-        return entry[1].render()
+        return entry[1].render(marks)
 
     def release(self) -> None:
         """Close the calling thread's renderer, if it has one (only that thread can: EGL_BAD_ACCESS otherwise)."""
