@@ -488,6 +488,11 @@ class LslLinks:
         self._recorder: Recorder | None = None
         self._take_counts = (0, 0)  # the inlet's dropouts and missing samples when the take began
 
+    @property
+    def recording(self) -> bool:
+        """A recording is running (between :meth:`start` and :meth:`stop`)."""
+        return self._recorder is not None
+
     # -- motion capture ----------------------------------------------------------------------------------------
     def open_inlet(self, spec: str, *, collect: bool = True, live_rate_hz: float = 0.0,
                    resolve_timeout_s: float | None = None) -> MocapInlet:

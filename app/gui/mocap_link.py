@@ -121,6 +121,11 @@ class MocapLink(QObject):
         if self._closed:
             return
         source = source.strip()
+        if self.links.recording and source != self.source:  # the take would lose what it has kept so far
+            self.source_changed.emit(self.source)
+            self.status_changed.emit(f"the source stays {self.source or 'none'} while a recording runs: stop it "
+                                     "first", theme.WARN)
+            return
         self._request += 1
         self.source = source
         self.links.adopt(None)

@@ -54,6 +54,9 @@ def test_a_recording_from_the_forces_tab_stores_the_stream_picked_beside_record(
         session = tab.start_recording(tmp_path / "with-mocap.h5", duration_s=None)
         assert session is not None and session.mocap is lab.mocap
         qtbot.waitUntil(lambda: session.elapsed_s > 1.5, timeout=20_000)
+        picker.none_action.trigger()  # refused while recording: the take would lose what it kept
+        assert lab.mocap.source == "lsl:TabMocap" and lab.mocap.inlet is not None and "stays" in picker.toolTip()
+        assert picker.text() == "Mocap: TabMocap"
         with qtbot.waitSignal(session.stopped, timeout=60_000) as stopped:
             tab.stop_recording()
     assert "mocap:" in stopped.args[0] and "written to with-mocap.h5 as /mocap" in stopped.args[0]
