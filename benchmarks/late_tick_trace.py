@@ -171,9 +171,13 @@ def _explain(record: dict, emulator: list, probes: list, t0: float) -> tuple[str
         elif writes or calls:
             cause = f"command ({', '.join(map(str, calls)) or 'bus writes'})"
         elif pty is not None and pty[0]:
-            cause = f"{pty[0]} in a {kind}"
+            # The emulator or the pty late while the machine held the real-time probes off too: the machine.
+            cause = _held(probes, ta, tb, excess, notes) or f"{pty[0]} in a {kind}"
         else:
-            cause = _held(probes, ta, tb, excess, notes) or _gil(others + bus, ta, tb, notes) or "unexplained"
+            cause = _held(probes, ta, tb, excess, notes) or _gil(others + bus, ta, tb, notes)
+            if not cause:  # the time went between the transactions: was the machine holding the probes off then?
+                t_before = ticks[-1][0] if ticks else slot - record["period_ms"] / 1e3
+                cause = _held(probes, t_before, wait[0], wait[0] - slot, notes) or "unexplained"
     else:  # the work ended in time; the wake-up for the slot came late
         late_s = start - slot
         where = f"woke {late_s * 1e3:.1f} ms after the slot (the tick before ended {(slot - wait[0]) * 1e3:.1f} ms early)"

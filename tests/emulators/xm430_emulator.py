@@ -572,12 +572,17 @@ def _sleep_until(t: float) -> None:
         time.sleep(delay)
 
 
+HARDWARE_RT_PRIORITY = 30
+
+
 def _run_like_hardware() -> str:
     """Ask for a real-time scheduling class: servos answer on time whatever else the host runs, and a shared,
     loaded machine would otherwise make the emulator, not the driver under test, late. Best effort (needs the
-    privilege); returns what was obtained, for the log line."""
+    privilege); returns what was obtained, for the log line. Its priority is above any thread of the app under test
+    (whose control loop asks for 20), as hardware does not wait for the host's threads: a reply late because the
+    host's own real-time threads held the emulator off would be the emulator's lateness charged to the host."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(HARDWARE_RT_PRIORITY))
         return "SCHED_FIFO"
     except (AttributeError, PermissionError, OSError):
         return "normal scheduling (no privilege for SCHED_FIFO: replies may be late on a loaded machine)"
