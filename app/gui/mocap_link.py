@@ -18,7 +18,7 @@ Public methods are for the GUI thread unless they say otherwise.
 
 from __future__ import annotations
 
-import logging
+import math
 import threading
 import time
 from pathlib import Path
@@ -34,8 +34,6 @@ from devices.config import SIM_MOCAP, mocap_stream_spec
 from devices.factory import installed_sim_lab, is_sim
 from widgets import theme
 from widgets.mocap_picker import MocapSourceButton
-
-log = logging.getLogger(__name__)
 
 LIVE_RATE_HZ = 30.0  # poses fitted a second for the live views
 STATUS_REFRESH_MS = 1000
@@ -173,10 +171,10 @@ class MocapLink(QObject):
         count, since = self._received
         rate = (inlet.received - count) / max(now - since, 1e-3)
         self._received = (inlet.received, now)
-        silent = now - inlet.last_host_s
+        silent = now - inlet.last_host_s  # NaN before the first sample
         where = f"LSL stream {inlet.stream_name!r}"
-        if not silent < SILENT_S:  # NaN (nothing yet) too
-            quiet = f"for {silent:.0f} s" if silent == silent else "since it was found"
+        if math.isnan(silent) or silent >= SILENT_S:
+            quiet = "since it was found" if math.isnan(silent) else f"for {silent:.0f} s"
             self._set_status(f"{where} silent {quiet} ({inlet.dropouts} dropout(s) so far)", theme.ERROR)
         else:
             level = theme.WARN if inlet.dropouts else theme.OK

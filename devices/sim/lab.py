@@ -60,6 +60,7 @@ class SimLab:
             self.board.sensors.area_m2[self._rig_channel] = sim.sensor_area_m2
         self._on_beam = False
         self.mocap_stream: SimulatedMocapStream | None = None
+        self.realtime_threads = False  # the lab's own process: its threads ask for the servos' real-time priority
 
     def forces_n(self, t_s: float) -> np.ndarray:
         """Force on every board channel from the robot's contacts — except the channel of ``rig.sensor`` while the
@@ -108,7 +109,7 @@ class SimLab:
             physics, clock = self.physics, self.clock
             self.mocap_stream = SimulatedMocapStream(
                 physics.body_state, lambda world_s: clock.wall_from_sim(world_s + physics.time0_s), self.config.mocap,
-                self.config.robot.n_joints, physics.world.scene.terrain.height_at)
+                self.config.robot.n_joints, physics.world.scene.terrain.height_at, realtime=self.realtime_threads)
         self.mocap_stream.start()
         return self.mocap_stream.name
 

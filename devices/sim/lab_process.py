@@ -453,6 +453,7 @@ def child_main(conn: Connection, page: mmap.mmap | None) -> int:
     config = start.config
     try:
         lab = SimLab(config, seed=start.seed, speed=start.speed)
+        lab.realtime_threads = True  # the simulated motion capture's sender, raised as the threads below
         lab.start_background()
         ptys = {"robot": _Pty(lab.chain, config.robot.baud), "board": _Pty(lab.board, config.board.baud),
                 "rig": _Pty(lab.rig.chain, config.rig.baud)}

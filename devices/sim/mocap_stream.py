@@ -91,7 +91,7 @@ class SimulatedMocapStream:
 
     def __init__(self, body_state: Callable[[], Any], wall_of_world: Callable[[float], float], mocap: MocapConfig,
                  n_segments: int, height_at: Callable[[float], float], *, name: str = SIM_MOCAP_STREAM,
-                 rate_hz: float = RATE_HZ, seed: int = 0) -> None:
+                 rate_hz: float = RATE_HZ, seed: int = 0, realtime: bool = False) -> None:
         self.body_state = body_state
         self.wall_of_world = wall_of_world
         self.layout = check_layout(mocap.marker_layout_m, n_segments)
@@ -101,6 +101,10 @@ class SimulatedMocapStream:
         self.rate_hz = float(rate_hz)
         self.labels = channel_labels(mocap, n_segments)
         self.frames_sent = 0
+        # In the lab's own process the sender asks for the servos' real-time priority, as that process's other
+        # threads that share the interpreter lock with its pty thread do: one preempted while it holds the lock
+        # would make the servos answer late (the control loop then misses ticks).
+        self.realtime = realtime
         self._rng = np.random.default_rng(seed)
         self._dropout_left = np.zeros(self.layout.shape[:2], dtype=int)  # frames each marker stays dropped
         self._hidden = np.zeros(self.layout.shape[:2], dtype=bool)  # seen by fewer than MIN_CAMERAS cameras
@@ -150,6 +154,10 @@ class SimulatedMocapStream:
     def _run(self) -> None:
         import pylsl
 
+        if self.realtime:
+            from devices.realtime import _raise_thread_priority
+
+            log.debug("simulated motion capture: %s", _raise_thread_priority())
         lsl_minus_mono = pylsl.local_clock() - time.monotonic()
         previous: tuple[float, np.ndarray] | None = None
         while not self._stop.wait(CHUNK_S):
