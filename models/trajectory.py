@@ -543,16 +543,19 @@ def sidewinding(axes: Sequence[str], params: SidewindingParams = SidewindingPara
     return ParametricGait(axes, yaw=params.yaw, pitch=pitch, pitch_phase_rad=params.phase_rad, blend_s=blend_s)
 
 
+def plan_blend_to(present_rad: Sequence[float] | np.ndarray, target_rad: np.ndarray, speed_rad_s: float) -> Plan:
+    """One straight move from ``present_rad`` to ``target_rad`` at ``speed_rad_s`` (the slowest joint sets its time)."""
+    start = _as_pose(present_rad, len(target_rad), "the present pose")
+    targets = np.asarray(target_rad, dtype=float)[None, :]
+    return Plan(start, targets, _move_durations(start, targets, speed_rad_s), np.zeros(1, int), "shift")
+
+
 class BlendTo(PlannedMotion):
     """Move from the present pose to ``target_rad`` in a straight line at ``speed_rad_s`` (e.g. 'go straight')."""
 
     def __init__(self, target_rad: Sequence[float] | np.ndarray, speed_rad_s: float, rate_hz: float = 50.0) -> None:
         _check_speed(speed_rad_s)
         target = np.array(target_rad, dtype=float)
-
-        def planner(present: np.ndarray) -> Plan:
-            start = _as_pose(present, len(target), "the present pose")
-            targets = target[None, :]
-            return Plan(start, targets, _move_durations(start, targets, speed_rad_s), np.zeros(1, int), "shift")
-
-        super().__init__(planner, "shift", rate_hz)
+        # A partial, not a closure: a motion source crosses to the control loop's process by pickling.
+        super().__init__(functools.partial(plan_blend_to, target_rad=target, speed_rad_s=speed_rad_s), "shift",
+                         rate_hz)

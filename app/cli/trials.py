@@ -1,6 +1,7 @@
 """``sensnake experiment trials --scene S --trials N [--seed K] [experiment run's motion and controller options]
 [--align …] --out DIR``: one condition run N times in the physics lab (:mod:`app.core.trials`), then the
-repeatability report of its valid trials into DIR (:mod:`app.cli.report`). Resumable: the same command again keeps
+repeatability report of its valid trials into DIR (:mod:`app.cli.report`). ``sensnake trials`` (the robot's series)
+comes here too and is handed to :mod:`app.cli.robot_trials`. Resumable: the same command again keeps
 the finished trials. Exit 0 with the report; 3 when a trial was invalid (the report averages the valid ones, if two or
 more); 1 with one line when the series cannot run. Main thread.
 """
@@ -49,6 +50,10 @@ def series_options(args: argparse.Namespace) -> SeriesOptions:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "command", None) == "trials":  # sensnake trials --robot …: a series on the robot
+        from app.cli import robot_trials
+
+        return robot_trials.run(args)
     options = series_options(args)
     config = load_config(options.config) if options.config else LabConfig()
     shape = read_shape(options.shape) if options.shape else None

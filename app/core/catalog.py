@@ -27,7 +27,7 @@ import os
 import re
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -136,6 +136,8 @@ def _read_h5(f: h5py.File, entry: dict[str, Any]) -> None:
         for key in ("exit_status", "reason", "outcome"):
             if stop.get(key) is not None:
                 entry[key] = stop[key]
+        if stop.get("note"):  # the operator's note on a robot trial's outcome, after the run's own note
+            entry["note"] = "; ".join(str(n) for n in (entry.get("note"), stop["note"]) if n)
     elif start is not None:
         entry["exit_status"] = "incomplete"  # a run_start without its run_stop: the run was cut short
     if entry.get("outcome") == "invalid":
@@ -255,9 +257,11 @@ class Catalog:
         with self._db:
             self._db.executemany("DELETE FROM runs WHERE path = ?", [(p,) for p in paths])
 
-    def sync(self, folder: str | Path, force: bool = False) -> tuple[int, int]:
+    def sync(self, folder: str | Path, force: bool = False,
+             cancelled: Callable[[], bool] | None = None) -> tuple[int, int]:
         """Bring the catalog in line with the recordings under ``folder`` (recursively): new or changed files read
-        (every file with ``force``), gone ones forgotten. Returns (read, forgotten)."""
+        (every file with ``force``), gone ones forgotten. Returns (read, forgotten). ``cancelled()`` (optional) is
+        asked between files: True stops the reading there (what was read is kept; the next sync reads the rest)."""
         root = Path(folder).resolve()
         known = {row[0]: (row[1], row[2]) for row in self._db.execute(
             "SELECT path, mtime_ns, size FROM runs WHERE path >= ? AND path < ?", _prefix_range(root))}
@@ -267,8 +271,11 @@ class Catalog:
             seen.add(key)
             if force or known.get(key) != (stat.st_mtime_ns, stat.st_size):
                 changed.append(path)
-        entries = []
+        entries: list[dict[str, Any]] = []
         for path in changed:
+            if cancelled is not None and cancelled():
+                self.put(entries)
+                return len(entries), 0
             with contextlib.suppress(OSError):  # gone between the walk and the read: forgotten below next time
                 entries.append(read_entry(path))
         self.put(entries)

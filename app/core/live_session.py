@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -240,11 +240,13 @@ class LiveSession:
                         n_joints: int = 12, min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
                         calibration_json: str | None = None, with_forces: bool | None = None,
                         on_failed: Callable[[str], None] | None = None,
-                        t0_monotonic_s: float | None = None, note: str = "") -> Recorder:
+                        t0_monotonic_s: float | None = None, note: str = "",
+                        run_start: Mapping[str, Any] | None = None) -> Recorder:
         """Start a recorder fed by this session. Forces are stored when a pipeline estimates them (with the
         calibration in force, see :meth:`recording_calibration_json`), unless ``with_forces`` is False.
         ``t0_monotonic_s`` (default: now) is the recording's ``started``; frames that arrived before it are not
-        recorded. ``note``: the operator's note, kept in the recording's ``run_start``."""
+        recorded. ``note``: the operator's note, kept in the recording's ``run_start``; ``run_start``: the whole
+        RunStart document of a plan that knows its condition (a robot trial's), instead of a ``record`` run's."""
         if self.recorder is not None and self.recorder.running:
             raise RuntimeError(f"already recording to {self.recorder.path}")
         if calibration_json is None and with_forces is not False:
@@ -252,7 +254,8 @@ class LiveSession:
         recorder = Recorder(path, config_text, self.channel_names, calibration_json=calibration_json,
                             with_robot=with_robot, n_joints=n_joints, min_free_bytes=min_free_bytes,
                             t0_monotonic_s=t0_monotonic_s, on_failed=on_failed,
-                            run_start=live_run_start(config_text, calibration_json, note=note))
+                            run_start=run_start if run_start is not None else
+                            live_run_start(config_text, calibration_json, note=note))
         recorder.start()
         self.attach_recorder(recorder)
         return recorder

@@ -19,6 +19,9 @@ writer cannot know (a live recording does not know what the Gait tab plays) is n
     {"uid": "…", "time": …, "run_start": "<run_start uid>", "exit_status": "success"|"abort"|"fail",
      "reason": "…", "outcome": "traversed"|"not traversed"|"undecided"|"invalid"|null}
 
+A robot trial's outcome is the operator's (``traversed``, ``failed``, ``aborted``), with the operator's ``note`` on
+it (the key only when there is one).
+
 A file with a ``run_start`` and no ``run_stop`` is a run that was cut short (a crash, a killed process): bluesky's
 reading of a run without its stop document. Readers ignore what they do not know.
 
@@ -122,13 +125,18 @@ def with_metadata(document: Mapping[str, Any], md: Mapping[str, Any] | None) -> 
 
 
 def run_stop_document(start: Mapping[str, Any] | None, exit_status: str, reason: str = "",
-                      outcome: str | None = None, when: float | None = None) -> dict[str, Any]:
-    """A RunStop document closing ``start`` (None: a file without a start document)."""
+                      outcome: str | None = None, when: float | None = None, note: str | None = None
+                      ) -> dict[str, Any]:
+    """A RunStop document closing ``start`` (None: a file without a start document); ``note``: the operator's note
+    on the outcome (a robot trial's), only when given."""
     if exit_status not in EXIT_STATUSES:
         raise ValueError(f"exit_status must be one of {', '.join(EXIT_STATUSES)}, got {exit_status!r}")
-    return {"uid": str(uuid.uuid4()), "time": time.time() if when is None else float(when),
-            "run_start": None if start is None else start.get("uid"), "exit_status": exit_status,
-            "reason": reason, "outcome": outcome}
+    document = {"uid": str(uuid.uuid4()), "time": time.time() if when is None else float(when),
+                "run_start": None if start is None else start.get("uid"), "exit_status": exit_status,
+                "reason": reason, "outcome": outcome}
+    if note:
+        document["note"] = note
+    return document
 
 
 def document_text(document: Mapping[str, Any]) -> str:
@@ -166,17 +174,21 @@ def reserve_run_stop(attrs: Any) -> None:
 
 
 def write_run_stop(path: str | Path, start: Mapping[str, Any] | None, exit_status: str, reason: str = "",
-                   outcome: str | None = None) -> dict[str, Any]:
+                   outcome: str | None = None, note: str | None = None) -> dict[str, Any]:
     """Close a finished recording's run: write its ``run_stop`` (after the file is complete; the writer is closed),
     into the room :func:`reserve_run_stop` kept when it has one (a long reason is shortened to fit), else as a new
     attribute. Returns the document. Raises OSError when the file cannot be opened for writing."""
-    document = run_stop_document(start, exit_status, reason, outcome)
+    document = run_stop_document(start, exit_status, reason, outcome, note=note)
     text = document_text(document)
     with h5py.File(path, "a", locking=False) as f:
         reserved = f.attrs.get_id(RUN_STOP).dtype.itemsize if RUN_STOP in f.attrs else 0
         if reserved:
-            while len(text.encode("utf-8")) > reserved and document.get("reason"):
-                document["reason"] = str(document["reason"])[: max(len(document["reason"]) // 2 - 1, 0)] + "…"
+            while len(text.encode("utf-8")) > reserved:  # the longer of the reason and the note is shortened
+                key = max(("reason", "note"), key=lambda name: len(str(document.get(name) or "")))
+                value = str(document.get(key) or "")
+                if len(value) <= 1:
+                    break
+                document[key] = value[: max(len(value) // 2 - 1, 0)] + "…"
                 text = document_text(document)
             f.attrs.modify(RUN_STOP, np.bytes_(text.encode("utf-8")))
         else:
