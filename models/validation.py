@@ -92,6 +92,7 @@ _CEILING_REL = 1e-9
 
 REJECTED = (ForceStatus.NAN_INPUT, ForceStatus.NEGATIVE_CONDUCTANCE, ForceStatus.ABOVE_CEILING, ForceStatus.FLAT,
             ForceStatus.OPEN_UNDER_LOAD)
+_IS_REJECTED = np.isin(np.arange(max(ForceStatus) + 1), REJECTED)  # by status code: a lookup, not np.isin per block
 DEFAULT_OPEN_S = 1e-9  # a reading at or below this is an open line (the 12-bit readout's smallest step is 0.36 µS)
 # A drop to open straight from a reading above this is not a release: at the contact term's C ∝ √F, 100 µS is
 # ≈ 0.05 N on the typical sensor (a grazing touch of 0.02–0.04 N, 67–81 µS, can let go within one frame).
@@ -134,6 +135,10 @@ class CheckedBlock:
 
 class SampleValidator:
     """Applies a :class:`ValidationRule` to blocks of ``n_sensors`` columns, carrying flat-line runs across blocks."""
+
+    # A one-row block takes the stuck-channel rule's one-row path (the same results; False: the general path, which
+    # the tests compare it with)
+    one_row_fast_path = True
 
     def __init__(self, n_sensors: int, rule: ValidationRule | None = None) -> None:
         if n_sensors < 1:
@@ -198,7 +203,7 @@ class SampleValidator:
             flat, still = self._flat(t, cond, informative)
             status[flat & (status == 0)] = ForceStatus.FLAT
             status[still & (status == 0)] = ForceStatus.UNCHANGED
-        rejected = np.isin(status, REJECTED)
+        rejected = _IS_REJECTED[status]
         cond[rejected] = np.nan
         return CheckedBlock(cond, status)
 
@@ -208,6 +213,8 @@ class SampleValidator:
         (a release passes through smaller readings, or lasts; module docstring)."""
         rule = self.rule
         n = cond.shape[0]
+        if n == 1 and self.one_row_fast_path:  # the same arithmetic on the row alone (the carried state before it)
+            return self._open_one_row(float(t[0]), cond[0], finite[0])[None, :]
         rows = np.arange(n)[:, None]
         with np.errstate(invalid="ignore"):
             is_open = finite & (cond >= 0.0) & (cond <= rule.open_s)
@@ -224,12 +231,102 @@ class SampleValidator:
         self._open_start_s = np.where(reading[-1], np.nan, start_s[-1])
         return opened
 
+    def _open_one_row(self, t: float, cond: np.ndarray, finite: np.ndarray) -> np.ndarray:
+        """:meth:`_open_under_load` for one row (S,)."""
+        rule = self.rule
+        with np.errstate(invalid="ignore"):
+            is_open = finite & (cond >= 0.0) & (cond <= rule.open_s)
+            reading = finite & (cond > rule.open_s)
+        before = np.where(reading, cond, self._last_reading)
+        start_s = np.where(reading, t, np.where(np.isnan(self._open_start_s), t, self._open_start_s))
+        opened = is_open & (before > rule.open_jump_s) & (t - start_s < rule.open_release_s)
+        self._last_reading = before
+        self._open_start_s = np.where(reading, np.nan, start_s)
+        return opened
+
     def _flat(self, t: np.ndarray, cond: np.ndarray, informative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(flat, still): samples whose non-zero reading has been identical for longer than the sensor's recent
         history makes likely (module docstring), and at least ``flat_min_s``, or for ``flat_s`` when the sensor never
         changed — rejected; and those identical for ``flat_max_s`` that the history cannot judge — kept, flagged.
         ``informative`` (N, S): samples whose change can show the sensor is alive (not open, not at the ceiling,
-        finite)."""
+        finite). A one-row block (a live reader's usual block: one board frame) takes :meth:`_flat_one_row`, the
+        same rule without the block's cumulative sums (the same numbers, bit for bit: tested)."""
+        if cond.shape[0] == 1 and self.one_row_fast_path:
+            flat, still = self._flat_one_row(float(t[0]), cond[0], informative[0])
+            return flat[None, :], still[None, :]
+        return self._flat_rows(t, cond, informative)
+
+    def _flat_one_row(self, t: float, cond: np.ndarray, informative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_flat_rows` for one row (S,): every per-row quantity of the general path with the row index 0, the
+        carried state standing for the rows before. Each expression is the general path's, in the same order, on
+        1-D arrays (the trend's windows are sums of whole ADC steps, exact in any order)."""
+        rule = self.rule
+        previous = self._last_value
+        prev_informative = self._last_informative
+        changed = ~(cond == previous)
+        compared = informative & prev_informative
+        step = rule.step_s
+        with np.errstate(invalid="ignore"):
+            steps = (cond - previous) / step if step else np.zeros(cond.shape)
+            moving = compared & (np.abs(steps) > MOVING_STEPS) if step else np.zeros(cond.shape, dtype=bool)
+        quiet = compared & ~moving
+        # the history (_history with one row: one comparison more where quiet)
+        decay = 1.0 - 1.0 / HISTORY_COMPARISONS
+        k = quiet.astype(np.float64)
+        grow = decay ** (-k)
+        changes = decay**k * (self._changes + (changed & quiet) * grow)
+        compares = decay**k * (self._compares + k * grow)
+        valid = self._valid + quiet
+        ever = self._ever | (changed & compared)
+        start_s = np.where(changed, t, self._run_start_s)
+        length = np.where(changed, 1, self._run_length + 1)
+        with np.errstate(invalid="ignore"):  # a quiet comparison's steps are finite (two finite readings)
+            signed = np.where(quiet, np.rint(steps), 0.0)
+        # the trend over the carried tail's last rows (the rows before this one)
+        tail_signed, tail_unusable = self._tail_signed, self._tail_unusable
+        net_short = tail_signed[-TREND_ROWS[0]:].sum(axis=0)
+        net_long = tail_signed[-TREND_ROWS[1]:].sum(axis=0)
+        clean_short = ~tail_unusable[-TREND_ROWS[0]:].any(axis=0)
+        clean_long = ~tail_unusable[-TREND_ROWS[1]:].any(axis=0)
+        rate = np.where(clean_short, (np.abs(net_short) - TREND_SLACK_STEPS) / TREND_ROWS[0], 0.0)
+        same_way = np.sign(net_short) == np.sign(net_long)
+        rate = np.where(clean_long, np.where(same_way, np.minimum(
+            rate, (np.abs(net_long) - TREND_SLACK_STEPS) / TREND_ROWS[1]), 0.0), rate)
+        trend_needs = np.where(rate > 0, np.ceil(TREND_STEPS / np.maximum(rate, 1e-300)), np.inf)
+        # the longest recent pause, this row's ended pause included
+        ended = changed & prev_informative
+        row_s = self._guard_row / GUARD_ROWS
+        marks = np.where(ended, np.log(np.maximum(self._run_length, 1)) + row_s, -np.inf)
+        best = np.maximum(self._guard_mark, marks)
+        longest = np.exp(best - row_s)
+        guard = np.where(changed, GUARD_FACTOR * longest, 0.0)
+        judged_needs = np.maximum(np.minimum(self._needs(self._changes, self._compares, self._valid), trend_needs),
+                                  guard)
+        needs = np.where(changed, judged_needs, self._run_needs)
+        elapsed = t - start_s
+        reading = cond != 0.0
+        due = np.where(ever, (length >= needs) & (elapsed >= rule.flat_min_s), elapsed >= rule.flat_s) & reading
+        flat = ((due & (elapsed < rule.flat_max_s)) | (~changed & self._run_flat)) & reading
+        still = (elapsed >= rule.flat_max_s) & reading & ~flat
+        self._last_value = cond.copy()
+        self._last_informative = informative.copy()
+        self._run_start_s = start_s
+        self._run_length = length.astype(np.int64)
+        self._run_needs = needs
+        self._changes, self._compares, self._valid = changes, compares, valid
+        self._ever = ever
+        self._run_flat = flat
+        self._tail_signed = np.vstack([tail_signed[1:], signed[None, :]])
+        self._tail_unusable = np.vstack([tail_unusable[1:], ~quiet[None, :]])
+        self._guard_mark = best
+        self._guard_row += 1
+        if self._guard_row > _GUARD_REBASE_ROWS:
+            self._guard_mark = self._guard_mark - self._guard_row / GUARD_ROWS
+            self._guard_row = 0
+        return flat, still
+
+    def _flat_rows(self, t: np.ndarray, cond: np.ndarray, informative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_flat` of a block of any number of rows (N, S)."""
         rule = self.rule
         n = cond.shape[0]
         rows = np.arange(n)[:, None]
