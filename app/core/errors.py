@@ -112,3 +112,8 @@ class EvaluationError(ValueError):
 # raised by app.core.tune
 class TuneError(ValueError):
     """A tuning file that cannot be run, or a folder that holds another study; names the file and key."""
+
+
+# raised by app.core.series
+class PlotLayoutError(ValueError):
+    """A plot layout file that cannot be read (not JSON, another format or version, a bad key); names the file."""

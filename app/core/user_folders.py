@@ -7,6 +7,7 @@ Windows. Inside it::
     recordings/      HDF5 recordings (the Forces tab's default, `record` files you choose to keep there)
     shapes/          the shape library (Teach saves, Gait and `play` load)
     calibrations/    calibration JSON files and the rig's run folders (trial CSVs + protocol.json)
+    plots/           plot layouts saved from the Plots dock while it shows the live lab (app.core.series)
     settings.ini     the window's settings (geometry, last tab, …)
     catalog.sqlite   the run catalog (app.core.catalog): the recordings' run documents indexed; rebuilt from the files
 
@@ -31,6 +32,7 @@ SHAPES_DIR_ENV = "SENSNAKE_SHAPES_DIR"
 RECORDINGS = "recordings"
 SHAPES = "shapes"
 CALIBRATIONS = "calibrations"
+PLOTS = "plots"
 SETTINGS_FILE = "settings.ini"
 
 
@@ -61,6 +63,11 @@ def shapes_dir() -> Path:
 def calibrations_dir() -> Path:
     """Calibration files and the calibration rig's run folders."""
     return _kind_dir(CALIBRATIONS)
+
+
+def plot_layouts_dir() -> Path:
+    """Plot layouts saved while the Plots dock shows the live lab (a recording's goes beside the recording)."""
+    return _kind_dir(PLOTS)
 
 
 def settings_path() -> Path:

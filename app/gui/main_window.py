@@ -9,6 +9,10 @@ Every message the status bar shows, every warning and fault and every operator a
 (:mod:`app.core.event_log`, kept by the window across lab changes and handed to each lab as ``lab.event_log``), shown
 in the **Event log** dock (View ▸ Event log, Ctrl+L): a click on the status bar's message opens the dock at that
 message, whole.
+The **Plots** dock (View ▸ Plots, Ctrl+P; :mod:`app.gui.plots_dock`) puts any live or recorded series on stacked
+plots with linked time axes, or as X–Y.
+The **Trials** dock (View ▸ Trials, Ctrl+T; :mod:`app.gui.trials_session`) runs a trial series on the robot; File ▸
+Open recording… (:mod:`app.gui.catalog_browser`) finds any recording in the run catalog.
 GUI thread only.
 """
 
@@ -35,11 +39,14 @@ from PySide6.QtWidgets import (
 )
 
 from app.core import event_log, user_folders
+from app.gui.catalog_browser import CatalogBrowser, show_catalog_browser
 from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext, end_sim_lab_unless_it_simulates
+from app.gui.plots_dock import PlotsDock
 from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING, describe_error
 from app.gui.tab_loader import ModuleLoader
 from app.gui.thread_bridge import ThreadBridge
+from app.gui.trials_session import TrialsDock
 from devices.config import load_config
 from devices.errors import ConfigError
 from devices.factory import is_sim
@@ -91,6 +98,9 @@ SHORTCUTS_TEXT = (
     "plots</td></tr>"
     "<tr><td><b>Ctrl+O</b></td><td>Open a lab configuration (TOML)</td></tr>"
     "<tr><td><b>Ctrl+L</b></td><td>Show / hide the event log (every message, warning, fault and action)</td></tr>"
+    "<tr><td><b>Ctrl+P</b></td><td>Show / hide the plots (any live or recorded series)</td></tr>"
+    "<tr><td><b>Ctrl+T</b></td><td>Show / hide the trials (a trial series on the robot)</td></tr>"
+    "<tr><td><b>Ctrl+Shift+O</b></td><td>Open a recording from the run catalog (3-D replay, trial overlay)</td></tr>"
     "<tr><td><b>Ctrl+1 … Ctrl+5</b></td><td>Teach, Gait, Calibration, Forces, Hardware</td></tr>"
     "<tr><td><b>Ctrl+Q</b></td><td>Quit (devices are shut down cleanly)</td></tr>"
     "</table>"
@@ -168,6 +178,16 @@ class MainWindow(QMainWindow):
         self.log_dock.hide()  # the tabs keep the height until the user asks for the log
         self.log_dock.visibilityChanged.connect(lambda _visible: self._update_log_badge())
         self.event_log.subscribe(self._log_changed)
+        # View ▸ Plots (Ctrl+P): any live or recorded series on linked axes (app/gui/plots_dock.py), idle while hidden
+        self.plots_dock = PlotsDock(self, self.settings, self)
+        self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.plots_dock)
+        self.plots_dock.hide()
+        # View ▸ Trials (Ctrl+T): a trial series on the robot (app/gui/trials_session.py); File ▸ Open recording…:
+        # the run catalog's browser (app/gui/catalog_browser.py)
+        self.trials_dock = TrialsDock(self, self)
+        self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.trials_dock)
+        self.trials_dock.hide()
+        self.catalog_browser: CatalogBrowser | None = None
         # Esc reaches STOP whatever has focus in this window (a table, a tab, a plot). In a dialog (a file chooser, a
         # question, a preview) Esc is first the dialog's own key: it closes that dialog, and stops only what is
         # moving (a gait, a calibration run) — a person dismissing a question while nothing moves is not told the
@@ -218,6 +238,12 @@ class MainWindow(QMainWindow):
         index = tab_index(name)
         self.tabs.setCurrentIndex(index)
         self._ensure_tab(index)
+        self._finish_steps(name)
+        return self._built[name]
+
+    def build_tab(self, name: str) -> QWidget:
+        """The page of tab ``name``, built now if it was not (without switching to it)."""
+        self._ensure_tab(tab_index(name))
         self._finish_steps(name)
         return self._built[name]
 
@@ -338,6 +364,10 @@ class MainWindow(QMainWindow):
         self.open_config_action.setShortcut(QKeySequence.StandardKey.Open)
         self.open_config_action.triggered.connect(self._choose_config)
         file_menu.addAction(self.open_config_action)
+        self.open_recording_action = QAction("Open &recording… (the run catalog)", self)
+        self.open_recording_action.setShortcut(QKeySequence("Ctrl+Shift+O"))
+        self.open_recording_action.triggered.connect(self.open_catalog)
+        file_menu.addAction(self.open_recording_action)
         file_menu.addSeparator()
         self.quit_action = QAction("&Quit", self)
         self.quit_action.setShortcut(QKeySequence("Ctrl+Q"))
@@ -356,6 +386,14 @@ class MainWindow(QMainWindow):
         self.log_action.setText("&Event log")
         self.log_action.setShortcut(QKeySequence("Ctrl+L"))
         view_menu.addAction(self.log_action)
+        self.plots_action = self.plots_dock.toggleViewAction()
+        self.plots_action.setText("&Plots")
+        self.plots_action.setShortcut(QKeySequence("Ctrl+P"))
+        view_menu.addAction(self.plots_action)
+        self.trials_action = self.trials_dock.toggleViewAction()
+        self.trials_action.setText("&Trials")
+        self.trials_action.setShortcut(QKeySequence("Ctrl+T"))
+        view_menu.addAction(self.trials_action)
 
         help_menu = self.menuBar().addMenu("&Help")
         self.shortcuts_action = QAction("&Keyboard shortcuts", self)
@@ -386,6 +424,11 @@ class MainWindow(QMainWindow):
                                                     "Lab configuration (*.toml);;All files (*)")
         if path:
             self.open_config(path)
+
+    def open_catalog(self) -> CatalogBrowser:
+        """File ▸ Open recording…: the run catalog's browser (filters, the 3-D replay, the Forces tab's overlay)."""
+        self.catalog_browser = show_catalog_browser(self, self.catalog_browser)
+        return self.catalog_browser
 
     def open_config(self, path: str | Path) -> bool:
         """Load a lab config and restart the devices on it; a bad file is reported and the lab kept."""
@@ -422,6 +465,7 @@ class MainWindow(QMainWindow):
         index = self.tabs.currentIndex()
         self._drop_tabs()
         old = self.lab
+        self.trials_dock.detach_lab()  # a trial being recorded closes as stopped before its lab goes
         old.close()
         old.deleteLater()
         return index
@@ -466,6 +510,8 @@ class MainWindow(QMainWindow):
         source = f" — {self.config_path.name}" if self.config_path else (" — simulated lab" if lab.is_all_sim
                                                                        else "")
         self.setWindowTitle(f"{APP_NAME}{source}")
+        self.plots_dock.attach_lab(lab)
+        self.trials_dock.attach_lab(lab)
 
     def _update_robot_status(self, *_args: object) -> None:
         robot = self.lab.robot
@@ -659,6 +705,11 @@ class MainWindow(QMainWindow):
             self._filtering_dialog = False
         self.save_settings()
         self.event_log.unsubscribe(self._log_changed)
+        self.plots_dock.shutdown()
+        self.trials_dock.shutdown()
+        if self.catalog_browser is not None:
+            with contextlib.suppress(RuntimeError):  # its dialog was closed already
+                self.catalog_browser.view.close()
         self._tab_loader.close()
         self._steps.clear()
         self._step_timer.stop()

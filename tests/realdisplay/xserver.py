@@ -72,10 +72,11 @@ def probe_env(display: str) -> dict[str, str]:
     return env
 
 
-def run_probe(display: str, scenario: str, *args: str, timeout_s: float = PROBE_TIMEOUT_S) -> dict:
-    """Run one probe scenario on ``display``; its JSON result (the last stdout line). AssertionError with the
-    probe's output when it fails or prints no result."""
-    command = [sys.executable, "-m", "tests.realdisplay.probe", scenario, *args]
+def run_probe(display: str, scenario: str, *args: str, timeout_s: float = PROBE_TIMEOUT_S,
+              module: str = "tests.realdisplay.probe") -> dict:
+    """Run one probe scenario on ``display`` (of ``module``, a probe with the same command line); its JSON result
+    (the last stdout line). AssertionError with the probe's output when it fails or prints no result."""
+    command = [sys.executable, "-m", module, scenario, *args]
     done = subprocess.run(command, cwd=ROOT, env=probe_env(display), capture_output=True, text=True,
                           timeout=timeout_s)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
