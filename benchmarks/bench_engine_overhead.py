@@ -11,7 +11,7 @@ its resident memory):
 * ``dask``: ``run_sweep(..., jobs=J, engine="dask")`` — an embedded ``LocalCluster`` on 127.0.0.1 of J
   single-threaded workers, started and stopped inside the timing.
 
-Printed for each engine: wall, and **overhead = wall / (serial wall / J) − 1** (the issue's measure: the sweep against
+Printed for each engine: wall, and **overhead = wall / (serial wall / J) − 1** (the target's measure: the sweep against
 the same runs one after another divided by the worker count); **CPU overhead** = its CPU / serial CPU − 1 (what the
 engine adds in work, which other processes on a shared machine slow less than they slow the wall clock); the time
 spent outside the runs (wall − Σ run wall / J, the runs' own ``wall_s``); and the **memory per worker**: each worker
