@@ -195,6 +195,7 @@ def real_port_window(qtbot, sim_lab_fast, emulator, tmp_path, monkeypatch):
     win.close()
 
 
+@pytest.mark.serial
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the emulator needs a pty (Linux)")
 def test_the_control_loop_misses_no_50_hz_tick_while_the_catalog_indexes(real_port_window, qtbot, tmp_path,
                                                                        monkeypatch, capsys):
@@ -235,6 +236,7 @@ def test_the_control_loop_misses_no_50_hz_tick_while_the_catalog_indexes(real_po
               f"missed at 50 Hz; as long after, browser idle: {base_missed} of {base_ticks + base_missed}")
     assert still_moving and ticks > 25
     # On a loaded machine the loop's process misses ticks whatever the GUI does (the baseline, 0 to 85 of ~500
-    # measured beside other test runs): indexing may add no more than a few ticks, 2 %, to that.
-    assert missed <= base_missed + max(3.0, 0.02 * (ticks + missed)), \
+    # measured beside other test runs, and the two halves of a run differ by as much): indexing may add no more than
+    # 10 ticks or 10 % to that. Indexing on the GUI's own terms (before it gave way) cost 94-223 of ~500.
+    assert missed <= base_missed + max(10.0, 0.10 * (ticks + missed)), \
         f"{missed} of {ticks + missed} control ticks missed while the catalog indexed ({base_missed} without)"
