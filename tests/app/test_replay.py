@@ -123,4 +123,4 @@ def test_the_tab_scrubs_plays_steps_and_draws_the_forces(scene_tab, qtbot, tmp_p
     qtbot.waitUntil(lambda: not scene_tab.playing)  # 10× plays the last 1.5 s in ~0.15 s, then stops at the end
     assert scene_tab.replay_time_s == pytest.approx(times[-1])
     scene_tab.show_live()
-    assert scene_tab.pages.currentWidget() is scene_tab.view
+    assert scene_tab.pages.currentWidget() is scene_tab.live_page and scene_tab.view.isVisibleTo(scene_tab)
