@@ -477,8 +477,8 @@ class ControllerProcess:
             self._emit(self._on_event, (
                 f"control loop process (pid {self.pid}) has not ticked for {silent_s * 1e3:.0f} ms "
                 f"({silent_s / self.period_s:.0f} periods at {self.robot.control_rate_hz:g} Hz): the loop was held "
-                f"off the CPU ({_machine_load()}), not a servo; it is ended if it stays silent for "
-                f"{self.hung_after_s:g} s"))
+                f"off the CPU, or its port's bytes in the kernel's tty worker ({_machine_load()}), not a servo; it "
+                f"is ended if it stays silent for {self.hung_after_s:g} s"))
         elif self._stall_reported_s is not None and last_s > self._stall_reported_s:
             self._emit(self._on_event, (f"control loop process (pid {self.pid}) ticks again after "
                                         f"{(last_s - self._stall_reported_s) * 1e3:.0f} ms"))
