@@ -19,6 +19,7 @@ from devices.errors import PortOpenError, os_words
 from devices.realtime import _switched_off
 
 if TYPE_CHECKING:  # pragma: no cover
+    from devices.scene import Scene
     from devices.sim.lab import SimLab
     from devices.sim.lab_process import LabProcess
     from devices.sim.physics.headless import HeadlessPhysicsLab
@@ -137,12 +138,13 @@ def install_sim_lab(lab: SimPorts | None) -> SimPorts | None:
         return previous
 
 
-def headless_physics_lab(config: LabConfig, seed: int = 0) -> HeadlessPhysicsLab:
+def headless_physics_lab(config: LabConfig, seed: int = 0, terrain: Scene | None = None) -> HeadlessPhysicsLab:
     """A physics lab (MuJoCo) that its caller steps as fast as the machine goes, for batch experiments; its devices
-    are reached through their wire protocol (see ``devices.sim.physics.headless``). Needs the ``mujoco`` package."""
+    are reached through their wire protocol (see ``devices.sim.physics.headless``). ``terrain``: a scene to build it
+    on instead of the config's ``[lab] scene``. Needs the ``mujoco`` package."""
     from devices.sim.physics.headless import HeadlessPhysicsLab
 
-    return HeadlessPhysicsLab(config, seed=seed)
+    return HeadlessPhysicsLab(config, seed=seed, terrain=terrain)
 
 
 def open_serial(port: str, baud: int, device: str, timeout_s: float | None = 0.0) -> serial.SerialBase:

@@ -53,6 +53,7 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "teach": (("config",), ("out",)),
     "servo": (("config", "settings"), ("out",)),
     "mocap": (("take", "xdf", "rec", "config", "recording"), ("out",)),
+    "lab": (("recordings", "config", "scene"), ("out",)),
 }
 
 
@@ -66,7 +67,8 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         for value in values if isinstance(values, list) else [values]:
             if value:
                 read[os.path.realpath(value)] = f"--{name} {value}" if name not in ("input", "trials", "recording",
-                                                                                    "plan") else str(value)
+                                                                                    "recordings", "plan") \
+                    else str(value)
     for name in outputs:
         value = getattr(args, name, None)
         if value and os.path.realpath(value) in read:
@@ -358,10 +360,51 @@ def build_parser() -> argparse.ArgumentParser:
     mocap_simulate.add_argument("--seed", type=int, default=0, help="seed of the noise and dropouts")
     mocap_simulate.add_argument("--config", metavar="LAB.toml", help="lab config ([mocap] labels, layout)")
 
+    _add_lab(sub)
+
     bench = sub.add_parser("bench", help="print the benchmark tables")
     bench.add_argument("--quick", action="store_true", help="smaller scenarios, for a first look")
     _add_report_and_runs(sub)
     return parser
+
+
+def _add_lab(sub: argparse._SubParsersAction) -> None:
+    """``sensnake lab identify REC.h5… [--fit KEY,…] --out FITTED.toml`` (app/cli/lab.py, app/core/identify.py)."""
+    lab = sub.add_parser("lab", help="the physics lab's parameters, identified from recordings",
+                         description="The physics lab's [lab.physics] values and the scene's frictions fitted to "
+                         "recordings (docs/PHYSICS_LAB.md, 'Parameters identified from measurements').")
+    lab_sub = lab.add_subparsers(dest="lab_command", metavar="ACTION", required=True)
+    identify = lab_sub.add_parser(
+        "identify", help="fit [lab.physics] values and the scene's frictions so that the physics lab, replaying each "
+        "recording's goals, reproduces what it measured",
+        description="Replays each recording's goals open-loop in the physics lab with candidate values and fits "
+        "them (least squares) to what the recording measured: present angles and currents (/robot), estimated "
+        "forces (/forces), segment positions (/mocap, when present). Never reads the simulation's truth (/sim's "
+        "data). Writes the values as a lab-config fragment, with their intervals, and says which the recordings "
+        "cannot fix.")
+    identify.add_argument("recordings", nargs="+", metavar="REC.h5", help="recordings of one robot (their goals are "
+                          "replayed from each capture)")
+    identify.add_argument("--fit", default="shell_stiffness_n_per_m,ground_friction,obstacle_friction",
+                          metavar="KEY,KEY…", help="the values to fit: [lab.physics] keys, ground_friction, "
+                          "obstacle_friction (default: shell_stiffness_n_per_m,ground_friction,obstacle_friction)")
+    identify.add_argument("--config", metavar="LAB.toml", help="the lab config the recordings were made with: its "
+                          "robot and board, the values not fitted and where the fitted ones start ([lab.physics]; "
+                          "[lab] ground_friction, obstacle_friction); default: the built-in lab")
+    identify.add_argument("--scene", metavar="SCENE.toml", help="the scene the recordings were made on (default: "
+                          "each recording's copy of its scene; its frictions are not read for the fitted ones)")
+    identify.add_argument("--window", type=float, default=20.0, metavar="S",
+                          help="seconds of each recording replayed, from its capture (default 20)")
+    identify.add_argument("--settle", type=float, default=6.0, metavar="S",
+                          help="seconds the robot settled on the scene before the capture (default 6, as "
+                               "'experiment run')")
+    identify.add_argument("--max-steps", type=int, default=8, metavar="N",
+                          help="least-squares steps at most (each one replay per recording, and each Jacobian one "
+                               "per key; default 8)")
+    identify.add_argument("--screen", action="store_true",
+                          help="also say how much every [lab.physics] key not fitted moves the signals (one replay "
+                               "each)")
+    identify.add_argument("--out", required=True, metavar="FITTED.toml", help="the fitted values (a new file; an "
+                          "existing one is never replaced)")
 
 
 def _add_report_and_runs(sub: argparse._SubParsersAction) -> None:

@@ -14,16 +14,17 @@ One thread: the caller's.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from devices import control_table as ct
 from devices import dxl_wire as wire
 from devices.config import LabConfig
+from devices.scene import Scene
 from devices.sim.board import VirtualBoard
 from devices.sim.dxl_chain import VirtualChain
-from devices.sim.physics.backend import PhysicsBackend
+from devices.sim.physics.backend import PhysicsBackend, scene_from_config
 from devices.sim.physics.world import BodyState
 
 _PRESENT = struct.Struct("<hii")  # Present Current (126), Present Velocity (128), Present Position (132)
@@ -67,14 +68,17 @@ class RobotReading:
 class HeadlessPhysicsLab:
     """World + virtual chain + virtual board on a manual clock. See the module docstring."""
 
-    def __init__(self, config: LabConfig, seed: int = 0) -> None:
+    def __init__(self, config: LabConfig, seed: int = 0, terrain: Scene | None = None) -> None:
+        """``terrain``: the scene to build the world on, in place of the config's ``[lab] scene`` (default: the
+        config's)."""
         self.config = config
         self.seed = seed
         self.clock = ManualClock()
         rng = np.random.default_rng(seed)
         robot = config.robot
         clock = self.clock  # duck-typed SimClock: now / sim_from_wall / wall_from_sim / speed
-        self.physics = PhysicsBackend(config, clock)  # type: ignore[arg-type]
+        scene = None if terrain is None else replace(scene_from_config(config), terrain_scene=terrain)
+        self.physics = PhysicsBackend(config, clock, scene)  # type: ignore[arg-type]
         self.chain = VirtualChain(robot.joint_ids, robot.baud, clock, seed=int(rng.integers(2**31)),  # type: ignore[arg-type]
                                   physics=self.physics)
         sim = config.lab  # the simulated sensors and the readout's noise as the app's lab has them (devices.sim.lab)
