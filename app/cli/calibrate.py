@@ -20,6 +20,14 @@ folder, finished trials are kept and the interrupted one is redone.
 ``--time-scale X`` only with simulated devices (``sim`` ports): the simulated lab's clock runs X times faster than the
 wall clock and the protocol follows it, so a 370 s hold takes 370/X s.
 
+``--sensors S02B,S03B,…`` (names or patterns of the board's channels: ``'S*B'`` is every bottom sensor) runs the
+protocol on each sensor in turn, in one batch folder beside ``CAL.json`` (``batch.json``, then one session folder per
+sensor); each sensor is fitted and saved into ``CAL.json`` as soon as its trials are done, so a long batch cut short
+loses at most the sensor in progress. On the simulated lab the probe moves to each sensor by itself (as
+``--sensor`` moves it to that one); on a real rig the command waits for Enter while you move the probe. A sensor whose
+fit is refused is named and the batch goes on (exit 1 at the end). ``--resume BATCH_DIR`` continues a batch: the
+saved and refused sensors are skipped, the interrupted one resumes its session, the rest run.
+
 Threads: the rig runs on a worker thread (it owns the rig's port); a second drains the board into the runner's
 feed; the main thread prints progress and handles Ctrl-C.
 """
@@ -46,6 +54,7 @@ from app.core.rig_protocol import (
     ABORTED,
     COMPLETED,
     PAPER_FORCES_N,
+    SESSION_FILE,
     ConductanceFeed,
     Outcome,
     Progress,
@@ -71,6 +80,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 EXIT_REFUSED = 1
 EXIT_INTERRUPTED = 130
+BATCH_FILE = "batch.json"  # a --sensors batch's folder: its sensors, protocol and each sensor's outcome
+SAVED, REFUSED = "saved", "refused"
 PROGRESS_INTERVAL_S = 0.5  # wall seconds between progress lines
 # rest 300 s: the creep (τ ~ 10² s) of one trial must fade before the next starts (a fit assumes a rested sensor)
 DEFAULTS = {"trials": 3, "hold": 370.0, "rest": 300.0, "rate": 6.0, "baseline": 3.0, "ramp": 2.0}
@@ -175,8 +186,9 @@ def _install_lab(config: LabConfig, time_scale: float | None) -> tuple[Any, SimP
 class _ProgressLine:
     """One line on stderr, rewritten in place (a terminal) or printed every few seconds (a log file)."""
 
-    def __init__(self, n_trials: int, time_scale: float = 1.0) -> None:
+    def __init__(self, n_trials: int, time_scale: float = 1.0, prefix: str = "") -> None:
         self.n_trials = n_trials
+        self.prefix = prefix  # which sensor of a batch ("S03B (2/12): ")
         self.time_scale = time_scale  # the runner's times are the lab's; the user waits wall seconds
         self._last = 0.0
         self._tty = sys.stderr.isatty()
@@ -198,6 +210,7 @@ class _ProgressLine:
                     f"{progress.phase} {progress.elapsed_s:5.0f} s — about {left} left")
         else:
             text = progress.message
+        text = self.prefix + text
         with self._lock:
             if self._tty:
                 pad = max(0, self._width - len(text))
@@ -239,14 +252,15 @@ def _drain(reader: BoardReader, feed: ConductanceFeed, channel: int, stop: threa
 
 
 def _run_protocol(config: LabConfig, settings: ProtocolSettings, folder: Path, time_scale: float,
-                  done: dict[int, Path]) -> Outcome:
-    """Run the protocol on the rig (worker thread) while the board is drained (second thread); Ctrl-C aborts."""
+                  done: dict[int, Path], prefix: str = "") -> Outcome:
+    """Run the protocol on the rig (worker thread) while the board is drained (second thread); Ctrl-C aborts.
+    ``prefix`` starts each progress line (a batch names the sensor)."""
     channel = config.board.channel_names.index(settings.sensor)
     sim = factory.is_sim(config.rig.port) and factory.is_sim(config.board.port)
     lab_clock = factory.sim_lab().clock.now if sim else None
     reader = BoardReader(config.board)
     feed = ConductanceFeed(time_scale=1.0 if sim else time_scale, source_alive_s=reader.newest_frame_host_s)
-    line = _ProgressLine(settings.n_trials, time_scale)
+    line = _ProgressLine(settings.n_trials, time_scale, prefix)
     runner = ProtocolRunner(settings, feed, folder, on_progress=line, time_scale=time_scale, done=done,
                             clock=lab_clock, simulated_board=factory.is_sim(config.board.port))
     reader.start()  # PortOpenError (an OSError) names the port
@@ -330,6 +344,8 @@ def run(args: argparse.Namespace) -> int:
     config = _config(args)
     if getattr(args, "simulated_truth", False):
         return _write_simulated_truth(args, config)
+    if getattr(args, "sensors", None) is not None or (args.resume and (Path(args.resume) / BATCH_FILE).is_file()):
+        return _run_batch(args, config)
     settings = _settings(args, config)
     if Path(args.out).exists():
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before the rig moves
@@ -352,6 +368,8 @@ def run(args: argparse.Namespace) -> int:
     time_scale = args.time_scale or 1.0
     installed, previous_lab = _install_lab(config, args.time_scale)
     try:
+        if installed is not None:
+            _move_simulated_probe(installed, settings.sensor)
         if len(done) < settings.n_trials:
             conditioning = (settings.condition_cycles and not done
                             and not (read_conditioning(folder) or {}).get("finished"))
@@ -365,15 +383,34 @@ def run(args: argparse.Namespace) -> int:
             outcome = _run_protocol(config, settings, folder, time_scale, done)
             if outcome.status != COMPLETED:
                 print(f"sensnake calibrate: {outcome.message}", file=sys.stderr)
-                print(f"sensnake calibrate: continue with: sensnake calibrate --resume {folder} --out {args.out}"
-                      + (f" --config {args.config}" if args.config else "")
-                      + (f" --rig {args.rig}" if args.rig else "") + (f" --daq {args.daq}" if args.daq else ""),
-                      file=sys.stderr)
+                print(f"sensnake calibrate: continue with: {_resume_command(args, folder)}", file=sys.stderr)
                 return EXIT_INTERRUPTED if outcome.status == "interrupted" else EXIT_REFUSED
     finally:
         if installed is not None:
             factory.install_sim_lab(previous_lab)
             installed.close()
+    return 0 if _fit_and_save(args, config, settings, folder, physics) else EXIT_REFUSED
+
+
+def _resume_command(args: argparse.Namespace, folder: Path) -> str:
+    return (f"sensnake calibrate --resume {folder} --out {args.out}"
+            + (f" --config {args.config}" if args.config else "")
+            + (f" --rig {args.rig}" if args.rig else "") + (f" --daq {args.daq}" if args.daq else "")
+            + (f" --time-scale {args.time_scale:g}" if args.time_scale else ""))
+
+
+def _move_simulated_probe(lab: Any, sensor: str) -> None:
+    """The simulated lab's probe onto ``sensor`` (what a person does on the real rig before starting)."""
+    move = getattr(lab, "move_rig_to", None)
+    if callable(move) and getattr(lab, "rig_sensor", sensor) != sensor:
+        move(sensor)
+        print(f"sensnake calibrate: simulated lab: the probe moves onto {sensor}", file=sys.stderr)
+
+
+def _fit_and_save(args: argparse.Namespace, config: LabConfig, settings: ProtocolSettings, folder: Path,
+                  physics: Any) -> bool:
+    """Fit the session's trials and save the sensor into ``--out``; False (nothing saved, the problems named) when
+    the fit is not fit to use and ``--save-anyway`` was not given."""
     paths = [p for _, p in sorted(finished_trials(folder, settings).items())]
     trials = calibration_fit.read_trials(paths)
     fit = calibration_fit.fit_trials(trials, settings.sensor, settings.area_m2, physics, config.board,
@@ -384,11 +421,167 @@ def run(args: argparse.Namespace) -> int:
             print(f"sensnake calibrate: refused: {text}", file=sys.stderr)
         print(f"sensnake calibrate: error: the fit of {settings.sensor} is not fit to use and was NOT saved to "
               f"{args.out}; the trials are in {folder} (sensnake fit them again, or --save-anyway)", file=sys.stderr)
-        return EXIT_REFUSED
+        return False
     calibration_fit.save(args.out, fit, physics, config.board)
     for text in fit.problems:
         print(f"sensnake calibrate: warning: saved although {text}", file=sys.stderr)
     print(f"wrote {settings.sensor} to {args.out} (trials in {folder})")
+    return True
+
+
+# -- several sensors: --sensors --------------------------------------------------------------------------------------
+def expand_sensors(text: str, channels: tuple[str, ...]) -> tuple[str, ...]:
+    """``--sensors`` (comma-separated names or fnmatch patterns of board channels) → the sensors, in the order
+    given (a pattern's matches in the board's order), each once; ValueError naming what matches nothing."""
+    import fnmatch
+
+    names: list[str] = []
+    for part in (p.strip() for p in text.replace(";", ",").split(",")):
+        if not part:
+            continue
+        found = [c for c in channels if fnmatch.fnmatchcase(c, part)]
+        if not found:
+            raise ValueError(f"--sensors: {part!r} is not a channel of the board ({channels[0]} … {channels[-1]})")
+        names.extend(c for c in found if c not in names)
+    if not names:
+        raise ValueError("--sensors: name at least one sensor (e.g. S02B,S03B, or 'S*B' for every bottom sensor)")
+    return tuple(names)
+
+
+def write_batch(folder: Path, sensors: tuple[str, ...], template: ProtocolSettings,
+                outcomes: dict[str, str]) -> None:
+    """The batch's ``batch.json``: its sensors in order, the protocol every one runs (``sensor`` aside) and each
+    finished sensor's outcome (``saved`` or ``refused``), rewritten atomically after every sensor."""
+    import json
+    from dataclasses import asdict
+
+    document = {"format": "sensnake-calibration-batch", "version": 1, "sensors": list(sensors),
+                "protocol": asdict(template), "outcomes": dict(outcomes)}
+    calfiles.write_atomically(folder / BATCH_FILE, lambda handle: handle.write(json.dumps(document, indent=2) + "\n"))
+
+
+def read_batch(folder: str | Path) -> tuple[tuple[str, ...], ProtocolSettings, dict[str, str]]:
+    """(sensors, protocol, outcomes so far) of a batch folder; ValueError naming the problem."""
+    import json
+
+    path = Path(folder) / BATCH_FILE
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read the batch: {exc}") from None
+    if not isinstance(document, dict) or document.get("format") != "sensnake-calibration-batch":
+        raise ValueError(f"{path}: not a calibration batch file")
+    if document.get("version") != 1:
+        raise ValueError(f"{path}: batch version {document.get('version')!r} is not known (expected 1)")
+    try:
+        protocol = dict(document["protocol"])
+        protocol["forces_n"] = tuple(protocol["forces_n"])
+        known = set(ProtocolSettings.__dataclass_fields__)
+        template = ProtocolSettings(**{k: v for k, v in protocol.items() if k in known})
+        sensors = tuple(str(s) for s in document["sensors"])
+        outcomes = {str(k): str(v) for k, v in dict(document.get("outcomes") or {}).items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return sensors, template, outcomes
+
+
+def _wait_for_the_probe(sensor: str, config: LabConfig) -> None:
+    """A real rig: the operator puts ``sensor``'s segment under the probe and presses Enter. ValueError when nobody
+    can (standard input closed)."""
+    print(f"sensnake calibrate: put {sensor}'s segment on the rig's beam under the probe (rig on {config.rig.port}), "
+          "cable slack, then press Enter (Ctrl-C stops)", file=sys.stderr, flush=True)
+    if not sys.stdin.readline():
+        raise ValueError(f"nobody to move the probe onto {sensor} (standard input is closed): on a real rig run "
+                         "--sensors where you can press Enter, or one sensor at a time with --sensor")
+
+
+def _run_batch(args: argparse.Namespace, config: LabConfig) -> int:
+    """``--sensors`` (or ``--resume`` of a batch folder): every sensor's protocol, fit and save in turn."""
+    if args.sensor is not None:
+        raise ValueError("--sensor names one sensor, --sensors several: give one of them")
+    if args.resume:
+        if args.sensors is not None:
+            raise ValueError("--resume continues the batch's own sensors: drop --sensors")
+        given = [f"--{name}" for name in PROTOCOL_OPTIONS if getattr(args, name) is not None]
+        if given:
+            raise ValueError(f"--resume continues the batch's own protocol: drop {', '.join(given)}")
+        folder = Path(args.resume)
+        sensors, template, outcomes = read_batch(folder)
+    else:
+        sensors = expand_sensors(args.sensors, config.board.channel_names)
+        template = _settings(argparse.Namespace(**{**vars(args), "sensor": sensors[0]}), config)
+        folder, outcomes = None, {}
+    if Path(args.out).exists():
+        calfiles.read_calibration(args.out)  # refuse an unknown format/version before the rig moves
+    if not Path(args.out).resolve().parent.is_dir():
+        raise ValueError(f"--out {args.out}: folder {Path(args.out).resolve().parent} does not exist")
+    errors: dict[str, list[str]] = {}  # text → the sensors it is said of (said once, naming them)
+    warnings: dict[str, list[str]] = {}
+    for sensor in sensors:
+        settings = replace(template, sensor=sensor)
+        check = check_protocol(settings, config.rig, config.board, *_what_the_sensor_read(args, settings))
+        for found, texts in ((errors, check.errors), (warnings, check.warnings)):
+            for text in texts:
+                found.setdefault(text, []).append(sensor)
+
+    def said(text: str, of: list[str]) -> str:
+        return text if len(of) == len(sensors) > 1 else f"{', '.join(of)}: {text}"
+
+    for text, of in warnings.items():
+        print(f"sensnake calibrate: warning: {said(text, of)}", file=sys.stderr)
+    if errors:
+        raise ValueError("protocol refused: " + "; ".join(said(text, of) for text, of in errors.items()))
+    physics = _physics(argparse.Namespace(physics=args.physics, out=args.out))
+    if folder is None:
+        folder = Path(args.out).resolve().parent / f"sensors_{time.strftime('%Y%m%d-%H%M%S')}"
+        folder.mkdir()
+        write_batch(folder, sensors, template, outcomes)
+    time_scale = args.time_scale or 1.0
+    left = [s for s in sensors if s not in outcomes]
+    per_sensor_s = template.n_trials * (template.trial_duration_s() + template.rest_s) + (
+        template.conditioning_duration_s() if template.condition_cycles else 0.0)
+    print(f"sensnake calibrate: batch {folder}: {len(left)} of {len(sensors)} sensor(s) to do ({', '.join(left)}), "
+          f"{template.n_trials} trial(s) each at {', '.join(f'{f:g}' for f in template.forces_n)} N, about "
+          f"{_duration(len(left) * per_sensor_s / time_scale)}", file=sys.stderr)
+    installed, previous_lab = _install_lab(config, args.time_scale)
+    try:
+        for k, sensor in enumerate(sensors):
+            if sensor in outcomes:
+                continue
+            settings = replace(template, sensor=sensor)
+            session = folder / sensor
+            done = finished_trials(session, settings) if (session / SESSION_FILE).is_file() else {}
+            if len(done) < settings.n_trials:
+                if installed is not None:
+                    _move_simulated_probe(installed, sensor)
+                else:
+                    try:
+                        _wait_for_the_probe(sensor, config)
+                    except KeyboardInterrupt:
+                        print(f"\nsensnake calibrate: stopped before {sensor}; continue with: "
+                              f"{_resume_command(args, folder)}", file=sys.stderr)
+                        return EXIT_INTERRUPTED
+                print(f"sensnake calibrate: {sensor} ({k + 1}/{len(sensors)}): session {session}, "
+                      f"{settings.n_trials - len(done)} trial(s)", file=sys.stderr)
+                outcome = _run_protocol(config, settings, session, time_scale, done,
+                                        prefix=f"{sensor} ({k + 1}/{len(sensors)}) ")
+                if outcome.status != COMPLETED:
+                    print(f"sensnake calibrate: {sensor}: {outcome.message}", file=sys.stderr)
+                    print(f"sensnake calibrate: continue with: {_resume_command(args, folder)}", file=sys.stderr)
+                    return EXIT_INTERRUPTED if outcome.status == "interrupted" else EXIT_REFUSED
+            outcomes[sensor] = SAVED if _fit_and_save(args, config, settings, session, physics) else REFUSED
+            write_batch(folder, sensors, template, outcomes)
+    finally:
+        if installed is not None:
+            factory.install_sim_lab(previous_lab)
+            installed.close()
+    refused = [s for s in sensors if outcomes.get(s) == REFUSED]
+    saved = [s for s in sensors if outcomes.get(s) == SAVED]
+    print(f"wrote {len(saved)} of {len(sensors)} sensor(s) to {args.out} (batch in {folder})")
+    if refused:
+        print(f"sensnake calibrate: error: NOT saved, the fit not fit to use: {', '.join(refused)} (their trials are "
+              f"in {folder}; sensnake fit them again, or run them again with --sensors)", file=sys.stderr)
+        return EXIT_REFUSED
     return 0
 
 

@@ -127,6 +127,10 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--rig", metavar="PORT", help="the rig servo's serial port, or sim (default: the config's)")
     calibrate.add_argument("--daq", metavar="PORT", help="the force-sensor board's port, or sim (default: the config's)")
     calibrate.add_argument("--sensor", metavar="NAME", help="the sensor under the probe (default: the config's rig.sensor)")
+    calibrate.add_argument("--sensors", metavar="NAME,…",
+                           help="several sensors, one after another, each saved into --out as its fit is done: names "
+                                "or patterns of board channels ('S*B': every bottom sensor); the simulated lab moves "
+                                "its probe to each, on a real rig the command waits while you move it")
     calibrate.add_argument("--forces", metavar="F1,F2,…", help="forces in N (default 1.75,3,4,5.25, the paper's)")
     calibrate.add_argument("--trials", type=int, metavar="N", help="trials per force (default 3)")
     calibrate.add_argument("--hold", type=float, metavar="S", help="hold per trial in s (default 370)")

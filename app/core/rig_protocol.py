@@ -586,6 +586,17 @@ class ProtocolRunner:
         self.contact_note = (" (from the servo's current only: the sensor's reading did not rise within "
                              f"±{REFINE_SPAN_RAD:g} rad of it — is the probe over the sensor?)")
 
+    def _late_data_given_up(self, deadline: float, waited_from: float) -> bool:
+        """Whether to stop waiting for the board samples that cover a trial's end: past ``deadline`` (the runner's
+        clock) once the board shows no sign of streaming for ``board_stale_s`` wall seconds, or after 12× that in
+        all. A board that streams behind the runner's clock — the simulated lab's at X× on a busy machine, its
+        frames late, not missing — is waited for while it catches up."""
+        if self._clock() < deadline:
+            return False
+        now = time.monotonic()
+        patience_s = max(self.board_stale_s, BOARD_STALE_S)
+        return now - self.feed.last_alive_wall_s() > patience_s or now - waited_from > 12 * patience_s
+
     def _fresh_reading(self) -> float:
         """Median of the sensor's next few board samples taken after now (S)."""
         since = self._clock()
@@ -759,7 +770,8 @@ class ProtocolRunner:
         # its force was read). Board samples can arrive after the rig's (the GUI drains the board): wait for them.
         end = times[-1] + 0.5 * period
         deadline = self._clock() + max(LATE_DATA_WAIT_S, self.board_stale_s) * self.time_scale
-        while self.feed.latest()[0] < end and self._clock() < deadline:
+        waited_from = time.monotonic()
+        while self.feed.latest()[0] < end and not self._late_data_given_up(deadline, waited_from):
             if self._stop.wait(0.05):
                 raise _Stopped
         if self.feed.latest()[0] < times[-1] - period:

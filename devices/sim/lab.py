@@ -79,6 +79,25 @@ class SimLab:
                 forces[self._rig_channel] = probe_n
         return forces
 
+    @property
+    def rig_sensor(self) -> str | None:
+        """The sensor under the rig's probe (``rig.sensor`` at first; :meth:`move_rig_to` moves it)."""
+        return None if self._rig_channel is None else self.config.board.channel_names[self._rig_channel]
+
+    def move_rig_to(self, sensor: str) -> None:
+        """Put ``sensor``'s segment on the rig's beam under the probe, as a person does between two sensors'
+        calibrations: from now on the probe alone loads it while the rig holds torque (its creep forgotten when it
+        goes on the beam), and the sensor it leaves bears the robot's weight again. Its area stays its own: the
+        probe covers the whole sensor, so a calibration's moduli carry it, as they do when the robot loads it.
+        ValueError when ``sensor`` is not a channel of the board. Call it while the rig is idle."""
+        names = self.config.board.channel_names
+        if sensor not in names:
+            raise ValueError(f"sensor {sensor} is not a channel of the simulated board ({names[0]} … {names[-1]})")
+        channel = names.index(sensor)
+        if channel != self._rig_channel:
+            self._rig_channel = channel
+            self._on_beam = False  # mounted anew: its creep is forgotten when the rig next holds it
+
     def rig_sensor_truth(self) -> dict[str, float]:
         """The simulated parameters of the sensor on the rig (``rig.sensor``): ``E0_Pa``, ``E1_Pa``, ``mu1_Pa_s``,
         ``tau_s``, ``area_m2`` — what a calibration on the rig should recover."""

@@ -137,6 +137,9 @@ def test_resume_takes_the_protocol_from_the_session(tmp_path, lab_config, capsys
     (["--condition", "three"], "--condition 'three': the number of cycles must be a whole number"),
     (["--condition", "3@x"], "'x' is not a force in N"),
     (["--condition", "-1"], "must be 0 (off) or more"),
+    (["--sensors", "S02B,S99Z"], "--sensors: 'S99Z' is not a channel of the board"),
+    (["--sensors", "S02B", "--sensor", "S03B"], "--sensor names one sensor, --sensors several"),
+    (["--sensors", "S*B", "--forces", "1.75,9"], "protocol refused: 9 N is above the rig's maximum force 8 N"),
 ])
 def test_protocol_refused_before_anything_moves(tmp_path, capsys, argv, message):
     base = ["calibrate", "--rig", "sim", "--daq", "sim", "--out", str(tmp_path / "c.json")]
@@ -348,3 +351,85 @@ def test_simulated_truth_writes_every_sensor_of_the_apps_lab_and_never_over_a_fi
     assert main(["calibrate", "--simulated-truth", "--out", str(out)]) != 0
     assert out.read_bytes() == before
     assert "already exists" in capsys.readouterr().err
+
+
+def test_sensors_are_expanded_in_the_order_given_patterns_in_the_boards_order():
+    from app.cli.calibrate import expand_sensors
+    from devices.config import default_sensor_names
+
+    channels = tuple(default_sensor_names())
+    assert expand_sensors("S*B", channels) == tuple(f"S{k:02d}B" for k in range(1, 13))
+    assert expand_sensors("S03B, S02B,S03B", channels) == ("S03B", "S02B")
+    assert expand_sensors("S01?,S12B", channels) == ("S01L", "S01R", "S01B", "S12B")
+    with pytest.raises(ValueError, match="name at least one sensor"):
+        expand_sensors(" , ", channels)
+
+
+@pytest.mark.slow  # two sensors' full holds at 60× real time: ~70 s (150× starves the simulated board when busy)
+def test_several_sensors_in_one_run_the_simulated_probe_moving_to_each(tmp_path, lab_config, capsys):
+    """``--sensors``: each sensor in turn on the rig — the simulated lab's probe moves onto it (before, a sensor other
+    than the config's rig.sensor lay under the robot's weight and its fit was refused) — each saved into CAL.json as
+    its fit is done, the batch's folder saying which were."""
+    out = tmp_path / "cal.json"
+    code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--sensors", "S02B,S03B",
+                 "--forces", "1.75,5.25", "--trials", "1", "--hold", "370", "--rest", "500",
+                 "--time-scale", "60", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "the probe moves onto S02B" in captured.err and "the probe moves onto S03B" in captured.err
+    assert "S03B (2/2) trial 1/2" in captured.err and "wrote 2 of 2 sensor(s)" in captured.out
+    sensors = json.loads(out.read_text())["sensors"]
+    assert sorted(sensors) == ["S02B", "S03B"]
+    lab = SimLab(load_config(lab_config), seed=0)
+    for name in ("S02B", "S03B"):
+        entry = sensors[name]
+        assert entry["degenerate"] is False and entry["refusal_reasons"] == [], (name, entry["refusal_reasons"])
+        lab.move_rig_to(name)
+        truth = lab.rig_sensor_truth()
+        # The probe presses the sensor's own area; the fit, given the rig's documented area, carries the ratio in its
+        # moduli (as the robot's weight meets the same area: forces come out right either way).
+        scale = truth["area_m2"] / entry["area_m2"]
+        for key in ("E0_Pa", "E1_Pa", "mu1_Pa_s"):
+            assert entry["sls"][key] == pytest.approx(truth[key] * scale, rel=0.03), (name, key)
+    batch = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("sensors_"))
+    document = json.loads((batch / "batch.json").read_text())
+    assert document["sensors"] == ["S02B", "S03B"] and document["outcomes"] == {"S02B": "saved", "S03B": "saved"}
+    for name in ("S02B", "S03B"):
+        assert len(finished_trials(batch / name, read_session(batch / name))) == 2
+
+
+def test_a_batch_cut_short_resumes_where_it_stopped(tmp_path, lab_config):
+    """Ctrl-C during the second sensor: the first stays saved, the second's finished trials stay; ``--resume`` of the
+    batch folder skips the first, finishes the second's session and saves it."""
+    out = tmp_path / "cal.json"
+    command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
+               "--sensors", "S02B,S03B", "--forces", "1.75,3", "--trials", "1", "--hold", "60", "--rest", "60",
+               "--time-scale", "60", "--save-anyway", "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                               text=True)
+    lines = []
+    assert process.stderr is not None
+    for line in process.stderr:
+        lines.append(line)
+        if line.startswith("S03B (2/2) trial 2/2") and ": hold" in line:
+            process.send_signal(signal.SIGINT)
+            break
+    err = "".join(lines) + process.communicate(timeout=120)[1]
+    assert process.returncode == 130, err
+    batch = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("sensors_"))
+    assert f"continue with: sensnake calibrate --resume {batch} --out {out}" in err
+    assert json.loads((batch / "batch.json").read_text())["outcomes"] == {"S02B": "saved"}
+    assert sorted(json.loads(out.read_text())["sensors"]) == ["S02B"]
+    kept = finished_trials(batch / "S03B", read_session(batch / "S03B"))
+    assert sorted(kept) == [0]
+    first = _digest(kept[0])
+    resumed = subprocess.run([sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim",
+                              "--daq", "sim", "--time-scale", "60", "--save-anyway", "--resume", str(batch),
+                              "--out", str(out)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "1 of 2 sensor(s) to do (S03B)" in resumed.stderr and "S02B (1/2)" not in resumed.stderr
+    done = finished_trials(batch / "S03B", read_session(batch / "S03B"))
+    assert sorted(done) == [0, 1] and _digest(done[0]) == first  # the finished trial untouched
+    assert sorted(json.loads(out.read_text())["sensors"]) == ["S02B", "S03B"]
+    assert json.loads((batch / "batch.json").read_text())["outcomes"] == {"S02B": "saved", "S03B": "saved"}
