@@ -66,6 +66,8 @@ def test_a_replay_with_the_values_the_recording_was_made_with_gives_its_angles_a
     assert np.sqrt(np.mean((replayed.force_n[usable] - measurement.force_n[usable]) ** 2)) < 0.02  # estimates' error
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # about 40 replays of 12 simulated s: 40 s of CPU, 7-8 min on the shared cores at load 15
 def test_identify_recovers_the_shell_stiffness_and_both_frictions_within_10_percent(made, capsys):
     folder, scene, lab, rec, real = made
     out = folder / "fitted.toml"
