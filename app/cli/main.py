@@ -54,6 +54,7 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "servo": (("config", "settings"), ("out",)),
     "mocap": (("take", "xdf", "rec", "config", "recording"), ("out",)),
     "lab": (("recordings", "config", "scene"), ("out",)),
+    "trials": (("shape", "start", "cal", "config"), ("out",)),
 }
 
 
@@ -76,6 +77,7 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
                              f"file to write, the input would be destroyed before it is read")
         folder_wanted = command == "experiment" and getattr(args, "name", None) in ("sweep", "trials", "evaluate",
                                                                                     "tune")
+        folder_wanted = folder_wanted or command == "trials"  # sensnake trials --out DIR: the series' folder
         if value and not folder_wanted and not os.path.isdir(value):  # a folder: refused by the writer, in its words
             check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
 
@@ -235,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: the config's [lab] mocap)")
     record.add_argument("--lsl-out", action="store_true", help="publish SenSnake-forces and SenSnake-events on the "
                         "Lab Streaming Layer while recording")
+
+    _add_robot_trials(sub)
 
     export = sub.add_parser("export", help="recording → CSV")
     export.add_argument("recording", metavar="REC.h5")
@@ -439,6 +443,43 @@ def _add_report_and_runs(sub: argparse._SubParsersAction) -> None:
     for action in (runs_list, runs_reindex):
         action.add_argument("--dir", metavar="DIR", help="the folder of recordings (default: the data folder's "
                             "recordings)")
+
+
+def _add_robot_trials(sub: argparse._SubParsersAction) -> None:
+    """``sensnake trials SHAPE.json --robot PORT --daq PORT --trials N --out DIR …`` (app/cli/robot_trials.py)."""
+    trials = sub.add_parser("trials", help="a trial series on the robot: N trials of one condition, each placed by "
+                            "the operator and recorded; resumable",
+                            description="Before each trial the robot goes to the start pose and the command waits "
+                            "for the operator (Enter starts the trial); the recording starts before the motion and "
+                            "stops --post seconds after it; the operator types the outcome and a note. Ctrl-C is STOP: "
+                            "the trial in progress is kept, marked aborted. The same command resumes the series.")
+    trials.add_argument("shape", nargs="?", metavar="SHAPE.json",
+                        help="the shape to play (left out: resume the series in --out with its own options)")
+    trials.add_argument("--robot", metavar="PORT", help=ROBOT_HELP)
+    trials.add_argument("--baud", type=int, default=None, metavar="B", help="the servo bus's baud rate")
+    trials.add_argument("--daq", metavar="PORT", help="the force-sensor board's serial device or 'sim' (default: the "
+                        "--config file's [board] port)")
+    trials.add_argument("--trials", type=int, default=None, metavar="N",
+                        help="how many trials (a resumed series may grow)")
+    trials.add_argument("--out", required=True, metavar="DIR", help="the series' folder: a recording per trial, "
+                        "series.json (its state), trials.csv, the repeatability report")
+    trials.add_argument("--mode", choices=("follow", "keyframes"), default=None, help="default follow")
+    trials.add_argument("--speed", type=float, default=None, metavar="RAD_S", help="default 0.034 rad/s")
+    trials.add_argument("--shifts", type=int, default=None, metavar="K")
+    trials.add_argument("--repeat", type=int, default=None, metavar="K", help="play a follow-the-leader shape K times")
+    trials.add_argument("--time-scale", type=float, default=None, metavar="X", help="keyframes: time scale")
+    trials.add_argument("--start", metavar="START.json",
+                        help="the start pose the robot goes to before each trial (a shape file; default: straight)")
+    trials.add_argument("--scene", metavar="NAME", help="what the robot runs on, in your words (paper_obstacle, "
+                        "flat, …): the condition's scene, searchable with 'runs list --where scene=NAME'")
+    trials.add_argument("--tail-load", type=float, default=None, metavar="N", help="a load on the tail (N), noted")
+    trials.add_argument("--post", type=float, default=None, metavar="S",
+                        help="the recording runs on S seconds after the motion (default 1)")
+    trials.add_argument("--cal", metavar="CAL.json", help="estimate forces live with this calibration (the "
+                        "repeatability report needs forces)")
+    trials.add_argument("--note", default=None, metavar="TEXT", help="the operator's note, kept in each run_start")
+    trials.add_argument("--config", metavar="FILE", help="lab config (ports, joint IDs, channel map)")
+    add_align_options(trials)
 
 
 def add_align_options(parser: argparse.ArgumentParser) -> None:
