@@ -311,7 +311,10 @@ class MainWindow(QMainWindow):
         self._built[spec.name] = page
         opening = self._opening.pop(index, None)
         if opening is not None:
-            opening.setParent(None)
+            # Hidden, not unparented: the layout's queued show of a just-added widget would make an unparented one a
+            # window of its own (seen on screen over the app's corner when the module came at once).
+            self._container_layouts[index].removeWidget(opening)
+            opening.hide()
             opening.deleteLater()
         self._container_layouts[index].addWidget(page)
         # Once the page is up (the next turn of the event loop), its objects live as long as the window: later

@@ -322,3 +322,41 @@ def test_the_forces_tab_opened_by_a_click_builds_its_plots_one_step_at_a_time(qt
     calibration = window.show_tab("calibration")
     assert window.tab_is_complete("calibration")  # whole at once: its review views are there
     assert calibration.view_tabs.count() == 5 and calibration.mean_plot is not None
+
+
+def test_a_tab_asked_for_while_it_says_opening_leaves_no_window_behind(qtbot, settings, monkeypatch):
+    """The user clicks a tab whose module is still importing, and show_tab() wants it in the same turn of the event
+    loop: the "Opening…" placeholder goes, and never becomes a window of its own (the layout's queued show of a
+    just-added widget would show an unparented one as a top-level window over the app's corner)."""
+    import sys
+
+    from PySide6.QtCore import QCoreApplication
+    from PySide6.QtWidgets import QApplication
+
+    import app.gui.main_window as main_window
+    from tests.app import slow_tab_gate
+
+    sys.modules.pop("tests.app.slow_tab", None)
+    slow_tab_gate.GATE.clear()
+    slow_tab_gate.IMPORTED_ON.clear()
+    slow = TabSpec("slow", "Slow", "A tab whose module takes long to import.")
+    monkeypatch.setattr(main_window, "TABS", (*TABS, slow))
+    monkeypatch.setattr(main_window, "_tab_module",
+                        lambda spec: "tests.app.slow_tab" if spec is slow else f"app.gui.tabs.{spec.name}")
+    lab = LabContext(NO_PORT_CONFIG)
+    win = MainWindow(lab, settings=settings)
+    qtbot.addWidget(win)
+    win.show()
+    try:
+        qtbot.waitUntil(lambda: bool(slow_tab_gate.IMPORTED_ON))
+        win.tabs.setCurrentIndex(len(TABS))  # "Opening…" added (its show queued by the layout)
+        slow_tab_gate.GATE.set()
+        page = win.show_tab("slow")  # same turn: waits for the import, builds, drops "Opening…"
+        QCoreApplication.sendPostedEvents()  # the queued show runs now
+        assert page.text() == "the slow tab"
+        strays = [w for w in QApplication.topLevelWidgets() if isinstance(w, PlaceholderPage) and w.isVisible()]
+        assert strays == []
+    finally:
+        slow_tab_gate.GATE.set()
+        win.close()
+        sys.modules.pop("tests.app.slow_tab", None)
