@@ -124,6 +124,22 @@ def sim_serial_path(device: str) -> str | None:
     return path(device) if callable(path) else None
 
 
+def move_simulated_probe(sensor: str) -> bool:
+    """Put ``sensor`` under the simulated rig's probe (``SimLab.move_rig_to``: what a person does on the real rig
+    before calibrating it), in this process's lab or in the lab's own process. Returns whether a lab moved it (False:
+    no simulated lab, or a stand-in without a rig). ValueError when the board has no such channel."""
+    lab = installed_sim_lab()
+    call = getattr(lab, "call", None)  # the lab's own process (LabProcess)
+    if callable(call):
+        call("move_rig_to", sensor)
+        return True
+    move = getattr(lab, "move_rig_to", None)
+    if callable(move):
+        move(sensor)
+        return True
+    return False
+
+
 def installed_sim_lab() -> SimPorts | None:
     """The simulated lab behind the ``sim`` ports, without making one (None if none is made yet)."""
     with _lab_lock:

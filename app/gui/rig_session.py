@@ -112,6 +112,8 @@ class RigSession(QObject):
         config = self.lab.config
         clock, time_scale, self._lab_rate_hz = None, 1.0, None
         if factory.is_sim(config.rig.port) and factory.is_sim(config.board.port):
+            # The simulated rig presses the sensor chosen here (the config's [rig] sensor is only where it starts).
+            factory.move_simulated_probe(settings.sensor)
             sim_clock = factory.sim_lab().clock
             clock, time_scale, self._lab_rate_hz = sim_clock.now, sim_clock.speed, config.board.rate_hz
         self.time_scale = time_scale

@@ -324,3 +324,24 @@ def test_conditioning_above_the_rig_maximum_is_refused_before_anything_moves():
     assert settings.total_duration_s() == pytest.approx(3 * (2 + 10 + 10) + 2 * 3 * (3 + 370 + 60))
     off = ProtocolSettings(forces_n=(1.75, 3.0))
     assert off.condition_cycles == 0 and check_protocol(off, RigConfig(max_force_n=8.0), BoardConfig()).ok
+
+
+def test_the_simulated_probe_moves_to_the_sensor_chosen(session, qtbot, tmp_path, fast_lab):
+    """The wizard's sensor, not the config's [rig] sensor, is the one the simulated rig presses: its segment goes on
+    the beam as a person would put it there (before, a robot's sensor stayed under the lying robot's weight, and
+    its calibration was refused as loaded by something other than the probe)."""
+    assert fast_lab.rig_sensor == "BENCH"
+    settings = ProtocolSettings(forces_n=(1.75, 5.25), sensor="S02B", **SHORT)
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        session.start(settings, tmp_path)
+    outcome = blocker.args[0]
+    assert outcome.status == COMPLETED, outcome.message
+    assert fast_lab.rig_sensor == "S02B"
+    means = []
+    for record in outcome.trials:
+        trial = calfiles.read_trial_csv(record.path)
+        hold = _hold_rows(trial.force_n)
+        baseline = float(np.median(trial.conductance_s[trial.time_s < settings.baseline_s - 0.2]))
+        means.append(float(np.mean(trial.conductance_s[hold])))
+        assert baseline < 0.05 * means[-1]  # on the beam: unloaded until the probe presses, not the robot's weight
+    assert means[1] > means[0]

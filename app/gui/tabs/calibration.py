@@ -165,9 +165,11 @@ class CalibrationTab(QWidget):
         intro = QLabel(DESCRIPTION)
         intro.setWordWrap(True)
         rig = lab.config.rig
+        placed = "the simulated probe moves to it" if is_sim(rig.port) else "put its segment under the probe"
         rig_note = QLabel(f"Rig: port {rig.port}, servo {rig.servo_id}, wheel radius {rig.wheel_radius_m * 1e3:.0f} "
                           f"mm, spring {rig.spring_k_n_per_m:.0f} N/m (k·r = "
-                          f"{rig.spring_k_n_per_m * rig.wheel_radius_m:.2f} N/rad), presses sensor {rig.sensor}, "
+                          f"{rig.spring_k_n_per_m * rig.wheel_radius_m:.2f} N/rad), presses the sensor picked "
+                          f"above ({placed}), "
                           f"at most {rig.max_force_n:g} N; board on {lab.config.board.port}, readout "
                           f"R_C = {lab.config.board.r_c_ohm:g} Ω, V_ref = {lab.config.board.v_ref_v:g} V: "
                           f"ceiling {readout_ceiling_s(lab.config.board) * 1e6:.0f} µS (saturated samples are not "
