@@ -241,6 +241,7 @@ SERIAL_MODULES = (
     "tests/devices/test_dxl_pty.py",
     "tests/app/test_play_pty.py",
     "tests/app/test_force_page.py",
+    "tests/app/test_main_window_lab_process.py",
 )
 
 
