@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
     QDoubleSpinBox,
@@ -35,6 +35,7 @@ FORCE_COLOR = "#1f77b4"
 CONDUCTANCE_COLOR = "#d62728"
 CONDITION_LOAD_S = 10.0  # a conditioning cycle's load and unload times (s): ProtocolSettings' defaults
 INITIAL_CAPACITY = 4096  # samples per trial before the arrays double (370 s at 6 Hz is 2220)
+REDRAW_MS = 100  # the live trial's redraws: at most 10 a second, whatever the samples' rate
 
 
 def format_duration(seconds: float) -> str:
@@ -292,6 +293,10 @@ class LiveTrialPlot(QWidget):
         self._c = np.empty(INITIAL_CAPACITY)
         self._n = 0
         self.trial = -1
+        # Redrawn from one timer, never once per sample (a simulated lab at 15× sends 90 samples a wall second: a
+        # redraw each held the GUI thread and starved the board's reader on a busy machine).
+        self._drawn = 0
+        self._redraw_posted = False
 
     @property
     def n_samples(self) -> int:
@@ -300,7 +305,7 @@ class LiveTrialPlot(QWidget):
     def start_trial(self, trial: int, title: str, commanded_n: float, duration_s: float) -> None:
         """Clear the plot for a new trial: its index, a title, the commanded force (N), the expected length (s)."""
         self.trial = trial
-        self._n = 0
+        self._n = self._drawn = 0
         self.title.setText(title)
         self.command_line.setValue(commanded_n)
         self.command_line.setVisible(True)
@@ -312,19 +317,32 @@ class LiveTrialPlot(QWidget):
     def clear(self, title: str = "") -> None:
         """Nothing drawn (a new run starts: the last run's trial must not look like this one's)."""
         self.trial = -1
-        self._n = 0
+        self._n = self._drawn = 0
         self.title.setText(title)
         self.command_line.setVisible(False)
         self.force_curve.setData([], [])
         self.conductance_curve.setData([], [])
 
     def append(self, time_s: float, force_n: float, conductance_s: float) -> None:
-        """Add one sample (s, N, S) and redraw (samples come at the protocol's rate, a few Hz)."""
+        """Add one sample (s, N, S); drawn at the next redraw (at most every ``REDRAW_MS``)."""
         if self._n == self._t.size:
             self._t, self._f, self._c = (np.concatenate([a, np.empty_like(a)]) for a in (self._t, self._f, self._c))
         self._t[self._n], self._f[self._n], self._c[self._n] = time_s, force_n, conductance_s * 1e6
         self._n += 1
+        if not self._redraw_posted:
+            self._redraw_posted = True
+            QTimer.singleShot(REDRAW_MS, self, self._posted_redraw)
+
+    def _posted_redraw(self) -> None:
+        self._redraw_posted = False
+        self.redraw()
+
+    def redraw(self) -> None:
+        """Draw the samples added since the last redraw."""
         n = self._n
+        if n == self._drawn:
+            return
+        self._drawn = n
         self.force_curve.setData(self._t[:n], self._f[:n])
         finite = np.isfinite(self._c[:n])
         self.conductance_curve.setData(self._t[:n][finite], self._c[:n][finite])

@@ -41,6 +41,11 @@ class BoardStreamError(RuntimeError):
 
 
 # raised by app.core.rig_protocol
+class BoardGapError(BoardStreamError):
+    """A trial's board samples have a gap too long to bridge (frames lost): the trial is run again, not kept."""
+
+
+# raised by app.core.rig_protocol
 class ForceCollapsedError(RuntimeError):
     """The reading collapsed during a hold: the cable snapped or the probe slipped off the sensor."""
 

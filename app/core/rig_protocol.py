@@ -63,7 +63,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from app.core import calfiles
-from app.core.errors import BoardStreamError, ForceCollapsedError
+from app.core.errors import BoardGapError, BoardStreamError, ForceCollapsedError
 from devices.config import BoardConfig, RigConfig
 from devices.errors import DeviceError, RigInterrupted
 from devices.rig import ANGLE_LIMIT_RAD
@@ -75,6 +75,15 @@ PAPER_HOLD_S = 370.0
 BOARD_STALE_S = 5.0  # no board sample of the sensor for this long (seconds of the lab clock) ends the run
 PROGRESS_INTERVAL_S = 0.5  # progress callbacks during rests and pauses
 FEED_CAPACITY = 1 << 16  # board samples kept by the feed (≈ 36 min at the board's default 30 Hz)
+# A trial whose board samples leave a stretch uncovered that interpolation cannot bridge is not kept (frames lost: a
+# pulled cable, a host too busy to read the board): over the loading edge more than EDGE_GAP_PERIODS sample periods
+# (the step itself would be made up), elsewhere more than GAP_CREEP_FRACTION of the creep time (a straight line over
+# 10 s of a creep with τ ≥ 100 s is off by ~0.1 % of its rise) or MAX_GAP_PERIODS periods, whichever is longer. It
+# runs again once, after its rest; a second such gap ends the run.
+EDGE_GAP_PERIODS = 3
+MAX_GAP_PERIODS = 5
+GAP_CREEP_FRACTION = 0.1
+GAP_RETRIES = 1
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
 
 MIN_HOLD_SAMPLES = 10  # samples at full force the fit needs (models.calibration refuses fewer)
@@ -366,6 +375,13 @@ def lab_times_from_seq(seq: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.asarray(seq, dtype=np.float64) / float(rate_hz)
 
 
+def longest_gap_s(board_t_s: np.ndarray, t0_s: float, t1_s: float) -> float:
+    """The longest stretch of ``[t0, t1]`` (s) with no board sample in it (``t1 − t0`` when there is none)."""
+    inside = board_t_s[(board_t_s >= t0_s) & (board_t_s <= t1_s)]
+    edges = np.concatenate([[t0_s], inside, [t1_s]])
+    return float(np.max(np.diff(edges)))
+
+
 def decimate_to(row_times_s: np.ndarray, period_s: float, board_t_s: np.ndarray,
                 board_c_s: np.ndarray) -> np.ndarray:
     """Conductance (S) at each row time: the mean of the board samples in ``(t − period, t]``; a row with none
@@ -478,10 +494,19 @@ class ProtocolRunner:
             for index, (force, repeat) in enumerate(s.plan):
                 if index in self.done:
                     continue
-                self._rest(index)
-                self._check_stop()
-                self.trials.append(self._trial(index, force, repeat))
-                self._on_trial(self.trials[-1])
+                for attempt in range(GAP_RETRIES + 1):
+                    self._rest(index)
+                    self._check_stop()
+                    try:
+                        record = self._trial(index, force, repeat)
+                    except BoardGapError as exc:
+                        if attempt == GAP_RETRIES:
+                            raise
+                        self._progress("rest", index, force, repeat, 0.0, f"{exc}; it runs again after its rest")
+                        continue
+                    break
+                self.trials.append(record)
+                self._on_trial(record)
         except RigInterrupted:
             return self._end(ABORTED, self._stop_reason or "aborted", None)
         except _Stopped:
@@ -781,8 +806,23 @@ class ProtocolRunner:
                        self._time_left(index, s.trial_duration_s()))
         rig.release()
         snap_host_t, snap_conductance, snap_board_t = self.feed.snapshot(times[0] - 2 * period)
-        conductance = decimate_to(times + 0.5 * period, period,
-                                  board_times_on_host_clock(snap_host_t, snap_board_t), snap_conductance)
+        sample_t = board_times_on_host_clock(snap_host_t, snap_board_t)
+        edge_from = (load_from if load_from is not None else times[0]) - period
+        edge_to = (hold_from if hold_from is not None else times[-1]) + 2 * period
+        gap_s = longest_gap_s(sample_t, times[0] - 0.5 * period, times[-1] + 0.5 * period)
+        edge_gap_s = longest_gap_s(sample_t, edge_from, edge_to)
+        uncovered, where = 0.0, ""
+        if edge_gap_s > EDGE_GAP_PERIODS * period:
+            uncovered, where = edge_gap_s, " over the loading edge"
+        elif gap_s > max(MAX_GAP_PERIODS * period, GAP_CREEP_FRACTION * CREEP_TIME_S):
+            uncovered = gap_s
+        if uncovered:
+            cause = (f"the simulated lab's board frames were lost: the computer did not read them in time at "
+                     f"{self.time_scale:g}× real time" if self.simulated_board
+                     else "frames lost: a loose cable, or a computer too busy to read the board")
+            raise BoardGapError(f"{label}: the board's samples of sensor {s.sensor} leave {uncovered:.1f} s "
+                                f"uncovered{where} ({cause}); the trial is not kept")
+        conductance = decimate_to(times + 0.5 * period, period, sample_t, snap_conductance)
         time_s = times - times[0]  # measured sample times (s), the first at 0
         path = self.folder / trial_file_name(s.sensor, index, force, repeat)
         calfiles.write_trial_csv(path, time_s, forces, conductance)

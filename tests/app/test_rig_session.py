@@ -345,3 +345,43 @@ def test_the_simulated_probe_moves_to_the_sensor_chosen(session, qtbot, tmp_path
         means.append(float(np.mean(trial.conductance_s[hold])))
         assert baseline < 0.05 * means[-1]  # on the beam: unloaded until the probe presses, not the robot's weight
     assert means[1] > means[0]
+
+
+def _hold_for(session, qtbot, settings, seconds):
+    with qtbot.waitSignal(session.progress, timeout=30_000, check_params_cb=lambda p: p.phase == "hold"
+                          and p.elapsed_s > settings.baseline_s + settings.ramp_s + seconds):
+        pass
+
+
+def test_a_trial_whose_board_frames_were_lost_is_run_again_not_kept(session, qtbot, tmp_path, fast_lab):
+    """Frames lost for 20 s of a hold (the board's cable, or a host too busy to read it): the trial is not kept with
+    its conductance interpolated across the hole (a made-up creep curve for the fit), it runs again after its rest;
+    the second time it is kept whole."""
+    settings = ProtocolSettings(forces_n=(1.75,), sensor="BENCH", **SHORT)
+    progress = []
+    session.progress.connect(progress.append)
+    session.start(settings, tmp_path)
+    _hold_for(session, qtbot, settings, 10)
+    fast_lab.board.drop_frames(int(20 * fast_lab.config.board.rate_hz))
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        pass
+    outcome = blocker.args[0]
+    assert outcome.status == COMPLETED, outcome.message
+    said = [p.message for p in progress if "not kept" in p.message]
+    assert said and "leave" in said[0] and "runs again" in said[0], said
+    assert len(outcome.trials) == 1 and outcome.trials[0].path.is_file()  # the second run of the trial, kept
+
+
+def test_a_second_loss_of_frames_in_the_same_trial_ends_the_run(session, qtbot, tmp_path, fast_lab):
+    settings = ProtocolSettings(forces_n=(1.75,), sensor="BENCH", **SHORT)
+    session.start(settings, tmp_path)
+    for _ in range(2):
+        _hold_for(session, qtbot, settings, 10)
+        fast_lab.board.drop_frames(int(20 * fast_lab.config.board.rate_hz))
+        with qtbot.waitSignal(session.progress, timeout=60_000, check_params_cb=lambda p: p.phase != "hold"):
+            pass
+    with qtbot.waitSignal(session.finished, timeout=60_000) as blocker:
+        pass
+    outcome = blocker.args[0]
+    assert outcome.status == FAILED and outcome.trials == ()
+    assert "uncovered" in outcome.message and "not kept" in outcome.message and "load released" in outcome.message
