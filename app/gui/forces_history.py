@@ -27,7 +27,9 @@ from app.core.forces_pipeline import US_PER_S, ForcesPipeline
 from devices.board import SampleBlock
 from widgets.ring_plot import TraceHistory, append_with_gaps
 
-CHUNK_SAMPLES = 1800  # a minute at 30 Hz per estimator call: ~27 µs a sample (one sample per call costs ~0.9 ms)
+# Samples per estimator call on the worker thread: ~30 µs a sample (one sample a call costs ~0.9 ms), and each call
+# holds the interpreter lock for its numpy work: 300 (~10 ms) leaves the GUI thread its turn often enough.
+CHUNK_SAMPLES = 300
 RESET = None  # in Reestimation.pending: the board reconnected here (the live pipeline restarted its state)
 
 

@@ -1,0 +1,269 @@
+"""How long the app's window stops answering: the GUI thread's event loop blocked while a calibration loads into the
+Forces tab, while each tab is opened the first time, and while the Calibration tab fits trials.
+
+The app as ``sensnake gui`` runs it (the simulated lab in its own process, the robot connected, the board streaming,
+the window shown). A 5 ms ``QTimer`` ticks on the GUI thread throughout; blocked time is the longest gap between two
+of its ticks, minus the 5 ms, while the action runs (the window answers no click, paints nothing, for that long).
+Target: < 100 ms for each action.
+
+- **First opening of a tab**: the tab is switched to from the event loop, as a click does; measured until the page
+  is built and 1 s after (its first paints and timers).
+- **Calibration load**: after ``--history`` seconds of live data, the simulated sensors' calibration (all 36) is
+  loaded into the Forces tab, as File → Calibration… does; measured until the tab shows forces from it, and 1 s after.
+  Also printed: how much of the plots' history is still there afterwards (the oldest time held, before and after).
+- **Fit**: the Calibration tab fits 4 simulated paper-protocol trials (370 s holds at 6 Hz), as its Fit button does;
+  measured until the fit's result is on screen.
+
+``python -m benchmarks.bench_gui_blocking [--history 70] [--load 0] [--offscreen]``; ``run(quick)`` (``sensnake bench``)
+uses 10 s of history. On a private Xvfb with Qt's xcb platform unless ``--offscreen`` or no Xvfb can start.
+``--load N`` starts N busy processes beside the app (``while True: pass``, as benchmarks/bench_feedback_under_load.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+if "--offscreen" in sys.argv:
+    os.environ["QT_QPA_PLATFORM"] = "offscreen"
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+TICK_MS = 5
+TARGET_MS = 100.0
+AFTER_S = 1.0  # measured on after an action is done: its first paints and the timers it started
+
+
+class LoopWatch:
+    """A ``TICK_MS`` timer on the GUI thread that keeps the longest gap between its ticks since :meth:`reset`, in wall
+    time and in the GUI thread's own CPU time (what a busy machine does not stretch: the work the thread did between
+    two ticks)."""
+
+    def __init__(self) -> None:
+        from PySide6.QtCore import Qt, QTimer
+
+        self._timer = QTimer()
+        self._timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self._timer.setInterval(TICK_MS)
+        self._timer.timeout.connect(self._tick)
+        self._last = self._last_cpu = self.worst_gap_s = self.worst_cpu_s = 0.0
+        self.reset()
+        self._timer.start()
+
+    def _tick(self) -> None:
+        now, cpu = time.perf_counter(), time.thread_time()
+        self.worst_gap_s = max(self.worst_gap_s, now - self._last)
+        self.worst_cpu_s = max(self.worst_cpu_s, cpu - self._last_cpu)
+        self._last, self._last_cpu = now, cpu
+
+    def reset(self) -> None:
+        self._last, self._last_cpu = time.perf_counter(), time.thread_time()
+        self.worst_gap_s = self.worst_cpu_s = 0.0
+
+    @property
+    def blocked_ms(self) -> float:
+        return max(0.0, (self.worst_gap_s * 1000.0) - TICK_MS)
+
+    @property
+    def busy_ms(self) -> float:
+        """The most CPU the GUI thread spent between two ticks (ms)."""
+        return self.worst_cpu_s * 1000.0
+
+    def stop(self) -> None:
+        self._timer.stop()
+
+
+def _pump(ms: float, until: Callable[[], bool] | None = None) -> bool:
+    """Run the event loop for at most ``ms`` (until ``until()``); True if ``until`` came true."""
+    from PySide6.QtCore import QCoreApplication, QEventLoop
+
+    deadline = time.monotonic() + ms / 1000
+    while time.monotonic() < deadline:
+        QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 10)
+        if until is not None and until():
+            return True
+        time.sleep(0.001)  # a benchmark's own loop: the watch's timer still fires every 5 ms
+    return until is not None and until()
+
+
+def _measure(watch: LoopWatch, action: Callable[[], None], done: Callable[[], bool],
+             limit_s: float = 120.0) -> tuple[float, float, float]:
+    """Run ``action`` from the event loop (as a click does), pump until ``done()`` and ``AFTER_S`` more; returns
+    (blocked ms, its GUI-thread CPU ms, wall s until done)."""
+    from PySide6.QtCore import QTimer
+
+    _pump(200)
+    watch.reset()
+    started = time.perf_counter()
+    QTimer.singleShot(0, action)
+    finished = _pump(limit_s * 1000, until=done)
+    wall_s = time.perf_counter() - started
+    _pump(AFTER_S * 1000)
+    if not finished:
+        raise SystemExit(f"bench_gui_blocking: not done within {limit_s:g} s")
+    return watch.blocked_ms, watch.busy_ms, wall_s
+
+
+def _trial_files(folder: Path) -> list[Path]:
+    from app.core import calfiles
+    from models.physics import PhysicsConstants
+    from models.synthetic import TYPICAL_TRUTH, paper_protocol
+
+    trials = paper_protocol(TYPICAL_TRUTH, PhysicsConstants(), seed=3, forces_n=(1.75, 3.0, 4.0, 5.25), repeats=1,
+                            noise_rel=0.002)
+    paths = []
+    for trial in trials:
+        path = folder / f"{trial.name}.csv"
+        calfiles.write_trial_csv(path, trial.time_s, trial.force_n, trial.conductance_s)
+        paths.append(path)
+    return paths
+
+
+@contextlib.contextmanager
+def _busy(load: int) -> Iterator[None]:
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
+    try:
+        yield
+    finally:
+        for process in busy:
+            process.kill()
+            process.wait()
+
+
+def measure(history_s: float, load: int = 0) -> dict[str, Any]:
+    """Run every scenario once; returns {action: (blocked ms, GUI CPU ms, wall s)} plus the history kept across a
+    calibration load."""
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QApplication
+
+    import widgets  # noqa: F401 - installs the PySide6 refcount guard before Qt is used
+
+    app = QApplication.instance() or QApplication([])
+    results: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="sensnake-bench-gui-") as tmp, _busy(load):
+        os.environ["SENSNAKE_DATA_DIR"] = str(Path(tmp) / "data")
+        from app.gui.lab import LabContext
+        from app.gui.main_window import TABS, MainWindow
+        from devices import factory
+        from devices.config import load_config
+
+        config = load_config(None)
+        lab = LabContext(config, lab_process=True)
+        window = MainWindow(lab, settings=QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat))
+        window.resize(1280, 800)
+        window.show()
+        lab.connect_all()
+        watch = LoopWatch()
+        try:
+            _pump(60_000, until=lambda: lab.robot.is_connected and lab.board is not None and lab.board.is_connected)
+            watch.reset()
+            _pump(2_000)
+            results["idle (2 s, nothing asked)"] = (watch.blocked_ms, watch.busy_ms, 0.0)
+            for index, spec in enumerate(TABS):
+                if window.tab_widget(spec.name) is not None:
+                    continue
+
+                def open_tab(i: int = index) -> None:
+                    window.tabs.setCurrentIndex(i)
+
+                def built(name: str = spec.name) -> bool:
+                    complete = getattr(window, "tab_is_complete", None)  # (a window that builds tabs in one go)
+                    return complete(name) if complete is not None else window.tab_widget(name) is not None
+
+                results[f"first opening: {spec.title}"] = _measure(watch, open_tab, built)
+            forces: Any = window.show_tab("forces")
+            board = lab.board
+            _pump(history_s * 1000, until=lambda: board.history.span()[1] - board.history.span()[0] >= history_s)
+            cal = Path(tmp) / "simulated.json"
+            cal.write_text(json.dumps(factory.simulated_sensors_calibration(config)), encoding="utf-8")
+            oldest_before, newest_before = forces.force_history.span()
+            results["calibration load"] = _measure(
+                watch, lambda: forces.load_calibration(cal),
+                lambda: forces.pipeline.calibration_source == str(cal)
+                and not getattr(forces, "is_loading_calibration", False))
+            oldest_after, newest_after = forces.force_history.span()
+            results["history"] = (newest_before - oldest_before, newest_after - oldest_before,
+                                  oldest_after - oldest_before)
+            calibration: Any = window.show_tab("calibration")
+            _pump(500)
+            calibration.add_trial_files(_trial_files(Path(tmp)))
+            results["fit (4 trials)"] = _measure(
+                watch, calibration.start_fit,
+                lambda: not calibration.is_fitting and calibration.result is not None)
+        finally:
+            watch.stop()
+            window.close()
+            lab.close()
+            app.processEvents()
+    return results
+
+
+def report(results: dict[str, Any], history_s: float, load: int) -> None:
+    platform = os.environ.get("QT_QPA_PLATFORM", "")
+    print(f"GUI thread blocked (longest gap between {TICK_MS} ms ticks, minus {TICK_MS} ms; target < {TARGET_MS:g} ms)"
+          f" and the GUI thread's CPU in that longest stretch — Qt {platform or 'default'} platform, {load} busy "
+          f"process(es), {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
+    print(f"{'action':<34} {'blocked ms':>11} {'its CPU ms':>11} {'done after s':>13}")
+    for name, value in results.items():
+        if name == "history":
+            continue
+        blocked_ms, busy_ms, wall_s = value
+        flag = "" if blocked_ms < TARGET_MS else "  (over target)"
+        print(f"{name:<34} {blocked_ms:>11.0f} {busy_ms:>11.0f} {wall_s:>13.2f}{flag}")
+    held_before, held_after_from_old, trimmed_s = results["history"]
+    print(f"plots' history across the calibration load: {held_before:.0f} s held before; afterwards it reaches back "
+          f"to {trimmed_s:+.0f} s of the old oldest sample ({'kept' if trimmed_s <= 1.0 else 'dropped'}); "
+          f"{history_s:g} s of live data before the load")
+    del held_after_from_old
+
+
+def run(quick: bool = False) -> None:
+    """``sensnake bench``: offscreen unless a display is set up already."""
+    if not os.environ.get("DISPLAY"):
+        os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    history_s = 10.0 if quick else 70.0
+    report(measure(history_s), history_s, 0)
+
+
+def on_x_display(argv: list[str]) -> int | None:
+    """Re-run this module on a private Xvfb with Qt's xcb platform; None when already on xcb or none can start."""
+    if os.environ.get("QT_QPA_PLATFORM") == "xcb":
+        return None
+    from tests.realdisplay.xserver import XServer, XUnavailable, probe_env
+
+    try:
+        server = XServer.start()
+    except XUnavailable as exc:
+        print(f"NOTE: no X display ({exc}); running offscreen")
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+        return None
+    try:
+        return subprocess.call([sys.executable, "-m", "benchmarks.bench_gui_blocking", *argv],
+                               env=probe_env(server.display))
+    finally:
+        server.stop()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--history", type=float, default=70.0, help="seconds of live data before the load")
+    parser.add_argument("--load", type=int, default=0, help="busy processes beside the app")
+    parser.add_argument("--offscreen", action="store_true", help="offscreen Qt instead of a private Xvfb")
+    args = parser.parse_args()
+    if not args.offscreen:
+        code = on_x_display(sys.argv[1:])
+        if code is not None:
+            sys.exit(code)
+    report(measure(args.history, args.load), args.history, args.load)
+
+
+if __name__ == "__main__":
+    main()
