@@ -4,6 +4,7 @@ reliability: tiny runs of a few simulated seconds."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 import signal
@@ -12,6 +13,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -242,6 +244,33 @@ def test_the_bootstrap_interval_resamples_conditions_and_covers_the_difference()
     assert entry["ci_low"] >= 0.0 and entry["ci_high"] <= 0.5
     alone = _interval([(3, 0.0, 0.1), (3, 0.0, 0.3)], 500, 0.95, seed=1)  # one condition: no interval
     assert alone["difference"] == pytest.approx(0.2) and math.isnan(alone["ci_low"]) and math.isnan(alone["ci_high"])
+
+
+def test_an_evaluation_run_mujoco_flags_is_left_out_with_its_pair_counted_and_named(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    reason = "invalid run: MuJoCo: bad QACC (NaN, Inf or huge acceleration) at DOF 29 at t=3.21 s"
+
+    def fake_run(task: dict[str, Any]) -> dict[str, Any]:  # the law's run of the first seed stops being physics; every other run advances 0.1 m
+        row = {**dict.fromkeys(sweep.SUMMARY_COLUMNS, ""), "run": task["run"], "scene": task["scene"],
+               "controller": task["controller"], "gains_index": task["gains_index"], "tail_load_N": 0.0,
+               "seed": task["seed"], "file": Path(task["out"]).name}
+        if task["run"] == 1:
+            return {**row, "valid": 0, "invalid_reason": reason, "outcome": "invalid"}
+        return {**row, "traversed": 0, "advance_m": 0.1, "advance_at_rest_m": 0.1, "overloads": 0, "valid": 1,
+                "outcome": "not traversed"}
+
+    monkeypatch.setattr(sweep, "_one", fake_run)
+    monkeypatch.setattr("app.core.evaluate.open_engine", lambda *_a, **_k: _InlineEngine())
+    path = tmp_path / "eval.toml"
+    path.write_text(EVAL, encoding="utf-8")
+    out = tmp_path / "out"
+    assert main(["experiment", "evaluate", str(path), "--out", str(out)]) == 3  # an invalid run: exit 3
+    for row in _rows(out / "evaluation.csv"):  # 10 seeds, one pair left out as invalid, never data
+        assert (row["invalid_pairs"], row["pairs"]) == ("1", "9"), row
+    err = capsys.readouterr().err
+    assert f"run 1 (half_cylinder condition 0, feedback, seed {read_evaluation(path).conditions[0].seeds[0]}) " \
+           f"{reason}: left out (its pair with it)" in err
+    assert json.loads((out / "evaluation.json").read_text(encoding="utf-8"))["invalid_runs"] == 1
 
 
 TUNE = '''train_scenes = ["flat"]
