@@ -40,6 +40,7 @@ DEFAULT_WINDOW_S = 30.0
 QUANTITIES = (("force", "Force (N if calibrated)"), ("conductance", "Raw conductance (µS)"))
 RECORD_TEXT = "● Record"
 STOP_RECORDING_TEXT = "■ Stop recording"  # not just "Stop": the status bar's STOP halts the robot
+RECORD_TIP = "Record the board (and the robot when connected) to an HDF5 file"
 EXPORT_TIP = ("Write the recording shown to CSV, the visible time range or all of it: time_s, each sensor in N (µS "
               "when it has no force), each joint's present and goal angle (rad) and current (mA)")
 EXPORT_DISABLED_TIP = "Open a recording first (Open recording…): Export writes the recording shown"
@@ -161,7 +162,8 @@ class ForcesControls(QWidget):
         record_row = QHBoxLayout()
         self.record = QPushButton(RECORD_TEXT, self)
         self.record.setCheckable(True)
-        self.record.setToolTip("Record the board (and the robot when connected) to an HDF5 file")
+        self.record.setToolTip(RECORD_TIP)
+        self.recording_elsewhere: str | None = None  # another recording of this data is on (a trial): whose
         self.record.toggled.connect(self._on_record)
         record_row.addWidget(self.record)
         self.duration = QSpinBox(self)
@@ -249,6 +251,8 @@ class ForcesControls(QWidget):
         return float(self.duration.value()) or None
 
     def set_recording(self, recording: bool, text: str) -> None:
+        if not recording and self.recording_elsewhere is not None:
+            text = self.record_info.text()  # the other recording stays named beside the disabled button
         self.record.blockSignals(True)
         self.record.setChecked(recording)
         self.record.setText(STOP_RECORDING_TEXT if recording else RECORD_TEXT)
@@ -257,6 +261,20 @@ class ForcesControls(QWidget):
         self.path.setEnabled(not recording)
         self.browse.setEnabled(not recording)
         self.duration.setEnabled(not recording)
+
+    def set_recording_elsewhere(self, short: str | None, whose: str = "") -> None:
+        """Another recording of this data is on (a trial of the Trials dock records the board and the robot): Record
+        is off and disabled, the line beside it says ``short`` and its tooltip ``whose``; None: Record is free."""
+        was, self.recording_elsewhere = self.recording_elsewhere, short
+        self.record.setEnabled(short is None)
+        self.record.setToolTip(RECORD_TIP if short is None else f"{whose}\nRecord is free again when it ends")
+        if short is not None:
+            self.record_info.setText(short)
+            self.record_info.setToolTip(whose)
+            self.set_recording(False, short)
+        elif was is not None:
+            self.record_info.setToolTip("")
+            self.set_recording(False, "not recording")
 
     def set_board_status(self, text: str, level: str) -> None:
         _show(self.board_status, text, status_style(level))

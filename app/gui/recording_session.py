@@ -34,6 +34,22 @@ from app.core.run_documents import live_run_start
 from app.gui.thread_bridge import ThreadBridge
 
 
+def describe_recording(recording: Any) -> tuple[str, str]:
+    """(a few words, a sentence) naming a recording of the live data that another part of the app started: a trial
+    of the Trials dock by its number and file, any other by its plan and file. ``recording``: a
+    :class:`app.core.recorder.Recorder` or a :class:`RecordingSession`."""
+    recorder = getattr(recording, "recorder", recording)
+    path = Path(str(getattr(recorder, "path", "") or "recording"))
+    run_start = getattr(recorder, "run_start", None) or {}
+    trial = run_start.get("trial")
+    if run_start.get("plan_name") == "robot trials" and isinstance(trial, int):
+        return (f"● trial {trial + 1} recording (Trials)",
+                f"Trial {trial + 1} of the series in {path.parent.name} is recording the board and the robot to "
+                f"{path.name} (Trials dock)")
+    plan = run_start.get("plan_name") or "another recording"
+    return f"● {plan} recording", f"{plan} is recording the board to {path}"
+
+
 class RecordingSession(QObject):
     """One recording file being written; see the module docstring."""
 

@@ -146,6 +146,42 @@ def test_a_three_trial_series_with_prompts_a_stop_in_trial_2_and_a_crash_then_re
     assert state["set_aside"] == ["trial-002.cut-short.h5"]
 
 
+def test_record_in_the_forces_tab_during_a_trial_shows_the_trial_s_recording(window, qtbot, tmp_path):
+    """A trial records the Forces tab's data: its Record button is off and disabled, naming the trial, and a start
+    asked for anyway (a script, a shortcut) is refused in one line: no exception, no second file, the trial's
+    recording untouched. Free again once the trial ends."""
+    from widgets.forces_panel import RECORD_TIP
+
+    window.trials_action.trigger()
+    panel, session = window.trials_dock.panel, window.trials_dock.session
+    folder = tmp_path / "recordings" / "bench-x2"
+    session.add_shape_file(shape_file(tmp_path))
+    panel.speed_spin.setValue(0.5)
+    panel.trials_spin.setValue(2)
+    panel.folder_edit.setText(str(folder))
+    click(qtbot, panel.start_series_button)
+    run_trial(qtbot, panel, session, 1, 2)
+    trial_recorder = window.lab.recording
+    forces = window.show_tab("forces")
+    record = forces.controls.record
+    assert not record.isEnabled() and not record.isChecked()
+    assert forces.controls.record_info.text() == "● trial 1 recording (Trials)"
+    assert record.toolTip().startswith("Trial 1 of the series in bench-x2 is recording the board and the robot to "
+                                       "trial-000.h5 (Trials dock)")
+    qtbot.mouseClick(record, Qt.MouseButton.LeftButton)  # a disabled button: nothing happens
+    assert forces.start_recording() is None  # asked for anyway
+    assert forces.controls.message.text().startswith("not recorded: Trial 1 of the series in bench-x2 is recording")
+    assert forces.session is None and forces.live.recorder is trial_recorder and window.lab.recording is trial_recorder
+    assert not record.isChecked() and forces.controls.record_info.text() == "● trial 1 recording (Trials)"
+
+    qtbot.waitUntil(lambda: session.phase == "marking", timeout=TRIAL_TIMEOUT_MS)
+    assert record.isEnabled() and record.toolTip() == RECORD_TIP
+    assert forces.controls.record_info.text() == "not recording"
+    _start, stop = read_documents(folder / "trial-000.h5")
+    assert stop["exit_status"] == "success"
+    assert sorted(p.name for p in (tmp_path / "recordings").rglob("*.h5")) == ["trial-000.h5"]  # no second file
+
+
 def test_the_catalog_browser_filters_and_opens_a_trial_in_the_3d_replay(window, qtbot, tmp_path, monkeypatch):
     from benchmarks.bench_catalog import write_small_recording
     from tests.app.synthetic_trials import write_trial

@@ -54,7 +54,7 @@ from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
 from app.gui.forces_history import RESET, Reestimation, joined, snapshot
 from app.gui.mocap_link import install_mocap_picker
-from app.gui.recording_session import RecordingSession
+from app.gui.recording_session import RecordingSession, describe_recording
 from app.gui.thread_bridge import ThreadBridge
 from devices.factory import SIMULATED_TRUTH_NOTE, is_sim
 from models.health import BAD_FLAGS, HealthMonitor, describe
@@ -304,6 +304,10 @@ class ForcesTab(QWidget):
         robot = getattr(self.lab, "robot", None)
         if robot is not None and hasattr(robot, "state_block"):
             robot.state_block.connect(self._on_robot_states)
+        changed = getattr(self.lab, "recording_changed", None)
+        if changed is not None:  # a trial of the Trials dock records this data: Record shows it is on
+            changed.connect(self._on_lab_recording)
+            self._on_lab_recording(getattr(self.lab, "recording", None))
 
     # -- live data -------------------------------------------------------------------------------------------------
     def _backfill(self, health: bool = True) -> None:
@@ -553,6 +557,11 @@ class ForcesTab(QWidget):
         box; None records until stopped). Returns the session or None if refused."""
         if self.session is not None and self.session.is_active:
             return self.session
+        other = self.live.recorder
+        if other is not None and other.running:  # a trial's recording: never a second one of the same data
+            self.say(f"not recorded: {describe_recording(other)[1]}; Record is free again when it ends", "warn")
+            self.controls.set_recording(False, "not recording")
+            return None
         path = Path(path or self.controls.path.text().strip() or default_recording_path())
         if path.suffix.lower() not in (".h5", ".hdf5"):
             path = path.with_suffix(".h5")
@@ -590,6 +599,11 @@ class ForcesTab(QWidget):
         session = self.session
         if session is not None:
             session.stop()
+
+    def _on_lab_recording(self, recording: Any) -> None:
+        """The lab's recording changed: one this tab did not start (a trial's) disables Record, naming it."""
+        other = recording is not None and recording is not self.session
+        self.controls.set_recording_elsewhere(*(describe_recording(recording) if other else (None, "")))
 
     def _on_record_toggled(self, start: bool) -> None:
         if start:
