@@ -27,7 +27,8 @@ feedforward play the same (condition, seed): a *pair*. A pair with an invalid ru
 with a run undecided at rest is left out of the traversal and advance statistics and counted. Statistics, per family
 and overall, of each controller against feedforward on its pairs: traversal probability at rest, advance at rest
 (m), overload events per run; each a difference with a paired bootstrap interval that resamples *conditions* (the
-seeds of one condition are not independent), stratified by family, with ``bootstrap`` resamples.
+seeds of one condition are not independent), with ``bootstrap`` resamples; the overall row resamples all the
+conditions together (not family by family), so a resample may hold more of one family than the draw did.
 
 Qt-free: the figure is SVG; the command line rasterises the PNG.
 """
