@@ -43,11 +43,12 @@ if [ "$#" -gt 0 ]; then
 fi
 # Tests that measure wall-clock behaviour or share a machine-wide resource are marked `serial` (tests/conftest.py):
 # the rest runs first on one worker per core (up to 4; a module's tests stay on one worker), then the serial ones
-# alone, so their timings are taken on a machine this run does not load.
+# alone, so their timings are taken on a machine this run does not load. Each pass prints its 15 slowest tests: where
+# the run's time goes.
 workers=$(python3 -c 'import os; print(max(1, min(4, len(os.sched_getaffinity(0)))))')
 echo "== tests ($workers workers; those that measure time run after, alone)"
 rc=0
-run_pytest -n "$workers" --dist loadfile -m "not serial" || rc=$?
+run_pytest -n "$workers" --dist loadfile -m "not serial" --durations=15 || rc=$?
 echo "== tests that measure time or share the machine (alone)"
-run_pytest -m serial || rc=$?
+run_pytest -m serial --durations=15 || rc=$?
 exit "$rc"

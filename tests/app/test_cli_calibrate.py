@@ -373,7 +373,7 @@ def test_several_sensors_in_one_run_the_simulated_probe_moving_to_each(tmp_path,
     out = tmp_path / "cal.json"
     code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--sensors", "S02B,S03B",
                  "--forces", "1.75,5.25", "--trials", "1", "--hold", "370", "--rest", "500",
-                 "--time-scale", "60", "--out", str(out)])
+                 "--time-scale", "150", "--out", str(out)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "the probe moves onto S02B" in captured.err and "the probe moves onto S03B" in captured.err
