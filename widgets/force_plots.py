@@ -603,6 +603,7 @@ class ForcePlotGrid(QWidget):
         self._drawn_key: tuple | None = None
         self._hidden_sides: set[str] = set()
         self._hover: tuple[_SegmentPlot, QPointF] | None = None
+        self._cursor_s: float | None = None  # a time cursor shared with another view (set_cursor), session time
         self._setting_range = False
         self.redraw_count = 0
         self.last_redraw_s = 0.0
@@ -1125,8 +1126,7 @@ class ForcePlotGrid(QWidget):
         else:
             self._hover = None
             plot.readout.hide()
-            for other in self.plots:
-                other.cursor_line.hide()
+            self._place_cursor_lines(self._cursor_s)  # a shared cursor stays where the mouse left it
         self._update_readout()
 
     def cursor_readout(self) -> tuple[float, dict[str, float]] | None:
@@ -1164,10 +1164,36 @@ class ForcePlotGrid(QWidget):
         plot.readout.move(max(area.left() + 1, x), area.top() + 2)
         plot.readout.show()
         plot.readout.raise_()
-        for other in self.plots:
-            other.cursor_line.setPos(t_s - self._x_offset_s)
-            other.cursor_line.setVisible(not other.collapsed)
+        if self._cursor_s is not None:
+            self._cursor_s = t_s
+        self._place_cursor_lines(t_s)
         self.cursor_moved.emit(t_s)
+
+    def _place_cursor_lines(self, t_s: float | None) -> None:
+        for other in self.plots:
+            if t_s is None:
+                other.cursor_line.hide()
+            else:
+                other.cursor_line.setPos(t_s - self._x_offset_s)
+                other.cursor_line.setVisible(not other.collapsed)
+
+    @property
+    def cursor_s(self) -> float | None:
+        """The shared time cursor (session time, s; None: none): set by :meth:`set_cursor`, then moved by the mouse
+        over a plot as well."""
+        return self._cursor_s
+
+    def set_cursor(self, t_s: float | None) -> None:
+        """Another view's time cursor (the Plots dock's, on the recording shown here) at session time ``t_s``: the
+        dashed line on every plot, which stays when the mouse leaves (the mouse moves it too); a paused view is panned
+        by its width to keep it in sight. None: back to a cursor only under the mouse. No signal."""
+        self._cursor_s = t_s
+        if t_s is not None and self._paused and self.plots:
+            t0, t1 = self.visible_range()
+            if not t0 <= t_s <= t1:
+                self.show_range(t_s - 0.5 * (t1 - t0), t_s + 0.5 * (t1 - t0))
+        if self._hover is None:
+            self._place_cursor_lines(t_s)
 
     def hover_at(self, plot_index: int, t_s: float) -> None:
         """Put the readout cursor at session time ``t_s`` on plot ``plot_index`` as if the mouse were there."""

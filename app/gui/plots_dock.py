@@ -14,7 +14,9 @@ the view (:class:`widgets.plots_view.PlotsView`) and to the lab:
 - a recording (Open recording…) shows in the same plots on its own clock, with a time cursor; a layout saved beside it
   (``RUN.plots.json``) opens with it when the plots are empty or show none of its series. **3-D replay** opens it in
   the 3-D lab's replay: from then on that timeline and this cursor follow each other (the dock reads the replay's
-  time while it shows the same file, and moves it when the cursor is moved here);
+  time while it shows the same file, and moves it when the cursor is moved here). The Forces tab's cursor too, while
+  that tab shows the same recording: its dashed line and body map go where this cursor is put, and the mouse over
+  its plots moves this cursor (and the replay);
 - layouts are saved beside the recording shown, or in the data folder's ``plots/`` (live), never over an existing
   file without asking (replace, keep both, or cancel); the last layout is kept in the window's settings.
 
@@ -85,6 +87,7 @@ class PlotsDock(QDockWidget):
         self._paused = False
         self._readout_s = 0.0
         self._replay_seen: float | None = None
+        self._forces_seen: float | None = None
         self.redraws = 0
         # Questions (tests answer them instead of a person): a path to open or save, what to do about a file there.
         self.ask_open_path: Callable[[str, str, str], str] = self._dialog_open_path
@@ -243,6 +246,7 @@ class PlotsDock(QDockWidget):
     def _tick(self) -> None:
         if self.recording is not None:
             self._follow_replay()
+            self._follow_forces_cursor()
             return
         if self._forces_tab is None:
             self._follow_forces_tab()
@@ -450,7 +454,7 @@ class PlotsDock(QDockWidget):
             self.say(f"cannot plot {path}: {exc}", theme.ERROR)
             return False
         self.recording = recording
-        self._replay_seen = None
+        self._replay_seen = self._forces_seen = None
         self._log("action", f"plot recording {recording.path}")
         beside = sr.layout_beside(recording.path)
         keys = self.layout_model.series_keys()
@@ -499,13 +503,43 @@ class PlotsDock(QDockWidget):
             return None
         return scene if same else None
 
+    def _forces_on_this_recording(self) -> Any:
+        """The Forces tab when it shows the recording plotted here, else None."""
+        recording = self.recording
+        forces = self.host.tab_widget("forces")
+        viewed = getattr(forces, "viewed", None)
+        if recording is None or viewed is None or not hasattr(forces, "put_cursor"):
+            return None
+        try:
+            same = Path(viewed.path).resolve() == recording.path.resolve()
+        except OSError:
+            return None
+        return forces if same else None
+
     def _cursor_moved(self, t_s: float) -> None:
-        """The user put the cursor at ``t_s``: the readout, the X–Y markers and the 3-D replay follow."""
-        scene = self._scene_on_this_recording()
+        """The user put the cursor at ``t_s``: the readout, the X–Y markers, the 3-D replay and the Forces tab
+        follow."""
+        self._sync_cursor(t_s, "plots")
+
+    def _sync_cursor(self, t_s: float, moved_in: str) -> None:
+        """The time cursor is at ``t_s``, moved ``moved_in`` the ``plots`` here, the 3-D ``replay`` or the ``forces``
+        tab: every other view showing this recording goes there."""
+        t0, t1 = self.view.time_range()
+        if moved_in != "plots":
+            self.view.set_cursor(t_s)
+        if moved_in != "plots" and not t0 <= t_s <= t1:  # keep the cursor in view: the axes move by their width
+            self.view.set_time_range(t_s - 0.5 * (t1 - t0), t_s + 0.5 * (t1 - t0))
+            self.redraw()
+        else:
+            self._refresh_cursor()
+        scene = self._scene_on_this_recording() if moved_in != "replay" else None
         if scene is not None:
             scene.seek(t_s)
             self._replay_seen = float(scene.replay_time_s)
-        self._refresh_cursor()
+        forces = self._forces_on_this_recording() if moved_in != "forces" else None
+        if forces is not None:
+            forces.put_cursor(t_s)
+            self._forces_seen = forces.plots.cursor_s
 
     def _refresh_cursor(self) -> None:
         recording = self.recording
@@ -527,14 +561,27 @@ class PlotsDock(QDockWidget):
         self._replay_seen = t_s
         if self.view.cursor_s is not None and abs(self.view.cursor_s - t_s) < 1e-9:
             return
-        self.view.set_cursor(t_s)
-        t0, t1 = self.view.time_range()
-        if not t0 <= t_s <= t1:  # keep the cursor in view: the axes move by their width
-            width = t1 - t0
-            self.view.set_time_range(t_s - 0.5 * width, t_s + 0.5 * width)
-            self.redraw()
-        else:
-            self._refresh_cursor()
+        self._sync_cursor(t_s, "replay")
+
+    def _follow_forces_cursor(self) -> None:
+        """The mouse moved the Forces tab's cursor on this recording: the cursor goes there (the replay with it). A
+        Forces tab that has just opened this recording takes the cursor from here."""
+        forces = self._forces_on_this_recording()
+        if forces is None:
+            self._forces_seen = None
+            return
+        t_s = forces.plots.cursor_s
+        if t_s is None:
+            if self.view.cursor_s is not None:
+                forces.put_cursor(self.view.cursor_s)
+                self._forces_seen = forces.plots.cursor_s
+            return
+        if t_s == self._forces_seen:
+            return
+        self._forces_seen = t_s
+        if self.view.cursor_s is not None and abs(self.view.cursor_s - t_s) < 1e-9:
+            return
+        self._sync_cursor(float(t_s), "forces")
 
     def open_replay(self) -> bool:
         """Open the recording shown here in the 3-D lab's replay, at the cursor; its timeline and this cursor follow

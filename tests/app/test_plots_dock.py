@@ -227,6 +227,61 @@ def test_the_cursor_and_the_3d_replay_follow_each_other_and_xy_plots(idle_window
     assert np.allclose(x, centers[:, 0])
 
 
+def test_the_cursor_and_the_forces_tab_follow_each_other_on_the_same_recording(idle_window, qtbot, tmp_path):
+    """The Forces tab showing the recording plotted here: this cursor puts its dashed line and body map at t, the
+    mouse over its plots moves this cursor (and the 3-D replay); on another recording nothing is shared."""
+    from tests.app.synthetic_trials import write_trial
+
+    path = write_trial(tmp_path / "run.h5", duration_s=6.0, seed=1)  # a whole recording: the Forces tab opens it
+    dock, view = idle_window.plots_dock, idle_window.plots_dock.view
+    idle_window.plots_action.trigger()
+    qtbot.waitUntil(dock.isVisible)
+    assert dock.open_recording(path)
+    dock.add_series([S06B_FORCE])
+    forces = idle_window.show_tab("forces")
+    assert forces.open_recording_file(path) is not None
+    qtbot.waitUntil(lambda: forces.plots.cursor_s == pytest.approx(view.cursor_s))  # it takes the cursor from here
+
+    def lines_at(t_s):
+        offset = forces.plots.visible_range()[0] - forces.plots.plots[0].viewbox.viewRange()[0][0]
+        shown = [p for p in forces.plots.plots if not p.collapsed]
+        return shown and all(p.cursor_line.isVisible() and p.cursor_line.value() + offset == pytest.approx(t_s)
+                             for p in shown)
+
+    view.put_cursor(4.5)  # the user moves the plots' cursor: the Forces tab's line and body map go there
+    assert forces.plots.cursor_s == pytest.approx(4.5) and lines_at(4.5)
+    assert forces.replay_time_s() == pytest.approx(4.5)
+    with h5py.File(path) as f:
+        t_rob, present = f["robot/time_s"][:], f["robot/present_rad"][:]
+    angles, _forces = forces.recorded_body(forces.replay_time_s())
+    assert angles[0] > 0.05 and np.allclose(angles, present[np.flatnonzero(t_rob <= 4.5)[-1]])
+
+    forces.plots.hover_at(0, 4.0)  # the mouse over the Forces tab's plots: this cursor follows (a 30 Hz sample)
+    qtbot.waitUntil(lambda: view.cursor_s is not None and abs(view.cursor_s - 4.0) <= 1 / 30 + 1e-9)
+    assert view.cursor_s == pytest.approx(forces.plots.cursor_s)
+    assert f"cursor t = {view.cursor_s:.3f} s" in view.readout.text()
+    view.set_time_range(0.0, 1.0)
+    forces.plots.hover_at(0, 5.5)  # beyond what the plots show: the axes follow
+    qtbot.waitUntil(lambda: view.cursor_s is not None and view.cursor_s > 5.0)
+    t0, t1 = view.time_range()
+    assert t0 <= view.cursor_s <= t1 and t1 - t0 == pytest.approx(1.0)
+
+    assert dock.open_replay()  # the 3-D replay joins: the Forces tab's cursor moves it too
+    scene = idle_window.tab_widget("scene")
+    forces.plots.hover_at(0, 3.0)
+    qtbot.waitUntil(lambda: abs(scene.replay_time_s - 3.0) <= 0.05)
+    scene.seek(1.5)  # scrubbed in 3-D: the plots' cursor and the Forces tab's follow
+    qtbot.waitUntil(lambda: forces.plots.cursor_s == pytest.approx(scene.replay_time_s))
+    assert view.cursor_s == pytest.approx(scene.replay_time_s)
+
+    other = write_trial(tmp_path / "other.h5", duration_s=3.0, seed=2)
+    assert forces.open_recording_file(other) is not None  # another recording in the Forces tab: nothing shared
+    assert forces.plots.cursor_s is None
+    view.put_cursor(0.5)
+    qtbot.wait(100)  # Deliberate: three of the dock's redraw ticks, which would share the cursor
+    assert forces.plots.cursor_s is None and forces.replay_time_s() != pytest.approx(0.5)
+
+
 def test_a_layout_naming_series_the_source_lacks_says_which_and_a_bad_file_is_refused(idle_window, qtbot, tmp_path):
     dock = idle_window.plots_dock
     idle_window.plots_action.trigger()

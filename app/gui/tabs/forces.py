@@ -433,6 +433,13 @@ class ForcesTab(QWidget):
             self._replay_cursor_s = t_s
             self.refresh_body()
 
+    def put_cursor(self, t_s: float | None) -> None:
+        """Another view's time cursor on the recording shown here (the Plots dock's): the plots' cursor line and the
+        body map go to ``t_s``; the mouse over a plot moves it on (``plots.cursor_s``). None: the shared cursor off."""
+        self.plots.set_cursor(t_s if self.viewed is not None else None)
+        if self.viewed is not None and t_s is not None:
+            self._on_cursor_moved(t_s)
+
     # -- view options ----------------------------------------------------------------------------------------------
     def set_quantity(self, quantity: str) -> None:
         """``force`` (N; uncalibrated sensors in µS, labelled) or ``conductance`` (µS, raw)."""
@@ -544,6 +551,7 @@ class ForcesTab(QWidget):
         """Back from a past recording to the live board."""
         self.viewed = None
         self._replay_cursor_s = None
+        self.plots.set_cursor(None)
         self._body_key = None
         self.controls.set_viewing_file(None)
         self.say("")
@@ -710,6 +718,7 @@ class ForcesTab(QWidget):
             log.add("action", f"open recording {path}", "Forces")
             log.add_recorded(recording.path, recording.started, recording.events)
         self._replay_cursor_s = None
+        self.plots.set_cursor(None)
         self._body_key = None
         with busy_cursor():
             self._show_recording(recording)
