@@ -2,6 +2,7 @@
 
     python tools/screenshot.py [--out docs/screenshots] [--size 1280x800] [--settle-ms 1500] [--tabs teach gait …]
     python tools/screenshot.py --offscreen …     # Qt's offscreen platform and QWidget.grab() instead (no X)
+    python tools/screenshot.py --mocap [--scene flat] --out /tmp/shots   # the motion capture: mocap*.png
 
 By default the pictures are what an X server shows: the tool starts a private Xvfb (unless ``DISPLAY`` is set and
 ``--xvfb`` is not given), runs the app with Qt's xcb platform and reads the window's pixels back with
@@ -14,6 +15,12 @@ them as a shape; Gait plays that shape follow-the-leader and is grabbed mid-moti
 Forces and Hardware pictures, so they show a moving robot); Forces loads the simulated sensors' own models as its
 calibration (without one it shows µS) and shows the last 10 s of live forces while recording; Hardware scans and checks the link. The user's saved window geometry, shape library and recordings are
 not touched (settings, shapes and the recording go to a temporary folder).
+
+``--mocap`` pictures the motion capture instead, as ``sensnake gui`` runs it on the physics lab with ``[lab] mocap =
+true`` (the lab in its own process, on flat ground unless ``--scene``): the simulated sensors' calibration loaded and
+a serpenoid gait playing, ``mocap-picker.png`` is the Forces tab with the **Mocap:** picker's menu open beside Record
+(the simulated lab's source ticked), ``mocap.png`` the 3-D tab with the captured markers over the simulated body and
+the kinematics panel (the side view, each segment's lateral y against time) filled for a few seconds.
 """
 
 from __future__ import annotations
@@ -86,6 +93,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log", action="store_true",
                         help="after the tabs, the Event log dock open at a fault (a reboot asked of a servo that is "
                              "not on the bus): event-log.png")
+    parser.add_argument("--mocap", action="store_true",
+                        help="the motion capture ([lab] mocap = true on the physics lab, a serpenoid playing): the "
+                             "Forces tab's Mocap picker open (mocap-picker.png) and the 3-D tab with the markers and "
+                             "the kinematics panel (mocap.png); only these, unless --tabs")
     parser.add_argument("--replay", default=None, metavar="REC.h5",
                         help="the 3-D tab replaying this recording, scrubbed to its middle: scene-replay.png")
     args = parser.parse_args(argv)
@@ -112,9 +123,12 @@ def main(argv: list[str] | None = None) -> int:
         from dataclasses import replace
 
         # The README's pictures are of the scripted lab, posed by hand; --physics for the 3-D lab's picture.
+        if args.mocap:  # the physics lab filming its robot; on flat ground a serpenoid keeps its LEDs up
+            args.physics = True
+            config = replace(config, lab=replace(config.lab, mocap="sim", scene=args.scene or "flat"))
         config = replace(config, lab=replace(config.lab, physics="mujoco" if args.physics else "scripted",
                                              scene=args.scene or config.lab.scene))
-        lab = LabContext(config)
+        lab = LabContext(config, lab_process=args.mocap)  # as sensnake gui: the lab and its cameras' stream apart
         window = MainWindow(lab, settings=settings)
         window.resize(width, height)
         window.move(0, 0)
@@ -129,10 +143,13 @@ def main(argv: list[str] | None = None) -> int:
                     return
                 time.sleep(0.01)  # a script, not a test: idle between event batches
 
-        pump(10_000, until=lambda: lab.robot.is_connected or "could not" in window.status.message)
+        pump(150_000 if args.mocap else 10_000,  # the lab's own process builds its world first
+             until=lambda: lab.robot.is_connected or "could not" in window.status.message)
         if not args.physics:
             _pose_by_hand(config)  # (the physics lab's limp robot drapes over the obstacle by itself)
-        names = args.tabs or [spec.name for spec in TABS]
+        names = args.tabs or ([] if args.mocap else [spec.name for spec in TABS])
+        if args.mocap and not _take_mocap(window, lab, out, pump, Path(tmp), args.settle_ms):
+            return 1
         if args.feedback:  # the feedback controller needs forces: the Forces tab estimates them from the start
             _load_simulated_sensors_calibration(window.show_tab("forces"), Path(tmp))
             from app.core.shapes import Shape, ShapeLibrary
@@ -224,9 +241,60 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _save(window: Any, path: Path, pump: Any) -> Path | None:
-    """Grab ``window`` into ``path`` and note its sources (the README's pictures); None if it cannot be written."""
-    window.raise_()
+def _take_mocap(window: Any, lab: Any, out: Path, pump: Any, folder: Path, settle_ms: int) -> bool:
+    """mocap-picker.png and mocap.png (see the module docstring); False, and why on stderr, when they cannot be."""
+    link = lab.mocap
+    pump(150_000, until=lambda: link.inlet is not None or "not following" in link.status)
+    if link.inlet is None:
+        print(f"screenshot: no motion capture: {link.status}", file=sys.stderr)  # noqa: T201
+        return False
+    pump(150_000, until=lambda: lab.robot.is_connected and lab.robot.latest_state is not None)
+    if not lab.robot.is_connected:
+        print(f"screenshot: the robot did not connect: {lab.robot.connection_text}", file=sys.stderr)  # noqa: T201
+        return False
+    forces: Any = window.show_tab("forces")
+    _load_simulated_sensors_calibration(forces, folder)
+    gait: Any = window.show_tab("gait")
+    gait.panel.set_mode("serpenoid")
+    gait.panel.repeat_spin.setValue(1000)  # plays on through both pictures
+    pump(10_000, until=gait.panel.play_button.isEnabled)
+    gait.panel.play_button.click()
+    pump(10_000, until=lambda: lab.robot.motion_state == "running")
+
+    forces = window.show_tab("forces")
+    forces.controls.window_combo.setCurrentIndex(forces.controls.window_combo.findText("10 s"))
+    pump(max(settle_ms, 4_000))  # the plots fill with the moving robot's forces, the picker counts samples
+    picker = forces.mocap_picker
+    if picker is None:
+        print("screenshot: the Forces tab has no Mocap picker", file=sys.stderr)  # noqa: T201
+        return False
+    window.raise_()  # first: raised after, the window would cover the menu
+    pump(200)
+    picker.menu_.popup(picker.mapToGlobal(picker.rect().bottomLeft()))  # as a click on it opens it
+    pump(600)
+    saved = _save(window, out / "mocap-picker.png", pump, raise_window=False)
+    picker.menu_.hide()
+    if saved is None:
+        return False
+
+    scene: Any = window.show_tab("scene")
+    scene.kinematics.coordinate_combo.setCurrentIndex(1)  # lateral y: what a serpenoid on flat ground moves most
+    pump(60_000, until=lambda: scene.view.frames_shown > 2 or bool(scene.render_error))
+    pump(30_000, until=lambda: scene.kinematics.frames_drawn > 5)
+    pump(max(settle_ms, 6_000))  # the positions against time fill a few seconds
+    if scene.render_error:
+        print(f"screenshot: the 3-D picture: {scene.render_error}", file=sys.stderr)  # noqa: T201
+        return False
+    saved = _save(window, out / "mocap.png", pump)
+    lab.robot.stop_motion()
+    return saved is not None
+
+
+def _save(window: Any, path: Path, pump: Any, raise_window: bool = True) -> Path | None:
+    """Grab ``window`` into ``path`` and note its sources (the README's pictures); None if it cannot be written.
+    ``raise_window=False``: as it is stacked (a menu open over it stays on top)."""
+    if raise_window:
+        window.raise_()
     pump(200)  # the X server has the last frame
     if not _grab(window).save(str(path)):
         print(f"screenshot: cannot write {path}", file=sys.stderr)  # noqa: T201
