@@ -46,8 +46,9 @@ def read_toml_file(path: str | os.PathLike[str], what: str, error: type[Exceptio
 
 
 def read_text_file(path: str | os.PathLike[str], what: str, error: type[Exception] = ValueError,
-                   not_found: str = "") -> str:
-    """The UTF-8 text of the regular file ``path`` (at most :data:`MAX_TOML_BYTES`); ``error`` otherwise."""
+                   not_found: str = "", max_bytes: int = MAX_TOML_BYTES) -> str:
+    """The UTF-8 text of the regular file ``path`` (at most ``max_bytes``, :data:`MAX_TOML_BYTES` unless told);
+    ``error`` otherwise. Any small text file a user names (a shape, a servo settings file) is read through here."""
     file = Path(path)
     try:
         fd = os.open(file, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
@@ -61,14 +62,18 @@ def read_text_file(path: str | os.PathLike[str], what: str, error: type[Exceptio
     try:
         kind = _kind(os.fstat(fd).st_mode)
         if kind is not None:
-            raise error(f"{file}: is {kind}, not a {what}: only a regular file is read")
-        raw = _read_capped(fd, file, what, error)
+            raise error(f"{file}: is {kind}, not {_article(what)} {what}: only a regular file is read")
+        raw = _read_capped(fd, file, what, error, max_bytes)
     finally:
         os.close(fd)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise error(f"{file}: not a UTF-8 text file (byte {exc.start} is not UTF-8: a binary file?)") from None
+
+
+def _article(noun: str) -> str:
+    return "an" if noun[:1].lower() in "aeiou" else "a"
 
 
 def parse_toml_text(text: str, source: str, what: str, error: type[Exception] = ValueError) -> dict[str, Any]:
@@ -87,13 +92,13 @@ def parse_toml_text(text: str, source: str, what: str, error: type[Exception] = 
     return data
 
 
-def _read_capped(fd: int, file: Path, what: str, error: type[Exception]) -> bytes:
+def _read_capped(fd: int, file: Path, what: str, error: type[Exception], max_bytes: int = MAX_TOML_BYTES) -> bytes:
     chunks: list[bytes] = []
     size = 0
     while chunk := os.read(fd, 1 << 16):
         size += len(chunk)
-        if size > MAX_TOML_BYTES:
-            raise error(f"{file}: larger than {MAX_TOML_BYTES // 1_000_000} MB, too large for a {what}")
+        if size > max_bytes:
+            raise error(f"{file}: larger than {max_bytes / 1e6:g} MB, too large for {_article(what)} {what}")
         chunks.append(chunk)
     return b"".join(chunks)
 

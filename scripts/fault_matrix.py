@@ -937,30 +937,56 @@ def _small_recording(path: Path, n: int = 40) -> Path:
 
 
 def outputs_that_are_no_regular_file(folder: Path) -> Outcome:
-    """A FIFO, and a symbolic link to one, as every writer's output: refused in one line, the FIFO left a FIFO."""
+    """A FIFO, a symbolic link to one, a socket and (as root) a character device node of its own (``mknod c 1 3``,
+    what /dev/null is; never the real one) as every writer's output: refused in one line naming it, each left what
+    it was."""
+    import socket
     import stat
 
     rec = _small_recording(folder / "rec.h5")
     data, cal = _series(folder), _calibration(folder)
+    trial = folder / "trial.csv"
+    trial.write_text("time_s,force_N,conductance_S\n" + "".join(f"{k / 100:.2f},{k / 50:.3f},{1e-5 * (1 + k / 40):.6g}\n"
+                                                                   for k in range(200)))
     fifo = folder / "pipe"
     os.mkfifo(fifo)
     link = folder / "link.out"
     link.symlink_to(fifo)
+    targets = {fifo: "FIFO", link: "FIFO"}
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(folder / "sock"))
+    targets[folder / "sock"] = "socket"
+    if hasattr(os, "geteuid") and os.geteuid() == 0:  # root: a device node of our own, never /dev/null itself
+        os.mknod(folder / "devnull", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        targets[folder / "devnull"] = "character device"
+    kinds = {target: stat.S_IFMT(os.lstat(target).st_mode) for target in targets}
     commands = {"estimate CSV": ["estimate", str(data), "--cal", str(cal), "--out"],
+                "estimate --flags": ["estimate", str(data), "--cal", str(cal), "--out", str(folder / "f.csv"),
+                                     "--flags"],
                 "estimate REC.h5": ["estimate", str(rec), "--cal", str(cal), "--out"],
                 "export": ["export", str(rec), "--csv"], "repair": ["repair", str(rec), "--out"],
+                "fit": ["fit", str(trial), "--sensor", "S06B", "--area", AREA, "--out"],
+                "forward": ["forward", str(_force_csv(folder / "force.csv", [0.5, 1.5])), "--cal", str(cal),
+                            "--out"],
                 "record": ["record", "--daq", "sim", "--seconds", "1", "--out"],
-                "experiment run": ["experiment", "run", "--seconds", "0.1", "--out"]}
-    for name, argv in commands.items():
-        for target in (fifo, link):
-            ok, note = clean_failure(in_process(*argv, str(target)), 1, str(target), "FIFO", "regular file")
-            if not ok:
-                return Outcome(False, f"{name} --out {target.name}: {note}")
-            if not stat.S_ISFIFO(os.stat(fifo).st_mode) or not link.is_symlink():
-                return Outcome(False, f"{name} replaced {target.name}")
+                "experiment run": ["experiment", "run", "--seconds", "0.1", "--out"],
+                "play --log": ["play", str(_shape(folder / "shape.json", [0.0] * 12)), "--robot", "sim", "--log"],
+                "servo dump": ["servo", "dump", "--robot", "sim", "--out"]}
+    try:
+        for name, argv in commands.items():
+            for target, kind in targets.items():
+                ok, note = clean_failure(in_process(*argv, str(target)), 1, str(target), kind)
+                if not ok:
+                    return Outcome(False, f"{name} {target.name}: {note}")
+                changed = [t.name for t in targets if stat.S_IFMT(os.lstat(t).st_mode) != kinds[t]]
+                if changed:
+                    return Outcome(False, f"{name} replaced {changed}")
+    finally:
+        listener.close()
     leftovers = _hidden(folder)
     return Outcome(not leftovers, f"left behind: {leftovers}" if leftovers else
-                   f"{len(commands)} writers × (FIFO, link to it): one line each, the FIFO untouched")
+                   f"{len(commands)} writers × ({', '.join(t.name for t in targets)}): one line each, each left what it "
+                   "was")
 
 
 def stale_temporaries_removed(folder: Path) -> Outcome:
@@ -979,7 +1005,18 @@ def stale_temporaries_removed(folder: Path) -> Outcome:
     run = in_process("estimate", str(rec), "--cal", str(_calibration(folder)), "--out", str(out))
     left = _hidden(folder)
     ok = run.code == 0 and left == [live.name]
-    return Outcome(ok, f"removed {stale[0]}, kept the live one" if ok else f"exit {run.code}; left {left}")
+    if not ok:
+        return Outcome(False, f"exit {run.code}; left {left}")
+    live.unlink()
+    settings = folder / "servos.json"  # a servo dump killed while writing its settings file
+    killed = subprocess.run([sys.executable, "-c", "import os, sys\nfrom app.core.outputs import create_temporary\n"
+                             "create_temporary(sys.argv[1], '.tmp')\nos.kill(os.getpid(), 9)", str(settings)],
+                            cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, timeout=60)
+    stale_dump = _hidden(folder)
+    run = in_process("servo", "dump", "--robot", "sim", "--id", "2", "--out", str(settings))
+    ok = killed.returncode == -signal.SIGKILL and len(stale_dump) == 1 and run.code == 0 and not _hidden(folder)
+    return Outcome(ok, f"removed {stale[0]} (estimate) and {stale_dump[0]} (servo dump), kept the live one" if ok
+                   else f"servo dump: exit {run.code}; left {_hidden(folder)} (before: {stale_dump})")
 
 
 def full_disk_record(folder: Path) -> Outcome:
@@ -1075,28 +1112,30 @@ def _hostile_recordings(folder: Path) -> dict[str, tuple[Path, tuple[str, ...]]]
         "scalar": variant("scalar", dataset("daq/conductance_S", 1.0), cond, "single value"),
         "strings": variant("strings", dataset("daq/conductance_S", np.array([b"abc"] * n)), cond, "text"),
         "complex": variant("complex", dataset("daq/conductance_S", np.full((n, 36), 1e-4 + 1e-5j)), cond, "complex"),
-        "soft-link loop": variant("loop", loop, cond, "loops"),
+        "soft-link loop": variant("loop", loop, cond, "loops back"),
         "2-D time": variant("time2d", dataset("daq/time_s", np.zeros((n, 2))), "/daq/time_s", "one value per row"),
         'version "abc"': variant("version", version, "version", "'abc'"),
     }
 
 
 def hostile_recordings(folder: Path) -> Outcome:
-    """estimate REC.h5 and export on recordings of the wrong shape or type: one line naming the file, the dataset
+    """estimate REC.h5, export and repair on recordings of the wrong shape or type: one line naming the file, the dataset
     and what was expected; never a traceback, a numpy warning or a silent exit 0."""
     import warnings
 
     cal = _calibration(folder)
     for name, (path, words) in _hostile_recordings(folder).items():
         for argv in (["estimate", str(path), "--cal", str(cal), "--out", str(folder / "o.h5")],
-                     ["export", str(path), "--csv", str(folder / "o.csv")]):
+                     ["export", str(path), "--csv", str(folder / "o.csv")],
+                     ["repair", str(path), "--out", str(folder / "fixed.h5")]):
             with warnings.catch_warnings():
                 warnings.simplefilter("error")  # a leaked numpy warning fails the case
                 run = in_process(*argv)
             ok, note = clean_failure(run, 1, *words)
             if not ok:
                 return Outcome(False, f"{argv[0]} on {name}: {note}")
-    return Outcome(True, "9 hostile recordings × (estimate, export): each one line naming file, dataset, expectation")
+    return Outcome(True, "9 hostile recordings × (estimate, export, repair): each one line naming the file and the "
+                         "cause")
 
 
 def repair_flipped_bytes(folder: Path) -> Outcome:
@@ -1175,8 +1214,167 @@ def fit_under_address_limits(folder: Path) -> Outcome:
     return Outcome(True, "; ".join(notes))
 
 
+def hostile_json_inputs(folder: Path) -> Outcome:
+    """A shape (play), a servo settings file (servo restore) and a calibration (estimate --cal) that is a FIFO, a
+    link to /dev/zero, 20 MB of blanks, a 6000-digit number or 150 000-deep nesting: one line naming the file and
+    the cause, at once (a FIFO's read would block for ever, /dev/zero's never end)."""
+    data = _series(folder)
+    fifo = folder / "fifo.json"
+    os.mkfifo(fifo)
+    zero = folder / "zero.json"
+    zero.symlink_to("/dev/zero")
+    files = {fifo: "FIFO", zero: "character device"}
+    for name, text, words in (("digits.json", '{"format": 1, "x": [' + "3" * 6000 + "]}", "digits"),
+                              ("deep.json", "[" * 150_000 + "]" * 150_000, "nested too deeply")):
+        (folder / name).write_text(text)
+        files[folder / name] = words
+    blank = folder / "blank.json"
+    with blank.open("wb") as handle:
+        handle.truncate(20_000_000)  # sparse: no disk used
+    readers = {"play": lambda p: ["play", str(p), "--robot", "sim"],
+               "servo restore": lambda p: ["servo", "restore", str(p), "--robot", "sim"],
+               "estimate --cal": lambda p: ["estimate", str(data), "--cal", str(p), "--out", str(folder / "o.csv")]}
+    for reader, argv in readers.items():
+        for path, words in files.items():
+            ok, note = clean_failure(in_process(*argv(path)), 1, path.name, words)
+            if not ok:
+                return Outcome(False, f"{reader} {path.name}: {note}")
+        if reader != "estimate --cal":  # a calibration refuses the NUL bytes as binary; these two say the size cap
+            ok, note = clean_failure(in_process(*argv(blank)), 1, blank.name, "larger than")
+            if not ok:
+                return Outcome(False, f"{reader} {blank.name}: {note}")
+    return Outcome(True, f"{len(readers)} readers × (FIFO, /dev/zero, 6000 digits, 150 000 deep, 20 MB): one line each")
+
+
+def play_log_never_clobbers(folder: Path) -> Outcome:
+    """play --log: onto its own shape, into a missing folder, onto a FIFO: refused before the bus opens; a log from
+    a play that never started leaves an old log as it was; a finished one replaces it whole, nothing left behind."""
+    shape = _shape(folder / "walk.json", [0.0] * 12)
+    before = shape.read_bytes()
+    ok, note = clean_failure(in_process("play", str(shape), "--robot", "sim", "--log", str(shape)), 1,
+                             "walk.json", "also an input")
+    if not ok or shape.read_bytes() != before:
+        return Outcome(False, f"onto its shape: {note}" if not ok else "the shape was overwritten")
+    ok, note = clean_failure(in_process("play", str(shape), "--robot", "sim", "--log",
+                                        str(folder / "nowhere" / "log.csv")), 1, "nowhere/log.csv")
+    if not ok:
+        return Outcome(False, f"missing folder: {note}")
+    old = folder / "log.csv"
+    old.write_text("an earlier play's log\n")
+    failed = in_process("play", str(shape), "--robot", str(folder / "no-such-port"), "--log", str(old))
+    if failed.code == 0 or failed.traceback or old.read_text() != "an earlier play's log\n" or _hidden(folder):
+        return Outcome(False, f"a play that never started: exit {failed.code}, log {old.read_text()[:40]!r}, "
+                              f"left {_hidden(folder)}")
+    run = in_process("play", str(shape), "--robot", "sim", "--speed", "1.0", "--log", str(old))
+    rows = old.read_text().splitlines()
+    ok = run.code == 0 and rows[0].startswith("time_s,goal_rad_1") and len(rows) >= 2 and not _hidden(folder)
+    return Outcome(ok, f"refused onto its shape and into a missing folder; old log kept after a failed connect, "
+                       f"replaced by {len(rows) - 1} rows after a play" if ok else
+                   f"exit {run.code}: {run.err.strip()[-120:]}; {len(rows)} rows; left {_hidden(folder)}")
+
+
+def restore_checked_whole(folder: Path) -> Outcome:
+    """servo restore against the XM430 emulator: a file for another model, a misspelt item, Min above Max Position
+    Limit, a servo that is not on the bus, Status Return Level 0: one line each naming the servo and the cause, and
+    no write at all (the change the file would restore on the first servo stays unwritten); servo set and a lab's
+    [servos] refuse Status Return Level 0 with the reason."""
+    emu = _servo_emulator()
+    try:
+        saved = folder / "servos.json"
+        if sensnake("servo", "dump", "--robot", emu.path, "--out", str(saved)).code != 0:
+            return Outcome(False, "servo dump failed")
+        document = json.loads(saved.read_text())
+        if sensnake("servo", "set", "--robot", emu.path, "--id", "1", "Position D Gain", "40").code != 0:
+            return Outcome(False, "servo set failed")
+
+        def variant(name: str, sid: str, **items: int) -> Path:
+            copy = json.loads(json.dumps(document))
+            copy["servos"][sid]["items"].update(items)
+            if name == "model":
+                copy["servos"][sid]["model_number"] = items["Model Number"]
+            if name == "missing":
+                copy["servos"]["19"] = copy["servos"][sid]
+            path = folder / f"{name}.json"
+            path.write_text(json.dumps(copy))
+            return path
+
+        cases = [(variant("model", "7", **{"Model Number": 1200}), ("servo 7", "model 1200", "nothing written")),
+                 (variant("misspelt", "8", **{"Profile Acceleraton": 20}), ("servo 8", "Profile Acceleraton")),
+                 (variant("limits", "9", **{"Min Position Limit": 3900, "Max Position Limit": 150}),
+                  ("servo 9", "Min Position Limit = 3900 is above Max Position Limit = 150")),
+                 (variant("missing", "10"), ("servo 19", "does not answer", "nothing written")),
+                 (variant("silent", "11", **{"Status Return Level": 0}), ("servo 11", "cut the app off"))]
+        writes = emu.counts()["write"]
+        for path, words in cases:
+            ok, note = clean_failure(sensnake("servo", "restore", str(path), "--robot", emu.path), 1, *words)
+            if not ok:
+                return Outcome(False, f"{path.name}: {note}")
+        if emu.counts()["write"] != writes:
+            return Outcome(False, f"{emu.counts()['write'] - writes} writes by refused restores")
+        ok, note = clean_failure(sensnake("servo", "set", "--robot", emu.path, "--id", "5", "Status Return Level",
+                                          "0"), 1, "Status Return Level = 0", "cut the app off")
+        if not ok:
+            return Outcome(False, f"servo set: {note}")
+        config = folder / "lab.toml"
+        config.write_text((REPO / "resources" / "default_lab.toml").read_text(encoding="utf-8")
+                          + "\n[servos]\nstatus_return_level = 0\n", encoding="utf-8")
+        ok, note = clean_failure(sensnake("play", str(_shape(folder / "s.json", [0.0] * 12)), "--robot", emu.path,
+                                          "--config", str(config)), 1, "lab.toml", "status_return_level = 0")
+        if not ok:
+            return Outcome(False, f"[servos]: {note}")
+        if emu.counts()["write"] != writes:
+            return Outcome(False, f"{emu.counts()['write'] - writes} writes by refused settings")
+    finally:
+        emu.close()
+    return Outcome(True, f"{len(cases)} settings files, servo set and [servos]: one line each, nothing written")
+
+
+def restore_refused_midway(folder: Path) -> Outcome:
+    """A servo whose firmware refuses a value midway through a restore (in this process: a write refused with
+    the Data Limit error on servo 6): the line names the write, what was written and what was not; the servos hold
+    what it says."""
+    from unittest import mock
+
+    from devices.errors import ERRNUM_DATA_LIMIT, ServoCommandError
+    from devices.servo_chain import ServoChain
+
+    emu = _servo_emulator()
+    try:
+        saved = folder / "servos.json"
+        if in_process("servo", "dump", "--robot", emu.path, "--out", str(saved)).code != 0:
+            return Outcome(False, "servo dump failed")
+        for sid, item, value in ((2, "Position I Gain", "5"), (6, "Moving Threshold", "20"),
+                                 (6, "Position I Gain", "5"), (11, "Position I Gain", "5")):
+            if in_process("servo", "set", "--robot", emu.path, "--id", str(sid), item, value).code != 0:
+                return Outcome(False, f"servo set {sid} {item} failed")
+        write_item = ServoChain.write_item
+
+        def refusing(self: ServoChain, servo_id: int, name: str, value: int, **kwargs: object) -> None:
+            if (servo_id, name) == (6, "Moving Threshold"):
+                raise ServoCommandError(servo_id, ERRNUM_DATA_LIMIT, f"writing {name} = {value}")
+            write_item(self, servo_id, name, value, **kwargs)  # type: ignore[arg-type]
+
+        with mock.patch.object(ServoChain, "write_item", refusing):
+            run = in_process("servo", "restore", str(saved), "--robot", emu.path)
+        ok, note = clean_failure(run, 1, "restore stopped at servo 6, Moving Threshold", "Written: servo 2 "
+                                 "(Position I Gain)", "Not written: servo 6 (Moving Threshold, Position I Gain); "
+                                 "servo 11 (Position I Gain)")
+        held = [in_process("servo", "get", "--robot", emu.path, "--id", str(sid), "Position I Gain").out
+                for sid in (2, 6, 11)]
+    finally:
+        emu.close()
+    values = [text.split("Position I Gain")[-1].split()[0] if "Position I Gain" in text else "?" for text in held]
+    if ok and values != ["0", "5", "5"]:
+        return Outcome(False, f"Position I Gain of servos 2, 6, 11 reads {values}, not as the line said")
+    return Outcome(ok, note)
+
+
 CASES.update({
-    "hostile: a FIFO or a link to one as every writer's output": outputs_that_are_no_regular_file,
+    "hostile: a FIFO or a link to one, a socket, a device node as every writer's output":
+        outputs_that_are_no_regular_file,
+    "hostile: a shape, settings or calibration file that is a FIFO, /dev/zero, 20 MB, 6000 digits, 150 000 deep":
+        hostile_json_inputs,
+    "hostile: play --log onto its shape, a missing folder, an old log (never clobbered)": play_log_never_clobbers,
     "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
     "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,
     "hostile: TOML (400/5000 digits, deep nesting, 10 000 obstacles, FIFO, /dev/zero, gains twice)": hostile_toml,
@@ -1184,6 +1382,9 @@ CASES.update({
     "hostile: repair with 200 flipped bytes": repair_flipped_bytes,
     "hostile: export/repair/estimate of a symlink loop": symlink_loop_inputs,
     "hostile: fit under ulimit -v 150 MB, 300 MB, 2 GB": fit_under_address_limits,
+    "servo: restore checked whole (another model, a misspelt item, Min > Max, a missing servo, Status Return "
+    "Level 0), set and [servos] refuse Status Return Level 0": restore_checked_whole,
+    "servo: a restore refused midway names what was and was not written": restore_refused_midway,
 })
 
 

@@ -72,6 +72,8 @@ def test_every_item_of_issue_25_has_cases(matrix):
                  "two servos on ID 1", "--baud 99999999999", "mu1 < 0"):
         assert word in names, word
     assert len(matrix.CASES) >= 46 + 13  # the board, recording, file and servo faults' 46 kept
+    for word in ("restore checked whole", "restore refused midway"):  # servo settings checked against the servos
+        assert word in names, word
 
 
 def test_a_case_runs_end_to_end_and_the_figure_is_printed():
@@ -83,8 +85,9 @@ def test_a_case_runs_end_to_end_and_the_figure_is_printed():
     assert done.stdout.startswith("ok ") and "cannot create recording" in done.stdout
 
 
-HOSTILE_WORDS = ("FIFO or a link to one", "killed writer's temporary", "full disk", "TOML", "wrong shape or type",
-                 "200 flipped bytes", "symlink loop", "ulimit -v")
+HOSTILE_WORDS = ("FIFO or a link to one, a socket, a device node", "killed writer's temporary", "full disk", "TOML",
+                 "wrong shape or type", "200 flipped bytes", "symlink loop", "ulimit -v", "6000 digits",
+                 "play --log onto its shape")
 
 
 def test_every_hostile_input_case_is_handled_cleanly(matrix, tmp_path):

@@ -31,6 +31,7 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise RuntimeError("the physics lab needs the 'mujoco' package: pip install mujoco") from exc
     from app.core.identify import identify, parse_keys, summary_lines, write_fitted
+    from app.core.recording import check_input
     from devices.errors import SceneError
     from devices.scene import resolve_scene_path
 
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     scene_text = read_text_file(resolve_scene_path(args.scene), "scene file", SceneError) if args.scene else None
     for path in args.recordings:
         if not Path(path).is_file():
+            check_input(path)  # a FIFO, a device, a link loop: named for what it is
             raise FileNotFoundError(f"no such recording: {path}")
     result = identify(args.recordings, keys, config, window_s=args.window, settle_s=args.settle,
                       scene_text=scene_text, max_steps=args.max_steps, screen=args.screen, progress=_progress)

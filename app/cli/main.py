@@ -51,6 +51,7 @@ INPUTS_AND_OUTPUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "calibrate": (("config",), ("out",)),
     "record": (("config",), ("out",)),
     "teach": (("config",), ("out",)),
+    "play": (("shape", "config"), ("log",)),
     "servo": (("config", "settings"), ("out",)),
     "mocap": (("take", "xdf", "rec", "config", "recording"), ("out",)),
     "lab": (("recordings", "config", "scene"), ("out",)),
@@ -67,9 +68,9 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         values = getattr(args, name, None)
         for value in values if isinstance(values, list) else [values]:
             if value:
-                read[os.path.realpath(value)] = f"--{name} {value}" if name not in ("input", "trials", "recording",
-                                                                                    "recordings", "plan") \
-                    else str(value)
+                positional = name in ("input", "trials", "recording", "recordings", "plan") or \
+                    (command, name) in (("play", "shape"), ("trials", "shape"))
+                read[os.path.realpath(value)] = str(value) if positional else f"--{name} {value}"
     for name in outputs:
         value = getattr(args, name, None)
         if value and os.path.realpath(value) in read:

@@ -22,6 +22,7 @@ import argparse
 import concurrent.futures
 import csv
 import math
+import os
 import sys
 import threading
 import time
@@ -32,6 +33,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from app.cli._robot import BUS_TIMEOUT_S, reworded, robot_config, start_controller
+from app.core.outputs import check_output, create_temporary, move_into_place
 from app.core.play import build_source
 from app.core.shapes import read_shape
 from devices.errors import DeviceError, ServoHardwareError
@@ -102,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
         if text == f"motion {name!r} started":
             started.set()
 
-    log_file = open(args.log, "w", newline="", encoding="utf-8") if args.log else None  # noqa: SIM115
+    log_file, log_work = _open_log(args.log)
+    log_target = Path(args.log) if args.log else None
     diagnosis = None
     try:
         state_log = StateLog(robot.n_joints, log_file)
@@ -119,21 +122,49 @@ def run(args: argparse.Namespace) -> int:
             controller.close()
             state_log.drain()
     finally:
-        if log_file is not None:
+        if log_file is not None and log_work is not None and log_target is not None:
             log_file.close()
+            _keep_log(log_work, log_target, keep=started.is_set())
     periods = state_log.periods_s()
     if periods.size:
         error_ms = np.abs(periods - 1.0 / args.rate) * 1000.0
         print(f"control period at {args.rate:g} Hz over {periods.size} ticks: "
               f"p50 {np.median(periods) * 1000:.2f} ms, p99 error {np.percentile(error_ms, 99):.2f} ms, "
               f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}; bus thread: {scheduling}")
-    if args.log:
+    if args.log and started.is_set():
         print(f"wrote {Path(args.log)}")
     if diagnosis is not None:
         if args.strict:
             raise RuntimeError(diagnosis)
         print(f"sensnake play: warning: {diagnosis} (--strict makes this an error)", file=sys.stderr)
     return 0 if outcome == "finished" else 1
+
+
+def _open_log(log: str | None) -> tuple[TextIO | None, Path | None]:
+    """The ``--log`` CSV's hidden temporary beside it (:mod:`app.core.outputs`: only a regular file is ever
+    replaced; a FIFO, whose open would wait for a reader, or a device is refused before the bus is opened), open
+    for writing, and its path; (None, None) without ``--log``."""
+    if not log:
+        return None, None
+    target = check_output(log)
+    try:
+        fd, work = create_temporary(target)
+    except OSError as exc:  # the user's path in the message, never the hidden temporary's
+        raise OSError(exc.errno, f"cannot write {target}: {exc.strerror or exc}") from None
+    return os.fdopen(fd, "w", newline="", encoding="utf-8"), work
+
+
+def _keep_log(work: Path, target: Path, keep: bool) -> None:
+    """Move the finished log into place, also after a motion that stopped (what it logged tells why); a motion that
+    never started logged nothing: the temporary is removed and a file at ``target`` left as it was."""
+    if not keep:
+        work.unlink(missing_ok=True)
+        return
+    try:
+        move_into_place(work, target)
+    except BaseException:
+        work.unlink(missing_ok=True)
+        raise
 
 
 @dataclass(frozen=True)

@@ -497,6 +497,8 @@ def _load_json(path: str | os.PathLike) -> tuple[Path, Any]:
         raise CalFileError(f"{file}: not a UTF-8 JSON file ({exc.reason})") from exc
     except RecursionError:
         raise CalFileError(f"{file}: nested too deeply to be a calibration file") from None
+    except ValueError:  # Python's limit on an integer's digits (4300): its words name no file
+        raise CalFileError(f"{file}: holds an integer of thousands of digits: not a calibration file") from None
 
 
 def _check_format(file: Path, document: Any) -> None:

@@ -887,6 +887,7 @@ def recover_recording(path: str | Path) -> tuple[Recording, RecoveryReport]:
                         lengths, intact = _group_rows(f[group_name], group_name, min(size, claimed), limits)
                     except (OSError, *_DAMAGE_ERRORS):
                         if group_name == "daq":
+                            _refuse_broken_links(f, path, group_name)  # named for what it is, not as damage
                             raise
                         limits[group_name] = 0  # an optional group whose structure was lost: left out
                         continue
@@ -1081,6 +1082,27 @@ def _describe_dataset(dataset: h5py.Dataset) -> str:
     shape = ("a single value" if dataset.shape == () else f"{dataset.shape[0]} rows" if dataset.ndim == 1 else
              " × ".join(str(n) for n in dataset.shape))
     return f"{what}, {shape}"
+
+
+def _refuse_broken_links(f: h5py.File, file: Path, group: str) -> None:
+    """:class:`RecordingFormatError` naming the first soft link of ``group`` that leads nowhere or loops back on
+    itself (a file made so on purpose, not a damaged one); nothing when there is none."""
+    try:
+        names = list(f[group].keys())
+    except (KeyError, RuntimeError, OSError, ValueError):
+        return
+    for name in names:
+        try:
+            link = f[group].get(name, getlink=True)
+        except (KeyError, RuntimeError, OSError, ValueError):
+            continue
+        if not isinstance(link, h5py.SoftLink):
+            continue
+        try:
+            f[f"{group}/{name}"]
+        except (KeyError, RuntimeError, OSError, ValueError):
+            raise RecordingFormatError(f"{file}: /{group}/{name} cannot be read: a link that leads nowhere or loops "
+                                       "back on itself") from None
 
 
 def _dataset(f: h5py.File, file: Path, name: str, kinds: str, ndim: int, columns: int | None = None,

@@ -34,7 +34,6 @@ import json
 import os
 import re
 import stat
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -42,11 +41,15 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from app.core.errors import SettingsError
+from app.core.outputs import create_temporary
 from devices import control_table as ct
 from devices.errors import DeviceError, NoReplyError
+from devices.toml_files import read_text_file
 
 FORMAT = "sensnake-servos"
 VERSION = 1
+# The largest settings file read: a dump of all 253 IDs, every item, is about 0.5 MB.
+MAX_SETTINGS_BYTES = 4_000_000
 RESTART_TIMEOUT_S = 2.0  # a servo restarting (reboot, factory reset) answers a ping again within this
 # Items a restore never writes: the moment's state, and what would lose the servo on the bus.
 NOT_RESTORED = frozenset({"Torque Enable", "LED", "Goal PWM", "Goal Current", "Goal Velocity", "Goal Position",
@@ -280,18 +283,18 @@ class _Temporary:
 
 
 def _temporary_beside(path: Path, mode: int | None = None) -> _Temporary:
-    """A hidden temporary in ``path``'s folder, created here and nowhere else: :func:`tempfile.mkstemp` opens an
-    unpredictable name with O_CREAT | O_EXCL | O_NOFOLLOW, so a file or symbolic link planted there is never
-    written through. Its mode is ``mode``, else what any new file of the user gets (0666 less the umask; mkstemp's
-    is 0600)."""
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
+    """A hidden temporary in ``path``'s folder (:func:`app.core.outputs.create_temporary`): an unpredictable name
+    carrying this process's pid, opened with O_CREAT | O_EXCL | O_NOFOLLOW, so a file or symbolic link planted there
+    is never written through; one a killed writer left is removed here. Its mode is ``mode``, else what any new file
+    of the user gets (0666 less the umask)."""
+    fd, work = create_temporary(path, ".tmp", 0o600)
     try:
         os.fchmod(fd, _new_file_mode() if mode is None else mode)
     except OSError:
         os.close(fd)
-        os.unlink(name)
+        os.unlink(work)
         raise
-    return _Temporary(fd, name)
+    return _Temporary(fd, str(work))
 
 
 def _new_file_mode() -> int:
@@ -349,6 +352,15 @@ def _servo_key(source: Path, key: object) -> int:
                         f"0 … {ct.MAX_ID}{why}")
 
 
+def _shown(value: object) -> str:
+    """A file's value in a message: whole when short, else its start and its length (a 400-digit number, a long
+    text)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**12:
+        return f"a {len(str(abs(value)))}-digit integer"
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:30]}… ({len(text)} characters)"
+
+
 def _restorable(entry: ct.Item) -> bool:
     return entry.writable and entry.name not in NOT_RESTORED
 
@@ -368,12 +380,16 @@ def read_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A settings file, checked whole before anything uses it: SettingsError naming the file, the servo, the item
     and what is wrong. Returned with its item names as the e-manual spells them (a file may use any case)."""
     path = Path(path)
+    # Only a regular file of at most MAX_SETTINGS_BYTES is read: a FIFO would block, /dev/zero fill the memory.
+    text = read_text_file(path, "servo settings file", SettingsError, max_bytes=MAX_SETTINGS_BYTES)
     try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SettingsError(f"{path}: no such file") from None
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise SettingsError(f"{path}: not a servo settings file ({type(exc).__name__})") from None
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SettingsError(f"{path}:{exc.lineno}: not a servo settings file: not valid JSON ({exc.msg})") from None
+    except RecursionError:
+        raise SettingsError(f"{path}: nested too deeply to be a servo settings file") from None
+    except ValueError:  # Python's limit on an integer's digits (4300)
+        raise SettingsError(f"{path}: holds an integer of thousands of digits: not a servo settings file") from None
     if not isinstance(document, dict) or document.get("format") != FORMAT:
         raise SettingsError(f"{path}: not a servo settings file (format {FORMAT!r} expected)")
     if document.get("version") != VERSION:
@@ -396,7 +412,10 @@ def read_document(path: str | os.PathLike[str]) -> dict[str, Any]:
             if found.name in items:
                 raise SettingsError(f"{where}: {found.name} is given twice")
             if not isinstance(value, int) or isinstance(value, bool):
-                raise SettingsError(f"{where}, {found.name}: {value!r} is not an integer")
+                raise SettingsError(f"{where}, {found.name}: {_shown(value)} is not an integer")
+            if abs(value) > 2**32:  # no item holds more than 4 bytes: the number is named, not printed whole
+                raise SettingsError(f"{where}, {found.name}: {_shown(value)} is beyond any control-table item "
+                                    "(4 bytes at most)")
             if _restorable(found):
                 try:
                     check_value(found, value)

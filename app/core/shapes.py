@@ -22,6 +22,7 @@ from typing import Any
 from app.core import user_folders
 from app.core.errors import OutputPathError, ShapeFormatError
 from app.core.outputs import check_output, move_into_place, temporary_beside
+from devices.toml_files import read_text_file
 
 SHAPE_FORMAT = "sensnake-shape"
 SHAPE_VERSION = 1
@@ -126,19 +127,25 @@ def shape_from_dict(data: Any, source: str = "<shape>") -> Shape:
     return Shape(name, tuple(axes), angles, tuple(keyframes), str(created))
 
 
+# The largest shape file read: a pose and its keyframes are a few hundred bytes each (16 MB: ~50 000 keyframes).
+MAX_SHAPE_BYTES = 16_000_000
+
+
 def read_shape(path: str | Path) -> Shape:
+    """The shape in the JSON file ``path``. Only a regular file of at most :data:`MAX_SHAPE_BYTES` is read (a FIFO
+    would block the read for ever, ``/dev/zero`` fill the memory): ShapeFormatError naming the file and the cause."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ShapeFormatError(f"cannot read shape file {path}: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise ShapeFormatError(f"{path}: not a shape file: byte {exc.start} is not UTF-8 text (a binary file?); "
-                               "a shape is a JSON file saved by Teach or `sensnake teach`") from None
+    if not os.path.lexists(path):
+        raise ShapeFormatError(f"cannot read shape file {path}: no such file")
+    text = read_text_file(path, "shape file", ShapeFormatError, max_bytes=MAX_SHAPE_BYTES)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ShapeFormatError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from exc
+    except RecursionError:
+        raise ShapeFormatError(f"{path}: nested too deeply to be a shape file") from None
+    except ValueError:  # Python's limit on an integer's digits (4300)
+        raise ShapeFormatError(f"{path}: holds an integer of thousands of digits: not a shape file") from None
     return shape_from_dict(data, str(path))
 
 

@@ -1,0 +1,171 @@
+"""Files no reader or writer should trust, given to the commands on the simulated servo bus: a FIFO, a socket, a
+device node of the test's own or a link to ``/dev/zero`` where a file is expected, oversized and absurd JSON, a
+recording whose dataset is a soft-link loop, a writer killed with its temporary open. Each ends with exit 1 and one
+line naming the file and the cause; nothing is replaced, nothing hangs, nothing is left behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from app.cli.main import main
+from tests.calibration_files import write_typical_calibration
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="FIFOs, sockets and /dev/zero")
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    return err[0]
+
+
+def hidden(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def shape_file(path: Path, angles: list[float]) -> Path:
+    path.write_text(json.dumps({"format": "sensnake-shape", "version": 1, "name": path.stem,
+                                "axes": ["pitch", "yaw"] * 6, "angles_rad": angles}))
+    return path
+
+
+def test_play_log_never_replaces_its_shape_a_fifo_or_an_old_log_of_a_play_that_never_started(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    shape = shape_file(tmp_path / "crawl.json", [0.0] * 12)
+    before = shape.read_bytes()
+    assert main(["play", str(shape), "--robot", "sim", "--log", str(shape)]) == 1
+    assert "also an input" in one_error_line(capsys) and shape.read_bytes() == before
+    fifo = tmp_path / "log.fifo"
+    os.mkfifo(fifo)  # its open for writing would wait for a reader for ever
+    assert main(["play", str(shape), "--robot", "sim", "--log", str(fifo)]) == 1
+    line = one_error_line(capsys)
+    assert str(fifo) in line and "FIFO" in line and stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    old = tmp_path / "old.csv"
+    old.write_text("kept\n")
+    assert main(["play", str(shape), "--robot", str(tmp_path / "ttyNONE"), "--log", str(old)]) == 1
+    capsys.readouterr()
+    assert old.read_text() == "kept\n" and not hidden(tmp_path)  # nothing played, nothing logged
+    assert main(["play", str(shape), "--robot", "sim", "--speed", "1.0", "--log", str(old)]) == 0
+    rows = old.read_text().splitlines()
+    assert rows[0].startswith("time_s,goal_rad_1") and len(rows) >= 2 and not hidden(tmp_path)
+
+
+def test_a_device_node_or_a_socket_as_output_is_refused_and_left_what_it_is(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    targets = {tmp_path / "sock": "socket"}
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(tmp_path / "sock"))
+    if os.geteuid() == 0:  # a node of our own, what /dev/null is (never the real one)
+        os.mknod(tmp_path / "null", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        targets[tmp_path / "null"] = "character device"
+    shape = shape_file(tmp_path / "s.json", [0.0] * 12)
+    try:
+        for target, kind in targets.items():
+            mode = os.lstat(target).st_mode
+            for argv in (["servo", "dump", "--robot", "sim", "--out"],
+                         ["play", str(shape), "--robot", "sim", "--log"]):
+                assert main([*argv, str(target)]) == 1
+                line = one_error_line(capsys)
+                assert str(target) in line and kind in line, line
+                assert os.lstat(target).st_mode == mode
+    finally:
+        listener.close()
+    assert not hidden(tmp_path)
+
+
+@pytest.fixture
+def hostile_json(tmp_path: Path) -> dict[Path, str]:
+    """Files that are no JSON a reader should read: path → the words its one line must hold."""
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)
+    zero = tmp_path / "endless.json"
+    zero.symlink_to("/dev/zero")
+    digits = tmp_path / "digits.json"
+    digits.write_text('{"format": "sensnake-servos", "servos": {"4": ' + "8" * 4400 + "}}")
+    deep = tmp_path / "deep.json"
+    deep.write_text('{"a": ' * 90_000 + "1" + "}" * 90_000)
+    return {fifo: "FIFO", zero: "character device", digits: "digits", deep: "nested too deeply"}
+
+
+def test_shape_settings_and_calibration_readers_refuse_hostile_json_in_one_line(tmp_path: Path, hostile_json: dict[Path, str],
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    data = tmp_path / "g.csv"
+    data.write_text("time_s,S06B\n0.0,1e-4\n0.1,2e-4\n")
+    readers = (lambda p: ["play", str(p), "--robot", "sim"],
+               lambda p: ["servo", "restore", str(p), "--robot", "sim"],
+               lambda p: ["estimate", str(data), "--cal", str(p), "--out", str(tmp_path / "f.csv")])
+    for argv in readers:
+        for path, words in hostile_json.items():
+            assert main(argv(path)) == 1, (argv(path), words)
+            line = one_error_line(capsys)
+            assert str(path) in line and words in line, line
+    sparse = tmp_path / "sparse.json"
+    with sparse.open("wb") as handle:
+        handle.truncate(17_000_000)  # above the 16 MB a shape may hold, no disk used
+    for argv in readers[:2]:
+        assert main(argv(sparse)) == 1
+        assert "larger than" in one_error_line(capsys)
+
+
+def test_a_settings_value_of_hundreds_of_digits_is_named_not_printed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    saved = tmp_path / "servos.json"
+    assert main(["servo", "dump", "--robot", "sim", "--id", "3", "--out", str(saved)]) == 0
+    document = json.loads(saved.read_text())
+    document["servos"]["3"]["items"]["Velocity I Gain"] = -(7 ** 500)
+    saved_bad = tmp_path / "bad.json"
+    saved_bad.write_text(json.dumps(document))
+    capsys.readouterr()
+    assert main(["servo", "restore", str(saved_bad), "--robot", "sim"]) == 1
+    line = one_error_line(capsys)
+    assert "Velocity I Gain" in line and "423-digit integer" in line and len(line) < 300, line
+
+
+def test_a_killed_dumps_temporary_is_removed_by_the_next_dump_and_a_planted_link_never_followed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "chain.json"
+    killed = subprocess.run([sys.executable, "-c", "import os, sys\nfrom app.core.outputs import create_temporary\n"
+                             "create_temporary(sys.argv[1], '.tmp')\nos.kill(os.getpid(), 9)", str(out)], cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=60)
+    assert killed.returncode == -9 and len(hidden(tmp_path)) == 1
+    planted = tmp_path / f".chain.json.{os.getpid()}.tmp"  # the old predictable name, pointing elsewhere
+    planted.symlink_to(tmp_path / "victim")
+    assert main(["servo", "dump", "--robot", "sim", "--id", "2", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["servos"]["2"]["model_number"] == 1020
+    assert hidden(tmp_path) == [planted.name] and not (tmp_path / "victim").exists()
+
+
+def test_repair_names_a_soft_link_loop_and_lab_identify_a_fifo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rec = tmp_path / "looped.h5"
+    with h5py.File(rec, "w") as f:
+        f.attrs["format"], f.attrs["version"] = "sensnake-recording", 1
+        f["daq/time_s"] = np.arange(25) / 30.0
+        f["daq/conductance_S"] = h5py.SoftLink("/daq/again")
+        f["daq/again"] = h5py.SoftLink("/daq/conductance_S")
+    assert main(["repair", str(rec), "--out", str(tmp_path / "fixed.h5")]) == 1
+    line = one_error_line(capsys)
+    assert "looped.h5" in line and "/daq/" in line and "loops back" in line, line
+    fifo = tmp_path / "take.h5"
+    os.mkfifo(fifo)
+    pytest.importorskip("mujoco")
+    assert main(["lab", "identify", str(fifo), "--out", str(tmp_path / "fitted.toml")]) == 1
+    line = one_error_line(capsys)
+    assert str(fifo) in line and "FIFO" in line, line
+
+
+def test_a_calibration_of_thousands_of_digits_names_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B"])
+    text = cal.read_text()
+    cal.write_text(text.replace("{", '{"extra": ' + "5" * 4500 + ", ", 1))
+    data = tmp_path / "g.csv"
+    data.write_text("time_s,S06B\n0.0,1e-4\n")
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
+    line = one_error_line(capsys)
+    assert "cal.json" in line and "digits" in line, line
