@@ -1369,12 +1369,41 @@ def restore_refused_midway(folder: Path) -> Outcome:
     return Outcome(ok, note)
 
 
+def planted_in_a_sweep_folder(folder: Path) -> Outcome:
+    """A sweep (tune, evaluation) folder where a link to someone else's file is planted at summary.csv and at the
+    old predictable temporary's name, and a FIFO at failures.csv: the links are replaced, never written through,
+    the FIFO refused in words, never opened (its open would hang)."""
+    import stat
+
+    from app.core.errors import OutputPathError
+    from app.core.sweep import write_summary
+
+    victim = folder / "someone-elses.csv"
+    victim.write_text("theirs")
+    out = folder / "sweep"
+    out.mkdir()
+    for name in ("summary.csv", "summary.csv.partial"):
+        (out / name).symlink_to(victim)
+    write_summary(out, [], {})
+    os.mkfifo(out / "failures.csv")
+    try:
+        write_summary(out, [], {2: "a failed run"})
+        return Outcome(False, "failures.csv: a FIFO was written (or the write hung)")
+    except OutputPathError as exc:
+        words = str(exc)
+    ok = (victim.read_text() == "theirs" and not (out / "summary.csv").is_symlink()
+          and stat.S_ISFIFO(os.lstat(out / "failures.csv").st_mode) and "FIFO" in words)
+    return Outcome(ok, f"links replaced, the FIFO refused: {words[:90]}" if ok else f"victim {victim.read_text()!r}; "
+                   f"{words}")
+
+
 CASES.update({
     "hostile: a FIFO or a link to one, a socket, a device node as every writer's output":
         outputs_that_are_no_regular_file,
     "hostile: a shape, settings or calibration file that is a FIFO, /dev/zero, 20 MB, 6000 digits, 150 000 deep":
         hostile_json_inputs,
     "hostile: play --log onto its shape, a missing folder, an old log (never clobbered)": play_log_never_clobbers,
+    "hostile: a link and a FIFO planted in a sweep's folder": planted_in_a_sweep_folder,
     "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
     "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,
     "hostile: TOML (400/5000 digits, deep nesting, 10 000 obstacles, FIFO, /dev/zero, gains twice)": hostile_toml,

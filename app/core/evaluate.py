@@ -49,6 +49,7 @@ import numpy as np
 
 from app.core.engines import MAX_RUNS, FolderLock, RunJournal, Task, capped_jobs, open_engine
 from app.core.errors import EvaluationError, RunsInterrupted
+from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import SUMMARY_COLUMNS, execute, is_invalid, write_summary
 from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
@@ -332,15 +333,14 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         elif any(out.iterdir()) and set(p.name for p in out.iterdir()) != {".lock"}:
             raise EvaluationError(f"{out}: not empty and holds no evaluation; choose a new --out folder")
         else:
-            (out / "evaluation.file.toml").write_text(plan.text, encoding="utf-8")
-            record.write_text(json.dumps({"kind": "evaluation", "sha256": plan.sha256, "file": str(plan.path),
-                                          "runs": plan.runs, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")},
-                                         indent=1), encoding="utf-8")
+            replace_text(out / "evaluation.file.toml", plan.text)
+            replace_text(record, json.dumps({"kind": "evaluation", "sha256": plan.sha256, "file": str(plan.path),
+                                             "runs": plan.runs, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")},
+                                            indent=1))
         scenes = out / "scenes"
         scenes.mkdir(exist_ok=True)
         for condition in plan.conditions:
-            (scenes / f"{condition.index:03d}_{condition.family}.toml").write_text(condition.scene_text,
-                                                                                   encoding="utf-8")
+            replace_text(scenes / f"{condition.index:03d}_{condition.family}.toml", condition.scene_text)
         _write_conditions(out, plan)
         tasks = evaluation_tasks(plan, out)
         journal = RunJournal(out)
@@ -365,7 +365,7 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         (out / "summary.csv").unlink(missing_ok=True)  # runs.csv carries the rows with their condition
         _write_runs(out, tasks, rows)
         table = evaluate_rows(plan, tasks, rows)
-        with open(out / "evaluation.csv", "w", newline="", encoding="utf-8") as f:
+        with replacing_text(out / "evaluation.csv") as f:
             f.write(f"# evaluation file {plan.path.name} sha256 {plan.sha256}\n")
             writer = csv.DictWriter(f, fieldnames=EVALUATION_COLUMNS)
             writer.writeheader()
@@ -373,14 +373,14 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         record_data = json.loads(record.read_text(encoding="utf-8"))
         record_data.update({"finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "failed_runs": len(failures),
                             "invalid_runs": sum(1 for r in rows.values() if is_invalid(r))})
-        record.write_text(json.dumps(record_data, indent=1), encoding="utf-8")
-        (out / "evaluation.svg").write_text(evaluation_svg(table, plan), encoding="utf-8")
+        replace_text(record, json.dumps(record_data, indent=1))
+        replace_text(out / "evaluation.svg", evaluation_svg(table, plan))
     return table
 
 
 def _write_conditions(out: Path, plan: EvaluationPlan) -> None:
     keys = sorted({k for c in plan.conditions for k in c.values})
-    with open(out / "conditions.csv", "w", newline="", encoding="utf-8") as f:
+    with replacing_text(out / "conditions.csv") as f:
         writer = csv.writer(f)
         writer.writerow(["condition", "family", "kind", "scene", *keys, "seeds"])
         for c in plan.conditions:
@@ -390,7 +390,7 @@ def _write_conditions(out: Path, plan: EvaluationPlan) -> None:
 
 def _write_runs(out: Path, tasks: list[Task], rows: dict[int, dict[str, Any]]) -> None:
     columns = ("family", "condition", "shape_scale", *SUMMARY_COLUMNS)
-    with open(out / "runs.csv", "w", newline="", encoding="utf-8") as f:
+    with replacing_text(out / "runs.csv") as f:
         writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         for k in sorted(rows):

@@ -12,7 +12,9 @@ unpredictable name that carries the writer's pid (``.NAME.<pid>.<random>.partial
 when complete. A temporary left by a writer that was killed (``kill -9``, a power cut) is removed by the next writer
 of the same output once it is provably stale: the pid in its name is no process on this machine. The writers:
 :func:`app.core.calfiles.write_atomically` (CSV and JSON), :mod:`app.core.recording` (recordings, re-estimated and
-repaired copies), :func:`app.core.shapes.write_shape`, :func:`app.core.servo_settings.write_document`.
+repaired copies), :func:`app.core.shapes.write_shape`, :func:`app.core.servo_settings.write_document` (and the lab
+config it rewrites), ``sensnake play --log``, and :func:`replacing_text` / :func:`replace_text` for the files a
+sweep, a tuning study or an evaluation writes into its folder.
 
 Any thread; no state.
 """
@@ -27,6 +29,7 @@ import secrets
 import stat
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TextIO
 
 from app.core.errors import OutputPathError
 
@@ -153,3 +156,27 @@ def temporary_beside(out: str | os.PathLike[str], suffix: str = ".partial") -> I
         with contextlib.suppress(OSError):
             work.unlink()
         raise
+
+
+@contextlib.contextmanager
+def replacing_text(out: str | os.PathLike[str], newline: str = "") -> Iterator[TextIO]:
+    """A UTF-8 text handle onto a hidden temporary for ``out``, moved onto ``out`` when the block ends without error
+    and removed when it fails: ``with replacing_text(path) as f:`` in place of ``with open(path, "w") as f:`` for a
+    file inside a folder a command fills (a sweep's summary, a study's trials), so a FIFO or link planted at its
+    name is never opened or written through."""
+    target = check_output(out)
+    fd, work = create_temporary(target, ".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline=newline) as handle:
+            yield handle
+        move_into_place(work, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            work.unlink()
+        raise
+
+
+def replace_text(out: str | os.PathLike[str], text: str) -> None:
+    """``text`` as the whole UTF-8 file ``out`` (:func:`replacing_text`)."""
+    with replacing_text(out, newline="\n") as handle:
+        handle.write(text)

@@ -63,7 +63,6 @@ import hashlib
 import itertools
 import json
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -84,6 +83,7 @@ from app.core.engines import (
     open_engine,
 )
 from app.core.errors import InvalidRunError, RunsInterrupted, SweepError
+from app.core.outputs import replace_text, replacing_text
 from devices.config import LabConfig
 from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, uses_law
@@ -307,8 +307,7 @@ def claim_folder(out: Path, kind: str, identity: str, runs: int, refuse: type[Va
     if not state.exists():
         if (out / "summary.csv").exists():
             raise refuse(f"{out}: holds a sweep already (summary.csv); choose another --out folder")
-        state.write_text(json.dumps({"kind": kind, "identity": identity, "runs": runs, **(extra or {})}, indent=1),
-                         encoding="utf-8")
+        replace_text(state, json.dumps({"kind": kind, "identity": identity, "runs": runs, **(extra or {})}, indent=1))
         return False
     try:
         held = json.loads(state.read_text(encoding="utf-8"))
@@ -396,15 +395,13 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None, 
 def write_summary(out: Path, rows: list[Row], failures: dict[int, str], tasks: list[Task] | None = None) -> None:
     """``summary.csv`` (replaced whole, never half-written), ``failures.csv`` (one row per failed run, with its
     traceback; removed when none failed) and ``summary.svg`` of ``rows``."""
-    work = out / "summary.csv.partial"
-    with open(work, "w", newline="", encoding="utf-8") as f:
+    with replacing_text(out / "summary.csv") as f:
         writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(work, out / "summary.csv")
     by_run = {t["run"]: t for t in tasks or []}
     if failures:
-        with open(out / "failures.csv", "w", newline="", encoding="utf-8") as f:
+        with replacing_text(out / "failures.csv") as f:
             writer = csv.DictWriter(f, fieldnames=FAILURE_COLUMNS)
             writer.writeheader()
             for k in sorted(failures):
@@ -415,7 +412,7 @@ def write_summary(out: Path, rows: list[Row], failures: dict[int, str], tasks: l
                                  "error": failures[k]})
     else:
         (out / "failures.csv").unlink(missing_ok=True)
-    (out / "summary.svg").write_text(summary_svg(rows), encoding="utf-8")
+    replace_text(out / "summary.svg", summary_svg(rows))
 
 
 def read_summary(path: str | Path) -> list[dict[str, Any]]:

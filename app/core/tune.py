@@ -66,6 +66,7 @@ import numpy as np
 
 from app.core.engines import Engine, FolderLock, RunJournal, Task, capped_jobs, cores, open_engine
 from app.core.errors import RunsInterrupted, TuneError
+from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import _refuse_unholdable_loads, execute, is_invalid, scene_path
 from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
@@ -441,10 +442,9 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
         elif [p for p in out.iterdir() if p.name != ".lock"]:
             raise TuneError(f"{out}: not empty and holds no study; choose a new --out folder")
         else:
-            record.write_text(json.dumps({"kind": "tune", "sha256": plan.sha256, "file": str(plan.path),
-                                          "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, indent=1),
-                              encoding="utf-8")
-            (out / "tune.file.toml").write_text(plan.path.read_text(encoding="utf-8"), encoding="utf-8")
+            replace_text(record, json.dumps({"kind": "tune", "sha256": plan.sha256, "file": str(plan.path),
+                                             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, indent=1))
+            replace_text(out / "tune.file.toml", plan.path.read_text(encoding="utf-8"))
         study = open_study(plan, out)
         done_before = len(counted_trials(study))
         train = plan.conditions("train")
@@ -467,16 +467,17 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
             best = study.best_trial
             best_gains = gains_of(plan, best.params)
             _keep_best_recordings(plan, study, out)
-            (out / "best_gains.toml").write_text(
+            replace_text(
+                out / "best_gains.toml",
                 f"# best trial {best.number} of the study in {out / 'study.journal'}: objective {best.value:.4f} m on "
                 f"the training conditions ({plan.path.name}, sha256 {plan.sha256[:16]}…)\n"
                 f"# controller {plan.controller}\n" + "[feedback]\n" +
-                "".join(f"{k} = {v!r}\n" for k, v in asdict(best_gains).items()), encoding="utf-8")
+                "".join(f"{k} = {v!r}\n" for k, v in asdict(best_gains).items()))
             report = _report(plan, study, runner, best_gains, baselines, out, progress)
         finally:
             runner.close()
         write_trials(study, plan, out)
-        (out / "tune.svg").write_text(tune_svg(study, plan, baselines), encoding="utf-8")
+        replace_text(out / "tune.svg", tune_svg(study, plan, baselines))
     return report
 
 
@@ -558,8 +559,7 @@ def _keep_best_recordings(plan: TunePlan, study: Any, out: Path) -> None:
 def write_trials(study: Any, plan: TunePlan, out: Path) -> None:
     """``trials.csv``: every trial of the study, its state, value, the searched gains and what it decided on."""
     names = [d.name for d in plan.space]
-    work = out / "trials.csv.partial"
-    with open(work, "w", newline="", encoding="utf-8") as f:
+    with replacing_text(out / "trials.csv") as f:
         writer = csv.writer(f)
         writer.writerow([*TRIAL_COLUMNS_HEAD[:3], *names, *TRIAL_COLUMNS_HEAD[3:]])
         for t in study.get_trials(deepcopy=False):
@@ -567,7 +567,6 @@ def write_trials(study: Any, plan: TunePlan, out: Path) -> None:
             writer.writerow([t.number, t.state.name.lower(), "" if t.value is None else t.value,
                              *[t.params.get(n, "") for n in names],
                              *[("" if attrs.get(k) is None else attrs.get(k)) for k in TRIAL_COLUMNS_HEAD[3:]]])
-    work.replace(out / "trials.csv")
 
 
 def _report(plan: TunePlan, study: Any, engine: Engine, best_gains: FeedbackGains,
@@ -595,7 +594,7 @@ def _report(plan: TunePlan, study: Any, engine: Engine, best_gains: FeedbackGain
                          "feedforward_traversal": s.ff_traversal, "candidate_traversal": s.candidate_traversal,
                          "feedforward_overloads": s.ff_overloads, "candidate_overloads": s.candidate_overloads,
                          "invalid": s.invalid, "undecided": s.undecided})
-    with open(out / "report.csv", "w", newline="", encoding="utf-8") as f:
+    with replacing_text(out / "report.csv") as f:
         f.write(f"# tuning file {plan.path.name} sha256 {plan.sha256}; objective = median over decided conditions "
                 f"of (advance − feedforward's) − {plan.objective.overload_penalty_m:g} m × extra overloads − "
                 f"{plan.objective.slide_back_weight:g} × extra slide-back\n")

@@ -169,3 +169,24 @@ def test_a_calibration_of_thousands_of_digits_names_the_file(tmp_path: Path, cap
     assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
     line = one_error_line(capsys)
     assert "cal.json" in line and "digits" in line, line
+
+
+def test_a_sweeps_files_never_follow_a_planted_link_nor_open_a_fifo(tmp_path: Path) -> None:
+    from app.core.errors import OutputPathError
+    from app.core.sweep import write_summary
+
+    victim = tmp_path / "elsewhere.csv"
+    victim.write_text("not the sweep's")
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / "summary.csv").symlink_to(victim)  # planted: the old predictable names were opened through it
+    (out / "summary.csv.partial").symlink_to(victim)
+    write_summary(out, [], {})
+    assert victim.read_text() == "not the sweep's"
+    assert not (out / "summary.csv").is_symlink() and (out / "summary.csv").read_text().startswith("run,")
+    os.mkfifo(out / "failures.csv")
+    with pytest.raises(OutputPathError, match="failures.csv is a FIFO"):
+        write_summary(out, [], {4: "a run failed"})
+    assert stat.S_ISFIFO(os.lstat(out / "failures.csv").st_mode)
+    assert sorted(p.name for p in out.iterdir()) == ["failures.csv", "summary.csv", "summary.csv.partial",
+                                                     "summary.svg"]
