@@ -1397,6 +1397,32 @@ def planted_in_a_sweep_folder(folder: Path) -> Outcome:
                    f"{words}")
 
 
+def planted_lock_files(folder: Path) -> Outcome:
+    """A link to someone else's file planted at a recording's lock (``.NAME.lock``) and at a sweep folder's
+    (``DIR/.lock``), a FIFO at another recording's: refused naming the lock file; the file the link leads to keeps
+    its content (the lock's pid used to be written over it)."""
+    victim = folder / "notes.txt"
+    victim.write_text("theirs")
+    (folder / ".a.h5.lock").symlink_to(victim)
+    os.mkfifo(folder / ".b.h5.lock")
+    for name, kind in (("a.h5", "symbolic link"), ("b.h5", "FIFO")):
+        ok, note = clean_failure(in_process("record", "--daq", "sim", "--seconds", "0.2", "--out", str(folder / name)),
+                                 1, f".{name}.lock (the lock file)", kind)
+        if not ok:
+            return Outcome(False, f"record {name}: {note}")
+    sweep = folder / "sweep"
+    sweep.mkdir()
+    (sweep / ".lock").symlink_to(victim)
+    plan = folder / "plan.toml"
+    plan.write_text('scenes = ["flat"]\nseconds = 0.1\n')
+    ok, note = clean_failure(in_process("experiment", "sweep", str(plan), "--out", str(sweep)), 1,
+                             ".lock (the lock file)", "symbolic link")
+    if not ok:
+        return Outcome(False, f"experiment sweep: {note}")
+    return Outcome(victim.read_text() == "theirs", "record × (link, FIFO), sweep × link: refused naming the lock file"
+                   if victim.read_text() == "theirs" else "the linked file was written over")
+
+
 CASES.update({
     "hostile: a FIFO or a link to one, a socket, a device node as every writer's output":
         outputs_that_are_no_regular_file,
@@ -1404,6 +1430,7 @@ CASES.update({
         hostile_json_inputs,
     "hostile: play --log onto its shape, a missing folder, an old log (never clobbered)": play_log_never_clobbers,
     "hostile: a link and a FIFO planted in a sweep's folder": planted_in_a_sweep_folder,
+    "hostile: a link or a FIFO planted at a recording's or a folder's lock file": planted_lock_files,
     "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
     "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,
     "hostile: TOML (400/5000 digits, deep nesting, 10 000 obstacles, FIFO, /dev/zero, gains twice)": hostile_toml,

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from app.core.errors import EngineError, FolderBusyError, RunsInterrupted
+from app.core.outputs import open_lock_file
 
 ENGINES = ("local", "dask")
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
@@ -286,7 +287,7 @@ class FolderLock:
 
     def __enter__(self) -> FolderLock:
         path = self.folder / ".lock"
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_lock_file(path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

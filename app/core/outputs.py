@@ -180,3 +180,23 @@ def replace_text(out: str | os.PathLike[str], text: str) -> None:
     """``text`` as the whole UTF-8 file ``out`` (:func:`replacing_text`)."""
     with replacing_text(out, newline="\n") as handle:
         handle.write(text)
+
+
+def open_lock_file(path: Path) -> int:
+    """A descriptor on the lock file ``path`` (created when missing), which must be a regular file of its own: a
+    symbolic link planted there is not followed (the lock's pid would be written over the file it leads to), a
+    FIFO or device is not opened for blocking. :class:`OutputPathError` names it otherwise."""
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if os.path.islink(path):
+            raise OutputPathError(f"{path} (the lock file) is a symbolic link: a lock file must be a file of its own; "
+                                  "remove it and run again") from None
+        raise OSError(exc.errno, f"cannot create the lock file {path}: {exc.strerror or exc}") from None
+    kind = describe_kind(os.fstat(fd).st_mode)
+    if kind is not None:
+        os.close(fd)
+        raise OutputPathError(f"{path} (the lock file) is {kind}, not a regular file: remove it and run again")
+    os.set_blocking(fd, True)
+    return fd

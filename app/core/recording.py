@@ -45,7 +45,7 @@ import numpy as np
 
 from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
 from app.core.errors import OutputPathError, RecordingError, RecordingFormatError
-from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
+from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place, open_lock_file
 from app.core.run_documents import RUN_START, document_text, reserve_run_stop
 
 FORMAT = "sensnake-recording"
@@ -550,7 +550,7 @@ def _lock_for_writing(path: Path) -> int | None:
         return None
     lock = _lock_path(path)
     for _attempt in range(10):
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT | _NOFOLLOW, 0o644)
+        fd = open_lock_file(lock)  # a link, FIFO or device planted there is refused naming it
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -190,3 +190,26 @@ def test_a_sweeps_files_never_follow_a_planted_link_nor_open_a_fifo(tmp_path: Pa
     assert stat.S_ISFIFO(os.lstat(out / "failures.csv").st_mode)
     assert sorted(p.name for p in out.iterdir()) == ["failures.csv", "summary.csv", "summary.csv.partial",
                                                      "summary.svg"]
+
+
+def test_a_lock_file_planted_as_a_link_or_a_fifo_is_refused_never_written_through(tmp_path: Path,
+                                                                                   capsys: pytest.CaptureFixture[str]
+                                                                                   ) -> None:
+    from app.core.engines import FolderLock
+    from app.core.errors import OutputPathError
+
+    victim = tmp_path / "notes.txt"
+    victim.write_text("someone's notes")
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / ".lock").symlink_to(victim)  # the lock's pid used to be written over the file it leads to
+    with pytest.raises(OutputPathError, match=r"\.lock \(the lock file\) is a symbolic link"):
+        FolderLock(runs, "sweep").__enter__()
+    (tmp_path / ".take.h5.lock").symlink_to(victim)
+    os.mkfifo(tmp_path / ".other.h5.lock")
+    for name, kind in (("take.h5", "symbolic link"), ("other.h5", "FIFO")):
+        assert main(["record", "--daq", "sim", "--seconds", "0.2", "--out", str(tmp_path / name)]) == 1
+        line = one_error_line(capsys)
+        assert f".{name}.lock (the lock file) is a {kind}" in line, line
+        assert not (tmp_path / name).exists()
+    assert victim.read_text() == "someone's notes"
