@@ -17,6 +17,9 @@ Target: < 100 ms for each action.
 ``python -m benchmarks.bench_gui_blocking [--history 70] [--load 0] [--offscreen]``; ``run(quick)`` (``sensnake bench``)
 uses 10 s of history. On a private Xvfb with Qt's xcb platform unless ``--offscreen`` or no Xvfb can start.
 ``--load N`` starts N busy processes beside the app (``while True: pass``, as benchmarks/bench_feedback_under_load.py).
+``--why`` also prints, for each action, where the GUI thread was (its Python stack, sampled every 2 ms from another
+thread) while a tick was more than 30 ms late, and what took its CPU (cProfile with the thread's CPU clock), so an
+action over target names its cause.
 """
 
 from __future__ import annotations
@@ -28,7 +31,9 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -64,6 +69,11 @@ class LoopWatch:
         self.worst_cpu_s = max(self.worst_cpu_s, cpu - self._last_cpu)
         self._last, self._last_cpu = now, cpu
 
+    @property
+    def last_tick_s(self) -> float:
+        """``time.perf_counter()`` of the last tick (read from the sampler's thread)."""
+        return self._last
+
     def reset(self) -> None:
         self._last, self._last_cpu = time.perf_counter(), time.thread_time()
         self.worst_gap_s = self.worst_cpu_s = 0.0
@@ -81,6 +91,49 @@ class LoopWatch:
         self._timer.stop()
 
 
+STALL_S = 0.030  # a tick this late: the sampler records where the GUI thread is
+SAMPLE_S = 0.002
+
+
+class StallSampler:
+    """A daemon thread that, while the watch's last tick is more than ``STALL_S`` old, records the GUI thread's
+    Python stack every ``SAMPLE_S`` (what it waits in or works on while the window does not answer). A stack is the
+    innermost frame of the project's own code with its callers in the project, and the innermost frame of all."""
+
+    def __init__(self, watch: LoopWatch) -> None:
+        self._watch = watch
+        self._main = threading.get_ident()  # made on the GUI thread
+        self._stop = threading.Event()
+        self.samples: Counter[str] = Counter()
+        self._thread = threading.Thread(target=self._run, name="stall-sampler", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        root = str(Path(__file__).resolve().parents[1])
+        while not self._stop.wait(SAMPLE_S):
+            if time.perf_counter() - self._watch.last_tick_s <= STALL_S:
+                continue
+            frame = sys._current_frames().get(self._main)  # noqa: SLF001 - the sampler's whole point
+            if frame is None:
+                continue
+            leaf = f"{Path(frame.f_code.co_filename).name}:{frame.f_lineno} {frame.f_code.co_name}"
+            ours: list[str] = []
+            while frame is not None and len(ours) < 6:
+                name = frame.f_code.co_filename
+                if name.startswith(root) and "bench_gui_blocking" not in name:
+                    ours.append(f"{os.path.relpath(name, root)}:{frame.f_lineno} {frame.f_code.co_name}")
+                frame = frame.f_back
+            self.samples[" < ".join(ours or ["(event loop)"]) + f"  [leaf {leaf}]"] += 1
+
+    def take(self) -> Counter[str]:
+        samples, self.samples = self.samples, Counter()
+        return samples
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
 def _pump(ms: float, until: Callable[[], bool] | None = None) -> bool:
     """Run the event loop for at most ``ms`` (until ``until()``); True if ``until`` came true."""
     from PySide6.QtCore import QCoreApplication, QEventLoop
@@ -94,21 +147,52 @@ def _pump(ms: float, until: Callable[[], bool] | None = None) -> bool:
     return until is not None and until()
 
 
+class Why:
+    """``--why``: per action, the stall sampler's stacks and the GUI thread's CPU by function (cProfile)."""
+
+    def __init__(self, watch: LoopWatch) -> None:
+        self.sampler = StallSampler(watch)
+        self.reports: dict[str, str] = {}
+
+    @contextlib.contextmanager
+    def around(self, name: str) -> Iterator[None]:
+        import cProfile
+        import io
+        import pstats
+
+        self.sampler.take()
+        profile = cProfile.Profile(time.thread_time)  # this (the GUI) thread's CPU clock
+        profile.enable()
+        try:
+            yield
+        finally:
+            profile.disable()
+            lines = [f"--- {name}: where the GUI thread was while a tick was > {STALL_S * 1000:.0f} ms late "
+                     f"({SAMPLE_S * 1000:.0f} ms samples)"]
+            lines += [f"{count:5d}  {stack}" for stack, count in self.sampler.take().most_common(8)]
+            text = io.StringIO()
+            pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(25)
+            lines.append(f"--- {name}: the GUI thread's CPU by function (cumulative s)")
+            lines += [line for line in text.getvalue().splitlines() if line.strip()][4:]
+            self.reports[name] = "\n".join(lines)
+
+
 def _measure(watch: LoopWatch, action: Callable[[], None], done: Callable[[], bool],
-             limit_s: float = 120.0) -> tuple[float, float, float]:
+             limit_s: float = 120.0, why: Why | None = None, name: str = "") -> tuple[float, float, float]:
     """Run ``action`` from the event loop (as a click does), pump until ``done()`` and ``AFTER_S`` more; returns
     (blocked ms, its GUI-thread CPU ms, wall s until done)."""
     from PySide6.QtCore import QTimer
 
     _pump(200)
-    watch.reset()
-    started = time.perf_counter()
-    QTimer.singleShot(0, action)
-    finished = _pump(limit_s * 1000, until=done)
-    wall_s = time.perf_counter() - started
-    _pump(AFTER_S * 1000)
+    with why.around(name) if why is not None else contextlib.nullcontext():
+        watch.reset()
+        started = time.perf_counter()
+        QTimer.singleShot(0, action)
+        finished = _pump(limit_s * 1000, until=done)
+        wall_s = time.perf_counter() - started
+        _pump(AFTER_S * 1000)
     if not finished:
-        raise SystemExit(f"bench_gui_blocking: not done within {limit_s:g} s")
+        raise RuntimeError(f"bench_gui_blocking: not done within {limit_s:g} s")
     return watch.blocked_ms, watch.busy_ms, wall_s
 
 
@@ -138,7 +222,7 @@ def _busy(load: int) -> Iterator[None]:
             process.wait()
 
 
-def measure(history_s: float, load: int = 0) -> dict[str, Any]:
+def measure(history_s: float, load: int = 0, why: bool = False) -> dict[str, Any]:
     """Run every scenario once; returns {action: (blocked ms, GUI CPU ms, wall s)} plus the history kept across a
     calibration load."""
     from PySide6.QtCore import QSettings
@@ -162,6 +246,7 @@ def measure(history_s: float, load: int = 0) -> dict[str, Any]:
         window.show()
         lab.connect_all()
         watch = LoopWatch()
+        explain = Why(watch) if why else None
         try:
             _pump(60_000, until=lambda: lab.robot.is_connected and lab.board is not None and lab.board.is_connected)
             watch.reset()
@@ -178,7 +263,8 @@ def measure(history_s: float, load: int = 0) -> dict[str, Any]:
                     complete = getattr(window, "tab_is_complete", None)  # (a window that builds tabs in one go)
                     return complete(name) if complete is not None else window.tab_widget(name) is not None
 
-                results[f"first opening: {spec.title}"] = _measure(watch, open_tab, built)
+                name = f"first opening: {spec.title}"
+                results[name] = _measure(watch, open_tab, built, why=explain, name=name)
             forces: Any = window.show_tab("forces")
             board = lab.board
             _pump(history_s * 1000, until=lambda: board.history.span()[1] - board.history.span()[0] >= history_s)
@@ -188,7 +274,7 @@ def measure(history_s: float, load: int = 0) -> dict[str, Any]:
             results["calibration load"] = _measure(
                 watch, lambda: forces.load_calibration(cal),
                 lambda: forces.pipeline.calibration_source == str(cal)
-                and not getattr(forces, "is_loading_calibration", False))
+                and not getattr(forces, "is_loading_calibration", False), why=explain, name="calibration load")
             oldest_after, newest_after = forces.force_history.span()
             results["history"] = (newest_before - oldest_before, newest_after - oldest_before,
                                   oldest_after - oldest_before)
@@ -197,8 +283,12 @@ def measure(history_s: float, load: int = 0) -> dict[str, Any]:
             calibration.add_trial_files(_trial_files(Path(tmp)))
             results["fit (4 trials)"] = _measure(
                 watch, calibration.start_fit,
-                lambda: not calibration.is_fitting and calibration.result is not None)
+                lambda: not calibration.is_fitting and calibration.result is not None, why=explain,
+                name="fit (4 trials)")
         finally:
+            if explain is not None:
+                explain.sampler.stop()
+                results["why"] = explain.reports
             watch.stop()
             window.close()
             lab.close()
@@ -213,7 +303,7 @@ def report(results: dict[str, Any], history_s: float, load: int) -> None:
           f"process(es), {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     print(f"{'action':<34} {'blocked ms':>11} {'its CPU ms':>11} {'done after s':>13}")
     for name, value in results.items():
-        if name == "history":
+        if name in ("history", "why"):
             continue
         blocked_ms, busy_ms, wall_s = value
         flag = "" if blocked_ms < TARGET_MS else "  (over target)"
@@ -223,6 +313,8 @@ def report(results: dict[str, Any], history_s: float, load: int) -> None:
           f"to {trimmed_s:+.0f} s of the old oldest sample ({'kept' if trimmed_s <= 1.0 else 'dropped'}); "
           f"{history_s:g} s of live data before the load")
     del held_after_from_old
+    for text in results.get("why", {}).values():
+        print(text)
 
 
 def run(quick: bool = False) -> None:
@@ -257,12 +349,13 @@ def main() -> None:
     parser.add_argument("--history", type=float, default=70.0, help="seconds of live data before the load")
     parser.add_argument("--load", type=int, default=0, help="busy processes beside the app")
     parser.add_argument("--offscreen", action="store_true", help="offscreen Qt instead of a private Xvfb")
+    parser.add_argument("--why", action="store_true", help="where the GUI thread was in each stall, and its CPU")
     args = parser.parse_args()
     if not args.offscreen:
         code = on_x_display(sys.argv[1:])
         if code is not None:
             sys.exit(code)
-    report(measure(args.history, args.load), args.history, args.load)
+    report(measure(args.history, args.load, args.why), args.history, args.load)
 
 
 if __name__ == "__main__":

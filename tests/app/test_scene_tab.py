@@ -147,3 +147,28 @@ def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_
     soft.write_text("[ground]\ncontact_onset_m = 0.0003\n", encoding="utf-8")
     line = scene_description(replace(config, lab=replace(config.lab, scene=str(soft))))
     assert "contact onset 0.3 mm" in line
+
+
+def test_the_tab_opened_in_steps_shows_its_picture_first_and_its_other_views_one_step_each(qtbot):
+    """A first opening gets the live picture at once; the kinematics panel and the replay's timeline follow one step
+    each (the window is not held for them), and a caller that needs one before its step gets it built then."""
+    from app.gui.tabs import scene
+
+    lab = LabContext(LabConfig())
+    try:
+        tab, steps = scene.create_tab_in_steps(lab)
+        qtbot.addWidget(tab)
+        assert tab.pages.count() == 1 and tab.live_page.count() == 1  # the picture only
+        next(steps)
+        assert tab.live_page.count() == 2 and not tab.kinematics.isVisibleTo(tab)  # no mocap source: hidden
+        assert tab.pages.count() == 1
+        next(steps)
+        assert tab.pages.count() == 2 and tab.pages.indexOf(tab.replay_view) == 1
+        assert list(steps) == []
+        later, _steps = scene.create_tab_in_steps(lab)
+        qtbot.addWidget(later)
+        assert later.replay_view is later.replay_view and later.pages.count() == 2  # asked for: built at once
+        later.shutdown()
+        tab.shutdown()
+    finally:
+        lab.close()

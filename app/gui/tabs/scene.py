@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -102,7 +103,7 @@ def scene_description(config: Any) -> str:
 class SceneTab(QWidget):
     """See the module docstring. ``shutdown()`` stops the render thread (the main window calls it)."""
 
-    def __init__(self, lab: Any, parent: QWidget | None = None) -> None:
+    def __init__(self, lab: Any, parent: QWidget | None = None, views_in_steps: bool = False) -> None:
         super().__init__(parent)
         self.lab = lab
         robot = lab.config.robot
@@ -123,17 +124,16 @@ class SceneTab(QWidget):
         self.live_button.setVisible(False)
         bar.addWidget(self.live_button)
         layout.addLayout(bar)
-        self.replay_view = ReplayView()
         self.pages = QStackedWidget()
         self.live_page = QSplitter()
         self.live_page.addWidget(self.view)
-        self.kinematics = KinematicsView(robot.n_joints)
-        self.live_page.addWidget(self.kinematics)
-        self.live_page.setStretchFactor(0, 3)
-        self.live_page.setStretchFactor(1, 2)
         self.pages.addWidget(self.live_page)
-        self.pages.addWidget(self.replay_view)
         layout.addWidget(self.pages, 1)
+        # The kinematics panel (hidden until a motion capture source) and the replay's timeline are built after the
+        # live picture: one a step when the user opens the tab (create_tab_in_steps), else at once; reading
+        # ``kinematics`` or ``replay_view`` builds what is not built yet.
+        self._kinematics: KinematicsView | None = None
+        self._replay_view: ReplayView | None = None
         self.replay: replays.Replay | None = None
         self.replay_time_s = 0.0
         self.replay_frame: replays.ReplayFrame | None = None
@@ -142,11 +142,6 @@ class SceneTab(QWidget):
         self._replay_timer = QTimer(self)
         self._replay_timer.setInterval(REPLAY_FRAME_MS)
         self._replay_timer.timeout.connect(self._replay_tick)
-        rv = self.replay_view
-        rv.time_requested.connect(self.seek)
-        rv.play_toggled.connect(lambda on: self.play() if on else self.pause())
-        rv.step_requested.connect(self.step)
-        rv.speed_changed.connect(self.set_speed)
         self._bridge = ThreadBridge(self)
         self._physics, note = _physics_of(lab)
         self._visible = threading.Event()
@@ -160,16 +155,62 @@ class SceneTab(QWidget):
         self._kinematics_timer = QTimer(self)
         self._kinematics_timer.setInterval(int(1000 / KINEMATICS_RATE_HZ))
         self._kinematics_timer.timeout.connect(self.draw_kinematics)
-        self.kinematics.setVisible(False)
-        if self.mocap is not None:
-            self.mocap.source_changed.connect(self._on_mocap_source)
-            self.mocap.status_changed.connect(self.kinematics.set_status)
-            self.kinematics.set_status(self.mocap.status, self.mocap.level)
-            self._on_mocap_source(self.mocap.source)
         if self._physics is None:
             why = (f"No physics lab: {note}." if note else "No physics lab: this is a real robot or the scripted "
                    "simulated lab ([lab] physics = \"scripted\").")
             self.view.show_fallback(f"{why} The 2-D drawing shows the present joint angles.")
+        if not views_in_steps:
+            while self.build_next_view():
+                pass
+
+    # -- the views built after the live picture ----------------------------------------------------------------------
+    def build_next_view(self) -> bool:
+        """Build the next view not built yet (the kinematics panel, then the replay's timeline); False when all are."""
+        if self._kinematics is None:
+            self._build_kinematics()
+            return True
+        if self._replay_view is None:
+            self._build_replay_view()
+            return True
+        return False
+
+    @property
+    def kinematics(self) -> KinematicsView:
+        """The live motion capture's panel beside the picture (built now if it was not)."""
+        if self._kinematics is None:
+            self._build_kinematics()
+        assert self._kinematics is not None
+        return self._kinematics
+
+    @property
+    def replay_view(self) -> ReplayView:
+        """The replay's timeline and picture (built now if it was not)."""
+        if self._replay_view is None:
+            self._build_replay_view()
+        assert self._replay_view is not None
+        return self._replay_view
+
+    def _build_kinematics(self) -> None:
+        view = KinematicsView(self.lab.config.robot.n_joints)
+        view.setVisible(False)
+        self._kinematics = view
+        self.live_page.addWidget(view)
+        self.live_page.setStretchFactor(0, 3)
+        self.live_page.setStretchFactor(1, 2)
+        if self.mocap is not None:
+            self.mocap.source_changed.connect(self._on_mocap_source)
+            self.mocap.status_changed.connect(view.set_status)
+            view.set_status(self.mocap.status, self.mocap.level)
+            self._on_mocap_source(self.mocap.source)
+
+    def _build_replay_view(self) -> None:
+        rv = ReplayView()
+        self._replay_view = rv
+        self.pages.addWidget(rv)
+        rv.time_requested.connect(self.seek)
+        rv.play_toggled.connect(lambda on: self.play() if on else self.pause())
+        rv.step_requested.connect(self.step)
+        rv.speed_changed.connect(self.set_speed)
 
     @property
     def rendering(self) -> bool:
@@ -192,7 +233,7 @@ class SceneTab(QWidget):
                 self._thread.start()
         else:
             self._body_timer.start()
-        if self.kinematics.isVisibleTo(self):
+        if self._kinematics is not None and self._kinematics.isVisibleTo(self):
             self._kinematics_timer.start()
 
     def hideEvent(self, event: QHideEvent) -> None:  # noqa: N802 - Qt's name
@@ -392,3 +433,15 @@ class SceneTab(QWidget):
 def create_tab(lab: Any) -> QWidget:
     """The main window's entry point (``app/gui/tabs/<name>.py`` contract)."""
     return SceneTab(lab)
+
+
+def create_tab_in_steps(lab: Any) -> tuple[QWidget, Iterator[None]]:
+    """The tab with its live picture, and the steps that add the kinematics panel and the replay's timeline (the main
+    window runs one per turn of the event loop: a first opening holds the window for none of them)."""
+    tab = SceneTab(lab, views_in_steps=True)
+
+    def steps() -> Iterator[None]:
+        while tab.build_next_view():
+            yield
+
+    return tab, steps()
