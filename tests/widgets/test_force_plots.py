@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QPoint, Qt
+from PySide6.QtCore import QPoint, QPointF, Qt
 from PySide6.QtWidgets import QLabel
 
 from devices.config import default_sensor_names
@@ -101,6 +101,46 @@ def test_gap_breaks_the_line(grid):
     grid.refresh()
     y = grid.plots[0].curves[0].yData
     assert np.isnan(y).sum() == 1 and len(y) == 21
+
+
+def test_a_trace_with_gaps_draws_only_between_neighbouring_samples(grid):
+    """A trace with gaps is drawn as the segments between neighbouring finite samples (one native call): nothing
+    across a gap, nothing for a sample alone between two gaps; the bounds are the segments'."""
+    from widgets.force_plots import _Segments
+
+    segments = _Segments()
+    x = np.arange(8.0)
+    y = np.array([0.0, 1.0, np.nan, 3.0, np.nan, 5.0, 6.0, 4.0])
+    assert segments.set(x, y)
+    assert segments.lines.ndarray().tolist() == [[0, 0, 1, 1], [5, 5, 6, 6], [6, 6, 7, 4]]
+    rect = segments.boundingRect()
+    assert (rect.left(), rect.right(), rect.top(), rect.bottom()) == (0, 7, 0, 6)
+    assert not segments.set(x[:3], np.array([np.nan, 2.0, np.nan]))  # one sample between gaps: nothing to draw
+
+    history = TraceHistory.for_budget(36, 4_000_000)
+    grid.set_history(history, "N")
+    grid.set_window_s(10.0)
+    t = np.arange(300) / 30.0
+    values = np.full((300, 36), 3.0)
+    values[:, 0] = 1.0
+    values[100:200, 0] = np.nan  # S01L: a gap over the middle third of the window (its neighbours elsewhere)
+    history.append(t, values)
+    grid.refresh(force=True)
+    plot = grid.plots[0]
+    assert any(isinstance(line, _Segments) for _pen, line in plot.bundle._lines)
+    image = plot.plot_widget.grab().toImage()
+    color = plot.curves[0].opts["pen"].color()
+    box = plot.viewbox
+
+    def drawn_at(x_view: float) -> bool:
+        """A pixel of S01L's colour in the column of view x (session time before the newest sample)."""
+        point = plot.plot_widget.mapFromScene(box.mapViewToScene(QPointF(x_view, 1.0)))
+        return any(image.pixelColor(point.x(), row) == color
+                   for row in range(max(0, point.y() - 3), min(image.height(), point.y() + 4)))
+
+    newest = float(t[-1])
+    assert drawn_at(1.5 - newest) and drawn_at(8.5 - newest)  # before and after the gap
+    assert not drawn_at(5.0 - newest)  # inside it
 
 
 def test_warnings_show_on_the_plot_header(grid):
