@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from devices.errors import ConfigError
-from devices.toml_files import parse_toml_text
+from devices.toml_files import MAX_TOML_BYTES, parse_toml_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -302,12 +302,15 @@ def load_config(path: str | Path | None = None) -> LabConfig:
     path = Path(path) if path is not None else default_config_path()
     try:
         # A FIFO or a device would block the read or never end it: only a regular file is read.
-        mode = path.stat().st_mode
+        status = path.stat()
+        mode = status.st_mode
         if not stat.S_ISREG(mode):
             kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
                 "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file"
             raise ConfigError(f"{path} is {kind}, not a lab configuration: the config is a TOML text file like "
                               "resources/default_lab.toml")
+        if status.st_size > MAX_TOML_BYTES:  # a few kB; read whole, so a huge file is refused first
+            raise ConfigError(f"{path}: larger than {MAX_TOML_BYTES / 1e6:g} MB, too large for a lab configuration")
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from exc

@@ -1243,7 +1243,21 @@ def hostile_json_inputs(folder: Path) -> Outcome:
             ok, note = clean_failure(in_process(*argv(blank)), 1, blank.name, "larger than")
             if not ok:
                 return Outcome(False, f"{reader} {blank.name}: {note}")
-    return Outcome(True, f"{len(readers)} readers × (FIFO, /dev/zero, 6000 digits, 150 000 deep, 20 MB): one line each")
+    twice = folder / "twice.json"  # json would keep the second "4" silently
+    twice.write_text('{"format": "sensnake-servos", "version": 1, "servos": {"4": {"items": {}}, "4": {"items": {}}}}')
+    ok, note = clean_failure(in_process("servo", "restore", str(twice), "--robot", "sim"), 1, "twice.json",
+                             "given twice")
+    if not ok:
+        return Outcome(False, f"a servo given twice: {note}")
+    config = folder / "huge.toml"
+    with config.open("wb") as handle:
+        handle.truncate(5_000_000)
+    ok, note = clean_failure(in_process("estimate", str(data), "--cal", str(_calibration(folder)), "--config",
+                                        str(config), "--out", str(folder / "o.csv")), 1, "huge.toml", "larger than")
+    if not ok:
+        return Outcome(False, f"a 5 MB lab config: {note}")
+    return Outcome(True, f"{len(readers)} readers × (FIFO, /dev/zero, 6000 digits, 150 000 deep, 20 MB), a servo "
+                         "given twice, a 5 MB lab config: one line each")
 
 
 def play_log_never_clobbers(folder: Path) -> Outcome:
@@ -1426,7 +1440,8 @@ def planted_lock_files(folder: Path) -> Outcome:
 CASES.update({
     "hostile: a FIFO or a link to one, a socket, a device node as every writer's output":
         outputs_that_are_no_regular_file,
-    "hostile: a shape, settings or calibration file that is a FIFO, /dev/zero, 20 MB, 6000 digits, 150 000 deep":
+    "hostile: a shape, settings or calibration file that is a FIFO, /dev/zero, 20 MB, 6000 digits, 150 000 deep; "
+    "a servo given twice, a 5 MB lab config":
         hostile_json_inputs,
     "hostile: play --log onto its shape, a missing folder, an old log (never clobbered)": play_log_never_clobbers,
     "hostile: a link and a FIFO planted in a sweep's folder": planted_in_a_sweep_folder,

@@ -213,3 +213,23 @@ def test_a_lock_file_planted_as_a_link_or_a_fifo_is_refused_never_written_throug
         assert f".{name}.lock (the lock file) is a {kind}" in line, line
         assert not (tmp_path / name).exists()
     assert victim.read_text() == "someone's notes"
+
+
+def test_a_servo_given_twice_and_a_huge_lab_config_are_refused_naming_the_file(tmp_path: Path,
+                                                                                capsys: pytest.CaptureFixture[str]
+                                                                                ) -> None:
+    saved = tmp_path / "pair.json"
+    assert main(["servo", "dump", "--robot", "sim", "--id", "6", "--out", str(saved)]) == 0
+    entry = json.dumps(json.loads(saved.read_text())["servos"]["6"])
+    twice = tmp_path / "twice.json"  # JSON would keep the second "6" without a word
+    twice.write_text('{"format": "sensnake-servos", "version": 1, "servos": {"6": ' + entry + ', "6": ' + entry + "}}")
+    capsys.readouterr()
+    assert main(["servo", "restore", str(twice), "--robot", "sim"]) == 1
+    line = one_error_line(capsys)
+    assert "twice.json" in line and "'6' is given twice" in line, line
+    config = tmp_path / "lab.toml"
+    with config.open("wb") as handle:
+        handle.truncate(3_000_000)
+    assert main(["servo", "dump", "--config", str(config), "--out", str(tmp_path / "x.json")]) == 1
+    line = one_error_line(capsys)
+    assert "lab.toml" in line and "larger than 1 MB" in line, line
