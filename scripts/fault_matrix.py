@@ -1176,6 +1176,27 @@ def symlink_loop_inputs(folder: Path) -> Outcome:
     return Outcome(True, "export, repair, estimate: 'symbolic link loop', not 'does not exist'")
 
 
+def fifo_as_every_recording_input(folder: Path) -> Outcome:
+    """A FIFO given where a recording is read (its open would wait for a writer for ever): every reader names it
+    for what it is, never 'no such recording' or a hang."""
+    fifo = folder / "take.h5"
+    os.mkfifo(fifo)
+    rec = _small_recording(folder / "rec.h5")
+    readers = {"export": ["export", str(fifo), "--csv", str(folder / "o.csv")],
+               "repair": ["repair", str(fifo), "--out", str(folder / "o.h5")],
+               "estimate": ["estimate", str(fifo), "--cal", str(_calibration(folder)), "--out", str(folder / "o.h5")],
+               "report": ["report", "repeatability", str(fifo), str(rec), "--out", str(folder / "report")],
+               "runs show": ["runs", "show", str(fifo)],
+               "mocap import": ["mocap", "import", "--xdf", str(folder / "none.xdf"), "--rec", str(fifo), "--out",
+                                str(folder / "m.h5")],
+               "lab identify": ["lab", "identify", str(fifo), "--out", str(folder / "fitted.toml")]}
+    for name, argv in readers.items():
+        ok, note = clean_failure(in_process(*argv), 1, "take.h5", "FIFO")
+        if not ok:
+            return Outcome(False, f"{name}: {note}")
+    return Outcome(True, f"{len(readers)} readers: one line naming the FIFO")
+
+
 def fit_under_address_limits(folder: Path) -> Outcome:
     """``fit`` under ``ulimit -v`` 150 MB, 300 MB and 2 GB: done, or one line naming the limit, within seconds —
     never minutes of silence (OpenBLAS threads, or its allocator spinning while a library loads)."""
@@ -1452,6 +1473,7 @@ CASES.update({
     "hostile: recordings of the wrong shape or type (compound, 1-D, complex, loops, …)": hostile_recordings,
     "hostile: repair with 200 flipped bytes": repair_flipped_bytes,
     "hostile: export/repair/estimate of a symlink loop": symlink_loop_inputs,
+    "hostile: a FIFO given as a recording to every reader": fifo_as_every_recording_input,
     "hostile: fit under ulimit -v 150 MB, 300 MB, 2 GB": fit_under_address_limits,
     "servo: restore checked whole (another model, a misspelt item, Min > Max, a missing servo, Status Return "
     "Level 0), set and [servos] refuse Status Return Level 0": restore_checked_whole,

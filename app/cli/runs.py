@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from app.core.catalog import COLUMNS, Catalog
+from app.core.recording import check_input
 from app.core.run_documents import read_documents
 from app.core.user_folders import recordings_dir
 
@@ -81,6 +82,7 @@ def _list(args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     path = Path(args.file)
     if not path.is_file():
+        check_input(path)  # a FIFO, a device, a link loop: named for what it is
         raise ValueError(f"{path}: no such recording")
     with Catalog() as catalog:
         entry = catalog.index(path)

@@ -45,6 +45,7 @@ import numpy as np
 
 from app.core.calfiles import write_atomically
 from app.core.errors import RepeatabilityError
+from app.core.recording import check_input
 from app.core.run_documents import RUN_START, condition_differences, parse_document
 from devices.scene import channel_map
 
@@ -85,6 +86,7 @@ def load_trial(path: str | Path) -> Trial:
     """Read what the analysis needs from a recording; :class:`RepeatabilityError` naming the file otherwise."""
     path = Path(path)
     if not path.is_file():
+        check_input(path)  # a FIFO, a device, a link loop: named for what it is
         raise RepeatabilityError(f"{path}: no such recording")
     try:
         with h5py.File(path, "r", locking=False) as f:

@@ -142,7 +142,7 @@ def test_a_killed_dumps_temporary_is_removed_by_the_next_dump_and_a_planted_link
     assert hidden(tmp_path) == [planted.name] and not (tmp_path / "victim").exists()
 
 
-def test_repair_names_a_soft_link_loop_and_lab_identify_a_fifo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_repair_names_a_soft_link_loop_and_report_runs_and_lab_identify_a_fifo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rec = tmp_path / "looped.h5"
     with h5py.File(rec, "w") as f:
         f.attrs["format"], f.attrs["version"] = "sensnake-recording", 1
@@ -154,6 +154,11 @@ def test_repair_names_a_soft_link_loop_and_lab_identify_a_fifo(tmp_path: Path, c
     assert "looped.h5" in line and "/daq/" in line and "loops back" in line, line
     fifo = tmp_path / "take.h5"
     os.mkfifo(fifo)
+    for argv in (["report", "repeatability", str(fifo), str(rec), "--out", str(tmp_path / "rep")],
+                 ["runs", "show", str(fifo)]):
+        assert main(argv) == 1
+        line = one_error_line(capsys)
+        assert str(fifo) in line and "FIFO" in line, line
     pytest.importorskip("mujoco")
     assert main(["lab", "identify", str(fifo), "--out", str(tmp_path / "fitted.toml")]) == 1
     line = one_error_line(capsys)
