@@ -32,9 +32,13 @@ from models.errors import FlatSensorError
 from models.fit_dfree import DerivativeFreeEstimate, estimate_sls
 from models.fit_output import (
     DRIFT_BOUND_S_PER_S,
+    NOISE_SMOOTH_SAMPLES,
     PARAM_NAMES,
+    SETTLING_LOG_TAU_BOUNDS,
     FitTrial,
     OutputFit,
+    baseline_offset,
+    censored_noise,
     estimate_noise,
     fit_output_casadi,
     fit_output_scipy,
@@ -76,9 +80,6 @@ WIDE_INTERVAL = 0.5
 # A trial with more than this fraction of its hold saturated is refused for the per-trial table (it only says
 # "at least this much"); it still enters the joint fit as one-sided (censored) residuals.
 MAX_CENSORED_FRACTION = 0.5
-# Above this share of the hold at the ceiling a trial's E1 interval is said to be possibly too narrow (measured:
-# trials a quarter saturated, 30–100 Hz, 60–77 % coverage; docs/NUMERICS.md).
-OPTIMISTIC_E1_FRACTION = 0.1
 # Multi-start over log τ: starting creep times from TAU_GRID_LOW × the sample step to TAU_GRID_HIGH × the record
 # length, TAU_GRID_POINTS of them; the joint fit runs from the JOINT_STARTS best distinct ones and keeps the lowest
 # cost (a slow-creep sensor otherwise stops on the τ → 0 plateau, whose cost is far above the optimum).
@@ -127,9 +128,18 @@ def decimate_trial(trial: TrialInput, rate_hz: float, saturation_s: float | None
     it by √count, so the averaged samples keep their information and their noise level is known). A block is kept
     sample by sample where averaging would bias the fit: while the force moves (a loading ramp: the mean of a
     nonlinear response is not the response to the mean force, and the hold between samples no longer matches a
-    force that moved within the step) and where any sample is at the readout's ceiling ``saturation_s`` (a mean of
-    censored and uncensored samples is neither). Measured (benchmarks/bench_coverage.py --rate 30): averaging every
-    block put the 95 % intervals of 30 Hz trials at 35 % coverage (0.2 % noise); this keeps them at ~95 %."""
+    force that moved within the step). Measured (benchmarks/bench_coverage.py --rate 30): averaging every block put
+    the 95 % intervals of 30 Hz trials at 35 % coverage (0.2 % noise); this keeps them at ~95 %.
+
+    Where the readout reaches its ceiling ``saturation_s`` (a sample at it, or the block's mean within
+    :data:`NEAR_CEILING_SIGMAS` noise s.d. of it) a steady block becomes two samples: the mean of its samples read
+    as numbers (with ``within_ss``, their squared deviations about that mean) and one censored sample standing for
+    those at the ceiling. Over a block in which the model hardly moves, that pair carries the block's whole censored
+    likelihood (the Gaussian part depends on the read samples only through their count and mean, the censored part
+    only through the count), so nothing is selected by the noise — a plain mean of a block that happened to stay
+    below the ceiling would be biased low — and a 1 kHz trial at the ceiling is fitted from ~10 samples a second
+    instead of 1000 (it took 27–115 s of CPU per sensor). ``noise_s`` then carries the raw samples' noise (the
+    censored likelihood's σ), measured before averaging."""
     t = np.asarray(trial.time_s, dtype=np.float64)
     if not rate_hz > 0 or t.size < 4:
         return trial
@@ -164,27 +174,98 @@ def decimate_trial(trial: TrialInput, rate_hz: float, saturation_s: float | None
     if n_blocks > 1:
         steady[:-1] &= change <= tolerance
         steady[1:] &= change <= tolerance
+    split = np.zeros(n_blocks, dtype=bool)
+    noise_s = trial.noise_s
+    censored = np.zeros(t.size, dtype=bool)
     if saturation_s is not None:
         ceiling = saturation_s * (1 - 1e-12)
-        at_ceiling = np.bincount(block_of, (c >= ceiling).astype(np.float64), n_blocks) > 0
-        steady &= ~at_ceiling
-        if at_ceiling.any():
-            # Near the ceiling, whether a block holds a censored sample is up to the noise: averaging only those that
-            # happen not to would select them low. A block whose mean is within NEAR_CEILING_SIGMAS noise s.d. of
-            # the ceiling stays sample by sample, decided on its mean, which the censoring hardly touches there.
-            noise = noise_below_ceiling(c, None, saturation_s)
+        censored = c >= ceiling
+        near = np.bincount(block_of, censored.astype(np.float64), n_blocks) > 0
+        if near.any():
+            noise = (raw_noise_below_ceiling(c, force, saturation_s) if trial.counts is None
+                     else noise_below_ceiling(c, trial.counts, saturation_s))
             if math.isfinite(noise):
-                steady &= ~(block_c >= ceiling - NEAR_CEILING_SIGMAS * noise)
-    # Output in time order: an averaged sample for each steady block, the samples themselves otherwise.
-    keep_raw = ~steady[block_of]
-    order = np.concatenate([block_t[steady], t[keep_raw]])
+                near |= block_c >= ceiling - NEAR_CEILING_SIGMAS * noise
+                if noise_s is None and trial.counts is None:
+                    noise_s = noise
+        if trial.counts is None and noise_s is not None:
+            split = steady & near  # each becomes (the read samples' mean, the censored samples' count)
+        steady &= ~near
+    keep_raw = ~(steady | split)[block_of]
+    parts_t = [block_t[steady], t[keep_raw]]
+    parts_f = [block_force[steady], force[keep_raw]]
+    parts_c = [block_c[steady], c[keep_raw]]
+    parts_n = [np.maximum(block_counts, 1.0)[steady], counts_in[keep_raw]]
+    parts_w = [np.full(int(steady.sum()), math.nan), np.full(int(keep_raw.sum()), math.nan)]
+    if split.any():
+        in_split = split[block_of] & np.isfinite(c)
+        for is_censored, group in ((False, in_split & ~censored), (True, in_split & censored)):
+            n = np.bincount(block_of, group.astype(np.float64), n_blocks)
+            present = split & (n > 0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean_t, mean_c = (np.bincount(block_of, np.where(group, v, 0.0), n_blocks) / n for v in (t, c))
+            parts_t.append(mean_t[present])
+            parts_f.append(block_force[present])  # the force holds still over the block: its mean for both parts
+            parts_c.append(mean_c[present])
+            parts_n.append(n[present])
+            if not is_censored:
+                deviation = np.where(group, c - mean_c[block_of], 0.0)
+                within = np.bincount(block_of, deviation * deviation, n_blocks)
+                parts_w.append(within[present])
+            else:
+                parts_w.append(np.full(int(present.sum()), math.nan))
+    order = np.concatenate(parts_t)
     sort = np.argsort(order, kind="stable")
+    times = order[sort]
+    # The two parts of a block can share a mean time: kept apart by a millionth of a step (time stays increasing).
+    tied = np.flatnonzero(np.diff(times) <= 0)
+    times[tied + 1] = times[tied] + 1e-6 * step
+    within_ss = np.concatenate(parts_w)[sort]
+    return TrialInput(trial.name, times, np.concatenate(parts_f)[sort], np.concatenate(parts_c)[sort],
+                      counts=np.concatenate(parts_n)[sort],
+                      within_ss=within_ss if np.isfinite(within_ss).any() else trial.within_ss,
+                      noise_s=noise_s)
 
-    def pick(averaged: np.ndarray, raw: np.ndarray) -> np.ndarray:
-        return np.concatenate([averaged[steady], raw[keep_raw]])[sort]
 
-    return TrialInput(trial.name, order[sort], pick(block_force, force), pick(block_c, c),
-                      counts=pick(np.maximum(block_counts, 1.0), counts_in))
+def raw_noise_below_ceiling(conductance_s: np.ndarray, force_n: np.ndarray, ceiling_s: float) -> float:
+    """The noise (S) of a raw record (one reading per sample) that reaches the readout's ceiling, for the censored
+    likelihood: from second differences of three consecutive loaded samples (force ≥ :data:`MIN_FORCE_FRACTION` of
+    the record's top: unloaded readings sit at 0 S, clipped, and scatter too little) whose running mean over
+    :data:`models.fit_output.NOISE_SMOOTH_SAMPLES` lies more than 6 s.d. below the ceiling (there the censoring has
+    not touched them; picked by their own values, those close under it scatter too little). Measured on trials 80 %
+    at the ceiling at 1 % noise: 6.5–7.4 µS for a true 11.3 µS when the unloaded start and the gaps between samples
+    far from the ceiling were counted; the censored fit then read a false drift and E1 several standard errors off.
+    NaN when fewer than 20 such triples remain."""
+    c = np.asarray(conductance_s, dtype=np.float64)
+    force = np.asarray(force_n, dtype=np.float64)
+    finite = np.isfinite(c) & np.isfinite(force)
+    if not finite.any():
+        return math.nan
+    top = float(np.percentile(force[finite], 99))
+    usable = finite & (force >= MIN_FORCE_FRACTION * top) & (c < ceiling_s * (1 - 1e-12))
+
+    def from_triples(keep: np.ndarray) -> float:
+        triple = keep[:-2] & keep[1:-1] & keep[2:]
+        d2 = (c[:-2] - 2 * c[1:-1] + c[2:])[triple]
+        if d2.size < 20:
+            return math.nan
+        return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+    sigma = from_triples(usable)  # a first scale: too small where the samples crowd under the ceiling
+    if not sigma > 0:
+        return sigma
+    window = NOISE_SMOOTH_SAMPLES
+    kernel = np.ones(window)
+    total = np.convolve(np.where(finite, c, 0.0), kernel, mode="same")
+    count = np.convolve(finite.astype(np.float64), kernel, mode="same")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = total / count
+    for _ in range(2):  # the margin from the first scale, then from the scale it gives
+        far = from_triples(usable & (smooth < ceiling_s - 6.0 * sigma))
+        if not far > 0:
+            break
+        sigma = far
+    return sigma
 
 
 @dataclass(frozen=True)
@@ -196,6 +277,11 @@ class TrialInput:
     force_n: np.ndarray
     conductance_s: np.ndarray
     counts: np.ndarray | None = None  # raw samples each sample stands for (decimate_trial); None: one each
+    # Per sample, Σ(reading − mean)² (S²) of the raw samples it averages, where decimate_trial averaged only the read
+    # samples of a block at the readout's ceiling (NaN elsewhere): they count as the raw samples they were in the
+    # residual variance. None: no such sample.
+    within_ss: np.ndarray | None = None
+    noise_s: float | None = None  # the raw samples' noise (S), measured before averaging (None: not measured)
 
 
 @dataclass(frozen=True)
@@ -270,6 +356,11 @@ class SensorCalibration:
     # A baseline drift found and separated from the creep (S/s; :func:`calibrate_with_drift`): 0.0 when looked for
     # and not found, None when not looked for. The parameters are those of the trials with it removed.
     drift_s_per_s: float | None = None
+    # The baseline settles instead of drifting (calibrate_with_drift): its time constant (s); the baseline is then
+    # drift_s_per_s·τb·(1 − e^(−t/τb)) (models.fit_output.baseline_offset). inf: a linear drift (or none).
+    drift_tau_s: float = math.inf
+    # Trials whose reading jumps within the hold (reading_step): the SLS model cannot describe them.
+    steps: tuple[ReadingStep, ...] = ()
     # The two-arm creep check (models.creep_arms; run by calibrate_with_drift): None when not run, or when it could
     # not be made (then ``second_arm_note`` says why, and the file says so).
     second_arm: SecondArm | None = None
@@ -305,11 +396,66 @@ class SensorCalibration:
         entry["tau_s_ci95"] = [_or_none(self.tau_ci95[0]), _or_none(self.tau_ci95[1])]  # null: not bounded
         if self.drift_s_per_s is not None:
             entry["drift_S_per_s"] = self.drift_s_per_s
+        if math.isfinite(self.drift_tau_s):
+            entry["drift_settling_tau_s"] = self.drift_tau_s
+        if self.steps:
+            entry["reading_steps"] = [step.to_dict() for step in self.steps]
         if self.second_arm is not None:
             entry["creep_second_arm"] = self.second_arm.to_dict()
         elif self.second_arm_note is not None:
             entry["creep_second_arm"] = {"resolved": None, "checked": False, "reason": self.second_arm_note}
         return entry
+
+
+# The censored likelihood's σ of a trial at the ceiling is re-estimated from the trial's own fit until it moves by
+# less than this share (at most CENSORED_NOISE_ROUNDS fits; each round closes ~2/3 of the gap).
+CENSORED_NOISE_TOLERANCE = 2e-3
+CENSORED_NOISE_ROUNDS = 6
+
+
+def _censored_noise_refined(fit_trials: list[FitTrial], per_trial: OutputFit, area_m2: float,
+                            phys: PhysicsConstants, saturation_s: float) -> tuple[list[FitTrial], OutputFit]:
+    """The trials that reach the readout's ceiling with the σ of their censored likelihood
+    (:func:`models.fit_output.censored_noise`) estimated from their own fit, and the per-trial fit redone with it.
+    The σ and the fit depend on each other: alternated until σ settles. A σ 3 % off moved E1 by ~1 standard error at
+    100 Hz; one from differences of the samples far below the ceiling was 5–20 % off on trials 80 % at it."""
+    at_ceiling = [i for i, t in enumerate(fit_trials)
+                  if np.any(np.asarray(t.conductance_s) >= saturation_s * (1 - 1e-12))]
+    if not at_ceiling:
+        return fit_trials, per_trial
+    trials = list(fit_trials)
+    params = list(_present(per_trial.params))
+
+    def first_sigma(trial: FitTrial) -> float:
+        """The σ the trial's fit ran with (the one models.fit_output picks when none is given)."""
+        if trial.noise_s is not None:
+            return trial.noise_s
+        loaded = np.asarray(trial.force_n) >= MIN_FORCE_FRACTION * trial.hold_force_n
+        counts = None if trial.counts is None else np.asarray(trial.counts)[loaded]
+        return noise_below_ceiling(np.asarray(trial.conductance_s)[loaded], counts, saturation_s)
+
+    sigma = {i: first_sigma(trials[i]) for i in at_ceiling}
+    sigma = {i: value for i, value in sigma.items() if math.isfinite(value) and value > 0}
+    changed = False
+    for _ in range(CENSORED_NOISE_ROUNDS):
+        moved = []
+        for i in sigma:
+            new = censored_noise(trials[i], params[i], area_m2, phys, saturation_s, sigma[i], MIN_FORCE_FRACTION)
+            if abs(new / sigma[i] - 1) > CENSORED_NOISE_TOLERANCE:
+                moved.append(i)
+            sigma[i] = new
+            trials[i] = replace(trials[i], noise_s=new)
+        if not moved:
+            break
+        changed = True
+        refit = fit_output_scipy([trials[i] for i in moved], area_m2, phys, [params[i] for i in moved], "per_trial",
+                                 saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
+        for i, fitted in zip(moved, _present(refit.params)):
+            params[i] = fitted
+    if changed:
+        per_trial = fit_output_scipy(trials, area_m2, phys, params, "per_trial", saturation_s=saturation_s,
+                                     min_force_fraction=MIN_FORCE_FRACTION)
+    return trials, per_trial
 
 
 def _present(params: Sequence[SLSParams | None]) -> list[SLSParams]:
@@ -413,11 +559,110 @@ def hold_misfit(trial: TrialInput, hold: slice, params: SLSParams, area_m2: floa
     # An average of k raw samples counts as k of them (decimate_trial): the rmse is then the raw samples', as the
     # noise it is judged against.
     counts = np.ones(measured.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)[hold]
-    rmse = float(np.sqrt(np.mean(counts[used] * np.square(measured[used] - model[used])))) if used.any() else math.nan
+    # A sample averaging the read samples of a block at the ceiling adds their spread about its mean (decimate_trial):
+    # the rmse is the one those raw samples give.
+    spread = (np.zeros(measured.size) if trial.within_ss is None
+              else np.nan_to_num(np.asarray(trial.within_ss, dtype=np.float64)[hold], nan=0.0))
+    rmse = (float(np.sqrt(np.sum(counts[used] * np.square(measured[used] - model[used]) + spread[used])
+                          / np.sum(counts[used]))) if used.any() else math.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = (up - down) / (2 * step * force[hold])
     ratio = ratio[np.isfinite(ratio)]
     return rmse, (float(np.median(ratio)) if ratio.size else math.nan)
+
+
+# A step in the reading (reading_step): the hold's residual (the trial's own fit) is fitted by a line on each side of
+# every instant, over STEP_WINDOW_S each; a jump between the two lines of more than STEP_SIGMAS standard errors (the
+# residual's own sample-to-sample scatter: a noisy force reference adds to it) that also matters in force (as a poor
+# fit: above 0.5 % of the trial's force and 2 × the reference's scatter) is a step. Measured on rig-like trials the
+# thresholds were not tuned on (tests/models/test_baseline_shapes.py): good fits, a sensor that relaxes and a 1 µS/s
+# drift reach 2.4–6.5 standard errors, a 4 % step or a 5 % probe slip 15–290.
+STEP_WINDOW_S = 10.0
+STEP_SIGMAS = 8.0
+
+
+@dataclass(frozen=True)
+class ReadingStep:
+    """A jump of a trial's reading within its hold that the SLS model (driven by the measured force) does not make:
+    at ``time_s`` (s from the trial's start), ``size_s`` (S), ``force_n`` its force equivalent (N, through the
+    trial's dC/dF; NaN without one), ``sigmas`` its size in standard errors."""
+
+    trial: str
+    time_s: float
+    size_s: float
+    force_n: float
+    sigmas: float
+
+    def describe(self) -> str:
+        force = f" ({self.force_n * 1e3:+.3g} mN)" if math.isfinite(self.force_n) else ""
+        return (f"the reading jumps by {self.size_s * 1e6:+.3g} µS{force} at {self.time_s:.0f} s while the force "
+                f"holds ({self.sigmas:.0f} standard errors)")
+
+    def to_dict(self) -> dict[str, float | str | None]:
+        return {"trial": self.trial, "time_s": self.time_s, "size_S": self.size_s,
+                "force_N": _or_none(self.force_n), "standard_errors": self.sigmas}
+
+
+def reading_step(trial: TrialInput, hold: slice, params: SLSParams, area_m2: float, phys: PhysicsConstants,
+                 saturation_s: float | None, noise_s: float, sensitivity_s_per_n: float, force_n: float,
+                 reference_n: float) -> ReadingStep | None:
+    """The largest step in ``trial``'s reading over its hold that the fitted model ``params`` does not make, or None
+    when no jump passes both :data:`STEP_SIGMAS` and the force tolerance (see :data:`STEP_WINDOW_S`). A creep, a
+    drift, a settling baseline or a sensor that relaxes bend the residual smoothly: the lines follow them. Samples at
+    or near the readout's ceiling are left out (their read values are biased low by the censoring)."""
+    t = np.asarray(trial.time_s, dtype=np.float64)[hold]
+    measured = np.asarray(trial.conductance_s, dtype=np.float64)[hold]
+    force = np.nan_to_num(np.asarray(trial.force_n, dtype=np.float64), nan=0.0)
+    try:
+        model = np.asarray(conductance_from_force(trial.time_s, force, params, area_m2, phys, overstrain="clamp"),
+                           dtype=np.float64)[hold]
+    except ValueError:
+        return None
+    counts = np.ones(t.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)[hold]
+    used = np.isfinite(measured) & np.isfinite(model)
+    if saturation_s is not None:
+        margin = NEAR_CEILING_SIGMAS * noise_s if math.isfinite(noise_s) else 0.0
+        used &= (measured < saturation_s * (1 - 1e-12)) & (model < saturation_s - margin)
+        if trial.within_ss is not None:
+            used &= ~np.isfinite(np.asarray(trial.within_ss, dtype=np.float64)[hold])
+    t, r, n = t[used], (measured - model)[used], counts[used]
+    if t.size < 20:
+        return None
+    # The residual's own scatter per raw sample, from its first differences (robust): what a jump is judged against.
+    d = np.diff(r) / np.sqrt(1.0 / n[:-1] + 1.0 / n[1:])
+    scatter = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    if not scatter > 0:
+        return None
+    sums = [np.concatenate([[0.0], np.cumsum(v)]) for v in (n, n * t, n * t * t, n * r, n * t * r)]
+    split = np.arange(1, t.size)
+    at = 0.5 * (t[split - 1] + t[split])
+    lo, hi = np.searchsorted(t, at - STEP_WINDOW_S), np.searchsorted(t, at + STEP_WINDOW_S)
+
+    def line(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weighted line over samples [a, b) at ``at`` and its variance per unit raw-sample variance."""
+        s0, s1, s2, sy, sty = (c[b] - c[a] for c in sums)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_t = s1 / s0
+            sxx = s2 - s1 * mean_t
+            slope = (sty - mean_t * sy) / sxx
+            return sy / s0 + slope * (at - mean_t), 1.0 / s0 + (at - mean_t) ** 2 / sxx
+
+    before, var_before = line(lo, split)
+    after, var_after = line(split, hi)
+    jump = after - before
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigmas = np.abs(jump) / (scatter * np.sqrt(var_before + var_after))
+    inside = (at - STEP_WINDOW_S >= t[0]) & (at + STEP_WINDOW_S <= t[-1]) & (split - lo >= 5) & (hi - split >= 5)
+    sigmas = np.where(inside & np.isfinite(sigmas), sigmas, 0.0)
+    k = int(np.argmax(sigmas))
+    if not sigmas[k] > STEP_SIGMAS:
+        return None
+    size = float(jump[k])
+    step_n = size / sensitivity_s_per_n if sensitivity_s_per_n > 0 else math.nan
+    tolerance = max(POOR_FIT_FORCE_FRACTION * force_n, POOR_FIT_REFERENCE_MULTIPLE * reference_n)
+    if math.isfinite(step_n) and abs(step_n) <= tolerance:
+        return None
+    return ReadingStep(trial.name, float(at[k] - trial.time_s[0]), size, step_n, float(sigmas[k]))
 
 
 def reference_scatter(force_n: np.ndarray) -> float:
@@ -526,10 +771,12 @@ def _creep_resolved(joint: OutputFit, elastic_cost: float) -> bool:
     """Does the creep term (E1, mu1) lower the cost significantly below the best purely elastic model? F-test,
     2 extra parameters, at the 0.1 % level (the residuals of a real record are not independent: a strict level)."""
     cost = float(sum(joint.cost_per_trial))
-    dof = max(int(sum(joint.n_used)) - 3, 1)
     if not cost > 0:
         return elastic_cost > 0
-    f = ((elastic_cost - cost) / 2) / (cost / dof)
+    # The scale is the read samples' residual variance: a censored sample's near-zero residual is not a noise draw.
+    scale = joint.residual_variance if joint.residual_variance > 0 else cost / max(int(sum(joint.n_used)) - 3, 1)
+    dof = max(int(sum(joint.n_used)) - 3, 1)
+    f = ((elastic_cost - cost) / 2) / scale
     return bool(f > special.fdtri(2, dof, 0.999))
 
 
@@ -579,7 +826,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                      solver: str = DEFAULT_SOLVER, fit_trend: bool = True,
                      subtract_baseline: bool = False,
                      fit_rate_hz: float | None = DEFAULT_FIT_RATE_HZ,
-                     drift_s_per_s: float = 0.0) -> SensorCalibration:
+                     drift_s_per_s: float = 0.0, drift_tau_s: float = math.inf) -> SensorCalibration:
     """Fit one sensor from its trials (see the module docstring). ``area_m2`` in m²; ``saturation_s`` the readout's
     largest conductance (S) — samples at it are censored; ``solver`` for the joint and trend fits: a CasADi solver
     of :func:`models.fit_output.fit_output_casadi` (``"gauss-newton"``, the default, see :data:`DEFAULT_SOLVER`;
@@ -593,6 +840,8 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     ``drift_s_per_s``: a baseline drift (S/s, from each trial's start) already measured (:func:`calibrate_with_drift`):
     the model is fitted to the readings with it added, so a sample at the readout's ceiling stays censored at the
     ceiling the board had; the paper's procedure, the linear model and the misfit see the readings without it.
+    ``drift_tau_s``: that baseline settles with this time constant (s; :func:`models.fit_output.baseline_offset`),
+    ``drift_s_per_s`` its rate at each trial's start; inf: a linear drift.
 
     Raises :class:`FlatSensorError` (a ValueError) for a flat or disconnected sensor, ValueError for unusable
     trials (no force, too few samples), each naming the trial.
@@ -603,7 +852,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
     readings = list(trials)  # as read (a drift in them): what the output-error fits compare with
     if drift_s_per_s:
-        trials = [_drift_removed(trial, drift_s_per_s, saturation_s) for trial in readings]
+        trials = [_drift_removed(trial, drift_s_per_s, saturation_s, drift_tau_s) for trial in readings]
     if not (area_m2 > 0 and math.isfinite(area_m2)):
         raise ValueError(f"sensor area must be a positive number of m², got {area_m2!r}")
     fit_trials: list[FitTrial] = []
@@ -639,16 +888,22 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         # identify E0 (the instantaneous response); only a record that starts already loaded does not.
         before = trial.force_n[: hold.start + 1]
         has_ramp = bool(np.any(before[np.isfinite(before)] < MIN_FORCE_FRACTION * hold_n))
-        n_sat = int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12))) if saturation_s else 0
-        hold_c = trial.conductance_s[hold]
-        sat_fraction = (float(np.count_nonzero(hold_c >= saturation_s * (1 - 1e-12))) / max(hold_c.size, 1)
-                        if saturation_s else 0.0)
+        # Saturated samples and the hold's saturated share, in raw samples (an averaged sample counts as those it
+        # stands for).
+        n_sat = _n_censored(trial, saturation_s)
+        raw = np.ones(trial.time_s.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)
+        hold_raw = raw[hold][np.isfinite(trial.conductance_s[hold])]
+        sat_fraction = (float(np.sum(raw[hold][trial.conductance_s[hold] >= saturation_s * (1 - 1e-12)]))
+                        / max(float(np.sum(hold_raw)), 1.0) if saturation_s else 0.0)
         fit_trials.append(FitTrial(trial.name, trial.time_s, trial.force_n, reading.conductance_s, hold_n,
-                                   counts=trial.counts, offset_s=_drift_offset(trial, drift_s_per_s)))
+                                   counts=trial.counts, offset_s=_drift_offset(trial, drift_s_per_s, drift_tau_s),
+                                   within_ss=trial.within_ss, noise_s=trial.noise_s))
         prelim.append({"hold": hold, "hold_n": hold_n, "exp": exp_fit, "paper": paper, "dfree": dfree,
                        "strain": (trial.time_s[rows], trial.force_n[rows] / area_m2, strain), "ramp": has_ramp,
-                       "sat": n_sat, "sat_fraction": sat_fraction, "noise": _hold_noise(trial.conductance_s[hold], saturation_s,
-                                            None if trial.counts is None else trial.counts[hold])})
+                       "sat": n_sat, "sat_fraction": sat_fraction,
+                       # The raw samples' noise where it was measured before averaging (a trial at the ceiling).
+                       "noise": trial.noise_s if trial.noise_s is not None else _hold_noise(
+                           trial.conductance_s[hold], saturation_s, None if trial.counts is None else trial.counts[hold])})
 
     step_s = float(np.median(np.concatenate([np.diff(t.time_s) for t in trials])))
     span_s = float(max(t.time_s[-1] - t.time_s[0] for t in trials))
@@ -676,6 +931,11 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
     per_trial_start = [candidates[int(np.argmin(costs[:, i]))] for i in range(len(fit_trials))]
     per_trial = fit_output_scipy(fit_trials, area_m2, phys, per_trial_start, "per_trial",
                                  saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
+    if saturation_s is not None:
+        fit_trials, per_trial = _censored_noise_refined(fit_trials, per_trial, area_m2, phys, saturation_s)
+        for p, fitted_trial in zip(prelim, fit_trials):
+            if fitted_trial.noise_s is not None:
+                p["noise"] = fitted_trial.noise_s
     # The joint fit runs from the best few distinct starts (the per-trial results, their median, the τ grid) and
     # keeps the lowest cost; the check below holds it to every candidate's cost.
     median = SLSParams(*(float(np.median([float(getattr(p, n)) for p in per_trial.params])) for n in PARAM_NAMES))
@@ -717,15 +977,12 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
 
     sensor_warnings: list[str] = list(joint.warnings)
     reports = []
+    steps: list[ReadingStep] = []
     for i, (trial, p) in enumerate(zip(trials, prelim)):
         warnings: list[str] = []
         if p["sat"]:
             warnings.append(f"{p['sat']} saturated sample(s) (readout at its limit): censored in the fit; lower "
                             "the force or the readout gain")
-            if OPTIMISTIC_E1_FRACTION < p["sat_fraction"] <= MAX_CENSORED_FRACTION:
-                warnings.append(f"{100 * p['sat_fraction']:.0f} % of the hold at the ceiling: this trial's E1 "
-                                "interval may be too narrow (such trials' E1 intervals held the truth 60–77 % of the "
-                                "time on 30–100 Hz records; docs/NUMERICS.md)")
         refused = None
         if p["sat_fraction"] > MAX_CENSORED_FRACTION:
             refused = (f"{100 * p['sat_fraction']:.0f} % of the hold is saturated (readout at 1/R_C): the trial only "
@@ -747,9 +1004,20 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         misfit_n = hold_rmse / sensitivity if sensitivity > 0 else math.nan
         verdict = poor_fit_verdict(hold_rmse if math.isfinite(hold_rmse) else rmse, p["noise"], misfit_n,
                                    p["hold_n"], reference_scatter(trial.force_n[p["hold"]]))
+        step = reading_step(trial, p["hold"], trial_params, area_m2, phys, saturation_s, p["noise"], sensitivity,
+                            p["hold_n"], reference_scatter(trial.force_n[p["hold"]]))
         if verdict:
-            warnings.append(f"poor fit: {verdict}: the SLS model does not describe this trial (creased sensor, "
-                            "slipping probe, drift?)")
+            cause = ("a step in the reading" if step is not None
+                     else "creased sensor, slipping probe, drift?")
+            warnings.append(f"poor fit: {verdict}: the SLS model does not describe this trial ({cause})")
+        if step is not None:
+            steps.append(step)
+            warnings.append(f"a step in the reading: {step.describe()}: a contact or connector shift or a slipping "
+                            "probe, not creep")
+            if refused is None:
+                refused = (f"a step in the reading ({step.size_s * 1e6:+.3g} µS at {step.time_s:.0f} s): the SLS "
+                           "model cannot describe this trial, and its own fit would read the step as creep")
+                warnings.append(f"per-trial fit refused: {refused}")
         # The paper's LS comparison is information (stored under the trial's "paper" with its own notes), not a
         # warning: it is "not identified" on most good trials, and a warning that is always there teaches users to
         # ignore warnings.
@@ -785,6 +1053,11 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                                "forces within the calibrated range are still right, hold longer to pin τ down")
     degenerate = _degenerate_reasons(joint, step_s, span_s, _creep_resolved(
         joint, _elastic_cost(fit_trials, area_m2, phys, joint.ref, saturation_s)))
+    if steps:
+        names = ", ".join(step.trial for step in steps)
+        degenerate.append(f"a step in the reading of {len(steps)} trial(s) ({names}): the model cannot describe a "
+                          "jump the force does not make, and the fit reads it as creep (τ, E1 and their intervals "
+                          "are wrong); leave those trials out or record them again")
     sensor_warnings.extend(f"degenerate SLS fit: {reason}" for reason in degenerate
                            if not any(reason in w for w in sensor_warnings))
     if not any(p["ramp"] for p in prelim):
@@ -806,7 +1079,7 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
                 f"away from {joint.ref_force_n:.3g} N")
 
     try:
-        linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s) for t in trials], window_s,
+        linear = fit_linear_trials([(t.time_s, t.force_n, t.conductance_s, t.counts) for t in trials], window_s,
                                    subtract_baseline=subtract_baseline)
         sensor_warnings.extend(linear.warnings)
     except ValueError as exc:
@@ -818,38 +1091,40 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
         sls_trend=trend.trend if trend is not None else None, trend_ci95=trend.ci95 if trend is not None else {},
         trials=tuple(reports), force_range_n=(float(forces.min()), float(forces.max())), rmse_s=joint_rmse,
         solver=joint.solver, warnings=tuple(sensor_warnings), degenerate_reasons=tuple(degenerate),
-        tau_ci95=(tau_lo, tau_hi))
+        tau_ci95=(tau_lo, tau_hi), steps=tuple(steps))
 
 
 # -- a drifting baseline -----------------------------------------------------------------------------------------
 DRIFT_STATISTIC = 25.0  # N·ln(SSE0/SSE1), a likelihood ratio (χ², 1 dof): 25 ≈ 5 σ; below it no drift is claimed
 
 
-def without_drift(trial: TrialInput, rate_s_per_s: float) -> TrialInput:
-    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start) taken out."""
+def without_drift(trial: TrialInput, rate_s_per_s: float, tau_s: float = math.inf) -> TrialInput:
+    """``trial`` with a baseline ramp of ``rate_s_per_s`` (S/s from the trial's start; settling with time constant
+    ``tau_s``, :func:`models.fit_output.baseline_offset`) taken out."""
     if rate_s_per_s == 0.0:
         return trial
-    corrected = trial.conductance_s - rate_s_per_s * (trial.time_s - trial.time_s[0])
-    return TrialInput(trial.name, trial.time_s, trial.force_n, corrected, counts=trial.counts)
+    corrected = trial.conductance_s - baseline_offset(trial.time_s - trial.time_s[0], rate_s_per_s, tau_s)
+    return replace(trial, conductance_s=corrected)
 
 
-def _drift_offset(trial: TrialInput, rate_s_per_s: float) -> np.ndarray | None:
+def _drift_offset(trial: TrialInput | FitTrial, rate_s_per_s: float, tau_s: float = math.inf) -> np.ndarray | None:
     """The drift's part of each reading (S), for :class:`models.fit_output.FitTrial` (None without a drift)."""
     if not rate_s_per_s:
         return None
-    return rate_s_per_s * (np.asarray(trial.time_s, dtype=np.float64) - float(trial.time_s[0]))
+    return baseline_offset(np.asarray(trial.time_s, dtype=np.float64) - float(trial.time_s[0]), rate_s_per_s, tau_s)
 
 
-def _drift_removed(trial: TrialInput, rate_s_per_s: float, saturation_s: float | None) -> TrialInput:
+def _drift_removed(trial: TrialInput, rate_s_per_s: float, saturation_s: float | None,
+                   tau_s: float = math.inf) -> TrialInput:
     """``trial`` without its drift, for what reads the conductance directly (the paper's procedure, the linear model,
     starting values, misfit): a sample at the ceiling stays at it (censored: only a lower bound), the others are kept
     below it (taking the drift out cannot make a reading censored)."""
-    corrected = without_drift(trial, rate_s_per_s)
+    corrected = without_drift(trial, rate_s_per_s, tau_s)
     if saturation_s is None:
         return corrected
     censored = trial.conductance_s >= saturation_s * (1 - 1e-12)
     c = np.where(censored, saturation_s, np.minimum(corrected.conductance_s, saturation_s * (1 - 1e-9)))
-    return TrialInput(trial.name, trial.time_s, trial.force_n, c, counts=trial.counts)
+    return replace(trial, conductance_s=c)
 
 
 def _check_arm(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams,
@@ -876,12 +1151,26 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
     calibration is fitted with it (:func:`calibrate_sensor` ``drift_s_per_s``), ``drift_s_per_s`` says the rate and
     a warning what was done; otherwise it is the plain fit with ``drift_s_per_s = 0``. One force level only, or τ
     near the hold's length: the two cannot be separated (docs/NUMERICS.md). A second, slower creep arm
-    (:mod:`models.creep_arms`) is checked with and without a drift; its result is always stored."""
+    (:mod:`models.creep_arms`) is checked with and without a drift; its result is always stored.
+
+    A baseline that is not linear in time is named, not fitted as a drift: when a drift is found, the baseline is
+    also fitted as one that settles, ``d·τb·(1 − e^(−t/τb))`` (τb → ∞ is the drift); when that beats the drift by
+    more than :data:`DRIFT_STATISTIC`, with τb inside what the records resolve, the calibration is fitted with the
+    settling baseline and a warning names it (``drift_tau_s``). A step in a trial's reading
+    (:func:`reading_step`, found by :func:`calibrate_sensor`) is neither a drift nor a second arm: neither is looked
+    for, and the calibration is degenerate with the step named."""
     if fit_rate_hz:
         trials = [decimate_trial(trial, fit_rate_hz, saturation_s) for trial in trials]
     plain = calibrate_sensor(trials, area_m2, phys, saturation_s=saturation_s, fit_rate_hz=None, **options)
-    fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, hold_segment(t.force_n)[1], counts=t.counts)
-                  for t in trials]
+    if plain.steps:
+        note = (f"steps in the readings of {', '.join(step.trial for step in plain.steps)}: a baseline drift and a "
+                "second creep arm were not looked for (a step would read as either)")
+        return replace(plain, second_arm_note=note, warnings=(*plain.warnings, note))
+    # A trial at the readout's ceiling keeps the σ its censored likelihood settled on in the plain fit.
+    trials = [replace(t, noise_s=r.noise_s) if _n_censored(t, saturation_s) and math.isfinite(r.noise_s) else t
+              for t, r in zip(trials, plain.trials)]
+    fit_trials = [FitTrial(t.name, t.time_s, t.force_n, t.conductance_s, hold_segment(t.force_n)[1], counts=t.counts,
+                           within_ss=t.within_ss, noise_s=t.noise_s) for t in trials]
     arm, arm_note = _check_arm(fit_trials, area_m2, phys, plain.sls, saturation_s)
     plain = replace(plain, second_arm=arm, second_arm_note=arm_note)
     if arm_note:
@@ -904,22 +1193,40 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
                                     min_force_fraction=MIN_FORCE_FRACTION, drift=True)
     except (ValueError, ArithmeticError):
         return replace(plain, drift_s_per_s=0.0)  # no comparable fits: nothing claimed
-    sse0, sse1 = float(sum(base.cost_per_trial)), float(sum(drifting.cost_per_trial))
-    n_samples = int(sum(drifting.n_used))
-    usable = math.isfinite(sse0) and math.isfinite(sse1) and sse1 > 0
-    statistic = n_samples * math.log(sse0 / sse1) if usable and sse0 > sse1 else 0.0
+    statistic = likelihood_ratio(base, drifting)
     if statistic < DRIFT_STATISTIC:
         return replace(plain, drift_s_per_s=0.0)
-    rate = drifting.drift_s_per_s
+    rate, tau_b = drifting.drift_s_per_s, math.inf
+    settling = _settling_fit(fit_trials, area_m2, phys, plain.sls, saturation_s, drifting)
+    settles = settling is not None and likelihood_ratio(drifting, settling) > DRIFT_STATISTIC
+    if settles:
+        assert settling is not None
+        rate, tau_b = settling.drift_s_per_s, settling.drift_tau_s
     fitted = replace(calibrate_sensor(trials, area_m2, phys, saturation_s=saturation_s, fit_rate_hz=None,
-                                      drift_s_per_s=rate, **options), second_arm=arm, second_arm_note=arm_note)
+                                      drift_s_per_s=rate, drift_tau_s=tau_b, **options),
+                     second_arm=arm, second_arm_note=arm_note)
+    baseline_cov = settling.drift_cov if settles and settling is not None else drifting.drift_cov
+    if baseline_cov is not None:
+        fitted = _with_baseline_uncertainty(fitted, fit_trials, area_m2, phys, saturation_s, rate, tau_b,
+                                            baseline_cov)
     censored = sum(_n_censored(t, saturation_s) for t in trials)
     lo, hi = drifting.drift_ci95
-    note = (f"baseline drift of {rate * 1e6:+.3g} µS/s (95 % [{lo * 1e6:+.3g}, {hi * 1e6:+.3g}]) found and "
-            f"separated from the creep (the parameters are fitted with it; without that, τ would read "
-            f"{float(plain.sls.tau_s):.3g} s instead of {float(fitted.sls.tau_s):.3g} s)"
-            + (f"; {censored} sample(s) at the readout's ceiling censored against it" if censored else "")
-            + ": check the sensor's temperature and settling")
+    ceiling_note = f"; {censored} sample(s) at the readout's ceiling censored against it" if censored else ""
+    if settles:
+        assert settling is not None
+        tau_lo, tau_hi = settling.drift_tau_ci95
+        note = (f"the baseline settles, it does not drift: {rate * tau_b * 1e6:+.3g} µS in all with a time constant "
+                f"of {tau_b:.3g} s (95 % [{tau_lo:.3g}, {tau_hi:.3g}] s; a linear drift fits it worse by a likelihood "
+                f"ratio of {likelihood_ratio(drifting, settling):.0f}), found and separated from the creep (the "
+                f"parameters are fitted with it: τ {float(fitted.sls.tau_s):.3g} s; the force trend at "
+                f"{drifting.ref_force_n:.3g} N reads τ {_trend_tau(settling):.3g} s with it, "
+                f"{_trend_tau(drifting):.3g} s taken as a linear drift, {_trend_tau(base):.3g} s with none)"
+                f"{ceiling_note}: let the sensor settle (temperature, load history) before calibrating")
+    else:
+        note = (f"baseline drift of {rate * 1e6:+.3g} µS/s (95 % [{lo * 1e6:+.3g}, {hi * 1e6:+.3g}]) found and "
+                f"separated from the creep (the parameters are fitted with it; without that, τ would read "
+                f"{float(plain.sls.tau_s):.3g} s instead of {float(fitted.sls.tau_s):.3g} s){ceiling_note}: check the "
+                "sensor's temperature and settling")
     warnings = [*fitted.warnings, note]
     if arm_note:
         warnings.append(arm_note)
@@ -928,13 +1235,152 @@ def calibrate_with_drift(trials: Sequence[TrialInput], area_m2: float, phys: Phy
     if drifting.at_bound:
         note = (f"a baseline drift beyond ±{DRIFT_BOUND_S_PER_S * 1e6:g} µS/s (best {rate * 1e6:+.3g} µS/s at the "
                 "search's edge): the trials are not usable as they are")
-        return replace(fitted, drift_s_per_s=rate, warnings=(*warnings, note),
+        return replace(fitted, drift_s_per_s=rate, drift_tau_s=tau_b, warnings=(*warnings, note),
                        degenerate_reasons=(*fitted.degenerate_reasons, note))
-    return replace(fitted, drift_s_per_s=rate, warnings=tuple(warnings))
+    return replace(fitted, drift_s_per_s=rate, drift_tau_s=tau_b, warnings=tuple(warnings))
+
+
+def _with_baseline_uncertainty(cal: SensorCalibration, fit_trials: Sequence[FitTrial], area_m2: float,
+                               phys: PhysicsConstants, saturation_s: float | None, rate: float, tau_b: float,
+                               cov: np.ndarray) -> SensorCalibration:
+    """``cal`` (fitted with the baseline held at ``rate``, ``tau_b``) with its intervals widened by the baseline's
+    own uncertainty (``cov``: its covariance in (rate, ln τb)): the fits are repeated with the baseline moved by one
+    standard deviation along each principal axis of ``cov``, from ``cal``'s parameters, and each parameter's shift
+    is added in quadrature to its standard error (per trial, joint, force trend). Held fixed, a baseline measured
+    from the same trials made their intervals too narrow (per trial 91.8 %, joint 83 % on fresh drifting sensors)."""
+    values, vectors = np.linalg.eigh(np.atleast_2d(cov))
+    moves = [math.sqrt(v) * vectors[:, k] for k, v in enumerate(values) if v > 0 and math.isfinite(v)]
+    if not moves:
+        return cal
+    z = 1.959964  # the intervals' t quantile at these degrees of freedom
+    live = [i for i, r in enumerate(cal.trials) if r.refused is None]
+    trial_shift = [dict.fromkeys(PARAM_NAMES, 0.0) for _ in cal.trials]
+    joint_shift = dict.fromkeys(PARAM_NAMES, 0.0)
+    trend_shift = dict.fromkeys(cal.trend_ci95, 0.0)
+    for move in moves:
+        moved_rate = rate + float(move[0])
+        moved_tau = tau_b * math.exp(float(move[1])) if move.size > 1 else tau_b
+        moved = [replace(t, offset_s=_drift_offset(t, moved_rate, moved_tau)) for t in fit_trials]
+        try:
+            per_trial = fit_output_scipy([moved[i] for i in live], area_m2, phys,
+                                         [cal.trials[i].params for i in live], "per_trial",
+                                         saturation_s=saturation_s, min_force_fraction=MIN_FORCE_FRACTION)
+            joint = fit_output_scipy(moved, area_m2, phys, cal.sls, "joint", saturation_s=saturation_s,
+                                     min_force_fraction=MIN_FORCE_FRACTION)
+            trend = (fit_output_scipy(moved, area_m2, phys, cal.sls, "trend", saturation_s=saturation_s,
+                                      min_force_fraction=MIN_FORCE_FRACTION) if cal.sls_trend is not None else None)
+        except (ValueError, ArithmeticError):
+            return replace(cal, warnings=(*cal.warnings, "the baseline's own uncertainty could not be carried into "
+                                          "the intervals (a refit failed): they are too narrow"))
+        for j, i in enumerate(live):
+            for name in PARAM_NAMES:
+                shift = math.log(float(getattr(per_trial.params[j], name)) / float(getattr(cal.trials[i].params, name)))
+                trial_shift[i][name] += shift * shift
+        assert joint.ref is not None
+        for name in PARAM_NAMES:
+            shift = math.log(float(getattr(joint.ref, name)) / float(getattr(cal.sls, name)))
+            joint_shift[name] += shift * shift
+        if trend is not None and trend.trend is not None and cal.sls_trend is not None:
+            for name in PARAM_NAMES:
+                for k, part in enumerate(("intercept", "slope")):
+                    if f"{name}.{part}" in trend_shift:
+                        shift = trend.trend[name][k] - cal.sls_trend[name][k]
+                        trend_shift[f"{name}.{part}"] += shift * shift
+
+    def widen_log(value: float, interval: tuple[float, float], extra: float) -> tuple[float, float]:
+        lo, hi = interval
+        if not (lo > 0 and math.isfinite(hi) and value > 0):
+            return interval
+        half = math.sqrt((math.log(hi / lo) / 2) ** 2 + z * z * extra)
+        return (value * math.exp(-half), value * math.exp(half)) if half < 700.0 else (0.0, math.inf)
+
+    trials = []
+    for i, report in enumerate(cal.trials):
+        if report.refused is not None:
+            trials.append(report)
+            continue
+        ci = {name: widen_log(float(getattr(report.params, name)), report.ci95[name], trial_shift[i][name])
+              for name in PARAM_NAMES}
+        trials.append(replace(report, ci95={**report.ci95, **ci}))
+    joint_ci = {**cal.sls_ci95, **{name: widen_log(float(getattr(cal.sls, name)), cal.sls_ci95[name],
+                                                   joint_shift[name]) for name in PARAM_NAMES}}
+    trend_ci = dict(cal.trend_ci95)
+    for key, extra in trend_shift.items():
+        lo, hi = trend_ci[key]
+        centre, half = (lo + hi) / 2, (hi - lo) / 2
+        half = math.sqrt(half * half + z * z * extra)
+        trend_ci[key] = (centre - half, centre + half)
+    return replace(cal, trials=tuple(trials), sls_ci95=joint_ci, trend_ci95=trend_ci)
+
+
+def _trend_tau(fit: OutputFit) -> float:
+    """τ (s) of a force-trend fit at its reference force."""
+    return float(fit.ref.tau_s) if fit.ref is not None else math.nan
+
+
+def _settling_fit(fit_trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams,
+                  saturation_s: float | None, drifting: OutputFit) -> OutputFit | None:
+    """The force-trend fit with a settling baseline (:func:`models.fit_output.baseline_offset`), or None when the
+    baseline does not settle within what the records resolve (its τb at the search range's upper end is the linear
+    drift, at its lower a jump at the start) or the fit fails.
+
+    Its start: with the drift fit's SLS parameters held, the best settling baseline for each τb on a grid over the
+    search range is one weighted linear least-squares problem in its rate (samples read as numbers; no model run
+    per τb). A best τb at the grid's top is a linear drift: no full fit is made (a drifting sensor costs nothing
+    more)."""
+    span = float(max(t.time_s[-1] - t.time_s[0] for t in fit_trials))
+    taus = span * np.exp(np.linspace(*SETTLING_LOG_TAU_BOUNDS, 41))
+    gg = np.zeros(taus.size)
+    gr = np.zeros(taus.size)
+    for trial, params in zip(fit_trials, drifting.params):
+        force = np.nan_to_num(np.asarray(trial.force_n, dtype=np.float64), nan=0.0)
+        model = np.asarray(conductance_from_force(trial.time_s, force, params, area_m2, phys, overstrain="clamp"),
+                           dtype=np.float64)
+        y = np.asarray(trial.conductance_s, dtype=np.float64)
+        used = np.isfinite(y) & np.isfinite(model) & (force >= MIN_FORCE_FRACTION * trial.hold_force_n)
+        if saturation_s is not None:
+            used &= y < saturation_s * (1 - 1e-12)
+        if not used.any():
+            continue
+        counts = np.ones(y.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)
+        weight2 = counts[used] / float(np.median(y[used])) ** 2
+        elapsed = (np.asarray(trial.time_s, dtype=np.float64) - float(trial.time_s[0]))[used]
+        shape = taus[None, :] * -np.expm1(-elapsed[:, None] / taus[None, :])  # (N, K): the baseline per unit rate
+        gg += np.einsum("n,nk,nk->k", weight2, shape, shape)
+        gr += (weight2 * (y - model)[used]) @ shape
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gain = np.where(gg > 0, gr * gr / gg, 0.0)  # the cost each τb's best rate removes
+    best = int(np.argmax(gain))
+    if best >= taus.size - 1 or not gain[best] > 0:
+        return None
+    try:
+        fit = fit_output_scipy(fit_trials, area_m2, phys, start, "trend", saturation_s=saturation_s,
+                               min_force_fraction=MIN_FORCE_FRACTION, settling=True,
+                               baseline_start=(float(gr[best] / gg[best]), float(taus[best])))
+    except (ValueError, ArithmeticError):
+        return None
+    log_tau = math.log(fit.drift_tau_s / span)
+    inside = SETTLING_LOG_TAU_BOUNDS[0] + 0.01 < log_tau < SETTLING_LOG_TAU_BOUNDS[1] - 0.01
+    return fit if inside and math.isfinite(fit.drift_tau_ci95[1]) else None
 
 
 def _n_censored(trial: TrialInput, saturation_s: float | None) -> int:
-    """Samples of ``trial`` at the readout's ceiling (censored)."""
+    """Raw samples of ``trial`` at the readout's ceiling (censored; an averaged sample counts as those it stands
+    for)."""
     if saturation_s is None:
         return 0
-    return int(np.count_nonzero(trial.conductance_s >= saturation_s * (1 - 1e-12)))
+    at = trial.conductance_s >= saturation_s * (1 - 1e-12)
+    return int(np.count_nonzero(at)) if trial.counts is None else int(round(float(np.sum(trial.counts[at]))))
+
+
+def likelihood_ratio(simpler: OutputFit, richer: OutputFit) -> float:
+    """The likelihood ratio (χ²) of ``richer`` over ``simpler``, two fits of the same samples: the drop in cost over
+    the richer fit's residual variance of the samples read as numbers (:attr:`OutputFit.residual_variance`); 0 when
+    it is not lower. The cost's censored part is already a log-likelihood in those units (the Tobit residual), so
+    the ratio holds with samples at the readout's ceiling; ``N·ln(cost₀/cost₁)`` counted them as noise draws with
+    residuals near 0 and read a drift of −5e-5 µS/s into drift-free 1 kHz records at the ceiling."""
+    cost0, cost1 = float(sum(simpler.cost_per_trial)), float(sum(richer.cost_per_trial))
+    variance = richer.residual_variance
+    if not (math.isfinite(cost0) and math.isfinite(cost1) and variance > 0) or not cost0 > cost1:
+        return 0.0
+    return (cost0 - cost1) / variance

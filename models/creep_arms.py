@@ -170,6 +170,10 @@ class _Holds:
         self.masks: list[np.ndarray] = []
         self.weights: list[float] = []
         self.sample_weights: list[np.ndarray] = []
+        # Samples averaging the read samples of a block at the ceiling (FitTrial.within_ss) add their spread about
+        # the mean to every model's SSE and their count to N: the ratios are those of the raw samples.
+        self.within_ss = 0.0
+        extra_dof = 0.0
         for trial in self.trials:
             c = trial.conductance_s
             mask = np.isfinite(c) & np.isfinite(trial.force_n) & (
@@ -182,7 +186,12 @@ class _Holds:
             # An average of k raw samples (decimate_trial) counts as k of them.
             counts = np.ones(c.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)
             self.sample_weights.append(self.weights[-1] * np.sqrt(counts[mask]))
-        self.n = int(sum(int(m.sum()) for m in self.masks))
+            if trial.within_ss is not None:
+                spread = np.asarray(trial.within_ss, dtype=np.float64)[mask]
+                tracked = np.isfinite(spread)
+                self.within_ss += float(np.sum(spread[tracked])) * self.weights[-1] ** 2
+                extra_dof += float(np.sum(counts[mask][tracked] - 1.0))
+        self.n = int(sum(int(m.sum()) for m in self.masks) + round(extra_dof))
         self.groups: list[list[int]] = []
         for i, trial in enumerate(self.trials):
             for group in self.groups:
@@ -219,7 +228,7 @@ class _Holds:
     def sse(self, params: np.ndarray) -> float:
         """The weighted residual sum of squares of one parameter set (T, 6)."""
         r = self.residuals(params[:, None, :])[:, 0]
-        return float(r @ r)
+        return float(r @ r) + self.within_ss
 
     def solve(self, to_params: Callable[[np.ndarray], np.ndarray], theta0: np.ndarray) -> tuple[np.ndarray, float]:
         """Least squares over θ (``to_params(θ)`` → (T, 6)); the Jacobian's columns from one batched run.
@@ -238,7 +247,7 @@ class _Holds:
         # 1e-8 is a likelihood ratio to ~N·1e-8, far below the thresholds.
         fit = least_squares(residual, theta0, jac=jacobian, method="lm", x_scale=1.0, xtol=1e-8, ftol=1e-8,
                             max_nfev=40)
-        return fit.x, float(fit.fun @ fit.fun)
+        return fit.x, float(fit.fun @ fit.fun) + self.within_ss
 
 
 def check_second_arm(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams, *,

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 from scipy import special
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize_scalar
 
 from models.physics import PhysicsConstants
 from models.sls import SLSParams, conductance_from_force
@@ -69,12 +69,31 @@ class FitTrial:
     # conductance plus it is what is compared with the reading and with the readout's ceiling (so a censored sample
     # stays censored at the ceiling the board had, whatever the drift). None: nothing added.
     offset_s: np.ndarray | None = None
+    # Per sample, Σ(reading − mean)² (S²) of the raw read samples it averages where the block reached the readout's
+    # ceiling (models.calibration.decimate_trial; NaN elsewhere): in the residual variance those samples count as the
+    # raw samples they were (their mean alone is biased low by the censoring). None: no such sample.
+    within_ss: np.ndarray | None = None
+    noise_s: float | None = None  # the raw samples' noise (S), measured before averaging; None: from the samples
 
 
 # A baseline drift fitted with the force trend (fit_output_scipy(drift=True)): θ's last entry in units of this rate
 # (S/s), bounded to ±DRIFT_BOUND_S_PER_S.
 DRIFT_SCALE_S_PER_S = 1e-7
 DRIFT_BOUND_S_PER_S = 2e-6
+# A settling baseline (fit_output_scipy(settling=True)): ``d·τb·(1 − e^(−t/τb))``, d its rate at the trial's start
+# (as the drift's), τb its time constant as θ's last entry, ln(τb / the longest record) within these bounds; τb → ∞
+# is the linear drift d·t, so the two nest (one parameter more).
+SETTLING_LOG_TAU_BOUNDS = (math.log(0.01), math.log(1000.0))
+
+
+def baseline_offset(elapsed_s: np.ndarray, rate_s_per_s: float, tau_s: float = math.inf) -> np.ndarray:
+    """A baseline's part of each reading (S) at ``elapsed_s`` (s from the trial's start): ``rate·t`` (a linear drift,
+    ``tau_s`` infinite) or ``rate·τ·(1 − e^(−t/τ))`` (a baseline settling with time constant τ; its rate at the start
+    is ``rate``, its total change ``rate·τ``)."""
+    elapsed = np.asarray(elapsed_s, dtype=np.float64)
+    if not math.isfinite(tau_s):
+        return rate_s_per_s * elapsed
+    return rate_s_per_s * tau_s * -np.expm1(-elapsed / tau_s)
 
 
 @dataclass(frozen=True)
@@ -109,6 +128,16 @@ class OutputFit:
     cost_per_trial: tuple[float, ...] = ()  # weighted residual sum of squares per trial (see trial_costs)
     drift_s_per_s: float = 0.0  # the baseline drift fitted with the parameters (S/s; drift=True), else 0
     drift_ci95: tuple[float, float] = (0.0, 0.0)  # its 95 % interval (S/s)
+    # The residual variance (weighted units, as cost_per_trial) of the samples read as numbers, per degree of freedom:
+    # the scale of a likelihood ratio, (cost₀ − cost₁)/residual_variance (a censored sample's residual is not a noise
+    # draw: dividing by the count of all samples made such ratios several times too large near the ceiling).
+    residual_variance: float = math.nan
+    # A settling baseline (settling=True): its time constant (s; inf: the linear drift) and 95 % interval; the
+    # rate above is then its rate at the trial's start (models.fit_output.baseline_offset).
+    drift_tau_s: float = math.inf
+    drift_tau_ci95: tuple[float, float] = (math.inf, math.inf)
+    # The baseline's covariance: 1×1 (its rate, (S/s)²) or 2×2 with ln τb (settling); None without a baseline.
+    drift_cov: np.ndarray | None = None
 
 
 def _start_scale(start: SLSParams | Sequence[SLSParams], n_trials: int, mode: str) -> np.ndarray:
@@ -176,16 +205,16 @@ def noise_below_ceiling(conductance_s: np.ndarray, counts: np.ndarray | None, ce
     """The raw samples' noise (S) of a record that reaches the readout's ceiling. Samples close under the ceiling
     are those the noise kept below it: picked by their own values their scatter is too small (measured: 0.85–0.89 of
     the truth, which biased the censored fit by several standard errors at 100 Hz). So the samples are picked by a
-    running mean over :data:`_NOISE_SMOOTH_SAMPLES` (hardly moved by any one sample's noise) lying more than 6 s.d.
+    running mean over :data:`NOISE_SMOOTH_SAMPLES` (hardly moved by any one sample's noise) lying more than 6 s.d.
     below the ceiling, where the censoring has not touched them."""
     c = np.asarray(conductance_s, dtype=np.float64)
     n = np.ones(c.size) if counts is None else np.asarray(counts, dtype=np.float64)
     finite = np.isfinite(c)
     below = finite & (c < ceiling_s * (1 - 1e-12))
     sigma = estimate_noise(c[below], n[below])  # a first scale: too small near the ceiling
-    if not sigma > 0 or c.size < _NOISE_SMOOTH_SAMPLES:
+    if not sigma > 0 or c.size < NOISE_SMOOTH_SAMPLES:
         return sigma
-    kernel = np.ones(_NOISE_SMOOTH_SAMPLES)
+    kernel = np.ones(NOISE_SMOOTH_SAMPLES)
     total = np.convolve(np.where(finite, c, 0.0), kernel, mode="same")
     count = np.convolve(finite.astype(np.float64), kernel, mode="same")
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -194,7 +223,64 @@ def noise_below_ceiling(conductance_s: np.ndarray, counts: np.ndarray | None, ce
     return estimate_noise(c[far], n[far]) if far.sum() >= 20 else sigma
 
 
-_NOISE_SMOOTH_SAMPLES = 25
+NOISE_SMOOTH_SAMPLES = 25
+
+
+def censored_noise(trial: FitTrial, params: SLSParams, area_m2: float, phys: PhysicsConstants, saturation_s: float,
+                   start_s: float, min_force_fraction: float = 0.05) -> float:
+    """The noise σ (S) that makes ``trial``'s readings most likely given the model at ``params`` (the trial's own
+    fit), the samples at the ceiling ``saturation_s`` censored (Tobit): ``Σ_read (y − m)²/2σ² + n_read·ln σ −
+    Σ_censored ln Φ((m − ceiling)/σ)``, an average of k raw samples counting as k (its spread about its mean
+    included where it is known, ``FitTrial.within_ss``; one sample's worth otherwise). Every sample enters, so on a
+    trial mostly at the ceiling σ comes from its whole hold, not from the few samples far below the ceiling that a
+    difference estimate must pick (those gave 10–14 µS for a true 11.3 µS at 1 % noise, 100 Hz, and a false drift
+    in the fit that used them). Searched within a factor e of ``start_s``; ``start_s`` when fewer than 50 raw
+    samples are read as numbers or the model cannot be run."""
+    force = _hold_last_valid(np.asarray(trial.force_n, dtype=np.float64))
+    try:
+        model = np.asarray(conductance_from_force(trial.time_s, force, params, area_m2, phys, overstrain="clamp"),
+                           dtype=np.float64)
+    except ValueError:
+        return start_s
+    if trial.offset_s is not None:
+        model = model + np.asarray(trial.offset_s, dtype=np.float64)
+    y = np.asarray(trial.conductance_s, dtype=np.float64)
+    used = (np.isfinite(y) & np.isfinite(model) & np.isfinite(trial.force_n)
+            & (trial.force_n >= min_force_fraction * trial.hold_force_n))
+    counts = np.ones(y.size) if trial.counts is None else np.asarray(trial.counts, dtype=np.float64)
+    spread = np.full(y.size, math.nan) if trial.within_ss is None else np.asarray(trial.within_ss, dtype=np.float64)
+    at = used & (y >= saturation_s * (1 - 1e-12))
+    read = used & ~at
+    tracked = read & np.isfinite(spread)
+    squares = float(np.sum(counts[read] * (y[read] - model[read]) ** 2) + np.sum(spread[tracked]))
+    dof = float(np.sum(np.where(tracked, counts, 1.0)[read]))
+    if dof < 50 or not start_s > 0:
+        return start_s
+    margin, weight = model[at] - censoring_threshold(saturation_s), counts[at]
+
+    def negative_log_likelihood(log_sigma: float) -> float:
+        sigma = math.exp(log_sigma)
+        return squares / (2 * sigma * sigma) + dof * log_sigma - float(
+            np.sum(weight * special.log_ndtr(margin / sigma)))
+
+    best = minimize_scalar(negative_log_likelihood, bounds=(math.log(start_s) - 1, math.log(start_s) + 1),
+                           method="bounded", options={"xatol": 1e-5})
+    return float(math.exp(best.x)) if best.success else start_s
+
+
+# A reading at the readout's ceiling (counts = 0) is any true value above the ADC's first transition, half a step
+# below 1/R_C: the board rounds to the nearest count (SPEC §4: V = counts/4095 · 3.3 V, C = (V_ref − V)/(V_ref·R_C),
+# V_ref 2.5 V), so its step at the ceiling is 3.3/(4095·2.5) of 1/R_C and the censoring threshold lies this share
+# below the ceiling. Measured (benchmarks/bench_coverage.py, 100 Hz and 1 kHz at 0.2 % noise, where half a step is
+# 0.1 σ and a trial holds 10⁴–10⁵ samples near the ceiling): censored at 1/R_C itself, the trials partly at the
+# ceiling read E1 1.5 standard errors low and their intervals held it 75 % of the time.
+CEILING_HALF_STEP_SHARE = 0.5 * 3.3 / (4095 * 2.5)
+
+
+def censoring_threshold(saturation_s: float) -> float:
+    """The true conductance (S) above which the readout shows its ceiling ``saturation_s`` (half an ADC step below
+    it, :data:`CEILING_HALF_STEP_SHARE`): what a censored sample's likelihood is judged against."""
+    return saturation_s * (1.0 - CEILING_HALF_STEP_SHARE)
 
 
 def _censored_residual(model_s: np.ndarray, ceiling_s: float, noise_s: float) -> np.ndarray:
@@ -247,9 +333,10 @@ class _Problem:
 
     def __init__(self, trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants, start: SLSParams
                  | Sequence[SLSParams], mode: str, saturation_s: float | None, min_force_fraction: float,
-                 interp: str, fit_drift: bool = False) -> None:
+                 interp: str, fit_drift: bool = False, settling: bool = False) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        fit_drift = fit_drift or settling
         if fit_drift and mode == "per_trial":
             raise ValueError("a common baseline drift is fitted with the joint or trend parameters, not per trial")
         if not trials:
@@ -267,11 +354,20 @@ class _Problem:
         # A common baseline drift d·t (t from each trial's start) as θ's last entry: it moves no model state, so its
         # Jacobian column comes from the residuals alone (no model run).
         self.fit_drift = fit_drift
+        self.settling = settling
+        self.n_baseline = 0
         if fit_drift:
             self.n_params += 1
             limit = DRIFT_BOUND_S_PER_S / DRIFT_SCALE_S_PER_S
             self.bounds = (np.append(self.bounds[0], -limit), np.append(self.bounds[1], limit))
+            self.n_baseline = 1
+        if settling:  # and its time constant, as ln(τb / the longest record)
+            self.n_params += 1
+            self.bounds = (np.append(self.bounds[0], SETTLING_LOG_TAU_BOUNDS[0]),
+                           np.append(self.bounds[1], SETTLING_LOG_TAU_BOUNDS[1]))
+            self.n_baseline = 2
         self.elapsed_s = [np.asarray(t.time_s, dtype=np.float64) - float(t.time_s[0]) for t in self.trials]
+        self.span_s = float(max(e[-1] for e in self.elapsed_s)) or 1.0
         self.masks, self.censored, self.weights = _residual_masks(self.trials, saturation_s, min_force_fraction)
         self.saturation_s = saturation_s
         # A dropped force sample is held at the last valid value (what models.sls does with NaN), so the creep state
@@ -283,9 +379,20 @@ class _Problem:
         # Per trial: the samples read as numbers (among the used ones) and the noise of those, for the censored
         # likelihood and for the residual variance.
         self.uncensored = [~c[m] for c, m in zip(self.censored, self.masks)]
-        self.noise_s = [noise_below_ceiling(t.conductance_s[m], None if t.counts is None else t.counts[m],
-                                            float(saturation_s)) if c.any() and saturation_s is not None else math.nan
+        self.noise_s = [(t.noise_s if t.noise_s is not None else
+                         noise_below_ceiling(t.conductance_s[m], None if t.counts is None else t.counts[m],
+                                             float(saturation_s))) if c.any() and saturation_s is not None else math.nan
                         for t, m, c in zip(self.trials, self.masks, self.censored)]
+        # Samples that average the read samples of a block at the ceiling: their spread about the mean (weighted
+        # units) and the degrees of freedom it adds, per trial (see FitTrial.within_ss).
+        self.within_ss, self.within_dof = [], []
+        for t, m, u, w in zip(self.trials, self.masks, self.uncensored, self.weights):
+            spread = (np.full(int(m.sum()), math.nan) if t.within_ss is None
+                      else np.asarray(t.within_ss, dtype=np.float64)[m])
+            tracked = np.isfinite(spread) & u
+            counts = np.ones(spread.size) if t.counts is None else np.asarray(t.counts, dtype=np.float64)[m]
+            self.within_ss.append(float(np.sum(spread[tracked])) * w * w)
+            self.within_dof.append(int(round(float(np.sum(counts[tracked] - 1.0)))))
         # Per used sample: the trial's weight × √(raw samples it averages) — every residual then has the raw
         # samples' noise, and an average of k counts as the k samples it stands for.
         self.sample_weights = [w * (np.ones(int(m.sum())) if t.counts is None
@@ -329,27 +436,34 @@ class _Problem:
                 out[i] = c[:, j, :]
         return out
 
-    def drift_of(self, theta: np.ndarray) -> float:
-        """The baseline drift (S/s) θ holds (0 unless ``fit_drift``)."""
-        return float(theta[-1]) * DRIFT_SCALE_S_PER_S if self.fit_drift else 0.0
+    def drift_of(self, theta: np.ndarray) -> tuple[float, float]:
+        """The baseline θ holds: (its rate at the trial's start, S/s; its settling time constant, s — inf for a linear
+        drift); (0, inf) unless ``fit_drift``."""
+        if not self.fit_drift:
+            return 0.0, math.inf
+        if self.settling:
+            return float(theta[-2]) * DRIFT_SCALE_S_PER_S, self.span_s * math.exp(float(theta[-1]))
+        return float(theta[-1]) * DRIFT_SCALE_S_PER_S, math.inf
 
-    def residual_blocks(self, model: list[np.ndarray], drift_s_per_s: float = 0.0) -> list[np.ndarray]:
-        """Weighted residual per trial for the model columns (N_used, K), the trial's known offset and a drift
-        ``drift_s_per_s`` added to the model (it is the reading, ceiling included, that they are part of)."""
+    def residual_blocks(self, model: list[np.ndarray], drift: tuple[float, float] = (0.0, math.inf)
+                        ) -> list[np.ndarray]:
+        """Weighted residual per trial for the model columns (N_used, K), the trial's known offset and a baseline
+        ``drift`` = (rate, S/s; settling time constant, s: :func:`baseline_offset`) added to the model (it is the
+        reading, ceiling included, that they are part of)."""
         blocks = []
         for i, trial in enumerate(self.trials):
             mask = self.masks[i]
             m = model[i][mask]
             if trial.offset_s is not None:
                 m = m + np.asarray(trial.offset_s, dtype=np.float64)[mask][:, None]
-            if drift_s_per_s:
-                m = m + drift_s_per_s * self.elapsed_s[i][mask][:, None]
+            if drift[0]:
+                m = m + baseline_offset(self.elapsed_s[i][mask], *drift)[:, None]
             y = trial.conductance_s[mask][:, None]
             r = m - y
             sat = self.censored[i][mask]
             if sat.any() and self.saturation_s is not None:
                 # Censored: the true value is ≥ the ceiling (the module docstring).
-                r[sat] = _censored_residual(m[sat], self.saturation_s, self.noise_s[i])
+                r[sat] = _censored_residual(m[sat], censoring_threshold(self.saturation_s), self.noise_s[i])
             blocks.append(r * self.sample_weights[i][:, None])
         return blocks
 
@@ -370,10 +484,13 @@ class _Problem:
         offsets = np.concatenate([[0], np.cumsum([b.shape[0] for b in blocks])])
         residual = np.concatenate([b[:, 0] for b in blocks])
         jac = np.zeros((residual.size, self.n_params))
-        if self.fit_drift:
-            step = _FD_STEP * max(1.0, abs(float(theta[-1])))
-            shifted_blocks = self.residual_blocks([m[:, :1] for m in model], drift + step * DRIFT_SCALE_S_PER_S)
-            jac[:, -1] = (np.concatenate([b[:, 0] for b in shifted_blocks]) - residual) / step
+        for k in range(self.n_params - self.n_baseline, self.n_params):
+            # The baseline moves no model state: its columns come from the residuals alone (no model run).
+            step = _FD_STEP * max(1.0, abs(float(theta[k])))
+            shifted = theta.copy()
+            shifted[k] += step
+            shifted_blocks = self.residual_blocks([m[:, :1] for m in model], self.drift_of(shifted))
+            jac[:, k] = (np.concatenate([b[:, 0] for b in shifted_blocks]) - residual) / step
         for g, group in enumerate(self.groups):
             for index in group:
                 for i in self.touches(index):
@@ -388,12 +505,19 @@ class _Problem:
         per_trial = tuple(SLSParams(*(float(v) for v in row)) for row in params)
         blocks = np.split(residual, np.cumsum(self.n_used)[:-1])
         read = [b[u] for b, u in zip(blocks, self.uncensored)]  # the samples read as numbers
-        rmse = tuple(float(np.sqrt(np.mean(b**2)) / w) if b.size else math.nan
-                     for b, w in zip(read, self.weights))
-        n_read = int(sum(b.size for b in read))
+        # Their squares, with the spread within the averaged blocks at the ceiling (as if read sample by sample).
+        read_ss = [_sumsq(b) + extra for b, extra in zip(read, self.within_ss)]
+        read_n = [b.size + extra for b, extra in zip(read, self.within_dof)]
+        rmse = tuple(float(np.sqrt(ss / n) / w) if n else math.nan
+                     for ss, n, w in zip(read_ss, read_n, self.weights))
+        n_read = int(sum(read_n))
         dof = max(n_read - self.n_params, 1)
+        residual_variance = float(sum(read_ss)) / dof
         t_crit = float(special.stdtrit(dof, 0.975))
-        at_bound = bool(np.any(np.isclose(theta, self.bounds[0]) | np.isclose(theta, self.bounds[1])))
+        edge = np.isclose(theta, self.bounds[0]) | np.isclose(theta, self.bounds[1])
+        # A settling time constant at its bound is a baseline that does not settle within the records (or at once):
+        # said by the caller, not a parameter at a bound.
+        at_bound = bool(np.any(edge[:-1] if self.settling else edge))
         ci: dict[str, tuple[float, float]] = {}
         ci_trials: list[dict[str, tuple[float, float]]] = []
         warnings: list[str] = []
@@ -403,14 +527,14 @@ class _Problem:
             for i in range(len(self.trials)):
                 cols = slice(3 * i, 3 * i + 3)
                 rows = slice(int(np.sum(self.n_used[:i])), int(np.sum(self.n_used[: i + 1])))
-                j_i, dof_i = jac[rows, cols], max(read[i].size - 3, 1)
-                cov = _covariance(j_i, _sumsq(read[i]) / dof_i)
+                j_i, dof_i = jac[rows, cols], max(read_n[i] - 3, 1)
+                cov = _covariance(j_i, read_ss[i] / dof_i)
                 se = np.sqrt(np.diag(cov))
                 t_i = float(special.stdtrit(dof_i, 0.975))
                 ci_trials.append({n: _log_interval(float(params[i, k]), t_i * se[k])
                                   for k, n in enumerate(PARAM_NAMES)})
         else:
-            cov = _covariance(jac, sum(_sumsq(b) for b in read) / dof)
+            cov = _covariance(jac, residual_variance)
             se = np.sqrt(np.diag(cov))
             ref_values = self.scale * np.exp(theta[:3])
             ref = SLSParams(*(float(v) for v in ref_values))
@@ -443,14 +567,21 @@ class _Problem:
         if at_bound:
             warnings.append("a force-trend slope hit its bound (a parameter would turn non-positive inside the "
                             "calibrated force range): the linear trend does not describe this sensor")
-        drift, drift_ci = 0.0, (0.0, 0.0)
+        drift, drift_ci, drift_tau, drift_tau_ci = 0.0, (0.0, 0.0), math.inf, (math.inf, math.inf)
+        drift_cov = None
         if self.fit_drift:
-            drift = self.drift_of(theta)
-            half = t_crit * float(np.sqrt(cov[-1, -1])) * DRIFT_SCALE_S_PER_S
+            drift, drift_tau = self.drift_of(theta)
+            rate_index = self.n_params - self.n_baseline
+            half = t_crit * float(np.sqrt(cov[rate_index, rate_index])) * DRIFT_SCALE_S_PER_S
             drift_ci = (drift - half, drift + half) if math.isfinite(half) else (-math.inf, math.inf)
+            if self.settling:
+                drift_tau_ci = _log_interval(drift_tau, t_crit * float(np.sqrt(cov[-1, -1])))
+            units = np.array([DRIFT_SCALE_S_PER_S, 1.0][: self.n_baseline])
+            drift_cov = cov[rate_index:, rate_index:] * np.outer(units, units)
         return OutputFit(self.mode, per_trial, ref, self.ref_force_n, trend, ci, tuple(ci_trials), rmse,
                          self.n_used, int(sum(int(c.sum()) for c in self.censored)), iterations, success, message,
-                         solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks), drift, drift_ci)
+                         solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks), drift, drift_ci,
+                         residual_variance, drift_tau, drift_tau_ci, drift_cov)
 
 
 def _hold_last_valid(values: np.ndarray) -> np.ndarray:
@@ -574,7 +705,8 @@ def trial_costs(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstan
 def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsConstants,
                      start: SLSParams | Sequence[SLSParams], mode: str = "joint", *,
                      saturation_s: float | None = None, min_force_fraction: float = 0.05, interp: str = "hold",
-                     max_nfev: int = 100, drift: bool = False) -> OutputFit:
+                     max_nfev: int = 100, drift: bool = False, settling: bool = False,
+                     baseline_start: tuple[float, float] | None = None) -> OutputFit:
     """Output-error fit with ``scipy.optimize.least_squares`` (trust-region reflective, bounded for ``trend``);
     ``per_trial`` runs a block Levenberg–Marquardt instead (independent 3×3 steps per trial, one batched model run
     per iteration), which is ~10× faster than a dense trust-region solve of the block-diagonal problem.
@@ -582,10 +714,12 @@ def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsCo
     ``start``: one starting :class:`SLSParams` (or one per trial for ``per_trial``), e.g. from the derivative-free
     estimate; it also sets the O(1) scaling. ``area_m2`` in m². ``drift``: a baseline drift ``d·t`` common to all
     trials is fitted with the parameters (joint or trend; ``drift_s_per_s`` and its interval in the result; a
-    censored sample is judged against the ceiling with the drift added to the model). Returns an
-    :class:`OutputFit`.
+    censored sample is judged against the ceiling with the drift added to the model). ``settling``: that baseline
+    settles, ``d·τb·(1 − e^(−t/τb))`` (:func:`baseline_offset`; τb → ∞ is the drift), ``d`` and ``τb`` fitted
+    (``drift_s_per_s``, ``drift_tau_s`` and their intervals), from ``baseline_start`` = (d, τb) when given. Returns
+    an :class:`OutputFit`.
     """
-    problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, interp, drift)
+    problem = _Problem(trials, area_m2, phys, start, mode, saturation_s, min_force_fraction, interp, drift, settling)
     cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def evaluate(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -601,6 +735,10 @@ def fit_output_scipy(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsCo
         return problem.summarise(theta, residual, jac, iterations, success, message,
                                  "block Levenberg–Marquardt (3 parameters per trial)")
     theta0 = np.zeros(problem.n_params)
+    if settling and baseline_start is not None:  # (rate S/s, τb s) to start the baseline from
+        rate0, tau0 = baseline_start
+        theta0[-2] = rate0 / DRIFT_SCALE_S_PER_S
+        theta0[-1] = float(np.clip(math.log(tau0 / problem.span_s), *SETTLING_LOG_TAU_BOUNDS))
     result = least_squares(lambda th: evaluate(th)[0], theta0, jac=lambda th: evaluate(th)[1],
                            bounds=problem.bounds, method="trf", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
                            max_nfev=max_nfev)
@@ -658,7 +796,8 @@ def fit_output_casadi(trials: Sequence[FitTrial], area_m2: float, phys: PhysicsC
         assert problem.saturation_s is not None  # censored samples exist only when a saturation level was given
         noise = np.concatenate([np.full(int(problem.masks[i].sum()), problem.noise_s[i])
                                 for i in range(n_trials)])[cens]
-        tobit, slope = _casadi_censored(ca, model[np.flatnonzero(cens).tolist()], float(problem.saturation_s),
+        tobit, slope = _casadi_censored(ca, model[np.flatnonzero(cens).tolist()],
+                                        censoring_threshold(float(problem.saturation_s)),
                                         ca.DM(np.nan_to_num(noise, nan=0.0)))
         rows_c = np.flatnonzero(cens).tolist()
         residual[rows_c] = ca.DM(weight[cens]) * tobit

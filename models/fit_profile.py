@@ -138,8 +138,17 @@ def _gram(trial: FitTrial, area_m2: float, phys: PhysicsConstants, taus: np.ndar
     # |dC/dε| / C_typical: the conductance-domain weight of a strain residual (the output-error fit's weighting).
     dc_de = c[rows] ** 2 * phys.R0_ohm * np.exp(-k * strain) * (1 + k * (1 - strain))
     w2 = (dc_de / float(np.median(c[rows]))) ** 2
+    extra_ss, extra_n = 0.0, 0
     if trial.counts is not None:  # an average of k raw samples counts as k of them (decimate_trial)
-        w2 = w2 * np.asarray(trial.counts, dtype=np.float64)[::stride][rows]
+        counts = np.asarray(trial.counts, dtype=np.float64)[::stride][rows]
+        w2 = w2 * counts
+        if trial.within_ss is not None:
+            # The read samples of a block at the ceiling averaged into one (decimate_trial): their spread about the
+            # mean, a strain-domain cost of spread/C_typical² whatever τ, and their count, as the raw samples give.
+            spread = np.asarray(trial.within_ss, dtype=np.float64)[::stride][rows]
+            tracked = np.isfinite(spread)
+            extra_ss = float(np.sum(spread[tracked])) / float(np.median(c[rows])) ** 2
+            extra_n = int(round(float(np.sum(counts[tracked] - 1.0))))
     sigma_all = force / area_m2
     # g_τ for every τ at once: unit stiffnesses, so the recursion's strain is σ + g_τ.
     unit = SLSParams(np.ones(taus.size), np.ones(taus.size), taus.astype(np.float64))
@@ -149,8 +158,9 @@ def _gram(trial: FitTrial, area_m2: float, phys: PhysicsConstants, taus: np.ndar
     ws = w2 * s
     return np.column_stack([
         np.full(taus.size, float(ws @ s)), ws @ g, np.einsum("n,nk,nk->k", w2, g, g),
-        np.full(taus.size, float(ws @ strain)), (w2 * strain) @ g, np.full(taus.size, float((w2 * strain) @ strain)),
-    ]), int(rows.size)
+        np.full(taus.size, float(ws @ strain)), (w2 * strain) @ g,
+        np.full(taus.size, float((w2 * strain) @ strain) + extra_ss),
+    ]), int(rows.size) + extra_n
 
 
 def _solve(gram: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

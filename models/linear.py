@@ -130,9 +130,11 @@ def fit_linear(force_n: Sequence[float], conductance_s: Sequence[float]) -> Line
 
 
 def trial_mean(
-    t_s: np.ndarray, conductance_s: np.ndarray, window_s: tuple[float, float] = DEFAULT_WINDOW_S
+    t_s: np.ndarray, conductance_s: np.ndarray, window_s: tuple[float, float] = DEFAULT_WINDOW_S,
+    counts: np.ndarray | None = None,
 ) -> float:
-    """Mean conductance (S) over ``window_s`` (s, inclusive), ignoring NaN. ValueError if the window has no data."""
+    """Mean conductance (S) over ``window_s`` (s, inclusive), ignoring NaN; ``counts``: the raw samples each sample
+    stands for (a block-averaged record), its weight. ValueError if the window has no data."""
     t = np.asarray(t_s, dtype=np.float64)
     c = np.asarray(conductance_s, dtype=np.float64)
     lo, hi = window_s
@@ -142,7 +144,9 @@ def trial_mean(
     if not inside.any():
         span = f"{t.min():.6g}–{t.max():.6g} s" if t.size else "no samples"
         raise ValueError(f"no valid samples in the window {lo:g}–{hi:g} s (the trial covers {span})")
-    return float(np.mean(c[inside]))
+    if counts is None:
+        return float(np.mean(c[inside]))
+    return float(np.average(c[inside], weights=np.asarray(counts, dtype=np.float64)[inside]))
 
 
 def trial_baseline(
@@ -162,18 +166,22 @@ def trial_baseline(
 
 
 def fit_linear_trials(
-    trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    trials: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray | None]],
     window_s: tuple[float, float] = DEFAULT_WINDOW_S,
     subtract_baseline: bool = False,
 ) -> LinearFit:
     """The paper's calibration from whole trials ``(t_s, force_n, conductance_s)``: per trial the applied force is
     the mean force in the window and the conductance the mean conductance in the window, optionally minus that
-    trial's unloaded baseline (trials without an unloaded stretch are then fitted unshifted and warned about)."""
+    trial's unloaded baseline (trials without an unloaded stretch are then fitted unshifted and warned about). A
+    fourth element, the raw samples each sample stands for (a block-averaged record), weighs the window means."""
     forces, conds, baselines = [], [], []
     extra = []
-    for index, (t, force, cond) in enumerate(trials):
-        forces.append(trial_mean(t, force, window_s))
-        mean_c = trial_mean(t, cond, window_s)
+    for index, trial in enumerate(trials):
+        t, force, cond = trial[:3]
+        counts = trial[3] if len(trial) > 3 else None
+        forces.append(trial_mean(t, force, window_s, counts))
+        mean_c = trial_mean(t, cond, window_s, counts)
         if subtract_baseline:
             base = trial_baseline(t, force, cond)
             if base is None:

@@ -25,26 +25,33 @@ def test_block_average_keeps_time_force_and_conductance_means():
     assert decimate_trial(trial, 2000.0) is trial  # not faster than the rate: untouched
 
 
-def test_a_block_at_the_ceiling_or_under_a_moving_force_stays_sample_by_sample_and_gaps_are_left_out():
-    """A block holding a sample at the readout's ceiling is kept sample by sample (a mean of censored and uncensored
-    samples is neither), so is a block while the force moves (a ramp); steady blocks are averaged and say how many
-    samples they stand for; dropped samples are left out of a block's mean."""
+def test_a_block_at_the_ceiling_becomes_its_read_mean_and_its_censored_count_and_gaps_are_left_out():
+    """A steady block holding a sample at the readout's ceiling becomes two: the mean of its samples read as numbers
+    (their spread kept) and one censored sample for those at the ceiling (a mean of censored and uncensored samples is
+    neither); a block while the force moves (a ramp) stays sample by sample; dropped samples are left out of a
+    block's mean."""
     t = np.arange(1000) / 1000.0
     c = np.full(t.size, 5e-4)
+    c[100:200] += np.linspace(-1e-6, 1e-6, 100)
     c[150] = CEILING_S  # one sample at the readout ceiling
     c[420:430] = np.nan  # ten dropped samples
     c[500:600] = np.nan  # a whole block dropped
     out = decimate_trial(TrialInput("x", t, np.ones(t.size), c), 10.0, saturation_s=CEILING_S)
-    assert out.time_s.size == 9 + 100  # nine averaged blocks, block 1 sample by sample
+    assert out.time_s.size == 9 + 2  # nine averaged blocks, block 1 as its read mean and its censored sample
     assert np.all(np.diff(out.time_s) > 0)
-    assert out.counts is not None
-    raw = np.isin(out.time_s, t[100:200])
-    assert raw.sum() == 100 and np.all(out.counts[raw] == 1)
-    assert out.conductance_s[raw][50] == CEILING_S  # the censored sample itself, kept
-    averaged = np.flatnonzero(~raw)
-    assert out.counts[averaged[3]] == 90  # block 4: ten samples dropped
-    assert out.conductance_s[averaged[3]] == pytest.approx(5e-4)
-    assert np.isnan(out.conductance_s[averaged[4]])  # block 5: all dropped
+    assert out.counts is not None and out.within_ss is not None
+    read, censored = 1, 2
+    assert out.conductance_s[censored] == CEILING_S and out.counts[censored] == 1
+    assert out.time_s[censored] == pytest.approx(0.150)
+    kept = np.delete(c[100:200], 50)
+    assert out.counts[read] == 99 and out.conductance_s[read] == pytest.approx(kept.mean(), rel=1e-12)
+    assert out.time_s[read] == pytest.approx(np.delete(t[100:200], 50).mean())
+    assert out.within_ss[read] == pytest.approx(float(np.sum((kept - kept.mean()) ** 2)), rel=1e-9)
+    assert np.isnan(out.within_ss[[0, censored, 3]]).all()  # tracked only for the read mean at the ceiling
+    assert out.noise_s is not None  # the raw samples' noise, for the censored likelihood
+    assert out.counts[5] == 90  # block 4: ten samples dropped
+    assert out.conductance_s[5] == pytest.approx(5e-4)
+    assert np.isnan(out.conductance_s[6])  # block 5: all dropped
     ramp = TrialInput("r", t, np.clip((t - 0.3) * 10.0, 0.0, 2.0), np.full(t.size, 5e-4))
     out = decimate_trial(ramp, 10.0)
     assert out.counts is not None and np.all(out.counts[(out.time_s > 0.3) & (out.time_s < 0.5)] == 1)

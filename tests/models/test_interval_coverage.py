@@ -52,34 +52,44 @@ def test_per_trial_intervals_cover_the_truth_on_240_fresh_trials(noise_rel):
 def test_trials_a_quarter_saturated_are_not_biased():
     """Near the readout's ceiling the noise decides which samples come out as numbers: fitted as if those were the
     whole story (a one-sided penalty on the censored ones), E1 came out 2–4 standard errors high on every such trial.
-    The censored likelihood leaves the standardised errors centred and of unit spread."""
+    The censored likelihood leaves the standardised errors centred and of unit spread, E1's included: such trials'
+    E1 intervals are not said to be possibly too narrow any more, because they are not."""
     rng = np.random.default_rng(77)
     z: list[float] = []
+    z_e1: list[float] = []
     saturated_trials = 0
-    said = 0
     for _ in range(60):
         if saturated_trials >= 24:
             break
         # Soft enough that the 5.25 N holds reach the ceiling (a quarter to a half of them on about half the draws).
         e0, e1 = 10 ** rng.uniform(5.6, 5.8), 10 ** rng.uniform(5.7, 6.1)
         truth = SensorTruth.constant(e0, e1, e1 * rng.uniform(70.0, 130.0))
-        trials, cal = _fit(truth, int(rng.integers(1 << 30)), 0.002)
+        seed = int(rng.integers(1 << 30))
+        trials = paper_protocol(truth, PHYS, seed=seed, noise_rel=0.002, readout=READOUT)
+        if not any(0.05 < float(np.mean(t.saturated)) < 0.5 for t in trials):
+            continue  # no trial of this draw is one of those looked at: not fitted (the test's time)
+        trials, cal = _fit(truth, seed, 0.002)
         for trial, report in zip(trials, cal.trials):
             fraction = float(np.mean(trial.saturated))
             if report.refused is not None or not 0.05 < fraction < 0.5:
                 continue
             saturated_trials += 1
-            said += any("E1 interval may be too narrow" in w for w in report.warnings)
+            assert not any("interval may be too narrow" in w for w in report.warnings)
             for name in PARAM_NAMES:
                 lo, hi = report.ci95[name]
                 se = (math.log(hi) - math.log(lo)) / (2 * 1.96)
                 z.append((math.log(float(getattr(report.params, name))) - math.log(float(getattr(trial.params, name))))
                          / se)
+                if name == "E1_Pa":
+                    z_e1.append(z[-1])
     assert saturated_trials >= 24
-    assert said >= saturated_trials // 2  # most hold more than a tenth of their hold at the ceiling: it is said
     z_arr = np.array(z)
     assert abs(float(np.mean(z_arr))) < 0.4, f"mean standardised error {np.mean(z_arr):+.2f}"
     assert 0.7 < float(np.std(z_arr)) < 1.3, f"spread of standardised errors {np.std(z_arr):.2f}"
+    # E1's own intervals are no longer too narrow on these trials (s.d. 1.5–1.9 once, and a warning said so): they
+    # are given without that warning, and its standardised errors have no more than unit spread (measured 0.74).
+    assert float(np.std(z_e1)) < 1.3, f"E1's standardised errors: s.d. {np.std(z_e1):.2f}"
+    assert float(np.mean(np.abs(z_e1) <= 1.96)) >= 0.85, "E1's intervals hold the truth too rarely"
 
 
 def test_force_trend_intervals_cover_the_truth():
