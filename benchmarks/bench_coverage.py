@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +99,8 @@ def sensor_record(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAP
             lo, hi = cal.sls_ci95[name]
             hits.setdefault(f"joint {name}", []).append(bool(lo <= float(getattr(exact, name)) <= hi))
     info = {"ceiling": float(any(t.saturated.any() for t in trials)),
-            "drift_uS_per_s": float((cal.drift_s_per_s or 0.0) * 1e6), "cpu_s": cpu_s, "trials": float(len(trials))}
+            "drift_uS_per_s": float((cal.drift_s_per_s or 0.0) * 1e6), "cpu_s": cpu_s, "trials": float(len(trials)),
+            "steps": float(len(cal.steps)), "settling": float(math.isfinite(cal.drift_tau_s))}
     return hits, info
 
 
@@ -192,8 +194,11 @@ def print_rows(noise: float, rows: Sequence[tuple[dict[str, list[bool]], dict[st
     ceiling = sum(int(info["ceiling"]) for _, info in rows)
     drift = sum(abs(info["drift_uS_per_s"]) > 0 for _, info in rows)
     cpu = [info["cpu_s"] for _, info in rows]
+    steps = sum(info.get("steps", 0.0) > 0 for _, info in rows)
+    settling = sum(info.get("settling", 0.0) > 0 for _, info in rows)
     print(f"{100 * noise:>5.2g}%  {ceiling} of {len(rows)} sensors reach the ceiling; a drift claimed on {drift} "
-          f"(none drifts); fit CPU {np.median(cpu):.2f} s median, {max(cpu):.2f} s max per sensor")
+          f"(none drifts), a settling baseline on {settling}, a step in the reading on {steps} (none has either); "
+          f"fit CPU {np.median(cpu):.2f} s median, {max(cpu):.2f} s max per sensor")
 
 
 def docs_table(runs: dict[tuple[str, int, float, float], list[tuple[dict[str, list[bool]], dict[str, float]]]]
@@ -265,6 +270,67 @@ def print_drift(seed: int) -> None:
                   f"  {took:>4.1f}s")
 
 
+BASELINES = ("none", "linear", "settling", "step")
+
+
+@dataclass(frozen=True)
+class BaselineResult:
+    """One sensor of :func:`baseline_record`: what the baseline was named as, whether the fit is degenerate, τ's
+    relative error, and whether each per-trial and joint interval held the truth."""
+
+    named: str
+    degenerate: bool
+    tau_error: float
+    trial: list[bool]
+    joint: list[bool]
+
+
+def baseline_record(seed: int, kind: str) -> BaselineResult:
+    """One fresh sensor (paper protocol, 0.2 % noise, 12-bit readout) whose readings carry a baseline of ``kind``:
+    none; a linear drift of 0.02–0.2 µS/s; one settling by 10–40 µS with a time constant of 80–300 s; a step of
+    8–15 µS at 120–300 s into each trial (the force unchanged). Fitted as ``sensnake fit`` does: what it was named,
+    τ's error, and whether the per-trial and joint intervals hold the truth."""
+    rng = np.random.default_rng(seed)
+    truth = random_sensor(rng)
+    trials = paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=0.002)
+    rate, amplitude, tau_b = rng.uniform(0.02e-6, 0.2e-6), rng.uniform(10e-6, 40e-6), rng.uniform(80.0, 300.0)
+    inputs = []
+    for t in trials:
+        baseline = {"none": np.zeros(t.time_s.size), "linear": rate * t.time_s,
+                    "settling": amplitude * -np.expm1(-t.time_s / tau_b),
+                    "step": rng.uniform(8e-6, 15e-6) * (t.time_s >= rng.uniform(120.0, 300.0))}[kind]
+        inputs.append(TrialInput(t.name, t.time_s, t.force_n, READOUT.quantise(t.conductance_s + baseline)[0]))
+    cal = calibrate_with_drift(inputs, truth.area_m2, PHYS, saturation_s=READOUT.saturation_s)
+    named = ("step" if cal.steps else "settling" if math.isfinite(cal.drift_tau_s)
+             else "linear" if cal.drift_s_per_s else "none")
+    exact = truth.params_at(0.0)
+    return BaselineResult(named, cal.degenerate, float(cal.sls.tau_s) / float(exact.tau_s) - 1,
+                          [h for values in trial_interval_hits(cal.trials, truth).values() for h in values],
+                          [bool(cal.sls_ci95[n][0] <= float(getattr(exact, n)) <= cal.sls_ci95[n][1])
+                           for n in PARAM_NAMES])
+
+
+def print_baselines(seed: int, sensors: int, jobs: int) -> None:
+    """What each kind of baseline is named as, τ's error and the intervals' coverage (:func:`baseline_record`)."""
+    print(f"\nBaselines on fresh sensors ({sensors} per kind, seed {seed}, paper protocol, 0.2 % noise, 12-bit readout, "
+          "`sensnake fit`)")
+    print(f"{'baseline':<9} {'named as':<40} {'degenerate':>10} {'τ error median / max':>21} {'per trial':>15} "
+          f"{'joint':>13}")
+    seeds = sensor_seeds(seed, sensors)
+    for kind in BASELINES:
+        with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+            rows = list(pool.map(baseline_record, seeds, [kind] * sensors))
+        names = ", ".join(f"{name} {sum(r.named == name for r in rows)}" for name in BASELINES
+                          if any(r.named == name for r in rows))
+        errors = np.abs([r.tau_error for r in rows])
+        trial = [h for r in rows for h in r.trial]
+        joint = [h for r in rows for h in r.joint]
+        degenerate = sum(r.degenerate for r in rows)
+        trial_share = f"{100 * np.mean(trial):>6.1f} % of {len(trial):<4}" if trial else f"{'— (all refused)':>15}"
+        print(f"{kind:<9} {names:<40} {degenerate:>10} {100 * np.median(errors):>9.1f} / {100 * errors.max():.1f} % "
+              f"{trial_share} {100 * np.mean(joint):>5.1f} % of {len(joint)}")
+
+
 def run(noise_levels: Sequence[float] = (0.002, 0.01), sensors: int = 24, seed: int = 29, trend: bool = False,
         drift: bool = False, jobs: int = 2, rate_hz: float = PAPER_RATE_HZ, pipeline: str = "fit",
         csv_path: Path | None = None, quick: bool | None = None) -> None:
@@ -285,6 +351,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=29)
     parser.add_argument("--trend", action="store_true", help="parameters that grow with the force")
     parser.add_argument("--drift", action="store_true", help="the drift figures instead of the coverage")
+    parser.add_argument("--baselines", action="store_true",
+                        help="fresh sensors with no baseline, a linear drift, a settling baseline and a step in each "
+                             "trial: what each is named as, τ's error and the intervals' coverage")
     parser.add_argument("--jobs", type=int, default=2, help="processes")
     parser.add_argument("--rate", type=float, default=PAPER_RATE_HZ,
                         help="sample rate of the trials (Hz; the paper's 6 by default; faster ones are block-averaged "
@@ -307,6 +376,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if args.sensors < 1 or args.jobs < 1 or not args.rate > 0:
         parser.error("--sensors and --jobs must be at least 1, --rate positive")
+    if args.baselines:
+        print_baselines(args.seed, args.sensors, args.jobs)
+        return
     run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate, args.pipeline, args.csv)
 
 
