@@ -34,7 +34,7 @@ from typing import TextIO
 from app.core.errors import OutputPathError
 
 NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
-TEMPORARY_SUFFIXES = (".partial", ".tmp")
+TEMPORARY_SUFFIXES = (".partial", ".tmp", ".partial.c3d")  # .c3d: ezc3d insists on it (app.core.mocap)
 _CREATE_ATTEMPTS = 100
 
 

@@ -238,3 +238,14 @@ def test_a_servo_given_twice_and_a_huge_lab_config_are_refused_naming_the_file(t
     assert main(["servo", "dump", "--config", str(config), "--out", str(tmp_path / "x.json")]) == 1
     line = one_error_line(capsys)
     assert "lab.toml" in line and "larger than 1 MB" in line, line
+
+
+def test_a_killed_mocap_writers_hidden_take_is_removed_by_the_next_one(tmp_path: Path) -> None:
+    from app.core.mocap import _hidden_beside
+
+    out = tmp_path / "take.c3d"
+    dead = tmp_path / ".take.c3d.999999999.0badcafe.partial.c3d"  # no such pid: a writer killed mid-write
+    dead.write_bytes(b"C3D half")
+    with _hidden_beside(out, ".c3d") as work:
+        assert work.name.startswith(f".take.c3d.{os.getpid()}.") and not dead.exists()
+    assert not hidden(tmp_path)
