@@ -1260,6 +1260,9 @@ class TrialOverlayPlot(QWidget):
         self._plot_widget: pg.PlotWidget | None = None
         self._legend: pg.LegendItem | None = None
         self.curves: list[pg.PlotDataItem] = []
+        self._cursor: pg.InfiniteLine | None = None
+        self.cursor_s: float | None = None  # a time cursor shared with another view (time from zero), or None
+        self._setting_cursor = False
 
     @property
     def plot_widget(self) -> pg.PlotWidget:
@@ -1298,3 +1301,26 @@ class TrialOverlayPlot(QWidget):
             self.curves.append(item.plot(t_s, values, pen=pen, name=label, antialias=False))
         item.getAxis("left").enableAutoSIPrefix(False)  # same units as the segment plots, never "(x0.001)"
         item.setLabel("left", units)
+
+    def set_cursor(self, t_s: float | None) -> None:
+        """Another view's time cursor (the Plots dock's, on one of the trials) at ``t_s`` from the common zero: a
+        line the user drags to move it (:attr:`cursor_s` follows); None hides it. No signal."""
+        self.cursor_s = t_s
+        if t_s is None and self._cursor is None:
+            return
+        if self._cursor is None:
+            self._cursor = pg.InfiniteLine(angle=90, movable=True, pen=pg.mkPen("#888888", width=1))
+            self._cursor.setZValue(10)
+            self._cursor.sigPositionChanged.connect(self._cursor_dragged)
+            self.plot_widget.getPlotItem().addItem(self._cursor, ignoreBounds=True)
+        self._setting_cursor = True
+        try:
+            if t_s is not None:
+                self._cursor.setValue(t_s)
+            self._cursor.setVisible(t_s is not None)
+        finally:
+            self._setting_cursor = False
+
+    def _cursor_dragged(self, line: pg.InfiniteLine) -> None:
+        if not self._setting_cursor:
+            self.cursor_s = float(line.value())

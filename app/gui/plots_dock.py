@@ -16,7 +16,8 @@ the view (:class:`widgets.plots_view.PlotsView`) and to the lab:
   the 3-D lab's replay: from then on that timeline and this cursor follow each other (the dock reads the replay's
   time while it shows the same file, and moves it when the cursor is moved here). The Forces tab's cursor too, while
   that tab shows the same recording: its dashed line and body map go where this cursor is put, and the mouse over
-  its plots moves this cursor (and the replay);
+  its plots moves this cursor (and the replay); and its trial overlay's, while this recording is one of the trials
+  overlaid: a line at the cursor's time from that trial's zero, which the user drags to move this cursor;
 - layouts are saved beside the recording shown, or in the data folder's ``plots/`` (live), never over an existing
   file without asking (replace, keep both, or cancel); the last layout is kept in the window's settings.
 
@@ -88,6 +89,7 @@ class PlotsDock(QDockWidget):
         self._readout_s = 0.0
         self._replay_seen: float | None = None
         self._forces_seen: float | None = None
+        self._overlay_seen: tuple[float | None, float] | None = None  # (its cursor, this recording's zero) as put
         self.redraws = 0
         # Questions (tests answer them instead of a person): a path to open or save, what to do about a file there.
         self.ask_open_path: Callable[[str, str, str], str] = self._dialog_open_path
@@ -247,6 +249,7 @@ class PlotsDock(QDockWidget):
         if self.recording is not None:
             self._follow_replay()
             self._follow_forces_cursor()
+            self._follow_overlay_cursor()
             return
         if self._forces_tab is None:
             self._follow_forces_tab()
@@ -455,6 +458,8 @@ class PlotsDock(QDockWidget):
             return False
         self.recording = recording
         self._replay_seen = self._forces_seen = None
+        if self._overlay_seen is not None:
+            self._overlay_seen = (None, math.nan)  # put for another recording: put again, or taken away
         self._log("action", f"plot recording {recording.path}")
         beside = sr.layout_beside(recording.path)
         keys = self.layout_model.series_keys()
@@ -480,6 +485,7 @@ class PlotsDock(QDockWidget):
         """The live lab again, in the same plots."""
         self.recording = None
         self.view.set_cursor(None)
+        self._drop_overlay_cursor()
         self._show_catalog()
         self.say("showing the live lab", theme.OK)
 
@@ -516,14 +522,61 @@ class PlotsDock(QDockWidget):
             return None
         return forces if same else None
 
+    def _overlay_of_this_recording(self) -> tuple[Any, float] | None:
+        """(the Forces tab's trial overlay, this recording's time zero there) when it is one of the trials
+        overlaid, else None."""
+        recording = self.recording
+        forces: Any = self.host.tab_widget("forces")
+        zeros = getattr(forces, "overlay_zero_s", None)
+        if recording is None or not zeros:
+            return None
+        try:
+            zero = zeros.get(recording.path.resolve())
+        except OSError:
+            return None
+        return None if zero is None else (forces.overlay, float(zero))
+
+    def _put_overlay_cursor(self, overlay: Any, zero_s: float, t_s: float) -> None:
+        overlay.set_cursor(t_s - zero_s)
+        self._overlay_seen = (overlay.cursor_s, zero_s)
+
+    def _drop_overlay_cursor(self) -> None:
+        """The trial overlay's line put from here goes: the overlay no longer shows this recording."""
+        if self._overlay_seen is None:
+            return
+        self._overlay_seen = None
+        overlay = getattr(self.host.tab_widget("forces"), "overlay", None)
+        if overlay is not None and hasattr(overlay, "set_cursor"):
+            overlay.set_cursor(None)
+
+    def _follow_overlay_cursor(self) -> None:
+        """The user dragged the trial overlay's cursor: the cursor goes to that time on this recording's clock. An
+        overlay that has just taken this recording (or changed its time zero) takes the cursor from here; one that
+        no longer shows it loses the line put there."""
+        overlaid = self._overlay_of_this_recording()
+        if overlaid is None:
+            self._drop_overlay_cursor()
+            return
+        overlay, zero_s = overlaid
+        cursor = self.view.cursor_s
+        seen = self._overlay_seen
+        if seen is None or seen[1] != zero_s or overlay.cursor_s is None:
+            if cursor is not None:
+                self._put_overlay_cursor(overlay, zero_s, cursor)
+            return
+        if overlay.cursor_s == seen[0]:
+            return
+        self._overlay_seen = (overlay.cursor_s, zero_s)
+        self._sync_cursor(float(overlay.cursor_s) + zero_s, "overlay")
+
     def _cursor_moved(self, t_s: float) -> None:
         """The user put the cursor at ``t_s``: the readout, the X–Y markers, the 3-D replay and the Forces tab
         follow."""
         self._sync_cursor(t_s, "plots")
 
     def _sync_cursor(self, t_s: float, moved_in: str) -> None:
-        """The time cursor is at ``t_s``, moved ``moved_in`` the ``plots`` here, the 3-D ``replay`` or the ``forces``
-        tab: every other view showing this recording goes there."""
+        """The time cursor is at ``t_s``, moved ``moved_in`` the ``plots`` here, the 3-D ``replay``, the ``forces``
+        tab or its trial ``overlay``: every other view showing this recording goes there."""
         t0, t1 = self.view.time_range()
         if moved_in != "plots":
             self.view.set_cursor(t_s)
@@ -540,6 +593,9 @@ class PlotsDock(QDockWidget):
         if forces is not None:
             forces.put_cursor(t_s)
             self._forces_seen = forces.plots.cursor_s
+        overlaid = self._overlay_of_this_recording() if moved_in != "overlay" else None
+        if overlaid is not None:
+            self._put_overlay_cursor(*overlaid, t_s)
 
     def _refresh_cursor(self) -> None:
         recording = self.recording

@@ -282,6 +282,42 @@ def test_the_cursor_and_the_forces_tab_follow_each_other_on_the_same_recording(i
     assert forces.plots.cursor_s is None and forces.replay_time_s() != pytest.approx(0.5)
 
 
+def test_the_cursor_and_the_forces_tab_s_trial_overlay_follow_each_other(idle_window, qtbot, tmp_path):
+    """The recording plotted here is one of the trials overlaid in the Forces tab: the overlay's cursor line is at
+    this cursor's time from that trial's zero (the alignment's, whichever is chosen), and dragging it moves this
+    cursor; cleared, the line goes."""
+    from tests.app.synthetic_trials import ONSET_S, write_trial
+
+    path = write_trial(tmp_path / "run.h5", duration_s=8.0, shift_s=1.0, seed=1)  # its onset at 3 s
+    other = write_trial(tmp_path / "other.h5", duration_s=8.0, seed=2)
+    dock, view = idle_window.plots_dock, idle_window.plots_dock.view
+    idle_window.plots_action.trigger()
+    qtbot.waitUntil(dock.isVisible)
+    assert dock.open_recording(path)
+    dock.add_series([S06B_FORCE])
+    forces = idle_window.show_tab("forces")
+    assert forces.add_overlay_files([other, path]) == 2
+    overlay = forces.overlay
+    view.put_cursor(4.5)
+    qtbot.waitUntil(lambda: overlay.cursor_s is not None)
+    onset = forces.overlay_zero_s[path.resolve()]  # aligned on the load's onset (the tab's default)
+    assert onset > ONSET_S + 1.0  # the sensor overlaid is loaded after the motion's onset (at 3 s on its clock)
+    assert overlay.cursor_s == pytest.approx(4.5 - onset) and overlay._cursor.value() == pytest.approx(4.5 - onset)
+
+    forces.overlay_align.setCurrentIndex(forces.overlay_align.findData("start"))  # aligned on the recording's start
+    start = forces.overlay_zero_s[path.resolve()]
+    assert start < 1 / 30
+    qtbot.waitUntil(lambda: overlay.cursor_s == pytest.approx(4.5 - start))
+
+    overlay._cursor.setValue(2.0)  # the user drags the overlay's line to 2 s from the start
+    qtbot.waitUntil(lambda: view.cursor_s == pytest.approx(start + 2.0))
+    assert forces.plots.cursor_s is None  # the Forces tab's plots show the live board, not this recording
+
+    forces.clear_overlay()
+    qtbot.waitUntil(lambda: overlay.cursor_s is None)
+    assert not overlay._cursor.isVisible()
+
+
 def test_a_layout_naming_series_the_source_lacks_says_which_and_a_bad_file_is_refused(idle_window, qtbot, tmp_path):
     dock = idle_window.plots_dock
     idle_window.plots_action.trigger()

@@ -146,6 +146,7 @@ class ForcesTab(QWidget):
         self.session: RecordingSession | None = None
         self.viewed: Recording | None = None
         self.overlay_recordings: list[Recording] = []
+        self.overlay_zero_s: dict[Path, float] = {}  # each overlaid recording's time zero (its clock), by path
         self._last_stats: Any = None
         self._last_stats_s = time.monotonic()
         self._body_key: tuple | None = None
@@ -836,10 +837,12 @@ class ForcesTab(QWidget):
         # One axis, one unit: newtons only when every trial has this sensor's forces, else all in µS.
         unit = "N" if picked and all(u == "N" for *_rest, u in picked) else "µS"
         trials = []
+        self.overlay_zero_s = {}
         for recording, index, trace, trace_unit in picked:
             if trace_unit != unit:
                 trace = np.asarray(recording.conductance_s[:, index], dtype=float) * 1e6
             zero = onset_time_s(recording.time_s, trace) if align == "onset" else float(recording.time_s[0])
+            self.overlay_zero_s[recording.path.resolve()] = zero
             trials.append((recording.path.stem, recording.time_s - zero, trace))
         self.overlay.set_trials(trials, unit)
 
