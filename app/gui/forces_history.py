@@ -36,36 +36,47 @@ RESET = None  # in Reestimation.pending: the board reconnected here (the live pi
 @dataclass(frozen=True)
 class Snapshot:
     """The board's conductance history as it was when the load began: ``session_t_s`` (N,) seconds on the plots'
-    clock, ``conductance_s`` (N×C) S with NaN rows at gaps, ``board_minus_session_s`` what puts a sample on the board's
-    clock (the estimator's), ``older_s`` how much older history exists only as min/max buckets (not estimated)."""
+    clock, ``conductance_us`` (N×C) the history's own float32 µS with NaN rows at gaps (converted a chunk at a time
+    by :meth:`conductance_s`, on the worker), ``board_minus_session_s`` what puts a sample on the board's clock (the
+    estimator's), ``older_s`` how much older history exists only as min/max buckets (not estimated), ``ceiling_s``
+    the readout's ceiling (None: none)."""
 
     session_t_s: np.ndarray
-    conductance_s: np.ndarray
+    conductance_us: np.ndarray
     board_minus_session_s: float
     older_s: float
+    ceiling_s: float | None = None
 
     @property
     def span_s(self) -> float:
         return float(self.session_t_s[-1] - self.session_t_s[0]) if self.session_t_s.size else 0.0
 
+    def conductance_s(self, start: int, stop: int) -> np.ndarray:
+        """Rows ``start:stop`` in S (float64). Readings within float32 rounding of the readout's ceiling are put at
+        the ceiling (the history stores µS as float32; the estimator's rule tells saturated from above-ceiling to
+        1e-9)."""
+        conductance_s = self.conductance_us[start:stop].astype(np.float64) / US_PER_S
+        ceiling_s = self.ceiling_s
+        if ceiling_s is not None:
+            with np.errstate(invalid="ignore"):
+                conductance_s[np.abs(conductance_s - ceiling_s) <= 1e-6 * ceiling_s] = ceiling_s
+        return conductance_s
+
 
 def snapshot(board: Any, ceiling_s: float | None) -> Snapshot | None:
-    """GUI thread: copy what ``board`` (a BoardBridge) holds at full rate. None when it holds nothing (no board, or
-    nothing received yet). Readings within float32 rounding of the readout's ceiling are put at the ceiling (the
-    history stores µS as float32; the estimator's rule tells saturated from above-ceiling to 1e-9)."""
+    """GUI thread: copy what ``board`` (a BoardBridge) holds at full rate, as it is stored (a copy of 2 h × 36
+    channels takes a few ms; its conversion to S, ~0.1-0.5 s for that much, is left to the worker). None when it
+    holds nothing (no board, or nothing received yet)."""
     history = getattr(board, "history", None)
     recent = board.recent_blocks() if board is not None and hasattr(board, "recent_blocks") else []
     if history is None or len(history) == 0 or not recent:
         return None
     t_s, values_us = history.full_rate()
-    conductance_s = values_us.astype(np.float64) / US_PER_S
-    if ceiling_s is not None:
-        with np.errstate(invalid="ignore"):
-            conductance_s[np.abs(conductance_s - ceiling_s) <= 1e-6 * ceiling_s] = ceiling_s
     last: SampleBlock = recent[-1]
     board_minus_session = float(last.board_time_s[-1]) - float(board.to_session_time(last.host_time_s[-1:])[0])
     oldest, _newest = history.span()
-    return Snapshot(t_s, conductance_s, board_minus_session, max(0.0, float(t_s[0] - oldest)) if t_s.size else 0.0)
+    return Snapshot(t_s, values_us, board_minus_session, max(0.0, float(t_s[0] - oldest)) if t_s.size else 0.0,
+                    ceiling_s)
 
 
 def joined(blocks: Sequence[SampleBlock]) -> SampleBlock | None:
@@ -131,7 +142,7 @@ class Reestimation:
                         return
                     t_s = source.session_t_s[start:start + CHUNK_SAMPLES]
                     forces = self.pipeline.process(t_s + source.board_minus_session_s,
-                                                   source.conductance_s[start:start + CHUNK_SAMPLES])
+                                                   source.conductance_s(start, start + CHUNK_SAMPLES))
                     history.append(t_s, forces.display)
         except (ValueError, ArithmeticError, MemoryError) as exc:
             self.error = f"the history could not be estimated again: {exc}"
