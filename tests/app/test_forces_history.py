@@ -26,7 +26,7 @@ class _Board:
         return host_t_s
 
 
-def test_the_snapshot_is_a_copy_as_stored_and_the_worker_converts_it_a_chunk_at_a_time():
+def test_the_snapshot_is_a_copy_as_stored_and_the_worker_converts_it_a_chunk_at_a_time() -> None:
     """On the GUI thread the history is copied as stored (float32 µS: a copy, not a conversion of hours of data);
     the worker's chunks in S are what converting it whole gave, readings within float32 rounding of the readout's
     ceiling put at the ceiling and gaps (NaN rows) kept."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -149,7 +150,7 @@ def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_
     assert "contact onset 0.3 mm" in line
 
 
-def test_the_tab_opened_in_steps_shows_its_picture_first_and_its_other_views_one_step_each(qtbot):
+def test_the_tab_opened_in_steps_shows_its_picture_first_and_its_other_views_one_step_each(qtbot: Any) -> None:
     """A first opening gets the live picture at once; the kinematics panel and the replay's timeline follow one step
     each (the window is not held for them), and a caller that needs one before its step gets it built then."""
     from app.gui.tabs import scene

@@ -435,7 +435,7 @@ def create_tab(lab: Any) -> QWidget:
     return SceneTab(lab)
 
 
-def create_tab_in_steps(lab: Any) -> tuple[QWidget, Iterator[None]]:
+def create_tab_in_steps(lab: Any) -> tuple[SceneTab, Iterator[None]]:
     """The tab with its live picture, and the steps that add the kinematics panel and the replay's timeline (the main
     window runs one per turn of the event loop: a first opening holds the window for none of them)."""
     tab = SceneTab(lab, views_in_steps=True)
