@@ -247,6 +247,9 @@ def kill_at_random_moments(trials: int) -> Callable[[Path], Outcome]:
                                           "60", "--out", str(out), "--config", str(config)], cwd=REPO,
                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
                 _drive(child, emu, [("120", "noop")])
+                deadline = time.monotonic() + 10.0  # the first flush put the file in place (a kill before it
+                while not out.exists() and time.monotonic() < deadline:  # leaves no file: another case)
+                    time.sleep(0.01)
                 time.sleep(rng.uniform(0.0, 1.0))  # a random moment relative to the 0.5 s flushes
                 child.kill()
                 child.communicate(timeout=30)
