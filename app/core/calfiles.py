@@ -486,8 +486,15 @@ def _atomic_write(path: Path, write: Callable[[TextIO], object]) -> None:
 # --------------------------------------------------------------------------------------------------------- JSON
 
 
+# The largest calibration file read (a calibration of 1024 sensors with their history is a few MB): json reads the
+# whole file into memory, so a larger one is refused before it is read.
+MAX_JSON_BYTES = 64_000_000
+
+
 def _load_json(path: str | os.PathLike) -> tuple[Path, Any]:
     file = _open_path(path)
+    if file.stat().st_size > MAX_JSON_BYTES:
+        raise CalFileError(f"{file}: larger than {MAX_JSON_BYTES / 1e6:g} MB, too large for a calibration file")
     try:
         with file.open(encoding="utf-8") as handle:
             return file, json.load(handle)

@@ -249,3 +249,17 @@ def test_a_killed_mocap_writers_hidden_take_is_removed_by_the_next_one(tmp_path:
     with _hidden_beside(out, ".c3d") as work:
         assert work.name.startswith(f".take.c3d.{os.getpid()}.") and not dead.exists()
     assert not hidden(tmp_path)
+
+
+def test_a_calibration_over_its_size_cap_is_refused_before_it_is_read(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str],
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.core import calfiles
+
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B"])
+    monkeypatch.setattr(calfiles, "MAX_JSON_BYTES", cal.stat().st_size - 1)  # json reads a file whole
+    data = tmp_path / "g.csv"
+    data.write_text("time_s,S06B\n0.0,1e-4\n")
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
+    line = one_error_line(capsys)
+    assert "cal.json" in line and "too large for a calibration file" in line, line
