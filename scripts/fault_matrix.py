@@ -1429,9 +1429,18 @@ def planted_in_a_sweep_folder(folder: Path) -> Outcome:
         return Outcome(False, "failures.csv: a FIFO was written (or the write hung)")
     except OutputPathError as exc:
         words = str(exc)
+    plan = folder / "plan.toml"
+    plan.write_text('scenes = ["flat"]\nseconds = 0.1\n')
+    resumed = folder / "resumed"
+    resumed.mkdir()
+    os.mkfifo(resumed / "sweep.json")  # a resumed sweep reads its record first: the read would hang
+    fifo_ok, fifo_note = clean_failure(in_process("experiment", "sweep", str(plan), "--out", str(resumed)), 1,
+                                       "sweep.json", "FIFO")
+    if not fifo_ok:
+        return Outcome(False, f"a FIFO at sweep.json: {fifo_note}")
     ok = (victim.read_text() == "theirs" and not (out / "summary.csv").is_symlink()
           and stat.S_ISFIFO(os.lstat(out / "failures.csv").st_mode) and "FIFO" in words)
-    return Outcome(ok, f"links replaced, the FIFO refused: {words[:90]}" if ok else f"victim {victim.read_text()!r}; "
+    return Outcome(ok, f"links replaced, FIFOs refused: {words[:90]}" if ok else f"victim {victim.read_text()!r}; "
                    f"{words}")
 
 
@@ -1468,7 +1477,7 @@ CASES.update({
     "a servo given twice, a 5 MB lab config":
         hostile_json_inputs,
     "hostile: play --log onto its shape, a missing folder, an old log (never clobbered)": play_log_never_clobbers,
-    "hostile: a link and a FIFO planted in a sweep's folder": planted_in_a_sweep_folder,
+    "hostile: a link and a FIFO planted in a sweep's folder (its files, its record)": planted_in_a_sweep_folder,
     "hostile: a link or a FIFO planted at a recording's or a folder's lock file": planted_lock_files,
     "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
     "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,

@@ -42,6 +42,7 @@ from typing import Any, Protocol
 
 from app.core.errors import EngineError, FolderBusyError, RunsInterrupted
 from app.core.outputs import open_lock_file
+from devices.toml_files import read_text_file
 
 ENGINES = ("local", "dask")
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
@@ -308,6 +309,10 @@ class FolderLock:
             self._fd = None
 
 
+# A run journal is a line per finished run (~1 kB): read whole, so a file beyond this is refused, not read.
+MAX_JOURNAL_BYTES = 256_000_000
+
+
 class RunJournal:
     """``folder/name``: one JSON line per finished run (its summary row), appended and synced as each finishes."""
 
@@ -319,7 +324,7 @@ class RunJournal:
         rows: dict[int, Row] = {}
         if not self.path.exists():
             return rows
-        for line in self.path.read_text(encoding="utf-8").splitlines():
+        for line in read_text_file(self.path, "run journal", EngineError, max_bytes=MAX_JOURNAL_BYTES).splitlines():
             try:
                 row = json.loads(line)
             except json.JSONDecodeError:

@@ -51,7 +51,7 @@ from app.core.engines import MAX_RUNS, FolderLock, RunJournal, Task, capped_jobs
 from app.core.errors import EvaluationError, RunsInterrupted
 from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import SUMMARY_COLUMNS, execute, is_invalid, write_summary
-from devices.toml_files import read_toml_file
+from devices.toml_files import read_text_file, read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
@@ -319,7 +319,7 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         resumed = record.exists()
         if resumed:
             try:
-                held = json.loads(record.read_text(encoding="utf-8"))
+                held = json.loads(read_text_file(record, "evaluation folder's record", EvaluationError))
             except (json.JSONDecodeError, UnicodeDecodeError):
                 raise EvaluationError(f"{record}: not an evaluation folder's record; choose another --out folder") \
                     from None

@@ -85,7 +85,7 @@ from app.core.engines import (
 from app.core.errors import InvalidRunError, RunsInterrupted, SweepError
 from app.core.outputs import replace_text, replacing_text
 from devices.config import LabConfig
-from devices.toml_files import read_toml_file
+from devices.toml_files import read_text_file, read_toml_file
 from models.controllers import CONTROLLERS, uses_law
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
@@ -310,7 +310,7 @@ def claim_folder(out: Path, kind: str, identity: str, runs: int, refuse: type[Va
         replace_text(state, json.dumps({"kind": kind, "identity": identity, "runs": runs, **(extra or {})}, indent=1))
         return False
     try:
-        held = json.loads(state.read_text(encoding="utf-8"))
+        held = json.loads(read_text_file(state, f"{kind} folder's record", refuse))  # a planted FIFO: named
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise refuse(f"{state}: not a {kind} folder's record; choose another --out folder") from None
     if held.get("identity") != identity:

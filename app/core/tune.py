@@ -68,7 +68,7 @@ from app.core.engines import Engine, FolderLock, RunJournal, Task, capped_jobs, 
 from app.core.errors import RunsInterrupted, TuneError
 from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import _refuse_unholdable_loads, execute, is_invalid, scene_path
-from devices.toml_files import read_toml_file
+from devices.toml_files import read_text_file, read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
 from models.errors import GainsError
 from models.force_feedback import GAIN_RANGES, FeedbackGains
@@ -432,7 +432,7 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
         record = out / "tune.json"
         if record.exists():
             try:
-                held = json.loads(record.read_text(encoding="utf-8"))
+                held = json.loads(read_text_file(record, "tuning folder's record", TuneError))
             except (json.JSONDecodeError, UnicodeDecodeError):
                 raise TuneError(f"{record}: not a tuning folder's record; choose another --out folder") from None
             if held.get("sha256") != plan.sha256:

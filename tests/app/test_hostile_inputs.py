@@ -263,3 +263,21 @@ def test_a_calibration_over_its_size_cap_is_refused_before_it_is_read(tmp_path: 
     assert main(["estimate", str(data), "--cal", str(cal), "--out", str(tmp_path / "f.csv")]) == 1
     line = one_error_line(capsys)
     assert "cal.json" in line and "too large for a calibration file" in line, line
+
+
+def test_a_fifo_planted_at_a_sweeps_record_or_journal_is_named_not_read(tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    from app.core.engines import RunJournal
+    from app.core.errors import EngineError
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text('scenes = ["flat"]\nseconds = 0.1\n')
+    out = tmp_path / "out"
+    out.mkdir()
+    os.mkfifo(out / "sweep.json")  # its read would wait for a writer for ever
+    assert main(["experiment", "sweep", str(plan), "--out", str(out)]) == 1
+    line = one_error_line(capsys)
+    assert "sweep.json: is a FIFO" in line, line
+    os.mkfifo(out / "finished.jsonl")  # what a resumed sweep, tuning or evaluation reads first
+    with pytest.raises(EngineError, match="finished.jsonl: is a FIFO"):
+        RunJournal(out).load()
