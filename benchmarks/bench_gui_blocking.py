@@ -212,6 +212,21 @@ def _trial_files(folder: Path) -> list[Path]:
 
 
 @contextlib.contextmanager
+def _data_dir(folder: Path) -> Iterator[None]:
+    """``$SENSNAKE_DATA_DIR`` is ``folder`` meanwhile (never the user's), and as it was afterwards (``sensnake bench``
+    runs the next benchmark in this process)."""
+    previous = os.environ.get("SENSNAKE_DATA_DIR")
+    os.environ["SENSNAKE_DATA_DIR"] = str(folder)
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop("SENSNAKE_DATA_DIR", None)
+        else:
+            os.environ["SENSNAKE_DATA_DIR"] = previous
+
+
+@contextlib.contextmanager
 def _busy(load: int) -> Iterator[None]:
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
     try:
@@ -232,8 +247,8 @@ def measure(history_s: float, load: int = 0, why: bool = False) -> dict[str, Any
 
     app = QApplication.instance() or QApplication([])
     results: dict[str, Any] = {}
-    with tempfile.TemporaryDirectory(prefix="sensnake-bench-gui-") as tmp, _busy(load):
-        os.environ["SENSNAKE_DATA_DIR"] = str(Path(tmp) / "data")
+    with tempfile.TemporaryDirectory(prefix="sensnake-bench-gui-") as tmp, _busy(load), \
+            _data_dir(Path(tmp) / "data"):
         from app.gui.lab import LabContext
         from app.gui.main_window import TABS, MainWindow
         from devices import factory
