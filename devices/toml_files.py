@@ -115,3 +115,16 @@ def _check_integers(data: dict[str, Any], source: str, error: type[Exception]) -
         elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INTEGER:
             raise error(f"{source}: '{where}' is a {len(str(abs(value)))}-digit integer, beyond what any key takes "
                         f"(at most ±{MAX_INTEGER:.3g})")
+
+
+# A file a command keeps in its own folder (a series' state, a session's protocol, a batch): a few kB.
+MAX_STATE_BYTES = 16_000_000
+
+
+def read_state_file(path: str | os.PathLike[str], what: str, max_bytes: int = MAX_STATE_BYTES) -> str:
+    """The UTF-8 text of a file a command keeps in its folder (``what``: "series file", …): FileNotFoundError when
+    there is none (the command starts afresh), ValueError naming it when it is no regular file (a FIFO planted
+    there would hang the read), too large or not UTF-8 (:func:`read_text_file`)."""
+    if not os.path.lexists(path):
+        raise FileNotFoundError(errno.ENOENT, f"{path}: no such file", str(path))
+    return read_text_file(path, what, ValueError, max_bytes=max_bytes)

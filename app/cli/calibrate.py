@@ -74,6 +74,7 @@ from devices.board import BoardReader
 from devices.config import LabConfig, load_config
 from devices.errors import DeviceError
 from devices.rig import CalibrationRig
+from devices.toml_files import read_state_file
 
 if TYPE_CHECKING:  # pragma: no cover
     from devices.factory import SimPorts
@@ -466,7 +467,7 @@ def read_batch(folder: str | Path) -> tuple[tuple[str, ...], ProtocolSettings, d
 
     path = Path(folder) / BATCH_FILE
     try:
-        document = json.loads(path.read_text(encoding="utf-8"))
+        document = json.loads(read_state_file(path, "calibration batch"))
     except (OSError, ValueError) as exc:
         raise ValueError(f"{path}: cannot read the batch: {exc}") from None
     if not isinstance(document, dict) or document.get("format") != "sensnake-calibration-batch":

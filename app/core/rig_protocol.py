@@ -67,6 +67,7 @@ from app.core.errors import BoardGapError, BoardStreamError, ForceCollapsedError
 from devices.config import BoardConfig, RigConfig
 from devices.errors import DeviceError, RigInterrupted
 from devices.rig import ANGLE_LIMIT_RAD
+from devices.toml_files import read_state_file
 from models.physics import PhysicsConstants, conductance_from_strain
 from models.sls import TYPICAL_SLS, SLSParams
 
@@ -919,7 +920,7 @@ def read_session(folder: str | Path) -> ProtocolSettings:
     """The protocol a session folder was started with (its ``protocol.json``); ValueError naming the problem."""
     path = Path(folder) / SESSION_FILE
     try:
-        document = json.loads(path.read_text(encoding="utf-8"))
+        document = json.loads(read_state_file(path, "session protocol"))
     except FileNotFoundError:
         raise ValueError(f"{folder} is not a calibration session folder (no {SESSION_FILE})") from None
     except (OSError, ValueError) as exc:
@@ -942,7 +943,7 @@ def read_conditioning(folder: str | Path) -> dict | None:
     """The session's conditioning log (``conditioning.json``), or None when there is none (or it is unreadable: the
     conditioning then runs again)."""
     try:
-        document = json.loads((Path(folder) / CONDITIONING_FILE).read_text(encoding="utf-8"))
+        document = json.loads(read_state_file(Path(folder) / CONDITIONING_FILE, "conditioning log"))
     except (OSError, ValueError):
         return None
     return document if isinstance(document, dict) and document.get("format") == "sensnake-conditioning" else None

@@ -54,6 +54,7 @@ from app.core.run_documents import (
 from app.core.shapes import Shape, read_shape
 from app.core.trials import MAX_TRIALS, SERIES_FILE, TRIALS_COLUMNS
 from devices.config import RobotConfig
+from devices.toml_files import read_state_file
 from models.trajectory import BlendTo, PlannedMotion
 
 PLAN_NAME = "robot trials"
@@ -203,7 +204,7 @@ class RobotSeries:
         folder = Path(folder)
         path = folder / SERIES_FILE
         try:
-            stored = json.loads(path.read_text(encoding="utf-8"))
+            stored = json.loads(read_state_file(path, "series file"))
             if stored.get("plan_name") != PLAN_NAME:
                 what = stored.get("plan_name") or "another kind of"
                 raise TrialsError(f"{path}: a series of {what!r}, not of the robot's trials; choose another folder")

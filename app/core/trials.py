@@ -35,6 +35,7 @@ from app.core.calfiles import write_atomically
 from app.core.errors import TrialsError
 from app.core.experiment import InvalidRunError
 from app.core.run_documents import parse_document
+from devices.toml_files import read_state_file
 
 SERIES_FILE = "series.json"
 TRIALS_CSV = "trials.csv"
@@ -114,7 +115,7 @@ def _series(out: Path, options: SeriesOptions) -> str:
     path = out / SERIES_FILE
     if path.exists():
         try:
-            stored = json.loads(path.read_text(encoding="utf-8"))
+            stored = json.loads(read_state_file(path, "series file"))
             stored_condition, uid = stored["condition"], str(stored["series_uid"])
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise TrialsError(f"{path}: not a series file this version reads ({exc}); choose another --out") from exc

@@ -281,3 +281,19 @@ def test_a_fifo_planted_at_a_sweeps_record_or_journal_is_named_not_read(tmp_path
     os.mkfifo(out / "finished.jsonl")  # what a resumed sweep, tuning or evaluation reads first
     with pytest.raises(EngineError, match="finished.jsonl: is a FIFO"):
         RunJournal(out).load()
+
+
+def test_a_fifo_planted_at_a_series_or_session_file_is_named_not_read(tmp_path: Path) -> None:
+    from app.core.errors import TrialsError
+    from app.core.rig_protocol import read_conditioning, read_session
+    from app.core.robot_trials import RobotSeries
+    from app.core.trials import SERIES_FILE
+
+    os.mkfifo(tmp_path / SERIES_FILE)  # each read would wait for a writer for ever
+    with pytest.raises(TrialsError, match="series.json: is a FIFO"):
+        RobotSeries.open(tmp_path)
+    os.mkfifo(tmp_path / "protocol.json")
+    with pytest.raises(ValueError, match="protocol.json: is a FIFO"):
+        read_session(tmp_path)
+    os.mkfifo(tmp_path / "conditioning.json")
+    assert read_conditioning(tmp_path) is None  # unreadable: the conditioning runs again
