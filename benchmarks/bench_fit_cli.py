@@ -157,12 +157,12 @@ def summaries(output: str) -> list[str]:
     concatenated): ``"0.2 % noise, default (scipy, drift search, 5 Hz): 3.6–3.8 s CPU, 3.6–3.9 s wall, 473–477 MB
     peak, 0.002 % worst parameter error"`` — the figures the docs quote (tests/test_fit_figures.py)."""
     runs: dict[tuple[str, str], list[tuple[float, float, float, float]]] = {}
-    noise = "?"
+    noise = "? % noise"
     for line in output.splitlines():
         found = re.search(r"([0-9.]+) % noise", line)
         if found:
             # The typical sensor's sentences name only the noise; another sensor's name it too.
-            noise = found.group(1) + (", ceiling sensor" if "ceiling sensor" in line else "")
+            noise = f"{found.group(1)} % noise" + (", ceiling sensor" if "ceiling sensor" in line else "")
             continue
         row = re.match(r"(.{38}) +([0-9.]+) +([0-9.]+) +([0-9]+) +([0-9.]+)%", line)
         if row:
@@ -171,7 +171,7 @@ def summaries(output: str) -> list[str]:
     out = []
     for (noise, label), rows in runs.items():
         cpu, wall, peak, worst = zip(*rows)
-        out.append(f"{noise} % noise, {label}: {_span(cpu, 1)} s CPU, {_span(wall, 1)} s wall, {_span(peak, 0)} MB "
+        out.append(f"{noise}, {label}: {_span(cpu, 1)} s CPU, {_span(wall, 1)} s wall, {_span(peak, 0)} MB "
                    f"peak, {_span(worst, 3)} % worst parameter error")
     return out
 

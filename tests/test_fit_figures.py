@@ -1,7 +1,8 @@
 """The fit's promised figures are the benchmarks' measured ones: docs/NUMERICS.md's coverage table is the one
 ``python -m benchmarks.bench_coverage --from-csv benchmarks/results/coverage.csv`` prints, the results file is what
 today's fitter gives (one sensor refitted from its seed), and the `sensnake fit` speed figures in docs/NUMERICS.md
-and docs/BENCHMARKS.md are rows of ``benchmarks/results/fit_cli.txt`` (``python -m benchmarks.bench_fit_cli``)."""
+and docs/BENCHMARKS.md are rows of ``benchmarks/results/fit_cli.txt`` (``python -m benchmarks.bench_fit_cli``; the
+ceiling sensor's of ``fit_cli_ceiling.txt``, ``--sensor ceiling``)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NUMERICS = ROOT / "docs" / "NUMERICS.md"
 BENCHMARKS = ROOT / "docs" / "BENCHMARKS.md"
 FIT_CLI = ROOT / "benchmarks" / "results" / "fit_cli.txt"
+FIT_CLI_CEILING = ROOT / "benchmarks" / "results" / "fit_cli_ceiling.txt"  # --sensor ceiling
 
 
 def test_the_coverage_table_in_numerics_is_the_benchmarks_own() -> None:
@@ -42,5 +44,8 @@ def test_the_fit_speed_figures_in_the_docs_are_the_benchmarks_measured_ones() ->
     assert any("default" in s for s in sentences), "no default row in benchmarks/results/fit_cli.txt"
     numerics = NUMERICS.read_text(encoding="utf-8")
     assert [s for s in sentences if s not in numerics] == [], "docs/NUMERICS.md does not quote these"
+    ceiling = bench_fit_cli.summaries(FIT_CLI_CEILING.read_text(encoding="utf-8"))
+    assert ceiling and all("ceiling sensor" in s for s in ceiling)
+    assert [s for s in ceiling if s not in numerics] == [], "docs/NUMERICS.md does not quote the ceiling sensor's"
     benchmarks = BENCHMARKS.read_text(encoding="utf-8")
     assert [s for s in sentences if "default" in s and s not in benchmarks] == []
