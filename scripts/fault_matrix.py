@@ -1200,6 +1200,26 @@ def fifo_as_every_recording_input(folder: Path) -> Outcome:
     return Outcome(True, f"{len(readers)} readers: one line naming the FIFO")
 
 
+def longest_legal_output_names(folder: Path) -> Outcome:
+    """An output named with 255 bytes (the longest name a file may have): written (its hidden temporary and lock
+    file carry a shortened name), nothing left beside it; 'File name too long' was said of legal names."""
+    rec = _small_recording(folder / "rec.h5")
+    data, cal = _series(folder), _calibration(folder)
+    def named(tag: str, suffix: str) -> str:  # exactly 255 bytes
+        return tag + "ü" * ((255 - len(tag) - len(suffix)) // 2) + "x" * ((255 - len(tag) - len(suffix)) % 2) + suffix
+
+    runs = {"estimate": (["estimate", str(data), "--cal", str(cal), "--out"], named("a", ".csv")),
+            "export": (["export", str(rec), "--csv"], named("b", ".csv")),
+            "estimate REC.h5": (["estimate", str(rec), "--cal", str(cal), "--out"], named("c", ".h5")),
+            "record": (["record", "--daq", "sim", "--seconds", "0.3", "--out"], named("d", ".h5"))}
+    for what, (argv, out) in runs.items():
+        run = in_process(*argv, str(folder / out))
+        if run.code != 0 or run.traceback or not (folder / out).is_file():
+            return Outcome(False, f"{what} ({len(out.encode())}-byte name): exit {run.code}: {run.err.strip()[-120:]}")
+    left = _hidden(folder)
+    return Outcome(not left, f"left behind: {left}" if left else f"{len(runs)} writers, 255-byte names: written")
+
+
 def fit_under_address_limits(folder: Path) -> Outcome:
     """``fit`` under ``ulimit -v`` 150 MB, 300 MB and 2 GB: done, or one line naming the limit, within seconds —
     never minutes of silence (OpenBLAS threads, or its allocator spinning while a library loads)."""
@@ -1486,6 +1506,7 @@ CASES.update({
     "hostile: repair with 200 flipped bytes": repair_flipped_bytes,
     "hostile: export/repair/estimate of a symlink loop": symlink_loop_inputs,
     "hostile: a FIFO given as a recording to every reader": fifo_as_every_recording_input,
+    "hostile: outputs with 255-byte names": longest_legal_output_names,
     "hostile: fit under ulimit -v 150 MB, 300 MB, 2 GB": fit_under_address_limits,
     "servo: restore checked whole (another model, a misspelt item, Min > Max, a missing servo, Status Return "
     "Level 0), set and [servos] refuse Status Return Level 0": restore_checked_whole,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import secrets
@@ -86,9 +87,24 @@ def _host_pid_alive(pid: int) -> bool:
     return True
 
 
+# A file name may be 255 bytes long; its temporary adds a dot, a pid, 8 hex digits and a suffix (~35 bytes). A name
+# that leaves no room for them is shortened in its temporary's name to this many bytes plus a hash of the whole.
+_TEMPORARY_NAME_BYTES = 180
+
+
+def temporary_stem(name: str) -> str:
+    """``name`` as it appears in its temporaries' names: itself, or (when too long to leave room for the rest) its
+    first bytes and a hash of the whole, so a legal 255-byte name can still be written."""
+    raw = name.encode("utf-8", "surrogateescape")
+    if len(raw) <= _TEMPORARY_NAME_BYTES:
+        return name
+    head = raw[:_TEMPORARY_NAME_BYTES].decode("utf-8", "ignore")
+    return f"{head}~{hashlib.sha1(raw).hexdigest()[:8]}"
+
+
 def _temporary_pattern(name: str) -> re.Pattern[str]:
     suffixes = "|".join(re.escape(s) for s in TEMPORARY_SUFFIXES)
-    return re.compile(rf"^\.{re.escape(name)}\.(\d+)\.[0-9a-f]+(?:{suffixes})$")
+    return re.compile(rf"^\.{re.escape(temporary_stem(name))}\.(\d+)\.[0-9a-f]+(?:{suffixes})$")
 
 
 def remove_stale_temporaries(out: str | os.PathLike[str]) -> list[Path]:
@@ -121,7 +137,7 @@ def create_temporary(out: str | os.PathLike[str], suffix: str = ".partial", mode
     folder = out.parent if str(out.parent) else Path(".")
     remove_stale_temporaries(out)
     for _attempt in range(_CREATE_ATTEMPTS):
-        work = folder / f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}{suffix}"
+        work = folder / f".{temporary_stem(out.name)}.{os.getpid()}.{secrets.token_hex(4)}{suffix}"
         try:
             fd = os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | NOFOLLOW | getattr(os, "O_BINARY", 0), mode)
         except FileExistsError:

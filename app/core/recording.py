@@ -45,7 +45,14 @@ import numpy as np
 
 from app.core.calfiles import CONDUCTANCE_COLUMN, FORCE_COLUMN, with_unit_suffixes, write_atomically
 from app.core.errors import OutputPathError, RecordingError, RecordingFormatError
-from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place, open_lock_file
+from app.core.outputs import (
+    check_output,
+    create_temporary,
+    describe_kind,
+    move_into_place,
+    open_lock_file,
+    temporary_stem,
+)
 from app.core.run_documents import RUN_START, document_text, reserve_run_stop
 
 FORMAT = "sensnake-recording"
@@ -233,10 +240,13 @@ class RecordingWriter:
         self._stats: dict[str, int] = {}
         self._stats_written: dict[str, int] = {}
         self._last_segment = 0
+        self._mocap: _Table | None = None  # /mocap, made by the first append_mocap
+        self._mocap_attrs: dict[str, Any] = {}  # /mocap attributes not yet written
 
     @property
     def _tables(self) -> tuple[_Table, ...]:
-        return tuple(t for t in (self._daq, self._robot, self._forces, self._events, self._control) if t is not None)
+        return tuple(t for t in (self._daq, self._robot, self._forces, self._events, self._control, self._mocap)
+                     if t is not None)
 
     # -- appending ---------------------------------------------------------------------------------------------
     def time_s(self, host_monotonic_s: float | np.ndarray) -> float | np.ndarray:
@@ -337,6 +347,18 @@ class RecordingWriter:
         self._stats = {"crc_errors": int(crc_errors), "dropped_frames": int(dropped_frames),
                        "resyncs": int(resyncs), **{k: int(v) for k, v in more.items()}}
 
+    def append_mocap(self, columns: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+        """Rows of ``/mocap`` (docs/SPEC_EXTENSIONS.md): each column's rows (its first axis), the group made with
+        ``attrs`` at the first flush that has rows for it; flushed with the other groups."""
+        if self._mocap is None:
+            self._mocap = _Table("mocap", {name: (np.asarray(v).dtype, np.asarray(v).shape[1:])
+                                           for name, v in columns.items()}, dict(attrs))
+        self._mocap.append(**{name: np.asarray(v) for name, v in columns.items()})
+
+    def set_mocap_attrs(self, attrs: Mapping[str, Any]) -> None:
+        """Attributes of ``/mocap`` (set or replaced) written at the next flush, once the group has rows."""
+        self._mocap_attrs.update(attrs)
+
     def _event(self, time_s: float, kind: str, text: str) -> None:
         self._events.append(time_s=np.array([time_s]),
                             kind=np.array([kind.encode()[:EVENT_KIND_BYTES]], dtype=f"S{EVENT_KIND_BYTES}"),
@@ -375,7 +397,8 @@ class RecordingWriter:
         """
         self._check()
         self._last_flush = time.monotonic()
-        if not any(t.pending_rows for t in self._tables) and self._stats == self._stats_written:
+        if (not any(t.pending_rows for t in self._tables) and self._stats == self._stats_written
+                and not self._mocap_attrs):
             return
         self._check_free_space()
         self._reserve_room()
@@ -396,6 +419,12 @@ class RecordingWriter:
                 daq.attrs[key] = np.int64(value)
             f.attrs["duration_s"] = float(self._last_time_s)
             del daq
+            if self._mocap_attrs and "mocap" in f:
+                mocap = f["mocap"]
+                for key, value in self._mocap_attrs.items():
+                    mocap.attrs[key] = value
+                self._mocap_attrs = {}
+                del mocap
             f.flush()  # a failed write shows here, where it can be handled, not inside a deallocator
         except (OSError, RuntimeError, KeyError) as exc:
             # HDF5 reports a failed write (ENOSPC, EFBIG, EIO) as OSError or, from H5Fflush, RuntimeError.
@@ -537,7 +566,7 @@ _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
 
 
 def _lock_path(path: Path) -> Path:
-    return path.with_name(f".{path.name}.lock")
+    return path.with_name(f".{temporary_stem(path.name)}.lock")  # a long name is shortened (app.core.outputs)
 
 
 def _lock_for_writing(path: Path) -> int | None:

@@ -297,3 +297,23 @@ def test_a_fifo_planted_at_a_series_or_session_file_is_named_not_read(tmp_path: 
         read_session(tmp_path)
     os.mkfifo(tmp_path / "conditioning.json")
     assert read_conditioning(tmp_path) is None  # unreadable: the conditioning runs again
+
+
+def test_a_255_byte_output_name_is_written_and_its_killed_temporary_removed(tmp_path: Path,
+                                                                             capsys: pytest.CaptureFixture[str]
+                                                                             ) -> None:
+    from app.core.outputs import create_temporary
+
+    long_csv = tmp_path / ("é" * 125 + "m.csv")  # 256 bytes would be too long for any file: 255 is legal
+    assert len(long_csv.name.encode()) == 255
+    fd, stale = create_temporary(long_csv)  # as a killed writer leaves it …
+    os.close(fd)
+    os.rename(stale, stale.with_name(stale.name.replace(f".{os.getpid()}.", ".999999999.")))  # … with a dead pid
+    data = tmp_path / "g.csv"
+    data.write_text("time_s,S06B\n0.0,1e-4\n0.1,1.1e-4\n")
+    cal = write_typical_calibration(tmp_path / "cal.json", ["S06B"])
+    assert main(["estimate", str(data), "--cal", str(cal), "--out", str(long_csv)]) == 0
+    assert long_csv.read_text().startswith("time_s,") and not hidden(tmp_path)
+    long_h5 = tmp_path / ("r" * 252 + ".h5")
+    assert main(["record", "--daq", "sim", "--seconds", "0.2", "--out", str(long_h5)]) == 0
+    assert h5py.is_hdf5(long_h5) and not hidden(tmp_path)  # no lock file, no temporary left
