@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from app.core.errors import MocapFileError
-from app.core.outputs import remove_stale_temporaries
+from app.core.outputs import remove_stale_temporaries, temporary_stem
 from devices.config import MocapConfig
 from models.mocap import (
     ClockOffset,
@@ -403,7 +403,7 @@ def refuse_existing(out: Path, source: Path | None = None, what: str = "the copy
 @contextlib.contextmanager
 def _hidden_beside(out: Path, suffix: str = "") -> Iterator[Path]:
     remove_stale_temporaries(out)  # a killed writer's hidden file (app.core.outputs)
-    work = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial{suffix}")
+    work = out.with_name(f".{temporary_stem(out.name)}.{os.getpid()}.{secrets.token_hex(4)}.partial{suffix}")
     try:
         os.close(os.open(work, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644))
     except OSError as exc:
