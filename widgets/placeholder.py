@@ -30,7 +30,9 @@ class PlaceholderPage(QWidget):
         layout.setSpacing(12)
         layout.addStretch(1)
 
-        self.title_label = QLabel(title)
+        # Each label is made inside the column: a label without a parent that is made visible is a window of its own
+        # (shown for a moment, it takes the focus from the main window, and keys go nowhere).
+        self.title_label = QLabel(title, column)
         font = self.title_label.font()
         font.setPointSizeF(font.pointSizeF() * 1.6)
         font.setBold(True)
@@ -38,11 +40,11 @@ class PlaceholderPage(QWidget):
         self.title_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
         self.title_label.setWordWrap(True)
 
-        self.description_label = QLabel(description)
+        self.description_label = QLabel(description, column)
         self.description_label.setWordWrap(True)
         self.description_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
 
-        self.note_label = QLabel(note)
+        self.note_label = QLabel(note, column)
         self.note_label.setWordWrap(True)
         self.note_label.setAlignment(Qt.AlignmentFlag.AlignHCenter)
         self.note_label.setStyleSheet("color: #6B6B6B;")
