@@ -33,15 +33,25 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 
 from app.core.errors import MocapFileError
 from app.core.live_session import LiveSession, LiveUpdate
-from app.core.mocap import UNITS_TO_M, MocapResult, Take, fit_take, place_markers, write_in_place
+from app.core.mocap import (
+    FLAG_LEGEND,
+    UNITS_TO_M,
+    MocapResult,
+    Take,
+    fit_take,
+    layout_labels,
+    place_markers,
+    write_in_place,
+)
 from app.core.recorder import Recorder
 from devices.config import MocapConfig
 from models.mocap import SegmentFit, check_layout, fit_segments, joint_angles
@@ -154,10 +164,13 @@ class MocapInlet:
         # (host monotonic (n,), values (n, C) float32, the segments' poses (None without ``mocap``)) per chunk
         self._chunks: list[tuple[np.ndarray, np.ndarray, SegmentFit | None]] = []
         self._collecting = collect
+        self._sink: Callable[[np.ndarray, np.ndarray, SegmentFit], None] | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lsl_minus_mono = 0.0
+        self._last_taken = np.nan  # capture time of the newest sample taken in
+        self._live_cell = -np.inf  # the live grid's cell of the newest sample fitted for the live view
 
     def start(self) -> None:
         """Resolve the stream (by name, else by type MoCap), read its channels and start following it. Raises
@@ -229,10 +242,6 @@ class MocapInlet:
     def _run(self) -> None:
         correction = self._inlet.time_correction(1.0)
         corrected_at = time.monotonic()
-        last = np.nan
-        period = 1.0 / self.rate_hz if self.rate_hz > 0 else np.nan
-        live_step = 1.0 / self._live_rate_hz if self.live is not None else 0.0
-        live_cell = -np.inf  # the live grid's cell (of ``live_step``) of the newest sample fitted
         while not self._stop.is_set():
             values, stamps = self._inlet.pull_chunk(timeout=PULL_TIMEOUT_S, as_numpy=True)
             if not len(stamps):
@@ -240,29 +249,40 @@ class MocapInlet:
             if time.monotonic() - corrected_at > CORRECTION_EVERY_S:
                 correction = self._inlet.time_correction(1.0)
                 corrected_at = time.monotonic()
-            host = np.asarray(stamps, dtype=float) + correction - self._lsl_minus_mono
-            values = np.asarray(values, dtype=np.float32)
-            steps = np.diff(np.concatenate([[last], host]))
-            for k in np.flatnonzero(steps > GAP_PERIODS * period):
-                missing = int(round(steps[k] / period)) - 1
-                self.dropouts += 1
-                self.missing += missing
-                if self.on_dropout is not None:
-                    self.on_dropout(Dropout(float(host[k]), missing))
-            last = host[-1]
-            if self._collecting:  # fitted as it comes (a minute at 960 Hz fitted at the end took 10-20 s)
-                fit = self._fit(values) if self._layout is not None else None
-                with self._lock:
-                    if self._collecting:
-                        self._chunks.append((host, values, fit))
-            self.last_host_s = float(last)
-            self.received += len(host)  # counted once kept: a reader of both never sees more received than kept
-            if live_step:  # the first sample of each new cell of the live grid is fitted
-                cells = np.floor(host / live_step)
-                picked = np.flatnonzero(np.diff(cells, prepend=live_cell) > 0)
-                if picked.size:
-                    self._fit_live(host[picked], values[picked])
-                    live_cell = cells[-1]
+            self.take_in(np.asarray(stamps, dtype=float) + correction - self._lsl_minus_mono, values)
+
+    def take_in(self, host: np.ndarray, values: np.ndarray) -> None:
+        """One chunk of samples captured at ``host`` (``time.monotonic()``; (n,)) with channel values (n, C): its
+        dropouts counted, kept for the take, fitted for the live view. The reader thread's (a test or benchmark
+        may feed an inlet it did not start)."""
+        period = 1.0 / self.rate_hz if self.rate_hz > 0 else np.nan
+        host = np.asarray(host, dtype=float)
+        values = np.asarray(values, dtype=np.float32)
+        steps = np.diff(np.concatenate([[self._last_taken], host]))
+        for k in np.flatnonzero(steps > GAP_PERIODS * period):
+            missing = int(round(steps[k] / period)) - 1
+            self.dropouts += 1
+            self.missing += missing
+            if self.on_dropout is not None:
+                self.on_dropout(Dropout(float(host[k]), missing))
+        last = host[-1]
+        self._last_taken = last
+        if self._collecting:  # fitted as it comes (a minute at 960 Hz fitted at the end took 10-20 s)
+            fit = self._fit(values) if self._layout is not None else None
+            with self._lock:
+                if self._collecting and self._sink is not None and fit is not None:
+                    self._sink(host, values, fit)  # written as it comes: nothing of the take kept here
+                elif self._collecting:
+                    self._chunks.append((host, values, fit))
+        self.last_host_s = float(last)
+        self.received += len(host)  # counted once kept: a reader of both never sees more received than kept
+        live_step = 1.0 / self._live_rate_hz if self.live is not None else 0.0
+        if live_step:  # the first sample of each new cell of the live grid is fitted
+            cells = np.floor(host / live_step)
+            picked = np.flatnonzero(np.diff(cells, prepend=self._live_cell) > 0)
+            if picked.size:
+                self._fit_live(host[picked], values[picked])
+                self._live_cell = cells[-1]
 
     def markers_m(self, values: np.ndarray) -> np.ndarray:
         """Channel values (N, C) as the layout's markers (N, S, K, 3) in metres, NaN unseen (needs ``mocap``)."""
@@ -281,17 +301,21 @@ class MocapInlet:
         assert self.live is not None
         self.live.append(host, self._fit(values).center_m, self.markers_m(values[-1:])[0])
 
-    def begin_take(self) -> None:
-        """Keep every sample from now on (what came before is forgotten)."""
+    def begin_take(self, sink: Callable[[np.ndarray, np.ndarray, SegmentFit], None] | None = None) -> None:
+        """Keep every sample from now on (what came before is forgotten); with ``sink`` (and ``mocap``), hand each
+        chunk (capture times, values, the segments' poses) to it instead, on the reader thread, and keep nothing:
+        a take of any length then takes no memory here."""
         with self._lock:
             self._chunks = []
             self._collecting = True
+            self._sink = sink
 
     def end_take(self) -> tuple[np.ndarray, np.ndarray, SegmentFit | None]:
         """Stop keeping samples; what was kept (as :meth:`samples`) and the segments' poses in each sample (None
         without ``mocap``), forgotten here."""
         with self._lock:
             self._collecting = False
+            self._sink = None
             chunks, self._chunks = self._chunks, []
         fits = [c[2] for c in chunks]
         fit = _joined_fits(fits) if fits and all(f is not None for f in fits) else None  # type: ignore[arg-type]
@@ -359,6 +383,12 @@ class LiveTake:
     dropouts: int
     missing: int
     fit: SegmentFit | None = None  # each sample's segment poses, fitted as they came (None: fitted when written)
+    streamed: int = 0  # samples written into the recording as they came (then none is kept here)
+    posed: float = 0.0  # the fraction of the streamed samples' segment-frames with a pose
+
+    @property
+    def n_samples(self) -> int:
+        return self.streamed or len(self.host_s)
 
     def as_take(self, mocap: MocapConfig, n_segments: int, t0_monotonic_s: float) -> Take:
         """A :class:`Take` whose source clock is the recording's (``t0_monotonic_s`` = its start)."""
@@ -379,20 +409,83 @@ class LiveTake:
         where = Path(f"lsl:{self.stream_name}")
         markers, flat, missing, ignored = place_markers(where, names, xyz, mocap, n_segments)
         return Take(where, "LSL", self.host_s - t0_monotonic_s, markers, flat, self.rate_hz, unit, missing, ignored,
-                    note=f"stamped at capture, {self.dropouts} dropouts, {self.missing} samples missing")
+                    note=_stamped_note(self.dropouts, self.missing))
 
     def write(self, recording: str | Path, t0_monotonic_s: float, mocap: MocapConfig,
-              axes: Sequence[str]) -> MocapResult:
-        """Fit the take (unless it was as it came) and write ``/mocap`` into the closed ``recording``."""
+              axes: Sequence[str]) -> MocapResult | None:
+        """Fit the take (unless it was as it came) and write ``/mocap`` into the closed ``recording``; None when
+        the recording holds it already (written into it as it came)."""
+        if self.streamed or not len(self.host_s):
+            if self.n_samples < 2:
+                with h5py.File(recording, "a") as f:
+                    if "mocap" in f:
+                        del f["mocap"]
+                raise MocapFileError(f"--mocap lsl:{self.spec_name}: fewer than two samples arrived from stream "
+                                     f"{self.stream_name!r}")
+            return None
         fit = self.fit if self.fit is not None and len(self.fit.center_m) == len(self.host_s) else None
         return append_live_mocap(recording, self.as_take(mocap, len(axes), t0_monotonic_s), mocap, axes, fit)
 
-    def summary(self, result: MocapResult, out: str | Path) -> str:
-        """One line for the user."""
-        posed = np.isfinite(result.fit.center_m[..., 0]).mean()
-        return (f"mocap: {len(self.host_s)} samples from LSL stream {self.stream_name!r} written to {out} as /mocap "
+    def summary(self, result: MocapResult | None, out: str | Path) -> str:
+        """One line for the user (``result``: :meth:`write`'s)."""
+        if result is not None:
+            posed = float(np.isfinite(result.fit.center_m[..., 0]).mean())
+        else:
+            posed = self.posed
+        return (f"mocap: {self.n_samples} samples from LSL stream {self.stream_name!r} written to {out} as /mocap "
                 f"({posed:.1%} of segment-frames posed; {self.dropouts} dropout(s), {self.missing} sample(s) "
                 "missing)")
+
+
+STAMPED_HOW = "stamped at capture on the recording's clock (LSL time_correction())"
+
+
+def _stamped_note(dropouts: int, missing: int) -> str:
+    return f"stamped at capture, {dropouts} dropouts, {missing} samples missing"
+
+
+class _TakeIntoRecording:
+    """A take written into a running recording as it comes (``/mocap``, the same datasets and attributes as
+    :func:`append_live_mocap` writes at the end): each chunk's rows go to the recorder's queue, flushed with the
+    rest of the file; only counts are kept. Called on the inlet's reader thread."""
+
+    def __init__(self, inlet: MocapInlet, recorder: Recorder, mocap: MocapConfig, axes: Sequence[str]) -> None:
+        self.inlet, self.recorder, self.mocap, self.axes = inlet, recorder, mocap, tuple(axes)
+        self.counts = (inlet.dropouts, inlet.missing)  # the inlet's when the take began
+        self.rows = 0
+        self.posed = 0  # segment-frames with a pose
+
+    def __call__(self, host: np.ndarray, values: np.ndarray, fit: SegmentFit) -> None:
+        keep = host >= self.recorder.t0_monotonic_s  # captured before the recording began: not its (as the board's)
+        if not keep.all():
+            if not keep.any():
+                return
+            host, values, fit = host[keep], values[keep], _kept(fit, keep)
+        n = len(host)
+        markers = self.inlet.markers_m(values)
+        time_s = host - self.recorder.t0_monotonic_s
+        columns = {"time_s": time_s, "markers_m": markers.reshape(n, -1, 3),
+                   "segment_center_m": fit.center_m, "segment_rotation": fit.rotation, "residual_m": fit.residual_m,
+                   "joint_angle_rad": joint_angles(fit.rotation, self.axes)[0],
+                   "fit_flag": fit.flag.astype(np.int8), "markers_used": fit.n_used.astype(np.int8)}
+        attrs = self._attrs(float(time_s[0])) if self.rows == 0 else {}
+        self.recorder.add_mocap(columns, attrs)
+        self.rows += n
+        self.posed += int(np.isfinite(fit.center_m[..., 0]).sum())
+
+    def _attrs(self, take_start_s: float) -> dict[str, Any]:
+        inlet = self.inlet
+        units = [unit for marker, _, unit in inlet.channels if marker]
+        return {"labels": np.array([label for row in layout_labels(self.mocap, len(self.axes)) for label in row],
+                                   dtype=h5py.string_dtype()),
+                "source": self.source(inlet.dropouts - self.counts[0], inlet.missing - self.counts[1]), "rate_hz": float(inlet.rate_hz),
+                "clock_offset_s": 0.0, "marker_layout_m": check_layout(self.mocap.marker_layout_m, len(self.axes)),
+                "take_start_s": take_start_s, "clock_offset_how": STAMPED_HOW, "clock_offset_confidence": np.nan,
+                "clock_offset_uncertainty_s": np.nan, "max_residual_m": float(self.mocap.max_residual_m),
+                "units": units[-1] if units else "", "fit_flags": FLAG_LEGEND}
+
+    def source(self, dropouts: int, missing: int) -> str:
+        return f"LSL lsl:{self.inlet.stream_name} ({_stamped_note(dropouts, missing)})"
 
 
 def append_live_mocap(recording: str | Path, take: Take, mocap: MocapConfig, axes: Sequence[str],
@@ -404,8 +497,7 @@ def append_live_mocap(recording: str | Path, take: Take, mocap: MocapConfig, axe
     else:
         layout = check_layout(mocap.marker_layout_m, len(axes))
         angles, _ = joint_angles(fit.rotation, axes)
-    result = MocapResult(take, layout, fit, angles, 0.0, None, mocap.max_residual_m,
-                         stamped="stamped at capture on the recording's clock (LSL time_correction())")
+    result = MocapResult(take, layout, fit, angles, 0.0, None, mocap.max_residual_m, stamped=STAMPED_HOW)
     write_in_place(recording, result, compression=None)
     return result
 
@@ -487,6 +579,7 @@ class LslLinks:
         self.publisher: LslPublisher | None = None
         self._recorder: Recorder | None = None
         self._take_counts = (0, 0)  # the inlet's dropouts and missing samples when the take began
+        self._streamed: _TakeIntoRecording | None = None  # the take being written into the recording
 
     @property
     def recording(self) -> bool:
@@ -509,8 +602,15 @@ class LslLinks:
         if previous is not None and previous is not inlet:
             previous.close()
         if inlet is not None and self._recorder is not None:  # picked up while a recording runs
-            self._take_counts = (inlet.dropouts, inlet.missing)
-            inlet.begin_take()
+            self._begin_take(inlet, self._recorder)
+
+    def _begin_take(self, inlet: MocapInlet, recorder: Recorder) -> None:
+        """``inlet``'s samples from now on are the recording's: written into it as they come when the inlet
+        fits poses (it knows the layout), else kept until :meth:`stop`."""
+        self._take_counts = (inlet.dropouts, inlet.missing)
+        self._streamed = _TakeIntoRecording(inlet, recorder, self.mocap, self.axes) if inlet.mocap is not None \
+            else None
+        inlet.begin_take(self._streamed)
 
     def _dropout(self, dropout: Dropout) -> None:  # the inlet's reader thread
         recorder = self._recorder
@@ -571,8 +671,7 @@ class LslLinks:
         """A recording starts: its take begins, dropouts go into its events."""
         self._recorder = recorder
         if self.inlet is not None:
-            self._take_counts = (self.inlet.dropouts, self.inlet.missing)
-            self.inlet.begin_take()
+            self._begin_take(self.inlet, recorder)
         self.push_event(f"recording started: {recorder.path.name}")
 
     def stop(self, recorder: Recorder, close_inlet: bool = False) -> LiveTake | None:
@@ -592,6 +691,12 @@ class LslLinks:
             recorder.log_event(f"mocap: {dropouts} dropout(s), {missing} sample(s) missing from LSL stream "
                                f"{inlet.stream_name!r}{quiet}", kind="mocap")
             take = inlet.live_take(host, values, dropouts, missing, fit)
+            streamed, self._streamed = self._streamed, None
+            if streamed is not None:  # written into the recording already; its source says the dropouts
+                if streamed.rows:
+                    recorder.set_mocap_attrs({"source": streamed.source(dropouts, missing)})
+                take = replace(take, streamed=streamed.rows,
+                               posed=streamed.posed / max(1, streamed.rows * len(self.axes)))
         self.push_event(f"recording stopped: {recorder.path.name}")
         self._recorder = None
         return take

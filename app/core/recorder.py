@@ -11,7 +11,8 @@ Nothing here imports Qt: :class:`app.gui.recording_session.RecordingSession` re-
 ``sensnake record`` uses the recorder as it is.
 
 Public methods are for one controlling thread (the one that called :meth:`Recorder.start`), except
-:attr:`error`, :attr:`backlog`, :meth:`size_bytes` which any thread may read.
+:attr:`error`, :attr:`backlog`, :meth:`size_bytes` which any thread may read, and :meth:`log_event` and
+:meth:`add_mocap`, which the motion-capture reader thread calls (they only enqueue).
 """
 
 from __future__ import annotations
@@ -148,6 +149,17 @@ class Recorder:
             return
         self.n_robot_samples += len(states)
         self._queue.put(lambda w: _append_robot(w, states))
+
+    def add_mocap(self, columns: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> None:
+        """Rows of ``/mocap`` (each column's rows on its first axis; ``attrs``: the group's attributes when it is
+        made), appended to the file with the rest at the next flush. Any thread (the motion-capture reader's)."""
+        if self.is_active:
+            self._queue.put(lambda w: w.append_mocap(columns, attrs))
+
+    def set_mocap_attrs(self, attrs: Mapping[str, Any]) -> None:
+        """``/mocap`` attributes set (or replaced) at the next flush."""
+        if self.is_active:
+            self._queue.put(lambda w: w.set_mocap_attrs(attrs))
 
     def mark_gap(self, host_monotonic_s: float, reason: str) -> None:
         if self.is_active:

@@ -59,6 +59,7 @@ FORMAT = "sensnake-recording"
 VERSION = 1
 DEFAULT_FLUSH_INTERVAL_S = 0.5
 CHUNK_BYTES = 1 << 14
+MOCAP_CHUNK_BYTES = 1 << 18  # /mocap's rows are wide (~2.5 kB a frame), and an hour at 960 Hz is 3.5 M of them
 DEFAULT_MIN_FREE_BYTES = 16_000_000  # stop before the disk is full: HDF5 cannot recover from a failed write
 METADATA_RESERVE_BYTES = 1_000_000
 FLUSH_METADATA_RESERVE_BYTES = 256_000  # room reserved for the metadata one flush may add (it adds a few kB)
@@ -87,10 +88,12 @@ class _Table:
     through the file opened for that flush (the writer keeps no HDF5 handle between flushes)."""
 
     def __init__(self, group: h5py.Group | str, columns: dict[str, tuple[Any, tuple[int, ...]]],
-                 attrs: dict[str, Any] | None = None) -> None:
+                 attrs: dict[str, Any] | None = None, chunk_bytes: int = CHUNK_BYTES) -> None:
         """``group``: the group to make the datasets in now, or the name of one made at the first flush that has
-        rows for it (with ``attrs``): a group only some recordings hold (``/control``) appears only in those."""
+        rows for it (with ``attrs``): a group only some recordings hold (``/control``) appears only in those.
+        ``chunk_bytes``: about how many bytes each dataset's chunks hold."""
         self.columns = dict(columns)
+        self.chunk_bytes = int(chunk_bytes)
         self._attrs = dict(attrs or {})
         if isinstance(group, str):
             self.group_name = group
@@ -103,7 +106,7 @@ class _Table:
     def _create(self, group: h5py.Group) -> None:
         for name, (dtype, row_shape) in self.columns.items():
             row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
-            chunk_rows = max(16, CHUNK_BYTES // row_bytes)
+            chunk_rows = max(16, self.chunk_bytes // row_bytes)
             group.create_dataset(name, shape=(0, *row_shape), maxshape=(None, *row_shape),
                                  chunks=(chunk_rows, *row_shape), dtype=dtype)
         for key, value in self._attrs.items():
@@ -352,7 +355,7 @@ class RecordingWriter:
         ``attrs`` at the first flush that has rows for it; flushed with the other groups."""
         if self._mocap is None:
             self._mocap = _Table("mocap", {name: (np.asarray(v).dtype, np.asarray(v).shape[1:])
-                                           for name, v in columns.items()}, dict(attrs))
+                                           for name, v in columns.items()}, dict(attrs), MOCAP_CHUNK_BYTES)
         self._mocap.append(**{name: np.asarray(v) for name, v in columns.items()})
 
     def set_mocap_attrs(self, attrs: Mapping[str, Any]) -> None:

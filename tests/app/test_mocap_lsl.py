@@ -197,4 +197,9 @@ def test_lsl_links_collect_a_take_per_recording_and_count_its_own_dropouts(tmp_p
         links.close()
         assert sender.sent > 0
     assert take is not None and take.dropouts == 1 and take.missing == pytest.approx(96, abs=3)
-    assert take.host_s[0] >= recorder.t0_monotonic_s  # nothing captured before the recording began
+    assert take.streamed > 100 and len(take.host_s) == 0  # written into the recording as it came, none kept
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        time_s = f["mocap/time_s"][:]
+        assert len(time_s) == take.streamed and f["mocap/segment_center_m"].shape == (take.streamed, 12, 3)
+        assert time_s[0] >= 0.0  # nothing captured before the recording began
+        assert "1 dropouts" in f["mocap"].attrs["source"]
