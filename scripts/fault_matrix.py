@@ -1106,6 +1106,10 @@ def _hostile_recordings(folder: Path) -> dict[str, tuple[Path, tuple[str, ...]]]
     def version(f: h5py.File) -> None:
         f.attrs["version"] = "abc"
 
+    def hollow(f: h5py.File) -> None:  # 10⁸ rows declared (29 GB), none written: read whole, they would fill memory
+        del f["daq/conductance_S"]
+        f.create_dataset("daq/conductance_S", shape=(10**8, 36), dtype="f8", chunks=(1024, 36))
+
     cond = "/daq/conductance_S"
     return {
         "compound dtype": variant("compound", dataset("daq/conductance_S", np.zeros(
@@ -1118,6 +1122,7 @@ def _hostile_recordings(folder: Path) -> dict[str, tuple[Path, tuple[str, ...]]]
         "soft-link loop": variant("loop", loop, cond, "loops back"),
         "2-D time": variant("time2d", dataset("daq/time_s", np.zeros((n, 2))), "/daq/time_s", "one value per row"),
         'version "abc"': variant("version", version, "version", "'abc'"),
+        "hollow (10⁸ rows declared, none stored)": variant("hollow", hollow, cond, "declares 100,000,000 rows"),
     }
 
 
@@ -1137,7 +1142,7 @@ def hostile_recordings(folder: Path) -> Outcome:
             ok, note = clean_failure(run, 1, *words)
             if not ok:
                 return Outcome(False, f"{argv[0]} on {name}: {note}")
-    return Outcome(True, "9 hostile recordings × (estimate, export, repair): each one line naming the file and the "
+    return Outcome(True, "10 hostile recordings × (estimate, export, repair): each one line naming the file and the "
                          "cause")
 
 
@@ -1502,7 +1507,7 @@ CASES.update({
     "hostile: a killed writer's temporary is removed by the next run": stale_temporaries_removed,
     "hostile: record onto a full disk (old file untouched, no lock left)": full_disk_record,
     "hostile: TOML (400/5000 digits, deep nesting, 10 000 obstacles, FIFO, /dev/zero, gains twice)": hostile_toml,
-    "hostile: recordings of the wrong shape or type (compound, 1-D, complex, loops, …)": hostile_recordings,
+    "hostile: recordings of the wrong shape or type (compound, 1-D, complex, loops, hollow, …)": hostile_recordings,
     "hostile: repair with 200 flipped bytes": repair_flipped_bytes,
     "hostile: export/repair/estimate of a symlink loop": symlink_loop_inputs,
     "hostile: a FIFO given as a recording to every reader": fifo_as_every_recording_input,

@@ -1168,7 +1168,27 @@ def _dataset(f: h5py.File, file: Path, name: str, kinds: str, ndim: int, columns
         raise RecordingFormatError(f"{where} holds {_describe_dataset(dataset)}; {expected}")
     if dataset.ndim != ndim or (columns is not None and dataset.shape[1] != columns):
         raise RecordingFormatError(f"{where} holds {_describe_dataset(dataset)}; {expected}")
+    _refuse_hollow(dataset, where)
     return dataset
+
+
+# A dataset that declares more than this and holds data for less than half of it (chunks never written: HDF5 reads
+# them as zeros) is refused before it is read: a forged 11 kB file declaring 10⁹ rows would fill the memory.
+_HOLLOW_BYTES = 256 << 20
+
+
+def _refuse_hollow(dataset: h5py.Dataset, where: str) -> None:
+    declared = int(dataset.size) * dataset.dtype.itemsize
+    if declared <= _HOLLOW_BYTES or dataset.compression is not None or dataset.chunks is None:
+        return
+    try:
+        stored = int(dataset.id.get_storage_size())
+    except (RuntimeError, OSError, ValueError):
+        return
+    if stored < declared // 2:
+        raise RecordingFormatError(f"{where} declares {dataset.shape[0]:,} rows ({declared / 1e9:.3g} GB) but the file "
+                                   f"holds data for {stored / 1e6:.3g} MB of them: a damaged or forged recording, not "
+                                   "read")
 
 
 def _int_attr(attrs: h5py.AttributeManager, file: Path, where: str, key: str, default: int) -> int:

@@ -317,3 +317,20 @@ def test_a_255_byte_output_name_is_written_and_its_killed_temporary_removed(tmp_
     long_h5 = tmp_path / ("r" * 252 + ".h5")
     assert main(["record", "--daq", "sim", "--seconds", "0.2", "--out", str(long_h5)]) == 0
     assert h5py.is_hdf5(long_h5) and not hidden(tmp_path)  # no lock file, no temporary left
+
+
+def test_a_recording_declaring_rows_it_never_stored_is_refused_before_it_is_read(tmp_path: Path,
+                                                                                  capsys: pytest.CaptureFixture[str]
+                                                                                  ) -> None:
+    forged = tmp_path / "forged.h5"
+    assert main(["record", "--daq", "sim", "--seconds", "0.2", "--out", str(forged)]) == 0
+    capsys.readouterr()
+    with h5py.File(forged, "r+") as f:  # 6·10⁷ board times declared (480 MB), none written: a file of ~0.1 MB
+        del f["daq/time_s"]
+        f.create_dataset("daq/time_s", shape=(60_000_000,), dtype="f8", chunks=(4096,))
+    assert forged.stat().st_size < 1_000_000
+    for argv in (["export", str(forged), "--csv", str(tmp_path / "o.csv")],
+                 ["repair", str(forged), "--out", str(tmp_path / "fixed.h5")]):
+        assert main(argv) == 1
+        line = one_error_line(capsys)
+        assert "forged.h5: /daq/time_s declares 60,000,000 rows" in line and "not read" in line, line
