@@ -1369,7 +1369,8 @@ def restore_checked_whole(folder: Path) -> Outcome:
                  (variant("silent", "11", **{"Status Return Level": 0}), ("servo 11", "cut the app off"))]
         writes = emu.counts()["write"]
         for path, words in cases:
-            ok, note = clean_failure(sensnake("servo", "restore", str(path), "--robot", emu.path), 1, *words)
+            ok, note = clean_failure(sensnake("servo", "restore", str(path), "--robot", emu.path), 1, path.name,
+                                     *words)
             if not ok:
                 return Outcome(False, f"{path.name}: {note}")
         if emu.counts()["write"] != writes:
@@ -1419,7 +1420,7 @@ def restore_refused_midway(folder: Path) -> Outcome:
 
         with mock.patch.object(ServoChain, "write_item", refusing):
             run = in_process("servo", "restore", str(saved), "--robot", emu.path)
-        ok, note = clean_failure(run, 1, "restore stopped at servo 6, Moving Threshold", "Written: servo 2 "
+        ok, note = clean_failure(run, 1, "servos.json", "restore stopped at servo 6, Moving Threshold", "Written: servo 2 "
                                  "(Position I Gain)", "Not written: servo 6 (Moving Threshold, Position I Gain); "
                                  "servo 11 (Position I Gain)")
         held = [in_process("servo", "get", "--robot", emu.path, "--id", str(sid), "Position I Gain").out

@@ -116,8 +116,12 @@ def _act(args: argparse.Namespace, chain: ServoChain, ids: list[int]) -> int:
 
 def _restore(chain: ServoChain, document: dict[str, object], ids: list[int] | None, source: str) -> int:
     from app.core import servo_settings as ss
+    from app.core.errors import SettingsError
 
-    changes = ss.restore(chain, document, ids)
+    try:
+        changes = ss.restore(chain, document, ids)
+    except SettingsError as exc:  # the servos' checks and a refusal midway: the line names the file too
+        raise SettingsError(f"{source}: {exc}") from exc
     written = [c for c in changes if c.written]
     for change in written:
         print(f"servo {change.servo_id}: {change.item} {change.before} → {change.after}")
