@@ -17,6 +17,7 @@ from devices.sim.mocap_stream import channel_labels
 N_SEGMENTS = 12
 SPACING_M = 0.085
 SPEED_M_S = 0.2
+MAX_BACKLOG = 40  # chunks queued for the recording's writer (~1 s at 960 Hz) before the feed waits for it
 
 
 class _Node:
@@ -125,6 +126,8 @@ def record_generated_take(path: str | Path, seconds: float, seed: int = 0, lead_
                                    seq=np.arange(n, dtype=np.uint32), saturated=np.zeros((n, c), bool)))
     for host, values in generated_chunks(seconds, t0 - lead_s, seed=seed, mocap=config.mocap):
         inlet.take_in(host, values)
+        while recorder.backlog > MAX_BACKLOG and recorder.is_active:  # as fast as the writer keeps up
+            time.sleep(0.001)
     take = links.stop(recorder, close_inlet=True)
     recorder.stop()
     links.close()

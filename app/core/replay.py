@@ -5,7 +5,9 @@ What a recording can show of the robot's body (SPEC §3.5 and its extensions):
 - ``/sim`` (a physics-lab run): the simulated body, ``points_m`` (T, n+1, 3) head tip first and, when recorded,
   ``segment_rotation`` (T, n, 3, 3), with the true normal force on every sheet ``sheet_true_N`` (T, C);
 - ``/mocap`` (a motion-capture take lined up on the recording's clock): each segment's centre ``segment_center_m``
-  (M, n, 3) and orientation ``segment_rotation`` (M, n, 3, 3), the body the cameras saw;
+  (M, n, 3) and orientation ``segment_rotation`` (M, n, 3, 3), the body the cameras saw; of a take longer than
+  :data:`MAX_MOCAP_FRAMES` frames (3.5 min at 960 Hz) every k-th, the fewest that keep within it (an hour at 960 Hz:
+  every 18th, 53 Hz), so that an hour's take opens without holding it whole;
 - ``/robot``: the commanded joint angles ``goal_rad`` (N, J), drawn by forward kinematics from the head frame
   (:mod:`models.kinematics`) when the recording has neither of the two above.
 
@@ -29,6 +31,7 @@ from app.core.recording import check_input
 from models.kinematics import SEGMENT_LENGTH_M, SEGMENT_RADIUS_M, BodyPose, forward_kinematics, sensor_points
 
 SIM, MOCAP, COMMANDED = "sim", "mocap", "commanded"
+MAX_MOCAP_FRAMES = 200_000  # of a longer take every k-th frame is replayed (~300 MB at most; 3.5 min at 960 Hz whole)
 SOURCE_TITLES = {SIM: "simulated body (/sim)", MOCAP: "motion-captured body (/mocap)",
                  COMMANDED: "commanded pose (/robot goal, from the head)"}
 
@@ -193,9 +196,11 @@ def _read(f: h5py.File, path: Path, axes: tuple[str, ...] | None, segment_length
                                 rotations))
     if "mocap" in f and "segment_center_m" in f["mocap"] and f["mocap/segment_center_m"].shape[0]:
         mocap = f["mocap"]
-        centers = np.asarray(mocap["segment_center_m"][:], float)
-        rotations = np.asarray(mocap["segment_rotation"][:], float)
-        tracks.append(BodyTrack(MOCAP, np.asarray(mocap["time_s"][:], float),
+        rows = mocap["segment_center_m"].shape[0]
+        step = -(-rows // MAX_MOCAP_FRAMES)  # a long take: every step-th frame, read so (never whole)
+        centers = np.asarray(mocap["segment_center_m"][::step], float)
+        rotations = np.asarray(mocap["segment_rotation"][::step], float)
+        tracks.append(BodyTrack(MOCAP, np.asarray(mocap["time_s"][::step], float),
                                 _mocap_points(centers, rotations, length), rotations))
     if not tracks and "robot" in f and "goal_rad" in f["robot"] and f["robot/goal_rad"].shape[0]:
         robot = f["robot"]

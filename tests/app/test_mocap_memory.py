@@ -11,6 +11,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import pytest
 
 from tests.mocap_takes import record_generated_take
 
@@ -67,3 +68,22 @@ def test_recording_a_long_take_takes_no_more_memory_than_a_short_one() -> None:
     assert out.returncode == 0, out.stderr[-2000:]
     growth = json.loads(out.stdout.strip().splitlines()[-1])["growth_mb"]
     assert growth < 40.0, f"peak memory grew by {growth:.0f} MB"
+
+
+def test_the_replay_of_a_take_longer_than_it_holds_reads_every_kth_frame(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """The 3-D tab replays the written take; a take over MAX_MOCAP_FRAMES (here 100) is read every k-th frame."""
+    from app.core import replay
+
+    path = tmp_path / "take.h5"
+    record_generated_take(path, 0.6)
+    whole = replay.open_replay(path)
+    monkeypatch.setattr(replay, "MAX_MOCAP_FRAMES", 100)
+    thinned = replay.open_replay(path)
+    with h5py.File(path, "r") as f:
+        time_s = f["mocap/time_s"][:]
+    track, few = whole.tracks[0], thinned.tracks[0]
+    assert track.source == few.source == replay.MOCAP and track.points_m is not None
+    np.testing.assert_array_equal(track.time_s, time_s)
+    np.testing.assert_array_equal(few.time_s, time_s[::5])  # 432 frames: every 5th, 87 of them
+    np.testing.assert_array_equal(few.points_m, track.points_m[::5])
