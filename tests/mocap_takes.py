@@ -6,7 +6,7 @@ pose) for a while, a gap of 0.1 s (a dropout) and noise, all from one seed."""
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -101,10 +101,12 @@ def generated_chunks(seconds: float, t0_s: float, rate_hz: float = 960.0, chunk:
         yield t0_s + t, (markers * 1000.0).reshape(len(t), -1).astype(np.float32)
 
 
-def record_generated_take(path: str | Path, seconds: float, seed: int = 0, lead_s: float = 0.05) -> str:
+def record_generated_take(path: str | Path, seconds: float, seed: int = 0, lead_s: float = 0.05,
+                          before_stop: Callable[[], None] | None = None) -> str:
     """A recording at ``path`` whose motion capture is a generated ``seconds`` take fed straight into an inlet
     (no Lab Streaming Layer), as ``sensnake record --mocap`` records one: a few board frames, the take (starting
-    ``lead_s`` before the recording: those samples are not its), ``/mocap`` written. The summary line."""
+    ``lead_s`` before the recording: those samples are not its), ``/mocap`` written. The summary line.
+    ``before_stop``: called once the take is fed, the recording still running."""
     from app.core.lsl_link import LslLinks, MocapInlet
     from app.core.recorder import Recorder
     from devices.board import SampleBlock
@@ -128,6 +130,8 @@ def record_generated_take(path: str | Path, seconds: float, seed: int = 0, lead_
         inlet.take_in(host, values)
         while recorder.backlog > MAX_BACKLOG and recorder.is_active:  # as fast as the writer keeps up
             time.sleep(0.001)
+    if before_stop is not None:
+        before_stop()
     take = links.stop(recorder, close_inlet=True)
     recorder.stop()
     links.close()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.mocap_takes import record_generated_take
+from tests.waiting import wait_until
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "mocap_live_reference.npz"
 ROOT = Path(__file__).resolve().parents[2]
@@ -21,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 GROWTH = """
 import json, resource, sys, tempfile, os
 from tests.mocap_takes import record_generated_take
+from tests.waiting import wait_until
 with tempfile.TemporaryDirectory() as tmp:
     record_generated_take(os.path.join(tmp, "short.h5"), 5.0)
     short = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -87,3 +89,25 @@ def test_the_replay_of_a_take_longer_than_it_holds_reads_every_kth_frame(tmp_pat
     np.testing.assert_array_equal(track.time_s, time_s)
     np.testing.assert_array_equal(few.time_s, time_s[::5])  # 432 frames: every 5th, 87 of them
     np.testing.assert_array_equal(few.points_m, track.points_m[::5])
+
+
+def test_the_take_is_in_the_file_on_disk_while_the_recording_runs(tmp_path: Path) -> None:
+    """Flushed with the recording's other groups (at least every 0.5 s): a crash would keep what came before it."""
+    path = tmp_path / "take.h5"
+    seen: list[int] = []
+
+    def rows_on_disk() -> int:
+        try:
+            with h5py.File(path, "r", locking=False) as f:
+                return int(f["mocap/segment_center_m"].shape[0]) if "mocap" in f else 0
+        except (OSError, KeyError):  # caught between the writer's steps, or not yet moved into place
+            return 0
+
+    def check() -> None:
+        assert wait_until(lambda: rows_on_disk() == 432, 30.0), f"{rows_on_disk()} rows on disk"
+        with h5py.File(path, "r", locking=False) as f:
+            seen.append(int(f["mocap/time_s"].shape[0]))
+            assert f["mocap"].attrs["rate_hz"] == 960.0 and f["mocap"].attrs["clock_offset_s"] == 0.0
+
+    record_generated_take(path, 0.6, before_stop=check)
+    assert seen == [432]
