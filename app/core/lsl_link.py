@@ -7,7 +7,9 @@ type MoCap) on its own thread. Its channels are named by their metadata (``label
 (``time_correction()``, refreshed every :data:`CORRECTION_EVERY_S`) and so on ``time.monotonic()`` (the two are
 related by one reading of both at the start). A gap in the stream longer than :data:`GAP_PERIODS` sample periods is
 a dropout: counted, and an event (kind ``mocap``) in the recording. While a take is being collected
-(:meth:`MocapInlet.begin_take` … :meth:`MocapInlet.end_take`) every sample is kept; with ``live_rate_hz`` the reader
+(:meth:`MocapInlet.begin_take` … :meth:`MocapInlet.end_take`) every sample is kept, or handed with its fitted poses
+to a sink that writes it into a recording (then nothing is kept: memory stays bounded whatever the take's length);
+with ``live_rate_hz`` the reader
 also fits the segments' poses of a few samples a second (:class:`LivePoses`: the newest markers and a bounded
 history of the segment centres) for the app's 3-D view and kinematics plot.
 
@@ -17,10 +19,12 @@ published again when that changes), ``SenSnake-joints`` (type ``Position``, the 
 rate) and ``SenSnake-events`` (type ``Markers``, strings), each sample stamped with the time its board frame
 arrived or its servo read was sent, on the LSL clock.
 
-:class:`LslLinks` ties both to a :class:`app.core.live_session.LiveSession` and a recording: a take collected from
-the recording's start to its stop (:meth:`LslLinks.start`, :meth:`LslLinks.stop`), a :class:`LiveTake` written into
-the closed recording as ``/mocap`` (:meth:`LiveTake.write`, ``clock_offset_how`` saying the samples were stamped at
-capture), the robot's states published as they come (:meth:`LslLinks.push_robot_states`).
+:class:`LslLinks` ties both to a :class:`app.core.live_session.LiveSession` and a recording: a take from the
+recording's start to its stop (:meth:`LslLinks.start`, :meth:`LslLinks.stop`) written into it as ``/mocap`` as the
+samples arrive (appended by the recorder's writer, flushed with the rest; ``clock_offset_how`` saying the samples
+were stamped at capture), a :class:`LiveTake` saying what was written (:meth:`LiveTake.write`: an inlet without the
+layout's poses keeps its take and writes it into the closed recording there), the robot's states published as they
+come (:meth:`LslLinks.push_robot_states`).
 
 Threads: the inlet's reader thread (:attr:`MocapInlet.on_dropout` is called there); :meth:`MocapInlet.start` blocks
 up to the resolve timeout (the app calls it on a worker); :meth:`LivePoses` snapshots may be read from any thread;

@@ -8,9 +8,9 @@ user's own LSL configuration says (this computer or the lab's network: the app l
 switches the app's own streams on and off (``SenSnake-forces`` from the Forces tab's live session, ``SenSnake-joints``
 from the control loop's states at its rate, ``SenSnake-events``). A stream is resolved on a worker thread (up to
 5 s); its reader fits a few poses a second for the 3-D tab (:meth:`MocapLink.live_snapshot`, any thread). A
-recording started while a source is followed collects every sample (:meth:`MocapLink.recording_started`,
-:meth:`MocapLink.recording_stopping`) and writes them as ``/mocap`` into the closed file
-(:meth:`MocapLink.write_take`, on :class:`app.gui.recording_session.RecordingSession`'s worker).
+recording started while a source is followed gets every sample written into it as ``/mocap`` as it arrives
+(:meth:`MocapLink.recording_started`, :meth:`MocapLink.recording_stopping`; nothing of the take is kept), and
+:meth:`MocapLink.write_take` (on :class:`app.gui.recording_session.RecordingSession`'s worker) says what it holds.
 
 Signals (GUI thread): ``source_changed(str)``, ``status_changed(str, str)`` (text, level), ``publishing_changed(bool)``.
 Public methods are for the GUI thread unless they say otherwise.
@@ -213,8 +213,9 @@ class MocapLink(QObject):
         return self.links.stop(recorder)
 
     def write_take(self, take: LiveTake, path: str | Path, t0_monotonic_s: float) -> str:
-        """Write ``take`` as ``/mocap`` into the closed recording at ``path``; one line saying what was written.
-        Any thread (the recording session's worker)."""
+        """Finish ``take``'s ``/mocap`` in the closed recording at ``path`` (written into it as it came; see
+        :meth:`app.core.lsl_link.LiveTake.write`); one line saying what was written. Any thread (the recording
+        session's worker)."""
         result = take.write(path, t0_monotonic_s, self.config.mocap, self.config.robot.axes)
         return take.summary(result, Path(path).name)
 
