@@ -498,9 +498,9 @@ def _plan(bus: Bus, servo_id: int, saved: dict[str, Any]) -> _Planned:
                             "(check its cable and power; --id restores the others)") from None
     model = saved.get("model_number", saved["items"].get("Model Number"))
     if model != present["Model Number"]:
-        raise SettingsError(f"servo {servo_id}: the settings file is for a {ct.model_name(model)} (model {model}), but "
-                            f"servo {servo_id} is a {ct.model_name(present['Model Number'])} (model "
-                            f"{present['Model Number']}): nothing written")
+        raise SettingsError(f"servo {servo_id}: the settings file is for model {model} ({ct.model_name(model)}), but "
+                            f"servo {servo_id} is model {present['Model Number']} "
+                            f"({ct.model_name(present['Model Number'])}): nothing written")
     after = dict(present)
     planned = []
     for name, value in saved["items"].items():
