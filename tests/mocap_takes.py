@@ -129,6 +129,7 @@ def record_generated_take(path: str | Path, seconds: float, seed: int = 0, lead_
     for host, values in generated_chunks(seconds, t0 - lead_s, seed=seed, mocap=config.mocap):
         inlet.take_in(host, values)
         while recorder.backlog > MAX_BACKLOG and recorder.is_active:  # as fast as the writer keeps up
+            # Deliberate: back-pressure on a generator, not a wait for an event (the writer offers no signal here).
             time.sleep(0.001)
     if before_stop is not None:
         before_stop()
