@@ -25,6 +25,8 @@ ENVIRONMENT = {
     "SENSNAKE_DATA_DIR": "moves the per-user folder (recordings, shapes, calibrations, settings), e.g. to a shared lab disk",
     "SENSNAKE_RECORDINGS_DIR": "moves the recordings folder alone",
     "SENSNAKE_SHAPES_DIR": "moves the shape library alone",
+    "SENSNAKE_STATIC_CHECKS_PASSED": "1 (set by scripts/test.sh once ruff, mypy and the import contracts passed): the tests "
+                                     "do not run those checks again",
     "SENSNAKE_REALTIME": "0: no real-time priority for the control loop's thread (and no CPU idle-state hold)",
     "SENSNAKE_CPU_LATENCY": "0: do not hold the CPUs' idle states shallow while the loop needs its beat",
     "SENSNAKE_LOOP_PROCESS": "0: the control loop runs in the app's process on every port",
