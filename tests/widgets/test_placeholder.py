@@ -25,7 +25,7 @@ def test_a_note_makes_no_window_of_its_own_and_the_main_window_keeps_the_keys(qt
     qtbot.addWidget(page)
     assert _visible_windows() == before
     assert not any(label.isWindow() for label in (page.title_label, page.description_label, page.note_label))
-    qtbot.wait(50)
+    qtbot.wait(50)  # Deliberate: a stray window would take the focus on a later turn of the event loop; none may
     assert host.isActiveWindow()
     page.show()
     assert page.note_label.isVisible() and page.note_label.text() == "Opening…"
