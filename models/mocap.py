@@ -70,7 +70,8 @@ def check_layout(layout_m: np.ndarray | Sequence[Sequence[float]], n_segments: i
     :class:`MocapLayoutError` naming the problem: fewer than 3 markers, non-finite values, three markers near one
     line (no roll)."""
     layout = np.asarray(layout_m, dtype=float)
-    if layout.ndim == 2:
+    one_for_all = layout.ndim == 2
+    if one_for_all:
         layout = np.broadcast_to(layout, (n_segments, *layout.shape)).copy()
     if layout.ndim != 3 or layout.shape[0] != n_segments or layout.shape[2] != 3:
         raise MocapLayoutError(f"marker_layout_m has shape {layout.shape}: give K rows of [x, y, z] (m) for every "
@@ -80,7 +81,7 @@ def check_layout(layout_m: np.ndarray | Sequence[Sequence[float]], n_segments: i
                                f"at least {MIN_MARKERS} markers")
     if not np.all(np.isfinite(layout)):
         raise MocapLayoutError("marker_layout_m has a value that is not a finite number")
-    for s in range(n_segments):
+    for s in range(1 if one_for_all else n_segments):  # (one layout for all: its first copy says it for every one)
         for trio in itertools.combinations(range(layout.shape[1]), 3):
             height = _triangle_height_m(layout[s, list(trio)])
             if height < MIN_TRIANGLE_HEIGHT_M:

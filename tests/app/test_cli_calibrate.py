@@ -30,12 +30,24 @@ from devices.sim.lab import SimLab
 REPO = Path(__file__).resolve().parents[2]
 # The scripted simulated lab (the app's default is the physics lab; tests pin the scripted one, tests/conftest.py).
 LAB_TOML = "[board]\nrate_hz = 12.0\n[lab]\nphysics = \"scripted\"\n"
+# Tests of what a run does (resume, batches, the probe's moves) on a sensor that creeps 5× faster than the lab's
+# (τ 20 s instead of 100 s): holds of 3.75 τ and rests of 5 τ fit it as well in a fifth of the time. The recovery of
+# the lab's own sensor on the real protocol's timescale is the first test's.
+FAST_SENSOR_TOML = LAB_TOML + "sensor_tau_s = 20.0\n"
+FAST_HOLD = ["--hold", "75", "--rest", "100"]
 
 
 @pytest.fixture
 def lab_config(tmp_path):
     path = tmp_path / "lab.toml"
     path.write_text(LAB_TOML, encoding="utf-8")
+    return path
+
+
+@pytest.fixture
+def fast_sensor_config(tmp_path):
+    path = tmp_path / "fast_sensor_lab.toml"
+    path.write_text(FAST_SENSOR_TOML, encoding="utf-8")
     return path
 
 
@@ -73,11 +85,11 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_path, lab_config):
+def test_kill_9_during_trial_3_then_resume_keeps_trials_1_2_and_redoes_3(tmp_path, fast_sensor_config):
+    lab_config = fast_sensor_config
     out = tmp_path / "cal.json"
     command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
-               "--forces", "1.75,3,5.25", "--trials", "1", "--hold", "150", "--rest", "200", "--time-scale", "150",
-               "--out", str(out)]
+               "--forces", "1.75,3,5.25", "--trials", "1", *FAST_HOLD, "--time-scale", "150", "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                text=True)
@@ -365,15 +377,14 @@ def test_sensors_are_expanded_in_the_order_given_patterns_in_the_boards_order():
         expand_sensors(" , ", channels)
 
 
-@pytest.mark.slow  # two sensors' full holds at 60× real time: ~70 s (150× starves the simulated board when busy)
-def test_several_sensors_in_one_run_the_simulated_probe_moving_to_each(tmp_path, lab_config, capsys):
+def test_several_sensors_in_one_run_the_simulated_probe_moving_to_each(tmp_path, fast_sensor_config, capsys):
     """``--sensors``: each sensor in turn on the rig — the simulated lab's probe moves onto it (before, a sensor other
     than the config's rig.sensor lay under the robot's weight and its fit was refused) — each saved into CAL.json as
     its fit is done, the batch's folder saying which were."""
+    lab_config = fast_sensor_config
     out = tmp_path / "cal.json"
     code = main(["calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim", "--sensors", "S02B,S03B",
-                 "--forces", "1.75,5.25", "--trials", "1", "--hold", "370", "--rest", "500",
-                 "--time-scale", "150", "--out", str(out)])
+                 "--forces", "1.75,5.25", "--trials", "1", *FAST_HOLD, "--time-scale", "150", "--out", str(out)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "the probe moves onto S02B" in captured.err and "the probe moves onto S03B" in captured.err
@@ -398,12 +409,13 @@ def test_several_sensors_in_one_run_the_simulated_probe_moving_to_each(tmp_path,
         assert len(finished_trials(batch / name, read_session(batch / name))) == 2
 
 
-def test_a_batch_cut_short_resumes_where_it_stopped(tmp_path, lab_config):
+def test_a_batch_cut_short_resumes_where_it_stopped(tmp_path, fast_sensor_config):
     """Ctrl-C during the second sensor: the first stays saved, the second's finished trials stay; ``--resume`` of the
     batch folder skips the first, finishes the second's session and saves it."""
+    lab_config = fast_sensor_config
     out = tmp_path / "cal.json"
     command = [sys.executable, "-m", "app", "calibrate", "--config", str(lab_config), "--rig", "sim", "--daq", "sim",
-               "--sensors", "S02B,S03B", "--forces", "1.75,3", "--trials", "1", "--hold", "60", "--rest", "60",
+               "--sensors", "S02B,S03B", "--forces", "1.75,3", "--trials", "1", "--hold", "30", "--rest", "30",
                "--time-scale", "60", "--save-anyway", "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,

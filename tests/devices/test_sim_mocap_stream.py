@@ -30,11 +30,13 @@ def sliding_body(t_s: float) -> SimpleNamespace:
     return SimpleNamespace(time_s=t_s, points_m=points, frames=pose.frames)
 
 
+LAYOUT = check_layout(MocapConfig().marker_layout_m, 12)
+
+
 def true_markers(t_s: float) -> np.ndarray:
     body = sliding_body(t_s)
     centres = 0.5 * (body.points_m[:-1] + body.points_m[1:])
-    layout = check_layout(MocapConfig().marker_layout_m, 12)
-    return markers_from_poses(centres[None], body.frames[None], layout)[0]
+    return markers_from_poses(centres[None], body.frames[None], LAYOUT)[0]
 
 
 def test_config_mocap_true_is_the_simulated_labs_stream():
