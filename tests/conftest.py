@@ -245,7 +245,6 @@ SERIAL_MODULES = (
     "tests/app/test_play_pty.py",
     "tests/app/test_force_page.py",
     "tests/app/test_main_window_lab_process.py",
-    "tests/app/test_cli_calibrate.py",
     "tests/app/test_hardware_settings.py",
     "tests/app/test_record_emulated.py",
     "tests/devices/test_servo_chain_emulator.py",
