@@ -43,14 +43,17 @@ if [ "$#" -gt 0 ]; then
     exit $?
 fi
 # Tests that measure wall-clock behaviour or share a machine-wide resource are marked `serial` (tests/conftest.py):
-# the rest runs first on two workers per core (up to 4; a module's tests stay on one worker), then the serial ones
-# alone, so their timings are taken on a machine this run does not load. Two per core, because most of these tests
-# wait on clock-paced simulated labs and subprocesses: one per core kept a quiet 2-core machine only ~50 % busy.
-# Each pass prints its 15 slowest tests: where the run's time goes.
+# the rest runs first on two workers per core (up to 4; a module's tests stay on one worker), then the serial ones on
+# one worker per core, each module whole on one worker and those sharing LSL or Dask on one together. Two per core
+# first, because most of these tests wait on clock-paced simulated labs and subprocesses (one per core kept a quiet
+# 2-core machine only ~50 % busy); the serial ones together keep about half a core busy, so each still runs on a
+# machine with room to spare, as a lab PC running motion capture beside the app has. Each pass prints its 15 slowest
+# tests: where the run's time goes.
 workers=$(python3 -c 'import os; print(max(1, min(4, 2 * len(os.sched_getaffinity(0)))))')
-echo "== tests ($workers workers; those that measure time run after, alone)"
+echo "== tests ($workers workers; those that measure time run after)"
 rc=0
 run_pytest -n "$workers" --dist loadfile -m "not serial" --durations=15 || rc=$?
-echo "== tests that measure time or share the machine (alone)"
-run_pytest -m serial --durations=15 || rc=$?
+serial_workers=$(python3 -c 'import os; print(max(1, min(4, len(os.sched_getaffinity(0)))))')
+echo "== tests that measure time or share the machine ($serial_workers workers, each module on one)"
+run_pytest -n "$serial_workers" --dist loadgroup -m serial --durations=15 || rc=$?
 exit "$rc"

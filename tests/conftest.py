@@ -229,8 +229,10 @@ def install_sim_device():
 
 # Modules whose tests measure wall-clock behaviour (paint rates on a real display, loop periods, a rig or a board
 # paced in real time), or share something machine-wide (LSL discovery on the loopback, a Dask scheduler): they run
-# alone, after the rest has run on several workers (scripts/test.sh). A single test elsewhere can ask for the same
-# with ``@pytest.mark.serial``.
+# after the rest has run on several workers (scripts/test.sh), on one worker per core — these mostly wait, together
+# they keep about half a core busy — each module whole on one worker, and the modules that share a machine-wide
+# resource (SHARED_RESOURCE) on one worker together. A single test elsewhere can ask for the same with
+# ``@pytest.mark.serial``.
 SERIAL_MODULES = (
     "tests/realdisplay/",
     "tests/app/test_mocap_gui.py",
@@ -251,12 +253,25 @@ SERIAL_MODULES = (
 )
 
 
+# What only one test at a time may use, and the modules using it: LSL discovery (a test resolving a MoCap stream by
+# type would find another's) and Dask schedulers.
+SHARED_RESOURCE = {
+    "lsl": ("tests/app/test_mocap_gui.py", "tests/app/test_mocap_lsl.py", "tests/devices/test_sim_mocap_stream.py",
+            "tests/realdisplay/test_mocap_view.py"),
+    "dask": ("tests/app/test_controller_science.py", "tests/app/test_dask_worker_kill.py"),
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own hook reads the xdist_group marks (--dist loadgroup)
 def pytest_collection_modifyitems(config, items):
     serial = pytest.mark.serial
     for item in items:
         path = item.nodeid.split("::", 1)[0]
         if path.startswith(SERIAL_MODULES):
             item.add_marker(serial)
+        if item.get_closest_marker("serial") is not None:
+            group = next((name for name, modules in SHARED_RESOURCE.items() if path in modules), path)
+            item.add_marker(pytest.mark.xdist_group(group))
     if os.environ.get("SENSNAKE_HARDWARE") == "1":
         return
     skip = pytest.mark.skip(reason="needs real hardware (set SENSNAKE_HARDWARE=1)")

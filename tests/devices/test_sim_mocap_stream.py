@@ -118,6 +118,12 @@ def test_the_physics_labs_stream_is_found_by_name_and_stamped_at_the_worlds_time
         try:
             assert inlet.rate_hz == 960.0 and inlet.unit == "mm" and len(inlet.channels) == 144
             assert wait_until(lambda: inlet.received >= 1500, 60.0), f"{inlet.received} samples arrived"
+            # The body, placed just above the ground, settles first: compared once it rests, from poses fitted
+            # after that (a pose fitted while it still moved, beside the state read a moment later, differed by
+            # 2.7 mm on a loaded machine).
+            assert wait_until(lambda: lab.physics.world.resting, 30.0), "the limp body never came to rest"
+            settled = inlet.received
+            assert wait_until(lambda: inlet.received >= settled + 480, 30.0), "no samples after the body rested"
             host, values = inlet.samples()
             snapshot = inlet.live.snapshot() if inlet.live is not None else None
             truth = lab.physics.body_state()
