@@ -1,5 +1,5 @@
-"""Reading a TOML file a user names — a scene, a sweep, a gains file — so that no file can hang, exhaust or crash the
-reader: every refusal is one error that names the file and the cause.
+"""Reading a TOML or JSON file a user names — a scene, a sweep, a gains file, a shape, a calibration — so that no file
+can hang, exhaust or crash the reader: every refusal is one error that names the file and the cause.
 
 - Only a regular file is read. A FIFO (whose open would wait for a writer), a device (``/dev/zero`` reads for ever),
   a socket or a folder is refused for what it is; the file is opened without blocking and checked on the open
@@ -8,6 +8,8 @@ reader: every refusal is one error that names the file and the cause.
 - UTF-8 text, valid TOML, nested no deeper than Python's parser goes (a 200 000-deep array is refused, not a
   ``RecursionError``), and every integer within ±2⁶³ (a 400-digit integer would overflow a float later; one of more
   than 4300 digits is refused by Python's parser itself): the key is named.
+- JSON (:func:`read_json_file`): the same file checks, then valid JSON (its line named), nested no deeper than
+  Python's parser goes, no integer of more than 4300 digits and, when asked, no key given twice in one object.
 
 Pure Python; any thread.
 """
@@ -15,6 +17,7 @@ Pure Python; any thread.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import stat
 import sys
@@ -70,6 +73,50 @@ def read_text_file(path: str | os.PathLike[str], what: str, error: type[Exceptio
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise error(f"{file}: not a UTF-8 text file (byte {exc.start} is not UTF-8: a binary file?)") from None
+
+
+def read_json_file(path: str | os.PathLike[str], what: str, error: type[Exception] = ValueError,
+                   max_bytes: int = MAX_TOML_BYTES, refuse_repeated_keys: bool = False, not_found: str = "") -> Any:
+    """The parsed JSON file ``path``, a ``what`` ("shape file", "calibration file", …), read through
+    :func:`read_text_file` (a regular file of at most ``max_bytes``) and :func:`parse_json_text`: every refusal is
+    ``error`` naming the file and the cause."""
+    return parse_json_text(read_text_file(path, what, error, not_found, max_bytes), str(path), what, error,
+                           refuse_repeated_keys)
+
+
+class _RepeatedKey(Exception):
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _refuse_repeated_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    result: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in result:
+            raise _RepeatedKey(key)
+        result[key] = value
+    return result
+
+
+def parse_json_text(text: str, source: str, what: str, error: type[Exception] = ValueError,
+                    refuse_repeated_keys: bool = False) -> Any:
+    """``text`` parsed as JSON; ``error`` naming ``source`` for invalid JSON (with its line), nesting too deep for
+    the parser, an integer of more digits than Python converts, or — with ``refuse_repeated_keys`` — a key given
+    twice in one object (json keeps the last one silently, so such a file is ambiguous)."""
+    hook = _refuse_repeated_keys if refuse_repeated_keys else None
+    try:
+        return json.loads(text, object_pairs_hook=hook)
+    except _RepeatedKey as repeated:
+        raise error(f"{source}: {repeated.key!r} is given twice in one object (JSON keeps only the last: the file "
+                    "is ambiguous)") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{source}:{exc.lineno}: not valid JSON ({exc.msg}): not {_article(what)} {what}") from None
+    except RecursionError:
+        raise error(f"{source}: nested too deeply to be {_article(what)} {what}") from None
+    except ValueError:  # Python's own limit on an integer's digits (4300): its words name no file
+        raise error(f"{source}: holds an integer of more than {sys.get_int_max_str_digits()} digits: not "
+                    f"{_article(what)} {what}") from None
 
 
 def _article(noun: str) -> str:

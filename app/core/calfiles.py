@@ -22,6 +22,7 @@ import numpy as np
 
 from app.core.errors import CalFileError, OutputPathError
 from app.core.outputs import check_output, create_temporary, describe_kind, move_into_place
+from devices.toml_files import read_json_file
 
 try:  # Arrow's CSV reader and writer: the fast path for big estimate files (a dependency; numpy stays the fallback)
     import pyarrow as _arrow
@@ -492,20 +493,8 @@ MAX_JSON_BYTES = 64_000_000
 
 
 def _load_json(path: str | os.PathLike) -> tuple[Path, Any]:
-    file = _open_path(path)
-    if file.stat().st_size > MAX_JSON_BYTES:
-        raise CalFileError(f"{file}: larger than {MAX_JSON_BYTES / 1e6:g} MB, too large for a calibration file")
-    try:
-        with file.open(encoding="utf-8") as handle:
-            return file, json.load(handle)
-    except json.JSONDecodeError as exc:
-        raise CalFileError(f"{file}:{exc.lineno}: not valid JSON ({exc.msg})") from exc
-    except UnicodeDecodeError as exc:
-        raise CalFileError(f"{file}: not a UTF-8 JSON file ({exc.reason})") from exc
-    except RecursionError:
-        raise CalFileError(f"{file}: nested too deeply to be a calibration file") from None
-    except ValueError:  # Python's limit on an integer's digits (4300): its words name no file
-        raise CalFileError(f"{file}: holds an integer of thousands of digits: not a calibration file") from None
+    file = Path(path)
+    return file, read_json_file(file, "calibration file", CalFileError, MAX_JSON_BYTES, not_found=": no such file")
 
 
 def _check_format(file: Path, document: Any) -> None:

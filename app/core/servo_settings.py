@@ -44,7 +44,7 @@ from app.core.errors import SettingsError
 from app.core.outputs import create_temporary
 from devices import control_table as ct
 from devices.errors import DeviceError, NoReplyError
-from devices.toml_files import read_text_file
+from devices.toml_files import read_json_file
 
 FORMAT = "sensnake-servos"
 VERSION = 1
@@ -376,40 +376,14 @@ def _check_order(values: dict[str, int], where: str) -> None:
                                 "have no room to move)")
 
 
-class _RepeatedKey(Exception):
-    def __init__(self, key: str) -> None:
-        super().__init__(key)
-        self.key = key
-
-
-def _refuse_repeated_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """A JSON object as a dict, refusing a key given twice (json keeps the last one silently: a settings file with
-    servo "3" twice would restore one of them without a word)."""
-    result: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in result:
-            raise _RepeatedKey(key)
-        result[key] = value
-    return result
-
-
 def read_document(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A settings file, checked whole before anything uses it: SettingsError naming the file, the servo, the item
     and what is wrong. Returned with its item names as the e-manual spells them (a file may use any case)."""
     path = Path(path)
-    # Only a regular file of at most MAX_SETTINGS_BYTES is read: a FIFO would block, /dev/zero fill the memory.
-    text = read_text_file(path, "servo settings file", SettingsError, max_bytes=MAX_SETTINGS_BYTES)
-    try:
-        document = json.loads(text, object_pairs_hook=_refuse_repeated_keys)
-    except _RepeatedKey as repeated:
-        raise SettingsError(f"{path}: {repeated.key!r} is given twice in one object (JSON keeps only the last: the "
-                            "file is ambiguous)") from None
-    except json.JSONDecodeError as exc:
-        raise SettingsError(f"{path}:{exc.lineno}: not a servo settings file: not valid JSON ({exc.msg})") from None
-    except RecursionError:
-        raise SettingsError(f"{path}: nested too deeply to be a servo settings file") from None
-    except ValueError:  # Python's limit on an integer's digits (4300)
-        raise SettingsError(f"{path}: holds an integer of thousands of digits: not a servo settings file") from None
+    # Only a regular file of at most MAX_SETTINGS_BYTES is read: a FIFO would block, /dev/zero fill the memory. A
+    # servo given twice is refused: json would restore one of them without a word.
+    document = read_json_file(path, "servo settings file", SettingsError, MAX_SETTINGS_BYTES,
+                              refuse_repeated_keys=True)
     if not isinstance(document, dict) or document.get("format") != FORMAT:
         raise SettingsError(f"{path}: not a servo settings file (format {FORMAT!r} expected)")
     if document.get("version") != VERSION:

@@ -22,7 +22,7 @@ from typing import Any
 from app.core import user_folders
 from app.core.errors import OutputPathError, ShapeFormatError
 from app.core.outputs import check_output, move_into_place, temporary_beside
-from devices.toml_files import read_text_file
+from devices.toml_files import read_json_file
 
 SHAPE_FORMAT = "sensnake-shape"
 SHAPE_VERSION = 1
@@ -137,16 +137,7 @@ def read_shape(path: str | Path) -> Shape:
     path = Path(path)
     if not os.path.lexists(path):
         raise ShapeFormatError(f"cannot read shape file {path}: no such file")
-    text = read_text_file(path, "shape file", ShapeFormatError, max_bytes=MAX_SHAPE_BYTES)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ShapeFormatError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from exc
-    except RecursionError:
-        raise ShapeFormatError(f"{path}: nested too deeply to be a shape file") from None
-    except ValueError:  # Python's limit on an integer's digits (4300)
-        raise ShapeFormatError(f"{path}: holds an integer of thousands of digits: not a shape file") from None
-    return shape_from_dict(data, str(path))
+    return shape_from_dict(read_json_file(path, "shape file", ShapeFormatError, MAX_SHAPE_BYTES), str(path))
 
 
 def write_shape(shape: Shape, path: str | Path) -> Path:
