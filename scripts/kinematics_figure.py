@@ -6,7 +6,9 @@ y, or its height z) against time on the left, the bottom sensors' forces against
 
 Positions come from the recording's motion capture (``/mocap/segment_center_m``, added by ``sensnake mocap
 import``), or else from the physics lab's simulated body (``/sim``, the truth; ``--source`` chooses). A segment
-without a pose in a frame (fewer than 3 markers seen) is a gap in its line, never filled. Forces are the estimated
+without a pose in a frame (fewer than 3 markers seen) is a gap in its line, never filled. Of a take longer than a few
+thousand frames (``app.core.mocap.PLOT_FRAMES``) one frame in k is drawn, read so from the file (a 30-minute take
+is never held whole), and the left panel's title says so. Forces are the estimated
 ``/forces/force_N`` of the bottom sensors. Uses pyqtgraph's image exporter offscreen (no extra dependency); never
 writes over an existing file.
 """
@@ -26,7 +28,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # The segments' colours are those of the app's kinematics panel (widgets.kinematics_view.segment_colour); the
-# positions are read as the app reads them (app.core.mocap.segment_positions).
+# positions are read as the app reads them (app.core.mocap.segment_positions, at most PLOT_FRAMES of them).
 WIDTH_PX = 1400
 HEIGHT_PX = 760
 
@@ -59,7 +61,8 @@ def draw(path: str, out: str, coord: str, source: str) -> str:
     axis = "xyz".index(coord)
     n = centers.shape[1]
     word = {"x": "forward position x", "y": "lateral position y", "z": "height z"}[coord]
-    left = layout.addPlot(row=0, col=0, title=f"each segment's {word} — from {what}")
+    # what was thinned goes on a line of its own: one long title would widen this panel and crop the forces'
+    left = layout.addPlot(row=0, col=0, title=f"each segment's {word} — from {what}".replace("; ", "<br>"))
     t0 = float(min(time_s[0], force_t[0]))
     t1 = float(max(time_s[-1], force_t[-1]))
     finite_c = centers[..., axis][np.isfinite(centers[..., axis])]

@@ -420,9 +420,30 @@ def _hidden_beside(out: Path, suffix: str = "") -> Iterator[Path]:
 # ----------------------------------------------------------------------------------------------------------------
 # Reading /mocap and /sim back
 # ----------------------------------------------------------------------------------------------------------------
+PLOT_FRAMES = 4_000  # a figure of positions against time: more points than it has pixels across, no more
+RECORD_FRAMES = 50_000  # read_mocap's bound: /mocap's rows are wide (~2.5 kB a frame), so ~125 MB at most
+
+
+def frame_step(rows: int, max_frames: int | None) -> int:
+    """The stride k that reads at most ``max_frames`` of ``rows`` frames, every k-th from the first (1: all of them;
+    ``max_frames`` None: no bound). Read so (``ds[::k]``), a long take is never held whole."""
+    if max_frames is None or rows <= max_frames:
+        return 1
+    return -(-rows // max(int(max_frames), 1))
+
+
+def thinning_words(rows: int, step: int, rate_hz: float) -> str:
+    """What :func:`frame_step`'s stride did to a take, for a caption: "" when every frame was read."""
+    if step <= 1:
+        return ""
+    kept = -(-rows // step)
+    rate = f", {rate_hz / step:.3g} Hz" if rate_hz > 0 else ""
+    return f"one frame in {step} shown ({kept:,} of {rows:,}{rate})"
+
+
 @dataclass(frozen=True)
 class MocapRecord:
-    """A recording's ``/mocap`` group."""
+    """A recording's ``/mocap`` group: of a take longer than asked for, every ``frame_step``-th frame."""
 
     time_s: np.ndarray
     segment_center_m: np.ndarray
@@ -430,33 +451,53 @@ class MocapRecord:
     residual_m: np.ndarray
     markers_m: np.ndarray
     attrs: dict[str, Any]
+    frame_step: int = 1  # every k-th frame of the file's (1: all)
+    frames_in_file: int = 0
 
 
-def read_mocap(path: str | Path) -> MocapRecord | None:
-    """The ``/mocap`` group of a recording, or None when it has none."""
+def read_mocap(path: str | Path, max_frames: int | None = RECORD_FRAMES) -> MocapRecord | None:
+    """The ``/mocap`` group of a recording, or None when it has none: a take of at most ``max_frames`` frames whole,
+    a longer one every k-th frame (:func:`frame_step`; ``max_frames`` None: whole, whatever its length)."""
     with h5py.File(path, "r") as f:
         if "mocap" not in f:
             return None
         group = f["mocap"]
-        return MocapRecord(group["time_s"][:], group["segment_center_m"][:], group["segment_rotation"][:],
-                           group["residual_m"][:], group["markers_m"][:], dict(group.attrs))
+        names = ("time_s", "segment_center_m", "segment_rotation", "residual_m", "markers_m")
+        rows = min(int(group[name].shape[0]) for name in names)
+        step = frame_step(rows, max_frames)
+        time_s, center, rotation, residual, markers = (group[name][:rows:step] for name in names)
+        return MocapRecord(time_s, center, rotation, residual, markers, dict(group.attrs), step, rows)
 
 
-def segment_positions(path: str | Path, source: str = "auto") -> tuple[np.ndarray, np.ndarray, str]:
-    """Each segment's centre in a recording: times (T,), centres (T, S, 3) and where they came from, in words.
-    ``source``: "mocap" (``/mocap``, refused without one), "sim" (the physics lab's simulated body, the truth) or
-    "auto" (``/mocap`` when there, else ``/sim``). ValueError naming what is missing."""
+def segment_positions(path: str | Path, source: str = "auto", max_frames: int | None = PLOT_FRAMES
+                      ) -> tuple[np.ndarray, np.ndarray, str]:
+    """Each segment's centre in a recording, for a figure against time: times (T,), centres (T, S, 3) and where
+    they came from, in words. ``source``: "mocap" (``/mocap``, refused without one), "sim" (the physics lab's
+    simulated body, the truth) or "auto" (``/mocap`` when there, else ``/sim``). Of more than ``max_frames`` frames
+    every k-th is read (:func:`frame_step`; None: every frame), and the words say so. ValueError naming what is
+    missing."""
     with h5py.File(path, "r") as f:
         if source in ("auto", "mocap") and "mocap" in f:
             group = f["mocap"]
-            what = f"motion capture ({group.attrs.get('source', '?')}, {group.attrs.get('rate_hz', 0):g} Hz)"
-            return group["time_s"][:], group["segment_center_m"][:], what
-        if source == "mocap":
+            rate = float(group.attrs.get("rate_hz", 0))
+            what = f"motion capture ({group.attrs.get('source', '?')}, {rate:g} Hz)"
+            time_ds, data_ds = group["time_s"], group["segment_center_m"]
+            rows = min(int(time_ds.shape[0]), int(data_ds.shape[0]))
+            step = frame_step(rows, max_frames)
+            centers = data_ds[:rows:step]
+        elif source == "mocap":
             raise ValueError("no /mocap group: add a take with 'sensnake mocap import', or use --source sim")
-        if "sim" in f:
-            points = f["sim/points_m"][:]
-            return f["sim/time_s"][:], 0.5 * (points[:, :-1] + points[:, 1:]), "the simulated body (/sim, truth)"
-    raise ValueError("neither /mocap nor /sim: no segment positions to draw")
+        elif "sim" in f:
+            what, rate = "the simulated body (/sim, truth)", 0.0
+            time_ds, data_ds = f["sim/time_s"], f["sim/points_m"]
+            rows = min(int(time_ds.shape[0]), int(data_ds.shape[0]))
+            step = frame_step(rows, max_frames)
+            points = data_ds[:rows:step]
+            centers = 0.5 * (points[:, :-1] + points[:, 1:])
+        else:
+            raise ValueError("neither /mocap nor /sim: no segment positions to draw")
+        thinned = thinning_words(rows, step, rate)
+        return time_ds[:rows:step], centers, what + (f"; {thinned}" if thinned else "")
 
 
 def sim_segment_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

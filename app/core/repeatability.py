@@ -6,7 +6,8 @@ The analysis reads only the recordings (any series can be re-analysed later):
 1. **Load** each recording (:func:`load_trial`): the bottom sensors' forces estimated when it was recorded
    (``/forces/force_N``, the columns of the ``S<k>B`` channels), the robot's goals (``/robot/goal_rad``) and the
    segments' positions along the path — ``/mocap/segment_center_m`` when the lab's motion capture is in the file,
-   else the physics lab's body (``/sim/points_m``: a segment's centre is the mean of its two ends).
+   else the physics lab's body (``/sim/points_m``: a segment's centre is the mean of its two ends); of a take
+   longer than :data:`POSITION_FRAMES` frames every k-th (the fewest that keep within it, read so: never whole).
 2. **Check** that they are trials of one condition (their ``run_start`` documents, :mod:`app.core.run_documents`):
    a difference is refused, naming it, unless mixed conditions are asked for. A simulated run marked invalid
    (``/sim`` ``valid`` = 0) is refused: an invalid run is never averaged in.
@@ -15,7 +16,8 @@ The analysis reads only the recordings (any series can be re-analysed later):
    extrapolated back along the first moving goals to where they left their start, so it is not quantised to the
    robot's sample period); ``contact`` — the first time a bottom sensor's force rises past ``contact_force_n``
    (linear between samples); ``mocap`` — the first time a segment's centre (the head's by default) passes
-   ``position_x_m`` along the path, or, without one, moves ``position_move_m`` past where it started.
+   ``position_x_m`` along the path, or, without one, moves ``position_move_m`` past where it started (from every
+   frame: a long take's positions are read again in blocks of :data:`POSITION_BLOCK_FRAMES`).
 4. **Resample** every trial on one grid of aligned time (the span all trials cover, at the forces' median sample
    period; linear interpolation) and take the mean and sample s.d. (n − 1) across trials at each instant.
 5. **Summarise** per quantity: the peak of each trial (its value and aligned time; for a segment its farthest
@@ -35,7 +37,7 @@ import io
 import itertools
 import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -45,6 +47,7 @@ import numpy as np
 
 from app.core.calfiles import write_atomically
 from app.core.errors import RepeatabilityError
+from app.core.mocap import frame_step
 from app.core.recording import check_input
 from app.core.run_documents import RUN_START, condition_differences, parse_document
 from devices.scene import channel_map
@@ -58,6 +61,8 @@ POSITION_MOVE_M = 0.01
 ICC_MIN_FORCE_SPREAD_N = 0.2  # the mean curve's s.d. over time below which a sensor is flat (noise, no contact)
 ICC_MIN_POSITION_SPREAD_M = 0.005
 MIN_TRIALS = 2
+POSITION_FRAMES = 20_000  # of a longer take the curves use every k-th frame (~2 MB); the alignment reads them all
+POSITION_BLOCK_FRAMES = 16_384  # the alignment goes through a long take's positions in blocks this long (~0.3 MB)
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,7 @@ class Trial:
     position_source: str = ""  # "mocap", "sim" or "" (none)
     position_time_s: np.ndarray | None = None  # (T,)
     segment_x_m: np.ndarray | None = None  # (T, n): each segment's centre along the path (+x)
+    position_step: int = 1  # the positions above are every k-th frame of the file's (1: all of them)
     valid: bool = True
     invalid_reason: str = ""
 
@@ -121,22 +127,57 @@ def _read_trial(f: h5py.File, path: Path) -> Trial:
     if "robot" in f and "goal_rad" in f["robot"]:
         m = min(f["robot/time_s"].shape[0], f["robot/goal_rad"].shape[0])
         goal_time, goal = np.asarray(f["robot/time_s"][:m], float), np.asarray(f["robot/goal_rad"][:m], float)
-    source, position_time, segment_x = "", None, None
-    if "mocap" in f and "segment_center_m" in f["mocap"]:
-        m = min(f["mocap/time_s"].shape[0], f["mocap/segment_center_m"].shape[0])
-        source, position_time = "mocap", np.asarray(f["mocap/time_s"][:m], float)
-        segment_x = np.asarray(f["mocap/segment_center_m"][:m, :, 0], float)
-    elif "sim" in f and "points_m" in f["sim"]:
-        m = min(f["sim/time_s"].shape[0], f["sim/points_m"].shape[0])
-        points = np.asarray(f["sim/points_m"][:m], float)
-        source, position_time = "sim", np.asarray(f["sim/time_s"][:m], float)
-        segment_x = 0.5 * (points[:, :-1, 0] + points[:, 1:, 0])
+    source, position_time, segment_x, step = _position_source(f), None, None, 1
+    if source:
+        time_ds, data_ds = _position_datasets(f, source)
+        m = min(time_ds.shape[0], data_ds.shape[0])
+        step = frame_step(m, POSITION_FRAMES)  # a long take is read every k-th frame, never whole
+        position_time = np.asarray(time_ds[:m:step], float)
+        along = np.asarray(data_ds[:m:step, :, 0], float)
+        segment_x = along if source == "mocap" else 0.5 * (along[:, :-1] + along[:, 1:])
     valid, reason = True, ""
     if "sim" in f:
         valid = bool(int(f["sim"].attrs.get("valid", 1)))
         reason = _text(f["sim"].attrs.get("invalid_reason", ""))
     return Trial(path, parse_document(f.attrs.get(RUN_START)), time_s, tuple(channels[c] for c in bottom),
-                 force_n, goal_time, goal, source, position_time, segment_x, valid, reason)
+                 force_n, goal_time, goal, source, position_time, segment_x, step, valid, reason)
+
+
+def _position_source(f: h5py.File) -> str:
+    """Where a recording's segment positions are: "mocap", "sim" or "" (none)."""
+    if "mocap" in f and "segment_center_m" in f["mocap"]:
+        return "mocap"
+    if "sim" in f and "points_m" in f["sim"]:
+        return "sim"
+    return ""
+
+
+def _position_datasets(f: h5py.File, source: str) -> tuple[h5py.Dataset, h5py.Dataset]:
+    """(times, positions) of ``source``: /mocap's segment centres (M, n, 3) or /sim's points (T, n+1, 3), whose
+    segment k's centre is the mean of points k and k+1."""
+    group = f[source]
+    return group["time_s"], group["segment_center_m" if source == "mocap" else "points_m"]
+
+
+def _segment_x_blocks(trial: Trial, segment: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Segment ``segment`` (0-based)'s x at every frame of ``trial``'s positions, block after block: the
+    positions the trial holds when it holds every frame, else read from its file (a long take, never whole)."""
+    if trial.position_step == 1 and trial.segment_x_m is not None and trial.position_time_s is not None:
+        yield trial.position_time_s, trial.segment_x_m[:, segment]
+        return
+    try:
+        with h5py.File(trial.path, "r", locking=False) as f:
+            time_ds, data_ds = _position_datasets(f, trial.position_source)
+            m = min(time_ds.shape[0], data_ds.shape[0])
+            for start in range(0, m, POSITION_BLOCK_FRAMES):
+                block = slice(start, min(start + POSITION_BLOCK_FRAMES, m))
+                t = np.asarray(time_ds[block], float)
+                if trial.position_source == "mocap":
+                    yield t, np.asarray(data_ds[block, segment, 0], float)
+                else:
+                    yield t, np.asarray(data_ds[block, segment:segment + 2, 0], float).mean(axis=1)
+    except (OSError, KeyError) as exc:
+        raise RepeatabilityError(f"{trial.path}: its segment positions cannot be read ({exc})") from exc
 
 
 # -- alignment -----------------------------------------------------------------------------------------------------
@@ -151,6 +192,27 @@ def _rising_crossing(time_s: np.ndarray, values: np.ndarray, level: float) -> fl
         return math.nan
     i = int(rises[0])
     return float(t[i] + (level - v[i]) * (t[i + 1] - t[i]) / (v[i + 1] - v[i]))
+
+
+def first_rise(blocks: Iterable[tuple[np.ndarray, np.ndarray]], level: float | None,
+               move: float) -> tuple[float, float]:
+    """:func:`_rising_crossing` over a series given block after block ((times, values) pairs, in order), in one
+    pass: the first rise past ``level`` or, when it is None, past the first finite value + ``move``. Returns the
+    time (NaN: never) and the level."""
+    carry_t, carry_v = np.empty(0), np.empty(0)  # the last finite sample before the block: a rise can straddle two
+    for time_s, values in blocks:
+        finite = np.isfinite(values)
+        t, v = time_s[finite], values[finite]
+        if level is None and v.size:
+            level = float(v[0]) + move
+        t, v = np.concatenate([carry_t, t]), np.concatenate([carry_v, v])
+        if level is not None:
+            when = _rising_crossing(t, v, level)
+            if not math.isnan(when):
+                return when, level
+        if v.size:
+            carry_t, carry_v = t[-1:], v[-1:]
+    return math.nan, math.nan if level is None else level
 
 
 def onset_time(goal_time_s: np.ndarray, goal_rad: np.ndarray, threshold_rad: float = GOAL_CHANGE_RAD) -> float:
@@ -226,10 +288,7 @@ def event_time(trial: Trial, options: AlignOptions) -> float:
         k = options.position_segment
         if not 1 <= k <= trial.segment_x_m.shape[1]:
             raise RepeatabilityError(f"{path}: no segment {k} (it has 1 … {trial.segment_x_m.shape[1]})")
-        x = trial.segment_x_m[:, k - 1]
-        start = x[np.isfinite(x)][0] if np.isfinite(x).any() else math.nan
-        level = options.position_x_m if options.position_x_m is not None else start + options.position_move_m
-        when = _rising_crossing(trial.position_time_s, x, level)
+        when, level = first_rise(_segment_x_blocks(trial, k - 1), options.position_x_m, options.position_move_m)
         if math.isnan(when):
             raise RepeatabilityError(f"{path}: segment {k} never passes x = {level:.3f} m: nothing to align on")
         return when
@@ -341,6 +400,11 @@ def analyse(paths: Sequence[str | Path], options: AlignOptions | None = None, mi
     notes: list[str] = []
     if unknown:
         notes.append(f"condition not checked for {', '.join(unknown)}: no run_start (recorded before run documents)")
+    for trial in trials:
+        if trial.position_step > 1 and trial.position_time_s is not None:
+            notes.append(f"{trial.path.name}: a long take, its segment positions' curves from one frame in "
+                         f"{trial.position_step} ({len(trial.position_time_s):,} of them); an alignment on a "
+                         "position reads every frame")
     offsets = [event_time(t, options) for t in trials]
     starts = [float(np.nanmin(t.force_time_s)) - o for t, o in zip(trials, offsets)]
     ends = [float(np.nanmax(t.force_time_s)) - o for t, o in zip(trials, offsets)]
