@@ -97,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the motion capture ([lab] mocap = true on the physics lab, a serpenoid playing): the "
                              "Forces tab's Mocap picker open (mocap-picker.png) and the 3-D tab with the markers and "
                              "the kinematics panel (mocap.png); only these, unless --tabs")
+    parser.add_argument("--plots", action="store_true",
+                        help="after the tabs, the Plots dock (View > Plots) with joint 5's goal, present angle and "
+                             "current and S06B's force on linked time axes while a gait plays: plots-dock.png")
     parser.add_argument("--replay", default=None, metavar="REC.h5",
                         help="the 3-D tab replaying this recording, scrubbed to its middle: scene-replay.png")
     args = parser.parse_args(argv)
@@ -229,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
             saved = _save(window, out / "scene-replay.png", pump)
             if saved is None:
                 return 1
+        if args.plots and not _take_plots(window, lab, out, pump, args.settle_ms):
+            return 1
         if args.log:
             lab.robot.reboot(99)  # no servo 99 on the bus: a real fault, with its whole text
             pump(5_000, until=lambda: window.event_log.count("fault") > 0)
@@ -241,6 +246,51 @@ def main(argv: list[str] | None = None) -> int:
         window.close()
         app.processEvents()
     return 0
+
+
+class _SwingJoint5:
+    """A motion source: joint 5 swings ±0.25 rad at 0.5 Hz from where the body is (its current and the forces
+    under it change with it)."""
+
+    def __init__(self) -> None:
+        self.start: Any = None
+
+    def goal_at(self, t_s: float, present_rad: Any) -> Any:
+        import math
+
+        if self.start is None:
+            self.start = present_rad.copy()
+        goal = self.start.copy()
+        goal[4] += 0.25 * math.sin(2 * math.pi * 0.5 * t_s)
+        return goal
+
+
+def _take_plots(window: Any, lab: Any, out: Path, pump: Any, settle_ms: int) -> bool:
+    """The Plots dock as a user fills it from its series tree while joint 5 swings: its goal and present angle on one
+    plot, its current on a second, S06B's force (the simulated sensors' calibration loaded) on a third, linked in
+    time."""
+    from PySide6.QtCore import Qt
+
+    from widgets.plots_view import NEW_PLOT
+
+    forces = window.show_tab("forces")
+    _load_simulated_sensors_calibration(forces, out)
+    robot = lab.robot
+    if robot.motion_state in ("running", "paused"):
+        robot.stop_motion()
+        pump(5_000, until=lambda: robot.motion_state not in ("running", "paused"))
+    robot.set_torque(True).result(timeout=30)
+    robot.run_motion(_SwingJoint5(), "swing joint 5")
+    window.plots_action.trigger()  # View > Plots
+    dock = window.plots_dock
+    pump(10_000, until=lambda: dock.isVisible() and dock.subscribed)
+    dock.add_series(["robot/J5/goal_rad", "robot/J5/present_rad"], NEW_PLOT)  # several keys: one plot
+    dock.add_series(["robot/J5/current_mA"], NEW_PLOT)
+    dock.add_series(["forces/S06B/force_N"], NEW_PLOT)
+    dock.setMinimumWidth(int(0.5 * window.width()))  # the plots wide enough to read (the Forces tab gives way)
+    window.resizeDocks([dock], [int(0.5 * window.width())], Qt.Orientation.Horizontal)
+    pump(max(settle_ms, 8_000))  # a few swings of every series on screen
+    return _save(window, out / "plots-dock.png", pump) is not None
 
 
 LSL_LOOPBACK_CONFIG = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\n"
