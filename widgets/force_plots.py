@@ -812,9 +812,10 @@ class ForcePlotGrid(QWidget):
         self._update_in_view()
 
     # -- configuration ---------------------------------------------------------------------------------------------
-    def export_image(self, index: int, path: str | Path) -> Path:
+    def export_image(self, index: int, path: str | Path, kind: str | None = None) -> Path:
         """Save plot ``index`` as drawn now (traces, both axes with their units, legend) to ``path``: ``.png`` or
-        ``.svg``, titled with the segment and the time shown. ValueError / OSError name the problem."""
+        ``.svg`` (``kind``, by default by the suffix), titled with the segment and the time shown. ValueError /
+        OSError name the problem."""
         plot = self.plots[index]
         self.refresh(force=True, include=index)
         x0, x1 = self.visible_range()
@@ -830,7 +831,7 @@ class ForcePlotGrid(QWidget):
         overlay.move(corner.x() + 4, corner.y() + 2)
         overlay.show()
         try:
-            return save_widget_image(plot.plot_widget, path, title)
+            return save_widget_image(plot.plot_widget, path, title, kind)
         finally:
             overlay.deleteLater()
             overlay.hide()

@@ -49,13 +49,23 @@ def _paint(painter: QPainter, widget: QWidget, title: str, width: int) -> None:
                    QWidget.RenderFlag.DrawChildren)
 
 
-def save_widget_image(widget: QWidget, path: str | Path, title: str = "") -> Path:
-    """Write ``widget`` as it looks now to ``path`` (``.png`` or ``.svg``, by the suffix), with ``title`` above it.
-    Raises ValueError for another suffix, OSError naming ``path`` when it cannot be written."""
+def image_kind(path: str | Path) -> str:
+    """``"png"`` or ``"svg"``, by ``path``'s suffix; ValueError naming the file for another suffix."""
     path = Path(path)
     kind = path.suffix.lower().lstrip(".")
     if kind not in IMAGE_FORMATS:
         raise ValueError(f"{path.name}: an image is saved as .png or .svg, not {path.suffix or 'no suffix'}")
+    return kind
+
+
+def save_widget_image(widget: QWidget, path: str | Path, title: str = "", kind: str | None = None) -> Path:
+    """Write ``widget`` as it looks now to ``path`` as ``kind`` (``"png"`` or ``"svg"``; by default by the suffix:
+    a caller writing a temporary of another name says which), with ``title`` above it. Raises ValueError for another
+    suffix, OSError naming ``path`` when it cannot be written."""
+    path = Path(path)
+    kind = image_kind(path) if kind is None else kind
+    if kind not in IMAGE_FORMATS:
+        raise ValueError(f"an image is saved as .png or .svg, not {kind}")
     width, height = widget.width(), widget.height() + (TITLE_HEIGHT_PX if title else 0)
     restore = _uncached(widget)
     try:
@@ -85,7 +95,9 @@ def save_widget_image(widget: QWidget, path: str | Path, title: str = "") -> Pat
                 _paint(painter, widget, title, width)
             finally:
                 painter.end()
-            if not image.save(str(path)):  # PNG: the suffix was checked above
+            # The format named: a temporary's name says nothing of PNG. PySide6 takes it as str at run time (its
+            # stubs say bytes, which it refuses).
+            if not image.save(str(path), "PNG"):  # type: ignore[call-overload]
                 raise OSError(f"cannot write {path}")
     finally:
         for item, mode in restore:

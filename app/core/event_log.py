@@ -14,7 +14,6 @@ the GUI thread only (its bridges deliver device messages there).
 from __future__ import annotations
 
 import csv
-import errno
 import io
 import os
 import threading
@@ -26,6 +25,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from app.core.outputs import write_new_file
+
 INFO = "info"
 WARNING = "warning"
 FAULT = "fault"
@@ -34,7 +35,6 @@ RECORDED = "recorded"
 KINDS: tuple[str, ...] = (INFO, WARNING, FAULT, ACTION, RECORDED)
 DEFAULT_CAPACITY = 10_000  # a day of a busy lab's messages; the oldest go first
 CSV_COLUMNS = ("number", "time", "kind", "source", "recording_time_s", "text")
-_OPEN_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
 
 
 @dataclass(frozen=True)
@@ -194,23 +194,7 @@ def csv_text(entries: Iterable[LogEntry]) -> str:
 
 
 def write_csv(entries: Iterable[LogEntry], path: str | os.PathLike[str]) -> Path:
-    """Save ``entries`` as CSV at ``path``, a new file: an existing file (or anything else at that name, a link
-    included) is never written over (:class:`FileExistsError` naming it). A write that fails removes what it began.
-    Any thread."""
-    path = Path(path)
-    data = csv_text(entries).encode("utf-8")
-    try:
-        fd = os.open(path, _OPEN_FLAGS, 0o644)
-    except FileExistsError:
-        raise FileExistsError(errno.EEXIST, f"{path} exists: the log is saved to a new file, never over one",
-                              str(path)) from None
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-    except OSError:
-        path.unlink(missing_ok=True)
-        raise
-    return path
+    """Save ``entries`` as CSV at ``path``, a new file, whole or not at all: an existing file (or anything else at
+    that name, a link included) is never written over (:class:`FileExistsError` naming it). Any thread."""
+    return write_new_file(path, csv_text(entries).encode("utf-8"), "the log is saved to a new file, never over one")
 

@@ -12,8 +12,8 @@ unpredictable name that carries the writer's pid (``.NAME.<pid>.<random>.partial
 when complete. A temporary left by a writer that was killed (``kill -9``, a power cut) is removed by the next writer
 of the same output once it is provably stale: the pid in its name is no process on this machine. The writers:
 :func:`app.core.calfiles.write_atomically` (CSV and JSON), :mod:`app.core.recording` (recordings, re-estimated and
-repaired copies), :func:`app.core.shapes.write_shape`, :func:`app.core.servo_settings.write_document` (and the lab
-config it rewrites), ``sensnake play --log``, and :func:`replacing_text` / :func:`replace_text` for the files a
+repaired copies), :func:`app.core.shapes.write_shape`, :func:`write_new_file` (a file that must not replace one: a servo settings
+backup, a saved event log, a new lab config), the lab config :mod:`app.core.servo_settings` rewrites, ``sensnake play --log``, and :func:`replacing_text` / :func:`replace_text` for the files a
 sweep, a tuning study or an evaluation writes into its folder.
 
 Any thread; no state.
@@ -196,6 +196,60 @@ def replace_text(out: str | os.PathLike[str], text: str) -> None:
     """``text`` as the whole UTF-8 file ``out`` (:func:`replacing_text`)."""
     with replacing_text(out, newline="\n") as handle:
         handle.write(text)
+
+
+def check_new_file(out: str | os.PathLike[str], why: str) -> None:
+    """OSError naming ``out`` when a new file cannot go there: something is at ``out`` (a file, a symbolic link, a
+    device, …: FileExistsError; ``why`` says why an existing file is kept) or its folder is missing
+    (FileNotFoundError)."""
+    out = Path(out)
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise FileNotFoundError(errno.ENOENT, f"cannot write {out}: the folder {folder} {what}")
+    try:
+        info = os.lstat(out)
+    except FileNotFoundError:
+        return
+    kind = None if stat.S_ISLNK(info.st_mode) else describe_kind(info.st_mode)
+    if kind is not None:
+        raise FileExistsError(errno.EEXIST, f"{out} is {kind}, not a file to write: nothing written")
+    raise FileExistsError(errno.EEXIST, f"{out} exists: {why}")
+
+
+def write_new_file(out: str | os.PathLike[str], data: bytes, why: str) -> Path:
+    """``data`` as a NEW file at ``out``, whole or not at all: built in a hidden temporary and linked into place, a
+    link that fails if anything appeared at ``out`` meanwhile, so an existing file is never replaced
+    (FileExistsError naming it, ``why`` saying why it is kept; :func:`check_new_file`). Any other failure is an
+    OSError naming ``out``, never the temporary, and leaves nothing behind."""
+    out = Path(out)
+    check_new_file(out, why)
+    try:
+        fd, work = create_temporary(out, ".tmp")
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {out}: {exc.strerror or exc}") from None
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        try:
+            os.link(work, out)
+        except FileExistsError:
+            raise FileExistsError(errno.EEXIST, f"{out} exists: {why}") from None
+        except OSError as exc:
+            if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
+                raise
+            check_new_file(out, why)  # a file system without hard links (FAT, some shares): the check, then a move
+            os.replace(work, out)
+    except FileExistsError:
+        raise
+    except OSError as exc:  # a full disk, a quota: the user's path in the message
+        raise OSError(exc.errno, f"cannot write {out}: {exc.strerror or exc}") from None
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(work)
+    return out
 
 
 def open_lock_file(path: Path) -> int:

@@ -29,7 +29,6 @@ at its name); a settings file never replaces an existing file, a lab config is r
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import os
 import re
@@ -40,8 +39,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from app.core import outputs
 from app.core.errors import SettingsError
-from app.core.outputs import create_temporary
+from app.core.outputs import create_temporary, write_new_file
 from devices import control_table as ct
 from devices.errors import DeviceError, NoReplyError
 from devices.toml_files import read_json_file
@@ -247,33 +247,8 @@ def dump(bus: Bus, ids: Iterable[int]) -> dict[str, Any]:
 def write_document(path: str | os.PathLike[str], document: dict[str, Any]) -> Path:
     """Write ``document`` into a NEW file at ``path``, whole or not at all; an existing file is never replaced (a
     settings file may be the only copy of a servo's settings), and a device, FIFO or socket is refused."""
-    path = Path(path)
     text = json.dumps(document, indent=1, sort_keys=False) + "\n"
-    check_new_file(path)
-    try:
-        temporary = _temporary_beside(path)
-    except OSError as exc:  # the user's path in the message, never the hidden temporary's
-        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(temporary.fd, "w", encoding="utf-8") as file:
-            file.write(text)
-        try:
-            os.link(temporary.path, path)  # atomic, and fails if a file appeared at ``path`` meanwhile
-        except FileExistsError:
-            raise FileExistsError(errno.EEXIST, _exists_message(path)) from None
-        except OSError as exc:
-            if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
-                raise
-            check_new_file(path)  # a file system without hard links (FAT, some shares): the check, then a move
-            os.replace(temporary.path, path)
-    except FileExistsError:
-        raise
-    except OSError as exc:  # a full disk, a quota: the user's path in the message
-        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary.path)
-    return path
+    return write_new_file(path, text.encode("utf-8"), _KEPT)
 
 
 @dataclass(frozen=True)
@@ -318,28 +293,15 @@ def _special_kind(mode: int) -> str | None:
     return None if stat.S_ISREG(mode) else "not a regular file"
 
 
+_KEPT = ("a settings file is never written over (it may be the only copy of those settings); choose a new name, or "
+         "remove the old file first")
+
+
 def check_new_file(path: str | os.PathLike[str]) -> None:
     """OSError (the message naming ``path``) when something is at ``path`` (a file, a symbolic link, a device, …:
     FileExistsError) or its folder is missing (FileNotFoundError): a settings file is only ever written as a new file
     (:func:`write_document`). OSErrors, so a caller handling a failed write handles these too."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        what = "is not a folder" if folder.exists() else "does not exist"
-        raise FileNotFoundError(errno.ENOENT, f"cannot write {path}: the folder {folder} {what}")
-    try:
-        info = os.lstat(path)
-    except FileNotFoundError:
-        return
-    kind = None if stat.S_ISLNK(info.st_mode) else _special_kind(info.st_mode)
-    if kind is not None:
-        raise FileExistsError(errno.EEXIST, f"{path} is {kind}, not a file to write: nothing written")
-    raise FileExistsError(errno.EEXIST, _exists_message(path))
-
-
-def _exists_message(path: Path) -> str:
-    return (f"{path} exists: a settings file is never written over (it may be the only copy of those settings); "
-            "choose a new name, or remove the old file first")
+    outputs.check_new_file(path, _KEPT)
 
 
 def _servo_key(source: Path, key: object) -> int:

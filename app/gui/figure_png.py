@@ -1,16 +1,19 @@
 """A figure's SVG text rasterised to a PNG with Qt's SVG renderer, offscreen (the command line's reports: the
-figure itself is drawn Qt-free in ``app.core``; only its pixels come from Qt).
+figure itself is drawn Qt-free in ``app.core``; only its pixels come from Qt); and :func:`write_beside`, how any
+image Qt writes by its name reaches a user's file whole or not at all.
 
 Any thread that may create a ``QGuiApplication`` (the main thread of a command); in the GUI, the GUI thread.
 """
 
 from __future__ import annotations
 
-import contextlib
+import errno
 import os
+from collections.abc import Callable
 from pathlib import Path
 
-from app.core.outputs import check_output, create_temporary, move_into_place
+from app.core.errors import OutputPathError
+from app.core.outputs import check_output, move_into_place, temporary_beside
 
 
 def svg_to_png(svg_text: str, out: str | os.PathLike[str], scale: float = 1.5) -> Path:
@@ -36,16 +39,24 @@ def svg_to_png(svg_text: str, out: str | os.PathLike[str], scale: float = 1.5) -
     painter.setRenderHint(QPainter.RenderHint.Antialiasing)
     renderer.render(painter)
     painter.end()
-    fd, work = create_temporary(out, ".partial")
-    os.close(fd)
-    try:
-        # The temporary's name says nothing of PNG, so the format is named; PySide6 takes it as str at run time
-        # (its stubs say bytes, which it refuses).
-        if not image.save(str(work), "PNG"):  # type: ignore[call-overload]
-            raise OSError(f"cannot write {out}")
-        move_into_place(work, out)
-    except OSError:
-        with contextlib.suppress(OSError):
-            work.unlink()
-        raise
+    # The temporary's name says nothing of PNG, so the format is named; PySide6 takes it as str at run time (its
+    # stubs say bytes, which it refuses).
+    write_beside(out, lambda work: image.save(str(work), "PNG"))  # type: ignore[call-overload]
     return out
+
+
+def write_beside(out: Path, write: Callable[[Path], bool]) -> None:
+    """``write(work)`` (Qt writing a file by its name; False when it could not) into a hidden temporary beside
+    ``out``, then moved onto ``out`` (:mod:`app.core.outputs`): whole or not at all, only ever over a regular file.
+    OSError naming ``out``, never the temporary."""
+    try:
+        with temporary_beside(out) as (fd, work):
+            os.close(fd)
+            if not write(work):
+                raise OSError(errno.EIO, "Qt could not write it")
+            move_into_place(work, out)
+    except OutputPathError:
+        raise
+    except OSError as exc:  # Qt's own failures carry no errno, and name the temporary
+        raise OSError(exc.errno or errno.EIO, f"cannot write {out}: {exc.strerror or 'Qt could not write it'}") \
+            from None

@@ -50,8 +50,10 @@ from app.core import user_folders
 from app.core.calfiles import write_atomically
 from app.core.forces_pipeline import NO_CALIBRATION_HINT, UNCALIBRATED, ForcesPipeline
 from app.core.live_session import LiveSession, LiveUpdate
+from app.core.outputs import check_new_file, check_output
 from app.core.recording import DEFAULT_MIN_FREE_BYTES, Recording, open_recording
 from app.core.view_export import export_view_csv
+from app.gui.figure_png import write_beside
 from app.gui.forces_history import RESET, Reestimation, joined, snapshot
 from app.gui.mocap_link import install_mocap_picker
 from app.gui.recording_session import RecordingSession, describe_recording
@@ -61,7 +63,7 @@ from models.health import BAD_FLAGS, HealthMonitor, describe
 from widgets.body_view import BodyView
 from widgets.force_plots import ForcePlotGrid, TrialOverlayPlot
 from widgets.forces_panel import ForcesControls, format_bytes, format_elapsed
-from widgets.image_export import save_widget_image
+from widgets.image_export import image_kind, save_widget_image
 from widgets.ring_plot import TraceHistory, append_with_gaps
 
 FORCE_HISTORY_BUDGET_BYTES = 96_000_000
@@ -73,6 +75,9 @@ OVERLAY, BODY_MAP = -1, -2  # image export targets besides the segment plots (0 
 BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
 BODY_FULL_SCALE_N = 3.0  # darkest sensor colour; one segment's share of the robot's weight is ≈ 2 N
+
+# An export's save dialog asks before it replaces a file; asked for without the dialog, an export keeps one.
+_CONFIRM_REPLACE = "choose a new name (a file is replaced only when you confirm it in the save dialog)"
 
 
 @contextmanager
@@ -766,18 +771,22 @@ class ForcesTab(QWidget):
         values[:n, in_newtons] = np.asarray(recording.forces_n[:n], dtype=float)[:, in_newtons]
         return values, ["N" if in_newtons[c] else "µS" for c in range(len(self.channel_names))]
 
-    def export_viewed_csv(self, out: str | os.PathLike, visible_only: bool = False) -> Path | None:
+    def export_viewed_csv(self, out: str | os.PathLike, visible_only: bool = False,
+                          replace: bool = False) -> Path | None:
         """The recording shown to CSV (app.core.view_export: units in the header, the robot beside the forces), all
-        of it or only the time range the plots show. None and a message when it cannot be written."""
+        of it or only the time range the plots show; a file there is replaced only when ``replace`` (the user
+        confirmed it in the save dialog). None and a message when it cannot be written."""
         if self.viewed is None:
             self.say("open a recording first, then export it", "warn")
             return None
         t0, t1 = self.plots.visible_range() if visible_only else (None, None)
         try:
+            if not replace:
+                check_new_file(out, _CONFIRM_REPLACE)
             with busy_cursor():
                 written, rows = export_view_csv(self.viewed, Path(out), t0, t1, list(self.lab.config.robot.joint_ids))
         except (OSError, ValueError) as exc:
-            self.say(f"not exported: {exc}", "error")
+            self.say(f"not exported: {getattr(exc, 'strerror', None) or exc}", "error")
             return None
         span = f" ({t0:.1f}–{t1:.1f} s)" if visible_only else ""
         self.say(f"exported {rows} rows{span} to {written}", "ok")
@@ -910,30 +919,36 @@ class ForcesTab(QWidget):
         default = Path(user_folders.dialog_folder(self.viewed.path.parent)) / f"{stem}.csv"
         title = "Export the visible time range to CSV" if visible_only else "Export the recording to CSV"
         path, _ = QFileDialog.getSaveFileName(self, title, str(default), "CSV (*.csv)")
-        if path:
-            self.export_viewed_csv(path, visible_only)
+        if path:  # the dialog asked before offering a file that is there
+            self.export_viewed_csv(path, visible_only, replace=True)
 
-    def export_plot_image(self, index: int, path: str | os.PathLike) -> Path | None:
+    def export_plot_image(self, index: int, path: str | os.PathLike, replace: bool = False) -> Path | None:
         """Save plot ``index`` (``OVERLAY``: the trial overlay, ``BODY_MAP``: the body force map) as a PNG or SVG
-        image (by the suffix); None and a message when it cannot be."""
+        image (by the suffix), whole or not at all; a file there is replaced only when ``replace`` (the user
+        confirmed it in the save dialog). None and a message when it cannot be."""
         try:
+            out = check_output(path)
+            kind = image_kind(out)
+            if not replace:
+                check_new_file(out, _CONFIRM_REPLACE)
             if index == BODY_MAP:
-                if self.body is None:
+                body = self.body
+                if body is None:
                     raise ValueError("this lab has no body map")
                 when = (f"recording {self.viewed.path.name} at t = {self.replay_time_s():.2f} s"
                         if self.viewed is not None else "live")
-                written = save_widget_image(self.body, Path(path), f"Body force map · {when} · full scale "
-                                                             f"{BODY_FULL_SCALE_N:g} N")
+                title = f"Body force map · {when} · full scale {BODY_FULL_SCALE_N:g} N"
+                write_beside(out, lambda work: bool(save_widget_image(body, work, title, kind)))
             elif index < 0:
                 title = f"Trial overlay · {self.overlay_sensor.currentText()} · {self.overlay_align.currentText()}"
-                written = save_widget_image(self.overlay.plot_widget, Path(path), title)
+                write_beside(out, lambda work: bool(save_widget_image(self.overlay.plot_widget, work, title, kind)))
             else:
-                written = self.plots.export_image(index, Path(path))
+                write_beside(out, lambda work: bool(self.plots.export_image(index, work, kind)))
         except (OSError, ValueError) as exc:
-            self.say(f"image not saved: {exc}", "error")
+            self.say(f"image not saved: {getattr(exc, 'strerror', None) or exc}", "error")
             return None
-        self.say(f"saved {written}", "ok")
-        return written
+        self.say(f"saved {out}", "ok")
+        return out
 
     def _choose_image(self, index: int, kind: str) -> None:
         title = {BODY_MAP: "body-map", OVERLAY: "overlay"}.get(index) or self.plots.groups[index].title
@@ -942,9 +957,9 @@ class ForcesTab(QWidget):
         path, _ = QFileDialog.getSaveFileName(self, f"Save {title} as {kind.upper()}", str(default),
                                               f"{kind.upper()} image (*.{kind})")
         if path:
-            if not Path(path).suffix:
-                path = f"{path}.{kind}"
-            self.export_plot_image(index, path)
+            # The dialog asked before offering a file that is there; a suffix added here names a file it never saw.
+            confirmed = bool(Path(path).suffix)
+            self.export_plot_image(index, path if confirmed else f"{path}.{kind}", replace=confirmed)
 
     # -- life cycle ------------------------------------------------------------------------------------------------
     def shutdown(self) -> None:

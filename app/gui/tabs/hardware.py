@@ -23,6 +23,7 @@ from PySide6.QtWidgets import QFileDialog, QMessageBox, QTabWidget, QVBoxLayout,
 
 from app.core import direction_check, servo_settings, user_folders
 from app.core.errors import SettingsError
+from app.core.outputs import write_new_file
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import describe_error
 from devices import bus_commands
@@ -365,9 +366,10 @@ class HardwareTab(QWidget):
         path = self.ask_path("save", "Save servo settings", "servos.json")
         if not path:
             return
-        if Path(path).exists():
-            self._settings_message(f"{path} exists: choose a new name (a backup is never written over)",
-                                      theme.ERROR)
+        try:  # before the servos are read: a name taken, a FIFO or a missing folder is said at once
+            servo_settings.check_new_file(path)
+        except OSError as exc:
+            self._settings_message(f"settings not saved: {exc.strerror or exc}", theme.ERROR)
             return
         ids = list(self.robot.config.joint_ids)
         self._settings_message(f"reading {len(ids)} servos…", theme.WARN)
@@ -461,12 +463,12 @@ class HardwareTab(QWidget):
             if not chosen:
                 return
             target = Path(chosen)
-            if target.exists():
-                self._settings_message(f"{target} exists: choose a new name (a config is never written over)",
-                                          theme.ERROR)
+            text = self.lab.config.source_text or default_config_path().read_text(encoding="utf-8")
+            try:  # whole or not at all, and never over a file that is there
+                write_new_file(target, text.encode("utf-8"), "choose a new name (a config is never written over)")
+            except OSError as exc:
+                self._settings_message(f"{what} not written: {exc.strerror or exc}", theme.ERROR)
                 return
-            target.write_text(self.lab.config.source_text or default_config_path().read_text(encoding="utf-8"),
-                              encoding="utf-8")
         try:
             backup = write(target)
         except (SettingsError, OSError) as exc:
