@@ -458,3 +458,28 @@ def test_a_calibration_is_applied_off_the_gui_thread_and_the_whole_history_stays
     _t, values = tab.force_history.value_at(oldest + 0.5)
     assert np.all(np.isfinite(values)) and np.all(values < 50)  # newtons, not µS (~100s)
     assert "history estimated again" in tab.controls.message.text()
+
+
+def test_record_to_an_existing_file_typed_in_keeps_it_and_the_dialog_can_replace_it(qtbot, lab, tab, tmp_path,
+                                                                                   monkeypatch):
+    """A name typed into the path field that is already a file: nothing is recorded over it, one line says so. Picked
+    with … (the save dialog asked before naming an existing file), it is replaced."""
+    from app.gui.tabs import forces as forces_module
+
+    with qtbot.waitSignal(lab.board.connected, timeout=15_000):
+        lab.board.start()
+    existing = tmp_path / "mine.h5"
+    existing.write_bytes(b"an earlier recording")
+    tab.controls.path.setText(str(existing))
+    tab.controls.record.click()
+    assert tab.session is None or not tab.session.is_active
+    assert existing.read_bytes() == b"an earlier recording"
+    assert "exists and is kept" in tab.controls.message.text() and str(existing) in tab.controls.message.text()
+    monkeypatch.setattr(forces_module.QFileDialog, "getSaveFileName", lambda *a, **k: (str(existing), ""))
+    tab._browse_recording_path()  # noqa: SLF001 - the … button's slot, the dialog answered
+    session = tab.start_recording(duration_s=None)
+    assert session is not None and session.is_active
+    qtbot.waitUntil(lambda: session.n_daq_samples > 5, timeout=15_000)
+    tab.stop_recording()
+    qtbot.waitUntil(lambda: not session.is_active, timeout=15_000)
+    assert open_recording(existing).time_s.size > 0  # replaced by the new recording, as confirmed

@@ -159,6 +159,7 @@ class ForcesTab(QWidget):
         self._warnings: list[str] = [""] * n_channels
         self.min_free_bytes = DEFAULT_MIN_FREE_BYTES  # a recording stops cleanly before the disk is this full
         self.last_recording_path: Path | None = None  # Open recording… starts here: reopening is one click
+        self._replace_confirmed: Path | None = None  # an existing file the Record to… dialog confirmed replacing
         self._overlay_sensor_chosen = False
         self._planned_s: float | None = None  # length of a timed recording (s)  # until the user picks one, the overlay shows the liveliest sensor
 
@@ -579,6 +580,11 @@ class ForcesTab(QWidget):
         path = Path(path or self.controls.path.text().strip() or default_recording_path())
         if path.suffix.lower() not in (".h5", ".hdf5"):
             path = path.with_suffix(".h5")
+        if os.path.lexists(path) and path != self._replace_confirmed:  # typed, not confirmed in the … dialog
+            self.say(f"not recorded: {path} exists and is kept; type another name, or pick it with … beside the "
+                     "name to replace it", "warn")
+            self.controls.set_recording(False, "not recording")
+            return None
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -862,6 +868,7 @@ class ForcesTab(QWidget):
                                               "Recordings (*.h5)")
         if path:
             self.controls.path.setText(path)
+            self._replace_confirmed = Path(path)  # the dialog asked before naming an existing file
 
     def load_simulated_truth(self) -> bool:
         """The simulated lab's true calibration of every sensor, saved in the calibrations folder (a file already
