@@ -18,7 +18,9 @@ Pure: no Qt, any thread (the tab calls it from a worker).
 
 from __future__ import annotations
 
+import errno
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +29,8 @@ from typing import Any
 import numpy as np
 
 from app.core import calfiles
+from app.core.errors import OutputPathError
+from app.core.outputs import NOFOLLOW, describe_kind
 from devices.config import BoardConfig
 from models.calibration import DEFAULT_SOLVER, SensorCalibration, TrialInput, calibrate_with_drift
 from models.linear import DEFAULT_WINDOW_S, trial_baseline, trial_mean
@@ -172,8 +176,23 @@ def append_history(folder: str | Path, fit: SessionFit, saved_to: str | Path) ->
               "force_range_N": list(cal.force_range_n), "refusal_reasons": list(fit.problems)}
     path = Path(folder) / HISTORY_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("a", encoding="utf-8") as handle:
-        handle.write(json.dumps(record) + "\n")
+    # Appended to a regular file only, never through a symbolic link planted there (O_NOFOLLOW) nor into a FIFO
+    # (O_NONBLOCK: opening one with no reader fails at once instead of hanging the window).
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | NOFOLLOW | getattr(os, "O_NONBLOCK", 0), 0o666)
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.ENXIO):  # a symbolic link; a FIFO nobody reads
+            what = "a symbolic link" if exc.errno == errno.ELOOP else "a FIFO (named pipe)"
+            raise OutputPathError(f"{path} is {what}: the calibration history is appended to a regular file "
+                                  "only") from None
+        raise
+    try:
+        kind = describe_kind(os.fstat(fd).st_mode)
+        if kind is not None:
+            raise OutputPathError(f"{path} is {kind}: the calibration history is appended to a regular file only")
+        os.write(fd, (json.dumps(record) + "\n").encode("utf-8"))
+    finally:
+        os.close(fd)
     return path
 
 

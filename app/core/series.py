@@ -41,6 +41,7 @@ import numpy as np
 from app.core.calfiles import write_atomically
 from app.core.errors import PlotLayoutError, RecordingFormatError
 from app.core.recording import check_input
+from devices.toml_files import parse_json_text
 
 # -- what a series is -----------------------------------------------------------------------------------------------
 JOINTS, SENSORS, SEGMENTS, SERVOS, BODY = "Joints", "Sensors", "Segments", "Servos", "Body"
@@ -785,10 +786,7 @@ class PlotLayout:
 def parse_layout(text: str, source: str = "<layout>") -> PlotLayout:
     """A layout from its JSON text; :class:`PlotLayoutError` naming ``source`` and the key that is wrong. Series a
     reader does not know are kept (another lab's recording may hold them); keys it does not know are ignored."""
-    try:
-        document = json.loads(text)
-    except ValueError as exc:
-        raise PlotLayoutError(f"{source} is not a plot layout (not JSON: {exc})") from None
+    document = parse_json_text(text, source, "plot layout", PlotLayoutError)  # too deep, huge integers: named too
     if not isinstance(document, dict) or document.get("format") != LAYOUT_FORMAT:
         raise PlotLayoutError(f"{source} is not a plot layout (format must be \"{LAYOUT_FORMAT}\")")
     if document.get("version") != LAYOUT_VERSION:

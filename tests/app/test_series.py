@@ -241,7 +241,7 @@ def test_layouts_are_edited_saved_and_reopened_and_never_written_over_unasked(tm
 
 
 @pytest.mark.parametrize(("text", "match"), [
-    ("not json", "not JSON"),
+    ("not json", "not valid JSON"),
     ('{"format": "other", "version": 1, "plots": []}', "format must be"),
     ('{"format": "sensnake-plot-layout", "version": 9, "plots": []}', "version 9"),
     ('{"format": "sensnake-plot-layout", "version": 1, "plots": [{"kind": "pie"}]}', r"plots\[0\]\.kind"),
@@ -262,3 +262,14 @@ def test_resampling_for_an_xy_plot_and_steps_for_flags():
     assert np.isnan(sr.resample(t, np.array([0.0, 10.0, 20.0]), np.array([3.0]))[0])
     x, y = sr.as_steps(t, np.array([0.0, 2.0, 0.0]))
     assert list(x) == [0.0, 1.0, 1.0, 2.0, 2.0] and list(y) == [0.0, 0.0, 2.0, 2.0, 0.0]
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ("[" * 100_000, "nested too deeply"),
+    ('{"format": ' + "9" * 5000 + "}", "digits"),
+    ('{"format": "x",\n "plots": [}', "mine.json:2: not valid JSON"),
+])
+def test_a_hostile_layout_file_is_one_line_naming_it(text, words):
+    with pytest.raises(PlotLayoutError, match="mine.json") as refused:
+        sr.parse_layout(text, "mine.json")
+    assert words in str(refused.value) and "\n" not in str(refused.value)

@@ -976,14 +976,16 @@ class CalibrationTab(QWidget):
         except (ValueError, OSError) as exc:
             self._set_status(f"not saved: {exc}", theme.ERROR)
             return False
+        history_note = ""
         if result.session is not None:
             try:
                 calibration_fit.append_history(user_folders.calibrations_dir(), result.session, path)
             except OSError as exc:
-                self._set_status(f"saved {result.sensor} to {path}, but its history was not: {exc}", theme.WARN)
+                history_note = f"; its history was not kept: {exc}"
         self.show_history(result.sensor)
         note = " (confirmed despite: " + "; ".join(result.problems) + ")" if result.problems else ""
-        self._set_status(f"saved {result.sensor} to {path}; the Forces tab uses it now{note}", theme.OK)
+        self._set_status(f"saved {result.sensor} to {path}; the Forces tab uses it now{note}{history_note}",
+                         theme.WARN if history_note else theme.OK)
         self.lab.calibration_saved.emit(str(path))
         return True
 
