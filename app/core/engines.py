@@ -42,7 +42,7 @@ from typing import Any, Protocol
 
 from app.core.errors import EngineError, FolderBusyError, RunsInterrupted
 from app.core.outputs import open_lock_file
-from devices.toml_files import read_text_file
+from devices.toml_files import read_json_file, read_text_file
 
 ENGINES = ("local", "dask")
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
@@ -277,7 +277,20 @@ def interruptible() -> Iterator[None]:
             signal.signal(number, handler)
 
 
-# -- the folder's lock and journal -----------------------------------------------------------------------------------
+# -- the folder's lock, record and journal ---------------------------------------------------------------------------
+def read_folder_record(record: Path, what: str, error: type[Exception]) -> dict[str, Any]:
+    """The JSON object a command keeps in its --out folder (``what``: e.g. "a tuning folder's record"); ``error``,
+    naming the file and saying to choose another folder, for anything else — not JSON, too deep, huge integers, a
+    FIFO, not an object."""
+    try:
+        held = read_json_file(record, what, error)
+    except error as exc:
+        raise error(f"{exc}; choose another --out folder") from None
+    if not isinstance(held, dict):
+        raise error(f"{record}: not {what} (a JSON object expected); choose another --out folder")
+    return held
+
+
 class FolderLock:
     """An exclusive lock on ``folder`` (``folder/.lock``, ``fcntl.flock``) for the life of a command writing into it;
     :class:`FolderBusyError` names the folder and the holder's process when another command holds it."""

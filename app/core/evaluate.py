@@ -47,11 +47,19 @@ from typing import Any
 
 import numpy as np
 
-from app.core.engines import MAX_RUNS, FolderLock, RunJournal, Task, capped_jobs, open_engine
+from app.core.engines import (
+    MAX_RUNS,
+    FolderLock,
+    RunJournal,
+    Task,
+    capped_jobs,
+    open_engine,
+    read_folder_record,
+)
 from app.core.errors import EvaluationError, RunsInterrupted
 from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import SUMMARY_COLUMNS, execute, is_invalid, write_summary
-from devices.toml_files import read_text_file, read_toml_file
+from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
 from models.errors import GainsError
 from models.force_feedback import FeedbackGains
@@ -318,11 +326,7 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         record = out / "evaluation.json"
         resumed = record.exists()
         if resumed:
-            try:
-                held = json.loads(read_text_file(record, "evaluation folder's record", EvaluationError))
-            except (json.JSONDecodeError, UnicodeDecodeError):
-                raise EvaluationError(f"{record}: not an evaluation folder's record; choose another --out folder") \
-                    from None
+            held = read_folder_record(record, "evaluation folder's record", EvaluationError)
             if held.get("sha256") != plan.sha256:
                 raise EvaluationError(f"{out}: holds the evaluation of another file (sha256 {str(held.get('sha256'))[:16]}…, "
                                       f"this file's {plan.sha256[:16]}…): a changed file is a new evaluation; "

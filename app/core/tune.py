@@ -64,11 +64,20 @@ from typing import Any
 
 import numpy as np
 
-from app.core.engines import Engine, FolderLock, RunJournal, Task, capped_jobs, cores, open_engine
+from app.core.engines import (
+    Engine,
+    FolderLock,
+    RunJournal,
+    Task,
+    capped_jobs,
+    cores,
+    open_engine,
+    read_folder_record,
+)
 from app.core.errors import RunsInterrupted, TuneError
 from app.core.outputs import replace_text, replacing_text
 from app.core.sweep import _refuse_unholdable_loads, execute, is_invalid, scene_path
-from devices.toml_files import read_text_file, read_toml_file
+from devices.toml_files import read_toml_file
 from models.controllers import CONTROLLERS, FEEDFORWARD
 from models.errors import GainsError
 from models.force_feedback import GAIN_RANGES, FeedbackGains
@@ -431,10 +440,7 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
     with FolderLock(out, "tune"):
         record = out / "tune.json"
         if record.exists():
-            try:
-                held = json.loads(read_text_file(record, "tuning folder's record", TuneError))
-            except (json.JSONDecodeError, UnicodeDecodeError):
-                raise TuneError(f"{record}: not a tuning folder's record; choose another --out folder") from None
+            held = read_folder_record(record, "tuning folder's record", TuneError)
             if held.get("sha256") != plan.sha256:
                 raise TuneError(f"{out}: holds the study of another tuning file (sha256 "
                                 f"{str(held.get('sha256'))[:16]}…, this file's {plan.sha256[:16]}…); choose another "
