@@ -103,8 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--replay", default=None, metavar="REC.h5",
                         help="the 3-D tab replaying this recording, scrubbed to its middle: scene-replay.png")
     args = parser.parse_args(argv)
-    if args.mocap and not os.environ.get("LSLAPICFG"):
-        _lsl_on_this_machine()
+    if args.mocap:  # the pictures' streams stay on this machine unless LSLAPICFG says otherwise
+        from app.core.lsl_link import keep_lsl_on_this_machine
+
+        keep_lsl_on_this_machine("sensnake-screenshot-lsl-")
     code = _on_x(sys.argv[1:] if argv is None else list(argv))
     if code is not None:
         return code
@@ -291,23 +293,6 @@ def _take_plots(window: Any, lab: Any, out: Path, pump: Any, settle_ms: int) -> 
     window.resizeDocks([dock], [int(0.5 * window.width())], Qt.Orientation.Horizontal)
     pump(max(settle_ms, 8_000))  # a few swings of every series on screen
     return _save(window, out / "plots-dock.png", pump) is not None
-
-
-LSL_LOOPBACK_CONFIG = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\n"
-                       "IPv6 = disable\n\n[lab]\nKnownPeers = {127.0.0.1}\n")
-
-
-def _lsl_on_this_machine() -> None:
-    """The pictures' LSL streams (the simulated cameras', the app's reader) stay on this machine unless LSLAPICFG
-    says otherwise: a picture is no reason to announce streams on the lab's network."""
-    import atexit
-    import shutil
-
-    folder = Path(tempfile.mkdtemp(prefix="sensnake-screenshot-lsl-"))
-    atexit.register(shutil.rmtree, folder, True)
-    config = folder / "lsl_api.cfg"
-    config.write_text(LSL_LOOPBACK_CONFIG, encoding="utf-8")
-    os.environ["LSLAPICFG"] = str(config)
 
 
 def _take_mocap(window: Any, lab: Any, out: Path, pump: Any, folder: Path, settle_ms: int) -> bool:

@@ -75,6 +75,34 @@ def lsl_name(spec: str) -> str:
     return spec[4:].strip()
 
 
+# liblsl's configuration that keeps discovery on this machine: the tests (tests/conftest.py), the benchmarks and the
+# screenshot tool use it; the app itself leaves lsl_api.cfg to the lab. [tuning] MulticastMinRTT: with the
+# defaults a resolve on a loopback-only configuration waits out a whole multicast wave (5.5 s); on one machine an
+# answer takes well under a millisecond.
+LSL_LOOPBACK_CONFIG = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\n"
+                       "IPv6 = disable\n\n[lab]\nKnownPeers = {127.0.0.1}\n\n[tuning]\nMulticastMinRTT = 0.1\n")
+
+
+def keep_lsl_on_this_machine(prefix: str = "sensnake-lsl-") -> Path | None:
+    """Unless ``LSLAPICFG`` names a configuration already, write :data:`LSL_LOOPBACK_CONFIG` to a temporary folder
+    (removed at exit) and set ``LSLAPICFG`` to it, for this process and the processes it starts; liblsl reads it
+    once, when first used, so call this before anything touches pylsl. Returns the file written (None: left as it
+    was)."""
+    import atexit
+    import os
+    import shutil
+    import tempfile
+
+    if os.environ.get("LSLAPICFG"):
+        return None
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, True)
+    config = folder / "lsl_api.cfg"
+    config.write_text(LSL_LOOPBACK_CONFIG, encoding="utf-8")
+    os.environ["LSLAPICFG"] = str(config)
+    return config
+
+
 def lsl_minus_monotonic() -> float:
     """The LSL clock minus ``time.monotonic()`` (s), read back to back (the same clock on Linux: ~0)."""
     import pylsl
