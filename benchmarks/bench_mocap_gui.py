@@ -25,20 +25,19 @@ import sys
 import tempfile
 from pathlib import Path
 
-LOOPBACK_LSL = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\nIPv6 = disable\n\n"
-                "[lab]\nKnownPeers = {127.0.0.1}\n")
 TIMEOUT_S = 900.0
 
 
 def probe(seconds: float, with_mocap: bool = True) -> dict:
     """One run of the probe on a private Xvfb; its result."""
+    from app.core.lsl_link import LSL_LOOPBACK_CONFIG
     from tests.realdisplay.xserver import XServer, probe_env
 
     server = XServer.start()
     try:
         with tempfile.TemporaryDirectory(prefix="bench-mocap-") as tmp:
             config = Path(tmp) / "lsl_api.cfg"
-            config.write_text(LOOPBACK_LSL, encoding="utf-8")
+            config.write_text(LSL_LOOPBACK_CONFIG, encoding="utf-8")
             env = probe_env(server.display)
             env["LSLAPICFG"] = str(config)
             command = [sys.executable, "-m", "tests.realdisplay.mocap_probe", str(seconds),

@@ -12,6 +12,8 @@ import threading
 
 import pytest
 
+from app.core.lsl_link import LSL_LOOPBACK_CONFIG  # (pylsl itself is imported later, when first used)
+
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 # Bus threads at normal priority in tests (and in the processes tests start): run as root, every RobotController
@@ -50,13 +52,6 @@ def user_data_folder_of_the_test_run(tmp_path_factory):
         os.environ.pop("SENSNAKE_DATA_DIR", None)
     else:
         os.environ["SENSNAKE_DATA_DIR"] = previous
-
-
-# [tuning] MulticastMinRTT: with the defaults, a resolve on this loopback-only configuration waited 5.5 s whatever
-# its timeout (liblsl waits out a whole multicast wave); on one machine an answer takes well under a millisecond, so
-# the tests' waves last 0.1 s and a resolve that finds nothing takes its own timeout, as in a lab.
-LSL_LOOPBACK_CONFIG = ("[multicast]\nResolveScope = machine\nMachineAddresses = {127.0.0.1}\n\n[ports]\n"
-                       "IPv6 = disable\n\n[lab]\nKnownPeers = {127.0.0.1}\n\n[tuning]\nMulticastMinRTT = 0.1\n")
 
 
 @pytest.fixture(autouse=True, scope="session")
