@@ -51,6 +51,7 @@ def draw(path: str, out: str, coord: str, source: str) -> str:
 
     from app.core.mocap import segment_positions
     from widgets.kinematics_view import segment_colour
+    from widgets.theme import no_si_prefix
 
     time_s, centers, what = segment_positions(path, source)
     force_t, forces, names = read_bottom_forces(path)
@@ -84,7 +85,7 @@ def draw(path: str, out: str, coord: str, source: str) -> str:
     left.setLabel("bottom", "time on the recording's clock (s)")
     left.setLabel("left", f"segment centre {coord} (m)")
     for side in ("bottom", "left"):
-        left.getAxis(side).enableAutoSIPrefix(False)
+        no_si_prefix(left.getAxis(side))
     finite = forces[np.isfinite(forces)]
     spacing = max(5.0, float(np.ceil(np.percentile(finite, 99.5) / 5.0) * 5.0)) if finite.size else 5.0
     right = layout.addPlot(row=0, col=1, title=f"estimated force on each bottom sensor, head on top "

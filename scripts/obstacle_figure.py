@@ -26,6 +26,7 @@ from PySide6.QtWidgets import QApplication  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from app.core.recording import open_recording  # noqa: E402
+from widgets.theme import no_si_prefix  # noqa: E402
 
 SNAPSHOT_COLOURS = ((30, 30, 200), (0, 150, 0), (220, 130, 0), (200, 0, 0))
 PRESSING_FRACTION_OF_WEIGHT = 0.15  # a sensor "presses" when it carries more than this share of the weight
@@ -101,7 +102,7 @@ def main(recording_path: str, png_path: str) -> None:
     side.setAspectLocked(True)
     side.setXRange(-0.8, 0.9, padding=0)
     for axis, label in (("bottom", "x (m), obstacle axis at 0"), ("left", "z (m)")):
-        side.getAxis(axis).enableAutoSIPrefix(False)
+        no_si_prefix(side.getAxis(axis))
         side.setLabel(axis, label)
     spacing = max(5.0, float(np.ceil(np.percentile(forces, 99.5) / 5.0) * 5.0))
     strips = layout.addPlot(row=1, col=0, title="estimated force on each bottom sensor, head on top — cf. the paper's "

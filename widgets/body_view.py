@@ -141,7 +141,7 @@ class BodyView(QWidget):
             plot.setLabel("bottom", "x (m)")
             plot.setLabel("left", "z (m)" if view == "side" else "y (m)")
             for axis_name in ("left", "bottom"):
-                plot.getAxis(axis_name).enableAutoSIPrefix(False)  # metres throughout, no "×0.001"
+                theme.no_si_prefix(plot.getAxis(axis_name))  # metres throughout, no "×0.001"
             plot.hideButtons()
             plot.setMenuEnabled(False)
             # The axes (grid lines, tick labels and title included) change only with the range: paint them from a

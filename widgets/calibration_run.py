@@ -270,7 +270,7 @@ class LiveTrialPlot(QWidget):
         # Fixed units: pyqtgraph's automatic SI prefix turned µS into "mµS" around 0.
         for plot, side in ((self.force_plot, "left"), (self.conductance_plot, "left"),
                            (self.conductance_plot, "bottom")):
-            plot.getPlotItem().getAxis(side).enableAutoSIPrefix(False)
+            theme.no_si_prefix(plot.getPlotItem().getAxis(side))
         self.conductance_plot.setLabel("left", "conductance (µS)")
         self.conductance_plot.setLabel("bottom", "trial time (s)")
         self.conductance_plot.showGrid(x=True, y=True, alpha=0.2)

@@ -55,6 +55,7 @@ from PySide6.QtWidgets import (
 
 from widgets.image_export import IMAGE_FORMATS, save_widget_image
 from widgets.ring_plot import TraceHistory
+from widgets.theme import no_si_prefix
 
 try:  # the shell engineer's shared palette; the fallback keeps this view usable on its own
     from widgets.theme import SIDE_COLORS, STATUS_COLORS
@@ -521,7 +522,7 @@ class _SegmentPlot(QWidget):
             item.showAxis("right")
             axis = item.getAxis("right")
             axis.linkToView(box)
-            axis.enableAutoSIPrefix(False)
+            no_si_prefix(axis)
             axis.setPen(pg.mkPen(OTHER_UNITS_COLOR))
             axis.setTextPen(pg.mkPen(OTHER_UNITS_COLOR))
             axis.setWidth(44)
@@ -862,7 +863,7 @@ class ForcePlotGrid(QWidget):
             plot.hide_other_axis()
             # No automatic SI prefix: it labelled small ranges "N (x0.001)", and neighbouring plots in different
             # scales are misread; every plot stays in the units named here.
-            plot.plot_widget.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
+            no_si_prefix(plot.plot_widget.getPlotItem().getAxis("left"))
             plot.set_units(units)
             plot.legend.set_short_units([""] * len(plot.curves))
 
@@ -1300,7 +1301,7 @@ class TrialOverlayPlot(QWidget):
         for k, (label, t_s, values) in enumerate(trials):
             pen = pg.mkPen(colors[k], width=1)
             self.curves.append(item.plot(t_s, values, pen=pen, name=label, antialias=False))
-        item.getAxis("left").enableAutoSIPrefix(False)  # same units as the segment plots, never "(x0.001)"
+        no_si_prefix(item.getAxis("left"))  # same units as the segment plots, never "(x0.001)"
         item.setLabel("left", units)
 
     def set_cursor(self, t_s: float | None) -> None:

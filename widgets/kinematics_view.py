@@ -58,7 +58,7 @@ class KinematicsView(QWidget):
         self.body_plot.setMenuEnabled(False)
         for side, text in (("bottom", "x (m)"), ("left", "z (m)")):
             self.body_plot.setLabel(side, text)
-            self.body_plot.getAxis(side).enableAutoSIPrefix(False)
+            theme.no_si_prefix(self.body_plot.getAxis(side))
         self._ground = pg.PlotDataItem(pen=pg.mkPen("#B0B0B0", width=1))
         self._body = pg.PlotDataItem(pen=pg.mkPen(MOCAP_COLOR, width=3), connect="finite")
         self._centres = pg.ScatterPlotItem(size=8, pen=pg.mkPen("w", width=1), brush=pg.mkBrush(MOCAP_COLOR))
@@ -71,8 +71,8 @@ class KinematicsView(QWidget):
         self.time_plot.setBackground("w")
         self.time_plot.setMenuEnabled(False)
         self.time_plot.setLabel("bottom", "time (s)")
-        self.time_plot.getAxis("bottom").enableAutoSIPrefix(False)
-        self.time_plot.getAxis("left").enableAutoSIPrefix(False)
+        theme.no_si_prefix(self.time_plot.getAxis("bottom"))
+        theme.no_si_prefix(self.time_plot.getAxis("left"))
         self._curves = []
         for k in range(n_segments):
             curve = self.time_plot.plot(pen=pg.mkPen(segment_colour(k, n_segments), width=2), connect="finite")

@@ -443,7 +443,7 @@ class _Plot:
         self.vb.setFlag(QGraphicsItem.GraphicsItemFlag.ItemHasNoContents, True)
         for side in ("left", "bottom"):  # "N (x0.001)" read as kilonewtons: the numbers stay in the unit shown
             axis = self.item.getAxis(side)
-            axis.enableAutoSIPrefix(False)
+            theme.no_si_prefix(axis)
             _cache_subtree(axis)
         self.item.getAxis("left").setWidth(52)  # the stacked plots' data areas line up
         self.header = _Header(justify="left", size="9pt")

@@ -7,6 +7,8 @@ Any thread may read these constants; build QColor objects on the GUI thread.
 
 from __future__ import annotations
 
+from typing import Any
+
 from PySide6.QtGui import QColor
 
 # Sensor sides (SPEC §2: channel k = 3·(segment−1) + {L:0, R:1, B:2}).
@@ -96,3 +98,12 @@ def status_style(level: str) -> str:
     """A style sheet for a small status label at ``level`` (ok / warn / error / idle)."""
     return (f"color: {STATUS_COLORS[level]}; background: {STATUS_BACKGROUNDS[level]};"
             "border-radius: 3px; padding: 1px 6px;")
+
+
+def no_si_prefix(axis: Any) -> None:
+    """Numbers on a pyqtgraph ``axis`` in its own unit, never rescaled with an SI prefix ("N (x0.001)" was misread
+    beside plots in other scales). pyqtgraph 0.14's ``enableAutoSIPrefix(False)`` alone keeps the scale of the range
+    shown at that moment: called while a plot held only micro-newtons, it drew 2 N as "2e+06" for ever after. With no
+    range left in which a prefix applies, the scale is 1 whatever the range."""
+    axis.setSIPrefixEnableRanges(())
+    axis.enableAutoSIPrefix(False)

@@ -441,9 +441,9 @@ class CalibrationTab(QWidget):
         self.plot = pg.PlotWidget(background="w")
         # Fixed µS (the unit of every other conductance on screen): pyqtgraph's automatic SI prefix switched this
         # axis between µS and mS by itself as trials were added.
-        self.plot.getPlotItem().getAxis("left").enableAutoSIPrefix(False)
+        theme.no_si_prefix(self.plot.getPlotItem().getAxis("left"))
         self.plot.setLabel("left", "conductance (µS)")
-        self.plot.getPlotItem().getAxis("bottom").enableAutoSIPrefix(False)
+        theme.no_si_prefix(self.plot.getPlotItem().getAxis("bottom"))
         self.plot.setLabel("bottom", "time (s)")
         self.plot.showGrid(x=True, y=True, alpha=0.2)
         self.plot.setTitle("measured (solid) and SLS fit (dashed)", color="#444", size="10pt")
@@ -1276,7 +1276,7 @@ class CalibrationTab(QWidget):
 def _review_plot(x_label: str, y_label: str, title: str) -> pg.PlotWidget:
     plot = pg.PlotWidget(background="w")
     for side, label in (("left", y_label), ("bottom", x_label)):
-        plot.getPlotItem().getAxis(side).enableAutoSIPrefix(False)
+        theme.no_si_prefix(plot.getPlotItem().getAxis(side))
         plot.setLabel(side, label)
     plot.showGrid(x=True, y=True, alpha=0.2)
     plot.setTitle(title, color="#444", size="10pt")
