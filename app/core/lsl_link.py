@@ -64,6 +64,9 @@ CORRECTION_EVERY_S = 2.0
 RESOLVE_TIMEOUT_S = 5.0
 GAP_PERIODS = 2.5  # a gap longer than this many sample periods is a dropout
 PULL_TIMEOUT_S = 0.05
+# At a recording's stop, how long the take waits for samples captured before the stop but still on their way (the
+# sender's chunk, this reader's pull: ~50-75 ms; without the wait every take lost its last ~50 ms, measured at 480 Hz).
+IN_TRANSIT_WAIT_S = 0.12
 LIVE_WINDOW_S = 120.0  # segment centres kept for the kinematics plot
 
 
@@ -712,8 +715,14 @@ class LslLinks:
         take = None
         inlet = self.inlet
         if inlet is not None:
+            stopped_s = time.monotonic()
+            if stopped_s - inlet.last_host_s < 1.0:  # a live stream: a sample captured after the stop says all
+                deadline = stopped_s + IN_TRANSIT_WAIT_S  # those before it are in (a silent one is not waited on)
+                while inlet.last_host_s < stopped_s and time.monotonic() < deadline:
+                    time.sleep(0.005)
             host, values, fit = inlet.end_take()
-            keep = host >= recorder.t0_monotonic_s  # captured before the recording began: not its (as the board's)
+            # captured before the recording began, or after it stopped: not its (as the board's)
+            keep = (host >= recorder.t0_monotonic_s) & (host <= stopped_s)
             host, values, fit = host[keep], values[keep], None if fit is None else _kept(fit, keep)
             if close_inlet:
                 inlet.close()
