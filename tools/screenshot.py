@@ -99,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
                              "the kinematics panel (mocap.png); only these, unless --tabs")
     parser.add_argument("--plots", action="store_true",
                         help="after the tabs, the Plots dock (View > Plots) with joint 5's goal, present angle and "
-                             "current and S06B's force on linked time axes while a gait plays: plots-dock.png")
+                             "current and S06B's force on linked time axes while joint 5 swings: plots-dock.png "
+                             "(with --size 1600x800: the dock beside the whole Forces tab)")
     parser.add_argument("--replay", default=None, metavar="REC.h5",
                         help="the 3-D tab replaying this recording, scrubbed to its middle: scene-replay.png")
     args = parser.parse_args(argv)
@@ -289,7 +290,8 @@ def _take_plots(window: Any, lab: Any, out: Path, pump: Any, settle_ms: int) -> 
     dock.add_series(["robot/J5/goal_rad", "robot/J5/present_rad"], NEW_PLOT)  # several keys: one plot
     dock.add_series(["robot/J5/current_mA"], NEW_PLOT)
     dock.add_series(["forces/S06B/force_N"], NEW_PLOT)
-    dock.setMinimumWidth(int(0.5 * window.width()))  # the plots wide enough to read (the Forces tab gives way)
+    # As wide as the Forces tab beside it lets it be (a user drags the splitter; a forced minimum width would squeeze
+    # the tab's toolbar over itself): take this picture with a wide window, e.g. --size 1600x800.
     window.resizeDocks([dock], [int(0.5 * window.width())], Qt.Orientation.Horizontal)
     pump(max(settle_ms, 8_000))  # a few swings of every series on screen
     return _save(window, out / "plots-dock.png", pump) is not None
