@@ -27,6 +27,7 @@ import h5py
 import numpy as np
 
 from app.core.errors import RecordingFormatError
+from app.core.mocap import frame_step
 from app.core.recording import check_input
 from models.kinematics import SEGMENT_LENGTH_M, SEGMENT_RADIUS_M, BodyPose, forward_kinematics, sensor_points
 
@@ -197,7 +198,7 @@ def _read(f: h5py.File, path: Path, axes: tuple[str, ...] | None, segment_length
     if "mocap" in f and "segment_center_m" in f["mocap"] and f["mocap/segment_center_m"].shape[0]:
         mocap = f["mocap"]
         rows = mocap["segment_center_m"].shape[0]
-        step = -(-rows // MAX_MOCAP_FRAMES)  # a long take: every step-th frame, read so (never whole)
+        step = frame_step(rows, MAX_MOCAP_FRAMES)  # a long take: every step-th frame, read so (never whole)
         centers = np.asarray(mocap["segment_center_m"][::step], float)
         rotations = np.asarray(mocap["segment_rotation"][::step], float)
         tracks.append(BodyTrack(MOCAP, np.asarray(mocap["time_s"][::step], float),
