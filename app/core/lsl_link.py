@@ -66,7 +66,7 @@ GAP_PERIODS = 2.5  # a gap longer than this many sample periods is a dropout
 PULL_TIMEOUT_S = 0.05
 # At a recording's stop, how long the take waits for samples captured before the stop but still on their way (the
 # sender's chunk, this reader's pull: ~50-75 ms; without the wait every take lost its last ~50 ms, measured at 480 Hz).
-IN_TRANSIT_WAIT_S = 0.12
+IN_TRANSIT_WAIT_S = 0.1  # (on the GUI thread when the app records: within its 100 ms budget)
 LIVE_WINDOW_S = 120.0  # segment centres kept for the kinematics plot
 
 

@@ -12,8 +12,9 @@ unpredictable name that carries the writer's pid (``.NAME.<pid>.<random>.partial
 when complete. A temporary left by a writer that was killed (``kill -9``, a power cut) is removed by the next writer
 of the same output once it is provably stale: the pid in its name is no process on this machine. The writers:
 :func:`app.core.calfiles.write_atomically` (CSV and JSON), :mod:`app.core.recording` (recordings, re-estimated and
-repaired copies), :func:`app.core.shapes.write_shape`, :func:`write_new_file` (a file that must not replace one: a servo settings
-backup, a saved event log, a new lab config), the lab config :mod:`app.core.servo_settings` rewrites, ``sensnake play --log``, and :func:`replacing_text` / :func:`replace_text` for the files a
+repaired copies), :func:`app.core.shapes.write_shape`, :func:`write_new_file` (a file that must not replace one: a
+servo settings backup, a saved event log, a new lab config), the lab config :mod:`app.core.servo_settings`
+rewrites, ``sensnake play --log``, and :func:`replacing_text` / :func:`replace_text` for the files a
 sweep, a tuning study or an evaluation writes into its folder.
 
 Any thread; no state.

@@ -585,6 +585,7 @@ class ForcesTab(QWidget):
                      "name to replace it", "warn")
             self.controls.set_recording(False, "not recording")
             return None
+        self._replace_confirmed = None  # confirmed for this recording only
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
