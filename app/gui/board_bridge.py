@@ -76,6 +76,7 @@ class BoardBridge(QObject):
         self.bridge_stats = BridgeStats()
         self._reader: BoardReader | None = None
         self._opener: threading.Thread | None = None
+        self._opening: BoardReader | None = None  # the reader the opener thread starts, until adopted
         self._wanted = False
         self._is_connected = False
         self._last_status = BoardStatus("closed", f"board on {config.port} not started", False)
@@ -147,6 +148,10 @@ class BoardBridge(QObject):
         opener, self._opener = self._opener, None
         if opener is not None:
             opener.join()
+        opening, self._opening = self._opening, None
+        if opening is not None and opening is not self._reader:
+            # Opened, its thread running, but not adopted yet (the adoption is still queued for the GUI thread).
+            opening.close()
         reader, self._reader = self._reader, None
         if reader is not None:
             reader.close()
@@ -198,6 +203,7 @@ class BoardBridge(QObject):
         if not self._wanted or self._reader is not None or (self._opener and self._opener.is_alive()):
             return
         reader = BoardReader(self.config, on_status=self._on_reader_status)
+        self._opening = reader
         self.status.emit(f"opening board on {self.config.port}…")
         self._opener = threading.Thread(target=self._open_reader, args=(reader,), name="board-open", daemon=True)
         self._opener.start()
@@ -212,6 +218,10 @@ class BoardBridge(QObject):
         self._bridge.post(self._adopt, reader)
 
     def _adopt(self, reader: BoardReader) -> None:
+        if reader is not self._opening:  # stopped (and perhaps started again) since this reader was opened
+            reader.close()
+            return
+        self._opening = None
         if self._opener is not None:
             self._opener.join()
             self._opener = None
@@ -223,6 +233,10 @@ class BoardBridge(QObject):
         self._set_connected(_delivers_data(reader.status))
 
     def _open_failed(self, reader: BoardReader, exc: BaseException) -> None:
+        if reader is not self._opening:
+            reader.close()
+            return
+        self._opening = None
         if self._opener is not None:
             self._opener.join()
             self._opener = None

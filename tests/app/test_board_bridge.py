@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -72,3 +74,15 @@ def test_stop_joins_and_restart_works(qtbot, bridge):
     with qtbot.waitSignal(bridge.connected, timeout=15_000):
         bridge.start()
     qtbot.waitUntil(lambda: bridge.bridge_stats.samples > count, timeout=10_000)
+
+
+def test_a_stop_before_the_opened_reader_is_adopted_still_ends_its_thread(qtbot, bridge):
+    bridge.start()
+    opener = bridge._opener
+    assert opener is not None
+    opener.join(timeout=10)  # the port is open and the reader's thread runs; its adoption is queued, not yet run
+    assert any(t.name.startswith("board-reader") for t in threading.enumerate())
+    bridge.stop()
+    assert not any(t.name.startswith("board-reader") and t.is_alive() for t in threading.enumerate())
+    qtbot.wait(50)  # the queued adoption arrives after the stop: it must not revive the closed reader
+    assert bridge._reader is None and not bridge.is_connected
