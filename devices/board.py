@@ -306,6 +306,19 @@ class BoardStats:
     connected: bool = False
 
 
+def _board_step_s(earlier: Frame, later: Frame) -> float | None:
+    """Board seconds from ``earlier`` to ``later`` when they are consecutive in one clock segment and plausibly
+    timed (clock forward by less than a minute, seq forward by as many frames as that time holds, give or take);
+    ``None`` otherwise (a restart, a clock glitch, frames lost in between: no claim is made across them)."""
+    if earlier.counts.size != later.counts.size:
+        return None
+    t_step = (later.t_us - earlier.t_us) % T_US_MODULUS
+    seq_step = (later.seq - earlier.seq) % SEQ_MODULUS
+    if seq_step != 1 or not 0 < t_step < 60_000_000:
+        return None
+    return t_step * 1e-6
+
+
 class BoardReader:
     """Reads one force-sensor board on its own thread; see the module docstring.
 
@@ -348,6 +361,8 @@ class BoardReader:
         self._last_offset_board_s: float | None = None
         self._stalled = False
         self._stalls = 0
+        self._late_delivery_said = False
+        self._last_poll_s = time.monotonic()  # when the reader thread last looked at the port
         self._clock_backsteps = 0
         self._board_time_base_s = 0.0
         self._segment = 0
@@ -470,14 +485,15 @@ class BoardReader:
                     self._try_reconnect()
                     continue
                 try:
-                    waiting = self._port.in_waiting
-                    data = self._port.read(min(waiting, MAX_READ_BYTES)) if waiting else b""
+                    data = self._read_waiting(self._port)
                 except (serial.SerialException, OSError) as exc:
                     self._on_link_lost(exc)
                     continue
+                now = time.monotonic()
                 if data:
-                    self._ingest(data, time.monotonic())
-                else:
+                    self._ingest(data, now)
+                self._last_poll_s = now
+                if not data:
                     # Idle: poll a few hundred times a second rather than block in read(), which on the simulated
                     # port would spin; the added latency (< IDLE_POLL_S) is far below a GUI frame.
                     self._stop.wait(IDLE_POLL_S)
@@ -488,6 +504,18 @@ class BoardReader:
             raise
         finally:
             self._close_port()
+
+    @staticmethod
+    def _read_waiting(port: serial.SerialBase) -> bytes:
+        """Everything the port holds now (up to ``MAX_READ_BYTES``), read until it holds no more: a backlog the
+        driver hands over a buffer at a time is taken in one piece, so its frames are dated together."""
+        data = b""
+        while len(data) < MAX_READ_BYTES:
+            waiting = port.in_waiting
+            if not waiting:
+                break
+            data += port.read(min(waiting, MAX_READ_BYTES - len(data)))
+        return data
 
     def _on_link_lost(self, exc: BaseException) -> None:
         self._close_port()
@@ -504,6 +532,7 @@ class BoardReader:
         except PortOpenError:
             return
         self._parser.reset_stream()
+        self._last_poll_s = time.monotonic()
         self._reconnects += 1
         self._gap_pending = True
         # A board that was unplugged restarts its clock (and seq) at 0: the next frame opens a new clock segment.
@@ -533,7 +562,16 @@ class BoardReader:
         for k in range(len(frames) - 1, -1, -1):
             arrival[k] = host_time_s - behind * byte_time_s
             behind += HEADER_SIZE + 2 * frames[k].counts.size + CRC_SIZE
-        for frame, frame_host_time_s in zip(frames, arrival):
+        # A frame was sampled no later than the next one's arrival less the board's time between them: frames that
+        # waited (in a board that blocks until the host opens, or an adapter that holds them) and then came together
+        # keep the board's spacing back from the last one instead of all landing within the read.
+        sampled_by = arrival.copy()
+        for k in range(len(frames) - 2, -1, -1):
+            step_s = _board_step_s(frames[k], frames[k + 1])
+            if step_s is not None:
+                sampled_by[k] = min(sampled_by[k], sampled_by[k + 1] - step_s * (1.0 - MAX_CLOCK_DRIFT))
+        polled_s = self._last_poll_s
+        for frame, frame_host_time_s, frame_sampled_by_s in zip(frames, arrival, sampled_by):
             if frame.counts.size != expected:
                 self._channel_mismatches += 1
                 if self._status.state != "mismatch":
@@ -544,9 +582,10 @@ class BoardReader:
                 continue
             if self._status.state == "mismatch":
                 self._set_status("connected", f"board on {self.board.port} sends {expected} channels again", True)
-            self._store(frame, float(frame_host_time_s))
+            self._store(frame, float(frame_host_time_s), float(frame_sampled_by_s), polled_s)
 
-    def _store(self, frame: Frame, host_time_s: float) -> None:
+    def _store(self, frame: Frame, host_time_s: float, sampled_by_s: float | None = None,
+               polled_s: float | None = None) -> None:
         last_t_us, last_seq = self._last_t_us, self._last_seq_stored
         if last_t_us is None or last_seq is None:
             self._board_time_base_s = frame.t_us * 1e-6
@@ -570,7 +609,9 @@ class BoardReader:
                 self._board_time_base_s += 1.0 / self.board.rate_hz
             else:
                 self._board_time_base_s += t_step * 1e-6
-        host_time_s = self._host_time_for(self._board_time_base_s, host_time_s)
+        host_time_s = self._host_time_for(self._board_time_base_s, host_time_s,
+                                          host_time_s if sampled_by_s is None else sampled_by_s,
+                                          host_time_s if polled_s is None else polled_s)
         self._segment_pending = False
         self._last_t_us = frame.t_us
         self._last_store_host_s = host_time_s
@@ -594,16 +635,20 @@ class BoardReader:
                 self._read_total = self._write_total - self._capacity
             self._data_ready.notify_all()
 
-    def _host_time_for(self, board_time_s: float, wire_time_s: float) -> float:
+    def _host_time_for(self, board_time_s: float, wire_time_s: float, sampled_by_s: float,
+                       polled_s: float) -> float:
         """The host time of a frame: when its last byte came off the wire (``wire_time_s``, an upper bound: the
-        read time less the wire time of the bytes behind it) or, when that is later, when the board's clock says it
-        came — the frames that waited in the port's buffer while this process did not read (stopped with SIGSTOP,
-        the machine suspended, a long pause) keep the board's spacing instead of all landing at the read. The board
-        clock's offset to the host's is the lower envelope of (wire time − board time), allowed to rise by the
-        clocks' worst drift. A frame read more than ``STALL_S`` after its board time marks a stall (one status
-        per stall, ``state`` ``stall``: a recording logs it as an event). Never before the previous frame's."""
+        read time less the wire time of the bytes behind it; ``sampled_by_s`` tightens it by the frames read with
+        it) or, when that is later, when the board's clock says it came — the frames that waited in the port's
+        buffer while this process did not read (stopped with SIGSTOP, the machine suspended, a long pause) keep the
+        board's spacing instead of all landing at the read. The board clock's offset to the host's is the lower
+        envelope of (sampled-by time − board time), allowed to rise by the clocks' worst drift. A frame read more
+        than ``STALL_S`` after its board time is an event (``state`` ``stall``: a recording logs it), named by its
+        cause: this process did not read for that long (``polled_s``, its previous look at the port, that long
+        ago: a host stall, counted) — or it did, and the frames came late (a board or adapter that holds them:
+        said once). Never before the previous frame's."""
         offset = self._host_offset_s
-        candidate = wire_time_s - board_time_s
+        candidate = sampled_by_s - board_time_s
         if offset is None or candidate < offset:
             offset = candidate
         elif self._last_offset_board_s is not None:
@@ -613,13 +658,19 @@ class BoardReader:
         late_s = wire_time_s - predicted
         if late_s > STALL_S and not self._stalled:
             self._stalled = True
-            self._stalls += 1
-            self._notify("stall", f"the board was not read for {late_s:.1f} s (this process was stopped, or the "
-                         "computer suspended or overloaded); the frames that waited are timed by the board's clock, "
-                         "not stamped all at once", predicted)
+            if wire_time_s - polled_s >= STALL_S / 2:
+                self._stalls += 1
+                self._notify("stall", f"the board was not read for {late_s:.1f} s (this process was stopped, or "
+                             "the computer suspended or overloaded); the frames that waited are timed by the board's "
+                             "clock, not stamped all at once", predicted)
+            elif not self._late_delivery_said:
+                self._late_delivery_said = True
+                self._notify("stall", f"frames from the board on {self.board.port} came up to {late_s:.1f} s late "
+                             "although this app was reading (the board or its USB adapter held them back); they are "
+                             "timed by the board's clock", predicted)
         elif late_s < STALL_S / 2:
             self._stalled = False
-        host_time_s = max(min(wire_time_s, predicted), self._last_host_time_s)
+        host_time_s = max(min(sampled_by_s, predicted), self._last_host_time_s)
         self._last_host_time_s = host_time_s
         return host_time_s
 

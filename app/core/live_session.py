@@ -319,14 +319,14 @@ class TimedOutcome:
     error: str | None  # the recorder's write failure, if any
 
 
-def _first_frames(block: SampleBlock, n: int) -> SampleBlock:
-    """The first ``n`` frames of ``block`` (n ≥ 1)."""
+def _frames(block: SampleBlock, part: slice) -> SampleBlock:
+    """The frames ``part`` of ``block``."""
     def cut(values: np.ndarray | None) -> np.ndarray | None:
-        return None if values is None else values[:n]
+        return None if values is None else values[part]
 
-    return replace(block, counts=block.counts[:n], conductance_s=block.conductance_s[:n],
-                   board_time_s=block.board_time_s[:n], host_time_s=block.host_time_s[:n], seq=block.seq[:n],
-                   saturated=block.saturated[:n], gap_before=cut(block.gap_before),
+    return replace(block, counts=block.counts[part], conductance_s=block.conductance_s[part],
+                   board_time_s=block.board_time_s[part], host_time_s=block.host_time_s[part], seq=block.seq[part],
+                   saturated=block.saturated[part], gap_before=cut(block.gap_before),
                    clock_segment=cut(block.clock_segment))
 
 
@@ -352,6 +352,7 @@ def record_timed(live: LiveSession, reader: BoardReader, seconds: float,
     last_data_wall = wall_start
     mismatch_since: float | None = None
     recorder = live.recorder
+    recording_start = recorder.t0_monotonic_s if recorder is not None else wall_start
     while True:
         for status in live.pending_statuses():
             if status.state in TOLD_STATES or (status.state == "mismatch" and board_start is not None):
@@ -363,6 +364,15 @@ def record_timed(live: LiveSession, reader: BoardReader, seconds: float,
         reader.wait_for_frames(1, WAIT_S)
         block = reader.read_block()
         now = time.monotonic()
+        if block is not None and board_start is None:
+            # Frames sampled before the recording started (a board that held them until the port was read) are
+            # not part of it: the S seconds start at the first frame the recording keeps.
+            first = int(np.searchsorted(block.host_time_s, recording_start, side="left"))
+            if first >= len(block):
+                last_data_wall = now
+                block = None
+            elif first:
+                block = _frames(block, slice(first, None))
         if block is not None:
             last_data_wall = now
             mismatch_since = None
@@ -372,7 +382,7 @@ def record_timed(live: LiveSession, reader: BoardReader, seconds: float,
             # Board time decides the length: frames drained past it (a late read at a high rate) are not written.
             keep = int(np.searchsorted(block.board_time_s - board_start, seconds + 1e-6, side="right"))
             if keep:
-                live.process_block(block if keep == len(block) else _first_frames(block, keep))
+                live.process_block(block if keep == len(block) else _frames(block, slice(keep)))
             recorded_s = min(float(block.board_time_s[keep - 1 if keep else 0]) - board_start, seconds)
             if keep < len(block):
                 recorded_s = seconds

@@ -329,3 +329,24 @@ def test_a_board_repeating_every_frame_is_recorded_once_per_frame_without_false_
     assert np.all(np.diff(seqs) == 1) and not rec.gaps
     with h5py.File(out, "r") as f:
         assert int(f["daq"].attrs["duplicate_frames"]) >= seqs.size - 2
+
+
+def test_a_board_that_holds_its_first_frames_until_read_is_recorded_at_its_own_spacing_for_the_full_seconds(
+        tmp_path, capsys):
+    """A board that blocks until its host reads, then sends its backlog: those frames were all stamped within a
+    few ms, and ``--seconds`` counted from a frame older than the recording's start, so the file held less."""
+    config = tmp_path / "lab30.toml"
+    config.write_text("[board]\nrate_hz = 30.0\n")
+    out = tmp_path / "held.h5"
+    with EmulatedBoard(tmp_path, rate_hz=30.0, hold_first=1.5) as emu:
+        assert record(emu, out, 2.5, config) == 0
+        log = emu.stop()
+    rec = open_recording(out)
+    seqs = assert_exact_and_complete(rec, log)
+    assert np.all(np.diff(seqs) == 1)
+    assert rec.time_s[-1] - rec.time_s[0] >= 2.5 - 2 / 30, "fewer than --seconds of board time recorded"
+    steps = np.diff(rec.time_s)
+    assert steps.min() > 0.8 / 30, f"frames stamped {steps.min() * 1e3:.1f} ms apart: the backlog landed at once"
+    with h5py.File(out, "r") as f:
+        assert int(f["daq"].attrs["host_stalls"]) == 0
+    error_lines(capsys.readouterr().err)

@@ -96,3 +96,22 @@ def _wait(predicate) -> bool:
     from tests.waiting import wait_until
 
     return wait_until(predicate)
+
+
+def test_frames_an_adapter_hands_over_in_bursts_keep_the_boards_spacing_and_are_named_late_not_a_stalled_host(
+        tmp_path):
+    """Frames held back 1.3 s at a time (this process reading all along): once the first burst was stamped all
+    within a few ms, and every burst was told as "the board was not read" — a host stall that never happened."""
+    board = replace(BoardConfig(), rate_hz=30.0)
+    statuses = []
+    with EmulatedBoard(tmp_path, rate_hz=30.0, burst=1.3) as emu, \
+            BoardReader(replace(board, port=emu.path), on_status=statuses.append) as reader:
+        assert _wait(lambda: reader.frames_available >= 70)  # two bursts of 39
+        block = reader.read_block()
+        stats = reader.stats
+    assert block is not None and np.all(np.diff(block.seq) == 1)
+    np.testing.assert_allclose(np.diff(block.host_time_s), np.diff(block.board_time_s), atol=3e-3)
+    assert stats.host_stalls == 0
+    late = [s for s in statuses if s.state == "stall"]
+    assert len(late) == 1, [s.message for s in late]  # said once, not at every burst
+    assert "although this app was reading" in late[0].message and "not read for" not in late[0].message

@@ -5,7 +5,7 @@ Run it as its own process::
     python -m tests.emulators.board_emulator --link DIR/board [--channels 36] [--rate-hz 30] [--baud 2000000]
         [--garbage P] [--crc-flip P] [--drop P] [--over-range P] [--wrong-channels N --wrong-from-s T]
         [--unplug-at S] [--replug-at S] [--silent] [--t-us-start US] [--seed K] [--log FILE.json]
-        [--version V] [--clock-back-at S [--clock-back-us US]]
+        [--version V] [--clock-back-at S [--clock-back-us US]] [--hold-first S] [--burst S]
 
 It makes a pty, points the symlink ``--link`` at its slave (a host opens that path like ``/dev/ttyUSB0``) and prints
 ``READY <link>`` on stdout. Frames go out at the board's rate, each written as one burst the way a USB-serial adapter
@@ -16,7 +16,10 @@ Faults, drawn per frame from a seeded generator: ``--garbage P`` random bytes (1
 P`` one bit flipped in the frame after the sync bytes (the host must reject it); ``--drop P`` the frame is never sent
 (``seq`` still advances); ``--over-range P`` a count above 4095 with a *valid* CRC (impossible for a 12-bit ADC);
 ``--wrong-channels N`` sends N channels instead (from ``--wrong-from-s`` on); ``--version V`` sends protocol
-version V (valid CRC); ``--repeat P`` sends a frame twice (same seq); ``--clock-back-at S`` steps ``t_us`` back by ``--clock-back-us`` once, seq going on. ``--silent`` opens the pty and sends
+version V (valid CRC); ``--repeat P`` sends a frame twice (same seq); ``--clock-back-at S`` steps ``t_us`` back by ``--clock-back-us`` once, seq going on. Delivery:
+``--hold-first S`` keeps the frames of the first S seconds and writes them together at S (a board that blocks until
+its host reads, then sends its backlog); ``--burst S`` writes the frames made in each S seconds together (an adapter
+that holds them back); frames keep the board's pace and clock either way. ``--silent`` opens the pty and sends
 nothing. Unplug closes the pty and removes the link (the host sees EIO); re-plug makes a new pty behind the same link
 and the board restarts: ``seq`` and ``t_us`` from 0 (a new clock segment). Commands on stdin (one per line):
 ``unplug``, ``replug``, ``quit``; or ``--unplug-at``/``--replug-at`` seconds after start.
@@ -99,6 +102,8 @@ class Board:
         self._slave: int | None = None
         self._plugged_at = 0.0
         self._index = 0  # frames since the plug (seq and clock restart with each plug)
+        self._held: list[tuple[bytes, int | None, str, Segment]] = []  # frames made, not yet written (see --burst)
+        self._held_since = 0.0
         frame_bytes = 16 + 2 * args.channels
         if args.rate_hz * frame_bytes * BITS_PER_BYTE > args.baud:
             raise SystemExit(f"board emulator: {args.rate_hz} frames/s of {frame_bytes} bytes do not fit "
@@ -201,15 +206,29 @@ class Board:
         data += frame
         if frame and args.repeat and rng.random() < args.repeat:
             data += frame  # the same frame (same seq) twice: a firmware that repeats itself
-        written = self._write(data)
-        if not frame:
-            return
-        if written < len(data):
-            segment.unread.append(seq)
-        elif kind == "sent":
-            segment.sent.append(seq)
-        else:
-            segment.corrupt.append(seq)
+        self._held.append((data, seq if frame else None, kind, segment))
+        hold_until = self._held_since + args.burst if args.burst else 0.0
+        if args.hold_first is not None and elapsed_s < args.hold_first:
+            return  # a board that blocks until its host reads: the frames wait in it and then go out together
+        if args.burst and elapsed_s < hold_until:
+            return  # an adapter that holds frames and hands them over in bursts
+        self._flush_held(elapsed_s)
+
+    def _flush_held(self, elapsed_s: float) -> None:
+        held, self._held = self._held, []
+        self._held_since = elapsed_s
+        written = self._write(b"".join(data for data, *_ in held))
+        end = 0
+        for data, seq, kind, segment in held:
+            end += len(data)
+            if seq is None:
+                continue
+            if written < end:
+                segment.unread.append(seq)
+            elif kind == "sent":
+                segment.sent.append(seq)
+            else:
+                segment.corrupt.append(seq)
 
     def _write(self, data: bytes) -> int:
         with self._lock:
@@ -340,6 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="from this many seconds on, t_us is --clock-back-us lower (seq goes on)")
     p.add_argument("--clock-back-us", type=int, default=500_000)
     p.add_argument("--replug-at", type=float, default=None)
+    p.add_argument("--hold-first", type=float, default=None,
+                   help="keep the frames of the first S seconds and send them together at S (a board that blocks "
+                        "until its host reads)")
+    p.add_argument("--burst", type=float, default=0.0,
+                   help="hand the frames over together every S seconds (an adapter that holds them back)")
     p.add_argument("--silent", action="store_true")
     p.add_argument("--t-us-start", type=int, default=0, help="board clock at the first frame (test the 2³² wrap)")
     p.add_argument("--seed", type=int, default=1)
