@@ -704,6 +704,28 @@ def stopped_recorder(folder: Path) -> Outcome:
     return Outcome(ok, f"largest time step {steps.max() * 1e3:.0f} ms; events {sorted(set(kinds))}")
 
 
+def board_holds_frames(folder: Path, **delivery: float) -> Outcome:
+    """A board that holds its frames (``hold_first``: until it is read; ``burst``: an adapter handing them over in
+    bursts): every frame kept, at the board's spacing, ``--seconds`` of them, and no host stall counted."""
+    import h5py
+    import numpy as np
+
+    config = folder / "lab.toml"
+    config.write_text("[board]\nrate_hz = 30.0\n")
+    out = folder / "held.h5"
+    with EmulatedBoard(folder, rate_hz=30.0, **delivery) as emu:
+        run = sensnake("record", "--daq", emu.path, "--seconds", "2.5", "--out", str(out), "--config", str(config))
+    if run.code != 0 or "Traceback" in run.err:
+        return Outcome(False, f"exit {run.code}: {run.err.strip()[-200:]}")
+    with h5py.File(out, "r") as f:
+        time_s = f["daq/time_s"][:]
+        stalls = int(f["daq"].attrs["host_stalls"])
+    steps = np.diff(time_s)
+    ok = steps.min() > 0.8 / 30 and time_s[-1] - time_s[0] >= 2.4 and stalls == 0
+    return Outcome(ok, f"steps {steps.min() * 1e3:.1f}–{steps.max() * 1e3:.1f} ms over {time_s[-1] - time_s[0]:.2f} s; "
+                       f"host stalls {stalls}")
+
+
 def duplicate_servo_id(folder: Path) -> Outcome:
     emu = _servo_emulator("--ids", "1,1,3-12")
     shape = _shape(folder / "shape.json", [0.1 * (-1) ** i for i in range(12)])
@@ -881,6 +903,8 @@ CASES: dict[str, Callable[[Path], Outcome]] = {
     "board: its clock steps back 0.5 s (seq goes on)": board_case_exact(clock_back_at=0.8),
     "board: speaks protocol version 2": protocol_version_2,
     "record: SIGSTOP 2 s, then SIGCONT": stopped_recorder,
+    "record: a board that holds its first 1.5 s until read": lambda d: board_holds_frames(d, hold_first=1.5),
+    "record: an adapter handing frames over every 0.8 s": lambda d: board_holds_frames(d, burst=0.8),
     "servo: two servos on ID 1 (none on 2)": duplicate_servo_id,
     "record: --baud 99999999999": one_line(lambda d: ["record", "--daq", "sim", "--seconds", "1", "--out",
                                                       str(d / "r.h5"), "--baud", "99999999999"], 1, "--baud"),
