@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -670,8 +672,8 @@ class PlotsDock(QDockWidget):
             try:
                 written = sr.write_layout(self.layout_model, path, replace_existing=bool(replace_existing))
             except FileExistsError:
-                if replace_existing is not None:
-                    raise
+                if replace_existing is not None or not _is_regular_file(path):
+                    raise  # a folder, link, device or FIFO there is never offered for replacing: said as it is
                 choice = self.ask_existing(path)
                 if choice == "replace":
                     written = sr.write_layout(self.layout_model, path, replace_existing=True)
@@ -759,3 +761,11 @@ class PlotsDock(QDockWidget):
         """Stop the timer and take no more live data (the window closes)."""
         self._timer.stop()
         self._unsubscribe()
+
+
+def _is_regular_file(path: Path) -> bool:
+    """A regular file itself at ``path`` (not a link to one, a folder, a device or a FIFO)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False

@@ -340,6 +340,23 @@ def test_a_layout_naming_series_the_source_lacks_says_which_and_a_bad_file_is_re
     assert NEW_PLOT == -1
 
 
+def test_a_layout_saved_onto_a_folder_or_a_link_is_refused_without_offering_to_replace_it(idle_window, tmp_path):
+    dock = idle_window.plots_dock
+    dock.add_series([J5_CURRENT])
+    asked: list[Path] = []
+    dock.ask_existing = lambda p: asked.append(p) or "replace"
+    folder = tmp_path / "taken.plots.json"
+    folder.mkdir()
+    (tmp_path / "target.json").write_text("{}")
+    link = tmp_path / "link.plots.json"
+    link.symlink_to(tmp_path / "target.json")
+    for path in (folder, link):
+        assert dock.save_layout(path) is None
+        assert path.name in dock.view.message.text() and "not saved" in dock.view.message.text()
+    assert asked == []  # never asked "replace?" about something that is not a file it may replace
+    assert folder.is_dir() and link.is_symlink() and (tmp_path / "target.json").read_text() == "{}"
+
+
 def test_a_new_lab_is_plotted_and_the_old_one_let_go(idle_window, qtbot):
     from types import SimpleNamespace
 
