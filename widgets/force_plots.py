@@ -674,6 +674,7 @@ class ForcePlotGrid(QWidget):
         self._grid.setHorizontalSpacing(6)
         self._grid.setVerticalSpacing(2)
         self.plots: list[_SegmentPlot] = []
+        self._empty_slots: list[QWidget] = []  # the first row's places of plots not built yet (_place)
         for _group in self.groups if build_plots else ():
             self._create_plot()
         self._place(columns or 3)
@@ -741,6 +742,8 @@ class ForcePlotGrid(QWidget):
         self._place(self.columns or 3)
         self._fit_layout()
         self.invalidate()
+        if not self.plots_pending:  # the grid's height held in reserve is let go: which plots are in view, once laid out
+            QTimer.singleShot(0, self, self._update_in_view)
         return bool(self.plots_pending)
 
     # -- layout ----------------------------------------------------------------------------------------------------
@@ -749,18 +752,34 @@ class ForcePlotGrid(QWidget):
         grid = self._grid
         for row in range(grid.rowCount()):
             grid.setRowStretch(row, 0)
-        for plot in self.plots:
-            grid.removeWidget(plot)
+        for widget in (*self.plots, *self._empty_slots):
+            grid.removeWidget(widget)
         for i, plot in enumerate(self.plots):
             grid.addWidget(plot, i // columns, i % columns, Qt.AlignmentFlag.AlignTop)
-        for column in range(grid.columnCount()):
+        # A column of the first row that no plot reaches yet (a grid built one plot at a time) holds an empty widget:
+        # an empty column gets no spacing beside it, and its plots would narrow by a few pixels as the row fills.
+        while len(self._empty_slots) < columns:
+            self._empty_slots.append(QWidget(self._inner))
+        for column, slot in enumerate(self._empty_slots):
+            empty = len(self.plots) <= column < columns
+            if empty:
+                grid.addWidget(slot, 0, column)
+            slot.setVisible(empty)
+        # Shown now (all in their places: showing one lays the grid out), not at the layout's next turn: a plot made
+        # after the grid was shown (add_next_plot) is hidden until then, and the layout activated meanwhile
+        # (_update_in_view) would count its column empty.
+        for plot in self.plots:
+            plot.show()
+        for column in range(max(columns, grid.columnCount())):
             grid.setColumnStretch(column, 1 if column < columns else 0)
-        grid.setRowStretch(-(-len(self.plots) // columns), 1)
+        grid.setRowStretch(-(-len(self.groups) // columns), 1)
         self.columns = columns
 
     def _fit_layout(self) -> None:
         """Choose the columns from the view's width and the plots' height: every row in view at once when each plot
-        gets at least FIT_MIN_PLOT_HEIGHT_PX, else PLOT_HEIGHT_PX each and the grid scrolls."""
+        gets at least FIT_MIN_PLOT_HEIGHT_PX, else PLOT_HEIGHT_PX each and the grid scrolls. Chosen for every plot
+        of the grid, built or not: a grid built one plot at a time puts each where it stays, so adding one never
+        resizes the plots already shown (which re-laid out and redrew them all, each step)."""
         if not self.plots:
             return
         viewport = self.scroll_area.viewport()
@@ -768,9 +787,9 @@ class ForcePlotGrid(QWidget):
         margins = grid.contentsMargins()
         spacing = grid.horizontalSpacing()
         usable = viewport.width() - margins.left() - margins.right() + spacing
-        columns = self._fixed_columns or max(1, min(MAX_COLUMNS, len(self.plots),
-                                                    usable // (MIN_PLOT_WIDTH_PX + spacing)))
-        rows = -(-len(self.plots) // columns)
+        count = len(self.groups)
+        columns = self._fixed_columns or max(1, min(MAX_COLUMNS, count, usable // (MIN_PLOT_WIDTH_PX + spacing)))
+        rows = -(-count // columns)
         room = viewport.height() - margins.top() - margins.bottom() - (rows - 1) * grid.verticalSpacing()
         fitted = room // rows - self.plots[0].header_height() - 1
         self.fits_view = fitted >= FIT_MIN_PLOT_HEIGHT_PX
@@ -784,6 +803,11 @@ class ForcePlotGrid(QWidget):
             self.plot_height = height
             for plot in self.plots:
                 plot.plot_widget.setFixedHeight(height)
+        # While plots are still to be built, the grid is as tall as it will be: the scroll bar it will need is there
+        # from the first plot (its coming later would narrow every plot built before it).
+        pitch = self.plots[0].sizeHint().height() + grid.verticalSpacing()
+        whole = rows * pitch - grid.verticalSpacing() + margins.top() + margins.bottom()
+        self._inner.setMinimumHeight(whole if self.plots_pending and not self.fits_view else 0)
         self._update_in_view()
 
     def _on_collapsed_changed(self, _collapsed: bool) -> None:

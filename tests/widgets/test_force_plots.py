@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QPoint, QPointF, Qt
-from PySide6.QtWidgets import QLabel
+from PySide6.QtCore import QEvent, QObject, QPoint, QPointF, Qt
+from PySide6.QtWidgets import QLabel, QWidget
 
 from devices.config import default_sensor_names
 from widgets.force_plots import ForcePlotGrid, _Legend, groups_from_names
@@ -462,3 +462,52 @@ def test_a_long_warning_does_not_widen_its_column_and_is_kept_whole_in_the_toolt
     label = grid.plots[11].warning
     assert label.text() == label.toolTip() == f"S12B: {warnings[35]}"
     assert label.fontMetrics().horizontalAdvance(QLabel.text(label)) <= label.width()  # what is shown fits
+
+
+class _Resizes(QObject):
+    """Counts the resizes of each plot's PlotWidget (an event filter)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.counts: dict[int, int] = {}
+
+    def watch(self, index: int, widget: QWidget) -> None:
+        self.counts.setdefault(index, 0)
+        widget.installEventFilter(self)
+        widget.setProperty("plot_index", index)
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
+        # A plot's first size (from none: a plot out of view gets it when it is first laid out) is not a resize.
+        if event.type() == QEvent.Type.Resize and event.oldSize().isValid():
+            self.counts[watched.property("plot_index")] += 1
+        return False
+
+
+@pytest.mark.parametrize("size", [(880, 590), (900, 380)], ids=["rows fitted to the view", "scrolling"])
+def test_a_grid_built_a_plot_at_a_time_never_resizes_the_plots_already_there(qtbot, size):
+    """The Forces tab builds its plots one per turn of the event loop: each is put where it stays and at its size, so
+    the plots already shown are not laid out and redrawn again at each step; the whole grid is then as one built at
+    once."""
+    whole = ForcePlotGrid(NAMES)
+    qtbot.addWidget(whole)
+    whole.resize(*size)
+    whole.show()
+    qtbot.waitExposed(whole)
+    grid = ForcePlotGrid(NAMES, build_plots=False)
+    qtbot.addWidget(grid)
+    grid.resize(*size)
+    grid.show()
+    qtbot.waitExposed(grid)
+    resizes = _Resizes()
+    more = True
+    while more:
+        more = grid.add_next_plot()
+        newest = len(grid.plots) - 1
+        qtbot.wait(20)  # the step's layout and paints, as a turn of the event loop after a step
+        resizes.watch(newest, grid.plots[newest].plot_widget)
+    assert resizes.counts == dict.fromkeys(range(12), 0)  # no plot resized after the step that built it
+    qtbot.waitUntil(lambda: whole.shown_plots() == grid.shown_plots(), timeout=10_000)
+    assert (grid.columns, grid.plot_height, grid.fits_view) == (whole.columns, whole.plot_height, whole.fits_view)
+    assert grid._inner.minimumHeight() == whole._inner.minimumHeight()  # noqa: SLF001 - no height held in reserve
+    qtbot.waitUntil(lambda: [p.geometry() for p in grid.plots] == [p.geometry() for p in whole.plots], timeout=10_000)
+    assert [p.plot_widget.size() for p in grid.plots] == [p.plot_widget.size() for p in whole.plots]
