@@ -35,6 +35,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from app.core import c3d_frames
 from app.core.errors import MocapFileError
 from app.core.outputs import remove_stale_temporaries, temporary_stem
 from devices.config import MocapConfig
@@ -164,13 +165,23 @@ def read_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
     if points.ndim != 3 or points.shape[2] < 2:
         raise MocapFileError(f"{path}: fewer than two frames of points")
     labels = labels[:points.shape[1]]
-    xyz = np.transpose(points[:3], (2, 1, 0)) * scale  # (M, P, 3)
-    residuals = c3d["data"].get("meta_points", {}).get("residuals")
-    if residuals is not None and np.shape(residuals)[-2:] == points.shape[1:]:
-        xyz[np.transpose(np.asarray(residuals)[0]) < 0] = np.nan
+    try:
+        layout = c3d_frames.point_layout(path, c3d)
+    except (KeyError, TypeError, ValueError, IndexError, OSError) as exc:
+        raise MocapFileError(f"{path}: cannot tell how many frames it holds ({type(exc).__name__}: {exc})") from exc
+    note = ""
+    if layout.frames > points.shape[2]:  # ezc3d stops at 65,535 frames: the rest is read from the data section
+        xyz = c3d_frames.read_points(path, layout, check=points) * scale
+        note = f"{layout.frames} frames (from {layout.how})"
+    else:
+        xyz = np.transpose(points[:3], (2, 1, 0)) * scale  # (M, P, 3)
+        residuals = c3d["data"].get("meta_points", {}).get("residuals")
+        if residuals is not None and np.shape(residuals)[-2:] == points.shape[1:]:
+            xyz[np.transpose(np.asarray(residuals)[0]) < 0] = np.nan
+    del points, c3d
     markers, flat, missing, ignored = place_markers(path, labels, xyz, mocap, n_segments)
     time_s = np.arange(xyz.shape[0]) / rate
-    return Take(path, "C3D", time_s, markers, flat, rate, units, missing, ignored)
+    return Take(path, "C3D", time_s, markers, flat, rate, units, missing, ignored, note=note)
 
 
 _AXIS = re.compile(r"^(?P<name>.*?)[\s_.:/-]*(?P<axis>[XYZxyz])$")
@@ -570,6 +581,9 @@ def simulated_take(recording: str | Path, out: str | Path, *, lead_s: float = 1.
     c3d["parameters"]["POINT"]["LABELS"]["value"] = tuple(label for row in layout_labels(mocap, n_seg)
                                                           for label in row)
     c3d.add_parameter("POINT", "UNITS", "mm")
+    if m > c3d_frames.HEADER_FRAMES_MAX:  # the header's 16 bits cannot say it: where C3D readers look instead
+        c3d.add_parameter("TRIAL", "ACTUAL_START_FIELD", [1, 0])
+        c3d.add_parameter("TRIAL", "ACTUAL_END_FIELD", [m & 0xFFFF, m >> 16])
     c3d["data"]["points"] = points
     with _hidden_beside(out, ".c3d") as work:  # ezc3d adds .c3d to a name without it
         c3d.write(str(work))

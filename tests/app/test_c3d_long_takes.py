@@ -1,0 +1,82 @@
+"""C3D takes longer than the header's 65,535 frames (68 s at 960 Hz: shorter than one of the paper's runs). ezc3d
+1.7 stops reading there without a word; the import read 65,535 frames of a 70,000-frame take and lost the rest."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import ezc3d
+import numpy as np
+import pytest
+
+from app.core.errors import MocapFileError
+from app.core.mocap import layout_labels, read_c3d
+from devices.config import MocapConfig
+
+FRAMES = 70_000
+RATE_HZ = 960.0
+
+
+def write_take(path, frames: int = FRAMES, stated: str = "trial") -> None:
+    """Marker SEG01_1 at x = frame × 0.01 mm, every marker's y its index; marker SEG01_4 unseen (negative residual)
+    in frames 100–199 and 69,000–69,099."""
+    labels = tuple(label for row in layout_labels(MocapConfig(), 12) for label in row)
+    n = len(labels)
+    points = np.ones((4, n, frames))
+    points[0] = np.arange(frames)[None, :] * 0.01
+    points[1] = np.arange(n)[:, None]
+    points[2] = 36.0
+    residuals = np.zeros((1, n, frames))
+    residuals[0, 3, 100:200] = -1.0
+    residuals[0, 3, 69_000:69_100] = -1.0
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [RATE_HZ]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = labels
+    c3d.add_parameter("POINT", "UNITS", "mm")
+    if stated == "trial":
+        c3d.add_parameter("TRIAL", "ACTUAL_START_FIELD", [1, 0])
+        c3d.add_parameter("TRIAL", "ACTUAL_END_FIELD", [frames & 0xFFFF, frames >> 16])
+    c3d["data"]["points"] = points
+    c3d["data"]["meta_points"] = {"residuals": residuals, "camera_masks": np.zeros((7, n, frames), dtype=bool)}
+    c3d.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def long_take(tmp_path_factory):
+    path = tmp_path_factory.mktemp("c3d") / "long.c3d"
+    write_take(path)
+    return path
+
+
+@pytest.mark.parametrize("stated", ["trial", "size"])
+def test_every_frame_of_a_take_longer_than_65535_frames_is_read(tmp_path, long_take, stated):
+    path = long_take
+    if stated == "size":  # as ezc3d writes one: 65,535 frames stated, every frame written
+        path = tmp_path / "long.c3d"
+        write_take(path, stated=stated)
+    take = read_c3d(path, MocapConfig(), 12)
+    markers = take.markers_m
+    assert markers.shape == (FRAMES, 12, 4, 3)
+    np.testing.assert_allclose(markers[:, 0, 0, 0], np.arange(FRAMES) * 1e-5, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(markers[-1, 1, 2, 1], 6 * 1e-3)  # SEG02_3: the file's 7th point, y = its index (mm)
+    assert take.time_s[-1] == pytest.approx((FRAMES - 1) / RATE_HZ)
+    unseen = np.isnan(markers[:, 0, 3, 0])
+    assert unseen[100:200].all() and unseen[69_000:69_100].all() and unseen.sum() == 200
+    assert str(FRAMES) in take.source and ("TRIAL" in take.source if stated == "trial" else "size" in take.source)
+
+
+def test_a_long_take_cut_short_is_refused_naming_both_counts(tmp_path, long_take):
+    path = tmp_path / "cut.c3d"
+    shutil.copyfile(long_take, path)
+    os.truncate(path, os.path.getsize(path) - 2_000 * 48 * 16)
+    with pytest.raises(MocapFileError, match=r"70000 frames but the file holds 6\d{4}.*cut short"):
+        read_c3d(path, MocapConfig(), 12)
+
+
+def test_a_take_within_65535_frames_reads_as_before(tmp_path):
+    path = tmp_path / "short.c3d"
+    write_take(path, frames=3_000, stated="size")
+    take = read_c3d(path, MocapConfig(), 12)
+    assert take.markers_m.shape[0] == 3_000 and take.source == "C3D short.c3d"
+    assert np.isnan(take.markers_m[150, 0, 3, 0]) and not np.isnan(take.markers_m[250, 0, 3, 0])
