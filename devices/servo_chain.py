@@ -167,6 +167,7 @@ class _FactoryPortHandler(PortHandler):
         self._rx = bytearray()  # bytes read off the port while waiting, not yet handed to the SDK
         self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
         self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
+        self.late_bytes_discarded = 0  # bytes found waiting before an instruction (late replies; see clearPort)
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -186,6 +187,11 @@ class _FactoryPortHandler(PortHandler):
         return True
 
     def clearPort(self):  # noqa: N802 - dynamixel-sdk's name
+        # The SDK calls this before every instruction: bytes still here are late replies to an earlier read that was
+        # given up (its deadline, or its timeout). Counted: they show the servos did answer, only late.
+        stale = len(self._rx) + self.ser.in_waiting
+        if stale:
+            self.late_bytes_discarded += stale
         self._rx.clear()
         self.ser.reset_input_buffer()
 
@@ -207,7 +213,7 @@ class _FactoryPortHandler(PortHandler):
 
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
         tx_start_s = time.monotonic()
-        written = self.ser.write(packet)
+        written = self._write_now(bytes(packet))
         trace = tick_trace.TRACE
         if trace is not None:
             trace.mark("tx", (packet[7] if len(packet) > 7 else None, len(packet), round(tx_start_s, 6)))
@@ -215,6 +221,27 @@ class _FactoryPortHandler(PortHandler):
         self.pacing.sent(tx_start_s, len(packet))
         self._reply_ids = (packet[4],) if len(packet) > 4 else ()
         return written
+
+    def _write_now(self, data: bytes) -> int:
+        """Hand ``data`` to the kernel and return; never wait for the port to become writable again.
+
+        pyserial's ``write`` (no write timeout) follows every ``os.write`` with a ``select`` until the port is
+        writable. On a pseudo-terminal that waits for the kernel's tty worker (normal priority) to move the bytes to
+        the far end: measured on a busy PC, goal writes of the control tick held 15-400 ms there. An instruction of
+        a few dozen bytes fits the tty's buffer whole, so one non-blocking write (the port is opened non-blocking)
+        hands it over; only a short write falls back to pyserial's waiting write for the rest."""
+        fd = getattr(self.ser, "fd", None)
+        if not isinstance(fd, int):  # the in-process simulator's port delivers at once
+            return self.ser.write(data)
+        try:
+            n = os.write(fd, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:  # as pyserial words it (a pulled adapter: the link-lost path reads this)
+            raise serial.SerialException(f"write failed: {exc}") from exc
+        if n < len(data):
+            n += self.ser.write(data[n:])
+        return n
 
     def readPort(self, length):  # noqa: N802 - dynamixel-sdk's name
         """Up to ``length`` bytes; waits for them (not past the SDK's packet deadline) if fewer have arrived."""
@@ -835,6 +862,11 @@ class ServoChain:
 
     # -- the control tick ------------------------------------------------------------------------------------------
     @property
+    def late_bytes_discarded(self) -> int:
+        """Bytes of late replies (to reads given up earlier) discarded before later instructions, since open."""
+        return 0 if self._port is None else self._port.late_bytes_discarded
+
+    @property
     def last_goal_rad(self) -> np.ndarray | None:
         """The goals of the last :meth:`write_goals` (rad, joint order; a copy), whoever called it; ``None`` before
         the first and after anything that moves the servos' goals behind it (torque on/off, reboot, reopen)."""
@@ -864,15 +896,27 @@ class ServoChain:
         self._last_goal_rad = sent
         return sent.copy()
 
-    def read_state(self, *, raise_on_alert: bool = True) -> ChainState:
+    def read_state(self, *, raise_on_alert: bool = True, deadline_s: float | None = None) -> ChainState:
         """ONE GroupSyncRead of present current, velocity and position of every joint.
 
         A status packet with the alert bit raises :class:`ServoHardwareError` naming the servo and its error; with
         ``raise_on_alert=False`` the state is returned with ``alert_ids`` set instead (the controller's way).
+        ``deadline_s`` (time.monotonic()): replies not in by then are not waited for (:class:`DeadlinePassedError`),
+        so the control tick keeps its slot when the kernel hands the replies over late (on a busy PC the tty layer's
+        worker runs at normal priority; see docs/REALTIME.md). Late replies still in the port at the next instruction
+        are discarded there and counted (``late_bytes_discarded``).
         """
         reader = self._require(self._state_reader)
+        port = self._require_port()
         t0 = time.monotonic()
-        result = self._io(reader.txRxPacket)
+        port.deadline_s = deadline_s
+        try:
+            result = self._io(reader.txRxPacket)
+        finally:
+            port.deadline_s = None
+        if result != COMM_SUCCESS and deadline_s is not None and time.monotonic() >= deadline_s:
+            raise DeadlinePassedError("sync read of present position/velocity/current given up at the control "
+                                      "tick's deadline (replies late)")
         if result != COMM_SUCCESS:
             sid = reader.failed_id if reader.failed_id is not None else self.ids[0]
             self._check_comm(result, sid, "sync read of present position/velocity/current")

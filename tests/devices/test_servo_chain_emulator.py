@@ -307,6 +307,27 @@ def test_a_health_read_given_up_at_its_deadline_never_feeds_its_late_replies_to_
         assert [h.servo_id for h in health] == list(range(1, 13)) and all(h.hardware_error == 0 for h in health)
 
 
+def test_a_feedback_read_given_up_at_its_deadline_leaves_its_late_replies_out_of_the_next_read(emulator):
+    """The control loop gives its feedback read a deadline (before the next slot), so replies the kernel hands over
+    late never hold the next tick. The given-up read's replies still come; those in the port when the next
+    instruction goes out are discarded and counted, and the next read returns the servos' present state, not the
+    given-up read's."""
+    reply_bytes = 12 * (11 + 10)  # 12 status packets of the 10-byte feedback block
+    with ServoChain(robot_on(emulator.path)) as chain:
+        chain.read_state()
+        assert chain.late_bytes_discarded == 0
+        assert emulator.command("stall 0.05").startswith("ok")
+        with pytest.raises(DeadlinePassedError, match="given up at the control tick's deadline"):
+            chain.read_state(deadline_s=time.monotonic() + 0.003)
+        # Waited for the late replies themselves (written 50 ms after the instruction), not for a time.
+        assert wait_until(lambda: chain._require_port().ser.in_waiting >= reply_bytes, 10.0), "no late replies"
+        emulator.command("push 3 300")  # the joint moves after the given-up read answered
+        expected = np.array([(emulator.state(sid)["position"] - 2048) * 2 * np.pi / 4096 for sid in range(1, 13)])
+        state = chain.read_state()
+        np.testing.assert_allclose(state.position_rad, expected, atol=0.02)
+        assert chain.late_bytes_discarded == reply_bytes
+
+
 def _open_on(path: Path) -> int:
     """How many of this process's open files are ``path``."""
     fds = Path("/proc/self/fd")
