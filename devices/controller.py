@@ -96,6 +96,9 @@ SUPPLY_EVERY_N_POLLS = 5  # voltage and temperature change slowly: read them on 
 LATE_FRACTION = 0.25  # a tick starting this fraction of a period after its slot counts as late
 HEALTH_MARGIN_S = 0.003  # a health read is started only if it should end this long before the next deadline
 HEALTH_DEADLINE_MARGIN_S = 0.0005  # a health read in the slack is given up this long before the next slot
+# The feedback read is given up this long (plus the goals' sync write on the wire) before the next slot when its
+# replies are late, so the tick still writes its goal and the next tick starts on time (see _read_feedback).
+FEEDBACK_DEADLINE_MARGIN_S = 0.002
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
 TIMING_WARN_FRACTION = 0.05
 
@@ -285,6 +288,9 @@ class ControllerStats:
     # Slots skipped while a command held the bus on purpose (a scan, a reboot, a link check: submit(holds_bus=True));
     # counted apart from missed_ticks, kept out of the periods and of the timing warning: not the control rate's fault
     held_ticks: int = 0
+    # Feedback reads given up at the tick's deadline because the replies were late (the tick then kept its slot and
+    # used the last state read); also counted in failed_reads
+    late_reads: int = 0
 
 
 @dataclass
@@ -349,6 +355,9 @@ class RobotController:
         self._silent_polled_s = 0.0  # time polled without a valid reply in the current run of failed reads (s)
         self._last_failed_read_s = 0.0
         self._stale_reported = False
+        # The next feedback read waits its whole reply timeout (no deadline): set when reads given up at the tick's
+        # deadline add up to the watchdog's silence, so a servo is named silent only after a read that waited for it.
+        self._confirm_silence = False
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._torque_lost: set[int] = set()  # servos reported for dropping their torque (until it is on again)
         self._next_health_s = 0.0
@@ -372,6 +381,7 @@ class RobotController:
         self._late = 0
         self._writes = 0
         self._failed_reads = 0
+        self._late_reads = 0
         self._health_reads_given_up = 0  # health reads in the slack given up at the next slot (replies late)
         self._latest_state: ChainState | None = None
         self.scheduling = "not started"  # the bus thread's scheduling, in words (set when it starts)
@@ -454,14 +464,14 @@ class RobotController:
             n = min(self._n_periods, PERIOD_HISTORY)
             periods = self._periods[:n].copy()
             ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
-            late, held = self._late, self._held
+            late, held, late_reads = self._late, self._held, self._late_reads
         if n == 0:
             nan = math.nan
-            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late, held)
+            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late, held, late_reads)
         p50, p99 = np.percentile(periods, [50, 99])
         j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
-                               writes, failed, late, held)
+                               writes, failed, late, held, late_reads)
 
     def recent_periods_s(self, n: int) -> np.ndarray:
         """The last ``n`` tick periods (s, start to start, oldest first; at most the history kept). Any thread."""
@@ -662,7 +672,7 @@ class RobotController:
         trace = tick_trace.TRACE
         try:
             # Read first: a hardware error seen in this read stops the motion before anything is written.
-            fresh = self._read_feedback(now)
+            fresh = self._read_feedback(now, next_deadline)
             if trace is not None:
                 trace.mark("read<")
             self._start_plays(fresh)
@@ -735,14 +745,30 @@ class RobotController:
         for begin, _ in plays:
             begin(fresh)
 
-    def _read_feedback(self, now: float) -> bool:
-        """Read the servos' state; True if it was read (False: no valid reply this tick)."""
+    def _read_feedback(self, now: float, next_deadline: float) -> bool:
+        """Read the servos' state; True if it was read (False: no valid reply this tick).
+
+        The read is given up shortly before ``next_deadline`` (the next tick's slot) if its replies are late: the
+        tick then writes its goal from the last state read and the next tick starts on time, instead of waiting for
+        bytes the kernel hands over late (on a busy PC the tty layer's worker, at normal priority, held replies
+        20-40 ms; docs/REALTIME.md). Such reads count as polls without an answer; once they add up to the watchdog's
+        silence, reads wait their whole reply timeout again (``_confirm_silence``) and a servo is named silent only
+        on those, as without deadlines."""
+        if self._confirm_silence:
+            deadline: float | None = None
+        else:
+            deadline = next_deadline - FEEDBACK_DEADLINE_MARGIN_S - self.chain.sync_write_time_s(len(self.chain.ids))
         try:
-            state = self.chain.read_state(raise_on_alert=False)
-        except (NoReplyError, CorruptPacketError) as exc:
+            state = self.chain.read_state(raise_on_alert=False, deadline_s=deadline)
+        except (NoReplyError, CorruptPacketError, DeadlinePassedError) as exc:
+            given_up = isinstance(exc, DeadlinePassedError)
             self._consecutive_failed_reads += 1
             with self._lock:
                 self._failed_reads += 1
+                self._late_reads += given_up
+            trace = tick_trace.TRACE
+            if given_up and trace is not None:
+                trace.mark("read-given-up", round(time.monotonic() - now, 6))
             # Silence is counted over time the bus was actually polled: from the first unanswered poll, each gap
             # between polls counted at most two periods. A loop held off the CPU (a busy machine) polls nobody
             # while it waits; that wait is the loop's stall (reported as such), not the servo's silence.
@@ -753,10 +779,19 @@ class RobotController:
                 self._silent_polled_s += min(failed_at - self._last_failed_read_s, 2.0 * self.period_s)
             self._last_failed_read_s = failed_at
             stale_s = failed_at - self._last_good_read_s
-            if (self._consecutive_failed_reads >= WATCHDOG_MIN_FAILED_READS and self._silent_polled_s >= WATCHDOG_S
-                    and not self._stale_reported):
+            silent = self._consecutive_failed_reads >= WATCHDOG_MIN_FAILED_READS and self._silent_polled_s >= WATCHDOG_S
+            if silent and given_up:
+                # From now on reads wait their whole reply timeout, and silence is counted afresh over those only:
+                # a servo is named on the same evidence as without deadlines (the kernel has held a pty's bytes for
+                # over a second on a busy PC; the servos had answered).
+                self._confirm_silence = True
+                self._consecutive_failed_reads = 0
+                self._silent_polled_s = 0.0
+            elif silent and not self._stale_reported:
                 self._stale_reported = True
-                sid = exc.servo_id if exc.servo_id is not None else self.chain.ids[0]
+                sid = getattr(exc, "servo_id", None)
+                if sid is None:
+                    sid = self.chain.ids[0]
                 what = "motion stopped" if self._motion is not None else "no motion was running"
                 error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s "
                                           f"({self._consecutive_failed_reads} polls unanswered); {what}")
@@ -765,6 +800,7 @@ class RobotController:
             return False
         self._last_good_read_s = time.monotonic()
         self._consecutive_failed_reads = 0
+        self._confirm_silence = False
         self._stale_reported = False
         # The goals the servos were tracking: whoever wrote them (a motion, STOP, a teach hold through submit).
         last_goal = self.chain.last_goal_rad

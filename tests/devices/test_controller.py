@@ -13,7 +13,13 @@ from devices import dxl_wire as wire
 from devices import factory
 from devices.config import RobotConfig
 from devices.controller import MOTION_FINISHED, HoldPose, RobotController
-from devices.errors import JointLimitError, LinkLostError, NoReplyError, ServoHardwareError
+from devices.errors import (
+    DeadlinePassedError,
+    JointLimitError,
+    LinkLostError,
+    NoReplyError,
+    ServoHardwareError,
+)
 from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
@@ -228,6 +234,43 @@ def test_a_loop_held_off_the_cpu_is_not_a_silent_servo(controller, monkeypatch):
     rec.wait(lambda: upsets[0] > 2, "the reads to come back")
     rec.wait_more_states(5)
     assert not rec.errors and not future.done()
+    ctl.emergency_stop()
+    future.result(WAIT_S)
+
+
+def test_late_feedback_is_given_up_before_the_next_slot_and_the_tick_still_writes(controller, sim_chain,
+                                                                                   monkeypatch):
+    """Replies the kernel hands over late (a busy PC's tty worker) do not hold the tick: its feedback read carries a
+    deadline before the next slot; a read given up there is counted (late_reads), the tick writes its goal from the
+    last state, and a run of such reads longer than the watchdog calls nobody silent until a read that waited its
+    whole timeout (no deadline) also got nothing; here that read answers, so the motion goes on."""
+    ctl, rec = controller
+    future = ctl.run_motion(Ramp(speed=0.2), "ramp")
+    rec.wait_more_states(3)
+    real_read = ctl.chain.read_state
+    calls: list[tuple[float, float | None]] = []  # (time called, deadline_s)
+    late_reads = 40  # 0.4 s at 100 Hz: twice the watchdog's silence
+
+    def late_replies(*args, deadline_s=None, **kwargs):
+        calls.append((time.monotonic(), deadline_s))
+        if len(calls) <= late_reads and deadline_s is not None:
+            raise DeadlinePassedError("replies late")
+        return real_read(*args, deadline_s=deadline_s, **kwargs)
+
+    writes_before = sim_chain.count(wire.SYNC_WRITE)
+    monkeypatch.setattr(ctl.chain, "read_state", late_replies)
+    rec.wait(lambda: len(calls) > late_reads + 3, "the reads to come back")
+    rec.wait_more_states(5)
+    assert not rec.errors and not future.done()
+    given_up = [c for c in calls[:late_reads] if c[1] is not None]
+    # Every deadline lies before the next slot (within one period of the read's call), never past it.
+    assert given_up and all(deadline - called < ctl.period_s for called, deadline in given_up)
+    # The watchdog's silence was reached by given-up reads alone: one read then waited its whole timeout.
+    confirming = [i for i, c in enumerate(calls) if c[1] is None]
+    assert confirming and confirming[0] < len(calls) - 1
+    assert ctl.stats().late_reads >= len(given_up)
+    # The ticks whose reads were given up still sent the ramp's goals.
+    assert sim_chain.count(wire.SYNC_WRITE) - writes_before >= len(given_up)
     ctl.emergency_stop()
     future.result(WAIT_S)
 

@@ -328,6 +328,22 @@ def test_a_feedback_read_given_up_at_its_deadline_leaves_its_late_replies_out_of
         assert chain.late_bytes_discarded == reply_bytes
 
 
+def test_instructions_never_wait_for_the_port_to_become_writable(emulator, monkeypatch):
+    """pyserial's write (no write timeout) selects on the port after writing until it is writable again: on a pty
+    that waits for the kernel's tty worker, which a busy PC holds off for tens of milliseconds. Instructions are
+    handed over with one non-blocking write instead, so the control tick never waits there."""
+    with ServoChain(robot_on(emulator.path)) as chain:
+        port = chain._require_port()
+
+        def waiting_write(data):
+            raise AssertionError("pyserial's waiting write was used for an instruction")
+
+        monkeypatch.setattr(port.ser, "write", waiting_write)
+        state = chain.read_state()
+        chain.write_goals(state.position_rad)
+        assert emulator.counts()["sync_write"] >= 1 and emulator.counts()["sync_read"] >= 1
+
+
 def _open_on(path: Path) -> int:
     """How many of this process's open files are ``path``."""
     fds = Path("/proc/self/fd")
