@@ -10,6 +10,13 @@ the GUI thread, the blocks that arrived meanwhile are run through the same copy,
 the new history at once (the live pipeline object adopts the copy's state, so the live session and the controller's
 force page go on from the re-estimated past, not from a sensor at rest).
 
+The worker yields to the GUI thread after every chunk: it asks the GUI thread's event loop for a turn (``post``) and
+waits until that turn has come. A chunk's Python and numpy work holds the interpreter lock, and the GUI thread takes
+the lock at every call between Qt and Python (each paint of a plot item, each slot): running freely, the worker took
+it back between those calls, and the window had no 5 ms tick for as long as the worker ran (100-800 ms for 70 s of
+history, bench_gui_blocking). One chunk per turn of the event loop costs the worker a little time and bounds what a
+turn waits to about one chunk.
+
 - :func:`snapshot` and :meth:`Reestimation.finish`: GUI thread.
 - :meth:`Reestimation.run`: the worker thread (it touches only its own pipeline copy, arrays and history).
 """
@@ -17,6 +24,7 @@ force page go on from the re-estimated past, not from a sensor at rest).
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +38,9 @@ from widgets.ring_plot import TraceHistory, append_with_gaps
 # Samples per estimator call on the worker thread: ~30 µs a sample (one sample a call costs ~0.9 ms), and each call
 # holds the interpreter lock for its numpy work: 300 (~10 ms) leaves the GUI thread its turn often enough.
 CHUNK_SAMPLES = 300
+# Longest wait for the GUI thread's turn after a chunk: a window closed, or an event loop held up this long, does not
+# keep the worker waiting for ever.
+TURN_WAIT_S = 1.0
 RESET = None  # in Reestimation.pending: the board reconnected here (the live pipeline restarted its state)
 
 
@@ -107,12 +118,15 @@ def joined(blocks: Sequence[SampleBlock]) -> SampleBlock | None:
 class Reestimation:
     """One re-estimation: ``pipeline`` (a fresh copy with the calibration and estimator wanted) run over
     ``source`` into a new history of ``history_budget_bytes``; ``pending`` the blocks (or :data:`RESET`) that
-    arrived on the GUI thread after the snapshot; ``note`` what the tab says when it is done."""
+    arrived on the GUI thread after the snapshot; ``note`` what the tab says when it is done; ``post(fn)`` calls
+    ``fn()`` on the GUI thread at its event loop's next turn (the worker waits for it after each chunk; None: no
+    waiting)."""
 
     pipeline: ForcesPipeline
     source: Snapshot | None
     history_budget_bytes: int
     note: str = ""
+    post: Callable[[Callable[[], None]], None] | None = None
     pending: list[SampleBlock | None] = field(default_factory=list)
     history: TraceHistory | None = None
     error: str = ""
@@ -144,10 +158,21 @@ class Reestimation:
                     forces = self.pipeline.process(t_s + source.board_minus_session_s,
                                                    source.conductance_s(start, start + CHUNK_SAMPLES))
                     history.append(t_s, forces.display)
+                    self._wait_for_gui_turn()
         except (ValueError, ArithmeticError, MemoryError) as exc:
             self.error = f"the history could not be estimated again: {exc}"
             return
         self.history = history
+
+    def _wait_for_gui_turn(self) -> None:
+        """Worker: let the GUI thread's event loop come round once (see the module docstring)."""
+        if self.post is None:
+            return
+        turned = threading.Event()
+        self.post(turned.set)
+        deadline = time.monotonic() + TURN_WAIT_S
+        while not turned.wait(0.05) and not self.cancelled.is_set() and time.monotonic() < deadline:
+            pass
 
     def cancel(self) -> None:
         """Any thread: stop at the next chunk; nothing is delivered."""

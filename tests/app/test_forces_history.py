@@ -51,3 +51,36 @@ def test_the_snapshot_is_a_copy_as_stored_and_the_worker_converts_it_a_chunk_at_
     np.testing.assert_array_equal(whole, expected)
     history.append(t_s[-1:] + 1.0, values_us[:1] + 1.0)  # the board goes on: the snapshot does not change
     assert source.session_t_s.size == n and source.conductance_us[0, 0] == values_us[0, 0]
+
+
+def test_the_worker_estimates_one_chunk_per_turn_of_the_gui_threads_event_loop() -> None:
+    """After each chunk the worker asks the GUI thread for a turn (``post``) and waits until that turn has run: the
+    interpreter lock is the GUI thread's between chunks, whatever the worker has left to do."""
+    import threading
+
+    from app.core.forces_pipeline import ForcesPipeline
+
+    n = 3 * forces_history.CHUNK_SAMPLES + 11
+    t_s = np.arange(n) / 30.0
+    history = TraceHistory(4, 4 * n)
+    history.append(t_s, np.random.default_rng(2).uniform(1.0, 90.0, (n, 4)).astype(np.float32))
+    turns: list = []  # the GUI thread's queue of posted calls, run by this test when it chooses
+    posted = threading.Condition()
+
+    def post(fn) -> None:
+        with posted:
+            turns.append(fn)
+            posted.notify_all()
+
+    done = threading.Event()
+    job = forces_history.Reestimation(ForcesPipeline(("a", "b", "c", "d")), forces_history.snapshot(
+        _Board(history, t_s), CEILING_S), 1_000_000, post=post)
+    job.start(lambda _job: done.set())
+    for chunk in range(4):
+        with posted:
+            assert posted.wait_for(lambda k=chunk: len(turns) > k, timeout=10.0)
+        assert not done.wait(0.05)  # waiting for the turn asked for after this chunk, nothing more done
+        assert len(turns) == chunk + 1
+        turns[chunk]()  # the GUI thread's turn
+    assert done.wait(10.0)
+    assert job.error == "" and job.history is not None and job.history.span()[1] == t_s[-1]

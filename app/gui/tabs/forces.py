@@ -479,7 +479,7 @@ class ForcesTab(QWidget):
         if self._reestimation is not None:
             self._reestimation.cancel()
         source = snapshot(self.board, 1.0 / self.lab.config.board.r_c_ohm)
-        job = Reestimation(pipeline, source, FORCE_HISTORY_BUDGET_BYTES, note)
+        job = Reestimation(pipeline, source, FORCE_HISTORY_BUDGET_BYTES, note, post=self._bridge.post)
         self._reestimation = job
         self._apply_calibration_labels()
         job.start(lambda done: self._bridge.post(self._reestimated, done))
