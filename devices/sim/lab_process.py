@@ -24,7 +24,7 @@ stands behind the ``sim`` ports (:func:`devices.factory.start_lab_process`):
 The child serves the three ptys from one thread (select, woken when the next status packet or board frame is due,
 the board looked at no more often than every ``BOARD_POLL_S``), asks for real-time scheduling as the loop does (the servos it stands in for
 never wait for a PC), and ends when the app closes the socket — or dies, which closes it too. A board pty that
-nobody reads does not fill up: more than ``BOARD_BACKLOG_S`` of unread frames are discarded, as a USB adapter does
+nobody reads does not fill up: more than ``BOARD_BACKLOG_S`` (wall time) of unread frames are discarded, as a USB adapter does
 for a closed port, so a reader that opens it late starts on fresh frames.
 
 Linux and macOS (``os.openpty``): :func:`devices.factory.lab_process_wanted` says where it can run and why not.
@@ -66,7 +66,7 @@ READY_TIMEOUT_S = 60.0  # a fresh interpreter imports numpy and MuJoCo and build
 CALL_TIMEOUT_S = 5.0
 CLOSE_TIMEOUT_S = 5.0
 BOARD_POLL_S = 0.004  # the board's pty is looked at no more often than this (a USB adapter's 1-16 ms latency)
-BOARD_BACKLOG_S = 0.25  # unread board bytes older than this are discarded (nobody is reading the port)
+BOARD_BACKLOG_S = 1.0  # wall seconds: unread board bytes older than this are discarded (nobody reads the port)
 IDLE_WAIT_S = 0.05
 READ_CHUNK = 4096
 QPOS_RATE_HZ = 30.0
@@ -395,7 +395,10 @@ def _serve(lab: Any, ptys: dict[str, _Pty], stop: threading.Event) -> None:
     board = ptys["board"]
     config = lab.config.board
     frame_bytes = 16 + 2 * config.n_channels
-    backlog_limit = max(4 * frame_bytes, int(BOARD_BACKLOG_S * config.rate_hz * frame_bytes))
+    # Wall seconds of frames at the lab's speed: a busy app that reads a few hundred ms late (a GUI stall, a loaded
+    # machine) is a reader, not nobody; at 15× real time a limit counted in simulated seconds was 17 ms of wall time, and a
+    # calibration on the simulated rig lost whole seconds of frames on a busy machine.
+    backlog_limit = max(4 * frame_bytes, int(BOARD_BACKLOG_S * lab.clock.speed * config.rate_hz * frame_bytes))
     chains = [ptys["robot"], ptys["rig"]]
     fds = [p.master for p in ptys.values()]
     next_board = time.monotonic()

@@ -200,9 +200,9 @@ def test_a_lab_process_that_dies_is_told_to_its_listeners_with_the_cause(lab_pro
         lab.call("chain.servo_ids")
 
 
-def test_a_board_port_nobody_reads_holds_no_more_than_a_quarter_second_of_old_frames(lab_process):
-    """Nobody reading the board's pty: its frames are discarded beyond BOARD_BACKLOG_S (as a USB adapter's buffer),
-    so the lab's process neither blocks on a full pty nor piles them up in memory."""
+def test_a_board_port_nobody_reads_holds_no_more_than_a_second_of_old_frames(lab_process):
+    """Nobody reading the board's pty: its frames are discarded beyond BOARD_BACKLOG_S of wall time (as a USB
+    adapter's buffer), so the lab's process neither blocks on a full pty nor piles them up in memory."""
     import fcntl
     import struct
     import termios
@@ -211,13 +211,14 @@ def test_a_board_port_nobody_reads_holds_no_more_than_a_quarter_second_of_old_fr
 
     config = scripted_config()
     lab = lab_process(config)
-    # Deliberate: time passes with nobody reading (45 frames go out); that is what is tested.
-    time.sleep(1.5)
+    # Deliberate: time passes with nobody reading (75 frames go out, more than the pty holds); that is what is tested.
+    time.sleep(2.5)
     frame_bytes = 16 + 2 * config.board.n_channels
     fd = os.open(lab.paths["board"], os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)  # no flush on open (pyserial does)
     try:
         waiting = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
     finally:
         os.close(fd)
-    assert BOARD_BACKLOG_S <= 0.25
-    assert 0 < waiting <= 0.5 * config.board.rate_hz * frame_bytes  # at most half a second; 1.5 s would be ~4 kB
+    kept = BOARD_BACKLOG_S * config.board.rate_hz * frame_bytes
+    assert kept < 3500  # below what the pty holds (4 kB): the discarding, not the pty's size, is what is seen
+    assert 0 < waiting <= kept + 2 * frame_bytes
