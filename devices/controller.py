@@ -754,10 +754,7 @@ class RobotController:
         20-40 ms; docs/REALTIME.md). Such reads count as polls without an answer; once they add up to the watchdog's
         silence, reads wait their whole reply timeout again (``_confirm_silence``) and a servo is named silent only
         on those, as without deadlines."""
-        if self._confirm_silence:
-            deadline: float | None = None
-        else:
-            deadline = next_deadline - FEEDBACK_DEADLINE_MARGIN_S - self.chain.sync_write_time_s(len(self.chain.ids))
+        deadline = None if self._confirm_silence else self._feedback_deadline_s(time.monotonic(), next_deadline)
         try:
             state = self.chain.read_state(raise_on_alert=False, deadline_s=deadline)
         except (NoReplyError, CorruptPacketError, DeadlinePassedError) as exc:
@@ -826,6 +823,15 @@ class RobotController:
         self._check_tracking(state)
         self._emit(self._on_state, state)
         return True
+
+    def _feedback_deadline_s(self, now_s: float, next_deadline_s: float) -> float:
+        """When a feedback read starting at ``now_s`` is given up (monotonic s): in time for the tick to write its
+        goals before ``next_deadline_s``, but never sooner than twice the read's own bus time: on a bus whose sync
+        cycle nearly fills the period (a rate that only just fits) replies on time would otherwise be given up
+        every tick."""
+        n = len(self.chain.ids)
+        return max(next_deadline_s - FEEDBACK_DEADLINE_MARGIN_S - self.chain.sync_write_time_s(n),
+                   now_s + 2.0 * self.chain.sync_read_time_s(n, ct.STATE_BLOCK_SIZE))
 
     def _check_tracking(self, state: ChainState) -> None:
         """A motion whose servo is far from the goal it was sent (it rebooted and sagged, lost power, was forced

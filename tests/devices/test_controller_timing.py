@@ -125,6 +125,34 @@ def test_health_is_read_one_servo_per_tick_when_the_sync_cycle_leaves_no_slack(m
     assert all(len(ids) == 1 for ids in health_reads)
 
 
+@pytest.mark.parametrize(("rate_hz", "return_delay_time", "fills_the_tick"), [(50.0, 0, False), (100.0, 250, True)])
+def test_a_feedback_read_is_given_up_before_the_next_slot_but_not_before_its_bus_time(rate_hz, return_delay_time,
+                                                                                      fills_the_tick):
+    """The feedback read is given up in time for the tick to write its goals before the next slot, but never sooner
+    than twice its own bus time after it starts: at a rate that only just fits (the sync read alone ~9.5 ms of a
+    10 ms tick with the factory Return Delay Time) replies on time are read, not given up every tick."""
+    robot = dataclasses.replace(RobotConfig(), control_rate_hz=rate_hz)
+    chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=SimClock(20.0), seed=9,
+                         return_delay_time=return_delay_time)
+    previous = factory.install_sim_lab(ChainLab(chain))
+    try:
+        with ServoChain(robot) as servos:
+            servos.read_return_delays()  # as the loop's start does (check_models): the reads' bus time is known
+            ctl = RobotController(servos, robot)  # not started: the rule only
+            n = len(robot.joint_ids)
+            read_s = servos.sync_read_time_s(n, ct.STATE_BLOCK_SIZE)
+            period_s = 1.0 / rate_hz
+            deadline = ctl._feedback_deadline_s(100.0, 100.0 + period_s)
+    finally:
+        factory.install_sim_lab(previous)
+    slot_rule = 100.0 + period_s - controller_module.FEEDBACK_DEADLINE_MARGIN_S - servos.sync_write_time_s(n)
+    assert (read_s > 0.5 * period_s) == fills_the_tick
+    if fills_the_tick:
+        assert deadline == pytest.approx(100.0 + 2.0 * read_s)
+    else:
+        assert deadline == pytest.approx(slot_rule)  # in time to write the goals before the next slot
+
+
 def test_health_is_read_in_one_go_when_the_tick_has_time_for_it():
     robot = dataclasses.replace(RobotConfig(), control_rate_hz=50.0, status_rate_hz=10.0)
     ctl, rec, chain, previous = _run_controller(robot, 20.0, 0)  # a fast wire: the sync cycle is ~0.3 ms
