@@ -1,11 +1,12 @@
 """A timed tuning: ``sensnake experiment tune`` from an empty folder to the end of its report, measured from outside.
 
-The tuning file is ``benchmarks/tune_feedback.toml`` (committed before its first run: 4 training conditions — the
-paper obstacle and the low cylinder, 0.5 N, run seeds 11 and 12 — and 4 test conditions on two fresh scenes). The
-command runs as its own process (``python -m app experiment tune FILE --trials N --out DIR --jobs J``), so what is
-measured is what a user waits for: the feedforward baselines, N trials (each one gain set on the 4 training
-conditions, pruned part-way when behind the median), and the report (the best and the default gains on the test
-conditions). Printed and written to ``benchmarks/results/bench_tune.txt`` (``--write``):
+The tuning file is ``benchmarks/tune_feedback_families.toml`` (committed before any run of it: 4 training conditions —
+two half cylinders and two rows of bumps, 1.0 N, run seed 47 — and 6 test conditions on six other new scenes of
+those families; ``--plan`` takes another). The command runs as its own process (``python -m app experiment tune FILE
+--trials N --out DIR --jobs J``), so what is measured is what a user waits for: the feedforward baselines, N trials
+(each one gain set on the 4 training conditions, pruned part-way when behind the median), and the report (the best
+and the default gains on the test conditions). Printed and written to ``benchmarks/results/bench_tune.txt``
+(``--write``):
 
 * wall seconds end to end, and per trial (the trials' own ``duration_s`` from ``trials.csv``: mean, median, max;
   and the wall time outside the trials: baselines, test runs, start-up);
@@ -17,12 +18,23 @@ conditions). Printed and written to ``benchmarks/results/bench_tune.txt`` (``--w
 * trials complete / pruned / failed, and ``report.csv``'s rows: the best gains' and today's defaults' train and test
   scores against feedforward.
 
-Run: ``python -m benchmarks.bench_tune [--trials 40] [--jobs 2] [--out DIR] [--write]`` (a 40-trial study is about
-half an hour to an hour on the 2 shared cores; start it under ``nohup`` and read the log). ``--out`` must be a new
-folder (the time of a study started from nothing); the study, ``trials.csv``, ``report.csv``, ``best_gains.toml`` and
-the figure stay in it. A study cut short (SIGTERM: exit 130, the cut trial tried again) continues with ``--resume``
-(the same ``--out``; ``--trials`` as many as it holds only reports). ``sensnake bench --quick`` runs 3 trials into a
-temporary folder.
+``--conditions DIR`` runs nothing: it reads a finished study and writes each condition's score for the best and the
+default gains (``DIR/per_condition.csv``), and prints the mean and median score of each gain set and split with 95 %
+bootstrap intervals over the conditions, and the best gains against the defaults on the test conditions.
+
+Measured (2026-12-05, ``nice -n 10 python -m benchmarks.bench_tune --trials 40 --jobs 1 --write``, the 2 cores shared
+with other engineers' work: 1-minute load 1.4–14.7, mean 8.4; the others used 1.49 cores on average): 40 trials (11
+complete, 29 pruned) and the report in **33.4 min of wall**, 853 s of CPU, median 22 s a trial. On the test
+conditions (5 of 6 decided) the best gains score −0.03 cm in the median, −1.3 cm in the mean [−3.5, +0.2], against
+today's defaults' +0.02 cm and +0.2 cm [−0.2, +0.7]; best minus defaults −1.5 cm [−4.3, +0.3]: the tuner does not beat
+the defaults, which stay, and neither beats feedforward (docs/FORCE_FEEDBACK.md; the study and its report in
+``benchmarks/results/tune_feedback_families/``).
+
+Run: ``nice -n 10 python -m benchmarks.bench_tune [--trials 40] [--jobs 1] [--out DIR] [--write]`` (start it under
+``nohup`` and read the log). ``--out`` must be a new folder (the time of a study started from nothing); the study,
+``trials.csv``, ``report.csv``, ``best_gains.toml`` and the figure stay in it. A study cut short (SIGTERM: exit 130,
+the cut trial tried again) continues with ``--resume`` (the same ``--out``; ``--trials`` as many as it holds only
+reports). ``sensnake bench --quick`` runs 3 trials into a temporary folder.
 """
 
 from __future__ import annotations
@@ -36,10 +48,12 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-PLAN = ROOT / "benchmarks" / "tune_feedback.toml"
+PLAN = ROOT / "benchmarks" / "tune_feedback_families.toml"
 RESULTS = ROOT / "benchmarks" / "results" / "bench_tune.txt"
 LOAD_SAMPLE_S = 5.0
 
@@ -159,6 +173,87 @@ def summary(r: dict) -> list[str]:
     return lines
 
 
+def _journal(folder: Path) -> dict[str, dict]:
+    """A split's finished runs (``finished.jsonl``) by condition key."""
+    from app.core.engines import RunJournal
+    from app.core.tune import condition_key
+
+    return {condition_key(row["scene"], float(row["tail_load_N"]), int(row["seed"])): row
+            for row in RunJournal(folder).load().values()}
+
+
+def _bootstrap(values: list[float], statistic: Callable[..., Any], resamples: int = 4000, seed: int = 0) -> tuple[float, float]:
+    """The 95 % percentile interval of ``statistic`` over ``resamples`` resamples of the conditions."""
+    import numpy as np
+
+    if len(values) < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    data = np.asarray(values)
+    stats = [statistic(data[rng.integers(0, len(data), len(data))]) for _ in range(resamples)]
+    low, high = np.percentile(stats, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def per_condition(out: Path) -> tuple[list[dict], list[str]]:
+    """Each condition's score (``app.core.tune.condition_score``) for the best and the base gains, train and test, from
+    the study in ``out`` (the training runs as the study kept them, the test runs from ``out/test``), and the lines
+    that summarise them: per gain set and split, the mean and the median score over the decided conditions, each with
+    a 95 % bootstrap interval over conditions, and on the test conditions the best gains against the base gains on
+    the conditions both decided."""
+    import numpy as np
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+    from app.core.tune import _rows_of_trial, condition_score, read_tune
+
+    plan = read_tune(out / "tune.file.toml")
+    report = _rows(out / "report.csv")
+    study = optuna.load_study(study_name=None, storage=optuna.storages.JournalStorage(
+        optuna.storages.journal.JournalFileBackend(str(out / "study.journal"))))
+    best_gains = {row["gains"]: row["trial"] for row in report}
+    baselines = {split: _journal(out / "baselines" / split) for split in ("train", "test")}
+    # the test runs are in out/test/<label>-<gains hash>
+    tests = {folder.name.split("-")[0]: _journal(folder) for folder in sorted((out / "test").iterdir())}
+    rows: list[dict] = []
+    for label, trial in best_gains.items():
+        for split in ("train", "test"):
+            runs = _rows_of_trial(study, int(trial)) if split == "train" and trial else tests.get(label, {})
+            for key, ff in baselines[split].items():
+                run = runs.get(key)
+                if run is None:
+                    continue
+                value, why = condition_score(run, ff, plan.objective)
+                rows.append({"gains": label, "trial": trial, "split": split, "condition": key,
+                             "feedforward_outcome": ff.get("outcome"), "outcome": run.get("outcome"),
+                             "feedforward_advance_at_rest_m": ff.get("advance_at_rest_m"),
+                             "advance_at_rest_m": run.get("advance_at_rest_m"), "score_m": value,
+                             "left_out": why})
+    lines = ["gains,split,decided,mean_score_m,mean_95ci,median_score_m,median_95ci"]
+    for label in best_gains:
+        for split in ("train", "test"):
+            values = [float(r["score_m"]) for r in rows if r["gains"] == label and r["split"] == split
+                      and not r["left_out"]]
+            total = sum(r["gains"] == label and r["split"] == split for r in rows)
+            mean_ci = _bootstrap(values, np.mean)
+            median_ci = _bootstrap(values, np.median)
+            lines.append(f"{label},{split},{len(values)}/{total},{_f(str(np.mean(values)) if values else 'nan')},"
+                         f"[{_f(str(mean_ci[0]))} {_f(str(mean_ci[1]))}],"
+                         f"{_f(str(np.median(values)) if values else 'nan')},"
+                         f"[{_f(str(median_ci[0]))} {_f(str(median_ci[1]))}]")
+    if {"best", "base"} <= set(best_gains):
+        score = {(r["gains"], r["condition"]): float(r["score_m"]) for r in rows
+                 if r["split"] == "test" and not r["left_out"]}
+        both = sorted({c for g, c in score if (("best", c) in score and ("base", c) in score)})
+        differences = [score[("best", c)] - score[("base", c)] for c in both]
+        ci = _bootstrap(differences, np.mean)
+        lines.append(f"best - base on the test conditions both decided ({len(both)}): mean "
+                     f"{_f(str(np.mean(differences)) if differences else 'nan')} m [{_f(str(ci[0]))} "
+                     f"{_f(str(ci[1]))}]")
+    return rows, lines
+
+
 def run(quick: bool = False) -> None:
     """``sensnake bench``: quick, 3 trials into a temporary folder; otherwise the 40-trial study (long)."""
     with tempfile.TemporaryDirectory(prefix="sensnake_bench_tune_") as tmp:
@@ -170,12 +265,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plan", type=Path, default=PLAN)
     parser.add_argument("--trials", type=int, default=40)
-    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "sensnake_bench_tune" / "study")
     parser.add_argument("--resume", action="store_true",
                         help="continue the study already in --out (a run cut short); timed on its own")
     parser.add_argument("--write", action="store_true", help=f"add the summary to {RESULTS.relative_to(ROOT)}")
+    parser.add_argument("--conditions", type=Path, metavar="DIR",
+                        help="no run: each condition's score in the finished study DIR, written to "
+                             "DIR/per_condition.csv, and the scores' bootstrap intervals printed")
     args = parser.parse_args()
+    if args.conditions is not None:
+        rows, lines = per_condition(args.conditions.resolve())
+        with open(args.conditions / "per_condition.csv", "w", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        print("\n".join(lines))
+        return
     result = time_tune(args.plan.resolve(), args.trials, args.jobs, args.out.resolve(), args.resume)
     lines = summary(result)
     if args.resume:
