@@ -243,22 +243,31 @@ def test_late_feedback_is_given_up_before_the_next_slot_and_the_tick_still_write
     """Replies the kernel hands over late (a busy PC's tty worker) do not hold the tick: its feedback read carries a
     deadline before the next slot; a read given up there is counted (late_reads), the tick writes its goal from the
     last state, and a run of such reads longer than the watchdog calls nobody silent until a read that waited its
-    whole timeout (no deadline) also got nothing; here that read answers, so the motion goes on."""
+    whole timeout (no deadline) also got nothing; here that read answers, so the motion goes on. No health read
+    is made in a tick whose feedback read was given up."""
     ctl, rec = controller
     future = ctl.run_motion(Ramp(speed=0.2), "ramp")
     rec.wait_more_states(3)
-    real_read = ctl.chain.read_state
+    real_read, real_health = ctl.chain.read_state, ctl.chain.read_health
     calls: list[tuple[float, float | None]] = []  # (time called, deadline_s)
     late_reads = 40  # 0.4 s at 100 Hz: twice the watchdog's silence
+    bus: list[str] = []  # the reads in order: "given up", "state", "health"
 
     def late_replies(*args, deadline_s=None, **kwargs):
         calls.append((time.monotonic(), deadline_s))
         if len(calls) <= late_reads and deadline_s is not None:
+            bus.append("given up")
             raise DeadlinePassedError("replies late")
+        bus.append("state")
         return real_read(*args, deadline_s=deadline_s, **kwargs)
+
+    def health(*args, **kwargs):
+        bus.append("health")
+        return real_health(*args, **kwargs)
 
     writes_before = sim_chain.count(wire.SYNC_WRITE)
     monkeypatch.setattr(ctl.chain, "read_state", late_replies)
+    monkeypatch.setattr(ctl.chain, "read_health", health)
     rec.wait(lambda: len(calls) > late_reads + 3, "the reads to come back")
     rec.wait_more_states(5)
     assert not rec.errors and not future.done()
@@ -269,6 +278,10 @@ def test_late_feedback_is_given_up_before_the_next_slot_and_the_tick_still_write
     confirming = [i for i, c in enumerate(calls) if c[1] is None]
     assert confirming and confirming[0] < len(calls) - 1
     assert ctl.stats().late_reads >= len(given_up)
+    # No health read in a tick whose feedback replies were late (it would wait on the same late bytes); the polls go
+    # on once replies are on time.
+    assert all(not (a == "given up" and b == "health") for a, b in zip(bus, bus[1:]))
+    rec.wait(lambda: "health" in bus[bus.index("state"):], "a health read after replies came on time")
     # The ticks whose reads were given up still sent the ramp's goals.
     assert sim_chain.count(wire.SYNC_WRITE) - writes_before >= len(given_up)
     ctl.emergency_stop()
