@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("devices.sim.physics.world")  # the package sets MUJOCO_GL before mujoco loads
 
 from devices.sim.physics.model import SceneParams  # noqa: E402
-from devices.sim.physics.world import PhysicsWorld  # noqa: E402
+from devices.sim.physics.world import HAND_SPEED_RAD_S, PhysicsWorld  # noqa: E402
 
 FLAT = SceneParams(obstacle_height_m=0.0)
 
@@ -114,13 +114,82 @@ def test_a_hand_bending_a_front_joint_lifts_the_head_end_and_never_pushes_the_bo
     joint stays where it lies. A pose that would swing a segment into the floor lifts the body instead, so the world
     stays physical (it was ended invalid: a contact 0.2 m deep)."""
     world = _limp_on_flat_ground()
-    tail = world.body_state().points_m[-1].copy()
+    before = world.body_state().points_m.copy()
     world.set_joint_angle(2, 0.6)  # joint 3 bent up: the head end rises, the tail stays
-    assert np.abs(world.body_state().points_m[-1] - tail).max() < 1e-6
+    world.step(250)
+    after = world.body_state().points_m
+    assert np.linalg.norm(after[-1] - before[-1]) < 0.005
+    assert after[0, 2] > before[0, 2] + 0.05
     world.set_joint_angle(0, -0.5)  # joint 1 bent down: the head would dig into the floor
     world.step(500)
     assert world.invalid is None, world.invalid
     assert world.body_state().points_m[:, 2].min() > -0.002
+    assert world.joint_state().position_rad[[0, 2]] == pytest.approx([-0.5, 0.6], abs=0.005)
+
+
+def _demo_poses(n: int) -> list[np.ndarray]:
+    """An S-curve, the head lifted, a C-curve of the yaw joints (tools/screenshot.py's poses of the Teach tab)."""
+    j = np.arange(n)
+    return [0.35 * np.sin(2 * np.pi * j / n),
+            np.where(np.isin(j, (0, 2)), -0.45, np.where(j == 4, 0.2, 0.0)) + np.where(j % 2 == 1, 0.25, 0.0),
+            np.where(j % 2 == 1, 0.28, 0.0)]
+
+
+def test_poses_set_by_hand_while_the_body_still_falls_are_reached_and_the_world_stays_valid():
+    """A user posing the limp robot quickly in the Teach tab: the three poses 0.6 s apart while the body still
+    drapes over the obstacle. The hand bends the joints at a hand's speed; it used to put each pose in at once and
+    lift the body out of the terrain with its fall kept, and the body slammed into the ground (a contact 23 mm deep:
+    invalid, the app's lab reset the robot to the scene's start)."""
+    world = PhysicsWorld(SceneParams())
+    dt = world.scene.timestep_s
+    world.step(int(2.0 / dt))  # limp: the drape under way
+    for pose in _demo_poses(world.n_joints):
+        for joint, angle in enumerate(pose):
+            world.set_joint_angle(joint, float(angle))
+        reached_s = None
+        for k in range(30):  # 0.6 s in the app's 20 ms ticks
+            world.step(10)
+            assert world.invalid is None, world.invalid
+            if reached_s is None and np.abs(world.joint_state().position_rad - pose).max() < 0.01:
+                reached_s = (k + 1) * 10 * dt
+        assert reached_s is not None and reached_s < 0.4  # within a fraction of a second
+    world.step(int(1.0 / dt))
+    assert world.invalid is None, world.invalid
+    assert world.joint_state().position_rad == pytest.approx(_demo_poses(world.n_joints)[-1], abs=0.005)
+    assert world.validity.peak_depth_m < world.validity.deepest_m  # (the checks' limits as they are)
+
+
+def test_a_hand_on_its_way_moves_the_same_however_the_steps_are_batched():
+    """The hand moves between physics steps, so the world's state after 0.3 s is the same stepped one by one or in
+    one call (its validity checks still run after each call)."""
+    worlds = [PhysicsWorld(SceneParams()) for _ in range(2)]
+    for world in worlds:
+        world.step(500)
+        for joint, angle in enumerate(_demo_poses(world.n_joints)[0]):
+            world.set_joint_angle(joint, float(angle))
+    for _ in range(150):
+        worlds[0].step(1)
+    worlds[1].step(150)
+    assert np.array_equal(worlds[0].data.qpos, worlds[1].data.qpos)
+    assert np.array_equal(worlds[0].data.qvel, worlds[1].data.qvel)
+
+
+def test_a_pitch_joint_bent_by_hand_moves_no_faster_than_a_hand():
+    world = _limp_on_flat_ground()
+    start = world.joint_state().position_rad[2]
+    world.set_joint_angle(2, start + 1.0)
+    world.step(50)  # 0.1 s
+    moved = world.joint_state().position_rad[2] - start
+    assert 0.25 < moved < HAND_SPEED_RAD_S * 0.1 + 0.01
+    world.step(200)
+    assert world.joint_state().position_rad[2] == pytest.approx(start + 1.0, abs=0.005)
+
+
+def test_a_joint_with_torque_on_cannot_be_posed_by_hand():
+    world = _held_straight(seconds=0.2)
+    with pytest.raises(ValueError, match="torque on"):
+        world.set_joint_angle(3, 0.4)
+    assert not world.held.any()
 
 
 def test_torque_on_takes_the_posed_joint_over_from_the_hand():

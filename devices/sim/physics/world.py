@@ -16,12 +16,17 @@ a contact between two sheets is shared between them in proportion to how near it
 and one on the rigid PLA top (beyond ``TOP_FADE_DEG``) reaches no sheet. The weights are continuous in the angle,
 so a segment rolling a little never flips a load from one sheet to another.
 
-The teach "hand": posing a limp joint (:meth:`set_joint_angle`) also *holds* it there with a stiff joint
-constraint, as a person's hand holds the robot in shape while the pose is captured, until the servo takes over
-(torque on) or the hand lets go (:meth:`release_hand`). Without it gravity pulls a posed pitch joint back down: a
-limp XM430's gearbox does not hold the segments lifted behind a joint (the static friction identified on
-comparable Dynamixels, MX-64/MX-106, is about 0.1 N·m plus 0.2 × the load, and lifting joint 5 of the robot
-lying on the ground takes a few tenths of a N·m; the published XM430 friction loss used here is 0.03 N·m).
+The teach "hand": posing a limp joint (:meth:`set_joint_angle`) grips it with a stiff joint constraint and bends it
+toward the pose at a hand's speed (``HAND_SPEED_RAD_S``), then *holds* it there, as a person's hand holds the robot
+in shape while the pose is captured, until the servo takes over (torque on) or the hand lets go
+(:meth:`release_hand`). Without it gravity pulls a posed pitch joint back down: a limp XM430's gearbox does not hold
+the segments lifted behind a joint (the static friction identified on comparable Dynamixels, MX-64/MX-106, is about
+0.1 N·m plus 0.2 × the load, and lifting joint 5 of the robot lying on the ground takes a few tenths of a N·m; the
+published XM430 friction loss used here is 0.03 N·m). The hand moves the joint through the physics, never by setting
+the state: a pose put in at once while the body is still falling (a user setting poses a fraction of a second
+apart) has to be lifted out of the terrain with the fall's speed kept, and the body then slams into the ground
+deeper than the contact model resolves (``benchmarks/bench_hand_posing.py``). Bent at a hand's speed, the body
+lifts, swings and lands as a real one does, and whichever end is lighter moves.
 
 Rest (:attr:`rest_enabled`, the app's lab): once every velocity has stayed below ``REST_SPEED`` for ``REST_AFTER_S``
 of simulated time with nothing commanded still to do (no servo slewing toward its goal, none straining near its
@@ -76,10 +81,14 @@ SHEET_HALF_ARC_DEG = 28.0  # a 3.5 cm wide sheet on the 3.6 cm radius shell (pap
 TOP_FADE_DEG = 152.0  # from the side sheets' edge (118°) the share fades to 0 here: the PLA top carries the rest
 MAX_CATCH_UP_S = 0.5  # further behind than this, the world skips ahead (counted in lagged_s) instead of stalling
 REST_SPEED = 5e-3  # rad/s or m/s, any degree of freedom: below this the body counts as still
-HAND_LIFT_TOLERANCE_M = 0.001  # a pose by hand deeper into the terrain than this lifts the body (a resting shell: 0.1 mm)
+# How fast the teach hand bends a joint toward its pose (rad/s): a person bending the robot, about the servo's own
+# no-load speed (4.8 rad/s); a pose 1 rad away is reached in about 0.25 s.
+HAND_SPEED_RAD_S = 4.0
 STRAIN_FRACTION = 0.8  # a servo demanding more than this × its stall torque strains (may trip): no rest
 CONTACT_MEMORY_S = 0.05  # a shell off the ground for less than this still shares its load as its last contacts did
 REST_AFTER_S = 1.0  # simulated seconds still (and nothing commanded left to do) before the world rests
+# a state to go back to (PhysicsWorld._snapshot): time, qpos, qvel, act, the warm start, the hands' grips
+_Snapshot = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 # a joint limit's constraint rows (as an int: comparing an array with MuJoCo's enum object costs 20 µs a call)
 _LIMIT_JOINT = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
 
@@ -122,7 +131,6 @@ class PhysicsWorld:
         joints = [self.model.joint(joint_name(i)) for i in range(n)]
         self._qadr = np.array([int(j.qposadr[0]) for j in joints])
         self._dadr = np.array([int(j.dofadr[0]) for j in joints])
-        self._joint_body = np.array([int(j.bodyid[0]) for j in joints])  # the body each joint turns (tail side)
         self._seg_body = np.array([self.model.body(segment_name(i)).id for i in range(n)])
         self._seg_geom = np.array([self.model.geom(segment_name(i)).id for i in range(n)])
         self._segment_of_geom = np.full(self.model.ngeom, -1)
@@ -162,6 +170,10 @@ class PhysicsWorld:
         self._loads_of: tuple[tuple[int, float, bytes, bytes, int], np.ndarray] | None = None  # (state, loads)
         self._hand_eq = np.array([self.model.equality(hand_name(i)).id for i in range(n)])
         self._held = np.zeros(n, dtype=bool)
+        self._hand_at = np.zeros(n)  # where each hand's grip holds its joint now (rad): its constraint's angle
+        self._hand_pose = np.zeros(n)  # where the hand is taking it (rad)
+        self._hand_slew = HAND_SPEED_RAD_S * self._dt  # rad per step
+        self._hands_moving = False  # some held joint's grip is still on its way to the pose
         self.rest_enabled = False  # the app's lab turns it on (PhysicsBackend.start); batch runs step every step
         self._resting = False
         self._still_s = 0.0
@@ -215,6 +227,7 @@ class PhysicsWorld:
             self._goal[:] = angles
             self._saturated_s[:] = 0.0
             self._held[:] = False
+            self._hands_moving = False
             self.data.eq_active[self._hand_eq] = False
             self._share_time[:] = -math.inf
             self.invalid = None
@@ -246,61 +259,32 @@ class PhysicsWorld:
             self._saturated_s[~on] = 0.0
 
     def set_joint_angle(self, joint: int, angle_rad: float) -> None:
-        """Pose a limp joint by hand (the teach "hand"): sets its angle, stops it and holds it there until the
-        servo takes over (torque on) or :meth:`release_hand`."""
+        """Pose a limp joint by hand (the teach "hand"): grip it where it is and bend it toward ``angle_rad`` at
+        ``HAND_SPEED_RAD_S`` as the world steps, then hold it there until the servo takes over (torque on) or
+        :meth:`release_hand`. Posed again on the way, the hand turns toward the new angle from where it is.
+        ValueError if the joint's torque is on (its servo holds it, as the simulated chain says too)."""
         with self._lock:
-            # A person bending a joint of a robot that lies on the ground moves its lighter end: the part behind the
-            # joint (toward the tail) stays where it lies when it is the longer one. MuJoCo's body hangs from the
-            # head, so that part is put back where it was by moving the whole body (the head end swings instead).
-            keep = self._joint_body[joint] if joint < self.n_joints // 2 else None
-            if keep is not None:
-                kept_pos, kept_quat = self.data.xpos[keep].copy(), self.data.xquat[keep].copy()
-            self.data.qpos[self._qadr[joint]] = angle_rad
-            if keep is not None:
-                mujoco.mj_kinematics(self.model, self.data)
-                self._put_back(keep, kept_pos, kept_quat)
-            self.data.qvel[self._dadr[joint]] = 0.0
-            self._setpoint[joint] = angle_rad
-            self.model.eq_data[self._hand_eq[joint], 0] = angle_rad
-            self.data.eq_active[self._hand_eq[joint]] = not self._torque_on[joint]
-            self._held[joint] = not self._torque_on[joint]
+            if self._torque_on[joint]:
+                raise ValueError(f"joint {joint + 1} has torque on and its servo holds it; turn torque off to pose it")
+            if not self._held[joint]:  # the hand grips the joint where it is
+                self._hand_at[joint] = float(self.data.qpos[self._qadr[joint]])
+                self.model.eq_data[self._hand_eq[joint], 0] = self._hand_at[joint]
+                self.data.eq_active[self._hand_eq[joint]] = True
+                self._held[joint] = True
+            self._hand_pose[joint] = angle_rad
+            self._hands_moving = bool(np.any(self._held & (self._hand_at != self._hand_pose)))
             self._wake()
-            self._state_version += 1
-            mujoco.mj_kinematics(self.model, self.data)  # the body's pose now; forces at the next step (a hand
-            # dragging a joint calls this tens of times a second: a full mj_forward, collisions included, costs 10×)
-            self._lift_out_of_the_terrain()
-            self.validity.rebase()  # a pose set by hand is no motion of the physics
 
-    def _put_back(self, body: int, pos: np.ndarray, quat: np.ndarray) -> None:
-        """Move the whole robot (its free base) rigidly so that ``body`` is at ``pos``/``quat`` again (world frame)."""
-        turn, inverse = np.zeros(4), np.zeros(4)
-        mujoco.mju_negQuat(inverse, self.data.xquat[body])
-        mujoco.mju_mulQuat(turn, quat, inverse)  # from where the body is now to where it was
-        base_quat, base_pos, moved = np.zeros(4), np.zeros(3), np.zeros(3)
-        mujoco.mju_mulQuat(base_quat, turn, self.data.qpos[3:7].copy())
-        mujoco.mju_rotVecQuat(moved, self.data.xpos[body].copy(), turn)
-        mujoco.mju_rotVecQuat(base_pos, self.data.qpos[0:3].copy(), turn)
-        mujoco.mju_normalize4(base_quat)
-        self.data.qpos[0:3] = base_pos + (pos - moved)
-        self.data.qpos[3:7] = base_quat
-        mujoco.mj_kinematics(self.model, self.data)
-
-    def _lift_out_of_the_terrain(self) -> None:
-        """A hand bending a joint of a robot lying on the ground lifts the body; it cannot push a segment through the
-        floor or an obstacle. The pose just set may have: raise the whole body by the deepest penetration (a few
-        times, as raising can bring another part into contact), so the contacts start where the shell touches. Left
-        in, a segment 0.2 m into the ground is no contact the model resolves: the world would end invalid."""
-        for _ in range(4):
-            mujoco.mj_collision(self.model, self.data)
-            contacts = self.data.contact[:self.data.ncon] if self.data.ncon else None
-            if contacts is None:
-                return
-            terrain = (self.model.geom_bodyid[contacts.geom1] == 0) | (self.model.geom_bodyid[contacts.geom2] == 0)
-            depth = -float(np.min(contacts.dist[terrain])) if np.any(terrain) else 0.0
-            if depth <= HAND_LIFT_TOLERANCE_M:
-                return
-            self.data.qpos[2] += depth
-            mujoco.mj_kinematics(self.model, self.data)
+    def _move_hands(self) -> None:
+        """One step of the hands on their way (before a physics step): each grip moves ``HAND_SPEED_RAD_S`` × the
+        time step toward its pose, landing on it exactly."""
+        moving = self._held & (self._hand_at != self._hand_pose)
+        gap = self._hand_pose[moving] - self._hand_at[moving]
+        slew = self._hand_slew
+        self._hand_at[moving] = np.where(np.abs(gap) <= slew, self._hand_pose[moving],
+                                         self._hand_at[moving] + np.sign(gap) * slew)
+        self.model.eq_data[self._hand_eq[moving], 0] = self._hand_at[moving]
+        self._hands_moving = bool(np.any(self._hand_at[moving] != self._hand_pose[moving]))
 
     def release_hand(self, joints: Sequence[int] | None = None) -> None:
         """The hand lets go of ``joints`` (default: all): gravity and contacts alone move them from now on."""
@@ -319,6 +303,7 @@ class PhysicsWorld:
         if mask.any():
             self._held[mask] = False
             self.data.eq_active[self._hand_eq[mask]] = False
+            self._hands_moving = bool(np.any(self._held & (self._hand_at != self._hand_pose)))
             self._wake()
 
     def set_external_torque(self, joint: int, torque_nm: float) -> None:
@@ -356,7 +341,7 @@ class PhysicsWorld:
         self._state_at_rest = None
 
     def _note_stillness(self, stepped_s: float) -> None:
-        still = (float(np.max(np.abs(self.data.qvel))) < REST_SPEED
+        still = (float(np.max(np.abs(self.data.qvel))) < REST_SPEED and not self._hands_moving
                  and not np.any(self._torque_on & (self._setpoint != self._goal))
                  and not np.any(np.abs(self._demand) > STRAIN_FRACTION * self._stall))
         self._still_s = self._still_s + stepped_s if still else 0.0
@@ -383,8 +368,7 @@ class PhysicsWorld:
                 return
             started = time.perf_counter()
             data, model = self.data, self.model
-            good = (float(data.time), data.qpos.copy(), data.qvel.copy(), data.act.copy(),
-                    data.qacc_warmstart.copy())
+            good = self._snapshot()
             warned = self._warned
             stepped = 0
             data.qfrc_applied[self._dadr] = self._external
@@ -393,21 +377,31 @@ class PhysicsWorld:
                 self._demand[:] = 0.0
                 self._saturated_s[:] = 0.0
                 data.ctrl[:] = 0.0
-                # Nothing to compute between steps: MuJoCo takes them all in one call. A warning raised on the way
-                # (the world then is invalid) sends it back to the batch's start to take them one by one again and
-                # stop at the step MuJoCo found bad, so what and when stay exact (the same steps: the state, the
-                # warm start and the inputs are restored).
-                counts, infos = data.warning.number.copy(), data.warning.lastinfo.copy()
-                mujoco.mj_step(model, data, nstep=n)
-                stepped = n
-                if warned.any():
-                    # the warnings too: those of the steps after the bad one would hide which came first
-                    self._restore(good)
-                    data.warning.number[:], data.warning.lastinfo[:] = counts, infos
-                    for stepped in range(1, n + 1):  # noqa: B007 - how many were taken, after the loop
-                        mujoco.mj_step(model, data)
-                        if warned.any():
-                            break
+                while stepped < n and self._hands_moving:  # a hand on its way moves between steps
+                    self._move_hands()
+                    mujoco.mj_step(model, data)
+                    stepped += 1
+                    if warned.any():
+                        break
+                if stepped < n and not warned.any():
+                    # Nothing to compute between steps: MuJoCo takes them all in one call. A warning raised on the
+                    # way (the world then is invalid) sends it back to where the call started to take them one by
+                    # one again and stop at the step MuJoCo found bad, so what and when stay exact (the same steps:
+                    # the state, the warm start and the inputs are restored).
+                    start = good if stepped == 0 else self._snapshot()
+                    counts, infos = data.warning.number.copy(), data.warning.lastinfo.copy()
+                    mujoco.mj_step(model, data, nstep=n - stepped)
+                    if not warned.any():
+                        stepped = n
+                    else:
+                        # the warnings too: those of the steps after the bad one would hide which came first
+                        self._restore(start)
+                        data.warning.number[:], data.warning.lastinfo[:] = counts, infos
+                        while stepped < n:
+                            mujoco.mj_step(model, data)
+                            stepped += 1
+                            if warned.any():
+                                break
             else:
                 stepped = self._servo_steps(n)
             self.steps += stepped
@@ -451,6 +445,8 @@ class PhysicsWorld:
                 over &= torque_on
             saturated = np.where(over, saturated + dt, 0.0)
             data.ctrl[:] = applied
+            if self._hands_moving:  # limp joints a hand is still bending
+                self._move_hands()
             mujoco.mj_step(model, data)
             stepped += 1
             if warned.any():
@@ -460,12 +456,21 @@ class PhysicsWorld:
         self._applied = applied if stepped else self._applied
         return stepped
 
-    def _restore(self, good: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
-        """Back to the state ``good`` (time, qpos, qvel, act, the solver's warm start) taken before a batch."""
+    def _snapshot(self) -> _Snapshot:
+        """What :meth:`_restore` needs to go back to this state: time, qpos, qvel, act, the solver's warm start and
+        where the hands' grips are."""
         data = self.data
-        data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:] = good
+        return (float(data.time), data.qpos.copy(), data.qvel.copy(), data.act.copy(), data.qacc_warmstart.copy(),
+                self._hand_at.copy())
 
-    def _check_validity(self, n: int, good: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+    def _restore(self, good: _Snapshot) -> None:
+        """Back to the state ``good`` taken by :meth:`_snapshot`."""
+        data = self.data
+        data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:], self._hand_at[:] = good
+        self.model.eq_data[self._hand_eq, 0] = self._hand_at
+        self._hands_moving = bool(np.any(self._held & (self._hand_at != self._hand_pose)))
+
+    def _check_validity(self, n: int, good: _Snapshot) -> None:
         """After ``n`` steps from the state ``good``: the validity checks (:mod:`.validity`); on the first failure
         the world goes back to ``good`` and stops there (:attr:`invalid`)."""
         what = self.validity.check(n * self._dt, int(self._torque_on.sum()), self._tail_load_n,
@@ -476,7 +481,7 @@ class PhysicsWorld:
         # a warning stopped the steps at the bad one, which MuJoCo dates at its start (its log's "Time = ")
         when = float(data.time) - (self._dt if self._warned.any() else 0.0)
         self.invalid = InvalidState(what, when + self._offset_s)
-        data.time, data.qpos[:], data.qvel[:], data.act[:], data.qacc_warmstart[:] = good
+        self._restore(good)
         mujoco.mj_forward(self.model, data)
         self._state_version += 1
 
