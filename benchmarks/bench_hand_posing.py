@@ -17,7 +17,8 @@ Per case: valid or not (and why), the deepest contact after the settle (mm), and
 was within ``REACHED_RAD`` of its pose (s; empty: not within the gap) and the largest joint error at the gap's end.
 
 ``python -m benchmarks.bench_hand_posing [--seeds N] [--out CSV]``: a table per case and the counts; with ``--out``
-the rows as CSV (``benchmarks/results/hand_posing.csv`` is today's).
+the rows as CSV (``benchmarks/results/hand_posing_after.csv`` is today's, ``hand_posing_before.csv`` the hand that
+put a pose in at once).
 """
 
 from __future__ import annotations
