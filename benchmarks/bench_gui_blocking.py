@@ -13,8 +13,10 @@ Target: < 100 ms for each action.
   Also printed: how much of the plots' history is still there afterwards (the oldest time held, before and after).
 - **Fit**: the Calibration tab fits 4 simulated paper-protocol trials (370 s holds at 6 Hz), as its Fit button does;
   measured until the fit's result is on screen.
-- Beside the blocked time: the most CPU the GUI thread spent between two ticks, and all the CPU it spent on the
-  action until 1 s after it was done (work removed shows there whatever the machine's load).
+- Beside the blocked time: the most CPU the GUI thread spent between two ticks, all the CPU it spent on the action
+  until 1 s after it was done (work removed shows there whatever the machine's load), and the blocked time less what
+  the GUI thread waited in the kernel's run queue for a CPU within that gap (Linux's schedstat): on a machine busy
+  with other jobs, what is left is the app's own stall (its work, its waits for the interpreter lock).
 
 ``python -m benchmarks.bench_gui_blocking [--history 70] [--load 0] [--offscreen]``; ``run(quick)`` (``sensnake bench``)
 uses 10 s of history. On a private Xvfb with Qt's xcb platform unless ``--offscreen`` or no Xvfb can start.
@@ -49,6 +51,15 @@ TARGET_MS = 100.0
 AFTER_S = 1.0  # measured on after an action is done: its first paints and the timers it started
 
 
+def _queued_s() -> float:
+    """Time the calling thread has waited runnable for a CPU in all (s): the kernel's schedstat, Linux; 0 elsewhere."""
+    try:
+        with open("/proc/thread-self/schedstat", encoding="ascii") as stat:
+            return int(stat.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
 class LoopWatch:
     """A ``TICK_MS`` timer on the GUI thread that keeps the longest gap between its ticks since :meth:`reset`, in wall
     time and in the GUI thread's own CPU time (what a busy machine does not stretch: the work the thread did between
@@ -62,14 +73,16 @@ class LoopWatch:
         self._timer.setInterval(TICK_MS)
         self._timer.timeout.connect(self._tick)
         self._last = self._last_cpu = self.worst_gap_s = self.worst_cpu_s = self._cpu_at_reset = 0.0
+        self._last_queued = self.worst_unqueued_s = 0.0
         self.reset()
         self._timer.start()
 
     def _tick(self) -> None:
-        now, cpu = time.perf_counter(), time.thread_time()
+        now, cpu, queued = time.perf_counter(), time.thread_time(), _queued_s()
         self.worst_gap_s = max(self.worst_gap_s, now - self._last)
         self.worst_cpu_s = max(self.worst_cpu_s, cpu - self._last_cpu)
-        self._last, self._last_cpu = now, cpu
+        self.worst_unqueued_s = max(self.worst_unqueued_s, now - self._last - (queued - self._last_queued))
+        self._last, self._last_cpu, self._last_queued = now, cpu, queued
 
     @property
     def last_tick_s(self) -> float:
@@ -77,13 +90,20 @@ class LoopWatch:
         return self._last
 
     def reset(self) -> None:
-        self._last, self._last_cpu = time.perf_counter(), time.thread_time()
+        self._last, self._last_cpu, self._last_queued = time.perf_counter(), time.thread_time(), _queued_s()
         self._cpu_at_reset = self._last_cpu
-        self.worst_gap_s = self.worst_cpu_s = 0.0
+        self.worst_gap_s = self.worst_cpu_s = self.worst_unqueued_s = 0.0
 
     @property
     def blocked_ms(self) -> float:
         return max(0.0, (self.worst_gap_s * 1000.0) - TICK_MS)
+
+    @property
+    def blocked_unqueued_ms(self) -> float:
+        """:attr:`blocked_ms` less the time the GUI thread waited in the kernel's run queue for a CPU within that gap
+        (Linux; the blocked time itself elsewhere): what is left of a stall when the machine's load is taken out —
+        the thread's own work and its waits for the interpreter lock or other threads."""
+        return max(0.0, (self.worst_unqueued_s * 1000.0) - TICK_MS)
 
     @property
     def busy_ms(self) -> float:
@@ -187,9 +207,11 @@ class Why:
 
 
 def _measure(watch: LoopWatch, action: Callable[[], None], done: Callable[[], bool],
-             limit_s: float = 120.0, why: Why | None = None, name: str = "") -> tuple[float, float, float, float]:
+             limit_s: float = 120.0, why: Why | None = None, name: str = "",
+             ) -> tuple[float, float, float, float, float]:
     """Run ``action`` from the event loop (as a click does), pump until ``done()`` and ``AFTER_S`` more; returns
-    (blocked ms, its GUI-thread CPU ms, wall s until done, the GUI thread's CPU ms in all until ``AFTER_S`` after)."""
+    (blocked ms, its GUI-thread CPU ms, wall s until done, the GUI thread's CPU ms in all until ``AFTER_S`` after,
+    blocked ms less the GUI thread's wait for a CPU)."""
     from PySide6.QtCore import QTimer
 
     _pump(200)
@@ -203,7 +225,7 @@ def _measure(watch: LoopWatch, action: Callable[[], None], done: Callable[[], bo
         total_cpu_ms = watch.total_cpu_ms
     if not finished:
         raise RuntimeError(f"bench_gui_blocking: not done within {limit_s:g} s")
-    return watch.blocked_ms, watch.busy_ms, wall_s, total_cpu_ms
+    return watch.blocked_ms, watch.busy_ms, wall_s, total_cpu_ms, watch.blocked_unqueued_ms
 
 
 def _trial_files(folder: Path) -> list[Path]:
@@ -276,7 +298,8 @@ def measure(history_s: float, load: int = 0, why: bool = False) -> dict[str, Any
             _pump(60_000, until=lambda: lab.robot.is_connected and lab.board is not None and lab.board.is_connected)
             watch.reset()
             _pump(2_000)
-            results["idle (2 s, nothing asked)"] = (watch.blocked_ms, watch.busy_ms, 0.0, watch.total_cpu_ms)
+            results["idle (2 s, nothing asked)"] = (watch.blocked_ms, watch.busy_ms, 0.0, watch.total_cpu_ms,
+                                                    watch.blocked_unqueued_ms)
             for index, spec in enumerate(TABS):
                 if window.tab_widget(spec.name) is not None:
                     continue
@@ -327,13 +350,15 @@ def report(results: dict[str, Any], history_s: float, load: int) -> None:
           f", the most CPU the GUI thread spent between two ticks (its own work, which a busy machine does not "
           f"stretch) and its CPU in all until {AFTER_S:g} s after (the idle window's: over 2 s) — Qt {platform or 'default'} platform, {load} busy process(es), {os.cpu_count()} cores, load "
           f"average {os.getloadavg()[0]:.1f} at the end")
-    print(f"{'action':<34} {'blocked ms':>11} {'most CPU ms':>11} {'done after s':>13} {'CPU in all ms':>14}")
+    print(f"{'action':<34} {'blocked ms':>11} {'most CPU ms':>11} {'done after s':>13} {'CPU in all ms':>14} "
+          f"{'blocked, not CPU-queued ms':>27}")
     for name, value in results.items():
         if name in ("history", "why"):
             continue
-        blocked_ms, busy_ms, wall_s, total_cpu_ms = value
+        blocked_ms, busy_ms, wall_s, total_cpu_ms, unqueued_ms = value
         flag = "" if blocked_ms < TARGET_MS else "  (over target)"
-        print(f"{name:<34} {blocked_ms:>11.0f} {busy_ms:>11.0f} {wall_s:>13.2f} {total_cpu_ms:>14.0f}{flag}")
+        print(f"{name:<34} {blocked_ms:>11.0f} {busy_ms:>11.0f} {wall_s:>13.2f} {total_cpu_ms:>14.0f} "
+              f"{unqueued_ms:>27.0f}{flag}")
     held_before, held_after_from_old, trimmed_s = results["history"]
     print(f"plots' history across the calibration load: {held_before:.0f} s held before; afterwards it reaches back "
           f"to {trimmed_s:+.0f} s of the old oldest sample ({'kept' if trimmed_s <= 1.0 else 'dropped'}); "
