@@ -16,6 +16,7 @@ count differs from the configured board are counted and never stored. Consumers 
 from __future__ import annotations
 
 import contextlib
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -58,7 +59,12 @@ READ_TIMEOUT_S = 0.02
 IDLE_POLL_S = 0.004
 STALL_S = 1.0  # a frame read this long after its board time: the host stalled (a stall event)
 MAX_CLOCK_DRIFT = 5e-4  # s/s: the board's and the host's clocks differ by less (crystals: ~50 ppm)
+FRESH_BACKLOG_S = 0.05  # reads this soon after a board clock's first frames hold the rest of its backlog
+PACE_SPAN_S = 1.0  # host seconds of frames over which the board clock's pace is measured
+FAST_BOARD_PACE = 1.5  # board seconds per host second above which the board's clock runs fast on purpose (a simulated
+#                        lab at N× real time); below it the pace is taken as the host's own
 MAX_READ_BYTES = 1 << 16
+FULL_BUFFER_BYTES = 4000  # a read this long may have emptied the driver's buffer with more behind it
 DEFAULT_RING_SECONDS = 20.0
 MIN_RING_FRAMES = 256
 
@@ -362,6 +368,9 @@ class BoardReader:
         self._stalled = False
         self._stalls = 0
         self._late_delivery_said = False
+        self._fresh_until_s = math.inf  # a board clock's first frames (a backlog) are dated back until then
+        self._pace_anchor: tuple[float, float, float] | None = None  # (first arrival, arrival, board time)
+        self._board_pace: float | None = None  # board seconds per host second, once measured over PACE_SPAN_S
         self._last_poll_s = time.monotonic()  # when the reader thread last looked at the port
         self._clock_backsteps = 0
         self._board_time_base_s = 0.0
@@ -510,10 +519,17 @@ class BoardReader:
         """Everything the port holds now (up to ``MAX_READ_BYTES``), read until it holds no more: a backlog the
         driver hands over a buffer at a time is taken in one piece, so its frames are dated together."""
         data = b""
+        topped_up = 0
         while len(data) < MAX_READ_BYTES:
             waiting = port.in_waiting
             if not waiting:
-                break
+                # A read that emptied a full driver buffer (a pty's holds 4 kB) may have more behind it a moment
+                # later: looked at again twice, 1 ms apart, before the backlog is taken as whole.
+                if len(data) < FULL_BUFFER_BYTES or topped_up >= 2:
+                    break
+                topped_up += 1
+                time.sleep(0.001)
+                continue
             data += port.read(min(waiting, MAX_READ_BYTES - len(data)))
         return data
 
@@ -533,6 +549,7 @@ class BoardReader:
             return
         self._parser.reset_stream()
         self._last_poll_s = time.monotonic()
+        self._fresh_until_s = math.inf
         self._reconnects += 1
         self._gap_pending = True
         # A board that was unplugged restarts its clock (and seq) at 0: the next frame opens a new clock segment.
@@ -562,14 +579,22 @@ class BoardReader:
         for k in range(len(frames) - 1, -1, -1):
             arrival[k] = host_time_s - behind * byte_time_s
             behind += HEADER_SIZE + 2 * frames[k].counts.size + CRC_SIZE
-        # A frame was sampled no later than the next one's arrival less the board's time between them: frames that
-        # waited (in a board that blocks until the host opens, or an adapter that holds them) and then came together
-        # keep the board's spacing back from the last one instead of all landing within the read.
+        # A frame was sampled no later than the next one's arrival less the board's time between them (in host
+        # seconds: a simulated lab's board clock may run N× real time): frames that waited (in a board that blocks
+        # until the host opens, or an adapter that holds them) and then came together keep the board's spacing back
+        # from the last one instead of all landing within the read. Done for a board clock's first frames (those read
+        # within FRESH_BACKLOG_S of the first), and once the clock's pace is measured.
         sampled_by = arrival.copy()
-        for k in range(len(frames) - 2, -1, -1):
-            step_s = _board_step_s(frames[k], frames[k + 1])
-            if step_s is not None:
-                sampled_by[k] = min(sampled_by[k], sampled_by[k + 1] - step_s * (1.0 - MAX_CLOCK_DRIFT))
+        pace = self._board_pace
+        if host_time_s <= self._fresh_until_s or pace is not None:
+            per_host_s = pace if pace is not None and pace > FAST_BOARD_PACE else 1.0
+            for k in range(len(frames) - 2, -1, -1):
+                step_s = _board_step_s(frames[k], frames[k + 1])
+                if step_s is not None:
+                    sampled_by[k] = min(sampled_by[k],
+                                        sampled_by[k + 1] - step_s / per_host_s * (1.0 - MAX_CLOCK_DRIFT))
+        if frames and self._fresh_until_s == math.inf:
+            self._fresh_until_s = host_time_s + FRESH_BACKLOG_S  # the rest of a backlog the driver hands over late
         polled_s = self._last_poll_s
         for frame, frame_host_time_s, frame_sampled_by_s in zip(frames, arrival, sampled_by):
             if frame.counts.size != expected:
@@ -602,6 +627,7 @@ class BoardReader:
                 self._segment += 1
                 self._gap_pending = True
                 self._host_offset_s = None  # a new board clock: its offset to the host's is learnt again
+                self._pace_anchor = None
                 last_host = self._last_store_host_s if self._last_store_host_s is not None else host_time_s
                 self._board_time_base_s += max(host_time_s - last_host, 0.0)
             elif clock_back:
@@ -609,6 +635,7 @@ class BoardReader:
                 self._board_time_base_s += 1.0 / self.board.rate_hz
             else:
                 self._board_time_base_s += t_step * 1e-6
+        self._measure_pace(host_time_s, self._board_time_base_s)
         host_time_s = self._host_time_for(self._board_time_base_s, host_time_s,
                                           host_time_s if sampled_by_s is None else sampled_by_s,
                                           host_time_s if polled_s is None else polled_s)
@@ -634,6 +661,18 @@ class BoardReader:
                 self._overflow_since_read += lost
                 self._read_total = self._write_total - self._capacity
             self._data_ready.notify_all()
+
+    def _measure_pace(self, wire_time_s: float, board_time_s: float) -> None:
+        """Board seconds per host second: from the newest frame that arrived within 50 ms of the clock's first (a
+        backlog read at once ends there) to each frame at least ``PACE_SPAN_S`` later."""
+        anchor = self._pace_anchor
+        if anchor is None:
+            self._pace_anchor = anchor = (wire_time_s, wire_time_s, board_time_s)
+        began_s, anchor_wire_s, anchor_board_s = anchor
+        if wire_time_s - began_s < 0.05:
+            self._pace_anchor = (began_s, wire_time_s, board_time_s)
+        elif wire_time_s - anchor_wire_s >= PACE_SPAN_S:
+            self._board_pace = (board_time_s - anchor_board_s) / (wire_time_s - anchor_wire_s)
 
     def _host_time_for(self, board_time_s: float, wire_time_s: float, sampled_by_s: float,
                        polled_s: float) -> float:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -77,12 +78,33 @@ def test_stop_joins_and_restart_works(qtbot, bridge):
 
 
 def test_a_stop_before_the_opened_reader_is_adopted_still_ends_its_thread(qtbot, bridge):
+    before = set(threading.enumerate())
     bridge.start()
     opener = bridge._opener
     assert opener is not None
     opener.join(timeout=10)  # the port is open and the reader's thread runs; its adoption is queued, not yet run
-    assert any(t.name.startswith("board-reader") for t in threading.enumerate())
+    readers = [t for t in threading.enumerate() if t not in before and t.name.startswith("board-reader")]
+    assert len(readers) == 1
     bridge.stop()
-    assert not any(t.name.startswith("board-reader") and t.is_alive() for t in threading.enumerate())
+    assert not readers[0].is_alive()
     qtbot.wait(50)  # the queued adoption arrives after the stop: it must not revive the closed reader
     assert bridge._reader is None and not bridge.is_connected
+
+
+def test_a_simulated_lab_at_20x_keeps_its_frames_on_the_host_clock_at_a_twentieth_of_the_board_spacing(
+        qtbot, bridge, sim_lab_fast):
+    """The board clock runs 20× the host's: once its pace is measured, frames read together are dated back by the
+    board's time between them in host seconds, not by the board's 33 ms (which put them up to seconds in the past)."""
+    bridge.start()
+    qtbot.waitUntil(lambda: bridge._reader is not None, timeout=15_000)
+    reader = bridge._reader
+    qtbot.waitUntil(lambda: reader._board_pace is not None, timeout=20_000)
+    assert 15 < reader._board_pace < 25
+    blocks: list = []
+    bridge.block.connect(blocks.append)
+    qtbot.waitUntil(lambda: sum(len(b) for b in blocks) > 200, timeout=20_000)
+    host = np.concatenate([b.host_time_s for b in blocks])
+    board = np.concatenate([b.board_time_s for b in blocks])
+    speed = sim_lab_fast.clock.speed
+    assert np.median(np.diff(host)) == pytest.approx(np.median(np.diff(board)) / speed, rel=0.25)
+    assert host[-1] > time.monotonic() - 1.0  # stamped about when it came, not seconds before

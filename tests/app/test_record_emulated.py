@@ -346,7 +346,8 @@ def test_a_board_that_holds_its_first_frames_until_read_is_recorded_at_its_own_s
     assert np.all(np.diff(seqs) == 1)
     assert rec.time_s[-1] - rec.time_s[0] >= 2.5 - 2 / 30, "fewer than --seconds of board time recorded"
     steps = np.diff(rec.time_s)
-    assert steps.min() > 0.8 / 30, f"frames stamped {steps.min() * 1e3:.1f} ms apart: the backlog landed at once"
+    assert np.percentile(steps, 5) > 0.8 / 30 and steps.min() > 0.25 / 30, \
+        f"frames stamped {steps.min() * 1e3:.1f} ms apart: the backlog landed at once"
     with h5py.File(out, "r") as f:
         assert int(f["daq"].attrs["host_stalls"]) == 0
     error_lines(capsys.readouterr().err)

