@@ -56,6 +56,7 @@ class StateLog:
         self._writer = csv.writer(out) if out is not None else None
         self.t0_s: float | None = None  # time.monotonic() when the motion started; states before it are skipped
         self.missed_ticks_before = 0  # the controller's missed ticks before the motion (start-up, torque on)
+        self.late_reads_before = 0  # and its feedback reads given up (replies late) before it
         if self._writer is not None:
             header = ["time_s"] + [f"goal_rad_{i}" for i in range(1, n_joints + 1)] + \
                 [f"present_rad_{i}" for i in range(1, n_joints + 1)] + \
@@ -112,11 +113,14 @@ def run(args: argparse.Namespace) -> int:
         controller = start_controller(robot, on_state=state_log.on_state, on_event=on_event)
         try:
             outcome = _play(controller, source, state_log, args, name, started)
-            missed_ticks = controller.stats().missed_ticks - state_log.missed_ticks_before
+            stats = controller.stats()
+            missed_ticks = stats.missed_ticks - state_log.missed_ticks_before
+            blind_ticks = stats.late_reads - state_log.late_reads_before
             state_log.drain()
-            slots = state_log.ticks + missed_ticks
-            if slots and missed_ticks > MISSED_TICKS_LIMIT * slots:
-                diagnosis = missed_ticks_cause(controller, missed_ticks, slots, state_log.periods_s(), args.rate)
+            slots = state_log.ticks + blind_ticks + missed_ticks
+            if slots and missed_ticks + blind_ticks > MISSED_TICKS_LIMIT * slots:
+                diagnosis = missed_ticks_cause(controller, missed_ticks, slots, state_log.periods_s(), args.rate,
+                                               blind_ticks)
         finally:
             scheduling = controller.scheduling
             controller.close()
@@ -128,9 +132,10 @@ def run(args: argparse.Namespace) -> int:
     periods = state_log.periods_s()
     if periods.size:
         error_ms = np.abs(periods - 1.0 / args.rate) * 1000.0
-        print(f"control period at {args.rate:g} Hz over {periods.size} ticks: "
+        print(f"control period at {args.rate:g} Hz over {periods.size} ticks read: "
               f"p50 {np.median(periods) * 1000:.2f} ms, p99 error {np.percentile(error_ms, 99):.2f} ms, "
-              f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}; bus thread: {scheduling}")
+              f"max error {error_ms.max():.2f} ms, missed ticks {missed_ticks}, ticks without feedback "
+              f"{blind_ticks}; bus thread: {scheduling}")
     if args.log and started.is_set():
         print(f"wrote {Path(args.log)}")
     if diagnosis is not None:
@@ -177,8 +182,10 @@ class BusTiming:
     return_delays_s: dict[int, float]  # each servo's Return Delay Time
 
 
-def missed_ticks_cause(controller: Any, missed: int, slots: int, periods_s: np.ndarray, rate_hz: float) -> str:
-    """Measure the bus on the bus thread (between ticks; the motion is over) and describe the missed ticks."""
+def missed_ticks_cause(controller: Any, missed: int, slots: int, periods_s: np.ndarray, rate_hz: float,
+                       blind: int = 0) -> str:
+    """Measure the bus on the bus thread (between ticks; the motion is over) and describe the missed ticks and
+    those that ran without feedback (``blind``: their read given up, the replies late)."""
     def measure(chain: Any) -> BusTiming:
         return BusTiming(chain.measure_cycle_s(CYCLES_MEASURED), chain.latency_timer_ms(), chain.latency_warning(),
                          chain.return_delays_s)
@@ -188,12 +195,13 @@ def missed_ticks_cause(controller: Any, missed: int, slots: int, periods_s: np.n
     except (DeviceError, TimeoutError):  # the bus is gone or busy: say what the ticks alone tell
         timing = BusTiming(math.nan, None, None, {})
     longest_s = float(periods_s.max()) if periods_s.size else math.nan
-    return describe_missed_ticks(missed, slots, rate_hz, timing, longest_s, controller.scheduling)
+    return describe_missed_ticks(missed, slots, rate_hz, timing, longest_s, controller.scheduling, blind)
 
 
 def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTiming, longest_period_s: float,
-                          scheduling: str) -> str:
-    """One line: how many ticks were missed, what was measured, each cause found with its fix."""
+                          scheduling: str, blind: int = 0) -> str:
+    """One line: how many ticks were missed (and ran without feedback: ``blind``), what was measured, each cause
+    found with its fix."""
     period_s = 1.0 / rate_hz
     causes = []
     if timing.latency_timer_ms is not None and timing.latency_timer_ms > 1:
@@ -213,7 +221,7 @@ def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTi
     cycle_s = timing.cycle_s if math.isfinite(timing.cycle_s) else 0.0
     if math.isfinite(longest_period_s) and longest_period_s > max(2 * period_s, 3 * cycle_s):
         priority = "" if scheduling.startswith("real-time") else ", give the loop real-time priority (docs/REALTIME.md)"
-        causes.append(f"the longest tick took {longest_period_s * 1e3:.0f} ms, "
+        causes.append(f"the longest time between two ticks' readings was {longest_period_s * 1e3:.0f} ms, "
                       f"{longest_period_s / max(cycle_s, period_s):.0f}× a tick's period: replies came late or this "
                       f"machine held the loop back (bus thread: {scheduling}) — fix: close other busy programs"
                       f"{priority}, or lower --rate")
@@ -221,7 +229,11 @@ def describe_missed_ticks(missed: int, slots: int, rate_hz: float, timing: BusTi
         causes.append(f"no single cause stands out (bus thread: {scheduling}) — fix: lower --rate")
     cycle = f"a bus cycle measured {timing.cycle_s * 1e3:.1f} ms" if math.isfinite(timing.cycle_s) else \
         "the bus cycle could not be measured"
-    return (f"{missed} of {slots} control ticks missed ({missed / slots:.1%}, more than "
+    short = missed + blind
+    what = f"{missed} of {slots} control ticks missed" if not blind else (
+        f"{short} of {slots} control ticks missed or run without feedback ({missed} missed, {blind} whose servo "
+        "replies came too late for the tick: it wrote its goal from the last angles read)")
+    return (f"{what} ({short / slots:.1%}, more than "
             f"{MISSED_TICKS_LIMIT:.0%}) at {rate_hz:g} Hz ({period_s * 1e3:.1f} ms a tick; {cycle}): "
             + "; ".join(causes))
 
@@ -232,7 +244,8 @@ def _ids(ids: list[int]) -> str:
 
 def _play(controller: Any, source: PlannedMotion, state_log: StateLog, args: argparse.Namespace, name: str,
           started: threading.Event) -> str:
-    state_log.missed_ticks_before = controller.stats().missed_ticks
+    before = controller.stats()
+    state_log.missed_ticks_before, state_log.late_reads_before = before.missed_ticks, before.late_reads
     state_log.t0_s = time.monotonic()
     # One command: servos power up limp, so torque on where they are, check the plan, then move.
     future = controller.play(source, name)
