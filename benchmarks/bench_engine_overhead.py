@@ -72,6 +72,13 @@ def _rss_mb(pid: int) -> float | None:
     return None
 
 
+def _parent(pid: int) -> int | None:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def _cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
@@ -87,6 +94,7 @@ class MemoryWatch:
         self.own = own
         self.samples: dict[int, list[tuple[float, float]]] = {}
         self.names: dict[int, str] = {}
+        self.forkservers: set[int] = set()
         self._stop = threading.Event()
         self._start = time.monotonic()
         self._thread = threading.Thread(target=self._watch, daemon=True, name="memory-watch")
@@ -101,6 +109,10 @@ class MemoryWatch:
                     continue
                 if pid not in self.names:
                     self.names[pid] = _cmdline(pid)
+                # Looked at again each time: a process sampled between its fork and its exec showed its parent's
+                # command line.
+                if pid not in self.forkservers and _parent(pid) == me and "forkserver import main" in _cmdline(pid):
+                    self.forkservers.add(pid)
                 self.samples.setdefault(pid, []).append((now, mb))
             self._stop.wait(SAMPLE_S)
 
@@ -115,12 +127,13 @@ class MemoryWatch:
 
     def workers(self, wall: float) -> list[dict]:
         """Each process that ran runs: its peak MB and its growth from the sweep's middle to its last sample. The
-        multiprocessing resource tracker (which runs nothing) is left out; an embedded Dask cluster's scheduler and
-        nannies live in this process, so the processes under it are its workers."""
+        multiprocessing resource tracker and forkserver (which run nothing; the forkserver's own children, forked
+        with its command line, are the embedded Dask cluster's workers) are left out; the cluster's scheduler and
+        nannies live in this process, so the other processes under it are its workers."""
         out = []
         for pid, samples in self.samples.items():
             name = self.names.get(pid, "")
-            if "resource_tracker" in name or "semaphore_tracker" in name:
+            if "resource_tracker" in name or "semaphore_tracker" in name or pid in self.forkservers:
                 continue
             peak = max(mb for _, mb in samples)
             middle = [mb for t, mb in samples if t <= wall / 2] or [samples[0][1]]

@@ -522,6 +522,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     bound_numeric_threads()
     try:
         refuse_outputs_onto_inputs(command, args)
+        if command == "experiment" and args.engine == "dask" and not args.scheduler:
+            from app.core.engines import start_worker_server
+
+            start_worker_server()  # an embedded Dask cluster's workers: their imports overlap this command's
         with _import_watchdog(command, float(os.environ.get(IMPORT_WATCHDOG_ENV, "") or IMPORT_WATCHDOG_S)):
             module = importlib.import_module(f"app.cli.{command}")
         return int(module.run(args) or EXIT_OK)
