@@ -522,7 +522,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     bound_numeric_threads()
     try:
         refuse_outputs_onto_inputs(command, args)
-        if command == "experiment" and args.engine == "dask" and not args.scheduler:
+        if command == "experiment" and args.name in ("sweep", "evaluate", "tune") and args.engine == "dask" \
+                and not args.scheduler:
             from app.core.engines import start_worker_server
 
             start_worker_server()  # an embedded Dask cluster's workers: their imports overlap this command's
