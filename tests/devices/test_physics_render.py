@@ -97,3 +97,31 @@ def test_a_renderer_closed_refuses_to_draw(world):
 def test_a_size_beyond_the_models_offscreen_buffer_is_refused(world):
     with pytest.raises(ValueError, match="offscreen buffer"):
         render.OffscreenRenderer(world.model, 4000, 4000)
+
+
+def test_a_gl_context_that_cannot_open_leaves_nothing_that_fails_when_collected(monkeypatch):
+    """As MuJoCo's GLFW context without an X display: its __init__ raises before it has a ``_context``, and its
+    __del__ (free) raised AttributeError later, in whatever test was running when the object was collected."""
+    import gc
+    import sys
+
+    from devices.sim.physics.render import _new_gl_context
+
+    class NoDisplay:
+        def __init__(self, width, height):
+            raise RuntimeError("X11: The DISPLAY environment variable is missing")
+
+        def free(self):
+            if self._context:
+                raise AssertionError("nothing was opened")
+            self._context = None
+
+        def __del__(self):
+            self.free()
+
+    unraisable: list = []
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+    with pytest.raises(RuntimeError, match="DISPLAY"):
+        _new_gl_context(NoDisplay, 64, 48)
+    gc.collect()
+    assert unraisable == []

@@ -66,6 +66,16 @@ MAX_GEOMS = 1000
 WARM_TEXTURE_PX = 256  # as the ground's checker texture (devices/sim/physics/model.py)
 
 
+def _new_gl_context(kind: Any, width: int, height: int) -> Any:
+    """``kind(width, height)`` (a MuJoCo ``GLContext``) whose failure leaves nothing behind that fails again: GLFW's
+    raises in ``__init__`` before it has a ``_context`` (no X display), and its ``__del__`` then raised
+    AttributeError whenever the half-made object was collected (an "unraisable" error in whatever ran then)."""
+    context = kind.__new__(kind)
+    context._context = None  # noqa: SLF001 - what its free() (run by __del__) reads, set before __init__ can fail
+    kind.__init__(context, width, height)
+    return context
+
+
 def warm_up_gl() -> None:
     """Have the current OpenGL context's driver compile what MuJoCo's context needs first (mipmap generation of a
     texture), through PyOpenGL's calls, which release the interpreter lock. Only the time moves: nothing is left
@@ -113,7 +123,7 @@ class OffscreenRenderer:
         self._mjr: mujoco.MjrContext | None = None
         if gl_context.GLContext is None:
             raise RuntimeError("MuJoCo has no OpenGL back end here (MUJOCO_GL)")
-        self._gl = gl_context.GLContext(width, height)
+        self._gl = _new_gl_context(gl_context.GLContext, width, height)
         try:
             self._gl.make_current()
             warm_up_gl()
