@@ -373,6 +373,8 @@ def test_simulated_truth_calibrates_every_sensor_and_says_it_is_the_simulations_
     assert json.loads(saved.read_text())["source"].startswith("the simulated lab's sensors' true parameters")
     assert all(status != "uncalibrated" for status in tab.pipeline.status)
     assert "not a measurement" in tab.controls.message.text()
+    # said once in the event log (it was logged four times over, 0.2 s apart: by the click and each pass's end)
+    assert sum("not a measurement" in e.text for e in lab.event_log.entries) == 1
     lab.board.start()
     qtbot.waitUntil(lambda: len(tab.force_history) > 5, timeout=15_000)
     assert tab.plots.units == "N"

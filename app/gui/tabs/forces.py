@@ -71,6 +71,7 @@ RECORDING_VIEW_BUDGET_BYTES = 256_000_000
 BODY_REFRESH_HZ = 10.0
 STATUS_REFRESH_HZ = 2.0
 CRC_STORM_PER_S = 5.0
+SAID_AGAIN_AFTER_S = 10.0  # the same message said again within this goes to the message line, not the event log
 OVERLAY, BODY_MAP = -1, -2  # image export targets besides the segment plots (0 …)
 BODY_FORCE_STEP_N = 0.1  # forces compared at this resolution (3 % of the colour ramp) to skip body-map redraws
 ONSET_FRACTION = 0.1
@@ -126,6 +127,7 @@ class ForcesTab(QWidget):
         """``plots_in_steps``: the segment plots are built later, one a step (:func:`create_tab_in_steps`)."""
         super().__init__(parent)
         self.lab = lab
+        self._said: tuple[str, str, float] | None = None  # the last message said (text, level, when)
         # A calibration or estimator being applied: the history is estimated again on a worker thread
         # (app/gui/forces_history.py); until it is done the live view goes on with the one in force.
         self._reestimation: Reestimation | None = None
@@ -201,6 +203,10 @@ class ForcesTab(QWidget):
         "error", a warning when "warn", information otherwise)."""
         self.controls.set_message(text, level)
         log = getattr(self.lab, "event_log", None)
+        now = time.monotonic()
+        said, self._said = self._said, (text, level, now)
+        if said is not None and said[:2] == (text, level) and now - said[2] < SAID_AGAIN_AFTER_S:
+            return  # the same words again (each re-estimation pass says how it ended): logged once
         if log is not None and text:
             log.add({"error": "fault", "warn": "warning"}.get(level, "info"), text, "Forces")
 
