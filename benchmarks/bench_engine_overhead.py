@@ -21,6 +21,13 @@ before and after is printed too (other engineers share the cores; ``--repeats`` 
 
 Run: ``python -m benchmarks.bench_engine_overhead [--seconds 8] [--jobs 2] [--repeats 1] [--write]`` (``--write``:
 ``benchmarks/results/engine_overhead.txt``); ``sensnake bench --quick`` uses 2 s plays.
+
+Measured on the 2-core machine with no other work (load average 0.3 before, 2.0-2.5 during), overhead local / Dask:
+30 s plays +13.5 % / +18.5 %, 8 s plays (fastest of 3) +26.6 % / +47.5 %, 4 s plays +29.9 % / +55.5 %; both engines'
+runs were slower side by side than one after another, so these carry the machine's parallel slowdown. Dask's own
+part, timed run by run on the 8 s sweep: the cluster's start 0.56-0.75 s, each worker's first run 0.03-0.4 s longer,
+1-3 ms between runs, the stop 0.14-0.15 s: about 1 s, 12 % of a worker's share of an 8 s sweep (the <= 10 % target
+missed on short sweeps). Worker memory 91-98 MB (local), 119-126 MB (Dask), <= 4 MB growth (docs/PHYSICS_LAB.md).
 """
 
 from __future__ import annotations
