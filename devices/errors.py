@@ -5,6 +5,7 @@ Messages are written for the lab user: they say what happened, to which servo or
 
 from __future__ import annotations
 
+import errno
 import os
 
 # Protocol 2.0 status packet error numbers (ROBOTIS e-manual, "Status Packet"): what a servo says when it refuses.
@@ -160,6 +161,18 @@ def os_words(exc: BaseException) -> str:
     if isinstance(code, int) and code > 0:
         return os.strerror(code)
     return " ".join(str(exc).split())
+
+
+def link_lost_words(exc: BaseException) -> str:
+    """Why a port stopped working, in plain words. A device that went away (unplugged, powered off, a pty's far end
+    closed) shows as EIO, ENXIO or ENODEV, or as pyserial's "readiness to read but returned no data" (end of file),
+    whichever the read met first: all say the same thing, so they read the same."""
+    code = getattr(exc, "errno", None)
+    if not isinstance(code, int) and len(exc.args) == 2 and isinstance(exc.args[0], int):
+        code = exc.args[0]
+    if code in (errno.EIO, errno.ENXIO, errno.ENODEV) or "returned no data" in str(exc):
+        return "the device went away (unplugged, powered off, or its port closed)"
+    return os_words(exc)
 
 
 class LabProcessUnavailable(RuntimeError):

@@ -58,7 +58,7 @@ from devices.errors import (
     ServoCommandError,
     ServoHardwareError,
     StatusReturnLevelError,
-    os_words,
+    link_lost_words,
     status_return_level_words,
 )
 from devices.factory import is_sim, open_serial, sim_serial_path
@@ -1146,8 +1146,8 @@ class ServoChain:
             if self._port is not None:
                 self._port.is_using = False
             raise LinkLostError(
-                f"lost the link to the servo bus on {self.robot.port}: {os_words(exc)}. Check the USB cable and "
-                "the servo power; the controller reconnects when the port is back"
+                f"lost the link to the servo bus on {self.robot.port}: {link_lost_words(exc)}. Check the USB cable "
+                "and the servo power; the controller reconnects when the port is back"
             ) from exc
 
     def _check_comm(self, result: int, servo_id: int, what: str) -> None:
