@@ -909,17 +909,8 @@ class ServoChain:
         reader = self._require(self._state_reader)
         port = self._require_port()
         t0 = time.monotonic()
-        port.deadline_s = deadline_s
-        try:
-            result = self._io(reader.txRxPacket)
-        finally:
-            port.deadline_s = None
-        if result != COMM_SUCCESS and deadline_s is not None and time.monotonic() >= deadline_s:
-            raise DeadlinePassedError("sync read of present position/velocity/current given up at the control "
-                                      "tick's deadline (replies late)")
-        if result != COMM_SUCCESS:
-            sid = reader.failed_id if reader.failed_id is not None else self.ids[0]
-            self._check_comm(result, sid, "sync read of present position/velocity/current")
+        self._sync_transfer(reader, port, deadline_s, self.ids[0], "sync read of present position/velocity/current",
+                            "given up at the control tick's deadline (replies late)")
         n = len(self.ids)
         current = np.empty(n)
         velocity = np.empty(n)
@@ -977,18 +968,24 @@ class ServoChain:
         reader = _TrackingSyncRead(port, self._ph, address, size)
         for sid in ids:
             reader.addParam(sid)
+        self._sync_transfer(reader, port, deadline_s, ids[0], "sync read of hardware status",
+                            "given up at the next control tick's slot", f" of servos {_id_list(ids)}")
+        return {sid: bytes(reader.data_dict[sid]) for sid in ids}
+
+    def _sync_transfer(self, reader: _TrackingSyncRead, port: _FactoryPortHandler, deadline_s: float | None,
+                       first_id: int, what: str, given_up: str, whose: str = "") -> None:
+        """One sync read's exchange: replies not in by ``deadline_s`` raise :class:`DeadlinePassedError` (``what``,
+        ``whose``, ``given_up``); any other failure is named by the servo that failed (else ``first_id``)."""
         port.deadline_s = deadline_s
         try:
             result = self._io(reader.txRxPacket)
         finally:
             port.deadline_s = None
-        if result != COMM_SUCCESS and deadline_s is not None and time.monotonic() >= deadline_s:
-            raise DeadlinePassedError(f"sync read of hardware status of servos {_id_list(ids)} given up at the "
-                                      "next control tick's slot")
-        if result != COMM_SUCCESS:
-            sid = reader.failed_id if reader.failed_id is not None else ids[0]
-            self._check_comm(result, sid, "sync read of hardware status")
-        return {sid: bytes(reader.data_dict[sid]) for sid in ids}
+        if result == COMM_SUCCESS:
+            return
+        if deadline_s is not None and time.monotonic() >= deadline_s:
+            raise DeadlinePassedError(f"{what}{whose} {given_up}")
+        self._check_comm(result, reader.failed_id if reader.failed_id is not None else first_id, what)
 
     # -- timing checks ---------------------------------------------------------------------------------------------
     def cycle_time_s(self) -> float:
