@@ -138,4 +138,10 @@ def test_the_physics_labs_stream_is_found_by_name_and_stamped_at_the_worlds_time
     assert lsl_lag < 1.0
     assert snapshot is not None
     centres = 0.5 * (truth.points_m[:-1] + truth.points_m[1:])  # the robot lies still on flat ground
-    np.testing.assert_allclose(snapshot.newest_center_m, centres, atol=0.002)
+    # One frame's pose carries the markers' noise, and a segment fitted from three markers (the fourth dropped out)
+    # can be off by a few millimetres across the body (markers 1–3 span 12 mm sideways: 0.3 mm noise tilts it by
+    # ~0.03 rad, 60 mm below them): the median of the last half second's live poses, all taken at rest, is compared.
+    rested = snapshot.center_m[-10:]
+    assert np.isfinite(rested).all(axis=-1).sum(axis=0).min() >= 5, "a segment had no pose in most recent frames"
+    np.testing.assert_allclose(np.nanmedian(rested, axis=0), centres, atol=0.002)
+    assert np.isfinite(snapshot.newest_center_m).any()
