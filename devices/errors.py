@@ -258,3 +258,8 @@ class LoopProcessUnavailable(RuntimeError):
 # raised by devices.rig
 class RigInterrupted(DeviceError):
     """A wait was cut short because the caller's ``interrupt`` became true (abort, STOP)."""
+
+
+# raised by devices.gauge
+class GaugeReadError(DeviceError, ValueError):
+    """No usable dial gauge reading (the input ended, or what was typed was not a number)."""

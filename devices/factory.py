@@ -16,6 +16,7 @@ import serial
 
 from devices.config import SIM_PORT, LabConfig
 from devices.errors import PortOpenError, os_words
+from devices.gauge import DEFAULT_RESOLUTION_M, TravelGauge, TypedGauge
 from devices.realtime import _switched_off
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -138,6 +139,38 @@ def move_simulated_probe(sensor: str) -> bool:
         move(sensor)
         return True
     return False
+
+
+def start_sim_rig_bench(config: LabConfig, *, speed: float = 1.0, seed: int = 0, gauge_force_n: float = 0.0,
+                        gauge_rate_n_per_m: float = 0.0) -> tuple[SimPorts, SimPorts | None]:
+    """The simulated calibration rig alone (no robot, no board) behind the ``sim`` rig port, its clock at ``speed``×
+    real time, with a segment's compliant shell under the probe as ``config``'s ``[lab.physics]`` has it (stiffness,
+    damping, travel) and a dial gauge on the probe whose measuring force is ``gauge_force_n`` at rest, falling by
+    ``gauge_rate_n_per_m`` as the probe goes in. Returns (the bench, the lab it replaced: put it back with
+    :func:`install_sim_lab`)."""
+    from devices.sim.clock import SimClock
+    from devices.sim.rig import RigBench, ShellSpecimen
+
+    physical = config.lab.physical
+    bench = RigBench(config.rig, SimClock(speed), seed=seed)
+    bench.rig.mount_shell(ShellSpecimen(physical.shell_stiffness_n_per_m, physical.shell_damping_n_s_per_m,
+                                        physical.shell_travel_m, gauge_force_n, gauge_rate_n_per_m))
+    return bench, install_sim_lab(bench)
+
+
+def travel_gauge(rig_port: str, resolution_m: float = DEFAULT_RESOLUTION_M, *, ask: Any = input,
+                 seed: int = 0) -> TravelGauge:
+    """The dial gauge on the probe of the rig on ``rig_port``: on ``sim``, the simulated rig's gauge (its readings
+    made from the simulated probe); on a real rig, a person reading the gauge and typing each value (``ask``)."""
+    if is_sim(rig_port):
+        from devices.sim.gauge import SimDialGauge
+
+        rig = getattr(installed_sim_lab(), "rig", None)
+        if rig is None or not callable(getattr(rig, "probe_travel_m", None)):
+            raise RuntimeError("the simulated lab behind 'sim' has no rig whose probe a gauge could read "
+                               "(start it with start_sim_rig_bench)")
+        return SimDialGauge(rig, resolution_m, seed=seed)
+    return TypedGauge(resolution_m, ask)
 
 
 def installed_sim_lab() -> SimPorts | None:

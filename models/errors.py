@@ -28,3 +28,9 @@ class MocapLayoutError(ValueError):
 class OffsetRefusedError(ValueError):
     """The motion cannot fix where a motion-capture take sits on a recording's clock (no motion, too little
     overlap, an ambiguous or poor match); the message says which, with the numbers."""
+
+
+# raised by models.shell_fit
+class ShellFitError(ValueError):
+    """A rig's force-deflection data that cannot give a shell's stiffness at all (no contact reached, a snapped cable,
+    too few steps); the message names which, with the numbers."""

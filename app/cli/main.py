@@ -378,10 +378,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_lab(sub: argparse._SubParsersAction) -> None:
-    """``sensnake lab identify REC.h5… [--fit KEY,…] --out FITTED.toml`` (app/cli/lab.py, app/core/identify.py)."""
-    lab = sub.add_parser("lab", help="the physics lab's parameters, identified from recordings",
+    """``sensnake lab identify REC.h5… [--fit KEY,…] --out FITTED.toml`` (app/cli/lab.py, app/core/identify.py) and
+    ``sensnake lab shell --rig PORT … --out SHELL.toml`` (app/core/shell_bench.py)."""
+    lab = sub.add_parser("lab", help="the physics lab's parameters, identified from recordings or measured on the rig",
                          description="The physics lab's [lab.physics] values and the scene's frictions fitted to "
-                         "recordings (docs/PHYSICS_LAB.md, 'Parameters identified from measurements').")
+                         "recordings (docs/PHYSICS_LAB.md, 'Parameters identified from measurements'), or the "
+                         "shell's measured on the calibration rig ('The shell on the rig').")
     lab_sub = lab.add_subparsers(dest="lab_command", metavar="ACTION", required=True)
     identify = lab_sub.add_parser(
         "identify", help="fit [lab.physics] values and the scene's frictions so that the physics lab, replaying each "
@@ -414,6 +416,35 @@ def _add_lab(sub: argparse._SubParsersAction) -> None:
                                "each)")
     identify.add_argument("--out", required=True, metavar="FITTED.toml", help="the fitted values (a new file; an "
                           "existing one is never replaced)")
+    shell = lab_sub.add_parser(
+        "shell", help="the shell's bench test: force against deflection of a segment's shell on the calibration rig, "
+        "fitted to [lab.physics] shell_stiffness_n_per_m (and shell_travel_m when the shell bottoms out)",
+        description="With the segment on the rig's beam, its sensor under the probe and a dial gauge on the probe: "
+        "finds the contact, steps the rig through a force ramp reading the servo's angle and the gauge at each step "
+        "(typed in on a real rig; the simulated rig's gauge on 'sim', its shell the --config's [lab.physics]), fits "
+        "the shell's stiffness (and travel) with 95 %% intervals and writes them as a lab-config fragment. The "
+        "damping is not measurable this way and is never written (docs/PHYSICS_LAB.md, 'The shell on the rig').")
+    shell.add_argument("--rig", metavar="PORT", help="the rig servo's serial port, or sim (default: the --config "
+                       "file's [rig] port)")
+    shell.add_argument("--config", metavar="LAB.toml", help="lab config: the rig (spring, wheel, servo, max force) "
+                       "and, on sim, the simulated shell's [lab.physics] values (default: the built-in lab)")
+    shell.add_argument("--max-force", type=float, default=8.0, metavar="N",
+                       help="the last step's nominal force k·r·(θ − θ_c) in N (default 8; capped by rig.max_force_n; "
+                            "the shell makes the real force smaller)")
+    shell.add_argument("--steps", type=int, default=16, metavar="N", help="loaded steps (default 16)")
+    shell.add_argument("--gauge-resolution", type=float, default=0.01, metavar="MM",
+                       help="the dial gauge's digit in mm (default 0.01)")
+    shell.add_argument("--gauge-force", type=float, default=0.0, metavar="N",
+                       help="the gauge plunger's measuring force at the slack reading, in N, from its datasheet or "
+                            "weighed (default 0: a gauge whose spring is negligible)")
+    shell.add_argument("--gauge-rate", type=float, default=0.0, metavar="N_PER_M",
+                       help="how much the plunger's force falls per metre the probe goes in, in N/m ((largest − "
+                            "smallest measuring force) / stroke; default 0)")
+    shell.add_argument("--time-scale", type=float, default=None, metavar="X",
+                       help="run the simulated rig X times faster than real time (only with --rig sim)")
+    shell.add_argument("--seed", type=int, default=0, help="the simulated rig's and gauge's seed (sim only)")
+    shell.add_argument("--out", required=True, metavar="SHELL.toml", help="the fitted values (a new file; an "
+                       "existing one is never replaced)")
 
 
 def _add_report_and_runs(sub: argparse._SubParsersAction) -> None:

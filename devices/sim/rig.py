@@ -8,13 +8,24 @@ so its present current rises with the force — which is how the driver finds th
 
 The sensor under the probe creeps (standard linear solid, the same physics as the simulated board's sensors);
 :meth:`VirtualRig.sensor_conductance_s` gives its conductance. Thread-safe like the chain (one lock).
+
+By default the sensor lies on something rigid: the probe does not move once the cable is taut. With a segment's
+compliant shell under it (:meth:`VirtualRig.mount_shell`, a :class:`ShellSpecimen`) the probe travels with the
+shell's deflection ``d`` (m, from its rest with the cable slack): the spring stretches by ``r·(θ − θ_c) − d`` only,
+the shell pushes back with ``k_shell·d + c·ḋ`` until it bottoms out after its travel, and a dial gauge on the probe
+(its plunger's measuring force ``F_g0 − k_g·d`` pushing the probe toward the shell) reads ``d``
+(:meth:`VirtualRig.probe_travel_m`; :class:`devices.sim.gauge.SimDialGauge` gives the gauge's readings). The probe
+and the shell's own mass are left out (60 g on ~2000 N/m rings at ~30 Hz, overdamped by the shell's damping: gone
+long before a reading).
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,6 +36,32 @@ from devices.sim.dxl_chain import VirtualChain
 
 CONTACT_ANGLE_RAD = 0.6  # from the servo's centre position; the seeded rig varies it by ±0.1 rad
 HISTORY = 4096  # (time, force) records kept: the board may sample a past moment after the rig has moved on
+
+
+@dataclass(frozen=True)
+class ShellSpecimen:
+    """A segment's compliant shell under the rig's probe, and the dial gauge on the probe (SI units).
+
+    ``gauge_force_n`` is the gauge plunger's measuring force at the reading taken with the cable slack (it pushes the
+    probe toward the shell, so the shell already carries it), ``gauge_rate_n_per_m`` how much that force falls per
+    metre the probe travels into the shell (the plunger's spring extending)."""
+
+    stiffness_n_per_m: float
+    damping_n_s_per_m: float
+    travel_m: float
+    gauge_force_n: float = 0.0
+    gauge_rate_n_per_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.stiffness_n_per_m > 0 and self.damping_n_s_per_m >= 0 and self.travel_m > 0
+                and self.gauge_force_n >= 0 and self.gauge_rate_n_per_m >= 0):
+            raise ValueError(f"a shell specimen needs a positive stiffness and travel and no negative damping or "
+                             f"gauge force: {self}")
+
+    @property
+    def preload_travel_m(self) -> float:
+        """How far the gauge's measuring force alone has pushed the shell in (m), at most its travel."""
+        return min(self.travel_m, self.gauge_force_n / self.stiffness_n_per_m)
 
 
 class _RigChain(VirtualChain):
@@ -58,6 +95,9 @@ class VirtualRig:
         self._snapped = False
         self._torque_on = False
         self._jam_nm = 0.0  # extra load torque of a jam fault (N·m)
+        self._shell: ShellSpecimen | None = None  # None: the sensor lies on something rigid (the default rig)
+        self._travel_m = 0.0  # the probe's travel into the shell from its slack rest (m)
+        self._travel_time_s = clock.now()
         self._history_t: deque[float] = deque(maxlen=HISTORY)
         self._history_f: deque[float] = deque(maxlen=HISTORY)
 
@@ -73,13 +113,65 @@ class VirtualRig:
         with self._lock:
             self._snapped = snapped
 
-    def applied_force_n(self) -> float:
-        """The probe's true force on the sensor now (N): ``k·r·max(0, θ − θ_c)``."""
+    def mount_shell(self, shell: ShellSpecimen | None) -> None:
+        """Put a segment's compliant shell (and a dial gauge on the probe) under the probe; ``None`` puts the sensor
+        back on something rigid. Call it with the cable slack: the shell starts at rest."""
+        with self._lock:
+            self._shell = shell
+            self._travel_m = 0.0
+            self._travel_time_s = self.clock.now()
+
+    def _cable_m(self) -> float:
+        """How far the cable's end has been wound past the contact angle (m), 0 while slack or snapped."""
         if self._snapped:
             return 0.0
         theta = float(self.chain.present_positions_rad()[0])
-        stretch_m = self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
-        return self.config.spring_k_n_per_m * stretch_m
+        return self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
+
+    def _advance_shell(self, cable_m: float) -> float:
+        """The probe's travel into the shell now (m), the shell's state advanced from its last update with the
+        cable held at ``cable_m`` meanwhile: a first-order lag ``c·ḋ = k·max(0, u − d) − (k_shell + k_g)·d`` (the
+        gauge's preload balances the shell's at ``d = 0``), clipped where the shell bottoms out."""
+        shell = self._shell
+        assert shell is not None
+        now = self.clock.now()
+        dt, self._travel_time_s = max(0.0, now - self._travel_time_s), now
+        k, ks = self.config.spring_k_n_per_m, shell.stiffness_n_per_m + shell.gauge_rate_n_per_m
+        limit = shell.travel_m - shell.preload_travel_m
+        d = self._travel_m
+        static = min(limit, k * cable_m / (k + ks))
+        tau_taut = shell.damping_n_s_per_m / (k + ks)
+        if tau_taut <= 0.0 or dt > 20.0 * tau_taut:
+            d = static
+        else:
+            n = max(1, math.ceil(dt / (0.25 * tau_taut)))
+            h = dt / n
+            for _ in range(n):  # exact exponential steps, the regime (cable taut or slack) re-chosen each step
+                if cable_m > d:
+                    d = static + (d - static) * math.exp(-h / tau_taut)
+                else:
+                    d = d * math.exp(-h * ks / shell.damping_n_s_per_m)
+                d = min(d, limit)
+        self._travel_m = d
+        return d
+
+    def probe_travel_m(self) -> float:
+        """The probe's true travel into the shell now (m, 0 with the cable slack); 0 without a shell."""
+        with self._lock:
+            if self._shell is None:
+                return 0.0
+            return self._advance_shell(self._cable_m())
+
+    def applied_force_n(self) -> float:
+        """The probe's true force on the sensor now (N): ``k·r·max(0, θ − θ_c)`` on a rigid sensor; on a shell,
+        the spring's ``k·max(0, r·(θ − θ_c) − d)`` plus the gauge's measuring force."""
+        with self._lock:
+            cable_m = self._cable_m()
+            if self._shell is None:
+                return self.config.spring_k_n_per_m * cable_m
+            travel = self._advance_shell(cable_m)
+            gauge_n = self._shell.gauge_force_n - self._shell.gauge_rate_n_per_m * travel
+            return self.config.spring_k_n_per_m * max(0.0, cable_m - travel) + max(0.0, gauge_n)
 
     def holds_torque(self) -> bool:
         """True while the rig servo's torque is on (a calibration session has the rig), as of the rig's last wire
@@ -125,3 +217,20 @@ class VirtualRig:
         with self._lock:
             now = self.clock.now() if t_s is None else t_s
             return float(self.sensor.step(now, np.array([self.applied_force_n()]))[0])
+
+
+class RigBench:
+    """The simulated calibration rig alone on its own clock (no robot, no board): what a bench test of a specimen on
+    the rig needs behind the ``sim`` rig port (:func:`devices.factory.start_sim_rig_bench`)."""
+
+    def __init__(self, rig: RigConfig, clock: SimClock, seed: int = 0) -> None:
+        self.clock = clock
+        self.rig = VirtualRig(rig, clock, seed=seed)
+
+    def endpoint(self, device: str) -> VirtualChain:
+        if device != "rig":
+            raise ValueError(f"the simulated rig bench has only the rig's servo bus, not {device!r}")
+        return self.rig.chain
+
+    def close(self) -> None:
+        """Nothing runs in the background; here for the same shape as the simulated lab."""

@@ -1,0 +1,92 @@
+"""sensnake lab shell: the shell's bench test on the simulated rig (its shell the config's [lab.physics])."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.cli.main import main
+from devices import factory
+from devices.config import load_config
+
+SCALE = "20"  # the simulated rig 20x real time, as the rig's own tests
+
+
+def _config(tmp_path, stiffness: float):
+    path = tmp_path / f"lab_{stiffness:g}.toml"
+    path.write_text(f"[lab.physics]\nshell_stiffness_n_per_m = {stiffness}\n", encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("stiffness", [1400.0, 3000.0])
+def test_recovers_a_non_default_shell_stiffness_and_writes_a_fragment_config_accepts(tmp_path, capsys, stiffness):
+    out = tmp_path / "shell.toml"
+    code = main(["lab", "shell", "--rig", "sim", "--config", str(_config(tmp_path, stiffness)), "--time-scale", SCALE,
+                 "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    fitted = load_config(out).lab.physical
+    assert fitted.shell_stiffness_n_per_m == pytest.approx(stiffness, rel=0.10)
+    line = next(x for x in printed.out.splitlines() if x.startswith("shell_stiffness_n_per_m"))
+    low, high = (float(v) for v in line.split("95 %:")[1].split("fixed")[0].split(" to "))
+    assert low < stiffness < high
+    assert "shell_damping_n_s_per_m" in printed.err  # never fixed by readings at rest, never written
+    if stiffness == 1400.0:  # bottoms out at 4.2 N of the ramp's 8: the travel is fixed too
+        assert fitted.shell_travel_m == pytest.approx(0.003, rel=0.10)
+    else:  # would need 9 N: not fixed, not written (the default stays)
+        assert "shell_travel_m" not in out.read_text(encoding="utf-8").split("[lab.physics]")[1]
+
+
+def test_never_replaces_a_file(tmp_path, capsys):
+    existing = tmp_path / "shell.toml"
+    existing.write_text("# mine\n", encoding="utf-8")
+    assert main(["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--out", str(existing)]) == 1
+    assert "never replaces" in capsys.readouterr().err and existing.read_text(encoding="utf-8") == "# mine\n"
+
+
+def _faulty_bench(monkeypatch, fault):
+    start = factory.start_sim_rig_bench
+
+    def faulty(*args, **kwargs):
+        bench, previous = start(*args, **kwargs)
+        fault(bench.rig)
+        return bench, previous
+
+    monkeypatch.setattr(factory, "start_sim_rig_bench", faulty)
+
+
+def _one_line_error(capsys) -> str:
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "Traceback" not in err[0]
+    return err[0]
+
+
+def test_a_snapped_cable_and_a_jammed_wheel_give_one_clear_line(tmp_path, capsys, monkeypatch):
+    _faulty_bench(monkeypatch, lambda rig: rig.snap_cable())  # snapped before: no contact anywhere
+    assert main(["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--out", str(tmp_path / "a.toml")]) == 1
+    assert "no contact found" in _one_line_error(capsys)
+    _faulty_bench(monkeypatch, lambda rig: rig.jam(0.5))
+    assert main(["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--out", str(tmp_path / "b.toml")]) == 1
+    assert "something holds the wheel" in _one_line_error(capsys)
+    assert not (tmp_path / "a.toml").exists() and not (tmp_path / "b.toml").exists()
+
+
+def test_a_cable_that_snaps_during_the_ramp_is_named(tmp_path, capsys, monkeypatch):
+    travel_gauge = factory.travel_gauge
+
+    def snapping(*args, **kwargs):
+        gauge = travel_gauge(*args, **kwargs)
+        read, reads = gauge.read_m, []
+
+        def read_m(what):
+            reads.append(what)
+            if len(reads) == 10:  # six loaded steps in
+                factory.installed_sim_lab().rig.snap_cable()
+            return read(what)
+
+        gauge.read_m = read_m
+        return gauge
+
+    monkeypatch.setattr(factory, "travel_gauge", snapping)
+    assert main(["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--out", str(tmp_path / "c.toml")]) == 1
+    assert "snapped" in _one_line_error(capsys)
+    assert not (tmp_path / "c.toml").exists()
