@@ -19,12 +19,16 @@ first goal is speed-limited from the present pose read in that tick, never from 
 so is a resumed motion's if the goals were moved behind it meanwhile (torque toggled, joints posed by hand).
 Health (hardware error, torque, LED; voltage and temperature on every 5th poll) is polled at
 ``robot.status_rate_hz``, in chunks of servos that fit the slack after the tick's sync cycle (a poll overdue by
-``HEALTH_OVERDUE_S`` reads one servo per tick regardless); ``on_health`` gets the whole poll once complete. It is
-read at once, all servos, when a status packet carries the alert bit. A hardware error stops the motion
-before anything else is sent and reports :class:`ServoHardwareError` naming the servo; nothing is written until the
-servo is rebooted. If feedback goes stale (consecutive failed reads over ``WATCHDOG_S`` of polling — time the loop
-itself was held off the CPU does not count), the motion stops and ``on_error`` names the servo that stopped answering. A pulled cable reports :class:`LinkLostError` and the loop
-tries to reopen the port every ``RECONNECT_INTERVAL_S``.
+``HEALTH_OVERDUE_S`` reads one servo per tick regardless), only in ticks whose feedback read was answered, each
+read given up at the next slot when its replies are late and made again later; ``on_health`` gets the whole poll
+once complete. It is read at once, all servos, when a status packet carries the alert bit. A hardware error stops
+the motion before anything else is sent and reports :class:`ServoHardwareError` naming the servo; nothing is written
+until the servo is rebooted. If feedback goes stale (consecutive failed reads over ``WATCHDOG_S`` of polling — time
+the loop itself was held off the CPU does not count), the motion stops; ``on_error`` names the servo that stopped
+answering when other servos' bytes still came, and when not a byte came it waits up to ``SILENCE_VERDICT_WAIT_S``
+for the replies given up on: arriving late and together they were held by this computer (:class:`RepliesHeldError`,
+with the hold), else the servo is named. A pulled cable reports :class:`LinkLostError` and the loop tries to reopen
+the port every ``RECONNECT_INTERVAL_S``.
 
 With no motion running the loop still reads the state every tick and sends nothing. ``run_motion`` returns a Future
 resolved when the motion finishes or stops (or failed with the error that stopped it). ``emergency_stop`` freezes
@@ -70,6 +74,7 @@ from devices.errors import (
     LinkLostError,
     NoReplyError,
     PortOpenError,
+    RepliesHeldError,
     ServoHardwareError,
     ServoLostError,
 )
@@ -100,6 +105,13 @@ HEALTH_DEADLINE_MARGIN_S = 0.0005  # a health read in the slack is given up this
 # replies are late, so the tick still writes its goal and the next tick starts on time (see _read_feedback).
 FEEDBACK_DEADLINE_MARGIN_S = 0.002
 HEALTH_OVERDUE_S = 1.0  # a poll this late reads one servo per tick even without slack, so health never stalls
+# An overdue poll given up this many times at the next slot (replies late every time) is dropped, as a failed poll
+# is: the next one falls due on schedule. About a second of ticks at 50 Hz: a poll is never retried forever.
+HEALTH_MAX_GIVE_UPS = 50
+# After the watchdog has stopped a motion on a bus that sent no byte at all, how long the loop waits for the replies
+# it gave up on before it names a servo silent: bytes that then arrive (late, together) show the servos answered and
+# this computer held them. Rests on the longest hold seen (2.3 s, the kernel's tty worker at load 10 on 2 cores).
+SILENCE_VERDICT_WAIT_S = 3.0
 TIMING_WARN_FRACTION = 0.05
 
 LIMIT_TOLERANCE_RAD = ct.RAD_PER_TICK  # one tick of slack: a goal on its limit may round just past it
@@ -291,6 +303,22 @@ class ControllerStats:
     # Feedback reads given up at the tick's deadline because the replies were late (the tick then kept its slot and
     # used the last state read); also counted in failed_reads
     late_reads: int = 0
+    # Health reads given up at the next slot (replies late), read again in a later tick
+    health_reads_given_up: int = 0
+
+
+@dataclass
+class _SilenceVerdict:
+    """The watchdog fired on a bus that sent no byte at all: a silent bus or replies held on this computer. The
+    motion is stopped (no goals); its Future and ``on_error`` get the cause once it is known."""
+
+    servo_id: int  # the servo named if the bus stays quiet
+    fired_s: float  # time.monotonic() when the watchdog fired
+    quiet_since_s: float  # when the first unanswered read was sent
+    polls: int  # reads unanswered when it fired
+    motion: _Motion | None  # the motion it stopped (its Future still open)
+    late_bytes_before: int  # the chain's late_bytes_discarded when it fired
+    answered_s: float | None = None  # a read answered since (the next instruction shows whether late bytes came)
 
 
 @dataclass
@@ -359,6 +387,9 @@ class RobotController:
         # deadline add up to the watchdog's silence, so a servo is named silent only after a read that waited for it.
         self._confirm_silence = False
         self._feedback_given_up = False  # this tick's feedback read was given up at its deadline
+        self._unanswered_since_s: float | None = None  # when the first read of the current run of failed reads was sent
+        self._failed_reads_got_bytes = False  # a failed read that waited its timeout received bytes (this run)
+        self._verdict: _SilenceVerdict | None = None  # the watchdog's cause, while it is not known yet
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
         self._torque_lost: set[int] = set()  # servos reported for dropping their torque (until it is on again)
         self._next_health_s = 0.0
@@ -368,6 +399,7 @@ class RobotController:
         self._health_supply = False  # the poll in progress reads voltage and temperature too
         self._health_results: dict[int, ServoHealth] = {}
         self._health_overhead_s = 0.0  # learned time a health sync read takes beyond its bus time (s)
+        self._health_give_ups = 0  # reads of the poll in progress given up at the next slot
         self._next_reconnect_s = 0.0
         self._timing_window_start_s: float | None = None
         self._timing_window_ticks = 0
@@ -418,6 +450,8 @@ class RobotController:
         plays, self._plays_after_read = self._plays_after_read, []
         for _, future in plays:
             future.cancel()
+        if self._verdict is not None:
+            self._settle_silence(time.monotonic(), held=False, closing=True)
         if self._motion is not None:
             self._end_motion(MOTION_STOPPED)
         self.chain.close()
@@ -466,13 +500,15 @@ class RobotController:
             periods = self._periods[:n].copy()
             ticks, missed, writes, failed = self._ticks, self._missed, self._writes, self._failed_reads
             late, held, late_reads = self._late, self._held, self._late_reads
+            health_given_up = self._health_reads_given_up
         if n == 0:
             nan = math.nan
-            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late, held, late_reads)
+            return ControllerStats(ticks, missed, nan, nan, nan, nan, nan, writes, failed, late, held, late_reads,
+                                   health_given_up)
         p50, p99 = np.percentile(periods, [50, 99])
         j50, j99 = np.percentile(np.abs(periods - self.period_s), [50, 99])
         return ControllerStats(ticks, missed, float(p50), float(p99), float(periods.max()), float(j50), float(j99),
-                               writes, failed, late, held, late_reads)
+                               writes, failed, late, held, late_reads, health_given_up)
 
     def recent_periods_s(self, n: int) -> np.ndarray:
         """The last ``n`` tick periods (s, start to start, oldest first; at most the history kept). Any thread."""
@@ -684,10 +720,11 @@ class RobotController:
                 self._send_motion_goal(now)
             if trace is not None:
                 trace.mark("goal<")
-            # After a feedback read given up (replies late: the kernel's tty worker, a busy PC) no health read this
-            # tick: it would wait on the same late bytes, and an overdue one has no deadline (measured: the largest
-            # remaining cause of missed ticks at load 10-14 on 2 cores). The poll is read once replies are on time.
-            if not self._feedback_given_up:
+            # Health is read only in a tick whose feedback read was answered: after one given up (replies late: the
+            # kernel's tty worker, a busy PC) it would wait on the same late bytes (measured: the largest remaining
+            # cause of missed ticks at load 10-14 on 2 cores), after one that waited its timeout the slot is gone,
+            # and while the watchdog's cause is being told its late replies would be taken for the held ones.
+            if fresh and self._verdict is None:
                 self._health_in_slack(now, next_deadline)
             if trace is not None:
                 trace.mark("health<")
@@ -759,13 +796,18 @@ class RobotController:
         20-40 ms; docs/REALTIME.md). Such reads count as polls without an answer; once they add up to the watchdog's
         silence, reads wait their whole reply timeout again (``_confirm_silence``) and a servo is named silent only
         on those, as without deadlines."""
-        deadline = None if self._confirm_silence else self._feedback_deadline_s(time.monotonic(), next_deadline)
+        sent_s = time.monotonic()
+        deadline = None if self._confirm_silence else self._feedback_deadline_s(sent_s, next_deadline)
         self._feedback_given_up = False
         try:
             state = self.chain.read_state(raise_on_alert=False, deadline_s=deadline)
         except (NoReplyError, CorruptPacketError, DeadlinePassedError) as exc:
             given_up = isinstance(exc, DeadlinePassedError)
             self._feedback_given_up = given_up
+            if self._unanswered_since_s is None:
+                self._unanswered_since_s = sent_s
+            if not given_up and self.chain.bytes_since_instruction > 0:
+                self._failed_reads_got_bytes = True  # the bus delivers bytes: the servo that failed is silent
             self._consecutive_failed_reads += 1
             with self._lock:
                 self._failed_reads += 1
@@ -791,21 +833,33 @@ class RobotController:
                 self._confirm_silence = True
                 self._consecutive_failed_reads = 0
                 self._silent_polled_s = 0.0
+                self._failed_reads_got_bytes = False
             elif silent and not self._stale_reported:
                 self._stale_reported = True
                 sid = getattr(exc, "servo_id", None)
                 if sid is None:
                     sid = self.chain.ids[0]
-                what = "motion stopped" if self._motion is not None else "no motion was running"
-                error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s "
-                                          f"({self._consecutive_failed_reads} polls unanswered); {what}")
-                self._stop_motion_with(error)
-                self._emit(self._on_error, error)
+                if self._failed_reads_got_bytes:
+                    # Other servos' bytes came in the reads that waited: the bus delivers, this servo does not answer.
+                    what = "motion stopped" if self._motion is not None else "no motion was running"
+                    error = NoReplyError(sid, f"no valid feedback for {stale_s:.2f} s "
+                                              f"({self._consecutive_failed_reads} polls unanswered); {what}")
+                    self._stop_motion_with(error)
+                    self._emit(self._on_error, error)
+                else:
+                    self._await_silence_verdict(sid, failed_at)
+            self._watch_silence_verdict(failed_at)
             return False
-        self._last_good_read_s = time.monotonic()
+        answered_s = time.monotonic()
+        self._last_good_read_s = answered_s
         self._consecutive_failed_reads = 0
         self._confirm_silence = False
         self._stale_reported = False
+        self._unanswered_since_s = None
+        self._failed_reads_got_bytes = False
+        if self._verdict is not None and self._verdict.answered_s is None:
+            self._verdict.answered_s = answered_s
+        self._watch_silence_verdict(answered_s)
         # The goals the servos were tracking: whoever wrote them (a motion, STOP, a teach hold through submit).
         last_goal = self.chain.last_goal_rad
         if last_goal is not None:
@@ -830,6 +884,62 @@ class RobotController:
         self._check_tracking(state)
         self._emit(self._on_state, state)
         return True
+
+    def _await_silence_verdict(self, servo_id: int, now_s: float) -> None:
+        """The watchdog fired and not a byte came in the reads that waited their whole timeout: the bus is quiet
+        (power, cable) or this computer holds its bytes (measured: the kernel's tty worker held a pty's for 2.3 s at
+        load 10 on 2 cores). The motion stops now (no more goals; the servos hold the last); what stopped it is told
+        by the replies given up on: arriving later, together, they were held here (:class:`RepliesHeldError` with
+        the measured hold), else the servo is named silent after ``SILENCE_VERDICT_WAIT_S``
+        (:meth:`_watch_silence_verdict`)."""
+        motion, self._motion = self._motion, None
+        quiet_since_s = self._unanswered_since_s if self._unanswered_since_s is not None else now_s
+        self._verdict = _SilenceVerdict(servo_id, now_s, quiet_since_s, self._consecutive_failed_reads, motion,
+                                        self.chain.late_bytes_discarded)
+        stopped = f"motion {motion.name!r} stopped" if motion is not None else "no motion was running"
+        self._emit(self._on_event, (
+            f"no reply byte on the servo bus for {now_s - quiet_since_s:.2f} s ({stopped}): waiting up to "
+            f"{SILENCE_VERDICT_WAIT_S:g} s for the replies given up on, to tell replies held on this computer from a "
+            "silent bus"))
+
+    def _watch_silence_verdict(self, now_s: float) -> None:
+        """Bus thread, after each feedback read while the watchdog's cause is open: late reply bytes found before an
+        instruction since it fired mean the servos had answered and this computer held their replies; a read
+        answered with none found before the next instruction, or no byte for ``SILENCE_VERDICT_WAIT_S``, mean the
+        bus was quiet: the servo is named."""
+        verdict = self._verdict
+        if verdict is None:
+            return
+        if self.chain.late_bytes_discarded > verdict.late_bytes_before:
+            # The replies were in by the time they were found before an instruction, or by a read they answered.
+            arrived_s = self.chain.late_bytes_found_s
+            if verdict.answered_s is not None:
+                arrived_s = min(arrived_s, verdict.answered_s)
+            self._settle_silence(now_s, held=True, held_s=arrived_s - verdict.quiet_since_s)
+        else:
+            answered_again = verdict.answered_s is not None and now_s > verdict.answered_s
+            if answered_again or now_s - verdict.fired_s >= SILENCE_VERDICT_WAIT_S:
+                self._settle_silence(now_s, held=False)
+
+    def _settle_silence(self, now_s: float, held: bool, held_s: float = math.nan, closing: bool = False) -> None:
+        """Name the watchdog's cause: to the stopped motion's Future (if one was stopped) and ``on_error``."""
+        verdict, self._verdict = self._verdict, None
+        if verdict is None:
+            return
+        stopped = "motion stopped" if verdict.motion is not None else "no motion was running"
+        error: DeviceError
+        if held:
+            error = RepliesHeldError(held_s, stopped)
+        else:
+            quiet_s = (verdict.answered_s if verdict.answered_s is not None else now_s) - verdict.quiet_since_s
+            since = ("; the bus answers again" if verdict.answered_s is not None
+                     else "; the loop was closed" if closing else "")
+            error = NoReplyError(verdict.servo_id, f"no valid feedback for {quiet_s:.2f} s, not a byte on the bus "
+                                                   f"({verdict.polls} polls unanswered{since}); {stopped}")
+        if verdict.motion is not None:
+            verdict.motion.future.set_exception(error)
+            self._emit(self._on_event, f"motion {verdict.motion.name!r} stopped by an error")
+        self._emit(self._on_error, error)
 
     def _feedback_deadline_s(self, now_s: float, next_deadline_s: float) -> float:
         """When a feedback read starting at ``now_s`` is given up (monotonic s): in time for the tick to write its
@@ -859,7 +969,9 @@ class RobotController:
         is read in chunks of servos, each only when the chunk's expected time (bus time from the learned reply delay, plus
         a learned overhead per read) fits before ``next_deadline``
         (minus ``HEALTH_MARGIN_S``), so a tick never carries a health read it has no time for. A poll overdue by
-        ``HEALTH_OVERDUE_S`` reads one servo per tick regardless. ``on_health`` gets the whole poll at its end."""
+        ``HEALTH_OVERDUE_S`` reads one servo per tick regardless. Every read is given up at the next slot if its
+        replies are late (an overdue one without slack no sooner than twice its bus time), and read again in a later
+        tick (at most ``HEALTH_MAX_GIVE_UPS`` times per poll). ``on_health`` gets the whole poll at its end."""
         if not self._health_pending:
             if now < self._next_health_s:
                 return
@@ -869,7 +981,12 @@ class RobotController:
             self._health_results = {}
             self._health_supply = self._health_polls % SUPPLY_EVERY_N_POLLS == 0
             self._health_polls += 1
+            self._health_give_ups = 0
         start = time.monotonic()
+        # Every health read is given up at the next slot if its replies are late (a USB adapter's or the kernel's
+        # delay: on a pty, bytes were measured crossing ~40 ms after they were written, and the tty worker has held
+        # them for seconds on a busy PC), and read again later: the tick keeps its slot, overdue poll or not.
+        deadline = next_deadline - HEALTH_DEADLINE_MARGIN_S
         budget_s = next_deadline - start - HEALTH_MARGIN_S
         n = len(self._health_pending)
         while n > 0 and self._health_read_estimate_s(n) > budget_s:
@@ -878,23 +995,31 @@ class RobotController:
         if n < 1:
             if not overdue:
                 return
+            # An overdue poll reads one servo even without slack; on a bus whose sync cycle fills the tick that
+            # read cannot end before the slot, so, like the feedback read, it is given up no sooner than twice its
+            # own bus time: the next tick then starts a little late (~2 bus times of one servo), never a slot later.
             n = 1
+            bus_s = self._health_read_estimate_s(1, with_overhead=False)
+            if not self.chain.return_delays_s:  # not read yet: a reply may wait the largest Return Delay Time
+                bus_s += ct.MAX_RETURN_DELAY_S * (2 if self._health_supply else 1)
+            deadline = max(deadline, start + 2.0 * bus_s)
         chunk, self._health_pending = self._health_pending[:n], self._health_pending[n:]
-        # A chunk read in the slack is given up at the next slot if its replies are late (a USB adapter's or the
-        # kernel's delay: on a pty, bytes were measured crossing ~40 ms after they were written), and read again
-        # later: the tick keeps its slot. Once the poll is overdue it is read without a deadline, as before (a
-        # silent servo then fails the poll instead of being retried forever).
-        deadline = None if overdue else next_deadline - HEALTH_DEADLINE_MARGIN_S
         try:
             health = self._read_health(chunk, supply=self._health_supply, deadline_s=deadline)
         except DeadlinePassedError:
             self._health_pending = chunk + self._health_pending
+            self._health_give_ups += 1
             with self._lock:
                 self._health_reads_given_up += 1
             trace = tick_trace.TRACE
             if trace is not None:
                 trace.mark("health-given-up", len(chunk))
             log.debug("health read of servos %s given up at the next slot (late replies); read again later", chunk)
+            if self._health_give_ups >= HEALTH_MAX_GIVE_UPS:
+                # Dropped as a failed poll is (no servo is blamed for replies that came late): the next falls due
+                # on schedule, so a servo that never answers a health read is not retried forever.
+                log.debug("health poll dropped after %d reads given up at the next slot", self._health_give_ups)
+                self._health_pending = []
             return
         if health is None:
             self._health_pending = []  # a failed poll is not retried servo by servo; the next one is due soon
@@ -969,6 +1094,9 @@ class RobotController:
 
     def _link_lost(self, exc: LinkLostError) -> None:
         self._connected = False
+        verdict, self._verdict = self._verdict, None
+        if verdict is not None and verdict.motion is not None:  # the quiet bus was the port going away
+            verdict.motion.future.set_exception(exc)
         self._stop_motion_with(exc)
         self.chain.close()
         self._last_state = None  # (closing the chain forgot its last goals too)
@@ -989,6 +1117,8 @@ class RobotController:
             return
         self._connected = True
         self._consecutive_failed_reads = 0
+        self._unanswered_since_s = None
+        self._failed_reads_got_bytes = False
         self._last_good_read_s = time.monotonic()
         self._estop.clear()  # the link loss already ended any motion; there is nothing left to freeze
         self._emit(self._on_event, f"reconnected to {self.chain.port_name}")

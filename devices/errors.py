@@ -240,6 +240,21 @@ class DeadlinePassedError(DeviceError):
     of the servos; their late replies are skipped when they arrive (see :class:`_TrackingSyncRead`)."""
 
 
+# raised by devices.controller
+class RepliesHeldError(DeviceError, TimeoutError):
+    """The control loop got no reply byte for long enough to stop, and then the replies it had given up on arrived,
+    late and together: this computer held them (its serial port's delivery: on Linux the kernel's tty worker, at
+    normal priority, waiting behind other programs), the servos had answered. Names the measured hold, no servo."""
+
+    def __init__(self, held_s: float, stopped: str) -> None:
+        self.held_s = held_s
+        super().__init__(
+            f"the servos' replies came back {held_s:.2f} s late, all at once: held on this computer (the serial "
+            f"port's delivery of the bytes, e.g. the kernel's tty worker on a busy PC), not a silent servo; {stopped}. "
+            "Fix: close other busy programs; for 50 Hz on a busy PC give the loop real-time priority and raise the "
+            "tty workers (docs/REALTIME.md)")
+
+
 # raised by devices.loop_process
 class LoopDiedError(DeviceError):
     """The control loop's process ended without being asked to (killed, crashed). Names the process and the fix."""

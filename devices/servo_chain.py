@@ -168,6 +168,7 @@ class _FactoryPortHandler(PortHandler):
         self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
         self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
         self.late_bytes_discarded = 0  # bytes found waiting before an instruction (late replies; see clearPort)
+        self.late_bytes_found_s = -math.inf  # time.monotonic() when such bytes were last found
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -192,6 +193,7 @@ class _FactoryPortHandler(PortHandler):
         stale = len(self._rx) + self.ser.in_waiting
         if stale:
             self.late_bytes_discarded += stale
+            self.late_bytes_found_s = time.monotonic()
         self._rx.clear()
         self.ser.reset_input_buffer()
 
@@ -865,6 +867,16 @@ class ServoChain:
     def late_bytes_discarded(self) -> int:
         """Bytes of late replies (to reads given up earlier) discarded before later instructions, since open."""
         return 0 if self._port is None else self._port.late_bytes_discarded
+
+    @property
+    def late_bytes_found_s(self) -> float:
+        """``time.monotonic()`` when late reply bytes were last found before an instruction (-inf: never)."""
+        return -math.inf if self._port is None else self._port.late_bytes_found_s
+
+    @property
+    def bytes_since_instruction(self) -> int:
+        """Bytes received since the last instruction was sent (after a failed read: did anything answer at all)."""
+        return 0 if self._port is None else self._port.pacing.rx_since_tx
 
     @property
     def last_goal_rad(self) -> np.ndarray | None:

@@ -21,9 +21,17 @@ import pytest
 
 from app.cli import main
 from devices import controller as controller_module
+from devices import servo_chain as servo_chain_module
 from devices.config import RobotConfig
-from devices.controller import RobotController
-from devices.errors import BusBusyError, DeadlinePassedError, JointLimitError, ServoHardwareError
+from devices.controller import HoldPose, RobotController
+from devices.errors import (
+    BusBusyError,
+    DeadlinePassedError,
+    JointLimitError,
+    NoReplyError,
+    RepliesHeldError,
+    ServoHardwareError,
+)
 from devices.servo_chain import ServoChain
 from models.trajectory import FollowTheLeader
 from tests.emulators import xm430_emulator as emu_module
@@ -326,6 +334,112 @@ def test_a_feedback_read_given_up_at_its_deadline_leaves_its_late_replies_out_of
         state = chain.read_state()
         np.testing.assert_allclose(state.position_rad, expected, atol=0.02)
         assert chain.late_bytes_discarded == reply_bytes
+
+
+def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emulator, monkeypatch):
+    """An overdue health poll reads one servo per tick even without slack. When its replies are late (here the
+    emulator answers the health block's reads 0.15 s late, as a busy PC's tty worker hands bytes over late), the read
+    is given up before the next slot like the feedback read, counted, and made again in a later tick: no tick waits
+    the read's reply timeout (~0.28 s on a pty), no servo is blamed, and the poll completes once replies are on
+    time."""
+    monkeypatch.setattr(controller_module, "HEALTH_MARGIN_S", 1.0)  # no chunk fits the slack: only overdue reads
+    monkeypatch.setattr(controller_module, "HEALTH_OVERDUE_S", 0.0)  # every poll is overdue as it falls due
+    robot = robot_on(emulator.path, status_rate_hz=5.0)
+    errors: list[BaseException] = []
+    polls: list[list] = []
+    reads: list[tuple[float, float, float | None, str]] = []  # (called, returned, deadline_s, outcome)
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        read_health = chain.read_health
+
+        def timed_read_health(*args, deadline_s=None, **kwargs):
+            called = time.monotonic()
+            outcome = "answered"
+            try:
+                return read_health(*args, deadline_s=deadline_s, **kwargs)
+            except DeadlinePassedError:
+                outcome = "given up"
+                raise
+            except NoReplyError:
+                outcome = "timed out"
+                raise
+            finally:
+                reads.append((called, time.monotonic(), deadline_s, outcome))
+
+        monkeypatch.setattr(chain, "read_health", timed_read_health)
+        controller = RobotController(chain, robot, on_error=errors.append, on_health=polls.append)
+        controller.start()
+        try:
+            assert wait_until(lambda: len(polls) >= 1, 15.0), "no health poll completed"
+            start = len(reads)
+            assert emulator.command("stall 0.15 64 3").startswith("ok")  # the next 3 health-block reads, late
+
+            def late() -> list[tuple[float, float, float | None, str]]:  # the stalled reads: given up, or waited
+                return [r for r in reads[start:] if r[3] != "answered" or r[1] - r[0] >= 0.1]
+
+            assert wait_until(lambda: len(late()) >= 3, 15.0), reads[start:]
+            polls_before = len(polls)
+            assert wait_until(lambda: len(polls) > polls_before + 1, 15.0), "the polls did not complete again"
+            stats = controller.stats()
+        finally:
+            controller.close()
+    period_s = 1.0 / robot.control_rate_hz
+    # Given up before the next slot, never waited for: without a deadline the overdue read held its tick until the
+    # late replies came (0.15 s here: 7 missed ticks at 50 Hz), or its reply timeout (~0.28 s on a pty).
+    assert all(r[2] is not None and r[2] - r[0] < period_s for r in reads[start:]), "a health read without deadline"
+    assert all(outcome == "given up" and returned - called < 0.1 for called, returned, _, outcome in late()), late()
+    assert stats.health_reads_given_up >= 3
+    assert not errors, errors  # replies that came late blame no servo
+    assert [h.servo_id for h in polls[-1]] == list(range(1, 13)) and all(h.hardware_error == 0 for h in polls[-1])
+
+
+def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str]) -> tuple[BaseException, list[str]]:
+    """Play a held pose on the emulated chain, apply ``fault`` (emulator commands) and return the error that stopped
+    the motion and the loop's events."""
+    errors: list[BaseException] = []
+    events: list[str] = []
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        controller = RobotController(chain, robot, on_error=errors.append, on_event=events.append)
+        controller.start()
+        try:
+            assert wait_until(lambda: controller.stats().ticks >= 5, 15.0)
+            playing = controller.play(HoldPose(np.zeros(12)), "hold")
+            assert wait_until(lambda: controller.motion_name == "hold", 15.0)
+            for line in fault:
+                assert emulator.command(line).startswith("ok")
+            error = playing.exception(timeout=15.0)
+            assert error is not None and wait_until(lambda: error in errors, 5.0)
+        finally:
+            controller.close()
+    return error, events
+
+
+def test_replies_held_on_this_computer_are_named_with_their_hold_never_as_a_silent_servo(emulator, monkeypatch):
+    """The kernel of a busy PC has held a port's received bytes for seconds (its tty worker at normal priority):
+    no byte comes, the loop stops the motion, and then the replies it gave up on arrive together. The stop message
+    names that (held on this computer, with the measured hold), not a silent servo. Here the emulator answers on
+    time but holds every reply for 2 s and then writes them at once."""
+    monkeypatch.setattr(servo_chain_module, "PTY_EXTRA_TIMEOUT_MS", 0.0)  # reads waiting their timeout: ~35 ms
+    hold_s = 2.0
+    error, events = _stopped_by(emulator, robot_on(emulator.path), [f"hold {hold_s}"])
+    assert isinstance(error, RepliesHeldError), error
+    message = str(error)
+    assert "held on this computer" in message and "not a silent servo" in message and "motion stopped" in message
+    assert "no reply from servo" not in message
+    # Measured from the first unanswered read to the replies' arrival (seen at the next instruction or read).
+    assert hold_s - 0.1 <= error.held_s <= hold_s + 1.0, error.held_s
+    assert any(e.startswith("no reply byte on the servo bus") for e in events), events
+
+
+def test_a_bus_that_goes_quiet_still_names_the_servo(emulator, monkeypatch):
+    """No byte at all and none later (every servo silent: power or cable): after waiting for late replies, the
+    servo is named as before."""
+    monkeypatch.setattr(servo_chain_module, "PTY_EXTRA_TIMEOUT_MS", 0.0)
+    monkeypatch.setattr(controller_module, "SILENCE_VERDICT_WAIT_S", 0.5)
+    error, _ = _stopped_by(emulator, robot_on(emulator.path), [f"silent {sid}" for sid in range(1, 13)])
+    assert isinstance(error, NoReplyError) and error.servo_id == 1, error
+    assert "no reply from servo 1" in str(error) and "not a byte on the bus" in str(error)
 
 
 def test_instructions_never_wait_for_the_port_to_become_writable(emulator, monkeypatch):

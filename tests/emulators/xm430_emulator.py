@@ -22,7 +22,12 @@ channel):
   overload); every status packet of that servo carries the alert bit until it is rebooted.
 - ``silent ID`` / ``answer ID``: the servo stops / resumes answering.
 - ``push ID TICKS``: an external force moves the joint by TICKS (torque on: it returns towards its goal).
-- ``stall SECONDS``: the replies to the next instruction start SECONDS late (the far end was descheduled once).
+- ``stall SECONDS [ADDRESS [COUNT]]``: the replies to the next instruction start SECONDS late (the far end was
+  descheduled once); with ``ADDRESS``, the replies to the next ``COUNT`` (default 1) reads (READ or SYNC READ) starting
+  at that control-table address instead (e.g. 64, the host's health block), whatever comes between.
+- ``hold SECONDS``: every reply made in the next SECONDS is held back and written at the end, all at once: what the
+  host sees when its own kernel holds a port's received bytes (a tty worker waiting behind other programs); the
+  servos answer on time meanwhile.
 - ``kill``: close the pseudo-terminal (the host's next I/O fails, as when a USB adapter is pulled) and exit.
 
 Wire timing: every instruction occupies the wire for its bytes at the configured baud (10 bits per byte); each
@@ -343,10 +348,29 @@ class Bus:
         self.counts = dict.fromkeys(COUNTED.values(), 0)
         self.crc_errors = 0
         self.stall_s = 0.0  # one-off extra delay before the next instruction's replies
+        self.stall_address: int | None = None  # stall only the replies to reads starting at this address
+        self.stall_count = 0  # how many such reads are still to stall
+        self.hold_until_s = 0.0  # replies made before then are held back and written together then
 
     @property
     def byte_s(self) -> float:
         return 10.0 / BAUD_BPS[self.baud_index]
+
+    def take_stall_s(self, inst: int, params: bytes) -> float:
+        """The extra delay (s) before the replies to this instruction (see the ``stall`` command); used up."""
+        if not self.stall_s:
+            return 0.0
+        if self.stall_address is not None:
+            address = int.from_bytes(params[0:2], "little") if len(params) >= 2 else -1
+            if inst not in (INST_READ, INST_SYNC_READ) or address != self.stall_address:
+                return 0.0
+            self.stall_count -= 1
+            stall_s = self.stall_s
+            if self.stall_count <= 0:
+                self.stall_s, self.stall_address = 0.0, None
+            return stall_s
+        stall_s, self.stall_s = self.stall_s, 0.0
+        return stall_s
 
     def answering(self, dev_id: int, now: float) -> Servo | None:
         servo = self.servos.get(dev_id)
@@ -487,7 +511,14 @@ class Bus:
                 return "ok " + " ".join(f"{k}={v}" for k, v in self.counts.items()) + f" crc_errors={self.crc_errors}"
             if verb == "stall":
                 self.stall_s = float(args[0])
-                return f"ok next replies {self.stall_s:g} s late"
+                self.stall_address = int(args[1]) if len(args) > 1 else None
+                self.stall_count = int(args[2]) if len(args) > 2 else 1
+                which = "next" if self.stall_address is None else \
+                    f"next {self.stall_count} read(s) at address {self.stall_address}:"
+                return f"ok {which} replies {self.stall_s:g} s late"
+            if verb == "hold":
+                self.hold_until_s = now + float(args[0])
+                return f"ok replies held for {float(args[0]):g} s"
             servo = self.servos[int(args[0])]
             servo.update(now)
             if verb == "state":
@@ -607,9 +638,14 @@ def serve(bus: Bus, out=sys.stdout) -> int:
     # as JSON lines at exit, for bench_servo_bus --trace (a diagnosis of late ticks; same monotonic clock as the host).
     trace_path = os.environ.get("XM430_TRACE", "").strip()
     trace: list[tuple] | None = [] if trace_path else None
+    held = bytearray()  # replies held back (the ``hold`` command), written together when the hold ends
     try:
         while True:
-            readable, _, _ = select.select([master_fd, stdin_fd], [], [], 0.5)
+            wait_s = 0.5 if not held else min(0.5, max(0.0, bus.hold_until_s - time.monotonic()))
+            readable, _, _ = select.select([master_fd, stdin_fd], [], [], wait_s)
+            if held and time.monotonic() >= bus.hold_until_s:
+                os.write(master_fd, bytes(held))
+                held.clear()
             if master_fd in readable:
                 try:
                     data = os.read(master_fd, 4096)
@@ -629,15 +665,20 @@ def serve(bus: Bus, out=sys.stdout) -> int:
                     wire_free_s = max(now, wire_free_s) + len(data) * bus.byte_s
                     for dev_id, inst, params in parser.feed(data):
                         replies = bus.handle(dev_id, inst, params, now)
-                        if replies and bus.stall_s:
-                            wire_free_s += bus.stall_s
-                            bus.stall_s = 0.0
+                        if replies:
+                            wire_free_s += bus.take_stall_s(inst, params)
                         written: list[tuple[float, float, float]] = []
                         for servo, reply in replies:
                             start = wire_free_s + servo.get("return_delay_time") * 2e-6
                             wire_free_s = start + len(reply) * bus.byte_s
                             _sleep_until(wire_free_s)
                             woke = time.monotonic()
+                            if woke < bus.hold_until_s:
+                                held += reply
+                                continue
+                            if held:
+                                os.write(master_fd, bytes(held))
+                                held.clear()
                             os.write(master_fd, reply)
                             if trace is not None:  # due on the wire, woke from the sleep for it, write returned
                                 written.append((round(wire_free_s, 6), round(time.monotonic(), 6), round(woke, 6)))
