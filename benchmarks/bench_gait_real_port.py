@@ -236,6 +236,7 @@ def run(gait: str, minutes: float, busy: int, rotate_s: float, trace_dir: str | 
                 wall_s=t1 - t0, ticks=s1.ticks - s0.ticks, missed=s1.missed_ticks - s0.missed_ticks,
                 late=s1.late_ticks - s0.late_ticks, failed_reads=s1.failed_reads - s0.failed_reads,
                 late_reads=getattr(s1, "late_reads", 0) - getattr(s0, "late_reads", 0),
+                health_given_up=getattr(s1, "health_reads_given_up", 0) - getattr(s0, "health_reads_given_up", 0),
                 period_p50_ms=float(np.median(periods) * 1e3) if periods.size else float("nan"),
                 period_p99_ms=float(np.percentile(periods, 99) * 1e3) if periods.size else float("nan"),
                 period_max_ms=float(periods.max() * 1e3) if periods.size else float("nan"),
@@ -285,7 +286,8 @@ def main() -> None:
           f"workers {'at SCHED_FIFO' if r['tty_workers_rt'] else 'as the kernel runs them'}; load "
           f"{r['load_min']:.1f}-{r['load_max']:.1f}")
     print(f"  ticks {r['ticks']}, missed {r['missed']}, late {r['late']}, failed feedback reads {r['failed_reads']} "
-          f"(given up at the tick's deadline, replies late: {r['late_reads']}); "
+          f"(given up at the tick's deadline, replies late: {r['late_reads']}), health reads given up at the next "
+          f"slot {r['health_given_up']}; "
           f"period p50 {r['period_p50_ms']:.2f} ms, p99 {r['period_p99_ms']:.2f} ms, max {r['period_max_ms']:.2f} ms")
     print(f"  plays {r['plays']} ({r['finished']} finished), faults {len(r['faults'])}, robot errors "
           f"{len(r['errors'])}, loop-stall events {len(r['stall_events'])}")
