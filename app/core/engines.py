@@ -9,8 +9,10 @@ or the traceback of what it raised. Both engines run one task per single-threade
   parent died, even by SIGKILL, exits within half a second: no orphan keeps running a run nobody will read) and do
   not keep the folder's lock open.
 * :class:`DaskEngine` — ``dask.distributed``: without a scheduler address an embedded
-  ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job; with one, that cluster (whose
-  workers must see the output folder at the same path). A worker that dies takes its task to another worker (the
+  ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job, forked from one forkserver
+  (:func:`start_worker_server`) and started in a thread beside the command's preparation
+  (:func:`start_embedded_cluster`); with one, that cluster (whose workers must see the output folder at the same
+  path). A worker that dies takes its task to another worker (the
   scheduler's ``allowed-failures``); an address that does not answer is one line naming it within
   :data:`CONNECT_TIMEOUT_S`.
 
@@ -59,7 +61,8 @@ QUIET_DASK: dict[str, Any] = {"distributed.admin.tick.interval": "1s",
                               "distributed.scheduler.work-stealing": False}
 # What an embedded cluster's worker imports before its first run: imported once, in the forkserver the workers are
 # forked from (``distributed`` itself, the sweep's run function and the physics lab it runs), not once per worker.
-WORKER_PRELOAD = ("distributed", "app.core.sweep", "app.core.experiment")
+# ``app.core.worker_server`` makes the server's own end quick.
+WORKER_PRELOAD = ("distributed", "app.core.sweep", "app.core.experiment", "app.core.worker_server")
 
 Task = dict[str, Any]
 Row = dict[str, Any]
@@ -172,31 +175,22 @@ class DaskEngine:
     ``scheduler`` (``tcp://HOST:PORT``)."""
 
     def __init__(self, jobs: int, scheduler: str | None = None) -> None:
-        if scheduler is None:
-            start_worker_server()  # first: it imports the workers' modules while this process imports distributed
-        import dask
-        from distributed import Client, LocalCluster
-
         self._cluster: Any = None
-        # No statistical profiler on the workers: it holds the frames of a running task, and with them the buffers a
-        # run's wire parsers have lent out, which then cannot be resized ("BufferError: Existing exports of data").
-        # An external cluster's workers need the same (DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False).
-        dask.config.set({"distributed.worker.profile.enabled": False, **QUIET_DASK})
         if scheduler is None:
-            dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
-            self._cluster = LocalCluster(host="127.0.0.1", n_workers=max(1, jobs), threads_per_worker=1,
-                                         processes=True, dashboard_address=None, silence_logs=50)
-            self.client = Client(self._cluster, timeout=CONNECT_TIMEOUT_S)
+            self._cluster, self.client = _take_embedded_cluster(max(1, jobs))
             self.description = f"Dask, an embedded cluster of {max(1, jobs)} worker process(es) on 127.0.0.1"
-        else:
-            try:
-                self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-            except (OSError, TimeoutError, ValueError) as exc:
-                text = " ".join(str(exc).split()) or type(exc).__name__
-                raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within "
-                                  f"{CONNECT_TIMEOUT_S:g} s ({text[:160]})") from None
-            workers = len(self.client.scheduler_info().get("workers", {}))
-            self.description = f"Dask, the cluster at {scheduler} ({workers} worker(s))"
+            return
+        from distributed import Client
+
+        _configure_dask()
+        try:
+            self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError) as exc:
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within "
+                              f"{CONNECT_TIMEOUT_S:g} s ({text[:160]})") from None
+        workers = len(self.client.scheduler_info().get("workers", {}))
+        self.description = f"Dask, the cluster at {scheduler} ({workers} worker(s))"
 
     def run(self, fn: Callable[[Task], Row], tasks: Sequence[Task], on_done: DoneCallback) -> None:
         from distributed import as_completed
@@ -232,13 +226,117 @@ class DaskEngine:
             raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
 
     def close(self) -> None:
-        with contextlib.suppress(Exception):  # noqa: BLE001 - closing what may already be gone
-            self.client.close(timeout=10)
         if self._cluster is not None:
-            with contextlib.suppress(Exception):  # noqa: BLE001
-                self._cluster.close(timeout=10)
+            _close_cluster(self._cluster, self.client)
             self._cluster = None
             stop_worker_server()
+            return
+        with contextlib.suppress(Exception):  # noqa: BLE001 - closing what may already be gone
+            self.client.close(timeout=10)
+
+
+def _configure_dask() -> None:
+    import dask
+
+    # No statistical profiler on the workers: it holds the frames of a running task, and with them the buffers a
+    # run's wire parsers have lent out, which then cannot be resized ("BufferError: Existing exports of data").
+    # An external cluster's workers need the same (DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False).
+    dask.config.set({"distributed.worker.profile.enabled": False, **QUIET_DASK})
+
+
+def _start_cluster(jobs: int) -> tuple[Any, Any]:
+    """An embedded cluster of ``jobs`` single-threaded worker processes forked from the forkserver, and its client."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    _configure_dask()
+    dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
+    cluster = LocalCluster(host="127.0.0.1", n_workers=jobs, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=50)
+    try:
+        return cluster, Client(cluster, timeout=CONNECT_TIMEOUT_S)
+    except BaseException:
+        _close_cluster(cluster, None)
+        raise
+
+
+def _close_cluster(cluster: Any, client: Any) -> None:
+    if client is not None:
+        with contextlib.suppress(Exception):  # noqa: BLE001 - closing what may already be gone
+            client.close(timeout=10)
+    with contextlib.suppress(Exception):  # noqa: BLE001
+        cluster.close(timeout=10)
+
+
+class _EarlyCluster:
+    """An embedded cluster being started in a thread of its own while the command prepares its runs."""
+
+    def __init__(self, jobs: int) -> None:
+        self.jobs = jobs
+        self.cluster: Any = None
+        self.client: Any = None
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._start, daemon=True, name="dask-cluster-start")
+        self.thread.start()
+
+    def _start(self) -> None:
+        try:
+            self.cluster, self.client = _start_cluster(self.jobs)
+        except BaseException as exc:  # noqa: BLE001 - handed to the main thread, which raises it
+            self.error = exc
+
+    def wait(self) -> None:
+        # In short slices: the main thread stays interruptible (Ctrl-C) while it waits.
+        while self.thread.is_alive():
+            self.thread.join(0.05)
+
+
+_early_cluster: _EarlyCluster | None = None  # started by start_embedded_cluster, taken by the first DaskEngine
+
+
+def start_embedded_cluster(jobs: int | None) -> None:
+    """Start the embedded cluster a command will ask for, in a thread, so its start (importing distributed in this
+    process, the scheduler, the workers forked and registered: 0.7-1.1 s measured at load 2-3) overlaps the command's
+    own preparation (its imports, the plan read and checked, the runs listed, the folder claimed: 0.4-0.9 s). With
+    ``jobs`` workers, at most the cores (the command may use fewer: the extra ones are retired). The first
+    :class:`DaskEngine` without a scheduler address takes it; :func:`discard_embedded_cluster` stops it if none did.
+    Main thread, once per command."""
+    global _early_cluster
+    start_worker_server()
+    if _early_cluster is None:
+        _early_cluster = _EarlyCluster(capped_jobs(jobs, MAX_RUNS))
+
+
+def _take_embedded_cluster(jobs: int) -> tuple[Any, Any]:
+    """The cluster :func:`start_embedded_cluster` started (waited for; retiring the workers beyond ``jobs``), else a
+    new one."""
+    global _early_cluster
+    early, _early_cluster = _early_cluster, None
+    if early is None:
+        start_worker_server()  # its imports overlap this process's import of distributed
+        return _start_cluster(jobs)
+    try:
+        early.wait()
+    except BaseException:
+        _early_cluster = early  # still starting: discard_embedded_cluster stops it once it has started
+        raise
+    if early.error is not None:
+        raise early.error
+    if early.jobs > jobs:
+        early.cluster.scale(jobs)
+    return early.cluster, early.client
+
+
+def discard_embedded_cluster() -> None:
+    """Stop a cluster :func:`start_embedded_cluster` started that no engine took (the command ended before its runs:
+    an error in its file, Ctrl-C), and the forkserver. Main thread; nothing to do when there is none."""
+    global _early_cluster
+    early, _early_cluster = _early_cluster, None
+    if early is not None:
+        early.thread.join(timeout=2 * CONNECT_TIMEOUT_S)
+        if early.cluster is not None:
+            _close_cluster(early.cluster, early.client)
+    stop_worker_server()
 
 
 _forkserver_started = False  # this module started the process's forkserver (and so stops it)
@@ -250,8 +348,9 @@ def start_worker_server() -> None:
     An embedded cluster's workers are forked from it (``distributed.worker.multiprocessing-method``). Spawned (Dask's
     default), each worker started a fresh interpreter, imported distributed (0.4-1.2 s measured) and then the physics
     lab in its first run (0.3-1.2 s); and the cluster's stop waited 0.8-1.0 s for the spawned processes, 0.03-0.05 s
-    for forked ones. The command line calls this as soon as it knows an embedded cluster is wanted, so the server's
-    imports overlap the command's own; :class:`DaskEngine` calls it again (nothing to do then). A forkserver already
+    for forked ones. The command line calls this (through :func:`start_embedded_cluster`) as soon as it knows an
+    embedded cluster is wanted, so the server's imports overlap the command's own; an engine opened without that
+    calls it itself. A forkserver already
     running (started by something else in this process) is used as it is: its workers then import what it lacks in
     their first run. Main thread."""
     global _forkserver_started
@@ -261,8 +360,14 @@ def start_worker_server() -> None:
     running = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None) is not None
     if running:
         return
+    from app.core.worker_server import SERVER_ENV
+
     multiprocessing.get_context("forkserver").set_forkserver_preload(list(WORKER_PRELOAD))
-    forkserver.ensure_running()
+    os.environ[SERVER_ENV] = str(os.getpid())  # the server, and only it, is told who started it
+    try:
+        forkserver.ensure_running()
+    finally:
+        del os.environ[SERVER_ENV]
     _forkserver_started = True
 
 

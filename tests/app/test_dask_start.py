@@ -1,0 +1,90 @@
+"""The embedded Dask cluster's start and stop: started beside the command's preparation and taken by its engine,
+stopped when the command ends without runs, its forkserver's end without the interpreter's teardown. Dask on
+127.0.0.1 only, each case in a process of its own (a Dask client keeps threads for the life of a process)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("distributed")
+
+from app.core.worker_server import SERVER_ENV  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+MARK = "SENSNAKE_TEST_MARK"  # an environment variable every process of the command inherits
+
+
+def _marked(mark: str) -> list[int]:
+    """The live processes (not zombies) whose environment carries ``mark``."""
+    found = []
+    needle = f"{MARK}={mark}".encode()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if needle in (entry / "environ").read_bytes().split(b"\0") and \
+                    "zombie" not in (entry / "status").read_text().lower():
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def _run(code_or_args: list[str], mark: str, **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *code_or_args], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, MARK: mark, **env})
+
+
+def test_the_worker_server_skips_its_teardown_and_nothing_else_does():
+    # An exit handler registered before the module is imported runs after the module's (last in, first out): it
+    # prints only when the module let the interpreter finish the ordinary way.
+    code = ("import atexit\natexit.register(lambda: print('torn down', flush=True))\n"
+            "import app.core.worker_server as w\nprint(w._is_the_server(), flush=True)\n")
+    mark = uuid.uuid4().hex
+    server = _run(["-c", code], mark, **{SERVER_ENV: str(os.getpid())})  # this process started it: the server
+    assert server.returncode == 0, server.stderr
+    assert server.stdout.split() == ["True"]
+    other = _run(["-c", code], mark, **{SERVER_ENV: "1"})  # another process's server: an ordinary end
+    assert other.returncode == 0, other.stderr
+    assert other.stdout.split() == ["False", "torn", "down"]
+    plain = _run(["-c", code], mark)
+    assert plain.stdout.split() == ["False", "torn", "down"]
+
+
+def test_a_cluster_started_beside_the_preparation_is_the_one_the_engine_takes_and_none_outlives_its_close():
+    code = ("from app.core import engines\n"
+            "engines.start_embedded_cluster(2)\n"
+            "early = engines._early_cluster\n"
+            "engine = engines.DaskEngine(1)\n"
+            "assert engine.client is early.client and engines._early_cluster is None\n"
+            "rows = []\n"
+            "engine.run(abs, [-3, -4], lambda k, row, error: rows.append((k, row, error)))\n"
+            "print(sorted(rows), flush=True)\n"
+            "import time\n"
+            "deadline = time.monotonic() + 30\n"  # the worker beyond the one asked for is retired
+            "while len(engine.client.scheduler_info()['workers']) > 1 and time.monotonic() < deadline:\n"
+            "    time.sleep(0.1)\n"
+            "print(len(engine.client.scheduler_info()['workers']), flush=True)\n"
+            "engine.close()\n")
+    mark = uuid.uuid4().hex
+    done = _run(["-c", code], mark)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["[(0, 3, ''), (1, 4, '')]", "1"]
+    assert _marked(mark) == []  # the workers, the forkserver: all gone when the command is
+
+
+def test_a_dask_sweep_whose_file_is_refused_stops_the_cluster_started_for_it(tmp_path):
+    plan = tmp_path / "s.toml"
+    plan.write_text('scenes = ["no_such_scene"]\ncontrollers = ["feedforward"]\n', encoding="utf-8")
+    mark = uuid.uuid4().hex
+    done = _run(["-m", "app", "experiment", "sweep", str(plan), "--out", str(tmp_path / "o"), "--engine", "dask",
+                 "--jobs", "2"], mark)
+    assert done.returncode == 1
+    assert len(done.stderr.strip().splitlines()) == 1 and "no_such_scene" in done.stderr, done.stderr
+    assert _marked(mark) == []  # what was started beside the preparation was stopped before the command ended
