@@ -185,6 +185,19 @@ class CalibrationRig:
                 raise DeviceError(f"rig servo {self.config.servo_id} did not reach {sent:.3f} rad within "
                                   f"{timeout_s:g} s (at {position:.3f} rad): check the cable is not jammed")
 
+    def position_at_rest_rad(self) -> float:
+        """The position (rad) once the servo reports zero velocity ``REST_READS`` reads in a row (``move_to`` returns
+        within three ticks of the goal, while the wheel may still creep the last ticks): what an instrument read
+        next (a dial gauge on the probe) sees. Raises :class:`DeviceError` if it never comes to rest."""
+        still = 0
+        for _ in range(REST_READ_LIMIT):
+            state = self._chain.read_state()
+            still = still + 1 if state.velocity_rad_s[0] == 0.0 else 0
+            if still >= REST_READS:
+                return float(state.position_rad[0])
+        raise DeviceError(f"rig servo {self.config.servo_id} does not come to rest (its velocity keeps reading "
+                          "non-zero): check that the wheel turns freely and the cable is not caught")
+
     def _current_at_rest_ma(self) -> float:
         """Present current at rest (mA): read once the servo reports zero velocity ``REST_READS`` times in a row,
         reads that still move dropped, then a trimmed mean. It depends on how many reads are made, not on when they

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from devices.config import LabConfig, load_config
@@ -59,6 +60,8 @@ def run_shell(args: argparse.Namespace) -> int:
                                   gauge_resolution_m=args.gauge_resolution / 1000.0, gauge_force_n=args.gauge_force,
                                   gauge_rate_n_per_m=args.gauge_rate)
     sim = factory.is_sim(config.rig.port)
+    if sim:
+        settings = replace(settings, read_delay_s=settings.read_delay_s / (args.time_scale or 1.0))
     if args.time_scale is not None:
         if not sim:
             raise ValueError("--time-scale only runs the simulated rig faster: use it with --rig sim")

@@ -14,6 +14,7 @@ Runs on the calling thread (it owns the rig); nothing here is Qt.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -28,6 +29,8 @@ from models.shell_fit import ShellFit, fit_shell
 
 SLACK_OFFSETS_RAD = (-0.15, -0.10, -0.05)  # readings before the contact the current found (it is known to ±0.03 rad)
 RETURN_DIGITS = 3  # the probe back at rest within this many gauge digits of where it started
+TICK_RAD = 2 * math.pi / 4096  # one encoder tick of the XM430
+STEP_READ_TRIES = 3  # a step whose wheel crept during the reading is read again, at most this many times in all
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,10 @@ class ShellBenchSettings:
     gauge_resolution_m: float = 1e-5
     gauge_force_n: float = 0.0  # the plunger's measuring force at the slack reading (N)
     gauge_rate_n_per_m: float = 0.0  # how much it falls per metre the probe goes in (N/m)
+    # Wall seconds waited once the wheel is at rest before the gauge is read: the shell follows the probe with
+    # c/(k + k_shell), tens of ms, and a person reads a gauge after it has stopped changing. 1 s on a real rig; the
+    # simulated rig at X× real time waits 1/X s (the same simulated second).
+    read_delay_s: float = 1.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_force_n) and self.max_force_n > 0):
@@ -51,6 +58,8 @@ class ShellBenchSettings:
             raise ValueError(f"--gauge-force must be 0 N or more, got {self.gauge_force_n}")
         if not (math.isfinite(self.gauge_rate_n_per_m) and self.gauge_rate_n_per_m >= 0):
             raise ValueError(f"--gauge-rate must be 0 N/m or more, got {self.gauge_rate_n_per_m}")
+        if not (math.isfinite(self.read_delay_s) and self.read_delay_s >= 0):
+            raise ValueError(f"the read delay must be 0 s or more, got {self.read_delay_s}")
 
 
 @dataclass
@@ -96,22 +105,36 @@ def run_bench(rig: CalibrationRig, gauge: TravelGauge, settings: ShellBenchSetti
     n_all = len(SLACK_OFFSETS_RAD) + len(forces)
     try:
         for i, offset in enumerate(SLACK_OFFSETS_RAD):
-            angle = rig.move_to(contact + offset)
-            what = f"step {i + 1}/{n_all} (slack, {angle:+.3f} rad)"
-            data.angles_rad.append(angle)
-            data.readings_m.append(gauge.read_m(what))
-            progress(f"{what}: gauge {data.readings_m[-1] * 1e3:.3f} mm")
+            rig.move_to(contact + offset)
+            _read_step(rig, gauge, data, f"step {i + 1}/{n_all} (slack)", settings.read_delay_s, progress)
         for j, force in enumerate(forces):
-            angle = rig.command_force(float(force))
-            what = f"step {len(SLACK_OFFSETS_RAD) + j + 1}/{n_all} ({force:.2f} N nominal, {angle:+.3f} rad)"
-            data.angles_rad.append(angle)
-            data.readings_m.append(gauge.read_m(what))
-            progress(f"{what}: gauge {data.readings_m[-1] * 1e3:.3f} mm")
+            rig.command_force(float(force))
+            _read_step(rig, gauge, data, f"step {len(SLACK_OFFSETS_RAD) + j + 1}/{n_all} ({force:.2f} N nominal)",
+                       settings.read_delay_s, progress)
     finally:
         rig.release()
+    rig.position_at_rest_rad()
+    time.sleep(settings.read_delay_s)
     data.rest_after_m = gauge.read_m("back at rest (cable slack)")
     progress(f"back at rest: gauge {data.rest_after_m * 1e3:.3f} mm")
     return data
+
+
+def _read_step(rig: CalibrationRig, gauge: TravelGauge, data: ShellBenchData, what: str, read_delay_s: float,
+               progress: Callable[[str], None]) -> None:
+    """One step's angle and gauge reading, the angle read at rest before and after the reading: a wheel that crept
+    meanwhile (more than a tick) is read again, so the pair belongs together."""
+    for _ in range(STEP_READ_TRIES):
+        rig.position_at_rest_rad()
+        time.sleep(read_delay_s)
+        before = rig.position_at_rest_rad()
+        reading = gauge.read_m(f"{what} at {before:+.3f} rad")
+        after = rig.position_at_rest_rad()
+        if abs(after - before) <= TICK_RAD:
+            break
+    data.angles_rad.append(after)
+    data.readings_m.append(reading)
+    progress(f"{what} at {after:+.4f} rad: gauge {reading * 1e3:.3f} mm")
 
 
 def damping_reason(config: LabConfig, stiffness_n_per_m: float) -> str:

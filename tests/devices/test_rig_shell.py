@@ -78,3 +78,19 @@ def test_the_shells_damping_lags_the_probe_and_the_gauge_reads_to_its_digit():
     reading = gauge.read_m("test")
     assert abs(reading / 1e-5 - round(reading / 1e-5)) < 1e-6  # whole digits
     assert reading == pytest.approx(rig.probe_travel_m(), abs=2e-5)
+
+
+def test_a_typed_gauge_reading_is_asked_again_and_the_end_of_input_is_named():
+    from devices.errors import GaugeReadError
+    from devices.gauge import TypedGauge
+
+    lines = iter(["", "1,25"])
+    assert TypedGauge(ask=lambda prompt: next(lines)).read_m("step 1") == pytest.approx(0.00125)
+
+    def ended(prompt: str) -> str:
+        raise EOFError
+
+    with pytest.raises(GaugeReadError, match="input ended"):
+        TypedGauge(ask=ended).read_m("step 2")
+    with pytest.raises(GaugeReadError, match="not a number"):
+        TypedGauge(ask=lambda prompt: "twelve").read_m("step 3")
