@@ -128,13 +128,17 @@ class LabPhysicsConfig:
                "chattering (docs/PHYSICS_LAB.md)")
     shell_stiffness_n_per_m: float = _param(
         2000.0, "assumption: the hollow TPU shell deflects ~1 mm under a segment's share of the weight (2 N); not "
-                "measured (a rig force-deflection curve replaces it)")
+                "measured. Measure it: `sensnake lab shell` on the calibration rig (force against a dial gauge's "
+                "deflection; docs/PHYSICS_LAB.md, 'The shell on the rig'), or `sensnake lab identify` on recordings")
     shell_damping_n_s_per_m: float = _param(
-        30.0, "assumption: near-critical damping of a segment bouncing on the shell")
+        30.0, "assumption: near-critical damping of a segment bouncing on the shell; `sensnake lab shell` cannot "
+              "measure it (a gauge read at rest sees the static deflection only) and says so")
     shell_mass_kg: float = _param(
         0.06, "assumption: shell, sheets, rubber covers and holders of the 196 g segment (an XM430 alone is 82 g)")
     shell_travel_m: float = _param(
-        0.003, "assumption: the shell's travel before it bottoms out on the servo's housing")
+        0.003, "assumption: the shell's travel before it bottoms out on the servo's housing; `sensnake lab shell` "
+               "measures it when its force ramp bottoms the shell out (shell_stiffness_n_per_m × travel below the "
+               "rig's force), else says it is more than the deflection reached")
     roll_resistance_m: float = _param(
         0.0085, "assumption derived from the shell's stiffness: half the width of the loaded shell's flattened "
                 "contact patch, sqrt(2 R d) for R 36 mm, d 1 mm; the lever of the terrain's resistance to a shell's "
