@@ -65,7 +65,7 @@ def _one(stiffness: float, seed: int, scale: float, gauge: bool) -> dict[str, ob
             "residual_um": round(fit.residual_rms_m * 1e6, 2), "wall_s": round(wall, 2)}
 
 
-def run(quick: bool, scale: float = 20.0, out: Path | None = RESULTS) -> None:
+def run(quick: bool, scale: float = 20.0, out: Path | None = None) -> None:
     """Print the table; write it as CSV to ``out`` unless None (``sensnake bench`` writes nothing)."""
     seeds = (0,) if quick else (0, 1, 2)
     stiffnesses = (1400.0, 3000.0) if quick else STIFFNESSES
