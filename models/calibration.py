@@ -77,8 +77,13 @@ POOR_FIT_REFERENCE_MULTIPLE = 2.0
 SENSITIVITY_STEP = 0.01
 # E0's 95 % interval wider than this fraction of E0 is reported as poorly identified.
 WIDE_INTERVAL = 0.5
-# A trial with more than this fraction of its hold saturated is refused for the per-trial table (it only says
-# "at least this much"); it still enters the joint fit as one-sided (censored) residuals.
+# A trial with more than this fraction of its hold at the readout's ceiling is said to be (a warning): its own
+# parameters rest on its loading ramp and the creep below the ceiling, the censored samples bounding the rest. Its
+# intervals are reported where its own fit resolves τ and the likelihood rises as the intervals assume at both ends
+# (interval_end_rises); refused, named, otherwise. Such trials were once refused outright; with the censored
+# (Tobit) likelihood their linearised intervals held the truth 94–100 % per parameter on 99 such trials of 40 fresh
+# ceiling sensors at 6 Hz and 36 trials at 100 Hz (benchmarks/bench_coverage.py, 2026-12-05), and the likelihood
+# rose 0.92–1.16 t² at their ends.
 MAX_CENSORED_FRACTION = 0.5
 # Multi-start over log τ: starting creep times from TAU_GRID_LOW × the sample step to TAU_GRID_HIGH × the record
 # length, TAU_GRID_POINTS of them; the joint fit runs from the JOINT_STARTS best distinct ones and keeps the lowest
@@ -809,6 +814,50 @@ def degenerate_tau_named(warnings: Sequence[str]) -> bool:
     return any("τ" in w and ("resolv" in w or "far from" in w) for w in warnings)
 
 
+# A trial's 95 % intervals are the linearised (Wald) ones, ±t standard errors in the log-parameters. They assume the
+# trial's cost rises by t² residual variances at each end; where the likelihood is flatter than that (a trial mostly at
+# the readout's ceiling: its censored samples bound the creep from one side only) an end lies short of where the data
+# stop supporting the parameter, and the interval is too narrow. An end whose rise falls below this share of t²
+# is not reported as a 95 % interval (models.calibration.calibrate_sensor).
+WALD_END_RISE_SHARE = 0.5
+
+
+def interval_end_rises(trial: FitTrial, params: SLSParams, cov: np.ndarray, variance: float, t_quantile: float,
+                       area_m2: float, phys: PhysicsConstants, saturation_s: float | None) -> np.ndarray:
+    """(3, 2): how far ``trial``'s cost rises (in its residual variances) from its own fit ``params`` to the low and
+    high end of each parameter's 95 % interval (E0, E1, μ1), each end reached along the line the linearisation
+    moves the other log-parameters on (``cov[:, k]/cov[k, k]``, ``cov`` the 3×3 log-parameter covariance): t² each
+    where the Wald interval is right, less where the likelihood is flatter than it assumes. One batched model run."""
+    centre = np.log([float(getattr(params, n)) for n in PARAM_NAMES])
+    candidates = [params]
+    for k in range(3):
+        direction = t_quantile * cov[:, k] / math.sqrt(cov[k, k])
+        for sign in (-1.0, 1.0):
+            candidates.append(SLSParams(*(float(v) for v in np.exp(centre + sign * direction))))
+    costs = trial_costs([trial], area_m2, phys, candidates, saturation_s=saturation_s,
+                        min_force_fraction=MIN_FORCE_FRACTION)[:, 0]
+    return ((costs[1:] - costs[0]) / variance).reshape(3, 2)
+
+
+def _flat_interval_end(trial: FitTrial, per_trial: OutputFit, index: int, area_m2: float, phys: PhysicsConstants,
+                       saturation_s: float | None) -> str | None:
+    """Which end of trial ``index``'s 95 % intervals the likelihood is too flat at (:func:`interval_end_rises`
+    below :data:`WALD_END_RISE_SHARE` of t²), or None when every end holds."""
+    if index >= len(per_trial.cov_per_trial):
+        return None
+    cov, t_quantile = per_trial.cov_per_trial[index], per_trial.t_per_trial[index]
+    variance = per_trial.variance_per_trial[index]
+    if not (np.all(np.isfinite(cov)) and variance > 0 and np.all(np.diag(cov) > 0)):
+        return None  # an infinite interval is named by _trial_unresolved
+    rises = interval_end_rises(trial, per_trial.params[index], cov, variance, t_quantile, area_m2, phys,
+                               saturation_s) / (t_quantile * t_quantile)
+    k, side = np.unravel_index(int(np.argmin(rises)), rises.shape)
+    if rises[k, side] >= WALD_END_RISE_SHARE:
+        return None
+    return (f"the likelihood at the {('low', 'high')[side]} end of {PARAM_NAMES[k]}'s interval rises "
+            f"{rises[k, side]:.2f} of what the interval assumes")
+
+
 def _trial_unresolved(params: SLSParams, ci95: dict[str, tuple[float, float]], step_s: float,
                       span_s: float) -> str | None:
     """Why one trial's own fit is not identified (None when it is): τ outside what a record resolves, or an
@@ -984,18 +1033,30 @@ def calibrate_sensor(trials: Sequence[TrialInput], area_m2: float, phys: Physics
             warnings.append(f"{p['sat']} saturated sample(s) (readout at its limit): censored in the fit; lower "
                             "the force or the readout gain")
         refused = None
-        if p["sat_fraction"] > MAX_CENSORED_FRACTION:
-            refused = (f"{100 * p['sat_fraction']:.0f} % of the hold is saturated (readout at 1/R_C): the trial only "
-                       "says 'at least this much', so its own SLS parameters are not identifiable; refused for the "
-                       "per-trial table (it still bounds the joint fit)")
-            warnings.append(f"per-trial fit refused: {refused}")
         trial_params = per_trial.params[i]
         assert trial_params is not None
         unresolved = _trial_unresolved(trial_params, per_trial.ci95_per_trial[i], step_s, span_s)
-        if refused is None and unresolved:
+        mostly_censored = p["sat_fraction"] > MAX_CENSORED_FRACTION
+        if unresolved and mostly_censored:
+            refused = (f"{100 * p['sat_fraction']:.0f} % of the hold is saturated (readout at 1/R_C) and the rest "
+                       f"does not pin the trial down ({unresolved}): it only says 'at least this much', so its own "
+                       "SLS parameters are not identifiable; refused for the per-trial table (it still bounds the "
+                       "joint fit)")
+        elif unresolved:
             refused = (f"{unresolved}: this trial alone does not identify its SLS parameters (they would sit at a "
                        "search bound); refused for the per-trial table (it still enters the joint fit)")
+        elif p["sat"]:
+            flat = _flat_interval_end(fit_trials[i], per_trial, i, area_m2, phys, saturation_s)
+            if flat:
+                refused = (f"{flat}, {100 * p['sat_fraction']:.0f} % of the hold at the readout's ceiling: its "
+                           "linearised 95 % interval would be too narrow; refused for the per-trial table (it still "
+                           "enters the joint fit)")
+        if refused is not None:
             warnings.append(f"per-trial fit refused: {refused}")
+        elif mostly_censored:
+            warnings.append(f"{100 * p['sat_fraction']:.0f} % of the hold is at the readout's ceiling: this trial's "
+                            "parameters rest on its loading ramp and the creep below the ceiling (the censored "
+                            "samples bound the rest), so its intervals are wider; lower the force or the readout gain")
         if not p["ramp"]:
             warnings.append("no loading ramp in the record: E0 (the instantaneous stiffness) is poorly identified; "
                             "start recording before loading")

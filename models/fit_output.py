@@ -138,6 +138,12 @@ class OutputFit:
     drift_tau_ci95: tuple[float, float] = (math.inf, math.inf)
     # The baseline's covariance: 1×1 (its rate, (S/s)²) or 2×2 with ln τb (settling); None without a baseline.
     drift_cov: np.ndarray | None = None
+    # ``per_trial`` only: each trial's 3×3 covariance of its log-parameters (ln E0, ln E1, ln μ1; scaled by its
+    # residual variance), that residual variance (weighted units, as cost_per_trial) and the t quantile of its
+    # 95 % intervals: what models.calibration checks its intervals' ends against.
+    cov_per_trial: tuple[np.ndarray, ...] = ()
+    variance_per_trial: tuple[float, ...] = ()
+    t_per_trial: tuple[float, ...] = ()
 
 
 def _start_scale(start: SLSParams | Sequence[SLSParams], n_trials: int, mode: str) -> np.ndarray:
@@ -520,6 +526,9 @@ class _Problem:
         at_bound = bool(np.any(edge[:-1] if self.settling else edge))
         ci: dict[str, tuple[float, float]] = {}
         ci_trials: list[dict[str, tuple[float, float]]] = []
+        cov_trials: list[np.ndarray] = []
+        variance_trials: list[float] = []
+        t_trials: list[float] = []
         warnings: list[str] = []
         ref = None
         trend = None
@@ -533,6 +542,9 @@ class _Problem:
                 t_i = float(special.stdtrit(dof_i, 0.975))
                 ci_trials.append({n: _log_interval(float(params[i, k]), t_i * se[k])
                                   for k, n in enumerate(PARAM_NAMES)})
+                cov_trials.append(cov)
+                variance_trials.append(read_ss[i] / dof_i)
+                t_trials.append(t_i)
         else:
             cov = _covariance(jac, residual_variance)
             se = np.sqrt(np.diag(cov))
@@ -581,7 +593,8 @@ class _Problem:
         return OutputFit(self.mode, per_trial, ref, self.ref_force_n, trend, ci, tuple(ci_trials), rmse,
                          self.n_used, int(sum(int(c.sum()) for c in self.censored)), iterations, success, message,
                          solver, at_bound, tuple(warnings), tuple(_sumsq(b) for b in blocks), drift, drift_ci,
-                         residual_variance, drift_tau, drift_tau_ci, drift_cov)
+                         residual_variance, drift_tau, drift_tau_ci, drift_cov, tuple(cov_trials),
+                         tuple(variance_trials), tuple(t_trials))
 
 
 def _hold_last_valid(values: np.ndarray) -> np.ndarray:
