@@ -33,6 +33,9 @@ from widgets.force_plots import cache_subtree
 DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
 DEFAULT_FULL_SCALE_N = 10.0
 GRAB_RADIUS_PX = 14.0
+# Two views, each with its title, axes and at least ~100 px of drawing: with the aspect locked, a view squeezed
+# shorter (a short window with the event log open) spans tens of metres across and the robot becomes a dot.
+MIN_HEIGHT_PX = 260
 # 1 mrad turns the tail by < 1 mm: below a pixel at the drawing's scale, and below the ±1 tick (1.5 mrad)
 # encoder noise of a servo holding torque, so a robot standing still costs no redraws.
 REDRAW_TOLERANCE_RAD = 1e-3
@@ -125,6 +128,7 @@ class BodyView(QWidget):
         self._canvas.setBackground("w")
         self._canvas.ci.setSpacing(2)
         layout.addWidget(self._canvas)
+        self.setMinimumHeight(MIN_HEIGHT_PX)
         self._plots: dict[str, pg.PlotItem] = {}
         self._goal_items: dict[str, pg.PlotDataItem] = {}
         self._body_items: dict[str, pg.PlotDataItem] = {}

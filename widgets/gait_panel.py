@@ -17,6 +17,7 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
+    QAbstractScrollArea,
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
@@ -43,6 +44,9 @@ from widgets.body_view import BodyView
 from widgets.tables import cell_item
 
 JOINT_ROW_PX = 18
+# Where the window is short (the event log open below the tab), the joint table scrolls down to this many rows
+# before the drawing gives up more height than its own minimum (BodyView.MIN_HEIGHT_PX).
+JOINT_ROWS_AT_LEAST = 5
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
 MODE_TITLES = {
     "follow": "Follow-the-leader (shape slides head → tail)",
@@ -302,7 +306,11 @@ class GaitPanel(QWidget):
                 item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
                 self.joint_table.setItem(r, c, item)
         header_px = self.joint_table.horizontalHeader().sizeHint().height()
-        self.joint_table.setFixedHeight(header_px + JOINT_ROW_PX * len(axes) + 4)
+        whole_px = header_px + JOINT_ROW_PX * len(axes) + 4
+        self.joint_table.setMaximumHeight(whole_px)  # every row when there is room; scrolls when the window is short
+        self.joint_table.setMinimumHeight(header_px + JOINT_ROW_PX * min(JOINT_ROWS_AT_LEAST, len(axes)) + 4)
+        self.joint_table.setSizeAdjustPolicy(QAbstractScrollArea.SizeAdjustPolicy.AdjustToContents)
+        self.joint_table.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Maximum)
         self.joint_table.setMaximumWidth(420)
         self.feedback_box = QGroupBox("Feedback per node")
         feedback_layout = QVBoxLayout(self.feedback_box)
@@ -314,7 +322,9 @@ class GaitPanel(QWidget):
                                        "with, the force measured on its two bottom sheets, and the correction "
                                        "applied to that joint; 'ff' where it is on feedforward, and why")
         feedback_layout.addWidget(self.feedback_label, 1)
-        self.feedback_box.setFixedHeight(self.joint_table.height())
+        self.feedback_box.setMinimumHeight(self.joint_table.minimumHeight())
+        self.feedback_box.setMaximumHeight(whole_px)
+        self.feedback_box.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Maximum)
         readouts = QHBoxLayout()
         readouts.addWidget(self.joint_table, 1)
         readouts.addWidget(self.feedback_box, 1)

@@ -346,7 +346,29 @@ def scenario_forces_layout(window, page, seconds: float) -> dict:
     return result
 
 
-SCENARIOS = {"forces": scenario_forces, "forces_layout": scenario_forces_layout, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait,
+def scenario_gait_log(window, page, seconds: float) -> dict:
+    """The Gait tab at the window's default size with the event log opened below it: how much room the body
+    drawing keeps (with its aspect locked, a view squeezed to a sliver spans tens of metres and the robot is a dot)
+    and the log's list."""
+    del seconds
+    pump_until(lambda: page.robot.is_connected, what="the robot to connect")
+    before = {name: list(box) for name, box in page.panel.body_view.view_ranges().items()}
+    window.log_dock.show()
+    pump_until(lambda: window.log_dock.isVisible(), what="the event log")
+    # A user drags the log's edge up to read more of it (the window keeps the dock's height from the last run).
+    from PySide6.QtCore import Qt
+
+    window.resizeDocks([window.log_dock], [500], Qt.Orientation.Vertical)
+    pump(500)
+    view = page.panel.body_view
+    picture = _save(grab(window), "gait_log")
+    return {"picture": picture, "ranges_before": before, "ranges": {name: list(box) for name, box in view.view_ranges().items()},
+            "drawing_height": view.height(), "log_height": window.log_view.height(),
+            "window": [window.width(), window.height()],
+            "play_visible": page.panel.play_button.isVisible() and not page.panel.play_button.visibleRegion().isEmpty()}
+
+
+SCENARIOS = {"forces": scenario_forces, "forces_layout": scenario_forces_layout, "forces_cost": scenario_forces_cost, "teach": scenario_teach, "gait": scenario_gait, "gait_log": scenario_gait_log,
              "calibration": scenario_calibration, "hardware": scenario_hardware, "scene": scenario_scene}
 
 

@@ -104,3 +104,16 @@ def test_forces_layout_on_x_history_legends_axes_and_readout(x_display, tmp_path
             if axis[1] > data[3] - 20:  # the bottom axis: its part below the data
                 outside = [axis[0], max(axis[1], data[3] + 2), axis[2], axis[3]]
             assert not _overlap(box, outside), f"the readout covers an axis: {readout} {pictures}"
+
+
+def test_the_gait_drawing_and_the_event_log_both_stay_readable_at_1280x800_on_x(x_display, tmp_path, monkeypatch):
+    """Opening the event log under the Gait tab at the default window size squeezed the body drawing to a sliver on
+    a real display: with its aspect locked, each view then spanned ±60 m across and the robot was a dot."""
+    monkeypatch.setenv("PROBE_PICTURES", str(tmp_path))
+    result = run_probe(x_display, "gait_log")
+    pictures = f"(picture in {tmp_path}; {result})"
+    for name, (x0, x1, _y0, _y1) in result["ranges"].items():
+        before = result["ranges_before"][name]
+        assert x1 - x0 <= 1.5 * (before[1] - before[0]) + 0.01, f"the {name} view spans {x1 - x0:.1f} m {pictures}"
+    assert result["log_height"] >= 120, f"the event log is left too little room {pictures}"
+    assert result["play_visible"], pictures
