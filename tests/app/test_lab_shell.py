@@ -28,7 +28,13 @@ def test_recovers_a_non_default_shell_stiffness_and_writes_a_fragment_config_acc
     assert fitted.shell_stiffness_n_per_m == pytest.approx(stiffness, rel=0.10)
     line = next(x for x in printed.out.splitlines() if x.startswith("shell_stiffness_n_per_m"))
     low, high = (float(v) for v in line.split("95 %:")[1].split("fixed")[0].split(" to "))
-    assert low < stiffness < high
+    # A 95 % interval misses the truth in one run of twenty by design, and the simulated rig's runs differ (where
+    # the contact search and the wheel stop depends on the machine's timing): the test holds the truth to the same
+    # interval widened to 99.9 % (t at 15 degrees of freedom: 4.07 against 2.13), missed once in a thousand runs.
+    # bench_shell measures the 95 % interval's coverage itself (27 of 30).
+    centre, half = 0.5 * (low + high), 0.5 * (high - low) * 4.07 / 2.13
+    assert centre - half < stiffness < centre + half
+    assert high - low < 0.02 * stiffness  # and it is no wide net: ±1 %
     assert "shell_damping_n_s_per_m" in printed.err  # never fixed by readings at rest, never written
     if stiffness == 1400.0:  # bottoms out at 4.2 N of the ramp's 8: the travel is fixed too
         assert fitted.shell_travel_m == pytest.approx(0.003, rel=0.10)
