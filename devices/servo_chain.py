@@ -76,6 +76,8 @@ FACTORY_RESET_KEEP_ID_AND_BAUD = 0x02  # Protocol 2.0 factory reset option: ever
 # parameters and CRC.
 _PKT_ID, _PKT_LENGTH_L, _PKT_LENGTH_H, _PKT_ERROR, _PKT_PARAMETER0 = 4, 5, 6, 8, 8
 INST_PING = 0x01  # at index 7 of an instruction packet
+_HEADER = b"\xff\xff\xfd\x00"  # every Protocol 2.0 packet starts so; a status packet has 0x55 at index 7
+_INST_STATUS = 0x55
 _STATUS_OVERHEAD = 4
 PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruction, error, model 2, firmware, CRC 2
 SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
@@ -168,6 +170,7 @@ class _FactoryPortHandler(PortHandler):
         self._reply_ids: tuple[int, ...] = ()  # the servos expected to answer the instruction in flight
         self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
         self.late_bytes_discarded = 0  # bytes found waiting before an instruction (late replies; see clearPort)
+        self.late_replies_discarded = 0  # status packets among them
         self.late_bytes_found_s = -math.inf  # time.monotonic() when such bytes were last found
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
@@ -189,10 +192,13 @@ class _FactoryPortHandler(PortHandler):
 
     def clearPort(self):  # noqa: N802 - dynamixel-sdk's name
         # The SDK calls this before every instruction: bytes still here are late replies to an earlier read that was
-        # given up (its deadline, or its timeout). Counted: they show the servos did answer, only late.
-        stale = len(self._rx) + self.ser.in_waiting
-        if stale:
-            self.late_bytes_discarded += stale
+        # given up (its deadline, or its timeout). Counted, and the status packets among them (noise on a bus
+        # powering up is bytes, not packets): they show the servos did answer, only late.
+        waiting = self.ser.in_waiting
+        if self._rx or waiting:
+            stale = bytes(self._rx) + (self.ser.read(waiting) if waiting else b"")
+            self.late_bytes_discarded += len(stale)
+            self.late_replies_discarded += _status_packets_in(stale)
             self.late_bytes_found_s = time.monotonic()
         self._rx.clear()
         self.ser.reset_input_buffer()
@@ -869,6 +875,11 @@ class ServoChain:
         return 0 if self._port is None else self._port.late_bytes_discarded
 
     @property
+    def late_replies_discarded(self) -> int:
+        """Status packets among :attr:`late_bytes_discarded` (headers of replies found late), since open."""
+        return 0 if self._port is None else self._port.late_replies_discarded
+
+    @property
     def late_bytes_found_s(self) -> float:
         """``time.monotonic()`` when late reply bytes were last found before an instruction (-inf: never)."""
         return -math.inf if self._port is None else self._port.late_bytes_found_s
@@ -1200,6 +1211,15 @@ def scan_problems(found: Sequence[ServoInfo], expected: Iterable[int], scanned: 
             problems.append(status_return_level_words(info.servo_id, info.status_return_level) +
                             "; the app refuses to connect until then")
     return problems
+
+
+def _status_packets_in(data: bytes) -> int:
+    """How many Protocol 2.0 status packet headers ``data`` holds (whole or cut off after the instruction byte)."""
+    count, at = 0, data.find(_HEADER)
+    while at >= 0:
+        count += at + 7 < len(data) and data[at + 7] == _INST_STATUS
+        at = data.find(_HEADER, at + 1)
+    return count
 
 
 def _id_list(ids: Sequence[int]) -> str:

@@ -211,6 +211,24 @@ def test_a_servo_that_reboots_mid_play_stops_it_naming_the_servo(emulator, tmp_p
     assert "Traceback" not in out + err
 
 
+def test_play_names_replies_held_on_this_computer_not_a_silent_servo(emulator, tmp_path):
+    """`sensnake play` (the loop in its own process, a pty's whole reply timeout, ~0.29 s) while the emulator holds
+    every reply for 4 s, then writes them at once (the kernel's tty worker on a busy PC, as seen for 2.3 s): one
+    line naming the hold on this computer, never "no reply from servo"."""
+    proc = _start_play(emulator, _write_shape(tmp_path / "slow.json", [0.5 * (-1) ** i for i in range(12)]))
+    try:
+        _wait_for_goals(emulator, 15, proc)
+        assert emulator.command("hold 4").startswith("ok")
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out + err, err
+    assert lines[0].startswith("sensnake play: error: the servos' replies came back "), err
+    assert "held on this computer" in lines[0] and "not a silent servo" in lines[0] and "no reply from" not in err
+
+
 def test_killing_the_bus_mid_play_is_one_line_never_a_traceback(tmp_path):
     for attempt in range(3):  # the traceback came in 2 runs of 4: the I/O call the kill lands in varies
         emulator = EmulatorProcess()
@@ -334,6 +352,7 @@ def test_a_feedback_read_given_up_at_its_deadline_leaves_its_late_replies_out_of
         state = chain.read_state()
         np.testing.assert_allclose(state.position_rad, expected, atol=0.02)
         assert chain.late_bytes_discarded == reply_bytes
+        assert chain.late_replies_discarded == 12  # status packets, told from line noise by their header
 
 
 def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emulator, monkeypatch):
