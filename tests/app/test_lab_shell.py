@@ -96,3 +96,39 @@ def test_a_cable_that_snaps_during_the_ramp_is_named(tmp_path, capsys, monkeypat
     assert main(["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--out", str(tmp_path / "c.toml")]) == 1
     assert "snapped" in _one_line_error(capsys)
     assert not (tmp_path / "c.toml").exists()
+
+
+def test_a_probe_that_never_moves_is_no_contact_and_nothing_is_written(tmp_path, capsys):
+    # a shell as stiff as the config allows (1e6 N/m): the probe goes 0.002 mm in at 8 N, below the gauge's 5 digits
+    out = tmp_path / "d.toml"
+    assert main(["lab", "shell", "--rig", "sim", "--config", str(_config(tmp_path, 1e6)), "--time-scale", SCALE,
+                 "--out", str(out)]) == 1
+    assert "no contact reached" in _one_line_error(capsys)
+    assert not out.exists()
+
+
+def test_typed_readings_take_the_same_path(tmp_path, capsys, monkeypatch):
+    """The real rig's gauge is a person typing what the display shows: fed here from the simulated gauge's readings
+    as a person would type them (mm, two decimals, a comma once, one blank line)."""
+    from devices.gauge import TypedGauge
+
+    travel_gauge = factory.travel_gauge
+
+    def typed(port, resolution_m, **kwargs):
+        simulated = travel_gauge(port, resolution_m, **kwargs)
+        lines: list[str] = []
+
+        def person(prompt: str) -> str:
+            lines.append(prompt)
+            if len(lines) == 2:
+                return ""  # Enter pressed by mistake: asked again
+            text = f"{simulated.read_m(prompt) * 1e3:.2f}"
+            return text.replace(".", ",") if len(lines) == 5 else text
+
+        return TypedGauge(resolution_m, ask=person)
+
+    monkeypatch.setattr(factory, "travel_gauge", typed)
+    out = tmp_path / "e.toml"
+    assert main(["lab", "shell", "--rig", "sim", "--config", str(_config(tmp_path, 1400.0)), "--time-scale", SCALE,
+                 "--out", str(out)]) == 0, capsys.readouterr().err
+    assert load_config(out).lab.physical.shell_stiffness_n_per_m == pytest.approx(1400.0, rel=0.10)
