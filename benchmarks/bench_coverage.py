@@ -35,6 +35,8 @@ from models.synthetic import (
     PAPER_RATE_HZ,
     TYPICAL_TRUTH,
     Readout,
+    SensorTruth,
+    SyntheticTrial,
     paper_protocol,
     random_sensor,
     trial_interval_hits,
@@ -58,6 +60,9 @@ def wilson(hits: int, n: int) -> tuple[float, float]:
 
 
 PIPELINES = ("fit", "sensor")  # fit: what `sensnake fit` runs by default; sensor: calibrate_sensor, no drift search
+# A run of only the sensors that reach the readout's ceiling (--ceiling-only) is stored under its pipeline's name with
+# this suffix (its rows are a table row of their own).
+CEILING_ONLY = ":ceiling"
 RESULTS_CSV = Path(__file__).resolve().parent / "results" / "coverage.csv"
 
 
@@ -75,10 +80,8 @@ def sensor_record(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAP
     ``pipeline`` ``"fit"``: what ``sensnake fit`` runs by default (:func:`models.calibration.calibrate_with_drift`,
     force trend on, block-averaging to 5 Hz); ``"sensor"``: :func:`models.calibration.calibrate_sensor` with the force
     trend only on trend sensors (the figures before the drift search was the default)."""
-    rng = np.random.default_rng(seed)
-    truth = random_sensor(rng, trend)
-    trials = paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=noise_rel, readout=READOUT,
-                            rate_hz=rate_hz)
+    pipeline = pipeline.removesuffix(CEILING_ONLY)
+    truth, trials = fresh_trials(seed, noise_rel, trend, rate_hz)
     inputs = [TrialInput(t.name, t.time_s, t.force_n, t.conductance_s) for t in trials]
     start = time.process_time()
     if pipeline == "fit":
@@ -104,6 +107,20 @@ def sensor_record(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAP
     return hits, info
 
 
+def fresh_trials(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ
+                 ) -> tuple[SensorTruth, list[SyntheticTrial]]:
+    """The fresh sensor of ``seed`` and its trials (the paper's protocol, the 12-bit readout)."""
+    rng = np.random.default_rng(seed)
+    truth = random_sensor(rng, trend)
+    return truth, paper_protocol(truth, PHYS, seed=int(rng.integers(1 << 30)), noise_rel=noise_rel, readout=READOUT,
+                                 rate_hz=rate_hz)
+
+
+def reaches_ceiling(seed: int, noise_rel: float, trend: bool, rate_hz: float = PAPER_RATE_HZ) -> bool:
+    """Whether the fresh sensor of ``seed`` reaches the readout's ceiling in some trial (simulated, not fitted)."""
+    return any(t.saturated.any() for t in fresh_trials(seed, noise_rel, trend, rate_hz)[1])
+
+
 def coverage(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
              rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor") -> dict[str, list[bool]]:
     """Pooled hits over ``sensors`` fresh sensors (seeded from ``seed``), fitted in ``jobs`` processes."""
@@ -118,11 +135,33 @@ def sensor_seeds(seed: int, sensors: int) -> list[int]:
 def records(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
             rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor",
             ) -> list[tuple[dict[str, list[bool]], dict[str, float]]]:
-    """:func:`sensor_record` of ``sensors`` fresh sensors, in seed order."""
-    seeds = sensor_seeds(seed, sensors)
+    """:func:`sensor_record` of ``sensors`` fresh sensors, in seed order (a ``pipeline`` ending in
+    :data:`CEILING_ONLY`: the first ``sensors`` of the seed's sequence that reach the readout's ceiling)."""
+    return [record for _, record in indexed_records(noise_rel, sensors, seed, trend, jobs, rate_hz, pipeline)]
+
+
+def indexed_records(noise_rel: float, sensors: int, seed: int = 29, trend: bool = False, jobs: int = 2,
+                    rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor",
+                    ) -> list[tuple[int, tuple[dict[str, list[bool]], dict[str, float]]]]:
+    """:func:`records` with each sensor's index in the seed's sequence (:func:`sensor_seeds`)."""
+    if pipeline.endswith(CEILING_ONLY):
+        indices: list[int] = []
+        index = 0
+        while len(indices) < sensors:
+            if index >= 50 * sensors:
+                raise RuntimeError(f"fewer than {sensors} of {index} fresh sensors reach the readout's ceiling")
+            candidate = sensor_seeds(seed, index + 1)[index]
+            if reaches_ceiling(candidate, noise_rel, trend, rate_hz):
+                indices.append(index)
+            index += 1
+    else:
+        indices = list(range(sensors))
+    all_seeds = sensor_seeds(seed, max(indices) + 1)
+    seeds = [all_seeds[i] for i in indices]
+    n = len(seeds)
     with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
-        return list(pool.map(sensor_record, seeds, [noise_rel] * sensors, [trend] * sensors, [rate_hz] * sensors,
-                             [pipeline] * sensors))
+        return list(zip(indices, pool.map(sensor_record, seeds, [noise_rel] * n, [trend] * n, [rate_hz] * n,
+                                          [pipeline] * n), strict=True))
 
 
 def pooled_hits(rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]],
@@ -151,8 +190,8 @@ def summary_rows(rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]])
         values = [h for key, v in pooled_hits(rows, subset).items() if key.startswith(prefix) for h in v]
         if values:
             out.append((label, int(sum(values)), len(values)))
-    # A refused trial (more than half its hold at the ceiling, or τ unresolved alone) has no interval: counted as a
-    # miss, the share of all trials whose three intervals hold the truth.
+    # A refused trial (τ unresolved alone, or its likelihood flatter at the ceiling than its interval assumes) has no
+    # interval: counted as a miss, the share of all trials whose three intervals hold the truth.
     trials = sum(int(info.get("trials", PAPER_TRIALS)) for _, info in rows)
     given = sum(len(hits.get("trial E0_Pa", [])) for hits, _ in rows)
     held = sum(int(sum(v)) for hits, _ in rows for key, v in hits.items() if key.startswith("trial "))
@@ -163,19 +202,22 @@ def summary_rows(rows: Sequence[tuple[dict[str, list[bool]], dict[str, float]]])
 
 def print_coverage(noise_levels: Sequence[float], sensors: int, seed: int, trend: bool, jobs: int,
                    rate_hz: float = PAPER_RATE_HZ, pipeline: str = "sensor", csv_path: Path | None = None) -> None:
-    kind = "force-trend sensors" if trend else "constant sensors"
-    what = "`sensnake fit` (drift search, force trend)" if pipeline == "fit" else "calibrate_sensor (no drift search)"
+    kind = ("force-trend sensors" if trend else "constant sensors") + (
+        " that reach the readout's ceiling" if pipeline.endswith(CEILING_ONLY) else "")
+    what = ("`sensnake fit` (drift search, force trend)" if pipeline.removesuffix(CEILING_ONLY) == "fit"
+            else "calibrate_sensor (no drift search)")
     print(f"\n95 % interval coverage on fresh {kind} ({sensors} per noise level, seed {seed}, {rate_hz:g} Hz, "
           f"{what}; target {100 * TARGET[0]:.0f}–{100 * TARGET[1]:.0f} %)")
     print(f"{'noise':>6}  {'interval':<28} {'n':>5} {'coverage':>9}  {'95 % Wilson':>13}")
     lines: list[str] = []
     for noise in noise_levels:
         start, cpu_start = time.perf_counter(), time.process_time()
-        rows = records(noise, sensors, seed, trend, jobs, rate_hz, pipeline)
+        indexed = indexed_records(noise, sensors, seed, trend, jobs, rate_hz, pipeline)
+        rows = [record for _, record in indexed]
         took = time.perf_counter() - start
         print_rows(noise, rows)
         print(f"{100 * noise:>5.2g}%  {took:.0f} s wall ({time.process_time() - cpu_start:.0f} s CPU in this process)")
-        for i, (hits, info) in enumerate(rows):
+        for i, (hits, info) in indexed:
             cells = ";".join(f"{key}={int(sum(v))}/{len(v)}" for key, v in hits.items())
             lines.append(f"{pipeline},{int(trend)},{rate_hz:g},{noise:g},{seed},{i},{int(info['ceiling'])},"
                          f"{info['drift_uS_per_s']:.6g},{info['cpu_s']:.3f},{cells}")
@@ -223,7 +265,9 @@ def docs_table(runs: dict[tuple[str, int, float, float], list[tuple[dict[str, li
         lo, hi = wilson(*pooled)
         joint = " / ".join(share(f"joint {n}") for n in PARAM_NAMES) + " %" if f"joint {PARAM_NAMES[0]}" in figures \
             else "—"
-        kind = ("trend" if trend else "constant") + ("" if pipeline == "fit" else f" ({pipeline})")
+        base = pipeline.removesuffix(CEILING_ONLY)
+        kind = (("trend" if trend else "constant") + ("" if base == "fit" else f" ({base})")
+                + (", only sensors at the ceiling" if pipeline.endswith(CEILING_ONLY) else ""))
         refused, trials = figures["trials refused (no interval)"]
         lines.append(
             f"| {kind}, {rate:g} Hz | {100 * noise:g} % | {len(rows)} ({sum(int(i['ceiling']) for _, i in rows)}) | "
@@ -361,6 +405,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--pipeline", choices=PIPELINES, default="fit",
                         help="fit: what `sensnake fit` runs by default (drift search, force trend; the default); "
                              "sensor: calibrate_sensor alone")
+    parser.add_argument("--ceiling-only", action="store_true",
+                        help="only fresh sensors that reach the readout's ceiling (the first --sensors of the seed's "
+                             "sequence that do; a table row of their own)")
     parser.add_argument("--csv", type=Path, default=None,
                         help=f"write every sensor's hits here (the docs' figures: {RESULTS_CSV.name} in "
                              "benchmarks/results/)")
@@ -379,7 +426,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.baselines:
         print_baselines(args.seed, args.sensors, args.jobs)
         return
-    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate, args.pipeline, args.csv)
+    pipeline = args.pipeline + (CEILING_ONLY if args.ceiling_only else "")
+    run(args.noise, args.sensors, args.seed, args.trend, args.drift, args.jobs, args.rate, pipeline, args.csv)
 
 
 if __name__ == "__main__":
