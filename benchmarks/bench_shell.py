@@ -40,7 +40,7 @@ def _one(stiffness: float, seed: int, scale: float, gauge: bool) -> dict[str, ob
     config = replace(config, lab=replace(config.lab, physical=replace(
         config.lab.physical, shell_stiffness_n_per_m=stiffness, shell_travel_m=TRAVEL_M)))
     settings = ShellBenchSettings(gauge_force_n=1.0 if gauge else 0.0, gauge_rate_n_per_m=150.0 if gauge else 0.0,
-                                  read_delay_s=1.0 / scale)
+                                  clock_scale=scale)
     start = time.monotonic()
     _, previous = factory.start_sim_rig_bench(config, speed=scale, seed=seed, gauge_force_n=settings.gauge_force_n,
                                               gauge_rate_n_per_m=settings.gauge_rate_n_per_m)

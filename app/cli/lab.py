@@ -1,7 +1,8 @@
 """``sensnake lab shell --rig PORT [--config LAB.toml] [--max-force N] [--steps N] [--gauge-resolution MM]
-[--gauge-force N] [--gauge-rate N_PER_M] [--time-scale X] [--seed K] --out SHELL.toml``: the shell's bench test on the
-calibration rig (:mod:`app.core.shell_bench`): force against deflection, the stiffness (and travel) with intervals,
-written as a ``[lab.physics]`` fragment (a new file). Runs on the CLI's main thread, which owns the rig.
+[--gauge-force N] [--gauge-rate N_PER_M] [--hold S] [--time-scale X] [--seed K] --out SHELL.toml``: the shell's
+bench test on the calibration rig (:mod:`app.core.shell_bench`): force against deflection, the stiffness (and
+travel) with intervals, a creep check with ``--hold``, written as a ``[lab.physics]`` fragment (a new file). Runs on
+the CLI's main thread, which owns the rig.
 
 ``sensnake lab identify REC.h5 [REC2.h5 …] [--fit KEY,KEY…] [--config LAB.toml] [--scene SCENE.toml] [--window S]
 [--settle S] [--max-steps N] [--screen] --out FITTED.toml``: the physics lab's ``[lab.physics]`` values and the
@@ -58,10 +59,10 @@ def run_shell(args: argparse.Namespace) -> int:
     config = (given or LabConfig()).with_ports(rig=port)
     settings = ShellBenchSettings(max_force_n=args.max_force, steps=args.steps,
                                   gauge_resolution_m=args.gauge_resolution / 1000.0, gauge_force_n=args.gauge_force,
-                                  gauge_rate_n_per_m=args.gauge_rate)
+                                  gauge_rate_n_per_m=args.gauge_rate, hold_s=args.hold)
     sim = factory.is_sim(config.rig.port)
     if sim:
-        settings = replace(settings, read_delay_s=settings.read_delay_s / (args.time_scale or 1.0))
+        settings = replace(settings, clock_scale=args.time_scale or 1.0)
     if args.time_scale is not None:
         if not sim:
             raise ValueError("--time-scale only runs the simulated rig faster: use it with --rig sim")

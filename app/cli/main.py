@@ -440,6 +440,9 @@ def _add_lab(sub: argparse._SubParsersAction) -> None:
     shell.add_argument("--gauge-rate", type=float, default=0.0, metavar="N_PER_M",
                        help="how much the plunger's force falls per metre the probe goes in, in N/m ((largest − "
                             "smallest measuring force) / stroke; default 0)")
+    shell.add_argument("--hold", type=float, default=0.0, metavar="S",
+                       help="hold the ramp's middle step S seconds and read the gauge again: a shell that creeps is "
+                            "named (default 0: no hold)")
     shell.add_argument("--time-scale", type=float, default=None, metavar="X",
                        help="run the simulated rig X times faster than real time (only with --rig sim)")
     shell.add_argument("--seed", type=int, default=0, help="the simulated rig's and gauge's seed (sim only)")

@@ -42,10 +42,15 @@ class ShellBenchSettings:
     gauge_resolution_m: float = 1e-5
     gauge_force_n: float = 0.0  # the plunger's measuring force at the slack reading (N)
     gauge_rate_n_per_m: float = 0.0  # how much it falls per metre the probe goes in (N/m)
-    # Wall seconds waited once the wheel is at rest before the gauge is read: the shell follows the probe with
-    # c/(k + k_shell), tens of ms, and a person reads a gauge after it has stopped changing. 1 s on a real rig; the
-    # simulated rig at X× real time waits 1/X s (the same simulated second).
+    # Seconds waited once the wheel is at rest before the gauge is read: the shell follows the probe with
+    # c/(k + k_shell), tens of ms, and a person reads a gauge after it has stopped changing.
     read_delay_s: float = 1.0
+    # Seconds the probe is held at the ramp's middle step and the gauge read again (0: no hold): a shell that
+    # creeps (a viscoelastic TPU) goes on in; the lab's shell, a spring and a damper, does not.
+    hold_s: float = 0.0
+    # The rig's seconds per wall second: 1 on a real rig, X on the simulated rig at X× real time (its waits are the
+    # same rig seconds, 1/X as long on the wall).
+    clock_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_force_n) and self.max_force_n > 0):
@@ -60,6 +65,14 @@ class ShellBenchSettings:
             raise ValueError(f"--gauge-rate must be 0 N/m or more, got {self.gauge_rate_n_per_m}")
         if not (math.isfinite(self.read_delay_s) and self.read_delay_s >= 0):
             raise ValueError(f"the read delay must be 0 s or more, got {self.read_delay_s}")
+        if not (math.isfinite(self.hold_s) and 0 <= self.hold_s <= 3600):
+            raise ValueError(f"--hold must be 0-3600 s, got {self.hold_s}")
+        if not (math.isfinite(self.clock_scale) and self.clock_scale > 0):
+            raise ValueError(f"the clock scale must be above 0, got {self.clock_scale}")
+
+    def wait(self, seconds: float) -> None:
+        """Wait ``seconds`` of the rig's time."""
+        time.sleep(seconds / self.clock_scale)
 
 
 @dataclass
@@ -71,6 +84,9 @@ class ShellBenchData:
     readings_m: list[float] = field(default_factory=list)
     contact_rad: float = math.nan
     rest_after_m: float = math.nan
+    hold_step: int = -1  # the step held (index into the lists), -1 without a hold
+    hold_after_m: float = math.nan  # the gauge at its end
+    hold_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -106,27 +122,35 @@ def run_bench(rig: CalibrationRig, gauge: TravelGauge, settings: ShellBenchSetti
     try:
         for i, offset in enumerate(SLACK_OFFSETS_RAD):
             rig.move_to(contact + offset)
-            _read_step(rig, gauge, data, f"step {i + 1}/{n_all} (slack)", settings.read_delay_s, progress)
+            _read_step(rig, gauge, data, f"step {i + 1}/{n_all} (slack)", settings, progress)
+        held = len(forces) // 2 if settings.hold_s > 0 else -1
         for j, force in enumerate(forces):
             rig.command_force(float(force))
             _read_step(rig, gauge, data, f"step {len(SLACK_OFFSETS_RAD) + j + 1}/{n_all} ({force:.2f} N nominal)",
-                       settings.read_delay_s, progress)
+                       settings, progress)
+            if j == held:
+                progress(f"holding {settings.hold_s:g} s (creep check)")
+                settings.wait(settings.hold_s)
+                data.hold_step, data.hold_s = len(data.readings_m) - 1, settings.hold_s
+                data.hold_after_m = gauge.read_m(f"step {len(SLACK_OFFSETS_RAD) + j + 1} again, after "
+                                                 f"{settings.hold_s:g} s held")
+                progress(f"after the hold: gauge {data.hold_after_m * 1e3:.3f} mm")
     finally:
         rig.release()
     rig.position_at_rest_rad()
-    time.sleep(settings.read_delay_s)
+    settings.wait(settings.read_delay_s)
     data.rest_after_m = gauge.read_m("back at rest (cable slack)")
     progress(f"back at rest: gauge {data.rest_after_m * 1e3:.3f} mm")
     return data
 
 
-def _read_step(rig: CalibrationRig, gauge: TravelGauge, data: ShellBenchData, what: str, read_delay_s: float,
-               progress: Callable[[str], None]) -> None:
+def _read_step(rig: CalibrationRig, gauge: TravelGauge, data: ShellBenchData, what: str,
+               settings: ShellBenchSettings, progress: Callable[[str], None]) -> None:
     """One step's angle and gauge reading, the angle read at rest before and after the reading: a wheel that crept
     meanwhile (more than a tick) is read again, so the pair belongs together."""
     for _ in range(STEP_READ_TRIES):
         rig.position_at_rest_rad()
-        time.sleep(read_delay_s)
+        settings.wait(settings.read_delay_s)
         before = rig.position_at_rest_rad()
         reading = gauge.read_m(f"{what} at {before:+.3f} rad")
         after = rig.position_at_rest_rad()
@@ -135,6 +159,21 @@ def _read_step(rig: CalibrationRig, gauge: TravelGauge, data: ShellBenchData, wh
     data.angles_rad.append(after)
     data.readings_m.append(reading)
     progress(f"{what} at {after:+.4f} rad: gauge {reading * 1e3:.3f} mm")
+
+
+def creep_line(result: ShellBenchResult) -> str:
+    """What the hold says ("" without one): the shell crept beyond 3 gauge digits, or not."""
+    data, settings = result.data, result.settings
+    if data.hold_step < 0:
+        return ""
+    drift = data.hold_after_m - data.readings_m[data.hold_step]
+    force = result.fit.force_n[data.hold_step]
+    if abs(drift) > RETURN_DIGITS * settings.gauge_resolution_m:
+        return (f"CREEP: held {data.hold_s:g} s at {force:.2f} N the probe went {drift * 1e3:+.3f} mm further: the "
+                "shell is viscoelastic; the lab's shell (a spring and a damper) does not creep, and the stiffness "
+                f"above is the one {settings.read_delay_s:g} s after each step")
+    return (f"creep check: held {data.hold_s:g} s at {force:.2f} N the probe moved {drift * 1e3:+.3f} mm, within "
+            f"{RETURN_DIGITS} gauge digits: no creep the gauge sees")
 
 
 def damping_reason(config: LabConfig, stiffness_n_per_m: float) -> str:
@@ -193,6 +232,8 @@ def summary_lines(result: ShellBenchResult) -> list[str]:
     lines.append(f"residual RMS {fit.residual_rms_m * 1e3:.4f} mm of gauge (its digit alone explains "
                  f"{fit.noise_floor_m * 1e3:.4f} mm); largest force {fit.largest_force_n:.2f} N at "
                  f"{fit.largest_travel_m * 1e3:.3f} mm")
+    if creep_line(result):
+        lines.append(creep_line(result))
     lines.append(f"the interval holds the gauge's scatter only: the stiffness scales with the rig's spring "
                  f"({result.config.rig.spring_k_n_per_m:g} N/m, rig.spring_k_n_per_m): a spring off by x % moves it "
                  "by x %")
@@ -220,6 +261,8 @@ def shell_toml(result: ShellBenchResult) -> str:
              "# steps (angle rad, gauge mm): " + "; ".join(
                  f"{a:.4f} {g * 1e3:.3f}" for a, g in zip(result.data.angles_rad, result.data.readings_m,
                                                             strict=True))]
+    if creep_line(result):
+        lines.append(f"# {creep_line(result)}")
     for key, why in fit.not_fixed.items():
         lines.append(f"# NOT FIXED, not written: {key}: {why}")
     lines += ["", "[lab.physics]"]

@@ -132,3 +132,21 @@ def test_typed_readings_take_the_same_path(tmp_path, capsys, monkeypatch):
     assert main(["lab", "shell", "--rig", "sim", "--config", str(_config(tmp_path, 1400.0)), "--time-scale", SCALE,
                  "--out", str(out)]) == 0, capsys.readouterr().err
     assert load_config(out).lab.physical.shell_stiffness_n_per_m == pytest.approx(1400.0, rel=0.10)
+
+
+def test_a_hold_names_a_shell_that_creeps(tmp_path, capsys, monkeypatch):
+    args = ["lab", "shell", "--rig", "sim", "--time-scale", SCALE, "--hold", "20"]
+    assert main([*args, "--out", str(tmp_path / "f.toml")]) == 0  # the simulated shell: a spring and a damper
+    assert "no creep the gauge sees" in capsys.readouterr().out
+    travel_gauge = factory.travel_gauge
+
+    def creeping(*args, **kwargs):  # a viscoelastic shell: 0.05 mm further in at the end of the hold
+        gauge = travel_gauge(*args, **kwargs)
+        read = gauge.read_m
+        gauge.read_m = lambda what: read(what) + (5e-5 if "held" in what else 0.0)
+        return gauge
+
+    monkeypatch.setattr(factory, "travel_gauge", creeping)
+    assert main([*args, "--out", str(tmp_path / "g.toml")]) == 0
+    assert "CREEP: held 20 s" in capsys.readouterr().out
+    assert "CREEP" in (tmp_path / "g.toml").read_text(encoding="utf-8")
