@@ -103,9 +103,9 @@ class ShellBenchResult:
 
     def calibration_bias(self) -> float:
         """The fraction by which the rig's ``F = k·r·(θ − θ_c)`` overstates the force on a sensor on this shell
-        (below bottoming): ``k/(k + k_shell + k_g)``."""
+        (below bottoming) in a calibration, with no gauge on the probe: ``k/(k + k_shell)``."""
         k = self.config.rig.spring_k_n_per_m
-        return k / (k + self.fit.stiffness_n_per_m + self.settings.gauge_rate_n_per_m)
+        return k / (k + self.fit.stiffness_n_per_m)
 
 
 def run_bench(rig: CalibrationRig, gauge: TravelGauge, settings: ShellBenchSettings,

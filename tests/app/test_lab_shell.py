@@ -150,3 +150,11 @@ def test_a_hold_names_a_shell_that_creeps(tmp_path, capsys, monkeypatch):
     assert main([*args, "--out", str(tmp_path / "g.toml")]) == 0
     assert "CREEP: held 20 s" in capsys.readouterr().out
     assert "CREEP" in (tmp_path / "g.toml").read_text(encoding="utf-8")
+
+
+def test_the_calibration_bias_said_is_k_over_k_plus_the_shell(tmp_path, capsys):
+    assert main(["lab", "shell", "--rig", "sim", "--config", str(_config(tmp_path, 1400.0)), "--time-scale", SCALE,
+                 "--gauge-force", "1", "--gauge-rate", "150", "--out", str(tmp_path / "h.toml")]) == 0
+    said = next(x for x in capsys.readouterr().out.splitlines() if "overstated by" in x)
+    percent = float(said.split("overstated by ")[1].split(" %")[0])
+    assert percent == pytest.approx(100 * 246 / (246 + 1400), abs=0.3)  # 14.9 %: the gauge is not there then
