@@ -422,7 +422,7 @@ def _add_lab(sub: argparse._SubParsersAction) -> None:
         description="With the segment on the rig's beam, its sensor under the probe and a dial gauge on the probe: "
         "finds the contact, steps the rig through a force ramp reading the servo's angle and the gauge at each step "
         "(typed in on a real rig; the simulated rig's gauge on 'sim', its shell the --config's [lab.physics]), fits "
-        "the shell's stiffness (and travel) with 95 %% intervals and writes them as a lab-config fragment. The "
+        "the shell's stiffness (and travel) with 95 % intervals and writes them as a lab-config fragment. The "
         "damping is not measurable this way and is never written (docs/PHYSICS_LAB.md, 'The shell on the rig').")
     shell.add_argument("--rig", metavar="PORT", help="the rig servo's serial port, or sim (default: the --config "
                        "file's [rig] port)")
