@@ -39,6 +39,9 @@ ENVIRONMENT = {
     "SENSNAKE_DEBUG": "1: a command's expected failure shows its traceback instead of one line",
     "SENSNAKE_QUIT_AFTER_MS": "the app quits by itself after this many milliseconds (scripts, probes)",
     "SENSNAKE_TICK_TRACE": "a file: the control loop writes a trace of every tick there (late-tick hunting)",
+    "SENSNAKE_WORKER_SERVER_PARENT": "set by the app itself, never by hand: marks the process that forks the Dask "
+                                     "engine's workers (`--engine dask`), so it ends without the interpreter's "
+                                     "teardown",
     "SENSNAKE_REINSTALL": "1: scripts/run.sh runs pip even when nothing changed",
     "SENSNAKE_HARDWARE": "1: run the tests marked hardware (a real robot and board attached)",
     "SENSNAKE_IMPORT_WATCHDOG_S": "under an address-space limit (`ulimit -v`), the seconds a command's numerical "
