@@ -317,7 +317,7 @@ class _SilenceVerdict:
     quiet_since_s: float  # when the first unanswered read was sent
     polls: int  # reads unanswered when it fired
     motion: _Motion | None  # the motion it stopped (its Future still open)
-    late_replies_before: int  # the chain's late_replies_discarded when it fired
+    late_found_s: float  # the chain's late_bytes_found_s when it fired, then at the last find looked at
     answered_s: float | None = None  # a read answered since (the next instruction shows whether late bytes came)
 
 
@@ -895,7 +895,7 @@ class RobotController:
         motion, self._motion = self._motion, None
         quiet_since_s = self._unanswered_since_s if self._unanswered_since_s is not None else now_s
         self._verdict = _SilenceVerdict(servo_id, now_s, quiet_since_s, self._consecutive_failed_reads, motion,
-                                        self.chain.late_replies_discarded)
+                                        self.chain.late_bytes_found_s)
         stopped = f"motion {motion.name!r} stopped" if motion is not None else "no motion was running"
         self._emit(self._on_event, (
             f"no reply byte on the servo bus for {now_s - quiet_since_s:.2f} s ({stopped}): waiting up to "
@@ -903,14 +903,19 @@ class RobotController:
             "silent bus"))
 
     def _watch_silence_verdict(self, now_s: float) -> None:
-        """Bus thread, after each feedback read while the watchdog's cause is open: late replies found before an
-        instruction since it fired (status packets, not noise) mean the servos had answered and this computer held
-        them; a read answered with none found before the next instruction, or no byte for
-        ``SILENCE_VERDICT_WAIT_S``, mean the bus was quiet: the servo is named."""
+        """Bus thread, after each feedback read while the watchdog's cause is open: the replies to several reads
+        found together before an instruction since it fired (more status packets than one read has, not noise)
+        mean the servos had answered and this computer held them; a read answered with none found before the next
+        instruction, or no byte for ``SILENCE_VERDICT_WAIT_S``, mean the bus was quiet: the servo is named. One
+        read's replies found late is no hold of the quiet before: a bus back from a power cut whose replies this
+        busy computer hands over after their timeout."""
         verdict = self._verdict
         if verdict is None:
             return
-        if self.chain.late_replies_discarded > verdict.late_replies_before:
+        found_s = self.chain.late_bytes_found_s
+        together = found_s > verdict.late_found_s and self.chain.late_replies_found > len(self.chain.ids)
+        verdict.late_found_s = found_s
+        if together:
             # The replies were in by the time they were found before an instruction, or by a read they answered.
             arrived_s = self.chain.late_bytes_found_s
             if verdict.answered_s is not None:

@@ -171,6 +171,7 @@ class _FactoryPortHandler(PortHandler):
         self.deadline_s: float | None = None  # time.monotonic() after which the read in flight is given up
         self.late_bytes_discarded = 0  # bytes found waiting before an instruction (late replies; see clearPort)
         self.late_replies_discarded = 0  # status packets among them
+        self.late_replies_found = 0  # status packets found at the last such find (replies to how many reads at once)
         self.late_bytes_found_s = -math.inf  # time.monotonic() when such bytes were last found
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
@@ -197,8 +198,9 @@ class _FactoryPortHandler(PortHandler):
         waiting = self.ser.in_waiting
         if self._rx or waiting:
             stale = bytes(self._rx) + (self.ser.read(waiting) if waiting else b"")
+            self.late_replies_found = _status_packets_in(stale)
             self.late_bytes_discarded += len(stale)
-            self.late_replies_discarded += _status_packets_in(stale)
+            self.late_replies_discarded += self.late_replies_found
             self.late_bytes_found_s = time.monotonic()
         self._rx.clear()
         self.ser.reset_input_buffer()
@@ -883,6 +885,12 @@ class ServoChain:
     def late_bytes_found_s(self) -> float:
         """``time.monotonic()`` when late reply bytes were last found before an instruction (-inf: never)."""
         return -math.inf if self._port is None else self._port.late_bytes_found_s
+
+    @property
+    def late_replies_found(self) -> int:
+        """Status packets among the late bytes found at :attr:`late_bytes_found_s` (more than one read's replies:
+        the replies to several instructions came together)."""
+        return 0 if self._port is None else self._port.late_replies_found
 
     @property
     def bytes_since_instruction(self) -> int:

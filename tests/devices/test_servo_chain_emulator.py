@@ -21,7 +21,6 @@ import pytest
 
 from app.cli import main
 from devices import controller as controller_module
-from devices import servo_chain as servo_chain_module
 from devices.config import RobotConfig
 from devices.controller import HoldPose, RobotController
 from devices.errors import (
@@ -412,13 +411,17 @@ def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emul
     assert [h.servo_id for h in polls[-1]] == list(range(1, 13)) and all(h.hardware_error == 0 for h in polls[-1])
 
 
-def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str]) -> tuple[BaseException, list[str]]:
-    """Play a held pose on the emulated chain, apply ``fault`` (emulator commands) and return the error that stopped
-    the motion and the loop's events."""
+def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str],
+                after_stop: tuple[str, ...] = ()) -> tuple[BaseException, list[str]]:
+    """Play a held pose on the emulated chain, apply ``fault`` (emulator commands), then ``after_stop`` once the
+    loop has stopped the motion on a quiet bus, and return the error that stopped the motion and the loop's
+    events. The loop's reads wait a USB adapter's reply timeout (~37 ms), not a pty's (+250 ms), so that a test
+    of the watchdog takes a second, not several."""
     errors: list[BaseException] = []
     events: list[str] = []
     with ServoChain(robot) as chain:
-        chain.check_models()
+        chain.check_models()  # with the pty's margin: a loaded machine may take longer than a USB timeout here
+        chain._require_port()._extra_timeout_ms = 0.0
         controller = RobotController(chain, robot, on_error=errors.append, on_event=events.append)
         controller.start()
         try:
@@ -427,6 +430,10 @@ def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str])
             assert wait_until(lambda: controller.motion_name == "hold", 15.0)
             for line in fault:
                 assert emulator.command(line).startswith("ok")
+            if after_stop:
+                assert wait_until(lambda: any(e.startswith("no reply byte on the servo bus") for e in events), 15.0)
+                for line in after_stop:
+                    assert emulator.command(line).startswith("ok")
             error = playing.exception(timeout=15.0)
             assert error is not None and wait_until(lambda: error in errors, 5.0)
         finally:
@@ -434,12 +441,11 @@ def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str])
     return error, events
 
 
-def test_replies_held_on_this_computer_are_named_with_their_hold_never_as_a_silent_servo(emulator, monkeypatch):
+def test_replies_held_on_this_computer_are_named_with_their_hold_never_as_a_silent_servo(emulator):
     """The kernel of a busy PC has held a port's received bytes for seconds (its tty worker at normal priority):
     no byte comes, the loop stops the motion, and then the replies it gave up on arrive together. The stop message
     names that (held on this computer, with the measured hold), not a silent servo. Here the emulator answers on
     time but holds every reply for 2 s and then writes them at once."""
-    monkeypatch.setattr(servo_chain_module, "PTY_EXTRA_TIMEOUT_MS", 0.0)  # reads waiting their timeout: ~35 ms
     hold_s = 2.0
     error, events = _stopped_by(emulator, robot_on(emulator.path), [f"hold {hold_s}"])
     assert isinstance(error, RepliesHeldError), error
@@ -454,11 +460,19 @@ def test_replies_held_on_this_computer_are_named_with_their_hold_never_as_a_sile
 def test_a_bus_that_goes_quiet_still_names_the_servo(emulator, monkeypatch):
     """No byte at all and none later (every servo silent: power or cable): after waiting for late replies, the
     servo is named as before."""
-    monkeypatch.setattr(servo_chain_module, "PTY_EXTRA_TIMEOUT_MS", 0.0)
     monkeypatch.setattr(controller_module, "SILENCE_VERDICT_WAIT_S", 0.5)
-    error, _ = _stopped_by(emulator, robot_on(emulator.path), [f"silent {sid}" for sid in range(1, 13)])
+    error, _ = _stopped_by(emulator, robot_on(emulator.path), ["silent all"])
     assert isinstance(error, NoReplyError) and error.servo_id == 1, error
     assert "no reply from servo 1" in str(error) and "not a byte on the bus" in str(error)
+
+
+def test_a_quiet_bus_that_answers_again_without_the_late_replies_names_the_servo(emulator):
+    """The servos stop answering, then answer again (power or a cable back) within the wait for late replies:
+    fresh answers with none of the given-up reads' replies are no hold on this computer; the servo is named."""
+    error, _ = _stopped_by(emulator, robot_on(emulator.path), ["silent all"],
+                           after_stop=("answer all",))
+    assert isinstance(error, NoReplyError) and error.servo_id == 1, error
+    assert "the bus answers again" in str(error)
 
 
 def test_instructions_never_wait_for_the_port_to_become_writable(emulator, monkeypatch):

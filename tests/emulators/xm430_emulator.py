@@ -20,7 +20,8 @@ channel):
   ``JUMP_TICKS`` (default 700 ≈ 1.07 rad: the limp joint sagged).
 - ``overload ID``: Hardware Error Status gets its overload bit; torque goes off (the default Shutdown, 52, includes
   overload); every status packet of that servo carries the alert bit until it is rebooted.
-- ``silent ID`` / ``answer ID``: the servo stops / resumes answering.
+- ``silent ID`` / ``answer ID``: the servo stops / resumes answering (``all``: every servo at once, as when the bus
+  loses power).
 - ``push ID TICKS``: an external force moves the joint by TICKS (torque on: it returns towards its goal).
 - ``stall SECONDS [ADDRESS [COUNT]]``: the replies to the next instruction start SECONDS late (the far end was
   descheduled once); with ``ADDRESS``, the replies to the next ``COUNT`` (default 1) reads (READ or SYNC READ) starting
@@ -516,6 +517,10 @@ class Bus:
                 which = "next" if self.stall_address is None else \
                     f"next {self.stall_count} read(s) at address {self.stall_address}:"
                 return f"ok {which} replies {self.stall_s:g} s late"
+            if verb in ("silent", "answer") and args == ["all"]:
+                for each in self.servos.values():
+                    each.silent = verb == "silent"
+                return f"ok every servo {verb}"
             if verb == "hold":
                 self.hold_until_s = now + float(args[0])
                 return f"ok replies held for {float(args[0]):g} s"
