@@ -1,5 +1,6 @@
-"""Fitting honestly: the fitter finds the optimum or says why not — degenerate fits are marked, mostly-censored
-trials refused with the reason, τ → 0 / τ → ∞ named as such, no false 'no loading ramp' warnings."""
+"""Fitting honestly: the fitter finds the optimum or says why not — degenerate fits are marked, a trial at the readout's
+ceiling whose own fit cannot place τ refused with the reason, τ → 0 / τ → ∞ named as such, no false 'no loading
+ramp' warnings."""
 
 from __future__ import annotations
 
@@ -58,7 +59,9 @@ def test_constant_force_and_conductance_names_the_elastic_case_not_a_broken_sens
 
 
 def test_mostly_censored_trial_is_refused_for_the_table_and_says_why():
-    """A trial whose hold sits at the readout ceiling reports no per-trial E1 (was 0.44 Pa)."""
+    """A trial whose whole hold sits at the readout ceiling reports no per-trial E1 (was 0.44 Pa): its own fit cannot
+    place τ, and the reason names the ceiling (a trial only partly there keeps its interval:
+    tests/models/test_fit_ceiling_rates.py)."""
     strong = SensorTruth.constant(3.0e5, 5.0e5, 5.0e7)  # saturates the default readout at 5.25 N
     trials = [make_trial(strong, PHYS, f, seed=i, noise_rel=0.001, name=f"F{f}") for i, f in enumerate((1.75, 5.25))]
     clipped = [TrialInput(t.name, t.time_s, t.force_n, np.minimum(t.conductance_s, CEILING_S)) for t in trials]
