@@ -98,8 +98,9 @@ def test_a_simulated_lab_at_20x_keeps_its_frames_on_the_host_clock_at_a_twentiet
     bridge.start()
     qtbot.waitUntil(lambda: bridge._reader is not None, timeout=15_000)
     reader = bridge._reader
-    qtbot.waitUntil(lambda: reader._board_pace is not None, timeout=20_000)
-    assert 15 < reader._board_pace < 25
+    # Measured from the frames' arrival over a span that grows from 1 s: a frame held up by a loaded machine at the
+    # span's end makes the first figure low (14.5 seen at load 12), later ones converge.
+    qtbot.waitUntil(lambda: reader._board_pace is not None and 15 < reader._board_pace < 25, timeout=20_000)
     blocks: list = []
     bridge.block.connect(blocks.append)
     qtbot.waitUntil(lambda: sum(len(b) for b in blocks) > 200, timeout=20_000)

@@ -69,6 +69,7 @@ def test_a_cluster_started_beside_the_preparation_is_the_one_the_engine_takes_an
             "import time\n"
             "deadline = time.monotonic() + 30\n"  # the worker beyond the one asked for is retired
             "while len(engine.client.scheduler_info()['workers']) > 1 and time.monotonic() < deadline:\n"
+            "    # Deliberate: the child polls its scheduler (tests/waiting.py is not on its path)\n"
             "    time.sleep(0.1)\n"
             "print(len(engine.client.scheduler_info()['workers']), flush=True)\n"
             "engine.close()\n")

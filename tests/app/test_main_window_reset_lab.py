@@ -41,7 +41,7 @@ def test_reset_lab_stops_the_motion_and_lays_the_robot_back_at_its_scenes_start(
             since_reset_s = float(world.data.time)
             head = world.body_state().points_m[0]
             angles = world.joint_state().position_rad
-        assert abs(head[0] - start_head[0]) < 0.03, (head, start_head)
+        assert abs(head[0] - (start_head[0] + 0.25)) > 0.15, (head, start_head)  # not where it was put
         yaw = [j for j, axis in enumerate(config.robot.axes) if axis == "yaw"]
         assert np.max(np.abs(angles[yaw])) < 0.01  # laid straight (the 0.3 rad bend is gone) …
         # … and limp: the pitch joints sag over the obstacle exactly as a body freshly laid at the scene's start does
@@ -52,6 +52,10 @@ def test_reset_lab_stops_the_motion_and_lays_the_robot_back_at_its_scenes_start(
         reference.step(round(since_reset_s / world.scene.timestep_s))
         expected = reference.joint_state().position_rad
         assert np.max(np.abs(angles - expected)) < 0.05, (since_reset_s, angles, expected)
+        # where a body freshly laid at the start is after that time (it slides off the obstacle's top when the
+        # lab has run on for seconds: 8 cm seen at load 12)
+        expected_head = reference.body_state().points_m[0]
+        assert np.linalg.norm(head - expected_head) < 0.03, (since_reset_s, head, expected_head, start_head)
         assert all(sim.chain.register(sid, "Torque Enable") == 0 for sid in config.robot.joint_ids)  # limp
     finally:
         win.close()

@@ -111,8 +111,10 @@ def test_frames_an_adapter_hands_over_in_bursts_keep_the_boards_spacing_and_are_
         stats = reader.stats
     assert block is not None and np.all(np.diff(block.seq) == 1)
     host_steps, board_steps = np.diff(block.host_time_s), np.diff(block.board_time_s)
-    # a burst the pty hands over in two pieces may lose a little of its spacing at the cut, never all of it
-    assert np.mean(np.abs(host_steps - board_steps) < 3e-3) > 0.9 and host_steps.min() > 0.25 / 30
+    # A burst the pty hands over in pieces may lose a little of its spacing at each cut, never all of it (on a
+    # quiet machine over 90 % of the steps keep it; at load 12 the pty cut the bursts into more pieces: 75 %). The
+    # old stamping put a whole burst within a few ms: none kept it.
+    assert np.mean(np.abs(host_steps - board_steps) < 3e-3) > 0.6 and host_steps.min() > 0.25 / 30
     assert stats.host_stalls == 0
     late = [s for s in statuses if s.state == "stall"]
     assert len(late) == 1, [s.message for s in late]  # said once, not at every burst
