@@ -241,7 +241,9 @@ def main(argv: list[str] | None = None) -> int:
             lab.robot.reboot(99)  # no servo 99 on the bus: a real fault, with its whole text
             pump(5_000, until=lambda: window.event_log.count("fault") > 0)
             window.show_log()
-            window.log_dock.setMinimumHeight(360)  # a picture with a dozen entries in view
+            # the entries in view, the tab above it keeping the height its layout needs (a forced taller dock
+            # squeezes the tab below its minimum and its widgets overlap)
+            window.log_dock.setMinimumHeight(300)
             pump(300)
             pump(args.settle_ms)
             if _save(window, out / "event-log.png", pump) is None:

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPointF, Qt, QTimer, Signal
-from PySide6.QtGui import QHideEvent
+from PySide6.QtGui import QHideEvent, QResizeEvent
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from models.kinematics import SEGMENT_LENGTH_M, bend_for_point, forward_kinematics, sensor_points
@@ -33,9 +33,11 @@ from widgets.force_plots import cache_subtree
 DEFAULT_AXES = tuple("pitch" if i % 2 == 1 else "yaw" for i in range(1, 13))
 DEFAULT_FULL_SCALE_N = 10.0
 GRAB_RADIUS_PX = 14.0
-# Two views, each with its title, axes and at least ~100 px of drawing: with the aspect locked, a view squeezed
-# shorter (a short window with the event log open) spans tens of metres across and the robot becomes a dot.
-MIN_HEIGHT_PX = 260
+# The two views stand one above the other, or side by side where the drawing is this many times wider than high
+# (a short window, the event log open below the tab): stacked there, each view a strip with its aspect locked, they
+# spanned tens of metres across and the robot was a dot.
+SIDE_BY_SIDE_RATIO = 3.0
+MIN_HEIGHT_PX = 170  # side by side, each view keeps ~100 px of drawing under its title and above its axis
 # 1 mrad turns the tail by < 1 mm: below a pixel at the drawing's scale, and below the ±1 tick (1.5 mrad)
 # encoder noise of a servo holding torque, so a robot standing still costs no redraws.
 REDRAW_TOLERANCE_RAD = 1e-3
@@ -164,8 +166,32 @@ class BodyView(QWidget):
             self._goal_items[view], self._body_items[view] = goal, body
             self._joint_items[view], self._sensor_items[view] = joints, sensors
             self._head_items[view] = head
+        self.side_by_side = False
         self._set_ranges()
         self._redraw()
+
+    def resizeEvent(self, event: QResizeEvent) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(event)
+        self._arrange(event.size().width() >= SIDE_BY_SIDE_RATIO * event.size().height())
+
+    def _arrange(self, side_by_side: bool) -> None:
+        """The views one above the other, or side by side (a wide, short drawing)."""
+        if side_by_side == self.side_by_side:
+            return
+        self.side_by_side = side_by_side
+        layout = self._canvas.ci
+        for plot in self._plots.values():
+            layout.removeItem(plot)
+        for i, view in enumerate(VIEWS):
+            layout.addItem(self._plots[view], row=0 if side_by_side else i, col=i if side_by_side else 0)
+
+    def shown_ranges(self) -> dict[str, tuple[float, float, float, float]]:
+        """What each view shows now: (x0, x1, y0, y1) in m, the locked aspect's widening included."""
+        shown = {}
+        for view, plot in self._plots.items():
+            (x0, x1), (y0, y1) = plot.vb.viewRange()
+            shown[view] = (float(x0), float(x1), float(y0), float(y1))
+        return shown
 
     # -- public API ------------------------------------------------------------------------------------------------
     @property

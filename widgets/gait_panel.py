@@ -46,7 +46,7 @@ from widgets.tables import cell_item
 JOINT_ROW_PX = 18
 # Where the window is short (the event log open below the tab), the joint table scrolls down to this many rows
 # before the drawing gives up more height than its own minimum (BodyView.MIN_HEIGHT_PX).
-JOINT_ROWS_AT_LEAST = 5
+JOINT_ROWS_AT_LEAST = 4
 MODES = ("follow", "keyframes", "serpenoid", "sidewinding")
 MODE_TITLES = {
     "follow": "Follow-the-leader (shape slides head → tail)",

@@ -352,7 +352,7 @@ def scenario_gait_log(window, page, seconds: float) -> dict:
     and the log's list."""
     del seconds
     pump_until(lambda: page.robot.is_connected, what="the robot to connect")
-    before = {name: list(box) for name, box in page.panel.body_view.view_ranges().items()}
+    before = {name: list(box) for name, box in page.panel.body_view.shown_ranges().items()}
     window.log_dock.show()
     pump_until(lambda: window.log_dock.isVisible(), what="the event log")
     # A user drags the log's edge up to read more of it (the window keeps the dock's height from the last run).
@@ -362,7 +362,8 @@ def scenario_gait_log(window, page, seconds: float) -> dict:
     pump(500)
     view = page.panel.body_view
     picture = _save(grab(window), "gait_log")
-    return {"picture": picture, "ranges_before": before, "ranges": {name: list(box) for name, box in view.view_ranges().items()},
+    return {"picture": picture, "ranges_before": before, "ranges": {name: list(box) for name, box in view.shown_ranges().items()},
+            "side_by_side": view.side_by_side,
             "drawing_height": view.height(), "log_height": window.log_view.height(),
             "window": [window.width(), window.height()],
             "play_visible": page.panel.play_button.isVisible() and not page.panel.play_button.visibleRegion().isEmpty()}
