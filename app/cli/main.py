@@ -554,14 +554,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = args.command or "gui"
     _write_errors_not_signals()
     bound_numeric_threads()
-    embedded_dask = command == "experiment" and args.name in ("sweep", "evaluate", "tune") and \
-        args.engine == "dask" and not args.scheduler
     try:
         refuse_outputs_onto_inputs(command, args)
-        if embedded_dask:
-            from app.core.engines import start_embedded_cluster
+        if command == "experiment" and args.name in ("sweep", "evaluate", "tune") and args.engine == "dask" \
+                and not args.scheduler:
+            from app.core.engines import start_worker_server
 
-            start_embedded_cluster(args.jobs)  # started while this command prepares its runs
+            start_worker_server()  # an embedded Dask cluster's workers: their imports overlap this command's
         with _import_watchdog(command, float(os.environ.get(IMPORT_WATCHDOG_ENV, "") or IMPORT_WATCHDOG_S)):
             module = importlib.import_module(f"app.cli.{command}")
         return int(module.run(args) or EXIT_OK)
@@ -574,11 +573,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         text = _memory_words() if _memory_failure(exc) else _one_line(exc)
         print(f"sensnake {command}: error: {text}", file=sys.stderr)
         return EXIT_FAILURE
-    finally:
-        if embedded_dask:  # a cluster started for runs that never came (an error in the file, Ctrl-C) is stopped
-            from app.core.engines import discard_embedded_cluster
-
-            discard_embedded_cluster()
 
 
 # -- memory and threads ----------------------------------------------------------------------------------------------

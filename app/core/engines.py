@@ -10,11 +10,9 @@ or the traceback of what it raised. Both engines run one task per single-threade
   not keep the folder's lock open.
 * :class:`DaskEngine` — ``dask.distributed``: without a scheduler address an embedded
   ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job, forked from one forkserver
-  (:func:`start_worker_server`) and started in a thread beside the command's preparation
-  (:func:`start_embedded_cluster`); with one, that cluster (whose workers must see the output folder at the same
-  path). A worker that dies takes its task to another worker (the
-  scheduler's ``allowed-failures``); an address that does not answer is one line naming it within
-  :data:`CONNECT_TIMEOUT_S`.
+  (:func:`start_worker_server`); with one, that cluster (whose workers must see the output folder at the same
+  path). A worker that dies takes its task to another worker (the scheduler's ``allowed-failures``); an address that
+  does not answer is one line naming it within :data:`CONNECT_TIMEOUT_S`.
 
 Ctrl-C, and SIGTERM or SIGHUP while :func:`interruptible` guards the wait, cancel the pending tasks and stop the
 workers (their runs in progress are abandoned; their recordings are not in the folder's journal and run again on
@@ -177,7 +175,8 @@ class DaskEngine:
     def __init__(self, jobs: int, scheduler: str | None = None) -> None:
         self._cluster: Any = None
         if scheduler is None:
-            self._cluster, self.client = _take_embedded_cluster(max(1, jobs))
+            start_worker_server()  # first: it imports the workers' modules while this process imports distributed
+            self._cluster, self.client = _start_cluster(max(1, jobs))
             self.description = f"Dask, an embedded cluster of {max(1, jobs)} worker process(es) on 127.0.0.1"
             return
         from distributed import Client
@@ -268,77 +267,6 @@ def _close_cluster(cluster: Any, client: Any) -> None:
         cluster.close(timeout=10)
 
 
-class _EarlyCluster:
-    """An embedded cluster being started in a thread of its own while the command prepares its runs."""
-
-    def __init__(self, jobs: int) -> None:
-        self.jobs = jobs
-        self.cluster: Any = None
-        self.client: Any = None
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._start, daemon=True, name="dask-cluster-start")
-        self.thread.start()
-
-    def _start(self) -> None:
-        try:
-            self.cluster, self.client = _start_cluster(self.jobs)
-        except BaseException as exc:  # noqa: BLE001 - handed to the main thread, which raises it
-            self.error = exc
-
-    def wait(self) -> None:
-        # In short slices: the main thread stays interruptible (Ctrl-C) while it waits.
-        while self.thread.is_alive():
-            self.thread.join(0.05)
-
-
-_early_cluster: _EarlyCluster | None = None  # started by start_embedded_cluster, taken by the first DaskEngine
-
-
-def start_embedded_cluster(jobs: int | None) -> None:
-    """Start the embedded cluster a command will ask for, in a thread, so its start (importing distributed in this
-    process, the scheduler, the workers forked and registered: 0.7-1.1 s measured at load 2-3) overlaps the command's
-    own preparation (its imports, the plan read and checked, the runs listed, the folder claimed: 0.4-0.9 s). With
-    ``jobs`` workers, at most the cores (the command may use fewer: the extra ones are retired). The first
-    :class:`DaskEngine` without a scheduler address takes it; :func:`discard_embedded_cluster` stops it if none did.
-    Main thread, once per command."""
-    global _early_cluster
-    start_worker_server()
-    if _early_cluster is None:
-        _early_cluster = _EarlyCluster(capped_jobs(jobs, MAX_RUNS))
-
-
-def _take_embedded_cluster(jobs: int) -> tuple[Any, Any]:
-    """The cluster :func:`start_embedded_cluster` started (waited for; retiring the workers beyond ``jobs``), else a
-    new one."""
-    global _early_cluster
-    early, _early_cluster = _early_cluster, None
-    if early is None:
-        start_worker_server()  # its imports overlap this process's import of distributed
-        return _start_cluster(jobs)
-    try:
-        early.wait()
-    except BaseException:
-        _early_cluster = early  # still starting: discard_embedded_cluster stops it once it has started
-        raise
-    if early.error is not None:
-        raise early.error
-    if early.jobs > jobs:
-        early.cluster.scale(jobs)
-    return early.cluster, early.client
-
-
-def discard_embedded_cluster() -> None:
-    """Stop a cluster :func:`start_embedded_cluster` started that no engine took (the command ended before its runs:
-    an error in its file, Ctrl-C), and the forkserver. Main thread; nothing to do when there is none."""
-    global _early_cluster
-    early, _early_cluster = _early_cluster, None
-    if early is not None:
-        early.thread.join(timeout=2 * CONNECT_TIMEOUT_S)
-        if early.cluster is not None:
-            _close_cluster(early.cluster, early.client)
-    stop_worker_server()
-
-
 _forkserver_started = False  # this module started the process's forkserver (and so stops it)
 
 
@@ -348,9 +276,12 @@ def start_worker_server() -> None:
     An embedded cluster's workers are forked from it (``distributed.worker.multiprocessing-method``). Spawned (Dask's
     default), each worker started a fresh interpreter, imported distributed (0.4-1.2 s measured) and then the physics
     lab in its first run (0.3-1.2 s); and the cluster's stop waited 0.8-1.0 s for the spawned processes, 0.03-0.05 s
-    for forked ones. The command line calls this (through :func:`start_embedded_cluster`) as soon as it knows an
-    embedded cluster is wanted, so the server's imports overlap the command's own; an engine opened without that
-    calls it itself. A forkserver already
+    for forked ones. The command line calls this as soon as it knows an embedded cluster is wanted, so the server's
+    imports overlap the command's own; :class:`DaskEngine` calls it again (nothing to do then). Starting the cluster
+    itself that early, in a thread beside the command's preparation, was measured and bought nothing (engine overhead
+    +6.7 % against +6.2 %, 4 rounds each, load 4-5): the server's imports are the start's longest part, and this
+    process's import of distributed, run in a thread, only slowed the preparation by what it saved. A forkserver
+    already
     running (started by something else in this process) is used as it is: its workers then import what it lacks in
     their first run. Main thread."""
     global _forkserver_started

@@ -1,6 +1,5 @@
-"""The embedded Dask cluster's start and stop: started beside the command's preparation and taken by its engine,
-stopped when the command ends without runs, its forkserver's end without the interpreter's teardown. Dask on
-127.0.0.1 only, each case in a process of its own (a Dask client keeps threads for the life of a process)."""
+"""The embedded Dask cluster's stop: nothing outlives it, and its forkserver ends without the interpreter's teardown.
+Dask on 127.0.0.1 only, each case in a process of its own (a Dask client keeps threads for the life of a process)."""
 
 from __future__ import annotations
 
@@ -57,30 +56,22 @@ def test_the_worker_server_skips_its_teardown_and_nothing_else_does():
     assert plain.stdout.split() == ["False", "torn", "down"]
 
 
-def test_a_cluster_started_beside_the_preparation_is_the_one_the_engine_takes_and_none_outlives_its_close():
+def test_nothing_of_an_embedded_cluster_outlives_its_close():
     code = ("from app.core import engines\n"
-            "engines.start_embedded_cluster(2)\n"
-            "early = engines._early_cluster\n"
-            "engine = engines.DaskEngine(1)\n"
-            "assert engine.client is early.client and engines._early_cluster is None\n"
+            "engine = engines.DaskEngine(2)\n"
             "rows = []\n"
             "engine.run(abs, [-3, -4], lambda k, row, error: rows.append((k, row, error)))\n"
             "print(sorted(rows), flush=True)\n"
-            "import time\n"
-            "deadline = time.monotonic() + 30\n"  # the worker beyond the one asked for is retired
-            "while len(engine.client.scheduler_info()['workers']) > 1 and time.monotonic() < deadline:\n"
-            "    # Deliberate: the child polls its scheduler (tests/waiting.py is not on its path)\n"
-            "    time.sleep(0.1)\n"
-            "print(len(engine.client.scheduler_info()['workers']), flush=True)\n"
-            "engine.close()\n")
+            "engine.close()\n"
+            "print(engines._forkserver_started, flush=True)\n")
     mark = uuid.uuid4().hex
     done = _run(["-c", code], mark)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines() == ["[(0, 3, ''), (1, 4, '')]", "1"]
+    assert done.stdout.splitlines() == ["[(0, 3, ''), (1, 4, '')]", "False"]
     assert _marked(mark) == []  # the workers, the forkserver: all gone when the command is
 
 
-def test_a_dask_sweep_whose_file_is_refused_stops_the_cluster_started_for_it(tmp_path):
+def test_a_dask_sweep_whose_file_is_refused_says_so_in_one_line_and_leaves_no_process(tmp_path):
     plan = tmp_path / "s.toml"
     plan.write_text('scenes = ["no_such_scene"]\ncontrollers = ["feedforward"]\n', encoding="utf-8")
     mark = uuid.uuid4().hex
@@ -88,4 +79,4 @@ def test_a_dask_sweep_whose_file_is_refused_stops_the_cluster_started_for_it(tmp
                  "--jobs", "2"], mark)
     assert done.returncode == 1
     assert len(done.stderr.strip().splitlines()) == 1 and "no_such_scene" in done.stderr, done.stderr
-    assert _marked(mark) == []  # what was started beside the preparation was stopped before the command ended
+    assert _marked(mark) == []  # the forkserver started for it is gone with the command
