@@ -301,10 +301,15 @@ def test_with_return_delay_0_the_same_rate_plays(tmp_path, capsys):
     emulator = EmulatorProcess("--return-delay", "0")
     try:
         shape = _write_shape(tmp_path / "small.json", [0.1 * (-1) ** i for i in range(12)])
-        assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "1",
+        # The point here is the rate check's verdict (no refusal, no rate warning), not the machine's: a tick whose
+        # replies came late on a busy machine is play's other warning (once in CI: 1 of 22 ticks at 1 rad/s, 4.5 %,
+        # over its 1 %), so the play is longer (0.2 rad at 0.1 rad/s, ~220 ticks) and that warning is not asserted.
+        assert main(["play", str(shape), "--robot", emulator.path, "--rate", "100", "--speed", "0.1",
                      "--shifts", "1"]) == 0
         captured = capsys.readouterr()
-        assert "finished" in captured.out and "warning" not in captured.err
+        assert "finished" in captured.out
+        assert "cannot be kept" not in captured.err and "little room" not in captured.err
+        assert "Return Delay" not in captured.err
     finally:
         assert emulator.close() == 0
 
