@@ -40,10 +40,10 @@ serial, …), so a change in the machine's load falls on all of them; the median
 Run: ``python -m benchmarks.bench_engine_overhead [--seconds 8] [--jobs 2] [--repeats 4] [--modes bare,local,dask]
 [--write]`` (``--write``: ``benchmarks/results/engine_overhead.txt``); ``sensnake bench --quick`` uses 2 s plays.
 
-Measured on the 2-core machine with no other work (other sessions <= 0.06 of a core; 8 s plays, 10 rounds), median
+Measured on the 2-core machine with no other work (other programs <= 0.06 of a core; 8 s plays, 10 rounds), median
 (range): literal local +2.1 %, Dask +18.4 % (-9.4 to +38.9), bare +1.1 %; engine local +2.4 % (0.5-4.3), Dask +7.5 %
 (4.3-10.0), bare +1.9 %; the Dask runs' own time a median 8 % above the local pool's in the same round. Dask's start
-0.27-0.64 s, 2-3 ms between runs, stop 0.06-0.09 s. Under other sessions' load (1.0-1.8 cores, 8 rounds) the engine
+0.27-0.64 s, 2-3 ms between runs, stop 0.06-0.09 s. Under other programs' load (1.0-1.8 cores, 8 rounds) the engine
 figures hold (local 0.4-2.1 %, Dask 4.4-8.7 %) and the literal one is the machine's (bare +95 to +329 %). Worker
 memory 93-95 MB (local), 119-122 MB (Dask), <= 2 MB growth.
 """
