@@ -67,6 +67,7 @@ from devices import tick_trace
 from devices.config import RobotConfig
 from devices.errors import (
     BusBusyError,
+    BusQuietError,
     CorruptPacketError,
     DeadlinePassedError,
     DeviceError,
@@ -319,6 +320,10 @@ class _SilenceVerdict:
     motion: _Motion | None  # the motion it stopped (its Future still open)
     late_found_s: float  # the chain's late_bytes_found_s when it fired, then at the last find looked at
     answered_s: float | None = None  # a read answered since (the next instruction shows whether late bytes came)
+    # The verdict given after SILENCE_VERDICT_WAIT_S with not a byte come (BusQuietError): the watch goes on, so
+    # replies that arrive later, together, still correct it (RepliesHeldError), until the bus answers again.
+    given: DeviceError | None = None
+    stopped: str = ""  # what the verdict given said of the motion ("motion stopped" / "no motion was running")
 
 
 @dataclass
@@ -344,14 +349,19 @@ class RobotController:
                  on_event: Callable[[str], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None,
                  on_tick: Callable[[], None] | None = None,
-                 on_command: Callable[[float | None], None] | None = None, *, simulated: bool = False) -> None:
+                 on_command: Callable[[float | None], None] | None = None,
+                 on_motion_halted: Callable[[str], None] | None = None, *, simulated: bool = False) -> None:
         """``simulated``: the port is a simulated robot's even if not named ``sim`` (the simulated lab's own
         process serves it on a pty): CPU idle states are then held shallow only while a motion plays.
         ``on_tick()`` (optional) is called on the bus thread at the end of every tick, after that tick's
         ``on_state``: the control loop's heartbeat (``devices.loop_process`` sends the tick's states from it).
         ``on_command(started_s)`` (optional) is called on the bus thread with ``time.monotonic()`` just before a
         command (``submit``, a motion's start) runs between ticks, and with ``None`` after it: ticks legitimately
-        wait for it (``devices.loop_process`` tells a long command from a hung loop by it)."""
+        wait for it (``devices.loop_process`` tells a long command from a hung loop by it).
+        ``on_motion_halted(name)`` (optional) is called on the bus thread when the watchdog has stopped the motion
+        ``name`` on a bus that sent no byte and its cause is not known yet (the motion's Future fails later, with the
+        cause): from then on no goal is sent, so the GUI shows the motion stopped, not running, while the cause is
+        told."""
         self.chain = chain
         self.robot = robot
         self.period_s = 1.0 / robot.control_rate_hz
@@ -362,6 +372,7 @@ class RobotController:
         self._on_error = on_error
         self._on_tick = on_tick
         self._on_command = on_command
+        self._on_motion_halted = on_motion_halted
         self._thread_started = threading.Event()  # set once the bus thread has its scheduling (see wait_started)
         # (command, its Future or None): run on the bus thread between ticks; cancelled on close.
         self._commands: queue.SimpleQueue[tuple[Callable[[], None], concurrent.futures.Future | None]] = \
@@ -391,6 +402,10 @@ class RobotController:
         self._failed_reads_got_bytes = False  # a failed read that waited its timeout received bytes (this run)
         self._verdict: _SilenceVerdict | None = None  # the watchdog's cause, while it is not known yet
         self._servos_in_error: dict[int, tuple[str, ...]] = {}
+        # Servos whose status packets carried the alert bit, their error not named yet: the health read that names
+        # it is given up at the next slot when its replies are late and made again in the next answered tick.
+        self._alerts_to_name: list[int] = []
+        self._alert_give_ups = 0  # such reads given up in a row
         self._torque_lost: set[int] = set()  # servos reported for dropping their torque (until it is on again)
         self._next_health_s = 0.0
         self._health_polls = 0
@@ -716,7 +731,8 @@ class RobotController:
             if self._estop.is_set():
                 self._estop.clear()
                 self._freeze_at_present()
-            elif self._motion is not None and self._motion.paused_at_s is None:
+            elif (self._motion is not None and self._motion.paused_at_s is None
+                  and not self.chain.state_read_in_flight):  # (an instruction would discard that read's replies)
                 self._send_motion_goal(now)
             if trace is not None:
                 trace.mark("goal<")
@@ -724,7 +740,7 @@ class RobotController:
             # kernel's tty worker, a busy PC) it would wait on the same late bytes (measured: the largest remaining
             # cause of missed ticks at load 10-14 on 2 cores), after one that waited its timeout the slot is gone,
             # and while the watchdog's cause is being told its late replies would be taken for the held ones.
-            if fresh and self._verdict is None:
+            if fresh and self._verdict is None and not self._alerts_to_name:
                 self._health_in_slack(now, next_deadline)
             if trace is not None:
                 trace.mark("health<")
@@ -795,13 +811,32 @@ class RobotController:
         bytes the kernel hands over late (on a busy PC the tty layer's worker, at normal priority, held replies
         20-40 ms; docs/REALTIME.md). Such reads count as polls without an answer; once they add up to the watchdog's
         silence, reads wait their whole reply timeout again (``_confirm_silence``) and a servo is named silent only
-        on those, as without deadlines."""
+        on those, as without deadlines -- but in the slack of the ticks that follow, not inside one: such a read is
+        given up at the tick's deadline too, kept in flight (no instruction goes out meanwhile, so no goal is
+        written: the servos hold the last) and resumed in the next ticks until its replies are in or its reply
+        timeout, counted from its instruction, has passed (docs/decisions: confirm reads across ticks)."""
         sent_s = time.monotonic()
-        deadline = None if self._confirm_silence else self._feedback_deadline_s(sent_s, next_deadline)
+        confirm = self._confirm_silence
+        deadline = self._feedback_deadline_s(sent_s, next_deadline)
         self._feedback_given_up = False
         try:
-            state = self.chain.read_state(raise_on_alert=False, deadline_s=deadline)
+            if confirm and self.chain.state_read_in_flight:
+                state = self.chain.resume_state_read(raise_on_alert=False, deadline_s=deadline)
+            else:
+                state = self.chain.read_state(raise_on_alert=False, deadline_s=deadline, keep_in_flight=confirm)
         except (NoReplyError, CorruptPacketError, DeadlinePassedError) as exc:
+            if confirm and isinstance(exc, DeadlinePassedError):
+                # Within its reply timeout still: waited for in the next tick's slack, not an unanswered poll yet
+                # (nor one if it is no longer in flight: an instruction went out since; the next tick reads anew).
+                # The tick did go without its feedback: counted as a read given up at its deadline.
+                self._feedback_given_up = True
+                with self._lock:
+                    self._failed_reads += 1
+                    self._late_reads += 1
+                trace = tick_trace.TRACE
+                if trace is not None:
+                    trace.mark("read-in-flight", self.chain.state_read_in_flight)
+                return False
             given_up = isinstance(exc, DeadlinePassedError)
             self._feedback_given_up = given_up
             if self._unanswered_since_s is None:
@@ -880,7 +915,9 @@ class RobotController:
                 # Marking the servos blocks every write at once; the health read (reads only) names the error.
                 for sid in new:
                     self._servos_in_error[sid] = ("hardware error",)
-                self._poll_alerted(new)
+                self._alerts_to_name.extend(new)
+        if self._alerts_to_name:
+            self._poll_alerted(next_deadline)
         self._check_tracking(state)
         self._emit(self._on_state, state)
         return True
@@ -897,6 +934,8 @@ class RobotController:
         self._verdict = _SilenceVerdict(servo_id, now_s, quiet_since_s, self._consecutive_failed_reads, motion,
                                         self.chain.late_bytes_found_s)
         stopped = f"motion {motion.name!r} stopped" if motion is not None else "no motion was running"
+        if motion is not None:
+            self._emit(self._on_motion_halted, motion.name)
         self._emit(self._on_event, (
             f"no reply byte on the servo bus for {now_s - quiet_since_s:.2f} s ({stopped}): waiting up to "
             f"{SILENCE_VERDICT_WAIT_S:g} s for the replies given up on, to tell replies held on this computer from a "
@@ -923,24 +962,53 @@ class RobotController:
             self._settle_silence(now_s, held=True, held_s=arrived_s - verdict.quiet_since_s)
         else:
             answered_again = verdict.answered_s is not None and now_s > verdict.answered_s
-            if answered_again or now_s - verdict.fired_s >= SILENCE_VERDICT_WAIT_S:
+            if verdict.given is not None:
+                if answered_again:  # the bus is back without the replies: the verdict given stands
+                    self._verdict = None
+                    self._emit(self._on_event, "the servo bus answers again (the replies given up on never came: "
+                                               "the bus was quiet, not held on this computer)")
+            elif answered_again or now_s - verdict.fired_s >= SILENCE_VERDICT_WAIT_S:
                 self._settle_silence(now_s, held=False)
 
     def _settle_silence(self, now_s: float, held: bool, held_s: float = math.nan, closing: bool = False) -> None:
-        """Name the watchdog's cause: to the stopped motion's Future (if one was stopped) and ``on_error``."""
+        """Name the watchdog's cause: to the stopped motion's Future (if one was stopped) and ``on_error``.
+
+        After ``SILENCE_VERDICT_WAIT_S`` with not a byte come, what is known is said (:class:`BusQuietError`: the
+        servos went quiet, or this computer holds the port's bytes) and the watch goes on: replies that arrive
+        later, together, correct it (:class:`RepliesHeldError` naming the earlier verdict), a bus that answers again
+        without them ends the watch. A hold is never left named only as a silent servo's cable."""
         verdict, self._verdict = self._verdict, None
         if verdict is None:
             return
         stopped = "motion stopped" if verdict.motion is not None else "no motion was running"
         error: DeviceError
+        if verdict.given is not None:
+            if not held:  # closing, or the link lost: the verdict given stands
+                return
+            error = RepliesHeldError(held_s, verdict.stopped,
+                                     corrects=f'"no reply from servo {verdict.servo_id} nor any other" verdict')
+            self._emit(self._on_error, error)
+            return
         if held:
             error = RepliesHeldError(held_s, stopped)
-        else:
-            quiet_s = (verdict.answered_s if verdict.answered_s is not None else now_s) - verdict.quiet_since_s
-            since = ("; the bus answers again" if verdict.answered_s is not None
-                     else "; the loop was closed" if closing else "")
+        elif verdict.answered_s is not None:
+            quiet_s = verdict.answered_s - verdict.quiet_since_s
             error = NoReplyError(verdict.servo_id, f"no valid feedback for {quiet_s:.2f} s, not a byte on the bus "
-                                                   f"({verdict.polls} polls unanswered{since}); {stopped}")
+                                                   f"({verdict.polls} polls unanswered; the bus answers again); "
+                                                   f"{stopped}")
+        elif closing:
+            error = BusQuietError(verdict.servo_id, now_s - verdict.quiet_since_s, verdict.polls,
+                                  f"{stopped}; the loop was closed")
+        else:
+            error = BusQuietError(verdict.servo_id, now_s - verdict.quiet_since_s, verdict.polls, stopped)
+            verdict.given, verdict.stopped = error, stopped
+            verdict.motion, motion = None, verdict.motion
+            self._verdict = verdict  # watched on: see _watch_silence_verdict
+            if motion is not None:
+                motion.future.set_exception(error)
+                self._emit(self._on_event, f"motion {motion.name!r} stopped by an error")
+            self._emit(self._on_error, error)
+            return
         if verdict.motion is not None:
             verdict.motion.future.set_exception(error)
             self._emit(self._on_event, f"motion {verdict.motion.name!r} stopped by an error")
@@ -1005,8 +1073,6 @@ class RobotController:
             # own bus time: the next tick then starts a little late (~2 bus times of one servo), never a slot later.
             n = 1
             bus_s = self._health_read_estimate_s(1, with_overhead=False)
-            if not self.chain.return_delays_s:  # not read yet: a reply may wait the largest Return Delay Time
-                bus_s += ct.MAX_RETURN_DELAY_S * (2 if self._health_supply else 1)
             deadline = max(deadline, start + 2.0 * bus_s)
         chunk, self._health_pending = self._health_pending[:n], self._health_pending[n:]
         try:
@@ -1041,15 +1107,47 @@ class RobotController:
                                          if sid in self._health_results])
 
     def _health_read_estimate_s(self, n_servos: int, with_overhead: bool = True) -> float:
-        """Expected duration (s) of a health read of ``n_servos`` in the poll in progress."""
+        """Expected duration (s) of a health read of ``n_servos`` in the poll in progress. Before the Return Delay
+        Times are read, each reply may wait the largest one: a chunk is never fitted into the slack on a guess that
+        its replies come at once (they were given up at the slot, over and over, on a bus with the factory delay)."""
         bus_s = self.chain.sync_read_time_s(n_servos, ct.HEALTH_BLOCK_SIZE)
         if self._health_supply:
             bus_s += self.chain.sync_read_time_s(n_servos, ct.SUPPLY_BLOCK_SIZE)
+        if not self.chain.return_delays_s:  # not read yet: a reply may wait the largest Return Delay Time
+            bus_s += ct.MAX_RETURN_DELAY_S * n_servos * (2 if self._health_supply else 1)
         return bus_s + (self._health_overhead_s * (2 if self._health_supply else 1) if with_overhead else 0.0)
 
-    def _poll_alerted(self, newly_alerted: Sequence[int]) -> None:
-        """A status packet carried the alert bit: read every servo's health at once to name the error."""
-        health = self._read_health(list(self.chain.ids), supply=False)
+    def _poll_alerted(self, next_deadline: float) -> None:
+        """A status packet carried the alert bit: read every servo's health at once to name the error.
+
+        Like the health reads in the slack, the read is given up at the next slot when its replies are late (where
+        the bus cycle fills the tick, no sooner than twice its own bus time), counted in ``health_reads_given_up``
+        and made again in the next tick whose feedback read is answered: a port whose bytes are held never holds a
+        tick here. Meanwhile the servos stay marked in error, so nothing is written. A read that fails, or one given
+        up ``HEALTH_MAX_GIVE_UPS`` times in a row, stops the motion naming the servo's (unnamed) hardware error."""
+        newly_alerted = list(self._alerts_to_name)
+        ids = list(self.chain.ids)
+        start = time.monotonic()
+        bus_s = self.chain.sync_read_time_s(len(ids), ct.HEALTH_BLOCK_SIZE)
+        if not self.chain.return_delays_s:  # not read yet: each reply may wait the largest Return Delay Time
+            bus_s += ct.MAX_RETURN_DELAY_S * len(ids)
+        deadline = max(next_deadline - HEALTH_DEADLINE_MARGIN_S, start + 2.0 * bus_s)
+        try:
+            health = self._read_health(ids, supply=False, deadline_s=deadline)
+        except DeadlinePassedError:
+            self._alert_give_ups += 1
+            with self._lock:
+                self._health_reads_given_up += 1
+            trace = tick_trace.TRACE
+            if trace is not None:
+                trace.mark("health-given-up", len(ids))
+            if self._alert_give_ups < HEALTH_MAX_GIVE_UPS:
+                log.debug("alert health read of servos %s given up at the next slot (late replies); read again in "
+                          "the next tick", newly_alerted)
+                return
+            health = None
+        self._alerts_to_name = []
+        self._alert_give_ups = 0
         if health is None:
             for sid in newly_alerted:
                 error = ServoHardwareError(sid, ("hardware error",))

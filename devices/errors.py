@@ -48,6 +48,23 @@ class NoReplyError(DeviceError, TimeoutError):
         super().__init__(f"no reply from servo {servo_id}{extra}: check its cable, power, ID and baud rate")
 
 
+class BusQuietError(NoReplyError):
+    """Not a byte on the servo bus for seconds, every reply given up on still missing: what is known then, said as
+    such. Either every servo went quiet (their power, the cable from the adapter to the first servo) or this computer
+    holds the port's received bytes (on Linux the kernel's tty worker, at normal priority, behind other programs).
+    Names the first servo (``servo_id``), as a silent servo is named; if the replies then arrive, late and together,
+    the loop corrects this with :class:`RepliesHeldError`."""
+
+    def __init__(self, servo_id: int, quiet_s: float, polls: int, stopped: str) -> None:
+        self.servo_id = servo_id
+        self.quiet_s = quiet_s
+        DeviceError.__init__(
+            self, f"no reply from servo {servo_id} nor any other: not a byte on the bus for {quiet_s:.2f} s "
+                  f"({polls} polls unanswered); {stopped}. Either the servos went quiet (check their power and the "
+                  f"cable from the adapter to servo {servo_id}) or this computer is holding the port's bytes (a busy "
+                  "PC's serial delivery; if the replies arrive late, together, the app says so)")
+
+
 class CorruptPacketError(DeviceError):
     """A status packet failed its CRC or was malformed."""
 
@@ -246,13 +263,17 @@ class RepliesHeldError(DeviceError, TimeoutError):
     late and together: this computer held them (its serial port's delivery: on Linux the kernel's tty worker, at
     normal priority, waiting behind other programs), the servos had answered. Names the measured hold, no servo."""
 
-    def __init__(self, held_s: float, stopped: str) -> None:
+    def __init__(self, held_s: float, stopped: str, corrects: str = "") -> None:
+        """``corrects``: the earlier verdict this one replaces (a :class:`BusQuietError` given before the replies
+        came), said so the user does not go on believing it."""
         self.held_s = held_s
+        self.corrects = corrects
+        correction = f" (this corrects the earlier {corrects}: the servos and their cable are fine)" if corrects else ""
         super().__init__(
             f"the servos' replies came back {held_s:.2f} s late, all at once: held on this computer (the serial "
-            f"port's delivery of the bytes, e.g. the kernel's tty worker on a busy PC), not a silent servo; {stopped}. "
-            "Fix: close other busy programs; for 50 Hz on a busy PC give the loop real-time priority and raise the "
-            "tty workers (docs/REALTIME.md)")
+            f"port's delivery of the bytes, e.g. the kernel's tty worker on a busy PC), not a silent servo; {stopped}"
+            f"{correction}. Fix: close other busy programs; for 50 Hz on a busy PC give the loop real-time priority "
+            "and raise the tty workers (docs/REALTIME.md)")
 
 
 # raised by devices.loop_process

@@ -126,11 +126,13 @@ class ControllerProcess:
     def __init__(self, robot: RobotConfig, on_state: Callable[[ChainState], None] | None = None,
                  on_health: Callable[[list[ServoHealth]], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
-                 on_error: Callable[[BaseException], None] | None = None, *, simulated: bool = False) -> None:
+                 on_error: Callable[[BaseException], None] | None = None,
+                 on_motion_halted: Callable[[str], None] | None = None, *, simulated: bool = False) -> None:
         self.robot = robot
         self.simulated = simulated  # a simulated robot on a pty (devices.sim.lab_process): see RobotController
         self.period_s = 1.0 / robot.control_rate_hz
         self._on_state, self._on_health, self._on_event, self._on_error = on_state, on_health, on_event, on_error
+        self._on_motion_halted = on_motion_halted
         self._process: subprocess.Popen | None = None
         self._conn: Connection | None = None
         self._send_lock = threading.Lock()
@@ -496,7 +498,7 @@ class ControllerProcess:
 
     def _handle(self, message: object) -> None:
         message = messages.expect(message, messages.Tick, messages.Result, messages.Health, messages.Event,
-                                  messages.ErrorReport)
+                                  messages.ErrorReport, messages.MotionHalted)
         if isinstance(message, messages.Tick):
             self.ticks_seen += 1
             self._message_tick_s = max(self._message_tick_s, message.tick_s)
@@ -526,6 +528,8 @@ class ControllerProcess:
             self._emit(self._on_event, message.text)
         elif isinstance(message, messages.ErrorReport):
             self._emit(self._on_error, self._exception(message.error))
+        elif isinstance(message, messages.MotionHalted):
+            self._emit(self._on_motion_halted, message.name)
 
     def _loop_died(self) -> None:
         self.died_at_s = time.monotonic()  # when the end of file was read (bench_servo_bus measures it)
@@ -628,7 +632,8 @@ class _Child:
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, robot, on_state=self.states.append, on_health=self._health,
                                          on_event=self._event, on_error=self._error, on_tick=self._tick,
-                                         on_command=self._command, simulated=simulated)
+                                         on_command=self._command, on_motion_halted=self._halted,
+                                         simulated=simulated)
         except BaseException:
             chain.close()
             raise
@@ -717,6 +722,9 @@ class _Child:
 
     def _error(self, exc: BaseException) -> None:
         self.out.put(messages.ErrorReport(self._payload(exc)))
+
+    def _halted(self, name: str) -> None:
+        self.out.put(messages.MotionHalted(str(name)))
 
     def _payload(self, exc: BaseException) -> messages.ErrorPayload:
         self.recent_exceptions.append(exc)  # its id stays unique while the parent may still see it twice

@@ -186,6 +186,13 @@ class Event(Message):
 
 
 @dataclass(frozen=True, slots=True)
+class MotionHalted(Message):
+    """Loop → app: the watchdog stopped this motion on a bus that sent no byte; its cause follows (its Result)."""
+
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
 class ErrorReport(Message):
     """Loop → app: an error outside any request (a motion stopped by a servo fault)."""
 

@@ -173,6 +173,7 @@ class _FactoryPortHandler(PortHandler):
         self.late_replies_discarded = 0  # status packets among them
         self.late_replies_found = 0  # status packets found at the last such find (replies to how many reads at once)
         self.late_bytes_found_s = -math.inf  # time.monotonic() when such bytes were last found
+        self.instructions_sent = 0  # instructions written since open (a read kept in flight ends at the next one)
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - dynamixel-sdk's name
         super().setPacketTimeout(packet_length)
@@ -224,6 +225,7 @@ class _FactoryPortHandler(PortHandler):
     def writePort(self, packet):  # noqa: N802 - dynamixel-sdk's name
         tx_start_s = time.monotonic()
         written = self._write_now(bytes(packet))
+        self.instructions_sent += 1
         trace = tick_trace.TRACE
         if trace is not None:
             trace.mark("tx", (packet[7] if len(packet) > 7 else None, len(packet), round(tx_start_s, 6)))
@@ -335,9 +337,23 @@ class _FactoryPortHandler(PortHandler):
         return left_s
 
     def isPacketTimeout(self):  # noqa: N802 - dynamixel-sdk's name
-        if self.deadline_s is not None and time.monotonic() >= self.deadline_s:
+        if self.deadline_passed():
             return True
         return super().isPacketTimeout()
+
+    def reply_timeout_passed(self) -> bool:
+        """The SDK's packet timeout of the last instruction has passed (or fired: it zeroes it then)."""
+        return self.getTimeSinceStart() > self.packet_timeout
+
+    def deadline_passed(self) -> bool:
+        """The caller's deadline for the read in flight has passed (its reply timeout may not have)."""
+        return self.deadline_s is not None and time.monotonic() >= self.deadline_s
+
+    def unread(self, data: bytes | list[int]) -> None:
+        """Put bytes taken for a packet back in front of the buffer (a read given up mid-packet at its deadline
+        and resumed later parses them again)."""
+        if data:
+            self._rx[:0] = bytes(data)
 
     def _sleep(self, seconds: float) -> None:
         self.wakeups += 1
@@ -374,30 +390,41 @@ class _TrackingSyncRead(GroupSyncRead):
         self.errors: dict[int, int] = {}
         self.failed_id: int | None = None
         self.stale_packets = 0
+        self._parsed: set[int] = set()  # servos whose reply to the instruction in flight has been parsed
 
     def rxPacket(self):  # noqa: N802 - dynamixel-sdk's name
-        self.last_result = False
         self.errors = {}
+        self._parsed = set()
+        return self.resume()
+
+    def resume(self) -> int:
+        """Receive the replies still missing to the instruction already sent: after :meth:`rxPacket`, or again
+        after a read given up at the caller's deadline (the packet timeout still runs from the instruction; bytes
+        of a packet cut off at the deadline were put back, see :meth:`_read_reply`)."""
+        self.last_result = False
         self.failed_id = None
         result = COMM_RX_FAIL
+        pending = [dxl_id for dxl_id in self.data_dict if dxl_id not in self._parsed]
         # One sleep through all the replies (see _FactoryPortHandler), then the SDK parses them from the buffer.
-        n = len(self.data_dict)
-        self.port.wait_for_replies(tuple(self.data_dict), n * (MIN_STATUS_BYTES + self.data_length))
-        for dxl_id in self.data_dict:
+        self.port.wait_for_replies(tuple(pending), len(pending) * (MIN_STATUS_BYTES + self.data_length))
+        for dxl_id in pending:
             data, result, error = self._read_reply(dxl_id)
             if result != COMM_SUCCESS:
                 self.failed_id = dxl_id
                 return result
             self.data_dict[dxl_id] = data
             self.errors[dxl_id] = error
+            self._parsed.add(dxl_id)
         self.last_result = True
-        return result
+        return COMM_SUCCESS
 
     def _read_reply(self, dxl_id: int) -> tuple[list[int], int, int]:
         """The SDK's readRx, skipping status packets of another ID or another length (see the class docstring)."""
         while True:
             packet, result = self.ph.rxPacket(self.port, False)
             if result != COMM_SUCCESS:
+                if self.port.deadline_passed():  # cut off by the caller's deadline: kept for a resumed read
+                    self.port.unread(packet)
                 return [], result, 0
             n_params = (packet[_PKT_LENGTH_L] | packet[_PKT_LENGTH_H] << 8) - _STATUS_OVERHEAD
             if packet[_PKT_ID] != dxl_id or n_params != self.data_length:
@@ -427,6 +454,9 @@ class ServoChain:
         self._ph = PacketHandler(PROTOCOL_VERSION)
         self._goal_writer: GroupSyncWrite | None = None
         self._state_reader: _TrackingSyncRead | None = None
+        # A feedback read given up at its deadline but kept (``read_state(keep_in_flight=True)``): when its
+        # instruction went out (time.monotonic()) and the port's instruction count then; None when there is none.
+        self._state_in_flight: tuple[float, int] | None = None
         self._supply_cache: dict[int, tuple[float, float]] = {}  # servo ID -> (voltage V, temperature °C)
         self._last_goal_rad: np.ndarray | None = None
         self._return_delays_s: dict[int, float] = {}  # shared with each port opened (survives a reconnect)
@@ -517,6 +547,7 @@ class ServoChain:
         self._port = None
         self._goal_writer = None
         self._state_reader = None
+        self._state_in_flight = None
 
     def __enter__(self) -> ServoChain:
         self.open()
@@ -927,7 +958,15 @@ class ServoChain:
         self._last_goal_rad = sent
         return sent.copy()
 
-    def read_state(self, *, raise_on_alert: bool = True, deadline_s: float | None = None) -> ChainState:
+    @property
+    def state_read_in_flight(self) -> bool:
+        """A feedback read given up at its deadline with ``keep_in_flight`` can still be resumed: no instruction
+        has gone out since (one would have discarded its replies)."""
+        kept = self._state_in_flight
+        return kept is not None and self._port is not None and self._port.instructions_sent == kept[1]
+
+    def read_state(self, *, raise_on_alert: bool = True, deadline_s: float | None = None,
+                   keep_in_flight: bool = False) -> ChainState:
         """ONE GroupSyncRead of present current, velocity and position of every joint.
 
         A status packet with the alert bit raises :class:`ServoHardwareError` naming the servo and its error; with
@@ -940,8 +979,47 @@ class ServoChain:
         reader = self._require(self._state_reader)
         port = self._require_port()
         t0 = time.monotonic()
-        self._sync_transfer(reader, port, deadline_s, self.ids[0], "sync read of present position/velocity/current",
-                            "given up at the control tick's deadline (replies late)")
+        self._state_in_flight = None
+        try:
+            self._sync_transfer(reader, port, deadline_s, self.ids[0],
+                                "sync read of present position/velocity/current",
+                                "given up at the control tick's deadline (replies late)")
+        except DeadlinePassedError:
+            if keep_in_flight:
+                self._state_in_flight = (t0, port.instructions_sent)
+            raise
+        return self._state_from(reader, t0, raise_on_alert)
+
+    def resume_state_read(self, *, deadline_s: float, raise_on_alert: bool = True) -> ChainState:
+        """Go on waiting for the replies of the feedback read kept in flight (:attr:`state_read_in_flight`), until
+        ``deadline_s`` or their reply timeout, counted from its instruction, whichever comes first: the same read
+        and the same evidence as one that waited its whole timeout, spread over several control ticks' slack.
+        Returns its state (``host_time_s``: when its instruction went out); raises :class:`DeadlinePassedError`
+        while its timeout has not passed (still in flight), :class:`NoReplyError` naming the servo when it has.
+        A read no longer in flight raises :class:`DeadlinePassedError` at once (not in flight: read anew)."""
+        kept = self._state_in_flight
+        if not self.state_read_in_flight or kept is None:
+            self._state_in_flight = None
+            raise DeadlinePassedError("no feedback read in flight to resume (an instruction went out since)")
+        reader = self._require(self._state_reader)
+        port = self._require_port()
+        port.deadline_s = deadline_s
+        try:
+            result = self._io(reader.resume)
+        finally:
+            port.deadline_s = None
+        if result != COMM_SUCCESS:
+            if time.monotonic() >= deadline_s and not port.reply_timeout_passed():
+                raise DeadlinePassedError("sync read of present position/velocity/current given up at the control "
+                                          "tick's deadline again (replies late, within their timeout)")
+            self._state_in_flight = None
+            self._check_comm(result, reader.failed_id if reader.failed_id is not None else self.ids[0],
+                             "sync read of present position/velocity/current")
+        self._state_in_flight = None
+        return self._state_from(reader, kept[0], raise_on_alert)
+
+    def _state_from(self, reader: _TrackingSyncRead, t0: float, raise_on_alert: bool) -> ChainState:
+        """The ChainState of a completed feedback read whose instruction went out at ``t0``."""
         n = len(self.ids)
         current = np.empty(n)
         velocity = np.empty(n)

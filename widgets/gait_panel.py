@@ -435,7 +435,8 @@ class GaitPanel(QWidget):
             self.resume_button.click()
 
     def set_motion_state(self, state: str) -> None:
-        """Enable the transport buttons for ``idle``/``running``/``paused``/``finished``/``stopped``/``fault``."""
+        """Enable the transport buttons for ``idle``/``running``/``paused``/``finished``/``stopped``/``fault``, and
+        ``halted`` (stopped by the loop's watchdog, its cause still being told: nothing to stop, Play waits)."""
         self._state = state
         running, paused = state == "running", state == "paused"
         self._update_play()
@@ -498,6 +499,9 @@ class GaitPanel(QWidget):
         """Why Play cannot work now ('' if it can)."""
         if self._state in ("running", "paused"):
             return "A motion is playing: Stop it first"
+        if self._state == "halted":
+            return ("The motion was stopped on a quiet servo bus: wait for the verdict (silent servos, or replies "
+                    "held on this computer)")
         if not self._connected:
             return "The robot is not connected: connect it in the Hardware tab"
         if self.mode in ("follow", "keyframes") and not self.shape_combo.currentText():

@@ -43,7 +43,14 @@ from app.gui.catalog_browser import CatalogBrowser, show_catalog_browser
 from app.gui.gui_gc import GuiThreadCollector
 from app.gui.lab import LabContext, end_sim_lab_unless_it_simulates
 from app.gui.plots_dock import PlotsDock
-from app.gui.robot_bridge import MOTION_FAULT, MOTION_PAUSED, MOTION_RUNNING, describe_error
+from app.gui.robot_bridge import (
+    HALTED_TEXT,
+    MOTION_FAULT,
+    MOTION_HALTED,
+    MOTION_PAUSED,
+    MOTION_RUNNING,
+    describe_error,
+)
 from app.gui.tab_loader import ModuleLoader
 from app.gui.thread_bridge import ThreadBridge
 from app.gui.trials_session import TrialsDock
@@ -523,6 +530,9 @@ class MainWindow(QMainWindow):
             level = theme.OK
             if robot.motion_state in (MOTION_RUNNING, MOTION_PAUSED):
                 text += f" · {robot.motion_state} {robot.motion_name}".rstrip()
+            elif robot.motion_state == MOTION_HALTED:
+                level = theme.WARN
+                text += f" · {robot.motion_name} {HALTED_TEXT}"
             elif robot.motion_state == MOTION_FAULT:
                 level = theme.ERROR
                 text += " · motion stopped by a fault"

@@ -8,7 +8,8 @@ them into Qt signals delivered on the GUI thread, so views never touch the port 
   ``state_block(object)``: every ``ChainState`` since the previous delivery, in order (for recording)
 - ``health(object)``: ``list[ServoHealth]`` as polled by the controller
 - ``error(str)``: a readable message (what happened, which servo or port, what to do) — never a traceback
-- ``event(str)``: informational messages; ``motion_changed(str)``: one of the ``MOTION_*`` states below
+- ``event(str)``: informational messages; ``motion_changed(str)``: one of the ``MOTION_*`` states below (``halted``
+  from the moment the loop's watchdog stops a motion on a quiet bus, ``fault`` once its cause is told)
 - ``action(str)``: what the operator asked of the robot, in words, as it is asked (connect, torque, reboot, a motion
   started, paused, stopped, STOP): the event log's operator actions
 
@@ -33,7 +34,15 @@ from app.gui.thread_bridge import Coalescer, ThreadBridge
 from devices import bus_commands
 from devices.bus_commands import bus_command
 from devices.config import RobotConfig
-from devices.errors import DeviceError, LinkLostError, LoopDiedError, LoopProcessUnavailable, NoReplyError
+from devices.errors import (
+    BusQuietError,
+    DeviceError,
+    LinkLostError,
+    LoopDiedError,
+    LoopProcessUnavailable,
+    NoReplyError,
+    RepliesHeldError,
+)
 from devices.factory import is_sim, sim_serial_path
 from devices.loop_process import ControllerProcess, loop_process_wanted
 
@@ -51,11 +60,17 @@ class MotionState(StrEnum):
     PAUSED = "paused"
     FINISHED = "finished"
     STOPPED = "stopped"  # stopped by the user (Stop or STOP/Esc)
+    # Stopped by the loop's watchdog on a bus that sent no byte; its cause (silent servos, or replies held on this
+    # computer) is still being told: FAULT follows with it
+    HALTED = "halted"
     FAULT = "fault"  # stopped by the controller: hardware error, watchdog, lost link
 
 
 MOTION_IDLE, MOTION_RUNNING, MOTION_PAUSED = MotionState.IDLE, MotionState.RUNNING, MotionState.PAUSED
 MOTION_FINISHED, MOTION_STOPPED, MOTION_FAULT = MotionState.FINISHED, MotionState.STOPPED, MotionState.FAULT
+MOTION_HALTED = MotionState.HALTED
+# What a halted motion is, in the words the tabs show (its verdict follows within seconds)
+HALTED_TEXT = "stopped — checking whether the servos or this computer went quiet…"
 
 # Errors a user can cause and fix; anything else reaching a thread boundary is a bug, reported and logged.
 EXPECTED_DEVICE_ERRORS: tuple[type[BaseException], ...] = (DeviceError, OSError, ValueError, LookupError,
@@ -446,6 +461,9 @@ class RobotBridge(QObject):
     def _on_error(self, exc: BaseException) -> None:
         self._bridge.post(self._device_error, exc, time.monotonic())
 
+    def _on_motion_halted(self, name: str) -> None:
+        self._bridge.post(self._motion_halted, str(name))
+
     # -- GUI-thread handlers ----------------------------------------------------------------------------------------
     def _open_controller(self, config: RobotConfig) -> tuple[Any, list[str]]:
         """Worker thread: open the chain, check it, start the controller; returns it and the timing warnings."""
@@ -457,7 +475,8 @@ class RobotBridge(QObject):
             path = sim_serial_path("robot") if is_sim(config.port) else None
             child_config = replace(config, port=path) if path is not None else config  # the lab's own process: a pty
             process = ControllerProcess(child_config, on_state=self._on_state, on_health=self._on_health,
-                                        on_event=self._on_event, on_error=self._on_error, simulated=path is not None)
+                                        on_event=self._on_event, on_error=self._on_error,
+                                        on_motion_halted=self._on_motion_halted, simulated=path is not None)
             try:
                 process.start()  # a device error (port, models, rate) is raised as itself, as below
             except LoopProcessUnavailable as exc:
@@ -474,7 +493,8 @@ class RobotBridge(QObject):
             chain.check_rate(config.control_rate_hz)  # RateError (with the fix) before the loop starts
             warnings = list(chain.timing_warnings())
             controller = RobotController(chain, config, on_state=self._on_state, on_health=self._on_health,
-                                         on_event=self._on_event, on_error=self._on_error)
+                                         on_event=self._on_event, on_error=self._on_error,
+                                         on_motion_halted=self._on_motion_halted)
         except BaseException:
             chain.close()
             raise
@@ -575,9 +595,13 @@ class RobotBridge(QObject):
         if isinstance(exc, LinkLostError) and self._controller is not None:
             self._link_lost_at_s = at_s
             self._set_connection(f"link lost on {self.port}: reconnecting…")
-        if isinstance(exc, NoReplyError) and self._controller is not None:
+        if isinstance(exc, NoReplyError) and not isinstance(exc, BusQuietError) and self._controller is not None:
+            # (a quiet bus names no servo silent for sure: the rows say no feedback, not which servo is silent)
             self._silent_at_s = at_s
             self._silent_ids.add(int(exc.servo_id))
+        if isinstance(exc, RepliesHeldError):
+            self._silent_at_s = None  # the servos had answered: none of them is silent
+            self._silent_ids.clear()
         if isinstance(exc, (LinkLostError, NoReplyError)) and self._controller is not None:
             self._health_by_id.clear()  # torque, LED, errors as last polled are not what the servos hold now
         self._report_once(exc)
@@ -615,6 +639,12 @@ class RobotBridge(QObject):
     def _motion_failed(self, token: int, exc: BaseException) -> None:
         self._report_once(exc)
         self._motion_ended(token, MOTION_FAULT)
+
+    def _motion_halted(self, name: str) -> None:
+        """The loop's watchdog stopped the motion ``name`` (no goals from now on); its Future fails later with the
+        cause. Shown as stopped from now, not as running until the cause is known."""
+        if self._motion_state in (MOTION_RUNNING, MOTION_PAUSED) and name == self._motion_name:
+            self._set_motion(MOTION_HALTED, name)
 
     def _motion_ended(self, token: int, outcome: str) -> None:
         # A later run_motion / stop / STOP already moved the state on; an old motion's ending is not news.

@@ -10,7 +10,14 @@ from PySide6.QtCore import Qt
 
 from app.core.shapes import Keyframe, Shape, ShapeLibrary
 from app.gui.lab import LabContext
-from app.gui.robot_bridge import MOTION_FINISHED, MOTION_PAUSED, MOTION_RUNNING, MOTION_STOPPED
+from app.gui.robot_bridge import (
+    MOTION_FAULT,
+    MOTION_FINISHED,
+    MOTION_HALTED,
+    MOTION_PAUSED,
+    MOTION_RUNNING,
+    MOTION_STOPPED,
+)
 from app.gui.tabs.gait import GaitTab
 from app.gui.tabs.teach import TeachTab
 from devices.config import LabConfig
@@ -178,6 +185,37 @@ def test_gait_tab_overload_message_names_servo_and_stop(qtbot, lab, library, sim
     text = panel.status_label.text()
     assert "overload" in text and "Reboot" in text
     # The error can reach the tab before the motion's fault state does (two signals): wait for Play to come back.
+    qtbot.waitUntil(panel.play_button.isEnabled, timeout=WAIT_MS)
+
+
+def test_a_motion_stopped_on_a_quiet_bus_shows_stopped_while_its_cause_is_told(qtbot, lab, library, sim_lab_fast,
+                                                                               monkeypatch):
+    """Every servo stops answering mid-play: the loop's watchdog stops the motion at once (no more goals) and waits
+    for the replies it gave up on before naming the cause. From the stop on, the Gait tab shows the motion stopped
+    while the cause is told (not running: no Pause, no Stop, no Play yet), and the motion ends as a fault once the
+    cause is known (here: the bus answers again without those replies)."""
+    from devices import controller as controller_module
+
+    monkeypatch.setattr(controller_module, "SILENCE_VERDICT_WAIT_S", 60.0)  # the verdict waits for the bus here
+    tab, panel = _bump_tab(qtbot, lab, library)
+    panel.set_mode("follow")  # at the lab's 0.034 rad/s: tens of seconds
+    with qtbot.waitSignal(lab.robot.motion_changed, timeout=WAIT_MS, check_params_cb=lambda s: s == MOTION_RUNNING):
+        panel.play_button.click()
+    qtbot.waitUntil(lambda: tab.source.progress.elapsed_s > 0, timeout=WAIT_MS)
+    chain = sim_lab_fast.chain
+    ids = lab.config.robot.joint_ids
+    for sid in ids:
+        chain.set_no_reply(sid)
+    qtbot.waitUntil(lambda: lab.robot.motion_state == MOTION_HALTED, timeout=WAIT_MS)
+    tab.refresh()
+    assert "stopped — checking whether the servos or this computer went quiet" in panel.status_label.text()
+    assert panel.progress_label.toolTip().endswith("stopped (checking why)")
+    assert not panel.pause_button.isEnabled() and not panel.stop_button.isEnabled()
+    assert not panel.play_button.isEnabled() and "wait for the verdict" in panel.play_button.toolTip()
+    for sid in ids:
+        chain.set_no_reply(sid, False)
+    qtbot.waitUntil(lambda: lab.robot.motion_state == MOTION_FAULT, timeout=WAIT_MS)
+    assert "the bus answers again" in panel.status_label.text()
     qtbot.waitUntil(panel.play_button.isEnabled, timeout=WAIT_MS)
 
 

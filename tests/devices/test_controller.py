@@ -243,18 +243,19 @@ def test_late_feedback_is_given_up_before_the_next_slot_and_the_tick_still_write
     """Replies the kernel hands over late (a busy PC's tty worker) do not hold the tick: its feedback read carries a
     deadline before the next slot; a read given up there is counted (late_reads), the tick writes its goal from the
     last state, and a run of such reads longer than the watchdog calls nobody silent until a read that waited its
-    whole timeout (no deadline) also got nothing; here that read answers, so the motion goes on. No health read
-    is made in a tick whose feedback read was given up."""
+    whole timeout also got nothing -- kept in flight across ticks, each tick still given its deadline; here that
+    read answers, so the motion goes on. No health read is made in a tick whose feedback read was given up."""
     ctl, rec = controller
     future = ctl.run_motion(Ramp(speed=0.2), "ramp")
     rec.wait_more_states(3)
     real_read, real_health = ctl.chain.read_state, ctl.chain.read_health
-    calls: list[tuple[float, float | None]] = []  # (time called, deadline_s)
+    calls: list[tuple[float, float | None, bool]] = []  # (time called, deadline_s, kept in flight if late)
     late_reads = 40  # 0.4 s at 100 Hz: twice the watchdog's silence
     bus: list[str] = []  # the reads in order: "given up", "state", "health"
 
-    def late_replies(*args, deadline_s=None, **kwargs):
-        calls.append((time.monotonic(), deadline_s))
+    def late_replies(*args, deadline_s=None, keep_in_flight=False, **kwargs):
+        calls.append((time.monotonic(), deadline_s, keep_in_flight))
+        kwargs["keep_in_flight"] = keep_in_flight
         if len(calls) <= late_reads and deadline_s is not None:
             bus.append("given up")
             raise DeadlinePassedError("replies late")
@@ -272,10 +273,12 @@ def test_late_feedback_is_given_up_before_the_next_slot_and_the_tick_still_write
     rec.wait_more_states(5)
     assert not rec.errors and not future.done()
     given_up = [c for c in calls[:late_reads] if c[1] is not None]
-    # Every deadline lies before the next slot (within one period of the read's call), never past it.
-    assert given_up and all(deadline - called < ctl.period_s for called, deadline in given_up)
-    # The watchdog's silence was reached by given-up reads alone: one read then waited its whole timeout.
-    confirming = [i for i, c in enumerate(calls) if c[1] is None]
+    # Every deadline lies before the next slot (within one period of the read's call), never past it: the reads
+    # that wait their whole timeout too (they are kept in flight across ticks instead).
+    assert all(c[1] is not None for c in calls)
+    assert given_up and all(deadline - called < ctl.period_s for called, deadline, _ in given_up)
+    # The watchdog's silence was reached by given-up reads alone: the reads since wait their whole timeout.
+    confirming = [i for i, c in enumerate(calls) if c[2]]
     assert confirming and confirming[0] < len(calls) - 1
     assert ctl.stats().late_reads >= len(given_up)
     # No health read in a tick whose feedback replies were late (it would wait on the same late bytes); the polls go

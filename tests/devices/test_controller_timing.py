@@ -49,12 +49,18 @@ class States:
         self.wait(lambda: self.count >= target, f"{n} more states")
 
 
-def _run_controller(robot: RobotConfig, clock_speed: float, return_delay_time: int):
+def _run_controller(robot: RobotConfig, clock_speed: float, return_delay_time: int, read_delays: bool = False):
+    """``read_delays``: the servos' Return Delay Times are read first, as the loop's start does (check_models),
+    so each read's bus time is known."""
     chain = VirtualChain(ids=robot.joint_ids, baud=robot.baud, clock=SimClock(clock_speed), seed=9,
                          return_delay_time=return_delay_time)
     previous = factory.install_sim_lab(ChainLab(chain))
     rec = States()
-    ctl = RobotController(ServoChain(robot), robot, on_state=rec.on_state, on_health=rec.on_health)
+    servos = ServoChain(robot)
+    if read_delays:
+        servos.open()
+        servos.read_return_delays()
+    ctl = RobotController(servos, robot, on_state=rec.on_state, on_health=rec.on_health)
     ctl.start()
     return ctl, rec, chain, previous
 
@@ -111,7 +117,7 @@ def test_health_is_read_one_servo_per_tick_when_the_sync_cycle_leaves_no_slack(m
     # Real-time wire with the factory 500 µs Return Delay Time: the state sync read alone takes ~9.5 ms of each
     # 10 ms tick, so no health read ever fits before the next deadline; an overdue poll reads one servo per tick.
     robot = dataclasses.replace(RobotConfig(), control_rate_hz=100.0, status_rate_hz=5.0)
-    ctl, rec, chain, previous = _run_controller(robot, 1.0, 250)
+    ctl, rec, chain, previous = _run_controller(robot, 1.0, 250, read_delays=True)
     try:
         rec.wait(lambda: len(rec.health) >= 1, "a complete health poll")
     finally:

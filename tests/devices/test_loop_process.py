@@ -376,3 +376,24 @@ def test_every_thread_of_the_loop_process_runs_at_the_loops_priority(emulator, m
         assert set(policies.values()) == {(os.SCHED_FIFO, BUS_THREAD_RT_PRIORITY)}, policies
     finally:
         process.close()
+
+
+def test_a_motion_stopped_on_a_quiet_bus_is_said_stopped_before_its_cause_is_known(emulator):
+    """Not a byte on the bus: the loop stops the motion at once (no more goals) and waits seconds for the replies it
+    gave up on before it names the cause. The app hears of the stop at once (``on_motion_halted``), before the
+    motion's Future fails with the cause, so the GUI never shows the motion running meanwhile."""
+    robot = robot_on(emulator.path)
+    recorder = Recorder()
+    halted: list[tuple[str, bool]] = []
+    process = ControllerProcess(robot, **recorder.callbacks(),
+                                on_motion_halted=lambda name: halted.append((name, playing.done())))
+    process.start()
+    try:
+        playing = process.play(wave(robot, 0.5, 0.05), "slow")
+        assert wait_until(lambda: process.motion_name == "slow", WAIT_S)
+        assert emulator.command("silent all").startswith("ok")
+        assert wait_until(lambda: halted, WAIT_S), recorder.events
+        assert halted == [("slow", False)]  # said while the cause was still open
+    finally:
+        process.close()
+    assert playing.done() and playing.exception() is not None  # the cause (a quiet bus, the loop closed)

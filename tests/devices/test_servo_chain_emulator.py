@@ -13,7 +13,7 @@ import struct
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ from devices.config import RobotConfig
 from devices.controller import HoldPose, RobotController
 from devices.errors import (
     BusBusyError,
+    BusQuietError,
     DeadlinePassedError,
     JointLimitError,
     NoReplyError,
@@ -416,13 +417,64 @@ def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emul
     assert [h.servo_id for h in polls[-1]] == list(range(1, 13)) and all(h.hardware_error == 0 for h in polls[-1])
 
 
+def test_the_alert_bits_health_read_is_given_up_at_the_next_slot_and_read_again(emulator, monkeypatch):
+    """A status packet with the alert bit makes the loop read every servo's health to name the error. When that
+    read's replies are late (here 0.15 s: a busy PC's tty worker), it is given up at the next slot like every other
+    health read, counted, and made again in the next tick: no tick waits the late replies (or a pty's ~0.28 s reply
+    timeout), nothing is written meanwhile, and the error is then named."""
+    robot = robot_on(emulator.path, status_rate_hz=0.01)  # one scheduled poll at the start, then none for 100 s
+    errors: list[BaseException] = []
+    polls: list[list] = []
+    reads: list[tuple[float, float, float | None, str]] = []  # (called, returned, deadline_s, outcome)
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        read_health = chain.read_health
+
+        def timed_read_health(*args, deadline_s=None, **kwargs):
+            called = time.monotonic()
+            outcome = "answered"
+            try:
+                return read_health(*args, deadline_s=deadline_s, **kwargs)
+            except DeadlinePassedError:
+                outcome = "given up"
+                raise
+            finally:
+                reads.append((called, time.monotonic(), deadline_s, outcome))
+
+        monkeypatch.setattr(chain, "read_health", timed_read_health)
+        controller = RobotController(chain, robot, on_error=errors.append, on_health=polls.append)
+        controller.start()
+        try:
+            assert wait_until(lambda: len(polls) >= 1, 15.0), "the first health poll did not complete"
+            playing = controller.play(HoldPose(np.zeros(12)), "hold")
+            assert wait_until(lambda: controller.motion_name == "hold", 15.0)
+            start = len(reads)
+            assert emulator.command("stall 0.15 64 1").startswith("ok")  # the next health-block read, late
+            assert emulator.command("overload 3").startswith("ok")
+            error = playing.exception(timeout=15.0)
+            stats = controller.stats()
+        finally:
+            controller.close()
+    assert isinstance(error, ServoHardwareError) and error.servo_id == 3 and "overload" in str(error), error
+    alert_reads = reads[start:]
+    period_s = 1.0 / robot.control_rate_hz
+    assert alert_reads and all(r[2] is not None and r[2] - r[0] < period_s for r in alert_reads), alert_reads
+    given_up = [r for r in alert_reads if r[3] == "given up"]
+    assert given_up and all(r[1] - r[0] < 0.1 for r in given_up), alert_reads  # never waited for the 0.15 s
+    assert alert_reads[-1][3] == "answered"  # made again, and it named the error
+    assert stats.health_reads_given_up >= 1
+    assert errors == [error]
+
+
 def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str],
-                after_stop: tuple[str, ...] = ()) -> tuple[BaseException, list[str]]:
+                after_stop: tuple[str, ...] = (), errors: list[BaseException] | None = None,
+                until: Callable[[], bool] | None = None) -> tuple[BaseException, list[str]]:
     """Play a held pose on the emulated chain, apply ``fault`` (emulator commands), then ``after_stop`` once the
     loop has stopped the motion on a quiet bus, and return the error that stopped the motion and the loop's
-    events. The loop's reads wait a USB adapter's reply timeout (~37 ms), not a pty's (+250 ms), so that a test
+    events (``errors``: every error the loop reported, in order; ``until``: waited for before the loop is
+    closed). The loop's reads wait a USB adapter's reply timeout (~37 ms), not a pty's (+250 ms), so that a test
     of the watchdog takes a second, not several."""
-    errors: list[BaseException] = []
+    errors = [] if errors is None else errors
     events: list[str] = []
     with ServoChain(robot) as chain:
         chain.check_models()  # with the pty's margin: a loaded machine may take longer than a USB timeout here
@@ -441,6 +493,8 @@ def _stopped_by(emulator: EmulatorProcess, robot: RobotConfig, fault: list[str],
                     assert emulator.command(line).startswith("ok")
             error = playing.exception(timeout=15.0)
             assert error is not None and wait_until(lambda: error in errors, 5.0)
+            if until is not None:
+                assert wait_until(until, 15.0), (errors, events)
         finally:
             controller.close()
     return error, events
@@ -460,6 +514,26 @@ def test_replies_held_on_this_computer_are_named_with_their_hold_never_as_a_sile
     # Measured from the first unanswered read to the replies' arrival (seen at the next instruction or read).
     assert hold_s - 0.1 <= error.held_s <= hold_s + 1.0, error.held_s
     assert any(e.startswith("no reply byte on the servo bus") for e in events), events
+
+
+def test_replies_held_longer_than_the_wait_correct_the_verdict_given(emulator, monkeypatch):
+    """The replies held longer than the loop waits for them (here 3 s against a 0.5 s wait; the kernel's tty worker
+    has held a pty's bytes for 2.3 s): the verdict given at the wait's end says what is known then (not a byte:
+    the servos went quiet, or this computer holds the port's bytes), and when the held replies then arrive together
+    the loop corrects it, naming the hold. The last word is "held on this computer", never only a cable."""
+    monkeypatch.setattr(controller_module, "SILENCE_VERDICT_WAIT_S", 0.5)
+    hold_s = 3.0
+    errors: list[BaseException] = []
+    error, events = _stopped_by(emulator, robot_on(emulator.path), [f"hold {hold_s}"], errors=errors,
+                                until=lambda: any(isinstance(e, RepliesHeldError) for e in errors))
+    assert isinstance(error, BusQuietError), error  # the stop, said when nothing had come yet
+    assert "nor any other: not a byte on the bus" in str(error) and "this computer is holding" in str(error)
+    last = errors[-1]
+    assert isinstance(last, RepliesHeldError), errors
+    assert "held on this computer" in str(last) and "not a silent servo" in str(last)
+    assert 'this corrects the earlier "no reply from servo 1 nor any other" verdict' in str(last)
+    assert hold_s - 0.1 <= last.held_s <= hold_s + 1.0, last.held_s
+    assert errors.count(last) == 1 and len(errors) == 2, errors
 
 
 def test_a_bus_that_goes_quiet_still_names_the_servo(emulator, monkeypatch):
@@ -616,3 +690,55 @@ def test_a_missing_configured_id_is_a_scan_warning_and_a_clean_bus_says_nothing(
         assert "warning" not in err and "error" not in err
     finally:
         assert emulator.close() == 0
+
+
+def test_reads_confirming_a_silent_bus_wait_their_reply_timeout_across_ticks_not_inside_one(emulator, monkeypatch):
+    """Once given-up reads add up to the watchdog's 0.2 s, the reads that follow must wait their whole reply timeout
+    before a servo is named (a pty's: ~0.29 s, 14 slots at 50 Hz). They wait it across ticks: each tick's read or
+    resumed read still has the tick's deadline, and a read is counted unanswered only once its timeout, from its own
+    instruction, has passed -- the same evidence as before, without holding a tick for it."""
+    monkeypatch.setattr(controller_module, "SILENCE_VERDICT_WAIT_S", 0.5)
+    robot = robot_on(emulator.path)
+    calls: list[tuple[str, float, float | None, bool, str]] = []  # (kind, called, deadline_s, kept, outcome)
+    errors: list[BaseException] = []
+    with ServoChain(robot) as chain:
+        chain.check_models()
+        read_state, resume = chain.read_state, chain.resume_state_read
+
+        def traced(kind, fn):
+            def call(*args, deadline_s=None, keep_in_flight=False, **kwargs):
+                called, outcome = time.monotonic(), "answered"
+                if kind == "read":
+                    kwargs["keep_in_flight"] = keep_in_flight
+                try:
+                    return fn(*args, deadline_s=deadline_s, **kwargs)
+                except Exception as exc:
+                    outcome = type(exc).__name__
+                    raise
+                finally:
+                    calls.append((kind, called, deadline_s, keep_in_flight, outcome))
+            return call
+
+        monkeypatch.setattr(chain, "read_state", traced("read", read_state))
+        monkeypatch.setattr(chain, "resume_state_read", traced("resume", resume))
+        controller = RobotController(chain, robot, on_error=errors.append)
+        controller.start()
+        try:
+            playing = controller.play(HoldPose(np.zeros(12)), "hold")
+            assert wait_until(lambda: controller.motion_name == "hold", 15.0)
+            start = len(calls)
+            assert emulator.command("silent all").startswith("ok")
+            error = playing.exception(timeout=30.0)
+        finally:
+            controller.close()
+    assert isinstance(error, NoReplyError) and error.servo_id == 1, error  # the quiet bus still names the servo
+    after = calls[start:]
+    period_s = 1.0 / robot.control_rate_hz
+    # Every read and every resumed read had its tick's deadline: none waited a reply timeout inside one tick.
+    assert after and all(c[2] is not None and c[2] - c[1] < period_s for c in after), after
+    kept = [k for k, c in enumerate(after) if c[0] == "read" and c[3] and c[4] == "DeadlinePassedError"]
+    timed_out = [k for k, c in enumerate(after) if c[0] == "resume" and c[4] == "NoReplyError"]
+    assert len(timed_out) >= 2, after  # reads that waited their whole timeout across ticks, unanswered
+    for k in timed_out:  # each counted unanswered only after its timeout, from its own instruction
+        sent = max(j for j in kept if j < k)
+        assert after[k][1] - after[sent][1] >= 0.25, (after[sent], after[k])

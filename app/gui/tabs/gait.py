@@ -32,8 +32,10 @@ from app.core.shapes import Shape, ShapeLibrary, read_shape
 from app.core.teach import TeachSession
 from app.gui.lab import LabContext
 from app.gui.robot_bridge import (
+    HALTED_TEXT,
     MOTION_FAULT,
     MOTION_FINISHED,
+    MOTION_HALTED,
     MOTION_IDLE,
     MOTION_PAUSED,
     MOTION_RUNNING,
@@ -229,6 +231,8 @@ class GaitTab(QWidget):
             self.panel.set_status(f"{name}: paused (Resume continues from here)", theme.WARN)
         elif state == MOTION_RUNNING:
             self.panel.set_status(f"playing {name}", theme.OK)
+        elif state == MOTION_HALTED:
+            self.panel.set_status(f"{name}: {HALTED_TEXT}", theme.WARN)
         self.refresh()
 
     def _robot_error(self, text: str) -> None:
@@ -278,7 +282,8 @@ class GaitTab(QWidget):
 
 
 # How the progress line ends once the motion has ended without finishing (by motion state): never a time left.
-ENDED_TEXT: dict[str, str] = {MOTION_STOPPED: "stopped", MOTION_FAULT: "stopped by a fault", MOTION_IDLE: "stopped"}
+ENDED_TEXT: dict[str, str] = {MOTION_STOPPED: "stopped", MOTION_FAULT: "stopped by a fault", MOTION_IDLE: "stopped",
+                              MOTION_HALTED: "stopped (checking why)"}
 
 
 def motion_started(source: Any) -> bool:

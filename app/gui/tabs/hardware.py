@@ -25,7 +25,7 @@ from app.core import direction_check, servo_settings, user_folders
 from app.core.errors import SettingsError
 from app.core.outputs import write_new_file
 from app.gui.lab import LabContext
-from app.gui.robot_bridge import describe_error
+from app.gui.robot_bridge import HALTED_TEXT, MOTION_HALTED, describe_error
 from devices import bus_commands
 from devices import control_table as ct
 from devices.bus_commands import LINK_CHECK_ROUNDS, bus_command
@@ -149,6 +149,8 @@ class HardwareTab(QWidget):
                        "needs every servo")
             else:
                 why = f"no feedback from the servos for {age_s:.1f} s"
+            if robot.motion_state == MOTION_HALTED:
+                why += f"; motion {robot.motion_name!r} {HALTED_TEXT}"
             self.panel.set_unknown(ids, why, silent)
             self._shown_state = None
             return
