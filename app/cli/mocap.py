@@ -3,7 +3,8 @@ a motion-capture take added to a recording on the recording's clock (``/mocap``,
 
 The take's markers are matched by ``[mocap] labels``, each segment's pose fitted to ``[mocap] marker_layout_m`` and
 the take placed at ``--offset`` (the recording time of its first frame) or where its joint angles line up with the
-recording's ``/robot/present_rad`` — printed with its confidence, or refused with the reason. The lab config is
+recording's ``/robot/present_rad`` — printed with its confidence, or refused with the reason. A C3D take is read,
+fitted and written a block of frames at a time (``app.core.mocap.import_take``); an XDF file is loaded whole (pyxdf). The lab config is
 ``--config``, else the one stored in the recording, else the default. REC.h5 is only read; NEW.h5 must not exist.
 
 ``sensnake mocap simulate REC.h5 --out TAKE.c3d [--lead S] [--seed K] [--config LAB.toml]``: a C3D take of a
@@ -21,13 +22,13 @@ import numpy as np
 
 from app.core.errors import MocapFileError
 from app.core.mocap import (
-    place_take,
-    read_c3d,
+    frames_of,
+    import_take,
+    open_c3d,
     read_xdf,
     refuse_existing,
     simulated_take,
     summary_lines,
-    write_with_mocap,
 )
 from app.core.recording import Recording, open_recording
 from devices.config import LabConfig, load_config, parse_config
@@ -68,20 +69,20 @@ def _import(args: argparse.Namespace) -> int:
     recording = open_recording(rec)
     config = _lab_config(args, recording)
     n_segments = config.robot.n_joints
-    take = read_xdf(args.xdf, config.mocap, n_segments) if args.xdf else read_c3d(args.take, config.mocap, n_segments)
+    take = frames_of(read_xdf(args.xdf, config.mocap, n_segments)) if args.xdf else \
+        open_c3d(args.take, config.mocap, n_segments)
     robot = recording.robot
     if robot is not None and robot.present_rad.shape[1] != n_segments:
         raise MocapFileError(f"{rec}: /robot has {robot.present_rad.shape[1]} joints, the config {n_segments}")
     try:
-        result = place_take(take, config.mocap, config.robot.axes, robot.time_s if robot else None,
-                            robot.present_rad if robot else None, take_start_s=args.offset)
+        imported = import_take(take, rec, out, config.mocap, config.robot.axes, robot.time_s if robot else None,
+                               robot.present_rad if robot else None, take_start_s=args.offset)
     except OffsetRefusedError as exc:
         raise ValueError(f"{take.path.name} on {rec.name}: the motion cannot place the take on the recording's clock: "
                          f"{exc}; give --offset S (the recording time of the take's first frame)") from None
-    print(f"take start on the recording's clock: {result.take_start_s:+.4f} s ({result.how})")
-    for line in summary_lines(result):
+    print(f"take start on the recording's clock: {imported.take_start_s:+.4f} s ({imported.how})")
+    for line in summary_lines(imported):
         print(f"  {line}")
-    write_with_mocap(rec, out, result)
     print(f"wrote {out}: {rec.name} with /mocap ({take.source})")
     return 0
 

@@ -90,10 +90,11 @@ def _key(label: str) -> str:
     return label.strip().rsplit(":", 1)[-1].strip().lower()
 
 
-def place_markers(path: Path, labels_in_file: Sequence[str], xyz: np.ndarray, mocap: MocapConfig,
-                   n_segments: int) -> tuple[np.ndarray, tuple[str, ...], tuple[str, ...], int]:
-    """The file's marker trajectories ``xyz`` (M, P, 3), named ``labels_in_file``, in the layout's order
-    (M, S, K, 3). Refused (naming the file) when no layout label is there, or a segment has fewer than 3."""
+def marker_columns(path: Path, labels_in_file: Sequence[str], mocap: MocapConfig, n_segments: int
+                   ) -> tuple[np.ndarray, tuple[str, ...], tuple[str, ...], int]:
+    """Where each layout marker is among the file's ``labels_in_file``: columns (S, K), −1 where the file does not
+    have it; the layout's labels, those missing, and how many of the file's are not the layout's. Refused (naming the
+    file) when no layout label is there, or a segment has fewer than 3."""
     expected = layout_labels(mocap, n_segments)
     index: dict[str, int] = {}
     for i, label in enumerate(labels_in_file):
@@ -113,17 +114,32 @@ def place_markers(path: Path, labels_in_file: Sequence[str], xyz: np.ndarray, mo
                 f"{path}: segment {s + 1} has {len(have)} of its {len(row)} markers labelled in the file "
                 f"({', '.join(have) or 'none'}): a segment's pose needs 3; label them {', '.join(row)} (or set "
                 "[mocap] labels and marker_layout_m)")
-    markers = np.full((xyz.shape[0], n_segments, len(expected[0]), 3), np.nan)
-    for s, row in enumerate(expected):
-        for m, label in enumerate(row):
-            column = index.get(_key(label))
-            if column is not None:
-                markers[:, s, m] = xyz[:, column]
-    lost = np.all(markers == 0.0, axis=-1)
-    markers[lost] = np.nan
+    columns = np.array([[index.get(_key(label), -1) for label in row] for row in expected], dtype=int)
     missing = tuple(label for label in flat if _key(label) not in index)
     ignored = len({_key(x) for x in labels_in_file} - {_key(x) for x in flat})
-    return markers, tuple(flat), missing, ignored
+    return columns, tuple(flat), missing, ignored
+
+
+def arrange_markers(xyz: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """The file's trajectories ``xyz`` (M, P, 3) in the layout's order (M, S, K, 3) (``columns`` from
+    :func:`marker_columns`), NaN where the file has no such marker or gives it at exactly (0, 0, 0)."""
+    n_segments, k = columns.shape
+    markers = np.full((xyz.shape[0], n_segments, k, 3), np.nan)
+    for s in range(n_segments):
+        for m in range(k):
+            if columns[s, m] >= 0:
+                markers[:, s, m] = xyz[:, columns[s, m]]
+    lost = np.all(markers == 0.0, axis=-1)
+    markers[lost] = np.nan
+    return markers
+
+
+def place_markers(path: Path, labels_in_file: Sequence[str], xyz: np.ndarray, mocap: MocapConfig,
+                   n_segments: int) -> tuple[np.ndarray, tuple[str, ...], tuple[str, ...], int]:
+    """The file's marker trajectories ``xyz`` (M, P, 3), named ``labels_in_file``, in the layout's order
+    (M, S, K, 3). Refused (naming the file) when no layout label is there, or a segment has fewer than 3."""
+    columns, flat, missing, ignored = marker_columns(path, labels_in_file, mocap, n_segments)
+    return arrange_markers(xyz, columns), flat, missing, ignored
 
 
 def _units_scale(path: Path, units: str, where: str) -> float:
@@ -134,14 +150,102 @@ def _units_scale(path: Path, units: str, where: str) -> float:
     return scale
 
 
-def read_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
-    """A C3D take (ezc3d), its points scaled by POINT:UNITS to metres, timed by POINT:RATE from 0 at its first
-    stored frame. Raises :class:`MocapFileError` naming the file and the cause."""
-    import ezc3d
+@dataclass(frozen=True)
+class TakeFrames:
+    """A take read a block of frames at a time: ``read(start, stop)`` gives frames ``start`` … ``stop`` − 1 as
+    markers (n, S, K, 3) in metres in the layout's order, NaN where unseen; ``time_s`` (M,) on the source's clock.
+    Everything a refusal needs (labels, units, rate, the file's length) was checked when it was opened."""
 
+    path: Path
+    kind: str  # "C3D" or "XDF"
+    time_s: np.ndarray
+    labels: tuple[str, ...]
+    rate_hz: float
+    units: str
+    missing_labels: tuple[str, ...]
+    ignored_labels: int
+    read: Callable[[int, int], np.ndarray]
+    note: str = ""
+
+    @property
+    def frames(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def source(self) -> str:
+        return f"{self.kind} {self.path.name}" + (f" ({self.note})" if self.note else "")
+
+
+def frames_of(take: Take) -> TakeFrames:
+    """A take already in memory (an XDF stream: pyxdf loads the whole file) read as blocks of its frames."""
+    return TakeFrames(take.path, take.kind, take.time_s, take.labels, take.rate_hz, take.units, take.missing_labels,
+                      take.ignored_labels, lambda start, stop: take.markers_m[start:stop], take.note)
+
+
+def open_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> TakeFrames:
+    """A C3D take, its header and parameters read (:func:`c3d_frames.read_head`) and checked, its frames read when
+    asked for, straight from the data section: points scaled by POINT:UNITS to metres, timed by POINT:RATE from 0 at
+    its first stored frame. Raises :class:`MocapFileError` naming the file and the cause. A DEC-format file (rare)
+    is read whole by ezc3d, at most 65,535 frames."""
     path = Path(path)
     if not path.is_file():
         raise MocapFileError(f"{path}: no such take (C3D file)")
+    try:
+        head = c3d_frames.read_head(path)
+    except OSError as exc:
+        raise MocapFileError(f"{path} is not a readable C3D file ({exc.strerror or exc})") from exc
+    if head is None:
+        return frames_of(_read_c3d_whole(path, mocap, n_segments))
+    point = head["parameters"].get("POINT", {})
+    labels: list[str] = []
+    for name in ("LABELS", *(f"LABELS{i}" for i in range(2, 10))):
+        if name in point:
+            labels += [str(x) for x in point[name]["value"]]
+    units, scale, rate = _units_and_rate(path, point, head["header"]["points"]["frame_rate"])
+    try:
+        layout = c3d_frames.point_layout(path, head)
+    except (KeyError, TypeError, ValueError, IndexError, OSError) as exc:
+        if isinstance(exc, MocapFileError):
+            raise
+        raise MocapFileError(f"{path}: cannot tell how many frames it holds ({type(exc).__name__}: {exc})") from exc
+    if layout.frames < 2:
+        raise MocapFileError(f"{path}: fewer than two frames of points")
+    columns, flat, missing, ignored = marker_columns(path, labels[:layout.points], mocap, n_segments)
+    note = f"{layout.frames} frames (from {layout.how})" if layout.frames > layout.header_frames else ""
+
+    def read(start: int, stop: int) -> np.ndarray:
+        return arrange_markers(c3d_frames.read_frames(path, layout, start, stop) * scale, columns)
+
+    time_s = np.arange(layout.frames) / rate
+    return TakeFrames(path, "C3D", time_s, flat, rate, units, missing, ignored, read, note=note)
+
+
+def _units_and_rate(path: Path, point: dict[str, Any], header_rate: float) -> tuple[str, float, float]:
+    units_value = point.get("UNITS", {}).get("value", [])
+    if not len(units_value) or not str(units_value[0]).strip():
+        raise MocapFileError(f"{path}: no POINT:UNITS: cannot tell millimetres from metres")
+    units = str(units_value[0]).strip()
+    scale = _units_scale(path, units, "POINT:UNITS")
+    rate_value = point.get("RATE", {}).get("value", [])
+    rate = float(rate_value[0]) if len(rate_value) else float(header_rate)
+    if not np.isfinite(rate) or rate <= 0:
+        raise MocapFileError(f"{path}: POINT:RATE = {rate!r} is not a frame rate")
+    return units, scale, rate
+
+
+def read_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
+    """A C3D take whole (:func:`open_c3d`, every frame read). Raises :class:`MocapFileError` naming the file and the
+    cause. For a short take or a test: the import reads a take a block at a time."""
+    frames = open_c3d(path, mocap, n_segments)
+    markers = frames.read(0, frames.frames)
+    return Take(frames.path, frames.kind, frames.time_s, markers, frames.labels, frames.rate_hz, frames.units,
+                frames.missing_labels, frames.ignored_labels, note=frames.note)
+
+
+def _read_c3d_whole(path: Path, mocap: MocapConfig, n_segments: int) -> Take:
+    """A DEC-format C3D take (VAX floats), read whole by ezc3d: at most 65,535 frames, a longer one refused."""
+    import ezc3d
+
     try:
         c3d = ezc3d.c3d(str(path))
     except (RuntimeError, ValueError, OSError, IndexError) as exc:
@@ -152,36 +256,26 @@ def read_c3d(path: str | Path, mocap: MocapConfig, n_segments: int) -> Take:
     for name in ("LABELS", *(f"LABELS{i}" for i in range(2, 10))):
         if name in point:
             labels += [str(x) for x in point[name]["value"]]
-    units_value = point.get("UNITS", {}).get("value", [])
-    if not len(units_value) or not str(units_value[0]).strip():
-        raise MocapFileError(f"{path}: no POINT:UNITS: cannot tell millimetres from metres")
-    units = str(units_value[0]).strip()
-    scale = _units_scale(path, units, "POINT:UNITS")
-    rate_value = point.get("RATE", {}).get("value", [])
-    rate = float(rate_value[0]) if len(rate_value) else float(c3d["header"]["points"]["frame_rate"])
-    if not np.isfinite(rate) or rate <= 0:
-        raise MocapFileError(f"{path}: POINT:RATE = {rate!r} is not a frame rate")
+    units, scale, rate = _units_and_rate(path, point, float(c3d["header"]["points"]["frame_rate"]))
     points = np.asarray(c3d["data"]["points"], dtype=float)  # (4, P, M)
     if points.ndim != 3 or points.shape[2] < 2:
         raise MocapFileError(f"{path}: fewer than two frames of points")
-    labels = labels[:points.shape[1]]
     try:
         layout = c3d_frames.point_layout(path, c3d)
     except (KeyError, TypeError, ValueError, IndexError, OSError) as exc:
+        if isinstance(exc, MocapFileError):
+            raise
         raise MocapFileError(f"{path}: cannot tell how many frames it holds ({type(exc).__name__}: {exc})") from exc
-    note = ""
-    if layout.frames > points.shape[2]:  # ezc3d stops at 65,535 frames: the rest is read from the data section
-        xyz = c3d_frames.read_points(path, layout, check=points) * scale
-        note = f"{layout.frames} frames (from {layout.how})"
-    else:
-        xyz = np.transpose(points[:3], (2, 1, 0)) * scale  # (M, P, 3)
-        residuals = c3d["data"].get("meta_points", {}).get("residuals")
-        if residuals is not None and np.shape(residuals)[-2:] == points.shape[1:]:
-            xyz[np.transpose(np.asarray(residuals)[0]) < 0] = np.nan
+    if layout.frames > points.shape[2]:
+        raise MocapFileError(f"{path}: {layout.frames} frames, more than 65,535, in a DEC-format C3D: this reader "
+                             "reads Intel and MIPS files only that long; export the take again as an Intel (PC) C3D")
+    xyz = np.transpose(points[:3], (2, 1, 0)) * scale  # (M, P, 3)
+    residuals = c3d["data"].get("meta_points", {}).get("residuals")
+    if residuals is not None and np.shape(residuals)[-2:] == points.shape[1:]:
+        xyz[np.transpose(np.asarray(residuals)[0]) < 0] = np.nan
     del points, c3d
-    markers, flat, missing, ignored = place_markers(path, labels, xyz, mocap, n_segments)
-    time_s = np.arange(xyz.shape[0]) / rate
-    return Take(path, "C3D", time_s, markers, flat, rate, units, missing, ignored, note=note)
+    markers, flat, missing, ignored = place_markers(path, labels[:xyz.shape[1]], xyz, mocap, n_segments)
+    return Take(path, "C3D", np.arange(xyz.shape[0]) / rate, markers, flat, rate, units, missing, ignored)
 
 
 _AXIS = re.compile(r"^(?P<name>.*?)[\s_.:/-]*(?P<axis>[XYZxyz])$")
@@ -324,6 +418,162 @@ def place_take(take: Take, mocap: MocapConfig, axes: Sequence[str], robot_time_s
 # ----------------------------------------------------------------------------------------------------------------
 # The copy with /mocap
 # ----------------------------------------------------------------------------------------------------------------
+CHUNK_FRAMES = 8_192  # frames read, fitted and written at a time by import_take (~30 MB of working arrays)
+_MEDIAN_BITS = 44  # a residual's float64 bits >> this: its exponent and 8 mantissa bits, 2**20 bins
+
+
+@dataclass(frozen=True)
+class ImportedTake:
+    """What :func:`import_take` wrote to ``/mocap``, for a person: counts over every (frame, segment) fit."""
+
+    source: str
+    frames: int
+    rate_hz: float
+    units: str
+    take_start_s: float
+    take_end_s: float
+    clock_offset_s: float
+    how: str
+    offset: ClockOffset | None
+    segment_frames: int
+    posed: int
+    flag_counts: dict[FitFlag, int]
+    median_residual_m: float  # of the posed fits; NaN when none
+    worst_residual_m: float  # of the posed fits; NaN when none
+    max_residual_m: float
+    missing_labels: tuple[str, ...]
+
+    @classmethod
+    def of(cls, result: MocapResult) -> ImportedTake:
+        """The same counts of a take fitted whole (:func:`place_take`)."""
+        fit = result.fit
+        posed = np.isfinite(fit.center_m[..., 0])
+        return cls(result.take.source, len(result.time_s), result.take.rate_hz, result.take.units,
+                   result.take_start_s, float(result.time_s[-1]), result.clock_offset_s, result.how, result.offset,
+                   int(fit.flag.size), int(posed.sum()), {flag: fit.flagged(flag) for flag in FitFlag},
+                   float(np.nanmedian(fit.residual_m[posed])) if posed.any() else float("nan"),
+                   float(np.nanmax(fit.residual_m[posed])) if posed.any() else float("nan"),
+                   result.max_residual_m, result.take.missing_labels)
+
+
+def import_take(take: TakeFrames, recording: str | Path, out: str | Path, mocap: MocapConfig, axes: Sequence[str],
+                robot_time_s: np.ndarray | None, robot_rad: np.ndarray | None, take_start_s: float | None = None,
+                chunk_frames: int = CHUNK_FRAMES, compression: str | None = "gzip") -> ImportedTake:
+    """A copy of ``recording`` at ``out`` with ``/mocap`` of ``take``, read, fitted and written ``chunk_frames`` at a
+    time; only the joint angles (M × S float64) and the take's times are kept whole, for the clock offset. Placed
+    at ``take_start_s`` (the recording time of its first frame) when given, else where its joint angles line up with
+    the recording's (``robot_rad`` at ``robot_time_s``). The same datasets, bit for bit, as :func:`place_take` then
+    :func:`write_with_mocap` make of the whole take. ``out`` must not exist and is written only complete: a refusal
+    (:class:`models.errors.OffsetRefusedError`, :class:`MocapFileError`) leaves nothing there."""
+    layout = check_layout(mocap.marker_layout_m, len(axes))
+    if take_start_s is None and (robot_time_s is None or robot_rad is None or len(robot_time_s) < 2):
+        raise MocapFileError("the recording has no /robot joint angles to line the take up with: give --offset S "
+                             "(the recording time of the take's first frame)")
+    made: list[ImportedTake] = []
+
+    def fill(f: h5py.File) -> None:
+        made.append(_fill_in_chunks(f, take, layout, mocap, axes, robot_time_s, robot_rad, take_start_s,
+                                    max(int(chunk_frames), 1), compression))
+
+    write_copy_with(recording, out, fill)
+    return made[0]
+
+
+def _fill_in_chunks(f: h5py.File, take: TakeFrames, layout: np.ndarray, mocap: MocapConfig, axes: Sequence[str],
+                    robot_time_s: np.ndarray | None, robot_rad: np.ndarray | None, take_start_s: float | None,
+                    chunk_frames: int, compression: str | None) -> ImportedTake:
+    m, (s, k) = take.frames, layout.shape[:2]
+    if "mocap" in f:
+        del f["mocap"]
+    group = f.create_group("mocap")
+    time_ds = group.create_dataset("time_s", shape=(m,), dtype=np.float64)
+    rows = {name: group.create_dataset(name, shape=(m, *shape), dtype=dtype, chunks=True, compression=compression)
+            for name, shape, dtype in (("markers_m", (s * k, 3), np.float64), ("segment_center_m", (s, 3), np.float64),
+                                       ("segment_rotation", (s, 3, 3), np.float64), ("residual_m", (s,), np.float64),
+                                       ("joint_angle_rad", (s,), np.float64), ("fit_flag", (s,), np.int8),
+                                       ("markers_used", (s,), np.int8))}
+    angles = np.empty((m, s))
+    posed = 0
+    flags = dict.fromkeys(FitFlag, 0)
+    worst = -np.inf
+    bins = np.zeros(1 << (64 - _MEDIAN_BITS), dtype=np.int64)
+    for start in range(0, m, chunk_frames):
+        stop = min(m, start + chunk_frames)
+        markers = take.read(start, stop)
+        fit = fit_segments(markers, layout, mocap.max_residual_m)
+        angles[start:stop], _ = joint_angles(fit.rotation, axes)
+        rows["markers_m"][start:stop] = markers.reshape(stop - start, s * k, 3)
+        rows["segment_center_m"][start:stop] = fit.center_m
+        rows["segment_rotation"][start:stop] = fit.rotation
+        rows["residual_m"][start:stop] = fit.residual_m
+        rows["joint_angle_rad"][start:stop] = angles[start:stop]
+        rows["fit_flag"][start:stop] = fit.flag.astype(np.int8)
+        rows["markers_used"][start:stop] = fit.n_used.astype(np.int8)
+        here = np.isfinite(fit.center_m[..., 0])
+        posed += int(here.sum())
+        for flag in FitFlag:
+            flags[flag] += fit.flagged(flag)
+        if here.any():
+            worst = max(worst, float(np.nanmax(fit.residual_m[here])))
+            bins += np.bincount(_median_keys(fit.residual_m[here]), minlength=len(bins))
+    if take_start_s is not None:
+        clock_offset_s, found = float(take_start_s) - float(take.time_s[0]), None
+    else:
+        assert robot_time_s is not None and robot_rad is not None  # import_take refused it otherwise
+        found = find_clock_offset(take.time_s, angles, robot_time_s, robot_rad)
+        clock_offset_s = found.offset_s
+    del angles
+    for start in range(0, m, chunk_frames):
+        time_ds[start:start + chunk_frames] = take.time_s[start:start + chunk_frames] + clock_offset_s
+    take_start = float(take.time_s[0] + clock_offset_s)
+    how = (f"given: the take's first frame at {take_start:+.4f} s on the recording's clock" if found is None else
+           "found from the motion: " + found.describe())
+    attrs = group.attrs
+    attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
+    attrs["source"] = take.source
+    attrs["rate_hz"] = float(take.rate_hz)
+    attrs["clock_offset_s"] = float(clock_offset_s)
+    attrs["marker_layout_m"] = layout
+    attrs["take_start_s"] = take_start
+    attrs["clock_offset_how"] = how
+    attrs["clock_offset_confidence"] = found.confidence if found is not None else np.nan
+    attrs["clock_offset_uncertainty_s"] = found.uncertainty_s if found is not None else np.nan
+    attrs["max_residual_m"] = float(mocap.max_residual_m)
+    attrs["units"] = take.units
+    attrs["fit_flags"] = FLAG_LEGEND
+    if take.path.is_file():
+        attrs["source_sha256"] = _sha256(take.path)
+    median = _median_posed(rows["residual_m"], rows["segment_center_m"], bins, posed, chunk_frames)
+    return ImportedTake(take.source, m, take.rate_hz, take.units, take_start,
+                        float(take.time_s[-1] + clock_offset_s), clock_offset_s, how, found, m * s, posed, flags,
+                        median, worst if posed else float("nan"), mocap.max_residual_m, take.missing_labels)
+
+
+def _median_keys(residual_m: np.ndarray) -> np.ndarray:
+    """Residuals (≥ 0, finite) as bins that sort as they do: the top bits of their float64 patterns."""
+    return (np.abs(np.ascontiguousarray(residual_m, dtype=np.float64)).view(np.int64) >> _MEDIAN_BITS).ravel()
+
+
+def _median_posed(residual: h5py.Dataset, center: h5py.Dataset, bins: np.ndarray, posed: int,
+                  chunk_frames: int) -> float:
+    """The exact median of the posed fits' residuals (as ``np.median`` gives it) without holding them: the bins
+    counted while they were written say which one or two bins hold the middle; those bins' values are read back."""
+    if not posed:
+        return float("nan")
+    ranks = ((posed - 1) // 2, posed // 2)
+    below = np.cumsum(bins)
+    wanted = sorted({int(np.searchsorted(below, rank, side="right")) for rank in ranks})
+    values: list[np.ndarray] = []
+    for start in range(0, residual.shape[0], chunk_frames):
+        r = residual[start:start + chunk_frames]
+        r = r[np.isfinite(center[start:start + chunk_frames, :, 0])]
+        values.append(r[np.isin(_median_keys(r), wanted)])
+    middle = np.sort(np.concatenate(values))
+    first = int(below[wanted[0] - 1]) if wanted[0] > 0 else 0
+    low, high = middle[ranks[0] - first], middle[ranks[1] - first]
+    return float(np.mean([low, high]))
+
+
 def write_with_mocap(recording: str | Path, out: str | Path, result: MocapResult) -> Path:
     """A copy of ``recording`` at ``out`` with ``/mocap`` (replacing one it had). ``out`` must not exist;
     ``recording`` is only read."""
@@ -594,23 +844,19 @@ def simulated_take(recording: str | Path, out: str | Path, *, lead_s: float = 1.
     return SimulatedTake(out, float(frames_t[0]), m, hidden_segment, hidden, float(1.0 - seen.mean()))
 
 
-def summary_lines(result: MocapResult) -> list[str]:
+def summary_lines(imported: ImportedTake) -> list[str]:
     """What the import found, a few lines for a person."""
-    fit = result.fit
-    n = fit.flag.size
-    posed = np.isfinite(fit.center_m[..., 0])
-    lines = [f"{len(result.time_s)} frames at {result.take.rate_hz:g} Hz ({result.take.units}), "
-             f"{result.take_start_s:+.3f} … {result.time_s[-1]:+.3f} s on the recording's clock; "
-             f"poses in {posed.mean():.1%} of segment-frames"]
-    counts = {flag: fit.flagged(flag) for flag in FitFlag if flag != FitFlag.OK}
+    n = imported.segment_frames
+    counts = imported.flag_counts
+    lines = [f"{imported.frames} frames at {imported.rate_hz:g} Hz ({imported.units}), "
+             f"{imported.take_start_s:+.3f} … {imported.take_end_s:+.3f} s on the recording's clock; "
+             f"poses in {imported.posed / n if n else float('nan'):.1%} of segment-frames"]
     lines.append("not posed: " + ", ".join(f"{counts[f]} {f.name.lower().replace('_', ' ')}" for f in
                                            (FitFlag.TOO_FEW, FitFlag.BAD_FIT)) +
                  f"; posed with a flag: {counts[FitFlag.OUTLIER_DROPPED]} outlier dropped, "
                  f"{counts[FitFlag.SWAPPED]} swap undone (of {n})")
-    worst = np.nanmax(fit.residual_m[posed]) if posed.any() else float("nan")
-    lines.append(f"fit residual: median {np.nanmedian(fit.residual_m[posed]) * 1000:.2f} mm, worst posed "
-                 f"{worst * 1000:.2f} mm (limit {result.max_residual_m * 1000:g} mm)")
-    if result.take.missing_labels:
-        lines.append(f"labels not in the take (unseen throughout): {', '.join(result.take.missing_labels)}")
+    lines.append(f"fit residual: median {imported.median_residual_m * 1000:.2f} mm, worst posed "
+                 f"{imported.worst_residual_m * 1000:.2f} mm (limit {imported.max_residual_m * 1000:g} mm)")
+    if imported.missing_labels:
+        lines.append(f"labels not in the take (unseen throughout): {', '.join(imported.missing_labels)}")
     return lines
-
