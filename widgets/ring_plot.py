@@ -16,17 +16,26 @@ import ctypes
 import mmap
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 MADV_POPULATE_WRITE = 23  # Linux ≥ 5.14: fault pages in as if written, without writing them
+# The kernel holds the process's memory map lock for all of one madvise call, and a thread that maps memory meanwhile
+# (the GUI thread's allocations: numpy arrays, Qt's pixmaps) waits for it to end: one call over a 96 MB history held
+# the GUI thread 80-400 ms at a time while the Forces tab was built (its plots' own work ~40 ms; measured on a 2-core
+# VM with transparent huge pages). Committed a huge page at a time with a pause between, a waiting thread gets the
+# lock within one page's commit (≤ 1 ms measured).
+COMMIT_CHUNK_BYTES = 2 * 1024 * 1024
+COMMIT_PAUSE_S = 0.001
 
 
-def _populate_writable(arrays: Sequence[np.ndarray]) -> bool:
-    """Ask the kernel to commit the arrays' pages (MADV_POPULATE_WRITE); False where it cannot (not Linux, an
-    older kernel). ctypes lets go of the GIL meanwhile; the data are not touched, so another thread may write them."""
+def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = None, pause_s: float = 0.0) -> bool:
+    """Ask the kernel to commit the arrays' pages (MADV_POPULATE_WRITE), ``chunk_bytes`` per call (all of an array in
+    one call when None) with ``pause_s`` between calls; False where it cannot (not Linux, an older kernel). ctypes lets
+    go of the GIL meanwhile; the data are not touched, so another thread may write them."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -37,20 +46,26 @@ def _populate_writable(arrays: Sequence[np.ndarray]) -> bool:
     page = mmap.PAGESIZE
     for array in arrays:
         start = array.ctypes.data & ~(page - 1)
-        if madvise(start, array.ctypes.data + array.nbytes - start, MADV_POPULATE_WRITE) != 0:
-            return False
+        end = array.ctypes.data + array.nbytes
+        step = end - start if chunk_bytes is None else max(page, chunk_bytes - chunk_bytes % page)
+        for offset in range(start, end, step):
+            if madvise(offset, min(step, end - offset), MADV_POPULATE_WRITE) != 0:
+                return False
+            if pause_s:
+                time.sleep(pause_s)
     return True
 
 
 def commit_memory(arrays: Sequence[np.ndarray]) -> threading.Thread | None:
     """Make the arrays' memory the process's now, not as they fill: np.empty maps pages lazily, and the process's
     memory then grew for hours as a history filled (170 → 312 MB seen in a long session, read as a leak). On Linux
-    a daemon thread asks the kernel to commit them (returned; ~10-300 ms for 96 MB, the calling thread — the GUI's —
-    does not wait); elsewhere they are written once here."""
+    a daemon thread asks the kernel to commit them (returned), ``COMMIT_CHUNK_BYTES`` at a time with
+    ``COMMIT_PAUSE_S`` between, so the GUI thread — which does not wait for it — is never held up for long by the
+    kernel's lock (see ``COMMIT_CHUNK_BYTES``); elsewhere they are written once here."""
     probe = np.empty(1, dtype=np.uint8)
     if _populate_writable([probe]):
-        thread = threading.Thread(target=_populate_writable, args=(list(arrays),), name="history-commit",
-                                  daemon=True)
+        thread = threading.Thread(target=_populate_writable, args=(list(arrays), COMMIT_CHUNK_BYTES, COMMIT_PAUSE_S),
+                                  name="history-commit", daemon=True)
         thread.start()
         return thread
     for array in arrays:

@@ -3,7 +3,9 @@
 A passive view. :meth:`SceneView.set_frame` shows an RGB picture (``(h, w, 3)`` uint8, e.g. an offscreen MuJoCo
 render) scaled to fit; :meth:`SceneView.show_fallback` switches to the 2-D :class:`widgets.body_view.BodyView`
 (reachable as :attr:`SceneView.body`, fed with ``set_angles`` by its owner) with a one-line reason above it, for a
-real robot, the scripted simulated lab or a machine without OpenGL. GUI thread only.
+real robot, the scripted simulated lab or a machine without OpenGL. Until the first picture or the fallback, it shows
+``waiting_text`` on a black picture. The 2-D drawing is made only when first shown or asked for (two pyqtgraph views,
+~20-30 ms of the GUI thread, which the 3-D lab's first opening does not need). GUI thread only.
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from widgets.body_view import BodyView
 class SceneView(QWidget):
     """See the module docstring."""
 
-    def __init__(self, axes: Sequence[str], segment_length_m: float, parent: QWidget | None = None) -> None:
+    def __init__(self, axes: Sequence[str], segment_length_m: float, parent: QWidget | None = None,
+                 waiting_text: str = "") -> None:
         super().__init__(parent)
+        self._axes = tuple(axes)
+        self._segment_length_m = segment_length_m
         self.frames_shown = 0
         self.reason = QLabel("")
         self.reason.setWordWrap(True)
@@ -31,20 +36,34 @@ class SceneView(QWidget):
         self.picture.setMinimumSize(160, 120)
         self.picture.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Ignored)
         self.picture.setStyleSheet("background: black;")
-        self.body = BodyView(axes, segment_length_m)
+        self._body: BodyView | None = None
         self._stack = QStackedWidget()
         self._stack.addWidget(self.picture)
-        self._stack.addWidget(self.body)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.reason)
         layout.addWidget(self._stack, 1)
         self._pixmap: QPixmap | None = None
-        self.show_fallback("")
+        self.reason.setText(waiting_text)
+        self.reason.setVisible(bool(waiting_text))
+
+    @property
+    def body(self) -> BodyView:
+        """The 2-D body drawing (made now if it was not)."""
+        if self._body is None:
+            self._body = BodyView(self._axes, self._segment_length_m)
+            self._stack.addWidget(self._body)
+        return self._body
+
+    @property
+    def has_body(self) -> bool:
+        """The 2-D drawing has been made (shown as the fallback, or asked for)."""
+        return self._body is not None
 
     @property
     def showing_picture(self) -> bool:
-        return self._stack.currentWidget() is self.picture
+        """A rendered picture is shown (not the fallback, nor the black picture before the first frame)."""
+        return self._stack.currentWidget() is self.picture and self._pixmap is not None
 
     def set_frame(self, rgb: np.ndarray) -> None:
         """Show ``rgb`` ((h, w, 3) uint8) scaled to the view, keeping its aspect ratio."""
@@ -55,7 +74,7 @@ class SceneView(QWidget):
         image = QImage(frame.data, width, height, 3 * width, QImage.Format.Format_RGB888).copy()  # own the pixels
         self._pixmap = QPixmap.fromImage(image)
         self._show_scaled()
-        if not self.showing_picture:
+        if self._stack.currentWidget() is not self.picture or self.reason.isVisible():
             self._stack.setCurrentWidget(self.picture)
             self.reason.setVisible(False)
         self.frames_shown += 1

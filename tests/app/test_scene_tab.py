@@ -150,26 +150,31 @@ def test_the_scene_line_names_the_scene_file_and_its_obstacles_or_why_it_cannot_
     assert "contact onset 0.3 mm" in line
 
 
-def test_the_tab_opened_in_steps_shows_its_picture_first_and_its_other_views_one_step_each(qtbot: Any) -> None:
-    """A first opening gets the live picture at once; the kinematics panel and the replay's timeline follow one step
-    each (the window is not held for them), and a caller that needs one before its step gets it built then."""
+def test_the_tab_builds_its_hidden_views_only_when_first_needed(qtbot: Any) -> None:
+    """A first opening gets the live picture and nothing hidden: no kinematics panel until a motion-capture source is
+    picked, no replay timeline until a recording is opened (reading either builds it then), no 2-D drawing while the
+    3-D picture is coming."""
     from app.gui.tabs import scene
+    from widgets.body_view import BodyView
+    from widgets.kinematics_view import KinematicsView
+    from widgets.replay_view import ReplayView
 
     lab = LabContext(LabConfig())
     try:
-        tab, steps = scene.create_tab_in_steps(lab)
+        tab = scene.SceneTab(lab)
         qtbot.addWidget(tab)
         assert tab.pages.count() == 1 and tab.live_page.count() == 1  # the picture only
-        next(steps)
-        assert tab.live_page.count() == 2 and not tab.kinematics.isVisibleTo(tab)  # no mocap source: hidden
-        assert tab.pages.count() == 1
-        next(steps)
-        assert tab.pages.count() == 2 and tab.pages.indexOf(tab.replay_view) == 1
-        assert list(steps) == []
-        later, _steps = scene.create_tab_in_steps(lab)
-        qtbot.addWidget(later)
-        assert later.replay_view is later.replay_view and later.pages.count() == 2  # asked for: built at once
-        later.shutdown()
+        assert tab.findChildren(KinematicsView) == [] and tab.findChildren(ReplayView) == []
+        if tab.view.reason.text().startswith("Starting the 3-D picture"):  # the physics lab: its picture is coming
+            assert tab.findChildren(BodyView) == [] and not tab.view.showing_picture
+        else:  # no physics lab: the 2-D drawing is the page
+            assert tab.view.has_body
+        tab._on_mocap_source("sim")  # a source picked: the panel is built and shown
+        assert tab.live_page.count() == 2 and tab.kinematics.isVisibleTo(tab)
+        tab._on_mocap_source("")
+        assert not tab.kinematics.isVisibleTo(tab)
+        assert tab.replay_view is tab.replay_view and tab.pages.count() == 2  # asked for: built at once, once
+        assert len(tab.findChildren(ReplayView)) == 1
         tab.shutdown()
     finally:
         lab.close()

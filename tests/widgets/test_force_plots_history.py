@@ -80,3 +80,35 @@ def test_channel_subset_matches_full_query():
         np.testing.assert_array_equal(part.t_s, full.t_s)
         np.testing.assert_array_equal(part.low, full.low[:, [3, 1]])
         np.testing.assert_array_equal(part.high, full.high[:, [3, 1]])
+
+
+def test_a_history_s_memory_is_committed_a_huge_page_at_a_time(monkeypatch):
+    """The kernel holds the process's memory map lock for all of one madvise call and the GUI thread's allocations
+    wait for it: the commit asks for at most ``COMMIT_CHUNK_BYTES`` a call, and covers every byte of the arrays."""
+    import mmap
+
+    from widgets import ring_plot
+
+    calls: list[tuple[int, int]] = []
+
+    class FakeLibc:
+        @staticmethod
+        def madvise(address: int, length: int, advice: int) -> int:
+            assert advice == ring_plot.MADV_POPULATE_WRITE
+            calls.append((address, length))
+            return 0
+
+    monkeypatch.setattr(ring_plot.sys, "platform", "linux")
+    monkeypatch.setattr(ring_plot.ctypes, "CDLL", lambda *_a, **_k: FakeLibc())
+    monkeypatch.setattr(ring_plot.time, "sleep", lambda _s: None)
+    array = np.empty(5 * ring_plot.COMMIT_CHUNK_BYTES + 12345, dtype=np.uint8)
+    thread = ring_plot.commit_memory([array])
+    assert thread is not None
+    thread.join(timeout=10)
+    calls = calls[1:]  # the first is commit_memory's one-byte probe
+    assert len(calls) >= 6 and all(length <= ring_plot.COMMIT_CHUNK_BYTES for _address, length in calls)
+    start = array.ctypes.data & ~(mmap.PAGESIZE - 1)
+    assert calls[0][0] == start
+    for (address, length), (following, _length) in zip(calls, calls[1:]):
+        assert following == address + length  # contiguous, nothing skipped
+    assert calls[-1][0] + calls[-1][1] == array.ctypes.data + array.nbytes

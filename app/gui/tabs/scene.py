@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -103,11 +102,13 @@ def scene_description(config: Any) -> str:
 class SceneTab(QWidget):
     """See the module docstring. ``shutdown()`` stops the render thread (the main window calls it)."""
 
-    def __init__(self, lab: Any, parent: QWidget | None = None, views_in_steps: bool = False) -> None:
+    def __init__(self, lab: Any, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lab = lab
         robot = lab.config.robot
-        self.view = SceneView(robot.axes, robot.segment_length_m)
+        self._physics, note = _physics_of(lab)
+        self.view = SceneView(robot.axes, robot.segment_length_m,
+                              waiting_text="Starting the 3-D picture…" if self._physics is not None else "")
         layout = QVBoxLayout(self)
         bar = QHBoxLayout()
         self.scene_label = QLabel(scene_description(lab.config))
@@ -129,9 +130,9 @@ class SceneTab(QWidget):
         self.live_page.addWidget(self.view)
         self.pages.addWidget(self.live_page)
         layout.addWidget(self.pages, 1)
-        # The kinematics panel (hidden until a motion capture source) and the replay's timeline are built after the
-        # live picture: one a step when the user opens the tab (create_tab_in_steps), else at once; reading
-        # ``kinematics`` or ``replay_view`` builds what is not built yet.
+        # The kinematics panel and the replay's timeline are built when first needed (a motion capture source is
+        # picked, a recording is opened; reading ``kinematics`` or ``replay_view`` builds it): hidden until then,
+        # they cost the tab's first opening 30-100 ms of blocked window and nothing else.
         self._kinematics: KinematicsView | None = None
         self._replay_view: ReplayView | None = None
         self.replay: replays.Replay | None = None
@@ -143,7 +144,6 @@ class SceneTab(QWidget):
         self._replay_timer.setInterval(REPLAY_FRAME_MS)
         self._replay_timer.timeout.connect(self._replay_tick)
         self._bridge = ThreadBridge(self)
-        self._physics, note = _physics_of(lab)
         self._visible = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -159,21 +159,13 @@ class SceneTab(QWidget):
             why = (f"No physics lab: {note}." if note else "No physics lab: this is a real robot or the scripted "
                    "simulated lab ([lab] physics = \"scripted\").")
             self.view.show_fallback(f"{why} The 2-D drawing shows the present joint angles.")
-        if not views_in_steps:
-            while self.build_next_view():
-                pass
+        if self.mocap is not None:
+            self.mocap.source_changed.connect(self._on_mocap_source)
+            self.mocap.status_changed.connect(self._on_mocap_status)
+            if self.mocap.source:
+                self._on_mocap_source(self.mocap.source)
 
-    # -- the views built after the live picture ----------------------------------------------------------------------
-    def build_next_view(self) -> bool:
-        """Build the next view not built yet (the kinematics panel, then the replay's timeline); False when all are."""
-        if self._kinematics is None:
-            self._build_kinematics()
-            return True
-        if self._replay_view is None:
-            self._build_replay_view()
-            return True
-        return False
-
+    # -- the views built when first needed ---------------------------------------------------------------------------
     @property
     def kinematics(self) -> KinematicsView:
         """The live motion capture's panel beside the picture (built now if it was not)."""
@@ -198,10 +190,7 @@ class SceneTab(QWidget):
         self.live_page.setStretchFactor(0, 3)
         self.live_page.setStretchFactor(1, 2)
         if self.mocap is not None:
-            self.mocap.source_changed.connect(self._on_mocap_source)
-            self.mocap.status_changed.connect(view.set_status)
             view.set_status(self.mocap.status, self.mocap.level)
-            self._on_mocap_source(self.mocap.source)
 
     def _build_replay_view(self) -> None:
         rv = ReplayView()
@@ -288,11 +277,18 @@ class SceneTab(QWidget):
 
     # -- live motion capture -------------------------------------------------------------------------------------------
     def _on_mocap_source(self, source: str) -> None:
-        self.kinematics.setVisible(bool(source))
-        if source and self.isVisible():
-            self._kinematics_timer.start()
-        elif not source:
+        if source:
+            self.kinematics.setVisible(True)
+            if self.isVisible():
+                self._kinematics_timer.start()
+        else:
+            if self._kinematics is not None:
+                self._kinematics.setVisible(False)
             self._kinematics_timer.stop()
+
+    def _on_mocap_status(self, text: str, level: str) -> None:
+        if self._kinematics is not None:
+            self._kinematics.set_status(text, level)
 
     def draw_kinematics(self) -> None:
         """The kinematics panel from the newest poses (timer, while the tab is visible)."""
@@ -434,14 +430,3 @@ def create_tab(lab: Any) -> QWidget:
     """The main window's entry point (``app/gui/tabs/<name>.py`` contract)."""
     return SceneTab(lab)
 
-
-def create_tab_in_steps(lab: Any) -> tuple[SceneTab, Iterator[None]]:
-    """The tab with its live picture, and the steps that add the kinematics panel and the replay's timeline (the main
-    window runs one per turn of the event loop: a first opening holds the window for none of them)."""
-    tab = SceneTab(lab, views_in_steps=True)
-
-    def steps() -> Iterator[None]:
-        while tab.build_next_view():
-            yield
-
-    return tab, steps()
