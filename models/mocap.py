@@ -369,18 +369,23 @@ def _resample_nan(time_s: np.ndarray, values: np.ndarray, grid_s: np.ndarray, ma
     return out
 
 
-def _box_smooth(values: np.ndarray, width: int) -> np.ndarray:
-    """NaN-aware moving average over ``width`` samples (odd) along axis 0; a window with no finite sample is NaN."""
+def _box_smooth(values: np.ndarray, width: int, columns: np.ndarray | None = None) -> np.ndarray:
+    """NaN-aware moving average over ``width`` samples (odd) along axis 0 of ``values``' ``columns`` (default: all);
+    a window with no finite sample is NaN. Column by column: a long take's angles are smoothed with a few columns'
+    worth of scratch, not several copies of the whole."""
+    picked = np.arange(values.shape[1]) if columns is None else np.asarray(columns)
     if width <= 1:
-        return values.copy()
-    finite = np.isfinite(values)
-    filled = np.where(finite, values, 0.0)
+        return values[:, picked].copy()
     kernel = np.ones(width)
-    sums = np.apply_along_axis(lambda c: np.convolve(c, kernel, mode="same"), 0, filled)
-    counts = np.apply_along_axis(lambda c: np.convolve(c, kernel, mode="same"), 0, finite.astype(float))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = sums / counts
-    out[~finite] = np.nan  # never fill a frame that was not seen
+    out = np.empty((values.shape[0], len(picked)))
+    for i, j in enumerate(picked):
+        finite = np.isfinite(values[:, j])
+        sums = np.convolve(np.where(finite, values[:, j], 0.0), kernel, mode="same")
+        counts = np.convolve(finite.astype(float), kernel, mode="same")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            column = sums / counts
+        column[~finite] = np.nan  # never fill a frame that was not seen
+        out[:, i] = column
     return out
 
 
@@ -415,15 +420,16 @@ def find_clock_offset(take_time_s: np.ndarray, take_angle_rad: np.ndarray, rec_t
         raise OffsetRefusedError(
             f"no motion to line up on: no joint seen in the take moved more than {min_motion_rad:g} rad (s.d.) in "
             f"the recording (most: {most:.3g} rad)")
-    take_a, rec_a = take_a[:, joints], rec_a[:, joints]
+    rec_a = rec_a[:, joints]  # the take's angles are only read at the joints' columns: a long take is not copied
     step = 1.0 / grid_hz
     take_dt = float(np.median(np.diff(take_t)))
     rec_dt = float(np.median(np.diff(rec_t)))
     # the take smoothed over one grid step (anti-aliasing the 960 Hz noise), both series on grids of that step
-    smooth = _box_smooth(take_a, max(1, int(round(step / take_dt)) | 1))
+    smooth = _box_smooth(take_a, max(1, int(round(step / take_dt)) | 1), joints)
     take_grid = take_t[0] + step * np.arange(int(math.floor((take_t[-1] - take_t[0]) / step)) + 1)
     rec_grid = rec_t[0] + step * np.arange(int(math.floor((rec_t[-1] - rec_t[0]) / step)) + 1)
     x = _resample_nan(take_t, smooth, take_grid, max(3 * take_dt, 1.5 * step))
+    del smooth
     y = _resample_nan(rec_t, rec_a, rec_grid, 3.0 * rec_dt)
     x -= np.nanmean(x, axis=0)
     y -= np.nanmean(y, axis=0)
@@ -487,7 +493,7 @@ def find_clock_offset(take_time_s: np.ndarray, take_angle_rad: np.ndarray, rec_t
     # refine between grid steps: the take's (lightly smoothed, dense) angles at the recording's samples
     coarse = float(offsets[best])
     lo, hi = coarse - 2 * step, coarse + 2 * step
-    dense = _box_smooth(take_a, max(1, int(round(0.004 / take_dt)) | 1))  # ~4 ms: the noise, not the motion
+    dense = _box_smooth(take_a, max(1, int(round(0.004 / take_dt)) | 1), joints)  # ~4 ms: the noise, not the motion
     inside = (rec_t - hi >= take_t[0]) & (rec_t - lo <= take_t[-1]) & np.all(np.isfinite(rec_a), axis=1)
     t_r, a_r = rec_t[inside], rec_a[inside]
     usable = np.all(np.isfinite(_resample_nan(take_t, dense, t_r - lo, 3 * take_dt)), axis=1) & \
