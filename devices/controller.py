@@ -814,7 +814,7 @@ class RobotController:
         on those, as without deadlines -- but in the slack of the ticks that follow, not inside one: such a read is
         given up at the tick's deadline too, kept in flight (no instruction goes out meanwhile, so no goal is
         written: the servos hold the last) and resumed in the next ticks until its replies are in or its reply
-        timeout, counted from its instruction, has passed (docs/decisions: confirm reads across ticks)."""
+        timeout, counted from its instruction, has passed (docs/decisions/0025)."""
         sent_s = time.monotonic()
         confirm = self._confirm_silence
         deadline = self._feedback_deadline_s(sent_s, next_deadline)
