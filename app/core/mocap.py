@@ -418,7 +418,8 @@ def place_take(take: Take, mocap: MocapConfig, axes: Sequence[str], robot_time_s
 # ----------------------------------------------------------------------------------------------------------------
 # The copy with /mocap
 # ----------------------------------------------------------------------------------------------------------------
-CHUNK_FRAMES = 8_192  # frames read, fitted and written at a time by import_take (~30 MB of working arrays)
+CHUNK_FRAMES = 2_048  # frames read, fitted and written at a time by import_take: ~30 MB of working arrays (the fit's
+# scratch is ~14 kB a frame; 1,024 to 8,192 frames a block cost the same CPU)
 _MEDIAN_BITS = 44  # a residual's float64 bits >> this: its exponent and 8 mantissa bits, 2**20 bins
 
 
