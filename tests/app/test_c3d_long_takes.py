@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from pathlib import Path
 
 import ezc3d
 import numpy as np
@@ -80,3 +81,44 @@ def test_a_take_within_65535_frames_reads_as_before(tmp_path):
     take = read_c3d(path, MocapConfig(), 12)
     assert take.markers_m.shape[0] == 3_000 and take.source == "C3D short.c3d"
     assert np.isnan(take.markers_m[150, 0, 3, 0]) and not np.isnan(take.markers_m[250, 0, 3, 0])
+
+
+def test_the_header_and_parameters_read_without_the_frames_are_ezc3ds(tmp_path: Path) -> None:
+    """read_head parses the parameter section itself (ezc3d would read every frame to give them): every parameter
+    ezc3d reads is there with the same values, and the frames read from the data section (interleaved with analog
+    samples here) are ezc3d's."""
+    from app.core.c3d_frames import point_layout, read_frames, read_head
+
+    labels = tuple(label for row in layout_labels(MocapConfig(), 12) for label in row)
+    frames, analog_per_frame = 500, 4
+    rng = np.random.default_rng(2)
+    points = np.ones((4, len(labels), frames))
+    points[:3] = rng.normal(0, 500, (3, len(labels), frames))
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [RATE_HZ]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = labels
+    c3d["parameters"]["ANALOG"]["RATE"]["value"] = [RATE_HZ * analog_per_frame]
+    c3d["parameters"]["ANALOG"]["LABELS"]["value"] = ("EMG1", "EMG2", "SYNC")
+    c3d.add_parameter("POINT", "UNITS", "mm")
+    c3d.add_parameter("SUBJECTS", "NAMES", ["Snake", "Rig"])
+    c3d["data"]["points"] = points
+    c3d["data"]["analogs"] = rng.normal(0, 1, (1, 3, frames * analog_per_frame))
+    path = tmp_path / "analog.c3d"
+    c3d.write(str(path))
+    theirs = ezc3d.c3d(str(path))
+    head = read_head(path)
+    assert head is not None
+    for key in ("size", "first_frame", "last_frame", "frame_rate"):
+        assert head["header"]["points"][key] == theirs["header"]["points"][key], key
+    compared = 0
+    for group, entries in theirs["parameters"].items():
+        for name, entry in entries.items():
+            if not isinstance(entry, dict) or "value" not in entry:
+                continue
+            ours = head["parameters"][group][name]["value"]
+            expected = [str(x) if isinstance(x, str) else float(x) for x in np.ravel(entry["value"])]
+            assert [str(x) if isinstance(x, str) else float(x) for x in ours] == expected, f"{group}:{name}"
+            compared += 1
+    assert compared > 20 and head["parameters"]["SUBJECTS"]["NAMES"]["value"] == ["Snake", "Rig"]
+    xyz = read_frames(path, point_layout(path, head), 0, frames)
+    assert np.array_equal(xyz, np.transpose(theirs["data"]["points"][:3], (2, 1, 0)))
