@@ -485,3 +485,27 @@ def test_record_to_an_existing_file_typed_in_keeps_it_and_the_dialog_can_replace
     tab.stop_recording()
     qtbot.waitUntil(lambda: not session.is_active, timeout=15_000)
     assert open_recording(existing).time_s.size > 0  # replaced by the new recording, as confirmed
+
+
+def test_opened_by_a_click_the_tab_builds_its_body_map_and_plots_one_per_step(qtbot, lab):
+    """The first turn builds neither the body map nor a plot (two pyqtgraph views and twelve plot widgets, each
+    20-40 ms of the GUI thread); the steps build the map, then one plot per real step, each followed by a turn that
+    builds nothing (the window's other timers get in), and the finished page is the whole page."""
+    from app.gui.tabs.forces import create_tab_in_steps
+    from widgets.body_view import BodyView
+
+    tab, steps = create_tab_in_steps(lab)
+    qtbot.addWidget(tab)
+    try:
+        assert tab.findChildren(BodyView) == [] and tab.plots.plots == []
+        next(steps)
+        assert tab.body is not None and tab.findChildren(BodyView) == [tab.body] and tab.plots.plots == []
+        next(steps)
+        assert tab.plots.plots == []  # the turn after a piece builds nothing
+        next(steps)
+        assert len(tab.plots.plots) == 1
+        left = list(steps)
+        assert len(tab.plots.plots) == 12 and len(left) == 2 * 11 - 1
+        tab.refresh_body()  # the map built in a step is drawn like one built at once
+    finally:
+        tab.shutdown()
