@@ -1,13 +1,14 @@
-"""Motion capture's memory against the take's length, each length in a fresh process (its ``ru_maxrss``).
+"""Motion capture's memory against the take's length, each length in a fresh process.
 
 Recording: the peak resident memory of a process recording a generated 960 Hz take (tests/mocap_takes.py: fed
 straight into the inlet, no Lab Streaming Layer, generated as fast as numpy makes it, not in real time), less that
-of the same process recording a 1-second take (what importing and setting up cost).
+of the same process recording a 1-second take (what importing and setting up cost); its ``ru_maxrss``.
 
 Importing (``--import``): ``sensnake mocap import TAKE.c3d --rec REC.h5 --out NEW.h5`` of a generated 960 Hz C3D
 take of 48 markers (tests/mocap_c3d_takes.py: written a block at a time, a smooth random walk of the joints that the
-recording's servo angles match, the offset found from the motion), its peak resident memory, wall and CPU time,
-and the peak's growth over the same import of a 10,000-frame take. Files under the system's temporary folder,
+recording's servo angles match, the offset found from the motion; made in a process of its own), its peak resident
+memory (the importing process's ``VmHWM``: its ``ru_maxrss`` would carry the peak of the process that spawned it
+across ``exec``), wall and CPU time, and the peak's growth over the same import of a 10,000-frame take. Files under the system's temporary folder,
 removed after each length. ``--code DIR`` runs another checkout's import (its ``app``, ``devices``, ``models``).
 
     python -m benchmarks.bench_mocap_memory [--minutes 1 5 10]
@@ -50,8 +51,19 @@ import json, resource, sys, time
 from app.cli.main import main
 start, wall = time.process_time(), time.perf_counter()
 code = main(["mocap", "import", sys.argv[1], "--rec", sys.argv[2], "--out", sys.argv[3]])
-print(json.dumps({"rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "code": code,
-                  "cpu_s": time.process_time() - start, "wall_s": time.perf_counter() - wall}))
+try:  # this process image's own peak: ru_maxrss keeps the spawning process's peak across exec (Linux)
+    peak = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM:")) / 1024
+except OSError:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"rss_mb": peak, "code": code, "cpu_s": time.process_time() - start,
+                  "wall_s": time.perf_counter() - wall}))
+"""
+MAKE_CHILD = """
+import sys
+from tests.mocap_c3d_takes import RATE_HZ, write_c3d, write_recording
+frames, lead_s = int(sys.argv[3]), float(sys.argv[4])
+motion = write_c3d(sys.argv[1], frames)
+write_recording(sys.argv[2], motion, max(frames / RATE_HZ - 2 * lead_s, 1.0), -lead_s)
 """
 
 
@@ -60,14 +72,11 @@ BASE_FRAMES = 10_000  # the baseline take: 10.4 s, long enough for the offset fr
 
 def measure_import(frames: int, code_dir: str | None = None, lead_s: float = 1.5) -> dict:
     """One ``mocap import`` of a generated ``frames``-frame take in a fresh process (``code_dir``'s import, else
-    this checkout's): its peak RSS (MB), CPU and wall time (s). The take and recording are made here first."""
-    from tests.mocap_c3d_takes import RATE_HZ, write_c3d, write_recording
-
+    this checkout's): its peak RSS (MB), CPU and wall time (s). The take and recording are made first."""
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     with tempfile.TemporaryDirectory(prefix="bench-mocap-import-") as tmp:
         take, rec, out = (os.path.join(tmp, name) for name in ("take.c3d", "rec.h5", "new.h5"))
-        motion = write_c3d(take, frames)
-        write_recording(rec, motion, max(frames / RATE_HZ - 2 * lead_s, 1.0), -lead_s)
+        subprocess.run([sys.executable, "-c", MAKE_CHILD, take, rec, str(frames), str(lead_s)], check=True, cwd=here)
         done = subprocess.run([sys.executable, "-c", IMPORT_CHILD, take, rec, out], capture_output=True, text=True,
                               check=True, cwd=code_dir or here)
         result = json.loads(done.stdout.strip().splitlines()[-1])

@@ -16,7 +16,9 @@ stamps (pyxdf's clock-synchronised ones). A marker is unseen where its coordinat
 negative residual, or where it sits exactly at (0, 0, 0) (what several systems send for a lost marker).
 
 The input recording is only read. The copy is built in a hidden file beside the output and linked into place only
-if no file is there: an existing file is never replaced. Called from one thread (the CLI's).
+if no file is there: an existing file is never replaced. :func:`import_take` reads, fits and writes a take a block
+of frames at a time, keeping only its joint angles and times whole (for the clock offset): a C3D take is never held
+whole (:func:`open_c3d`); an XDF one is, as pyxdf loads it. Called from one thread (the CLI's).
 """
 
 from __future__ import annotations
