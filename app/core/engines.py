@@ -48,15 +48,33 @@ ENGINES = ("local", "dask")
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
 PARENT_WATCH_S = 0.5  # how often a local worker checks that its parent is alive
 MAX_RUNS = 10_000  # more runs than this in one command is a mistake in the file, not a plan (refused before any run)
-# Dask's periodic housekeeping, slowed: with its defaults an idle embedded cluster of two workers (the scheduler, the
-# nannies and the client in this process, the two workers) takes 0.065 of a core, 0.012 with these (measured over 20 s
-# idle); on a loaded machine that cost grows with the wall clock and doubled a sweep's CPU (bench_engine_overhead).
-# The event loop's blocked-loop check ticks every second (not 20 ms), the system monitor every 2 s (500 ms), the
-# memory monitor every second (100 ms); no work stealing (the scheduler queues the runs: a worker takes one when free).
-QUIET_DASK: dict[str, Any] = {"distributed.admin.tick.interval": "1s",
-                              "distributed.admin.system-monitor.interval": "2s",
+# Dask's periodic housekeeping, slowed and thinned. It costs twice. Its CPU: with Dask's defaults an idle embedded
+# cluster of two workers (the scheduler, the nannies and the client in this process, the two workers) took 0.065 of a
+# core. And the interpreter lock, in each worker: a worker runs its task in a thread beside its event loop, and each
+# time the loop wakes (every periodic callback, every heartbeat) it takes the lock from the running task, about four
+# times a wake-up (once for each system call its callback makes), the task waiting each time (0.1 ms median, several
+# ms when the machine is busy). With Dask's settings a worker's loop woke ~8 times a second during a run and took the
+# lock ~20-36 times a second; with these ~1.4 and ~6 (bench_engine_overhead, decision 0017). The loop's health check
+# ticks every 2 s (not 20 ms; its "unresponsive" warning is at 3 s) and its speed is cycled every 5 s (1 s); the
+# system monitor samples every 10 s (500 ms), GIL contention not polled (every 1 ms when ``gilknocker`` is
+# installed); a worker neither spills nor pauses (its own memory monitor, 10 times a second by default, goes: the
+# results held are summary rows; the nanny still ends a worker past 95 % of its memory limit, every second, from this
+# process); no work stealing (the scheduler queues the runs: a worker takes one when free). Heartbeats: see
+# :data:`WORKER_HEARTBEAT_S`.
+QUIET_DASK: dict[str, Any] = {"distributed.admin.tick.interval": "2s",
+                              "distributed.admin.tick.cycle": "5s",
+                              "distributed.admin.system-monitor.interval": "10s",
+                              "distributed.admin.system-monitor.gil.enabled": False,
                               "distributed.worker.memory.monitor-interval": "1s",
+                              "distributed.worker.memory.spill": False,
+                              "distributed.worker.memory.pause": False,
                               "distributed.scheduler.work-stealing": False}
+# An embedded cluster's workers heartbeat every this many seconds. Dask's scheduler asks a cluster of up to 10
+# workers for one every 0.5 s (not a setting: ``distributed.scheduler.heartbeat_interval``), and each worker then
+# looks for missing data as often: 4 of a worker's ~8 wake-ups a second. Nothing here waits on a heartbeat: a dead
+# worker's connection breaks (the scheduler retries its run at once), and a silent one is dropped after
+# ``distributed.scheduler.worker-ttl`` (5 minutes).
+WORKER_HEARTBEAT_S = 5.0
 # What an embedded cluster's worker imports before its first run: imported once, in the forkserver the workers are
 # forked from (``distributed`` itself, the sweep's run function and the physics lab it runs), not once per worker.
 # ``app.core.worker_server`` makes the server's own end quick.
@@ -251,12 +269,32 @@ def _start_cluster(jobs: int) -> tuple[Any, Any]:
     _configure_dask()
     dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
     cluster = LocalCluster(host="127.0.0.1", n_workers=jobs, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=50)
+                           dashboard_address=None, silence_logs=50, heartbeat_interval=f"{WORKER_HEARTBEAT_S:g}s")
     try:
+        _slow_heartbeats(cluster.scheduler, WORKER_HEARTBEAT_S)
         return cluster, Client(cluster, timeout=CONNECT_TIMEOUT_S)
     except BaseException:
         _close_cluster(cluster, None)
         raise
+
+
+def _slow_heartbeats(scheduler: Any, seconds: float) -> None:
+    """Have ``scheduler`` (this process's own, an embedded cluster's) ask its workers for a heartbeat every
+    ``seconds`` at most. A worker sets its next heartbeat from each heartbeat's reply (``heartbeat-interval``); the
+    reply is amended on the way out of the scheduler's handler, for this scheduler only (Dask has no setting for it).
+    Nothing to amend (a Dask that names things otherwise) leaves Dask's interval, which only costs time."""
+    handlers = getattr(scheduler, "handlers", None)
+    if not isinstance(handlers, dict) or handlers.get("heartbeat_worker") is None:
+        return
+    handler = handlers["heartbeat_worker"]
+
+    def heartbeat_worker(*args: Any, **kwargs: Any) -> Any:
+        reply = handler(*args, **kwargs)
+        if isinstance(reply, dict) and isinstance(reply.get("heartbeat-interval"), (int, float)):
+            reply["heartbeat-interval"] = max(float(reply["heartbeat-interval"]), seconds)
+        return reply
+
+    handlers["heartbeat_worker"] = heartbeat_worker
 
 
 def _close_cluster(cluster: Any, client: Any) -> None:

@@ -80,3 +80,48 @@ def test_a_dask_sweep_whose_file_is_refused_says_so_in_one_line_and_leaves_no_pr
     assert done.returncode == 1
     assert len(done.stderr.strip().splitlines()) == 1 and "no_such_scene" in done.stderr, done.stderr
     assert _marked(mark) == []  # the forkserver started for it is gone with the command
+
+
+def test_the_embedded_scheduler_asks_for_a_heartbeat_every_worker_heartbeat_s_at_most() -> None:
+    from app.core.engines import WORKER_HEARTBEAT_S, _slow_heartbeats
+
+    class Scheduler:  # the two things the amendment touches: the handler table and the reply's key
+        def __init__(self, interval: float) -> None:
+            self.handlers = {"heartbeat_worker": lambda **kw: {"status": "OK", "heartbeat-interval": interval,
+                                                               "address": kw["address"]}}
+
+    quick, slow = Scheduler(0.5), Scheduler(2 * WORKER_HEARTBEAT_S)
+    _slow_heartbeats(quick, WORKER_HEARTBEAT_S)
+    _slow_heartbeats(slow, WORKER_HEARTBEAT_S)
+    assert quick.handlers["heartbeat_worker"](address="w") == {"status": "OK", "heartbeat-interval": WORKER_HEARTBEAT_S,
+                                                                "address": "w"}
+    assert slow.handlers["heartbeat_worker"](address="w")["heartbeat-interval"] == 2 * WORKER_HEARTBEAT_S
+
+
+def test_an_embedded_workers_event_loop_wakes_rarely_while_it_runs() -> None:
+    # A worker runs its task in a thread beside its event loop; each wake-up of the loop takes the interpreter lock
+    # from the run. After a heartbeat (forced here, so its reply has set the next one), the worker's periodic
+    # callbacks are the thinned set: no memory monitor, heartbeats and the search for missing data every
+    # WORKER_HEARTBEAT_S (Dask's scheduler asks for 0.5 s), the loop's check every 2 s.
+    code = ("import asyncio\n"
+            "from app.core import engines\n"
+            "engine = engines.DaskEngine(1)\n"
+            "async def beat(dask_worker):\n"
+            "    await dask_worker.heartbeat()\n"
+            "    dask_worker.find_missing()\n"
+            "    return {k: pc.callback_time for k, pc in dask_worker.periodic_callbacks.items()}\n"
+            "(times,) = engine.client.run(beat).values()\n"
+            "print(sorted(times.items()), flush=True)\n"
+            "engine.close()\n")
+    mark = uuid.uuid4().hex
+    done = _run(["-c", code], mark)
+    assert done.returncode == 0, done.stderr
+    times = dict(eval(done.stdout.splitlines()[-1]))  # noqa: S307 - our own child's printed list
+    from app.core.engines import WORKER_HEARTBEAT_S
+
+    assert "memory_monitor" not in times
+    assert times["heartbeat"] == times["find-missing"] == WORKER_HEARTBEAT_S * 1000
+    assert times["tick"] == 2000
+    wakeups_per_s = sum(1000.0 / ms for ms in times.values())
+    assert wakeups_per_s < 1.5, times
+    assert _marked(mark) == []
