@@ -22,8 +22,9 @@ Target: < 100 ms for each action.
 uses 10 s of history. On a private Xvfb with Qt's xcb platform unless ``--offscreen`` or no Xvfb can start.
 ``--load N`` starts N busy processes beside the app (``while True: pass``, as benchmarks/bench_feedback_under_load.py).
 ``--why`` also prints, for each action, where the GUI thread was (its Python stack, sampled every 2 ms from another
-thread) while a tick was more than 30 ms late, and what took its CPU (cProfile with the thread's CPU clock), so an
-action over target names its cause.
+thread) while a tick was more than 30 ms late, what the app's other threads were doing in those samples (a worker
+holding the interpreter lock, or a kernel lock the GUI thread needs, is seen there, not on the GUI thread's stack),
+and what took its CPU (cProfile with the thread's CPU clock), so an action over target names its cause.
 """
 
 from __future__ import annotations
@@ -134,6 +135,7 @@ class StallSampler:
         self._main = threading.get_ident()  # made on the GUI thread
         self._stop = threading.Event()
         self.samples: Counter[str] = Counter()
+        self.others: Counter[str] = Counter()  # the other threads' innermost frames in the same samples
         self._thread = threading.Thread(target=self._run, name="stall-sampler", daemon=True)
         self._thread.start()
 
@@ -142,9 +144,17 @@ class StallSampler:
         while not self._stop.wait(SAMPLE_S):
             if time.perf_counter() - self._watch.last_tick_s <= STALL_S:
                 continue
-            frame = sys._current_frames().get(self._main)  # noqa: SLF001 - the sampler's whole point
+            frames = sys._current_frames()  # noqa: SLF001 - the sampler's whole point
+            frame = frames.get(self._main)
             if frame is None:
                 continue
+            # A worker can hold the GUI thread without being on its stack (the interpreter lock, a lock of the
+            # kernel's): what each other thread was doing meanwhile names it.
+            names = {thread.ident: thread.name for thread in threading.enumerate()}
+            for ident, other in frames.items():
+                if ident not in (self._main, threading.get_ident()):
+                    self.others[f"{names.get(ident, ident)}: {Path(other.f_code.co_filename).name}:"
+                                f"{other.f_lineno} {other.f_code.co_name}"] += 1
             leaf = f"{Path(frame.f_code.co_filename).name}:{frame.f_lineno} {frame.f_code.co_name}"
             ours: list[str] = []
             while frame is not None and len(ours) < 6:
@@ -154,9 +164,11 @@ class StallSampler:
                 frame = frame.f_back
             self.samples[" < ".join(ours or ["(event loop)"]) + f"  [leaf {leaf}]"] += 1
 
-    def take(self) -> Counter[str]:
+    def take(self) -> tuple[Counter[str], Counter[str]]:
+        """(the GUI thread's stacks, the other threads' innermost frames) since the last call."""
         samples, self.samples = self.samples, Counter()
-        return samples
+        others, self.others = self.others, Counter()
+        return samples, others
 
     def stop(self) -> None:
         self._stop.set()
@@ -198,7 +210,11 @@ class Why:
             profile.disable()
             lines = [f"--- {name}: where the GUI thread was while a tick was > {STALL_S * 1000:.0f} ms late "
                      f"({SAMPLE_S * 1000:.0f} ms samples)"]
-            lines += [f"{count:5d}  {stack}" for stack, count in self.sampler.take().most_common(8)]
+            samples, others = self.sampler.take()
+            lines += [f"{count:5d}  {stack}" for stack, count in samples.most_common(8)]
+            lines.append(f"--- {name}: the other threads meanwhile (innermost frame; one waiting in select, a lock or a "
+                         "queue holds nothing)")
+            lines += [f"{count:5d}  {where}" for where, count in others.most_common(8)]
             text = io.StringIO()
             pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(25)
             lines.append(f"--- {name}: the GUI thread's CPU by function (cumulative s)")

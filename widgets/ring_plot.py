@@ -23,11 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 
 MADV_POPULATE_WRITE = 23  # Linux ≥ 5.14: fault pages in as if written, without writing them
-# The kernel holds the process's memory map lock for all of one madvise call, and a thread that maps memory meanwhile
-# (the GUI thread's allocations: numpy arrays, Qt's pixmaps) waits for it to end: one call over a 96 MB history held
-# the GUI thread 80-400 ms at a time while the Forces tab was built (its plots' own work ~40 ms; measured on a 2-core
-# VM with transparent huge pages). Committed a huge page at a time with a pause between, a waiting thread gets the
-# lock within one page's commit (≤ 1 ms measured).
+# One madvise call over a 96 MB history kept the GUI thread waiting 80-400 ms at a time while the Forces tab was built,
+# off the CPU and not for the interpreter lock (its constructor: 173-435 ms of wall for 35-42 ms of CPU; 33-40 ms of
+# wall with no commit; a 2-core VM with transparent huge pages). Most likely the kernel's memory-map lock, which the
+# call holds throughout and which the GUI thread's allocations (numpy arrays, Qt's pixmaps) need. Committed a huge
+# page a call with a pause between, one call takes ≤ 1 ms alone (≤ 5 ms seen in the app at load 3-5).
 COMMIT_CHUNK_BYTES = 2 * 1024 * 1024
 COMMIT_PAUSE_S = 0.001
 
