@@ -10,7 +10,8 @@ measured from outside (user + system CPU of it and every process under it, ``os.
 sweep's wall; each run stamped inside the worker that ran it: when the call began and returned, the run's own
 ``wall_s``; every process under it sampled every 0.2 s from ``/proc``: its resident memory):
 
-* ``serial``: the runs one after another in one process (``app.core.sweep._one``, what a worker runs), no engine;
+* ``serial``: the runs one after another in one process forked from the measured one (``app.core.sweep._one``,
+  what a worker runs), no engine;
 * ``bare``: the runs on J processes forked from the measured one, each doing every J-th run one after another: no
   pool, no queue, no scheduler — the machine's own parallel slowdown, without an engine;
 * ``local``: ``run_sweep(..., jobs=J, engine="local")`` — the process pool, the folder's journal, the summary;
@@ -29,23 +30,32 @@ Printed for each configuration, in each round:
   its worker, so a run made slower by its neighbour is not counted against the engine;
 * **slowdown** = Σ the runs' own time / Σ the serial runs' own time − 1: the parallel slowdown itself, as each mode
   met it (``bare``: with no engine at all);
+* **runCPU** = Σ the CPU time of the threads that ran the runs / the serial runs' − 1, and **waits**, those threads'
+  voluntary waits a second of run (for the disk; in a Dask worker also for the interpreter lock, which its event loop
+  takes from the run each time it wakes): what a run costs inside its worker, apart from what it waits for;
 * CPU against the serial's, where the workers' time went (start, between runs, inside the call but outside the run,
   idle at the tail, the stop: worker-seconds), each worker's peak resident memory and its growth from the sweep's
   middle to its end (bounded: a worker that held on to each run's memory would grow with every run), the 1-minute
   load average before and the cores other processes kept busy during it.
 
 The modes run in turn, their order reversed every other round (serial, bare, local, dask, then dask, local, bare,
-serial, …), so a change in the machine's load falls on all of them; the medians of the rounds close the table.
+serial, …), so a change in the machine's load falls on all of them; the medians of the rounds close the table, with
+(when both ran) the Dask runs' own time and CPU against the local pool's, round by round.
 
 Run: ``python -m benchmarks.bench_engine_overhead [--seconds 8] [--jobs 2] [--repeats 4] [--modes bare,local,dask]
 [--write]`` (``--write``: ``benchmarks/results/engine_overhead.txt``); ``sensnake bench --quick`` uses 2 s plays.
 
-Measured on the 2-core machine with no other work (other programs <= 0.06 of a core; 8 s plays, 10 rounds), median
-(range): literal local +2.1 %, Dask +18.4 % (-9.4 to +38.9), bare +1.1 %; engine local +2.4 % (0.5-4.3), Dask +7.5 %
-(4.3-10.0), bare +1.9 %; the Dask runs' own time a median 8 % above the local pool's in the same round. Dask's start
-0.27-0.64 s, 2-3 ms between runs, stop 0.06-0.09 s. Under other programs' load (1.0-1.8 cores, 8 rounds) the engine
-figures hold (local 0.4-2.1 %, Dask 4.4-8.7 %) and the literal one is the machine's (bare +95 to +329 %). Worker
-memory 93-95 MB (local), 119-122 MB (Dask), <= 2 MB growth.
+Last measured on the 2-core machine with no other work (other programs <= 0.06 of a core; 8 s plays, 10 rounds)
+before an embedded cluster's workers had their housekeeping thinned, median (range): literal local +2.1 %, Dask
++18.4 % (-9.4 to +38.9), bare +1.1 %; engine local +2.4 % (0.5-4.3), Dask +7.5 % (4.3-10.0), bare +1.9 %; the Dask
+runs' own time a median 8 % above the local pool's in the same round. Part of that, at least, was the interpreter
+lock: a Dask worker runs its task in a thread beside its event loop, and the loop, waking ~8 times a second, took the
+lock from the run 19-36 times a second; thinned, it wakes ~1.4 times a second and takes it 5-6 times (decision 0017;
+``benchmarks/probe_engine_runs.py``). Since then measured only on the busy machine (load 3-5), where CPU and wall of
+one run swing by tens of per cent: not yet on a quiet one. Dask's start 0.27-0.64 s, 2-3 ms between runs, stop
+0.06-0.09 s. Under other programs' load (1.0-1.8 cores, 8 rounds) the engine figures hold (local 0.4-2.1 %, Dask
+4.4-8.7 %) and the literal one is the machine's (bare +95 to +329 %). Worker memory 93-95 MB (local), 119-122 MB
+(Dask), <= 2 MB growth.
 """
 
 from __future__ import annotations
@@ -53,6 +63,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -113,11 +124,9 @@ def _cmdline(pid: int) -> str:
 
 
 class MemoryWatch:
-    """Resident memory of this process (``serial``) or of every process under it, sampled; per pid a list of
-    (seconds since start, MB)."""
+    """Resident memory of every process under this one, sampled; per pid a list of (seconds since start, MB)."""
 
-    def __init__(self, own: bool) -> None:
-        self.own = own
+    def __init__(self) -> None:
         self.samples: dict[int, list[tuple[float, float]]] = {}
         self.names: dict[int, str] = {}
         self.forkservers: set[int] = set()
@@ -129,7 +138,7 @@ class MemoryWatch:
         me = os.getpid()
         while not self._stop.is_set():
             now = time.monotonic() - self._start
-            for pid in [me] if self.own else _descendants(me):
+            for pid in _descendants(me):
                 mb = _rss_mb(pid)
                 if mb is None:
                     continue
@@ -173,15 +182,20 @@ _ORIGINAL_ONE: Any = None  # the sweep's run function before :func:`child` put :
 
 def timed_one(task: dict[str, Any]) -> dict[str, Any]:
     """What a worker runs here: the sweep's own run function, its call stamped (wall-clock seconds since the epoch,
-    comparable between processes) with the process that ran it. The run's own time is the row's ``wall_s``."""
+    comparable between processes) with the process that ran it, the CPU time of the thread that ran it and the times
+    that thread waited (voluntary context switches: for the interpreter lock, which a Dask worker's event loop takes
+    from the run each time it wakes, or for the disk). The run's own time is the row's ``wall_s``."""
     run = _ORIGINAL_ONE
     if run is None:  # a worker that imported this module afresh (Dask's): the sweep module's function is the original
         from app.core import sweep
 
         run = sweep._one  # noqa: SLF001 - what a worker runs
     called = time.time()
+    before, cpu = resource.getrusage(resource.RUSAGE_THREAD), time.thread_time()
     row = run(task)
-    return {**row, "bench_called": called, "bench_returned": time.time(), "bench_pid": os.getpid()}
+    cpu, after = time.thread_time() - cpu, resource.getrusage(resource.RUSAGE_THREAD)
+    return {**row, "bench_called": called, "bench_returned": time.time(), "bench_pid": os.getpid(),
+            "bench_cpu_s": cpu, "bench_waits": after.ru_nvcsw - before.ru_nvcsw}
 
 
 def _bare(tasks: list[dict[str, Any]], jobs: int, folder: Path) -> list[dict[str, Any]]:
@@ -245,10 +259,13 @@ def child(mode: str, plan_file: Path, out: Path, jobs: int) -> None:
         return engine
 
     sweep.open_engine = stamped_open
-    with MemoryWatch(own=mode == "serial") as watch:
+    # Every mode's runs run in processes under this one, away from its memory watch: a thread beside the runs (the
+    # watch's, reading /proc five times a second) would take the interpreter lock from them at each wake-up, as a
+    # Dask worker's event loop does.
+    with MemoryWatch() as watch:
         started_epoch, start = time.time(), time.perf_counter()
         if mode == "serial":
-            rows = [timed_one(task) for task in sweep.sweep_tasks(plan, out)]
+            rows = _bare(sweep.sweep_tasks(plan, out), 1, out)
         elif mode == "bare":
             rows = _bare(sweep.sweep_tasks(plan, out), jobs, out)
         else:
@@ -257,9 +274,11 @@ def child(mode: str, plan_file: Path, out: Path, jobs: int) -> None:
     workers = watch.workers(wall)
     failed = sum(1 for r in rows if str(r.get("file", "")).startswith("failed"))
     runs = [{"pid": r.get("bench_pid"), "called": r.get("bench_called"), "returned": r.get("bench_returned"),
-             "wall_s": float(r.get("wall_s") or 0.0)} for r in rows]
+             "wall_s": float(r.get("wall_s") or 0.0), "cpu_s": float(r.get("bench_cpu_s") or 0.0),
+             "waits": int(r.get("bench_waits") or 0)} for r in rows]
     print(json.dumps({"mode": mode, "wall_s": wall, "prepare_s": prepare_s, "started": started_epoch, "runs": len(rows), "failed": failed,
-                      "run_wall_s": sum(r["wall_s"] for r in runs), "timeline": runs, "marks": marks,
+                      "run_wall_s": sum(r["wall_s"] for r in runs), "run_cpu_s": sum(r["cpu_s"] for r in runs),
+                      "run_waits": sum(r["waits"] for r in runs), "timeline": runs, "marks": marks,
                       "workers": workers}))
 
 
@@ -347,6 +366,8 @@ def figures(r: dict, serial: dict, jobs: int) -> dict[str, float]:
     return {"literal": wall / (serial["wall_s"] / width) - 1.0,  # the criterion's: wall / (serial / workers)
             "engine": parts["engine"] / parts["runs"],  # the engine's own: (workers x wall - runs) / runs
             "slowdown": parts["runs"] / serial["run_wall_s"] - 1.0,  # each run's slowdown against the serial's
+            "run_cpu": r["run_cpu_s"] / serial["run_cpu_s"] - 1.0,  # the runs' threads' CPU against the serial's
+            "waits_per_s": r["run_waits"] / parts["runs"],  # the run threads' waits a second of run
             "cpu": r["cpu_s"] / serial["cpu_s"] - 1.0, **{f"{k}_s": v for k, v in parts.items()}}
 
 
@@ -365,7 +386,8 @@ def round_lines(k: int, results: dict[str, dict], jobs: int) -> list[str]:
         peaks = [w["peak_mb"] for w in r["workers"]] or [float("nan")]
         growth = [w["end_mb"] - w["middle_mb"] for w in r["workers"]] or [float("nan")]
         lines.append(f"{k:>5} {mode:<9} {r['wall_s']:>6.1f} {f['literal']:>+8.1%} {f['engine']:>+7.1%} "
-                     f"{f['slowdown']:>+8.1%} {f['cpu']:>+7.1%} {r['prepare_s']:>5.2f} {f['start_s']:>6.2f} "
+                     f"{f['slowdown']:>+8.1%} {f['run_cpu']:>+7.1%} {f['waits_per_s']:>6.1f} {f['cpu']:>+7.1%} "
+                     f"{r['prepare_s']:>5.2f} {f['start_s']:>6.2f} "
                      f"{f['between_s']:>6.2f} "
                      f"{f['call_s']:>5.2f} {f['tail_s']:>5.2f} {f['stop_s']:>5.2f} "
                      f"{f'{min(peaks):.0f}-{max(peaks):.0f}':>8} {f'{min(growth):+.0f}/{max(growth):+.0f}':>6} "
@@ -373,13 +395,16 @@ def round_lines(k: int, results: dict[str, dict], jobs: int) -> list[str]:
     return lines
 
 
-HEADER = (f"{'round':>5} {'mode':<9} {'wall s':>6} {'literal':>8} {'engine':>7} {'slowdown':>8} {'CPU':>7} "
+HEADER = (f"{'round':>5} {'mode':<9} {'wall s':>6} {'literal':>8} {'engine':>7} {'slowdown':>8} {'runCPU':>7} "
+          f"{'waits':>6} {'CPU':>7} "
           f"{'prep':>5} {'start':>6} {'betw.':>6} {'call':>5} {'tail':>5} {'stop':>5} {'peak MB':>8} {'growth':>6} {'load':>5} "
           f"{'others':>6}")
 LEGEND = ("literal = wall / (serial wall / workers) - 1 (the criterion's measure; serial: 0); engine = (workers x wall"
           " - the runs' own time, timed inside each worker) / the runs' own time; slowdown = the runs' own time / the "
           "serial runs' own time - 1 (the machine's parallel slowdown; bare: two forked processes each doing half the "
-          "runs, no engine); CPU = CPU / serial CPU - 1; prep: the command's preparation, s (what an engine adds to the serial one's counts in its wall); start, betw., call, tail, stop: worker-seconds (see "
+          "runs, no engine); runCPU = the CPU time of the threads that ran the runs / the serial runs' - 1; waits = their "
+          "voluntary waits a second of run (for the disk, and in a Dask worker for the interpreter lock its event loop "
+          "takes when it wakes); CPU = all the processes' CPU / serial CPU - 1; prep: the command's preparation, s (what an engine adds to the serial one's counts in its wall); start, betw., call, tail, stop: worker-seconds (see "
           "breakdown()); peak MB and growth (middle to end of the sweep) per worker; load: 1-min load average before; "
           "others: cores busy with other processes during it")
 
@@ -406,11 +431,19 @@ def bench(seconds: float, jobs: int, repeats: int, modes: tuple[str, ...] = MODE
             per = [figures(r[mode], r["serial"], jobs) for r in rounds]
             lines.append(f"  {mode:<9} wall {_median([r[mode]['wall_s'] for r in rounds]):.1f} s, literal "
                          f"{_median([f['literal'] for f in per]):+.1%}, engine {_median([f['engine'] for f in per]):+.1%}, "
-                         f"slowdown {_median([f['slowdown'] for f in per]):+.1%}, CPU {_median([f['cpu'] for f in per]):+.1%}")
+                         f"slowdown {_median([f['slowdown'] for f in per]):+.1%}, run CPU "
+                         f"{_median([f['run_cpu'] for f in per]):+.1%}, waits {_median([f['waits_per_s'] for f in per]):.1f}"
+                         f"/s, CPU {_median([f['cpu'] for f in per]):+.1%}")
+        if "local" in modes and "dask" in modes:  # the runs themselves, Dask's against the local pool's, round by round
+            wall = [r["dask"]["run_wall_s"] / r["local"]["run_wall_s"] - 1.0 for r in rounds]
+            cpu = [r["dask"]["run_cpu_s"] / r["local"]["run_cpu_s"] - 1.0 for r in rounds]
+            lines.append(f"  the Dask runs against the local pool's in the same round: own time {_median(wall):+.1%} "
+                         f"({min(wall):+.1%} to {max(wall):+.1%}), CPU {_median(cpu):+.1%} ({min(cpu):+.1%} to "
+                         f"{max(cpu):+.1%})")
         failed = sum(r[m]["failed"] for r in rounds for m in modes)
         if failed:
             lines.append(f"{failed} run(s) failed")
-        print(*lines[-len(modes) - 1 - bool(failed):], sep="\n", flush=True)
+        print(*lines[lines.index("median of the rounds:"):], sep="\n", flush=True)
         return lines
     finally:
         shutil.rmtree(folder, ignore_errors=True)

@@ -51,16 +51,16 @@ MAX_RUNS = 10_000  # more runs than this in one command is a mistake in the file
 # Dask's periodic housekeeping, slowed and thinned. It costs twice. Its CPU: with Dask's defaults an idle embedded
 # cluster of two workers (the scheduler, the nannies and the client in this process, the two workers) took 0.065 of a
 # core. And the interpreter lock, in each worker: a worker runs its task in a thread beside its event loop, and each
-# time the loop wakes (every periodic callback, every heartbeat) it takes the lock from the running task, about four
-# times a wake-up (once for each system call its callback makes), the task waiting each time (0.1 ms median, several
-# ms when the machine is busy). With Dask's settings a worker's loop woke ~8 times a second during a run and took the
-# lock ~20-36 times a second; with these ~1.4 and ~6 (bench_engine_overhead, decision 0017). The loop's health check
-# ticks every 2 s (not 20 ms; its "unresponsive" warning is at 3 s) and its speed is cycled every 5 s (1 s); the
-# system monitor samples every 10 s (500 ms), GIL contention not polled (every 1 ms when ``gilknocker`` is
-# installed); a worker neither spills nor pauses (its own memory monitor, 10 times a second by default, goes: the
-# results held are summary rows; the nanny still ends a worker past 95 % of its memory limit, every second, from this
-# process); no work stealing (the scheduler queues the runs: a worker takes one when free). Heartbeats: see
-# :data:`WORKER_HEARTBEAT_S`.
+# time the loop wakes (every periodic callback, every heartbeat) it takes the lock from the running task, two to five
+# times a wake-up (again after each system call its callback makes), the task waiting each time (0.12 ms median,
+# 3.5 ms at the 90th percentile on a busy machine). With Dask's settings a worker's loop woke ~8 times a second during
+# a run and took the lock 19-36 times a second; with these ~1.4 and 5-6 (``benchmarks/probe_engine_runs.py``,
+# decision 0017). The loop's health check ticks every 2 s (Dask: 20 ms; its "unresponsive" warning is at 3 s), its
+# speed is cycled every 5 s (1 s); the system monitor samples every 10 s (500 ms), GIL contention is not polled (every
+# 1 ms when ``gilknocker`` is installed); a worker neither spills nor pauses, so its own memory monitor (10 times a
+# second by default) goes: the results it holds are summary rows, and the nanny still ends a worker past 95 % of its
+# memory limit, every second, from this process; no work stealing (the scheduler queues the runs: a worker takes one
+# when free). Heartbeats: :data:`WORKER_HEARTBEAT_S`.
 QUIET_DASK: dict[str, Any] = {"distributed.admin.tick.interval": "2s",
                               "distributed.admin.tick.cycle": "5s",
                               "distributed.admin.system-monitor.interval": "10s",
