@@ -12,7 +12,10 @@ or the traceback of what it raised. Both engines run one task per single-threade
   ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job, forked from one forkserver
   (:func:`start_worker_server`); with one, that cluster (whose workers must see the output folder at the same
   path). A worker that dies takes its task to another worker (the scheduler's ``allowed-failures``); an address that
-  does not answer is one line naming it within :data:`CONNECT_TIMEOUT_S`.
+  does not answer is one line naming it within :data:`CONNECT_TIMEOUT_S`. An embedded cluster's housekeeping is
+  thinned (:data:`QUIET_DASK`, :data:`WORKER_HEARTBEAT_S`: a worker's event loop takes the interpreter lock from its
+  run each time it wakes); an external cluster's workers keep their own settings (docs/decisions/0017 lists the
+  environment that thins theirs).
 
 Ctrl-C, and SIGTERM or SIGHUP while :func:`interruptible` guards the wait, cancel the pending tasks and stop the
 workers (their runs in progress are abandoned; their recordings are not in the folder's journal and run again on
