@@ -100,6 +100,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "dask-old": {"old": True},
     "dask+inline": {"inline": True},
     "dask+trim": {"env": {"MALLOC_TRIM_THRESHOLD_": "65536"}},
+    "dask+sat1": {"config": {"distributed.scheduler.worker-saturation": 1.0}},
     "local": {},
     "local+thread": {},
 }
