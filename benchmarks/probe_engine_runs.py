@@ -8,7 +8,8 @@ setting (main thread or not, ``MALLOC_TRIM_THRESHOLD_`` in its environment and i
 interval, affinity, nice, its threads).
 
 Modes: ``serial`` (the runs one after another in this process), ``local`` (LocalEngine), ``dask`` (DaskEngine,
-embedded) and the variants in :data:`VARIANTS`. The thread's voluntary context switches (``t_nvcsw``) count its waits:
+embedded) and the variants in :data:`VARIANTS` (``local+forkserver``: a plain process pool whose workers are forked
+from the same forkserver as the Dask workers, with its imports; ``local+thread``: the local pool's runs in a thread). The thread's voluntary context switches (``t_nvcsw``) count its waits:
 for the disk, and in a Dask worker for the interpreter lock its event loop takes each time it wakes. CPU and wall of
 one run swing by tens of per cent on a busy shared machine; the counts do not.
 
@@ -103,6 +104,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "dask+sat1": {"config": {"distributed.scheduler.worker-saturation": 1.0}},
     "local": {},
     "local+thread": {},
+    "local+forkserver": {},
 }
 OLD_QUIET_DASK = {"distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "2s",
                   "distributed.worker.memory.monitor-interval": "1s", "distributed.scheduler.work-stealing": False}
@@ -114,7 +116,7 @@ def child(mode: str, seconds: float, out: Path, jobs: int) -> None:
     bound_numeric_threads()
     variant = VARIANTS.get(mode, {})
     os.environ.update(variant.get("env", {}))
-    if mode.startswith("dask"):
+    if mode.startswith("dask") or mode == "local+forkserver":
         from app.core.engines import start_worker_server
 
         start_worker_server()
@@ -129,6 +131,14 @@ def child(mode: str, seconds: float, out: Path, jobs: int) -> None:
     rows: list[dict[str, Any]] = []
     if mode == "serial":
         rows = [probe_one(t) for t in tasks]
+    elif mode == "local+forkserver":  # a plain pool whose workers are forked from the Dask workers' forkserver
+        import concurrent.futures
+        import multiprocessing
+
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(list(engines.WORKER_PRELOAD))
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+            rows = list(pool.map(probe_one, tasks))
     else:
         if mode.startswith("dask"):
             import dask
