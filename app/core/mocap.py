@@ -40,6 +40,7 @@ import numpy as np
 from app.core import c3d_frames
 from app.core.errors import MocapFileError
 from app.core.outputs import remove_stale_temporaries, temporary_stem
+from app.core.recording import MOCAP_CHUNK_BYTES
 from devices.config import MocapConfig
 from models.mocap import (
     ClockOffset,
@@ -57,6 +58,15 @@ UNITS_TO_M = {"mm": 1e-3, "millimeter": 1e-3, "millimeters": 1e-3, "millimetre":
               "cm": 1e-2, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0}
 FLAG_LEGEND = "; ".join(f"{flag.value} {flag.name.lower()}" for flag in FitFlag)
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+
+
+def row_chunks(frames: int, row_shape: tuple[int, ...], dtype: Any) -> tuple[int, ...]:
+    """``/mocap``'s chunks for ``frames`` rows: whole rows, ~``MOCAP_CHUNK_BYTES`` each (at most ``frames``), as the
+    recorder writes a live take. Not h5py's guess, which splits a long take's rows into columns ((27000, 1, 1) for
+    30 minutes' markers): a reader of frames then decompresses every column's chunk, and a writer of a block of
+    frames rewrites each of them many times (a 30-minute import ran past 11 minutes so)."""
+    row_bytes = int(np.prod(row_shape, dtype=int)) * np.dtype(dtype).itemsize
+    return (max(1, min(int(frames), max(16, MOCAP_CHUNK_BYTES // max(row_bytes, 1)))), *row_shape)
 
 
 @dataclass(frozen=True)
@@ -490,7 +500,8 @@ def _fill_in_chunks(f: h5py.File, take: TakeFrames, layout: np.ndarray, mocap: M
         del f["mocap"]
     group = f.create_group("mocap")
     time_ds = group.create_dataset("time_s", shape=(m,), dtype=np.float64)
-    rows = {name: group.create_dataset(name, shape=(m, *shape), dtype=dtype, chunks=True, compression=compression)
+    rows = {name: group.create_dataset(name, shape=(m, *shape), dtype=dtype, chunks=row_chunks(m, shape, dtype),
+                                       compression=compression)
             for name, shape, dtype in (("markers_m", (s * k, 3), np.float64), ("segment_center_m", (s, 3), np.float64),
                                        ("segment_rotation", (s, 3, 3), np.float64), ("residual_m", (s,), np.float64),
                                        ("joint_angle_rad", (s,), np.float64), ("fit_flag", (s,), np.int8),
@@ -599,13 +610,11 @@ def fill_mocap(f: h5py.File, result: MocapResult, compression: str | None = "gzi
         del f["mocap"]
     group = f.create_group("mocap")
     group.create_dataset("time_s", data=result.time_s)
-    group.create_dataset("markers_m", data=take.markers_m.reshape(m, s * k, 3), chunks=True, compression=compression)
-    group.create_dataset("segment_center_m", data=fit.center_m, chunks=True, compression=compression)
-    group.create_dataset("segment_rotation", data=fit.rotation, chunks=True, compression=compression)
-    group.create_dataset("residual_m", data=fit.residual_m, chunks=True, compression=compression)
-    group.create_dataset("joint_angle_rad", data=result.joint_rad, chunks=True, compression=compression)
-    group.create_dataset("fit_flag", data=fit.flag.astype(np.int8), chunks=True, compression=compression)
-    group.create_dataset("markers_used", data=fit.n_used.astype(np.int8), chunks=True, compression=compression)
+    for name, data in (("markers_m", take.markers_m.reshape(m, s * k, 3)), ("segment_center_m", fit.center_m),
+                       ("segment_rotation", fit.rotation), ("residual_m", fit.residual_m),
+                       ("joint_angle_rad", result.joint_rad), ("fit_flag", fit.flag.astype(np.int8)),
+                       ("markers_used", fit.n_used.astype(np.int8))):
+        group.create_dataset(name, data=data, chunks=row_chunks(m, data.shape[1:], data.dtype), compression=compression)
     attrs = group.attrs
     attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
     attrs["source"] = take.source

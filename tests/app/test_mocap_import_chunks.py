@@ -56,6 +56,8 @@ def _same_mocap(a: Path, b: Path) -> None:
             assert (da.shape, da.dtype, da.chunks, da.compression) == (db.shape, db.dtype, db.chunks, db.compression), \
                 name
             assert np.array_equal(da[:], db[:], equal_nan=True), name
+            if da.chunks is not None:  # whole frames a chunk: a reader of frames reads no other frames' columns
+                assert da.chunks[1:] == da.shape[1:] and 16 <= da.chunks[0] <= 1 + (1 << 18) // da[0].nbytes, name
         assert sorted(ga.attrs) == sorted(gb.attrs)
         for key in ga.attrs:
             va, vb = ga.attrs[key], gb.attrs[key]
