@@ -23,6 +23,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -215,6 +216,13 @@ def main() -> None:
         return
     modes = args.modes.split(",")
     folder = Path(tempfile.mkdtemp(prefix="sensnake_probe_"))
+    try:
+        rounds(args, modes, folder)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def rounds(args: argparse.Namespace, modes: list[str], folder: Path) -> None:
     by_mode: dict[str, list[float]] = {m: [] for m in modes}
     for k in range(args.rounds):
         order = modes if k % 2 == 0 else list(reversed(modes))
