@@ -28,14 +28,20 @@ MADV_POPULATE_WRITE = 23  # Linux ≥ 5.14: fault pages in as if written, withou
 # wall with no commit; a 2-core VM with transparent huge pages). Most likely the kernel's memory-map lock, which the
 # call holds throughout and which the GUI thread's allocations (numpy arrays, Qt's pixmaps) need. Committed a huge
 # page a call with a pause between, one call takes ≤ 1 ms alone (≤ 5 ms seen in the app at load 3-5).
+# A 2 MB call took up to 16-23 ms in the app when the kernel was short of free huge pages (other programs' memory), and
+# the GUI thread's allocations queued behind each such call: after a call the thread rests four times as long as the
+# call took (the lock is held at most a fifth of the time), at least COMMIT_PAUSE_S.
 COMMIT_CHUNK_BYTES = 2 * 1024 * 1024
 COMMIT_PAUSE_S = 0.001
+COMMIT_REST_PER_BUSY = 4.0
 
 
-def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = None, pause_s: float = 0.0) -> bool:
+def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = None, pause_s: float = 0.0,
+                       rest_per_busy: float = 0.0) -> bool:
     """Ask the kernel to commit the arrays' pages (MADV_POPULATE_WRITE), ``chunk_bytes`` per call (all of an array in
-    one call when None) with ``pause_s`` between calls; False where it cannot (not Linux, an older kernel). ctypes lets
-    go of the GIL meanwhile; the data are not touched, so another thread may write them."""
+    one call when None) with a rest between calls of ``rest_per_busy`` times the call's own time, at least ``pause_s``;
+    False where it cannot (not Linux, an older kernel). ctypes lets go of the GIL meanwhile; the data are not touched,
+    so another thread may write them."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -49,22 +55,25 @@ def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = N
         end = array.ctypes.data + array.nbytes
         step = end - start if chunk_bytes is None else max(page, chunk_bytes - chunk_bytes % page)
         for offset in range(start, end, step):
+            began = time.perf_counter()
             if madvise(offset, min(step, end - offset), MADV_POPULATE_WRITE) != 0:
                 return False
-            if pause_s:
-                time.sleep(pause_s)
+            rest_s = max(pause_s, rest_per_busy * (time.perf_counter() - began))
+            if rest_s > 0.0:
+                time.sleep(rest_s)
     return True
 
 
 def commit_memory(arrays: Sequence[np.ndarray]) -> threading.Thread | None:
     """Make the arrays' memory the process's now, not as they fill: np.empty maps pages lazily, and the process's
     memory then grew for hours as a history filled (170 → 312 MB seen in a long session, read as a leak). On Linux
-    a daemon thread asks the kernel to commit them (returned), ``COMMIT_CHUNK_BYTES`` at a time with
-    ``COMMIT_PAUSE_S`` between, so the GUI thread — which does not wait for it — is never held up for long by the
+    a daemon thread asks the kernel to commit them (returned), ``COMMIT_CHUNK_BYTES`` at a time, resting between
+    calls (``COMMIT_REST_PER_BUSY``), so the GUI thread — which does not wait for it — is never held up for long by the
     kernel's lock (see ``COMMIT_CHUNK_BYTES``); elsewhere they are written once here."""
     probe = np.empty(1, dtype=np.uint8)
     if _populate_writable([probe]):
-        thread = threading.Thread(target=_populate_writable, args=(list(arrays), COMMIT_CHUNK_BYTES, COMMIT_PAUSE_S),
+        thread = threading.Thread(target=_populate_writable,
+                                  args=(list(arrays), COMMIT_CHUNK_BYTES, COMMIT_PAUSE_S, COMMIT_REST_PER_BUSY),
                                   name="history-commit", daemon=True)
         thread.start()
         return thread
