@@ -57,8 +57,8 @@ MAX_RUNS = 10_000  # more runs than this in one command is a mistake in the file
 # time the loop wakes (every periodic callback, every heartbeat) it takes the lock from the running task, two to five
 # times a wake-up (again after each system call its callback makes), the task waiting each time (0.12 ms median,
 # 3.5 ms at the 90th percentile on a busy machine). With Dask's settings a worker's loop woke ~8 times a second during
-# a run and took the lock 19-36 times a second; with these ~1.4 and 5-6 (``benchmarks/probe_engine_runs.py``,
-# decision 0017). The loop's health check ticks every 2 s (Dask: 20 ms; its "unresponsive" warning is at 3 s), its
+# a run and took the lock from a pure-Python task 19-36 times a second; with these ~1.4 and 5-6 (the lock waits
+# around each task's start and end stay: ``benchmarks/probe_engine_runs.py``, decision 0017). The loop's health check ticks every 2 s (Dask: 20 ms; its "unresponsive" warning is at 3 s), its
 # speed is cycled every 5 s (1 s); the system monitor samples every 10 s (500 ms), GIL contention is not polled (every
 # 1 ms when ``gilknocker`` is installed); a worker neither spills nor pauses, so its own memory monitor (10 times a
 # second by default) goes: the results it holds are summary rows, and the nanny still ends a worker past 95 % of its
