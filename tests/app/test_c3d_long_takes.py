@@ -122,3 +122,45 @@ def test_the_header_and_parameters_read_without_the_frames_are_ezc3ds(tmp_path: 
     assert compared > 20 and head["parameters"]["SUBJECTS"]["NAMES"]["value"] == ["Snake", "Rig"]
     xyz = read_frames(path, point_layout(path, head), 0, frames)
     assert np.array_equal(xyz, np.transpose(theirs["data"]["points"][:3], (2, 1, 0)))
+
+
+def _as_mips(intel: bytes) -> bytes:
+    """An Intel C3D file as a MIPS (big-endian) one: processor byte 86, every 16-bit word and float swapped."""
+    out = bytearray(intel)
+
+    def signed(i: int) -> int:
+        return (out[i] ^ 0x80) - 0x80
+
+    for offset, width in ((2, 2), (4, 2), (6, 2), (8, 2), (10, 2), (12, 4), (16, 2), (18, 2), (20, 4)):
+        out[offset:offset + width] = out[offset:offset + width][::-1]
+    start = (out[0] - 1) * 512
+    out[start + 3] = 86
+    position = start + 4
+    while out[position]:
+        name_end = position + 2 + abs(signed(position))
+        jump = int(np.frombuffer(bytes(out[name_end:name_end + 2]), "<i2")[0])
+        out[name_end:name_end + 2] = out[name_end:name_end + 2][::-1]
+        if signed(position + 1) > 0:
+            kind, n_dims = signed(name_end + 2), out[name_end + 3]
+            cursor = name_end + 4 + n_dims
+            width = abs(kind)
+            for i in range(int(np.prod(list(out[name_end + 4:cursor]))) if width in (2, 4) else 0):
+                out[cursor + i * width:cursor + (i + 1) * width] = out[cursor + i * width:cursor + (i + 1) * width][::-1]
+        if jump <= 0:
+            break
+        position = name_end + jump
+    data = (int(np.frombuffer(bytes(out[16:18]), ">u2")[0]) - 1) * 512
+    out[data:] = np.frombuffer(bytes(out[data:len(out) - (len(out) - data) % 4]), "<f4").astype(">f4").tobytes() + \
+        bytes(out[len(out) - (len(out) - data) % 4:])
+    return bytes(out)
+
+
+def test_a_mips_take_reads_as_the_same_take_written_for_intel(tmp_path: Path) -> None:
+    """ezc3d 1.7 refuses MIPS files ("not supported yet"); this reader reads them in their byte order."""
+    intel = tmp_path / "intel.c3d"
+    write_take(intel, frames=300, stated="size")
+    mips = tmp_path / "mips.c3d"
+    mips.write_bytes(_as_mips(intel.read_bytes()))
+    ours, theirs = read_c3d(mips, MocapConfig(), 12), read_c3d(intel, MocapConfig(), 12)
+    assert np.array_equal(ours.markers_m, theirs.markers_m, equal_nan=True) and np.isnan(ours.markers_m[150, 0, 3, 0])
+    assert (ours.rate_hz, ours.units, ours.labels) == (theirs.rate_hz, theirs.units, theirs.labels)
