@@ -169,8 +169,13 @@ def test_the_tab_builds_its_hidden_views_only_when_first_needed(qtbot: Any) -> N
             assert tab.findChildren(BodyView) == [] and not tab.view.showing_picture
         else:  # no physics lab: the 2-D drawing is the page
             assert tab.view.has_body
-        tab._on_mocap_source("sim")  # a source picked: the panel is built and shown
+        tab.resize(1000, 600)
+        tab.show()
+        qtbot.waitExposed(tab)
+        tab._on_mocap_source("sim")  # a source picked: the panel is built and shown, the picture keeps 3/5 of the width
         assert tab.live_page.count() == 2 and tab.kinematics.isVisibleTo(tab)
+        picture_px, panel_px = tab.live_page.sizes()
+        assert picture_px > panel_px > 0
         tab._on_mocap_source("")
         assert not tab.kinematics.isVisibleTo(tab)
         assert tab.replay_view is tab.replay_view and tab.pages.count() == 2  # asked for: built at once, once

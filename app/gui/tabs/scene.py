@@ -278,7 +278,11 @@ class SceneTab(QWidget):
     # -- live motion capture -------------------------------------------------------------------------------------------
     def _on_mocap_source(self, source: str) -> None:
         if source:
+            first = self._kinematics is None
             self.kinematics.setVisible(True)
+            if first:  # added beside a picture already laid out: given the 3:2 split a panel built with the page gets
+                width = max(5, self.live_page.width())
+                self.live_page.setSizes([width * 3 // 5, width - width * 3 // 5])
             if self.isVisible():
                 self._kinematics_timer.start()
         else:
