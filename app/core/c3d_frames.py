@@ -159,10 +159,11 @@ def read_head(path: str | Path) -> dict[str, Any] | None:
         order = PROCESSORS.get(section[3])
         if order is None:
             raise MocapFileError(f"{path} is not a readable C3D file (processor byte {section[3]}: not 84, 85 or 86)")
-        body = section + handle.read(max(section[2], 1) * BLOCK - 4)
+        data_start, = struct.unpack(f"{order}H", head[16:18])
+        # the section's stated block count, or (when a writer left it short) every block up to the data
+        body = section + handle.read(max(section[2], data_start - head[0], 1) * BLOCK - 4)
     words = struct.unpack(f"{order}HHHHH", head[2:12])
     scale, = struct.unpack(f"{order}f", head[12:16])
-    data_start, = struct.unpack(f"{order}H", head[16:18])
     rate, = struct.unpack(f"{order}f", head[20:24])
     header = {"size": words[0], "first_frame": words[2] - 1, "last_frame": words[3] - 1, "frame_rate": float(rate),
               "scale": float(scale), "data_start": data_start}

@@ -164,3 +164,16 @@ def test_a_mips_take_reads_as_the_same_take_written_for_intel(tmp_path: Path) ->
     ours, theirs = read_c3d(mips, MocapConfig(), 12), read_c3d(intel, MocapConfig(), 12)
     assert np.array_equal(ours.markers_m, theirs.markers_m, equal_nan=True) and np.isnan(ours.markers_m[150, 0, 3, 0])
     assert (ours.rate_hz, ours.units, ours.labels) == (theirs.rate_hz, theirs.units, theirs.labels)
+
+
+def test_a_parameter_section_longer_than_its_stated_block_count_is_read_to_the_data(tmp_path: Path) -> None:
+    """Some writers leave the parameter section's block count (its third byte) short: the labels past it count."""
+    whole = tmp_path / "whole.c3d"
+    write_take(whole, frames=300, stated="size")
+    raw = bytearray(whole.read_bytes())
+    start = (raw[0] - 1) * 512
+    assert raw[start + 2] > 1  # 48 labels take more than one block
+    raw[start + 2] = 1
+    short = tmp_path / "short.c3d"
+    short.write_bytes(bytes(raw))
+    assert read_c3d(short, MocapConfig(), 12).labels == read_c3d(whole, MocapConfig(), 12).labels
