@@ -30,18 +30,21 @@ MADV_POPULATE_WRITE = 23  # Linux ≥ 5.14: fault pages in as if written, withou
 # page a call with a pause between, one call takes ≤ 1 ms alone (≤ 5 ms seen in the app at load 3-5).
 # A 2 MB call took up to 16-23 ms in the app when the kernel was short of free huge pages (other programs' memory), and
 # the GUI thread's allocations queued behind each such call: after a call the thread rests four times as long as the
-# call took (the lock is held at most a fifth of the time), at least COMMIT_PAUSE_S.
+# call took (the lock is held at most a fifth of the time), at least COMMIT_PAUSE_S, and no more than
+# COMMIT_REST_BUDGET_S in all: a commit lasts at most ~0.6 s longer than its calls (every LabContext commits the
+# board's history, and a test fails on a thread still running 3 s after it).
 COMMIT_CHUNK_BYTES = 2 * 1024 * 1024
 COMMIT_PAUSE_S = 0.001
 COMMIT_REST_PER_BUSY = 4.0
+COMMIT_REST_BUDGET_S = 0.5
 
 
 def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = None, pause_s: float = 0.0,
-                       rest_per_busy: float = 0.0) -> bool:
+                       rest_per_busy: float = 0.0, rest_budget_s: float = 0.0) -> bool:
     """Ask the kernel to commit the arrays' pages (MADV_POPULATE_WRITE), ``chunk_bytes`` per call (all of an array in
-    one call when None) with a rest between calls of ``rest_per_busy`` times the call's own time, at least ``pause_s``;
-    False where it cannot (not Linux, an older kernel). ctypes lets go of the GIL meanwhile; the data are not touched,
-    so another thread may write them."""
+    one call when None) with a rest between calls of ``rest_per_busy`` times the call's own time (while the rests add
+    up to less than ``rest_budget_s``), at least ``pause_s``; False where it cannot (not Linux, an older kernel).
+    ctypes lets go of the GIL meanwhile; the data are not touched, so another thread may write them."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -58,7 +61,10 @@ def _populate_writable(arrays: Sequence[np.ndarray], chunk_bytes: int | None = N
             began = time.perf_counter()
             if madvise(offset, min(step, end - offset), MADV_POPULATE_WRITE) != 0:
                 return False
-            rest_s = max(pause_s, rest_per_busy * (time.perf_counter() - began))
+            rest_s = pause_s
+            if rest_budget_s > 0.0:
+                rest_s = max(pause_s, min(rest_budget_s, rest_per_busy * (time.perf_counter() - began)))
+                rest_budget_s -= rest_s
             if rest_s > 0.0:
                 time.sleep(rest_s)
     return True
@@ -73,7 +79,8 @@ def commit_memory(arrays: Sequence[np.ndarray]) -> threading.Thread | None:
     probe = np.empty(1, dtype=np.uint8)
     if _populate_writable([probe]):
         thread = threading.Thread(target=_populate_writable,
-                                  args=(list(arrays), COMMIT_CHUNK_BYTES, COMMIT_PAUSE_S, COMMIT_REST_PER_BUSY),
+                                  args=(list(arrays), COMMIT_CHUNK_BYTES, COMMIT_PAUSE_S, COMMIT_REST_PER_BUSY,
+                                        COMMIT_REST_BUDGET_S),
                                   name="history-commit", daemon=True)
         thread.start()
         return thread

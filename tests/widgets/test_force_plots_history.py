@@ -90,17 +90,31 @@ def test_a_history_s_memory_is_committed_a_huge_page_at_a_time(monkeypatch):
     from widgets import ring_plot
 
     calls: list[tuple[int, int]] = []
+    rests: list[float] = []
+    call_s = 0.05  # each call as slow as the kernel short of huge pages (16-23 ms seen), to see the rests' budget
+
+    class FakeClock:
+        now_s = 0.0
+
+        @classmethod
+        def perf_counter(cls) -> float:
+            return cls.now_s
+
+        @staticmethod
+        def sleep(seconds: float) -> None:
+            rests.append(seconds)
 
     class FakeLibc:
         @staticmethod
         def madvise(address: int, length: int, advice: int) -> int:
             assert advice == ring_plot.MADV_POPULATE_WRITE
             calls.append((address, length))
+            FakeClock.now_s += call_s
             return 0
 
     monkeypatch.setattr(ring_plot.sys, "platform", "linux")
     monkeypatch.setattr(ring_plot.ctypes, "CDLL", lambda *_a, **_k: FakeLibc())
-    monkeypatch.setattr(ring_plot.time, "sleep", lambda _s: None)
+    monkeypatch.setattr(ring_plot, "time", FakeClock)
     array = np.empty(5 * ring_plot.COMMIT_CHUNK_BYTES + 12345, dtype=np.uint8)
     thread = ring_plot.commit_memory([array])
     assert thread is not None
@@ -112,3 +126,7 @@ def test_a_history_s_memory_is_committed_a_huge_page_at_a_time(monkeypatch):
     for (address, length), (following, _length) in zip(calls, calls[1:]):
         assert following == address + length  # contiguous, nothing skipped
     assert calls[-1][0] + calls[-1][1] == array.ctypes.data + array.nbytes
+    # A slow call is followed by a rest four times as long, until the rests' budget is spent; then the short pause.
+    assert rests[0] == pytest.approx(ring_plot.COMMIT_REST_PER_BUSY * call_s)
+    assert sum(rests) <= ring_plot.COMMIT_REST_BUDGET_S + len(rests) * ring_plot.COMMIT_PAUSE_S
+    assert rests[-1] == ring_plot.COMMIT_PAUSE_S
