@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -74,9 +75,20 @@ def _import(args: argparse.Namespace) -> int:
     robot = recording.robot
     if robot is not None and robot.present_rad.shape[1] != n_segments:
         raise MocapFileError(f"{rec}: /robot has {robot.present_rad.shape[1]} joints, the config {n_segments}")
+    shown = [0.0]
+
+    def progress(done: int, total: int) -> None:
+        """One line on a terminal, redrawn at most once a second (a 30-minute take takes minutes)."""
+        now = time.monotonic()
+        if sys.stderr.isatty() and (now - shown[0] >= 1.0 or done == total):
+            shown[0] = now
+            print(f"\rimporting {take.path.name}: {done:,} of {total:,} frames fitted and written"
+                  + ("; finding the clock offset" if done == total and args.offset is None else "") + "\x1b[K",
+                  end="" if done < total else "\n", file=sys.stderr, flush=True)
+
     try:
         imported = import_take(take, rec, out, config.mocap, config.robot.axes, robot.time_s if robot else None,
-                               robot.present_rad if robot else None, take_start_s=args.offset)
+                               robot.present_rad if robot else None, take_start_s=args.offset, progress=progress)
     except OffsetRefusedError as exc:
         raise ValueError(f"{take.path.name} on {rec.name}: the motion cannot place the take on the recording's clock: "
                          f"{exc}; give --offset S (the recording time of the take's first frame)") from None

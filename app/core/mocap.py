@@ -471,13 +471,15 @@ class ImportedTake:
 
 def import_take(take: TakeFrames, recording: str | Path, out: str | Path, mocap: MocapConfig, axes: Sequence[str],
                 robot_time_s: np.ndarray | None, robot_rad: np.ndarray | None, take_start_s: float | None = None,
-                chunk_frames: int = CHUNK_FRAMES, compression: str | None = "gzip") -> ImportedTake:
+                chunk_frames: int = CHUNK_FRAMES, compression: str | None = "gzip",
+                progress: Callable[[int, int], None] | None = None) -> ImportedTake:
     """A copy of ``recording`` at ``out`` with ``/mocap`` of ``take``, read, fitted and written ``chunk_frames`` at a
     time; only the joint angles (M × S float64) and the take's times are kept whole, for the clock offset. Placed
     at ``take_start_s`` (the recording time of its first frame) when given, else where its joint angles line up with
     the recording's (``robot_rad`` at ``robot_time_s``). The same datasets, bit for bit, as :func:`place_take` then
     :func:`write_with_mocap` make of the whole take. ``out`` must not exist and is written only complete: a refusal
-    (:class:`models.errors.OffsetRefusedError`, :class:`MocapFileError`) leaves nothing there."""
+    (:class:`models.errors.OffsetRefusedError`, :class:`MocapFileError`) leaves nothing there. ``progress(done,
+    total)``: called (on this thread) after each block with the frames fitted and written so far."""
     layout = check_layout(mocap.marker_layout_m, len(axes))
     if take_start_s is None and (robot_time_s is None or robot_rad is None or len(robot_time_s) < 2):
         raise MocapFileError("the recording has no /robot joint angles to line the take up with: give --offset S "
@@ -486,7 +488,7 @@ def import_take(take: TakeFrames, recording: str | Path, out: str | Path, mocap:
 
     def fill(f: h5py.File) -> None:
         made.append(_fill_in_chunks(f, take, layout, mocap, axes, robot_time_s, robot_rad, take_start_s,
-                                    max(int(chunk_frames), 1), compression))
+                                    max(int(chunk_frames), 1), compression, progress))
 
     write_copy_with(recording, out, fill)
     return made[0]
@@ -494,7 +496,8 @@ def import_take(take: TakeFrames, recording: str | Path, out: str | Path, mocap:
 
 def _fill_in_chunks(f: h5py.File, take: TakeFrames, layout: np.ndarray, mocap: MocapConfig, axes: Sequence[str],
                     robot_time_s: np.ndarray | None, robot_rad: np.ndarray | None, take_start_s: float | None,
-                    chunk_frames: int, compression: str | None) -> ImportedTake:
+                    chunk_frames: int, compression: str | None,
+                    progress: Callable[[int, int], None] | None = None) -> ImportedTake:
     m, (s, k) = take.frames, layout.shape[:2]
     if "mocap" in f:
         del f["mocap"]
@@ -530,6 +533,8 @@ def _fill_in_chunks(f: h5py.File, take: TakeFrames, layout: np.ndarray, mocap: M
         if here.any():
             worst = max(worst, float(np.nanmax(fit.residual_m[here])))
             bins += np.bincount(_median_keys(fit.residual_m[here]), minlength=len(bins))
+        if progress is not None:
+            progress(stop, m)
     if take_start_s is not None:
         clock_offset_s, found = float(take_start_s) - float(take.time_s[0]), None
     else:

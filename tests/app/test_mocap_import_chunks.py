@@ -38,13 +38,14 @@ def take_and_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, 
     return folder / "take.c3d", folder / "rec.h5"
 
 
-def _import(take: Path, rec: Path, out: Path, chunk_frames: int, take_start_s: float | None = None) -> ImportedTake:
+def _import(take: Path, rec: Path, out: Path, chunk_frames: int, take_start_s: float | None = None,
+            calls: list[tuple[int, int]] | None = None) -> ImportedTake:
     config = LabConfig()
     recording = open_recording(rec)
     assert recording.robot is not None
     return import_take(open_c3d(take, config.mocap, 12), rec, out, config.mocap, config.robot.axes,
                        recording.robot.time_s, recording.robot.present_rad, take_start_s=take_start_s,
-                       chunk_frames=chunk_frames)
+                       chunk_frames=chunk_frames, progress=None if calls is None else lambda *a: calls.append(a))
 
 
 def _same_mocap(a: Path, b: Path) -> None:
@@ -72,7 +73,9 @@ def _same_mocap(a: Path, b: Path) -> None:
 def test_a_take_imported_in_blocks_of_1000_frames_is_the_take_imported_whole(take_and_recording: tuple[Path, Path],
                                                                             tmp_path: Path) -> None:
     take, rec = take_and_recording
-    small = _import(take, rec, tmp_path / "small.h5", chunk_frames=1_000)
+    calls: list[tuple[int, int]] = []
+    small = _import(take, rec, tmp_path / "small.h5", chunk_frames=1_000, calls=calls)
+    assert calls == [(min(done, FRAMES), FRAMES) for done in range(1_000, FRAMES + 1_000, 1_000)]  # block by block
     one = _import(take, rec, tmp_path / "one.h5", chunk_frames=FRAMES)
     assert small.clock_offset_s == one.clock_offset_s  # the same angles in: the same offset, exactly
     assert small.clock_offset_s == pytest.approx(TAKE_START_S, abs=1e-3)
