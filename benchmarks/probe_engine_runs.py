@@ -14,7 +14,9 @@ for the disk, and in a Dask worker for the interpreter lock its event loop takes
 one run swing by tens of per cent on a busy shared machine; the counts do not.
 
 Run: ``python -m benchmarks.probe_engine_runs [--seconds 3] [--rounds 4] [--modes local,dask,dask-old]`` (the first
-mode is the one the others are compared with, run by run).
+mode is the one the others are compared with, run by run). With ``--beside``, each mode's single worker runs the runs
+at the same time as one local-pool worker runs them too, so that the machine's load falls on both alike: a busy
+shared machine can still compare a run's cost inside each (the cluster's own threads take from both sides then).
 """
 
 from __future__ import annotations
@@ -111,74 +113,95 @@ OLD_QUIET_DASK = {"distributed.admin.tick.interval": "1s", "distributed.admin.sy
                   "distributed.worker.memory.monitor-interval": "1s", "distributed.scheduler.work-stealing": False}
 
 
-def child(mode: str, seconds: float, out: Path, jobs: int) -> None:
-    from app.cli.main import bound_numeric_threads
-
-    bound_numeric_threads()
-    variant = VARIANTS.get(mode, {})
-    os.environ.update(variant.get("env", {}))
-    if mode.startswith("dask") or mode == "local+forkserver":
-        from app.core.engines import start_worker_server
-
-        start_worker_server()
-    from app.core import engines, sweep
+def _tasks(out: Path, seconds: float) -> list[dict[str, Any]]:
+    from app.core import sweep
 
     text = ('scenes = ["paper_obstacle"]\ncontrollers = ["feedforward", "feedback"]\nseeds = [0, 1, 2, 3, 4, 5, 6, '
             f'7, 8, 9]\nseconds = {seconds!r}\nsettle_s = 1.0\nspeed_rad_s = 0.1\nrest_cap_s = 0.0\n')
     out.mkdir(parents=True, exist_ok=True)
     plan_file = out / "sweep.toml"
     plan_file.write_text(text, encoding="utf-8")
-    tasks = sweep.sweep_tasks(sweep.read_sweep(plan_file), out)
+    return sweep.sweep_tasks(sweep.read_sweep(plan_file), out)
+
+
+def _run_mode(mode: str, tasks: list[dict[str, Any]], jobs: int) -> list[dict[str, Any]]:
+    """The tasks' rows, run as ``mode`` runs them."""
+    from app.core import engines
+
+    variant = VARIANTS.get(mode, {})
     rows: list[dict[str, Any]] = []
     if mode == "serial":
-        rows = [probe_one(t) for t in tasks]
-    elif mode == "local+forkserver":  # a plain pool whose workers are forked from the Dask workers' forkserver
+        return [probe_one(t) for t in tasks]
+    if mode == "local+forkserver":  # a plain pool whose workers are forked from the Dask workers' forkserver
         import concurrent.futures
         import multiprocessing
 
         context = multiprocessing.get_context("forkserver")
         context.set_forkserver_preload(list(engines.WORKER_PRELOAD))
         with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
-            rows = list(pool.map(probe_one, tasks))
+            return list(pool.map(probe_one, tasks))
+    if mode.startswith("dask"):
+        import dask
+
+        original = engines._configure_dask  # noqa: SLF001
+
+        def configure() -> None:
+            original()
+            dask.config.set(variant.get("config", {}))
+
+        if variant.get("old"):
+            engines.QUIET_DASK.clear()
+            engines.QUIET_DASK.update(OLD_QUIET_DASK)
+            engines.WORKER_HEARTBEAT_S = 1.0  # Dask's Worker default, until the scheduler's first reply
+            engines._slow_heartbeats = lambda *args: None  # type: ignore[assignment]  # noqa: SLF001
+        if variant.get("inline"):
+            import functools
+
+            import distributed
+
+            distributed.LocalCluster = functools.partial(distributed.LocalCluster,  # type: ignore[misc,assignment]
+                                                         executor=InlineExecutor())
+        engines._configure_dask = configure  # type: ignore[assignment]  # noqa: SLF001
+        engine: Any = engines.DaskEngine(jobs)
     else:
-        if mode.startswith("dask"):
-            import dask
+        engine = engines.LocalEngine(jobs)
+    fn = probe_in_thread if mode == "local+thread" else probe_one
+    try:
+        engine.run(fn, tasks, lambda k, row, err: rows.append(row or {"error": err}))
+    finally:
+        engine.close()
+    return rows
 
-            original = engines._configure_dask  # noqa: SLF001
 
-            def configure() -> None:
-                original()
-                dask.config.set(variant.get("config", {}))
+def child(mode: str, seconds: float, out: Path, jobs: int, beside: bool = False) -> None:
+    """``mode``'s runs; with ``beside``, one worker of ``mode`` and one local-pool worker running the same runs at the
+    same time (what the machine's load does to one does it to the other)."""
+    from app.cli.main import bound_numeric_threads
 
-            if variant.get("old"):
-                engines.QUIET_DASK.clear()
-                engines.QUIET_DASK.update(OLD_QUIET_DASK)
-                engines.WORKER_HEARTBEAT_S = 1.0  # Dask's Worker default, until the scheduler's first reply
-                engines._slow_heartbeats = lambda *args: None  # type: ignore[assignment]  # noqa: SLF001
-            if variant.get("inline"):
-                import functools
+    bound_numeric_threads()
+    os.environ.update(VARIANTS.get(mode, {}).get("env", {}))
+    if mode.startswith("dask") or mode == "local+forkserver":
+        from app.core.engines import start_worker_server
 
-                import distributed
-
-                distributed.LocalCluster = functools.partial(distributed.LocalCluster,  # type: ignore[misc,assignment]
-                                                             executor=InlineExecutor())
-            engines._configure_dask = configure  # type: ignore[assignment]  # noqa: SLF001
-            engine: Any = engines.DaskEngine(jobs)
-        else:
-            engine = engines.LocalEngine(jobs)
-        fn = probe_in_thread if mode == "local+thread" else probe_one
-        try:
-            engine.run(fn, tasks, lambda k, row, err: rows.append(row or {"error": err}))
-        finally:
-            engine.close()
+        start_worker_server()
+    tasks = _tasks(out, seconds)
+    local_rows: list[dict[str, Any]] = []
+    if beside:
+        local_tasks = _tasks(out / "beside", seconds)
+        side = threading.Thread(target=lambda: local_rows.extend(_run_mode("local", local_tasks, 1)))
+        side.start()
+        rows = _run_mode(mode, tasks, 1)
+        side.join()
+    else:
+        rows = _run_mode(mode, tasks, jobs)
     me = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"mode": mode, "rows": rows, "parent_cpu": me.ru_utime + me.ru_stime}))
+    print(json.dumps({"mode": mode, "rows": rows, "beside_rows": local_rows, "parent_cpu": me.ru_utime + me.ru_stime}))
 
 
-def measure(mode: str, seconds: float, folder: Path, jobs: int) -> dict[str, Any]:
+def measure(mode: str, seconds: float, folder: Path, jobs: int, beside: bool = False) -> dict[str, Any]:
     out = folder / mode
     command = [sys.executable, "-m", "benchmarks.probe_engine_runs", "--child", mode, "--seconds", str(seconds),
-               "--out", str(out), "--jobs", str(jobs)]
+               "--out", str(out), "--jobs", str(jobs), *(["--beside"] if beside else [])]
     load = float(Path("/proc/loadavg").read_text().split()[0])
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, check=False)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
@@ -210,16 +233,39 @@ def main() -> None:
     parser.add_argument("--child")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--json", type=Path, help="append every round's rows here")
+    parser.add_argument("--beside", action="store_true",
+                        help="each mode's one worker beside one local-pool worker, the same runs at the same time")
     args = parser.parse_args()
     if args.child:
-        child(args.child, args.seconds, args.out, args.jobs)
+        child(args.child, args.seconds, args.out, args.jobs, args.beside)
         return
     modes = args.modes.split(",")
     folder = Path(tempfile.mkdtemp(prefix="sensnake_probe_"))
     try:
-        rounds(args, modes, folder)
+        if args.beside:
+            side_by_side(args, modes, folder)
+        else:
+            rounds(args, modes, folder)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def side_by_side(args: argparse.Namespace, modes: list[str], folder: Path) -> None:
+    """Each mode's worker against a local-pool worker running the same runs at the same time: per run, the ratio of
+    the run thread's CPU and of the run's wall (median of the runs), and both sides' waits."""
+    for k in range(args.rounds):
+        for mode in modes:
+            result = measure(mode, args.seconds, folder, 1, beside=True)
+            local = {r["run"]: r for r in result["beside_rows"]}
+            pairs = [(local[r["run"]], r) for r in result["rows"] if r.get("run") in local]
+            cpu = statistics.median(b["thread_cpu"] / a["thread_cpu"] for a, b in pairs)
+            wall = statistics.median(b["wall"] / a["wall"] for a, b in pairs)
+            print(f"{k} {mode:<16} beside local, load {result['load']:.1f}: run CPU {cpu - 1:+.1%}, wall {wall - 1:+.1%}; "
+                  f"waits {sum(b['t_nvcsw'] for _, b in pairs)} against {sum(a['t_nvcsw'] for a, _ in pairs)} "
+                  f"({len(pairs)} runs)", flush=True)
+            if args.json:
+                with open(args.json, "a", encoding="utf-8") as f:
+                    f.write(json.dumps({"round": k, "beside": True, "results": {mode: result}}) + "\n")
 
 
 def rounds(args: argparse.Namespace, modes: list[str], folder: Path) -> None:
