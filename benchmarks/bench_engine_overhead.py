@@ -52,7 +52,8 @@ runs' own time a median 8 % above the local pool's in the same round. Part of th
 taking cores and the interpreter lock from the runs (a Dask worker runs its task in a thread beside its event loop):
 on the busy machine 3.0-4.9 % (CPU) and 1.0-3.2 % (lock waits) of the runs' CPU with the previous housekeeping,
 2.3-2.8 % and 1.0-1.4 % with it thinned (its periodic part, which grows with the wall clock, gone; most lock waits
-fall at a task's start and end); the rest is not explained (decision 0017; ``benchmarks/probe_engine_runs.py``).
+fall at a task's start and end); a run itself costs the same CPU in a Dask worker as in a local one (to +-3 %,
+the two run side by side); the rest is not explained (decision 0017; ``benchmarks/probe_engine_runs.py``).
 Since then measured only on the busy machine (load 3-5), where CPU and wall of one run swing by tens of per cent:
 not yet on a quiet one. Dask's start 0.27-0.64 s, 2-3 ms between runs, stop
 0.06-0.09 s. Under other programs' load (1.0-1.8 cores, 8 rounds) the engine figures hold (local 0.4-2.1 %, Dask
