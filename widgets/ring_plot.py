@@ -249,37 +249,29 @@ class TraceHistory:
     """
 
     def __init__(self, n_channels: int, capacity: int, levels: int = 3, factor: int = 16,
-                 dtype=np.float32, commit: bool = True) -> None:
-        """``commit=False``: the memory is committed when :meth:`commit_memory` is called, not now (a page being
-        built in steps commits it when it is whole, not while its steps run)."""
+                 dtype=np.float32) -> None:
         if n_channels < 1 or capacity < 16:
             raise ValueError(f"need n_channels ≥ 1 and capacity ≥ 16, got {n_channels}, {capacity}")
         self.n_channels = n_channels
         self.dtype = np.dtype(dtype)
         self._factor = factor
-        self._allocate(capacity, levels, commit)
+        self._allocate(capacity, levels)
 
-    def _allocate(self, capacity: int, levels: int, commit: bool = True) -> None:
+    def _allocate(self, capacity: int, levels: int) -> None:
         self._level0 = _Ring(capacity, self.n_channels, self.dtype, with_high=False)
         self._levels = [_Level(max(16, capacity // 4), self.n_channels, self._factor, self.dtype)
                         for _ in range(levels)]
         self.total_samples = 0
-        if commit:
-            self.commit_memory()
-
-    def commit_memory(self) -> threading.Thread | None:
-        """Commit the arrays' memory now (:func:`commit_memory`; returns its thread, if any)."""
         rings = [self._level0] + [level.ring for level in self._levels]
-        return commit_memory([array for ring in rings for array in ring.arrays()])
+        commit_memory([array for ring in rings for array in ring.arrays()])
 
     @classmethod
-    def for_budget(cls, n_channels: int, budget_bytes: int, levels: int = 3, factor: int = 16,
-                   commit: bool = True) -> TraceHistory:
-        """A float32 history whose arrays take about ``budget_bytes`` in all (``commit``: as for the constructor)."""
+    def for_budget(cls, n_channels: int, budget_bytes: int, levels: int = 3, factor: int = 16) -> TraceHistory:
+        """A float32 history whose arrays take about ``budget_bytes`` in all."""
         per_sample = n_channels * 4 + 8
         # level 0 stores one row per sample; each coarse level a quarter as many rows of twice the width.
         capacity = int(budget_bytes / (per_sample * (1 + levels * 2 / 4)))
-        return cls(n_channels, max(16, capacity), levels=levels, factor=factor, commit=commit)
+        return cls(n_channels, max(16, capacity), levels=levels, factor=factor)
 
     @property
     def nbytes(self) -> int:

@@ -487,21 +487,12 @@ def test_record_to_an_existing_file_typed_in_keeps_it_and_the_dialog_can_replace
     assert open_recording(existing).time_s.size > 0  # replaced by the new recording, as confirmed
 
 
-def test_opened_by_a_click_the_tab_builds_its_body_map_and_plots_one_per_step(qtbot, lab, monkeypatch):
+def test_opened_by_a_click_the_tab_builds_its_body_map_and_plots_one_per_step(qtbot, lab):
     """The first turn builds neither the body map nor a plot (two pyqtgraph views and twelve plot widgets, each
     20-40 ms of the GUI thread); the steps build the map, then one plot per real step, each followed by a turn that
-    builds nothing (the window's other timers get in), and the finished page is the whole page. The force history's
-    memory is committed when the page is whole, not while the steps run."""
-    from app.gui.tabs.forces import FORCE_HISTORY_BUDGET_BYTES, create_tab_in_steps
-    from widgets import ring_plot
+    builds nothing (the window's other timers get in), and the finished page is the whole page."""
+    from app.gui.tabs.forces import create_tab_in_steps
     from widgets.body_view import BodyView
-
-    assert lab.board is not None  # the board bridge (its own history committed) made first, as the app's start does
-    committed: list[int] = []
-    monkeypatch.setattr(ring_plot, "commit_memory", lambda arrays: committed.append(sum(a.nbytes for a in arrays)))
-
-    def history_commits() -> int:
-        return sum(nbytes > FORCE_HISTORY_BUDGET_BYTES // 2 for nbytes in committed)
 
     tab, steps = create_tab_in_steps(lab)
     qtbot.addWidget(tab)
@@ -513,10 +504,8 @@ def test_opened_by_a_click_the_tab_builds_its_body_map_and_plots_one_per_step(qt
         assert tab.plots.plots == []  # the turn after a piece builds nothing
         next(steps)
         assert len(tab.plots.plots) == 1
-        assert history_commits() == 0
         left = list(steps)
         assert len(tab.plots.plots) == 12 and len(left) == 2 * 11 - 1
-        assert history_commits() == 1
         tab.refresh_body()  # the map built in a step is drawn like one built at once
     finally:
         tab.shutdown()

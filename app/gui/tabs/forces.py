@@ -141,9 +141,7 @@ class ForcesTab(QWidget):
         self.channel_names = tuple(config.board.channel_names)
         n_channels = len(self.channel_names)
         self.pipeline = ForcesPipeline(self.channel_names)
-        # Built in steps, the history's memory is committed once the page is whole (create_tab_in_steps): the commit
-        # held up the steps' allocations (widgets/ring_plot.py).
-        self.force_history = TraceHistory.for_budget(n_channels, FORCE_HISTORY_BUDGET_BYTES, commit=not plots_in_steps)
+        self.force_history = TraceHistory.for_budget(n_channels, FORCE_HISTORY_BUDGET_BYTES)
         self.health = HealthMonitor(n_channels, config.board.rate_hz)
         # The data path (pipeline → health → recording) is the core's, the same one ``sensnake record`` runs; this
         # tab subscribes to it and draws.
@@ -1029,6 +1027,5 @@ def create_tab_in_steps(lab: Any) -> tuple[QWidget, Iterator[None]]:
         while tab.plots.add_next_plot():
             yield
             yield
-        tab.force_history.commit_memory()
 
     return tab, steps()
