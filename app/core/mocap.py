@@ -781,7 +781,15 @@ def segment_positions(path: str | Path, source: str = "auto", max_frames: int | 
 def sim_segment_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The physics lab's true segment poses from a recording's ``/sim``: times (T,), centres (T, S, 3) (midway
     between each segment's ends in ``points_m``) and rotations (T, S, 3, 3) (``segment_rotation``)."""
-    with h5py.File(path, "r") as f:
+    if not Path(path).is_file():
+        raise MocapFileError(f"recording {path} does not exist")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        why = re.findall(r"\(([^()]*)\)", str(exc))  # h5py: "Unable to synchronously open file (the reason)"
+        raise MocapFileError(f"{path} is not a readable HDF5 recording ({why[-1] if why else type(exc).__name__})"
+                             ) from exc
+    with f:
         if "sim" not in f:
             raise MocapFileError(f"{path} has no /sim group: only a physics-lab recording ('sensnake experiment run') "
                                  "has the simulated body to make a take of")

@@ -201,3 +201,15 @@ def test_a_take_whose_motion_cannot_place_it_is_refused_with_the_reason(run, tmp
     line = one_line_error(capsys)
     assert "cannot place the take" in line and "--offset" in line
     assert json.dumps(line)  # one plain line
+
+
+@pytest.mark.parametrize("content", [None, b"not an HDF5 file"], ids=["missing", "not-hdf5"])
+def test_simulate_from_a_recording_that_is_missing_or_not_hdf5_is_one_line(tmp_path, capsys, content):
+    rec = tmp_path / "rec.h5"
+    if content is not None:
+        rec.write_bytes(content)
+    assert main(["mocap", "simulate", str(rec), "--out", str(tmp_path / "take.c3d")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(rec) in err and "synchronously" not in err
+    assert ("does not exist" in err) == (content is None)
+    assert not (tmp_path / "take.c3d").exists()
