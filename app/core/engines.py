@@ -270,7 +270,10 @@ def _start_cluster(jobs: int) -> tuple[Any, Any]:
     from distributed import Client, LocalCluster
 
     _configure_dask()
-    dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
+    # A task goes to a worker only when it is free (Dask's default, 1.1, queues a second one on each single-threaded
+    # worker): at a sweep's end one worker otherwise sits idle while the other still holds two runs.
+    dask.config.set({"distributed.worker.multiprocessing-method": "forkserver",
+                     "distributed.scheduler.worker-saturation": 1.0})
     cluster = LocalCluster(host="127.0.0.1", n_workers=jobs, threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=50, heartbeat_interval=f"{WORKER_HEARTBEAT_S:g}s")
     try:
