@@ -215,7 +215,8 @@ def test_a_motion_stopped_on_a_quiet_bus_shows_stopped_while_its_cause_is_told(q
     for sid in ids:
         chain.set_no_reply(sid, False)
     qtbot.waitUntil(lambda: lab.robot.motion_state == MOTION_FAULT, timeout=WAIT_MS)
-    assert "the bus answers again" in panel.status_label.text()
+    # the cause reaches the tab with the motion's result, a moment after its state
+    qtbot.waitUntil(lambda: "the bus answers again" in panel.status_label.text(), timeout=WAIT_MS)
     qtbot.waitUntil(panel.play_button.isEnabled, timeout=WAIT_MS)
 
 
