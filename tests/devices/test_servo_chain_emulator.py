@@ -360,6 +360,28 @@ def test_a_feedback_read_given_up_at_its_deadline_leaves_its_late_replies_out_of
         assert chain.late_replies_discarded == 12  # status packets, told from line noise by their header
 
 
+def _time_health_reads(chain, monkeypatch, reads: list) -> None:
+    """Record every ``chain.read_health`` as (called, returned, deadline_s, outcome) in ``reads``: answered, given up
+    (its deadline passed) or timed out."""
+    read_health = chain.read_health
+
+    def timed_read_health(*args, deadline_s=None, **kwargs):
+        called = time.monotonic()
+        outcome = "answered"
+        try:
+            return read_health(*args, deadline_s=deadline_s, **kwargs)
+        except DeadlinePassedError:
+            outcome = "given up"
+            raise
+        except NoReplyError:
+            outcome = "timed out"
+            raise
+        finally:
+            reads.append((called, time.monotonic(), deadline_s, outcome))
+
+    monkeypatch.setattr(chain, "read_health", timed_read_health)
+
+
 def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emulator, monkeypatch):
     """An overdue health poll reads one servo per tick even without slack. When its replies are late (here the
     emulator answers the health block's reads 0.15 s late, as a busy PC's tty worker hands bytes over late), the read
@@ -374,23 +396,7 @@ def test_an_overdue_health_read_is_given_up_at_the_next_slot_and_read_again(emul
     reads: list[tuple[float, float, float | None, str]] = []  # (called, returned, deadline_s, outcome)
     with ServoChain(robot) as chain:
         chain.check_models()
-        read_health = chain.read_health
-
-        def timed_read_health(*args, deadline_s=None, **kwargs):
-            called = time.monotonic()
-            outcome = "answered"
-            try:
-                return read_health(*args, deadline_s=deadline_s, **kwargs)
-            except DeadlinePassedError:
-                outcome = "given up"
-                raise
-            except NoReplyError:
-                outcome = "timed out"
-                raise
-            finally:
-                reads.append((called, time.monotonic(), deadline_s, outcome))
-
-        monkeypatch.setattr(chain, "read_health", timed_read_health)
+        _time_health_reads(chain, monkeypatch, reads)
         controller = RobotController(chain, robot, on_error=errors.append, on_health=polls.append)
         controller.start()
         try:
@@ -428,20 +434,7 @@ def test_the_alert_bits_health_read_is_given_up_at_the_next_slot_and_read_again(
     reads: list[tuple[float, float, float | None, str]] = []  # (called, returned, deadline_s, outcome)
     with ServoChain(robot) as chain:
         chain.check_models()
-        read_health = chain.read_health
-
-        def timed_read_health(*args, deadline_s=None, **kwargs):
-            called = time.monotonic()
-            outcome = "answered"
-            try:
-                return read_health(*args, deadline_s=deadline_s, **kwargs)
-            except DeadlinePassedError:
-                outcome = "given up"
-                raise
-            finally:
-                reads.append((called, time.monotonic(), deadline_s, outcome))
-
-        monkeypatch.setattr(chain, "read_health", timed_read_health)
+        _time_health_reads(chain, monkeypatch, reads)
         controller = RobotController(chain, robot, on_error=errors.append, on_health=polls.append)
         controller.start()
         try:
