@@ -547,21 +547,7 @@ def _fill_in_chunks(f: h5py.File, take: TakeFrames, layout: np.ndarray, mocap: M
     take_start = float(take.time_s[0] + clock_offset_s)
     how = (f"given: the take's first frame at {take_start:+.4f} s on the recording's clock" if found is None else
            "found from the motion: " + found.describe())
-    attrs = group.attrs
-    attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
-    attrs["source"] = take.source
-    attrs["rate_hz"] = float(take.rate_hz)
-    attrs["clock_offset_s"] = float(clock_offset_s)
-    attrs["marker_layout_m"] = layout
-    attrs["take_start_s"] = take_start
-    attrs["clock_offset_how"] = how
-    attrs["clock_offset_confidence"] = found.confidence if found is not None else np.nan
-    attrs["clock_offset_uncertainty_s"] = found.uncertainty_s if found is not None else np.nan
-    attrs["max_residual_m"] = float(mocap.max_residual_m)
-    attrs["units"] = take.units
-    attrs["fit_flags"] = FLAG_LEGEND
-    if take.path.is_file():
-        attrs["source_sha256"] = _sha256(take.path)
+    _write_take_attrs(group.attrs, take, clock_offset_s, layout, take_start, how, found, mocap.max_residual_m)
     median = _median_posed(rows["residual_m"], rows["segment_center_m"], bins, posed, chunk_frames)
     return ImportedTake(take.source, m, take.rate_hz, take.units, take_start,
                         float(take.time_s[-1] + clock_offset_s), clock_offset_s, how, found, m * s, posed, flags,
@@ -620,18 +606,24 @@ def fill_mocap(f: h5py.File, result: MocapResult, compression: str | None = "gzi
                        ("joint_angle_rad", result.joint_rad), ("fit_flag", fit.flag.astype(np.int8)),
                        ("markers_used", fit.n_used.astype(np.int8))):
         group.create_dataset(name, data=data, chunks=row_chunks(m, data.shape[1:], data.dtype), compression=compression)
-    attrs = group.attrs
+    _write_take_attrs(group.attrs, take, result.clock_offset_s, result.layout_m, result.take_start_s, result.how,
+                      result.offset, result.max_residual_m)
+
+
+def _write_take_attrs(attrs: Any, take: Take | TakeFrames, clock_offset_s: float, layout: np.ndarray, take_start_s: float,
+                      how: str, found: ClockOffset | None, max_residual_m: float) -> None:
+    """``/mocap``'s attributes (SPEC): the take's labels, source, rate and units, where it lies on the recording's
+    clock and how that was found, the marker layout and fit limit, the flags' legend, the take file's hash."""
     attrs["labels"] = np.array(take.labels, dtype=h5py.string_dtype())
     attrs["source"] = take.source
     attrs["rate_hz"] = float(take.rate_hz)
-    attrs["clock_offset_s"] = float(result.clock_offset_s)
-    attrs["marker_layout_m"] = result.layout_m
-    attrs["take_start_s"] = result.take_start_s
-    attrs["clock_offset_how"] = result.how
-    found = result.offset
+    attrs["clock_offset_s"] = float(clock_offset_s)
+    attrs["marker_layout_m"] = layout
+    attrs["take_start_s"] = take_start_s
+    attrs["clock_offset_how"] = how
     attrs["clock_offset_confidence"] = found.confidence if found is not None else np.nan
     attrs["clock_offset_uncertainty_s"] = found.uncertainty_s if found is not None else np.nan
-    attrs["max_residual_m"] = float(result.max_residual_m)
+    attrs["max_residual_m"] = float(max_residual_m)
     attrs["units"] = take.units
     attrs["fit_flags"] = FLAG_LEGEND
     if take.path.is_file():
