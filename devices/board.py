@@ -688,6 +688,10 @@ class BoardReader:
         said once). Never before the previous frame's."""
         offset = self._host_offset_s
         candidate = sampled_by_s - board_time_s
+        pace = self._board_pace
+        real_time_clock = pace <= FAST_BOARD_PACE if pace is not None else wire_time_s <= self._fresh_until_s
+        if offset is not None and candidate < offset and real_time_clock:
+            self._restamp_unread(candidate)
         if offset is None or candidate < offset:
             offset = candidate
         elif self._last_offset_board_s is not None:
@@ -712,6 +716,31 @@ class BoardReader:
         host_time_s = max(min(sampled_by_s, predicted), self._last_host_time_s)
         self._last_host_time_s = host_time_s
         return host_time_s
+
+    def _restamp_unread(self, offset_s: float) -> None:
+        """A lower offset envelope says the frames stored before it were stamped late (an adapter's burst handed
+        over in pieces: the first piece's frames were dated from its own read). Only for a clock known to run at the
+        host's pace (a fast simulated board's offset falls at every frame). Those of this clock segment that no
+        consumer has read yet are dated again from the new offset, never before the last frame handed out; frames
+        already handed out keep their stamps."""
+        with self._lock:
+            first = max(self._read_total, self._write_total - self._capacity)
+            count = self._write_total - first
+            if count <= 0:
+                return
+            idx = (first + np.arange(count)) % self._capacity
+            idx = idx[self._segment_col[idx] == self._segment]
+            if idx.size == 0:
+                return
+            floor_s = -np.inf
+            if first > 0 and self._write_total - first < self._capacity:
+                last_out = (first - 1) % self._capacity
+                if self._segment_col[last_out] == self._segment:
+                    floor_s = float(self._host_time[last_out])
+            restamped = np.minimum(self._host_time[idx], self._board_time[idx] + offset_s)
+            self._host_time[idx] = np.maximum.accumulate(np.maximum(restamped, floor_s))
+            self._last_host_time_s = float(self._host_time[idx[-1]])
+            self._last_store_host_s = self._last_host_time_s
 
     def _notify(self, state: BoardState, message: str, host_time_s: float) -> None:
         """Tell ``on_status`` of an event that does not change the reader's state (a stall)."""

@@ -119,3 +119,20 @@ def test_frames_an_adapter_hands_over_in_bursts_keep_the_boards_spacing_and_are_
     late = [s for s in statuses if s.state == "stall"]
     assert len(late) == 1, [s.message for s in late]  # said once, not at every burst
     assert "although this app was reading" in late[0].message and "not read for" not in late[0].message
+
+
+def test_a_burst_handed_over_in_two_pieces_keeps_the_boards_spacing_across_the_cut():
+    """The first piece of a held-back burst is dated back from its own read; the second piece, read a moment later,
+    shows those dates were late. Before the reader dated the unread frames again, the second piece's first frames
+    were all clamped to the first piece's last stamp: steps of zero (seen in 1 of ~7 full test runs)."""
+    reader = BoardReader(replace(BoardConfig(), rate_hz=30.0, port="unused"))
+    assert reader.board.n_channels == 36
+    frames = [encode(seq, seq * 33_333, expected_counts(seq, 36)) for seq in range(1, 40)]
+    t0 = 100.0  # the board made the 39 frames over 1.3 s; the adapter hands them over at t0 + 1.3 s, cut in two
+    reader._ingest(b"".join(frames[:20]), t0 + 1.300)
+    reader._ingest(b"".join(frames[20:]), t0 + 1.301)
+    block = reader.read_block()
+    assert block is not None and block.seq.size == 39
+    steps = np.diff(block.host_time_s)
+    assert steps.min() > 0.03, steps
+    assert block.host_time_s[-1] <= t0 + 1.301  # never after the read that brought it
