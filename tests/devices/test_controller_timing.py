@@ -17,6 +17,7 @@ from devices import controller as controller_module
 from devices import factory
 from devices.config import RobotConfig
 from devices.controller import HoldPose, RobotController
+from devices.realtime import SHORT_SLICE_S, time_slice_s
 from devices.servo_chain import ServoChain
 from devices.sim.clock import SimClock
 from devices.sim.dxl_chain import ChainLab, VirtualChain
@@ -200,7 +201,28 @@ def test_sensnake_realtime_0_keeps_normal_scheduling(monkeypatch):
     ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
     try:
         assert _bus_thread_policy(ctl, rec) == os.SCHED_OTHER
+        assert ctl.scheduling.startswith("normal scheduling") and "(SENSNAKE_REALTIME=0)" in ctl.scheduling
+        # Linux 6.12+ grants the short slice without privilege; then the thread has it and says so.
+        slice_s = time_slice_s(ctl._thread.native_id)
+        if "time slice" in ctl.scheduling:
+            assert slice_s == pytest.approx(SHORT_SLICE_S)
+        else:
+            assert slice_s is None or slice_s > SHORT_SLICE_S
+    finally:
+        ctl.close()
+        factory.install_sim_lab(previous)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
+def test_sensnake_short_slice_0_leaves_the_kernels_default_slice(monkeypatch):
+    monkeypatch.setenv("SENSNAKE_REALTIME", "0")
+    monkeypatch.setenv("SENSNAKE_SHORT_SLICE", "0")
+    ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
+    try:
+        assert _bus_thread_policy(ctl, rec) == os.SCHED_OTHER
         assert ctl.scheduling == "normal scheduling (SENSNAKE_REALTIME=0)"
+        slice_s = time_slice_s(ctl._thread.native_id)
+        assert slice_s is None or slice_s > SHORT_SLICE_S
     finally:
         ctl.close()
         factory.install_sim_lab(previous)
@@ -216,7 +238,7 @@ def test_without_the_privilege_the_loop_runs_with_normal_scheduling_and_says_how
     ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
     try:
         rec.wait_more(2)  # it ticks anyway
-        assert "normal scheduling (no privilege for real-time priority" in ctl.scheduling
+        assert ctl.scheduling.startswith("normal scheduling") and "(no privilege for real-time priority" in ctl.scheduling
         assert "rtprio" in ctl.scheduling
     finally:
         ctl.close()
