@@ -28,6 +28,8 @@ ENVIRONMENT = {
     "SENSNAKE_STATIC_CHECKS_PASSED": "1 (set by scripts/test.sh once ruff, mypy and the import contracts passed): the tests "
                                      "do not run those checks again",
     "SENSNAKE_REALTIME": "0: no real-time priority for the control loop's thread (and no CPU idle-state hold)",
+    "SENSNAKE_SHORT_SLICE": "0: a control-loop thread under normal scheduling keeps the kernel's default time slice "
+                            "(see docs/REALTIME.md)",
     "SENSNAKE_CPU_LATENCY": "0: do not hold the CPUs' idle states shallow while the loop needs its beat",
     "SENSNAKE_LOOP_PROCESS": "0: the control loop runs in the app's process on every port",
     "SENSNAKE_LAB_PROCESS": "0: the simulated lab runs in the app's process (then the loop too on port sim)",
