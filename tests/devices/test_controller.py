@@ -122,8 +122,9 @@ def test_motion_goals_beyond_the_limits_are_refused_not_clamped(controller, sim_
 def test_motion_goals_are_speed_limited(controller, sim_chain):
     ctl, rec = controller
     future = ctl.run_motion(HoldPose(np.full(12, 1.5)), "far")
-    rec.wait(lambda: rec.states[-1].goal_rad is not None and np.allclose(rec.states[-1].goal_rad, 1.5, atol=0.002),
-             "the goals to reach the far pose")
+    # No state may have come in yet (a loaded machine): the wait looks again rather than index an empty list.
+    rec.wait(lambda: bool(rec.states) and rec.states[-1].goal_rad is not None
+             and np.allclose(rec.states[-1].goal_rad, 1.5, atol=0.002), "the goals to reach the far pose")
     rec.wait_more_states(3)
     ctl.stop_motion()
     assert future.result(WAIT_S) == "stopped"
