@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import select
 import sys
 import termios
 import time
@@ -82,6 +83,7 @@ PING_REPLY_BYTES = 14  # a ping's status packet: header 4, ID, length 2, instruc
 SECOND_REPLY_SLACK_S = 0.002  # a pty's far end may write a little late
 STALE_DRAINS = 5  # check_models first drops what still arrives from a port's last session, this many windows at most
 COLLISION_TRIES = 2  # garbled replies in a row, after the first, that make an ID "collided" (two servos on it)
+SELECT_SLACK_S = 0.0005  # missing bytes due sooner than this are waited for on the port itself, not slept for, s
 # The wait rule for replies (the pacing constants with it): devices/reply_pacing.py.
 RATE_REFUSE_FRACTION = 0.8  # a tick's bus time above this fraction of the period: the rate is refused
 RATE_WARN_FRACTION = 0.5  # above this fraction: a warning
@@ -141,8 +143,9 @@ class _FactoryPortHandler(PortHandler):
     how long a control tick takes. This handler sleeps until the replies' bytes can first all have arrived -- a lower
     bound from the wire alone: the instruction's and the replies' bytes at the baud rate plus each servo's Return
     Delay Time as read from (or written to) its control table (``return_delays_s``; 0 until known) -- and, if they
-    have not all arrived by then, sleeps again for the missing bytes' wire time (never ``select`` on the port: see
-    :meth:`_wait_for_bytes`), until the SDK's packet deadline.
+    have not all arrived by then, waits for the missing bytes themselves (``select`` on the port; a sleep of the
+    missing bytes' wire time where the port has no file descriptor, or in a real-time thread: see
+    :func:`_real_time_thread`), until the SDK's packet deadline.
 
     Nothing is learned from the timing of earlier transactions but one fact, on repeated evidence: whether the device
     answers faster than the wire (the simulator on an accelerated clock; :class:`devices.reply_pacing.ReplyPacing`), whose replies are
@@ -289,11 +292,10 @@ class _FactoryPortHandler(PortHandler):
             replies_left = reply_ids[int(len(self._rx) // reply_bytes):] if reply_ids else ()
             wait_s, due_s = pacing.wait_s(now, len(self._rx), n_bytes - len(self._rx), self._delays_s(replies_left),
                                           due_s, probe)
-            # Slept for, never waited for on the port: select/poll on a tty first waits for the kernel's tty worker
-            # to hand over the bytes it holds (n_tty_poll's flush of the port's buffer), and that worker runs at
-            # normal priority: beside busy programs a 3.7 ms select returned 125 ms later. The port's count of
-            # bytes in (TIOCINQ, pyserial's in_waiting) does not wait for it.
-            self._sleep(min(max(wait_s, READ_POLL_S), time_left_s))
+            if wait_s > SELECT_SLACK_S or not self._can_select() or _real_time_thread():
+                self._sleep(min(max(wait_s, READ_POLL_S), time_left_s))
+            else:
+                self._select(time_left_s)
             self._take_waiting()
             now = time.monotonic()
             pacing.judge_early(now)
@@ -310,6 +312,23 @@ class _FactoryPortHandler(PortHandler):
             trace = tick_trace.TRACE
             if trace is not None:
                 trace.mark("rx", len(self._rx))
+
+    def _can_select(self) -> bool:
+        return isinstance(getattr(self.ser, "fd", None), int)  # a real port or pty; the simulator's has none
+
+    def _select(self, timeout_s: float) -> None:
+        """Block until the port has bytes (it has none buffered: they were all taken) or ``timeout_s`` passes."""
+        self.wakeups += 1
+        trace = tick_trace.TRACE
+        if trace is not None:
+            trace.mark("select", round(timeout_s, 6))
+        readable, _, _ = select.select([self.ser.fd], [], [], timeout_s)
+        if trace is not None:
+            trace.mark("selected", bool(readable))
+        if readable and not self.ser.in_waiting:
+            # Readable with nothing to read: the far end hung up. pyserial's read says so (SerialException, a
+            # lost link), where looking again would spin until the deadline.
+            self._rx += self.ser.read(1)
 
     def _time_left_s(self) -> float:
         """Seconds until the SDK's packet timeout (the SDK keeps it in ms of time.time()) or ``deadline_s``."""
@@ -1279,6 +1298,23 @@ def scan_problems(found: Sequence[ServoInfo], expected: Iterable[int], scanned: 
             problems.append(status_return_level_words(info.servo_id, info.status_return_level) +
                             "; the app refuses to connect until then")
     return problems
+
+
+def _real_time_thread() -> bool:
+    """The calling thread runs at real-time priority (Linux SCHED_FIFO or SCHED_RR): it then never waits on a tty
+    with select/poll, which first waits for the kernel's tty worker to hand over the bytes it holds (``n_tty_poll``
+    flushes the port's buffer) — a worker at normal priority, so a real-time thread waits behind the busy programs
+    (a 3.7 ms select returned 125 ms later beside two). Such a thread sleeps and looks at the port's count of bytes
+    in (``TIOCINQ``, pyserial's ``in_waiting``), which does not wait for the worker. A thread at normal priority waits
+    behind the same programs either way, and one select costs it fewer wake-ups than sleeps (10-minute gaits beside two
+    busy programs: 101 missed ticks with select, 211 with sleeps)."""
+    getter = getattr(os, "sched_getscheduler", None)
+    if getter is None:
+        return False
+    try:
+        return getter(0) in (os.SCHED_FIFO, os.SCHED_RR)
+    except OSError:
+        return False
 
 
 def _status_packets_in(data: bytes) -> int:

@@ -111,3 +111,33 @@ def test_scan_command_fails_with_one_line_when_nothing_answers(pty_server, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"sensnake scan: error: no servo answered on {pty_server.path} at 57600 bps: check the servo "
                    "power and cable or try --all-bauds"]
+
+
+@pytest.mark.parametrize("real_time", [True, False])
+def test_a_real_time_bus_thread_never_selects_on_the_port(pty_server, monkeypatch, real_time):
+    """select/poll on a tty first waits for the kernel's tty worker (normal priority) to hand over what it holds; a
+    real-time thread must not wait behind it, so it sleeps and counts the port's bytes instead. A thread at normal
+    priority keeps select (fewer wake-ups). Both read the same states."""
+    from devices import servo_chain as servo_chain_module
+
+    calls: list[float] = []
+    real_select = servo_chain_module._FactoryPortHandler._select
+
+    def counting_select(self, timeout_s):
+        calls.append(timeout_s)
+        return real_select(self, timeout_s)
+
+    monkeypatch.setattr(servo_chain_module._FactoryPortHandler, "_select", counting_select)
+    monkeypatch.setattr(servo_chain_module, "_real_time_thread", lambda: real_time)
+    monkeypatch.setattr(servo_chain_module, "SELECT_SLACK_S", 1.0)  # every wait for a reply's bytes may select
+    with ServoChain(robot_on(pty_server.path)) as chain:
+        chain.scan(ids=range(1, 13))
+        before = len(calls)
+        for _ in range(20):
+            positions = chain.read_state().position_rad
+            assert positions.shape == (12,) and np.all(np.isfinite(positions))
+        during = len(calls) - before
+    if real_time:
+        assert during == 0
+    else:
+        assert during > 0
