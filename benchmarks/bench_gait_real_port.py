@@ -19,14 +19,11 @@ root; changes the whole machine while it runs.
 
 ``--trace DIR``: the late-tick trace (benchmarks/late_tick_trace) of the window: why each late tick was late.
 
-Measured (2 cores shared with other engineers' work, so the load is stated; Xvfb/xcb; traced; loop at real-time
-priority, tty workers as the kernel runs them unless said): feedback with ``--tty-workers-rt``, 10 min at load
-5.0-8.6: 1 missed of 30,028 ticks, period p99 20.12 ms, 0 faults, 0 stalls (the missed tick the hypervisor's: both
-CPUs' real-time probes held off ~24 ms). Workers as the kernel runs them: follow-the-leader, 8 min at load 3.1-7.1,
-780 missed of 24,014 slots, p99 21.55 ms, one play stopped naming a servo silent after the worker held the
-pty's bytes 2.3 s. ``--no-realtime``: follow-the-leader, 5 min at load 7.4-11.4,
-2,735 missed of 15,051 slots, p99 137 ms, 0 faults, every stall reported as the loop's (late wake-ups of the bus
-thread behind the busy programs). All figures and what each late tick was: docs/BENCHMARKS.md.
+Measured on the 2-core machine, Xvfb/xcb, 10 minutes beside the 2 busy processes only (load 0.8-3.4), tty
+workers as the kernel runs them: real-time priority, feedback 0 missed of 30,011 ticks, period p99 20.06 ms;
+follow-the-leader 0 of 30,022, p99 20.07 ms. ``--no-realtime`` (0.1 ms time slice), follow-the-leader: 101 of 29,922
+missed, p99 20.86 ms, every stall reported as the loop's. All figures and what each late tick was:
+docs/BENCHMARKS.md and docs/REALTIME.md.
 
     QT_QPA_PLATFORM=xcb DISPLAY=:N python -m benchmarks.bench_gait_real_port --gait follow --minutes 10 --busy 2
 """
