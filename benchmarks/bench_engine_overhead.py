@@ -45,20 +45,11 @@ serial, …), so a change in the machine's load falls on all of them; the median
 Run: ``python -m benchmarks.bench_engine_overhead [--seconds 8] [--jobs 2] [--repeats 4] [--modes bare,local,dask]
 [--write]`` (``--write``: ``benchmarks/results/engine_overhead.txt``); ``sensnake bench --quick`` uses 2 s plays.
 
-Last measured on the 2-core machine with no other work (other programs <= 0.06 of a core; 8 s plays, 10 rounds)
-before an embedded cluster's workers had their housekeeping thinned, median (range): literal local +2.1 %, Dask
-+18.4 % (-9.4 to +38.9), bare +1.1 %; engine local +2.4 % (0.5-4.3), Dask +7.5 % (4.3-10.0), bare +1.9 %; the Dask
-runs' own time a median 8 % above the local pool's in the same round. Part of that is the cluster's own threads
-taking cores and the interpreter lock from the runs (a Dask worker runs its task in a thread beside its event loop):
-on the busy machine 3.0-4.9 % (CPU) and 1.0-3.2 % (lock waits) of the runs' CPU with the previous housekeeping,
-2.3-2.8 % and 1.0-1.4 % with it thinned (its periodic part, which grows with the wall clock, gone; most lock waits
-fall at a task's start and end); a run itself costs the same CPU in a Dask worker as in a local one (to +-3 %,
-the two run side by side); the rest is not explained (decision 0017; ``benchmarks/probe_engine_runs.py``).
-Since then measured only on the busy machine (load 3-5), where CPU and wall of one run swing by tens of per cent:
-not yet on a quiet one. Dask's start 0.27-0.64 s, 2-3 ms between runs, stop
-0.06-0.09 s. Under other programs' load (1.0-1.8 cores, 8 rounds) the engine figures hold (local 0.4-2.1 %, Dask
-4.4-8.7 %) and the literal one is the machine's (bare +95 to +329 %). Worker memory 93-95 MB (local), 119-122 MB
-(Dask), <= 2 MB growth.
+Measured on the quiet 2-core machine (2026-12-05), median of the rounds: 8 s plays, 10 rounds — literal bare +5.9 %,
+local +7.2 %, Dask +15.4 % (+6.0 to +37.8); engine local +1.5 %, Dask +6.4 %; 60 s plays, 3 rounds — literal local
++2.9 %, Dask +11.4 %; engine local +1.7 %, Dask +4.1 %. Dask's runs took a median 4.0-5.8 % more of their own time
+(and thread CPU) than the local pool's in the same round, not explained (docs/PHYSICS_LAB.md, decision 0017). Worker
+memory 92-98 MB (local), 120-126 MB (Dask), <= 2 MB growth.
 """
 
 from __future__ import annotations
