@@ -21,7 +21,7 @@ root; changes the whole machine while it runs.
 
 Measured on the 2-core machine, Xvfb/xcb, 10 minutes beside the 2 busy processes only (load 0.8-3.4), tty
 workers as the kernel runs them: real-time priority, feedback 0 missed of 30,011 ticks, period p99 20.06 ms;
-follow-the-leader 0 of 30,022, p99 20.07 ms. ``--no-realtime`` (0.1 ms time slice), follow-the-leader: 101 of 29,922
+follow-the-leader 0 of 30,043, p99 20.06 ms. ``--no-realtime`` (0.1 ms time slice), follow-the-leader: 101 of 29,922
 missed, p99 20.86 ms, every stall reported as the loop's. All figures and what each late tick was:
 docs/BENCHMARKS.md and docs/REALTIME.md.
 
