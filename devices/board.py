@@ -721,7 +721,7 @@ class BoardReader:
         """A lower offset envelope says the frames stored before it were stamped late (an adapter's burst handed
         over in pieces: the first piece's frames were dated from its own read). Only for a clock known to run at the
         host's pace (a fast simulated board's offset falls at every frame). Those of this clock segment that no
-        consumer has read yet are dated again from the new offset, never before the last frame handed out; frames
+        consumer has read yet are dated again from the new offset, never before the frame stored before them; frames
         already handed out keep their stamps."""
         with self._lock:
             first = max(self._read_total, self._write_total - self._capacity)
@@ -732,11 +732,12 @@ class BoardReader:
             idx = idx[self._segment_col[idx] == self._segment]
             if idx.size == 0:
                 return
+            # Never before the frame stored just before them (handed out already, or of an earlier clock segment):
+            # host times never run backwards, across a reconnect too.
             floor_s = -np.inf
-            if first > 0 and self._write_total - first < self._capacity:
-                last_out = (first - 1) % self._capacity
-                if self._segment_col[last_out] == self._segment:
-                    floor_s = float(self._host_time[last_out])
+            before = (self._write_total - idx.size) - 1
+            if before >= max(self._write_total - self._capacity, 0):
+                floor_s = float(self._host_time[before % self._capacity])
             restamped = np.minimum(self._host_time[idx], self._board_time[idx] + offset_s)
             self._host_time[idx] = np.maximum.accumulate(np.maximum(restamped, floor_s))
             self._last_host_time_s = float(self._host_time[idx[-1]])

@@ -136,3 +136,22 @@ def test_a_burst_handed_over_in_two_pieces_keeps_the_boards_spacing_across_the_c
     steps = np.diff(block.host_time_s)
     assert steps.min() > 0.03, steps
     assert block.host_time_s[-1] <= t0 + 1.301  # never after the read that brought it
+
+
+def test_frames_dated_again_after_a_board_restart_never_go_before_those_already_handed_out():
+    """A board that restarts its clock (seq and time back to the start) and hands its first frames over in two pieces:
+    the second piece dates the first again, but never before the frames of the old clock already handed out — a
+    recording's times never run backwards (when the floor was taken from the new clock segment only, the restarted
+    board's first frames were dated ~0.3 s before the old clock's last ones)."""
+    reader = BoardReader(replace(BoardConfig(), rate_hz=30.0, port="unused"))
+    t0 = 100.0
+    reader._ingest(b"".join(encode(seq, 5_000_000 + seq * 33_333, expected_counts(seq, 36)) for seq in range(1, 11)),
+                   t0)
+    old = reader.read_block()
+    restarted = [encode(seq, seq * 33_333, expected_counts(seq, 36)) for seq in range(1, 21)]
+    reader._ingest(b"".join(restarted[:10]), t0 + 0.010)
+    reader._ingest(b"".join(restarted[10:]), t0 + 0.011)
+    new = reader.read_block()
+    assert old is not None and new is not None and new.clock_segment is not None
+    times = np.concatenate([old.host_time_s, new.host_time_s])
+    assert np.all(np.diff(times) >= 0), times
