@@ -53,16 +53,10 @@ def _ask_short_slice() -> str | None:
     default slice."""
     if _switched_off("SENSNAKE_SHORT_SLICE") or not sys.platform.startswith("linux"):
         return None
-    number = _SYS_SCHED_SETATTR.get(os.uname().machine)
-    if number is None:
-        return None
     want_ns = int(SHORT_SLICE_S * 1e9)
-    try:
-        attr = ctypes.create_string_buffer(_SCHED_ATTR.pack(_SCHED_ATTR.size, os.SCHED_OTHER, 0, os.getpriority(
-            os.PRIO_PROCESS, 0), 0, want_ns, 0, 0, 0, 0))
-        if ctypes.CDLL(None, use_errno=True).syscall(number, 0, attr, 0) != 0:
-            return None
-    except (OSError, AttributeError):
+    attr = ctypes.create_string_buffer(_SCHED_ATTR.pack(_SCHED_ATTR.size, os.SCHED_OTHER, 0, os.getpriority(
+        os.PRIO_PROCESS, 0), 0, want_ns, 0, 0, 0, 0))
+    if not _sched_attr_call(0, 0, attr, 0):
         return None
     if time_slice_s() != want_ns * 1e-9:  # a kernel before 6.12 takes the call and ignores the slice
         return None
@@ -72,17 +66,23 @@ def _ask_short_slice() -> str | None:
 def time_slice_s(thread_id: int = 0) -> float | None:
     """The fair scheduler's time slice of a thread (Linux: its TID; 0 the calling one), or None where it cannot be
     read (another OS, a real-time thread has none, a kernel before 6.12 reports 0)."""
-    number = _SYS_SCHED_SETATTR.get(os.uname().machine) if sys.platform.startswith("linux") else None
-    if number is None:
-        return None
     got = ctypes.create_string_buffer(_SCHED_ATTR.size)
-    try:
-        if ctypes.CDLL(None, use_errno=True).syscall(number + 1, thread_id, got, _SCHED_ATTR.size, 0) != 0:
-            return None
-    except (OSError, AttributeError):
+    if not _sched_attr_call(1, thread_id, got, _SCHED_ATTR.size, 0):
         return None
     fields = _SCHED_ATTR.unpack(got.raw)
     return fields[5] * 1e-9 if fields[1] == os.SCHED_OTHER and fields[5] else None
+
+
+def _sched_attr_call(which: int, *args: object) -> bool:
+    """sched_setattr(2) (``which`` 0) or sched_getattr(2) (1) with ``args``; False where the call failed or this
+    machine has neither (another OS or architecture)."""
+    number = _SYS_SCHED_SETATTR.get(os.uname().machine) if sys.platform.startswith("linux") else None
+    if number is None:
+        return False
+    try:
+        return bool(ctypes.CDLL(None, use_errno=True).syscall(number + which, *args) == 0)
+    except (OSError, AttributeError):
+        return False
 
 
 def _raise_thread_priority() -> str:

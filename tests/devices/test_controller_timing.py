@@ -196,33 +196,23 @@ def test_the_bus_thread_gets_real_time_priority_when_permitted_and_says_which_it
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
-def test_sensnake_realtime_0_keeps_normal_scheduling(monkeypatch):
+@pytest.mark.parametrize("short_slice", ["1", "0"])
+def test_sensnake_realtime_0_keeps_normal_scheduling(monkeypatch, short_slice):
     monkeypatch.setenv("SENSNAKE_REALTIME", "0")
+    monkeypatch.setenv("SENSNAKE_SHORT_SLICE", short_slice)
     ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
     try:
         assert _bus_thread_policy(ctl, rec) == os.SCHED_OTHER
-        assert ctl.scheduling.startswith("normal scheduling") and "(SENSNAKE_REALTIME=0)" in ctl.scheduling
-        # Linux 6.12+ grants the short slice without privilege; then the thread has it and says so.
         slice_s = time_slice_s(ctl._thread.native_id)
-        if "time slice" in ctl.scheduling:
-            assert slice_s == pytest.approx(SHORT_SLICE_S)
-        else:
+        if short_slice == "0":  # the kernel's default slice, and the words say nothing of one
+            assert ctl.scheduling == "normal scheduling (SENSNAKE_REALTIME=0)"
             assert slice_s is None or slice_s > SHORT_SLICE_S
-    finally:
-        ctl.close()
-        factory.install_sim_lab(previous)
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling is Linux's")
-def test_sensnake_short_slice_0_leaves_the_kernels_default_slice(monkeypatch):
-    monkeypatch.setenv("SENSNAKE_REALTIME", "0")
-    monkeypatch.setenv("SENSNAKE_SHORT_SLICE", "0")
-    ctl, rec, _, previous = _run_controller(RobotConfig(), 1.0, 0)
-    try:
-        assert _bus_thread_policy(ctl, rec) == os.SCHED_OTHER
-        assert ctl.scheduling == "normal scheduling (SENSNAKE_REALTIME=0)"
-        slice_s = time_slice_s(ctl._thread.native_id)
-        assert slice_s is None or slice_s > SHORT_SLICE_S
+        else:  # Linux 6.12+ grants the short slice without privilege; then the thread has it and says so
+            assert ctl.scheduling.startswith("normal scheduling") and "(SENSNAKE_REALTIME=0)" in ctl.scheduling
+            if "time slice" in ctl.scheduling:
+                assert slice_s == pytest.approx(SHORT_SLICE_S)
+            else:
+                assert slice_s is None or slice_s > SHORT_SLICE_S
     finally:
         ctl.close()
         factory.install_sim_lab(previous)

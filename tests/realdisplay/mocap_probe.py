@@ -164,7 +164,7 @@ def run(seconds: float, tmp: Path, with_mocap: bool = True) -> dict:
     lab.robot.stop_motion()
     pump(500)
     window.close()
-    QCoreApplication.processEvents()
+    QCoreApplication.processEvents()  # one turn for the close's deferred deletes before the probe exits
     return result
 
 

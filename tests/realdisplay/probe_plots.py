@@ -173,7 +173,7 @@ def main(argv: list[str]) -> int:
         result["scenario"], result["seconds"] = name, time.monotonic() - started
         print(json.dumps(result), flush=True)  # noqa: T201 - the result for the test
         window.close()
-        QCoreApplication.processEvents()
+        QCoreApplication.processEvents()  # one turn for the close's deferred deletes before the probe exits
     del app
     os._exit(0)  # device threads were closed with the window; skip Qt's teardown at exit
 
