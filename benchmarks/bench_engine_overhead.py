@@ -43,13 +43,14 @@ serial, …), so a change in the machine's load falls on all of them; the median
 (when both ran) the Dask runs' own time and CPU against the local pool's, round by round.
 
 Run: ``python -m benchmarks.bench_engine_overhead [--seconds 8] [--jobs 2] [--repeats 4] [--modes bare,local,dask]
-[--write]`` (``--write``: ``benchmarks/results/engine_overhead.txt``); ``sensnake bench --quick`` uses 2 s plays.
+[--write]`` (``--write``: ``benchmarks/results/engine_overhead.txt``, ``engine_overhead_60s.txt`` for ``--seconds 60``);
+``sensnake bench --quick`` uses 2 s plays.
 
-Measured on the quiet 2-core machine (2026-12-05), median of the rounds: 8 s plays, 10 rounds — literal bare +5.9 %,
-local +7.2 %, Dask +15.4 % (+6.0 to +37.8); engine local +1.5 %, Dask +6.4 %; 60 s plays, 3 rounds — literal local
-+2.9 %, Dask +11.4 %; engine local +1.7 %, Dask +4.1 %. Dask's runs took a median 4.0-5.8 % more of their own time
-(and thread CPU) than the local pool's in the same round, not explained (docs/PHYSICS_LAB.md, decision 0017). Worker
-memory 92-98 MB (local), 120-126 MB (Dask), <= 2 MB growth.
+Measured on the quiet 2-core machine (2026-12-05), median of the rounds: 60 s plays, 8 rounds — literal local +1.5 %,
+Dask +4.0 % (+2.1 to +16.6); engine local +1.0 %, Dask +3.1 %; 8 s plays, 10 rounds — literal bare +0.7 %, local
++1.3 %, Dask +7.9 % (-1.2 to +17.8); engine local +1.0 %, Dask +5.2 %, mostly its workers' start. A single round
+carries a few per cent of the machine's luck (decision 0030): read the median of several. Worker memory 94-100 MB
+(local), 120-127 MB (Dask), <= 3 MB growth.
 """
 
 from __future__ import annotations
@@ -454,7 +455,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="rounds (each measures every mode once)")
     parser.add_argument("--modes", default="bare,local,dask",
                         help="besides serial, always measured: a comma list of bare, local, dask")
-    parser.add_argument("--write", action="store_true", help=f"write the table to {RESULTS.relative_to(ROOT)}")
+    parser.add_argument("--write", action="store_true",
+                        help=f"write the table to {RESULTS.relative_to(ROOT)} (8 s plays) or engine_overhead_<S>s.txt")
     parser.add_argument("--child", choices=MODES, help=argparse.SUPPRESS)
     parser.add_argument("--plan", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
@@ -465,7 +467,13 @@ def main() -> None:
     modes = tuple(m for m in MODES if m == "serial" or m in args.modes.split(","))
     lines = bench(args.seconds, args.jobs, args.repeats, modes)
     if args.write:
-        RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        results_file(args.seconds).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def results_file(seconds: float) -> Path:
+    """Where ``--write`` puts the table: :data:`RESULTS` for the default 8 s plays, beside it with the play's length
+    in its name for any other."""
+    return RESULTS if seconds == 8.0 else RESULTS.with_name(f"{RESULTS.stem}_{seconds:g}s{RESULTS.suffix}")
 
 
 if __name__ == "__main__":
