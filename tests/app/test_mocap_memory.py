@@ -47,8 +47,10 @@ def test_mocap_is_what_the_take_written_whole_at_the_end_made_of_it(tmp_path: Pa
             assert ours.dtype == theirs.dtype and ours.shape == theirs.shape, name
             if name == "time_s":  # the recording's start differs between runs: its float rounding too
                 np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9)
+            elif ours.dtype.kind == "f":  # the same fit, to the last few bits (numpy's and scipy's builds differ there)
+                np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12, equal_nan=True, err_msg=name)
             else:
-                assert np.array_equal(ours, theirs, equal_nan=True), name
+                assert np.array_equal(ours, theirs), name
         attrs = json.loads(str(reference["attrs"]))
         assert sorted(group.attrs) == sorted(attrs)
         for key, value in group.attrs.items():
