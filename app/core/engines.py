@@ -50,6 +50,7 @@ from devices.toml_files import read_json_file, read_text_file
 ENGINES = ("local", "dask")
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
 PARENT_WATCH_S = 0.5  # how often a local worker checks that its parent is alive
+HOLDER_WAIT_S = 1.0  # a command refused a folder waits this long at most for the holder's record, to name it
 MAX_RUNS = 10_000  # more runs than this in one command is a mistake in the file, not a plan (refused before any run)
 # Dask's periodic housekeeping, slowed and thinned. It costs twice. Its CPU: with Dask's defaults an idle embedded
 # cluster of two workers (the scheduler, the nannies and the client in this process, the two workers) took 0.065 of a
@@ -434,7 +435,7 @@ class FolderLock:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.read(fd, 64).decode("ascii", "replace").strip() or "?"
+            holder = _holder(fd)
             os.close(fd)
             raise FolderBusyError(f"{self.folder}: another command is writing into it (process {holder}); wait for "
                                   f"it to end, or choose another --out folder") from None
@@ -449,6 +450,17 @@ class FolderLock:
             _INHERITED_FDS.discard(self._fd)
             os.close(self._fd)  # closing the last descriptor of the open file releases the lock
             self._fd = None
+
+
+def _holder(fd: int) -> str:
+    """The holder's record in a lock file another command holds ("PID what"). The holder writes it just after it
+    took the lock: a command refused in between waits up to :data:`HOLDER_WAIT_S` for it ("?" if it never comes)."""
+    give_up = time.monotonic() + HOLDER_WAIT_S
+    while True:
+        holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+        if holder or time.monotonic() >= give_up:
+            return holder or "?"
+        time.sleep(0.01)
 
 
 # A run journal is a line per finished run (~1 kB): read whole, so a file beyond this is refused, not read.

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import signal
 
 SERVER_ENV = "SENSNAKE_WORKER_SERVER_PARENT"
 
@@ -27,3 +28,8 @@ def _is_the_server() -> bool:
 
 if _is_the_server():
     atexit.register(os._exit, 0)
+    # The workers forked from the server keep the signal handlers the server had before it started serving: Ctrl-C
+    # ignored. The terminal sends it to the whole process group; the command decides (it cancels the pending runs and
+    # stops the cluster, whose nannies end the workers), as the local pool's workers leave it to the command too.
+    # Without this each Dask worker also printed a KeyboardInterrupt traceback over the command's one line.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

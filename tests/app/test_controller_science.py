@@ -73,6 +73,24 @@ def test_jobs_are_capped_at_the_runs_and_the_cores_and_a_folder_takes_one_comman
         pass
 
 
+def test_a_command_refused_a_folder_names_its_holder_even_while_the_holder_writes_its_record(tmp_path):
+    """Two commands started at the same instant: the one refused reads the lock file between the other's taking the
+    lock and writing its record; it waits for the record, and names the holder."""
+    import fcntl
+    import threading
+
+    fd = os.open(tmp_path / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # taken, no record yet
+    late = threading.Timer(0.2, lambda: os.write(fd, b"4242 sweep\n"))
+    late.start()
+    try:
+        with pytest.raises(FolderBusyError, match=r"\(process 4242 sweep\)"):
+            FolderLock(tmp_path, "sweep").__enter__()
+    finally:
+        late.join()
+        os.close(fd)
+
+
 class _InlineEngine:
     description = "inline"
 
@@ -185,6 +203,37 @@ def test_sigterm_stops_the_workers_keeps_what_finished_and_the_same_command_resu
     assert done.returncode == 0, done.stderr
     assert f"{finished} finished before (resuming)" in done.stdout
     assert len(_rows(out / "summary.csv")) == 4
+
+
+def test_ctrl_c_to_a_dask_sweeps_process_group_leaves_one_line_and_no_worker(tmp_path):
+    """The terminal sends Ctrl-C to the whole process group: the command cancels and stops the cluster; its workers
+    leave it to the command (they printed a KeyboardInterrupt traceback each)."""
+    plan = tmp_path / "s.toml"
+    plan.write_text('scenes = ["paper_obstacle"]\ncontrollers = ["feedforward"]\nseeds = [0, 1, 2, 3, 4, 5]\n'
+                    'seconds = 2.5\nsettle_s = 0.3\nspeed_rad_s = 0.2\nrest_cap_s = 0.0\n', encoding="utf-8")
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "app", "experiment", "sweep", str(plan), "--out", str(out), "--jobs", "2",
+               "--engine", "dask"]
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)  # its own group, as a terminal's foreground command
+    journal = RunJournal(out)
+    wait_until(lambda: len(journal.load()) >= 1, timeout_s=90)
+    group = {int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and _group(int(p.name)) == process.pid}
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted (SIGINT)" in err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    wait_until(lambda: not any(_group(pid) == process.pid for pid in group), timeout_s=10)
+    assert len(_rows(out / "summary.csv")) == len(journal.load()) < 6
+
+
+def _group(pid: int) -> int | None:
+    """The process group of ``pid``, None once it has gone."""
+    try:
+        return os.getpgid(pid)
+    except ProcessLookupError:
+        return None
 
 
 EVAL = '''seed = 20261204
