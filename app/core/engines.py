@@ -364,6 +364,30 @@ def stop_worker_server() -> None:
             stop()
 
 
+def check_scheduler(scheduler: str | None) -> None:
+    """Before a command writes anything into its folder: :class:`EngineError` (the same line as the engine's) unless
+    something answers at ``scheduler``'s TCP address within :data:`CONNECT_TIMEOUT_S` (a folder a command claimed and
+    then could not run in held a record that refused the next command's other file). None, or another protocol than
+    ``tcp://``: nothing checked here (the engine's own connection says it)."""
+    if not scheduler:
+        return
+    address = scheduler[len("tcp://"):] if scheduler.startswith("tcp://") else scheduler
+    if "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise EngineError(f"--scheduler {scheduler}: not an address of the form tcp://HOST:PORT")
+    import socket
+
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except (OSError, ValueError) as exc:
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within {CONNECT_TIMEOUT_S:g} s "
+                          f"({text[:160]})") from None
+
+
 def open_engine(name: str, jobs: int, scheduler: str | None = None) -> Engine:
     """The engine ``name`` (:data:`ENGINES`) for ``jobs`` runs at a time; ``scheduler`` only with ``dask``."""
     if name not in ENGINES:

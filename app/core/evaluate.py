@@ -53,6 +53,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    check_scheduler,
     open_engine,
     read_folder_record,
 )
@@ -320,6 +321,7 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
                    say: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Run ``plan`` into ``out_dir`` (resuming one cut short there; refusing a folder of another file's evaluation)
     and write the report. Returns the rows of ``evaluation.csv``."""
+    check_scheduler(scheduler if engine == "dask" else None)  # before anything is written
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with FolderLock(out, "evaluation"):

@@ -79,6 +79,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    check_scheduler,
     interruptible,
     open_engine,
 )
@@ -366,6 +367,7 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None, 
     refused; one holding this sweep cut short resumes it. ``say`` gets the one-line statements (run count, engine,
     resuming). Returns the summary rows in run order; on :class:`RunsInterrupted` the summary of the finished runs
     is written before it propagates."""
+    check_scheduler(scheduler if engine == "dask" else None)  # before anything is written
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tasks = sweep_tasks(plan, out)

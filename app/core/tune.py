@@ -70,6 +70,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    check_scheduler,
     cores,
     open_engine,
     read_folder_record,
@@ -435,6 +436,7 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
 
     if not 1 <= trials <= MAX_TRIALS:
         raise TuneError(f"--trials must be 1 … {MAX_TRIALS}, got {trials}")
+    check_scheduler(scheduler if engine == "dask" else None)  # before anything is written
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with FolderLock(out, "tune"):

@@ -21,8 +21,8 @@ pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
 from app.core import sweep  # noqa: E402
-from app.core.engines import FolderLock, RunJournal, capped_jobs, cores  # noqa: E402
-from app.core.errors import EvaluationError, FolderBusyError, SweepError, TuneError  # noqa: E402
+from app.core.engines import FolderLock, RunJournal, capped_jobs, check_scheduler, cores  # noqa: E402
+from app.core.errors import EngineError, EvaluationError, FolderBusyError, SweepError, TuneError  # noqa: E402
 from app.core.evaluate import _interval, read_evaluation  # noqa: E402
 from app.core.tune import read_tune  # noqa: E402
 from models.controllers import law_gains  # noqa: E402
@@ -171,6 +171,10 @@ def test_an_unreachable_scheduler_is_one_line_naming_it(tmp_path):
     assert time.monotonic() - started < 15  # 5 s of waiting for it, and the libraries' loading
     err = done.stderr.strip().splitlines()
     assert done.returncode == 1 and len(err) == 1 and "tcp://127.0.0.1:9" in err[0], done.stderr
+    # Checked before anything is written: no folder claimed that would refuse the next command's other file.
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(EngineError, match="not an address of the form"):
+        check_scheduler("tcp://nohost")
 
 
 def _children(pid: int) -> set[int]:
