@@ -98,6 +98,13 @@ def cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def capped_words(jobs: int | None, used: int) -> str:
+    """What a command says after its engine when it runs fewer at a time than ``--jobs`` asked ("" otherwise)."""
+    if jobs is None or jobs <= used:
+        return ""
+    return f" (--jobs {jobs} capped at {used}: at most this machine's {cores()} core(s) and the runs to do)"
+
+
 def capped_jobs(jobs: int | None, runs: int) -> int:
     """Runs at a time: ``jobs`` (default: every core), never more than the cores nor than the runs, at least 1."""
     if jobs is not None and jobs < 1:

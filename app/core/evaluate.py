@@ -53,6 +53,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    capped_words,
     check_scheduler,
     open_engine,
     read_folder_record,
@@ -351,12 +352,13 @@ def run_evaluation(plan: EvaluationPlan, out_dir: str | Path, *, jobs: int | Non
         tasks = evaluation_tasks(plan, out)
         journal = RunJournal(out)
         finished = len(journal.load())
-        runner = open_engine(engine, capped_jobs(jobs, len(tasks) - finished), scheduler)
+        width = capped_jobs(jobs, len(tasks) - finished)
+        runner = open_engine(engine, width, scheduler)
         if say is not None:
             say(f"evaluation {plan.path.name} (sha256 {plan.sha256[:16]}…): {len(plan.conditions)} conditions × "
                 f"{plan.seeds_per_condition} seeds × {1 + len(plan.controllers)} controllers = {len(tasks)} runs"
                 + (f", {finished} finished before (resuming)" if resumed and finished else "")
-                + f", on {runner.description}")
+                + f", on {runner.description}{capped_words(jobs, width)}")
         try:
             rows, failures = execute(tasks, runner, journal, progress)
         except RunsInterrupted as stop:

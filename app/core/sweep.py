@@ -79,6 +79,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    capped_words,
     check_scheduler,
     interruptible,
     open_engine,
@@ -375,11 +376,11 @@ def run_sweep(plan: SweepPlan, out_dir: str | Path, *, jobs: int | None = None, 
         resumed = claim_folder(out, "sweep", tasks_identity(tasks), len(tasks))
         journal = RunJournal(out)
         finished = len(journal.load())
-        jobs = capped_jobs(jobs, len(tasks) - finished)
-        runner = open_engine(engine, jobs, scheduler)
+        width = capped_jobs(jobs, len(tasks) - finished)
+        runner = open_engine(engine, width, scheduler)
         if say is not None:
             say(f"{len(tasks)} runs" + (f", {finished} finished before (resuming)" if resumed else "") +
-                f", on {runner.description}")
+                f", on {runner.description}{capped_words(jobs, width)}")
         try:
             rows, failures = execute(tasks, runner, journal, progress)
         except RunsInterrupted as stop:

@@ -70,6 +70,7 @@ from app.core.engines import (
     RunJournal,
     Task,
     capped_jobs,
+    capped_words,
     check_scheduler,
     cores,
     open_engine,
@@ -461,7 +462,7 @@ def run_tune(plan: TunePlan, out_dir: str | Path, trials: int, *, jobs: int | No
         if say is not None:
             say(f"study {out / 'study.journal'}: {done_before} trial(s) before, {max(trials - done_before, 0)} to "
                 f"add; {len(train)} training conditions a trial, {len(plan.conditions('test'))} test conditions; "
-                f"{plan.sampler} sampler; on {runner.description}")
+                f"{plan.sampler} sampler; on {runner.description}{capped_words(jobs, width)}")
         try:
             baselines = _run_split(plan, runner, "train", FEEDFORWARD, None, out / "baselines" / "train", progress)
             while len(counted_trials(study)) < trials:

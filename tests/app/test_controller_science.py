@@ -21,7 +21,14 @@ pytest.importorskip("mujoco")
 
 from app.cli.main import main  # noqa: E402
 from app.core import sweep  # noqa: E402
-from app.core.engines import FolderLock, RunJournal, capped_jobs, check_scheduler, cores  # noqa: E402
+from app.core.engines import (  # noqa: E402
+    FolderLock,
+    RunJournal,
+    capped_jobs,
+    capped_words,
+    check_scheduler,
+    cores,
+)
 from app.core.errors import EngineError, EvaluationError, FolderBusyError, SweepError, TuneError  # noqa: E402
 from app.core.evaluate import _interval, read_evaluation  # noqa: E402
 from app.core.tune import read_tune  # noqa: E402
@@ -66,6 +73,9 @@ def test_a_bad_sweep_is_refused_before_its_first_run(tmp_path, text, words):
 def test_jobs_are_capped_at_the_runs_and_the_cores_and_a_folder_takes_one_command(tmp_path):
     assert capped_jobs(64, 3) == min(3, cores())
     assert capped_jobs(None, 1) == 1
+    assert capped_words(1000, capped_jobs(1000, 3)) == \
+        f" (--jobs 1000 capped at {min(3, cores())}: at most this machine's {cores()} core(s) and the runs to do)"
+    assert capped_words(1, 1) == capped_words(None, 2) == ""  # as asked, or not asked: nothing to say
     with FolderLock(tmp_path, "sweep"), pytest.raises(FolderBusyError, match="another command is writing into it"), \
             FolderLock(tmp_path, "sweep"):
         pass
