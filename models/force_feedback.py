@@ -41,8 +41,8 @@ The lead (``lead_gain`` ≠ 0): the first body pitch joint (joint 3, behind the 
 behind a joint: with the heavy body resting behind joint 3, a positive lead turns the light front *up and forward*,
 out of a drape's downward bend (on the paper obstacle's drape +0.3 rad moves the head 2 cm up and 4 cm forward over
 the far face; tests/app/test_feedback_physics.py); a negative one turns it down toward the terrain. The default is
-positive; the negative lead, which tilts the front down, measured worse (benchmarks/sweep_tune_lead_sign.toml: it lost the paper obstacle at 0 and 0.5 N, traversed nothing
-feedforward fails). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
+positive; the negative lead, which tilts the front down, measured worse (it lost the paper obstacle at 0 and 0.5 N and traversed nothing
+feedforward fails: docs/decisions/0018). As follow-the-leader propagates the shape one pitch joint per shift, the lead's bend travels back
 with it: the pitch joint ``b`` places behind joint 3 gets the bend the lead had ``b`` shifts earlier (the shift phase
 comes from the feedforward's progress; a new play starts afresh), so the propagated drape opens where the front found
 nothing; ``lead_reach`` (pitch joints, default all) stops it that many pitch joints behind joint 3. Stale or flagged
@@ -51,9 +51,8 @@ sheets carry less than it (the tail has left the floor: the body balances on the
 opening the drape further tips it off the crest), the lead closes at ``lead_gain``'s rate toward 0 instead (never past
 it), and with ``tail_guard_back`` > 0 the bend it opened earlier, carried back toward the lifted tail, closes too (at
 that part of the lead's rate; default 0.3, which stops the body being lifted off the crest by its own tail and
-sliding back under heavy tail loads); flagged or stale tail sensors leave the lead as without the guard. The guard
-was chosen on benchmarks/sweep_tune_tail_guard.toml and judged on benchmarks/sweep_heldout6.toml, its reaching back
-at 0.3 found on benchmarks/sweep_tune_heavy2.toml and judged on benchmarks/sweep_heldout14.toml (docs/FORCE_FEEDBACK.md).
+sliding back under heavy tail loads); flagged or stale tail sensors leave the lead as without the guard. How the
+guard and its reaching back were chosen: docs/decisions/0019.
 
 ``|δ̇| ≤ max_rate_rad_s`` and ``|δ| ≤ max_node_rad`` (the lead too); the summed correction of each joint is clipped to
 ``max_correction_rad``. Gains are in rad/s per unit of relative force error. A node whose sensors are not valid
@@ -85,7 +84,7 @@ class FeedbackGains:
     conform_gain: float = 0.15  # rad/s: how fast a node reaches for lost contact, and yields per unit of overload
     push_gain: float = 0.20  # rad/s per unit of relative force deficit
     target_n: float = 8.0  # the load a node in contact should push with (two segments weigh ~3.9 N); 8 N and push
-    # 0.2: chosen on sweep_tune_crest2.toml, kept by sweep_heldout16.toml's rule (a gains file or the Gait tab sets them)
+    # 0.2: docs/decisions/0021 (a gains file or the Gait tab sets them)
     contact_n: float = 0.5  # below this a node has no contact
     overload_n: float = 20.0  # above this a node is overloaded (its servos near their stall torque)
     memory_s: float = 3.0  # a node that had contact this recently and lost it reaches for it again
@@ -97,7 +96,7 @@ class FeedbackGains:
     lead_reach: float = 12.0  # how many pitch joints behind the lead its bend travels (12: all; 0: it stays at the lead)
     tail_guard_n: float = 0.5  # N: while the two tail segments carry less, the lead closes instead of opening (0: off)
     tail_guard_back: float = 0.3  # while the guard acts, the bend already carried back closes too, at this part of the
-    # lead's rate (0: only the lead joint closes). 0.3: chosen by sweep_heldout14.toml's rule (docs/FORCE_FEEDBACK.md)
+    # lead's rate (0: only the lead joint closes). 0.3: docs/decisions/0019
     max_rate_rad_s: float = 0.2
     max_node_rad: float = 0.35
     max_correction_rad: float = 0.5

@@ -141,7 +141,7 @@ def test_a_positive_lead_turns_the_front_up_out_of_the_drape_a_negative_one_down
     weight; the two front segments are the light end), the head tip goes *up* under a positive lead (a positive
     pitch lifts what is behind the joint) and down under a negative one. So the default (positive) lead does not
     tilt the front down; it does the opposite, and that is the variant that traverses
-    (benchmarks/sweep_tune_lead_sign.toml). Checked on the body straight and on the paper obstacle's drape."""
+    (docs/decisions/0018). Checked on the body straight and on the paper obstacle's drape."""
     for pitch in (0.0, -0.5):
         pose = np.zeros(12)
         pose[[2, 4, 6, 8]] = pitch
@@ -229,7 +229,7 @@ def test_the_tail_guard_closes_the_lead_while_the_tail_is_off_the_floor_and_0_tu
             law.step(DT, bottom, np.ones(12, bool))
         return law
 
-    assert FeedbackGains().tail_guard_n == 0.5  # on by default (judged on sweep_heldout6.toml)
+    assert FeedbackGains().tail_guard_n == 0.5  # on by default (docs/decisions/0019)
     assert run(0.0, 0.0, ticks=25).lead_rad == pytest.approx(0.3)  # off: the front feels nothing, the lead opens
     assert run(0.5, 2.0, ticks=25).lead_rad == pytest.approx(0.3)  # the tail on the floor: no guard
     lifted = run(0.5, 0.2, ticks=25)  # the tail carries 0.2 N < 0.5 N: the lead closes at its gain's rate
@@ -263,7 +263,7 @@ def test_the_guard_reaching_back_closes_the_bend_already_carried_toward_the_lift
 
     carried = run(0.0, 2.0, 0).lead_correction()
     assert carried[4] > 0.1  # the lead's bend travels back behind joint 3
-    assert FeedbackGains().tail_guard_back == 0.3  # on by default, by sweep_heldout14.toml's rule (0: only the lead joint closes)
+    assert FeedbackGains().tail_guard_back == 0.3  # on by default (docs/decisions/0019; 0: only the lead joint closes)
     without = run(0.0, 0.2, 50).lead_correction()
     with_back = run(1.0, 0.2, 50).lead_correction()
     assert with_back[2] == pytest.approx(without[2])  # the lead joint closes as before
@@ -276,7 +276,7 @@ def test_the_guard_reaching_back_closes_the_bend_already_carried_toward_the_lift
 
 
 def test_the_default_target_and_push_are_the_crest_screens_choice():
-    # 8 N and 0.2 rad/s: sweep_tune_crest2.toml's gain set 6, kept by sweep_heldout16.toml's rule
+    # 8 N and 0.2 rad/s: docs/decisions/0021
     defaults = FeedbackGains()
     assert (defaults.target_n, defaults.push_gain) == (8.0, 0.2)
     law = ForceFeedbackLaw(AXES)
