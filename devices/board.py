@@ -372,6 +372,9 @@ class BoardReader:
         self._pace_anchor: tuple[float, float, float] | None = None  # (first arrival, arrival, board time)
         self._board_pace: float | None = None  # board seconds per host second, once measured over PACE_SPAN_S
         self._last_poll_s = time.monotonic()  # when the reader thread last looked at the port
+        # The reader thread's last pause of STALL_S / 2 or more between two looks at the port (start, end): it did not
+        # run (the process stopped, the machine suspended or overloaded)
+        self._host_gap = (-math.inf, -math.inf)
         self._clock_backsteps = 0
         self._board_time_base_s = 0.0
         self._segment = 0
@@ -499,6 +502,7 @@ class BoardReader:
                     self._on_link_lost(exc)
                     continue
                 now = time.monotonic()
+                self._note_pause(now)
                 if data:
                     self._ingest(data, now)
                 self._last_poll_s = now
@@ -513,6 +517,12 @@ class BoardReader:
             raise
         finally:
             self._close_port()
+
+    def _note_pause(self, now: float) -> None:
+        """The reader thread looks at the port at ``now`` (before :attr:`_last_poll_s` moves on): a pause of STALL_S / 2
+        or more since its previous look is remembered — it did not run meanwhile."""
+        if now - self._last_poll_s >= STALL_S / 2:
+            self._host_gap = (self._last_poll_s, now)
 
     @staticmethod
     def _read_waiting(port: serial.SerialBase) -> bytes:
@@ -701,7 +711,12 @@ class BoardReader:
         late_s = wire_time_s - predicted
         if late_s > STALL_S and not self._stalled:
             self._stalled = True
-            if wire_time_s - polled_s >= STALL_S / 2:
+            # This process's pause overlapped the frames' wait: its previous look at the port was that long ago, or
+            # its last pause ended while they waited (the first look after a SIGCONT can find the port still empty
+            # while the kernel's tty worker, behind other programs, has not handed the waiting bytes over yet)
+            gap_start, gap_end = self._host_gap
+            paused_s = max(wire_time_s - polled_s, gap_end - max(gap_start, predicted))
+            if paused_s >= STALL_S / 2:
                 self._stalls += 1
                 self._notify("stall", f"the board was not read for {late_s:.1f} s (this process was stopped, or "
                              "the computer suspended or overloaded); the frames that waited are timed by the board's "

@@ -121,6 +121,34 @@ def test_frames_an_adapter_hands_over_in_bursts_keep_the_boards_spacing_and_are_
     assert "although this app was reading" in late[0].message and "not read for" not in late[0].message
 
 
+def test_a_paused_process_whose_first_look_after_finds_the_port_empty_is_still_named_the_stall():
+    """Stopped 2 s (SIGSTOP), then resumed: the first look at the port found it empty (the kernel's tty worker, behind
+    other programs, had not handed the waiting bytes over yet), the next one 5 ms later the backlog. The stall is
+    this process's and counted as such; it was once told as frames "late although this app was reading"."""
+    statuses: list = []
+    reader = BoardReader(replace(BoardConfig(), rate_hz=30.0, port="unused"), on_status=statuses.append)
+    frames = [encode(seq, seq * 33_333, expected_counts(seq, 36)) for seq in range(1, 91)]
+
+    def look(now: float, data: bytes = b"") -> None:  # what the reader thread does at each look at the port
+        reader._note_pause(now)
+        if data:
+            reader._ingest(data, now)
+        reader._last_poll_s = now
+
+    t0 = 100.0
+    reader._last_poll_s = t0
+    for k in range(30):  # read as they come
+        look(t0 + (k + 1) / 30 + 0.001, frames[k])
+    resumed = t0 + 1.0 + 2.0
+    look(resumed)  # the port looked empty
+    look(resumed + 0.005, b"".join(frames[30:]))
+    block = reader.read_block()
+    assert block is not None and block.seq.size == 90 and np.all(np.diff(block.host_time_s) > 0)
+    stalls = [s.message for s in statuses if s.state == "stall"]
+    assert len(stalls) == 1 and "not read for" in stalls[0], stalls
+    assert reader.stats.host_stalls == 1
+
+
 def test_a_burst_handed_over_in_two_pieces_keeps_the_boards_spacing_across_the_cut():
     """The first piece of a held-back burst is dated back from its own read; the second piece, read a moment later,
     shows those dates were late. Before the reader dated the unread frames again, the second piece's first frames
