@@ -62,6 +62,7 @@ from models.mocap import SegmentFit, check_layout, fit_segments, joint_angles
 
 CORRECTION_EVERY_S = 2.0
 RESOLVE_TIMEOUT_S = 5.0
+MOCAP_TYPE = "MoCap"  # the stream type looked for when no stream has the asked name (XDF's motion-capture type)
 GAP_PERIODS = 2.5  # a gap longer than this many sample periods is a dropout
 PULL_TIMEOUT_S = 0.05
 # At a recording's stop, how long the take waits for samples captured before the stop but still on their way (the
@@ -216,10 +217,10 @@ class MocapInlet:
 
         found = pylsl.resolve_byprop("name", self.name, 1, self.resolve_timeout_s)
         if not found:
-            found = pylsl.resolve_byprop("type", "MoCap", 1, min(1.0, self.resolve_timeout_s))
+            found = pylsl.resolve_byprop("type", MOCAP_TYPE, 1, min(1.0, self.resolve_timeout_s))
         if not found:
             raise ConnectionError(f"--mocap lsl:{self.name}: no Lab Streaming Layer stream named {self.name!r} nor "
-                                  f"of type MoCap answered within {self.resolve_timeout_s:g} s")
+                                  f"of type {MOCAP_TYPE} answered within {self.resolve_timeout_s:g} s")
         inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=True)
         try:
             self._describe(inlet.info(self.resolve_timeout_s))

@@ -4,6 +4,7 @@ Layer traffic stays on this machine (LSLAPICFG, tests/conftest.py)."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from types import SimpleNamespace
@@ -78,6 +79,9 @@ def test_a_live_mocap_stream_is_stamped_at_capture_and_its_dropouts_counted(real
 def test_an_lsl_stream_that_does_not_answer_is_refused_before_recording(real_time_board, tmp_path, capsys,
                                                                         monkeypatch):
     monkeypatch.setattr("app.core.lsl_link.RESOLVE_TIMEOUT_S", 0.5)
+    # Nothing of this type answers: a test beside this one may publish a MoCap stream on this machine, which the
+    # fallback by type would then rightly take (it did once: 'TabMocap')
+    monkeypatch.setattr("app.core.lsl_link.MOCAP_TYPE", f"MoCapNobody{os.getpid()}")
     out = tmp_path / "none.h5"
     started = time.monotonic()
     assert main(["record", "--daq", "sim", "--seconds", "1", "--mocap", "lsl:NoSuchStream", "--out", str(out)]) == 1
