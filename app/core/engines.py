@@ -214,9 +214,7 @@ class DaskEngine:
         try:
             self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
         except (OSError, TimeoutError, ValueError) as exc:
-            text = " ".join(str(exc).split()) or type(exc).__name__
-            raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within "
-                              f"{CONNECT_TIMEOUT_S:g} s ({text[:160]})") from None
+            raise _unanswered(scheduler, exc) from None
         workers = len(self.client.scheduler_info().get("workers", {}))
         self.description = f"Dask, the cluster at {scheduler} ({workers} worker(s))"
 
@@ -390,9 +388,14 @@ def check_scheduler(scheduler: str | None) -> None:
         with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
             pass
     except (OSError, ValueError) as exc:
-        text = " ".join(str(exc).split()) or type(exc).__name__
-        raise EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within {CONNECT_TIMEOUT_S:g} s "
-                          f"({text[:160]})") from None
+        raise _unanswered(scheduler, exc) from None
+
+
+def _unanswered(scheduler: str, exc: BaseException) -> EngineError:
+    """The one line for a scheduler address that did not answer, with what the connection said."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return EngineError(f"--scheduler {scheduler}: no Dask scheduler answered within {CONNECT_TIMEOUT_S:g} s "
+                       f"({text[:160]})")
 
 
 def open_engine(name: str, jobs: int, scheduler: str | None = None) -> Engine:
