@@ -67,7 +67,8 @@ def test_killing_one_of_two_external_workers_mid_sweep_still_completes_every_run
         finished_at_kill = len(journal.load())
         _stop(processes[1])  # the first worker, mid-sweep: its run in progress is lost with it
         stdout, stderr = sweep.communicate(timeout=240)
-        assert sweep.returncode == 0, stderr
+        failures = (out / "failures.csv").read_text(encoding="utf-8") if (out / "failures.csv").exists() else ""
+        assert sweep.returncode == 0, f"stderr: {stderr}\nstdout: {stdout}\nfailures.csv: {failures[-3000:]}"
         assert finished_at_kill < RUNS, "the worker was killed after the sweep ended"
         assert "(2 worker(s))" in stdout
         with open(out / "summary.csv", newline="", encoding="utf-8") as f:
