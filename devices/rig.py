@@ -9,7 +9,7 @@ cannot place to ``CONTACT_MAX_UNCERTAINTY_N`` of probe force is refused, not gue
 
 Threads: like :class:`devices.servo_chain.ServoChain`, a rig is NOT thread-safe; one thread owns it. Every call
 blocks until the servo has settled (a few tens of ms per step on the bench), except :meth:`CalibrationRig.start_force`
-which only sends the goal (so the loading ramp can be sampled). ``interrupt`` (a callable any thread may make true)
+and :meth:`CalibrationRig.start_ramp`, which only send the goal (so the loading ramp can be sampled). ``interrupt`` (a callable any thread may make true)
 ends a wait early with :class:`RigInterrupted`; :meth:`CalibrationRig.release` ignores it, so a stopped run can
 still take the load off.
 """
@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from devices import control_table as ct
 from devices.config import RigConfig, RobotConfig
 from devices.errors import DeviceError, RigForceError, RigInterrupted
 from devices.servo_chain import ServoChain
@@ -48,6 +49,7 @@ CONTACT_SLOPE_RANGE = (0.2, 3.0)
 # the default rig). Above this multiple of the current the rig's maximum force would draw, something other than the
 # spring holds the wheel (a jammed probe, a caught cable).
 CHECK_CURRENT_MARGIN = 2.0
+PROFILE_VELOCITY_MAX = 32767  # the register's range; the servo caps it at its Velocity Limit
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,7 @@ class CalibrationRig:
         self.fit_until_n = fit_until_n
         self.contact_rad: float | None = None
         self._slack_rad: float | None = None  # where the contact search started (cable slack)
+        self._profile_lsb = 0  # the Profile Velocity this driver last wrote (0: never, or back to full speed)
         self._chain = ServoChain(RobotConfig(
             port=rig.port, baud=rig.baud, joint_ids=(rig.servo_id,), axes=("pitch",), signs=(1,),
             zero_offsets_rad=(0.0,), joint_min_rad=(-ANGLE_LIMIT_RAD,), joint_max_rad=(ANGLE_LIMIT_RAD,),
@@ -172,6 +175,7 @@ class CalibrationRig:
         Raises :class:`RigInterrupted` when ``interrupt()`` turns true during the wait (unless ``interruptible`` is
         False); the servo then holds wherever it is going.
         """
+        self._full_speed()
         sent = float(self._chain.write_goals(np.array([angle_rad]))[0])
         deadline = time.monotonic() + timeout_s
         while True:
@@ -286,7 +290,38 @@ class CalibrationRig:
     def start_force(self, force_n: float) -> float:
         """Send the goal for ``force_n`` (N) and return at once with the goal angle (rad); the servo ramps there
         while the caller samples :meth:`applied_force_n`. Same refusals as :meth:`command_force`."""
-        return float(self._chain.write_goals(np.array([self._target_for(force_n)]))[0])
+        target = self._target_for(force_n)
+        self._full_speed()
+        return float(self._chain.write_goals(np.array([target]))[0])
+
+    def start_ramp(self, force_n: float, duration_s: float) -> float:
+        """Load to ``force_n`` (N) at a steady rate that takes ``duration_s`` from the contact, paced by the servo
+        itself, and return at once with the goal angle (rad); the caller samples :meth:`applied_force_n`.
+
+        The servo's Profile Velocity is set to the winding past the contact over ``duration_s`` (at least one unit,
+        0.229 rpm) and the goal sent once: the servo keeps the ramp however late the computer's next command would
+        be (a ramp paced by one goal per sample stalls wherever a busy computer's thread does, while the record
+        draws a straight line over the stall). From below the contact the slack is wound at the same speed first.
+        The next goal of any other command goes at full speed again. Same refusals as :meth:`command_force`; a
+        ``duration_s`` of 0 or less is :meth:`start_force`."""
+        target = self._target_for(force_n)
+        assert self.contact_rad is not None  # _target_for refused otherwise
+        if not duration_s > 0:
+            return self.start_force(force_n)
+        speed_rad_s = (target - self.contact_rad) / duration_s
+        lsb = int(min(PROFILE_VELOCITY_MAX, max(1, round(speed_rad_s / ct.RAD_S_PER_VELOCITY_LSB))))
+        self._set_profile_velocity(lsb)
+        return float(self._chain.write_goals(np.array([target]))[0])
+
+    def _set_profile_velocity(self, lsb: int) -> None:
+        if lsb != self._profile_lsb:
+            self._chain.write_item(self.config.servo_id, "Profile Velocity", lsb)
+            self._profile_lsb = lsb
+
+    def _full_speed(self) -> None:
+        """Undo a :meth:`start_ramp`'s Profile Velocity before the next goal (0: the servo's own velocity limit)."""
+        if self._profile_lsb:
+            self._set_profile_velocity(0)
 
     def _target_for(self, force_n: float) -> float:
         if self.contact_rad is None:

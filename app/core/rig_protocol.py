@@ -5,8 +5,9 @@ the sensor rests unloaded (probe lifted) for ``rest_s`` — also before the firs
 loads the sensor to about 2 N — then sampling starts with ``baseline_s`` still unloaded (so the record holds the
 unloaded level and the loading ramp, which identify E0; the probe is lifted rather than just touching, so the force
 column reads exactly 0 N there instead of a tick's worth of spring stretch); the rig ramps the force up linearly over
-``ramp_s`` (one goal per sample: a servo left to itself loads in a fraction of a second, too fast for a 6 Hz record to
-see the ramp, and too fast for the fit to identify E0) and the trial samples
+``ramp_s`` (paced by the servo's own Profile Velocity, :meth:`devices.rig.CalibrationRig.start_ramp`: a servo left to
+itself at full speed loads in a fraction of a second, too fast for a 6 Hz record to see the ramp and for the fit to
+identify E0; one goal per sample would stall wherever a busy computer's thread does) and the trial samples
 ``time_s``, the rig's applied force (``F = k·r·(θ − θ_contact)`` from the servo's present position, SPEC §2) and the
 sensor's conductance at ``sample_rate_hz`` for ``hold_s`` from the command; then the load comes off and the trial is
 written as a SPEC §3.1 CSV into the session folder. The contact is found once, at the start.
@@ -85,6 +86,10 @@ EDGE_GAP_PERIODS = 3
 MAX_GAP_PERIODS = 5
 GAP_CREEP_FRACTION = 0.1
 GAP_RETRIES = 1
+# A force read that took longer than this many sample periods (the thread held up between asking the servo and
+# hearing it: a busy machine) has no time to pair it with the sensor's reading within a quarter period: the row is
+# left out, as one whose moment went by is (a time off by 3 s on the ramp made a whole trial a "poor fit").
+MAX_READ_SPAN_PERIODS = 0.5
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
 
 MIN_HOLD_SAMPLES = 10  # samples at full force the fit needs (models.calibration refuses fewer)
@@ -124,6 +129,7 @@ class RigDevice(Protocol):
     def find_contact(self) -> float: ...
     def command_force(self, force_n: float) -> float: ...
     def start_force(self, force_n: float) -> float: ...
+    def start_ramp(self, force_n: float, duration_s: float) -> float: ...
     def applied_force_n(self) -> float: ...
     def release(self) -> None: ...
 
@@ -419,6 +425,7 @@ class ProtocolRunner:
         # Only find the contact and release (the wizard's "Find contact" step): no session folder, no trial.
         self.contact_only = contact_only
         self.contact_note = ""  # what the contact search found (set by run)
+        self.rows_untimed = 0  # trial rows left out because their force read took too long to be timed (a busy host)
         self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
@@ -562,10 +569,8 @@ class ProtocolRunner:
                           + (s.n_trials - len(self.done)) * (s.trial_duration_s() + s.rest_s))
             self._progress("conditioning", -1, force, 0, 0.0, f"{label}: loading", total_left)
             t0 = self._clock()
-            steps = max(1, int(math.ceil(s.ramp_s / period)))
-            for step in range(1, steps + 1):  # the protocol's ramp, one goal per sample period
-                rig.start_force(force * step / steps)
-                self._wait_until(t0 + step * period)
+            rig.start_ramp(force, s.ramp_s)  # the protocol's ramp, paced by the servo
+            self._wait_until(t0 + s.ramp_s)
             end = t0 + s.ramp_s + s.condition_load_s
             while self._clock() < end:
                 applied = rig.applied_force_n()  # reads the servo: an overload or a lost servo ends the run
@@ -741,7 +746,6 @@ class ProtocolRunner:
         forces = np.empty(n_rows)
         t0 = self._clock()
         loaded = False
-        ramped = False
         unloaded: list[float] = []  # the sensor's readings before loading (S)
         peak = -math.inf
         collapsed = 0
@@ -754,14 +758,18 @@ class ProtocolRunner:
             now = self._clock()
             if now > t0 + (slot + 1) * period and slot < n_rows - 1:
                 continue  # this slot's moment went by (the thread was held up): no bunched catch-up rows
-            row += 1
-            if not ramped and now - t0 >= s.baseline_s:
+            if not loaded and now - t0 >= s.baseline_s:
                 loaded = True
-                share = (now - t0 - s.baseline_s + period) / s.ramp_s if s.ramp_s > 0 else 1.0
-                ramped = share >= 1.0
-                rig.start_force(force * min(share, 1.0))
-            forces[row] = rig.applied_force_n()
-            times[row] = now = 0.5 * (now + self._clock())  # the read takes a while; the force is its midpoint's
+                rig.start_ramp(force, s.ramp_s)  # the servo paces the ramp: a held-up thread cannot stall it
+            read_from = self._clock()
+            applied = rig.applied_force_n()
+            read_to = self._clock()
+            if read_to - read_from > MAX_READ_SPAN_PERIODS * period and slot < n_rows - 1:
+                self.rows_untimed += 1
+                continue  # when the force was read is not known well enough (the thread was held up mid-read)
+            row += 1
+            forces[row] = applied
+            times[row] = now = 0.5 * (read_from + read_to)  # the read takes a while; the force is its midpoint's
             board_t, board_c = self.feed.latest()
             if time.monotonic() - self.feed.last_alive_wall_s() > self.board_stale_s:
                 raise BoardStreamError(

@@ -85,6 +85,40 @@ def test_a_short_protocol_recovers_the_simulated_sensor(tmp_path, fast_sensor_co
     assert "left" in captured.err and "wrote S06B" in captured.out
 
 
+def test_a_rig_thread_held_up_mid_ramp_and_mid_read_leaves_no_trial_a_poor_fit(tmp_path, fast_sensor_config, capsys,
+                                                                                monkeypatch):
+    """A busy machine holds the rig's thread up for a while now and then: before a force read (the ramp stalled
+    with it while it was paced by one goal per sample, and the record drew a straight line over the stall) and
+    between a read and its clock (the read's time was then off by half the stall). Every 6th read here waits 40 ms
+    (2.4 s of the lab at 60×), alternately before and after: the servo paces the ramp itself and a read whose time
+    is not known within a quarter period is left out, so every trial still fits. Before, trial 1 was a poor fit."""
+    from devices import rig as rig_module
+
+    reads = [0]
+    read = rig_module.CalibrationRig.applied_force_n
+
+    def held_up(self):
+        reads[0] += 1
+        if reads[0] % 12 == 0:
+            time.sleep(0.04)
+        force = read(self)
+        if reads[0] % 12 == 6:
+            time.sleep(0.04)
+        return force
+
+    monkeypatch.setattr(rig_module.CalibrationRig, "applied_force_n", held_up)
+    out = tmp_path / "cal.json"
+    code = main(["calibrate", "--config", str(fast_sensor_config), "--rig", "sim", "--daq", "sim",
+                 "--forces", "1.75,3,4,5.25", "--trials", "1", *FAST_HOLD, "--time-scale", "60", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    entry = json.loads(out.read_text())["sensors"]["S06B"]
+    assert reads[0] > 4 * 12
+    assert not [w for t in entry["trials"] for w in t["warnings"] if w.startswith("poor fit")], entry["trials"]
+    truth = SimLab(load_config(fast_sensor_config), seed=0).rig_sensor_truth()
+    for key in ("E0_Pa", "E1_Pa"):
+        assert entry["sls"][key] == pytest.approx(truth[key], rel=0.05), (key, entry["sls"], truth)
+
+
 def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 

@@ -367,7 +367,8 @@ def test_resumed_and_new_motions_start_from_the_present_pose_not_an_old_goal(con
     ctl, rec = controller
     step_rad = ROBOT.max_joint_speed_rad_s / ROBOT.control_rate_hz
     far = ctl.run_motion(HoldPose(np.full(12, 0.6)), "far")
-    rec.wait(lambda: np.allclose(rec.states[-1].position_rad, 0.6, atol=0.02), "the joints to reach 0.6 rad")
+    rec.wait(lambda: bool(rec.states) and np.allclose(rec.states[-1].position_rad, 0.6, atol=0.02),
+             "the joints to reach 0.6 rad")
     ctl.pause()
     rec.wait(lambda: any("paused" in e for e in rec.events), "pause")
     _pose_by_hand_through_submit(ctl, sim_chain, -0.4)
