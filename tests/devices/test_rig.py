@@ -202,3 +202,31 @@ def test_the_rig_check_says_what_it_saw_and_why_a_step_failed(virtual_rig):
     lines = CalibrationRig(RigConfig()).check()
     assert lines[0].ok and not lines[1].ok and "no reply from servo 1" in lines[1].detail
     assert all(not line.ok and line.detail.startswith("not tried") for line in lines[2:])
+
+
+def test_start_ramp_loads_at_the_asked_rate_without_further_goals_and_the_next_move_is_at_full_speed(
+        slow_virtual_rig):
+    """The servo paces the ramp (its Profile Velocity): sampled without sending any goal, the force rises along a
+    line that reaches the target in the asked time from the contact; a release afterwards is not held to that rate."""
+    import time
+
+    with CalibrationRig(RigConfig()) as rig:
+        rig.find_contact()
+        rig.move_to(rig.contact_rad)  # at the contact: the whole ramp is loading
+        target = rig.start_ramp(3.0, 1.0)
+        assert target == pytest.approx(rig.contact_rad + 3.0 / rig.newtons_per_rad, abs=0.002)
+        t0 = time.monotonic()
+        samples = []
+        while time.monotonic() - t0 < 1.4:
+            samples.append((time.monotonic() - t0, rig.applied_force_n()))
+        t, f = np.array(samples).T
+        mid = (t > 0.2) & (t < 0.8)
+        slope = np.polyfit(t[mid], f[mid], 1)[0]
+        # 3 N in 1 s; the rate is whole units of 0.229 rpm (7 % of this one) and the servo's own profile rounds it
+        assert slope == pytest.approx(3.0, rel=0.15)
+        assert f[-1] == pytest.approx(3.0, abs=0.1)
+        t_release = time.monotonic()
+        rig.release()
+        assert time.monotonic() - t_release < 0.6  # 0.7 rad back at full speed (at the ramp's rate: 1.2 s)
+        with pytest.raises(RigForceError, match="safe maximum"):
+            rig.start_ramp(50.0, 1.0)
