@@ -198,6 +198,14 @@ class _ProgressLine:
         self._phase: tuple[int, str] | None = None
 
     def __call__(self, progress: Progress) -> None:
+        if progress.phase == "redo":  # why a trial is run again: a line of its own, kept on screen
+            with self._lock:
+                if self._tty and self._width:
+                    sys.stderr.write("\n")
+                    self._width = 0
+                sys.stderr.write(f"{self.prefix}{progress.message}\n")
+                sys.stderr.flush()
+            return
         now = time.monotonic()
         interval = PROGRESS_INTERVAL_S if self._tty else 5.0
         phase = (progress.trial, progress.phase)

@@ -41,8 +41,19 @@ class BoardStreamError(RuntimeError):
 
 
 # raised by app.core.rig_protocol
-class BoardGapError(BoardStreamError):
+class TrialGapError(RuntimeError):
+    """A trial's record has a gap too long to bridge: the trial is run again, not kept."""
+
+
+# raised by app.core.rig_protocol
+class BoardGapError(BoardStreamError, TrialGapError):
     """A trial's board samples have a gap too long to bridge (frames lost): the trial is run again, not kept."""
+
+
+# raised by app.core.rig_protocol
+class RigReadGapError(TrialGapError):
+    """The rig's force went unread over a trial's loading edge for too long (a busy computer): the trial is run
+    again, not kept."""
 
 
 # raised by app.core.rig_protocol

@@ -64,7 +64,13 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from app.core import calfiles
-from app.core.errors import BoardGapError, BoardStreamError, ForceCollapsedError
+from app.core.errors import (
+    BoardGapError,
+    BoardStreamError,
+    ForceCollapsedError,
+    RigReadGapError,
+    TrialGapError,
+)
 from devices.config import BoardConfig, RigConfig
 from devices.errors import DeviceError, RigInterrupted
 from devices.rig import ANGLE_LIMIT_RAD
@@ -86,10 +92,17 @@ EDGE_GAP_PERIODS = 3
 MAX_GAP_PERIODS = 5
 GAP_CREEP_FRACTION = 0.1
 GAP_RETRIES = 1
-# A force read that took longer than this many sample periods (the thread held up between asking the servo and
-# hearing it: a busy machine) has no time to pair it with the sensor's reading within a quarter period: the row is
-# left out, as one whose moment went by is (a time off by 3 s on the ramp made a whole trial a "poor fit").
-MAX_READ_SPAN_PERIODS = 0.5
+# A force read on the loading ramp that took longer than this many sample periods (the thread held up between asking
+# the servo and hearing it: a busy machine) has no time to pair it with the sensor's reading within an eighth period:
+# the row is left out, as one whose moment went by is (a time off by 3 s on the ramp made a whole trial a "poor fit").
+# Elsewhere the force stands still (the probe lifted, or held), so when it was read does not matter.
+MAX_READ_SPAN_PERIODS = 0.25
+# The servo paces the loading ramp (a straight line in time, between the knee where the probe touches and the corner
+# where it reaches the goal), so the rig's force record may skip part of it: a gap up to this fraction of the ramp
+# (or EDGE_GAP_PERIODS sample periods) cuts a corner by at most rate × gap² / 8 of force × time — 0.3 % of the creep
+# of a τ = 20 s sensor at a 2 s ramp. A longer gap over the loading edge leaves the ramp unrecorded (E0 then rests on
+# nothing): the trial is not kept and runs again once, as one with a board gap does.
+RAMP_GAP_FRACTION = 0.5
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
 
 MIN_HOLD_SAMPLES = 10  # samples at full force the fit needs (models.calibration refuses fewer)
@@ -260,7 +273,7 @@ class TrialRecord:
 @dataclass(frozen=True)
 class Progress:
     """Where the run is: ``phase`` one of contact / conditioning / baseline / loading / hold / release / rest / paused
-    / done;
+    / redo (a trial not kept, to run again: ``message`` says why) / done;
     ``trial`` 0-based (−1 before the first), ``elapsed_s`` in the phase's trial (s), ``time_left_s`` for the whole
     run (estimate, s)."""
 
@@ -507,10 +520,10 @@ class ProtocolRunner:
                     self._check_stop()
                     try:
                         record = self._trial(index, force, repeat)
-                    except BoardGapError as exc:
+                    except TrialGapError as exc:
                         if attempt == GAP_RETRIES:
                             raise
-                        self._progress("rest", index, force, repeat, 0.0, f"{exc}; it runs again after its rest")
+                        self._progress("redo", index, force, repeat, 0.0, f"{exc}; it runs again after its rest")
                         continue
                     break
                 self.trials.append(record)
@@ -521,7 +534,7 @@ class ProtocolRunner:
             return self._end(ABORTED, self._stop_reason or "aborted", None)
         except DeviceError as exc:
             return self._end(FAILED, f"rig error: {exc}", exc)
-        except (BoardStreamError, ForceCollapsedError) as exc:
+        except (BoardStreamError, ForceCollapsedError, TrialGapError) as exc:
             return self._end(FAILED, str(exc), exc)
         except OSError as exc:
             return self._end(FAILED, f"cannot write the trial files in {self.folder}: {exc}", exc)
@@ -659,6 +672,10 @@ class ProtocolRunner:
                     f"for the lab at {self.time_scale:g}× real time (run again at a lower speed), then run again")
         elif isinstance(exc, BoardStreamError):
             todo = "check the board's cable and that it streams (Forces tab), then run again"
+        elif isinstance(exc, RigReadGapError):
+            todo = ("close what keeps the computer busy"
+                    + (" or run the simulated lab at a lower speed" if self.time_scale != 1.0 else "")
+                    + ", then resume the session")
         elif isinstance(exc, ForceCollapsedError):
             todo = ("the trial in progress was discarded; check the cable, the spring and that the probe sits on the "
                     "sensor, then resume the session")
@@ -735,6 +752,9 @@ class ProtocolRunner:
             self._resume.wait(PROGRESS_INTERVAL_S)
         self._check_stop()
 
+    def _busy_words(self) -> str:
+        return f" at {self.time_scale:g}× real time" if self.time_scale != 1.0 else ""
+
     def _trial(self, index: int, force: float, repeat: int) -> TrialRecord:
         s = self.settings
         rig = self.rig
@@ -749,6 +769,7 @@ class ProtocolRunner:
         unloaded: list[float] = []  # the sensor's readings before loading (S)
         peak = -math.inf
         collapsed = 0
+        ramp_from: float | None = None  # when the ramp was commanded (runner clock, s)
         load_from: float | None = None  # when the ramp started, the hold was reached (runner clock, s)
         hold_from: float | None = None
         last_judged = -math.inf
@@ -760,13 +781,14 @@ class ProtocolRunner:
                 continue  # this slot's moment went by (the thread was held up): no bunched catch-up rows
             if not loaded and now - t0 >= s.baseline_s:
                 loaded = True
+                ramp_from = self._clock()
                 rig.start_ramp(force, s.ramp_s)  # the servo paces the ramp: a held-up thread cannot stall it
             read_from = self._clock()
             applied = rig.applied_force_n()
             read_to = self._clock()
-            if read_to - read_from > MAX_READ_SPAN_PERIODS * period and slot < n_rows - 1:
+            if loaded and hold_from is None and read_to - read_from > MAX_READ_SPAN_PERIODS * period:
                 self.rows_untimed += 1
-                continue  # when the force was read is not known well enough (the thread was held up mid-read)
+                continue  # on the ramp, when the force was read is not known well enough (held up mid-read)
             row += 1
             forces[row] = applied
             times[row] = now = 0.5 * (read_from + read_to)  # the read takes a while; the force is its midpoint's
@@ -825,6 +847,13 @@ class ProtocolRunner:
             uncovered, where = edge_gap_s, " over the loading edge"
         elif gap_s > max(MAX_GAP_PERIODS * period, GAP_CREEP_FRACTION * CREEP_TIME_S):
             uncovered = gap_s
+        force_edge_gap_s = longest_gap_s(times, (ramp_from if ramp_from is not None else times[0]) - period,
+                                         edge_to)
+        if not uncovered and force_edge_gap_s > max(EDGE_GAP_PERIODS * period, RAMP_GAP_FRACTION * s.ramp_s):
+            raise RigReadGapError(
+                f"{label}: the rig's force was not read for {force_edge_gap_s:.1f} s over the loading edge (the "
+                f"computer was too busy{self._busy_words()}): the record cannot say how the force rose there; the "
+                "trial is not kept")
         if uncovered:
             cause = (f"the simulated lab's board frames were lost: the computer did not read them in time at "
                      f"{self.time_scale:g}× real time" if self.simulated_board

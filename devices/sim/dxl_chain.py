@@ -263,6 +263,13 @@ class VirtualChain:
             self._advance(self._clock.now())
             return np.array([(s.position_ticks - ct.CENTER_TICKS) * ct.RAD_PER_TICK for s in self._servos])
 
+    def present_positions_at_rad(self, sim_s: float) -> np.ndarray:
+        """Present angles in rad at simulated time ``sim_s`` (at most now): the chain advanced to it. Its state only
+        moves forward: a time before the chain's own is read at the chain's own."""
+        with self._lock:
+            self._advance(min(sim_s, self._clock.now()))
+            return np.array([(s.position_ticks - ct.CENTER_TICKS) * ct.RAD_PER_TICK for s in self._servos])
+
     def set_limp_position(self, servo_id: int, ticks: float) -> None:
         """Pose a limp joint by hand (torque off), in ticks 0…4095. Raises ValueError if the servo holds torque."""
         with self._lock:

@@ -121,11 +121,14 @@ class VirtualRig:
             self._travel_m = 0.0
             self._travel_time_s = self.clock.now()
 
-    def _cable_m(self) -> float:
-        """How far the cable's end has been wound past the contact angle (m), 0 while slack or snapped."""
+    def _cable_m(self, at_s: float | None = None) -> float:
+        """How far the cable's end has been wound past the contact angle (m), 0 while slack or snapped: now, or at
+        simulated time ``at_s`` (the servo advanced to it)."""
         if self._snapped:
             return 0.0
-        theta = float(self.chain.present_positions_rad()[0])
+        positions = (self.chain.present_positions_rad() if at_s is None
+                     else self.chain.present_positions_at_rad(at_s))
+        theta = float(positions[0])
         return self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
 
     def _advance_shell(self, cable_m: float) -> float:
@@ -192,15 +195,24 @@ class VirtualRig:
             self._history_f.append(force)
 
     def force_at_n(self, t_s: float) -> float:
-        """The probe's force (N) at simulated time ``t_s``: interpolated between the moments the rig's wire last
-        saw (the servo moves only when driven), the last of them after it (the present angle if never driven). The simulated board
-        samples frames lazily, possibly after the rig has moved on; this keeps its readings causal."""
+        """The probe's force (N) at simulated time ``t_s``: interpolated between the moments the rig's force was
+        last taken (its wire exchanges, this call's own), after the last of them the servo advanced to ``t_s`` (it
+        moves on its own between commands: a ramp at its Profile Velocity; the present angle if never driven). The
+        simulated board samples frames lazily, possibly after the rig has moved on; this keeps its readings causal.
+        On a compliant shell the force after the last exchange is that exchange's (the shell's state is advanced
+        only there). Waits at most for the rig chain's lock (one packet's handling), never for the rig's bus."""
         with self._lock:
             times = self._history_t
             if not times:
                 return self.applied_force_n()  # never driven over the wire (posed by hand): the present angle
+            if t_s > times[-1] and self._shell is None:
+                force = self.config.spring_k_n_per_m * self._cable_m(at_s=t_s)
+                self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m + self._jam_nm)
+                times.append(t_s)
+                self._history_f.append(force)
+                return force
             if t_s >= times[-1]:
-                return self._history_f[-1]  # the servo moves only when driven; no wait on the rig's bus
+                return self._history_f[-1]
             k = bisect.bisect_right(times, t_s)
             if k == 0:
                 return self._history_f[0]

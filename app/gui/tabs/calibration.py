@@ -98,7 +98,8 @@ SETUP, RIG_CHECK, CONTACT, PROTOCOL, REVIEW, SAVE = Step
 BOARD_CHECK_S = 5.0  # the rig check waits this long (wall s) for a sample of the sensor from the board
 BOARD_CHECK_PATIENCE = 6  # … or up to this many times longer while the board's reader receives frames (a busy GUI)
 PHASE_WORDS = {"contact": "finding the contact", "conditioning": "conditioning", "baseline": "baseline", "loading": "loading", "hold": "holding",
-               "release": "releasing", "rest": "resting", "paused": "paused", "done": "done"}
+               "release": "releasing", "rest": "resting", "paused": "paused", "redo": "to run again",
+               "done": "done"}
 
 
 @dataclass(frozen=True)
@@ -907,7 +908,7 @@ class CalibrationTab(QWidget):
             return
         phase = PHASE_WORDS.get(progress.phase, progress.phase)
         left_s = progress.time_left_s / max(self.rig_session.time_scale, 1e-9)  # wall time (the sim may run fast)
-        if progress.trial >= 0 and progress.phase not in ("rest", "paused"):
+        if progress.trial >= 0 and progress.phase not in ("rest", "paused", "redo"):
             detail = (f"trial {progress.trial + 1}/{progress.n_trials} · {progress.force_n:g} N, repeat "
                       f"{progress.repeat} · {phase} {progress.elapsed_s:.0f}/{settings.trial_duration_s():.0f} s · "
                       f"about {format_duration(left_s)} left")
