@@ -52,12 +52,13 @@ class FitErrors:
 # Measured: benchmarks/bench_calibration_errors.py (its CSV: benchmarks/results/calibration_errors.csv), the simulated
 # rig's protocol (the paper's 4 forces, 1 trial each, 370 s holds at 6 Hz, 500 s rests) fitted by `sensnake
 # calibrate` on 5 sensors of the default simulated lab (S06B, S02B, S09B, S11B, S04B) against their true parameters:
-# s.d. 0.19 % (E0), 1.0 % (E1), 0.78 % (μ1), E1 and μ1 anticorrelated (τ = μ1/E1 off by up to 2 %). Five sensors
-# make a rough covariance; the simulated rig has no error of its own (its spring constant and the probe's area are
+# mean −0.21 % (E0), +0.34 % (E1), −0.07 % (μ1), s.d. 0.14 %, 0.36 %, 0.71 %, E1 and μ1 correlated (τ = μ1/E1 off
+# by up to 1.1 %), with the loading ramp paced by the rig servo (decision 0031; with one goal per sample the s.d. of
+# E1 was 1.0 % and τ was off by up to 2 %). Five sensors make a rough covariance; the simulated rig has no error of its own (its spring constant and the probe's area are
 # exact), so a real rig's errors are larger.
 RIG_FIT_ERRORS = FitErrors(
-    mean=(0.000196, -0.00229, -0.00153),
-    cov=((3.71e-06, -1.86e-05, 1.45e-05), (-1.86e-05, 0.000106, -7.87e-05), (1.45e-05, -7.87e-05, 6.16e-05)),
+    mean=(-0.00208, 0.00344, -0.0007),
+    cov=((1.9e-06, -4.75e-06, -9.5e-06), (-4.75e-06, 1.33e-05, 2.36e-05), (-9.5e-06, 2.36e-05, 5.05e-05)),
     sensors=5, source="benchmarks/bench_calibration_errors.py (the simulated rig, 5 sensors, 1 trial per force)")
 
 
