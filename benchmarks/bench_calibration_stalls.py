@@ -22,6 +22,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("E0_Pa", "E1_Pa", "mu1_Pa_s")
@@ -63,7 +64,7 @@ def run_once(seed: int, stall_s: float, share: float, time_scale: float) -> dict
             rig_module.CalibrationRig.applied_force_n = read  # type: ignore[method-assign]
         wall_s = time.perf_counter() - started
         redone = said.getvalue().count("runs again after its rest")
-        result = {"seed": seed, "rc": code, "redone": redone, "wall_s": wall_s, "errors": None, "poor": 0}
+        result: dict[str, Any] = {"seed": seed, "rc": code, "redone": redone, "wall_s": wall_s, "errors": None, "poor": 0}
         if out.exists():
             truth = SimLab(load_config(config), seed=0).rig_sensor_truth()
             entry = json.loads(out.read_text(encoding="utf-8"))["sensors"]["S06B"]
