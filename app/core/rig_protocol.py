@@ -101,8 +101,11 @@ MAX_READ_SPAN_PERIODS = 0.25
 # where it reaches the goal), so the rig's force record may skip part of it: a gap up to this fraction of the ramp
 # (or EDGE_GAP_PERIODS sample periods) cuts a corner by at most rate × gap² / 8 of force × time — 0.3 % of the creep
 # of a τ = 20 s sensor at a 2 s ramp. A longer gap over the loading edge leaves the ramp unrecorded (E0 then rests on
-# nothing): the trial is not kept and runs again once, as one with a board gap does.
+# nothing): the trial is not kept and runs again, as one with a board gap does.
 RAMP_GAP_FRACTION = 0.5
+# ... and runs again up to this many times (a busy spell of the computer often outlasts one trial; at 60× real time,
+# beside 6 busy processes on 2 cores, 1 run in 6 once met two such trials in a row).
+READ_GAP_RETRIES = 3
 LATE_DATA_WAIT_S = 1.0  # at a trial's end, how long to wait for board samples that cover its last interval
 
 MIN_HOLD_SAMPLES = 10  # samples at full force the fit needs (models.calibration refuses fewer)
@@ -515,14 +518,16 @@ class ProtocolRunner:
             for index, (force, repeat) in enumerate(s.plan):
                 if index in self.done:
                     continue
-                for attempt in range(GAP_RETRIES + 1):
+                attempt = 0
+                while True:
                     self._rest(index)
                     self._check_stop()
                     try:
                         record = self._trial(index, force, repeat)
                     except TrialGapError as exc:
-                        if attempt == GAP_RETRIES:
+                        if attempt >= (READ_GAP_RETRIES if isinstance(exc, RigReadGapError) else GAP_RETRIES):
                             raise
+                        attempt += 1
                         self._progress("redo", index, force, repeat, 0.0, f"{exc}; it runs again after its rest")
                         continue
                     break
