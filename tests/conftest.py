@@ -245,6 +245,7 @@ SERIAL_MODULES = (
     "tests/app/test_hardware_settings.py",
     "tests/app/test_record_emulated.py",
     "tests/devices/test_servo_chain_emulator.py",
+    "tests/devices/test_rig_emulated.py",
 )
 
 

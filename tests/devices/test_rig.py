@@ -204,6 +204,7 @@ def test_the_rig_check_says_what_it_saw_and_why_a_step_failed(virtual_rig):
     assert all(not line.ok and line.detail.startswith("not tried") for line in lines[2:])
 
 
+@pytest.mark.serial  # times a release on the wall clock
 def test_start_ramp_loads_at_the_asked_rate_without_further_goals_and_the_next_move_is_at_full_speed(
         slow_virtual_rig):
     """The servo paces the ramp (its Profile Velocity): sampled without sending any goal, the force rises along a
