@@ -9,8 +9,8 @@ cannot place to ``CONTACT_MAX_UNCERTAINTY_N`` of probe force is refused, not gue
 
 Threads: like :class:`devices.servo_chain.ServoChain`, a rig is NOT thread-safe; one thread owns it. Every call
 blocks until the servo has settled (a few tens of ms per step on the bench), except :meth:`CalibrationRig.start_force`
-and :meth:`CalibrationRig.start_ramp`, which only send the goal (so the loading ramp can be sampled). ``interrupt`` (a callable any thread may make true)
-ends a wait early with :class:`RigInterrupted`; :meth:`CalibrationRig.release` ignores it, so a stopped run can
+and :meth:`CalibrationRig.start_ramp`, which only send the goal (so the loading ramp can be sampled). ``interrupt``
+(a callable any thread may make true) ends a wait early with :class:`RigInterrupted`; :meth:`CalibrationRig.release` ignores it, so a stopped run can
 still take the load off.
 """
 

@@ -144,7 +144,6 @@ class RigDevice(Protocol):
 
     def find_contact(self) -> float: ...
     def command_force(self, force_n: float) -> float: ...
-    def start_force(self, force_n: float) -> float: ...
     def start_ramp(self, force_n: float, duration_s: float) -> float: ...
     def applied_force_n(self) -> float: ...
     def release(self) -> None: ...
@@ -441,7 +440,6 @@ class ProtocolRunner:
         # Only find the contact and release (the wizard's "Find contact" step): no session folder, no trial.
         self.contact_only = contact_only
         self.contact_note = ""  # what the contact search found (set by run)
-        self.rows_untimed = 0  # trial rows left out because their force read took too long to be timed (a busy host)
         self.rig: RigDevice | None = None  # set by run(), on the thread that owns the rig
         self.feed = feed
         self.folder = Path(folder)
@@ -757,9 +755,6 @@ class ProtocolRunner:
             self._resume.wait(PROGRESS_INTERVAL_S)
         self._check_stop()
 
-    def _busy_words(self) -> str:
-        return f" at {self.time_scale:g}× real time" if self.time_scale != 1.0 else ""
-
     def _trial(self, index: int, force: float, repeat: int) -> TrialRecord:
         s = self.settings
         rig = self.rig
@@ -792,7 +787,6 @@ class ProtocolRunner:
             applied = rig.applied_force_n()
             read_to = self._clock()
             if loaded and hold_from is None and read_to - read_from > MAX_READ_SPAN_PERIODS * period:
-                self.rows_untimed += 1
                 continue  # on the ramp, when the force was read is not known well enough (held up mid-read)
             row += 1
             forces[row] = applied
@@ -857,7 +851,7 @@ class ProtocolRunner:
         if not uncovered and force_edge_gap_s > max(EDGE_GAP_PERIODS * period, RAMP_GAP_FRACTION * s.ramp_s):
             raise RigReadGapError(
                 f"{label}: the rig's force was not read for {force_edge_gap_s:.1f} s over the loading edge (the "
-                f"computer was too busy{self._busy_words()}): the record cannot say how the force rose there; the "
+                f"computer was too busy{f' at {self.time_scale:g}× real time' if self.time_scale != 1.0 else ''}): the record cannot say how the force rose there; the "
                 "trial is not kept")
         if uncovered:
             cause = (f"the simulated lab's board frames were lost: the computer did not read them in time at "

@@ -54,8 +54,8 @@ class FitErrors:
 # calibrate` on 5 sensors of the default simulated lab (S06B, S02B, S09B, S11B, S04B) against their true parameters:
 # mean −0.21 % (E0), +0.34 % (E1), −0.07 % (μ1), s.d. 0.14 %, 0.36 %, 0.71 %, E1 and μ1 correlated (τ = μ1/E1 off
 # by up to 1.1 %), with the loading ramp paced by the rig servo (decision 0031; with one goal per sample the s.d. of
-# E1 was 1.0 % and τ was off by up to 2 %). Five sensors make a rough covariance; the simulated rig has no error of its own (its spring constant and the probe's area are
-# exact), so a real rig's errors are larger.
+# E1 was 1.0 % and τ was off by up to 2 %). Five sensors make a rough covariance; the simulated rig has no error of
+# its own (its spring constant and the probe's area are exact), so a real rig's errors are larger.
 RIG_FIT_ERRORS = FitErrors(
     mean=(-0.00208, 0.00344, -0.0007),
     cov=((1.9e-06, -4.75e-06, -9.5e-06), (-4.75e-06, 1.33e-05, 2.36e-05), (-9.5e-06, 2.36e-05, 5.05e-05)),

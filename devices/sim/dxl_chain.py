@@ -259,9 +259,7 @@ class VirtualChain:
 
     def present_positions_rad(self) -> np.ndarray:
         """Present angles in rad, ``(ticks − 2048)·2π/4096``, in the constructor's ID order (no config signs)."""
-        with self._lock:
-            self._advance(self._clock.now())
-            return np.array([(s.position_ticks - ct.CENTER_TICKS) * ct.RAD_PER_TICK for s in self._servos])
+        return self.present_positions_at_rad(math.inf)
 
     def present_positions_at_rad(self, sim_s: float) -> np.ndarray:
         """Present angles in rad at simulated time ``sim_s`` (at most now): the chain advanced to it. Its state only

@@ -126,9 +126,7 @@ class VirtualRig:
         simulated time ``at_s`` (the servo advanced to it)."""
         if self._snapped:
             return 0.0
-        positions = (self.chain.present_positions_rad() if at_s is None
-                     else self.chain.present_positions_at_rad(at_s))
-        theta = float(positions[0])
+        theta = float(self.chain.present_positions_at_rad(math.inf if at_s is None else at_s)[0])
         return self.config.wheel_radius_m * max(0.0, theta - self.contact_angle_rad)
 
     def _advance_shell(self, cable_m: float) -> float:
@@ -186,12 +184,15 @@ class VirtualRig:
         Called before each wire exchange."""
         with self._lock:
             force = self.applied_force_n()
-            self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m + self._jam_nm)
+            self._load_and_remember(self.clock.now(), force)
             self._torque_on = bool(self.chain.register(self.config.servo_id, "Torque Enable"))
-            now = self.clock.now()
-            if self._history_t and now <= self._history_t[-1]:
-                return
-            self._history_t.append(now)
+
+    def _load_and_remember(self, t_s: float, force: float) -> None:
+        """The cable's tension at ``t_s`` on the servo as its load torque, and the force in the history (once per
+        moment, in time order). Under the rig's lock."""
+        self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m + self._jam_nm)
+        if not self._history_t or t_s > self._history_t[-1]:
+            self._history_t.append(t_s)
             self._history_f.append(force)
 
     def force_at_n(self, t_s: float) -> float:
@@ -207,9 +208,7 @@ class VirtualRig:
                 return self.applied_force_n()  # never driven over the wire (posed by hand): the present angle
             if t_s > times[-1] and self._shell is None:
                 force = self.config.spring_k_n_per_m * self._cable_m(at_s=t_s)
-                self.chain.set_load(self.config.servo_id, force * self.config.wheel_radius_m + self._jam_nm)
-                times.append(t_s)
-                self._history_f.append(force)
+                self._load_and_remember(t_s, force)
                 return force
             if t_s >= times[-1]:
                 return self._history_f[-1]
