@@ -780,11 +780,18 @@ class RobotController:
 
     def _freeze_at_present(self) -> None:
         name = self.motion_name
-        if self._motion is not None:
-            self._end_motion(MOTION_STOPPED)
         state = self._last_state
         if state is not None:
             self._write(self.chain.clamp_to_limits(state.position_rad))
+            # Whoever learns of the stop (the motion's Future, just below) finds the frozen goals in the latest state,
+            # not the goals of the tick's read, a tick before the next read publishes them.
+            goal = self.chain.last_goal_rad
+            if goal is not None:
+                with self._lock:
+                    self._latest_state = dataclasses.replace(state, goal_rad=goal, correction_rad=None,
+                                                             controller="", controller_gains="")
+        if self._motion is not None:
+            self._end_motion(MOTION_STOPPED)
         what = f" (motion {name!r} stopped)" if name else ""
         self._emit(self._on_event, f"emergency stop: goals frozen at the present pose, torque stays on{what}")
 

@@ -152,6 +152,8 @@ def test_emergency_stop_freezes_goals_within_one_tick(controller, sim_chain):
     rec.wait(lambda: len(rec.states) > 5 and rec.states[-1].position_rad[0] > 0.1, "the ramp to move")
     ctl.emergency_stop()
     requested_s = time.monotonic()
+    assert future.result(WAIT_S) == "stopped"
+    latest = ctl.latest_state  # the moment the stop is known
     rec.wait(lambda: any("emergency stop" in e for e in rec.events), "the stop event")
     # Within one tick: a tick reads, then checks for STOP, so the first tick whose read ends after the request
     # freezes. Count the ticks read after the request up to the freeze (its event follows its state): at most
@@ -160,9 +162,13 @@ def test_emergency_stop_freezes_goals_within_one_tick(controller, sim_chain):
     stop_event = next(i for i, e in enumerate(rec.events) if "emergency stop" in e)
     up_to_freeze = rec.states[:rec.states_before_event[stop_event]]
     assert sum(state.host_time_s > requested_s for state in up_to_freeze) <= 1
-    assert future.result(WAIT_S) == "stopped"
     writes = sim_chain.count(wire.SYNC_WRITE)
     frozen = sim_chain.goal_positions_ticks().copy()
+    # Whoever learns of the stop finds the frozen goals in the latest state at once, exactly: not the ramp's last goal,
+    # which the tick's read had published a moment before the freeze (a caller that took that for the frozen pose saw
+    # the goals "move" after the stop; the simulated servos track within an encoder tick, so only exact shows it).
+    assert latest is not None and latest.correction_rad is None
+    assert np.allclose(latest.goal_rad, ctl.chain.angles_from_ticks(frozen), rtol=0, atol=1e-9)
     rec.wait_more_states(10)
     assert sim_chain.count(wire.SYNC_WRITE) == writes
     assert np.array_equal(sim_chain.goal_positions_ticks(), frozen)
