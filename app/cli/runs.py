@@ -23,6 +23,7 @@ from app.core.user_folders import recordings_dir
 
 TABLE_COLUMNS = (("started", 16), ("plan_name", 19), ("scene", 16), ("controller", 11), ("speed_rad_s", 6),
                  ("seed", 4), ("trial", 5), ("outcome", 13), ("exit_status", 10))
+PROGRESS_EVERY_S = 0.5  # how often a long reading's line on a terminal is rewritten
 
 
 def _folder(args: argparse.Namespace) -> tuple[Path, bool]:
@@ -32,6 +33,30 @@ def _folder(args: argparse.Namespace) -> tuple[Path, bool]:
             raise ValueError(f"{folder}: no such folder (--dir names a folder of recordings)")
         return folder, True
     return recordings_dir(), False
+
+
+class _Reading:
+    """``progress(done, total)`` for :meth:`Catalog.sync`: on a terminal, one stderr line rewritten at most every
+    :data:`PROGRESS_EVERY_S` ("reading recordings: 340 of 1,000"), wiped at the end; elsewhere silent (a log or a
+    pipe keeps only the result)."""
+
+    def __init__(self) -> None:
+        self._tty = sys.stderr.isatty()
+        self._told = -float("inf")
+        self._width = 0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if not self._tty or (now - self._told < PROGRESS_EVERY_S and done < total):
+            return
+        self._told = now
+        text = f"reading recordings: {done:,} of {total:,}"
+        sys.stderr.write("\r" + text.ljust(self._width))
+        self._width = len(text)
+        if done == total:
+            sys.stderr.write("\r" + " " * self._width + "\r")
+            self._width = 0
+        sys.stderr.flush()
 
 
 def _cell(value: Any) -> str:
@@ -48,7 +73,7 @@ def _list(args: argparse.Namespace) -> int:
         if catalog.note:
             print(f"sensnake runs: {catalog.note}", file=sys.stderr)
         if folder.is_dir():
-            catalog.sync(folder)
+            catalog.sync(folder, progress=_Reading())
         if not given:
             catalog.prune()
         rows = catalog.query(folder if given else None, args.where, args.since)
@@ -110,7 +135,7 @@ def _reindex(args: argparse.Namespace) -> int:
     with Catalog() as catalog:
         if catalog.note:
             print(f"sensnake runs: {catalog.note}", file=sys.stderr)
-        read, forgotten = catalog.sync(folder, force=True)
+        read, forgotten = catalog.sync(folder, force=True, progress=_Reading())
         where = catalog.path
     print(f"indexed {read} recording(s) under {folder} in {time.perf_counter() - started:.1f} s"
           + (f"; {forgotten} gone, forgotten" if forgotten else "") + f"; catalog {where}")

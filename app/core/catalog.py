@@ -257,11 +257,12 @@ class Catalog:
         with self._db:
             self._db.executemany("DELETE FROM runs WHERE path = ?", [(p,) for p in paths])
 
-    def sync(self, folder: str | Path, force: bool = False,
-             cancelled: Callable[[], bool] | None = None) -> tuple[int, int]:
+    def sync(self, folder: str | Path, force: bool = False, cancelled: Callable[[], bool] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> tuple[int, int]:
         """Bring the catalog in line with the recordings under ``folder`` (recursively): new or changed files read
         (every file with ``force``), gone ones forgotten. Returns (read, forgotten). ``cancelled()`` (optional) is
-        asked between files: True stops the reading there (what was read is kept; the next sync reads the rest)."""
+        asked between files: True stops the reading there (what was read is kept; the next sync reads the rest).
+        ``progress(done, total)`` (optional) is told before each file to read and once after the last."""
         root = Path(folder).resolve()
         known = {row[0]: (row[1], row[2]) for row in self._db.execute(
             "SELECT path, mtime_ns, size FROM runs WHERE path >= ? AND path < ?", _prefix_range(root))}
@@ -272,12 +273,16 @@ class Catalog:
             if force or known.get(key) != (stat.st_mtime_ns, stat.st_size):
                 changed.append(path)
         entries: list[dict[str, Any]] = []
-        for path in changed:
+        for done, path in enumerate(changed):
             if cancelled is not None and cancelled():
                 self.put(entries)
                 return len(entries), 0
+            if progress is not None:
+                progress(done, len(changed))
             with contextlib.suppress(OSError):  # gone between the walk and the read: forgotten below next time
                 entries.append(read_entry(path))
+        if progress is not None and changed:
+            progress(len(changed), len(changed))
         self.put(entries)
         gone = [p for p in known if p not in seen]
         self.forget(gone)

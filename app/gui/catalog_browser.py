@@ -17,7 +17,8 @@ import contextlib
 import os
 import sys
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,8 @@ from widgets.catalog_view import FILTERS, CatalogView
 
 MAX_ROWS_SHOWN = 2000  # the newest ones; more would slow the table, and the filters narrow a long list
 YIELD_S = 0.002  # the worker's pause after each file it reads (1,000 new files: +2 s)
+PROGRESS_EVERY_S = 0.5  # how often a long reading says how far it got (the worker yields to everything: beside busy
+# programs on every core, 1,000 new recordings took over a minute)
 BACKGROUND_NICE = 19
 
 
@@ -49,9 +52,10 @@ class Listing:
 
 
 def read_catalog(folder: Path | None, where: Sequence[str], since: str | None, sync: bool,
-                 cancelled: threading.Event) -> Listing:
-    """On the worker thread: (with ``sync``) the recordings folder read again where it changed, then the matching
-    recordings, newest :data:`MAX_ROWS_SHOWN`."""
+                 cancelled: threading.Event, progress: Callable[[int, int], None] | None = None) -> Listing:
+    """On the worker thread: (with ``sync``) the recordings folder read again where it changed (``progress(done,
+    total)`` told along the way, as :meth:`app.core.catalog.Catalog.sync` does), then the matching recordings,
+    newest :data:`MAX_ROWS_SHOWN`."""
     notes: list[str] = []
     read = forgotten = 0
     with Catalog() as catalog:
@@ -61,7 +65,7 @@ def read_catalog(folder: Path | None, where: Sequence[str], since: str | None, s
         if sync:
             if folder is not None and folder.is_dir():
                 # a pause between files (the wait releases the GIL): an in-process control loop keeps its ticks
-                read, forgotten = catalog.sync(folder, cancelled=lambda: cancelled.wait(YIELD_S))
+                read, forgotten = catalog.sync(folder, cancelled=lambda: cancelled.wait(YIELD_S), progress=progress)
             forgotten += catalog.prune()
             everything = catalog.query()
             choices = {key: sorted({str(r[key]) for r in everything if r.get(key) not in (None, "")})
@@ -94,6 +98,7 @@ class CatalogBrowser(QObject):
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="catalog", initializer=background_priority)
         self._cancelled = threading.Event()
         self._token = 0
+        self._reading = f"the recordings in {self.folder}"  # what the status line says the worker is reading
         self.last: Listing | None = None
         view.filters_changed.connect(lambda _filters: self.list())
         view.refresh_requested.connect(self.refresh)
@@ -103,7 +108,8 @@ class CatalogBrowser(QObject):
 
     def refresh(self) -> None:
         """Read the recordings folder again where it changed, then list (the filters' choices updated)."""
-        self.view.set_status(f"reading new and changed recordings in {self.folder}…")
+        self._reading = f"reading new and changed recordings in {self.folder}"
+        self.view.set_status(f"{self._reading}…")
         self._submit(sync=True)
 
     def list(self) -> None:
@@ -117,8 +123,25 @@ class CatalogBrowser(QObject):
         token = self._token
         filters = self.view.filters()
         future = self._executor.submit(read_catalog, self.folder, filters["where"], filters["since"], sync,
-                                       self._cancelled)
+                                       self._cancelled, self._progress_from_worker(token) if sync else None)
         self._bridge.when_done(future, lambda listing: self._show(token, listing), self._failed)
+
+    def _progress_from_worker(self, token: int) -> Callable[[int, int], None]:
+        """A progress callback for the worker: at most every :data:`PROGRESS_EVERY_S`, and the last, to the view."""
+        told = [-float("inf")]
+        show = self._bridge.emitter(self._show_progress)
+
+        def progress(done: int, total: int) -> None:
+            now = time.monotonic()
+            if now - told[0] >= PROGRESS_EVERY_S or done == total:
+                told[0] = now
+                show(token, done, total)
+
+        return progress
+
+    def _show_progress(self, token: int, done: int, total: int) -> None:
+        if token == self._token:
+            self.view.set_status(f"{self._reading}: {done:,} of {total:,}…")
 
     def _show(self, token: int, listing: Listing) -> None:
         if token != self._token:
@@ -129,7 +152,7 @@ class CatalogBrowser(QObject):
         self.view.set_rows(listing.rows, listing.total)
         if listing.read or listing.forgotten or listing.notes:
             said = [f"{listing.read} recording(s) read again, {listing.forgotten} gone forgotten", *listing.notes]
-            self.view.set_status(f"{self.view.status_label.text()} · {'; '.join(said)}")
+            self.view.set_status(f"{self._reading}… · {'; '.join(said)}")
         self.listed.emit(len(listing.rows))
 
     def _failed(self, exc: BaseException) -> None:

@@ -95,3 +95,44 @@ def test_since_and_numbers_filter(tmp_path, capsys):
     tomorrow = time.strftime("%Y-%m-%d", time.localtime(time.time() + 86400))
     assert main(["runs", "list", "--dir", str(folder), "--since", tomorrow, "--format", "csv"]) == 0
     assert _csv(capsys) == []
+
+
+def test_a_sync_says_how_far_it_got_and_a_cancelled_one_stops_between_files(tmp_path):
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    for index in range(5):
+        write_trial(folder / f"t{index}.h5", scene="step", duration_s=1)
+    told: list[tuple[int, int]] = []
+    with Catalog(tmp_path / "catalog.sqlite") as catalog:
+        assert catalog.sync(folder, progress=lambda done, total: told.append((done, total))) == (5, 0)
+        assert told == [(0, 5), (1, 5), (2, 5), (3, 5), (4, 5), (5, 5)]  # before each file, then once at the end
+        told.clear()
+        assert catalog.sync(folder, progress=lambda done, total: told.append((done, total))) == (0, 0)
+        assert told == []  # nothing new or changed: nothing to say
+        asked = []
+
+        def cancelled() -> bool:
+            asked.append(1)
+            return len(asked) > 2  # stop before the third file
+
+        told.clear()
+        assert catalog.sync(folder, force=True, cancelled=cancelled,
+                            progress=lambda done, total: told.append((done, total))) == (2, 0)
+        assert told == [(0, 5), (1, 5)]  # a stopped reading does not claim to have finished
+
+
+def test_runs_list_on_a_terminal_shows_its_reading_then_wipes_it(tmp_path, capsys, monkeypatch):
+    from app.cli import runs
+
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    for index in range(3):
+        write_trial(folder / f"t{index}.h5", scene="step", duration_s=1)
+    monkeypatch.setenv("SENSNAKE_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.setattr(runs.sys.stderr, "isatty", lambda: True)
+    monkeypatch.setattr(runs, "PROGRESS_EVERY_S", 0.0)
+    assert main(["runs", "list", "--dir", str(folder), "--format", "csv"]) == 0
+    captured = capsys.readouterr()
+    assert len(list(csv.DictReader(io.StringIO(captured.out)))) == 3  # the listing itself is untouched
+    assert "reading recordings: 2 of 3" in captured.err and "reading recordings: 3 of 3" in captured.err
+    assert captured.err.endswith("\r") and captured.err.rstrip("\r").split("\r")[-1].strip() == ""  # wiped

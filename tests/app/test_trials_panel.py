@@ -193,10 +193,21 @@ def test_the_catalog_browser_filters_and_opens_a_trial_in_the_3d_replay(window, 
     for index in range(40):
         write_small_recording(recordings / f"run-{index:03d}.h5", index)
     trial = write_trial(recordings / "bench-trial.h5", scene="bench", duration_s=3.0, trial=0, series_uid="s-1")
+    from app.gui import catalog_browser
+    from widgets.catalog_view import CatalogView
+
+    monkeypatch.setattr(catalog_browser, "PROGRESS_EVERY_S", 0.0)  # every file's progress reaches the status line
+    said: list[str] = []
+    set_status = CatalogView.set_status
+    monkeypatch.setattr(CatalogView, "set_status", lambda view, text, *a: (said.append(text), set_status(view, text, *a)))
     browser = window.open_catalog()
     view = browser.view
     qtbot.waitUntil(lambda: browser.last is not None, timeout=20_000)
     assert browser.last is not None and browser.last.read == 41
+    # while it reads, the status line says how far it got; then what it did
+    counts = [int(text.rsplit(": ", 1)[1].split(" of ")[0]) for text in said if text.endswith(" of 41…")]
+    assert counts == sorted(counts) and counts[-1] == 41 and len(counts) > 10, said
+    assert said[-1].endswith("… · 41 recording(s) read again, 0 gone forgotten"), said[-1]
     assert view.table.rowCount() == 41
     scenes = [view.filter_combos["scene"].itemText(i) for i in range(view.filter_combos["scene"].count())]
     assert scenes == ["any", "bench", "flat", "paper_obstacle", "step", "wedge"]
