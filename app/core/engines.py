@@ -371,9 +371,11 @@ def stop_worker_server() -> None:
 
 def check_scheduler(scheduler: str | None) -> None:
     """Before a command writes anything into its folder: :class:`EngineError` (the same line as the engine's) unless
-    something answers at ``scheduler``'s TCP address within :data:`CONNECT_TIMEOUT_S` (a folder a command claimed and
-    then could not run in held a record that refused the next command's other file). None, or another protocol than
-    ``tcp://``: nothing checked here (the engine's own connection says it)."""
+    a Dask scheduler answers at ``scheduler``'s TCP address within :data:`CONNECT_TIMEOUT_S` (a folder a command
+    claimed and then could not run in held a record that refused the next command's other file). It is asked who it
+    is, the whole exchange bounded: a port that takes the connection and never speaks Dask (another program, a
+    firewall's proxy, a hung scheduler) held the command for good when only the TCP connection was checked. None, or
+    another protocol than ``tcp://``: nothing checked here (the engine's own connection says it)."""
     if not scheduler:
         return
     address = scheduler[len("tcp://"):] if scheduler.startswith("tcp://") else scheduler
@@ -382,13 +384,31 @@ def check_scheduler(scheduler: str | None) -> None:
     host, _, port = address.rpartition(":")
     if not host or not port.isdigit():
         raise EngineError(f"--scheduler {scheduler}: not an address of the form tcp://HOST:PORT")
+    import asyncio
     import socket
 
-    try:
+    from distributed.core import rpc
+
+    try:  # a refused port or an unknown host is said at once (Dask's own connect retries it until its timeout)
         with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
             pass
     except (OSError, ValueError) as exc:
         raise _unanswered(scheduler, exc) from None
+
+    async def identity() -> Any:
+        async with rpc(f"tcp://{address}", timeout=CONNECT_TIMEOUT_S) as remote:
+            return await remote.identity()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(identity(), CONNECT_TIMEOUT_S))
+    except (asyncio.TimeoutError, TimeoutError):
+        raise _unanswered(scheduler, TimeoutError("it took the connection but did not answer as Dask does")) from None
+    except Exception as exc:  # noqa: BLE001 - whatever the library raises on a stranger's bytes: said in one line
+        raise _unanswered(scheduler, exc) from None
+    kind = answer.get("type") if isinstance(answer, dict) else None
+    if kind != "Scheduler":
+        raise EngineError(f"--scheduler {scheduler}: answers as a Dask {kind or 'program'}, not a scheduler (give "
+                          "the address `dask scheduler` printed)")
 
 
 def _unanswered(scheduler: str, exc: BaseException) -> EngineError:

@@ -172,15 +172,26 @@ def test_the_same_seeds_give_the_same_rows_on_local_processes_and_on_dask(tmp_pa
         assert {k: v for k, v in a.items() if k != "wall_s"} == {k: v for k, v in b.items() if k != "wall_s"}
 
 
-def test_an_unreachable_scheduler_is_one_line_naming_it(tmp_path):
+@pytest.mark.parametrize("listening", [False, True], ids=["refused", "silent"])
+def test_an_unreachable_scheduler_is_one_line_naming_it(tmp_path, listening):
+    """A refused port, and a port that takes the connection but never speaks Dask (another program; a hung
+    scheduler): both one line naming the address within the connect timeout, before anything is written."""
+    import socket
+
     plan = tmp_path / "s.toml"
     plan.write_text('scenes = ["flat"]\ncontrollers = ["feedforward"]\n' + TINY, encoding="utf-8")
-    started = time.monotonic()
-    done = _sensnake("experiment", "sweep", str(plan), "--out", str(tmp_path / "o"), "--engine", "dask",
-                     "--scheduler", "tcp://127.0.0.1:9", timeout_s=30)
-    assert time.monotonic() - started < 15  # 5 s of waiting for it, and the libraries' loading
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)  # the kernel completes the connections; nothing is ever read or written
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}" if listening else "tcp://127.0.0.1:9"
+        started = time.monotonic()
+        done = _sensnake("experiment", "sweep", str(plan), "--out", str(tmp_path / "o"), "--engine", "dask",
+                         "--scheduler", address, timeout_s=60)
+        took = time.monotonic() - started
     err = done.stderr.strip().splitlines()
-    assert done.returncode == 1 and len(err) == 1 and "tcp://127.0.0.1:9" in err[0], done.stderr
+    assert done.returncode == 1 and len(err) == 1 and address in err[0], done.stderr
+    assert "no Dask scheduler answered within 5 s" in err[0]
+    assert took < 20  # 5 s of waiting for it, and the libraries' loading (held for good before, when listening)
     # Checked before anything is written: no folder claimed that would refuse the next command's other file.
     assert not (tmp_path / "o").exists()
     with pytest.raises(EngineError, match="not an address of the form"):
