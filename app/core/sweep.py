@@ -121,6 +121,11 @@ class SweepPlan:
     rest_cap_s: float | None = None  # None: the experiment's default (app.core.experiment.REST_CAP_S)
     ideal_sensing: bool = False  # the controller's forces through the true calibration ([lab] sensing "ideal")
 
+    def count(self) -> int:
+        """How many runs :meth:`runs` gives, without building them (a sweep file can ask for 10⁸)."""
+        per_cell = sum(len(self.gains) if uses_law(c) else 1 for c in self.controllers)
+        return len(self.scenes) * per_cell * len(self.tail_loads_n) * len(self.seeds)
+
     def runs(self) -> list[dict[str, Any]]:
         """One dict of arguments per run (feedforward runs once per load and seed, not once per gain set)."""
         out = []
@@ -191,6 +196,11 @@ def read_sweep(path: str | Path) -> SweepPlan:
     seeds = numbers("seeds", (0,), int)
     if any(s < 0 for s in seeds):
         raise SweepError(f"{path}: 'seeds' must be 0 or more")
+    count = SweepPlan(scenes=tuple(str(s) for s in data["scenes"]), controllers=tuple(controllers),
+                      tail_loads_n=tail_loads, seeds=seeds, gains=gains).count()
+    if count > MAX_RUNS:
+        raise SweepError(f"{path}: {count} runs (scenes × controllers × gain sets × tail loads × seeds); a sweep holds "
+                         f"at most {MAX_RUNS}: split it")
     _refuse_unholdable_loads(path, [str(s) for s in data["scenes"]], max(tail_loads), seeds)
     repeat = data.get("repeat", 1)
     if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= 100:
@@ -200,12 +210,7 @@ def read_sweep(path: str | Path) -> SweepPlan:
     ideal = data.get("ideal_sensing", False)
     if not isinstance(ideal, bool):
         raise SweepError(f"{path}: 'ideal_sensing' must be true or false, got {ideal!r}")
-    plan = replace(plan, ideal_sensing=ideal)
-    count = len(plan.runs())
-    if count > MAX_RUNS:
-        raise SweepError(f"{path}: {count} runs (scenes × controllers × gain sets × tail loads × seeds); a sweep holds "
-                         f"at most {MAX_RUNS}: split it")
-    return plan
+    return replace(plan, ideal_sensing=ideal)
 
 
 def _refuse_unholdable_loads(path: Path, scenes: list[str], load_n: float, seeds: tuple[int, ...]) -> None:

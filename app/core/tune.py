@@ -90,6 +90,7 @@ TUNE_KEYS = {"train_scenes", "test_scenes", "tail_loads_n", "seeds", "seconds", 
 OBJECTIVE_KEYS = {"overload_penalty_m", "slide_back_weight", "min_decided"}
 SAMPLERS = ("tpe", "cmaes")
 MAX_TRIALS = 10_000
+MAX_CONDITIONS = 1_000  # training conditions a trial (a trial of 1,000 one-minute runs is ~8 hours on 2 cores)
 TRIAL_COLUMNS_HEAD = ("trial", "state", "value", "conditions", "decided", "median_advance_delta_m",
                       "overload_delta", "duration_s", "note")
 # What a trial keeps of each of its runs (in the study: a trial's recordings may be removed, keep_recordings)
@@ -196,6 +197,10 @@ def read_tune(path: str | Path) -> TunePlan:
     seeds = numbers("seeds", [1], True)
     if any(s < 0 for s in seeds):
         raise TuneError(f"{path}: 'seeds' must be 0 or more")
+    per_trial = len(train) * len(loads) * len(seeds)
+    if per_trial > MAX_CONDITIONS:  # each trial runs every training condition (and feedforward once each)
+        raise TuneError(f"{path}: {per_trial} training conditions a trial (train scenes × tail loads × seeds); a "
+                        f"tuning runs at most {MAX_CONDITIONS} a trial: draw fewer")
     scalars: dict[str, Any] = {}
     for key, default, low, high in (("seconds", 40.0, 0.5, 3600.0), ("speed_rad_s", 0.1, 0.001, 1.0),
                                     ("settle_s", 6.0, 0.0, 60.0), ("rest_cap_s", 30.0, 0.0, 600.0)):

@@ -70,6 +70,23 @@ def test_a_bad_sweep_is_refused_before_its_first_run(tmp_path, text, words):
         sweep.read_sweep(path)
 
 
+def test_a_sweep_counts_its_runs_without_building_them(tmp_path):
+    """A file asking for 3.6×10⁸ runs (15 kB of TOML) built every run to count them: 2.7 GB and a MemoryError
+    traceback instead of the one-line refusal. The count is now the product of the lists."""
+    mixed = sweep.SweepPlan(scenes=("flat", "step"), controllers=("feedforward", "feedback", "push_only"),
+                            tail_loads_n=(0.0, 1.0), seeds=(1, 2, 3), gains=(FeedbackGains(),) * 4)
+    assert mixed.count() == len(mixed.runs()) == 2 * (1 + 4 + 4) * 2 * 3
+    huge = sweep.SweepPlan(scenes=("flat",), controllers=("feedforward", "feedback", "push_only", "conform_only"),
+                           tail_loads_n=tuple(k / 1000 for k in range(600)), seeds=tuple(range(2000)),
+                           gains=(FeedbackGains(),) * 100)
+    assert huge.count() == (1 + 3 * 100) * 600 * 2000
+    path = tmp_path / "big.toml"
+    path.write_text('scenes = ["flat"]\ncontrollers = ["feedforward", "feedback"]\n'
+                    f"tail_loads_n = {[k / 100 for k in range(100)]}\nseeds = {list(range(2000))}\n", encoding="utf-8")
+    with pytest.raises(SweepError, match=r"big.toml: 400000 runs .*a sweep holds at most 10000: split it"):
+        sweep.read_sweep(path)
+
+
 def test_jobs_are_capped_at_the_runs_and_the_cores_and_a_folder_takes_one_command(tmp_path):
     assert capped_jobs(64, 3) == min(3, cores())
     assert capped_jobs(None, 1) == 1
@@ -388,6 +405,12 @@ def test_a_tuning_file_is_refused_when_a_test_scene_is_trained_on_or_its_space_i
         read_tune(path)
     path.write_text(TUNE.format(test="paper_obstacle").split("[space]")[0] + "[space]\n", encoding="utf-8")
     with pytest.raises(TuneError, match=r"\[space\] is empty"):
+        read_tune(path)
+    # every trial runs every training condition: 2,000 seeds × 600 loads is refused, not started
+    path.write_text(TUNE.format(test="paper_obstacle").replace(
+        "seeds = [1]", f"seeds = {list(range(2000))}\ntail_loads_n = {[k / 1000 for k in range(600)]}"),
+        encoding="utf-8")
+    with pytest.raises(TuneError, match="1200000 training conditions a trial .* at most 1000 a trial"):
         read_tune(path)
 
 
