@@ -5,9 +5,9 @@ writing its own recording) and reports each task's result as it finishes: the su
 or the traceback of what it raised. Both engines run one task per single-threaded worker process:
 
 * :class:`LocalEngine` — ``concurrent.futures.ProcessPoolExecutor``. Its workers ignore SIGINT (the terminal sends
-  Ctrl-C to the whole process group: the parent decides), take SIGTERM's default, watch their parent (a worker whose
-  parent died, even by SIGKILL, exits within half a second: no orphan keeps running a run nobody will read) and do
-  not keep the folder's lock open.
+  Ctrl-C to the whole process group: the parent decides), take SIGTERM's default, die with their parent (even by
+  SIGKILL: on Linux the kernel kills them at once, elsewhere a watch ends them within half a second; no orphan keeps
+  running a run nobody will read) and do not keep the folder's lock open.
 * :class:`DaskEngine` — ``dask.distributed``: without a scheduler address an embedded
   ``LocalCluster(host="127.0.0.1")`` of one single-threaded worker process per job, forked from one forkserver
   (:func:`start_worker_server`); with one, that cluster (whose workers must see the output folder at the same
@@ -36,6 +36,7 @@ import json
 import math
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -142,7 +143,36 @@ def _local_worker_init(parent_pid: int, lock_fds: tuple[int, ...]) -> None:
     for fd in lock_fds:  # the parent's lock stays the parent's: released when it dies, whatever the workers do
         with contextlib.suppress(OSError):
             os.close(fd)
+    _die_with_parent()
+    if os.getppid() != parent_pid:  # it died before that took hold
+        os._exit(1)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
+
+
+PR_SET_PDEATHSIG, PR_GET_PDEATHSIG = 1, 2  # prctl(2)
+
+
+def _die_with_parent() -> None:
+    """Linux: the kernel kills this process the moment its parent dies (``PR_SET_PDEATHSIG``), so a run in progress
+    is not finished and written after a kill -9 of the command — where the half-second watch let one or two finish
+    unjournaled, to be run and written again by the resuming command. The watch stays for other systems."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+
+
+def parent_death_signal() -> int:
+    """This process's parent-death signal (0: none; Linux only, else 0)."""
+    if not sys.platform.startswith("linux"):
+        return 0
+    import ctypes
+
+    value = ctypes.c_int(0)
+    ctypes.CDLL(None, use_errno=True).prctl(PR_GET_PDEATHSIG, ctypes.byref(value), 0, 0, 0)
+    return value.value
 
 
 class LocalEngine:

@@ -414,6 +414,23 @@ def test_a_tuning_file_is_refused_when_a_test_scene_is_trained_on_or_its_space_i
         read_tune(path)
 
 
+def _death_signal(_task: Any) -> int:
+    from app.core.engines import parent_death_signal
+
+    return parent_death_signal()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_local_worker_is_killed_by_the_kernel_when_its_parent_dies():
+    """Not only the half-second watch: a run in progress must not finish and be written after a kill -9 of the
+    command (it is not journaled; the resuming command would run and write it again)."""
+    from app.core.engines import LocalEngine
+
+    told: list[Any] = []
+    LocalEngine(2).run(_death_signal, [{}, {}], lambda k, row, error: told.append((row, error)))
+    assert told == [(int(signal.SIGKILL), "")] * 2
+
+
 def test_no_worker_outlives_its_parent():
     """The local workers watch their parent: one killed with SIGKILL leaves none running."""
     code = ("import time\nfrom app.core.engines import LocalEngine\n"
