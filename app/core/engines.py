@@ -49,6 +49,7 @@ from app.core.outputs import open_lock_file
 from devices.toml_files import read_json_file, read_text_file
 
 ENGINES = ("local", "dask")
+INTERRUPT_FETCH_S = 2.0  # how long an interrupted Dask sweep waits for each finished run's row
 CONNECT_TIMEOUT_S = 5.0  # a scheduler that does not answer within this is named in one line
 PARENT_WATCH_S = 0.5  # how often a local worker checks that its parent is alive
 HOLDER_WAIT_S = 1.0  # a command refused a folder waits this long at most for the holder's record, to name it
@@ -191,8 +192,8 @@ class LocalEngine:
         finished = 0
         try:
             pending = {pool.submit(fn, task): k for k, task in enumerate(tasks)}
-            for future in concurrent.futures.as_completed(pending):
-                k = pending[future]
+            for future in concurrent.futures.as_completed(list(pending)):
+                k = pending.pop(future)  # told once: an interruption keeps only the runs not yet told
                 try:
                     row: Row | None = future.result()
                     error = ""
@@ -202,6 +203,11 @@ class LocalEngine:
                 on_done(k, row, error)
         except KeyboardInterrupt as exc:
             _stop_pool(pool)
+            # Runs whose result arrived while the interruption was being taken are kept, not run again.
+            for future, k in pending.items():
+                if future.done() and not future.cancelled() and future.exception() is None:
+                    finished += 1
+                    on_done(k, future.result(), "")
             raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
         except BaseException:
             _stop_pool(pool)
@@ -277,9 +283,32 @@ class DaskEngine:
                 finished += 1
                 on_done(k, row, error)
         except KeyboardInterrupt as exc:
+            # Runs that finished while the interruption was being taken are kept, not run again: their rows are
+            # fetched (briefly: they are small) before the workers that hold them go.
+            kept: list[tuple[int, Any]] = []
+            for future in [f for f in pending.values() if f.status == "finished"]:
+                with contextlib.suppress(Exception):  # noqa: BLE001 - a row not fetched is only run again on resume
+                    kept.append((index[future.key], future.result(timeout=INTERRUPT_FETCH_S)))
+            self._kill_embedded_workers()
             self.client.cancel(list(pending.values()), force=True)
+            for k, row in kept:
+                finished += 1
+                on_done(k, row, "")
             self.close()
             raise RunsInterrupted(finished, len(tasks), getattr(exc, "signal_name", "SIGINT")) from None
+
+    def _kill_embedded_workers(self) -> None:
+        """An embedded cluster's worker processes killed at once, as the local pool's are: a run in progress is
+        abandoned, not finished and written unjournaled while the cluster closes (Ctrl-C left 15 recordings beside a
+        summary of 13; the resuming command ran and wrote the 2 again). An external cluster's workers are not ours to
+        kill: their runs in progress finish there."""
+        if self._cluster is None:
+            return
+        for nanny in list(getattr(self._cluster, "workers", {}).values()):
+            pid = getattr(getattr(nanny, "process", None), "pid", None)
+            if isinstance(pid, int) and pid > 0:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
 
     def close(self) -> None:
         if self._cluster is not None:

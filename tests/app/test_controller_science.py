@@ -431,6 +431,38 @@ def test_a_local_worker_is_killed_by_the_kernel_when_its_parent_dies():
     assert told == [(int(signal.SIGKILL), "")] * 2
 
 
+INTERRUPTED_WITH_A_RUN_DONE = """
+import json, sys, time
+from app.core import engines
+from app.core.errors import RunsInterrupted
+told = []
+def on_done(k, row, error):
+    told.append((k, error))
+    if len(told) == 1:
+        time.sleep(1.5)  # the interruption being taken: run 1 finishes meanwhile; run 2 has started
+        raise KeyboardInterrupt
+engine = engines.DaskEngine(2) if sys.argv[1] == "dask" else engines.LocalEngine(2)
+started = time.monotonic()
+try:
+    engine.run(time.sleep, [0.05, 0.4, 60.0], on_done)
+except RunsInterrupted as exc:
+    print(json.dumps({"finished": exc.finished, "told": sorted(told), "s": time.monotonic() - started}), flush=True)
+engine.close()
+"""
+
+
+@pytest.mark.parametrize("engine", ["local", "dask"])
+def test_a_run_that_finished_while_an_interruption_was_taken_is_kept_and_a_running_one_is_not_waited_for(engine):
+    """Its recording is written: left out of the journal, the resuming command ran and wrote it again (Ctrl-C on an
+    embedded cluster left 15 recordings beside a summary of 13). The run in progress is abandoned at once."""
+    done = subprocess.run([sys.executable, "-c", INTERRUPTED_WITH_A_RUN_DONE, engine], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    said = json.loads(done.stdout.strip().splitlines()[-1])
+    assert said["finished"] == 2 and said["told"] == [[0, ""], [1, ""]], said
+    assert said["s"] < 30  # run 2 (a minute) was not waited for
+
+
 def test_no_worker_outlives_its_parent():
     """The local workers watch their parent: one killed with SIGKILL leaves none running."""
     code = ("import time\nfrom app.core.engines import LocalEngine\n"
