@@ -70,16 +70,23 @@ def _sweep(args: argparse.Namespace) -> int:
     if "feedforward" in plan.controllers:
         for controller, index in candidates:
             c = compare(rows, index, controller)
-            print(f"{controller} g{index} against feedforward over {c.pairs} paired runs: where feedforward fails "
-                  f"({c.ff_fail_cases} scene × load cases) it traverses {100 * c.fb_success_in_those:.0f}% against "
-                  f"{100 * c.ff_success_in_those:.0f}% (crawling, not falling off a crest: "
-                  f"{100 * c.fb_crawled_in_those:.0f}% against {100 * c.ff_crawled_in_those:.0f}%; median crawl before "
-                  f"a fall or roll {c.fb_crawl_in_those:.2f} against {c.ff_crawl_in_those:.2f} m); median advance ratio "
-                  f"{c.median_advance_ratio:.2f} (the tail point's {c.median_tail_advance_ratio:.2f}; the centroid's "
-                  f"where both traverse {c.median_advance_ratio_both_traversed:.2f}); overloads "
-                  f"{c.fb_overloads} against {c.ff_overloads}; where both traverse, {100 * c.slower_where_ff_succeeds:+.0f}% "
-                  f"time to traverse" + (f"; {c.invalid_runs} invalid run(s) and their pairs left out"
-                                         if c.invalid_runs else ""))
+            fails = c.ff_fail_cases
+            print(f"{controller} g{index} against feedforward over {c.pairs} paired runs:")
+            if fails:
+                print(f"  where feedforward fails ({fails} scene × load case{'s' if fails != 1 else ''}): it traverses "
+                      f"{100 * c.fb_success_in_those:.0f}% against {100 * c.ff_success_in_those:.0f}%; crawling, not "
+                      f"falling off a crest, {100 * c.fb_crawled_in_those:.0f}% against "
+                      f"{100 * c.ff_crawled_in_those:.0f}%; median crawl before a fall or roll "
+                      f"{_number(c.fb_crawl_in_those, '.2f', ' m')} against {_number(c.ff_crawl_in_those, '.2f', ' m')}")
+            else:
+                print("  feedforward traversed in every scene × load case: nothing to compare where it fails")
+            positive = "none (no pair advanced forward under both)"
+            print(f"  median advance ratio {_number(c.median_advance_ratio, '.2f', '×', positive)} (the tail point's "
+                  f"{_number(c.median_tail_advance_ratio, '.2f', '×', 'none')}; the centroid's where both traverse "
+                  f"{_number(c.median_advance_ratio_both_traversed, '.2f', '×', 'none')}); overloads {c.fb_overloads} "
+                  f"against {c.ff_overloads}; where both traverse, time to traverse "
+                  f"{_number(100 * c.slower_where_ff_succeeds, '+.0f', '%', 'none (no pair where both traverse)')}"
+                  + (f"; {c.invalid_runs} invalid run(s) and their pairs left out" if c.invalid_runs else ""))
     for row in failed:
         print(f"run {row['run']} ({row['scene']}, {row['controller']}, {row['tail_load_N']} N, seed {row['seed']}) "
               f"{row['file']}")
@@ -88,6 +95,11 @@ def _sweep(args: argparse.Namespace) -> int:
               f"{row['invalid_reason']}: left out of every figure", file=sys.stderr)
     print(f"wrote {len(rows)} runs, summary.csv and summary.svg in {args.out}")
     return 1 if failed else EXIT_INVALID if invalid else 0
+
+
+def _number(value: float, spec: str, unit: str, missing: str = "none") -> str:
+    """``value`` formatted, or ``missing`` where no pair gave it (never a bare "nan")."""
+    return f"{value:{spec}}{unit}" if math.isfinite(value) else missing
 
 
 def _percent(fraction: float) -> str:
