@@ -302,8 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
                                  "127.0.0.1, or --scheduler's)")
     experiment.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                             help="with --engine dask: an existing Dask scheduler (default: start one here)")
-    experiment.add_argument("--out", required=True, metavar="REC.h5|DIR", help="the recording (run, obstacle) or "
-                                                                               "a new folder (sweep)")
+    experiment.add_argument("--out", required=True, metavar="REC.h5|DIR",
+                            help="the recording (run, obstacle) or the folder (sweep, evaluate, tune: a new one, or "
+                                 "one the same command left unfinished, which it resumes)")
     experiment.add_argument("--jobs", type=int, default=None, metavar="N",
                             help="sweep, evaluate, tune: runs at a time (default and at most: the machine's cores, "
                                  "and no more than the runs)")
