@@ -439,7 +439,8 @@ told = []
 def on_done(k, row, error):
     told.append((k, error))
     if len(told) == 1:
-        time.sleep(1.5)  # the interruption being taken: run 1 finishes meanwhile; run 2 has started
+        # Deliberate: the interruption being taken; run 1 finishes meanwhile, run 2 has started.
+        time.sleep(1.5)
         raise KeyboardInterrupt
 engine = engines.DaskEngine(2) if sys.argv[1] == "dask" else engines.LocalEngine(2)
 started = time.monotonic()
