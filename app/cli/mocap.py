@@ -75,6 +75,9 @@ def _import(args: argparse.Namespace) -> int:
     robot = recording.robot
     if robot is not None and robot.present_rad.shape[1] != n_segments:
         raise MocapFileError(f"{rec}: /robot has {robot.present_rad.shape[1]} joints, the config {n_segments}")
+    if args.offset is not None:
+        _refuse_an_offset_off_the_recording(args.offset, take.time_s, [recording.time_s,
+                                                                       robot.time_s if robot else None])
     shown = [0.0]
 
     def progress(done: int, total: int) -> None:
@@ -97,6 +100,23 @@ def _import(args: argparse.Namespace) -> int:
         print(f"  {line}")
     print(f"wrote {out}: {rec.name} with /mocap ({take.source})")
     return 0
+
+
+def _refuse_an_offset_off_the_recording(offset_s: float, take_time_s: np.ndarray,
+                                        clocks: list[np.ndarray | None]) -> None:
+    """A given ``--offset`` that puts the take beside the recording, not on it (``--offset 500`` on a 2.4 s run; 1e300
+    wrote every frame at the same time): refused, naming both spans. Only where both have times."""
+    recorded = [np.asarray(t, dtype=float) for t in clocks if t is not None and len(t)]
+    recorded = [t[np.isfinite(t)] for t in recorded]
+    recorded = [t for t in recorded if t.size]
+    if not recorded or not len(take_time_s):
+        return
+    span = float(take_time_s[-1] - take_time_s[0])
+    first, last = min(float(t[0]) for t in recorded), max(float(t[-1]) for t in recorded)
+    if offset_s > last or offset_s + span < first:
+        raise ValueError(f"--offset {offset_s:g}: the take ({span:.2f} s) would lie at {offset_s:.6g} … "
+                         f"{offset_s + span:.6g} s, the recording at {first:.3f} … {last:.3f} s: they do not "
+                         "overlap; give the recording time (s) of the take's first frame")
 
 
 def _simulate(args: argparse.Namespace) -> int:

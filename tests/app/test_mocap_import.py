@@ -124,6 +124,14 @@ def test_a_given_offset_places_the_take_there(run, tmp_path, capsys):
         assert f["mocap"].attrs["clock_offset_how"].startswith("given")
         assert np.isnan(f["mocap"].attrs["clock_offset_confidence"])
     assert "given" in capsys.readouterr().out
+    # an offset that puts the take beside the recording, not on it, is refused naming both spans (1e300 wrote every
+    # frame at one time)
+    for offset in ("500", "1e300", "-1e17"):
+        bad = tmp_path / f"off{offset}.h5"
+        assert main(["mocap", "import", str(take.path), "--rec", str(run), f"--offset={offset}", "--out", str(bad)]) == 1
+        line = capsys.readouterr().err.strip().splitlines()[-1]
+        assert "do not overlap" in line and f"--offset {float(offset):g}" in line, line
+        assert not bad.exists()
 
 
 def _c3d(path, labels, units="mm", frames=5):
