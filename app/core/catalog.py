@@ -130,7 +130,10 @@ def _read_h5(f: h5py.File, entry: dict[str, Any]) -> None:
         for key in ("uid", "plan_name", "seed", "trial", "series_uid", "note", "app_version"):
             if start.get(key) is not None:
                 entry[key] = start[key]
-        if isinstance(start.get("time"), (int, float)):
+        if isinstance(start.get("time"), (int, float)) and entry.get("start_epoch") is None:
+            # the file's "started" (what the listing shows, and what --since is compared with) when it has one:
+            # the document's time is when run_start was written, up to a second earlier, and a --since copied
+            # from the listing left the run out
             entry["start_epoch"] = float(start["time"])
     if stop is not None:
         for key in ("exit_status", "reason", "outcome"):
@@ -343,9 +346,11 @@ def parse_where(condition: str) -> tuple[Column, str]:
     value = value.strip()
     if column.sql_type != "TEXT" and value:
         try:
-            float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"--where {condition!r}: {column.name} is a number") from None
+        if not math.isfinite(number):  # inf matched every run (|x − inf| ≤ 1e-9 · inf)
+            raise ValueError(f"--where {condition!r}: {column.name} is a finite number")
     if column.name == "path" and value:
         value = str(Path(value).resolve())
     return column, value

@@ -95,6 +95,22 @@ def test_since_and_numbers_filter(tmp_path, capsys):
     tomorrow = time.strftime("%Y-%m-%d", time.localtime(time.time() + 86400))
     assert main(["runs", "list", "--dir", str(folder), "--since", tomorrow, "--format", "csv"]) == 0
     assert _csv(capsys) == []
+    # inf (or 1e400) matched every run (|x − inf| ≤ 1e-9·inf): refused, naming the key
+    for bad in ("speed=inf", "seed=1e400", "tail_load=-inf"):
+        assert main(["runs", "list", "--dir", str(folder), "--where", bad]) != 0
+        assert "is a finite number" in capsys.readouterr().err
+    # --since compares with the start the listing shows (the file's "started", to the millisecond), not the run
+    # document's time, written up to a second before it: a --since copied from the listing kept the run
+    with h5py.File(folder / "fast.h5", "r+") as f:
+        f.attrs["started"] = "2026-12-06T04:11:56.356+00:00"
+        start = json.loads(f.attrs["run_start"])
+        start["time"] = 1796530316.05  # 2026-12-06T04:11:56.050+00:00
+        f.attrs["run_start"] = json.dumps(start)
+    for since, listed in (("2026-12-06T04:11:56.356+00:00", ["fast.h5"]), ("2026-12-06T04:11:56.3+00:00", ["fast.h5"]),
+                          ("2026-12-06T04:11:56.357+00:00", [])):
+        assert main(["runs", "list", "--dir", str(folder), "--since", since, "--where", "speed=0.05",
+                     "--format", "csv"]) == 0
+        assert [os.path.basename(r["file"]) for r in _csv(capsys)] == listed, since
 
 
 def test_a_sync_says_how_far_it_got_and_a_cancelled_one_stops_between_files(tmp_path):
