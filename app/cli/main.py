@@ -19,7 +19,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from typing import NoReturn
 
-from app.core.outputs import check_output
+from app.core.outputs import check_output, refuse_replacing_a_recording
 
 # Errors a user can cause and fix. Every project error subclasses one of these builtins
 # (ConfigError(ValueError), NoReplyError(TimeoutError), CsvFormatError(ValueError), …).
@@ -81,6 +81,8 @@ def refuse_outputs_onto_inputs(command: str, args: argparse.Namespace) -> None:
         folder_wanted = folder_wanted or command == "trials"  # sensnake trials --out DIR: the series' folder
         if value and not folder_wanted and not os.path.isdir(value):  # a folder: refused by the writer, in its words
             check_output(value)  # a device, FIFO, socket or link loop: refused before anything runs
+            # nor a recording (another run's raw data); an estimate or repair may replace its own input's copy
+            refuse_replacing_a_recording(value, tuple(read) if command in ("estimate", "repair") else ())
 
 
 class _OneLineErrorParser(argparse.ArgumentParser):

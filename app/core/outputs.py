@@ -199,6 +199,46 @@ def replace_text(out: str | os.PathLike[str], text: str) -> None:
         handle.write(text)
 
 
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _run_uid(path: Path) -> str | None:
+    """The ``run_start`` uid of the HDF5 file at ``path`` (None: none, or unreadable)."""
+    import json
+
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            text = f.attrs.get("run_start")
+        text = text.decode("utf-8", "replace") if isinstance(text, bytes) else text
+        uid = json.loads(text).get("uid") if isinstance(text, str) and text else None
+    except (OSError, ValueError, AttributeError, TypeError):
+        return None
+    return str(uid) if uid else None
+
+
+def refuse_replacing_a_recording(out: str | os.PathLike[str],
+                                 same_run_as: tuple[str | os.PathLike[str], ...] = ()) -> None:
+    """:class:`OutputPathError` when ``out`` is an HDF5 file (a recording holds raw data nothing else does) that is
+    not a copy of the same run as one of ``same_run_as`` (an estimate or repair of a recording may replace its own
+    earlier copy). A CSV, a JSON or a figure written over a recording, or a run over another run, lost it."""
+    target = Path(out)
+    try:
+        with open(target, "rb") as f:
+            head = f.read(len(HDF5_SIGNATURE))
+    except OSError:
+        return  # missing, or not a regular file: the other checks name it
+    if head != HDF5_SIGNATURE:
+        return
+    uid = _run_uid(target)
+    if uid is not None and any(_run_uid(Path(p)) == uid for p in same_run_as if os.path.isfile(p)):
+        return
+    what = f"a recording (run {uid})" if uid else "an HDF5 file (a recording?)"
+    raise OutputPathError(f"{out} is {what}: an output never replaces a recording; choose another name, or move it "
+                          "away first")
+
+
 def check_new_file(out: str | os.PathLike[str], why: str) -> None:
     """OSError naming ``out`` when a new file cannot go there: something is at ``out`` (a file, a symbolic link, a
     device, …: FileExistsError; ``why`` says why an existing file is kept) or its folder is missing

@@ -242,3 +242,28 @@ def test_a_non_numeric_cell_is_a_flagged_gap_not_a_refused_file(tmp_path, capsys
     text_time.write_text("time_s,S06B\n0,1e-4\nsoon,1e-4\n")
     assert main(["estimate", str(text_time), "--cal", str(cal), "--out", str(out)]) == 1
     assert "time.csv:3: column 'time_s' holds 'soon'" in capsys.readouterr().err
+
+
+def test_an_output_never_replaces_a_recording_but_a_copy_of_the_same_run_may_be_made_again(tmp_path, capsys):
+    """A CSV, another run or another run's copy written over a recording lost raw data nothing else holds (exit 0,
+    no word). A repair or estimate of a recording may replace its own earlier copy."""
+    import hashlib
+
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    for path in (a, b):
+        assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(path)]) == 0
+    capsys.readouterr()
+    digest = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (a, b)}
+    for argv in (["export", str(a), "--csv", str(b)],
+                 ["repair", str(a), "--out", str(b)],
+                 ["record", "--daq", "sim", "--seconds", "0.5", "--out", str(a)]):
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "an output never replaces a recording" in err and "(run " in err, err
+    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (a, b)} == digest
+    copy = tmp_path / "a-copy.h5"
+    assert main(["repair", str(a), "--out", str(copy)]) == 0
+    assert main(["repair", str(a), "--out", str(copy)]) == 0  # the same run's copy, made again
+    text = tmp_path / "notes.txt"
+    text.write_text("not a recording\n", encoding="utf-8")
+    assert main(["export", str(a), "--csv", str(text)]) == 0  # other files are replaced as before
