@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from app.core.catalog import COLUMNS, Catalog
+from app.core.catalog import COLUMNS, Catalog, unreadable_words
 from app.core.recording import check_input
 from app.core.run_documents import read_documents
 from app.core.user_folders import recordings_dir
@@ -74,6 +74,8 @@ def _list(args: argparse.Namespace) -> int:
             print(f"sensnake runs: {catalog.note}", file=sys.stderr)
         if folder.is_dir():
             catalog.sync(folder, progress=_Reading())
+            if catalog.unreadable:
+                print(f"sensnake runs: note: {unreadable_words(catalog.unreadable)}", file=sys.stderr)
         if not given:
             catalog.prune()
         rows = catalog.query(folder if given else None, args.where, args.since)
@@ -136,6 +138,8 @@ def _reindex(args: argparse.Namespace) -> int:
         if catalog.note:
             print(f"sensnake runs: {catalog.note}", file=sys.stderr)
         read, forgotten = catalog.sync(folder, force=True, progress=_Reading())
+        if catalog.unreadable:
+            print(f"sensnake runs: note: {unreadable_words(catalog.unreadable)}", file=sys.stderr)
         where = catalog.path
     print(f"indexed {read} recording(s) under {folder} in {time.perf_counter() - started:.1f} s"
           + (f"; {forgotten} gone, forgotten" if forgotten else "") + f"; catalog {where}")

@@ -187,6 +187,7 @@ class Catalog:
         self.path = catalog_path() if path is None else path
         self.busy_timeout_s = busy_timeout_s
         self.note = ""  # what happened to the database on opening (rebuilt, in memory), for the user
+        self.unreadable: list[tuple[Path, str]] = []  # the folders the last sync could not list, and why
         self._db = self._open()
 
     # -- opening, and rebuilding what cannot be read ----------------------------------------------------------------
@@ -270,7 +271,8 @@ class Catalog:
         known = {row[0]: (row[1], row[2]) for row in self._db.execute(
             "SELECT path, mtime_ns, size FROM runs WHERE path >= ? AND path < ?", _prefix_range(root))}
         changed, seen = [], set()
-        for path, stat in _recordings_under(root):
+        self.unreadable = []
+        for path, stat in _recordings_under(root, self.unreadable):
             key = str(path)
             seen.add(key)
             if force or known.get(key) != (stat.st_mtime_ns, stat.st_size):
@@ -287,7 +289,9 @@ class Catalog:
         if progress is not None and changed:
             progress(len(changed), len(changed))
         self.put(entries)
-        gone = [p for p in known if p not in seen]
+        # a folder that could not be listed hides its recordings, it does not remove them: they are not forgotten
+        blocked = tuple(str(folder).rstrip(os.sep) + os.sep for folder, _ in self.unreadable)
+        gone = [p for p in known if p not in seen and not p.startswith(blocked)]
         self.forget(gone)
         return len(entries), len(gone)
 
@@ -369,14 +373,16 @@ def _prefix_range(root: Path) -> tuple[str, str]:
     return prefix, prefix[:-1] + chr(ord(os.sep) + 1)
 
 
-def _recordings_under(root: Path) -> Iterator[tuple[Path, os.stat_result]]:
-    """Every recording file under ``root`` (recursively; hidden files and folders — writers' temporaries — left out)."""
+def _recordings_under(root: Path, unreadable: list[tuple[Path, str]]) -> Iterator[tuple[Path, os.stat_result]]:
+    """Every recording file under ``root`` (recursively; hidden files and folders — writers' temporaries — left out).
+    A folder that cannot be listed is added to ``unreadable`` with the reason."""
     stack = [root]
     while stack:
         folder = stack.pop()
         try:
             entries = list(os.scandir(folder))
-        except OSError:
+        except OSError as exc:
+            unreadable.append((folder, exc.strerror or type(exc).__name__))
             continue
         for entry in entries:
             if entry.name.startswith("."):
@@ -388,6 +394,15 @@ def _recordings_under(root: Path) -> Iterator[tuple[Path, os.stat_result]]:
                     yield Path(entry.path), entry.stat()
             except OSError:
                 continue
+
+
+def unreadable_words(unreadable: list[tuple[Path, str]]) -> str:
+    """One line for the folders a sync could not list ("" when none)."""
+    if not unreadable:
+        return ""
+    shown = "; ".join(f"{folder} ({why})" for folder, why in unreadable[:3])
+    more = f" and {len(unreadable) - 3} more" if len(unreadable) > 3 else ""
+    return (f"{len(unreadable)} folder(s) could not be read, their recordings are not listed: {shown}{more}")
 
 
 def index_quietly(path: str | Path) -> None:

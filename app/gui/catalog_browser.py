@@ -27,7 +27,7 @@ from typing import Any
 from PySide6.QtCore import QObject, Qt, Signal
 
 from app.core import user_folders
-from app.core.catalog import Catalog
+from app.core.catalog import Catalog, unreadable_words
 from app.gui.thread_bridge import ThreadBridge
 from widgets import theme
 from widgets.catalog_view import FILTERS, CatalogView
@@ -66,6 +66,8 @@ def read_catalog(folder: Path | None, where: Sequence[str], since: str | None, s
             if folder is not None and folder.is_dir():
                 # a pause between files (the wait releases the GIL): an in-process control loop keeps its ticks
                 read, forgotten = catalog.sync(folder, cancelled=lambda: cancelled.wait(YIELD_S), progress=progress)
+                if catalog.unreadable:
+                    notes.append(unreadable_words(catalog.unreadable))
             forgotten += catalog.prune()
             everything = catalog.query()
             choices = {key: sorted({str(r[key]) for r in everything if r.get(key) not in (None, "")})

@@ -152,3 +152,33 @@ def test_runs_list_on_a_terminal_shows_its_reading_then_wipes_it(tmp_path, capsy
     assert len(list(csv.DictReader(io.StringIO(captured.out)))) == 3  # the listing itself is untouched
     assert "reading recordings: 2 of 3" in captured.err and "reading recordings: 3 of 3" in captured.err
     assert captured.err.endswith("\r") and captured.err.rstrip("\r").split("\r")[-1].strip() == ""  # wiped
+
+
+def test_a_folder_that_cannot_be_read_is_said_and_its_recordings_are_not_forgotten(tmp_path, capsys, monkeypatch):
+    """An unreadable folder listed as empty, silently ("0 run(s)"), and its recordings left the catalog."""
+    from app.core import catalog as catalog_module
+
+    folder = tmp_path / "runs"
+    (folder / "locked").mkdir(parents=True)
+    write_trial(folder / "open.h5", scene="step", duration_s=1)
+    write_trial(folder / "locked" / "hidden.h5", scene="flat", duration_s=1)
+    monkeypatch.setenv("SENSNAKE_DATA_DIR", str(tmp_path / "data"))
+    assert main(["runs", "list", "--dir", str(folder), "--format", "csv"]) == 0
+    assert len(_csv(capsys)) == 2
+    scandir = os.scandir
+
+    def refusing(path):  # what a folder without read permission does (root bypasses chmod, so it is pretended)
+        if os.fspath(path).endswith("locked"):
+            raise PermissionError(13, "Permission denied", os.fspath(path))
+        return scandir(path)
+
+    monkeypatch.setattr(catalog_module.os, "scandir", refusing)
+    assert main(["runs", "list", "--dir", str(folder), "--format", "csv"]) == 0
+    captured = capsys.readouterr()
+    # the catalog still holds what the folder hid (the file is there); the note says the folder was not read
+    assert sorted(os.path.basename(r["file"]) for r in csv.DictReader(io.StringIO(captured.out))) == \
+        ["hidden.h5", "open.h5"]
+    assert "1 folder(s) could not be read" in captured.err and "locked (Permission denied)" in captured.err
+    (folder / "open.h5").unlink()
+    assert main(["runs", "list", "--dir", str(folder), "--format", "csv"]) == 0
+    assert [os.path.basename(r["file"]) for r in _csv(capsys)] == ["hidden.h5"]  # a file really gone is forgotten
