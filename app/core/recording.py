@@ -1239,6 +1239,17 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
                "conductance_S": _dataset(f, path, "daq/conductance_S", _FLOAT, 2, n_channels, per_channel)}
     # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
     n = min(min(d.shape[0] for d in columns.values()), cap.get("daq", big))
+    if not salvage:  # a time that is no time (NaN, inf) or that runs backwards: damage, never read as data
+        times = columns["time_s"][:n]
+        bad = np.flatnonzero(~np.isfinite(times))
+        if bad.size:
+            raise RecordingFormatError(f"{path}: damaged SenSnake recording (/daq/time_s row {int(bad[0])} is "
+                                       f"{float(times[bad[0]])}; {bad.size} row(s) not a time)")
+        back = np.flatnonzero(np.diff(times) < 0)
+        if back.size:
+            k = int(back[0]) + 1
+            raise RecordingFormatError(f"{path}: damaged SenSnake recording (/daq/time_s runs backwards at row {k}: "
+                                       f"{float(times[k - 1]):.6g} then {float(times[k]):.6g} s)")
     forces = calibration = None
     status = None
     if _present(f, "forces", salvage) and cap.get("forces", big) > 0:

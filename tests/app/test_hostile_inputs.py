@@ -343,3 +343,21 @@ def test_a_recording_declaring_rows_it_never_stored_is_refused_before_it_is_read
         assert main(argv) == 1
         line = one_error_line(capsys)
         assert "forged.h5: /daq/time_s declares 60,000,000 rows" in line and "not read" in line, line
+
+
+@pytest.mark.parametrize("damage", ["nan", "backwards"])
+def test_a_recording_whose_board_times_are_not_times_is_refused_by_every_reader(tmp_path: Path, damage: str,
+                                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A NaN time, or one that runs backwards, was exported as it was and fed the repeatability report (a recording
+    against its own copy: s.d. 0.006 N instead of 0). Named as damage, never read as data."""
+    rec = tmp_path / "r.h5"
+    assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(rec)]) == 0
+    with h5py.File(rec, "r+") as f:
+        times = f["daq/time_s"]
+        times[5] = np.nan if damage == "nan" else float(times[3]) - 1.0
+    capsys.readouterr()
+    assert main(["export", str(rec), "--csv", str(tmp_path / "r.csv")]) == 1
+    line = one_error_line(capsys)
+    assert "damaged SenSnake recording" in line and "/daq/time_s" in line
+    assert ("row 5 is nan" if damage == "nan" else "runs backwards at row 5") in line
+    assert not (tmp_path / "r.csv").exists()

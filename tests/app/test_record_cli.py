@@ -222,9 +222,11 @@ def test_a_recording_gets_the_umask_or_keeps_the_mode_of_the_file_it_replaces(fa
             out.unlink(missing_ok=True)
             assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(out)]) == 0
             assert mode(out) == expected, f"umask {mask:03o}: {mode(out):03o}"
-        os.chmod(out, 0o640)
-        assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(out)]) == 0
-        assert mode(out) == 0o640
+        kept = tmp_path / "kept.h5"  # a file that is not a recording (a recording is never replaced)
+        kept.write_bytes(b"old")
+        os.chmod(kept, 0o640)
+        assert main(["record", "--daq", "sim", "--seconds", "0.5", "--out", str(kept)]) == 0
+        assert mode(kept) == 0o640
         fixed = tmp_path / "fixed.h5"
         fixed.write_bytes(b"old")
         os.chmod(fixed, 0o604)
