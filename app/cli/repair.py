@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from app.core.errors import RecordingFormatError
-from app.core.recording import check_input, open_recording, repair_recording, write_recording
+from app.core.recording import carry_groups, check_input, copy_recording, open_recording, repair_recording
 from app.core.run_documents import carry_documents
 
 
@@ -24,10 +24,12 @@ def run(args: argparse.Namespace) -> int:
     except RecordingFormatError:
         report = repair_recording(path, out)
         carry_documents(path, out, salvaged=report.text)  # the run it was, and that it was cut short
-        print(f"{report.text}; wrote {out}")
+        carried, lost = carry_groups(path, out)  # the physics lab's /sim, /control, /mocap, … where they read whole
+        said = (f"; also kept whole: {', '.join(carried)}" if carried else "") + \
+            (f"; not salvaged (damaged): {', '.join(lost)}" if lost else "")
+        print(f"{report.text}{said}; wrote {out}")
         return 0
-    write_recording(recording, out)
-    carry_documents(path, out)
+    copy_recording(path, out)  # as it is: every group and attribute (a rewrite kept only the board's and robot's)
     print(f"{path.name} is not damaged: all {recording.n_samples} board samples ({recording.duration_s:.1f} s) "
-          f"copied to {out}")
+          f"and everything else in it copied as it is to {out}")
     return 0

@@ -1050,8 +1050,7 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
     complete; ``path`` is never changed."""
     path, out = Path(path), Path(out)
     with _written_into_place(out) as work:
-        with open(path, "rb") as source, open(work, "wb") as target:
-            shutil.copyfileobj(source, target, 8 << 20)
+        _copy_file(path, work)
         with h5py.File(work, "r+", locking=False) as f:
             if "forces" in f:
                 del f["forces"]
@@ -1061,6 +1060,43 @@ def write_reestimated(path: str | Path, out: str | Path, force_n: np.ndarray, st
             forces.create_dataset("force_N", data=np.asarray(force_n, dtype=np.float64), chunks=True)
             forces.create_dataset("status", data=np.asarray(status, dtype=np.int8), chunks=True)
     return out
+
+
+def _copy_file(path: Path, work: Path) -> None:
+    with open(path, "rb") as source, open(work, "wb") as target:
+        shutil.copyfileobj(source, target, 8 << 20)
+
+
+def copy_recording(path: str | Path, out: str | Path) -> Path:
+    """An undamaged recording copied as it is, byte for byte (every group, its /sim, /control, /mocap and
+    attributes included), beside ``out`` under a hidden name and moved into place complete."""
+    path, out = Path(path), Path(out)
+    with _written_into_place(out) as work:
+        _copy_file(path, work)
+    return out
+
+
+def carry_groups(source: str | Path, copy: str | Path) -> tuple[list[str], list[str]]:
+    """Copy into ``copy`` (a salvaged recording) the top-level groups of ``source`` it lacks (/sim, /control,
+    /mocap, …) that read whole; returns (carried, lost): the groups copied and those the damage made unreadable."""
+    carried: list[str] = []
+    lost: list[str] = []
+    try:
+        src = h5py.File(source, "r", locking=False)
+    except OSError:
+        return carried, lost
+    with src, h5py.File(copy, "a", locking=False) as dst:
+        for name in list(src):
+            if name in dst:
+                continue
+            try:
+                src.copy(src[name], dst, name=name)
+                carried.append(f"/{name}")
+            except _DAMAGE_ERRORS + (OSError,):
+                with contextlib.suppress(KeyError, OSError):
+                    del dst[name]
+                lost.append(f"/{name}")
+    return carried, lost
 
 
 @contextlib.contextmanager

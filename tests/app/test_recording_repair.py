@@ -171,3 +171,26 @@ def test_the_forces_tab_opens_a_truncated_recording_saying_how_much_was_recovere
         tab.shutdown()
         lab.close()
     assert cut.read_bytes() == before
+
+
+def test_repair_keeps_what_it_does_not_model_the_physics_labs_sim_and_control(good_file, tmp_path, capsys):
+    """An intact recording was rewritten from what the reader models (board, robot, forces, events): the physics
+    lab's /sim, /control and /mocap were dropped while it said "not damaged ... copied". Now it is copied as it is;
+    a salvaged copy is given the source's other groups that read whole, and says which."""
+    from app.core.recording import carry_groups
+
+    source = tmp_path / "with_sim.h5"
+    source.write_bytes(good_file.read_bytes())
+    with h5py.File(source, "a") as f:
+        f.create_group("sim").create_dataset("time_s", data=np.arange(10.0))
+        f.create_group("control").attrs["controller"] = "feedback"
+    out = tmp_path / "copy.h5"
+    assert main(["repair", str(source), "--out", str(out)]) == 0
+    assert "everything else in it copied as it is" in capsys.readouterr().out
+    assert out.read_bytes() == source.read_bytes()
+    salvaged = tmp_path / "salvaged.h5"
+    assert main(["repair", str(truncate(good_file, tmp_path, 0.95)), "--out", str(salvaged)]) == 0
+    assert carry_groups(source, salvaged) == (["/control", "/sim"], [])
+    with h5py.File(salvaged, "r") as f:
+        np.testing.assert_array_equal(f["sim/time_s"][:], np.arange(10.0))
+        assert f["control"].attrs["controller"] == "feedback"
