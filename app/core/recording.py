@@ -53,7 +53,7 @@ from app.core.outputs import (
     open_lock_file,
     temporary_stem,
 )
-from app.core.run_documents import RUN_START, document_text, reserve_run_stop
+from app.core.run_documents import RUN_START, RUN_STOP, document_text, parse_document, reserve_run_stop
 
 FORMAT = "sensnake-recording"
 VERSION = 1
@@ -1275,6 +1275,14 @@ def _read(f: h5py.File, path: Path, limits: dict[str, int] | None = None) -> Rec
                "conductance_S": _dataset(f, path, "daq/conductance_S", _FLOAT, 2, n_channels, per_channel)}
     # A crash between two dataset resizes leaves columns of different lengths: keep the rows all of them have.
     n = min(min(d.shape[0] for d in columns.values()), cap.get("daq", big))
+    lengths = {name: d.shape[0] for name, d in columns.items()}
+    stop = parse_document(f.attrs.get(RUN_STOP)) if len(set(lengths.values())) > 1 and not salvage else None
+    if stop is not None and stop.get("exit_status") in ("success", "abort"):
+        # ... but a recording closed normally (its run_stop written after the file was complete) has none (a run cut
+        # short is given a "fail" run_stop later, on a file as the crash left it)
+        told = ", ".join(f"{name} {rows}" for name, rows in lengths.items())
+        raise RecordingFormatError(f"{path}: damaged SenSnake recording (its /daq columns differ in length: {told} "
+                                   "rows, in a recording that was closed normally)")
     if not salvage:  # a time that is no time (NaN, inf) or that runs backwards: damage, never read as data
         times = columns["time_s"][:n]
         bad = np.flatnonzero(~np.isfinite(times))
