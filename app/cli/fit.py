@@ -152,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--window start must be before its end, got {window[0]:g} {window[1]:g}")
     if Path(args.out).exists():
         calfiles.read_calibration(args.out)  # refuse an unknown format/version before spending time fitting
+    folder = Path(args.out).parent
+    if not folder.is_dir():  # said before the fit, not after it
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise ValueError(f"--out {args.out}: the folder {folder} {what}")
     trials = []
     for path in args.trials:
         trial = calfiles.read_trial_csv(path)

@@ -83,11 +83,11 @@ def _text(value: Any) -> str:
 def _epoch(iso: str) -> float | None:
     try:
         moment = datetime.fromisoformat(iso.replace("Z", "+00:00"))
-    except ValueError:
+        if moment.tzinfo is None:
+            moment = moment.astimezone()  # a naive time is the machine's local time
+        return moment.timestamp()
+    except (ValueError, OverflowError, OSError):  # not a time, or one no clock holds (year 1 in local time)
         return None
-    if moment.tzinfo is None:
-        moment = moment.astimezone()  # a naive time is the machine's local time
-    return moment.timestamp()
 
 
 def read_entry(path: str | Path) -> dict[str, Any]:

@@ -95,6 +95,10 @@ def test_since_and_numbers_filter(tmp_path, capsys):
     tomorrow = time.strftime("%Y-%m-%d", time.localtime(time.time() + 86400))
     assert main(["runs", "list", "--dir", str(folder), "--since", tomorrow, "--format", "csv"]) == 0
     assert _csv(capsys) == []
+    # a date no local clock may hold (year 1) is a time or a refusal naming --since, never another error's words
+    code = main(["runs", "list", "--dir", str(folder), "--since", "0001-01-01", "--format", "csv"])
+    err = capsys.readouterr().err
+    assert code == 0 or "--since '0001-01-01'" in err, err
     # inf (or 1e400) matched every run (|x − inf| ≤ 1e-9·inf): refused, naming the key
     for bad in ("speed=inf", "seed=1e400", "tail_load=-inf"):
         assert main(["runs", "list", "--dir", str(folder), "--where", bad]) != 0

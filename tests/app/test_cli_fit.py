@@ -110,6 +110,16 @@ def test_fit_without_physics_uses_the_papers_constants_and_says_so(lab, tmp_path
     assert stored == PhysicsConstants().to_dict()
 
 
+def test_an_out_in_a_missing_folder_is_refused_before_the_fit(lab, tmp_path, capsys, monkeypatch):
+    from app.cli import fit as fit_command
+
+    _, paths = lab
+    monkeypatch.setattr(fit_command.calfiles, "read_trial_csv", lambda path: pytest.fail("the fit ran first"))
+    code, _, err = _run(["fit", paths[0], "--sensor", "S01L", "--area", AREA, "--out",
+                         str(tmp_path / "nodir" / "x.json")], capsys)
+    assert code == 1 and "the folder" in err and "nodir does not exist" in err, err
+
+
 def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys, monkeypatch):
     folder, paths = lab
     cal = tmp_path / "cal.json"
