@@ -58,6 +58,7 @@ HOLD_END_FRACTION = 0.9
 HOLD_END_SAMPLES = 3
 # Samples below this fraction of the hold force are left out of the SLS fits (see models.fit_output).
 MIN_FORCE_FRACTION = 0.05
+MIN_TRIAL_SAMPLES = 10  # finite conductance samples a trial needs before it is judged at all
 # Strain for the derivative-free estimate is taken where the force is at least this fraction of the hold force:
 # below it the contact term dominates the reading and the inverted strain is mostly noise.
 DFREE_FORCE_FRACTION = 0.2
@@ -516,6 +517,9 @@ def _check_not_flat(trial: TrialInput) -> None:
     :data:`FLAT_RELATIVE_SPAN` of its level and :data:`FLAT_NOISE_MULTIPLE` × the noise left after smoothing (a
     flat-lined but noisy channel must not pass for a working one)."""
     c = trial.conductance_s[np.isfinite(trial.conductance_s)]
+    if c.size < MIN_TRIAL_SAMPLES:  # too few to smooth: a span of 0 would call a rising reading "flat"
+        raise ValueError(f"{trial.name}: {c.size} conductance sample(s): too few to fit (at least "
+                         f"{MIN_TRIAL_SAMPLES}: a baseline, the loading and a hold)")
     if not (c.size and float(np.max(np.abs(c))) > 1e-12):
         raise FlatSensorError(f"{trial.name}: conductance is zero throughout: the sensor is disconnected (check its "
                               "wiring and board channel); fit refused")

@@ -120,6 +120,15 @@ def test_an_out_in_a_missing_folder_is_refused_before_the_fit(lab, tmp_path, cap
     assert code == 1 and "the folder" in err and "nodir does not exist" in err, err
 
 
+def test_a_trial_of_a_few_rows_is_refused_as_too_few_not_as_a_flat_sensor(tmp_path, capsys):
+    """Three rows whose conductance rises 1000-fold were called "flat (0 S span …, noise nan S)"."""
+    trial = tmp_path / "three.csv"
+    trial.write_text("time_s,force_N,conductance_S\n0,0,1.3e-8\n1,1,1.2e-5\n2,1,2.4e-5\n", encoding="utf-8")
+    code, _, err = _run(["fit", str(trial), "--sensor", "S06B", "--area", AREA, "--out", str(tmp_path / "o.json")],
+                        capsys)
+    assert code == 1 and "3 conductance sample(s): too few to fit" in err and "flat" not in err, err
+
+
 def test_fit_updates_and_keeps_other_sensors(lab, tmp_path, capsys, monkeypatch):
     folder, paths = lab
     cal = tmp_path / "cal.json"
