@@ -204,17 +204,13 @@ HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 def _run_uid(path: Path) -> str | None:
     """The ``run_start`` uid of the HDF5 file at ``path`` (None: none, or unreadable)."""
-    import json
-
-    import h5py
+    from app.core.run_documents import read_documents  # here: outputs is imported where h5py is not wanted
 
     try:
-        with h5py.File(path, "r", locking=False) as f:
-            text = f.attrs.get("run_start")
-        text = text.decode("utf-8", "replace") if isinstance(text, bytes) else text
-        uid = json.loads(text).get("uid") if isinstance(text, str) and text else None
-    except (OSError, ValueError, AttributeError, TypeError):
+        start, _ = read_documents(path)
+    except (OSError, ValueError, KeyError, TypeError, RuntimeError):  # unreadable: no run to name
         return None
+    uid = start.get("uid") if start else None
     return str(uid) if uid else None
 
 

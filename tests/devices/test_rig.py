@@ -13,6 +13,7 @@ from devices.errors import DeviceError, RigForceError
 from devices.rig import CalibrationRig, _hinge_fit_contact
 from devices.sim.clock import SimClock
 from devices.sim.rig import VirtualRig
+from tests.devices.sampling import sampled_rate
 
 FORCE_TOLERANCE_N = 0.2  # the contact angle is found from a noisy current: ±0.03 rad ≈ ±0.15 N
 
@@ -216,13 +217,7 @@ def test_start_ramp_loads_at_the_asked_rate_without_further_goals_and_the_next_m
         rig.move_to(rig.contact_rad)  # at the contact: the whole ramp is loading
         target = rig.start_ramp(3.0, 1.0)
         assert target == pytest.approx(rig.contact_rad + 3.0 / rig.newtons_per_rad, abs=0.002)
-        t0 = time.monotonic()
-        samples = []
-        while time.monotonic() - t0 < 1.4:
-            samples.append((time.monotonic() - t0, rig.applied_force_n()))
-        t, f = np.array(samples).T
-        mid = (t > 0.2) & (t < 0.8)
-        slope = np.polyfit(t[mid], f[mid], 1)[0]
+        _, f, slope = sampled_rate(rig.applied_force_n, 1.4)
         # 3 N in 1 s; the rate is whole units of 0.229 rpm (7 % of this one) and the servo's own profile rounds it
         assert slope == pytest.approx(3.0, rel=0.15)
         assert f[-1] == pytest.approx(3.0, abs=0.1)

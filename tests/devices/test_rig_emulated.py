@@ -11,6 +11,7 @@ import pytest
 
 from devices.config import RigConfig
 from devices.rig import CalibrationRig
+from tests.devices.sampling import sampled_rate
 from tests.emulators.xm430_emulator import EmulatorProcess
 
 
@@ -29,13 +30,7 @@ def test_start_ramp_winds_at_the_rate_asked_and_a_release_goes_at_full_speed(rig
         goals_before = rig_emulator.state(1)["goal_writes"]
         target = rig.start_ramp(3.0, 1.0)  # 3 N over 1 s: 0.61 rad/s, 25 units of 0.229 rpm
         assert target == pytest.approx(rig.contact_rad + 3.0 / rig.newtons_per_rad, abs=0.002)
-        t0 = time.monotonic()
-        samples = []
-        while time.monotonic() - t0 < 1.3:
-            samples.append((time.monotonic() - t0, rig.position_rad()))
-        t, angle = np.array(samples).T
-        mid = (t > 0.2) & (t < 0.8)
-        rate = np.polyfit(t[mid], angle[mid], 1)[0]
+        _, angle, rate = sampled_rate(rig.position_rad, 1.3)
         expected = round((target - rig.contact_rad) / 1.0 / (0.229 * 2 * np.pi / 60)) * 0.229 * 2 * np.pi / 60
         assert rate == pytest.approx(expected, rel=0.05)  # the servo holds the ramp between the host's reads
         assert angle[-1] == pytest.approx(target, abs=0.01)
